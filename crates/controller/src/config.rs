@@ -1,0 +1,588 @@
+//! Rig configuration: the plant sections of `ehactl-plant` plus control, setpoint,
+//! supervisor, run and log sections. Loading validates every field against the parameter
+//! registries and reports the first problem with its dotted path and expected unit.
+
+use crate::pd::PdGains;
+use crate::pi::PiGains;
+use crate::setpoint::{SetpointConfig, SetpointKind, Sweep};
+use crate::supervisor::SupervisorConfig;
+use ehactl_plant::spec::{self, ConfigError, Param, Range};
+use ehactl_plant::PlantParams;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Controlled variable.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum ControlMode {
+    /// PI on the load-cell force (004).
+    Force,
+    /// PD on the piston position (003).
+    Position,
+    /// No feedback: the setpoint (V) goes straight to the valve (open-loop tests).
+    OpenLoop,
+}
+
+/// PI section `[control.pi]`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PiConfig {
+    /// K_P (V/V of scaled error).
+    pub kp: f64,
+    /// I = 1/T_i (1/s).
+    pub integral: f64,
+    /// Error scale (V/N); 004: load-cell sensitivity 0.5097e-3.
+    pub error_scale: f64,
+    /// Lower output limit (V).
+    #[serde(default = "neg_ten")]
+    pub u_min: f64,
+    /// Upper output limit (V).
+    #[serde(default = "ten")]
+    pub u_max: f64,
+    /// Back-calculation gain (1/s); 0 = clamping anti-windup.
+    #[serde(default)]
+    pub tracking: f64,
+    /// Setpoint feed-forward (V/N).
+    #[serde(default)]
+    pub feedforward: f64,
+}
+
+/// PD section `[control.pd]`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PdConfig {
+    /// K_P (V/m).
+    pub kp: f64,
+    /// T_D (s).
+    #[serde(default)]
+    pub td: f64,
+    /// Derivative filter ratio N (-); 0 = unfiltered (003 eq. 32).
+    #[serde(default)]
+    pub filter_n: f64,
+    /// Output limit (V), symmetric.
+    #[serde(default = "ten")]
+    pub u_max: f64,
+    /// Velocity feed-forward (V·s/m).
+    #[serde(default)]
+    pub feedforward_velocity: f64,
+}
+
+fn ten() -> f64 {
+    10.0
+}
+fn neg_ten() -> f64 {
+    -10.0
+}
+
+/// `[control]`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ControlConfig {
+    /// Controlled variable.
+    pub mode: ControlMode,
+    /// PI gains (force mode).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pi: Option<PiConfig>,
+    /// PD gains (position mode).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pd: Option<PdConfig>,
+}
+
+/// `[run]`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Duration (s).
+    pub duration: f64,
+    /// Control rate (Hz); 004: 5 kHz.
+    #[serde(default = "RunConfig::default_rate")]
+    pub control_rate_hz: f64,
+}
+
+impl RunConfig {
+    fn default_rate() -> f64 {
+        5000.0
+    }
+}
+
+/// MCAP chunk compression.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Compression {
+    /// None.
+    None,
+    /// LZ4.
+    #[default]
+    Lz4,
+}
+
+/// `[log]`.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LogConfig {
+    /// Chunk compression.
+    #[serde(default)]
+    pub compression: Compression,
+    /// Record queue capacity (records).
+    #[serde(default = "LogConfig::default_queue")]
+    pub queue_capacity: u64,
+}
+
+impl LogConfig {
+    fn default_queue() -> u64 {
+        65_536
+    }
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        Self {
+            compression: Compression::default(),
+            queue_capacity: Self::default_queue(),
+        }
+    }
+}
+
+/// `[rig]`: description only.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields)]
+pub struct RigInfo {
+    /// Short name.
+    #[serde(default)]
+    pub name: String,
+    /// Free text: what rig, which seed.
+    #[serde(default)]
+    pub description: String,
+}
+
+/// A complete rig config.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RigConfig {
+    /// Description.
+    pub rig: RigInfo,
+    /// Plant.
+    pub plant: PlantParams,
+    /// Control law.
+    pub control: ControlConfig,
+    /// Setpoint.
+    pub setpoint: SetpointConfig,
+    /// Supervisor.
+    pub supervisor: SupervisorConfig,
+    /// Run.
+    pub run: RunConfig,
+    /// Log.
+    pub log: LogConfig,
+}
+
+use Range::*;
+
+const fn p(
+    path: &'static str,
+    unit: &'static str,
+    range: Range,
+    description: &'static str,
+) -> Param {
+    Param {
+        path,
+        unit,
+        description,
+        range,
+        kind: spec::Kind::Float,
+    }
+}
+const fn int(
+    path: &'static str,
+    unit: &'static str,
+    range: Range,
+    description: &'static str,
+) -> Param {
+    Param {
+        path,
+        unit,
+        description,
+        range,
+        kind: spec::Kind::Integer,
+    }
+}
+
+/// Control, setpoint, supervisor, run and log parameters.
+pub const CONTROL_PARAMS: &[Param] = &[
+    p(
+        "control.pi.kp",
+        "V/V",
+        NonNegative,
+        "PI proportional gain K_P (004: 0.57)",
+    ),
+    p(
+        "control.pi.integral",
+        "1/s",
+        NonNegative,
+        "PI integral rate I (004: 386.24)",
+    ),
+    p(
+        "control.pi.error_scale",
+        "V/N",
+        Positive,
+        "error scale, load-cell sensitivity (004: 0.5097e-3)",
+    ),
+    p("control.pi.u_min", "V", Finite, "lower command limit"),
+    p("control.pi.u_max", "V", Finite, "upper command limit"),
+    p(
+        "control.pi.tracking",
+        "1/s",
+        NonNegative,
+        "back-calculation anti-windup gain",
+    ),
+    p(
+        "control.pi.feedforward",
+        "V/N",
+        Finite,
+        "setpoint feed-forward",
+    ),
+    p(
+        "control.pd.kp",
+        "V/m",
+        NonNegative,
+        "PD proportional gain K_P (003 eq. 32)",
+    ),
+    p(
+        "control.pd.td",
+        "s",
+        NonNegative,
+        "derivative time T_D (003 eq. 32)",
+    ),
+    p(
+        "control.pd.filter_n",
+        "-",
+        NonNegative,
+        "derivative filter ratio N",
+    ),
+    p("control.pd.u_max", "V", Positive, "command limit"),
+    p(
+        "control.pd.feedforward_velocity",
+        "V·s/m",
+        Finite,
+        "velocity feed-forward",
+    ),
+    p(
+        "setpoint.initial",
+        "N or m",
+        Finite,
+        "initial value / lower bound",
+    ),
+    p(
+        "setpoint.final",
+        "N or m",
+        Finite,
+        "final value / upper bound",
+    ),
+    p("setpoint.start", "s", NonNegative, "start time"),
+    p(
+        "setpoint.duration",
+        "s",
+        NonNegative,
+        "ramp / sweep duration",
+    ),
+    p("setpoint.offset", "N or m", Finite, "static part / offset"),
+    p(
+        "setpoint.amplitude",
+        "N or m",
+        NonNegative,
+        "dynamic amplitude",
+    ),
+    p("setpoint.f0", "Hz", NonNegative, "start frequency"),
+    p("setpoint.f1", "Hz", NonNegative, "end frequency"),
+    int(
+        "setpoint.steps",
+        "-",
+        NonNegative,
+        "frequencies of a stepped sweep",
+    ),
+    p("setpoint.ramp_time", "s", NonNegative, "static ramp time"),
+    p("setpoint.hold", "s", NonNegative, "random-step hold time"),
+    int("setpoint.seed", "-", NonNegative, "random-step seed"),
+    p(
+        "supervisor.max_pressure",
+        "Pa",
+        Positive,
+        "pressure trip limit",
+    ),
+    p(
+        "supervisor.min_position",
+        "m",
+        Finite,
+        "lower position trip limit",
+    ),
+    p(
+        "supervisor.max_position",
+        "m",
+        Finite,
+        "upper position trip limit",
+    ),
+    p("supervisor.max_force", "N", Positive, "force trip limit"),
+    p("supervisor.max_command", "V", Positive, "command clamp"),
+    p(
+        "supervisor.safe_command",
+        "V",
+        Finite,
+        "command on trip / end",
+    ),
+    p(
+        "supervisor.stale_timeout",
+        "s",
+        Positive,
+        "sensor staleness timeout",
+    ),
+    p(
+        "supervisor.force_range",
+        "N",
+        Positive,
+        "plausible load-cell range",
+    ),
+    p(
+        "supervisor.pressure_range",
+        "Pa",
+        Positive,
+        "plausible pressure range",
+    ),
+    p("run.duration", "s", Within(1e-6, 1.0e6), "run duration"),
+    p(
+        "run.control_rate_hz",
+        "Hz",
+        Within(1.0, 1.0e6),
+        "control rate (004: 5000)",
+    ),
+    int(
+        "log.queue_capacity",
+        "records",
+        Within(16.0, 1.0e8),
+        "logger queue capacity",
+    ),
+];
+
+/// Both registries, for lookups.
+pub fn registries() -> [&'static [Param]; 2] {
+    [spec::PARAMS, CONTROL_PARAMS]
+}
+
+const RIG_KEYS: [&str; 6] = ["rig", "control", "setpoint", "supervisor", "run", "log"];
+
+fn section<T: serde::de::DeserializeOwned>(
+    root: &mut toml::Table,
+    key: &str,
+    required: bool,
+    default: impl FnOnce() -> Option<T>,
+) -> Result<T, ConfigError> {
+    let tables = registries();
+    match root.remove(key) {
+        Some(v) => {
+            if !v.is_table() {
+                return Err(ConfigError::new(
+                    key,
+                    format!("expected a table [{key}], got {}", v.type_str()),
+                ));
+            }
+            serde_path_to_error::deserialize(v).map_err(|e| spec::from_serde(key, e, &tables))
+        }
+        None if required => Err(ConfigError::new(
+            key,
+            format!("missing required section [{key}]"),
+        )),
+        None => default().ok_or_else(|| ConfigError::new(key, format!("missing section [{key}]"))),
+    }
+}
+
+impl RigConfig {
+    /// Load and validate a config file.
+    pub fn load(path: &Path) -> Result<RigConfig, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            ConfigError::new(
+                path.display().to_string(),
+                format!("cannot read config file: {e}"),
+            )
+        })?;
+        Self::from_toml_str(&text)
+    }
+
+    /// Parse and validate TOML text.
+    pub fn from_toml_str(text: &str) -> Result<RigConfig, ConfigError> {
+        let value: toml::Value = toml::from_str(text).map_err(|e| {
+            let (line, col) = e
+                .span()
+                .map(|s| {
+                    let before = &text[..s.start.min(text.len())];
+                    (
+                        before.matches('\n').count() + 1,
+                        before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1,
+                    )
+                })
+                .unwrap_or((0, 0));
+            ConfigError::new(
+                format!("line {line}, column {col}"),
+                format!("TOML syntax error: {}", e.message()),
+            )
+        })?;
+        Self::from_value(value)
+    }
+
+    /// Validate a TOML tree.
+    pub fn from_value(mut value: toml::Value) -> Result<RigConfig, ConfigError> {
+        let tables = registries();
+        spec::check_tree(&mut value, &tables)?;
+        let toml::Value::Table(mut root) = value else {
+            return Err(ConfigError::new("", "config must be a TOML table"));
+        };
+        let rig: RigInfo = section(&mut root, "rig", false, || Some(RigInfo::default()))?;
+        let control: ControlConfig = section(&mut root, "control", true, || None)?;
+        let setpoint: SetpointConfig = section(&mut root, "setpoint", true, || None)?;
+        let supervisor: SupervisorConfig = section(&mut root, "supervisor", false, || {
+            Some(SupervisorConfig::default())
+        })?;
+        let run: RunConfig = section(&mut root, "run", true, || None)?;
+        let log: LogConfig = section(&mut root, "log", false, || Some(LogConfig::default()))?;
+        let plant: PlantParams = serde_path_to_error::deserialize(toml::Value::Table(root))
+            .map_err(|e| spec::from_serde("", e, &tables))?;
+        let cfg = RigConfig {
+            rig,
+            plant,
+            control,
+            setpoint,
+            supervisor,
+            run,
+            log,
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Cross-field checks.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        ehactl_plant::model::validate(&self.plant)?;
+        match self.control.mode {
+            ControlMode::Force if self.control.pi.is_none() => {
+                return Err(ConfigError::new(
+                    "control.pi",
+                    "missing section [control.pi]; required when control.mode = \"force\" (kp in V/V, integral in 1/s, error_scale in V/N)",
+                ))
+            }
+            ControlMode::Position if self.control.pd.is_none() => {
+                return Err(ConfigError::new(
+                    "control.pd",
+                    "missing section [control.pd]; required when control.mode = \"position\" (kp in V/m, td in s)",
+                ))
+            }
+            _ => {}
+        }
+        if let Some(pi) = &self.control.pi {
+            if pi.u_min >= pi.u_max {
+                return Err(ConfigError::new(
+                    "control.pi.u_min",
+                    format!("u_min {} V must be below u_max {} V", pi.u_min, pi.u_max),
+                ));
+            }
+        }
+        let s = &self.setpoint;
+        let need = |ok: bool, field: &str, what: &str| -> Result<(), ConfigError> {
+            if ok {
+                Ok(())
+            } else {
+                Err(ConfigError::new(
+                    format!("setpoint.{field}"),
+                    what.to_string(),
+                ))
+            }
+        };
+        match s.kind {
+            SetpointKind::Ramp => need(s.duration > 0.0, "duration", "ramp needs duration > 0 s")?,
+            SetpointKind::Sine => need(s.f0 > 0.0, "f0", "sine needs f0 > 0 Hz")?,
+            SetpointKind::Chirp | SetpointKind::StaticDynamic => {
+                need(s.f0 > 0.0, "f0", "sweep needs f0 > 0 Hz")?;
+                need(s.f1 > 0.0, "f1", "sweep needs f1 > 0 Hz")?;
+                need(s.duration > 0.0, "duration", "sweep needs duration > 0 s")?;
+                if s.sweep == Sweep::Stepped {
+                    need(s.steps >= 1, "steps", "stepped sweep needs steps ≥ 1")?;
+                }
+            }
+            SetpointKind::RandomSteps => {
+                need(s.hold > 0.0, "hold", "random steps need hold > 0 s")?
+            }
+            SetpointKind::Step => {}
+        }
+        let nyq = self.run.control_rate_hz / 2.0;
+        if matches!(
+            s.kind,
+            SetpointKind::Chirp | SetpointKind::StaticDynamic | SetpointKind::Sine
+        ) && s.f0.max(s.f1) >= nyq
+        {
+            return Err(ConfigError::new(
+                "setpoint.f1",
+                format!("sweep frequency {} Hz is at or above the Nyquist frequency {} Hz of run.control_rate_hz", s.f0.max(s.f1), nyq),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Control period (s).
+    pub fn control_dt(&self) -> f64 {
+        1.0 / self.run.control_rate_hz
+    }
+
+    /// PI gains from the config.
+    pub fn pi_gains(&self) -> Option<PiGains> {
+        self.control.pi.as_ref().map(|p| PiGains {
+            kp: p.kp,
+            integral: p.integral,
+            error_scale: p.error_scale,
+            u_min: p.u_min,
+            u_max: p.u_max,
+            tracking: p.tracking,
+            feedforward: p.feedforward,
+        })
+    }
+
+    /// PD gains from the config.
+    pub fn pd_gains(&self) -> Option<PdGains> {
+        self.control.pd.as_ref().map(|p| PdGains {
+            kp: p.kp,
+            td: p.td,
+            filter_n: p.filter_n,
+            u_max: p.u_max,
+            feedforward_velocity: p.feedforward_velocity,
+        })
+    }
+
+    /// The whole config as a TOML tree (defaults filled in).
+    pub fn to_value(&self) -> toml::Value {
+        let mut root = match toml::Value::try_from(&self.plant) {
+            Ok(toml::Value::Table(t)) => t,
+            _ => toml::Table::new(),
+        };
+        let mut put = |k: &str, v: Result<toml::Value, toml::ser::Error>| {
+            if let Ok(v) = v {
+                root.insert(k.to_string(), v);
+            }
+        };
+        put("rig", toml::Value::try_from(&self.rig));
+        put("control", toml::Value::try_from(&self.control));
+        put("setpoint", toml::Value::try_from(&self.setpoint));
+        put("supervisor", toml::Value::try_from(&self.supervisor));
+        put("run", toml::Value::try_from(&self.run));
+        put("log", toml::Value::try_from(&self.log));
+        toml::Value::Table(root)
+    }
+
+    /// The whole config as TOML text.
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string_pretty(&self.to_value()).unwrap_or_default()
+    }
+
+    /// The whole config as JSON.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::to_value(self.to_value()).unwrap_or(serde_json::Value::Null)
+    }
+
+    /// Keys of the top level that belong to the rig rather than the plant.
+    pub fn rig_keys() -> &'static [&'static str] {
+        &RIG_KEYS
+    }
+}

@@ -1,0 +1,278 @@
+//! The fixed-step control loop: `Hal::read` → supervisor → setpoint → control law →
+//! supervisor command limit → `Hal::write` → record. The same code runs in simulated time
+//! (the sim backend, as fast as the CPU allows) and against a wall clock: only the
+//! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
+
+use crate::config::{ControlMode, RigConfig};
+use crate::pd::Pd;
+use crate::pi::{ControlTerms, Pi};
+use crate::setpoint::Setpoint;
+use crate::supervisor::{FeedbackChannel, Supervisor};
+use ehactl_hal::record::{CycleRecord, Event, EventKind, Severity};
+use ehactl_hal::{Hal, Measurements};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// The configured control law.
+#[derive(Debug, Clone)]
+pub enum Controller {
+    /// PI on force (N), error scaled to load-cell volts.
+    Force(Pi),
+    /// PD on position (m).
+    Position(Pd),
+    /// Setpoint passed straight to the valve (V).
+    OpenLoop,
+}
+
+impl Controller {
+    /// From a validated config.
+    pub fn from_config(cfg: &RigConfig) -> Controller {
+        match cfg.control.mode {
+            ControlMode::Force => Controller::Force(Pi::new(cfg.pi_gains().expect("validated"))),
+            ControlMode::Position => {
+                Controller::Position(Pd::new(cfg.pd_gains().expect("validated")))
+            }
+            ControlMode::OpenLoop => Controller::OpenLoop,
+        }
+    }
+
+    /// Feedback channel the law closes on.
+    pub fn feedback_channel(&self) -> FeedbackChannel {
+        match self {
+            Controller::Position(_) => FeedbackChannel::Position,
+            _ => FeedbackChannel::Force,
+        }
+    }
+
+    /// The measured value the law feeds back.
+    #[inline]
+    pub fn feedback(&self, m: &Measurements) -> f64 {
+        match self {
+            Controller::Position(_) => m.position,
+            _ => m.force,
+        }
+    }
+
+    /// One step. Pure: no I/O, no allocation.
+    #[inline]
+    pub fn step(&mut self, setpoint: f64, rate: f64, m: &Measurements, dt: f64) -> ControlTerms {
+        match self {
+            Controller::Force(pi) => pi.step(setpoint, m.force, dt),
+            Controller::Position(pd) => pd.step(setpoint, rate, m.position, dt),
+            Controller::OpenLoop => ControlTerms {
+                u: setpoint,
+                u_unsat: setpoint,
+                error: f64::NAN,
+                ff: setpoint,
+                ..Default::default()
+            },
+        }
+    }
+}
+
+/// Waits for the start of each cycle. The simulated loop does not wait.
+pub trait Pacer {
+    /// Block until cycle `k` may start; returns false if the loop should stop.
+    fn wait_for_cycle(&mut self, k: u64) -> bool;
+}
+
+/// Simulated time: every cycle starts at once.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct SimulatedTime;
+
+impl Pacer for SimulatedTime {
+    #[inline]
+    fn wait_for_cycle(&mut self, _k: u64) -> bool {
+        true
+    }
+}
+
+/// How a run ended and what it measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunOutcome {
+    /// Cycles executed.
+    pub cycles: u64,
+    /// Simulated / controlled time covered (s).
+    pub duration_s: f64,
+    /// The trip event, if the supervisor tripped.
+    pub trip: Option<Event>,
+    /// Whether a signal stopped the run.
+    pub interrupted: bool,
+    /// RMS of the control error over the run (N or m).
+    pub rms_error: f64,
+    /// Largest |error| over the run (N or m).
+    pub max_abs_error: f64,
+    /// RMS error after `settle_time` (N or m).
+    pub rms_error_settled: f64,
+}
+
+/// Settings of one run.
+pub struct LoopSettings<'a> {
+    /// Number of cycles.
+    pub cycles: u64,
+    /// Control period (s).
+    pub dt: f64,
+    /// Set asynchronously (signal handler) to stop the run.
+    pub stop: Option<&'a AtomicBool>,
+    /// Errors before this time are excluded from `rms_error_settled` (s).
+    pub settle_time: f64,
+}
+
+/// Run the loop. `record` receives every cycle's record (the logger push), `event`
+/// every event, `progress` the cycle count every 1 % (all called from the loop thread).
+#[allow(clippy::too_many_arguments)]
+pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
+    hal: &mut H,
+    controller: &mut Controller,
+    setpoint: &Setpoint,
+    supervisor: &mut Supervisor,
+    pacer: &mut P,
+    settings: &LoopSettings<'_>,
+    record: &mut dyn FnMut(&CycleRecord),
+    event: &mut dyn FnMut(Event),
+    progress: &mut dyn FnMut(u64),
+) -> RunOutcome {
+    let dt = settings.dt;
+    let n = settings.cycles;
+    let step = (n / 100).max(1);
+    let mut sum_sq = 0.0;
+    let mut n_err = 0u64;
+    let mut sum_sq_settled = 0.0;
+    let mut n_settled = 0u64;
+    let mut max_abs: f64 = 0.0;
+    let mut trip = None;
+    let mut interrupted = false;
+    let mut k = 0u64;
+    event(Event {
+        t: 0.0,
+        cycle: 0,
+        severity: Severity::Info,
+        kind: EventKind::Start,
+        channel: hal.name(),
+        value: f64::NAN,
+        limit: f64::NAN,
+        unit: "",
+    });
+    while k < n {
+        if settings.stop.is_some_and(|s| s.load(Ordering::Relaxed)) || !pacer.wait_for_cycle(k) {
+            interrupted = true;
+            break;
+        }
+        let t = k as f64 * dt;
+        let hal_fault = |e: ehactl_hal::HalError| Event {
+            t,
+            cycle: k,
+            severity: Severity::Trip,
+            kind: EventKind::HalFault,
+            channel: match e {
+                ehactl_hal::HalError::Numerical { what, .. } => what,
+                ehactl_hal::HalError::Device { what, .. } => what,
+            },
+            value: f64::NAN,
+            limit: f64::NAN,
+            unit: "",
+        };
+        let meas = match hal.read(t, dt) {
+            Ok(m) => m,
+            Err(e) => {
+                trip = Some(hal_fault(e));
+                break;
+            }
+        };
+        if let Some(ev) = supervisor.check_sensors(t, k, &meas) {
+            trip = Some(ev);
+            break;
+        }
+        let (r, rdot) = setpoint.sample(t);
+        let terms = controller.step(r, rdot, &meas, dt);
+        let (u, ev) = supervisor.limit_command(t, k, terms.u);
+        if let Some(ev) = ev {
+            if ev.severity == Severity::Trip {
+                trip = Some(ev);
+                break;
+            }
+            event(ev);
+        }
+        let plant = hal.plant_state();
+        let rec = CycleRecord {
+            cycle: k,
+            t,
+            setpoint: r,
+            setpoint_rate: rdot,
+            feedback: controller.feedback(&meas),
+            error: terms.error,
+            command: u,
+            command_unsat: terms.u_unsat,
+            p_term: terms.p,
+            i_term: terms.i,
+            d_term: terms.d,
+            ff_term: terms.ff,
+            meas,
+            plant: plant.unwrap_or_default(),
+            has_plant: plant.is_some(),
+        };
+        if let Err(e) = hal.write(t, dt, u) {
+            record(&rec);
+            trip = Some(hal_fault(e));
+            k += 1;
+            break;
+        }
+        record(&rec);
+        if terms.error.is_finite() {
+            sum_sq += terms.error * terms.error;
+            n_err += 1;
+            max_abs = max_abs.max(terms.error.abs());
+            if t >= settings.settle_time {
+                sum_sq_settled += terms.error * terms.error;
+                n_settled += 1;
+            }
+        }
+        k += 1;
+        if k % step == 0 {
+            progress(k);
+        }
+    }
+    let _ = hal.safe_stop(supervisor.safe_command());
+    let end_t = k as f64 * dt;
+    if let Some(ev) = trip {
+        event(ev);
+    } else if interrupted {
+        event(Event {
+            t: end_t,
+            cycle: k,
+            severity: Severity::Trip,
+            kind: EventKind::Signal,
+            channel: "process",
+            value: f64::NAN,
+            limit: f64::NAN,
+            unit: "",
+        });
+    } else {
+        event(Event {
+            t: end_t,
+            cycle: k,
+            severity: Severity::Info,
+            kind: EventKind::End,
+            channel: "run",
+            value: f64::NAN,
+            limit: f64::NAN,
+            unit: "",
+        });
+    }
+    progress(k);
+    let rms = |s: f64, n: u64| {
+        if n > 0 {
+            (s / n as f64).sqrt()
+        } else {
+            f64::NAN
+        }
+    };
+    RunOutcome {
+        cycles: k,
+        duration_s: end_t,
+        trip,
+        interrupted,
+        rms_error: rms(sum_sq, n_err),
+        max_abs_error: if n_err > 0 { max_abs } else { f64::NAN },
+        rms_error_settled: rms(sum_sq_settled, n_settled),
+    }
+}

@@ -1,0 +1,221 @@
+//! One complete simulated run: configure the plant, build the controller, supervisor and
+//! setpoint, run the loop in simulated time, log every cycle to MCAP and summarise.
+//! Shared by the CLI and the Python bindings so both run exactly the same code.
+
+use crate::config::{Compression, ControlMode, RigConfig};
+use crate::runloop::{run_loop, Controller, LoopSettings, RunOutcome, SimulatedTime};
+use crate::setpoint::Setpoint;
+use crate::supervisor::Supervisor;
+use ehactl_hal::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
+use ehactl_hal::record::CycleRecord;
+use ehactl_hal::sim::SimHal;
+use ehactl_plant::{ConfigError, Plant};
+use serde_json::json;
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+/// Options of a run beyond the config.
+#[derive(Default)]
+pub struct SessionOptions<'a> {
+    /// Override of `run.duration` (s).
+    pub duration: Option<f64>,
+    /// MCAP output path; None = no log.
+    pub mcap: Option<PathBuf>,
+    /// Stop flag (signal handler).
+    pub stop: Option<&'a AtomicBool>,
+    /// Keep every cycle record in memory (for the Python bindings).
+    pub capture: bool,
+    /// Progress callback: (cycles done, cycles total).
+    pub progress: Option<&'a mut dyn FnMut(u64, u64)>,
+}
+
+/// Result of a run.
+#[derive(Debug, Clone)]
+pub struct Session {
+    /// Loop outcome.
+    pub outcome: RunOutcome,
+    /// Control rate (Hz).
+    pub control_rate_hz: f64,
+    /// Wall-clock time of the loop (s).
+    pub wall_time_s: f64,
+    /// Plant substeps per control period.
+    pub substeps: u32,
+    /// Log counters, if logged.
+    pub log: Option<LogStats>,
+    /// Captured records (if requested).
+    pub records: Vec<CycleRecord>,
+    /// Unit of the controlled variable.
+    pub unit: &'static str,
+}
+
+/// Why a run could not start or its log could not be written.
+#[derive(Debug)]
+pub enum SessionError {
+    /// Bad config.
+    Config(ConfigError),
+    /// Log file problem.
+    Log(ehactl_hal::logger::LogError),
+}
+
+impl std::fmt::Display for SessionError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SessionError::Config(e) => e.fmt(f),
+            SessionError::Log(e) => e.fmt(f),
+        }
+    }
+}
+
+impl std::error::Error for SessionError {}
+
+impl Session {
+    /// Summary as one JSON object (the `ehactl run --json` output).
+    pub fn summary_json(&self) -> serde_json::Value {
+        let o = &self.outcome;
+        let num = |v: f64| {
+            if v.is_finite() {
+                json!(v)
+            } else {
+                serde_json::Value::Null
+            }
+        };
+        json!({
+            "cycles": o.cycles,
+            "control_rate_hz": self.control_rate_hz,
+            "duration_s": o.duration_s,
+            "rms_error": num(o.rms_error),
+            "rms_error_settled": num(o.rms_error_settled),
+            "max_abs_error": num(o.max_abs_error),
+            "error_unit": self.unit,
+            "mcap": self.log.as_ref().map(|l| l.path.display().to_string()),
+            "trip": o.trip.map(|e| e.describe()),
+            "trip_kind": o.trip.map(|e| e.kind.as_str()),
+            "interrupted": o.interrupted,
+            "sim_speed_x_realtime": if self.wall_time_s > 0.0 { o.duration_s / self.wall_time_s } else { 0.0 },
+            "wall_time_s": self.wall_time_s,
+            "substeps": self.substeps,
+            "log": self.log.as_ref().map(|l| json!({
+                "records_written": l.records_written,
+                "records_dropped": l.records_dropped,
+                "pushes_waited": l.pushes_waited,
+                "events_written": l.events_written,
+                "queue_high_water": l.queue_high_water,
+                "queue_capacity": l.queue_capacity,
+            })),
+        })
+    }
+}
+
+/// Configure the plant for a config.
+pub fn build_plant(cfg: &RigConfig) -> Result<Plant, ConfigError> {
+    Plant::configure(&cfg.plant, cfg.control_dt())
+}
+
+/// Run `cfg` against the simulated plant in simulated time.
+pub fn run_sim(cfg: &RigConfig, mut opts: SessionOptions<'_>) -> Result<Session, SessionError> {
+    let plant = build_plant(cfg).map_err(SessionError::Config)?;
+    let substeps = plant.substeps();
+    let mut hal = SimHal::new(plant);
+    let dt = cfg.control_dt();
+    let duration = opts.duration.unwrap_or(cfg.run.duration);
+    if !(duration.is_finite() && duration > 0.0) {
+        return Err(SessionError::Config(ConfigError::new(
+            "--duration",
+            format!("{duration} is not a valid duration; expected a finite number > 0 in s"),
+        )));
+    }
+    let cycles = (duration / dt).round().max(1.0) as u64;
+    let mut controller = Controller::from_config(cfg);
+    let mut supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
+    let setpoint = Setpoint::new(&cfg.setpoint);
+    let logger = match &opts.mcap {
+        Some(path) => Some(
+            Logger::create(
+                path,
+                LogOptions {
+                    compression: match cfg.log.compression {
+                        Compression::None => LogCompression::None,
+                        Compression::Lz4 => LogCompression::Lz4,
+                    },
+                    queue_capacity: cfg.log.queue_capacity as usize,
+                    overflow: Overflow::Block,
+                },
+                &RunMetadata {
+                    config_toml: cfg.to_toml_string(),
+                    config_json: cfg.to_json(),
+                    backend: "sim".into(),
+                    control_rate_hz: cfg.run.control_rate_hz,
+                },
+            )
+            .map_err(SessionError::Log)?,
+        ),
+        None => None,
+    };
+    let mut records: Vec<CycleRecord> = if opts.capture {
+        Vec::with_capacity(cycles as usize)
+    } else {
+        Vec::new()
+    };
+    let capture = opts.capture;
+    let settle = setpoint.dynamic_start();
+    let settings = LoopSettings {
+        cycles,
+        dt,
+        stop: opts.stop,
+        settle_time: settle,
+    };
+    let start = Instant::now();
+    let outcome = {
+        let lg = logger.as_ref();
+        let mut on_record = |r: &CycleRecord| {
+            if let Some(l) = lg {
+                l.push(r);
+            }
+            if capture {
+                records.push(*r);
+            }
+        };
+        let mut on_event = |e| {
+            if let Some(l) = lg {
+                l.event(e);
+            }
+        };
+        let mut on_progress = |k: u64| {
+            if let Some(p) = opts.progress.as_mut() {
+                p(k, cycles);
+            }
+        };
+        run_loop(
+            &mut hal,
+            &mut controller,
+            &setpoint,
+            &mut supervisor,
+            &mut SimulatedTime,
+            &settings,
+            &mut on_record,
+            &mut on_event,
+            &mut on_progress,
+        )
+    };
+    let wall = start.elapsed().as_secs_f64();
+    let unit = match cfg.control.mode {
+        ControlMode::Force => "N",
+        ControlMode::Position => "m",
+        ControlMode::OpenLoop => "V",
+    };
+    let mut session = Session {
+        outcome,
+        control_rate_hz: cfg.run.control_rate_hz,
+        wall_time_s: wall,
+        substeps,
+        log: None,
+        records,
+        unit,
+    };
+    if let Some(l) = logger {
+        let summary = session.summary_json();
+        session.log = Some(l.finish(summary).map_err(SessionError::Log)?);
+    }
+    Ok(session)
+}

@@ -1,0 +1,271 @@
+//! Supervisor: limits on pressure, position, force and command; sensor plausibility (NaN,
+//! out of range, stale). On a trip the loop puts the valve to `safe_command`, logs the
+//! event and ends the run with the reason. Checks are allocation-free.
+
+use ehactl_hal::record::{Event, EventKind, Severity};
+use ehactl_hal::Measurements;
+use serde::{Deserialize, Serialize};
+
+/// Supervisor section of a rig config. Absent limits are not checked.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SupervisorConfig {
+    /// Trip when a chamber pressure exceeds this (Pa).
+    #[serde(default)]
+    pub max_pressure: Option<f64>,
+    /// Trip below this position (m).
+    #[serde(default)]
+    pub min_position: Option<f64>,
+    /// Trip above this position (m).
+    #[serde(default)]
+    pub max_position: Option<f64>,
+    /// Trip when |force| exceeds this (N).
+    #[serde(default)]
+    pub max_force: Option<f64>,
+    /// Largest |command| passed to the valve (V); larger commands are clamped and reported once.
+    #[serde(default)]
+    pub max_command: Option<f64>,
+    /// Command applied on a trip and at the end of the run (V).
+    #[serde(default)]
+    pub safe_command: f64,
+    /// A sensor whose sample time does not advance for this long is stale (s).
+    #[serde(default = "SupervisorConfig::default_stale")]
+    pub stale_timeout: f64,
+    /// Plausible force range of the load cell (N): beyond it the reading is implausible.
+    #[serde(default)]
+    pub force_range: Option<f64>,
+    /// Plausible pressure range (Pa): readings outside [−1e5, this] are implausible.
+    #[serde(default)]
+    pub pressure_range: Option<f64>,
+}
+
+impl SupervisorConfig {
+    fn default_stale() -> f64 {
+        0.05
+    }
+}
+
+impl Default for SupervisorConfig {
+    fn default() -> Self {
+        Self {
+            max_pressure: None,
+            min_position: None,
+            max_position: None,
+            max_force: None,
+            max_command: None,
+            safe_command: 0.0,
+            stale_timeout: Self::default_stale(),
+            force_range: None,
+            pressure_range: None,
+        }
+    }
+}
+
+/// Which channels feed the controller (checked for NaN and staleness).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FeedbackChannel {
+    /// Load cell.
+    Force,
+    /// Position transducer.
+    Position,
+}
+
+/// Runtime supervisor.
+#[derive(Debug, Clone)]
+pub struct Supervisor {
+    cfg: SupervisorConfig,
+    feedback: FeedbackChannel,
+    last_sample_t: f64,
+    last_advance_t: f64,
+    command_clamped_reported: bool,
+}
+
+impl Supervisor {
+    /// New supervisor for a loop closed on `feedback`.
+    pub fn new(cfg: &SupervisorConfig, feedback: FeedbackChannel) -> Self {
+        Self {
+            cfg: cfg.clone(),
+            feedback,
+            last_sample_t: f64::NEG_INFINITY,
+            last_advance_t: 0.0,
+            command_clamped_reported: false,
+        }
+    }
+
+    /// Safe valve command (V).
+    pub fn safe_command(&self) -> f64 {
+        self.cfg.safe_command
+    }
+
+    fn trip(
+        t: f64,
+        cycle: u64,
+        kind: EventKind,
+        channel: &'static str,
+        value: f64,
+        limit: f64,
+        unit: &'static str,
+    ) -> Event {
+        Event {
+            t,
+            cycle,
+            severity: Severity::Trip,
+            kind,
+            channel,
+            value,
+            limit,
+            unit,
+        }
+    }
+
+    /// Check the sensors at loop time `t`; returns a trip event if any limit is violated.
+    #[inline]
+    pub fn check_sensors(&mut self, t: f64, cycle: u64, m: &Measurements) -> Option<Event> {
+        let c = &self.cfg;
+        let (fb, name, unit) = match self.feedback {
+            FeedbackChannel::Force => (m.force, "force", "N"),
+            FeedbackChannel::Position => (m.position, "position", "m"),
+        };
+        if !fb.is_finite() {
+            return Some(Self::trip(
+                t,
+                cycle,
+                EventKind::SensorNan,
+                name,
+                fb,
+                f64::NAN,
+                unit,
+            ));
+        }
+        if m.t.is_nan() || m.t > self.last_sample_t {
+            self.last_sample_t = m.t;
+            self.last_advance_t = t;
+        } else if t - self.last_advance_t > c.stale_timeout {
+            return Some(Self::trip(
+                t,
+                cycle,
+                EventKind::SensorStale,
+                name,
+                t - self.last_advance_t,
+                c.stale_timeout,
+                "s",
+            ));
+        }
+        if let Some(r) = c.force_range {
+            if m.force.is_finite() && m.force.abs() > r {
+                return Some(Self::trip(
+                    t,
+                    cycle,
+                    EventKind::SensorRange,
+                    "force",
+                    m.force,
+                    r,
+                    "N",
+                ));
+            }
+        }
+        if let Some(r) = c.pressure_range {
+            for (ch, p) in [("p_a", m.p_a), ("p_b", m.p_b)] {
+                if p.is_finite() && (p > r || p < -1.0e5) {
+                    return Some(Self::trip(t, cycle, EventKind::SensorRange, ch, p, r, "Pa"));
+                }
+            }
+        }
+        if let Some(lim) = c.max_pressure {
+            for (ch, p) in [("p_a", m.p_a), ("p_b", m.p_b)] {
+                if p.is_finite() && p > lim {
+                    return Some(Self::trip(
+                        t,
+                        cycle,
+                        EventKind::PressureLimit,
+                        ch,
+                        p,
+                        lim,
+                        "Pa",
+                    ));
+                }
+            }
+        }
+        if let Some(lim) = c.max_force {
+            if m.force.is_finite() && m.force.abs() > lim {
+                return Some(Self::trip(
+                    t,
+                    cycle,
+                    EventKind::ForceLimit,
+                    "force",
+                    m.force,
+                    lim,
+                    "N",
+                ));
+            }
+        }
+        if let Some(lo) = c.min_position {
+            if m.position.is_finite() && m.position < lo {
+                return Some(Self::trip(
+                    t,
+                    cycle,
+                    EventKind::PositionLimit,
+                    "position",
+                    m.position,
+                    lo,
+                    "m",
+                ));
+            }
+        }
+        if let Some(hi) = c.max_position {
+            if m.position.is_finite() && m.position > hi {
+                return Some(Self::trip(
+                    t,
+                    cycle,
+                    EventKind::PositionLimit,
+                    "position",
+                    m.position,
+                    hi,
+                    "m",
+                ));
+            }
+        }
+        None
+    }
+
+    /// Limit the command; returns the command to apply and a warning the first time it clamps.
+    /// A non-finite command is a trip.
+    #[inline]
+    pub fn limit_command(&mut self, t: f64, cycle: u64, u: f64) -> (f64, Option<Event>) {
+        if !u.is_finite() {
+            return (
+                self.cfg.safe_command,
+                Some(Self::trip(
+                    t,
+                    cycle,
+                    EventKind::CommandLimit,
+                    "command",
+                    u,
+                    f64::NAN,
+                    "V",
+                )),
+            );
+        }
+        match self.cfg.max_command {
+            Some(m) if u.abs() > m => {
+                let ev = if self.command_clamped_reported {
+                    None
+                } else {
+                    self.command_clamped_reported = true;
+                    Some(Event {
+                        t,
+                        cycle,
+                        severity: Severity::Warning,
+                        kind: EventKind::CommandLimit,
+                        channel: "command",
+                        value: u,
+                        limit: m,
+                        unit: "V",
+                    })
+                };
+                (u.clamp(-m, m), ev)
+            }
+            _ => (u, None),
+        }
+    }
+}

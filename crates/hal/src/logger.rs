@@ -1,0 +1,407 @@
+//! MCAP logger: the cycle pushes fixed-size [`CycleRecord`]s and [`Event`]s into bounded
+//! lock-free queues; a writer thread serialises them (CDR, ros2msg schemas) into an MCAP
+//! file with chunk and data CRCs. Overflow is never silent: with [`Overflow::Block`]
+//! (simulated time, nothing to miss) the producer waits for room; with [`Overflow::Drop`]
+//! (wall-clock runs) the record is dropped and counted. The file is finalised by
+//! [`Logger::finish`], and by `Drop` if a run unwinds.
+
+use crate::record::{control_schema, plant_schema, CycleRecord, Event};
+use crossbeam_queue::ArrayQueue;
+use mcap::records::{MessageHeader, Metadata};
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+/// What to do when the record queue is full.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Overflow {
+    /// Wait for the writer (simulated time: no deadline can be missed).
+    Block,
+    /// Drop the record and count it (wall-clock time).
+    Drop,
+}
+
+/// Chunk compression.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LogCompression {
+    /// No compression.
+    None,
+    /// LZ4 frames.
+    Lz4,
+}
+
+/// Logger options.
+#[derive(Debug, Clone, Copy)]
+pub struct LogOptions {
+    /// Chunk compression.
+    pub compression: LogCompression,
+    /// Capacity of the record queue (records).
+    pub queue_capacity: usize,
+    /// Overflow policy.
+    pub overflow: Overflow,
+}
+
+impl Default for LogOptions {
+    fn default() -> Self {
+        Self {
+            compression: LogCompression::Lz4,
+            queue_capacity: 65_536,
+            overflow: Overflow::Block,
+        }
+    }
+}
+
+/// Run description written at the start of the file.
+#[derive(Debug, Clone)]
+pub struct RunMetadata {
+    /// The config as TOML text (as loaded, with defaults filled in).
+    pub config_toml: String,
+    /// The config as JSON.
+    pub config_json: serde_json::Value,
+    /// Backend name.
+    pub backend: String,
+    /// Control rate (Hz).
+    pub control_rate_hz: f64,
+}
+
+/// Counters reported at the end of a run.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LogStats {
+    /// Path of the MCAP file.
+    pub path: PathBuf,
+    /// Cycle records written.
+    pub records_written: u64,
+    /// Records dropped because the queue was full.
+    pub records_dropped: u64,
+    /// Pushes that had to wait for room (Block policy).
+    pub pushes_waited: u64,
+    /// Events written.
+    pub events_written: u64,
+    /// Highest queue occupancy seen (records).
+    pub queue_high_water: usize,
+    /// Queue capacity (records).
+    pub queue_capacity: usize,
+}
+
+/// Logger failure (file or MCAP error), with the path.
+#[derive(Debug)]
+pub struct LogError {
+    /// File concerned.
+    pub path: PathBuf,
+    /// What failed.
+    pub message: String,
+}
+
+impl std::fmt::Display for LogError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "MCAP log {}: {}", self.path.display(), self.message)
+    }
+}
+
+impl std::error::Error for LogError {}
+
+struct Shared {
+    records: ArrayQueue<CycleRecord>,
+    events: ArrayQueue<Event>,
+    closing: AtomicBool,
+    dropped: AtomicU64,
+    waited: AtomicU64,
+    high_water: AtomicUsize,
+    summary: Mutex<Option<serde_json::Value>>,
+}
+
+/// Handle owned by the run; cheap to push from the cycle.
+pub struct Logger {
+    shared: Arc<Shared>,
+    thread: Option<JoinHandle<Result<(u64, u64), String>>>,
+    overflow: Overflow,
+    path: PathBuf,
+    capacity: usize,
+}
+
+impl Logger {
+    /// Create the file, write schemas, channels and the run metadata, start the writer.
+    pub fn create(path: &Path, opts: LogOptions, meta: &RunMetadata) -> Result<Logger, LogError> {
+        let err = |m: String| LogError {
+            path: path.to_path_buf(),
+            message: m,
+        };
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir)
+                .map_err(|e| err(format!("cannot create directory: {e}")))?;
+        }
+        let file = File::create(path).map_err(|e| err(format!("cannot create file: {e}")))?;
+        let compression = match opts.compression {
+            LogCompression::None => None,
+            LogCompression::Lz4 => Some(mcap::Compression::Lz4),
+        };
+        let mut w = mcap::WriteOptions::new()
+            .compression(compression)
+            .profile("ros2")
+            .library(concat!("ehactl ", env!("CARGO_PKG_VERSION")))
+            .chunk_size(Some(1 << 20))
+            .create(BufWriter::with_capacity(1 << 20, file))
+            .map_err(|e| err(format!("cannot start MCAP: {e}")))?;
+        let me = |e: mcap::McapError| err(e.to_string());
+        let s_control = w
+            .add_schema(
+                "ehactl_msgs/msg/ControlCycle",
+                "ros2msg",
+                control_schema().as_bytes(),
+            )
+            .map_err(me)?;
+        let s_plant = w
+            .add_schema(
+                "ehactl_msgs/msg/PlantState",
+                "ros2msg",
+                plant_schema().as_bytes(),
+            )
+            .map_err(me)?;
+        let json_schema = serde_json::json!({"type": "object"}).to_string();
+        let s_json = w
+            .add_schema("ehactl.Json", "jsonschema", json_schema.as_bytes())
+            .map_err(me)?;
+        let none = BTreeMap::new();
+        let ch_control = w
+            .add_channel(s_control, "/control", "cdr", &none)
+            .map_err(me)?;
+        let ch_plant = w.add_channel(s_plant, "/plant", "cdr", &none).map_err(me)?;
+        let ch_config = w
+            .add_channel(s_json, "/config", "json", &none)
+            .map_err(me)?;
+        let ch_events = w
+            .add_channel(s_json, "/events", "json", &none)
+            .map_err(me)?;
+        let ch_summary = w
+            .add_channel(s_json, "/summary", "json", &none)
+            .map_err(me)?;
+        let mut md = BTreeMap::new();
+        md.insert("config_toml".to_string(), meta.config_toml.clone());
+        md.insert("backend".to_string(), meta.backend.clone());
+        md.insert(
+            "control_rate_hz".to_string(),
+            meta.control_rate_hz.to_string(),
+        );
+        md.insert(
+            "ehactl_version".to_string(),
+            env!("CARGO_PKG_VERSION").to_string(),
+        );
+        w.write_metadata(&Metadata {
+            name: "ehactl_run".into(),
+            metadata: md,
+        })
+        .map_err(me)?;
+        let cfg = serde_json::json!({"toml": meta.config_toml, "config": meta.config_json, "backend": meta.backend});
+        w.write_to_known_channel(
+            &MessageHeader {
+                channel_id: ch_config,
+                sequence: 0,
+                log_time: 0,
+                publish_time: 0,
+            },
+            cfg.to_string().as_bytes(),
+        )
+        .map_err(me)?;
+        let shared = Arc::new(Shared {
+            records: ArrayQueue::new(opts.queue_capacity.max(16)),
+            events: ArrayQueue::new(1024),
+            closing: AtomicBool::new(false),
+            dropped: AtomicU64::new(0),
+            waited: AtomicU64::new(0),
+            high_water: AtomicUsize::new(0),
+            summary: Mutex::new(None),
+        });
+        let sh = shared.clone();
+        let thread = std::thread::Builder::new()
+            .name("ehactl-mcap".into())
+            .spawn(move || writer_loop(w, sh, [ch_control, ch_plant, ch_events, ch_summary]))
+            .map_err(|e| err(format!("cannot start writer thread: {e}")))?;
+        Ok(Logger {
+            shared,
+            thread: Some(thread),
+            overflow: opts.overflow,
+            path: path.to_path_buf(),
+            capacity: opts.queue_capacity.max(16),
+        })
+    }
+
+    /// Queue one cycle record. Lock-free and allocation-free; never silently loses data.
+    #[inline]
+    pub fn push(&self, rec: &CycleRecord) {
+        let q = &self.shared.records;
+        let mut r = *rec;
+        loop {
+            match q.push(r) {
+                Ok(()) => break,
+                Err(back) => match self.overflow {
+                    Overflow::Drop => {
+                        self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+                        return;
+                    }
+                    Overflow::Block => {
+                        self.shared.waited.fetch_add(1, Ordering::Relaxed);
+                        r = back;
+                        std::thread::yield_now();
+                    }
+                },
+            }
+        }
+        let n = q.len();
+        if n > self.shared.high_water.load(Ordering::Relaxed) {
+            self.shared.high_water.store(n, Ordering::Relaxed);
+        }
+    }
+
+    /// Queue an event (lock-free; waits for room rather than losing a trip).
+    pub fn event(&self, ev: Event) {
+        let mut e = ev;
+        while let Err(back) = self.shared.events.push(e) {
+            e = back;
+            std::thread::yield_now();
+        }
+    }
+
+    /// Path of the file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Write the summary, drain the queues and finalise the file (footer, summary section,
+    /// CRCs). Blocks until the writer is done.
+    pub fn finish(mut self, summary: serde_json::Value) -> Result<LogStats, LogError> {
+        self.finish_inner(Some(summary))
+    }
+
+    fn finish_inner(&mut self, summary: Option<serde_json::Value>) -> Result<LogStats, LogError> {
+        if let Ok(mut s) = self.shared.summary.lock() {
+            *s = summary;
+        }
+        self.shared.closing.store(true, Ordering::Release);
+        let Some(t) = self.thread.take() else {
+            return Err(LogError {
+                path: self.path.clone(),
+                message: "already finished".into(),
+            });
+        };
+        let res = t.join().map_err(|_| LogError {
+            path: self.path.clone(),
+            message: "writer thread panicked".into(),
+        })?;
+        let (written, events) = res.map_err(|m| LogError {
+            path: self.path.clone(),
+            message: m,
+        })?;
+        Ok(LogStats {
+            path: self.path.clone(),
+            records_written: written,
+            records_dropped: self.shared.dropped.load(Ordering::Relaxed),
+            pushes_waited: self.shared.waited.load(Ordering::Relaxed),
+            events_written: events,
+            queue_high_water: self.shared.high_water.load(Ordering::Relaxed),
+            queue_capacity: self.capacity,
+        })
+    }
+}
+
+impl Drop for Logger {
+    fn drop(&mut self) {
+        if self.thread.is_some() {
+            let _ = self.finish_inner(None);
+        }
+    }
+}
+
+fn writer_loop(
+    mut w: mcap::Writer<BufWriter<File>>,
+    sh: Arc<Shared>,
+    ch: [u16; 4],
+) -> Result<(u64, u64), String> {
+    let [ch_control, ch_plant, ch_events, ch_summary] = ch;
+    let mut buf = Vec::with_capacity(256);
+    let mut written = 0u64;
+    let mut events = 0u64;
+    let mut last_ns = 0u64;
+    let to_ns = |t: f64| (t.max(0.0) * 1e9).round() as u64;
+    loop {
+        let closing = sh.closing.load(Ordering::Acquire);
+        let mut idle = true;
+        while let Some(rec) = sh.records.pop() {
+            idle = false;
+            let ns = to_ns(rec.t);
+            last_ns = last_ns.max(ns);
+            let seq = rec.cycle as u32;
+            rec.encode_control(&mut buf);
+            w.write_to_known_channel(
+                &MessageHeader {
+                    channel_id: ch_control,
+                    sequence: seq,
+                    log_time: ns,
+                    publish_time: ns,
+                },
+                &buf,
+            )
+            .map_err(|e| e.to_string())?;
+            if rec.has_plant {
+                rec.encode_plant(&mut buf);
+                w.write_to_known_channel(
+                    &MessageHeader {
+                        channel_id: ch_plant,
+                        sequence: seq,
+                        log_time: ns,
+                        publish_time: ns,
+                    },
+                    &buf,
+                )
+                .map_err(|e| e.to_string())?;
+            }
+            written += 1;
+            if written % 4096 == 0 {
+                break;
+            }
+        }
+        while let Some(ev) = sh.events.pop() {
+            idle = false;
+            let ns = to_ns(ev.t);
+            w.write_to_known_channel(
+                &MessageHeader {
+                    channel_id: ch_events,
+                    sequence: events as u32,
+                    log_time: ns,
+                    publish_time: ns,
+                },
+                ev.to_json().to_string().as_bytes(),
+            )
+            .map_err(|e| e.to_string())?;
+            events += 1;
+        }
+        if closing && sh.records.is_empty() && sh.events.is_empty() {
+            break;
+        }
+        if idle {
+            std::thread::sleep(Duration::from_micros(200));
+        }
+    }
+    let summary = sh.summary.lock().ok().and_then(|mut s| s.take());
+    if let Some(mut summary) = summary {
+        if let Some(obj) = summary.as_object_mut() {
+            obj.insert("records_written".into(), written.into());
+        }
+        w.write_to_known_channel(
+            &MessageHeader {
+                channel_id: ch_summary,
+                sequence: 0,
+                log_time: last_ns,
+                publish_time: last_ns,
+            },
+            summary.to_string().as_bytes(),
+        )
+        .map_err(|e| e.to_string())?;
+    }
+    w.finish().map_err(|e| e.to_string())?;
+    Ok((written, events))
+}

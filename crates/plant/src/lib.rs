@@ -1,0 +1,34 @@
+//! # ehactl-plant
+//!
+//! The nonlinear electro-hydraulic actuator plant of ehactl, in SI units. Every physical
+//! effect is a separately switchable component named by its id in the effect catalogue of
+//! `DESIGN.md` ([`EffectId`]) and documented with the seed equation it implements:
+//!
+//! | module | physics | seed |
+//! |---|---|---|
+//! | [`valve`] | spool dynamics (PT1 / 2nd order), four metering edges, lap, saturation, K_C(P_d) | 003 eq. 9–13, 004 eq. 1, 20–23 |
+//! | [`model`] | chambers over stroke, β(p), leakage, cavitation, mechanics, end stops, supply | 002 eq. 35, 003 eq. 1, 7–8, 14–15 |
+//! | [`friction`] | static/Coulomb/Stribeck with true stick | 003 eq. 5, 004 eq. 28–34 |
+//! | [`line`] | lumped R-L-C lines | 002 eq. 9–17 |
+//! | [`excitation`] | constant, harmonic, impact train | 003 eq. 2, 17 |
+//! | [`sensors`] | load cell, pressures, position transducer, spool | 004, 003 |
+//!
+//! Parameters and their units are declared once in [`spec::PARAMS`].
+#![deny(missing_docs)]
+
+pub mod effects;
+pub mod excitation;
+pub mod friction;
+pub mod line;
+pub mod model;
+pub mod params;
+pub mod rng;
+pub mod sensors;
+pub mod spec;
+pub mod valve;
+
+pub use effects::EffectId;
+pub use model::{NumericalFailure, Plant, PlantState};
+pub use params::PlantParams;
+pub use sensors::Measurements;
+pub use spec::ConfigError;

@@ -1,0 +1,649 @@
+//! The nonlinear plant: valve → (lines) → chambers → piston (→ SDD → load mass).
+//!
+//! Phases follow Hopsan: [`Plant::configure`] derives constants and allocates,
+//! [`Plant::initialize`] sets the initial state, [`Plant::step`] advances one control period
+//! in fixed substeps without allocating.
+//!
+//! Integration scheme per substep h (stiff-safe, see DESIGN.md "Numerics"):
+//! 1. spool: exact zero-order-hold discretisation of its linear dynamics;
+//! 2. pressures: exponential Euler on each chamber / line node, linearised in its own
+//!    pressure, so the stiff leakage and valve flow–pressure terms (004: V/(β·K_Ct) ≈ 5 µs)
+//!    are unconditionally stable and monotone;
+//! 3. line flows with implicit resistance, then piston and load velocities with implicit
+//!    self-damping and friction as a velocity projection (true stick), then positions.
+//!
+//! Steps 2→3 form a symplectic Euler pair for the hydraulic spring, stable for ω·h < 2;
+//! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
+
+use crate::excitation::ExcitationModel;
+use crate::friction::FrictionModel;
+use crate::line::Line;
+use crate::params::PlantParams;
+use crate::sensors::{Measurements, SensorModel, TrueValues};
+use crate::spec::ConfigError;
+use crate::valve::{EdgeLaw, SpoolModel};
+
+/// Complete plant state (SI units), logged every cycle.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PlantState {
+    /// Simulated time (s).
+    pub t: f64,
+    /// Command reaching the valve after any delay (V).
+    pub command: f64,
+    /// Spool position (fraction of full travel).
+    pub spool: f64,
+    /// Spool velocity (1/s).
+    pub spool_velocity: f64,
+    /// Chamber A pressure (Pa).
+    pub p_a: f64,
+    /// Chamber B pressure (Pa).
+    pub p_b: f64,
+    /// Supply pressure at the valve (Pa).
+    pub p_s: f64,
+    /// Piston position (m).
+    pub x: f64,
+    /// Piston velocity (m/s).
+    pub v: f64,
+    /// Load mass position (m) (equal to x without a flexible mount).
+    pub x_load: f64,
+    /// Load mass velocity (m/s).
+    pub v_load: f64,
+    /// Net valve flow into port A (m³/s).
+    pub q_a: f64,
+    /// Net valve flow into port B (m³/s).
+    pub q_b: f64,
+    /// Friction force on the piston (N), opposing motion.
+    pub friction: f64,
+    /// External excitation force (N).
+    pub external: f64,
+    /// Rod force seen by a load cell (N).
+    pub rod_force: f64,
+    /// Whether the piston is stuck by static friction.
+    pub stuck: bool,
+}
+
+/// Derived constants.
+#[derive(Debug, Clone)]
+struct Consts {
+    a_a: f64,
+    a_b: f64,
+    v_a0: f64,
+    v_b0: f64,
+    stroke: f64,
+    beta0: f64,
+    beta_slope: f64,
+    beta_max: f64,
+    p_cav: f64,
+    ps0: f64,
+    pt: f64,
+    k_in: f64,
+    k_ext: f64,
+    mass: f64,
+    damping: f64,
+    k_load: f64,
+    x_contact: f64,
+    end_stops: bool,
+    full_scale: f64,
+    supply_r: f64,
+    supply_tau: f64,
+    mount: Option<(f64, f64, f64)>,
+    delay: f64,
+}
+
+/// The simulated actuator.
+#[derive(Debug, Clone)]
+pub struct Plant {
+    c: Consts,
+    edges: EdgeLaw,
+    spool_model: SpoolModel,
+    friction: Option<FrictionModel>,
+    excitation: ExcitationModel,
+    sensors: SensorModel,
+    lines: Option<(Line, Line)>,
+    control_dt: f64,
+    substeps: u32,
+    h: f64,
+    state: PlantState,
+    cycle: u64,
+    delay_buf: Vec<f64>,
+    params: PlantParams,
+}
+
+/// Non-finite state after a step: the run must stop.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NumericalFailure {
+    /// Time of the failure (s).
+    pub t: f64,
+    /// Which state went bad.
+    pub what: &'static str,
+}
+
+impl std::fmt::Display for NumericalFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "plant state `{}` became non-finite at t = {} s",
+            self.what, self.t
+        )
+    }
+}
+
+/// Cross-field checks that the per-field registry cannot express.
+pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
+    use crate::params::FlowForm;
+    let v = &p.valve;
+    let need = |field: &'static str, val: Option<f64>, unit: &str| -> Result<(), ConfigError> {
+        if val.is_none() {
+            Err(ConfigError::new(
+                format!("valve.{field}"),
+                format!(
+                    "missing; required when valve.flow_form = \"{}\"; expected a number in {unit}",
+                    match v.flow_form {
+                        FlowForm::Orifice => "orifice",
+                        FlowForm::Kq => "kq",
+                        FlowForm::PowerLaw => "power_law",
+                    }
+                ),
+            ))
+        } else {
+            Ok(())
+        }
+    };
+    match v.flow_form {
+        FlowForm::Orifice => {
+            need(
+                "discharge_coefficient",
+                v.discharge_coefficient,
+                "- (0.01–1)",
+            )?;
+            need("area_max", v.area_max, "m²")?;
+        }
+        FlowForm::Kq => {
+            need("rated_flow", v.rated_flow, "m³/s")?;
+            need("rated_pressure_drop", v.rated_pressure_drop, "Pa")?;
+        }
+        FlowForm::PowerLaw => {
+            need("flow_at_1mpa", v.flow_at_1mpa, "m³/s")?;
+            need("exponent", v.exponent, "- (0.05–1)")?;
+        }
+    }
+    if p.supply.tank_pressure >= p.supply.pressure {
+        return Err(ConfigError::new(
+            "supply.tank_pressure",
+            format!(
+                "tank pressure {} Pa must be below supply.pressure {} Pa",
+                p.supply.tank_pressure, p.supply.pressure
+            ),
+        ));
+    }
+    if p.cylinder.initial_position > p.cylinder.stroke {
+        return Err(ConfigError::new(
+            "cylinder.initial_position",
+            format!(
+                "{} m lies outside the stroke [0, {}] m",
+                p.cylinder.initial_position, p.cylinder.stroke
+            ),
+        ));
+    }
+    if let Some(f) = p.effects.friction.as_ref() {
+        if f.static_force < f.coulomb_force {
+            return Err(ConfigError::new(
+                "effects.friction.static_force",
+                format!(
+                    "static (breakaway) force {} N must be ≥ coulomb_force {} N",
+                    f.static_force, f.coulomb_force
+                ),
+            ));
+        }
+    }
+    if let Some(d) = p.effects.valve_dynamics.as_ref() {
+        match d.order {
+            1 if d.time_constant <= 0.0 => {
+                return Err(ConfigError::new(
+                    "effects.valve_dynamics.time_constant",
+                    "must be > 0 s for order = 1",
+                ))
+            }
+            2 if d.natural_frequency <= 0.0 || d.damping_ratio <= 0.0 => {
+                return Err(ConfigError::new(
+                    "effects.valve_dynamics.natural_frequency",
+                    "natural_frequency (rad/s) and damping_ratio (-) must be > 0 for order = 2",
+                ))
+            }
+            1 | 2 => {}
+            o => {
+                return Err(ConfigError::new(
+                    "effects.valve_dynamics.order",
+                    format!("order {o} is not supported; expected 1 or 2"),
+                ))
+            }
+        }
+    }
+    if let Some(t) = p.effects.sensor_tone.as_ref() {
+        if t.frequencies.len() != t.amplitudes.len() {
+            return Err(ConfigError::new(
+                "effects.sensor_tone.amplitudes",
+                format!(
+                    "{} amplitudes for {} frequencies; expected one amplitude per frequency",
+                    t.amplitudes.len(),
+                    t.frequencies.len()
+                ),
+            ));
+        }
+    }
+    if let Some(d) = p.effects.time_delay.as_ref() {
+        if d.delay > 1.0 {
+            return Err(ConfigError::new(
+                "effects.time_delay.delay",
+                "must be ≤ 1 s",
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl Plant {
+    /// Validate, derive constants, choose the substep and allocate (configure phase).
+    /// `control_dt` is the control period (s).
+    pub fn configure(params: &PlantParams, control_dt: f64) -> Result<Plant, ConfigError> {
+        validate(params)?;
+        if !(control_dt.is_finite() && control_dt > 0.0) {
+            return Err(ConfigError::new(
+                "run.control_rate_hz",
+                "control period must be finite and > 0 s",
+            ));
+        }
+        let e = &params.effects;
+        let bmp = e.bulk_modulus_pressure.as_ref().filter(|b| b.enabled);
+        let sdrop = e.supply_pressure_drop.as_ref().filter(|s| s.enabled);
+        let mount = e.flexible_mount.as_ref().filter(|m| m.enabled);
+        let c = Consts {
+            a_a: params.cylinder.area_a,
+            a_b: params.cylinder.area_b,
+            v_a0: params.cylinder.dead_volume_a,
+            v_b0: params.cylinder.dead_volume_b,
+            stroke: params.cylinder.stroke,
+            beta0: params.fluid.bulk_modulus,
+            beta_slope: bmp.map_or(0.0, |b| b.slope),
+            beta_max: bmp.map_or(params.fluid.bulk_modulus, |b| {
+                b.max.max(params.fluid.bulk_modulus)
+            }),
+            p_cav: params.fluid.cavitation_pressure,
+            ps0: params.supply.pressure,
+            pt: params.supply.tank_pressure,
+            k_in: e
+                .internal_leakage
+                .as_ref()
+                .filter(|l| l.enabled)
+                .map_or(0.0, |l| l.coefficient),
+            k_ext: e
+                .external_leakage
+                .as_ref()
+                .filter(|l| l.enabled)
+                .map_or(0.0, |l| l.coefficient),
+            mass: params.mechanics.mass,
+            damping: params.mechanics.damping
+                + e.friction
+                    .as_ref()
+                    .filter(|f| f.enabled)
+                    .map_or(0.0, |f| f.viscous),
+            k_load: params.mechanics.load_stiffness,
+            x_contact: params.mechanics.load_contact_position,
+            end_stops: params.mechanics.end_stops,
+            full_scale: params.valve.command_full_scale,
+            supply_r: sdrop.map_or(0.0, |s| s.resistance),
+            supply_tau: sdrop.map_or(1.0, |s| s.time_constant),
+            mount: mount.map(|m| (m.load_mass, m.stiffness, m.damping)),
+            delay: e
+                .time_delay
+                .as_ref()
+                .filter(|d| d.enabled)
+                .map_or(0.0, |d| d.delay),
+        };
+        let lines = e.line_dynamics.as_ref().filter(|l| l.enabled).map(|l| {
+            (
+                Line::new(l, &params.fluid, 0.0),
+                Line::new(l, &params.fluid, 0.0),
+            )
+        });
+        // Fastest oscillatory mode over the stroke (rad/s).
+        let mut k_total = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0) + c.k_load;
+        let mut omega_max: f64 = 0.0;
+        if let Some((ml, km, dm)) = c.mount {
+            k_total += km;
+            omega_max = omega_max.max((km / ml).sqrt()).max(dm / ml);
+            omega_max = omega_max.max(dm / c.mass);
+        }
+        omega_max = omega_max.max((k_total / c.mass).sqrt());
+        if let Some((la, _)) = &lines {
+            omega_max = omega_max.max(la.omega_max());
+            // Line node coupled to the chamber through the last segment.
+            let c_min = la.c.min(c.v_a0.min(c.v_b0) / c.beta_max);
+            omega_max = omega_max.max(2.0 / (la.l * c_min).sqrt());
+        }
+        let substeps = if params.integration.substeps > 0 {
+            params.integration.substeps
+        } else {
+            let n = (control_dt * omega_max / params.integration.max_omega_h).ceil();
+            n.clamp(1.0, 100_000.0) as u32
+        };
+        let h = control_dt / substeps as f64;
+        let delay_len = if c.delay > 0.0 {
+            (c.delay / control_dt).ceil() as usize + 2
+        } else {
+            1
+        };
+        let mut plant = Plant {
+            edges: EdgeLaw::new(params),
+            spool_model: SpoolModel::new(params, h),
+            friction: e
+                .friction
+                .as_ref()
+                .filter(|f| f.enabled)
+                .map(FrictionModel::new),
+            excitation: ExcitationModel::new(&params.excitation),
+            sensors: SensorModel::new(&params.sensors, e.sensor_tone.as_ref()),
+            lines,
+            control_dt,
+            substeps,
+            h,
+            state: PlantState::default(),
+            cycle: 0,
+            delay_buf: vec![0.0; delay_len],
+            params: params.clone(),
+            c,
+        };
+        plant.initialize();
+        Ok(plant)
+    }
+
+    /// Reset to the initial state (initialize phase): at rest at the initial position with
+    /// chamber pressures from the config or from the force balance of 003 eq. 14.
+    pub fn initialize(&mut self) {
+        let c = &self.c;
+        let cyl = &self.params.cylinder;
+        let x0 = cyl.initial_position;
+        let f_ext0 = self.excitation.force(0.0);
+        let f_load0 = f_ext0 + c.k_load * (x0 - c.x_contact);
+        // 003 eq. 14 with α = A₂/A₁ and p_L = F/A₁.
+        let alpha = c.a_b / c.a_a;
+        let p_l = f_load0 / c.a_a;
+        let a3 = alpha.powi(3);
+        let span = c.ps0 - c.pt;
+        let p10 = c.pt + (a3 * span + p_l) / (1.0 + a3);
+        let p20 = c.pt + alpha * alpha * (span - p_l) / (1.0 + a3);
+        let p_a = cyl.initial_pressure_a.unwrap_or(p10).max(c.p_cav);
+        let p_b = cyl.initial_pressure_b.unwrap_or(p20).max(c.p_cav);
+        self.state = PlantState {
+            t: 0.0,
+            command: 0.0,
+            spool: 0.0,
+            spool_velocity: 0.0,
+            p_a,
+            p_b,
+            p_s: c.ps0,
+            x: x0,
+            v: 0.0,
+            x_load: x0,
+            v_load: 0.0,
+            q_a: 0.0,
+            q_b: 0.0,
+            friction: 0.0,
+            external: f_ext0,
+            rod_force: f_load0,
+            stuck: self.friction.is_some(),
+        };
+        if let Some((la, lb)) = self.lines.as_mut() {
+            la.p.iter_mut().for_each(|p| *p = p_a);
+            la.q.iter_mut().for_each(|q| *q = 0.0);
+            lb.p.iter_mut().for_each(|p| *p = p_b);
+            lb.q.iter_mut().for_each(|q| *q = 0.0);
+        }
+        self.cycle = 0;
+        self.delay_buf.iter_mut().for_each(|u| *u = 0.0);
+        self.sensors = SensorModel::new(
+            &self.params.sensors,
+            self.params.effects.sensor_tone.as_ref(),
+        );
+    }
+
+    /// Parameters the plant was configured with.
+    pub fn params(&self) -> &PlantParams {
+        &self.params
+    }
+
+    /// Current state.
+    pub fn state(&self) -> &PlantState {
+        &self.state
+    }
+
+    /// Substeps per control period.
+    pub fn substeps(&self) -> u32 {
+        self.substeps
+    }
+
+    /// Substep length (s).
+    pub fn substep_length(&self) -> f64 {
+        self.h
+    }
+
+    /// Control period (s).
+    pub fn control_dt(&self) -> f64 {
+        self.control_dt
+    }
+
+    /// Effective bulk modulus at gauge pressure `p` (Pa): β₀ + K_b·p, capped (002 eq. 35).
+    #[inline]
+    pub fn bulk_modulus(&self, p: f64) -> f64 {
+        (self.c.beta0 + self.c.beta_slope * p.max(0.0)).min(self.c.beta_max)
+    }
+
+    /// Chamber volumes (m³) at piston position `x` (003 eq. 7–8).
+    #[inline]
+    pub fn volumes(&self, x: f64) -> (f64, f64) {
+        let xc = x.clamp(0.0, self.c.stroke);
+        (
+            self.c.v_a0 + self.c.a_a * xc,
+            self.c.v_b0 + self.c.a_b * (self.c.stroke - xc),
+        )
+    }
+
+    /// Hydraulic stiffness k = β(A₁²/V₁ + A₂²/V₂) at position `x` (N/m) (003 eq. 15).
+    pub fn hydraulic_stiffness(&self, x: f64) -> f64 {
+        let (va, vb) = self.volumes(x);
+        self.c.beta0 * (self.c.a_a * self.c.a_a / va + self.c.a_b * self.c.a_b / vb)
+    }
+
+    /// Sample the sensors at the current state.
+    pub fn measure(&mut self) -> Measurements {
+        let s = &self.state;
+        let tv = TrueValues {
+            t: s.t,
+            force: s.rod_force,
+            position: s.x,
+            p_a: s.p_a,
+            p_b: s.p_b,
+            spool: s.spool,
+        };
+        self.sensors.sample(&tv)
+    }
+
+    /// Command seen by the valve at substep time `t` given the delay line.
+    #[inline]
+    fn delayed_command(&self, t: f64) -> f64 {
+        if self.c.delay <= 0.0 {
+            return self.delay_buf[0];
+        }
+        let td = t - self.c.delay;
+        if td < 0.0 {
+            return 0.0;
+        }
+        let k = (td / self.control_dt + 1e-9).floor() as u64;
+        let k = k.min(self.cycle);
+        let len = self.delay_buf.len() as u64;
+        if self.cycle - k >= len {
+            return 0.0;
+        }
+        self.delay_buf[(k % len) as usize]
+    }
+
+    /// Advance one control period with the command `u` (V) held (zero-order hold).
+    /// Real-time safe: no allocation, no I/O, bounded time.
+    pub fn step(&mut self, u: f64) -> Result<(), NumericalFailure> {
+        let len = self.delay_buf.len() as u64;
+        let u = if u.is_finite() { u } else { 0.0 };
+        self.delay_buf[(self.cycle % len) as usize] = u;
+        let t0 = self.state.t;
+        for i in 0..self.substeps {
+            let t = t0 + i as f64 * self.h;
+            let uc = self.delayed_command(t);
+            self.advance_substep(t, uc);
+        }
+        self.cycle += 1;
+        self.state.t = t0 + self.control_dt;
+        self.check()
+    }
+
+    fn check(&self) -> Result<(), NumericalFailure> {
+        let s = &self.state;
+        let bad = [
+            ("p_a", s.p_a),
+            ("p_b", s.p_b),
+            ("x", s.x),
+            ("v", s.v),
+            ("spool", s.spool),
+            ("x_load", s.x_load),
+            ("p_s", s.p_s),
+        ]
+        .into_iter()
+        .find(|(_, v)| !v.is_finite());
+        match bad {
+            Some((what, _)) => Err(NumericalFailure { t: s.t, what }),
+            None => Ok(()),
+        }
+    }
+
+    #[inline]
+    fn advance_substep(&mut self, t: f64, u: f64) {
+        let h = self.h;
+        let c = &self.c;
+        let mut s = self.state;
+        s.command = u;
+        // 1. Spool.
+        let target = u / c.full_scale;
+        self.spool_model
+            .advance(&mut s.spool, &mut s.spool_velocity, target);
+        let o = self.edges.openings(s.spool);
+        // 2. Pressures.
+        let (va, vb) = self.volumes(s.x);
+        let beta_a = self.bulk_modulus(s.p_a);
+        let beta_b = self.bulk_modulus(s.p_b);
+        let q_in = c.k_in * (s.p_a - s.p_b);
+        let (q_sa, q_sb);
+        match self.lines.as_mut() {
+            None => {
+                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, s.p_a);
+                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, s.p_b);
+                s.q_a = qa;
+                s.q_b = qb;
+                q_sa = qsa;
+                q_sb = qsb;
+                let fa = beta_a / va * (qa - c.a_a * s.v - q_in - c.k_ext * s.p_a);
+                let la = beta_a / va * (dqa - c.k_in - c.k_ext);
+                let fb = beta_b / vb * (qb + c.a_b * s.v + q_in - c.k_ext * s.p_b);
+                let lb = beta_b / vb * (dqb - c.k_in - c.k_ext);
+                s.p_a = (s.p_a + h * fa * phi1(la * h)).max(c.p_cav);
+                s.p_b = (s.p_b + h * fb * phi1(lb * h)).max(c.p_cav);
+            }
+            Some((la, lb)) => {
+                // Valve-side nodes, exponential Euler in their own pressure.
+                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, la.p[0]);
+                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, lb.p[0]);
+                s.q_a = qa;
+                s.q_b = qb;
+                q_sa = qsa;
+                q_sb = qsb;
+                let f0a = (qa - la.q[0]) / la.c;
+                let f0b = (qb - lb.q[0]) / lb.c;
+                let p0a = la.p[0] + h * f0a * phi1(dqa / la.c * h);
+                let p0b = lb.p[0] + h * f0b * phi1(dqb / lb.c * h);
+                la.advance_interior_nodes(h);
+                lb.advance_interior_nodes(h);
+                la.p[0] = p0a.max(c.p_cav);
+                lb.p[0] = p0b.max(c.p_cav);
+                for p in la.p.iter_mut().chain(lb.p.iter_mut()) {
+                    *p = p.max(c.p_cav);
+                }
+                let qla = *la.q.last().unwrap_or(&0.0);
+                let qlb = *lb.q.last().unwrap_or(&0.0);
+                let fa = beta_a / va * (qla - c.a_a * s.v - q_in - c.k_ext * s.p_a);
+                let lam_a = beta_a / va * (-c.k_in - c.k_ext);
+                let fb = beta_b / vb * (qlb + c.a_b * s.v + q_in - c.k_ext * s.p_b);
+                let lam_b = beta_b / vb * (-c.k_in - c.k_ext);
+                s.p_a = (s.p_a + h * fa * phi1(lam_a * h)).max(c.p_cav);
+                s.p_b = (s.p_b + h * fb * phi1(lam_b * h)).max(c.p_cav);
+                la.advance_flows(h, s.p_a);
+                lb.advance_flows(h, s.p_b);
+            }
+        }
+        // Supply sag (000): first-order towards p_s0 − R·Q_s.
+        if c.supply_r > 0.0 {
+            let target = (c.ps0 - c.supply_r * (q_sa + q_sb)).max(c.pt);
+            s.p_s += (target - s.p_s) * (1.0 - (-h / c.supply_tau).exp());
+        }
+        // 3. Mechanics.
+        let f_ext = self.excitation.force(t + h);
+        s.external = f_ext;
+        let f_hyd = s.p_a * c.a_a - s.p_b * c.a_b;
+        let f_spring = c.k_load * (s.x - c.x_contact);
+        let (f_mount, d_mount) = match c.mount {
+            Some((_, km, dm)) => (km * (s.x - s.x_load) - dm * s.v_load, dm),
+            None => (0.0, 0.0),
+        };
+        let f_on_piston_ext = if c.mount.is_some() { 0.0 } else { f_ext };
+        let f_other = f_hyd - f_spring - f_mount - f_on_piston_ext;
+        let m_eff = c.mass + h * (c.damping + d_mount);
+        let v_free = (c.mass * s.v + h * f_other) / m_eff;
+        let (v_new, f_fric, stuck) = match &self.friction {
+            Some(fm) => fm.project(s.v, v_free, m_eff, h),
+            None => (v_free, 0.0, false),
+        };
+        s.v = v_new;
+        s.friction = f_fric;
+        s.stuck = stuck;
+        s.x += h * s.v;
+        if let Some((ml, km, dm)) = c.mount {
+            let f = km * (s.x - s.x_load) + dm * s.v - f_ext;
+            s.v_load = (ml * s.v_load + h * f) / (ml + h * dm);
+            s.x_load += h * s.v_load;
+        } else {
+            s.x_load = s.x;
+            s.v_load = s.v;
+        }
+        if c.end_stops {
+            if s.x < 0.0 {
+                s.x = 0.0;
+                s.v = s.v.max(0.0);
+            } else if s.x > c.stroke {
+                s.x = c.stroke;
+                s.v = s.v.min(0.0);
+            }
+        }
+        s.rod_force = c.k_load * (s.x - c.x_contact)
+            + match c.mount {
+                Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
+                None => f_ext,
+            };
+        self.state = s;
+    }
+}
+
+/// φ₁(z) = (eᶻ − 1)/z, the exponential-Euler weight (→ 1 as z → 0).
+#[inline]
+fn phi1(z: f64) -> f64 {
+    if z.abs() < 1e-6 {
+        1.0 + 0.5 * z
+    } else {
+        z.exp_m1() / z
+    }
+}

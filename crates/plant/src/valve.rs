@@ -1,0 +1,208 @@
+//! Four-edge valve: spool dynamics and metering-edge flow.
+//!
+//! Flow per edge Q = k · o · φ(Δp) where o ≥ 0 is the edge opening (fraction of full
+//! spool travel) and φ(Δp) = Δp·(Δp² + Δp_l²)^((n−1)/2) is the signed power law
+//! |Δp|ⁿ·sign(Δp), regularised to laminar below Δp_l so that dQ/dp stays finite at Δp = 0.
+//! - `orifice`: k = C_d·A_max·√(2/ρ), n = ½ (orifice equation, 002 eq. 1–8).
+//! - `kq`: k = q_vn/√Δp_n, n = ½ (003 eq. 9–13).
+//! - `power_law`: k = c/(1 MPa)ⁿ with the supply raised by P_o (004 eq. 20–23: P_d = P_s − P_L − P_T + P_o).
+
+use crate::params::{FlowForm, PlantParams};
+use nalgebra::{Matrix2, Vector2};
+
+/// Spool dynamics discretised exactly for one substep (zero-order hold on the command).
+#[derive(Debug, Clone)]
+pub enum SpoolModel {
+    /// Spool follows the command instantly.
+    Ideal,
+    /// PT1: ż = (u − z)/T_z (003 eq. 1).
+    FirstOrder {
+        /// e^(−h/T_z).
+        decay: f64,
+    },
+    /// Second order: ẍ = ω²(u − x) − 2ζω ẋ (004 eq. 1); state transition over one substep.
+    SecondOrder {
+        /// Φ = e^(A h).
+        phi: Matrix2<f64>,
+        /// Γ = ∫₀ʰ e^(A τ) dτ · B.
+        gamma: Vector2<f64>,
+    },
+}
+
+impl SpoolModel {
+    /// Build the discretisation for substep `h` (s).
+    pub fn new(params: &PlantParams, h: f64) -> Self {
+        match params.effects.valve_dynamics.as_ref().filter(|d| d.enabled) {
+            None => SpoolModel::Ideal,
+            Some(d) if d.order == 1 => {
+                if d.time_constant <= 0.0 {
+                    SpoolModel::Ideal
+                } else {
+                    SpoolModel::FirstOrder {
+                        decay: (-h / d.time_constant).exp(),
+                    }
+                }
+            }
+            Some(d) => {
+                let w = d.natural_frequency;
+                if w <= 0.0 {
+                    return SpoolModel::Ideal;
+                }
+                let z = d.damping_ratio;
+                let a = Matrix2::new(0.0, 1.0, -w * w, -2.0 * z * w);
+                let b = Vector2::new(0.0, w * w);
+                // Augmented-matrix exponential gives Φ and Γ together (Van Loan).
+                let mut m = nalgebra::Matrix3::<f64>::zeros();
+                m.fixed_view_mut::<2, 2>(0, 0).copy_from(&(a * h));
+                m.fixed_view_mut::<2, 1>(0, 2).copy_from(&(b * h));
+                let e = m.exp();
+                SpoolModel::SecondOrder {
+                    phi: e.fixed_view::<2, 2>(0, 0).into_owned(),
+                    gamma: e.fixed_view::<2, 1>(0, 2).into_owned(),
+                }
+            }
+        }
+    }
+
+    /// Advance spool position `s` and velocity `sd` towards target `u` over one substep.
+    #[inline]
+    pub fn advance(&self, s: &mut f64, sd: &mut f64, u: f64) {
+        match self {
+            SpoolModel::Ideal => {
+                *s = u;
+                *sd = 0.0;
+            }
+            SpoolModel::FirstOrder { decay } => {
+                let s1 = u + (*s - u) * decay;
+                *sd = 0.0;
+                *s = s1;
+            }
+            SpoolModel::SecondOrder { phi, gamma } => {
+                let x = phi * Vector2::new(*s, *sd) + gamma * u;
+                *s = x[0];
+                *sd = x[1];
+            }
+        }
+    }
+}
+
+/// Metering-edge geometry and flow law.
+#[derive(Debug, Clone)]
+pub struct EdgeLaw {
+    /// Flow coefficient k (m³/s per unit opening per Paⁿ).
+    pub k: f64,
+    /// Exponent n.
+    pub n: f64,
+    /// Laminar transition pressure Δp_l (Pa).
+    pub dp_lam: f64,
+    /// Supply pressure raise P_o for the power law (Pa).
+    pub supply_offset: f64,
+    /// Underlap (fraction).
+    pub underlap: f64,
+    /// Overlap (fraction).
+    pub overlap: f64,
+    /// Zero offset (fraction).
+    pub zero_offset: f64,
+    /// Spool travel limit (fraction).
+    pub spool_limit: f64,
+    /// Edge flow limit (m³/s), infinite if none.
+    pub max_flow: f64,
+}
+
+impl EdgeLaw {
+    /// Derive from the parameters (assumes they passed validation).
+    pub fn new(params: &PlantParams) -> Self {
+        let v = &params.valve;
+        let (k, n, po) = match v.flow_form {
+            FlowForm::Orifice => (
+                v.discharge_coefficient.unwrap_or(0.6)
+                    * v.area_max.unwrap_or(0.0)
+                    * (2.0 / params.fluid.density).sqrt(),
+                0.5,
+                0.0,
+            ),
+            FlowForm::Kq => (
+                v.rated_flow.unwrap_or(0.0) / v.rated_pressure_drop.unwrap_or(1.0).sqrt(),
+                0.5,
+                0.0,
+            ),
+            FlowForm::PowerLaw => {
+                let n = v.exponent.unwrap_or(0.5);
+                (
+                    v.flow_at_1mpa.unwrap_or(0.0) / 1.0e6_f64.powf(n),
+                    n,
+                    v.pressure_offset.unwrap_or(0.0),
+                )
+            }
+        };
+        let db = params.effects.valve_deadband.as_ref().filter(|d| d.enabled);
+        let sat = params
+            .effects
+            .valve_saturation
+            .as_ref()
+            .filter(|d| d.enabled);
+        Self {
+            k,
+            n,
+            dp_lam: v.laminar_pressure,
+            supply_offset: po,
+            underlap: v.underlap,
+            overlap: db.map_or(0.0, |d| d.overlap),
+            zero_offset: db.map_or(0.0, |d| d.zero_offset),
+            spool_limit: sat.map_or(f64::INFINITY, |s| s.spool_limit),
+            max_flow: sat
+                .map(|s| s.max_flow)
+                .filter(|m| *m > 0.0)
+                .unwrap_or(f64::INFINITY),
+        }
+    }
+
+    /// Edge openings (P→A, A→T, P→B, B→T) for spool position `s` (fraction).
+    #[inline]
+    pub fn openings(&self, s: f64) -> [f64; 4] {
+        let se = (s - self.zero_offset).clamp(-self.spool_limit, self.spool_limit);
+        let pos = (se + self.underlap - self.overlap).max(0.0);
+        let neg = (-se + self.underlap - self.overlap).max(0.0);
+        [pos, neg, neg, pos]
+    }
+
+    /// Signed, regularised power law φ(Δp) and its derivative dφ/dΔp.
+    #[inline]
+    pub fn phi(&self, dp: f64) -> (f64, f64) {
+        let s2 = dp * dp + self.dp_lam * self.dp_lam;
+        if self.n == 0.5 {
+            let g = 1.0 / s2.sqrt().sqrt();
+            (dp * g, g * (0.5 * dp * dp + self.dp_lam * self.dp_lam) / s2)
+        } else {
+            let g = s2.powf(0.5 * (self.n - 1.0));
+            (
+                dp * g,
+                g * (self.n * dp * dp + self.dp_lam * self.dp_lam) / s2,
+            )
+        }
+    }
+
+    /// Flow through one edge of opening `o` at pressure drop `dp`, and dQ/d(Δp).
+    #[inline]
+    pub fn edge(&self, o: f64, dp: f64) -> (f64, f64) {
+        if o <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let (f, df) = self.phi(dp);
+        let q = self.k * o * f;
+        if q.abs() > self.max_flow {
+            (self.max_flow.copysign(q), 0.0)
+        } else {
+            (q, self.k * o * df)
+        }
+    }
+
+    /// Net flow into a port at pressure `p` from supply `ps` and to tank `pt` through the
+    /// inlet edge opening `o_in` and outlet edge opening `o_out`; returns (Q, dQ/dp, Q from supply).
+    #[inline]
+    pub fn port(&self, o_in: f64, o_out: f64, ps: f64, pt: f64, p: f64) -> (f64, f64, f64) {
+        let (qi, dqi) = self.edge(o_in, ps + self.supply_offset - p);
+        let (qo, dqo) = self.edge(o_out, p - pt);
+        (qi - qo, -dqi - dqo, qi)
+    }
+}
