@@ -671,12 +671,13 @@ pub fn from_serde(
         return ConfigError::new(fp, format!("missing required field; {exp}"));
     }
     if let Some(field) = between(&msg, "unknown field `", "`") {
-        let base = full(&path);
-        let fp = if base.is_empty() {
-            field.to_string()
-        } else {
-            format!("{base}.{field}")
-        };
+        // serde_path_to_error's path already ends with the unknown key.
+        let fp = full(&path);
+        let base = fp
+            .strip_suffix(field)
+            .map(|b| b.trim_end_matches('.').to_string())
+            .unwrap_or_default();
+        let fp = if fp.is_empty() { field.to_string() } else { fp };
         if base == "effects" {
             return ConfigError::new(
                 fp,

@@ -1,0 +1,189 @@
+//! Plant components against closed forms: orifice flow, K_q rating, hydraulic stiffness
+//! k = β(A₁²/V₁ + A₂²/V₂) (003 eq. 15), natural frequency f = √(k/m)/2π (003 eq. 16),
+//! exact second-order spool step response (004 eq. 1).
+
+use ehactl_plant::params::{FlowForm, PlantParams, ValveDynamics};
+use ehactl_plant::valve::{EdgeLaw, SpoolModel};
+use ehactl_plant::Plant;
+use ehactl_tests::blocked_cylinder;
+
+fn orifice_params() -> PlantParams {
+    let mut p = blocked_cylinder(10.0, 0.0, 0.5);
+    p.valve.flow_form = FlowForm::Orifice;
+    p.valve.discharge_coefficient = Some(0.61);
+    p.valve.area_max = Some(2.0e-5);
+    p
+}
+
+#[test]
+fn orifice_flow_matches_cd_a_sqrt_2dp_over_rho() {
+    let p = orifice_params();
+    let e = EdgeLaw::new(&p);
+    for dp in [1.0e6, 5.0e6, 20.0e6] {
+        for o in [0.1, 0.5, 1.0] {
+            let (q, _) = e.edge(o, dp);
+            let exact = 0.61 * 2.0e-5 * o * (2.0 * dp / 900.0).sqrt();
+            let rel = (q - exact).abs() / exact;
+            // Laminar regularisation changes the flow by ≈ (Δp_l/Δp)²/4 ≤ 1e-4 here.
+            assert!(rel < 2e-4, "dp {dp} o {o}: {q} vs {exact} ({rel})");
+            let (qn, _) = e.edge(o, -dp);
+            assert!((qn + q).abs() < 1e-15, "flow is odd in Δp");
+        }
+    }
+    // Finite, positive slope at Δp = 0 (no infinite K_c).
+    let (q0, dq0) = e.edge(1.0, 0.0);
+    assert_eq!(q0, 0.0);
+    assert!(dq0.is_finite() && dq0 > 0.0);
+}
+
+#[test]
+fn kq_form_gives_rated_flow_at_rated_drop() {
+    let p = blocked_cylinder(10.0, 0.0, 0.5);
+    let e = EdgeLaw::new(&p);
+    let (q, _) = e.edge(1.0, 1.0e6);
+    assert!((q - 5.8333e-4).abs() / 5.8333e-4 < 1e-3, "{q}");
+    // √Δp law: four times the drop, twice the flow.
+    let (q4, _) = e.edge(1.0, 4.0e6);
+    assert!((q4 / q - 2.0).abs() < 1e-3);
+}
+
+#[test]
+fn power_law_matches_004_eq20_and_its_kc() {
+    let mut p = blocked_cylinder(10.0, 0.0, 0.5);
+    p.valve.flow_form = FlowForm::PowerLaw;
+    p.valve.flow_at_1mpa = Some(1.4075e-4);
+    p.valve.exponent = Some(0.4667);
+    p.valve.laminar_pressure = 1.0e3;
+    let e = EdgeLaw::new(&p);
+    for pd_mpa in [2.0_f64, 7.0, 15.0] {
+        let (q, dq) = e.edge(1.0, pd_mpa * 1e6);
+        let exact = 1.4075e-4 * pd_mpa.powf(0.4667);
+        assert!((q - exact).abs() / exact < 1e-4, "Q at {pd_mpa} MPa");
+        // 004 eq. 21: K_Cnl = 1.0407e-7·P_d^−0.5333 with P_d in Pa.
+        let kc = 1.0407e-7 * (pd_mpa * 1e6).powf(-0.5333);
+        assert!(
+            (dq - kc).abs() / kc < 2e-3,
+            "K_C at {pd_mpa} MPa: {dq} vs {kc}"
+        );
+    }
+}
+
+#[test]
+fn hydraulic_stiffness_from_simulated_static_deflection() {
+    // Closed valve, constant force step; the piston settles at Δx = ΔF / k (003 eq. 15).
+    for x0 in [0.2, 0.6, 1.0] {
+        let p = blocked_cylinder(255.0, 2.0e5, x0);
+        let plant = Plant::configure(&p, 2e-4).unwrap();
+        let x_start = plant.state().x;
+        let f_step = 5000.0;
+        // Same initial pressures as the unloaded equilibrium, then a constant 5 kN load.
+        let mut q = p.clone();
+        q.excitation.kind = ehactl_plant::params::ExcitationKind::Constant;
+        q.excitation.offset = f_step;
+        q.cylinder.initial_pressure_a = Some(plant.state().p_a);
+        q.cylinder.initial_pressure_b = Some(plant.state().p_b);
+        let mut loaded = Plant::configure(&q, 2e-4).unwrap();
+        for _ in 0..10_000 {
+            loaded.step(0.0).unwrap();
+        }
+        let dx = x_start - loaded.state().x;
+        let (v1, v2) = plant.volumes(x0);
+        let k = 1.8e9 * (1.96e-3_f64.powi(2) / v1 + 1.3e-3_f64.powi(2) / v2);
+        let expected = f_step / k;
+        assert!(
+            (dx - expected).abs() / expected < 0.01,
+            "x0 {x0}: deflection {dx} m vs F/k {expected} m"
+        );
+        assert!((plant.hydraulic_stiffness(x0) - k).abs() / k < 1e-12);
+    }
+}
+
+fn oscillation_frequency(plant: &mut Plant, dt: f64, cycles: usize) -> f64 {
+    let xs: Vec<f64> = (0..cycles)
+        .map(|_| {
+            plant.step(0.0).unwrap();
+            plant.state().x
+        })
+        .collect();
+    let mean = xs.iter().sum::<f64>() / xs.len() as f64;
+    let mut crossings = Vec::new();
+    for k in 1..xs.len() {
+        let (a, b) = (xs[k - 1] - mean, xs[k] - mean);
+        if a < 0.0 && b >= 0.0 {
+            // Linear interpolation of the upward crossing of the mean.
+            crossings.push((k as f64 - 1.0 + (-a) / (b - a)) * dt);
+        }
+    }
+    let n = crossings.len();
+    assert!(n >= 3, "need oscillation");
+    (n - 1) as f64 / (crossings[n - 1] - crossings[0])
+}
+
+#[test]
+fn natural_frequency_matches_003_eq16_over_the_stroke() {
+    // Rigid connection m_y + m_L = 255 kg, closed valve, small initial velocity kick via a
+    // pressure imbalance; measured frequency vs √(k/m)/2π.
+    let dt = 1e-4;
+    let mut lowest = f64::INFINITY;
+    for x0 in [0.1, 0.4, 0.7, 0.9, 1.1] {
+        let p = blocked_cylinder(255.0, 0.0, x0);
+        let eq = Plant::configure(&p, dt).unwrap();
+        let mut q = p.clone();
+        q.cylinder.initial_pressure_a = Some(eq.state().p_a + 2.0e5);
+        q.cylinder.initial_pressure_b = Some(eq.state().p_b);
+        let mut plant = Plant::configure(&q, dt).unwrap();
+        let f_meas = oscillation_frequency(&mut plant, dt, 20_000);
+        let k = eq.hydraulic_stiffness(x0);
+        let f = (k / 255.0).sqrt() / std::f64::consts::TAU;
+        lowest = lowest.min(f);
+        assert!(
+            (f_meas - f).abs() / f < 0.01,
+            "x0 {x0}: {f_meas} Hz vs {f} Hz"
+        );
+    }
+    // 003: "the lowest value of the natural frequency ... f_y ≈ 30 Hz".
+    assert!((lowest - 30.0).abs() / 30.0 < 0.10, "lowest {lowest} Hz");
+}
+
+#[test]
+fn second_order_spool_matches_analytic_step() {
+    let mut p = blocked_cylinder(10.0, 0.0, 0.5);
+    p.effects.valve_dynamics = Some(ValveDynamics {
+        enabled: true,
+        order: 2,
+        time_constant: 0.0,
+        natural_frequency: 1507.9,
+        damping_ratio: 0.59,
+    });
+    let h = 1e-5;
+    let m = SpoolModel::new(&p, h);
+    let (w, z) = (1507.9_f64, 0.59_f64);
+    let wd = w * (1.0 - z * z).sqrt();
+    let (mut s, mut sd) = (0.0, 0.0);
+    for k in 1..=500 {
+        m.advance(&mut s, &mut sd, 1.0);
+        let t = k as f64 * h;
+        let exact = 1.0 - (-z * w * t).exp() * ((wd * t).cos() + z * w / wd * (wd * t).sin());
+        assert!((s - exact).abs() < 1e-9, "t {t}: {s} vs {exact}");
+    }
+}
+
+#[test]
+fn first_order_spool_matches_pt1() {
+    let mut p = blocked_cylinder(10.0, 0.0, 0.5);
+    p.effects.valve_dynamics = Some(ValveDynamics {
+        enabled: true,
+        order: 1,
+        time_constant: 0.01,
+        natural_frequency: 0.0,
+        damping_ratio: 0.0,
+    });
+    let h = 1e-4;
+    let m = SpoolModel::new(&p, h);
+    let (mut s, mut sd) = (0.0, 0.0);
+    for k in 1..=300 {
+        m.advance(&mut s, &mut sd, 0.5);
+        let exact = 0.5 * (1.0 - (-(k as f64) * h / 0.01).exp());
+        assert!((s - exact).abs() < 1e-12);
+    }
+}
