@@ -178,11 +178,43 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
                 break;
             }
         };
+        let (r, rdot) = setpoint.sample(t);
         if let Some(ev) = supervisor.check_sensors(t, k, &meas) {
+            // The tripping cycle is logged too, with the safe command it applied.
+            let plant = hal.plant_state();
+            let safe = supervisor.safe_command();
+            let fb = controller.feedback(&meas);
+            let e = r - fb;
+            if e.is_finite() && !matches!(controller, Controller::OpenLoop) {
+                sum_sq += e * e;
+                n_err += 1;
+                max_abs = max_abs.max(e.abs());
+            }
+            record(&CycleRecord {
+                cycle: k,
+                t,
+                setpoint: r,
+                setpoint_rate: rdot,
+                feedback: fb,
+                error: if matches!(controller, Controller::OpenLoop) {
+                    f64::NAN
+                } else {
+                    e
+                },
+                command: safe,
+                command_unsat: safe,
+                p_term: f64::NAN,
+                i_term: f64::NAN,
+                d_term: f64::NAN,
+                ff_term: f64::NAN,
+                meas,
+                plant: plant.unwrap_or_default(),
+                has_plant: plant.is_some(),
+            });
+            k += 1;
             trip = Some(ev);
             break;
         }
-        let (r, rdot) = setpoint.sample(t);
         let terms = controller.step(r, rdot, &meas, dt);
         let (u, ev) = supervisor.limit_command(t, k, terms.u);
         if let Some(ev) = ev {

@@ -114,6 +114,12 @@ pub fn build_plant(cfg: &RigConfig) -> Result<Plant, ConfigError> {
 
 /// Run `cfg` against the simulated plant in simulated time.
 pub fn run_sim(cfg: &RigConfig, mut opts: SessionOptions<'_>) -> Result<Session, SessionError> {
+    // The log records the config as run, including a duration override.
+    let mut cfg_run = cfg.clone();
+    if let Some(d) = opts.duration {
+        cfg_run.run.duration = d;
+    }
+    let cfg = &cfg_run;
     let plant = build_plant(cfg).map_err(SessionError::Config)?;
     let substeps = plant.substeps();
     let mut hal = SimHal::new(plant);
@@ -214,7 +220,8 @@ pub fn run_sim(cfg: &RigConfig, mut opts: SessionOptions<'_>) -> Result<Session,
         unit,
     };
     if let Some(l) = logger {
-        let summary = session.summary_json();
+        let mut summary = session.summary_json();
+        summary["mcap"] = serde_json::json!(l.path().display().to_string());
         session.log = Some(l.finish(summary).map_err(SessionError::Log)?);
     }
     Ok(session)

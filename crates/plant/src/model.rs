@@ -500,7 +500,8 @@ impl Plant {
             self.advance_substep(t, uc);
         }
         self.cycle += 1;
-        self.state.t = t0 + self.control_dt;
+        // Time from the cycle count, so it does not drift by summed rounding.
+        self.state.t = self.cycle as f64 * self.control_dt;
         self.check()
     }
 
