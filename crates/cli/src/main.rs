@@ -31,7 +31,7 @@ enum Command {
         /// Rig config (TOML).
         config: PathBuf,
         /// Override run.duration (s).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         duration: Option<f64>,
         /// MCAP output file (default: out/<config name>.mcap).
         #[arg(long)]
