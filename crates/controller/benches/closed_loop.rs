@@ -316,7 +316,10 @@ fn timing_table(
         }
         rows.push(Row {
             label: match n {
-                n if n == auto => format!("**{n}** (config's auto, max_omega_h = {})", cfg.plant.integration.max_omega_h),
+                n if n == auto => format!(
+                    "**{n}** (config's auto, max_omega_h = {})",
+                    cfg.plant.integration.max_omega_h
+                ),
                 22 => format!("{n} (auto at the default max_omega_h = 0.25)"),
                 n => format!("{n}"),
             },
