@@ -23,11 +23,7 @@ impl ExcitationModel {
             return 0.0;
         }
         if t < p.start_time {
-            return if matches!(p.kind, ExcitationKind::None) {
-                0.0
-            } else {
-                p.offset
-            };
+            return p.offset;
         }
         let tau = t - p.start_time;
         match p.kind {
