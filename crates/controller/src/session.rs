@@ -3,12 +3,13 @@
 //! Shared by the CLI and the Python bindings so both run exactly the same code.
 
 use crate::config::{Compression, ControlMode, RigConfig};
-use crate::runloop::{run_loop, Controller, LoopSettings, RunOutcome, SimulatedTime};
+use crate::runloop::{run_loop, Controller, LoopSettings, Pacer, RunOutcome, SimulatedTime};
 use crate::setpoint::Setpoint;
 use crate::supervisor::Supervisor;
 use ehactl_hal::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
 use ehactl_hal::record::CycleRecord;
 use ehactl_hal::sim::SimHal;
+use ehactl_hal::Hal;
 use ehactl_plant::{ConfigError, Plant};
 use serde_json::json;
 use std::path::PathBuf;
@@ -113,16 +114,55 @@ pub fn build_plant(cfg: &RigConfig) -> Result<Plant, ConfigError> {
 }
 
 /// Run `cfg` against the simulated plant in simulated time.
-pub fn run_sim(cfg: &RigConfig, mut opts: SessionOptions<'_>) -> Result<Session, SessionError> {
+pub fn run_sim(cfg: &RigConfig, opts: SessionOptions<'_>) -> Result<Session, SessionError> {
+    let mut cfg_run = cfg.clone();
+    if let Some(d) = opts.duration {
+        cfg_run.run.duration = d;
+    }
+    let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
+    let substeps = plant.substeps();
+    let mut hal = SimHal::new(plant);
+    let backend = Backend {
+        hal: &mut hal,
+        pacer: &mut SimulatedTime,
+        overflow: Overflow::Block,
+        substeps,
+    };
+    run_with(cfg, backend, opts)
+}
+
+/// The hardware side of a session: which `Hal`, how cycles are paced, and what the logger
+/// does when its queue is full (block in simulated time, drop against the wall clock).
+pub struct Backend<'a> {
+    /// Hardware interface (simulated plant or devices).
+    pub hal: &'a mut dyn Hal,
+    /// Cycle pacing (simulated time or a wall-clock executor).
+    pub pacer: &'a mut dyn Pacer,
+    /// Logger overflow policy.
+    pub overflow: Overflow,
+    /// Plant substeps per control period (0 when the plant is real hardware).
+    pub substeps: u32,
+}
+
+/// Run `cfg` against any backend: the one loop shared by the simulated and the hardware
+/// runs (the CLI, the Python bindings and the wall-clock executor all end up here).
+pub fn run_with(
+    cfg: &RigConfig,
+    backend: Backend<'_>,
+    mut opts: SessionOptions<'_>,
+) -> Result<Session, SessionError> {
     // The log records the config as run, including a duration override.
     let mut cfg_run = cfg.clone();
     if let Some(d) = opts.duration {
         cfg_run.run.duration = d;
     }
     let cfg = &cfg_run;
-    let plant = build_plant(cfg).map_err(SessionError::Config)?;
-    let substeps = plant.substeps();
-    let mut hal = SimHal::new(plant);
+    let Backend {
+        hal,
+        pacer,
+        overflow,
+        substeps,
+    } = backend;
     let dt = cfg.control_dt();
     let duration = opts.duration.unwrap_or(cfg.run.duration);
     if !(duration.is_finite() && duration > 0.0) {
@@ -145,12 +185,12 @@ pub fn run_sim(cfg: &RigConfig, mut opts: SessionOptions<'_>) -> Result<Session,
                         Compression::Lz4 => LogCompression::Lz4,
                     },
                     queue_capacity: cfg.log.queue_capacity as usize,
-                    overflow: Overflow::Block,
+                    overflow,
                 },
                 &RunMetadata {
                     config_toml: cfg.to_toml_string(),
                     config_json: cfg.to_json(),
-                    backend: "sim".into(),
+                    backend: hal.name().into(),
                     control_rate_hz: cfg.run.control_rate_hz,
                 },
             )
@@ -193,11 +233,11 @@ pub fn run_sim(cfg: &RigConfig, mut opts: SessionOptions<'_>) -> Result<Session,
             }
         };
         run_loop(
-            &mut hal,
+            hal,
             &mut controller,
             &setpoint,
             &mut supervisor,
-            &mut SimulatedTime,
+            pacer,
             &settings,
             &mut on_record,
             &mut on_event,
