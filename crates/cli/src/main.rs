@@ -3,6 +3,8 @@
 //! Exit codes: 0 run completed, 2 bad config or arguments, 3 supervisor trip,
 //! 130 interrupted by a signal (log finalised), 1 any other failure (I/O).
 
+mod analysis_cmd;
+
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
 use ehactl_controller::session::{run_sim, SessionError, SessionOptions};
@@ -47,11 +49,46 @@ enum Command {
     },
     /// List every config parameter with its unit and meaning.
     Params,
+    /// Linearise CONFIG around its operating point: natural frequencies, margins, bandwidths.
+    Analyze {
+        /// Rig config (TOML).
+        config: PathBuf,
+        /// Print exactly one JSON object on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Measure the frequency response of the nonlinear plant by a stepped sine (logged to MCAP).
+    Sweep(analysis_cmd::SweepArgs),
 }
 
 fn config_error(e: impl std::fmt::Display) -> ExitCode {
     eprintln!("ehactl: {e}");
     ExitCode::from(2)
+}
+
+/// A progress bar on stderr (hidden when stderr is not a terminal).
+fn progress_bar(msg: String) -> ProgressBar {
+    let bar = ProgressBar::new(1);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} {msg} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    bar.set_message(msg);
+    bar
+}
+
+/// Stop flag set by SIGINT / SIGTERM.
+fn stop_flag() -> Arc<AtomicBool> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        if let Err(e) = signal_hook::flag::register(sig, stop.clone()) {
+            eprintln!("ehactl: warning: cannot install signal handler: {e}");
+        }
+    }
+    stop
 }
 
 fn load(path: &Path) -> Result<RigConfig, ExitCode> {
@@ -94,6 +131,8 @@ fn main() -> ExitCode {
                 Err(e) => config_error(format!("{}: {e}", config.display())),
             }
         }
+        Command::Analyze { config, json } => analysis_cmd::analyze(&config, json),
+        Command::Sweep(args) => analysis_cmd::sweep(&args),
         Command::Params => {
             for table in registries() {
                 for p in table {
@@ -121,21 +160,8 @@ fn cmd_run(config: &Path, duration: Option<f64>, out: Option<PathBuf>, json: boo
             .map_or("run".into(), |s| s.to_string_lossy().into_owned());
         PathBuf::from("out").join(format!("{stem}.mcap"))
     });
-    let stop = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        if let Err(e) = signal_hook::flag::register(sig, stop.clone()) {
-            eprintln!("ehactl: warning: cannot install signal handler: {e}");
-        }
-    }
-    let bar = ProgressBar::new(1);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} {msg} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    bar.set_message(format!("{} (simulated)", config.display()));
+    let stop = stop_flag();
+    let bar = progress_bar(format!("{} (simulated)", config.display()));
     let mut progress = |k: u64, n: u64| {
         bar.set_length(n);
         bar.set_position(k);
@@ -148,6 +174,7 @@ fn cmd_run(config: &Path, duration: Option<f64>, out: Option<PathBuf>, json: boo
             stop: Some(&stop),
             capture: false,
             progress: Some(&mut progress),
+            observer: None,
         },
     );
     bar.finish_and_clear();

@@ -29,6 +29,8 @@ pub struct SessionOptions<'a> {
     pub capture: bool,
     /// Progress callback: (cycles done, cycles total).
     pub progress: Option<&'a mut dyn FnMut(u64, u64)>,
+    /// Sees every cycle record as it is produced (streaming estimators, e.g. `ehactl sweep`).
+    pub observer: Option<&'a mut dyn FnMut(&CycleRecord)>,
 }
 
 /// Result of a run.
@@ -214,9 +216,13 @@ pub fn run_with(
     let start = Instant::now();
     let outcome = {
         let lg = logger.as_ref();
+        let observer = &mut opts.observer;
         let mut on_record = |r: &CycleRecord| {
             if let Some(l) = lg {
                 l.push(r);
+            }
+            if let Some(o) = observer.as_mut() {
+                o(r);
             }
             if capture {
                 records.push(*r);

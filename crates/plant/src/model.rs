@@ -454,6 +454,121 @@ impl Plant {
         self.c.beta0 * (self.c.a_a * self.c.a_a / va + self.c.a_b * self.c.a_b / vb)
     }
 
+    /// Names of the continuous states that [`Plant::linear_state`] returns, in order:
+    /// spool (if the spool has dynamics), spool velocity (2nd order), p_a, p_b, p_s (with
+    /// supply sag), x, v, x_load and v_load (with a flexible mount), then the line node
+    /// pressures and segment flows of line A and line B. Used for linearisation.
+    pub fn linear_state_names(&self) -> Vec<String> {
+        let mut n = Vec::new();
+        let order = self.spool_order();
+        if order >= 1 {
+            n.push("spool".to_string());
+        }
+        if order >= 2 {
+            n.push("spool_velocity".to_string());
+        }
+        n.extend(["p_a", "p_b"].map(String::from));
+        if self.c.supply_r > 0.0 {
+            n.push("p_s".into());
+        }
+        n.extend(["x", "v"].map(String::from));
+        if self.c.mount.is_some() {
+            n.extend(["x_load", "v_load"].map(String::from));
+        }
+        if let Some((la, lb)) = &self.lines {
+            for (tag, l) in [("a", la), ("b", lb)] {
+                n.extend((0..l.p.len()).map(|i| format!("line_{tag}.p[{i}]")));
+                n.extend((0..l.q.len()).map(|i| format!("line_{tag}.q[{i}]")));
+            }
+        }
+        n
+    }
+
+    fn spool_order(&self) -> u8 {
+        self.params
+            .effects
+            .valve_dynamics
+            .as_ref()
+            .filter(|v| v.enabled)
+            .map_or(0, |v| v.order)
+    }
+
+    /// The continuous state as a vector (SI units, order of [`Plant::linear_state_names`]).
+    /// Not for the real-time cycle (allocates).
+    pub fn linear_state(&self) -> Vec<f64> {
+        let s = &self.state;
+        let mut v = Vec::new();
+        let order = self.spool_order();
+        if order >= 1 {
+            v.push(s.spool);
+        }
+        if order >= 2 {
+            v.push(s.spool_velocity);
+        }
+        v.extend([s.p_a, s.p_b]);
+        if self.c.supply_r > 0.0 {
+            v.push(s.p_s);
+        }
+        v.extend([s.x, s.v]);
+        if self.c.mount.is_some() {
+            v.extend([s.x_load, s.v_load]);
+        }
+        if let Some((la, lb)) = &self.lines {
+            for l in [la, lb] {
+                v.extend_from_slice(&l.p);
+                v.extend_from_slice(&l.q);
+            }
+        }
+        v
+    }
+
+    /// Overwrite the continuous state from a vector laid out as [`Plant::linear_state`]
+    /// (used to perturb the state for linearisation). The stick flag is cleared and the
+    /// valve command delay line is left as it is.
+    pub fn set_linear_state(&mut self, v: &[f64]) {
+        let mut it = v.iter().copied();
+        let mut next = || it.next().unwrap_or(0.0);
+        let order = self.spool_order();
+        let s = &mut self.state;
+        if order >= 1 {
+            s.spool = next();
+        }
+        if order >= 2 {
+            s.spool_velocity = next();
+        }
+        s.p_a = next();
+        s.p_b = next();
+        if self.c.supply_r > 0.0 {
+            s.p_s = next();
+        }
+        s.x = next();
+        s.v = next();
+        if self.c.mount.is_some() {
+            s.x_load = next();
+            s.v_load = next();
+        } else {
+            s.x_load = s.x;
+            s.v_load = s.v;
+        }
+        s.stuck = false;
+        if let Some((la, lb)) = self.lines.as_mut() {
+            for l in [la, lb] {
+                for p in l.p.iter_mut() {
+                    *p = next();
+                }
+                for q in l.q.iter_mut() {
+                    *q = next();
+                }
+            }
+        }
+        let c = &self.c;
+        s.rod_force = c.k_load * (s.x - c.x_contact)
+            + match c.mount {
+                Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
+                None => s.external,
+            };
+    }
+
     /// Sample the sensors at the current state.
     pub fn measure(&mut self) -> Measurements {
         let s = &self.state;

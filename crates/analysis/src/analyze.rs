@@ -1,0 +1,217 @@
+//! `ehactl analyze`: the configured rig and loop linearised around their operating point.
+
+use crate::linear::{self, LinearModel, Output};
+use crate::loopshape::{margins, open_loop_bandwidth, Law, Loop, Margins};
+use crate::oppoint::{self, command_delay};
+use crate::sdd::{self, SddRatios};
+use crate::AnalysisError;
+use ehactl_controller::config::RigConfig;
+use ehactl_plant::Plant;
+use serde::Serialize;
+use serde_json::{json, Value};
+use std::f64::consts::TAU;
+
+/// A pole of the continuous linear model.
+#[derive(Debug, Clone, Serialize)]
+pub struct Pole {
+    /// Natural frequency |λ|/2π (Hz).
+    pub frequency_hz: f64,
+    /// Damping ratio −Re λ/|λ| (-).
+    pub damping_ratio: f64,
+}
+
+/// Everything `ehactl analyze` reports.
+#[derive(Debug, Clone, Serialize)]
+pub struct Analysis {
+    /// Rig name.
+    pub rig: String,
+    /// Operating point: reference, feedback, valve command, position, pressures.
+    pub operating_point: Value,
+    /// √(K_h/m)/2π at the operating position (Hz), K_h = β·(A_A²/V_A + A_B²/V_B), m the
+    /// piston mass plus a flexibly mounted load taken as rigidly connected.
+    pub hydraulic_natural_frequency_hz: f64,
+    /// Lowest of the above over the stroke (Hz) and where (m).
+    pub min_natural_frequency_over_stroke_hz: f64,
+    /// Position of the lowest natural frequency (m).
+    pub min_natural_frequency_position_m: f64,
+    /// −3 dB bandwidth of the plant (command → controlled output) when it has a static gain (Hz).
+    pub open_loop_bandwidth_hz: Option<f64>,
+    /// Margins of the sampled loop (zero-order hold at the control rate, discrete law).
+    pub discrete: Option<Margins>,
+    /// Margins of the continuous-time loop (ideal PI/PD, no sampling), as the papers compute.
+    pub continuous: Option<Margins>,
+    /// Command delay included as e^(−jωτ) (s).
+    pub delay_s: f64,
+    /// Seed 003 SDD ratios, with a flexible mount.
+    pub sdd: Option<SddRatios>,
+    /// Slowest poles of the continuous plant model.
+    pub poles: Vec<Pole>,
+    /// Control rate (Hz).
+    pub control_rate_hz: f64,
+}
+
+/// Natural frequency √(K_h(x)/m)/2π (Hz) of `plant` at `x`, with `mass` (kg).
+pub fn natural_frequency(plant: &Plant, x: f64, mass: f64) -> f64 {
+    (plant.hydraulic_stiffness(x) / mass).sqrt() / TAU
+}
+
+fn rigid_mass(plant: &Plant) -> f64 {
+    let p = plant.params();
+    p.mechanics.mass
+        + p.effects
+            .flexible_mount
+            .as_ref()
+            .filter(|m| m.enabled)
+            .map_or(0.0, |m| m.load_mass)
+}
+
+/// Lowest natural frequency over the stroke (Hz) and its position (m), scanning 2001 points.
+pub fn min_over_stroke(plant: &Plant) -> (f64, f64) {
+    let stroke = plant.params().cylinder.stroke;
+    let m = rigid_mass(plant);
+    (0..=2000)
+        .map(|i| {
+            let x = stroke * i as f64 / 2000.0;
+            (natural_frequency(plant, x, m), x)
+        })
+        .fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a })
+}
+
+fn slow_poles(m: &LinearModel) -> Vec<Pole> {
+    let mut poles: Vec<Pole> = m
+        .eigenvalues()
+        .into_iter()
+        .filter(|l| l.im >= 0.0 && l.norm() > 1e-9)
+        .map(|l| Pole {
+            frequency_hz: l.norm() / TAU,
+            damping_ratio: -l.re / l.norm(),
+        })
+        .filter(|p| p.frequency_hz < 1e5)
+        .collect();
+    poles.sort_by(|a, b| a.frequency_hz.total_cmp(&b.frequency_hz));
+    poles.truncate(12);
+    poles
+}
+
+/// Linearise and analyse `cfg`.
+pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
+    let op = oppoint::find(cfg, 5.0)?;
+    let plant = &op.plant;
+    let s = *plant.state();
+    let m_rigid = rigid_mass(plant);
+    let (fmin, xmin) = min_over_stroke(plant);
+    let dt = cfg.control_dt();
+    let nyquist = 0.5 / dt;
+    let dmodel = linear::discrete(&op)?;
+    let cmodel = linear::continuous(&op, 1e-7)?;
+    let delay = command_delay(&cfg.plant);
+    let law = Law::from_config(cfg);
+    let out = law.map_or_else(
+        || {
+            if cfg.plant.mechanics.load_stiffness > 0.0 {
+                Output::Force
+            } else {
+                Output::Position
+            }
+        },
+        |l| l.output(),
+    );
+    let f_lo = 0.1;
+    let (discrete, continuous) = match law {
+        Some(law) => {
+            let ld = Loop {
+                plant: &dmodel,
+                law,
+                delay,
+            };
+            let lc = Loop {
+                plant: &cmodel,
+                law,
+                delay,
+            };
+            (
+                Some(margins(&ld, f_lo, nyquist)),
+                Some(margins(&lc, f_lo, 10.0 * nyquist)),
+            )
+        }
+        None => (None, None),
+    };
+    Ok(Analysis {
+        rig: cfg.rig.name.clone(),
+        operating_point: json!({
+            "reference": op.reference,
+            "feedback": op.feedback,
+            "command_V": op.u0,
+            "position_m": s.x,
+            "p_a_Pa": s.p_a,
+            "p_b_Pa": s.p_b,
+            "rod_force_N": s.rod_force,
+            "settled": op.settled,
+            "search_time_s": op.time_s,
+        }),
+        hydraulic_natural_frequency_hz: natural_frequency(plant, s.x, m_rigid),
+        min_natural_frequency_over_stroke_hz: fmin,
+        min_natural_frequency_position_m: xmin,
+        open_loop_bandwidth_hz: open_loop_bandwidth(&dmodel, out, f_lo, nyquist),
+        discrete,
+        continuous,
+        delay_s: delay,
+        sdd: sdd::ratios(plant, s.x),
+        poles: slow_poles(&cmodel),
+        control_rate_hz: cfg.run.control_rate_hz,
+    })
+}
+
+impl Analysis {
+    /// The `ehactl analyze --json` object: the flat keys (those that apply) plus the
+    /// details.
+    pub fn to_json(&self) -> Value {
+        let mut o = json!({
+            "rig": self.rig,
+            "hydraulic_natural_frequency_hz": self.hydraulic_natural_frequency_hz,
+            "min_natural_frequency_over_stroke_hz": self.min_natural_frequency_over_stroke_hz,
+            "min_natural_frequency_position_m": self.min_natural_frequency_position_m,
+            "operating_point": self.operating_point,
+            "control_rate_hz": self.control_rate_hz,
+            "delay_s": self.delay_s,
+            "poles": self.poles,
+        });
+        if let Some(b) = self.open_loop_bandwidth_hz {
+            o["open_loop_bandwidth_hz"] = json!(b);
+        }
+        if let Some(d) = &self.discrete {
+            o["sampled_loop"] = json!(true);
+            o["loop_model"] = json!(format!(
+                "discrete-time: plant step map linearised over one {:.1} µs control period with the command held (zero-order hold), discrete control law",
+                1e6 / self.control_rate_hz
+            ));
+            for (k, v) in [
+                ("gain_crossover_hz", d.gain_crossover_hz),
+                ("phase_margin_deg", d.phase_margin_deg),
+                ("phase_crossover_hz", d.phase_crossover_hz),
+                ("gain_margin_db", d.gain_margin_db),
+                ("closed_loop_bandwidth_hz", d.closed_loop_bandwidth_hz),
+            ] {
+                if let Some(v) = v {
+                    o[k] = json!(v);
+                }
+            }
+            o["closed_loop_peak_db"] = json!(d.closed_loop_peak_db);
+        } else {
+            o["sampled_loop"] = json!(false);
+            o["loop_model"] = json!("open loop: no control law configured");
+        }
+        if let Some(c) = &self.continuous {
+            o["continuous"] = serde_json::to_value(c).unwrap_or(Value::Null);
+        }
+        if let Some(s) = &self.sdd {
+            o["fr_ym"] = json!(s.fr_ym);
+            if let Some(v) = s.fr_em {
+                o["fr_em"] = json!(v);
+            }
+            o["rd_my"] = json!(s.rd_my);
+            o["sdd"] = serde_json::to_value(s).unwrap_or(Value::Null);
+        }
+        o
+    }
+}

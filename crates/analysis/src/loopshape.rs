@@ -1,0 +1,269 @@
+//! Controller transfer functions, loop frequency responses and stability margins.
+//!
+//! The discrete laws are exactly those of `ehactl-controller`:
+//! PI (backward-Euler integral, 004 §6.2: K_i = K_P·T_s·I): C(z) = K_P·g·(1 + I·T·z/(z − 1));
+//! PD (003 eq. 32 with the derivative filter T_f = T_D/N):
+//! C(z) = K_P + K_P·T_D·(1 − z⁻¹)/((T_f + T) − T_f·z⁻¹).
+//! Their continuous counterparts are K_P·g·(1 + I/s) and K_P·(1 + T_D·s/(1 + T_f·s)).
+
+use crate::linear::{LinearModel, Output};
+use ehactl_controller::config::{ControlMode, RigConfig};
+use nalgebra::Complex;
+use serde::Serialize;
+use std::f64::consts::TAU;
+
+/// A control law as a transfer function from error to command.
+#[derive(Debug, Clone, Copy)]
+pub enum Law {
+    /// PI in the ideal form on scaled error: K_P·g·(1 + I/s).
+    Pi {
+        /// Proportional gain (V/V).
+        kp: f64,
+        /// Integral rate I (1/s).
+        integral: f64,
+        /// Error scale g (V per N).
+        scale: f64,
+    },
+    /// PD with filtered derivative: K_P·(1 + T_D·s/(1 + T_f·s)).
+    Pd {
+        /// Proportional gain (V/m).
+        kp: f64,
+        /// Derivative time T_D (s).
+        td: f64,
+        /// Derivative filter time T_f (s).
+        tf: f64,
+    },
+}
+
+impl Law {
+    /// The configured law, None in open loop.
+    pub fn from_config(cfg: &RigConfig) -> Option<Law> {
+        match cfg.control.mode {
+            ControlMode::Force => cfg.pi_gains().map(|g| Law::Pi {
+                kp: g.kp,
+                integral: g.integral,
+                scale: g.error_scale,
+            }),
+            ControlMode::Position => cfg.pd_gains().map(|g| Law::Pd {
+                kp: g.kp,
+                td: g.td,
+                tf: if g.filter_n > 0.0 {
+                    g.td / g.filter_n
+                } else {
+                    0.0
+                },
+            }),
+            ControlMode::OpenLoop => None,
+        }
+    }
+
+    /// Output channel the law closes on.
+    pub fn output(&self) -> Output {
+        match self {
+            Law::Pi { .. } => Output::Force,
+            Law::Pd { .. } => Output::Position,
+        }
+    }
+
+    /// C(z) at z (discrete, period `dt`) or C(s) at s (dt None).
+    pub fn eval(&self, v: Complex<f64>, dt: Option<f64>) -> Complex<f64> {
+        let one = Complex::new(1.0, 0.0);
+        match (*self, dt) {
+            (
+                Law::Pi {
+                    kp,
+                    integral,
+                    scale,
+                },
+                Some(t),
+            ) => (one + v * (integral * t) / (v - one)) * (kp * scale),
+            (
+                Law::Pi {
+                    kp,
+                    integral,
+                    scale,
+                },
+                None,
+            ) => (one + integral / v) * (kp * scale),
+            (Law::Pd { kp, td, tf }, Some(t)) => {
+                let zi = one / v;
+                one * kp + (one - zi) * (kp * td) / (one * (tf + t) - zi * tf)
+            }
+            (Law::Pd { kp, td, tf }, None) => one * kp + v * (kp * td) / (one + v * tf),
+        }
+    }
+}
+
+/// A loop: law, linear plant, and a pure command delay (s).
+pub struct Loop<'a> {
+    /// The plant.
+    pub plant: &'a LinearModel,
+    /// The law.
+    pub law: Law,
+    /// Command delay τ (s), applied as e^(−jωτ).
+    pub delay: f64,
+}
+
+impl Loop<'_> {
+    /// Loop gain L = C·P·e^(−jωτ) at `f_hz`.
+    pub fn gain(&self, f_hz: f64) -> Complex<f64> {
+        let v = self.plant.frequency_variable(f_hz);
+        let p = self.plant.response(self.law.output(), f_hz);
+        let d = Complex::from_polar(1.0, -TAU * f_hz * self.delay);
+        self.law.eval(v, self.plant.dt) * p * d
+    }
+
+    /// Closed loop T = L/(1 + L) at `f_hz`.
+    pub fn closed(&self, f_hz: f64) -> Complex<f64> {
+        let l = self.gain(f_hz);
+        l / (Complex::new(1.0, 0.0) + l)
+    }
+}
+
+/// Stability margins and bandwidths of a loop.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct Margins {
+    /// Gain crossover |L| = 1 (Hz).
+    pub gain_crossover_hz: Option<f64>,
+    /// Phase margin 180° + ∠L at the gain crossover (deg).
+    pub phase_margin_deg: Option<f64>,
+    /// Phase crossover ∠L = −180° (Hz).
+    pub phase_crossover_hz: Option<f64>,
+    /// Gain margin −20·log₁₀|L| at the phase crossover (dB).
+    pub gain_margin_db: Option<f64>,
+    /// −3 dB bandwidth of the closed loop relative to its low-frequency gain (Hz).
+    pub closed_loop_bandwidth_hz: Option<f64>,
+    /// Peak of |T| (dB).
+    pub closed_loop_peak_db: f64,
+}
+
+/// Log-spaced frequency grid.
+pub fn log_grid(f0: f64, f1: f64, n: usize) -> Vec<f64> {
+    let r = (f1 / f0).ln();
+    (0..n)
+        .map(|i| f0 * (r * i as f64 / (n - 1).max(1) as f64).exp())
+        .collect()
+}
+
+fn bisect(mut a: f64, mut b: f64, g: impl Fn(f64) -> f64) -> f64 {
+    let ga = g(a);
+    for _ in 0..60 {
+        let m = (a * b).sqrt();
+        if (g(m) > 0.0) == (ga > 0.0) {
+            a = m;
+        } else {
+            b = m;
+        }
+    }
+    (a * b).sqrt()
+}
+
+/// Unwrapped phase (rad) along a grid, starting in (−2π, 0] at the first point.
+fn unwrapped_phase(vals: &[Complex<f64>]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(vals.len());
+    let mut prev = 0.0;
+    for (i, v) in vals.iter().enumerate() {
+        let mut ph = v.arg();
+        if i == 0 {
+            if ph > 0.0 {
+                ph -= TAU;
+            }
+        } else {
+            while ph - prev > std::f64::consts::PI {
+                ph -= TAU;
+            }
+            while ph - prev < -std::f64::consts::PI {
+                ph += TAU;
+            }
+        }
+        prev = ph;
+        out.push(ph);
+    }
+    out
+}
+
+/// Margins of `lp` on [f0, f1] Hz (f1 at most the Nyquist frequency for a discrete loop).
+pub fn margins(lp: &Loop<'_>, f0: f64, f1: f64) -> Margins {
+    let f1 = match lp.plant.dt {
+        Some(t) => f1.min(0.4999 / t),
+        None => f1,
+    };
+    let grid = log_grid(f0, f1, 1200);
+    let l: Vec<Complex<f64>> = grid.iter().map(|&f| lp.gain(f)).collect();
+    let ph = unwrapped_phase(&l);
+    let mut m = Margins::default();
+    // Gain crossover: last downward crossing of |L| = 1.
+    for i in (1..grid.len()).rev() {
+        if l[i - 1].norm() >= 1.0 && l[i].norm() < 1.0 {
+            let f = bisect(grid[i - 1], grid[i], |f| lp.gain(f).norm().ln());
+            let lf = lp.gain(f);
+            // Phase at f consistent with the unwrapped branch of the grid.
+            let mut p = lf.arg();
+            while p - ph[i] > std::f64::consts::PI {
+                p -= TAU;
+            }
+            while p - ph[i] < -std::f64::consts::PI {
+                p += TAU;
+            }
+            m.gain_crossover_hz = Some(f);
+            m.phase_margin_deg = Some(180.0 + p.to_degrees());
+            break;
+        }
+    }
+    // Phase crossover: first crossing of −180° (mod 360°) above the gain crossover region.
+    for i in 1..grid.len() {
+        let k0 = ((ph[i - 1] + std::f64::consts::PI) / TAU).floor();
+        let k1 = ((ph[i] + std::f64::consts::PI) / TAU).floor();
+        if k1 < k0 {
+            let target = k0 * TAU - std::f64::consts::PI;
+            let (a, b) = (grid[i - 1], grid[i]);
+            let (pa, pb) = (ph[i - 1], ph[i]);
+            // Linear interpolation in log f, refined by bisection on the wrapped phase.
+            let f = bisect(a, b, |f| {
+                let mut p = lp.gain(f).arg();
+                let mid = 0.5 * (pa + pb);
+                while p - mid > std::f64::consts::PI {
+                    p -= TAU;
+                }
+                while p - mid < -std::f64::consts::PI {
+                    p += TAU;
+                }
+                p - target
+            });
+            m.phase_crossover_hz = Some(f);
+            m.gain_margin_db = Some(-20.0 * lp.gain(f).norm().log10());
+            break;
+        }
+    }
+    let t0 = lp.closed(f0).norm();
+    let mut peak: f64 = 0.0;
+    for (i, &f) in grid.iter().enumerate() {
+        let t = lp.closed(f).norm();
+        peak = peak.max(t / t0);
+        if m.closed_loop_bandwidth_hz.is_none() && i > 0 && t < t0 / 2f64.sqrt() {
+            let fb = bisect(grid[i - 1], f, |f| lp.closed(f).norm() - t0 / 2f64.sqrt());
+            m.closed_loop_bandwidth_hz = Some(fb);
+        }
+    }
+    m.closed_loop_peak_db = 20.0 * peak.log10();
+    m
+}
+
+/// −3 dB bandwidth of a plant with a finite static gain (Hz); None for an integrating plant
+/// (its gain still rising 20 dB/decade towards f0) or when |P| never falls 3 dB below it.
+pub fn open_loop_bandwidth(p: &LinearModel, out: Output, f0: f64, f1: f64) -> Option<f64> {
+    let g0 = p.response(out, f0).norm();
+    let g0b = p.response(out, 2.0 * f0).norm();
+    if g0 / g0b > 1.8 {
+        return None;
+    }
+    let grid = log_grid(f0, f1, 800);
+    for i in 1..grid.len() {
+        if p.response(out, grid[i]).norm() < g0 / 2f64.sqrt() {
+            return Some(bisect(grid[i - 1], grid[i], |f| {
+                p.response(out, f).norm() - g0 / 2f64.sqrt()
+            }));
+        }
+    }
+    None
+}

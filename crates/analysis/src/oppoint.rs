@@ -1,0 +1,129 @@
+//! The operating point a rig is linearised around: the noise-free closed loop (or the open
+//! loop with a constant command) run to rest at the setpoint's static value.
+
+use crate::AnalysisError;
+use ehactl_controller::config::{ControlMode, RigConfig};
+use ehactl_controller::runloop::Controller;
+use ehactl_controller::setpoint::{SetpointConfig, SetpointKind};
+use ehactl_plant::params::{ExcitationKind, PlantParams};
+use ehactl_plant::Plant;
+
+/// The static value of a setpoint (N, m or V): the offset of a sine, chirp or static + dynamic
+/// setpoint, the final value of a step or ramp, the middle of random steps.
+pub fn operating_reference(sp: &SetpointConfig) -> f64 {
+    match sp.kind {
+        SetpointKind::Step | SetpointKind::Ramp => sp.final_value,
+        SetpointKind::Sine | SetpointKind::Chirp | SetpointKind::StaticDynamic => sp.offset,
+        SetpointKind::RandomSteps => 0.5 * (sp.initial + sp.final_value),
+    }
+}
+
+/// The plant parameters used for linearisation: sensor noise, quantisation and tones off,
+/// Coulomb/static friction off (its viscous part moved into the mechanical damping: a
+/// linear model cannot hold a stick–slip switch), the command delay off (applied as
+/// e^(−jωτ) in the frequency response instead), and the external force frozen at its
+/// static part F₀ (003 eq. 2 without the harmonic).
+pub fn linearisation_params(p: &PlantParams) -> PlantParams {
+    let mut q = p.clone();
+    q.sensors.force.noise = 0.0;
+    q.sensors.pressure.noise = 0.0;
+    q.sensors.position.noise = 0.0;
+    q.sensors.position.resolution = 0.0;
+    q.sensors.position.update_period = 0.0;
+    q.sensors.spool.noise = 0.0;
+    if let Some(t) = q.effects.sensor_tone.as_mut() {
+        t.enabled = false;
+    }
+    if let Some(f) = q.effects.friction.as_mut() {
+        if f.enabled {
+            q.mechanics.damping += f.viscous;
+            f.enabled = false;
+        }
+    }
+    if let Some(d) = q.effects.time_delay.as_mut() {
+        d.enabled = false;
+    }
+    if q.excitation.kind != ExcitationKind::None {
+        q.excitation.kind = ExcitationKind::Constant;
+        q.excitation.amplitude = 0.0;
+        q.excitation.start_time = 0.0;
+    }
+    q
+}
+
+/// Command delay of the config (s), 0 without the `time_delay` effect.
+pub fn command_delay(p: &PlantParams) -> f64 {
+    p.effects
+        .time_delay
+        .as_ref()
+        .filter(|d| d.enabled)
+        .map_or(0.0, |d| d.delay)
+}
+
+/// A rig at rest at its operating point.
+#[derive(Debug, Clone)]
+pub struct OperatingPoint {
+    /// The plant (linearisation parameters) at the operating point.
+    pub plant: Plant,
+    /// Valve command holding it there (V).
+    pub u0: f64,
+    /// Reference (N, m, or V in open loop).
+    pub reference: f64,
+    /// Feedback value reached (N or m).
+    pub feedback: f64,
+    /// Whether the loop came to rest (|Δfeedback| over the last 0.1 s below 1e-6 of scale).
+    pub settled: bool,
+    /// Time simulated to get there (s).
+    pub time_s: f64,
+}
+
+/// Run the noise-free rig to rest at its operating point (at most `max_time` s). In position
+/// mode the piston starts at the reference to save the approach.
+pub fn find(cfg: &RigConfig, max_time: f64) -> Result<OperatingPoint, AnalysisError> {
+    let mut params = linearisation_params(&cfg.plant);
+    let reference = operating_reference(&cfg.setpoint);
+    if cfg.control.mode == ControlMode::Position {
+        params.cylinder.initial_position = reference.clamp(0.0, params.cylinder.stroke);
+    }
+    let dt = cfg.control_dt();
+    let mut plant = Plant::configure(&params, dt)?;
+    let mut controller = Controller::from_config(cfg);
+    let n = (max_time / dt).ceil() as u64;
+    let window = ((0.1 / dt).ceil() as u64).max(10);
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut u = 0.0;
+    let mut settled = false;
+    let mut k = 0;
+    let mut fb = 0.0;
+    while k < n {
+        let m = plant.measure();
+        fb = controller.feedback(&m);
+        u = match cfg.control.mode {
+            ControlMode::OpenLoop => reference,
+            _ => controller.step(reference, 0.0, &m, dt).u,
+        };
+        plant
+            .step(u)
+            .map_err(|e| AnalysisError::Numerical(format!("operating point search: {e}")))?;
+        k += 1;
+        lo = lo.min(fb);
+        hi = hi.max(fb);
+        if k % window == 0 {
+            let scale = fb.abs().max(reference.abs()).max(1e-3);
+            if k >= 2 * window && (hi - lo) <= 1e-6 * scale {
+                settled = true;
+                break;
+            }
+            lo = f64::INFINITY;
+            hi = f64::NEG_INFINITY;
+        }
+    }
+    Ok(OperatingPoint {
+        plant,
+        u0: u,
+        reference,
+        feedback: fb,
+        settled,
+        time_s: k as f64 * dt,
+    })
+}

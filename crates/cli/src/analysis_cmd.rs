@@ -1,0 +1,208 @@
+//! `ehactl analyze` and `ehactl sweep`.
+
+use crate::{config_error, load, progress_bar, stop_flag};
+use clap::Args;
+use ehactl_analysis::sweep::{Channel, SweepOptions};
+use ehactl_analysis::{analyze as run_analysis, sweep as run_sweep, AnalysisError};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// Arguments of `ehactl sweep`.
+#[derive(Args)]
+pub struct SweepArgs {
+    /// Rig config (TOML).
+    config: PathBuf,
+    /// Lowest frequency (Hz); default the setpoint's f0 or 1 Hz.
+    #[arg(long = "from", allow_negative_numbers = true)]
+    from_hz: Option<f64>,
+    /// Highest frequency (Hz); default the setpoint's f1 or a tenth of the control rate.
+    #[arg(long = "to", allow_negative_numbers = true)]
+    to_hz: Option<f64>,
+    /// Number of log-spaced frequencies.
+    #[arg(long, default_value_t = 30)]
+    points: usize,
+    /// Sine amplitude: N or m closed loop (default the setpoint's), V open loop.
+    #[arg(long, allow_negative_numbers = true)]
+    amplitude: Option<f64>,
+    /// Open loop: sine on the valve command around the operating command.
+    #[arg(long)]
+    open_loop: bool,
+    /// Output channel: force, position, p_a or p_b.
+    #[arg(long)]
+    output: Option<String>,
+    /// Periods of the lowest frequency per dwell (≥ 6).
+    #[arg(long, default_value_t = 6.0)]
+    periods: f64,
+    /// MCAP log (default out/<config name>_sweep.mcap).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print exactly one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn fail(config: &Path, e: AnalysisError) -> ExitCode {
+    match e {
+        AnalysisError::Config(e) => config_error(format!("{}: {e}", config.display())),
+        AnalysisError::Session(ehactl_controller::session::SessionError::Config(e)) => {
+            config_error(format!("{}: {e}", config.display()))
+        }
+        e => {
+            eprintln!("ehactl: {}: {e}", config.display());
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn fmt_opt(v: Option<f64>, unit: &str) -> String {
+    v.map_or("—".into(), |v| format!("{v:.2} {unit}"))
+}
+
+/// `ehactl analyze CONFIG [--json]`.
+pub fn analyze(config: &Path, json: bool) -> ExitCode {
+    let cfg = match load(config) {
+        Ok(c) => c,
+        Err(code) => return code,
+    };
+    let a = match run_analysis(&cfg) {
+        Ok(a) => a,
+        Err(e) => return fail(config, e),
+    };
+    if json {
+        println!("{}", a.to_json());
+        return ExitCode::SUCCESS;
+    }
+    println!("ehactl analyze {} ({})", config.display(), a.rig);
+    println!("  operating point       {}", a.operating_point);
+    println!(
+        "  hydraulic ω_h         {:.2} Hz at the operating position; lowest over stroke {:.2} Hz at {:.3} m",
+        a.hydraulic_natural_frequency_hz,
+        a.min_natural_frequency_over_stroke_hz,
+        a.min_natural_frequency_position_m
+    );
+    println!(
+        "  open-loop bandwidth   {}",
+        fmt_opt(a.open_loop_bandwidth_hz, "Hz")
+    );
+    for (name, m) in [
+        ("sampled loop (ZOH)", &a.discrete),
+        ("continuous loop", &a.continuous),
+    ] {
+        if let Some(m) = m {
+            println!(
+                "  {name:<21} crossover {} PM {} | phase crossover {} GM {} | closed-loop bandwidth {} peak {:.2} dB",
+                fmt_opt(m.gain_crossover_hz, "Hz"),
+                fmt_opt(m.phase_margin_deg, "°"),
+                fmt_opt(m.phase_crossover_hz, "Hz"),
+                fmt_opt(m.gain_margin_db, "dB"),
+                fmt_opt(m.closed_loop_bandwidth_hz, "Hz"),
+                m.closed_loop_peak_db
+            );
+        }
+    }
+    if let Some(s) = &a.sdd {
+        println!(
+            "  SDD (003 eq. 23–29)   f_y {:.2} Hz, f_m {:.3} Hz, fr_ym {:.2}, fr_em {}, rd_my {:.2}",
+            s.f_y_hz,
+            s.f_m_hz,
+            s.fr_ym,
+            s.fr_em.map_or("—".into(), |v| format!("{v:.2}")),
+            s.rd_my
+        );
+    }
+    let poles: Vec<String> = a
+        .poles
+        .iter()
+        .map(|p| format!("{:.1} Hz ζ {:.2}", p.frequency_hz, p.damping_ratio))
+        .collect();
+    println!("  slowest plant poles   {}", poles.join(", "));
+    ExitCode::SUCCESS
+}
+
+/// `ehactl sweep CONFIG ...`.
+pub fn sweep(args: &SweepArgs) -> ExitCode {
+    let config = &args.config;
+    let cfg = match load(config) {
+        Ok(c) => c,
+        Err(code) => return code,
+    };
+    let output = match args.output.as_deref().map(|s| (s, Channel::parse(s))) {
+        None => None,
+        Some((_, Some(c))) => Some(c),
+        Some((s, None)) => {
+            return config_error(format!(
+                "--output {s}: expected one of force (N), position (m), p_a (Pa), p_b (Pa)"
+            ))
+        }
+    };
+    let out = args.out.clone().unwrap_or_else(|| {
+        let stem = config
+            .file_stem()
+            .map_or("sweep".into(), |s| s.to_string_lossy().into_owned());
+        PathBuf::from("out").join(format!("{stem}_sweep.mcap"))
+    });
+    let stop = stop_flag();
+    let bar = progress_bar(format!("sweep {}", config.display()));
+    let mut progress = |k: u64, n: u64| {
+        bar.set_length(n);
+        bar.set_position(k);
+    };
+    let result = run_sweep(
+        &cfg,
+        SweepOptions {
+            from_hz: args.from_hz,
+            to_hz: args.to_hz,
+            points: args.points,
+            amplitude: args.amplitude,
+            open_loop: args.open_loop,
+            output,
+            periods: args.periods,
+            mcap: Some(out),
+            stop: Some(&stop),
+            progress: Some(&mut progress),
+        },
+    );
+    bar.finish_and_clear();
+    let r = match result {
+        Ok(r) => r,
+        Err(e) => return fail(config, e),
+    };
+    if args.json {
+        println!("{}", serde_json::to_value(&r).unwrap_or_default());
+    } else {
+        println!(
+            "ehactl sweep {} — {}: {} → {}, offset {:.4}, amplitude {:.4}, {:.3} s per frequency",
+            config.display(),
+            r.mode,
+            r.input,
+            r.output,
+            r.offset,
+            r.amplitude,
+            r.dwell_s
+        );
+        println!(
+            "  {:>10} {:>10} {:>10} {:>10} {:>10}",
+            "f [Hz]", "|H| [dB]", "∠H [°]", "γ²", "distortion"
+        );
+        for p in &r.points {
+            println!(
+                "  {:>10.3} {:>10.3} {:>10.2} {:>10.4} {:>10.4}",
+                p.f_hz, p.mag_db, p.phase_deg, p.coherence, p.distortion
+            );
+        }
+        println!("  -3 dB bandwidth: {}", fmt_opt(r.bandwidth_hz, "Hz"));
+        if let Some(m) = &r.mcap {
+            println!("  mcap: {m}");
+        }
+        if let Some(t) = &r.trip {
+            println!("  TRIP: {t}");
+        }
+    }
+    if r.trip.is_some() {
+        ExitCode::from(3)
+    } else if !r.complete {
+        ExitCode::from(130)
+    } else {
+        ExitCode::SUCCESS
+    }
+}
