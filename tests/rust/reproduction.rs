@@ -264,3 +264,27 @@ fn seed000_natural_frequency_rises_as_the_chamber_shortens() {
     );
     assert!(within(f50 / f250, 2.234, 0.02));
 }
+
+/// The disagreement documented in REPRODUCTION.md: Table 1 taken literally in the exact
+/// physical model (K_Ct = 1.51e-10 as leakage, K_Qv = 3.33e-3 at the valve centre) is a far
+/// faster plant than eq. 17 describes: its open-loop bandwidth is above 200 Hz, not < 80 Hz.
+#[test]
+fn seed004_table1_literal_is_not_eq17() {
+    let mut cfg = config("sahu2022_force.toml");
+    cfg.plant
+        .effects
+        .internal_leakage
+        .as_mut()
+        .expect("leakage")
+        .coefficient = 1.51e-10;
+    cfg.plant.valve.rated_flow = Some(1.0530e-2);
+    let a = analyze(&cfg).expect("analyze");
+    let ol = a.open_loop_bandwidth_hz.expect("open-loop bandwidth");
+    let d = a.discrete.as_ref().expect("loop");
+    println!(
+        "004 Table 1 literal: open-loop BW {ol:.1} Hz, gc {:?} Hz, PM {:?}°",
+        d.gain_crossover_hz, d.phase_margin_deg
+    );
+    assert!(ol > 200.0, "open-loop bandwidth {ol} Hz");
+    assert!(d.gain_crossover_hz.expect("gc") > 200.0);
+}
