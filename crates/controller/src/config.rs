@@ -6,6 +6,7 @@ use crate::pd::PdGains;
 use crate::pi::PiGains;
 use crate::setpoint::{SetpointConfig, SetpointKind, Sweep};
 use crate::supervisor::SupervisorConfig;
+use ehactl_canopen::config::{CanopenConfig, CANOPEN_PARAMS};
 use ehactl_plant::spec::{self, ConfigError, Param, Range};
 use ehactl_plant::PlantParams;
 use serde::{Deserialize, Serialize};
@@ -172,6 +173,8 @@ pub struct RigConfig {
     pub run: RunConfig,
     /// Log.
     pub log: LogConfig,
+    /// CANopen backend (`--hal canopen`): bus timing, node ids, PDO set (optional section).
+    pub canopen: CanopenConfig,
 }
 
 use Range::*;
@@ -360,12 +363,20 @@ pub const CONTROL_PARAMS: &[Param] = &[
     ),
 ];
 
-/// Both registries, for lookups.
-pub fn registries() -> [&'static [Param]; 2] {
-    [spec::PARAMS, CONTROL_PARAMS]
+/// All registries (plant, control/run, CANopen), for lookups.
+pub fn registries() -> [&'static [Param]; 3] {
+    [spec::PARAMS, CONTROL_PARAMS, CANOPEN_PARAMS]
 }
 
-const RIG_KEYS: [&str; 6] = ["rig", "control", "setpoint", "supervisor", "run", "log"];
+const RIG_KEYS: [&str; 7] = [
+    "rig",
+    "control",
+    "setpoint",
+    "supervisor",
+    "run",
+    "log",
+    "canopen",
+];
 
 fn section<T: serde::de::DeserializeOwned>(
     root: &mut toml::Table,
@@ -440,6 +451,9 @@ impl RigConfig {
         })?;
         let run: RunConfig = section(&mut root, "run", true, || None)?;
         let log: LogConfig = section(&mut root, "log", false, || Some(LogConfig::default()))?;
+        let canopen: CanopenConfig = section(&mut root, "canopen", false, || {
+            Some(CanopenConfig::default())
+        })?;
         let plant: PlantParams = serde_path_to_error::deserialize(toml::Value::Table(root))
             .map_err(|e| spec::from_serde("", e, &tables))?;
         let cfg = RigConfig {
@@ -450,6 +464,7 @@ impl RigConfig {
             supervisor,
             run,
             log,
+            canopen,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -508,6 +523,7 @@ impl RigConfig {
             }
             SetpointKind::Step => {}
         }
+        self.canopen.validate()?;
         let nyq = self.run.control_rate_hz / 2.0;
         if matches!(
             s.kind,
@@ -568,6 +584,7 @@ impl RigConfig {
         put("supervisor", toml::Value::try_from(&self.supervisor));
         put("run", toml::Value::try_from(&self.run));
         put("log", toml::Value::try_from(&self.log));
+        put("canopen", toml::Value::try_from(&self.canopen));
         toml::Value::Table(root)
     }
 

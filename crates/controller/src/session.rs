@@ -48,6 +48,8 @@ pub struct Session {
     pub records: Vec<CycleRecord>,
     /// Unit of the controlled variable.
     pub unit: &'static str,
+    /// Backend-specific summary fields ([`Hal::report`]), merged into the summary.
+    pub backend_report: Option<serde_json::Value>,
 }
 
 /// Why a run could not start or its log could not be written.
@@ -81,7 +83,7 @@ impl Session {
                 serde_json::Value::Null
             }
         };
-        json!({
+        let mut s = json!({
             "cycles": o.cycles,
             "control_rate_hz": self.control_rate_hz,
             "duration_s": o.duration_s,
@@ -103,8 +105,18 @@ impl Session {
                 "events_written": l.events_written,
                 "queue_high_water": l.queue_high_water,
                 "queue_capacity": l.queue_capacity,
+                "can_frames_written": l.frames_written,
+                "can_frames_dropped": l.frames_dropped,
             })),
-        })
+        });
+        if let (Some(obj), Some(serde_json::Value::Object(extra))) =
+            (s.as_object_mut(), self.backend_report.as_ref())
+        {
+            for (k, v) in extra {
+                obj.insert(k.clone(), v.clone());
+            }
+        }
+        s
     }
 }
 
@@ -198,6 +210,9 @@ pub fn run_with(
         ),
         None => None,
     };
+    if let (Some(l), Some(frames)) = (logger.as_ref(), hal.frame_log()) {
+        l.attach_frames(frames);
+    }
     let mut records: Vec<CycleRecord> = if opts.capture {
         Vec::with_capacity(cycles as usize)
     } else {
@@ -258,6 +273,7 @@ pub fn run_with(
         log: None,
         records,
         unit,
+        backend_report: hal.report(),
     };
     if let Some(l) = logger {
         let mut summary = session.summary_json();
