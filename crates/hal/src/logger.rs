@@ -5,7 +5,7 @@
 //! (wall-clock runs) the record is dropped and counted. The file is finalised by
 //! [`Logger::finish`], and by `Drop` if a run unwinds.
 
-use crate::record::{control_schema, plant_schema, CycleRecord, Event};
+use crate::record::{control_schema, plant_schema, timing_schema, CycleRecord, Event};
 use crossbeam_queue::ArrayQueue;
 use mcap::records::{MessageHeader, Metadata};
 use std::collections::BTreeMap;
@@ -238,6 +238,13 @@ impl Logger {
                 plant_schema().as_bytes(),
             )
             .map_err(me)?;
+        let s_timing = w
+            .add_schema(
+                "ehactl_msgs/msg/CycleTiming",
+                "ros2msg",
+                timing_schema().as_bytes(),
+            )
+            .map_err(me)?;
         let json_schema = serde_json::json!({"type": "object"}).to_string();
         let s_json = w
             .add_schema("ehactl.Json", "jsonschema", json_schema.as_bytes())
@@ -247,6 +254,10 @@ impl Logger {
             .add_channel(s_control, "/control", "cdr", &none)
             .map_err(me)?;
         let ch_plant = w.add_channel(s_plant, "/plant", "cdr", &none).map_err(me)?;
+        // Written only by wall-clock runs (records with timing); empty otherwise.
+        let ch_timing = w
+            .add_channel(s_timing, "/timing", "cdr", &none)
+            .map_err(me)?;
         let ch_config = w
             .add_channel(s_json, "/config", "json", &none)
             .map_err(me)?;
@@ -297,7 +308,13 @@ impl Logger {
         let sh = shared.clone();
         let thread = std::thread::Builder::new()
             .name("ehactl-mcap".into())
-            .spawn(move || writer_loop(w, sh, [ch_control, ch_plant, ch_events, ch_summary]))
+            .spawn(move || {
+                writer_loop(
+                    w,
+                    sh,
+                    [ch_control, ch_plant, ch_events, ch_summary, ch_timing],
+                )
+            })
             .map_err(|e| err(format!("cannot start writer thread: {e}")))?;
         Ok(Logger {
             shared,
@@ -405,9 +422,9 @@ impl Drop for Logger {
 fn writer_loop(
     mut w: mcap::Writer<BufWriter<File>>,
     sh: Arc<Shared>,
-    ch: [u16; 4],
+    ch: [u16; 5],
 ) -> Result<(u64, u64), String> {
-    let [ch_control, ch_plant, ch_events, ch_summary] = ch;
+    let [ch_control, ch_plant, ch_events, ch_summary, ch_timing] = ch;
     let mut buf = Vec::with_capacity(256);
     let mut written = 0u64;
     let mut events = 0u64;
@@ -439,6 +456,18 @@ fn writer_loop(
                 w.write_to_known_channel(
                     &MessageHeader {
                         channel_id: ch_plant,
+                        sequence: seq,
+                        log_time: ns,
+                        publish_time: ns,
+                    },
+                    &buf,
+                )
+                .map_err(|e| e.to_string())?;
+            }
+            if rec.encode_timing(&mut buf) {
+                w.write_to_known_channel(
+                    &MessageHeader {
+                        channel_id: ch_timing,
                         sequence: seq,
                         log_time: ns,
                         publish_time: ns,
