@@ -1,10 +1,13 @@
 //! `ehactl`: closed-loop runs against the simulated plant, config checks, parameter lists.
 //!
-//! Exit codes: 0 run completed, 2 bad config or arguments, 3 supervisor trip,
-//! 130 interrupted by a signal (log finalised), 1 any other failure (I/O).
+//! Exit codes: 0 run completed, 2 bad config or arguments, 3 supervisor trip (including
+//! device faults of `--hal canopen`), 4 hardware start-up failed (bus, boot-up, SDO
+//! configuration, device state), 130 interrupted by a signal (log finalised), 1 any other
+//! failure (I/O).
 
 mod canbus;
 
+use canbus::HalKind;
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
 use ehactl_controller::control_socket::ControlServer;
@@ -16,6 +19,7 @@ use ehactl_controller::session::{
 use ehactl_controller::RigConfig;
 use ehactl_hal::logger::Overflow;
 use ehactl_hal::sim::SimHal;
+use ehactl_hal::Hal;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -56,6 +60,13 @@ enum Command {
         /// Serve live gain / setpoint changes on this Unix socket (see `ehactl set`).
         #[arg(long, value_name = "PATH")]
         control_socket: Option<PathBuf>,
+        /// Backend: `sim` (in-process plant) or `canopen` (CiA 406 transducer + CiA 408
+        /// valve on a CAN bus, paced by the wall clock; needs --bus).
+        #[arg(long, value_enum, default_value = "sim")]
+        hal: HalKind,
+        /// CAN bus for --hal canopen: socketcan://IFACE or socketcand://HOST:PORT/CHANNEL.
+        #[arg(long, value_name = "URL")]
+        bus: Option<String>,
     },
     /// Change gains or setpoint parameters of a running `ehactl run --control-socket PATH`;
     /// the change lands at a cycle boundary and is logged as a `param_change` event.
@@ -100,7 +111,17 @@ fn main() -> ExitCode {
             json,
             realtime,
             control_socket,
-        } => cmd_run(&config, duration, out, json, realtime, control_socket),
+            hal,
+            bus,
+        } => cmd_run(
+            &config,
+            duration,
+            out,
+            json,
+            realtime,
+            control_socket,
+            (hal, bus),
+        ),
         Command::Set {
             socket,
             assignments,
@@ -173,6 +194,7 @@ fn rt_warning(msg: &str) {
     eprintln!("ehactl: warning: {msg}");
 }
 
+#[allow(clippy::too_many_arguments)]
 fn cmd_run(
     config: &Path,
     duration: Option<f64>,
@@ -180,6 +202,7 @@ fn cmd_run(
     json: bool,
     realtime: bool,
     control_socket: Option<PathBuf>,
+    (hal, bus): (HalKind, Option<String>),
 ) -> ExitCode {
     let cfg = match load(config) {
         Ok(c) => c,
@@ -190,6 +213,11 @@ fn cmd_run(
             return config_error(format!("--duration {d}: expected a finite number > 0 in s"));
         }
     }
+    // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s).
+    let mut can_hal = match canbus::connect(&cfg, hal, bus.as_deref(), !json) {
+        Ok(h) => h,
+        Err(code) => return code,
+    };
     let out = out.unwrap_or_else(|| {
         let stem = config
             .file_stem()
@@ -222,10 +250,14 @@ fn cmd_run(
         None => None,
     };
     let live_ref = control_socket.as_ref().map(|_| &*live);
-    let result = if realtime {
+    let result = if realtime || can_hal.is_some() {
         // The loop thread only stores the cycle count; the bar is drawn by this watcher
         // thread so that no terminal I/O happens in the cycle.
-        bar.set_message(format!("{} (real time)", config.display()));
+        bar.set_message(format!(
+            "{} (real time{})",
+            config.display(),
+            if can_hal.is_some() { ", canopen" } else { "" }
+        ));
         let done = Arc::new(AtomicU64::new(0));
         let total = Arc::new(AtomicU64::new(1));
         let finished = Arc::new(AtomicBool::new(false));
@@ -244,7 +276,15 @@ fn cmd_run(
             total.store(n, Ordering::Relaxed);
             done.store(k, Ordering::Relaxed);
         };
-        let r = run_realtime(&cfg, duration, out, &stop, &mut progress, live_ref);
+        let r = run_realtime(
+            &cfg,
+            duration,
+            out,
+            &stop,
+            &mut progress,
+            live_ref,
+            can_hal.as_mut().map(|h| h as &mut dyn Hal),
+        );
         finished.store(true, Ordering::Relaxed);
         let _ = watcher.join();
         r
@@ -306,6 +346,7 @@ fn cmd_run(
                 l.queue_capacity
             );
         }
+        canbus::print_summary(&summary);
         if let Some(tm) = &session.timing {
             println!(
                 "  jitter        p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (start − deadline)",
@@ -372,7 +413,8 @@ fn run_sim_live(
     run_with_live(cfg, backend, opts, live)
 }
 
-/// The sim backend paced in real time by the wall-clock executor.
+/// A backend paced in real time by the wall-clock executor: the sim plant, or `hardware`
+/// (e.g. the CANopen rig) when given.
 fn run_realtime(
     cfg: &RigConfig,
     duration: Option<f64>,
@@ -380,19 +422,27 @@ fn run_realtime(
     stop: &AtomicBool,
     progress: &mut dyn FnMut(u64, u64),
     live: Option<&LiveParams>,
+    hardware: Option<&mut dyn Hal>,
 ) -> Result<Session, SessionError> {
     let mut cfg_run = cfg.clone();
     if let Some(d) = duration {
         cfg_run.run.duration = d;
     }
     let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
-    let substeps = plant.substeps();
-    let mut hal = SimHal::new(plant);
+    let mut sim;
+    let (hal, substeps): (&mut dyn Hal, u32) = match hardware {
+        Some(h) => (h, 0),
+        None => {
+            let substeps = plant.substeps();
+            sim = SimHal::new(plant);
+            (&mut sim, substeps)
+        }
+    };
     let mut opts = cfg.realtime.rt_options();
     opts.warn = Some(rt_warning);
     let mut pacer = WallClockPacer::new(cfg.control_dt(), opts);
     let backend = Backend {
-        hal: &mut hal,
+        hal,
         pacer: &mut pacer,
         overflow: Overflow::Drop,
         substeps,

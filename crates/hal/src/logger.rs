@@ -126,12 +126,15 @@ impl CanFrameRecord {
     }
 }
 
-/// Bounded lock-free queue of raw CAN frames from a backend's I/O threads to the MCAP
-/// writer. Never blocks: when full the frame is dropped and counted.
+/// Bounded lock-free queues of raw CAN frames and backend events from a backend (its I/O
+/// threads and its cycle code) to the MCAP writer (`/can` and `/events`). Never blocks:
+/// when full the frame or event is dropped and counted.
 #[derive(Debug)]
 pub struct FrameLog {
     queue: ArrayQueue<CanFrameRecord>,
+    events: ArrayQueue<Event>,
     dropped: AtomicU64,
+    events_dropped: AtomicU64,
 }
 
 impl FrameLog {
@@ -139,8 +142,28 @@ impl FrameLog {
     pub fn new(capacity: usize) -> FrameLog {
         FrameLog {
             queue: ArrayQueue::new(capacity.max(16)),
+            events: ArrayQueue::new(256),
             dropped: AtomicU64::new(0),
+            events_dropped: AtomicU64::new(0),
         }
+    }
+
+    /// Queue a backend event for `/events` (lock-free; counted as dropped if full).
+    #[inline]
+    pub fn push_event(&self, ev: Event) {
+        if self.events.push(ev).is_err() {
+            self.events_dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Take the oldest backend event.
+    pub fn pop_event(&self) -> Option<Event> {
+        self.events.pop()
+    }
+
+    /// Backend events dropped so far.
+    pub fn events_dropped(&self) -> u64 {
+        self.events_dropped.load(Ordering::Relaxed)
     }
 
     /// Queue a frame (lock-free, allocation-free); counts it as dropped if full.
@@ -481,7 +504,11 @@ fn writer_loop(
                 break;
             }
         }
-        while let Some(ev) = sh.events.pop() {
+        while let Some(ev) = sh
+            .events
+            .pop()
+            .or_else(|| sh.frames.get().and_then(|f| f.pop_event()))
+        {
             idle = false;
             let ns = to_ns(ev.t);
             w.write_to_known_channel(

@@ -91,6 +91,9 @@ pub enum EventKind {
     ParamChange,
     /// The valve was given its safe command at the end of the run.
     SafeStop,
+    /// Something on the CAN bus worth recording (malformed or unexpected frame, EMCY, device
+    /// state); the backend decides whether it also trips (then a `hal_fault` follows).
+    CanBus,
 }
 
 impl EventKind {
@@ -112,6 +115,7 @@ impl EventKind {
             EventKind::RtSetup => "rt_setup",
             EventKind::ParamChange => "param_change",
             EventKind::SafeStop => "safe_stop",
+            EventKind::CanBus => "can_bus",
         }
     }
 }
