@@ -6,6 +6,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 echo "== building (release)"
 cargo build --release --workspace --all-targets
+echo "== SocketCAN transport (feature build; this machine has no AF_CAN, so only compiled)"
+cargo build --release -p ehactl-canopen --features socketcan
 echo "== Rust tests"
 cargo test --release --workspace
 echo "== Python test dependencies"

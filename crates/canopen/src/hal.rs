@@ -276,6 +276,10 @@ impl Startup {
     }
 }
 
+/// An SDO write of the start-up: (bus, bookkeeping, node, index, sub, bytes, step name).
+type SdoWriteFn<'a> = dyn FnMut(&mut dyn CanBus, &mut Startup, u8, u16, u8, &[u8], &str) -> Result<(), StartupError>
+    + 'a;
+
 fn sdo_err(step: impl Into<String>) -> impl FnOnce(SdoError) -> StartupError {
     let step = step.into();
     move |error| StartupError::Sdo { step, error }
@@ -427,15 +431,7 @@ impl CanopenHal {
         )?;
         let remap = |bus: &mut dyn CanBus,
                      st: &mut Startup,
-                     write: &mut dyn FnMut(
-            &mut dyn CanBus,
-            &mut Startup,
-            u8,
-            u16,
-            u8,
-            &[u8],
-            &str,
-        ) -> Result<(), StartupError>,
+                     write: &mut SdoWriteFn<'_>,
                      node: u8,
                      comm: u16,
                      map_idx: u16,

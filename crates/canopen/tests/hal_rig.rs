@@ -164,10 +164,8 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         );
                     }
                 }
-                id if id == 0x200 + u32::from(VA) && f.dlc == 2 => {
-                    if nodes[1].nmt == 5 {
-                        latched = i16::from_le_bytes([f.data[0], f.data[1]]);
-                    }
+                id if id == 0x200 + u32::from(VA) && f.dlc == 2 && nodes[1].nmt == 5 => {
+                    latched = i16::from_le_bytes([f.data[0], f.data[1]]);
                 }
                 id if (0x600..0x680).contains(&id) => {
                     let Some(k) = nodes.iter().position(|n| u32::from(n.id) == id - 0x600) else {
