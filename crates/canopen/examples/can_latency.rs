@@ -26,7 +26,12 @@ fn stats(mut v: Vec<f64>) -> String {
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let get = |k: &str| args.iter().position(|a| a == k).and_then(|i| args.get(i + 1)).cloned();
+    let get = |k: &str| {
+        args.iter()
+            .position(|a| a == k)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
     let Some(bus) = get("--bus") else {
         eprintln!("usage: can_latency --bus URL [--n N] [--node ID]");
         std::process::exit(2);

@@ -18,6 +18,29 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+/// Counts heap allocations made by the thread that has `ARMED` set (the control cycle).
+struct CountingAlloc;
+
+thread_local! {
+    static ARMED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+static CYCLE_ALLOCS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+unsafe impl std::alloc::GlobalAlloc for CountingAlloc {
+    unsafe fn alloc(&self, l: std::alloc::Layout) -> *mut u8 {
+        if ARMED.try_with(|a| a.get()).unwrap_or(false) {
+            CYCLE_ALLOCS.fetch_add(1, Ordering::Relaxed);
+        }
+        std::alloc::System.alloc(l)
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: std::alloc::Layout) {
+        std::alloc::System.dealloc(p, l)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: CountingAlloc = CountingAlloc;
+
 const TR: u8 = 0x20;
 const VA: u8 = 0x30;
 /// Piston speed at 100 % spool in the scripted plant (m/s).
@@ -266,11 +289,17 @@ fn drive(
             std::thread::sleep(w);
         }
         at(t);
-        match hal.read(t, dt) {
+        // Count allocations of read/write from the second cycle on (the first hands the
+        // start-up frames to the log queue).
+        ARMED.with(|a| a.set(k > 0));
+        let r = hal.read(t, dt);
+        let w = r.as_ref().ok().map(|_| hal.write(t, dt, command));
+        ARMED.with(|a| a.set(false));
+        match r {
             Ok(m) => pos = m.position,
             Err(e) => return (pos, t, Some(e)),
         }
-        if let Err(e) = hal.write(t, dt, command) {
+        if let Some(Err(e)) = w {
             return (pos, t, Some(e));
         }
         k += 1;
@@ -318,8 +347,14 @@ fn start_up_sequence_and_closed_data_path() {
         );
     }
     // +5 V = +50 % spool → the scripted piston moves at 0.05 m/s.
+    let before = CYCLE_ALLOCS.load(Ordering::Relaxed);
     let (pos, t, err) = drive(&mut hal, 0.6, 5.0, &mut |_| {});
     assert!(err.is_none(), "{err:?}");
+    assert_eq!(
+        CYCLE_ALLOCS.load(Ordering::Relaxed) - before,
+        0,
+        "read/write allocated in the cycle"
+    );
     let expect = 0.5 * V_FULL * t;
     assert!(
         pos > 0.0 && (pos - expect).abs() < 0.25 * expect,
