@@ -10,6 +10,8 @@ echo "== SocketCAN transport (feature build; this machine has no AF_CAN, so only
 cargo build --release -p ehactl-canopen --features socketcan
 echo "== Rust tests"
 cargo test --release --workspace
+echo "== cross-build for aarch64 (DEPLOY.md; skipped with a message if the toolchain cannot be installed)"
+scripts/cross_build.sh aarch64-unknown-linux-gnu
 echo "== Python test dependencies"
 python3 -m pip install --quiet -r tests/python/requirements.txt
 if command -v npm >/dev/null; then
