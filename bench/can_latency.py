@@ -12,7 +12,8 @@
    extra dead time CAN adds to the loop on top of the SYNC period's sample-and-hold.
 
 Build first: cargo build --release -p ehactl-cli -p ehactl-canopen --examples
-Usage: python3 bench/can_latency.py [--n 2000] [--mcap out/run.mcap]
+Usage: python3 bench/can_latency.py [--n 2000] [--mcap out/run.mcap] [--sim-mcap out/sim.mcap]
+                                    [--plot bench/results/can_latency.png]
 """
 import argparse
 import json
@@ -57,6 +58,7 @@ def python_ping(port, n):
     import can
     bus = can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel="can0", tcp_tune=True)
     rtt = []
+    global PY_SAMPLES
     try:
         for i in range(n + 50):
             data = i.to_bytes(8, "little")
@@ -70,7 +72,58 @@ def python_ping(port, n):
                 rtt.append((time.perf_counter() - t0) * 1e6)
     finally:
         bus.shutdown()
+    PY_SAMPLES = rtt
     return {"n": len(rtt), "median_us": statistics.median(rtt), "p99_us": q(rtt, 0.99), "max_us": max(rtt)}
+
+
+PY_SAMPLES = []
+LOOP_SAMPLES = []
+
+
+def read_control(path):
+    from mcap.reader import make_reader
+    sys.path.insert(0, str(REPO / "tests" / "python"))
+    from ehactl_mcap import read_run
+    c = read_run(path)["control"]
+    return c["t"], c["position"], c["setpoint"]
+
+
+def plot(out, rust, mcap, sim_mcap):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    fig, axes = plt.subplots(1, 2 if mcap else 1, figsize=(12 if mcap else 6.5, 4.5), squeeze=False)
+    ax = axes[0][0]
+    for label, v in [("ping, Rust master client", rust.get("ping_samples_us", [])),
+                     ("SDO upload, Rust master client", rust.get("sdo_samples_us", [])),
+                     ("ping, python-can client", PY_SAMPLES),
+                     ("SYNC sent → position TPDO received (closed loop)", LOOP_SAMPLES)]:
+        if len(v):
+            x = np.sort(np.asarray(v))
+            ax.plot(x, np.arange(1, len(x) + 1) / len(x), label=f"{label} (median {np.median(x):.0f} µs)")
+    ax.set_xscale("log")
+    ax.set_xlabel("round trip through the hub (µs)")
+    ax.set_ylabel("fraction ≤ x")
+    ax.set_title("CAN round trip via ehactl canbus hub (socketcand over loopback TCP)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    if mcap:
+        ax = axes[0][1]
+        t, x, r = read_control(mcap)
+        ax.plot(t, r, "k--", lw=1, label="setpoint")
+        ax.plot(t, x, label="position over CAN (--hal canopen)")
+        if sim_mcap:
+            ts, xs, _ = read_control(sim_mcap)
+            ax.plot(ts, xs, ":", label="position, simulated time (--hal sim)")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("piston position (m)")
+        ax.set_title("dindorf2022_boom step: CAN loop vs simulation")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
 
 
 def loop_effect(mcap_path):
@@ -93,6 +146,7 @@ def loop_effect(mcap_path):
         elif fr["dir"] == "rx" and fr["id"] == 0x180 + node and pending is not None:
             lat.append((fr["t"] - pending) * 1e6)
             pending = None
+    LOOP_SAMPLES.extend(lat)
     sync_hz = (summary or {}).get("sync_rate_hz", 1000.0)
     return {
         "syncs": len(lat),
@@ -109,6 +163,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=2000, help="round trips per measurement")
     ap.add_argument("--mcap", help="closed-loop canopen run to analyse (/can channel)")
+    ap.add_argument("--sim-mcap", help="the same config run in simulated time, for the plot")
+    ap.add_argument("--plot", help="write a PNG: round-trip CDFs (and the step responses with --mcap)")
     a = ap.parse_args()
     for p in (BIN, CLIENT):
         if not os.path.exists(p):
@@ -118,9 +174,11 @@ def main():
     peer = subprocess.Popen([sys.executable, "-c", PEER, str(port)], stdout=subprocess.PIPE, text=True)
     try:
         assert peer.stdout.readline().strip() == "ready"
-        r = subprocess.run([CLIENT, "--bus", f"socketcand://127.0.0.1:{port}/can0", "--n", str(a.n), "--node", "64"],
+        r = subprocess.run([CLIENT, "--bus", f"socketcand://127.0.0.1:{port}/can0", "--n", str(a.n), "--node", "64", "--samples"],
                            capture_output=True, text=True, timeout=600, check=True)
-        out = {"rust_client": json.loads(r.stdout), "python_can_client_ping": python_ping(port, a.n)}
+        rust = json.loads(r.stdout)
+        out = {"rust_client": {k: v for k, v in rust.items() if not k.endswith("_samples_us")},
+               "python_can_client_ping": python_ping(port, a.n)}
     finally:
         peer.terminate()
         hub.terminate()
@@ -128,6 +186,9 @@ def main():
         hub.wait()
     if a.mcap:
         out["closed_loop"] = loop_effect(a.mcap)
+    if a.plot:
+        plot(a.plot, rust, a.mcap, a.sim_mcap)
+        out["plot"] = a.plot
     print(json.dumps(out, indent=2))
 
 

@@ -3,7 +3,8 @@
 //! data; (b) an SDO expedited upload of 0x1000:00 from node `--node`. Prints one JSON
 //! object with median / p99 / max in µs. Driven by bench/can_latency.py.
 //!
-//! `can_latency --bus socketcand://127.0.0.1:PORT/can0 [--n 2000] [--node 64]`
+//! `can_latency --bus socketcand://127.0.0.1:PORT/can0 [--n 2000] [--node 64] [--samples]`
+//! (`--samples` adds the raw round trips in µs).
 
 use ehactl_canopen::bus::{open, BusUrl};
 use ehactl_canopen::sdo::{transfer, SdoClient};
@@ -82,9 +83,22 @@ fn main() {
             sdo.push(t0.elapsed().as_secs_f64() * 1e6);
         }
     }
+    let raw = |v: &[f64]| {
+        let s: Vec<String> = v.iter().map(|x| format!("{x:.1}")).collect();
+        format!("[{}]", s.join(","))
+    };
+    let samples = if args.iter().any(|a| a == "--samples") {
+        format!(
+            ", \"ping_samples_us\": {}, \"sdo_samples_us\": {}",
+            raw(&ping),
+            raw(&sdo)
+        )
+    } else {
+        String::new()
+    };
     println!(
-        "{{\"bus\": \"{url}\", \"ping\": {}, \"ping_lost\": {lost}, \"sdo_upload\": {}}}",
-        stats(ping),
-        stats(sdo)
+        "{{\"bus\": \"{url}\", \"ping\": {}, \"ping_lost\": {lost}, \"sdo_upload\": {}{samples}}}",
+        stats(ping.clone()),
+        stats(sdo.clone())
     );
 }
