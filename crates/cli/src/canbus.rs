@@ -1,0 +1,148 @@
+//! `ehactl canbus ...`: CAN bus tools.
+
+use clap::Subcommand;
+use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError};
+use ehactl_canopen::hub::Hub;
+use ehactl_canopen::BusUrl;
+use ehactl_controller::RigConfig;
+use std::io::Write;
+use std::process::ExitCode;
+
+/// `ehactl canbus` subcommands.
+#[derive(Subcommand)]
+pub enum CanbusCommand {
+    /// socketcand-compatible rawmode hub: relays every frame to every other client, so that
+    /// several processes (ehactl, python-can / canopen devices) share one virtual CAN bus.
+    /// Prints exactly one line `listening on HOST:PORT` on stdout, then serves until killed.
+    Hub {
+        /// Address to listen on, HOST:PORT (PORT 0 = pick a free port).
+        #[arg(long, default_value = "127.0.0.1:29536")]
+        listen: String,
+        /// Do not report connects/disconnects on stderr (protocol errors are still reported).
+        #[arg(long)]
+        quiet: bool,
+        /// Hold frames for a new client this long after its rawmode `< ok >` (ms), so that
+        /// python-can reads the `< ok >` alone; held frames are delivered afterwards.
+        #[arg(long, default_value_t = 200)]
+        join_delay_ms: u64,
+    },
+}
+
+/// Run a `canbus` subcommand.
+pub fn run(cmd: CanbusCommand) -> ExitCode {
+    match cmd {
+        CanbusCommand::Hub {
+            listen,
+            quiet,
+            join_delay_ms,
+        } => {
+            let hub = match Hub::bind(&listen, quiet) {
+                Ok(h) => h.with_join_delay(std::time::Duration::from_millis(join_delay_ms)),
+                Err(e) => {
+                    eprintln!("ehactl: canbus hub --listen {listen}: cannot listen ({e}); expected a free HOST:PORT such as 127.0.0.1:0");
+                    return ExitCode::from(2);
+                }
+            };
+            let addr = match hub.local_addr() {
+                Ok(a) => a,
+                Err(e) => {
+                    eprintln!("ehactl: canbus hub: {e}");
+                    return ExitCode::from(1);
+                }
+            };
+            let mut out = std::io::stdout().lock();
+            let _ = writeln!(out, "listening on {addr}");
+            let _ = out.flush();
+            drop(out);
+            match hub.serve() {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("ehactl: canbus hub: {e}");
+                    ExitCode::from(1)
+                }
+            }
+        }
+    }
+}
+
+/// `--hal`: which backend a run uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum HalKind {
+    /// The in-process simulated plant.
+    Sim,
+    /// CiA 406 transducer + CiA 408 valve on a CAN bus (needs --bus).
+    Canopen,
+}
+
+/// Exit code when the hardware could not be brought up.
+pub const EXIT_STARTUP: u8 = 4;
+
+/// Bring the CAN rig up for `--hal canopen`; `Ok(None)` for the sim backend.
+pub fn connect(
+    cfg: &RigConfig,
+    hal: HalKind,
+    bus: Option<&str>,
+    verbose: bool,
+) -> Result<Option<CanopenHal>, ExitCode> {
+    let arg_err = |m: String| {
+        eprintln!("ehactl: {m}");
+        ExitCode::from(2)
+    };
+    match (hal, bus) {
+        (HalKind::Sim, None) => Ok(None),
+        (HalKind::Sim, Some(b)) => Err(arg_err(format!(
+            "--bus {b} needs --hal canopen (the sim backend has no bus)"
+        ))),
+        (HalKind::Canopen, None) => Err(arg_err(
+            "--hal canopen needs --bus socketcan://IFACE or --bus socketcand://HOST:PORT/CHANNEL"
+                .into(),
+        )),
+        (HalKind::Canopen, Some(b)) => {
+            let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
+            let settings = CanopenSettings {
+                bus: url,
+                canopen: cfg.canopen.clone(),
+                command_full_scale: cfg.plant.valve.command_full_scale,
+                control_rate_hz: cfg.run.control_rate_hz,
+                verbose,
+            };
+            match CanopenHal::connect(settings) {
+                Ok(h) => Ok(Some(h)),
+                Err(e) => {
+                    eprintln!("ehactl: {e}");
+                    Err(ExitCode::from(match e {
+                        StartupError::Settings(_) => 2,
+                        _ => EXIT_STARTUP,
+                    }))
+                }
+            }
+        }
+    }
+}
+
+/// Human-readable CAN lines of the run summary (nothing for the sim backend).
+pub fn print_summary(summary: &serde_json::Value) {
+    let Some(load) = summary["bus_load_percent"].as_f64() else {
+        return;
+    };
+    println!(
+        "  can bus       {} — load {:.1} % worst case ({:.0} µs per SYNC at {} Hz), start-up {:.2} s",
+        summary["bus"].as_str().unwrap_or("?"),
+        load,
+        summary["bus_time_per_sync_us"].as_f64().unwrap_or(f64::NAN),
+        summary["sync_rate_hz"],
+        summary["startup_s"].as_f64().unwrap_or(f64::NAN)
+    );
+    println!(
+        "  can frames    {} SYNC, {} rx, {} tx, {} wrong DLC, {} unknown COB-ID, valve {}",
+        summary["syncs_sent"],
+        summary["can_rx_frames"],
+        summary["can_tx_frames"],
+        summary["can_wrong_dlc"],
+        summary["can_unknown_cob_id"],
+        summary["valve_state"].as_str().unwrap_or("?")
+    );
+    if let Some(s) = summary["safe_stop"].as_str() {
+        println!("  safe stop     {s}");
+    }
+}
