@@ -19,6 +19,7 @@ pub mod loopshape;
 pub mod oppoint;
 pub mod sdd;
 pub mod sweep;
+pub mod tline;
 
 pub use analyze::{analyze, Analysis};
 pub use sweep::{sweep, SweepOptions, SweepPoint, SweepResult};
