@@ -16,6 +16,7 @@
 pub mod analyze;
 pub mod linear;
 pub mod loopshape;
+pub mod motion;
 pub mod oppoint;
 pub mod sdd;
 pub mod sweep;
