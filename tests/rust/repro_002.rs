@@ -51,8 +51,11 @@ fn simulate() -> (Run, ehactl_controller::RigConfig) {
         plant.step(u).expect("finite plant");
         let s = plant.state();
         run.u.push(u);
-        run.p_port
-            .push(plant.valve_port_pressures().expect("crane config has lines"));
+        run.p_port.push(
+            plant
+                .valve_port_pressures()
+                .expect("crane config has lines"),
+        );
         run.p_chamber.push((s.p_a, s.p_b));
         run.x.push(s.x);
     }
@@ -121,14 +124,22 @@ fn port_pressures_differ_from_chamber_pressures() {
         .map(|(p, c)| (p.0 - c.0).abs().max((p.1 - c.1).abs()))
         .fold(0.0, f64::max);
     println!("002: largest |port − chamber| pressure difference {max_diff:.0} Pa");
-    assert!(max_diff > 1e4, "lines must separate port and chamber pressure");
+    assert!(
+        max_diff > 1e4,
+        "lines must separate port and chamber pressure"
+    );
 }
 
 #[test]
 fn motion_estimate_recovers_piston_velocity() {
     let (run, cfg) = simulate();
     let travel = run.x[run.x.len() - 1] - run.x0;
-    println!("002 crane run: {:.3} m travel in {} samples at {} Hz", travel, run.u.len(), 1.0 / run.dt);
+    println!(
+        "002 crane run: {:.3} m travel in {} samples at {} Hz",
+        travel,
+        run.u.len(),
+        1.0 / run.dt
+    );
     assert!(travel > 0.3, "the boom must lift: {travel}");
     for (side, name) in [(0, "eq. 31 extension"), (1, "eq. 32 retraction")] {
         for (terms, noise) in [
@@ -157,7 +168,11 @@ fn motion_estimate_recovers_piston_velocity() {
             if terms == LineTerms::Resistive && (noise == 0.0 || side == 0) {
                 let tol = if noise == 0.0 { 0.05 } else { 0.10 };
                 assert!(e.rms_err < tol * e.rms_true, "{name}: {} m/s", e.rms_err);
-                assert!(e.stroke_err.abs() < 0.02 * travel, "{name}: {}", e.stroke_err);
+                assert!(
+                    e.stroke_err.abs() < 0.02 * travel,
+                    "{name}: {}",
+                    e.stroke_err
+                );
             }
         }
     }
@@ -174,7 +189,9 @@ fn bulk_modulus_swing_over_the_run() {
     }
     let b_ref = law.beta(10.0e6); // 002: "of the constant value at 30 °C and 100 bar"
     let range = |it: &mut dyn Iterator<Item = f64>| {
-        it.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| (l.min(p), h.max(p)))
+        it.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+            (l.min(p), h.max(p))
+        })
     };
     let (lo_a, hi_a) = range(&mut run.p_chamber.iter().map(|p| p.0));
     let (lo, hi) = range(&mut run.p_chamber.iter().flat_map(|p| [p.0, p.1]));

@@ -139,7 +139,6 @@ pub struct MotionEstimate {
 #[derive(Debug, Clone, Copy, Default)]
 struct Side {
     p_w: f64,
-    q_w: f64,
     q_l: f64,
     p_c: f64,
     q_c: f64,
@@ -196,7 +195,10 @@ impl MotionEstimator {
             terms: LineTerms::Resistive,
             beta,
             area: [cyl.area_a, cyl.area_b],
-            volume: [cyl.dead_volume_a, cyl.dead_volume_b + cyl.area_b * cyl.stroke],
+            volume: [
+                cyl.dead_volume_a,
+                cyl.dead_volume_b + cyl.area_b * cyl.stroke,
+            ],
             spool: 0.0,
             spool_velocity: 0.0,
             sides: [Side::default(); 2],
@@ -277,7 +279,6 @@ impl MotionEstimator {
             out.v[i] = if first { 0.0 } else { (x - prev.x) / dt };
             self.sides[i] = Side {
                 p_w,
-                q_w,
                 q_l,
                 p_c,
                 q_c,
@@ -310,7 +311,9 @@ mod tests {
         // 1 m of Ø10 mm line, ρ 870, ν 46 cSt, β 1e9: R = 128μl/(πd⁴), L = ρl/A, C = Al/β.
         let l = LineRlc::new(1.0, 0.01, 870.0, 46e-6, 1e9);
         let a = 0.25 * std::f64::consts::PI * 1e-4;
-        assert!((l.r / (128.0 * 870.0 * 46e-6 / (std::f64::consts::PI * 1e-8)) - 1.0).abs() < 1e-12);
+        assert!(
+            (l.r / (128.0 * 870.0 * 46e-6 / (std::f64::consts::PI * 1e-8)) - 1.0).abs() < 1e-12
+        );
         assert!((l.l / (870.0 / a) - 1.0).abs() < 1e-12);
         assert!((l.c / (a / 1e9) - 1.0).abs() < 1e-12);
     }

@@ -118,7 +118,10 @@ impl TransferMatrix {
     pub fn inverse(&self) -> Self {
         let m = &self.0;
         let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-        Self([[m[1][1] / det, -m[0][1] / det], [-m[1][0] / det, m[0][0] / det]])
+        Self([
+            [m[1][1] / det, -m[0][1] / det],
+            [-m[1][0] / det, m[0][0] / det],
+        ])
     }
 
     /// Determinant.
@@ -411,10 +414,9 @@ impl Circuit {
                     s * p.chamber_capacitance(fl) + s * p.piston_area * p.piston_area / z_p,
                 )
             }
-            Source::Flow { port_volume } => (
-                C64::new(1.0, 0.0),
-                s * (port_volume / fl.bulk_modulus),
-            ),
+            Source::Flow { port_volume } => {
+                (C64::new(1.0, 0.0), s * (port_volume / fl.bulk_modulus))
+            }
         };
         let x_o = q_s / (q1 + y_in * p1);
         Response {
@@ -506,7 +508,11 @@ mod tests {
         let (g, zc) = l.gamma_zc(&fl, Friction::Dissipative, s);
         let r_hp = 128.0 * fl.density * fl.kinematic_viscosity / (PI * d.powi(4));
         let series = g * zc;
-        assert!((series.re / r_hp - 1.0).abs() < 1e-3, "{}", series.re / r_hp);
+        assert!(
+            (series.re / r_hp - 1.0).abs() < 1e-3,
+            "{}",
+            series.re / r_hp
+        );
         let shunt = g / zc;
         let c = l.capacitance(&fl);
         assert!((shunt.im / (s.im * c) - 1.0).abs() < 1e-6);
