@@ -161,6 +161,18 @@ fn lumped_line_converges_to_the_transfer_matrix() {
         // Hagen–Poiseuille) friction, and with 001's dissipative model.
         let f_lin = flow_peak(&plant_circuit(&cfg, Friction::Linear), 20.0, 5000.0);
         let f_dis = flow_peak(&plant_circuit(&cfg, Friction::Dissipative), 20.0, 5000.0);
+        // Without the port volume the plant could not hold the pump's compliance: how far off
+        // that circuit would be (TM, same dissipative lines).
+        let mut no_port = plant_circuit(&cfg, Friction::Dissipative);
+        no_port.source = Source::Flow { port_volume: 0.0 };
+        let f_no_port = flow_peak(&no_port, 20.0, 5000.0);
+        println!("  without port_volume the first resonance would be {f_no_port:.1} Hz");
+        assert!(f_no_port > 1.5 * f_paper, "{f_no_port}");
+        // The plant's circuit is 001's circuit: the two TMs agree within 0.2 %.
+        assert!(
+            (f_dis / f_paper - 1.0).abs() < 0.002,
+            "{f_dis} vs {f_paper}"
+        );
         let (lo, hi) = (0.6 * f_paper, 1.6 * f_paper);
         let peaks: Vec<(f64, f64)> = segments
             .iter()
