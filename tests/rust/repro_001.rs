@@ -144,6 +144,25 @@ fn resonant_peak_drops_as_viscosity_grows() {
             20.0 * g.log10()
         );
     }
+    // Sensitivity to the output damping b_o, which 001 does not give (printed only): seal
+    // damping caps the low-viscosity peak and shrinks the 2 → 20 cSt step.
+    for b_o in [0.0, 5.0, 20.0] {
+        let db: Vec<String> = nus
+            .iter()
+            .map(|&n| {
+                let mut c = Circuit::sirohi2003(4.5 * INCH, n * CST);
+                c.cylinder.damping = b_o;
+                let s = c.response(1.0).displacement.norm();
+                let p = first_peak(|f| c.response(f).displacement.norm(), 20.0, 5000.0, 400)
+                    .expect("peak");
+                format!("{:.1} dB", 20.0 * (p.gain / s).log10())
+            })
+            .collect();
+        println!(
+            "  with b_o = {b_o:>4} N·s/m: peaks at 2/20/200 cSt {}",
+            db.join(" / ")
+        );
+    }
     for w in f.windows(2) {
         assert!(w[1].1 < w[0].1, "peak must drop with viscosity: {f:?}");
         // Viscous damping also lowers the damped resonance a little (001 fig. 9).
