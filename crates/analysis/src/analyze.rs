@@ -1,7 +1,7 @@
 //! `ehactl analyze`: the configured rig and loop linearised around their operating point.
 
 use crate::linear::{self, LinearModel, Output};
-use crate::loopshape::{margins, open_loop_bandwidth, Law, Loop, Margins};
+use crate::loopshape::{log_grid, margins, open_loop_bandwidth, Law, Loop, Margins};
 use crate::oppoint::{self, command_delay};
 use crate::sdd::{self, SddRatios};
 use crate::AnalysisError;
@@ -18,6 +18,21 @@ pub struct Pole {
     pub frequency_hz: f64,
     /// Damping ratio −Re λ/|λ| (-).
     pub damping_ratio: f64,
+}
+
+/// One frequency of the sampled loop: loop gain L and closed loop T = L/(1 + L).
+#[derive(Debug, Clone, Serialize)]
+pub struct LoopPoint {
+    /// Frequency (Hz).
+    pub f_hz: f64,
+    /// |L| (dB).
+    pub loop_mag_db: f64,
+    /// ∠L (deg, wrapped to (−360°, 0°]).
+    pub loop_phase_deg: f64,
+    /// |T| (dB).
+    pub closed_mag_db: f64,
+    /// ∠T (deg, wrapped to (−360°, 0°]).
+    pub closed_phase_deg: f64,
 }
 
 /// Everything `ehactl analyze` reports.
@@ -46,6 +61,8 @@ pub struct Analysis {
     pub sdd: Option<SddRatios>,
     /// Slowest poles of the continuous plant model.
     pub poles: Vec<Pole>,
+    /// Sampled-loop frequency response on a log grid (empty in open loop).
+    pub loop_response: Vec<LoopPoint>,
     /// Control rate (Hz).
     pub control_rate_hz: f64,
 }
@@ -117,6 +134,7 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
         |l| l.output(),
     );
     let f_lo = 0.1;
+    let mut loop_response = Vec::new();
     let (discrete, continuous) = match law {
         Some(law) => {
             let ld = Loop {
@@ -129,6 +147,21 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
                 law,
                 delay,
             };
+            let wrap = |d: f64| if d > 0.0 { d - 360.0 } else { d };
+            loop_response = log_grid(1.0, 0.999 * nyquist, 200)
+                .into_iter()
+                .map(|f| {
+                    let l = ld.gain(f);
+                    let t = ld.closed(f);
+                    LoopPoint {
+                        f_hz: f,
+                        loop_mag_db: 20.0 * l.norm().log10(),
+                        loop_phase_deg: wrap(l.arg().to_degrees()),
+                        closed_mag_db: 20.0 * t.norm().log10(),
+                        closed_phase_deg: wrap(t.arg().to_degrees()),
+                    }
+                })
+                .collect();
             (
                 Some(margins(&ld, f_lo, nyquist)),
                 Some(margins(&lc, f_lo, 10.0 * nyquist)),
@@ -156,7 +189,8 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
         discrete,
         continuous,
         delay_s: delay,
-        sdd: sdd::ratios(plant, s.x),
+        sdd: sdd::ratios(plant, s.x, sdd::excitation_frequency(&cfg.plant)),
+        loop_response,
         poles: slow_poles(&cmodel),
         control_rate_hz: cfg.run.control_rate_hz,
     })
@@ -175,6 +209,7 @@ impl Analysis {
             "control_rate_hz": self.control_rate_hz,
             "delay_s": self.delay_s,
             "poles": self.poles,
+            "loop_response": self.loop_response,
         });
         if let Some(b) = self.open_loop_bandwidth_hz {
             o["open_loop_bandwidth_hz"] = json!(b);

@@ -40,8 +40,9 @@ pub fn excitation_frequency(p: &PlantParams) -> Option<f64> {
     }
 }
 
-/// The ratios at piston position `x` (m); None without an enabled flexible mount.
-pub fn ratios(plant: &Plant, x: f64) -> Option<SddRatios> {
+/// The ratios at piston position `x` (m) for the excitation frequency `f_e` (Hz, see
+/// [`excitation_frequency`]); None without an enabled flexible mount.
+pub fn ratios(plant: &Plant, x: f64, f_e: Option<f64>) -> Option<SddRatios> {
     let p = plant.params();
     let m = p.effects.flexible_mount.as_ref().filter(|m| m.enabled)?;
     let k_y = plant.hydraulic_stiffness(x);
@@ -54,7 +55,6 @@ pub fn ratios(plant: &Plant, x: f64) -> Option<SddRatios> {
             .map_or(0.0, |f| f.viscous);
     let f_y = (k_y / m_y).sqrt() / TAU;
     let f_m = (m.stiffness / m.load_mass).sqrt() / TAU;
-    let f_e = excitation_frequency(p);
     let xi_y = d_y / (2.0 * (k_y * m_y).sqrt());
     let xi_m = m.damping / (2.0 * (m.stiffness * m.load_mass).sqrt());
     Some(SddRatios {
@@ -68,4 +68,22 @@ pub fn ratios(plant: &Plant, x: f64) -> Option<SddRatios> {
         xi_m,
         rd_my: xi_m / xi_y,
     })
+}
+
+/// 003's SDD parameters implied by the published ratios: k_m from fr_em (eq. 24, 26) and d_m
+/// from rd_my (eq. 27–29), given the actuator's k_y, m_y, d_y and the load mass m_L.
+/// Returns (k_m in N/m, d_m in N·s/m).
+pub fn implied_mount(
+    fr_em: f64,
+    rd_my: f64,
+    f_e: f64,
+    k_y: f64,
+    m_y: f64,
+    d_y: f64,
+    m_l: f64,
+) -> (f64, f64) {
+    let f_m = f_e / fr_em;
+    let k_m = m_l * (TAU * f_m).powi(2);
+    let d_m = rd_my * d_y * (k_m / k_y).sqrt() * (m_l / m_y).sqrt();
+    (k_m, d_m)
 }

@@ -1,6 +1,6 @@
 //! `ehactl analyze` and `ehactl sweep`.
 
-use crate::{config_error, load, progress_bar, stop_flag};
+use crate::{config_error, default_log_path, load, progress_bar, stop_flag};
 use clap::Args;
 use ehactl_analysis::sweep::{Channel, SweepOptions};
 use ehactl_analysis::{analyze as run_analysis, sweep as run_sweep, AnalysisError};
@@ -135,12 +135,10 @@ pub fn sweep(args: &SweepArgs) -> ExitCode {
             ))
         }
     };
-    let out = args.out.clone().unwrap_or_else(|| {
-        let stem = config
-            .file_stem()
-            .map_or("sweep".into(), |s| s.to_string_lossy().into_owned());
-        PathBuf::from("out").join(format!("{stem}_sweep.mcap"))
-    });
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_log_path(config, "_sweep"));
     let stop = stop_flag();
     let bar = progress_bar(format!("sweep {}", config.display()));
     let mut progress = |k: u64, n: u64| {

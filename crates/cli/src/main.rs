@@ -80,6 +80,14 @@ fn progress_bar(msg: String) -> ProgressBar {
     bar
 }
 
+/// `out/<config file stem><suffix>.mcap`, where runs are logged unless `--out` says otherwise.
+fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
+    let stem = config
+        .file_stem()
+        .map_or("run".into(), |s| s.to_string_lossy().into_owned());
+    PathBuf::from("out").join(format!("{stem}{suffix}.mcap"))
+}
+
 /// Stop flag set by SIGINT / SIGTERM.
 fn stop_flag() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
@@ -154,12 +162,7 @@ fn cmd_run(config: &Path, duration: Option<f64>, out: Option<PathBuf>, json: boo
             return config_error(format!("--duration {d}: expected a finite number > 0 in s"));
         }
     }
-    let out = out.unwrap_or_else(|| {
-        let stem = config
-            .file_stem()
-            .map_or("run".into(), |s| s.to_string_lossy().into_owned());
-        PathBuf::from("out").join(format!("{stem}.mcap"))
-    });
+    let out = out.unwrap_or_else(|| default_log_path(config, ""));
     let stop = stop_flag();
     let bar = progress_bar(format!("{} (simulated)", config.display()));
     let mut progress = |k: u64, n: u64| {
