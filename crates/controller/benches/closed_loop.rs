@@ -123,6 +123,7 @@ fn run(cfg: &RigConfig, duration: f64, capture: bool, mcap: Option<PathBuf>) -> 
             stop: None,
             capture,
             progress: None,
+            observer: None,
         },
     )
     .expect("run_sim");
