@@ -16,9 +16,11 @@
 pub mod analyze;
 pub mod linear;
 pub mod loopshape;
+pub mod motion;
 pub mod oppoint;
 pub mod sdd;
 pub mod sweep;
+pub mod tline;
 
 pub use analyze::{analyze, Analysis};
 pub use sweep::{sweep, SweepOptions, SweepPoint, SweepResult};

@@ -2,8 +2,9 @@
 //!
 //! N segments, each a capacitance C = A·ℓ/β at its upstream node, an inductance
 //! L = ρ·ℓ/A and a laminar resistance R = 128·μ·ℓ/(π·d⁴) (Hagen–Poiseuille) in series to the
-//! next node; the last segment discharges into the chamber. Nodes are updated from the old
-//! flows, flows from the new pressures with R implicit (symplectic, stable for ω·h < 2).
+//! next node; the last segment discharges into the chamber. Node 0 (the valve port) also
+//! holds the optional lumped `port_volume` (capacitance V_port/β₀). Nodes are updated from the
+//! old flows, flows from the new pressures with R implicit (symplectic, stable for ω·h < 2).
 
 use crate::params::{Fluid, LineDynamics};
 
@@ -16,6 +17,8 @@ pub struct Line {
     pub q: Vec<f64>,
     /// Node capacitance (m³/Pa).
     pub c: f64,
+    /// Capacitance of the valve-side node 0 (m³/Pa): `c` plus the port volume's V_port/β₀.
+    pub c0: f64,
     /// Segment inductance (kg/m⁴).
     pub l: f64,
     /// Segment resistance (Pa·s/m³).
@@ -30,10 +33,12 @@ impl Line {
         let area = std::f64::consts::PI * cfg.diameter * cfg.diameter / 4.0;
         let beta = cfg.bulk_modulus.unwrap_or(fluid.bulk_modulus);
         let mu = fluid.density * fluid.kinematic_viscosity;
+        let c = area * seg / beta;
         Self {
             p: vec![p0; n],
             q: vec![0.0; n],
-            c: area * seg / beta,
+            c,
+            c0: c + cfg.port_volume.max(0.0) / fluid.bulk_modulus,
             l: fluid.density * seg / area,
             r: 128.0 * mu * seg / (std::f64::consts::PI * cfg.diameter.powi(4)),
         }

@@ -454,6 +454,14 @@ impl Plant {
         self.c.beta0 * (self.c.a_a * self.c.a_a / va + self.c.a_b * self.c.a_b / vb)
     }
 
+    /// Pressures at the valve-side ends of the lines A and B (Pa), i.e. at the valve ports
+    /// (002: pressures measured at the valve ports differ from the chamber pressures by the
+    /// line dynamics of eq. 9–17); `None` without the `line_dynamics` effect, where the port
+    /// pressures are the chamber pressures `state().p_a`, `state().p_b`.
+    pub fn valve_port_pressures(&self) -> Option<(f64, f64)> {
+        self.lines.as_ref().map(|(la, lb)| (la.p[0], lb.p[0]))
+    }
+
     /// Names of the continuous states that [`Plant::linear_state`] returns, in order:
     /// spool (if the spool has dynamics), spool velocity (2nd order), p_a, p_b, p_s (with
     /// supply sag), x, v, x_load and v_load (with a flexible mount), then the line node
@@ -679,10 +687,10 @@ impl Plant {
                 s.q_b = qb;
                 q_sa = qsa;
                 q_sb = qsb;
-                let f0a = (qa - la.q[0]) / la.c;
-                let f0b = (qb - lb.q[0]) / lb.c;
-                let p0a = la.p[0] + h * f0a * phi1(dqa / la.c * h);
-                let p0b = lb.p[0] + h * f0b * phi1(dqb / lb.c * h);
+                let f0a = (qa - la.q[0]) / la.c0;
+                let f0b = (qb - lb.q[0]) / lb.c0;
+                let p0a = la.p[0] + h * f0a * phi1(dqa / la.c0 * h);
+                let p0b = lb.p[0] + h * f0b * phi1(dqb / lb.c0 * h);
                 la.advance_interior_nodes(h);
                 lb.advance_interior_nodes(h);
                 la.p[0] = p0a.max(c.p_cav);

@@ -318,6 +318,11 @@ pub struct LineDynamics {
     /// Effective bulk modulus of the line incl. hose wall compliance (Pa); default: fluid β₀.
     #[serde(default)]
     pub bulk_modulus: Option<f64>,
+    /// Lumped oil volume at the valve-side node of each line (m³), default 0: valve port and
+    /// manifold passages, or (001 eq. 14–15) a pumping chamber with its piezo-stack compliance
+    /// as an equivalent volume a_p·Δ_gap + β·a_p²/k_p. Compressed with the fluid β₀.
+    #[serde(default)]
+    pub port_volume: f64,
 }
 
 /// `flexible_mount`: spring-damper (SDD) from rod to a load mass (003 eq. 1).

@@ -411,6 +411,12 @@ pub const PARAMS: &[Param] = &[
         "line effective bulk modulus",
     ),
     p(
+        "effects.line_dynamics.port_volume",
+        "m³",
+        NonNegative,
+        "lumped volume at the valve-side node (default 0)",
+    ),
+    p(
         "effects.flexible_mount.load_mass",
         "kg",
         Positive,

@@ -1,0 +1,225 @@
+//! Seed 002 (Cristofori & Vacca) reproduction: piston motion estimated from the pressures at
+//! the valve ports (eq. 1–36) on a simulation of configs/cristofori2015_crane.toml, whose
+//! lines make the port pressures differ from the chamber pressures; and the swing of the
+//! pressure-dependent bulk modulus (eq. 35–36) over the run.
+//!
+//! Run: `cargo test --release -p ehactl-tests --test repro_002 -- --nocapture`.
+
+use ehactl_analysis::motion::{LineTerms, MotionEstimator, PortSample};
+use ehactl_controller::runloop::Controller;
+use ehactl_controller::setpoint::Setpoint;
+use ehactl_plant::rng::NoiseRng;
+use ehactl_plant::Plant;
+use ehactl_tests::config;
+
+/// One closed-loop run of the crane config, sampled at the control rate.
+struct Run {
+    dt: f64,
+    x0: f64,
+    /// Per sample k ≥ 1: command held over (k−1, k], port pressures, chamber pressures,
+    /// piston position at k.
+    u: Vec<f64>,
+    p_port: Vec<(f64, f64)>,
+    p_chamber: Vec<(f64, f64)>,
+    x: Vec<f64>,
+    p_supply: f64,
+    p_tank: f64,
+}
+
+fn simulate() -> (Run, ehactl_controller::RigConfig) {
+    let cfg = config("cristofori2015_crane.toml");
+    let dt = cfg.control_dt();
+    let mut plant = Plant::configure(&cfg.plant, dt).expect("crane config");
+    let mut ctrl = Controller::from_config(&cfg);
+    let sp = Setpoint::new(&cfg.setpoint);
+    let n = (cfg.run.duration / dt).round() as usize;
+    let x0 = plant.state().x;
+    let mut run = Run {
+        dt,
+        x0,
+        u: Vec::with_capacity(n),
+        p_port: Vec::with_capacity(n),
+        p_chamber: Vec::with_capacity(n),
+        x: Vec::with_capacity(n),
+        p_supply: cfg.plant.supply.pressure,
+        p_tank: cfg.plant.supply.tank_pressure,
+    };
+    for _ in 0..n {
+        let m = plant.measure();
+        let (r, rate) = sp.sample(m.t);
+        let u = ctrl.step(r, rate, &m, dt).u;
+        plant.step(u).expect("finite plant");
+        let s = plant.state();
+        run.u.push(u);
+        run.p_port.push(
+            plant
+                .valve_port_pressures()
+                .expect("crane config has lines"),
+        );
+        run.p_chamber.push((s.p_a, s.p_b));
+        run.x.push(s.x);
+    }
+    (run, cfg)
+}
+
+struct Errors {
+    rms_err: f64,
+    rms_true: f64,
+    peak_true: f64,
+    max_err: f64,
+    stroke_err: f64,
+}
+
+/// Velocity error of the extension-chamber estimate (eq. 31, used by 002 for raising) with
+/// port-pressure noise σ (Pa).
+fn estimate(
+    run: &Run,
+    cfg: &ehactl_controller::RigConfig,
+    terms: LineTerms,
+    noise: f64,
+    side: usize,
+) -> Errors {
+    let mut est = MotionEstimator::new(&cfg.plant, run.dt, run.x0).with_line_terms(terms);
+    let mut rng = NoiseRng::new(7);
+    let (mut se, mut st, mut pk, mut mx) = (0.0, 0.0, 0.0f64, 0.0f64);
+    let mut x_prev = run.x0;
+    let mut last = 0.0;
+    for k in 0..run.u.len() {
+        let (pa, pb) = run.p_port[k];
+        let e = est.update(&PortSample {
+            command: run.u[k],
+            p_supply: run.p_supply,
+            p_tank: run.p_tank,
+            p_we: pa + noise * rng.normal(),
+            p_wr: pb + noise * rng.normal(),
+        });
+        let v_true = (run.x[k] - x_prev) / run.dt;
+        x_prev = run.x[k];
+        if k > 0 {
+            let err = e.v[side] - v_true;
+            se += err * err;
+            st += v_true * v_true;
+            pk = pk.max(v_true.abs());
+            mx = mx.max(err.abs());
+        }
+        last = e.x[side];
+    }
+    let m = (run.u.len() - 1) as f64;
+    Errors {
+        rms_err: (se / m).sqrt(),
+        rms_true: (st / m).sqrt(),
+        peak_true: pk,
+        max_err: mx,
+        stroke_err: last - run.x[run.x.len() - 1],
+    }
+}
+
+#[test]
+fn port_pressures_differ_from_chamber_pressures() {
+    let (run, _) = simulate();
+    let max_diff = run
+        .p_port
+        .iter()
+        .zip(&run.p_chamber)
+        .map(|(p, c)| (p.0 - c.0).abs().max((p.1 - c.1).abs()))
+        .fold(0.0, f64::max);
+    println!("002: largest |port − chamber| pressure difference {max_diff:.0} Pa");
+    assert!(
+        max_diff > 1e4,
+        "lines must separate port and chamber pressure"
+    );
+}
+
+#[test]
+fn motion_estimate_recovers_piston_velocity() {
+    let (run, cfg) = simulate();
+    let travel = run.x[run.x.len() - 1] - run.x0;
+    println!(
+        "002 crane run: {:.3} m travel in {} samples at {} Hz",
+        travel,
+        run.u.len(),
+        1.0 / run.dt
+    );
+    assert!(travel > 0.3, "the boom must lift: {travel}");
+    for (side, name) in [(0, "eq. 31 extension"), (1, "eq. 32 retraction")] {
+        for (terms, noise) in [
+            (LineTerms::Full, 0.0),
+            (LineTerms::Resistive, 0.0),
+            (LineTerms::Full, 2.0e4),
+            (LineTerms::Resistive, 2.0e4),
+        ] {
+            let e = estimate(&run, &cfg, terms, noise, side);
+            println!(
+                "  {name}, {terms:?} line, port noise {noise:>6} Pa: RMS velocity error {:.4} m/s = {:.2} % of \
+                 RMS velocity {:.4} m/s ({:.2} % of peak {:.3} m/s), max error {:.4} m/s, \
+                 final position error {:+.2} mm",
+                e.rms_err,
+                100.0 * e.rms_err / e.rms_true,
+                e.rms_true,
+                100.0 * e.rms_err / e.peak_true,
+                e.peak_true,
+                e.max_err,
+                1e3 * e.stroke_err
+            );
+            // 002's method (resistive line): the velocity within 5 % RMS without sensor noise,
+            // and, for eq. 31 (the one 002 uses while raising), within 10 % with the config's
+            // 0.2 bar pressure noise; the position drift (002: "a certain extent of drift")
+            // within 2 % of the travel.
+            if terms == LineTerms::Resistive && (noise == 0.0 || side == 0) {
+                let tol = if noise == 0.0 { 0.05 } else { 0.10 };
+                assert!(e.rms_err < tol * e.rms_true, "{name}: {} m/s", e.rms_err);
+                assert!(
+                    e.stroke_err.abs() < 0.02 * travel,
+                    "{name}: {}",
+                    e.stroke_err
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn bulk_modulus_swing_over_the_run() {
+    let (run, cfg) = simulate();
+    let law = MotionEstimator::new(&cfg.plant, run.dt, run.x0).bulk_modulus_law();
+    // The estimator's eq. 35 law is the plant's.
+    let plant = Plant::configure(&cfg.plant, run.dt).unwrap();
+    for p in [0.0, 5e6, 1e7, 2e7] {
+        assert!((law.beta(p) / plant.bulk_modulus(p) - 1.0).abs() < 1e-12);
+    }
+    let b_ref = law.beta(10.0e6); // 002: "of the constant value at 30 °C and 100 bar"
+    let range = |it: &mut dyn Iterator<Item = f64>| {
+        it.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+            (l.min(p), h.max(p))
+        })
+    };
+    let (lo_a, hi_a) = range(&mut run.p_chamber.iter().map(|p| p.0));
+    let (lo, hi) = range(&mut run.p_chamber.iter().flat_map(|p| [p.0, p.1]));
+    let swing_a = (law.beta(hi_a) - law.beta(lo_a)) / b_ref;
+    let swing = (law.beta(hi) - law.beta(lo)) / b_ref;
+    // Over the pressure range a crane chamber can see, tank (0) to supply.
+    let ps = run.p_supply;
+    let swing_range = (law.beta(ps) - law.beta(0.0)) / b_ref;
+    println!(
+        "002 β(p) = {:.3e} Pa + {}·p (eq. 35): swing in % of β(100 bar) = {:.4e} Pa\n  \
+         over this run, extension chamber {:.2}–{:.2} MPa: {:.2} %; both chambers \
+         {:.2}–{:.2} MPa: {:.2} %\n  over 0 – {:.0} MPa (tank to supply): {:.2} %",
+        law.beta0,
+        law.slope,
+        b_ref,
+        lo_a / 1e6,
+        hi_a / 1e6,
+        100.0 * swing_a,
+        lo / 1e6,
+        hi / 1e6,
+        100.0 * swing,
+        ps / 1e6,
+        100.0 * swing_range
+    );
+    // 002 (fig. 19): the variation reaches 10 % over its test cycles, whose chamber pressures
+    // span the working range. The config's K_b gives that over tank-to-supply (±1 %) ...
+    assert!((swing_range - 0.10).abs() < 0.01, "{swing_range}");
+    // ... while this lift at constant load only spans a few MPa (reported, see
+    // REPRODUCTION_001_002.md): the swing over the run must be the law applied to its range.
+    assert!(swing > 0.0 && swing < swing_range, "{swing}");
+}
