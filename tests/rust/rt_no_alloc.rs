@@ -5,7 +5,7 @@
 //! allocate nothing. Its own test binary, because it installs its own #[global_allocator].
 
 use ehactl_controller::live::{self, LiveParams};
-use ehactl_controller::realtime::{RtOptions, TimingReport, WallClockPacer};
+use ehactl_controller::realtime::{TimingReport, WallClockPacer};
 use ehactl_controller::runloop::Pacer;
 use ehactl_controller::session::{build_plant, run_with_live, Backend, SessionOptions};
 use ehactl_hal::logger::Overflow;
