@@ -15,3 +15,7 @@ if command -v npm >/dev/null; then
 fi
 echo "== Python tests"
 EHACTL_BIN="$PWD/target/release/ehactl" python3 -m pytest tests/python -q
+echo "== Python bindings (pyo3 + maturin): build, install, test"
+python3 -m pip install --quiet -r bindings/python/requirements-test.txt
+python3 -m pip install --quiet ./bindings/python
+(cd bindings/python && python3 -m pytest tests -q)
