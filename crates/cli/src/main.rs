@@ -3,6 +3,8 @@
 //! Exit codes: 0 run completed, 2 bad config or arguments, 3 supervisor trip,
 //! 130 interrupted by a signal (log finalised), 1 any other failure (I/O).
 
+mod canbus;
+
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
 use ehactl_controller::session::{run_sim, SessionError, SessionOptions};
@@ -47,6 +49,11 @@ enum Command {
     },
     /// List every config parameter with its unit and meaning.
     Params,
+    /// CAN bus tools (the socketcand-compatible hub).
+    Canbus {
+        #[command(subcommand)]
+        command: canbus::CanbusCommand,
+    },
 }
 
 fn config_error(e: impl std::fmt::Display) -> ExitCode {
@@ -94,6 +101,7 @@ fn main() -> ExitCode {
                 Err(e) => config_error(format!("{}: {e}", config.display())),
             }
         }
+        Command::Canbus { command } => canbus::run(command),
         Command::Params => {
             for table in registries() {
                 for p in table {

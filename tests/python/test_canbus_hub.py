@@ -1,0 +1,107 @@
+"""`ehactl canbus hub` against the real python-can `socketcand` interface as peers."""
+import socket
+import threading
+import time
+
+import can
+import pytest
+
+from canhub import hub
+
+
+def bus(port, channel="can0"):
+    return can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel=channel, tcp_tune=True)
+
+
+def drain(b, timeout=0.3):
+    out = []
+    while True:
+        m = b.recv(timeout=timeout)
+        if m is None:
+            return out
+        out.append(m)
+
+
+def test_frames_relay_between_python_can_clients_without_echo():
+    with hub() as (_, port):
+        a, b, c = bus(port), bus(port), bus(port, channel="can1")
+        try:
+            sent = [
+                can.Message(arbitration_id=0x080, data=b"", is_extended_id=False),  # SYNC, empty
+                can.Message(arbitration_id=0x1A0, data=bytes([0xDE, 0xAD, 0xBE, 0xEF]), is_extended_id=False),
+                can.Message(arbitration_id=0x7FF, data=bytes(range(8)), is_extended_id=False),
+                can.Message(arbitration_id=0x005, data=b"\x01", is_extended_id=False),  # 3-digit "005"
+                can.Message(arbitration_id=0x1ABCDEF0, data=b"\x00\xff", is_extended_id=True),
+            ]
+            for m in sent:
+                a.send(m)
+            got = []
+            deadline = time.monotonic() + 5
+            while len(got) < len(sent) and time.monotonic() < deadline:
+                m = b.recv(timeout=0.5)
+                if m is not None:
+                    got.append(m)
+            assert [(m.arbitration_id, bytes(m.data), m.is_extended_id, m.dlc) for m in got] == [
+                (m.arbitration_id, bytes(m.data), m.is_extended_id, len(m.data)) for m in sent
+            ]
+            assert got[0].dlc == 0 and bytes(got[0].data) == b""
+            # No echo to the sender, nothing on another channel.
+            assert drain(a) == []
+            assert drain(c) == []
+            # And back the other way.
+            b.send(can.Message(arbitration_id=0x5B0, data=b"\x43\x00\x10\x00", is_extended_id=False))
+            m = a.recv(timeout=2)
+            assert m is not None and m.arbitration_id == 0x5B0 and bytes(m.data) == b"\x43\x00\x10\x00"
+        finally:
+            for x in (a, b, c):
+                x.shutdown()
+
+
+def test_handshake_stays_clean_while_traffic_flows():
+    """python-can compares each handshake reply verbatim: a client joining a busy bus must
+    not get frames before its rawmode `< ok >`."""
+    with hub() as (_, port):
+        a = bus(port)
+        stop = threading.Event()
+
+        def spam():
+            while not stop.is_set():
+                a.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+                time.sleep(0.0002)
+
+        t = threading.Thread(target=spam)
+        t.start()
+        try:
+            for _ in range(20):
+                late = bus(port)  # raises CanError if a frame arrived with a handshake reply
+                m = late.recv(timeout=2)
+                assert m is not None and m.arbitration_id == 0x080 and m.dlc == 0
+                late.shutdown()
+        finally:
+            stop.set()
+            t.join()
+            a.shutdown()
+
+
+def test_malformed_input_is_reported_and_does_not_break_the_bus():
+    with hub() as (proc, port):
+        b = bus(port)
+        raw = socket.create_connection(("127.0.0.1", port))
+        try:
+            assert raw.recv(64) == b"< hi >"
+            raw.sendall(b"< open can0 >")
+            assert raw.recv(64) == b"< ok >"
+            raw.sendall(b"< rawmode >")
+            assert raw.recv(64) == b"< ok >"
+            raw.sendall(b"< send 800 0 >< send 123 9 >< send 123 2 01 >garbage< bogus >< send 123 1 AB >")
+            m = b.recv(timeout=2)
+            assert m is not None and m.arbitration_id == 0x123 and bytes(m.data) == b"\xab"
+            assert drain(b) == []
+        finally:
+            raw.close()
+            b.shutdown()
+        proc.terminate()
+        err = proc.stderr.read()
+        for what in ("exceeds 0x7FF", "DLC `9`", "DLC 2 but 1 data bytes", "`garbage`", "unsupported command `< bogus >`"):
+            assert what in err, err
+        assert "panicked" not in err
