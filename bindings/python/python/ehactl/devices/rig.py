@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 import can
+from can.interfaces.socketcand import SocketCanDaemonBus
 import canopen
 
 from .node import OPERATIONAL, PRE_OPERATIONAL
@@ -135,6 +136,7 @@ def find_eds(name: str, eds_dir: Optional[str]) -> str:
     candidates.append(here.parent / "eds" / name)
     for parent in here.parents:
         candidates.append(parent / "configs" / "eds" / name)
+    candidates.append(Path.cwd() / "configs" / "eds" / name)
     for c in candidates:
         if c.is_file():
             return str(c)
@@ -143,7 +145,7 @@ def find_eds(name: str, eds_dir: Optional[str]) -> str:
 
 
 # --------------------------------------------------------------------------- bus
-class _HubBus(can.interfaces.socketcand.SocketCanDaemonBus):
+class _HubBus(SocketCanDaemonBus):
     """python-can's socketcand client, plus detection of a closed TCP connection (the stock
     client then spins on select()/recv() returning nothing forever)."""
 
@@ -229,7 +231,7 @@ class SimRig:
             self.plant = ehactl.Plant(self.cfg)
         except (ValueError, OSError) as e:
             raise DeviceError(f"config {config_path}: {e}") from None
-        self.control_dt = self.cfg.control_dt()
+        self.control_dt = self.cfg.control_dt
         self.steps_per_sync = max(1, round(self.settings.sync_period_s / self.control_dt))
         self.full_scale_v = float(self.cfg["valve.command_full_scale"])
         self.faults = list(faults)

@@ -75,8 +75,9 @@ class ValveObe(SimNode):
             if cw & CW_R and not prev & CW_R:
                 self.emcy(0x0000, 0)  # error reset (CiA 301 7.2.7.1)
                 self._set_state(ValveState.DISABLED, "fault reset (rising edge of R)")
-            else:
-                return
+            # No re-activation by the same write: after a fault the master must command
+            # HOLD / ACTIVE again with a new control word.
+            return
         self._evaluate(cw)
 
     def _evaluate(self, cw: int) -> None:
