@@ -97,6 +97,7 @@ def master(port):
     bus = can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel="can0",
                   tcp_tune=True)
     net = canopen.Network(bus)
+    net.NOTIFIER_CYCLE = 0.1  # s: prompt shutdown
     net.connect()
     td = canopen.RemoteNode(TRANSDUCER_ID, TRANSDUCER_EDS)
     va = canopen.RemoteNode(VALVE_ID, VALVE_EDS)

@@ -246,6 +246,7 @@ class SimRig:
         self.bus_url = bus_url
         self.bus = open_bus(bus_url)
         self.network = canopen.Network(self.bus)
+        self.network.NOTIFIER_CYCLE = 0.1  # s, bus.recv timeout: prompt shutdown
         s = self.settings
         self.transducer = Transducer(self.network, s.transducer_node_id,
                                      find_eds(EDS_NAMES["transducer"], eds_dir), self.events)
