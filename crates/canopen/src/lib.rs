@@ -1,18 +1,36 @@
 //! # ehactl-canopen
 //!
-//! The CANopen hardware backend of ehactl:
-//! - [`frame`]: fixed-size [`CanFrame`],
+//! The CANopen hardware backend of ehactl (issue 5):
+//! - [`frame`]: fixed-size [`CanFrame`] (no heap, `Copy`),
 //! - [`bus`]: the [`CanBus`] transport trait and bus addresses, with the implementations
 //!   [`socketcand`] (rawmode over TCP, pure std) and [`socketcan_bus`] (Linux SocketCAN,
 //!   cargo feature `socketcan`),
 //! - [`hub`]: the socketcand-compatible relay behind `ehactl canbus hub`,
+//! - the CANopen master split by CiA 301 service: [`nmt`], [`sync`], [`sdo`], [`pdo`],
+//!   [`heartbeat`], [`emcy`]; every process function takes the elapsed time as an argument
+//!   (CANopenNode style), so time is injected and the protocol is testable frame by frame,
+//! - the device profiles [`cia406`] (position transducer) and [`cia408`] (valve with OBE),
+//! - [`config`]: the `[canopen]` config section and the bus-load check,
+//! - [`hal`]: [`hal::CanopenHal`], the `Hal` implementation: I/O threads own the bus, the
+//!   control cycle talks to them through lock-free queues.
 #![deny(missing_docs)]
 
 pub mod bus;
+pub mod cia406;
+pub mod cia408;
+pub mod config;
+pub mod emcy;
 pub mod frame;
+pub mod hal;
+pub mod heartbeat;
 pub mod hub;
+pub mod nmt;
+pub mod pdo;
+pub mod sdo;
 pub mod socketcan_bus;
 pub mod socketcand;
+pub mod sync;
 
 pub use bus::{BusError, BusErrorKind, BusUrl, CanBus};
+pub use config::CanopenConfig;
 pub use frame::{CanFrame, Direction};

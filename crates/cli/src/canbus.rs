@@ -1,7 +1,10 @@
 //! `ehactl canbus ...`: CAN bus tools.
 
 use clap::Subcommand;
+use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError};
 use ehactl_canopen::hub::Hub;
+use ehactl_canopen::BusUrl;
+use ehactl_controller::RigConfig;
 use std::io::Write;
 use std::process::ExitCode;
 
@@ -51,5 +54,87 @@ pub fn run(cmd: CanbusCommand) -> ExitCode {
                 }
             }
         }
+    }
+}
+
+/// `--hal`: which backend a run uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum HalKind {
+    /// The in-process simulated plant.
+    Sim,
+    /// CiA 406 transducer + CiA 408 valve on a CAN bus (needs --bus).
+    Canopen,
+}
+
+/// Exit code when the hardware could not be brought up.
+pub const EXIT_STARTUP: u8 = 4;
+
+/// Bring the CAN rig up for `--hal canopen`; `Ok(None)` for the sim backend.
+pub fn connect(
+    cfg: &RigConfig,
+    hal: HalKind,
+    bus: Option<&str>,
+    verbose: bool,
+) -> Result<Option<CanopenHal>, ExitCode> {
+    let arg_err = |m: String| {
+        eprintln!("ehactl: {m}");
+        ExitCode::from(2)
+    };
+    match (hal, bus) {
+        (HalKind::Sim, None) => Ok(None),
+        (HalKind::Sim, Some(b)) => Err(arg_err(format!(
+            "--bus {b} needs --hal canopen (the sim backend has no bus)"
+        ))),
+        (HalKind::Canopen, None) => Err(arg_err(
+            "--hal canopen needs --bus socketcan://IFACE or --bus socketcand://HOST:PORT/CHANNEL"
+                .into(),
+        )),
+        (HalKind::Canopen, Some(b)) => {
+            let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
+            let settings = CanopenSettings {
+                bus: url,
+                canopen: cfg.canopen.clone(),
+                command_full_scale: cfg.plant.valve.command_full_scale,
+                control_rate_hz: cfg.run.control_rate_hz,
+                verbose,
+            };
+            match CanopenHal::connect(settings) {
+                Ok(h) => Ok(Some(h)),
+                Err(e) => {
+                    eprintln!("ehactl: {e}");
+                    Err(ExitCode::from(match e {
+                        StartupError::Settings(_) => 2,
+                        _ => EXIT_STARTUP,
+                    }))
+                }
+            }
+        }
+    }
+}
+
+/// Human-readable CAN lines of the run summary (nothing for the sim backend).
+pub fn print_summary(summary: &serde_json::Value) {
+    let Some(load) = summary["bus_load_percent"].as_f64() else {
+        return;
+    };
+    println!(
+        "  can bus       {} — load {:.1} % worst case ({:.0} µs per SYNC at {} Hz), start-up {:.2} s",
+        summary["bus"].as_str().unwrap_or("?"),
+        load,
+        summary["bus_time_per_sync_us"].as_f64().unwrap_or(f64::NAN),
+        summary["sync_rate_hz"],
+        summary["startup_s"].as_f64().unwrap_or(f64::NAN)
+    );
+    println!(
+        "  can frames    {} SYNC, {} rx, {} tx, {} wrong DLC, {} unknown COB-ID, valve {}",
+        summary["syncs_sent"],
+        summary["can_rx_frames"],
+        summary["can_tx_frames"],
+        summary["can_wrong_dlc"],
+        summary["can_unknown_cob_id"],
+        summary["valve_state"].as_str().unwrap_or("?")
+    );
+    if let Some(s) = summary["safe_stop"].as_str() {
+        println!("  safe stop     {s}");
     }
 }

@@ -1,18 +1,29 @@
 //! `ehactl`: closed-loop runs against the simulated plant, config checks, parameter lists.
 //!
-//! Exit codes: 0 run completed, 2 bad config or arguments, 3 supervisor trip,
-//! 130 interrupted by a signal (log finalised), 1 any other failure (I/O).
+//! Exit codes: 0 run completed, 2 bad config or arguments, 3 supervisor trip (including
+//! device faults of `--hal canopen`), 4 hardware start-up failed (bus, boot-up, SDO
+//! configuration, device state), 130 interrupted by a signal (log finalised), 1 any other
+//! failure (I/O).
 
 mod canbus;
 
+use canbus::HalKind;
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
-use ehactl_controller::session::{run_sim, SessionError, SessionOptions};
+use ehactl_controller::control_socket::ControlServer;
+use ehactl_controller::live::LiveParams;
+use ehactl_controller::realtime::WallClockPacer;
+use ehactl_controller::session::{
+    build_plant, run_sim, run_with_live, Backend, Session, SessionError, SessionOptions,
+};
 use ehactl_controller::RigConfig;
+use ehactl_hal::logger::Overflow;
+use ehactl_hal::sim::SimHal;
+use ehactl_hal::Hal;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
 #[derive(Parser)]
@@ -41,6 +52,31 @@ enum Command {
         /// Print exactly one JSON object with the summary on stdout.
         #[arg(long)]
         json: bool,
+        /// Pace the loop against the wall clock (the [realtime] section: SCHED_FIFO,
+        /// mlockall, CPU affinity, overrun policy); with the sim backend the plant then
+        /// runs in real time. Timing statistics go to the summary and the MCAP log.
+        #[arg(long)]
+        realtime: bool,
+        /// Serve live gain / setpoint changes on this Unix socket (see `ehactl set`).
+        #[arg(long, value_name = "PATH")]
+        control_socket: Option<PathBuf>,
+        /// Backend: `sim` (in-process plant) or `canopen` (CiA 406 transducer + CiA 408
+        /// valve on a CAN bus, paced by the wall clock; needs --bus).
+        #[arg(long, value_enum, default_value = "sim")]
+        hal: HalKind,
+        /// CAN bus for --hal canopen: socketcan://IFACE or socketcand://HOST:PORT/CHANNEL.
+        #[arg(long, value_name = "URL")]
+        bus: Option<String>,
+    },
+    /// Change gains or setpoint parameters of a running `ehactl run --control-socket PATH`;
+    /// the change lands at a cycle boundary and is logged as a `param_change` event.
+    Set {
+        /// Control socket of the running process.
+        #[arg(long, value_name = "PATH")]
+        socket: PathBuf,
+        /// One or more PATH=VALUE (units as listed by `ehactl params`), e.g. control.pi.kp=0.5.
+        #[arg(required = true, value_name = "PATH=VALUE")]
+        assignments: Vec<String>,
     },
     /// Validate CONFIG and print what it sets up.
     CheckConfig {
@@ -73,7 +109,23 @@ fn main() -> ExitCode {
             duration,
             out,
             json,
-        } => cmd_run(&config, duration, out, json),
+            realtime,
+            control_socket,
+            hal,
+            bus,
+        } => cmd_run(
+            &config,
+            duration,
+            out,
+            json,
+            realtime,
+            control_socket,
+            (hal, bus),
+        ),
+        Command::Set {
+            socket,
+            assignments,
+        } => cmd_set(&socket, &assignments),
         Command::CheckConfig { config } => {
             let cfg = match load(&config) {
                 Ok(c) => c,
@@ -113,7 +165,45 @@ fn main() -> ExitCode {
     }
 }
 
-fn cmd_run(config: &Path, duration: Option<f64>, out: Option<PathBuf>, json: bool) -> ExitCode {
+fn cmd_set(socket: &Path, assignments: &[String]) -> ExitCode {
+    for a in assignments {
+        if let Err(e) = ehactl_controller::live::parse_assignment(a) {
+            return config_error(e);
+        }
+    }
+    match ehactl_controller::control_socket::send(socket, assignments) {
+        Ok(reply) if reply.starts_with("ok") => {
+            println!("{reply}");
+            ExitCode::SUCCESS
+        }
+        Ok(reply) => {
+            eprintln!("ehactl: {}", reply.trim_start_matches("error: "));
+            ExitCode::from(2)
+        }
+        Err(e) => {
+            eprintln!(
+                "ehactl: control socket {}: {e} (is `ehactl run --control-socket` running?)",
+                socket.display()
+            );
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn rt_warning(msg: &str) {
+    eprintln!("ehactl: warning: {msg}");
+}
+
+#[allow(clippy::too_many_arguments)]
+fn cmd_run(
+    config: &Path,
+    duration: Option<f64>,
+    out: Option<PathBuf>,
+    json: bool,
+    realtime: bool,
+    control_socket: Option<PathBuf>,
+    (hal, bus): (HalKind, Option<String>),
+) -> ExitCode {
     let cfg = match load(config) {
         Ok(c) => c,
         Err(code) => return code,
@@ -123,6 +213,11 @@ fn cmd_run(config: &Path, duration: Option<f64>, out: Option<PathBuf>, json: boo
             return config_error(format!("--duration {d}: expected a finite number > 0 in s"));
         }
     }
+    // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s).
+    let mut can_hal = match canbus::connect(&cfg, hal, bus.as_deref(), !json) {
+        Ok(h) => h,
+        Err(code) => return code,
+    };
     let out = out.unwrap_or_else(|| {
         let stem = config
             .file_stem()
@@ -143,21 +238,75 @@ fn cmd_run(config: &Path, duration: Option<f64>, out: Option<PathBuf>, json: boo
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
-    bar.set_message(format!("{} (simulated)", config.display()));
-    let mut progress = |k: u64, n: u64| {
-        bar.set_length(n);
-        bar.set_position(k);
+    let live = Arc::new(LiveParams::new());
+    let _server = match &control_socket {
+        Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                eprintln!("ehactl: --control-socket {}: {e}", path.display());
+                return ExitCode::from(1);
+            }
+        },
+        None => None,
     };
-    let result = run_sim(
-        &cfg,
-        SessionOptions {
+    let live_ref = control_socket.as_ref().map(|_| &*live);
+    let result = if realtime || can_hal.is_some() {
+        // The loop thread only stores the cycle count; the bar is drawn by this watcher
+        // thread so that no terminal I/O happens in the cycle.
+        bar.set_message(format!(
+            "{} (real time{})",
+            config.display(),
+            if can_hal.is_some() { ", canopen" } else { "" }
+        ));
+        let done = Arc::new(AtomicU64::new(0));
+        let total = Arc::new(AtomicU64::new(1));
+        let finished = Arc::new(AtomicBool::new(false));
+        let watcher = {
+            let (bar, done, total, finished) =
+                (bar.clone(), done.clone(), total.clone(), finished.clone());
+            std::thread::spawn(move || {
+                while !finished.load(Ordering::Relaxed) {
+                    bar.set_length(total.load(Ordering::Relaxed));
+                    bar.set_position(done.load(Ordering::Relaxed));
+                    std::thread::sleep(std::time::Duration::from_millis(100));
+                }
+            })
+        };
+        let mut progress = |k: u64, n: u64| {
+            total.store(n, Ordering::Relaxed);
+            done.store(k, Ordering::Relaxed);
+        };
+        let r = run_realtime(
+            &cfg,
+            duration,
+            out,
+            &stop,
+            &mut progress,
+            live_ref,
+            can_hal.as_mut().map(|h| h as &mut dyn Hal),
+        );
+        finished.store(true, Ordering::Relaxed);
+        let _ = watcher.join();
+        r
+    } else {
+        bar.set_message(format!("{} (simulated)", config.display()));
+        let mut progress = |k: u64, n: u64| {
+            bar.set_length(n);
+            bar.set_position(k);
+        };
+        let opts = SessionOptions {
             duration,
             mcap: Some(out),
             stop: Some(&stop),
             capture: false,
             progress: Some(&mut progress),
-        },
-    );
+        };
+        if live_ref.is_some() {
+            run_sim_live(&cfg, opts, live_ref)
+        } else {
+            run_sim(&cfg, opts)
+        }
+    };
     bar.finish_and_clear();
     let session = match result {
         Ok(s) => s,
@@ -197,6 +346,33 @@ fn cmd_run(config: &Path, duration: Option<f64>, out: Option<PathBuf>, json: boo
                 l.queue_capacity
             );
         }
+        canbus::print_summary(&summary);
+        if let Some(tm) = &session.timing {
+            println!(
+                "  jitter        p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (start − deadline)",
+                tm.jitter.p50, tm.jitter.p99, tm.jitter.p999, tm.jitter.max
+            );
+            println!(
+                "  period        p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs (nominal {:.1} µs); exec p99 {:.1} µs",
+                tm.period.p50, tm.period.p99, tm.period.max, tm.period_nominal_us, tm.exec.p99
+            );
+            println!(
+                "  overruns      {} (longest streak {}, {} deadlines skipped, policy {})",
+                tm.overruns, tm.longest_overrun_streak, tm.skipped_deadlines, tm.overrun_policy
+            );
+            println!(
+                "  rt            SCHED_FIFO {}, CPU {}, memory {}",
+                tm.rt
+                    .sched_fifo_priority
+                    .map_or("off".to_string(), |p| format!("priority {p}")),
+                tm.rt.cpu.map_or("any".to_string(), |c| c.to_string()),
+                if tm.rt.memory_locked {
+                    "locked"
+                } else {
+                    "not locked"
+                }
+            );
+        }
         match (&o.trip, o.interrupted) {
             (Some(t), _) => println!("  TRIP          {}", t.describe()),
             (None, true) => {
@@ -212,4 +388,75 @@ fn cmd_run(config: &Path, duration: Option<f64>, out: Option<PathBuf>, json: boo
     } else {
         ExitCode::SUCCESS
     }
+}
+
+/// Simulated time with live changes.
+fn run_sim_live(
+    cfg: &RigConfig,
+    opts: SessionOptions<'_>,
+    live: Option<&LiveParams>,
+) -> Result<Session, SessionError> {
+    let mut cfg_run = cfg.clone();
+    if let Some(d) = opts.duration {
+        cfg_run.run.duration = d;
+    }
+    let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
+    let substeps = plant.substeps();
+    let mut hal = SimHal::new(plant);
+    let mut pacer = ehactl_controller::runloop::SimulatedTime;
+    let backend = Backend {
+        hal: &mut hal,
+        pacer: &mut pacer,
+        overflow: Overflow::Block,
+        substeps,
+    };
+    run_with_live(cfg, backend, opts, live)
+}
+
+/// A backend paced in real time by the wall-clock executor: the sim plant, or `hardware`
+/// (e.g. the CANopen rig) when given.
+fn run_realtime(
+    cfg: &RigConfig,
+    duration: Option<f64>,
+    out: PathBuf,
+    stop: &AtomicBool,
+    progress: &mut dyn FnMut(u64, u64),
+    live: Option<&LiveParams>,
+    hardware: Option<&mut dyn Hal>,
+) -> Result<Session, SessionError> {
+    let mut cfg_run = cfg.clone();
+    if let Some(d) = duration {
+        cfg_run.run.duration = d;
+    }
+    let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
+    let mut sim;
+    let (hal, substeps): (&mut dyn Hal, u32) = match hardware {
+        Some(h) => (h, 0),
+        None => {
+            let substeps = plant.substeps();
+            sim = SimHal::new(plant);
+            (&mut sim, substeps)
+        }
+    };
+    let mut opts = cfg.realtime.rt_options();
+    opts.warn = Some(rt_warning);
+    let mut pacer = WallClockPacer::new(cfg.control_dt(), opts);
+    let backend = Backend {
+        hal,
+        pacer: &mut pacer,
+        overflow: Overflow::Drop,
+        substeps,
+    };
+    run_with_live(
+        cfg,
+        backend,
+        SessionOptions {
+            duration,
+            mcap: Some(out),
+            stop: Some(stop),
+            capture: false,
+            progress: Some(progress),
+        },
+        live,
+    )
 }

@@ -6,6 +6,7 @@ use crate::pd::PdGains;
 use crate::pi::PiGains;
 use crate::setpoint::{SetpointConfig, SetpointKind, Sweep};
 use crate::supervisor::SupervisorConfig;
+use ehactl_canopen::config::{CanopenConfig, CANOPEN_PARAMS};
 use ehactl_plant::spec::{self, ConfigError, Param, Range};
 use ehactl_plant::PlantParams;
 use serde::{Deserialize, Serialize};
@@ -143,6 +144,94 @@ impl Default for LogConfig {
     }
 }
 
+/// What the wall-clock executor does after a cycle overran its period.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum OverrunPolicyConfig {
+    /// Run the late cycle at once; the deadline grid shifts to it.
+    Continue,
+    /// Keep the grid; wait for the next deadline still ahead (missed ones are skipped).
+    #[default]
+    Skip,
+    /// As `skip`, and trip (safe command) after `trip_after` consecutive overruns.
+    Trip,
+}
+
+/// `[realtime]`: settings of the wall-clock executor (`ehactl run --realtime`). Each one
+/// that the OS refuses (no CAP_SYS_NICE, RLIMIT_MEMLOCK, …) is a warning, not a failure.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RealtimeConfig {
+    /// SCHED_FIFO priority of the loop thread (1–99); 0 = keep the normal scheduler.
+    #[serde(default = "RealtimeConfig::default_priority")]
+    pub priority: u32,
+    /// CPU (0-based) to pin the loop thread to; -1 = no pinning.
+    #[serde(default = "RealtimeConfig::default_cpu")]
+    pub cpu: i64,
+    /// Lock all memory (mlockall) so that no page fault lands in a cycle.
+    #[serde(default = "RealtimeConfig::default_lock")]
+    pub lock_memory: bool,
+    /// Busy-wait tail before each deadline (s); 0 = sleep only. Must be below the period.
+    #[serde(default = "RealtimeConfig::default_spin")]
+    pub spin: f64,
+    /// Overrun policy: "continue", "skip" or "trip".
+    #[serde(default)]
+    pub overrun_policy: OverrunPolicyConfig,
+    /// Consecutive overruns that trip the run under `overrun_policy = "trip"` (cycles).
+    #[serde(default = "RealtimeConfig::default_trip_after")]
+    pub trip_after: u32,
+}
+
+impl RealtimeConfig {
+    fn default_priority() -> u32 {
+        80
+    }
+    fn default_cpu() -> i64 {
+        -1
+    }
+    fn default_lock() -> bool {
+        true
+    }
+    fn default_spin() -> f64 {
+        20e-6
+    }
+    fn default_trip_after() -> u32 {
+        3
+    }
+
+    /// Options of the wall-clock pacer.
+    pub fn rt_options(&self) -> crate::realtime::RtOptions {
+        use crate::realtime::OverrunPolicy;
+        crate::realtime::RtOptions {
+            priority: (self.priority > 0).then_some(self.priority as i32),
+            cpu: (self.cpu >= 0).then_some(self.cpu as usize),
+            lock_memory: self.lock_memory,
+            spin: self.spin,
+            overrun: match self.overrun_policy {
+                OverrunPolicyConfig::Continue => OverrunPolicy::Continue,
+                OverrunPolicyConfig::Skip => OverrunPolicy::Skip,
+                OverrunPolicyConfig::Trip => OverrunPolicy::Trip {
+                    after: self.trip_after,
+                },
+            },
+            warn: None,
+        }
+    }
+}
+
+impl Default for RealtimeConfig {
+    fn default() -> Self {
+        Self {
+            priority: Self::default_priority(),
+            cpu: Self::default_cpu(),
+            lock_memory: Self::default_lock(),
+            spin: Self::default_spin(),
+            overrun_policy: OverrunPolicyConfig::default(),
+            trip_after: Self::default_trip_after(),
+        }
+    }
+}
+
 /// `[rig]`: description only.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
@@ -172,6 +261,10 @@ pub struct RigConfig {
     pub run: RunConfig,
     /// Log.
     pub log: LogConfig,
+    /// CANopen backend (`--hal canopen`): bus timing, node ids, PDO set (optional section).
+    pub canopen: CanopenConfig,
+    /// Wall-clock executor (used with `--realtime`).
+    pub realtime: RealtimeConfig,
 }
 
 use Range::*;
@@ -358,14 +451,47 @@ pub const CONTROL_PARAMS: &[Param] = &[
         Within(16.0, 1.0e8),
         "logger queue capacity",
     ),
+    int(
+        "realtime.priority",
+        "-",
+        Within(0.0, 99.0),
+        "SCHED_FIFO priority of the loop with --realtime (0 = normal scheduler)",
+    ),
+    int(
+        "realtime.cpu",
+        "-",
+        Within(-1.0, 4095.0),
+        "CPU to pin the loop to with --realtime (-1 = none)",
+    ),
+    p(
+        "realtime.spin",
+        "s",
+        Within(0.0, 1.0),
+        "busy-wait tail before each deadline (< period)",
+    ),
+    int(
+        "realtime.trip_after",
+        "cycles",
+        Within(1.0, 1.0e9),
+        "consecutive overruns that trip (overrun_policy = \"trip\"; also: continue | skip)",
+    ),
 ];
 
-/// Both registries, for lookups.
-pub fn registries() -> [&'static [Param]; 2] {
-    [spec::PARAMS, CONTROL_PARAMS]
+/// All registries (plant, control/run, CANopen), for lookups.
+pub fn registries() -> [&'static [Param]; 3] {
+    [spec::PARAMS, CONTROL_PARAMS, CANOPEN_PARAMS]
 }
 
-const RIG_KEYS: [&str; 6] = ["rig", "control", "setpoint", "supervisor", "run", "log"];
+const RIG_KEYS: [&str; 8] = [
+    "rig",
+    "control",
+    "setpoint",
+    "supervisor",
+    "run",
+    "log",
+    "canopen",
+    "realtime",
+];
 
 fn section<T: serde::de::DeserializeOwned>(
     root: &mut toml::Table,
@@ -440,6 +566,12 @@ impl RigConfig {
         })?;
         let run: RunConfig = section(&mut root, "run", true, || None)?;
         let log: LogConfig = section(&mut root, "log", false, || Some(LogConfig::default()))?;
+        let canopen: CanopenConfig = section(&mut root, "canopen", false, || {
+            Some(CanopenConfig::default())
+        })?;
+        let realtime: RealtimeConfig = section(&mut root, "realtime", false, || {
+            Some(RealtimeConfig::default())
+        })?;
         let plant: PlantParams = serde_path_to_error::deserialize(toml::Value::Table(root))
             .map_err(|e| spec::from_serde("", e, &tables))?;
         let cfg = RigConfig {
@@ -450,6 +582,8 @@ impl RigConfig {
             supervisor,
             run,
             log,
+            canopen,
+            realtime,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -507,6 +641,17 @@ impl RigConfig {
                 need(s.hold > 0.0, "hold", "random steps need hold > 0 s")?
             }
             SetpointKind::Step => {}
+        }
+        self.canopen.validate()?;
+        if self.realtime.spin >= self.control_dt() {
+            return Err(ConfigError::new(
+                "realtime.spin",
+                format!(
+                    "busy-wait tail {} s must be below the control period {} s",
+                    self.realtime.spin,
+                    self.control_dt()
+                ),
+            ));
         }
         let nyq = self.run.control_rate_hz / 2.0;
         if matches!(
@@ -568,6 +713,8 @@ impl RigConfig {
         put("supervisor", toml::Value::try_from(&self.supervisor));
         put("run", toml::Value::try_from(&self.run));
         put("log", toml::Value::try_from(&self.log));
+        put("canopen", toml::Value::try_from(&self.canopen));
+        put("realtime", toml::Value::try_from(&self.realtime));
         toml::Value::Table(root)
     }
 

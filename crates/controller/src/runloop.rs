@@ -4,11 +4,13 @@
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
 use crate::config::{ControlMode, RigConfig};
+use crate::live::LiveParams;
 use crate::pd::Pd;
 use crate::pi::{ControlTerms, Pi};
+use crate::realtime::TimingReport;
 use crate::setpoint::Setpoint;
 use crate::supervisor::{FeedbackChannel, Supervisor};
-use ehactl_hal::record::{CycleRecord, Event, EventKind, Severity};
+use ehactl_hal::record::{CycleRecord, CycleTiming, Event, EventKind, Severity};
 use ehactl_hal::{Hal, Measurements};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -69,10 +71,34 @@ impl Controller {
     }
 }
 
-/// Waits for the start of each cycle. The simulated loop does not wait.
+/// Waits for the start of each cycle. The simulated loop does not wait; the wall-clock
+/// executor ([`crate::realtime::WallClockPacer`]) sleeps to absolute deadlines.
 pub trait Pacer {
-    /// Block until cycle `k` may start; returns false if the loop should stop.
+    /// Block until cycle `k` may start; returns false if the loop should stop (a stop
+    /// request, or a trip reported by [`Pacer::trip`]).
     fn wait_for_cycle(&mut self, k: u64) -> bool;
+
+    /// Wall-clock timing of the cycle that just started (logged on `/timing`).
+    fn cycle_timing(&self) -> Option<CycleTiming> {
+        None
+    }
+
+    /// Next pending event of the pacer (set-up warnings, overruns); polled after each
+    /// wait until None. Must not allocate.
+    fn take_event(&mut self) -> Option<Event> {
+        None
+    }
+
+    /// The trip that made `wait_for_cycle` return false, if it was one (e.g. too many
+    /// consecutive overruns) rather than a stop request.
+    fn trip(&self) -> Option<Event> {
+        None
+    }
+
+    /// Timing statistics of the run (wall-clock pacers), read after the loop.
+    fn timing_report(&self) -> Option<TimingReport> {
+        None
+    }
 }
 
 /// Simulated time: every cycle starts at once.
@@ -115,6 +141,8 @@ pub struct LoopSettings<'a> {
     pub stop: Option<&'a AtomicBool>,
     /// Errors before this time are excluded from `rms_error_settled` (s).
     pub settle_time: f64,
+    /// Live gain / setpoint changes, taken over at cycle boundaries (None = fixed).
+    pub live: Option<&'a LiveParams>,
 }
 
 /// Run the loop. `record` receives every cycle's record (the logger push), `event`
@@ -123,7 +151,7 @@ pub struct LoopSettings<'a> {
 pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     hal: &mut H,
     controller: &mut Controller,
-    setpoint: &Setpoint,
+    setpoint_in: &Setpoint,
     supervisor: &mut Supervisor,
     pacer: &mut P,
     settings: &LoopSettings<'_>,
@@ -142,6 +170,9 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     let mut trip = None;
     let mut interrupted = false;
     let mut k = 0u64;
+    // Front buffer of the live parameters (the back buffer is `settings.live`); cloning a
+    // setpoint copies plain numbers, it does not allocate.
+    let mut setpoint = setpoint_in.clone();
     event(Event {
         t: 0.0,
         cycle: 0,
@@ -153,11 +184,27 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
         unit: "",
     });
     while k < n {
-        if settings.stop.is_some_and(|s| s.load(Ordering::Relaxed)) || !pacer.wait_for_cycle(k) {
+        if settings.stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
             interrupted = true;
             break;
         }
+        let go = pacer.wait_for_cycle(k);
+        while let Some(ev) = pacer.take_event() {
+            event(ev);
+        }
+        if !go {
+            match pacer.trip() {
+                Some(ev) => trip = Some(ev),
+                None => interrupted = true,
+            }
+            break;
+        }
         let t = k as f64 * dt;
+        // Cycle boundary: take over a pending gain / setpoint change (wait-free).
+        if let Some(live) = settings.live {
+            live.apply_pending(k, t, controller, &mut setpoint, event);
+        }
+        let timing = pacer.cycle_timing();
         let hal_fault = |e: ehactl_hal::HalError| Event {
             t,
             cycle: k,
@@ -210,6 +257,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
                 meas,
                 plant: plant.unwrap_or_default(),
                 has_plant: plant.is_some(),
+                timing,
             });
             k += 1;
             trip = Some(ev);
@@ -241,6 +289,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             meas,
             plant: plant.unwrap_or_default(),
             has_plant: plant.is_some(),
+            timing,
         };
         if let Err(e) = hal.write(t, dt, u) {
             record(&rec);
@@ -263,7 +312,8 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             progress(k);
         }
     }
-    let _ = hal.safe_stop(supervisor.safe_command());
+    let safe = supervisor.safe_command();
+    let safe_result = hal.safe_stop(safe);
     let end_t = k as f64 * dt;
     if let Some(ev) = trip {
         event(ev);
@@ -290,6 +340,24 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             unit: "",
         });
     }
+    event(Event {
+        t: end_t,
+        cycle: k,
+        severity: if safe_result.is_ok() {
+            Severity::Info
+        } else {
+            Severity::Warning
+        },
+        kind: EventKind::SafeStop,
+        channel: match safe_result {
+            Ok(()) => "valve",
+            Err(ehactl_hal::HalError::Numerical { what, .. }) => what,
+            Err(ehactl_hal::HalError::Device { what, .. }) => what,
+        },
+        value: safe,
+        limit: f64::NAN,
+        unit: "V",
+    });
     progress(k);
     let rms = |s: f64, n: u64| {
         if n > 0 {

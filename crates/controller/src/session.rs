@@ -3,6 +3,8 @@
 //! Shared by the CLI and the Python bindings so both run exactly the same code.
 
 use crate::config::{Compression, ControlMode, RigConfig};
+use crate::live::LiveParams;
+use crate::realtime::TimingReport;
 use crate::runloop::{run_loop, Controller, LoopSettings, Pacer, RunOutcome, SimulatedTime};
 use crate::setpoint::Setpoint;
 use crate::supervisor::Supervisor;
@@ -48,6 +50,10 @@ pub struct Session {
     pub records: Vec<CycleRecord>,
     /// Unit of the controlled variable.
     pub unit: &'static str,
+    /// Backend-specific summary fields ([`Hal::report`]), merged into the summary.
+    pub backend_report: Option<serde_json::Value>,
+    /// Wall-clock timing statistics (wall-clock pacers only).
+    pub timing: Option<TimingReport>,
 }
 
 /// Why a run could not start or its log could not be written.
@@ -81,7 +87,7 @@ impl Session {
                 serde_json::Value::Null
             }
         };
-        json!({
+        let mut v = json!({
             "cycles": o.cycles,
             "control_rate_hz": self.control_rate_hz,
             "duration_s": o.duration_s,
@@ -103,8 +109,50 @@ impl Session {
                 "events_written": l.events_written,
                 "queue_high_water": l.queue_high_water,
                 "queue_capacity": l.queue_capacity,
+                "can_frames_written": l.frames_written,
+                "can_frames_dropped": l.frames_dropped,
             })),
-        })
+            "realtime": self.timing.is_some(),
+        });
+        if let Some(tm) = &self.timing {
+            let obj = v.as_object_mut().expect("object");
+            let put = |o: &mut serde_json::Map<String, serde_json::Value>, k: &str, x: f64| {
+                o.insert(k.into(), num(x));
+            };
+            for (name, q) in [
+                ("jitter", &tm.jitter),
+                ("period", &tm.period),
+                ("exec", &tm.exec),
+            ] {
+                put(obj, &format!("{name}_p50_us"), q.p50);
+                put(obj, &format!("{name}_p99_us"), q.p99);
+                put(obj, &format!("{name}_p999_us"), q.p999);
+                put(obj, &format!("{name}_max_us"), q.max);
+            }
+            put(obj, "period_min_us", tm.period.min);
+            obj.insert("overruns".into(), json!(tm.overruns));
+            obj.insert(
+                "longest_overrun_streak".into(),
+                json!(tm.longest_overrun_streak),
+            );
+            obj.insert("skipped_deadlines".into(), json!(tm.skipped_deadlines));
+            obj.insert(
+                "log_queue_high_water".into(),
+                json!(self.log.as_ref().map(|l| l.queue_high_water)),
+            );
+            obj.insert(
+                "timing".into(),
+                serde_json::to_value(tm).unwrap_or(serde_json::Value::Null),
+            );
+        }
+        if let (Some(obj), Some(serde_json::Value::Object(extra))) =
+            (v.as_object_mut(), self.backend_report.as_ref())
+        {
+            for (k, x) in extra {
+                obj.insert(k.clone(), x.clone());
+            }
+        }
+        v
     }
 }
 
@@ -149,7 +197,18 @@ pub struct Backend<'a> {
 pub fn run_with(
     cfg: &RigConfig,
     backend: Backend<'_>,
+    opts: SessionOptions<'_>,
+) -> Result<Session, SessionError> {
+    run_with_live(cfg, backend, opts, None)
+}
+
+/// [`run_with`] with live gain / setpoint changes taken from `live` at cycle boundaries
+/// (fed by the control socket, [`crate::control_socket`]).
+pub fn run_with_live(
+    cfg: &RigConfig,
+    backend: Backend<'_>,
     mut opts: SessionOptions<'_>,
+    live: Option<&LiveParams>,
 ) -> Result<Session, SessionError> {
     // The log records the config as run, including a duration override.
     let mut cfg_run = cfg.clone();
@@ -198,6 +257,9 @@ pub fn run_with(
         ),
         None => None,
     };
+    if let (Some(l), Some(frames)) = (logger.as_ref(), hal.frame_log()) {
+        l.attach_frames(frames);
+    }
     let mut records: Vec<CycleRecord> = if opts.capture {
         Vec::with_capacity(cycles as usize)
     } else {
@@ -210,6 +272,7 @@ pub fn run_with(
         dt,
         stop: opts.stop,
         settle_time: settle,
+        live,
     };
     let start = Instant::now();
     let outcome = {
@@ -245,6 +308,7 @@ pub fn run_with(
         )
     };
     let wall = start.elapsed().as_secs_f64();
+    let timing = pacer.timing_report();
     let unit = match cfg.control.mode {
         ControlMode::Force => "N",
         ControlMode::Position => "m",
@@ -258,6 +322,8 @@ pub fn run_with(
         log: None,
         records,
         unit,
+        backend_report: hal.report(),
+        timing,
     };
     if let Some(l) = logger {
         let mut summary = session.summary_json();

@@ -69,4 +69,16 @@ pub trait Hal {
     fn plant_state(&self) -> Option<PlantState> {
         None
     }
+
+    /// Raw bus frames to log (CAN backends): the session attaches this queue to the MCAP
+    /// logger, which writes every frame to the `/can` channel.
+    fn frame_log(&self) -> Option<std::sync::Arc<logger::FrameLog>> {
+        None
+    }
+
+    /// Backend-specific figures for the run summary (e.g. `bus_load_percent`), as a JSON
+    /// object whose keys are added to the summary. Called once after the loop.
+    fn report(&self) -> Option<serde_json::Value> {
+        None
+    }
 }

@@ -5,7 +5,7 @@
 //! (wall-clock runs) the record is dropped and counted. The file is finalised by
 //! [`Logger::finish`], and by `Drop` if a run unwinds.
 
-use crate::record::{control_schema, plant_schema, CycleRecord, Event};
+use crate::record::{control_schema, plant_schema, timing_schema, CycleRecord, Event};
 use crossbeam_queue::ArrayQueue;
 use mcap::records::{MessageHeader, Metadata};
 use std::collections::BTreeMap;
@@ -13,7 +13,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -86,6 +86,103 @@ pub struct LogStats {
     pub queue_high_water: usize,
     /// Queue capacity (records).
     pub queue_capacity: usize,
+    /// Raw CAN frames written to `/can` (CAN backends only).
+    pub frames_written: u64,
+    /// Raw CAN frames lost because the frame queue was full.
+    pub frames_dropped: u64,
+}
+
+/// One raw CAN frame seen by a CAN backend (fixed size, no heap).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CanFrameRecord {
+    /// Time relative to the start of the control loop (ns); negative during start-up.
+    pub t_ns: i64,
+    /// CAN identifier.
+    pub id: u32,
+    /// 29-bit identifier.
+    pub extended: bool,
+    /// Data length (bytes).
+    pub dlc: u8,
+    /// Data (bytes beyond `dlc` are zero).
+    pub data: [u8; 8],
+    /// Sent by this process (true) or received (false).
+    pub tx: bool,
+}
+
+impl CanFrameRecord {
+    /// JSON form for the `/can` channel:
+    /// `{"t": s, "id": int, "ext": bool, "dlc": int, "data": "hex", "dir": "rx"|"tx"}`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let n = usize::from(self.dlc.min(8));
+        let hex: String = self.data[..n].iter().map(|b| format!("{b:02X}")).collect();
+        serde_json::json!({
+            "t": self.t_ns as f64 * 1e-9,
+            "id": self.id,
+            "ext": self.extended,
+            "dlc": self.dlc,
+            "data": hex,
+            "dir": if self.tx { "tx" } else { "rx" },
+        })
+    }
+}
+
+/// Bounded lock-free queues of raw CAN frames and backend events from a backend (its I/O
+/// threads and its cycle code) to the MCAP writer (`/can` and `/events`). Never blocks:
+/// when full the frame or event is dropped and counted.
+#[derive(Debug)]
+pub struct FrameLog {
+    queue: ArrayQueue<CanFrameRecord>,
+    events: ArrayQueue<Event>,
+    dropped: AtomicU64,
+    events_dropped: AtomicU64,
+}
+
+impl FrameLog {
+    /// Queue with room for `capacity` frames.
+    pub fn new(capacity: usize) -> FrameLog {
+        FrameLog {
+            queue: ArrayQueue::new(capacity.max(16)),
+            events: ArrayQueue::new(256),
+            dropped: AtomicU64::new(0),
+            events_dropped: AtomicU64::new(0),
+        }
+    }
+
+    /// Queue a backend event for `/events` (lock-free; counted as dropped if full).
+    #[inline]
+    pub fn push_event(&self, ev: Event) {
+        if self.events.push(ev).is_err() {
+            self.events_dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Take the oldest backend event.
+    pub fn pop_event(&self) -> Option<Event> {
+        self.events.pop()
+    }
+
+    /// Backend events dropped so far.
+    pub fn events_dropped(&self) -> u64 {
+        self.events_dropped.load(Ordering::Relaxed)
+    }
+
+    /// Queue a frame (lock-free, allocation-free); counts it as dropped if full.
+    #[inline]
+    pub fn push(&self, rec: CanFrameRecord) {
+        if self.queue.push(rec).is_err() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Take the oldest frame.
+    pub fn pop(&self) -> Option<CanFrameRecord> {
+        self.queue.pop()
+    }
+
+    /// Frames dropped so far.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
 }
 
 /// Logger failure (file or MCAP error), with the path.
@@ -113,6 +210,8 @@ struct Shared {
     waited: AtomicU64,
     high_water: AtomicUsize,
     summary: Mutex<Option<serde_json::Value>>,
+    frames: OnceLock<Arc<FrameLog>>,
+    frames_written: AtomicU64,
 }
 
 /// Handle owned by the run; cheap to push from the cycle.
@@ -162,6 +261,13 @@ impl Logger {
                 plant_schema().as_bytes(),
             )
             .map_err(me)?;
+        let s_timing = w
+            .add_schema(
+                "ehactl_msgs/msg/CycleTiming",
+                "ros2msg",
+                timing_schema().as_bytes(),
+            )
+            .map_err(me)?;
         let json_schema = serde_json::json!({"type": "object"}).to_string();
         let s_json = w
             .add_schema("ehactl.Json", "jsonschema", json_schema.as_bytes())
@@ -171,6 +277,10 @@ impl Logger {
             .add_channel(s_control, "/control", "cdr", &none)
             .map_err(me)?;
         let ch_plant = w.add_channel(s_plant, "/plant", "cdr", &none).map_err(me)?;
+        // Written only by wall-clock runs (records with timing); empty otherwise.
+        let ch_timing = w
+            .add_channel(s_timing, "/timing", "cdr", &none)
+            .map_err(me)?;
         let ch_config = w
             .add_channel(s_json, "/config", "json", &none)
             .map_err(me)?;
@@ -215,11 +325,19 @@ impl Logger {
             waited: AtomicU64::new(0),
             high_water: AtomicUsize::new(0),
             summary: Mutex::new(None),
+            frames: OnceLock::new(),
+            frames_written: AtomicU64::new(0),
         });
         let sh = shared.clone();
         let thread = std::thread::Builder::new()
             .name("ehactl-mcap".into())
-            .spawn(move || writer_loop(w, sh, [ch_control, ch_plant, ch_events, ch_summary]))
+            .spawn(move || {
+                writer_loop(
+                    w,
+                    sh,
+                    [ch_control, ch_plant, ch_events, ch_summary, ch_timing],
+                )
+            })
             .map_err(|e| err(format!("cannot start writer thread: {e}")))?;
         Ok(Logger {
             shared,
@@ -266,6 +384,12 @@ impl Logger {
         }
     }
 
+    /// Log every frame of `frames` to the `/can` channel (JSON, see [`CanFrameRecord::to_json`]).
+    /// The channel is created when the first frame arrives; one source per logger.
+    pub fn attach_frames(&self, frames: Arc<FrameLog>) {
+        let _ = self.shared.frames.set(frames);
+    }
+
     /// Path of the file.
     pub fn path(&self) -> &Path {
         &self.path
@@ -304,6 +428,8 @@ impl Logger {
             events_written: events,
             queue_high_water: self.shared.high_water.load(Ordering::Relaxed),
             queue_capacity: self.capacity,
+            frames_written: self.shared.frames_written.load(Ordering::Relaxed),
+            frames_dropped: self.shared.frames.get().map_or(0, |f| f.dropped()),
         })
     }
 }
@@ -319,13 +445,15 @@ impl Drop for Logger {
 fn writer_loop(
     mut w: mcap::Writer<BufWriter<File>>,
     sh: Arc<Shared>,
-    ch: [u16; 4],
+    ch: [u16; 5],
 ) -> Result<(u64, u64), String> {
-    let [ch_control, ch_plant, ch_events, ch_summary] = ch;
+    let [ch_control, ch_plant, ch_events, ch_summary, ch_timing] = ch;
     let mut buf = Vec::with_capacity(256);
     let mut written = 0u64;
     let mut events = 0u64;
     let mut last_ns = 0u64;
+    let mut ch_can: Option<u16> = None;
+    let mut frames_written = 0u64;
     let to_ns = |t: f64| (t.max(0.0) * 1e9).round() as u64;
     loop {
         let closing = sh.closing.load(Ordering::Acquire);
@@ -359,12 +487,28 @@ fn writer_loop(
                 )
                 .map_err(|e| e.to_string())?;
             }
+            if rec.encode_timing(&mut buf) {
+                w.write_to_known_channel(
+                    &MessageHeader {
+                        channel_id: ch_timing,
+                        sequence: seq,
+                        log_time: ns,
+                        publish_time: ns,
+                    },
+                    &buf,
+                )
+                .map_err(|e| e.to_string())?;
+            }
             written += 1;
             if written % 4096 == 0 {
                 break;
             }
         }
-        while let Some(ev) = sh.events.pop() {
+        while let Some(ev) = sh
+            .events
+            .pop()
+            .or_else(|| sh.frames.get().and_then(|f| f.pop_event()))
+        {
             idle = false;
             let ns = to_ns(ev.t);
             w.write_to_known_channel(
@@ -378,6 +522,53 @@ fn writer_loop(
             )
             .map_err(|e| e.to_string())?;
             events += 1;
+        }
+        if let Some(fl) = sh.frames.get() {
+            // While closing, take what is queued now: the I/O threads may still be receiving.
+            let limit = if closing { fl.queue.len() } else { usize::MAX };
+            let mut n = 0usize;
+            while n < limit {
+                let Some(f) = fl.pop() else { break };
+                n += 1;
+                idle = false;
+                let ch = match ch_can {
+                    Some(c) => c,
+                    None => {
+                        let schema = serde_json::json!({"type": "object", "properties": {
+                            "t": {"type": "number", "description": "time from the start of the control loop (s); negative during start-up"},
+                            "id": {"type": "integer", "description": "CAN identifier"},
+                            "ext": {"type": "boolean", "description": "29-bit identifier"},
+                            "dlc": {"type": "integer", "description": "data length (bytes)"},
+                            "data": {"type": "string", "description": "data bytes, hex"},
+                            "dir": {"type": "string", "enum": ["rx", "tx"], "description": "received or sent by ehactl"}}})
+                        .to_string();
+                        let s = w
+                            .add_schema("ehactl.CanFrame", "jsonschema", schema.as_bytes())
+                            .map_err(|e| e.to_string())?;
+                        let c = w
+                            .add_channel(s, "/can", "json", &BTreeMap::new())
+                            .map_err(|e| e.to_string())?;
+                        ch_can = Some(c);
+                        c
+                    }
+                };
+                let ns = f.t_ns.max(0) as u64;
+                w.write_to_known_channel(
+                    &MessageHeader {
+                        channel_id: ch,
+                        sequence: frames_written as u32,
+                        log_time: ns,
+                        publish_time: ns,
+                    },
+                    f.to_json().to_string().as_bytes(),
+                )
+                .map_err(|e| e.to_string())?;
+                frames_written += 1;
+                sh.frames_written.store(frames_written, Ordering::Relaxed);
+                if !closing && n >= 4096 {
+                    break;
+                }
+            }
         }
         if closing && sh.records.is_empty() && sh.events.is_empty() {
             break;

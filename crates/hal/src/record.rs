@@ -37,6 +37,25 @@ pub struct CycleRecord {
     pub plant: PlantState,
     /// Whether `plant` is valid.
     pub has_plant: bool,
+    /// Wall-clock timing of the cycle (wall-clock pacers only; logged on `/timing`).
+    pub timing: Option<CycleTiming>,
+}
+
+/// Wall-clock timing of one cycle, measured by a real-time pacer on CLOCK_MONOTONIC.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CycleTiming {
+    /// Start of the cycle since the first deadline of the run (s, wall clock).
+    pub wall_t: f64,
+    /// Wake-up lateness: actual start − deadline (µs, ≥ 0).
+    pub lateness_us: f64,
+    /// Time since the previous cycle's start (µs); NaN for the first cycle.
+    pub period_us: f64,
+    /// Execution time of the previous cycle, from its start to the next wait (µs).
+    pub exec_prev_us: f64,
+    /// Deadlines skipped before this cycle by the overrun policy (-).
+    pub skipped: u32,
+    /// Whether the previous cycle overran (finished after this cycle's deadline).
+    pub overrun: bool,
 }
 
 /// What an event reports.
@@ -64,6 +83,17 @@ pub enum EventKind {
     Signal,
     /// Run completed its duration.
     End,
+    /// A cycle finished after the next deadline (wall-clock pacer).
+    Overrun,
+    /// Real-time set-up (SCHED_FIFO, mlockall, CPU affinity) could not be applied.
+    RtSetup,
+    /// A live parameter change took effect at a cycle boundary.
+    ParamChange,
+    /// The valve was given its safe command at the end of the run.
+    SafeStop,
+    /// Something on the CAN bus worth recording (malformed or unexpected frame, EMCY, device
+    /// state); the backend decides whether it also trips (then a `hal_fault` follows).
+    CanBus,
 }
 
 impl EventKind {
@@ -81,6 +111,11 @@ impl EventKind {
             EventKind::HalFault => "hal_fault",
             EventKind::Signal => "signal",
             EventKind::End => "end",
+            EventKind::Overrun => "overrun",
+            EventKind::RtSetup => "rt_setup",
+            EventKind::ParamChange => "param_change",
+            EventKind::SafeStop => "safe_stop",
+            EventKind::CanBus => "can_bus",
         }
     }
 }
@@ -229,6 +264,24 @@ pub fn plant_schema() -> String {
     s
 }
 
+/// Field names of the `/timing` message after `cycle` and `t` (all float64), in order;
+/// then `uint32 skipped` and `bool overrun`.
+pub const TIMING_FIELDS: [&str; 4] = ["wall_t", "lateness_us", "period_us", "exec_prev_us"];
+
+/// ros2msg schema text of `/timing`.
+pub fn timing_schema() -> String {
+    let mut s = String::from(
+        "# Wall-clock timing of one ehactl cycle (CLOCK_MONOTONIC; wall_t in s, the rest in us)\nuint64 cycle\nfloat64 t\n",
+    );
+    for f in TIMING_FIELDS {
+        s.push_str("float64 ");
+        s.push_str(f);
+        s.push('\n');
+    }
+    s.push_str("uint32 skipped\nbool overrun\n");
+    s
+}
+
 /// CDR little-endian encapsulation header.
 const CDR_LE: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
 
@@ -287,6 +340,30 @@ impl CycleRecord {
         for v in self.control_values() {
             buf.extend_from_slice(&v.to_le_bytes());
         }
+    }
+
+    /// CDR encoding of `/timing` into `buf` (cleared first); false if the record has no
+    /// timing. Layout: cycle u64, t and [`TIMING_FIELDS`] f64, skipped u32, overrun u8
+    /// (every field naturally aligned, so no padding).
+    pub fn encode_timing(&self, buf: &mut Vec<u8>) -> bool {
+        let Some(tm) = self.timing else {
+            return false;
+        };
+        buf.clear();
+        buf.extend_from_slice(&CDR_LE);
+        buf.extend_from_slice(&self.cycle.to_le_bytes());
+        for v in [
+            self.t,
+            tm.wall_t,
+            tm.lateness_us,
+            tm.period_us,
+            tm.exec_prev_us,
+        ] {
+            buf.extend_from_slice(&v.to_le_bytes());
+        }
+        buf.extend_from_slice(&tm.skipped.to_le_bytes());
+        buf.push(tm.overrun as u8);
+        true
     }
 
     /// CDR encoding of `/plant` into `buf` (cleared first).

@@ -52,6 +52,8 @@ pub enum Kind {
     Integer,
     /// Array of floats.
     FloatArray,
+    /// Boolean (`true` / `false`).
+    Bool,
 }
 
 /// One declared parameter.
@@ -612,6 +614,19 @@ pub fn check_tree(root: &mut toml::Value, tables: &[&[Param]]) -> Result<(), Con
                         format!("value {x} is not finite")
                     };
                     return Err(bad(what));
+                }
+            }
+            Kind::Bool => {
+                if !v.is_bool() {
+                    return Err(ConfigError::new(
+                        param.path,
+                        format!(
+                            "wrong type: got {} `{}`; expected true or false ({})",
+                            v.type_str(),
+                            v,
+                            param.description
+                        ),
+                    ));
                 }
             }
             Kind::FloatArray => {

@@ -1,0 +1,50 @@
+//! CiA 406 style linear position transducer (seed 003 used a magnetostrictive transducer
+//! with CANopen): objects and the position / speed scaling.
+
+use crate::pdo::MapEntry;
+
+/// Device type 0x1000 low 16 bits: profile 406.
+pub const PROFILE: u16 = 406;
+/// Position step setting (UNSIGNED32, nm), sub 1.
+pub const POSITION_STEP: u16 = 0x6005;
+/// Speed step setting (UNSIGNED32, µm/s), sub 1.
+pub const SPEED_STEP: u16 = 0x6006;
+/// Position value of magnet 1 (INTEGER32, in position steps), 0x6020:01.
+pub const POSITION: u16 = 0x6020;
+/// Speed value of magnet 1 (INTEGER16, in speed steps), 0x6030:01.
+pub const SPEED: u16 = 0x6030;
+/// Cyclic timer (UNSIGNED16, ms; 0 = off).
+pub const CYCLIC_TIMER: u16 = 0x6200;
+
+/// TPDO1 mapping: position of magnet 1 (4 bytes).
+pub const TPDO1_MAP: [MapEntry; 1] = [MapEntry {
+    index: POSITION,
+    sub: 1,
+    bits: 32,
+}];
+
+/// Position (m) from the raw INTEGER32 value and the position step (nm).
+#[inline]
+pub fn position_m(raw: i32, step_nm: u32) -> f64 {
+    f64::from(raw) * f64::from(step_nm) * 1e-9
+}
+
+/// Speed (m/s) from the raw INTEGER16 value and the speed step (µm/s).
+#[inline]
+pub fn speed_m_s(raw: i16, step_um_s: u32) -> f64 {
+    f64::from(raw) * f64::from(step_um_s) * 1e-6
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scaling_uses_the_configured_steps() {
+        // 600 000 steps of 1 µm = 0.6 m (003's y_set).
+        assert!((position_m(600_000, 1000) - 0.6).abs() < 1e-12);
+        assert!((position_m(-5, 5000) + 25e-6).abs() < 1e-15);
+        assert!((speed_m_s(250, 1000) - 0.25).abs() < 1e-12);
+        assert_eq!(TPDO1_MAP[0].encode(), 0x6020_0120);
+    }
+}

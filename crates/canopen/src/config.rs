@@ -1,0 +1,289 @@
+//! The `[canopen]` section of the rig config (see the ICD), its parameter registry and
+//! the bus load of the configured PDO set.
+//!
+//! Bus load: every SYNC period carries SYNC (0 bytes), the transducer TPDO1 (position,
+//! 4 bytes), the valve RPDO1 (setpoint, 2 bytes) and, with `valve_status_pdo`, the valve
+//! TPDO1 (status word + actual spool, 4 bytes); heartbeats of both devices add
+//! 1-byte frames every `heartbeat_ms`. A classic frame with an 11-bit id and N data bytes
+//! takes at most `8N + 47 + floor((34 + 8N − 1)/4)` bit times with worst-case bit stuffing
+//! (55 bits for N = 0, 75 for N = 2, 95 for N = 4). At 1 Mbit/s SYNC + 4-byte position +
+//! 2-byte setpoint therefore take 225 µs per SYNC period (320 µs with the valve status
+//! TPDO): 22.5 % (32 %) of the bus at 1 kHz. Configs above 80 % are refused. 1 kHz is the
+//! practical ceiling: the remaining time in each period is what SDO traffic, EMCY,
+//! heartbeats, error frames / retransmissions and the devices' SYNC-to-TPDO processing
+//! need, and the loop closes over CAN only once per SYNC anyway.
+
+use ehactl_plant::spec::{ConfigError, Kind, Param, Range};
+use serde::{Deserialize, Serialize};
+
+/// `[canopen]` (all fields optional, defaults as in the ICD).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct CanopenConfig {
+    /// Bit rate (bit/s).
+    pub bitrate: u32,
+    /// SYNC producer rate (Hz).
+    pub sync_rate_hz: f64,
+    /// Heartbeat producer time written to each device's 0x1017 (ms).
+    pub heartbeat_ms: u16,
+    /// Heartbeat consumer timeout of the master (ms).
+    pub heartbeat_timeout_ms: u32,
+    /// Time allowed for every device's boot-up (s).
+    pub boot_timeout_s: f64,
+    /// SDO response timeout (ms).
+    pub sdo_timeout_ms: u32,
+    /// Node id of the CiA 406 position transducer.
+    pub transducer_node_id: u8,
+    /// Node id of the CiA 408 valve.
+    pub valve_node_id: u8,
+    /// Position step written to 0x6005:01 (nm).
+    pub position_step_nm: u32,
+    /// Map the valve TPDO1 (status word + actual spool).
+    pub valve_status_pdo: bool,
+}
+
+impl Default for CanopenConfig {
+    fn default() -> Self {
+        CanopenConfig {
+            bitrate: 1_000_000,
+            sync_rate_hz: 1000.0,
+            heartbeat_ms: 20,
+            heartbeat_timeout_ms: 60,
+            boot_timeout_s: 3.0,
+            sdo_timeout_ms: 500,
+            transducer_node_id: 32,
+            valve_node_id: 48,
+            position_step_nm: 1000,
+            valve_status_pdo: true,
+        }
+    }
+}
+
+const fn param(
+    path: &'static str,
+    unit: &'static str,
+    range: Range,
+    description: &'static str,
+    kind: Kind,
+) -> Param {
+    Param {
+        path,
+        unit,
+        description,
+        range,
+        kind,
+    }
+}
+
+/// Registry of the `[canopen]` parameters (for `ehactl params` and config checks).
+pub const CANOPEN_PARAMS: &[Param] = &[
+    param(
+        "canopen.bitrate",
+        "bit/s",
+        Range::Within(10e3, 1e6),
+        "CAN bit rate (ICD default 1 Mbit/s)",
+        Kind::Integer,
+    ),
+    param(
+        "canopen.sync_rate_hz",
+        "Hz",
+        Range::Within(1.0, 10e3),
+        "SYNC producer rate; CAN I/O rate, sample-and-hold to the control rate",
+        Kind::Float,
+    ),
+    param(
+        "canopen.heartbeat_ms",
+        "ms",
+        Range::Within(1.0, 65535.0),
+        "heartbeat producer time written to 0x1017 of each device",
+        Kind::Integer,
+    ),
+    param(
+        "canopen.heartbeat_timeout_ms",
+        "ms",
+        Range::Within(1.0, 65535.0),
+        "master's heartbeat consumer timeout (> heartbeat_ms)",
+        Kind::Integer,
+    ),
+    param(
+        "canopen.boot_timeout_s",
+        "s",
+        Range::Within(0.01, 600.0),
+        "time allowed for every device's boot-up",
+        Kind::Float,
+    ),
+    param(
+        "canopen.sdo_timeout_ms",
+        "ms",
+        Range::Within(1.0, 60000.0),
+        "SDO response timeout",
+        Kind::Integer,
+    ),
+    param(
+        "canopen.transducer_node_id",
+        "-",
+        Range::Within(1.0, 127.0),
+        "node id of the CiA 406 position transducer (ICD 32 = 0x20)",
+        Kind::Integer,
+    ),
+    param(
+        "canopen.valve_node_id",
+        "-",
+        Range::Within(1.0, 127.0),
+        "node id of the CiA 408 valve (ICD 48 = 0x30)",
+        Kind::Integer,
+    ),
+    param(
+        "canopen.position_step_nm",
+        "nm",
+        Range::Within(1.0, 1e9),
+        "position step written to 0x6005:01",
+        Kind::Integer,
+    ),
+    param(
+        "canopen.valve_status_pdo",
+        "bool",
+        Range::Finite,
+        "map valve TPDO1 (status word + actual spool); true or false",
+        Kind::Bool,
+    ),
+];
+
+/// Largest bus load accepted (fraction).
+pub const MAX_BUS_LOAD: f64 = 0.80;
+
+/// Worst-case length (bit times) of a classic data frame with an 11-bit id and
+/// `n` data bytes, including bit stuffing: 8N + 47 + floor((34 + 8N − 1)/4).
+pub const fn frame_bits(n: u32) -> u32 {
+    8 * n + 47 + (34 + 8 * n - 1) / 4
+}
+
+/// Bus load of one configuration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BusLoad {
+    /// Bit times of the frames sent every SYNC period.
+    pub bits_per_sync: u32,
+    /// Time those frames occupy per SYNC period (s).
+    pub time_per_sync_s: f64,
+    /// Total load including heartbeats (fraction, 0..1+).
+    pub load: f64,
+}
+
+impl CanopenConfig {
+    /// Data lengths (bytes) of the frames sent every SYNC period.
+    pub fn frames_per_sync(&self) -> Vec<u32> {
+        let mut v = vec![0, 4, 2];
+        if self.valve_status_pdo {
+            v.push(4);
+        }
+        v
+    }
+
+    /// Worst-case bus load of the configured PDO set and heartbeats.
+    pub fn bus_load(&self) -> BusLoad {
+        let bits: u32 = self.frames_per_sync().into_iter().map(frame_bits).sum();
+        let br = f64::from(self.bitrate.max(1));
+        let hb = 2.0 * f64::from(frame_bits(1)) / (f64::from(self.heartbeat_ms.max(1)) * 1e-3);
+        BusLoad {
+            bits_per_sync: bits,
+            time_per_sync_s: f64::from(bits) / br,
+            load: (f64::from(bits) * self.sync_rate_hz + hb) / br,
+        }
+    }
+
+    /// Cross-field checks (ranges are checked by the registry).
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.transducer_node_id == self.valve_node_id {
+            return Err(ConfigError::new(
+                "canopen.valve_node_id",
+                format!(
+                    "node id {} is also the transducer's; expected two distinct node ids 1..127",
+                    self.valve_node_id
+                ),
+            ));
+        }
+        if u32::from(self.heartbeat_ms) >= self.heartbeat_timeout_ms {
+            return Err(ConfigError::new(
+                "canopen.heartbeat_timeout_ms",
+                format!(
+                    "consumer timeout {} ms must exceed the producer time heartbeat_ms = {} ms (typically 2-3×)",
+                    self.heartbeat_timeout_ms, self.heartbeat_ms
+                ),
+            ));
+        }
+        let l = self.bus_load();
+        if l.load > MAX_BUS_LOAD {
+            return Err(ConfigError::new(
+                "canopen.sync_rate_hz",
+                format!(
+                    "bus load {:.1} % exceeds {:.0} %: {} bit times ({:.0} µs) per SYNC at {} Hz on {} bit/s plus heartbeats; lower sync_rate_hz or raise bitrate",
+                    l.load * 100.0,
+                    MAX_BUS_LOAD * 100.0,
+                    l.bits_per_sync,
+                    l.time_per_sync_s * 1e6,
+                    self.sync_rate_hz,
+                    self.bitrate
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_lengths_match_the_worst_case_formula() {
+        assert_eq!(frame_bits(0), 55);
+        assert_eq!(frame_bits(2), 75);
+        assert_eq!(frame_bits(4), 95);
+        assert_eq!(frame_bits(8), 64 + 47 + 24);
+    }
+
+    #[test]
+    fn sync_position_setpoint_take_225_us_at_1_mbit() {
+        let c = CanopenConfig {
+            valve_status_pdo: false,
+            ..Default::default()
+        };
+        let l = c.bus_load();
+        assert_eq!(l.bits_per_sync, 225);
+        assert!((l.time_per_sync_s - 225e-6).abs() < 1e-12);
+        // + 2 heartbeats of 65 bits every 20 ms.
+        assert!((l.load - (0.225 + 2.0 * 65.0 / 0.02 / 1e6)).abs() < 1e-12);
+        let d = CanopenConfig::default().bus_load();
+        assert_eq!(d.bits_per_sync, 320);
+        assert!(CanopenConfig::default().validate().is_ok());
+    }
+
+    #[test]
+    fn overload_and_inconsistent_settings_are_refused() {
+        let c = CanopenConfig {
+            sync_rate_hz: 4000.0,
+            ..Default::default()
+        };
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.path, "canopen.sync_rate_hz");
+        assert!(e.message.contains("exceeds 80 %"), "{e}");
+        let c = CanopenConfig {
+            bitrate: 250_000,
+            ..Default::default()
+        };
+        assert!(c.validate().is_err(), "1 kHz at 250 kbit/s is 128 %");
+        let c = CanopenConfig {
+            valve_node_id: 32,
+            ..Default::default()
+        };
+        assert_eq!(c.validate().unwrap_err().path, "canopen.valve_node_id");
+        let c = CanopenConfig {
+            heartbeat_timeout_ms: 20,
+            ..Default::default()
+        };
+        assert_eq!(
+            c.validate().unwrap_err().path,
+            "canopen.heartbeat_timeout_ms"
+        );
+    }
+}

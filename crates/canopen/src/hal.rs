@@ -1,0 +1,1254 @@
+//! [`CanopenHal`]: the `Hal` of a CAN rig with a CiA 406 position transducer and a CiA 408
+//! valve (seed 003's boom: magnetostrictive transducer + 4WRSE OBE).
+//!
+//! Threads and queues:
+//! - start-up ([`CanopenHal::connect`]) runs before the loop and may block: NMT reset
+//!   communication → boot-ups (`boot_timeout_s`), NMT pre-operational, SDO configuration
+//!   (device types, 0x1017 heartbeat, PDO re-mapping, transducer step, valve device mode),
+//!   NMT start, heartbeats OPERATIONAL, valve DISABLED → HOLD → ACTIVE by SDO control word,
+//!   one priming SYNC so that the first cycle has a position;
+//! - an RX thread owns the receiving side of the bus and pushes every frame into a
+//!   lock-free queue for the cycle (and into the `/can` log queue);
+//! - a TX thread owns the sending side and sends what the cycle pushed into another
+//!   lock-free queue (woken by `unpark`, which does not block the cycle);
+//! - the cycle (`read` / `write`) never touches the bus: `read` drains the RX queue
+//!   (TPDO decode, heartbeat consumer, EMCY consumer, valve status) with the loop time as
+//!   injected time base; `write` converts the command to the spool setpoint and, when the
+//!   SYNC producer is due, queues RPDO1 (setpoint) then SYNC. Between SYNCs the control law
+//!   runs on held samples (sample-and-hold): CAN I/O at `sync_rate_hz`, control at
+//!   `run.control_rate_hz`.
+//!
+//! Faults become `HalError::Device`, so the loop trips, calls `safe_stop` and ends the run
+//! with the reason: heartbeat timeout (detected `heartbeat_timeout_ms` after the last
+//! heartbeat), a device leaving OPERATIONAL or rebooting, EMCY with a non-zero code, the
+//! valve leaving ACTIVE or reporting FAULT (next status TPDO, i.e. within one SYNC), the
+//! bus connection dropping (next cycle), queue overflow.
+//!
+//! Malformed and unexpected frames (documented decision): a frame with a wrong DLC for its
+//! COB-ID, or an unknown COB-ID, is logged as a `can_bus` warning event (with the COB-ID as
+//! value, first 100 of each kind) and counted in the summary, and otherwise ignored: the
+//! held sample stays in use. A single bad frame is no hazard; persistent loss of a PDO is
+//! caught by the supervisor's staleness check (`supervisor.stale_timeout`) and loss of a
+//! device by the heartbeat consumer, both of which trip.
+//!
+//! Safe stop: RPDO setpoint for the safe command (0) + SYNC, then the I/O threads are
+//! stopped and the valve control word is set to HOLD (D=1, H=1, A=0) by SDO.
+
+use crate::bus::{self, BusError, BusErrorKind, BusUrl, CanBus};
+use crate::cia406;
+use crate::cia408::{self, ValveState};
+use crate::config::CanopenConfig;
+use crate::emcy::{Emcy, EMCY_BASE};
+use crate::frame::{CanFrame, Direction};
+use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
+use crate::nmt::{self, NmtCommand, NmtState, HEARTBEAT_BASE};
+use crate::pdo::{
+    self, MapEntry, PdoMap, COB_ID_INVALID, RPDO1_BASE, RPDO1_COMM, RPDO1_MAP, TPDO1_BASE,
+    TPDO1_COMM, TPDO1_MAP,
+};
+use crate::sdo::{self, SdoClient, SdoError, SDO_TX_BASE};
+use crate::sync::{self, SyncProducer};
+use crossbeam_queue::ArrayQueue;
+use ehactl_hal::logger::{CanFrameRecord, FrameLog};
+use ehactl_hal::record::{Event, EventKind, Severity};
+use ehactl_hal::{Hal, HalError, Measurements};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Everything the backend needs besides the bus.
+#[derive(Debug, Clone)]
+pub struct CanopenSettings {
+    /// Bus address.
+    pub bus: BusUrl,
+    /// `[canopen]` section.
+    pub canopen: CanopenConfig,
+    /// Valve command for 100 % spool (V), `plant.valve.command_full_scale`.
+    pub command_full_scale: f64,
+    /// Control rate (Hz), `run.control_rate_hz`.
+    pub control_rate_hz: f64,
+    /// Print start-up progress on stderr.
+    pub verbose: bool,
+}
+
+/// Why the rig could not be brought up (before the loop). One line each.
+#[derive(Debug, Clone)]
+pub enum StartupError {
+    /// Inconsistent settings.
+    Settings(String),
+    /// The bus could not be opened or failed.
+    Bus(BusError),
+    /// A device sent no boot-up in time.
+    NoBoot {
+        /// Device name.
+        device: &'static str,
+        /// Node id.
+        node: u8,
+        /// Allowed time (s).
+        timeout_s: f64,
+    },
+    /// An SDO transfer of the configuration failed.
+    Sdo {
+        /// Configuration step.
+        step: String,
+        /// The SDO error (abort code and meaning, timeout, ...).
+        error: SdoError,
+    },
+    /// A device did not do what the master asked (wrong profile, state not reached).
+    Device(String),
+}
+
+impl std::fmt::Display for StartupError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StartupError::Settings(m) => write!(f, "CANopen start-up: {m}"),
+            StartupError::Bus(e) => write!(f, "CANopen start-up: {e}"),
+            StartupError::NoBoot {
+                device,
+                node,
+                timeout_s,
+            } => write!(
+                f,
+                "CANopen start-up: {device} (node {node} = 0x{node:02X}) sent no boot-up (0x{:03X} [00]) within {timeout_s} s after NMT reset communication (canopen.boot_timeout_s); is it powered, on the bus and using this node id?",
+                HEARTBEAT_BASE + u16::from(*node)
+            ),
+            StartupError::Sdo { step, error } => {
+                write!(f, "CANopen start-up: {step}: {error}")
+            }
+            StartupError::Device(m) => write!(f, "CANopen start-up: {m}"),
+        }
+    }
+}
+
+impl std::error::Error for StartupError {}
+
+impl From<BusError> for StartupError {
+    fn from(e: BusError) -> Self {
+        StartupError::Bus(e)
+    }
+}
+
+/// State shared by the cycle and the I/O threads (atomics only, plus one error text that
+/// the I/O threads set once and that is read outside the cycle).
+struct IoShared {
+    stop: AtomicBool,
+    failed: AtomicBool,
+    error: Mutex<Option<String>>,
+    epoch: Instant,
+    /// ns since `epoch` of loop time 0.
+    zero_ns: AtomicI64,
+    rx_frames: AtomicU64,
+    tx_frames: AtomicU64,
+    rx_overflow: AtomicU64,
+    transport_errors: AtomicU64,
+}
+
+impl IoShared {
+    #[inline]
+    fn stamp(&self, at: Instant) -> i64 {
+        at.saturating_duration_since(self.epoch).as_nanos() as i64
+            - self.zero_ns.load(Ordering::Relaxed)
+    }
+
+    fn fail(&self, msg: String) {
+        if let Ok(mut e) = self.error.lock() {
+            if e.is_none() {
+                *e = Some(msg);
+            }
+        }
+        self.failed.store(true, Ordering::Release);
+    }
+}
+
+#[inline]
+fn record(f: &CanFrame, t_ns: i64, tx: bool) -> CanFrameRecord {
+    CanFrameRecord {
+        t_ns,
+        id: f.id,
+        extended: f.extended,
+        dlc: f.dlc,
+        data: f.data,
+        tx,
+    }
+}
+
+const RX_QUEUE: usize = 4096;
+const TX_QUEUE: usize = 1024;
+const FRAME_LOG: usize = 1 << 17;
+/// Warning events logged per kind (the counters in the summary keep counting).
+const MAX_WARNINGS: u64 = 100;
+
+/// Which device a frame belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Dev {
+    Transducer = 0,
+    Valve = 1,
+}
+
+impl Dev {
+    fn name(self) -> &'static str {
+        match self {
+            Dev::Transducer => "transducer",
+            Dev::Valve => "valve",
+        }
+    }
+}
+
+/// The CANopen backend (see the module docs).
+pub struct CanopenHal {
+    s: CanopenSettings,
+    ids: [u8; 2],
+    shared: Arc<IoShared>,
+    frame_log: Arc<FrameLog>,
+    rxq: Arc<ArrayQueue<(CanFrame, i64)>>,
+    txq: Arc<ArrayQueue<CanFrame>>,
+    rx_thread: Option<JoinHandle<Box<dyn CanBus>>>,
+    tx_thread: Option<JoinHandle<Box<dyn CanBus>>>,
+    tx_waker: Option<std::thread::Thread>,
+    bus_after_stop: Option<Box<dyn CanBus>>,
+    startup_frames: Vec<(Instant, CanFrame, bool)>,
+    started: bool,
+    last_read_t: f64,
+    last_write_t: Option<f64>,
+    sync: SyncProducer,
+    hb: [HeartbeatConsumer; 2],
+    meas: Measurements,
+    valve_state: Option<ValveState>,
+    setpoint: i16,
+    fault: Option<HalError>,
+    wrong_dlc: u64,
+    unknown: u64,
+    emcy_count: u64,
+    last_emcy: Option<Emcy>,
+    safe_stop_result: Option<String>,
+    startup_s: f64,
+}
+
+impl std::fmt::Debug for CanopenHal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CanopenHal")
+            .field("bus", &self.s.bus.to_string())
+            .field("ids", &self.ids)
+            .finish()
+    }
+}
+
+/// Start-up bookkeeping: every frame (for the log) and what the devices reported.
+struct Startup {
+    frames: Vec<(Instant, CanFrame, bool)>,
+    ids: [u8; 2],
+    booted: [bool; 2],
+    state: [Option<NmtState>; 2],
+    emcy: Option<Emcy>,
+    verbose: bool,
+}
+
+impl Startup {
+    fn observe(&mut self, f: &CanFrame, dir: Direction) {
+        self.frames.push((Instant::now(), *f, dir == Direction::Tx));
+        if dir == Direction::Tx {
+            return;
+        }
+        if let Some((node, b)) = nmt::parse_error_control(f) {
+            for i in 0..2 {
+                if self.ids[i] == node {
+                    let st = NmtState::from_byte(b);
+                    if st == Some(NmtState::BootUp) {
+                        if self.verbose && !self.booted[i] {
+                            eprintln!("canopen: node {node} (0x{node:02X}) boot-up");
+                        }
+                        self.booted[i] = true;
+                    }
+                    self.state[i] = st;
+                }
+            }
+        }
+        for i in 0..2 {
+            if !f.extended && f.id == u32::from(EMCY_BASE + u16::from(self.ids[i])) {
+                if let Ok(e) = Emcy::parse(self.ids[i], f.payload()) {
+                    if !e.is_reset() {
+                        self.emcy = Some(e);
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn sdo_err(step: impl Into<String>) -> impl FnOnce(SdoError) -> StartupError {
+    let step = step.into();
+    move |error| StartupError::Sdo { step, error }
+}
+
+impl CanopenHal {
+    /// Open the bus and bring both devices up (see the module docs). Blocks for at most
+    /// `boot_timeout_s` plus a few SDO timeouts.
+    pub fn connect(s: CanopenSettings) -> Result<CanopenHal, StartupError> {
+        let t_start = Instant::now();
+        let c = s.canopen.clone();
+        c.validate()
+            .map_err(|e| StartupError::Settings(e.to_string()))?;
+        if c.sync_rate_hz > s.control_rate_hz * (1.0 + 1e-9) {
+            return Err(StartupError::Settings(format!(
+                "canopen.sync_rate_hz = {} Hz exceeds run.control_rate_hz = {} Hz; SYNC is produced by the control cycle, expected sync_rate_hz <= control rate",
+                c.sync_rate_hz, s.control_rate_hz
+            )));
+        }
+        if !(s.command_full_scale.is_finite() && s.command_full_scale > 0.0) {
+            return Err(StartupError::Settings(format!(
+                "valve.command_full_scale = {} V; expected a finite number > 0 V",
+                s.command_full_scale
+            )));
+        }
+        let mut bus = bus::open(&s.bus, Duration::from_secs(3))?;
+        let ids = [c.transducer_node_id, c.valve_node_id];
+        let mut st = Startup {
+            frames: Vec::with_capacity(512),
+            ids,
+            booted: [false; 2],
+            state: [None; 2],
+            emcy: None,
+            verbose: s.verbose,
+        };
+        let send = |bus: &mut dyn CanBus, st: &mut Startup, f: CanFrame| -> Result<(), BusError> {
+            bus.send(&f)?;
+            st.observe(&f, Direction::Tx);
+            Ok(())
+        };
+
+        // 1. NMT reset communication → boot-up of every device.
+        for &n in &ids {
+            send(
+                &mut *bus,
+                &mut st,
+                nmt::command(NmtCommand::ResetCommunication, n),
+            )?;
+        }
+        let boot_deadline = Instant::now() + Duration::from_secs_f64(c.boot_timeout_s);
+        while !st.booted.iter().all(|b| *b) {
+            let left = boot_deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                let i = st.booted.iter().position(|b| !b).unwrap_or(0);
+                return Err(StartupError::NoBoot {
+                    device: [Dev::Transducer, Dev::Valve][i].name(),
+                    node: ids[i],
+                    timeout_s: c.boot_timeout_s,
+                });
+            }
+            if let Some(f) = bus.recv_timeout(left.min(Duration::from_millis(50)))? {
+                st.observe(&f, Direction::Rx);
+            }
+        }
+        // 2. Explicitly PRE-OPERATIONAL (where SDO configuration belongs).
+        for &n in &ids {
+            send(
+                &mut *bus,
+                &mut st,
+                nmt::command(NmtCommand::EnterPreOperational, n),
+            )?;
+        }
+        let sdo_t = Duration::from_millis(u64::from(c.sdo_timeout_ms));
+        let mut write = |bus: &mut dyn CanBus,
+                         st: &mut Startup,
+                         node: u8,
+                         index: u16,
+                         sub: u8,
+                         bytes: &[u8],
+                         step: &str|
+         -> Result<(), StartupError> {
+            let mut cl = SdoClient::new(node, sdo_t);
+            let req = cl.download(index, sub, bytes);
+            sdo::transfer(bus, &mut cl, req, &mut |f, d| st.observe(f, d)).map_err(sdo_err(
+                format!("{step} (write 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"),
+            ))
+        };
+        let read = |bus: &mut dyn CanBus,
+                    st: &mut Startup,
+                    node: u8,
+                    index: u16,
+                    sub: u8,
+                    step: &str|
+         -> Result<Vec<u8>, StartupError> {
+            let mut cl = SdoClient::new(node, sdo_t);
+            let req = cl.upload(index, sub);
+            sdo::transfer(bus, &mut cl, req, &mut |f, d| st.observe(f, d)).map_err(sdo_err(
+                format!("{step} (read 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"),
+            ))?;
+            Ok(cl.data().to_vec())
+        };
+
+        // 3. Configuration by SDO.
+        for (i, dev, profile) in [
+            (0usize, Dev::Transducer, cia406::PROFILE),
+            (1, Dev::Valve, cia408::PROFILE),
+        ] {
+            let n = ids[i];
+            let d = read(&mut *bus, &mut st, n, 0x1000, 0, "reading the device type")?;
+            let mut b = [0u8; 4];
+            b[..d.len().min(4)].copy_from_slice(&d[..d.len().min(4)]);
+            let dt = u32::from_le_bytes(b);
+            if dt & 0xFFFF != u32::from(profile) {
+                return Err(StartupError::Device(format!(
+                    "node {n} (0x{n:02X}) should be the {} (CiA {profile}) but its device type 0x1000 is 0x{dt:08X} (profile {})",
+                    dev.name(),
+                    dt & 0xFFFF
+                )));
+            }
+            write(
+                &mut *bus,
+                &mut st,
+                n,
+                0x1017,
+                0,
+                &c.heartbeat_ms.to_le_bytes(),
+                &format!("setting the {} heartbeat producer time", dev.name()),
+            )?;
+        }
+        let tr = ids[0];
+        let va = ids[1];
+        write(
+            &mut *bus,
+            &mut st,
+            tr,
+            cia406::POSITION_STEP,
+            1,
+            &c.position_step_nm.to_le_bytes(),
+            "setting the transducer position step (canopen.position_step_nm)",
+        )?;
+        write(
+            &mut *bus,
+            &mut st,
+            tr,
+            cia406::CYCLIC_TIMER,
+            0,
+            &0u16.to_le_bytes(),
+            "switching the transducer cyclic timer off (TPDO on SYNC)",
+        )?;
+        let remap = |bus: &mut dyn CanBus,
+                     st: &mut Startup,
+                     write: &mut dyn FnMut(
+            &mut dyn CanBus,
+            &mut Startup,
+            u8,
+            u16,
+            u8,
+            &[u8],
+            &str,
+        ) -> Result<(), StartupError>,
+                     node: u8,
+                     comm: u16,
+                     map_idx: u16,
+                     cob: u16,
+                     entries: &[MapEntry],
+                     what: &str|
+         -> Result<(), StartupError> {
+            let map = PdoMap::new(entries).ok_or_else(|| {
+                StartupError::Settings(format!("{what}: mapping longer than 8 bytes"))
+            })?;
+            for w in pdo::remap_sequence(comm, map_idx, cob, pdo::TRANSMISSION_SYNC_EVERY, &map) {
+                let (b, n) = w.bytes();
+                write(
+                    bus,
+                    st,
+                    node,
+                    w.index,
+                    w.sub,
+                    &b[..n],
+                    &format!("mapping {what}"),
+                )?;
+            }
+            Ok(())
+        };
+        remap(
+            &mut *bus,
+            &mut st,
+            &mut write,
+            tr,
+            TPDO1_COMM,
+            TPDO1_MAP,
+            TPDO1_BASE + u16::from(tr),
+            &cia406::TPDO1_MAP,
+            "the transducer TPDO1 (position 0x6020:01)",
+        )?;
+        write(
+            &mut *bus,
+            &mut st,
+            va,
+            cia408::DEVICE_MODE,
+            0,
+            &[cia408::MODE_SETPOINT_FROM_BUS],
+            "setting the valve device mode 0x6042 = 1 (setpoint from the bus)",
+        )?;
+        write(
+            &mut *bus,
+            &mut st,
+            va,
+            cia408::SPOOL_SETPOINT,
+            1,
+            &0i16.to_le_bytes(),
+            "zeroing the valve spool setpoint",
+        )?;
+        remap(
+            &mut *bus,
+            &mut st,
+            &mut write,
+            va,
+            RPDO1_COMM,
+            RPDO1_MAP,
+            RPDO1_BASE + u16::from(va),
+            &cia408::RPDO1_MAP,
+            "the valve RPDO1 (spool setpoint 0x6300:01)",
+        )?;
+        if c.valve_status_pdo {
+            remap(
+                &mut *bus,
+                &mut st,
+                &mut write,
+                va,
+                TPDO1_COMM,
+                TPDO1_MAP,
+                TPDO1_BASE + u16::from(va),
+                &cia408::TPDO1_MAP,
+                "the valve TPDO1 (status word 0x6041 + actual spool 0x6301:01)",
+            )?;
+        } else {
+            write(
+                &mut *bus,
+                &mut st,
+                va,
+                TPDO1_COMM,
+                1,
+                &(COB_ID_INVALID | u32::from(TPDO1_BASE + u16::from(va))).to_le_bytes(),
+                "disabling the valve TPDO1 (canopen.valve_status_pdo = false)",
+            )?;
+        }
+        if s.verbose {
+            eprintln!("canopen: PDO mappings and heartbeats configured");
+        }
+
+        // 4. NMT start; wait for OPERATIONAL heartbeats.
+        for &n in &ids {
+            send(&mut *bus, &mut st, nmt::command(NmtCommand::Start, n))?;
+        }
+        st.state = [None; 2];
+        let op_wait = Duration::from_millis(
+            (3 * u64::from(c.heartbeat_timeout_ms)).max(u64::from(c.sdo_timeout_ms)),
+        );
+        let deadline = Instant::now() + op_wait;
+        while !st.state.iter().all(|x| *x == Some(NmtState::Operational)) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                let i = st
+                    .state
+                    .iter()
+                    .position(|x| *x != Some(NmtState::Operational))
+                    .unwrap_or(0);
+                return Err(StartupError::Device(format!(
+                    "{} (node {}) did not report OPERATIONAL by heartbeat within {} ms after NMT start (last state: {})",
+                    [Dev::Transducer, Dev::Valve][i].name(),
+                    ids[i],
+                    op_wait.as_millis(),
+                    st.state[i].map_or("no heartbeat", |x| x.as_str())
+                )));
+            }
+            if let Some(f) = bus.recv_timeout(left.min(Duration::from_millis(50)))? {
+                st.observe(&f, Direction::Rx);
+            }
+        }
+
+        // 5. Valve state machine by SDO control word: (FAULT → reset) DISABLED → HOLD → ACTIVE.
+        let status = |bus: &mut dyn CanBus, st: &mut Startup| -> Result<u16, StartupError> {
+            let d = read(
+                bus,
+                st,
+                va,
+                cia408::STATUS_WORD,
+                0,
+                "reading the valve status word",
+            )?;
+            Ok(u16::from_le_bytes([
+                d.first().copied().unwrap_or(0),
+                d.get(1).copied().unwrap_or(0),
+            ]))
+        };
+        let goto = |bus: &mut dyn CanBus,
+                    st: &mut Startup,
+                    cw: u16,
+                    want: ValveState|
+         -> Result<(), StartupError> {
+            write(
+                bus,
+                st,
+                va,
+                cia408::CONTROL_WORD,
+                0,
+                &cw.to_le_bytes(),
+                &format!("commanding the valve to {}", want.as_str()),
+            )?;
+            let deadline = Instant::now() + sdo_t;
+            loop {
+                let sw = status(bus, st)?;
+                let got = ValveState::from_status(sw);
+                if got == want {
+                    if s.verbose {
+                        eprintln!("canopen: valve {}", want.as_str());
+                    }
+                    return Ok(());
+                }
+                if Instant::now() >= deadline {
+                    return Err(StartupError::Device(format!(
+                        "valve (node {va}) did not enter {} after control word 0x{cw:04X}: status word 0x{sw:04X} ({})",
+                        want.as_str(),
+                        got.as_str()
+                    )));
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        };
+        let sw = status(&mut *bus, &mut st)?;
+        if ValveState::from_status(sw) == ValveState::Fault {
+            if s.verbose {
+                eprintln!("canopen: valve in FAULT at start-up: fault reset (control word bit 3)");
+            }
+            write(
+                &mut *bus,
+                &mut st,
+                va,
+                cia408::CONTROL_WORD,
+                0,
+                &cia408::CW_DISABLED.to_le_bytes(),
+                "clearing the valve control word",
+            )?;
+            goto(&mut *bus, &mut st, cia408::CW_RESET, ValveState::Disabled)?;
+        }
+        goto(&mut *bus, &mut st, cia408::CW_HOLD_STATE, ValveState::Hold)?;
+        goto(
+            &mut *bus,
+            &mut st,
+            cia408::CW_ACTIVE_STATE,
+            ValveState::Active,
+        )?;
+
+        // 6. Priming: setpoint 0 + one SYNC so that the first cycle has a position.
+        let mut meas = Measurements {
+            t: f64::NAN,
+            force: f64::NAN,
+            position: f64::NAN,
+            p_a: f64::NAN,
+            p_b: f64::NAN,
+            spool: f64::NAN,
+        };
+        send(
+            &mut *bus,
+            &mut st,
+            CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()),
+        )?;
+        send(&mut *bus, &mut st, sync::frame())?;
+        let deadline = Instant::now() + sdo_t;
+        while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(StartupError::Device(format!(
+                    "no {} TPDO1 within {} ms after the first SYNC; are the PDOs mapped and the devices OPERATIONAL?",
+                    if meas.position.is_nan() { "transducer" } else { "valve" },
+                    sdo_t.as_millis()
+                )));
+            }
+            if let Some(f) = bus.recv_timeout(left)? {
+                st.observe(&f, Direction::Rx);
+                if f.id == u32::from(TPDO1_BASE + u16::from(tr)) && f.dlc == 4 {
+                    meas.position =
+                        cia406::position_m(pdo::get_i32(&f.data, 0, 4), c.position_step_nm);
+                }
+                if f.id == u32::from(TPDO1_BASE + u16::from(va)) && f.dlc == 4 {
+                    meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
+                }
+            }
+        }
+        if let Some(e) = st.emcy {
+            return Err(StartupError::Device(format!(
+                "{} (node {}) sent EMCY 0x{:04X} ({}) during start-up",
+                if e.node == tr { "transducer" } else { "valve" },
+                e.node,
+                e.code,
+                e.class()
+            )));
+        }
+        if s.verbose {
+            eprintln!(
+                "canopen: start-up done in {:.2} s; first position {:.6} m",
+                t_start.elapsed().as_secs_f64(),
+                meas.position
+            );
+        }
+        meas.t = 0.0;
+
+        // 7. I/O threads.
+        let shared = Arc::new(IoShared {
+            stop: AtomicBool::new(false),
+            failed: AtomicBool::new(false),
+            error: Mutex::new(None),
+            epoch: t_start,
+            zero_ns: AtomicI64::new(t_start.elapsed().as_nanos() as i64),
+            rx_frames: AtomicU64::new(0),
+            tx_frames: AtomicU64::new(0),
+            rx_overflow: AtomicU64::new(0),
+            transport_errors: AtomicU64::new(0),
+        });
+        let frame_log = Arc::new(FrameLog::new(FRAME_LOG));
+        let rxq = Arc::new(ArrayQueue::new(RX_QUEUE));
+        let txq = Arc::new(ArrayQueue::new(TX_QUEUE));
+        let tx_bus = bus.try_clone_bus()?;
+        let spawn_err = |e: std::io::Error| {
+            StartupError::Bus(BusError::new(
+                BusErrorKind::Io,
+                format!("cannot start a CAN I/O thread: {e}"),
+            ))
+        };
+        let rx_thread = {
+            let (sh, q, lg) = (shared.clone(), rxq.clone(), frame_log.clone());
+            std::thread::Builder::new()
+                .name("ehactl-can-rx".into())
+                .spawn(move || rx_loop(bus, &sh, &q, &lg))
+                .map_err(spawn_err)?
+        };
+        let tx_thread = {
+            let (sh, q, lg) = (shared.clone(), txq.clone(), frame_log.clone());
+            std::thread::Builder::new()
+                .name("ehactl-can-tx".into())
+                .spawn(move || tx_loop(tx_bus, &sh, &q, &lg))
+                .map_err(spawn_err)?
+        };
+        let waker = tx_thread.thread().clone();
+        let hb_ns = u64::from(c.heartbeat_timeout_ms) * 1_000_000;
+        let mut hb = [
+            HeartbeatConsumer::new(tr, hb_ns),
+            HeartbeatConsumer::new(va, hb_ns),
+        ];
+        for h in hb.iter_mut() {
+            h.on_heartbeat(NmtState::Operational);
+        }
+        Ok(CanopenHal {
+            sync: SyncProducer::new(1.0 / c.sync_rate_hz),
+            ids,
+            shared,
+            frame_log,
+            rxq,
+            txq,
+            rx_thread: Some(rx_thread),
+            tx_thread: Some(tx_thread),
+            tx_waker: Some(waker),
+            bus_after_stop: None,
+            startup_frames: st.frames,
+            started: false,
+            last_read_t: 0.0,
+            last_write_t: None,
+            hb,
+            meas,
+            valve_state: Some(ValveState::Active),
+            setpoint: 0,
+            fault: None,
+            wrong_dlc: 0,
+            unknown: 0,
+            emcy_count: 0,
+            last_emcy: None,
+            safe_stop_result: None,
+            startup_s: t_start.elapsed().as_secs_f64(),
+            s,
+        })
+    }
+
+    #[inline]
+    fn warn(&self, t: f64, what: &'static str, value: f64, count: u64) {
+        if count <= MAX_WARNINGS {
+            self.frame_log.push_event(Event {
+                t,
+                cycle: 0,
+                severity: Severity::Warning,
+                kind: EventKind::CanBus,
+                channel: what,
+                value,
+                limit: f64::NAN,
+                unit: "COB-ID",
+            });
+        }
+    }
+
+    #[inline]
+    fn trip(
+        &mut self,
+        t: f64,
+        code: u32,
+        what: &'static str,
+        value: f64,
+        unit: &'static str,
+    ) -> HalError {
+        let e = HalError::Device { code, what };
+        if self.fault.is_none() {
+            self.frame_log.push_event(Event {
+                t,
+                cycle: 0,
+                severity: Severity::Warning,
+                kind: EventKind::CanBus,
+                channel: what,
+                value,
+                limit: f64::NAN,
+                unit,
+            });
+            self.fault = Some(e);
+        }
+        e
+    }
+
+    fn dev_of(&self, node: u32) -> Option<Dev> {
+        if node == u32::from(self.ids[0]) {
+            Some(Dev::Transducer)
+        } else if node == u32::from(self.ids[1]) {
+            Some(Dev::Valve)
+        } else {
+            None
+        }
+    }
+
+    /// Handle one received frame in the cycle.
+    #[inline]
+    fn dispatch(&mut self, f: &CanFrame, t: f64) -> Result<(), HalError> {
+        let id = f.id;
+        if f.extended {
+            self.unknown += 1;
+            self.warn(
+                t,
+                "unknown COB-ID (29-bit frame)",
+                f64::from(id),
+                self.unknown,
+            );
+            return Ok(());
+        }
+        let (base, node) = (id & 0x780, id & 0x7F);
+        let dev = self.dev_of(node);
+        let wrong_dlc = |me: &mut Self, what: &'static str| {
+            me.wrong_dlc += 1;
+            me.warn(t, what, f64::from(id), me.wrong_dlc);
+        };
+        match (base as u16, dev) {
+            (TPDO1_BASE, Some(Dev::Transducer)) => {
+                if f.dlc != 4 {
+                    wrong_dlc(self, "wrong DLC on transducer TPDO1 (expected 4), ignored");
+                } else {
+                    self.meas.position = cia406::position_m(
+                        pdo::get_i32(&f.data, 0, 4),
+                        self.s.canopen.position_step_nm,
+                    );
+                    self.meas.t = t;
+                }
+            }
+            (TPDO1_BASE, Some(Dev::Valve)) if self.s.canopen.valve_status_pdo => {
+                if f.dlc != 4 {
+                    wrong_dlc(self, "wrong DLC on valve TPDO1 (expected 4), ignored");
+                } else {
+                    let sw = pdo::get_u16(&f.data, 0);
+                    self.meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
+                    let st = ValveState::from_status(sw);
+                    self.valve_state = Some(st);
+                    match st {
+                        ValveState::Active => {}
+                        ValveState::Fault => {
+                            return Err(self.trip(
+                                t,
+                                u32::from(sw),
+                                "valve reports FAULT (status word)",
+                                f64::from(sw),
+                                "status word",
+                            ))
+                        }
+                        _ => {
+                            return Err(self.trip(
+                                t,
+                                u32::from(sw),
+                                "valve left ACTIVE (status word)",
+                                f64::from(sw),
+                                "status word",
+                            ))
+                        }
+                    }
+                }
+            }
+            (HEARTBEAT_BASE, Some(d)) => {
+                if f.dlc != 1 {
+                    wrong_dlc(self, "wrong DLC on heartbeat (expected 1), ignored");
+                    return Ok(());
+                }
+                let st = NmtState::from_byte(f.data[0]);
+                let ev = st.and_then(|s| self.hb[d as usize].on_heartbeat(s));
+                match (st, ev, d) {
+                    (None, _, _) => {
+                        self.unknown += 1;
+                        self.warn(
+                            t,
+                            "heartbeat with an undefined NMT state, ignored",
+                            f64::from(id),
+                            self.unknown,
+                        );
+                    }
+                    (Some(NmtState::Operational), _, _) => {}
+                    (Some(NmtState::BootUp), _, Dev::Valve) => {
+                        return Err(self.trip(
+                            t,
+                            node,
+                            "valve rebooted (boot-up during the run)",
+                            f64::from(node),
+                            "node",
+                        ))
+                    }
+                    (Some(NmtState::BootUp), _, Dev::Transducer) => {
+                        return Err(self.trip(
+                            t,
+                            node,
+                            "transducer rebooted (boot-up during the run)",
+                            f64::from(node),
+                            "node",
+                        ))
+                    }
+                    (Some(s), _, Dev::Valve) => {
+                        return Err(self.trip(
+                            t,
+                            node,
+                            "valve left NMT OPERATIONAL",
+                            f64::from(s as u8 as u32),
+                            "NMT state",
+                        ))
+                    }
+                    (Some(s), _, Dev::Transducer) => {
+                        return Err(self.trip(
+                            t,
+                            node,
+                            "transducer left NMT OPERATIONAL",
+                            f64::from(s as u8 as u32),
+                            "NMT state",
+                        ))
+                    }
+                }
+            }
+            (EMCY_BASE, Some(d)) if node != 0 => match Emcy::parse(node as u8, f.payload()) {
+                Err(_) => wrong_dlc(self, "wrong DLC on EMCY (expected 8), ignored"),
+                Ok(e) if e.is_reset() => {
+                    self.warn(t, "EMCY error reset (code 0x0000)", f64::from(id), 0);
+                }
+                Ok(e) => {
+                    self.emcy_count += 1;
+                    self.last_emcy = Some(e);
+                    let what = match d {
+                        Dev::Valve => "EMCY from the valve",
+                        Dev::Transducer => "EMCY from the transducer",
+                    };
+                    return Err(self.trip(
+                        t,
+                        u32::from(e.code),
+                        what,
+                        f64::from(e.code),
+                        "EMCY code",
+                    ));
+                }
+            },
+            (0x580, Some(_)) => {
+                // A late SDO response (e.g. after a start-up timeout): harmless.
+                self.unknown += 1;
+                self.warn(
+                    t,
+                    "unexpected SDO response during the run, ignored",
+                    f64::from(id),
+                    self.unknown,
+                );
+            }
+            _ => {
+                self.unknown += 1;
+                self.warn(t, "unknown COB-ID, ignored", f64::from(id), self.unknown);
+            }
+        }
+        Ok(())
+    }
+
+    /// Stop the I/O threads and take the bus back (outside the cycle).
+    fn stop_io(&mut self) {
+        self.shared.stop.store(true, Ordering::Release);
+        if let Some(w) = &self.tx_waker {
+            w.unpark();
+        }
+        if let Some(h) = self.tx_thread.take() {
+            let _ = h.join();
+        }
+        if let Some(h) = self.rx_thread.take() {
+            if let Ok(b) = h.join() {
+                self.bus_after_stop = Some(b);
+            }
+        }
+    }
+
+    fn log_now(&self, f: &CanFrame, dir: Direction) {
+        let t = self.shared.stamp(Instant::now());
+        self.frame_log.push(record(f, t, dir == Direction::Tx));
+    }
+
+    /// How long start-up took (s).
+    pub fn startup_seconds(&self) -> f64 {
+        self.startup_s
+    }
+
+    /// Bus load of the configured PDO set (fraction).
+    pub fn bus_load(&self) -> f64 {
+        self.s.canopen.bus_load().load
+    }
+}
+
+fn rx_loop(
+    mut bus: Box<dyn CanBus>,
+    sh: &IoShared,
+    q: &ArrayQueue<(CanFrame, i64)>,
+    log: &FrameLog,
+) -> Box<dyn CanBus> {
+    while !sh.stop.load(Ordering::Acquire) {
+        match bus.recv_timeout(Duration::from_millis(20)) {
+            Ok(Some(f)) => {
+                let t = sh.stamp(Instant::now());
+                log.push(record(&f, t, false));
+                sh.rx_frames.fetch_add(1, Ordering::Relaxed);
+                if q.push((f, t)).is_err() {
+                    sh.rx_overflow.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            Ok(None) => {}
+            Err(e) if e.kind == BusErrorKind::Protocol => {
+                let n = sh.transport_errors.fetch_add(1, Ordering::Relaxed) + 1;
+                if n <= MAX_WARNINGS {
+                    eprintln!("ehactl: canopen: malformed bus message ignored: {e}");
+                    log.push_event(Event {
+                        t: sh.stamp(Instant::now()) as f64 * 1e-9,
+                        cycle: 0,
+                        severity: Severity::Warning,
+                        kind: EventKind::CanBus,
+                        channel: "malformed socketcand message, ignored",
+                        value: n as f64,
+                        limit: f64::NAN,
+                        unit: "count",
+                    });
+                }
+            }
+            Err(e) => {
+                sh.fail(e.message);
+                break;
+            }
+        }
+    }
+    bus
+}
+
+fn tx_loop(
+    mut bus: Box<dyn CanBus>,
+    sh: &IoShared,
+    q: &ArrayQueue<CanFrame>,
+    log: &FrameLog,
+) -> Box<dyn CanBus> {
+    loop {
+        while let Some(f) = q.pop() {
+            match bus.send(&f) {
+                Ok(()) => {
+                    log.push(record(&f, sh.stamp(Instant::now()), true));
+                    sh.tx_frames.fetch_add(1, Ordering::Relaxed);
+                }
+                Err(e) => {
+                    sh.fail(e.message);
+                    return bus;
+                }
+            }
+        }
+        if sh.stop.load(Ordering::Acquire) {
+            return bus;
+        }
+        std::thread::park_timeout(Duration::from_millis(5));
+    }
+}
+
+impl Hal for CanopenHal {
+    fn name(&self) -> &'static str {
+        "canopen"
+    }
+
+    /// Drains received frames (TPDOs, heartbeats, EMCY) and returns the held samples.
+    /// Real-time safe: lock-free queue pops, no allocation (except the one-time hand-over
+    /// of the start-up frames to the log queue in the first cycle, which does not allocate).
+    fn read(&mut self, t: f64, _period: f64) -> Result<Measurements, HalError> {
+        if !self.started {
+            self.started = true;
+            let now = Instant::now();
+            let zero = now.saturating_duration_since(self.shared.epoch).as_nanos() as i64;
+            self.shared.zero_ns.store(zero, Ordering::Relaxed);
+            for (at, f, tx) in self.startup_frames.drain(..) {
+                let tn = at.saturating_duration_since(self.shared.epoch).as_nanos() as i64 - zero;
+                self.frame_log.push(record(&f, tn, tx));
+            }
+            self.last_read_t = t;
+        }
+        let elapsed_ns = ((t - self.last_read_t).max(0.0) * 1e9) as u64;
+        self.last_read_t = t;
+        if let Some(e) = self.fault {
+            return Err(e);
+        }
+        if self.shared.failed.load(Ordering::Acquire) {
+            return Err(self.trip(t, 0, "CAN bus connection lost", f64::NAN, ""));
+        }
+        if self.shared.rx_overflow.load(Ordering::Relaxed) > 0 {
+            return Err(self.trip(t, 0, "CAN receive queue overflow", f64::NAN, ""));
+        }
+        while let Some((f, _)) = self.rxq.pop() {
+            self.dispatch(&f, t)?;
+        }
+        for i in 0..2 {
+            if let Some(HeartbeatEvent::Timeout { silent_ns }) = self.hb[i].process(elapsed_ns) {
+                let what = if i == 0 {
+                    "transducer heartbeat lost (consumer timeout)"
+                } else {
+                    "valve heartbeat lost (consumer timeout)"
+                };
+                return Err(self.trip(
+                    t,
+                    u32::from(self.ids[i]),
+                    what,
+                    silent_ns as f64 * 1e-9,
+                    "s",
+                ));
+            }
+        }
+        Ok(self.meas)
+    }
+
+    /// Converts the command to the spool setpoint; when SYNC is due, queues RPDO1 then
+    /// SYNC for the TX thread. Real-time safe (lock-free push + unpark).
+    fn write(&mut self, t: f64, _period: f64, command: f64) -> Result<(), HalError> {
+        if let Some(e) = self.fault {
+            return Err(e);
+        }
+        self.setpoint = cia408::setpoint_from_command(command, self.s.command_full_scale);
+        let elapsed_ns = match self.last_write_t {
+            None => 0,
+            Some(l) => ((t - l).max(0.0) * 1e9).round() as u64,
+        };
+        self.last_write_t = Some(t);
+        if self.sync.process(elapsed_ns) {
+            let rpdo = CanFrame::std(
+                RPDO1_BASE + u16::from(self.ids[1]),
+                self.setpoint.to_le_bytes(),
+            );
+            if self.txq.push(rpdo).is_err() || self.txq.push(sync::frame()).is_err() {
+                return Err(self.trip(t, 0, "CAN transmit queue overflow", f64::NAN, ""));
+            }
+            if let Some(w) = &self.tx_waker {
+                w.unpark();
+            }
+        }
+        Ok(())
+    }
+
+    /// RPDO setpoint for `command` + SYNC, stop the I/O threads, valve control word HOLD by
+    /// SDO. Blocks for at most two SYNC periods plus one SDO timeout.
+    fn safe_stop(&mut self, command: f64) -> Result<(), HalError> {
+        let s = cia408::setpoint_from_command(command, self.s.command_full_scale);
+        let va = self.ids[1];
+        if self.tx_thread.is_some() && !self.shared.failed.load(Ordering::Acquire) {
+            let _ = self
+                .txq
+                .push(CanFrame::std(RPDO1_BASE + u16::from(va), s.to_le_bytes()));
+            let _ = self.txq.push(sync::frame());
+            if let Some(w) = &self.tx_waker {
+                w.unpark();
+            }
+            std::thread::sleep(Duration::from_secs_f64(
+                (2.0 / self.s.canopen.sync_rate_hz).min(0.05),
+            ));
+        }
+        self.stop_io();
+        let failed = self.shared.failed.load(Ordering::Acquire);
+        let result = match self.bus_after_stop.take() {
+            Some(mut bus) if !failed => {
+                let mut cl = SdoClient::new(
+                    va,
+                    Duration::from_millis(u64::from(self.s.canopen.sdo_timeout_ms)),
+                );
+                let req = cl.download(cia408::CONTROL_WORD, 0, &cia408::CW_HOLD_STATE.to_le_bytes());
+                let mut frames: Vec<(CanFrame, Direction)> = Vec::new();
+                let r = sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| frames.push((*f, d)));
+                for (f, d) in &frames {
+                    self.log_now(f, *d);
+                }
+                self.bus_after_stop = Some(bus);
+                r.map_err(|e| e.to_string())
+            }
+            _ => Err(format!(
+                "bus unavailable ({}); valve HOLD could not be commanded — the valve must fall back to its own safe state (heartbeat loss reaction)",
+                self.shared
+                    .error
+                    .lock()
+                    .ok()
+                    .and_then(|e| e.clone())
+                    .unwrap_or_else(|| "not connected".into())
+            )),
+        };
+        match result {
+            Ok(()) => {
+                self.safe_stop_result = Some(format!(
+                    "setpoint {s} and control word HOLD (0x{:04X}) sent to the valve",
+                    cia408::CW_HOLD_STATE
+                ));
+                Ok(())
+            }
+            Err(m) => {
+                eprintln!("ehactl: canopen: safe stop: {m}");
+                self.safe_stop_result = Some(format!("failed: {m}"));
+                Err(HalError::Device {
+                    code: 0,
+                    what: "safe stop not confirmed by the valve",
+                })
+            }
+        }
+    }
+
+    fn frame_log(&self) -> Option<Arc<FrameLog>> {
+        Some(self.frame_log.clone())
+    }
+
+    fn report(&self) -> Option<serde_json::Value> {
+        let l = self.s.canopen.bus_load();
+        let sh = &self.shared;
+        Some(serde_json::json!({
+            "bus": self.s.bus.to_string(),
+            "bus_load_percent": l.load * 100.0,
+            "bus_time_per_sync_us": l.time_per_sync_s * 1e6,
+            "sync_rate_hz": self.s.canopen.sync_rate_hz,
+            "syncs_sent": self.sync.count(),
+            "can_rx_frames": sh.rx_frames.load(Ordering::Relaxed),
+            "can_tx_frames": sh.tx_frames.load(Ordering::Relaxed),
+            "can_wrong_dlc": self.wrong_dlc,
+            "can_unknown_cob_id": self.unknown,
+            "can_transport_errors": sh.transport_errors.load(Ordering::Relaxed),
+            "can_rx_overflow": sh.rx_overflow.load(Ordering::Relaxed),
+            "can_log_frames_dropped": self.frame_log.dropped(),
+            "can_bus_error": sh.error.lock().ok().and_then(|e| e.clone()),
+            "emcy_count": self.emcy_count,
+            "last_emcy_code": self.last_emcy.map(|e| e.code),
+            "valve_state": self.valve_state.map(|v| v.as_str()),
+            "startup_s": self.startup_s,
+            "safe_stop": self.safe_stop_result,
+        }))
+    }
+}
+
+impl Drop for CanopenHal {
+    fn drop(&mut self) {
+        self.stop_io();
+    }
+}
+
+/// SDO response COB-ID of `node` (for tools and tests).
+pub fn sdo_response_id(node: u8) -> u16 {
+    SDO_TX_BASE + u16::from(node)
+}

@@ -1,0 +1,153 @@
+//! Zero allocation in the cycle: a counting global allocator (per thread) watches the loop
+//! thread of a wall-clock run — sim backend paced in real time by the real
+//! `WallClockPacer`, every record pushed to the MCAP logger, and a live gain change
+//! published from another thread in the middle — and every cycle after start-up must
+//! allocate nothing. Its own test binary, because it installs its own #[global_allocator].
+
+use ehactl_controller::live::{self, LiveParams};
+use ehactl_controller::realtime::{RtOptions, TimingReport, WallClockPacer};
+use ehactl_controller::runloop::Pacer;
+use ehactl_controller::session::{build_plant, run_with_live, Backend, SessionOptions};
+use ehactl_hal::logger::Overflow;
+use ehactl_hal::record::{CycleTiming, Event};
+use ehactl_hal::sim::SimHal;
+use ehactl_tests::config;
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::sync::Arc;
+use std::time::Duration;
+
+struct Counting;
+
+thread_local! {
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: forwards to the system allocator; only counts (a const-initialised Cell
+// thread-local needs no allocation and no destructor).
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        System.alloc(l)
+    }
+    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        System.alloc_zeroed(l)
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        System.realloc(p, l, n)
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        System.dealloc(p, l)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocs() -> u64 {
+    ALLOCS.with(|c| c.get())
+}
+
+/// Wraps the real pacer and notes this thread's allocation count at every cycle boundary
+/// into a preallocated array (indexing does not allocate).
+struct Watch {
+    inner: WallClockPacer,
+    at: Vec<u64>,
+}
+
+impl Pacer for Watch {
+    fn wait_for_cycle(&mut self, k: u64) -> bool {
+        if let Some(slot) = self.at.get_mut(k as usize) {
+            *slot = allocs();
+        }
+        self.inner.wait_for_cycle(k)
+    }
+    fn cycle_timing(&self) -> Option<CycleTiming> {
+        self.inner.cycle_timing()
+    }
+    fn take_event(&mut self) -> Option<Event> {
+        self.inner.take_event()
+    }
+    fn trip(&self) -> Option<Event> {
+        self.inner.trip()
+    }
+    fn timing_report(&self) -> Option<TimingReport> {
+        Pacer::timing_report(&self.inner)
+    }
+}
+
+#[test]
+fn no_allocation_per_cycle_after_start_up() {
+    const CYCLES: u64 = 12_000; // 2.4 s at 5 kHz
+    let cfg = config("sahu2022_force.toml");
+    let mut cfg_run = cfg.clone();
+    cfg_run.run.duration = CYCLES as f64 * cfg.control_dt();
+    let plant = build_plant(&cfg_run).unwrap();
+    let substeps = plant.substeps();
+    let mut hal = SimHal::new(plant);
+    // Real-time settings as configured (they may be refused: a warning, still counted).
+    let mut pacer = Watch {
+        inner: WallClockPacer::new(cfg.control_dt(), cfg.realtime.rt_options()),
+        at: vec![u64::MAX; CYCLES as usize + 1],
+    };
+    let live = Arc::new(LiveParams::new());
+    // A gain change published from another thread while the loop runs.
+    let writer = {
+        let live = live.clone();
+        let mut cfg_w = cfg.clone();
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(800));
+            let upd = live::prepare(&mut cfg_w, &[("control.pi.kp", 0.4)]).unwrap();
+            let seq = live.publish(upd, Duration::from_secs(5)).unwrap();
+            live.wait_applied(seq, Duration::from_secs(5))
+        })
+    };
+    let dir = std::env::temp_dir().join(format!("ehactl-rt-alloc-{}", std::process::id()));
+    let s = run_with_live(
+        &cfg,
+        Backend {
+            hal: &mut hal,
+            pacer: &mut pacer,
+            overflow: Overflow::Drop,
+            substeps,
+        },
+        SessionOptions {
+            duration: Some(cfg_run.run.duration),
+            mcap: Some(dir.join("alloc.mcap")),
+            ..Default::default()
+        },
+        Some(&live),
+    )
+    .unwrap();
+    let applied_at = writer.join().unwrap().expect("change applied");
+    assert_eq!(s.outcome.cycles, CYCLES);
+    assert!(s.outcome.trip.is_none(), "{:?}", s.outcome.trip);
+    assert!(applied_at > 1 && applied_at < CYCLES, "{applied_at}");
+    let at = &pacer.at;
+    // Start-up = everything up to the first wait (k = 0: logger, RT set-up, first event).
+    let mut bad = Vec::new();
+    for k in 1..CYCLES as usize {
+        let d = at[k] - at[k - 1];
+        if d != 0 {
+            bad.push((k - 1, d));
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "cycles that allocated (cycle, allocations): {:?}",
+        &bad[..bad.len().min(20)]
+    );
+    // Sanity: the counter works on this thread (this Vec allocates).
+    let before = allocs();
+    let v: Vec<u8> = Vec::with_capacity(10);
+    assert!(allocs() > before && v.capacity() >= 10);
+    let log = s.log.as_ref().unwrap();
+    assert_eq!(log.records_written + log.records_dropped, CYCLES);
+    println!(
+        "{} cycles, 0 allocations per cycle; logger queue high water {} of {}; dropped {}",
+        CYCLES, log.queue_high_water, log.queue_capacity, log.records_dropped
+    );
+    std::fs::remove_dir_all(dir).ok();
+}
