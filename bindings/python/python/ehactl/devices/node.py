@@ -93,7 +93,6 @@ class SimNode:
 
         self.nmt_state = INITIALISING
         self.powered = False      # False until boot() and with the no-boot fault
-        self.silenced = False     # heartbeat-loss fault: nothing leaves this node
         self.hb_period_s = 0.0
         self.hb_next = 0.0
         self.error_register = 0
@@ -107,7 +106,7 @@ class SimNode:
         self._next_async: Dict[int, float] = {}
         self._abort_hooks: List[Callable[[int, int], Optional[int]]] = []
         self.lock = threading.RLock()
-        self.counters = {"sync": 0, "rpdo": 0, "rpdo_bad_length": 0, "tpdo": 0, "sdo": 0,
+        self.counters = {"rpdo": 0, "rpdo_bad_length": 0, "tpdo": 0, "sdo": 0,
                          "nmt": 0}
 
     # ----------------------------------------------------------------- object access
@@ -139,7 +138,7 @@ class SimNode:
 
     # ----------------------------------------------------------------- send path
     def send(self, cob_id: int, data: bytes) -> None:
-        if not self.powered or self.silenced:
+        if not self.powered:
             return
         self.network.send_message(cob_id, bytes(data))
 
@@ -217,7 +216,7 @@ class SimNode:
     # ----------------------------------------------------------------- SDO
     def _on_sdo_request(self, can_id, data, timestamp):
         # SDO is served in PRE-OPERATIONAL and OPERATIONAL only (CiA 301 table 76).
-        if not self.powered or self.silenced or self.nmt_state not in (PRE_OPERATIONAL,
+        if not self.powered or self.nmt_state not in (PRE_OPERATIONAL,
                                                                         OPERATIONAL):
             return
         if len(data) != 8:

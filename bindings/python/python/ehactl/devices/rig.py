@@ -189,6 +189,33 @@ def open_bus(url: str) -> can.BusABC:
 
 
 # --------------------------------------------------------------------------- rig
+class RigNetwork(canopen.Network):
+    """canopen.Network that counts every frame and drops those of silenced (TX-dead) nodes."""
+
+    def __init__(self, bus):
+        super().__init__(bus)
+        self.silenced_nodes: set = set()
+        self._count_lock = threading.Lock()
+        self.frames_sent: Dict[int, int] = {}      # COB-ID -> frames sent by this process
+        self.frames_received: Dict[int, int] = {}  # COB-ID -> frames received
+        self.listeners.append(_CountingListener(self.frames_received))
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        if can_id not in (0x000, 0x080) and (can_id & 0x7F) in self.silenced_nodes:
+            return
+        super().send_message(can_id, data, remote)
+        with self._count_lock:  # senders: notifier thread and timer thread
+            self.frames_sent[can_id] = self.frames_sent.get(can_id, 0) + 1
+
+
+class _CountingListener(can.Listener):
+    def __init__(self, counts: Dict[int, int]):
+        self.counts = counts
+
+    def on_message_received(self, msg) -> None:
+        self.counts[msg.arbitration_id] = self.counts.get(msg.arbitration_id, 0) + 1
+
+
 class EventLog:
     """Device events as JSON lines (file) and one-line messages (stderr)."""
 
@@ -245,7 +272,7 @@ class SimRig:
 
         self.bus_url = bus_url
         self.bus = open_bus(bus_url)
-        self.network = canopen.Network(self.bus)
+        self.network = RigNetwork(self.bus)
         self.network.NOTIFIER_CYCLE = 0.1  # s, bus.recv timeout: prompt shutdown
         s = self.settings
         self.transducer = Transducer(self.network, s.transducer_node_id,
@@ -306,6 +333,9 @@ class SimRig:
             "last_command_v": self.last_command_v,
             "position_m": self.transducer.position_m,
             "bus_lost": self.bus_lost,
+            "frames_sent": {f"0x{k:03X}": v for k, v in sorted(self.network.frames_sent.items())},
+            "frames_received": {f"0x{k:03X}": v
+                                for k, v in sorted(self.network.frames_received.items())},
             "counters": {"valve": dict(v.counters), "transducer": dict(self.transducer.counters)},
         }
 
@@ -368,7 +398,7 @@ class SimRig:
             if f.kind == "heartbeat-loss":
                 f.done = True
                 self.events("valve", "fault-injected", fault="heartbeat-loss", at_s=f.at_s)
-                self.valve.silenced = True
+                self.network.silenced_nodes.add(self.valve.node_id)
             elif f.kind == "emcy":
                 f.done = True
                 self.events("valve", "fault-injected", fault="emcy", at_s=f.at_s)
