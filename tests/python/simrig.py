@@ -11,6 +11,7 @@ import time
 
 import can
 import canopen
+import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 EDS_DIR = REPO / "configs" / "eds"
@@ -18,6 +19,17 @@ TRANSDUCER_EDS = str(EDS_DIR / "ehactl_transducer_406.eds")
 VALVE_EDS = str(EDS_DIR / "ehactl_valve_408.eds")
 BOOM = str(REPO / "configs" / "dindorf2022_boom.toml")
 TRANSDUCER_ID, VALVE_ID = 32, 48
+
+
+def require_bindings():
+    """The ehactl Python bindings (they carry ehactl.devices): required when
+    EHACTL_REQUIRE_BINDINGS is set (scripts/test_all.sh installs them), else skip."""
+    if os.environ.get("EHACTL_REQUIRE_BINDINGS"):
+        import ehactl
+
+        return ehactl
+    return pytest.importorskip("ehactl", reason="ehactl Python bindings not installed "
+                                                "(pip install './bindings/python[devices]')")
 
 
 def bus_url(port):

@@ -2,7 +2,6 @@
 (`python -m ehactl.devices`) and `ehactl run --hal canopen` closing the dindorf2022_boom
 position loop over socketcand; then one test per fault of the issue."""
 import json
-import os
 import subprocess
 import time
 
@@ -11,10 +10,10 @@ import pytest
 
 from canhub import BIN, hub
 from ehactl_mcap import read_run
-from simrig import BOOM, REPO, bus_url, devices
+from simrig import BOOM, REPO, bus_url, devices, require_bindings
 
-pytest.importorskip("ehactl", reason="ehactl Python bindings not installed "
-                                     "(pip install ./bindings/python)")
+require_bindings()
+
 
 
 def _canopen_hal_missing():
@@ -113,7 +112,7 @@ def test_boom_position_step_closes_over_can(tmp_path):
     assert abs(settled - 0.6) < 0.010, settled
     assert abs(settled - sim_final_position(duration, tmp_path)) < 0.002, settled
     frames = read_can(out)
-    assert run["summary"].get("can_frames_dropped", 0) == 0
+    assert summary["can_log_frames_dropped"] == 0
     tx = [f for f in frames if f["dir"] == "tx"]
     rx = [f for f in frames if f["dir"] == "rx"]
     # every frame the master sent reached the devices and is in the log, per COB-ID
@@ -198,3 +197,93 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
         assert dsum["valve_setpoint"] == 0, dsum
     if kind == "leave-active":
         assert dsum["valve_state"] == "HOLD"
+
+
+def test_sdo_abort_at_configuration_ends_startup(tmp_path):
+    """The valve refuses the first PDO mapping write: start-up fails with the abort code and
+    its meaning, the valve was never made ACTIVE and no SYNC moved the plant."""
+    with hub() as (_, port), devices(port, tmp_path, "--fault", "sdo-abort") as dev:
+        t0 = time.monotonic()
+        rc, summary, err = run_master(port, tmp_path / "x.mcap", 1.0)
+        wall = time.monotonic() - t0
+        dsum = finish(dev)
+    assert rc == 4, (rc, err)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "0x06090030" in lines[0] and "valve" in lines[0].lower(), err
+    assert injected(dev, "sdo-abort")
+    assert wall < 2.0, wall  # no waiting on timeouts: the abort ends the start-up at once
+    assert "ACTIVE" not in [e["state"] for e in dev.events("state")]
+    assert dsum["valve_state"] != "ACTIVE" and dsum["last_command_v"] == 0.0
+    assert dsum["sync_count"] == 0
+
+
+def test_device_that_never_boots(tmp_path):
+    """The valve stays silent: the master gives up after canopen.boot_timeout_s (3 s) naming
+    the node, and never starts SYNC."""
+    with hub() as (_, port), devices(port, tmp_path, "--fault", "no-boot") as dev:
+        t0 = time.monotonic()
+        rc, summary, err = run_master(port, tmp_path / "x.mcap", 1.0)
+        wall = time.monotonic() - t0
+        dsum = finish(dev)
+    assert rc == 4, (rc, err)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "node 48" in lines[0] and "boot-up" in lines[0], err
+    assert 3.0 <= wall < 4.5, wall
+    assert dsum["valve_state"] == "NOT_READY" and dsum["sync_count"] == 0
+    assert dsum["frames_sent"].get("0x730", 0) == 0 and dsum["frames_sent"].get("0x5B0", 0) == 0
+
+
+def test_malformed_frames_logged_and_ignored(tmp_path):
+    """A TPDO with a wrong DLC and a frame on an unknown COB-ID: the master logs both as
+    warnings, counts them and keeps the held sample (its documented decision); the loop still
+    reaches the setpoint."""
+    with hub() as (_, port), devices(port, tmp_path, "--fault", "malformed@0.3") as dev:
+        out = tmp_path / "m.mcap"
+        rc, summary, err = run_master(port, out, 1.5)
+        dsum = finish(dev)
+    assert rc == 0, err
+    assert injected(dev, "malformed")
+    assert summary["can_wrong_dlc"] == 1 and summary["can_unknown_cob_id"] == 1
+    run = read_run(out)
+    warn = [e for e in run["events"] if e["kind"] == "can_bus" and e["severity"] == "warning"]
+    assert {int(e["value"]) for e in warn} >= {0x1A0, 0x2A0}, warn
+    frames = read_can(out)
+    assert any(f["id"] == 0x1A0 and f["dlc"] == 2 for f in frames)
+    assert any(f["id"] == 0x2A0 and f["dlc"] == 4 for f in frames)
+    c = run["control"]
+    assert abs(np.mean(c["position"][c["t"] > 1.25]) - 0.6) < 0.010
+    assert dsum["last_command_v"] == 0.0 and dsum["valve_state"] == "HOLD"
+
+
+def test_hub_connection_drop_mid_run(tmp_path):
+    """Kill the hub while the piston moves: the master trips with the reason, logs it and
+    finalises the MCAP; the valve electronics drop to HOLD on their own (no bus, no setpoint)."""
+    out = tmp_path / "drop.mcap"
+    with hub() as (hproc, port), devices(port, tmp_path) as dev:
+        cmd = [BIN, "run", BOOM, "--hal", "canopen", "--bus", bus_url(port), "--json",
+               "--duration", "3.0", "--out", str(out)]
+        m = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             cwd=str(REPO))
+        time.sleep(0.5)
+        hproc.kill()
+        hproc.wait()
+        stdout, stderr = m.communicate(timeout=30)
+        assert dev.proc.wait(timeout=10) == 1  # devices: bus lost
+        dsum = dev.summary()
+    assert m.returncode == 3, stderr
+    assert "panicked" not in stderr
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert "connection" in json.dumps(summary["trip"]).lower(), summary["trip"]
+    run = read_run(out)  # finalised, CRCs valid
+    ev = trip_event(run)
+    assert "connection" in ev["text"].lower(), ev
+    # time to trip, in loop time: from the last position sample received (the hub died after
+    # it) to the trip
+    c = run["control"]
+    moved = np.nonzero(np.diff(c["position"]) != 0)[0]
+    t_last_sample = c["t"][moved[-1] + 1]
+    assert 0 <= ev["t"] - t_last_sample <= HB_TIMEOUT_S + 2 * SYNC_PERIOD_S, (
+        ev["t"], t_last_sample)
+    assert ev["t"] < 2.0  # well before the end of the 3 s run
+    assert dsum["valve_state"] == "HOLD" and dsum["last_command_v"] == 0.0
+    assert [e for e in dev.events("bus-lost")]

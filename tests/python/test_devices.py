@@ -4,7 +4,6 @@ SDO, NMT gating, heartbeat, PDO re-mapping, the CiA 408 state machine and SYNC-d
 checked against the same plant stepped directly through the bindings."""
 import configparser
 import math
-import os
 import statistics
 import struct
 import subprocess
@@ -16,11 +15,11 @@ import pytest
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from canhub import hub
-from simrig import (BOOM, EDS_DIR, REPO, TRANSDUCER_EDS, TRANSDUCER_ID, VALVE_EDS, VALVE_ID,
-                    FrameLog, bus_url, devices, master)
+from simrig import (BOOM, REPO, TRANSDUCER_EDS, TRANSDUCER_ID, VALVE_EDS, VALVE_ID,
+                    FrameLog, devices, master, require_bindings)
 
-ehactl = pytest.importorskip("ehactl", reason="ehactl Python bindings not installed "
-                                              "(pip install ./bindings/python)")
+ehactl = require_bindings()
+
 
 SYNC_PERIOD = 1e-3  # s, [canopen] sync_rate_hz default 1000 Hz (boom config has no override)
 

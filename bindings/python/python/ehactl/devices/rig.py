@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import select
 import socket
 import sys
 import threading
 import time
 import urllib.parse
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional
 
@@ -255,11 +254,17 @@ class SimRig:
         self.settings = load_canopen_settings(config_path)
         try:
             self.cfg = ehactl.Config.load(config_path)
-            self.plant = ehactl.Plant(self.cfg)
+            # Plant steps that tile one SYNC period exactly, no longer than the control
+            # period (1 kHz SYNC, 5 kHz control: 5 steps of 0.2 ms).
+            period, dt = self.settings.sync_period_s, self.cfg.control_dt
+            n = max(1, math.ceil(period / dt - 1e-9))
+            if abs(n * dt - period) > 1e-12 * period:
+                dt = period / n
+            self.plant = ehactl.Plant(self.cfg, dt)
         except (ValueError, OSError) as e:
             raise DeviceError(f"config {config_path}: {e}") from None
-        self.control_dt = self.cfg.control_dt
-        self.steps_per_sync = max(1, round(self.settings.sync_period_s / self.control_dt))
+        self.control_dt = dt
+        self.steps_per_sync = n
         self.full_scale_v = float(self.cfg["valve.command_full_scale"])
         self.faults = list(faults)
         self.sync_count = 0
@@ -344,6 +349,7 @@ class SimRig:
         # Local fail-safe of the valve electronics: without a bus there is no setpoint stream.
         if self.valve.state.name == "ACTIVE":
             self.valve.leave_active("bus connection lost")
+        self.last_command_v = self.valve.command_volts() if self.valve.powered else 0.0
         self.events("rig", "bus-lost", why=why)
         self.stop_event.set()
 
