@@ -96,8 +96,10 @@ def devices(port, tmp_path, *extra, config=BOOM, boot_delay=0.0):
     line = proc.stdout.readline()
     d = Devices(proc, events, line)
     try:
-        assert line.startswith("ehactl.devices ready"), (
-            line, proc.wait(5) if proc.poll() is not None else None, "".join(d.stderr_lines))
+        if not line.startswith("ehactl.devices ready"):
+            rc = proc.wait(10)
+            d._t.join(5)
+            raise AssertionError(f"devices did not start (exit {rc}): {''.join(d.stderr_lines)}")
         yield d
     finally:
         d.stop()

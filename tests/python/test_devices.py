@@ -355,6 +355,26 @@ def test_sync_position_matches_plant_stepped_directly(rig):
     assert got[-1] < got[159]
 
 
+def test_plant_time_advances_one_sync_period_per_sync(tmp_path):
+    """1500 Hz SYNC with 5 kHz control: 0.667 ms is no whole number of 0.2 ms periods, so the
+    rig steps the plant 4 × 0.1667 ms per SYNC; plant time = SYNC count / SYNC rate."""
+    cfg = tmp_path / "sync1500.toml"
+    cfg.write_text(open(BOOM).read() + "\n[canopen]\nsync_rate_hz = 1500.0\n")
+    with hub() as (_, port), master(port) as (net, td, va):
+        log = FrameLog()
+        net.notifier.add_listener(log)
+        with devices(port, tmp_path, config=str(cfg)) as dev:
+            assert "SYNC 1500 Hz = 4 plant steps of 0.166667 ms" in dev.ready_line
+            log.wait_count(0x700 + VALVE_ID, 1)
+            net.nmt.send_command(0x01)
+            time.sleep(0.05)
+            sync(net, 30, log, 0x180 + TRANSDUCER_ID)
+            dev.stop()
+            s = dev.summary()
+    assert s["sync_count"] == 30
+    assert abs(s["t_plant"] - 30 / 1500) < 1e-9, s["t_plant"]
+
+
 def test_cyclic_timer_sends_without_sync(rig):
     net, td, va, log, dev = rig
     td.sdo[0x1800][2].raw = 255
@@ -399,6 +419,7 @@ def test_hub_drop_stops_devices_with_message(tmp_path):
     (["--fault", "emcy@-1"], "is not a number ≥ 0"),
     (["--bus", "can0"], "unknown scheme"),
     (["--bus", "socketcand://127.0.0.1/can0"], "expected socketcand://HOST:PORT/CHANNEL"),
+    (["--bus", "socketcand://127.0.0.1:9/can0"], "cannot connect to socketcand at 127.0.0.1:9"),
 ])
 def test_bad_arguments_one_line_error(args, needle):
     base = {"--bus": "socketcand://127.0.0.1:9/can0", "--config": BOOM}

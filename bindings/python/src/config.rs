@@ -385,6 +385,7 @@ pub fn param_table() -> Vec<(String, String, String, String, String)> {
                     Kind::Float => "float",
                     Kind::Integer => "int",
                     Kind::FloatArray => "float[]",
+                    Kind::Bool => "bool",
                 }
                 .to_string(),
                 p.range.describe(),

@@ -171,6 +171,8 @@ def open_bus(url: str) -> can.BusABC:
             raise DeviceError(f"--bus {url!r}: expected socketcand://HOST:PORT/CHANNEL, "
                               "e.g. socketcand://127.0.0.1:29536/can0")
         try:
+            # Fail fast with one line: python-can itself retries for 10 s, warning each time.
+            socket.create_connection((u.hostname, u.port), timeout=3.0).close()
             return _HubBus(channel=channel, host=u.hostname, port=u.port, tcp_tune=True)
         except (OSError, TimeoutError, can.CanError) as e:
             raise DeviceError(f"--bus {url!r}: cannot connect to socketcand at "
@@ -332,6 +334,7 @@ class SimRig:
         v = self.valve
         return {
             "sync_count": self.sync_count, "t_sim": self.t_sim,
+            "t_plant": self.plant.measure()["t"],
             "valve_state": v.state.name, "valve_control_word": v.cw,
             "valve_setpoint": v.setpoint() if v.powered else None,
             "valve_nmt": v.nmt_state, "transducer_nmt": self.transducer.nmt_state,
