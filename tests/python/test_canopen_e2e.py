@@ -103,6 +103,12 @@ def test_boom_position_step_closes_over_can(tmp_path):
         assert rc == 0, err
         dsum = finish(dev)
     assert summary["trip"] is None
+    # the master brought both devices to OPERATIONAL and the valve to ACTIVE, and left the
+    # valve in its safe state (HOLD, setpoint 0) at the end
+    nmt = [(e["node_id"], e["state"]) for e in dev.events("nmt")]
+    assert (32, "OPERATIONAL") in nmt and (48, "OPERATIONAL") in nmt, nmt
+    assert [e["state"] for e in dev.events("state")][-2:] == ["ACTIVE", "HOLD"]
+    assert dsum["valve_setpoint"] == 0 and dsum["last_command_v"] == 0.0
     run = read_run(out)
     c = run["control"]
     assert len(c["t"]) == round(duration * 5000)  # 5 kHz cycle records
@@ -264,7 +270,8 @@ def test_hub_connection_drop_mid_run(tmp_path):
                "--duration", "3.0", "--out", str(out)]
         m = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                              cwd=str(REPO))
-        time.sleep(0.5)
+        dev.wait_event("state", timeout=10, state="ACTIVE")  # start-up done, loop starts
+        time.sleep(0.15)  # piston still rising fast (≈ 1.5 mm per ms): every sample differs
         hproc.kill()
         hproc.wait()
         stdout, stderr = m.communicate(timeout=30)
