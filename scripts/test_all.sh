@@ -6,8 +6,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 echo "== building (release)"
 cargo build --release --workspace --all-targets
+echo "== SocketCAN transport (feature build; this machine has no AF_CAN, so only compiled)"
+cargo build --release -p ehactl-canopen --features socketcan
 echo "== Rust tests"
 cargo test --release --workspace
+echo "== cross-build for aarch64 (DEPLOY.md; skipped with a message if the toolchain cannot be installed)"
+scripts/cross_build.sh aarch64-unknown-linux-gnu
 echo "== Python test dependencies"
 python3 -m pip install --quiet -r tests/python/requirements.txt
 if command -v npm >/dev/null; then

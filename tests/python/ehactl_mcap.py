@@ -92,7 +92,30 @@ assert PLANT_DTYPE.itemsize == 4 + 16 * 8 + 1
 CONTROL_STRUCT = struct.Struct("<4sQ16d")
 PLANT_STRUCT = struct.Struct("<4s16d?")
 
-CDR_TOPICS = {"/control": (CONTROL_SCHEMA, CONTROL_DTYPE), "/plant": (PLANT_SCHEMA, PLANT_DTYPE)}
+# /timing: wall-clock runs only (`ehactl run --realtime`); empty otherwise.
+TIMING_SCHEMA = "ehactl_msgs/msg/CycleTiming"
+TIMING_FIELDS: tuple[str, ...] = (
+    "cycle",
+    "t",
+    "wall_t",
+    "lateness_us",
+    "period_us",
+    "exec_prev_us",
+    "skipped",
+    "overrun",
+)
+TIMING_DTYPE = np.dtype(
+    [("_cdr_header", "V4"), ("cycle", "<u8")]
+    + [(f, "<f8") for f in TIMING_FIELDS[1:6]]
+    + [("skipped", "<u4"), ("overrun", "u1")]
+)
+assert TIMING_DTYPE.itemsize == 4 + 8 + 5 * 8 + 4 + 1
+
+CDR_TOPICS = {
+    "/control": (CONTROL_SCHEMA, CONTROL_DTYPE),
+    "/plant": (PLANT_SCHEMA, PLANT_DTYPE),
+    "/timing": (TIMING_SCHEMA, TIMING_DTYPE),
+}
 JSON_TOPICS = ("/config", "/events", "/summary")
 
 
@@ -132,6 +155,10 @@ def _decode_cdr_column(topic: str, dtype: np.dtype, payloads: list[bytes]) -> di
         if np.any(out["stuck"] > 1):
             raise McapContentError(f"{topic}: bool 'stuck' has a byte other than 0/1")
         out["stuck"] = out["stuck"].astype(bool)
+    if "overrun" in out:
+        if np.any(out["overrun"] > 1):
+            raise McapContentError(f"{topic}: bool 'overrun' has a byte other than 0/1")
+        out["overrun"] = out["overrun"].astype(bool)
     return out
 
 
@@ -178,7 +205,8 @@ def read_run(path: str | Path, validate_crcs: bool = True, full_crc_pass: bool =
     """Read an ehactl MCAP file.
 
     Returns a dict with:
-      control, plant: dict field -> numpy array (plus _sequence, _log_time, _publish_time)
+      control, plant, timing: dict field -> numpy array (plus _sequence, _log_time,
+      _publish_time); timing is empty unless the run was paced in real time
       config: parsed /config JSON (first message); events: list of /events dicts;
       summary: parsed /summary JSON (last message); metadata: {name: {key: value}};
       config_toml: parsed TOML from the ehactl_run metadata record (None if absent);
@@ -262,6 +290,7 @@ def read_run(path: str | Path, validate_crcs: bool = True, full_crc_pass: bool =
 __all__ = [
     "CONTROL_FIELDS",
     "PLANT_FIELDS",
+    "TIMING_FIELDS",
     "McapContentError",
     "check_summary_crc",
     "decode_control",

@@ -105,3 +105,82 @@ def test_malformed_input_is_reported_and_does_not_break_the_bus():
         for what in ("exceeds 0x7FF", "DLC `9`", "DLC 2 but 1 data bytes", "`garbage`", "unsupported command `< bogus >`"):
             assert what in err, err
         assert "panicked" not in err
+
+
+# --- `ehactl run --hal canopen`: argument and start-up errors (the end-to-end runs with the
+# --- simulated devices live with the devices' tests).
+import pathlib
+import subprocess
+
+from canhub import BIN, REPO
+
+BOOM = REPO / "configs" / "dindorf2022_boom.toml"
+
+
+def run_cli(*args):
+    return subprocess.run([BIN, *args], capture_output=True, text=True, timeout=60)
+
+
+def one_line(stderr):
+    lines = [l for l in stderr.splitlines() if l.strip()]
+    assert len(lines) == 1, stderr
+    assert "panicked" not in stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    "args,words",
+    [
+        (["--hal", "canopen", "--bus", "can0"], ["--bus", "no scheme", "socketcand://HOST:PORT/CHANNEL"]),
+        (["--hal", "canopen", "--bus", "socketcand://127.0.0.1/can0"], ["missing :PORT"]),
+        (["--hal", "canopen"], ["needs --bus"]),
+        (["--bus", "socketcand://127.0.0.1:1/can0"], ["needs --hal canopen"]),
+    ],
+)
+def test_bad_bus_arguments_exit_2(tmp_path, args, words):
+    out = tmp_path / "x.mcap"
+    r = run_cli("run", str(BOOM), "--json", "--out", str(out), *args)
+    assert r.returncode == 2, r
+    line = one_line(r.stderr)
+    for w in words:
+        assert w in line, line
+    assert r.stdout == "" and not out.exists()
+
+
+def test_no_devices_on_the_bus_is_a_startup_failure_exit_4(tmp_path):
+    cfg = tmp_path / "boom.toml"
+    cfg.write_text(BOOM.read_text() + "\n[canopen]\nboot_timeout_s = 0.3\n")
+    out = tmp_path / "x.mcap"
+    with hub() as (_, port):
+        r = run_cli("run", str(cfg), "--json", "--out", str(out), "--hal", "canopen",
+                    "--bus", f"socketcand://127.0.0.1:{port}/can0")
+    assert r.returncode == 4, r
+    line = one_line(r.stderr)
+    assert "transducer (node 32 = 0x20) sent no boot-up" in line and "0.3 s" in line, line
+    assert not out.exists()
+
+
+def test_nothing_listening_is_a_startup_failure_exit_4(tmp_path):
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    r = run_cli("run", str(BOOM), "--json", "--out", str(tmp_path / "x.mcap"), "--hal", "canopen",
+                "--bus", f"socketcand://127.0.0.1:{port}/can0")
+    assert r.returncode == 4, r
+    assert "cannot connect" in one_line(r.stderr)
+
+
+def test_bus_overload_is_refused_by_check_config(tmp_path):
+    cfg = tmp_path / "boom.toml"
+    cfg.write_text(BOOM.read_text() + "\n[canopen]\nsync_rate_hz = 3000.0\n")
+    r = run_cli("check-config", str(cfg))
+    assert r.returncode == 2, r
+    line = one_line(r.stderr)
+    # Worst-case frame length 8N + 47 + floor((34 + 8N - 1)/4) bits: SYNC, position (4),
+    # setpoint (2), valve status (4) per SYNC, plus two 1-byte heartbeats every 20 ms.
+    bits = lambda n: 8 * n + 47 + (34 + 8 * n - 1) // 4
+    per_sync = sum(bits(n) for n in (0, 4, 2, 4))
+    assert per_sync == 320
+    load = (per_sync * 3000.0 + 2 * bits(1) / 0.020) / 1e6
+    assert "canopen.sync_rate_hz" in line and f"bus load {load * 100:.1f} % exceeds 80 %" in line, line

@@ -223,6 +223,7 @@ pub struct CanopenHal {
     last_emcy: Option<Emcy>,
     safe_stop_result: Option<String>,
     startup_s: f64,
+    names: [Option<String>; 2],
 }
 
 impl std::fmt::Debug for CanopenHal {
@@ -275,6 +276,10 @@ impl Startup {
         }
     }
 }
+
+/// An SDO write of the start-up: (bus, bookkeeping, node, index, sub, bytes, step name).
+type SdoWriteFn<'a> = dyn FnMut(&mut dyn CanBus, &mut Startup, u8, u16, u8, &[u8], &str) -> Result<(), StartupError>
+    + 'a;
 
 fn sdo_err(step: impl Into<String>) -> impl FnOnce(SdoError) -> StartupError {
     let step = step.into();
@@ -379,6 +384,7 @@ impl CanopenHal {
         };
 
         // 3. Configuration by SDO.
+        let mut names: [Option<String>; 2] = [None, None];
         for (i, dev, profile) in [
             (0usize, Dev::Transducer, cia406::PROFILE),
             (1, Dev::Valve, cia408::PROFILE),
@@ -394,6 +400,30 @@ impl CanopenHal {
                     dev.name(),
                     dt & 0xFFFF
                 )));
+            }
+            // Manufacturer device name (VISIBLE_STRING, segmented upload); optional object.
+            let mut cl = SdoClient::new(n, sdo_t);
+            let req = cl.upload(0x1008, 0);
+            match sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d)) {
+                Ok(()) => {
+                    let name = String::from_utf8_lossy(cl.data())
+                        .trim_end_matches('\0')
+                        .to_string();
+                    if s.verbose {
+                        eprintln!("canopen: node {n} (0x{n:02X}): \"{name}\" (CiA {profile})");
+                    }
+                    names[i] = Some(name);
+                }
+                Err(SdoError::Abort { .. }) => {}
+                Err(e) => {
+                    return Err(StartupError::Sdo {
+                        step: format!(
+                            "reading the {} device name (read 0x1008:00 on node {n})",
+                            dev.name()
+                        ),
+                        error: e,
+                    })
+                }
             }
             write(
                 &mut *bus,
@@ -427,15 +457,7 @@ impl CanopenHal {
         )?;
         let remap = |bus: &mut dyn CanBus,
                      st: &mut Startup,
-                     write: &mut dyn FnMut(
-            &mut dyn CanBus,
-            &mut Startup,
-            u8,
-            u16,
-            u8,
-            &[u8],
-            &str,
-        ) -> Result<(), StartupError>,
+                     write: &mut SdoWriteFn<'_>,
                      node: u8,
                      comm: u16,
                      map_idx: u16,
@@ -755,6 +777,7 @@ impl CanopenHal {
             last_emcy: None,
             safe_stop_result: None,
             startup_s: t_start.elapsed().as_secs_f64(),
+            names,
             s,
         })
     }
@@ -1237,6 +1260,7 @@ impl Hal for CanopenHal {
             "last_emcy_code": self.last_emcy.map(|e| e.code),
             "valve_state": self.valve_state.map(|v| v.as_str()),
             "startup_s": self.startup_s,
+            "device_names": {"transducer": self.names[0], "valve": self.names[1]},
             "safe_stop": self.safe_stop_result,
         }))
     }

@@ -5,7 +5,10 @@
 //! the same channel and entered rawmode; no echo to the sender; TCP_NODELAY; handshake
 //! replies (`< hi >`, `< ok >`) are written alone, and a client receives no frames before
 //! its `< rawmode >` has been answered, because python-can reads each handshake reply
-//! with a single `recv` and compares it verbatim.
+//! with a single `recv` and compares it verbatim. The hub cannot see when the client has
+//! *read* its `< ok >` (a frame written right after it can land in the same `recv` on a
+//! busy machine), so frames for a newly joined client are held for a join delay
+//! (default 200 ms) after the `< ok >` and then delivered in order: nothing is lost.
 
 use crate::frame::CanFrame;
 use crate::socketcand::{format_frame, parse_send, words, Framer};
@@ -26,10 +29,17 @@ pub struct HubStats {
     pub malformed: AtomicU64,
 }
 
+/// Most bytes held for a client during its join delay (≈ 4000 frames).
+const MAX_PENDING: usize = 256 * 1024;
+
 struct Client {
     id: u64,
     channel: String,
     stream: TcpStream,
+    /// False during the join delay: frames go to `pending`.
+    ready: bool,
+    pending: Vec<u8>,
+    overflowed: bool,
 }
 
 #[derive(Default)]
@@ -43,6 +53,7 @@ pub struct Hub {
     registry: Arc<Mutex<Registry>>,
     stats: Arc<HubStats>,
     quiet: bool,
+    join_delay: Duration,
 }
 
 impl Hub {
@@ -54,7 +65,14 @@ impl Hub {
             registry: Arc::new(Mutex::new(Registry::default())),
             stats: Arc::new(HubStats::default()),
             quiet,
+            join_delay: Duration::from_millis(200),
         })
+    }
+
+    /// Hold frames for this long after a client's rawmode `< ok >` (see the module docs).
+    pub fn with_join_delay(mut self, d: Duration) -> Hub {
+        self.join_delay = d;
+        self
     }
 
     /// The bound address.
@@ -83,13 +101,14 @@ impl Hub {
             let reg = self.registry.clone();
             let stats = self.stats.clone();
             let quiet = self.quiet;
+            let delay = self.join_delay;
             let _ = std::thread::Builder::new()
                 .name(format!("hub-client-{id}"))
                 .spawn(move || {
                     let peer = stream
                         .peer_addr()
                         .map_or_else(|_| "?".to_string(), |a| a.to_string());
-                    let why = client_loop(id, stream, &reg, &stats, quiet, &peer);
+                    let why = client_loop(id, stream, &reg, &stats, quiet, &peer, delay);
                     if let Ok(mut r) = reg.lock() {
                         r.clients.retain(|c| c.id != id);
                     }
@@ -116,6 +135,15 @@ fn relay(reg: &Mutex<Registry>, stats: &HubStats, from: u64, channel: &str, f: &
         if c.id == from || c.channel != channel {
             continue;
         }
+        if !c.ready {
+            if c.pending.len() + msg.as_bytes().len() <= MAX_PENDING {
+                c.pending.extend_from_slice(msg.as_bytes());
+            } else if !c.overflowed {
+                c.overflowed = true;
+                eprintln!("hub: client {}: more than {MAX_PENDING} bytes of frames during its join delay; later ones dropped until it is ready", c.id);
+            }
+            continue;
+        }
         if c.stream.write_all(msg.as_bytes()).is_err() {
             dead.push(c.id);
         } else {
@@ -136,13 +164,26 @@ enum State {
     Raw(String),
 }
 
+/// End of a client's join delay: deliver what was held, then relay directly.
+fn make_ready(reg: &Mutex<Registry>, id: u64) {
+    let Ok(mut r) = reg.lock() else { return };
+    if let Some(c) = r.clients.iter_mut().find(|c| c.id == id) {
+        let pending = std::mem::take(&mut c.pending);
+        if !pending.is_empty() && c.stream.write_all(&pending).is_err() {
+            let _ = c.stream.shutdown(std::net::Shutdown::Both);
+        }
+        c.ready = true;
+    }
+}
+
 fn client_loop(
     id: u64,
     mut stream: TcpStream,
-    reg: &Mutex<Registry>,
+    reg: &Arc<Mutex<Registry>>,
     stats: &HubStats,
     quiet: bool,
     peer: &str,
+    join_delay: Duration,
 ) -> String {
     let _ = stream.set_nodelay(true);
     // A client that stops reading must not stall the bus for long.
@@ -223,7 +264,19 @@ fn client_loop(
                                     id,
                                     channel: ch.clone(),
                                     stream: writer,
+                                    ready: join_delay.is_zero(),
+                                    pending: Vec::new(),
+                                    overflowed: false,
                                 });
+                            }
+                            if !join_delay.is_zero() {
+                                let reg = reg.clone();
+                                let _ = std::thread::Builder::new()
+                                    .name(format!("hub-join-{id}"))
+                                    .spawn(move || {
+                                        std::thread::sleep(join_delay);
+                                        make_ready(&reg, id);
+                                    });
                             }
                             if !quiet {
                                 eprintln!("hub: client {id} ({peer}) in rawmode on {ch}");

@@ -21,15 +21,23 @@ pub enum CanbusCommand {
         /// Do not report connects/disconnects on stderr (protocol errors are still reported).
         #[arg(long)]
         quiet: bool,
+        /// Hold frames for a new client this long after its rawmode `< ok >` (ms), so that
+        /// python-can reads the `< ok >` alone; held frames are delivered afterwards.
+        #[arg(long, default_value_t = 200)]
+        join_delay_ms: u64,
     },
 }
 
 /// Run a `canbus` subcommand.
 pub fn run(cmd: CanbusCommand) -> ExitCode {
     match cmd {
-        CanbusCommand::Hub { listen, quiet } => {
+        CanbusCommand::Hub {
+            listen,
+            quiet,
+            join_delay_ms,
+        } => {
             let hub = match Hub::bind(&listen, quiet) {
-                Ok(h) => h,
+                Ok(h) => h.with_join_delay(std::time::Duration::from_millis(join_delay_ms)),
                 Err(e) => {
                     eprintln!("ehactl: canbus hub --listen {listen}: cannot listen ({e}); expected a free HOST:PORT such as 127.0.0.1:0");
                     return ExitCode::from(2);

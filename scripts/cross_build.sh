@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# Cross-build the ehactl binary for embedded Linux controllers (DEPLOY.md, "Build"):
+#   aarch64-unknown-linux-gnu      64-bit ARM (Raspberry Pi 4/5 64-bit OS, i.MX8, Jetson)
+#   armv7-unknown-linux-gnueabihf  32-bit ARM with hard float (BeagleBone, Pi 32-bit OS)
+# The Rust std for each target comes from rustup; the linker is Zig (PyPI `ziglang`)
+# driven by `cargo-zigbuild` (PyPI), so no system cross-gcc is needed. Binaries link
+# against glibc GLIBC (default 2.31 = Debian 11 / Ubuntu 20.04 or newer on the board).
+# Usage: scripts/cross_build.sh [TARGET ...]   (default: both targets)
+# Env: GLIBC=2.31, EHACTL_REQUIRE_CROSS=1 to fail (not skip) when the toolchain is missing.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+GLIBC="${GLIBC:-2.31}"
+targets=("$@")
+[ ${#targets[@]} -gt 0 ] || targets=(aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf)
+
+skip() {
+  if [ "${EHACTL_REQUIRE_CROSS:-0}" = 1 ]; then
+    echo "cross_build: FAILED: $*" >&2
+    exit 1
+  fi
+  echo "cross_build: SKIPPED: $* (set EHACTL_REQUIRE_CROSS=1 to make this an error)" >&2
+  exit 0
+}
+
+command -v rustup >/dev/null || skip "rustup not found: the target std libraries come from rustup"
+for t in "${targets[@]}"; do
+  rustup target add "$t" >/dev/null 2>&1 || skip "rustup target add $t failed (no access to static.rust-lang.org?)"
+done
+if ! command -v cargo-zigbuild >/dev/null || ! python3 -m ziglang version >/dev/null 2>&1; then
+  python3 -m pip install --quiet ziglang cargo-zigbuild || skip "pip install ziglang cargo-zigbuild failed"
+fi
+command -v cargo-zigbuild >/dev/null || skip "cargo-zigbuild not on PATH after pip install"
+
+for t in "${targets[@]}"; do
+  echo "== cross-building ehactl for $t (glibc $GLIBC)"
+  cargo zigbuild --release -p ehactl-cli --target "$t.$GLIBC"
+  bin="target/$t/release/ehactl"
+  # Check the result is an ELF executable for the right machine (e_machine field).
+  python3 - "$bin" "$t" <<'PY'
+import struct, sys
+path, target = sys.argv[1], sys.argv[2]
+raw = open(path, "rb").read(64)
+assert raw[:4] == b"\x7fELF", f"{path}: not an ELF file"
+machine = struct.unpack_from("<H", raw, 18)[0]
+want = {"aarch64": (0xB7, 2), "armv7": (0x28, 1)}[target.split("-")[0]]
+assert (machine, raw[4]) == want, f"{path}: e_machine {machine:#x}, class {raw[4]}, expected {want}"
+print(f"{path}: ELF {'64' if raw[4] == 2 else '32'}-bit, e_machine {machine:#x} ({target}) ok")
+PY
+done
