@@ -42,6 +42,8 @@ __all__ = [
     "model_based",
     "frequency_response",
     "FrequencyResponse",
+    "controller_response",
+    "loop_margins",
 ]
 
 
@@ -101,7 +103,7 @@ class StepTest:
                 vibration_from=start + 0.5 * (dur - start),
                 vibration_frequency=freq,
             )
-        raise ValueError("StepTest.default: control.mode must be force or position")
+        raise ValueError(f"StepTest.default: control.mode is {cfg.mode!r}; expected \"force\" or \"position\"")
 
     def setpoint(self) -> dict[str, Any]:
         """The ``[setpoint]`` edits of this test."""
@@ -266,8 +268,8 @@ def critical_gain(
     scored on the config as given, excitation included.
     """
     base = _as_config(cfg)
-    test = test or StepTest.default(base)
     kp_path, second = gain_paths(base)
+    test = test or StepTest.default(base)
     rules = PI_RULES if base.mode == "force" else PD_RULES
     if rule not in rules:
         raise ValueError(f"rule {rule!r} is not known for {base.mode} mode; expected one of {sorted(rules)}")
@@ -437,6 +439,7 @@ def optimize(
     :func:`ehactl.run_many` batch. The best feasible gains are returned.
     """
     base = _as_config(cfg)
+    gain_paths(base)  # clear error for open_loop configs
     test = test or StepTest.default(base)
     names, b, lo, hi, q0, to_gains = _search_space(base, bounds)
     rng = np.random.default_rng(seed)
@@ -514,4 +517,10 @@ def optimize(
 # ---------------------------------------------------------------------------------------
 # Frequency response and model-based tuning (filled in below).
 # ---------------------------------------------------------------------------------------
-from ._freq import FrequencyResponse, frequency_response, model_based  # noqa: E402
+from ._freq import (  # noqa: E402
+    FrequencyResponse,
+    controller_response,
+    frequency_response,
+    loop_margins,
+    model_based,
+)
