@@ -34,6 +34,7 @@ from ._runs import ConfigLike, RunResult, _as_config, run_many
 
 __all__ = [
     "StepTest",
+    "TrackingTest",
     "TuneResult",
     "gain_paths",
     "evaluate",
@@ -113,19 +114,63 @@ class StepTest:
         return ["t", "setpoint", "u", "command_unsat", self.signal]
 
 
+@dataclass
+class TrackingTest:
+    """Tracking of the config's own setpoint (e.g. the 004 785 N ± 196 N sweep), or of
+    ``setpoint_edits`` applied to it, for ``duration`` (s); scored on the ground-truth
+    column ``signal`` after ``t_from`` (s): ``rms_error``, ``max_abs_error`` (N or m),
+    ``peak_command`` (V) and ``saturation_fraction`` (share of scored cycles with the
+    unsaturated command at the output limit)."""
+
+    duration: float
+    t_from: float
+    signal: str
+    setpoint_edits: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def default(cls, cfg: Config) -> "TrackingTest":
+        """The config's setpoint over run.duration, scored from its dynamic start
+        (setpoint.ramp_time for static_dynamic, else setpoint.start)."""
+        kind = cfg["setpoint.kind"]
+        t_from = float(cfg["setpoint.ramp_time"]) if kind == "static_dynamic" else float(cfg["setpoint.start"])
+        t_from = max(t_from, float(cfg["setpoint.start"]))
+        sig = {"force": "rod_force", "position": "x"}.get(cfg.mode)
+        if sig is None:
+            raise ValueError(f"TrackingTest.default: control.mode is {cfg.mode!r}; expected \"force\" or \"position\"")
+        return cls(duration=float(cfg["run.duration"]), t_from=t_from, signal=sig)
+
+    def setpoint(self) -> dict[str, Any] | None:
+        return dict(self.setpoint_edits) or None
+
+    def fields(self) -> list[str]:
+        return ["t", "setpoint", "u", "command_unsat", self.signal]
+
+
 def _u_limit(cfg: Config) -> float:
     if cfg.mode == "force":
         return float(min(abs(cfg["control.pi.u_min"]), abs(cfg["control.pi.u_max"])))
     return float(cfg["control.pd.u_max"])
 
 
-def score(res: RunResult, test: StepTest) -> dict[str, float]:
-    """Metrics of one step-test run (see :func:`ehactl.metrics.step_metrics`); adds
-    ``tripped`` (1.0 if the supervisor tripped, then every metric is inf)."""
+def score(res: RunResult, test: "StepTest | TrackingTest") -> dict[str, float]:
+    """Metrics of one test run (step: :func:`ehactl.metrics.step_metrics`; tracking: RMS
+    and peak error); adds ``tripped`` (1.0 if the supervisor tripped, then every metric is
+    inf)."""
     if not res.ok or len(res) < 4:
-        bad = {k: math.inf for k in ("itae", "iae", "ise", "overshoot_pct", "settling_time")}
+        keys = ("itae", "iae", "ise", "overshoot_pct", "settling_time", "rms_error", "max_abs_error")
+        bad = {k: math.inf for k in keys}
         bad["tripped"] = 1.0
         return bad
+    if isinstance(test, TrackingTest):
+        m = res.t >= test.t_from
+        e = res.setpoint[m] - res[test.signal][m]
+        return {
+            "rms_error": float(np.sqrt(np.mean(e**2))),
+            "max_abs_error": float(np.max(np.abs(e))),
+            "peak_command": float(np.max(np.abs(res.u[m]))),
+            "saturation_fraction": float(np.mean(np.abs(res.command_unsat[m]) >= _u_limit(res.config))),
+            "tripped": 0.0,
+        }
     y = res[test.signal]
     out = _m.step_metrics(
         res.t,
@@ -146,11 +191,11 @@ def score(res: RunResult, test: StepTest) -> dict[str, float]:
 def evaluate(
     cfg: ConfigLike,
     gains: Sequence[dict[str, float]] | None = None,
-    test: StepTest | None = None,
+    test: "StepTest | TrackingTest | None" = None,
     threads: int | None = None,
 ) -> list[dict[str, float]]:
-    """Score each gain set (dict dotted path → value; None = the config as is) with the
-    step test on the nonlinear plant, in one parallel batch."""
+    """Score each gain set (dict dotted path → value; ``{}`` = the config as is) with the
+    test (default :meth:`StepTest.default`) on the nonlinear plant, in one parallel batch."""
     base = _as_config(cfg)
     test = test or StepTest.default(base)
     gains = list(gains) if gains is not None else [{}]
@@ -186,7 +231,7 @@ class TuneResult:
         b, t = self.baseline.get(metric, math.nan), self.metrics.get(metric, math.nan)
         return b / t if t else math.inf
 
-    def table(self, keys: Sequence[str] = ("itae", "overshoot_pct", "settling_time", "rise_time", "peak_command")) -> str:
+    def table(self, keys: Sequence[str] = ("itae", "rms_error", "overshoot_pct", "settling_time", "rise_time", "peak_command")) -> str:
         """Plain-text comparison of baseline and tuned gains and metrics."""
         rows = [("", "baseline", "tuned")]
         for k in self.gains:
@@ -199,15 +244,31 @@ class TuneResult:
 
     def __repr__(self) -> str:
         g = ", ".join(f"{k}={v:.6g}" for k, v in self.gains.items())
-        return f"TuneResult({self.method}: {g}; itae {self.baseline.get('itae'):.4g} → {self.metrics.get('itae'):.4g})"
+        key = "itae" if "itae" in self.metrics else "rms_error"
+        return f"TuneResult({self.method}: {g}; {key} {self.baseline.get(key, math.nan):.4g} → {self.metrics.get(key, math.nan):.4g})"
 
 
-def _finish(method: str, base: Config, gains: dict[str, float], test: StepTest, details: dict, threads) -> TuneResult:
+def _finish(method: str, base: Config, gains: dict[str, float], test, details: dict, threads, constraint_test=None) -> TuneResult:
     paths = gain_paths(base)
     base_gains = {p: float(base[p]) for p in paths}
     tuned = base.with_values(gains)
     m_base, m_tuned = evaluate(base, [{}, gains], test, threads)
+    if constraint_test is not None:
+        c_base, c_tuned = evaluate(base, [{}, gains], constraint_test, threads)
+        m_base = _merge(m_base, c_base)
+        m_tuned = _merge(m_tuned, c_tuned)
     return TuneResult(method, dict(gains), m_tuned, base_gains, m_base, tuned, test, details)
+
+
+def _merge(primary: dict[str, float], constraint: dict[str, float]) -> dict[str, float]:
+    """Primary metrics plus the constraint test's as ``constraint_<name>``; overshoot,
+    saturation and trips count from either test."""
+    out = dict(primary)
+    out.update({f"constraint_{k}": v for k, v in constraint.items()})
+    out["overshoot_pct"] = max(primary.get("overshoot_pct", 0.0), constraint.get("overshoot_pct", 0.0))
+    out["saturation_fraction"] = max(primary.get("saturation_fraction", 0.0), constraint.get("saturation_fraction", 0.0))
+    out["tripped"] = max(primary.get("tripped", 0.0), constraint.get("tripped", 0.0))
+    return out
 
 
 def _identification_base(cfg: Config) -> Config:
@@ -357,12 +418,14 @@ def critical_gain(
 
 
 def _cost(m: dict[str, float], objective, max_overshoot_pct: float, max_saturation: float) -> tuple[float, bool]:
-    if m.get("tripped", 0.0) or not math.isfinite(m.get("itae", math.inf)):
+    if m.get("tripped", 0.0):
         return math.inf, False
+    if not callable(objective) and objective not in m:
+        raise ValueError(f"optimize: objective {objective!r} is not a metric of the test; available: {sorted(m)}")
     obj = objective(m) if callable(objective) else m[objective]
     if not math.isfinite(obj):
         return math.inf, False
-    v = max(0.0, m["overshoot_pct"] - max_overshoot_pct) / max(max_overshoot_pct, 1.0)
+    v = max(0.0, m.get("overshoot_pct", 0.0) - max_overshoot_pct) / max(max_overshoot_pct, 1.0)
     v += max(0.0, m.get("saturation_fraction", 0.0) - max_saturation) / max(max_saturation, 1e-3)
     return obj * (1.0 + 10.0 * v), v == 0.0
 
@@ -413,9 +476,10 @@ def _search_space(base: Config, bounds: dict[str, tuple[float, float]] | None):
 def optimize(
     cfg: ConfigLike,
     objective: str | Callable[[dict[str, float]], float] = "itae",
-    test: StepTest | None = None,
+    test: "StepTest | TrackingTest | None" = None,
     max_overshoot_pct: float = 5.0,
     max_saturation: float = 0.01,
+    constraint_test: StepTest | None = None,
     bounds: dict[str, tuple[float, float]] | None = None,
     generations: int = 8,
     population: int = 16,
@@ -427,8 +491,11 @@ def optimize(
     """Minimise a time-domain cost of the step test on the nonlinear plant.
 
     ``objective``: a metric name of :func:`ehactl.metrics.step_metrics` /
-    ``vibration_metrics`` (default ``"itae"``, unit·s²) or a callable on the metrics dict.
-    Constraints: overshoot ≤ ``max_overshoot_pct`` (% of the step) and share of cycles
+    ``vibration_metrics`` (default ``"itae"``, unit·s²), of a :class:`TrackingTest`
+    (``"rms_error"``), or a callable on the metrics dict. ``constraint_test`` (e.g. a
+    :class:`StepTest` while optimising tracking) is run for every candidate too; its
+    overshoot, saturation and trips count in the constraints and its metrics appear as
+    ``constraint_<name>``. Constraints: overshoot ≤ ``max_overshoot_pct`` (% of the step) and share of cycles
     after the 90 % rise with the unsaturated command at the controller's output limit ≤
     ``max_saturation`` (see :func:`ehactl.metrics.step_metrics`); violations multiply the cost by 1 + 10·(relative violation), trips
     cost ∞. Search: cross-entropy method in log space over K_P and K_I = K_P·I (force) or
@@ -449,6 +516,8 @@ def optimize(
     def run_gen(z: np.ndarray) -> list[tuple[float, bool, dict, dict]]:
         gains = [to_gains(np.exp(row)) for row in z]
         ms = evaluate(base, gains, test, threads)
+        if constraint_test is not None:
+            ms = [_merge(a, c) for a, c in zip(ms, evaluate(base, gains, constraint_test, threads))]
         out = []
         for g, m in zip(gains, ms):
             c, feas = _cost(m, objective, max_overshoot_pct, max_saturation)
@@ -510,8 +579,9 @@ def optimize(
         "history": history,
         "max_overshoot_pct": max_overshoot_pct,
         "max_saturation": max_saturation,
+        "constraint_test": constraint_test,
     }
-    return _finish("optimize", base, best[2], test, details, threads)
+    return _finish("optimize", base, best[2], test, details, threads, constraint_test)
 
 
 # ---------------------------------------------------------------------------------------
