@@ -134,15 +134,15 @@ def main() -> None:
     plot.tracking(sweep[0], signal="rod_force", title="K_P 0.57 on the 785 N ± 196 N, 1–300 Hz sweep",
                   path=out / "sweep_paper.png")
 
-    for k, r in results.items():
-        slug = k.split(")")[0].strip("(") + "_" + r.method + ("_sweep" if "sweep" in k else "")
-        r.write_config(out / f"tuned_{slug}.toml")
+    for i, (k, r) in enumerate(results.items()):
+        r.write_config(out / f"tuned_{i}_{r.method}.toml")
     summary = {
         "config": args.config,
         "step_test": test.__dict__,
         "baseline_loop_margins": m0,
         "critical_gain": {k: results["(b) critical gain, Ziegler–Nichols"].details[k] for k in ("K_Pcr", "T_pcr", "f_cr_hz")},
         "rows": rows,
+        "tuned_configs": {f"tuned_{i}_{r.method}.toml": k for i, (k, r) in enumerate(results.items())},
         "wall_time_s": time.perf_counter() - t_start,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
