@@ -109,3 +109,11 @@ def test_python_config_runs_identically_in_the_cli(force_cfg, tmp_path):
     assert js["cycles"] == len(res)
     assert js["rms_error"] == pytest.approx(res.summary["rms_error"], rel=1e-12)
     assert js["max_abs_error"] == pytest.approx(res.summary["max_abs_error"], rel=1e-12)
+
+
+def test_version_matches_the_rust_crates():
+    tomllib = pytest.importorskip("tomllib")  # Python ≥ 3.11
+    from conftest import REPO
+
+    ws = tomllib.loads((REPO / "Cargo.toml").read_text())
+    assert ehactl.__version__ == ws["workspace"]["package"]["version"]
