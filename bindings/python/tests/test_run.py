@@ -127,3 +127,26 @@ def test_mcap_written_and_read_back(force_cfg, tmp_path):
     for i, m in enumerate(ms):
         lg = ehactl.read_mcap(tmp_path / "many" / f"run_{i:04d}.mcap")
         np.testing.assert_array_equal(lg["control"]["force"], m.force)
+
+
+def test_ctrl_c_stops_the_run_and_finalises_the_log(force_cfg, tmp_path):
+    import os
+    import signal
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        p = tmp_path / "interrupted.mcap"
+        threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        t0 = time.perf_counter()
+        with pytest.raises(KeyboardInterrupt):
+            ehactl.run(force_cfg, duration=500.0, mcap=p)  # minutes of work if not stopped
+        assert time.perf_counter() - t0 < 20.0
+        log = ehactl.read_mcap(p)  # finalised: summary and footer written
+        assert log["summary"]["interrupted"] is True
+        assert log["events"][-1]["kind"] == "signal"
+        assert 0 < len(log["control"]["t"]) < 2_500_000
+        threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt):
+            ehactl.run_many([force_cfg] * 40, duration=50.0, fields=["t"])
+    finally:
+        signal.signal(signal.SIGINT, old)
