@@ -52,8 +52,11 @@ impl Prim {
     }
 }
 
-/// Field layout of a flat ros2msg schema: (name, type, offset after the CDR header).
-fn layout(topic: &str, schema: &str) -> Result<(Vec<(String, Prim, usize)>, usize), String> {
+/// One field of a flat message: (name, type, byte offset after the CDR header).
+type Field = (String, Prim, usize);
+
+/// Field layout of a flat ros2msg schema and the message size (bytes after the header).
+fn layout(topic: &str, schema: &str) -> Result<(Vec<Field>, usize), String> {
     let mut out = Vec::new();
     let mut off = 0usize;
     for raw in schema.lines() {
@@ -92,7 +95,7 @@ enum Col {
 }
 
 struct CdrTopic {
-    fields: Vec<(String, Prim, usize)>,
+    fields: Vec<Field>,
     size: usize,
     cols: Vec<Col>,
     log_time: Vec<u64>,
