@@ -105,6 +105,7 @@ class SimNode:
         self._last_sent: Dict[int, bytes] = {}
         self._next_async: Dict[int, float] = {}
         self._abort_hooks: List[Callable[[int, int], Optional[int]]] = []
+        self._pending_after: List[Callable[[], None]] = []
         self.lock = threading.RLock()
         self.counters = {"rpdo": 0, "rpdo_bad_length": 0, "tpdo": 0, "sdo": 0,
                          "nmt": 0}
@@ -117,11 +118,6 @@ class SimNode:
     def value(self, index: int, sub: int = 0):
         """Current value of an object (stored, live or EDS default), decoded."""
         return self.var(index, sub).decode_raw(self.node.get_data(index, sub))
-
-    def store(self, index: int, sub: int, value) -> None:
-        """Write a value into the object store without SDO checks or callbacks."""
-        raw = self.var(index, sub).encode_raw(value)
-        self.node.data_store.setdefault(index, {})[sub] = bytes(raw)
 
     def live_value(self, index: int, sub: int):
         """Process data computed by the device (None: use the stored value)."""
@@ -261,11 +257,10 @@ class SimNode:
 
     def network_after(self, fn: Callable[[], None]) -> None:
         """Run fn once the current write has been stored (LocalNode stores after callbacks)."""
-        self._pending_after = getattr(self, "_pending_after", [])
         self._pending_after.append(fn)
 
     def run_pending(self) -> None:
-        pending, self._pending_after = getattr(self, "_pending_after", []), []
+        pending, self._pending_after = self._pending_after, []
         for fn in pending:
             fn()
 
