@@ -406,6 +406,29 @@ def test_short_rpdo_ignored_with_emcy(rig):
     assert emcys and emcys[0].code == 0x8210
 
 
+def test_malformed_requests_are_ignored(rig):
+    """NMT with a wrong DLC, an SDO request shorter than 8 bytes and a SYNC with 2 data
+    bytes are not CiA 301 frames: no state change, no answer, no plant step."""
+    net, td, va, log, dev = rig
+    net.send_message(0x000, b"\x01")  # NMT start without node id byte
+    net.send_message(0x600 + VALVE_ID, b"\x40\x41\x60\x00")  # upload request, DLC 4
+    time.sleep(0.1)
+    assert not log.of(0x580 + VALVE_ID)
+    assert va.sdo[0x6041].raw == 0x0001  # still answers proper requests
+    net.send_message(0x080, b"")
+    assert no_frames(log, 0x180 + TRANSDUCER_ID)  # still PRE-OPERATIONAL: no PDO
+    net.nmt.send_command(0x01)
+    time.sleep(0.05)
+    log.clear()
+    net.send_message(0x080, b"\x01\x02")
+    assert no_frames(log, 0x180 + TRANSDUCER_ID)
+    net.send_message(0x080, b"\x07")  # SYNC with a counter byte is valid
+    assert log.wait_count(0x180 + TRANSDUCER_ID, 1)
+    dev.stop()
+    s = dev.summary()
+    assert s["sync_count"] == 2 and s["transducer_nmt"] == 5  # the PRE-OP one and the last
+
+
 def test_hub_drop_stops_devices_with_message(tmp_path):
     with hub() as (hproc, port):
         with devices(port, tmp_path) as dev:
