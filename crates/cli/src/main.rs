@@ -213,11 +213,6 @@ fn cmd_run(
             return config_error(format!("--duration {d}: expected a finite number > 0 in s"));
         }
     }
-    // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s).
-    let mut can_hal = match canbus::connect(&cfg, hal, bus.as_deref(), !json) {
-        Ok(h) => h,
-        Err(code) => return code,
-    };
     let out = out.unwrap_or_else(|| {
         let stem = config
             .file_stem()
@@ -230,6 +225,12 @@ fn cmd_run(
             eprintln!("ehactl: warning: cannot install signal handler: {e}");
         }
     }
+    // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s); a
+    // signal meanwhile ends the run at its first cycle, through the safe stop.
+    let mut can_hal = match canbus::connect(&cfg, hal, bus.as_deref(), !json) {
+        Ok(h) => h,
+        Err(code) => return code,
+    };
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template(
