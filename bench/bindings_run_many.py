@@ -39,11 +39,14 @@ def main() -> None:
         assert len(res) == args.runs and all(r.ok and len(r) == round(args.duration / cfg.control_dt) for r in res)
         return dt
 
+    loop_rust_s: list[float] = []
+
     def t_loop():
         t0 = time.perf_counter()
         res = [ehactl.run(c, duration=args.duration) for c in cfgs]
         dt = time.perf_counter() - t0
         assert all(r.ok for r in res)
+        loop_rust_s.append(sum(r.summary["wall_time_s"] for r in res))
         return dt
 
     t_many()  # warm-up (page faults, thread pool)
@@ -65,6 +68,8 @@ def main() -> None:
         "speedup_run_many_vs_loop": med(loop) / med(many),
         "speedup_run_many_vs_1_thread": med(many1) / med(many),
         "sim_x_realtime_run_many": args.runs * args.duration / med(many),
+        "python_loop_rust_loop_time_s_median": med(loop_rust_s),
+        "load_average_at_end": os.getloadavg(),
         "repeats": {"run_many": many, "run_many_1_thread": many1, "python_loop": loop},
     }
     print(json.dumps(out, indent=2))
