@@ -83,18 +83,41 @@ pub(crate) fn select(fields: Option<&[String]>) -> Result<(Vec<usize>, bool), St
     }
 }
 
-/// Transpose records into columns.
-pub(crate) fn to_columns(records: &[CycleRecord], idx: &[usize], stuck: bool) -> Columns {
-    let floats = idx
-        .iter()
-        .map(|&i| {
-            let (name, _, get) = COLUMNS[i];
-            (name, records.iter().map(get).collect::<Vec<f64>>())
-        })
-        .collect();
-    Columns {
-        floats,
-        cycle: records.iter().map(|r| r.cycle).collect(),
-        stuck: stuck.then(|| records.iter().map(|r| r.plant.stuck).collect()),
+/// Streams cycle records into the selected columns (the session's observer).
+pub(crate) struct ColumnSink {
+    idx: Vec<usize>,
+    cols: Columns,
+}
+
+impl ColumnSink {
+    /// Empty columns for `idx` (+ `stuck`), with room for `capacity` cycles.
+    pub(crate) fn new(idx: &[usize], stuck: bool, capacity: usize) -> Self {
+        Self {
+            idx: idx.to_vec(),
+            cols: Columns {
+                floats: idx
+                    .iter()
+                    .map(|&i| (COLUMNS[i].0, Vec::with_capacity(capacity)))
+                    .collect(),
+                cycle: Vec::with_capacity(capacity),
+                stuck: stuck.then(|| Vec::with_capacity(capacity)),
+            },
+        }
+    }
+
+    /// Append one record.
+    pub(crate) fn push(&mut self, r: &CycleRecord) {
+        for (&i, (_, v)) in self.idx.iter().zip(self.cols.floats.iter_mut()) {
+            v.push((COLUMNS[i].2)(r));
+        }
+        self.cols.cycle.push(r.cycle);
+        if let Some(s) = self.cols.stuck.as_mut() {
+            s.push(r.plant.stuck);
+        }
+    }
+
+    /// The filled columns.
+    pub(crate) fn finish(self) -> Columns {
+        self.cols
     }
 }

@@ -1,12 +1,13 @@
 //! Python bindings of ehactl (`ehactl._ehactl`, wrapped by the pure-Python package
 //! `ehactl`). Everything physical runs in the same compiled crates as the CLI:
-//! `ehactl-plant` (plant), `ehactl-controller` (PI/PD, setpoints, supervisor, loop,
+//! `ehactl-plant` (plant), `ehactl-analysis` (linearisation), `ehactl-controller` (PI/PD, setpoints, supervisor, loop,
 //! `session::run_sim`) and `ehactl-hal` (records, MCAP logger). The GIL is released while
 //! Rust simulates; batches run in parallel on a rayon pool.
 #![deny(missing_docs)]
 
 mod columns;
 mod config;
+mod linear;
 mod mcapread;
 mod plant;
 mod runs;
@@ -32,5 +33,6 @@ fn _ehactl(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(runs::run_batch, m)?)?;
     m.add_function(wrap_pyfunction!(runs::record_fields, m)?)?;
     m.add_function(wrap_pyfunction!(mcapread::read_mcap_raw, m)?)?;
+    m.add_function(wrap_pyfunction!(linear::linear_plant_response, m)?)?;
     Ok(())
 }

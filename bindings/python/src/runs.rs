@@ -3,10 +3,11 @@
 //! with the GIL released. The calling thread only wakes up to forward progress to a Python
 //! callback and to notice Ctrl-C (which stops the runs through the session's stop flag).
 
-use crate::columns::{self, Columns, COLUMNS, STUCK};
+use crate::columns::{self, ColumnSink, Columns, COLUMNS, STUCK};
 use crate::config::Config;
 use ehactl_controller::session::{run_sim, SessionOptions};
 use ehactl_controller::RigConfig;
+use ehactl_hal::record::CycleRecord;
 use numpy::IntoPyArray;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -46,21 +47,25 @@ fn one(
             p.store(k, Ordering::Relaxed);
         }
     };
+    let cycles = (duration.unwrap_or(cfg.run.duration) / cfg.control_dt())
+        .round()
+        .max(1.0) as usize;
+    let mut sink = ColumnSink::new(idx, stuck, cycles);
+    let mut observe = |r: &CycleRecord| sink.push(r);
     let session = run_sim(
         cfg,
         SessionOptions {
             duration,
             mcap,
             stop: Some(stop),
-            capture: true,
+            capture: false,
             progress: Some(&mut report),
-            observer: None,
+            observer: Some(&mut observe),
         },
     )
     .map_err(|e| e.to_string())?;
-    let cols = columns::to_columns(&session.records, idx, stuck);
     Ok(RunOut {
-        cols,
+        cols: sink.finish(),
         summary: session.summary_json().to_string(),
     })
 }

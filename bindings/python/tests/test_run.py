@@ -103,11 +103,11 @@ def test_run_many_releases_the_gil(force_cfg):
     th.start()
     time.sleep(0.02)
     a = time.perf_counter()
-    ehactl.run_many([force_cfg] * 16, duration=1.0, fields=["t"])
+    ehactl.run_many([force_cfg] * 60, duration=1.0, fields=["t"])
     b = time.perf_counter()
     done.set()
     th.join()
-    assert b - a > 0.08
+    assert b - a > 0.1
     inside = [s for s in stamps if a + 0.02 < s < b - 0.02]
     assert len(inside) > 100
 
@@ -121,8 +121,9 @@ def test_mcap_written_and_read_back(force_cfg, tmp_path):
     np.testing.assert_array_equal(log["plant"]["x"], r.x)
     np.testing.assert_array_equal(log["plant"]["stuck"], r.stuck)
     assert log["summary"]["cycles"] == len(r)
-    assert log["config"] is not None and log["events"][0]["kind"] == "start"
-    assert log["events"][-1]["kind"] == "end"
+    kinds = [e["kind"] for e in log["events"]]
+    assert log["config"] is not None and kinds[0] == "start"
+    assert "end" in kinds and "signal" not in kinds
     ms = ehactl.run_many([force_cfg] * 2, duration=0.02, mcap_dir=tmp_path / "many")
     for i, m in enumerate(ms):
         lg = ehactl.read_mcap(tmp_path / "many" / f"run_{i:04d}.mcap")
@@ -143,7 +144,7 @@ def test_ctrl_c_stops_the_run_and_finalises_the_log(force_cfg, tmp_path):
         assert time.perf_counter() - t0 < 20.0
         log = ehactl.read_mcap(p)  # finalised: summary and footer written
         assert log["summary"]["interrupted"] is True
-        assert log["events"][-1]["kind"] == "signal"
+        assert "signal" in [e["kind"] for e in log["events"]]
         assert 0 < len(log["control"]["t"]) < 2_500_000
         threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
         with pytest.raises(KeyboardInterrupt):

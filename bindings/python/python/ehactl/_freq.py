@@ -19,6 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from . import _ehactl
 from ._ehactl import Config
 from ._runs import ConfigLike, _as_config, run_many
 
@@ -221,8 +222,38 @@ def frequency_response(
     g = {p: float(base[p]) for p in gain_paths(base)}
     C = controller_response(base, f)
     return FrequencyResponse(
-        f, P, C, T, unit, g, purity, {"offset": offset, "amplitude": amp, "settle_s": settle, "trips": trips}
+        f, P, C, T, unit, g, purity, {"source": "measured", "offset": offset, "amplitude": amp, "settle_s": settle, "trips": trips}
     )
+
+
+def linear_response(
+    cfg: ConfigLike,
+    f_hz: Sequence[float] | None = None,
+    gains: dict[str, float] | None = None,
+    max_time: float = 5.0,
+) -> FrequencyResponse:
+    """Loop frequency response from the plant linearised at its operating point by
+    ``ehactl-analysis`` (the model of ``ehactl analyze``: the plant's own step map over one
+    control period differentiated numerically, so the sample and hold are exact; a command
+    delay enters as e^(−jωτ)). ``closed`` is the predicted L/(1+L); ``details`` holds the
+    operating point. ``f_hz`` default: 200 log-spaced points from 1 Hz (force) or 0.1 Hz
+    (position) to 0.95 × Nyquist."""
+    base = _as_config(cfg)
+    if gains:
+        base = base.with_values(gains)
+    fs = 1.0 / base.control_dt
+    if f_hz is None:
+        f_hz = np.geomspace(1.0 if base.mode == "force" else 0.1, 0.95 * fs / 2, 200)
+    f = np.asarray(f_hz, dtype=float)
+    re, im, info = _ehactl.linear_plant_response(base, [float(x) for x in f], max_time)
+    P = np.asarray(re) + 1j * np.asarray(im)
+    from .tune import gain_paths
+
+    g = {p: float(base[p]) for p in gain_paths(base)}
+    C = controller_response(base, f)
+    L = C * P
+    details = {"source": "linear", **info}
+    return FrequencyResponse(f, P, C, L / (1 + L), "N" if base.mode == "force" else "m", g, np.ones(len(f)), details)
 
 
 def _interp_P(fr: FrequencyResponse, fc: float) -> complex:
@@ -275,6 +306,7 @@ def model_based(
     bandwidth_hz: float | None = None,
     min_gain_margin_db: float = 6.0,
     max_peak_db: float = 3.0,
+    source: str = "linear",
     fr: FrequencyResponse | None = None,
     test=None,
     threads: int | None = None,
@@ -283,15 +315,20 @@ def model_based(
     """Model-based tuning: PI (force) or PD (position) gains that give ``phase_margin_deg``
     at a gain crossover on the loop model L = C·P.
 
-    The plant response P comes from :func:`frequency_response` (measured on the nonlinear
-    plant around the operating point; pass ``fr`` to reuse one). At a crossover f_c the
+    The plant response P comes from the linearised plant (``source="linear"``,
+    :func:`linear_response`, the ``ehactl analyze`` model) or from a stepped-sine
+    measurement on the nonlinear plant (``source="measured"``, :func:`frequency_response`);
+    pass ``fr`` to reuse one. At a crossover f_c the
     controller term that sets the phase is solved exactly on the discrete C(z) — the PI
     integral rate I (1/s) for its lag, the PD derivative time T_D (s) for its lead — and
     K_P then sets |L(f_c)| = 1. The crossover is ``crossover_hz`` (Hz) if given; otherwise
     every f_c on a log grid over the measured range is designed and, among the designs with
     the phase margin met (±5°), gain margin ≥ ``min_gain_margin_db`` and closed-loop peak
     ≤ ``max_peak_db``, the one whose predicted −3 dB closed-loop bandwidth is closest to
-    ``bandwidth_hz`` (Hz) is taken — or the widest bandwidth when ``bandwidth_hz`` is None.
+    ``bandwidth_hz`` (Hz) is taken — or, when ``bandwidth_hz`` is None, the one with the
+    largest integral gain K_P·I (PI: best low-frequency disturbance rejection under the
+    robustness limits, as in Åström–Hägglund's MIGO design) or the largest K_P (PD: stiffest
+    position hold).
     Returns a :class:`ehactl.tune.TuneResult`; ``details`` holds the predicted margins,
     the candidate designs and the loop model.
     """
@@ -300,7 +337,12 @@ def model_based(
     base = _as_config(cfg)
     paths = gain_paths(base)
     if fr is None:
-        fr = frequency_response(base, threads=threads, progress=progress)
+        if source == "linear":
+            fr = linear_response(base)
+        elif source == "measured":
+            fr = frequency_response(base, threads=threads, progress=progress)
+        else:
+            raise ValueError(f"source = {source!r}; expected \"linear\" or \"measured\"")
     ok = np.isfinite(fr.plant)
     if np.count_nonzero(ok) < 4:
         raise RuntimeError("model_based: fewer than 4 usable points in the frequency response")
@@ -334,7 +376,13 @@ def model_based(
         if not adm:
             raise RuntimeError("model_based: no crossover on the measured grid meets the margins")
         if bandwidth_hz is None:
-            pick = max(adm, key=lambda c: c["predicted"]["bandwidth_hz"])
+            kp_path, second = paths
+
+            def strength(c):
+                g = c["gains"]
+                return g[kp_path] * g[second] if base.mode == "force" else g[kp_path]
+
+            pick = max(adm, key=strength)
         else:
             pick = min(adm, key=lambda c: abs(math.log(c["predicted"]["bandwidth_hz"] / bandwidth_hz)))
         chosen, gains = pick["crossover_hz"], pick["gains"]
@@ -347,7 +395,7 @@ def model_based(
         "predicted": predicted,
         "baseline_predicted": fr.margins(),
         "candidates": candidates,
-        "plant_model": "frequency response measured on the nonlinear plant (stepped sine, closed loop)",
+        "plant_model": fr.details.get("source", "measured"),
         "frequency_response": fr,
     }
     return _finish("model_based", base, gains, test, details, threads)

@@ -11,8 +11,8 @@ nonlinear plant next to those of the starting gains, the tuned :class:`ehactl.Co
   the nonlinear plant, with overshoot and command-saturation limits, by a cross-entropy
   search whose every generation is one parallel :func:`ehactl.run_many` batch;
 - :func:`model_based` — PI (force) / PD (position) gains for a target phase margin and
-  crossover frequency from the loop's frequency response (see its docstring for where
-  the response comes from).
+  bandwidth on the loop linearised at its operating point (``ehactl-analysis``, the model
+  of ``ehactl analyze``), or on a frequency response measured on the nonlinear plant.
 
 Gains: force mode → ``control.pi.kp`` (V/V) and ``control.pi.integral`` (1/s, the I of
 K_P(1 + I/s), 004 §6); position mode → ``control.pd.kp`` (V/m) and ``control.pd.td`` (s,
@@ -44,6 +44,7 @@ __all__ = [
     "frequency_response",
     "FrequencyResponse",
     "controller_response",
+    "linear_response",
     "loop_margins",
 ]
 
@@ -417,7 +418,9 @@ def critical_gain(
     return _finish("critical_gain", base, gains, test, details, threads)
 
 
-def _cost(m: dict[str, float], objective, max_overshoot_pct: float, max_saturation: float) -> tuple[float, bool]:
+def _cost(
+    m: dict[str, float], objective, max_overshoot_pct: float, max_saturation: float, limits: dict[str, float] | None = None
+) -> tuple[float, bool]:
     if m.get("tripped", 0.0):
         return math.inf, False
     if not callable(objective) and objective not in m:
@@ -427,6 +430,11 @@ def _cost(m: dict[str, float], objective, max_overshoot_pct: float, max_saturati
         return math.inf, False
     v = max(0.0, m.get("overshoot_pct", 0.0) - max_overshoot_pct) / max(max_overshoot_pct, 1.0)
     v += max(0.0, m.get("saturation_fraction", 0.0) - max_saturation) / max(max_saturation, 1e-3)
+    for k, ub in (limits or {}).items():
+        x = m.get(k, math.inf)
+        v += math.inf if not math.isfinite(x) else max(0.0, x - ub) / max(abs(ub), 1e-12)
+    if not math.isfinite(v):
+        return math.inf, False
     return obj * (1.0 + 10.0 * v), v == 0.0
 
 
@@ -484,6 +492,9 @@ def optimize(
     generations: int = 8,
     population: int = 16,
     elite_fraction: float = 0.25,
+    refine: int = 10,
+    start: Sequence[dict[str, float]] = (),
+    limits: dict[str, float] | None = None,
     seed: int = 0,
     threads: int | None = None,
     progress: bool = False,
@@ -495,15 +506,19 @@ def optimize(
     (``"rms_error"``), or a callable on the metrics dict. ``constraint_test`` (e.g. a
     :class:`StepTest` while optimising tracking) is run for every candidate too; its
     overshoot, saturation and trips count in the constraints and its metrics appear as
-    ``constraint_<name>``. Constraints: overshoot ≤ ``max_overshoot_pct`` (% of the step) and share of cycles
+    ``constraint_<name>``. ``limits`` adds upper bounds on any metric by name (e.g.
+    ``{"constraint_settling_time": 0.008}``). Constraints: overshoot ≤ ``max_overshoot_pct`` (% of the step) and share of cycles
     after the 90 % rise with the unsaturated command at the controller's output limit ≤
     ``max_saturation`` (see :func:`ehactl.metrics.step_metrics`); violations multiply the cost by 1 + 10·(relative violation), trips
     cost ∞. Search: cross-entropy method in log space over K_P and K_I = K_P·I (force) or
     K_P and T_D (position) within ``bounds`` (keys ``"control.pi.kp"``, ``"ki"`` (1/s) or
     ``"control.pd.kp"``, ``"control.pd.td"`` (s); default starting value /100 … ×100, T_D
     0.05–50 ms). Generation 0 is a log grid plus the starting gains; each later one samples
-    ``population`` points around the elites. Every generation is one parallel
-    :func:`ehactl.run_many` batch. The best feasible gains are returned.
+    ``population`` points around the elites; ``start`` adds gain sets (dotted path →
+    value) to generation 0. Then ``refine`` rounds of a batch pattern search polish the
+    best point (8 neighbours on the axes and diagonals, step halved when none improves).
+    Every generation and round is one parallel :func:`ehactl.run_many` batch. The best
+    feasible gains are returned.
     """
     base = _as_config(cfg)
     gain_paths(base)  # clear error for open_loop configs
@@ -520,7 +535,7 @@ def optimize(
             ms = [_merge(a, c) for a, c in zip(ms, evaluate(base, gains, constraint_test, threads))]
         out = []
         for g, m in zip(gains, ms):
-            c, feas = _cost(m, objective, max_overshoot_pct, max_saturation)
+            c, feas = _cost(m, objective, max_overshoot_pct, max_saturation, limits)
             out.append((c, feas, g, m))
             history.append({"gains": g, "cost": c, "feasible": feas, "metrics": m})
         return out
@@ -530,9 +545,10 @@ def optimize(
             return np.log([g["control.pi.kp"], g["control.pi.kp"] * g["control.pi.integral"]])
         return np.log([g["control.pd.kp"], g["control.pd.td"]])
 
-    side = max(2, int(round(math.sqrt(population))))
+    side = max(4, int(round(math.sqrt(population))))
     g0 = np.array(np.meshgrid(*[np.linspace(l, h, side) for l, h in zip(lo, hi)])).reshape(len(names), -1).T
-    z = np.vstack([g0, q0[None, :]])
+    extra = [qrow({**{p: float(base[p]) for p in gain_paths(base)}, **g}) for g in start]
+    z = np.clip(np.vstack([g0, q0[None, :], *[e[None, :] for e in extra]]), lo, hi)
     mu = sd = None
     bar = None
     if progress:
@@ -547,7 +563,7 @@ def optimize(
         for r in res:
             if best is None or (r[1], -r[0]) > (best[1], -best[0]):
                 best = r
-        ranked = sorted(res + [best], key=lambda r: (not r[1], r[0]))
+        ranked = sorted(res + [best], key=lambda r: r[0])  # penalised cost
         n_el = max(2, int(round(elite_fraction * len(res))))
         el_rows = [qrow(r[2]) for r in ranked[:n_el] if math.isfinite(r[0])]
         el = np.array(el_rows) if el_rows else q0[None, :]
@@ -563,6 +579,24 @@ def optimize(
             bar.set_postfix(best=f"{best[0]:.4g}")
         if gen + 1 < generations:
             z = np.clip(rng.normal(mu, sd, size=(population, len(names))), lo, hi)
+    # pattern search around the best point
+    step = np.maximum(sd if sd is not None else 0.1 * (hi - lo), 0.01 * (hi - lo))
+    dirs = np.array([[1, 0], [-1, 0], [0, 1], [0, -1], [1, 1], [1, -1], [-1, 1], [-1, -1]], dtype=float)
+    for _ in range(refine):
+        assert best is not None
+        if not math.isfinite(best[0]):
+            break
+        c = qrow(best[2])
+        cand = np.clip(c[None, :] + dirs * step[None, :], lo, hi)
+        res = run_gen(cand)
+        improved = False
+        for r in res:
+            if (r[1], -r[0]) > (best[1], -best[0]):
+                best, improved = r, True
+        if not improved:
+            step = step / 2.0
+        if np.all(step < 1e-3):
+            break
     if bar:
         bar.close()
     assert best is not None
@@ -580,6 +614,7 @@ def optimize(
         "max_overshoot_pct": max_overshoot_pct,
         "max_saturation": max_saturation,
         "constraint_test": constraint_test,
+        "limits": dict(limits or {}),
     }
     return _finish("optimize", base, best[2], test, details, threads, constraint_test)
 
@@ -591,6 +626,7 @@ from ._freq import (  # noqa: E402
     FrequencyResponse,
     controller_response,
     frequency_response,
+    linear_response,
     loop_margins,
     model_based,
 )
