@@ -125,3 +125,9 @@ def record_fields() -> list[tuple[str, str]]:
 
 def read_mcap_raw(path: _Path) -> dict[str, Any]:
     """Raw MCAP contents: cdr columns, json texts, schemas, metadata, profile, library."""
+
+def linear_plant_response(
+    cfg: Config, f_hz: Sequence[float], max_time: float = 5.0
+) -> tuple[list[float], list[float], dict[str, Any]]:
+    """Plant linearised at its operating point (ehactl-analysis): real and imaginary parts of
+    P(e^{jωT}) at ``f_hz`` (N/V or m/V, command delay included) and the operating point."""
