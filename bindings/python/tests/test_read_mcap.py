@@ -49,3 +49,34 @@ def test_bad_files(tmp_path):
     bad.write_bytes(b"not an mcap file at all")
     with pytest.raises(ValueError, match="bad.mcap"):
         ehactl.read_mcap(bad)
+
+
+@pytest.mark.skipif(not __import__("os").environ.get("EHACTL_BIN"), reason="EHACTL_BIN (the CLI binary) not set")
+def test_realtime_log_timing_channel_matches_official_reader(tmp_path):
+    """A wall-clock run of the CLI adds /timing (uint64, float64s, uint32, bool): decoded
+    from its own schema, it must equal a struct decode of the official reader's bytes."""
+    import os
+    import struct
+    import subprocess
+
+    pytest.importorskip("mcap")
+    from mcap.reader import make_reader
+
+    p = tmp_path / "rt.mcap"
+    subprocess.run(
+        [os.environ["EHACTL_BIN"], "run", str(REPO / "configs" / "sahu2022_force.toml"), "--duration", "0.05",
+         "--realtime", "--out", str(p), "--json"],
+        capture_output=True, check=True,
+    )
+    ours = ehactl.read_mcap(p)["timing"]
+    rec = struct.Struct("<4sQ5dI?")
+    rows = []
+    with open(p, "rb") as f:
+        for _, ch, msg in make_reader(f).iter_messages(topics=["/timing"]):
+            rows.append(rec.unpack(msg.data[: rec.size]))
+    assert len(rows) == len(ours["cycle"]) == 250
+    np.testing.assert_array_equal(ours["cycle"], [r[1] for r in rows])
+    np.testing.assert_array_equal(ours["lateness_us"], [r[4] for r in rows])
+    np.testing.assert_array_equal(ours["skipped"], [r[7] for r in rows])
+    np.testing.assert_array_equal(ours["overrun"], [r[8] for r in rows])
+    assert ours["overrun"].dtype == bool
