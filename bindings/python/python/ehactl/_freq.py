@@ -295,7 +295,15 @@ def _design_at(cfg: Config, fr: FrequencyResponse, fc: float, pm_deg: float, pat
         else:
             hi = mid
     x = 0.5 * (lo + hi)
-    kp = 1.0 / abs(P * C1(x))
+    L1 = P * C1(x)
+    # the phase condition holds modulo 360°: accept only the branch where the loop phase
+    # itself is −180° + PM (the usual stable-loop branch, arg L in (−360°, 0°])
+    ang = math.degrees(math.atan2(L1.imag, L1.real))
+    if ang > 0:
+        ang -= 360.0
+    if abs(180.0 + ang - pm_deg) > 1.0:
+        return None
+    kp = 1.0 / abs(L1)
     return {kp_path: float(kp), second: float(x)}
 
 
