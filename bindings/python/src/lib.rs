@@ -5,6 +5,7 @@
 //! Rust simulates; batches run in parallel on a rayon pool.
 #![deny(missing_docs)]
 
+mod analysis;
 mod columns;
 mod config;
 mod linear;
@@ -34,5 +35,7 @@ fn _ehactl(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(runs::record_fields, m)?)?;
     m.add_function(wrap_pyfunction!(mcapread::read_mcap_raw, m)?)?;
     m.add_function(wrap_pyfunction!(linear::linear_plant_response, m)?)?;
+    m.add_function(wrap_pyfunction!(analysis::analyze_json, m)?)?;
+    m.add_function(wrap_pyfunction!(analysis::sweep_json, m)?)?;
     Ok(())
 }

@@ -72,7 +72,7 @@ fn one(
 
 /// Run `work` on a scoped thread with the GIL released; meanwhile forward
 /// `counter` to `progress(done, total)` and turn Ctrl-C into `stop`.
-fn detached<R: Send>(
+pub(crate) fn detached<R: Send>(
     py: Python<'_>,
     progress: Option<Py<PyAny>>,
     total: u64,

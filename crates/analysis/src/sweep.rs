@@ -203,6 +203,25 @@ impl Fit {
 
 const BLOCKS: usize = 4;
 
+/// Settling time before the first frequency (s): the step to the operating point.
+const SETTLE_S: f64 = 0.2;
+
+impl SweepOptions<'_> {
+    /// Dwell per frequency (s) for a lowest frequency `f0` (Hz).
+    fn dwell(&self, f0: f64) -> f64 {
+        (self.periods / f0).max(0.05)
+    }
+
+    /// Simulated duration of the sweep of `cfg` (s), for progress bars.
+    pub fn planned_duration(&self, cfg: &RigConfig) -> f64 {
+        let sp = &cfg.setpoint;
+        let f0 = self
+            .from_hz
+            .unwrap_or(if sp.f0 > 0.0 { sp.f0 } else { 1.0 });
+        SETTLE_S + self.dwell(f0) * self.points as f64
+    }
+}
+
 /// Run the sweep of `cfg`.
 pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult, AnalysisError> {
     let sp = &cfg.setpoint;
@@ -290,8 +309,8 @@ pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult,
     if cfg.control.mode == ControlMode::Position {
         run_cfg.plant.cylinder.initial_position = offset.clamp(0.0, cfg.plant.cylinder.stroke);
     }
-    let settle = 0.2;
-    let dwell = (opts.periods / f0).max(0.05);
+    let settle = SETTLE_S;
+    let dwell = opts.dwell(f0);
     let n = opts.points;
     {
         let s = &mut run_cfg.setpoint;

@@ -11,6 +11,10 @@ and the real-time loop use. Units are SI throughout: s, N, m, Pa, V, m³/s.
     res.t, res.force, res.u                       # NumPy arrays (s, N, V)
     many = ehactl.run_many({"control.pi.kp": [0.3, 0.4, 0.5]}, base=cfg, duration=0.5)
 
+``ehactl.analyze(cfg)`` and ``ehactl.sweep(cfg, ...)`` mirror ``ehactl analyze`` /
+``ehactl sweep`` (margins and bandwidths of the linearised sampled loop; stepped-sine
+frequency response of the nonlinear plant).
+
 Submodules: :mod:`ehactl.tune` (critical-gain, model-based and optimisation tuning),
 :mod:`ehactl.metrics` (step / tracking metrics), :mod:`ehactl.plot` (matplotlib figures,
 optional dependency).
@@ -24,6 +28,7 @@ from ._ehactl import (  # noqa: F401  (re-exported)
     Plant,
     __version__,
 )
+from ._analysis import analyze, sweep
 from ._runs import RunResult, param_grid, params, read_mcap, run, run_many
 
 __all__ = [
@@ -32,11 +37,13 @@ __all__ = [
     "Plant",
     "RunResult",
     "__version__",
+    "analyze",
     "param_grid",
     "params",
     "read_mcap",
     "run",
     "run_many",
+    "sweep",
     "tune",
     "metrics",
     "plot",

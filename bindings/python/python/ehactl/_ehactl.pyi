@@ -131,3 +131,20 @@ def linear_plant_response(
 ) -> tuple[list[float], list[float], dict[str, Any]]:
     """Plant linearised at its operating point (ehactl-analysis): real and imaginary parts of
     P(e^{jωT}) at ``f_hz`` (N/V or m/V, command delay included) and the operating point."""
+
+def analyze_json(cfg: Config) -> str:
+    """``ehactl analyze --json`` of ``cfg`` as a JSON string (see ``ehactl.analyze``)."""
+
+def sweep_json(
+    cfg: Config,
+    from_hz: float | None = None,
+    to_hz: float | None = None,
+    points: int = 30,
+    amplitude: float | None = None,
+    open_loop: bool = False,
+    output: str | None = None,
+    periods: float = 6.0,
+    mcap: _Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> str:
+    """``ehactl sweep --json`` of ``cfg`` as a JSON string (see ``ehactl.sweep``)."""

@@ -1,0 +1,103 @@
+"""``ehactl.analyze`` and ``ehactl.sweep``: the CLI's ``ehactl analyze`` / ``ehactl sweep``
+from Python (same compiled ``ehactl-analysis`` code, same JSON, arrays as NumPy)."""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from . import _ehactl
+from ._runs import ConfigLike, _as_config, _progress_bar
+
+
+def analyze(cfg: ConfigLike, *, params: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Linearise ``cfg`` around its operating point, like ``ehactl analyze --json``.
+
+    The noise-free loop is run to rest at the setpoint's static value, the plant's step map
+    is differentiated over one control period with the command held (so the loop includes
+    the zero-order hold, ``sampled_loop`` is True), and margins are computed for the sampled
+    loop (top-level keys) and the continuous loop (``continuous``).
+
+    Returns a dict with, where they apply: ``hydraulic_natural_frequency_hz``,
+    ``min_natural_frequency_over_stroke_hz``, ``open_loop_bandwidth_hz``,
+    ``gain_crossover_hz``, ``phase_margin_deg``, ``phase_crossover_hz``, ``gain_margin_db``,
+    ``closed_loop_bandwidth_hz`` (Hz, deg, dB), seed 003's ``fr_ym``/``fr_em``/``rd_my``, the
+    operating point, the slowest ``poles`` and ``loop_response`` as NumPy arrays
+    (``f_hz``, ``loop_mag_db``, ``loop_phase_deg``, ``closed_mag_db``, ``closed_phase_deg``).
+
+    Args:
+        cfg: ``Config`` or path of a TOML config.
+        params: dotted-path overrides, e.g. ``{"control.pi.kp": 0.4}``.
+    """
+    c = _as_config(cfg)
+    if params:
+        c = c.with_values(dict(params))
+    out = json.loads(_ehactl.analyze_json(c))
+    lr = out.get("loop_response") or []
+    out["loop_response"] = {k: np.array([p[k] for p in lr], dtype=float)
+                            for k in ("f_hz", "loop_mag_db", "loop_phase_deg", "closed_mag_db",
+                                      "closed_phase_deg")}
+    return out
+
+
+def sweep(
+    cfg: ConfigLike,
+    from_hz: float | None = None,
+    to_hz: float | None = None,
+    points: int = 30,
+    amplitude: float | None = None,
+    *,
+    open_loop: bool = False,
+    output: str | None = None,
+    periods: float = 6.0,
+    mcap: str | os.PathLike | None = None,
+    params: Mapping[str, Any] | None = None,
+    progress: bool | Callable[[int, int], None] = False,
+) -> dict[str, Any]:
+    """Frequency response of the nonlinear plant by a stepped sine, like ``ehactl sweep``.
+
+    Closed loop: setpoint = operating value + ``amplitude``·sin (N or m); open loop
+    (``open_loop=True``): valve command = operating command + ``amplitude``·sin (V). Each
+    frequency is held for ``periods`` periods of the lowest one; a 3-parameter sine fit in 4
+    blocks gives H, its coherence and the output distortion.
+
+    Args:
+        cfg: ``Config`` or path of a TOML config.
+        from_hz, to_hz: frequency range (Hz); default the setpoint's f0/f1.
+        points: number of log-spaced frequencies.
+        amplitude: sine amplitude (N or m closed loop, V open loop).
+        output: "force", "position", "p_a" or "p_b" (default the loop's feedback).
+        mcap: MCAP log of the sweep run.
+        params: dotted-path overrides.
+        progress: True for a tqdm bar, or a callable ``(done_cycles, total_cycles)``.
+
+    Returns:
+        dict with ``f_hz``, ``mag_db``, ``phase_deg``, ``coherence``, ``gain``,
+        ``distortion`` (NumPy arrays), ``bandwidth_hz`` (−3 dB, Hz or None), ``mode``,
+        ``input``, ``output``, ``offset``, ``amplitude``, ``dwell_s``, ``complete``, ``trip``,
+        ``mcap``.
+    """
+    c = _as_config(cfg)
+    if params:
+        c = c.with_values(dict(params))
+    bar = None
+    cb = progress if callable(progress) else None
+    if progress is True:
+        f0 = from_hz if from_hz is not None else (c["setpoint.f0"] or 1.0)
+        total = int(round((0.2 + max(periods / f0, 0.05) * points) / c.control_dt))
+        bar, cb = _progress_bar(total, f"sweep {c.name or ''}".strip(), "cycle")
+    try:
+        raw = _ehactl.sweep_json(c, from_hz, to_hz, int(points), amplitude, bool(open_loop),
+                                 output, float(periods),
+                                 None if mcap is None else os.fspath(mcap), cb)
+    finally:
+        if bar is not None:
+            bar.close()
+    r = json.loads(raw)
+    pts = r.pop("points")
+    for k in ("f_hz", "mag_db", "phase_deg", "coherence", "gain", "distortion"):
+        r[k] = np.array([p[k] for p in pts], dtype=float)
+    return r
