@@ -107,6 +107,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 segments: nseg,
                 bulk_modulus: Some(1.2e9),
                 port_volume: 0.0,
+                friction: Default::default(),
             });
             p.effects.flexible_mount = mount.then(|| FlexibleMount {
                 enabled: true,
