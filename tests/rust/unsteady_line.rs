@@ -11,10 +11,51 @@
 use ehactl_analysis::tline::{
     bessel_ratio, bessel_ratio_exact, viscous_frequency, Friction, LineSection, SIROHI_TUBE_ID,
 };
+use ehactl_controller::RigConfig;
 use ehactl_plant::line::Line;
 use ehactl_plant::params::{Fluid, LineDynamics, LineFriction};
+use ehactl_plant::Plant;
 use nalgebra::Complex;
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::f64::consts::{PI, TAU};
+
+struct Counting;
+
+thread_local! {
+    // Per thread: other tests of this binary run in parallel threads.
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+// SAFETY: forwards to the system allocator; only counts (a const-initialised Cell
+// thread-local needs no allocation and no destructor).
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        System.alloc(l)
+    }
+    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        System.alloc_zeroed(l)
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        System.realloc(p, l, n)
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        System.dealloc(p, l)
+    }
+}
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn circuit_text() -> String {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../configs/sirohi2003_circuit.toml"
+    );
+    std::fs::read_to_string(path).expect("config")
+}
 
 type C64 = Complex<f64>;
 const CST: f64 = 1e-6;
@@ -126,4 +167,51 @@ fn unsteady_segment_impedance_matches_the_bessel_line() {
             );
         }
     }
+}
+
+#[test]
+fn unsteady_line_steps_without_allocating_and_stays_finite() {
+    let cfg = RigConfig::from_toml_str(&circuit_text()).expect("config");
+    let line = cfg.plant.effects.line_dynamics.as_ref().unwrap();
+    assert_eq!(line.friction, LineFriction::Unsteady);
+    let mut plant = Plant::configure(&cfg.plant, cfg.control_dt()).expect("plant");
+    let n = plant.linear_state().len();
+    let names = plant.linear_state_names();
+    assert_eq!(names.len(), n);
+    // 2 lines × segments × (p, q and 8 convolution states) + p_a, p_b, x, v.
+    assert_eq!(n, 2 * line.segments as usize * 10 + 4, "{names:?}");
+    assert!(names.iter().any(|s| s == "line_a.q[0].y[7]"));
+    plant.step(1.0).unwrap();
+    let allocs = || ALLOCS.with(|c| c.get());
+    let before = allocs();
+    for k in 0..500 {
+        let u = (k as f64 * 0.3).sin();
+        plant.step(u).unwrap();
+    }
+    let n_allocs = allocs() - before;
+    assert_eq!(n_allocs, 0, "allocations in 500 plant steps");
+    // The counter works on this thread.
+    let v: Vec<u8> = Vec::with_capacity(8);
+    assert!(allocs() > before && v.capacity() >= 8);
+    assert!(plant.linear_state().iter().all(|v| v.is_finite()));
+    // set_linear_state ∘ linear_state is the identity, convolution states included.
+    let mut x = plant.linear_state();
+    x[n - 1] += 1e-9;
+    plant.set_linear_state(&x);
+    assert_eq!(plant.linear_state(), x);
+}
+
+#[test]
+fn bad_friction_model_is_a_clear_config_error() {
+    let text = circuit_text().replace("friction = \"unsteady\"", "friction = \"turbulent\"");
+    assert!(text.contains("turbulent"));
+    let err = RigConfig::from_toml_str(&text).expect_err("must be refused");
+    let msg = err.to_string();
+    println!("{msg}");
+    assert_eq!(err.path, "effects.line_dynamics.friction", "{msg}");
+    assert!(
+        msg.contains("\"unsteady\"") && msg.contains("turbulent"),
+        "{msg}"
+    );
+    assert!(!msg.contains('\n'), "{msg}");
 }
