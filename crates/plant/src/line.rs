@@ -29,7 +29,9 @@
 //! (same low-frequency inertance); modes above 128 (λ > 1.6·10⁵) act as a pure inertance
 //! 4L·Σ_{k>128} 1/λₖ added to L, so the low-frequency limit is exact (inertance 4L/3,
 //! Σₖ 1/λₖ = 1/12). λₖ for k > 5 come from McMahon's expansion (error < 1e-9).
-//! `unsteady_trikha` uses Trikha's three published terms instead.
+//! `unsteady_trikha` uses Trikha's three published terms instead. Accuracy against the exact
+//! impedance (tests/rust/unsteady_line.rs): `unsteady` within 0.16 % for ω·r²/ν ≤ 3·10⁴
+//! (0.11 % at ω/ω_v ≈ 100, 001's 1.75 mm tube at 2 cSt and 350 Hz), Trikha within ≈ 2.4 %.
 //!
 //! Integration over a substep h: dq/dt is taken constant, Δq/h, so yᵢ advances exactly,
 //! yᵢ' = e^(−aᵢh)·yᵢ + mᵢ·gᵢ·Δq with gᵢ = (1 − e^(−aᵢh))/(aᵢh), and the momentum balance is
