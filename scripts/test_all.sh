@@ -17,5 +17,11 @@ python3 -m pip install --quiet -r tests/python/requirements.txt
 if command -v npm >/dev/null; then
   (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; })
 fi
+echo "== Python bindings for the simulated CANopen devices (python -m ehactl.devices)"
+python3 -m pip install --quiet "./bindings/python[devices]"
 echo "== Python tests"
-EHACTL_BIN="$PWD/target/release/ehactl" python3 -m pytest tests/python -q
+EHACTL_BIN="$PWD/target/release/ehactl" EHACTL_REQUIRE_BINDINGS=1 python3 -m pytest tests/python -q
+echo "== Python bindings (pyo3 + maturin): build, install, test"
+python3 -m pip install --quiet -r bindings/python/requirements-test.txt
+python3 -m pip install --quiet ./bindings/python
+EHACTL_BIN="$PWD/target/release/ehactl" bash -c 'cd bindings/python && python3 -m pytest tests -q'

@@ -1,0 +1,52 @@
+"""ehactl: simulate, tune and analyse electro-hydraulic force / position loops from Python.
+
+The package wraps the compiled Rust crates that run the 5 kHz loop (``ehactl-plant``,
+``ehactl-controller``, ``ehactl-hal``), so a gain tuned here is exactly the one the CLI
+and the real-time loop use. Units are SI throughout: s, N, m, Pa, V, m³/s.
+
+    import ehactl
+    cfg = ehactl.Config.load("configs/sahu2022_force.toml")
+    cfg["control.pi.kp"] = 0.4                    # V/V
+    res = ehactl.run(cfg, duration=1.0)           # GIL released while Rust simulates
+    res.t, res.force, res.u                       # NumPy arrays (s, N, V)
+    many = ehactl.run_many({"control.pi.kp": [0.3, 0.4, 0.5]}, base=cfg, duration=0.5)
+
+Submodules: :mod:`ehactl.tune` (critical-gain, model-based and optimisation tuning),
+:mod:`ehactl.metrics` (step / tracking metrics), :mod:`ehactl.plot` (matplotlib figures,
+optional dependency).
+"""
+
+from __future__ import annotations
+
+from ._ehactl import (  # noqa: F401  (re-exported)
+    Config,
+    NumericalError,
+    Plant,
+    __version__,
+)
+from ._runs import RunResult, param_grid, params, read_mcap, run, run_many
+
+__all__ = [
+    "Config",
+    "NumericalError",
+    "Plant",
+    "RunResult",
+    "__version__",
+    "param_grid",
+    "params",
+    "read_mcap",
+    "run",
+    "run_many",
+    "tune",
+    "metrics",
+    "plot",
+]
+
+
+def __getattr__(name: str):
+    # Lazy submodules: `ehactl.plot` imports matplotlib only when used.
+    if name in ("tune", "metrics", "plot"):
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'ehactl' has no attribute {name!r}")

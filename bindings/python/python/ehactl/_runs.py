@@ -1,0 +1,300 @@
+"""Runs, batches, results and MCAP reading (thin Python layer over ``ehactl._ehactl``)."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence, Union
+
+import numpy as np
+
+from . import _ehactl
+from ._ehactl import Config
+
+ConfigLike = Union[Config, str, os.PathLike]
+
+#: (name, unit) of every float column of a run result, in order.
+FIELDS: tuple[tuple[str, str], ...] = tuple(_ehactl.record_fields())
+_UNITS = dict(FIELDS)
+_UNITS.update({"cycle": "-", "stuck": "bool"})
+_ALIASES = {"command": "u", "valve_command": "plant_command"}
+
+
+def _as_config(cfg: ConfigLike) -> Config:
+    if isinstance(cfg, Config):
+        return cfg
+    if isinstance(cfg, (str, os.PathLike)):
+        return Config.load(cfg)
+    raise TypeError(f"expected an ehactl.Config or a path to a TOML config, got {type(cfg).__name__}")
+
+
+def _setpoint_edits(setpoint: Any) -> dict[str, Any]:
+    """`setpoint=` argument → dotted-path edits of the ``[setpoint]`` section."""
+    if setpoint is None:
+        return {}
+    if isinstance(setpoint, Mapping):
+        out = {}
+        for k, v in setpoint.items():
+            k = str(k)
+            out[k if k.startswith("setpoint.") else f"setpoint.{k}"] = v
+        return out
+    if isinstance(setpoint, (int, float, np.floating, np.integer)) and not isinstance(setpoint, bool):
+        return {"setpoint.kind": "step", "setpoint.final": float(setpoint)}
+    raise TypeError(
+        "setpoint: expected None, a number (step to that value at setpoint.start, N or m) "
+        f"or a dict of [setpoint] fields, got {type(setpoint).__name__}"
+    )
+
+
+def _prepare(cfg: ConfigLike, setpoint: Any, overrides: Mapping[str, Any] | None) -> Config:
+    c = _as_config(cfg)
+    edits = dict(overrides or {})
+    edits.update(_setpoint_edits(setpoint))
+    if edits:
+        c = c.with_values(edits)
+    return c
+
+
+class RunResult:
+    """One closed-loop run: every cycle's record as NumPy arrays plus the run summary.
+
+    Columns (attribute or item access): ``t`` (s), ``setpoint``/``feedback``/``error``
+    (N in force mode, m in position mode), ``u`` (valve command after limits, V; alias
+    ``command``), ``command_unsat``, ``p_term``, ``i_term``, ``d_term``, ``ff_term`` (V),
+    sensor readings ``force`` (N), ``position`` (m), ``p_a``, ``p_b`` (Pa), ``spool``
+    (fraction of travel), and the ground-truth plant states ``x``, ``x_load`` (m), ``v``,
+    ``v_load`` (m/s), ``plant_p_a``, ``plant_p_b``, ``p_s`` (Pa), ``plant_spool`` (-),
+    ``spool_velocity`` (1/s), ``q_a``, ``q_b`` (m³/s), ``friction``, ``external``,
+    ``rod_force`` (N), ``plant_command`` (V, after any delay), ``stuck`` (bool), ``cycle``.
+    ``units`` maps column → unit.
+    """
+
+    __slots__ = ("columns", "summary", "config")
+
+    def __init__(self, columns: dict[str, np.ndarray], summary: dict[str, Any], config: Config):
+        self.columns = columns
+        self.summary = summary
+        self.config = config
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        cols = object.__getattribute__(self, "columns")
+        name = _ALIASES.get(name, name)
+        try:
+            return cols[name]
+        except KeyError:
+            raise AttributeError(
+                f"RunResult has no column {name!r}; available: {', '.join(cols)}"
+            ) from None
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.columns[_ALIASES.get(name, name)]
+
+    def keys(self) -> list[str]:
+        """Column names."""
+        return list(self.columns)
+
+    def __len__(self) -> int:
+        return len(self.columns["cycle"])
+
+    @property
+    def units(self) -> dict[str, str]:
+        """Unit of each column ("N or m" columns follow the control mode: see ``unit``)."""
+        return {k: _UNITS.get(k, "") for k in self.columns}
+
+    @property
+    def unit(self) -> str:
+        """Unit of setpoint / feedback / error: "N" (force mode), "m" (position) or "V"."""
+        return self.summary.get("error_unit", "")
+
+    @property
+    def trip(self) -> str | None:
+        """None, or the supervisor's one-line reason if the run tripped."""
+        return self.summary.get("trip")
+
+    @property
+    def ok(self) -> bool:
+        """True when the run completed its duration without trip or interruption."""
+        return self.trip is None and not self.summary.get("interrupted", False)
+
+    @property
+    def dt(self) -> float:
+        """Control period (s)."""
+        return 1.0 / float(self.summary["control_rate_hz"])
+
+    def to_pandas(self):
+        """All columns as a ``pandas.DataFrame`` indexed by ``t`` (s). Needs pandas."""
+        try:
+            import pandas as pd
+        except ImportError as e:  # pragma: no cover - depends on the environment
+            raise ImportError("RunResult.to_pandas() needs pandas: pip install pandas") from e
+        df = pd.DataFrame({k: v for k, v in self.columns.items()})
+        return df.set_index("t", drop=False).rename_axis("time_s")
+
+    def __repr__(self) -> str:
+        s = self.summary
+        return (
+            f"RunResult({len(self)} cycles, {s.get('duration_s', 0):.4g} s, "
+            f"rms_error={s.get('rms_error')} {self.unit}, trip={self.trip!r})"
+        )
+
+
+def _progress_bar(total: int, desc: str, unit: str):
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:  # pragma: no cover - tqdm is optional
+        return None, None
+    bar = tqdm(total=total, desc=desc, unit=unit)
+
+    def cb(done: int, _total: int) -> None:
+        bar.n = done
+        bar.refresh()
+
+    return bar, cb
+
+
+def run(
+    cfg: ConfigLike,
+    duration: float | None = None,
+    setpoint: Any = None,
+    mcap: str | os.PathLike | None = None,
+    *,
+    params: Mapping[str, Any] | None = None,
+    fields: Sequence[str] | None = None,
+    progress: bool | Callable[[int, int], None] = False,
+) -> RunResult:
+    """Run one closed loop of ``cfg`` against the simulated plant, in simulated time.
+
+    Args:
+        cfg: ``Config`` or path of a TOML config.
+        duration: run length (s); default ``run.duration``.
+        setpoint: None (as configured), a number (step to it at ``setpoint.start``, N or m)
+            or a dict of ``[setpoint]`` fields, e.g. ``{"kind": "sine", "f0": 20.0}``.
+        mcap: write the MCAP log of the run there (same format as ``ehactl run --out``).
+        params: extra dotted-path overrides, e.g. ``{"control.pi.kp": 0.4}``.
+        fields: subset of columns to return (default all).
+        progress: True for a tqdm bar, or a callable ``(done_cycles, total_cycles)``.
+
+    The GIL is released while Rust simulates; Ctrl-C stops the run and raises
+    KeyboardInterrupt (the MCAP log is finalised first).
+    """
+    c = _prepare(cfg, setpoint, params)
+    bar = None
+    cb = None
+    if progress is True:
+        total = int(round((duration or c["run.duration"]) / c.control_dt))
+        bar, cb = _progress_bar(total, c.name or "run", "cycle")
+    elif callable(progress):
+        cb = progress
+    try:
+        cols, summary = _ehactl.run_one(
+            c, duration, None if mcap is None else os.fspath(mcap), None if fields is None else list(fields), cb
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    return RunResult(cols, json.loads(summary), c)
+
+
+def param_grid(base: ConfigLike, grid: Mapping[str, Iterable[Any]]) -> list[Config]:
+    """Cartesian product of ``grid`` ({dotted path: values}) applied to ``base``.
+
+    Every combination is validated; the first invalid one raises ValueError naming the field.
+    """
+    b = _as_config(base)
+    keys = list(grid)
+    values = [list(grid[k]) for k in keys]
+    return [b.with_values(dict(zip(keys, combo))) for combo in itertools.product(*values)]
+
+
+def run_many(
+    cfgs: Iterable[ConfigLike] | Mapping[str, Iterable[Any]],
+    duration: float | None = None,
+    setpoint: Any = None,
+    *,
+    base: ConfigLike | None = None,
+    params: Mapping[str, Any] | None = None,
+    fields: Sequence[str] | None = None,
+    threads: int | None = None,
+    mcap_dir: str | os.PathLike | None = None,
+    progress: bool | Callable[[int, int], None] = False,
+) -> list[RunResult]:
+    """Run many closed loops in parallel on all cores (rayon), GIL released.
+
+    Args:
+        cfgs: a list of ``Config``/paths, or a parameter grid ``{dotted path: values}``
+            expanded over ``base`` (see :func:`param_grid`).
+        duration, setpoint, params, fields: as in :func:`run`, applied to every run.
+        threads: worker threads (default: one per core).
+        mcap_dir: if given, write ``run_0000.mcap``, ``run_0001.mcap``, … there.
+        progress: True for a tqdm bar over runs, or a callable ``(done_runs, total_runs)``.
+
+    Returns the results in input order.
+    """
+    if isinstance(cfgs, Mapping):
+        if base is None:
+            raise ValueError("run_many: a parameter grid needs base=<Config or path>")
+        configs = param_grid(base, cfgs)
+    else:
+        configs = [_as_config(c) for c in cfgs]
+    configs = [_prepare(c, setpoint, params) for c in configs]
+    mcap = None
+    if mcap_dir is not None:
+        d = Path(mcap_dir)
+        d.mkdir(parents=True, exist_ok=True)
+        mcap = [os.fspath(d / f"run_{i:04d}.mcap") for i in range(len(configs))]
+    bar = None
+    cb = None
+    if progress is True:
+        bar, cb = _progress_bar(len(configs), "run_many", "run")
+    elif callable(progress):
+        cb = progress
+    try:
+        outs = _ehactl.run_batch(
+            configs, duration, mcap, None if fields is None else list(fields), threads, cb
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    return [RunResult(cols, json.loads(s), c) for (cols, s), c in zip(outs, configs)]
+
+
+def params() -> list[dict[str, str]]:
+    """Every registered numeric config parameter: path, unit, kind, range, description."""
+    return [
+        {"path": p, "unit": u, "kind": k, "range": r, "description": d}
+        for (p, u, k, r, d) in _ehactl.param_table()
+    ]
+
+
+def read_mcap(path: str | os.PathLike) -> dict[str, Any]:
+    """Read any ehactl MCAP log (Rust ``mcap`` reader, chunk CRCs checked).
+
+    Returns a dict with one entry per channel: CDR channels (``control``, ``plant``) as
+    {field: NumPy array} decoded from the log's own ros2msg schema, plus ``_log_time`` (ns)
+    and ``_sequence``; JSON channels parsed: ``config`` (first message), ``events`` (list),
+    ``summary`` (last message); and ``metadata`` ({record name: {key: value}}), ``schemas``
+    ({topic: (name, encoding)}), ``profile``, ``library``. Topics other than the standard
+    ones appear under their name without the leading slash (JSON → list of messages).
+    """
+    raw = _ehactl.read_mcap_raw(os.fspath(path))
+    out: dict[str, Any] = {}
+    for topic, cols in raw["cdr"].items():
+        out[topic.lstrip("/")] = cols
+    for topic, msgs in raw["json"].items():
+        parsed = [json.loads(m) for m in msgs]
+        name = topic.lstrip("/")
+        if name == "config":
+            out[name] = parsed[0] if parsed else None
+        elif name == "summary":
+            out[name] = parsed[-1] if parsed else None
+        else:
+            out[name] = parsed
+    out.setdefault("events", [])
+    out["metadata"] = raw["metadata"]
+    out["schemas"] = raw["schemas"]
+    out["other_counts"] = raw["other"]
+    out["profile"] = raw["profile"]
+    out["library"] = raw["library"]
+    return out

@@ -1,0 +1,596 @@
+"""Loop tuning on the compiled nonlinear plant.
+
+Three methods, each returning a :class:`TuneResult` (gains, metrics achieved on the
+nonlinear plant next to those of the starting gains, the tuned :class:`ehactl.Config`):
+
+- :func:`critical_gain` — the critical-gain (ultimate sensitivity) experiment of seed 003
+  §5: close the loop with P only, raise K_P until the loop oscillates without decay
+  (K_Pcr), read the oscillation period T_pcr, then set the gains by a rule
+  (Ziegler–Nichols by default);
+- :func:`optimize` — minimise a time-domain cost (ITAE by default) of a step response on
+  the nonlinear plant, with overshoot and command-saturation limits, by a cross-entropy
+  search whose every generation is one parallel :func:`ehactl.run_many` batch;
+- :func:`model_based` — PI (force) / PD (position) gains for a target phase margin and
+  crossover frequency from the loop's frequency response (see its docstring for where
+  the response comes from).
+
+Gains: force mode → ``control.pi.kp`` (V/V) and ``control.pi.integral`` (1/s, the I of
+K_P(1 + I/s), 004 §6); position mode → ``control.pd.kp`` (V/m) and ``control.pd.td`` (s,
+003 eq. 32). Every metric is computed on the nonlinear simulated plant from the ground
+truth (``rod_force`` or ``x``), so sensor noise does not enter the score.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from . import metrics as _m
+from ._ehactl import Config
+from ._runs import ConfigLike, RunResult, _as_config, run_many
+
+__all__ = [
+    "StepTest",
+    "TrackingTest",
+    "TuneResult",
+    "gain_paths",
+    "evaluate",
+    "critical_gain",
+    "optimize",
+    "model_based",
+    "frequency_response",
+    "FrequencyResponse",
+    "controller_response",
+    "loop_margins",
+]
+
+
+def gain_paths(cfg: Config) -> tuple[str, str]:
+    """Dotted paths of the two tuned gains for the config's control mode."""
+    if cfg.mode == "force":
+        return ("control.pi.kp", "control.pi.integral")
+    if cfg.mode == "position":
+        return ("control.pd.kp", "control.pd.td")
+    raise ValueError("tuning needs control.mode = \"force\" or \"position\" (open_loop has no gains)")
+
+
+@dataclass
+class StepTest:
+    """The step experiment that scores gains on the nonlinear plant.
+
+    ``initial`` → ``final`` (N or m) at ``start`` (s), run for ``duration`` (s); the error
+    is measured on the ground-truth column ``signal`` (``rod_force`` or ``x``). If
+    ``vibration_from`` (s) is set, vibration metrics of ``signal`` after that time are added,
+    with the amplitude of the ``vibration_frequency`` (Hz) component when given.
+    """
+
+    initial: float
+    final: float
+    start: float
+    duration: float
+    signal: str
+    vibration_from: float | None = None
+    vibration_frequency: float | None = None
+
+    @classmethod
+    def default(cls, cfg: Config) -> "StepTest":
+        """Force mode: 0 → the config's static force (setpoint.offset, or setpoint.final for
+        a step), step at 10 ms, 0.1 s long. Position mode: setpoint.initial →
+        setpoint.final at setpoint.start over run.duration, vibration scored over the last
+        half (at the excitation frequency when the excitation is harmonic)."""
+        kind = cfg["setpoint.kind"]
+        if cfg.mode == "force":
+            target = cfg["setpoint.final"] if kind in ("step", "ramp") else cfg["setpoint.offset"]
+            if not target:
+                target = cfg["setpoint.final"] or cfg["setpoint.offset"]
+            if not target:
+                raise ValueError("StepTest.default: setpoint has no non-zero target force; give a StepTest")
+            return cls(initial=0.0, final=float(target), start=0.01, duration=0.1, signal="rod_force")
+        if cfg.mode == "position":
+            dur = float(cfg["run.duration"])
+            freq = None
+            if "excitation.kind" in cfg and cfg["excitation.kind"] == "harmonic":
+                freq = float(cfg["excitation.frequency"])
+            start = float(cfg["setpoint.start"])
+            return cls(
+                initial=float(cfg["setpoint.initial"]),
+                final=float(cfg["setpoint.final"]),
+                start=start,
+                duration=dur,
+                signal="x",
+                vibration_from=start + 0.5 * (dur - start),
+                vibration_frequency=freq,
+            )
+        raise ValueError(f"StepTest.default: control.mode is {cfg.mode!r}; expected \"force\" or \"position\"")
+
+    def setpoint(self) -> dict[str, Any]:
+        """The ``[setpoint]`` edits of this test."""
+        return {"kind": "step", "initial": self.initial, "final": self.final, "start": self.start}
+
+    def fields(self) -> list[str]:
+        return ["t", "setpoint", "u", "command_unsat", self.signal]
+
+
+@dataclass
+class TrackingTest:
+    """Tracking of the config's own setpoint (e.g. the 004 785 N ± 196 N sweep), or of
+    ``setpoint_edits`` applied to it, for ``duration`` (s); scored on the ground-truth
+    column ``signal`` after ``t_from`` (s): ``rms_error``, ``max_abs_error`` (N or m),
+    ``peak_command`` (V) and ``saturation_fraction`` (share of scored cycles with the
+    unsaturated command at the output limit)."""
+
+    duration: float
+    t_from: float
+    signal: str
+    setpoint_edits: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def default(cls, cfg: Config) -> "TrackingTest":
+        """The config's setpoint over run.duration, scored from its dynamic start
+        (setpoint.ramp_time for static_dynamic, else setpoint.start)."""
+        kind = cfg["setpoint.kind"]
+        t_from = float(cfg["setpoint.ramp_time"]) if kind == "static_dynamic" else float(cfg["setpoint.start"])
+        t_from = max(t_from, float(cfg["setpoint.start"]))
+        sig = {"force": "rod_force", "position": "x"}.get(cfg.mode)
+        if sig is None:
+            raise ValueError(f"TrackingTest.default: control.mode is {cfg.mode!r}; expected \"force\" or \"position\"")
+        return cls(duration=float(cfg["run.duration"]), t_from=t_from, signal=sig)
+
+    def setpoint(self) -> dict[str, Any] | None:
+        return dict(self.setpoint_edits) or None
+
+    def fields(self) -> list[str]:
+        return ["t", "setpoint", "u", "command_unsat", self.signal]
+
+
+def _u_limit(cfg: Config) -> float:
+    if cfg.mode == "force":
+        return float(min(abs(cfg["control.pi.u_min"]), abs(cfg["control.pi.u_max"])))
+    return float(cfg["control.pd.u_max"])
+
+
+def score(res: RunResult, test: "StepTest | TrackingTest") -> dict[str, float]:
+    """Metrics of one test run (step: :func:`ehactl.metrics.step_metrics`; tracking: RMS
+    and peak error); adds ``tripped`` (1.0 if the supervisor tripped, then every metric is
+    inf)."""
+    if not res.ok or len(res) < 4:
+        keys = ("itae", "iae", "ise", "overshoot_pct", "settling_time", "rms_error", "max_abs_error")
+        bad = {k: math.inf for k in keys}
+        bad["tripped"] = 1.0
+        return bad
+    if isinstance(test, TrackingTest):
+        m = res.t >= test.t_from
+        e = res.setpoint[m] - res[test.signal][m]
+        return {
+            "rms_error": float(np.sqrt(np.mean(e**2))),
+            "max_abs_error": float(np.max(np.abs(e))),
+            "peak_command": float(np.max(np.abs(res.u[m]))),
+            "saturation_fraction": float(np.mean(np.abs(res.command_unsat[m]) >= _u_limit(res.config))),
+            "tripped": 0.0,
+        }
+    y = res[test.signal]
+    out = _m.step_metrics(
+        res.t,
+        y,
+        test.final,
+        test.initial,
+        test.start,
+        u=res.u,
+        u_unsat=res.command_unsat,
+        u_limit=_u_limit(res.config),
+    )
+    if test.vibration_from is not None:
+        out.update(_m.vibration_metrics(res.t, y, test.final, test.vibration_from, test.vibration_frequency))
+    out["tripped"] = 0.0
+    return out
+
+
+def evaluate(
+    cfg: ConfigLike,
+    gains: Sequence[dict[str, float]] | None = None,
+    test: "StepTest | TrackingTest | None" = None,
+    threads: int | None = None,
+) -> list[dict[str, float]]:
+    """Score each gain set (dict dotted path → value; ``{}`` = the config as is) with the
+    test (default :meth:`StepTest.default`) on the nonlinear plant, in one parallel batch."""
+    base = _as_config(cfg)
+    test = test or StepTest.default(base)
+    gains = list(gains) if gains is not None else [{}]
+    cfgs = [base.with_values(g) if g else base for g in gains]
+    res = run_many(cfgs, duration=test.duration, setpoint=test.setpoint(), fields=test.fields(), threads=threads)
+    return [score(r, test) for r in res]
+
+
+@dataclass
+class TuneResult:
+    """Outcome of a tuning method.
+
+    ``gains``: dotted path → tuned value; ``metrics``: achieved on the nonlinear plant with
+    the step test; ``baseline_gains`` / ``baseline``: the same for the starting config;
+    ``config``: the tuned config; ``details``: method-specific data (K_Pcr, T_pcr,
+    search history, margins, ...)."""
+
+    method: str
+    gains: dict[str, float]
+    metrics: dict[str, float]
+    baseline_gains: dict[str, float]
+    baseline: dict[str, float]
+    config: Config
+    test: StepTest
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def write_config(self, path) -> None:
+        """Save the tuned config as TOML (loads with ``ehactl run`` and ``Config.load``)."""
+        self.config.save(path)
+
+    def improvement(self, metric: str = "itae") -> float:
+        """baseline / tuned for ``metric`` (> 1 means the tuned gains are better)."""
+        b, t = self.baseline.get(metric, math.nan), self.metrics.get(metric, math.nan)
+        return b / t if t else math.inf
+
+    def table(self, keys: Sequence[str] = ("itae", "rms_error", "overshoot_pct", "settling_time", "rise_time", "peak_command")) -> str:
+        """Plain-text comparison of baseline and tuned gains and metrics."""
+        rows = [("", "baseline", "tuned")]
+        for k in self.gains:
+            rows.append((k, f"{self.baseline_gains.get(k, math.nan):.6g}", f"{self.gains[k]:.6g}"))
+        for k in keys:
+            if k in self.metrics or k in self.baseline:
+                rows.append((k, f"{self.baseline.get(k, math.nan):.4g}", f"{self.metrics.get(k, math.nan):.4g}"))
+        w = [max(len(r[i]) for r in rows) for i in range(3)]
+        return "\n".join(f"{a:<{w[0]}}  {b:>{w[1]}}  {c:>{w[2]}}" for a, b, c in rows)
+
+    def __repr__(self) -> str:
+        g = ", ".join(f"{k}={v:.6g}" for k, v in self.gains.items())
+        key = "itae" if "itae" in self.metrics else "rms_error"
+        return f"TuneResult({self.method}: {g}; {key} {self.baseline.get(key, math.nan):.4g} → {self.metrics.get(key, math.nan):.4g})"
+
+
+def _finish(method: str, base: Config, gains: dict[str, float], test, details: dict, threads, constraint_test=None) -> TuneResult:
+    paths = gain_paths(base)
+    base_gains = {p: float(base[p]) for p in paths}
+    tuned = base.with_values(gains)
+    m_base, m_tuned = evaluate(base, [{}, gains], test, threads)
+    if constraint_test is not None:
+        c_base, c_tuned = evaluate(base, [{}, gains], constraint_test, threads)
+        m_base = _merge(m_base, c_base)
+        m_tuned = _merge(m_tuned, c_tuned)
+    return TuneResult(method, dict(gains), m_tuned, base_gains, m_base, tuned, test, details)
+
+
+def _merge(primary: dict[str, float], constraint: dict[str, float]) -> dict[str, float]:
+    """Primary metrics plus the constraint test's as ``constraint_<name>``; overshoot,
+    saturation and trips count from either test."""
+    out = dict(primary)
+    out.update({f"constraint_{k}": v for k, v in constraint.items()})
+    out["overshoot_pct"] = max(primary.get("overshoot_pct", 0.0), constraint.get("overshoot_pct", 0.0))
+    out["saturation_fraction"] = max(primary.get("saturation_fraction", 0.0), constraint.get("saturation_fraction", 0.0))
+    out["tripped"] = max(primary.get("tripped", 0.0), constraint.get("tripped", 0.0))
+    return out
+
+
+def _identification_base(cfg: Config) -> Config:
+    """Copy of ``cfg`` for an identification experiment: sensor noise and tones off, and
+    the dynamic part of the external excitation off (its static offset stays), so that what
+    is measured is the loop's own behaviour and not a forced vibration."""
+    c = cfg.copy()
+    edits = {k: 0.0 for k in c.keys() if k.startswith("sensors.") and k.endswith(".noise")}
+    if "excitation.amplitude" in c:
+        edits["excitation.amplitude"] = 0.0
+    if edits:
+        c.update(edits)
+    if "effects.sensor_tone" in c:
+        del c["effects.sensor_tone"]
+    return c
+
+
+#: Gain rules from (K_Pcr, T_pcr): name → (kp factor, second-gain function).
+#: PI: integral I = 1/T_i; PD: T_D. Ziegler & Nichols (1942) ultimate-sensitivity rules;
+#: Tyreus–Luyben (1992) for a less oscillatory PI.
+PI_RULES: dict[str, tuple[float, Callable[[float], float]]] = {
+    "zn": (0.45, lambda tcr: 1.2 / tcr),  # T_i = T_cr / 1.2
+    "tyreus_luyben": (1.0 / 3.2, lambda tcr: 1.0 / (2.2 * tcr)),  # T_i = 2.2 T_cr
+}
+PD_RULES: dict[str, tuple[float, Callable[[float], float]]] = {
+    "zn": (0.8, lambda tcr: tcr / 8.0),  # K_P = 0.8 K_cr, T_D = T_cr / 8
+    "conservative": (0.5, lambda tcr: tcr / 8.0),
+}
+
+
+def critical_gain(
+    cfg: ConfigLike,
+    rule: str = "zn",
+    test: StepTest | None = None,
+    kp_range: tuple[float, float] | None = None,
+    rel_tol: float = 0.02,
+    growth_threshold: float = 0.9,
+    noise_free: bool = True,
+    threads: int | None = None,
+    progress: bool = False,
+) -> TuneResult:
+    """Critical-gain tuning (seed 003 §5, Ziegler–Nichols ultimate sensitivity).
+
+    1. Proportional-only loop (I = 0 or T_D = 0) with the step test's setpoint.
+    2. K_P scanned geometrically over ``kp_range`` (default current K_P /30 … ×300) in one
+       parallel batch, then the bracket stable/unstable is narrowed by batches until
+       hi/lo ≤ 1 + ``rel_tol``. A run counts as unstable when it trips or when the
+       detrended oscillation of the ground-truth signal in the second half of the analysis
+       window has at least ``growth_threshold`` × the RMS of the first half (no decay).
+    3. T_pcr = period of the sustained oscillation just above K_Pcr (zero crossings).
+    4. Gains from ``rule``: PI ``"zn"`` K_P = 0.45 K_Pcr, T_i = T_pcr/1.2; ``"tyreus_luyben"``
+       K_P = K_Pcr/3.2, T_i = 2.2 T_pcr; PD ``"zn"`` K_P = 0.8 K_Pcr, T_D = T_pcr/8;
+       ``"conservative"`` K_P = 0.5 K_Pcr, T_D = T_pcr/8.
+
+    ``noise_free`` switches sensor noise, tones and the dynamic part of the excitation
+    force off for the identification experiment only (they would mask a slowly decaying
+    oscillation or pass a forced vibration off as the critical one); the tuned gains are
+    scored on the config as given, excitation included.
+    """
+    base = _as_config(cfg)
+    kp_path, second = gain_paths(base)
+    test = test or StepTest.default(base)
+    rules = PI_RULES if base.mode == "force" else PD_RULES
+    if rule not in rules:
+        raise ValueError(f"rule {rule!r} is not known for {base.mode} mode; expected one of {sorted(rules)}")
+    ident = _identification_base(base) if noise_free else base.copy()
+    ident[second] = 0.0
+    kp0 = float(base[kp_path]) or 1.0
+    lo_r, hi_r = kp_range or (kp0 / 30.0, kp0 * 300.0)
+    window_from = test.start + 0.4 * (test.duration - test.start)
+    scanned: list[tuple[float, float, bool]] = []
+
+    def classify(kps: np.ndarray) -> list[tuple[bool, RunResult]]:
+        res = run_many(
+            [ident.with_values({kp_path: float(k)}) for k in kps],
+            duration=test.duration,
+            setpoint=test.setpoint(),
+            fields=["t", test.signal],
+            threads=threads,
+        )
+        out = []
+        for k, r in zip(kps, res):
+            if not r.ok:
+                out.append((True, r))
+                scanned.append((float(k), math.inf, True))
+                continue
+            g = _m.oscillation_growth(r.t, r[test.signal], window_from)
+            floor = 1e-9 * abs(test.final - test.initial)
+            unstable = g["ratio"] >= growth_threshold and g["rms_second"] > floor
+            scanned.append((float(k), g["ratio"], unstable))
+            out.append((unstable, r))
+        return out
+
+    bar = None
+    if progress:
+        try:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(desc="critical gain", unit="batch")
+        except ImportError:  # pragma: no cover
+            bar = None
+    grid = np.geomspace(lo_r, hi_r, 16)
+    cls = classify(grid)
+    if bar:
+        bar.update()
+    flags = [c[0] for c in cls]
+    if not any(flags):
+        raise RuntimeError(
+            f"critical_gain: the P-only loop stayed stable up to K_P = {hi_r:.4g} "
+            f"({gain_paths(base)[0]}); widen kp_range"
+        )
+    i = flags.index(True)
+    if i == 0:
+        raise RuntimeError(f"critical_gain: already unstable at K_P = {lo_r:.4g}; lower kp_range")
+    lo, hi = float(grid[i - 1]), float(grid[i])
+    hi_res = cls[i][1]
+    n = 4
+    while hi / lo > 1.0 + rel_tol:
+        pts = np.geomspace(lo, hi, n + 2)[1:-1]
+        cls = classify(pts)
+        if bar:
+            bar.update()
+        for k, (u, r) in zip(pts, cls):
+            if u:
+                hi, hi_res = float(k), r
+                break
+            lo = float(k)
+    if bar:
+        bar.close()
+    k_cr = math.sqrt(lo * hi)
+    g = _m.oscillation_growth(hi_res.t, hi_res[test.signal], window_from)
+    t_cr = g["period"]
+    if not math.isfinite(t_cr):
+        raise RuntimeError("critical_gain: could not read the oscillation period at K_Pcr")
+    kf, second_fn = rules[rule]
+    gains = {kp_path: kf * k_cr, second: second_fn(t_cr)}
+    details = {
+        "K_Pcr": k_cr,
+        "T_pcr": t_cr,
+        "f_cr_hz": 1.0 / t_cr,
+        "bracket": (lo, hi),
+        "rule": rule,
+        "scanned": sorted(scanned),
+        "noise_free_identification": noise_free,
+    }
+    return _finish("critical_gain", base, gains, test, details, threads)
+
+
+def _cost(m: dict[str, float], objective, max_overshoot_pct: float, max_saturation: float) -> tuple[float, bool]:
+    if m.get("tripped", 0.0):
+        return math.inf, False
+    if not callable(objective) and objective not in m:
+        raise ValueError(f"optimize: objective {objective!r} is not a metric of the test; available: {sorted(m)}")
+    obj = objective(m) if callable(objective) else m[objective]
+    if not math.isfinite(obj):
+        return math.inf, False
+    v = max(0.0, m.get("overshoot_pct", 0.0) - max_overshoot_pct) / max(max_overshoot_pct, 1.0)
+    v += max(0.0, m.get("saturation_fraction", 0.0) - max_saturation) / max(max_saturation, 1e-3)
+    return obj * (1.0 + 10.0 * v), v == 0.0
+
+
+def _search_space(base: Config, bounds: dict[str, tuple[float, float]] | None):
+    """Search variables, their log bounds and the map back to config gains.
+
+    Force mode searches K_P (V/V) and K_I = K_P·I (1/s): the integral action the loop
+    actually sees, so the two axes are independent. Position mode searches K_P (V/m) and
+    T_D (s)."""
+    paths = gain_paths(base)
+    x0 = {p: float(base[p]) for p in paths}
+    if base.mode == "force":
+        names = ("control.pi.kp", "ki")
+        q0 = np.array([x0["control.pi.kp"], x0["control.pi.kp"] * x0["control.pi.integral"]])
+
+        def to_gains(q):
+            return {"control.pi.kp": float(q[0]), "control.pi.integral": float(q[1] / q[0])}
+
+    else:
+        names = ("control.pd.kp", "control.pd.td")
+        q0 = np.array([x0["control.pd.kp"], x0["control.pd.td"]])
+
+        def to_gains(q):
+            return {"control.pd.kp": float(q[0]), "control.pd.td": float(q[1])}
+
+    b = dict(bounds or {})
+    for i, n in enumerate(names):
+        if n in b:
+            continue
+        if n.endswith(".td"):
+            b[n] = (5e-5, 5e-2)
+        elif q0[i] > 0:
+            b[n] = (q0[i] / 100.0, q0[i] * 100.0)
+        else:
+            b[n] = (1.0, 1e5) if n == "ki" else (1e-3, 1e3)
+    for n in b:
+        if n not in names:
+            raise ValueError(f"optimize: unknown bound {n!r}; expected {names}")
+        if not (0 < b[n][0] < b[n][1]):
+            raise ValueError(f"optimize: bound {n} = {b[n]} must satisfy 0 < low < high")
+    lo = np.log([b[n][0] for n in names])
+    hi = np.log([b[n][1] for n in names])
+    q0 = np.where(q0 > 0, q0, np.exp(0.5 * (lo + hi)))
+    return names, b, lo, hi, np.log(np.clip(q0, np.exp(lo), np.exp(hi))), to_gains
+
+
+def optimize(
+    cfg: ConfigLike,
+    objective: str | Callable[[dict[str, float]], float] = "itae",
+    test: "StepTest | TrackingTest | None" = None,
+    max_overshoot_pct: float = 5.0,
+    max_saturation: float = 0.01,
+    constraint_test: StepTest | None = None,
+    bounds: dict[str, tuple[float, float]] | None = None,
+    generations: int = 8,
+    population: int = 16,
+    elite_fraction: float = 0.25,
+    seed: int = 0,
+    threads: int | None = None,
+    progress: bool = False,
+) -> TuneResult:
+    """Minimise a time-domain cost of the step test on the nonlinear plant.
+
+    ``objective``: a metric name of :func:`ehactl.metrics.step_metrics` /
+    ``vibration_metrics`` (default ``"itae"``, unit·s²), of a :class:`TrackingTest`
+    (``"rms_error"``), or a callable on the metrics dict. ``constraint_test`` (e.g. a
+    :class:`StepTest` while optimising tracking) is run for every candidate too; its
+    overshoot, saturation and trips count in the constraints and its metrics appear as
+    ``constraint_<name>``. Constraints: overshoot ≤ ``max_overshoot_pct`` (% of the step) and share of cycles
+    after the 90 % rise with the unsaturated command at the controller's output limit ≤
+    ``max_saturation`` (see :func:`ehactl.metrics.step_metrics`); violations multiply the cost by 1 + 10·(relative violation), trips
+    cost ∞. Search: cross-entropy method in log space over K_P and K_I = K_P·I (force) or
+    K_P and T_D (position) within ``bounds`` (keys ``"control.pi.kp"``, ``"ki"`` (1/s) or
+    ``"control.pd.kp"``, ``"control.pd.td"`` (s); default starting value /100 … ×100, T_D
+    0.05–50 ms). Generation 0 is a log grid plus the starting gains; each later one samples
+    ``population`` points around the elites. Every generation is one parallel
+    :func:`ehactl.run_many` batch. The best feasible gains are returned.
+    """
+    base = _as_config(cfg)
+    gain_paths(base)  # clear error for open_loop configs
+    test = test or StepTest.default(base)
+    names, b, lo, hi, q0, to_gains = _search_space(base, bounds)
+    rng = np.random.default_rng(seed)
+    history: list[dict[str, Any]] = []
+    best: tuple[float, bool, dict[str, float], dict[str, float]] | None = None
+
+    def run_gen(z: np.ndarray) -> list[tuple[float, bool, dict, dict]]:
+        gains = [to_gains(np.exp(row)) for row in z]
+        ms = evaluate(base, gains, test, threads)
+        if constraint_test is not None:
+            ms = [_merge(a, c) for a, c in zip(ms, evaluate(base, gains, constraint_test, threads))]
+        out = []
+        for g, m in zip(gains, ms):
+            c, feas = _cost(m, objective, max_overshoot_pct, max_saturation)
+            out.append((c, feas, g, m))
+            history.append({"gains": g, "cost": c, "feasible": feas, "metrics": m})
+        return out
+
+    def qrow(g: dict[str, float]) -> np.ndarray:
+        if base.mode == "force":
+            return np.log([g["control.pi.kp"], g["control.pi.kp"] * g["control.pi.integral"]])
+        return np.log([g["control.pd.kp"], g["control.pd.td"]])
+
+    side = max(2, int(round(math.sqrt(population))))
+    g0 = np.array(np.meshgrid(*[np.linspace(l, h, side) for l, h in zip(lo, hi)])).reshape(len(names), -1).T
+    z = np.vstack([g0, q0[None, :]])
+    mu = sd = None
+    bar = None
+    if progress:
+        try:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=generations, desc="optimize", unit="gen")
+        except ImportError:  # pragma: no cover
+            bar = None
+    for gen in range(generations):
+        res = run_gen(z)
+        for r in res:
+            if best is None or (r[1], -r[0]) > (best[1], -best[0]):
+                best = r
+        ranked = sorted(res + [best], key=lambda r: (not r[1], r[0]))
+        n_el = max(2, int(round(elite_fraction * len(res))))
+        el_rows = [qrow(r[2]) for r in ranked[:n_el] if math.isfinite(r[0])]
+        el = np.array(el_rows) if el_rows else q0[None, :]
+        new_mu = el.mean(axis=0)
+        new_sd = np.maximum(el.std(axis=0), 0.02 * (hi - lo))
+        if mu is None:
+            mu, sd = new_mu, new_sd
+        else:
+            mu = 0.7 * new_mu + 0.3 * mu
+            sd = 0.7 * new_sd + 0.3 * sd
+        if bar:
+            bar.update()
+            bar.set_postfix(best=f"{best[0]:.4g}")
+        if gen + 1 < generations:
+            z = np.clip(rng.normal(mu, sd, size=(population, len(names))), lo, hi)
+    if bar:
+        bar.close()
+    assert best is not None
+    if not math.isfinite(best[0]):
+        raise RuntimeError("optimize: every candidate tripped or failed; check bounds and the step test")
+    at_bound = [n for n, v, l, h in zip(names, qrow(best[2]), lo, hi) if min(v - l, h - v) < 1e-3 * (h - l)]
+    details = {
+        "objective": objective if isinstance(objective, str) else getattr(objective, "__name__", "callable"),
+        "cost": best[0],
+        "feasible": best[1],
+        "bounds": b,
+        "at_bound": at_bound,
+        "evaluations": len(history),
+        "history": history,
+        "max_overshoot_pct": max_overshoot_pct,
+        "max_saturation": max_saturation,
+        "constraint_test": constraint_test,
+    }
+    return _finish("optimize", base, best[2], test, details, threads, constraint_test)
+
+
+# ---------------------------------------------------------------------------------------
+# Frequency response and model-based tuning (filled in below).
+# ---------------------------------------------------------------------------------------
+from ._freq import (  # noqa: E402
+    FrequencyResponse,
+    controller_response,
+    frequency_response,
+    loop_margins,
+    model_based,
+)

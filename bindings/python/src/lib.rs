@@ -1,0 +1,36 @@
+//! Python bindings of ehactl (`ehactl._ehactl`, wrapped by the pure-Python package
+//! `ehactl`). Everything physical runs in the same compiled crates as the CLI:
+//! `ehactl-plant` (plant), `ehactl-controller` (PI/PD, setpoints, supervisor, loop,
+//! `session::run_sim`) and `ehactl-hal` (records, MCAP logger). The GIL is released while
+//! Rust simulates; batches run in parallel on a rayon pool.
+#![deny(missing_docs)]
+
+mod columns;
+mod config;
+mod mcapread;
+mod plant;
+mod runs;
+
+use pyo3::prelude::*;
+
+pyo3::create_exception!(
+    _ehactl,
+    NumericalError,
+    pyo3::exceptions::PyRuntimeError,
+    "The simulated plant produced a non-finite state (raised by Plant.step)."
+);
+
+/// The compiled core of the `ehactl` package.
+#[pymodule]
+fn _ehactl(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("NumericalError", m.py().get_type::<NumericalError>())?;
+    m.add_class::<config::Config>()?;
+    m.add_class::<plant::Plant>()?;
+    m.add_function(wrap_pyfunction!(config::param_table, m)?)?;
+    m.add_function(wrap_pyfunction!(runs::run_one, m)?)?;
+    m.add_function(wrap_pyfunction!(runs::run_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(runs::record_fields, m)?)?;
+    m.add_function(wrap_pyfunction!(mcapread::read_mcap_raw, m)?)?;
+    Ok(())
+}
