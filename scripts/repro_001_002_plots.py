@@ -60,15 +60,18 @@ def plot_segments(d, out):
     f = d["f_hz"]
     for ax, tube in zip(axes, ["4.5", "11.5"]):
         ax.loglog(f, d[f"tm_{tube}in"], "k", lw=2.5, label="001 transfer matrix (eq. 1–22)")
-        for n in [2, 4, 8, 16, 64]:
-            ax.loglog(f, d[f"plant_{tube}in_n{n}"], lw=1, label=f"plant lumped line, {n} segments")
+        for n in [2, 8, 32]:
+            ax.loglog(f, d[f"plant_{tube}in_n{n}"], lw=1,
+                      label=f"plant lumped line, unsteady friction, {n} segments")
+        ax.loglog(f, d[f"plant_{tube}in_n64_steady"], "--", lw=1,
+                  label="plant lumped line, steady friction, 64 segments")
         ax.set_title(f"{tube} in tube, 2 cSt")
         ax.set_xlabel("frequency (Hz)")
         ax.set_ylabel("gain / gain at 20 Hz")
         ax.grid(True, which="both", alpha=0.3)
         ax.set_xlim(100, 1500)
     axes[0].legend(fontsize=8)
-    fig.suptitle("001: plant R-L-C line (linearised) vs transfer matrix, first resonance")
+    fig.suptitle("001: plant R-L-C line (linearised, unsteady vs steady friction) vs transfer matrix")
     fig.tight_layout()
     fig.savefig(out, dpi=120)
     plt.close(fig)

@@ -107,6 +107,12 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 segments: nseg,
                 bulk_modulus: Some(1.2e9),
                 port_volume: 0.0,
+                // Both wall-friction models (the unsteady one adds convolution states).
+                friction: if nseg % 2 == 0 {
+                    LineFriction::Unsteady
+                } else {
+                    LineFriction::Steady
+                },
             });
             p.effects.flexible_mount = mount.then(|| FlexibleMount {
                 enabled: true,

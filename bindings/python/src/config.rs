@@ -386,6 +386,7 @@ pub fn param_table() -> Vec<(String, String, String, String, String)> {
                     Kind::Integer => "int",
                     Kind::FloatArray => "float[]",
                     Kind::Bool => "bool",
+                    Kind::Choice(_) => "choice",
                 }
                 .to_string(),
                 p.range.describe(),

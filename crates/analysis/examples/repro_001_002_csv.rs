@@ -4,7 +4,8 @@
 //!   per stack volt for tubes of 0, 4.5 and 11.5 in at 2 cSt (001 fig. 8);
 //! - `001_viscosity.csv`: the same for the 4.5 in tube at 2, 20 and 200 cSt (001 fig. 9);
 //! - `001_segments.csv`: 001's transfer matrix against the plant's linearised lumped line with
-//!   2–64 segments (configs/sirohi2003_circuit.toml), gains normalised to 1 at 20 Hz;
+//!   2, 8, 32 segments and unsteady friction (configs/sirohi2003_circuit.toml) and 64 segments
+//!   with steady friction, gains normalised to 1 at 20 Hz;
 //! - `002_motion.csv`: the crane run (configs/cristofori2015_crane.toml) with the true piston
 //!   velocity and the port-pressure estimates of 002 eq. 31.
 //!
@@ -18,6 +19,7 @@ use ehactl_analysis::tline::{Circuit, INCH};
 use ehactl_controller::runloop::Controller;
 use ehactl_controller::setpoint::Setpoint;
 use ehactl_controller::RigConfig;
+use ehactl_plant::params::LineFriction;
 use ehactl_plant::rng::NoiseRng;
 use ehactl_plant::Plant;
 use std::f64::consts::PI;
@@ -70,10 +72,18 @@ fn segments_table(path: &Path, root: &Path) -> Result<(), Box<dyn std::error::Er
         let g0 = g[0];
         cols.push((format!("tm_{tube}in"), g.iter().map(|v| v / g0).collect()));
         let mut cfg = RigConfig::load(&root.join("configs/sirohi2003_circuit.toml"))?;
-        for n in [2u32, 4, 8, 16, 64] {
+        // The config's unsteady friction at 2–32 segments, steady friction at 64 (comparison).
+        let runs = [
+            (2u32, LineFriction::Unsteady, ""),
+            (8, LineFriction::Unsteady, ""),
+            (32, LineFriction::Unsteady, ""),
+            (64, LineFriction::Steady, "_steady"),
+        ];
+        for (n, friction, tag) in runs {
             let l = cfg.plant.effects.line_dynamics.as_mut().unwrap();
             l.length = tube * INCH;
             l.segments = n;
+            l.friction = friction;
             let op = oppoint::find(&cfg, 0.05)?;
             let m = linear::continuous(&op, 1e-8)?;
             let g: Vec<f64> = f
@@ -82,7 +92,7 @@ fn segments_table(path: &Path, root: &Path) -> Result<(), Box<dyn std::error::Er
                 .collect();
             let g0 = g[0];
             cols.push((
-                format!("plant_{tube}in_n{n}"),
+                format!("plant_{tube}in_n{n}{tag}"),
                 g.iter().map(|v| v / g0).collect(),
             ));
             eprintln!("001 segments: tube {tube} in, {n} segments done");

@@ -70,6 +70,9 @@ pub enum Friction {
     /// Dissipative model with frequency-dependent viscous losses (001 eq. 6–12):
     /// Γ = (s·l/c₀)·(1 − B_r)^(−1/2), Z_c = Z₀·(1 − B_r)^(−1/2), B_r = (1 + 2s/ω_v)^(−1/2).
     Dissipative,
+    /// As `Dissipative` with the exact laminar Bessel ratio B_r = 2·J₁(κ)/(κ·J₀(κ)),
+    /// κ = j·√(8 D̄_v) (001 eq. 7–8 before Woods' approximation; [`bessel_ratio_exact`]).
+    Bessel,
 }
 
 /// Viscous frequency ω_v = 8ν/r² (rad/s) of a line of hydraulic diameter `d` (m), 001 eq. 10
@@ -83,6 +86,25 @@ pub fn viscous_frequency(kinematic_viscosity: f64, d: f64) -> f64 {
 /// D̄_v = s/ω_v (001 eq. 12), at the Laplace variable `s` (1/s).
 pub fn bessel_ratio(s: C64, omega_v: f64) -> C64 {
     C64::new(1.0, 0.0) / (C64::new(1.0, 0.0) + s * (2.0 / omega_v)).sqrt()
+}
+
+/// Exact laminar Bessel ratio B_r = 2·J₁(κ)/(κ·J₀(κ)) = 2·I₁(x)/(x·I₀(x)), x = √(8s/ω_v)
+/// (001 eq. 7–8), at the Laplace variable `s` (1/s). I₁/I₀ by its continued fraction
+/// I_n/I_{n−1} = 1/(2n/x + I_{n+1}/I_n), evaluated backwards.
+pub fn bessel_ratio_exact(s: C64, omega_v: f64) -> C64 {
+    let one = C64::new(1.0, 0.0);
+    let x = (s * (8.0 / omega_v)).sqrt();
+    if x.norm() < 1e-4 {
+        // 2I₁/(xI₀) = 1 − x²/8 + x⁴/48 − …
+        let x2 = x * x;
+        return one - x2 / 8.0 + x2 * x2 / 48.0;
+    }
+    let terms = (2.0 * x.norm()) as usize + 60;
+    let mut ratio = C64::new(0.0, 0.0);
+    for n in (1..=terms).rev() {
+        ratio = one / (C64::new(2.0 * n as f64, 0.0) / x + ratio);
+    }
+    ratio * 2.0 / x
 }
 
 /// A 2×2 complex four-pole matrix acting on {P (Pa), Q (m³/s)} (001 eq. 1).
@@ -179,6 +201,10 @@ impl LineSection {
             }
             Friction::Dissipative => {
                 let br = bessel_ratio(s, viscous_frequency(fluid.kinematic_viscosity, d));
+                (C64::new(1.0, 0.0) / (C64::new(1.0, 0.0) - br)).sqrt()
+            }
+            Friction::Bessel => {
+                let br = bessel_ratio_exact(s, viscous_frequency(fluid.kinematic_viscosity, d));
                 (C64::new(1.0, 0.0) / (C64::new(1.0, 0.0) - br)).sqrt()
             }
         };
@@ -565,5 +591,30 @@ mod tests {
         // Undamped: the gain diverges at f_n; the scan's first maximum brackets it.
         let pk = first_peak(|f| c.response(f).displacement.norm(), 100.0, 5000.0, 4001).unwrap();
         assert!((pk.f_hz / f_n - 1.0).abs() < 1e-3, "{} vs {}", pk.f_hz, f_n);
+    }
+
+    #[test]
+    fn exact_bessel_ratio_matches_reference_values() {
+        // 2I₁(x)/(xI₀(x)), x = √(8jω/ω_v), from SciPy's `ive` (independent implementation).
+        let cases = [
+            (0.1, 0.986_915_244_439_609_3, -0.098_201_045_862_086_4),
+            (1.0, 0.536_533_661_390_937_7, -0.369_308_373_043_373_2),
+            (100.0, 0.050_008_218_264_384_94, -0.048_742_204_446_318_244),
+            (
+                1000.0,
+                0.015_811_639_308_252_644,
+                -0.015_686_141_297_771_444,
+            ),
+        ];
+        for (w, re, im) in cases {
+            let b = bessel_ratio_exact(C64::new(0.0, w * 3.0), 3.0);
+            assert!(
+                (b - C64::new(re, im)).norm() < 1e-12 * C64::new(re, im).norm().max(1e-3),
+                "{w}: {b}"
+            );
+        }
+        // Woods' approximation agrees at high frequency only.
+        let far = C64::new(0.0, 1e6);
+        assert!((bessel_ratio(far, 1.0) / bessel_ratio_exact(far, 1.0) - 1.0).norm() < 1e-3);
     }
 }

@@ -328,6 +328,11 @@ impl Plant {
             n.clamp(1.0, 100_000.0) as u32
         };
         let h = control_dt / substeps as f64;
+        let mut lines = lines;
+        if let Some((la, lb)) = lines.as_mut() {
+            la.prepare(h);
+            lb.prepare(h);
+        }
         let delay_len = if c.delay > 0.0 {
             (c.delay / control_dt).ceil() as usize + 2
         } else {
@@ -396,8 +401,10 @@ impl Plant {
         if let Some((la, lb)) = self.lines.as_mut() {
             la.p.iter_mut().for_each(|p| *p = p_a);
             la.q.iter_mut().for_each(|q| *q = 0.0);
+            la.y.iter_mut().for_each(|y| *y = 0.0);
             lb.p.iter_mut().for_each(|p| *p = p_b);
             lb.q.iter_mut().for_each(|q| *q = 0.0);
+            lb.y.iter_mut().for_each(|y| *y = 0.0);
         }
         self.cycle = 0;
         self.delay_buf.iter_mut().for_each(|u| *u = 0.0);
@@ -465,7 +472,8 @@ impl Plant {
     /// Names of the continuous states that [`Plant::linear_state`] returns, in order:
     /// spool (if the spool has dynamics), spool velocity (2nd order), p_a, p_b, p_s (with
     /// supply sag), x, v, x_load and v_load (with a flexible mount), then the line node
-    /// pressures and segment flows of line A and line B. Used for linearisation.
+    /// pressures, segment flows and (unsteady friction) convolution states
+    /// `line_a.q[j].y[i]` (m³/s) of line A and line B. Used for linearisation.
     pub fn linear_state_names(&self) -> Vec<String> {
         let mut n = Vec::new();
         let order = self.spool_order();
@@ -487,6 +495,8 @@ impl Plant {
             for (tag, l) in [("a", la), ("b", lb)] {
                 n.extend((0..l.p.len()).map(|i| format!("line_{tag}.p[{i}]")));
                 n.extend((0..l.q.len()).map(|i| format!("line_{tag}.q[{i}]")));
+                let t = l.terms();
+                n.extend((0..l.y.len()).map(|k| format!("line_{tag}.q[{}].y[{}]", k / t, k % t)));
             }
         }
         n
@@ -525,6 +535,7 @@ impl Plant {
             for l in [la, lb] {
                 v.extend_from_slice(&l.p);
                 v.extend_from_slice(&l.q);
+                v.extend_from_slice(&l.y);
             }
         }
         v
@@ -566,6 +577,9 @@ impl Plant {
                 }
                 for q in l.q.iter_mut() {
                     *q = next();
+                }
+                for y in l.y.iter_mut() {
+                    *y = next();
                 }
             }
         }

@@ -54,6 +54,8 @@ pub enum Kind {
     FloatArray,
     /// Boolean (`true` / `false`).
     Bool,
+    /// One of the listed strings.
+    Choice(&'static [&'static str]),
 }
 
 /// One declared parameter.
@@ -113,6 +115,20 @@ const fn arr(
         description,
         range,
         kind: Kind::FloatArray,
+    }
+}
+
+const fn choice(
+    path: &'static str,
+    choices: &'static [&'static str],
+    description: &'static str,
+) -> Param {
+    Param {
+        path,
+        unit: "-",
+        description,
+        range: Finite,
+        kind: Kind::Choice(choices),
     }
 }
 
@@ -416,6 +432,12 @@ pub const PARAMS: &[Param] = &[
         NonNegative,
         "lumped volume at the valve-side node (default 0)",
     ),
+    choice(
+        "effects.line_dynamics.friction",
+        crate::params::LineFriction::NAMES,
+        "segment wall friction: steady Hagen–Poiseuille (default), unsteady (Zielke 1968 \
+         weighting function, 8 states per segment) or unsteady_trikha (Trikha 1975, 3 states)",
+    ),
     p(
         "effects.flexible_mount.load_mass",
         "kg",
@@ -632,6 +654,19 @@ pub fn check_tree(root: &mut toml::Value, tables: &[&[Param]]) -> Result<(), Con
                             v,
                             param.description
                         ),
+                    ));
+                }
+            }
+            Kind::Choice(choices) => {
+                if !v.as_str().is_some_and(|x| choices.contains(&x)) {
+                    let list = choices
+                        .iter()
+                        .map(|c| format!("\"{c}\""))
+                        .collect::<Vec<_>>()
+                        .join(", ");
+                    return Err(ConfigError::new(
+                        param.path,
+                        format!("got `{v}`; expected one of {list} ({})", param.description),
                     ));
                 }
             }

@@ -261,7 +261,7 @@ def run_many(
 
 
 def params() -> list[dict[str, str]]:
-    """Every registered numeric config parameter: path, unit, kind, range, description."""
+    """Every registered config parameter: path, unit, kind (float, int, float[], bool, choice), range, description."""
     return [
         {"path": p, "unit": u, "kind": k, "range": r, "description": d}
         for (p, u, k, r, d) in _ehactl.param_table()
