@@ -3,6 +3,8 @@
 //! Exit codes: 0 run completed, 2 bad config or arguments, 3 supervisor trip,
 //! 130 interrupted by a signal (log finalised), 1 any other failure (I/O).
 
+mod diagnose;
+
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
 use ehactl_controller::session::{run_sim, SessionError, SessionOptions};
@@ -47,6 +49,25 @@ enum Command {
     },
     /// List every config parameter with its unit and meaning.
     Params,
+    /// Find what the simulation of CONFIG gets wrong on measured data, name the cause from the
+    /// effect catalogue, extend the model and measure the gain on held-out data.
+    Diagnose {
+        /// Nominal rig config (TOML).
+        #[arg(long)]
+        config: PathBuf,
+        /// Measured data: CSV (t, u, any of force, x, p_a, p_b, x_v, ref; SI) or an ehactl MCAP.
+        #[arg(long)]
+        data: PathBuf,
+        /// Separate validation record (default: the last 30 % of --data is held out).
+        #[arg(long)]
+        validate: Option<PathBuf>,
+        /// Output directory for extended.toml, report.md and plots.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Print exactly one JSON object on stdout.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 fn config_error(e: impl std::fmt::Display) -> ExitCode {
@@ -94,6 +115,13 @@ fn main() -> ExitCode {
                 Err(e) => config_error(format!("{}: {e}", config.display())),
             }
         }
+        Command::Diagnose {
+            config,
+            data,
+            validate,
+            out,
+            json,
+        } => diagnose::cmd_diagnose(&config, &data, validate.as_deref(), out, json),
         Command::Params => {
             for table in registries() {
                 for p in table {
