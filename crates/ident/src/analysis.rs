@@ -150,6 +150,29 @@ fn best_lag(y: &[f64], yh: &[f64], max_lag: usize) -> i64 {
     best.1
 }
 
+/// Frequency (Hz) and amplitude of the sine in `e` (sample k at time (k0 + k)·dt) nearest to
+/// `f0`, by a fine scan of |DFT| over f0 ± 1.5·df.
+fn refine_line(e: &[f64], dt: f64, k0: usize, f0: f64, df: f64) -> (f64, f64) {
+    let n = e.len() as f64;
+    let mut best = (f0, 0.0);
+    let steps = 600;
+    for i in 0..=steps {
+        let f = f0 - 1.5 * df + 3.0 * df * i as f64 / steps as f64;
+        let w = std::f64::consts::TAU * f * dt;
+        let (mut c, mut s) = (0.0, 0.0);
+        for (k, v) in e.iter().enumerate() {
+            let ph = w * (k0 + k) as f64;
+            c += v * ph.cos();
+            s += v * ph.sin();
+        }
+        let a = 2.0 * (c * c + s * s).sqrt() / n;
+        if a > best.1 {
+            best = (f, a);
+        }
+    }
+    best
+}
+
 /// Analyse residuals of `sim` against `rec` over `range`.
 pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Analysis {
     let r = range.start..range.end.min(sim.y.first().map_or(0, |y| y.len()));
@@ -269,10 +292,13 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
             if pe[k] > pe[k - 1] && pe[k] >= pe[k + 1] && pe[k] / med > 30.0 {
                 // Sum the Hann main lobe to get the line's power: A = √(2·Σ PSD·df).
                 let p: f64 = pe[k - 1..=k + 1].iter().sum::<f64>() * df;
+                // Refine the frequency far below the Welch resolution by scanning the DFT of
+                // the whole residual: a tone model must keep its phase over the record.
+                let (fr, amp) = refine_line(e, rec.dt, r.start, f[k], df);
                 tones.push(Peak {
                     channel: c.kind.column(),
-                    frequency: f[k],
-                    amplitude: (2.0 * p / 1.5).sqrt(),
+                    frequency: fr,
+                    amplitude: if amp > 0.0 { amp } else { (2.0 * p / 1.5).sqrt() },
                     prominence: pe[k] / med,
                 });
                 for t in is_tone.iter_mut().take((k + 4).min(m)).skip(k.saturating_sub(3)) {

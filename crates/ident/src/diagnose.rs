@@ -100,6 +100,8 @@ pub struct Diagnosis {
     pub warnings: Vec<String>,
     /// Residual analysis of the nominal replay (fitting part).
     pub analysis: Analysis,
+    /// Residual analysis after refitting the nominal parameters (fitting part): the evidence.
+    pub analysis_refit: Analysis,
     /// How the data were split.
     pub split: String,
     /// Plain-words conclusion.
@@ -284,6 +286,12 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     let (h0, c0_train) = ctx.fit(h0, usize::MAX, opts.evals_per_param);
     bar.inc(1);
     let (refit_err, _) = ctx.val_errors(&h0);
+    // Residual analysis of the refit model: what is left once parameter errors are absorbed.
+    // Its findings are the evidence and the start values of the effect fits.
+    let analysis_refit = match replay(&h0.build(&ctx.fit_base), rec, n) {
+        Ok(sim) => analyse(rec, &sim, 0..n_fit),
+        Err(_) => analysis.clone(),
+    };
     let threads = if opts.threads == 0 { std::thread::available_parallelism().map_or(2, |n| n.get()) } else { opts.threads };
     let mut current = h0.clone();
     let mut cur_err = refit_err.clone();
@@ -309,7 +317,7 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
         }
         bar.set_message(format!("round {}", round + 1));
         let jobs: Vec<(EffectId, Option<Hyp>)> = remaining.iter().map(|&e| {
-            let h = effect_params(e, nominal, &scales, &analysis).map(|ep| {
+            let h = effect_params(e, nominal, &scales, &analysis_refit).map(|ep| {
                 let mut h = current.clone();
                 h.effects.push(e);
                 h.values.extend(ep.iter().map(|p| p.init));
@@ -347,7 +355,7 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
         let s_cur = score(j_cur, current.params.len());
         let mut passing: Vec<(EffectId, f64, Hyp, f64, Errors)> = Vec::new();
         for (e, r) in results {
-            let prior = analysis.prior.iter().find(|p| p.0 == e).map(|p| p.2.clone()).unwrap_or_default();
+            let prior = analysis_refit.prior.iter().find(|p| p.0 == e).map(|p| p.2.clone()).unwrap_or_default();
             match r {
                 None => {
                     if round == 0 {
@@ -419,7 +427,7 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     let cause = accepted.first().map_or("none".to_string(), |e| e.as_str().to_string());
     let mut cands: Vec<Candidate> = candidates.into_values().collect();
     cands.sort_by(|a, b| b.accepted.cmp(&a.accepted).then(a.score.total_cmp(&b.score)));
-    let summary = summary_text(&accepted, &cands, &analysis, &nom_err, &refit_err, &ext_err, gain, noise_floor, &ambiguities);
+    let summary = summary_text(&accepted, &cands, &analysis_refit, &nom_err, &refit_err, &ext_err, gain, noise_floor, &ambiguities);
     let traces = Traces {
         nominal: Some(nom_sim),
         extended: ext_fit_sim,
@@ -439,6 +447,7 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
         ambiguities,
         warnings: rec.warnings.iter().chain(if val.is_some() { val_rec.warnings.iter() } else { [].iter() }).cloned().collect(),
         analysis,
+        analysis_refit,
         split,
         summary,
         extended,

@@ -325,7 +325,8 @@ pub fn effect_params(e: EffectId, nominal: &PlantParams, sc: &Scales, an: &Analy
             let lines: Vec<_> = an.tones.iter().filter(|t| t.channel == top.channel).take(2).copied().collect();
             let nt = lines.len();
             let base = SensorTone { enabled: true, channel: ch, frequencies: lines.iter().map(|l| l.frequency).collect(), amplitudes: vec![0.0; nt] };
-            let df = 2.0 / (sc.dt * 1024.0);
+            // Frequencies are refined by the analysis to a small fraction of a Welch bin.
+            let df = 0.02 / (sc.dt * 1024.0);
             let mut v = Vec::new();
             for (i, l) in lines.iter().enumerate() {
                 let (a, b) = (base.clone(), base.clone());

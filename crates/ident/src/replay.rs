@@ -110,16 +110,22 @@ pub fn std(y: &[f64]) -> f64 {
     (y.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / y.len() as f64).sqrt()
 }
 
-/// White-noise level of a sampled signal (same unit), from its second differences:
-/// var(Δ²y) = 6σ² for white noise; smooth signal content contributes little at high rates.
+/// White-noise level of a sampled signal (same unit): the median one-sided PSD over the upper
+/// half of the band (f_s/4 … f_s/2) times f_s/2. The median ignores narrow lines (tones) and
+/// the band excludes the slow signal content; a signal with broadband content up there is
+/// counted as noise (conservative: it raises the floor, so fewer effects are accepted).
 pub fn noise_level(y: &[f64]) -> f64 {
-    if y.len() < 5 {
+    if y.len() < 64 {
         return 0.0;
     }
-    let d2: Vec<f64> = y.windows(3).map(|w| w[2] - 2.0 * w[1] + w[0]).collect();
-    // Median absolute deviation is robust against the occasional step in the signal.
-    let mut a: Vec<f64> = d2.iter().map(|v| v.abs()).collect();
-    a.sort_by(f64::total_cmp);
-    let mad = a[a.len() / 2];
-    mad / 0.6745 / 6f64.sqrt()
+    // dt = 1: the PSD per cycle/sample; variance = PSD·(1/2) for white noise.
+    let (f, psd) = crate::analysis::welch(y, 1.0);
+    let mut band: Vec<f64> = f.iter().zip(&psd).filter(|(f, _)| **f >= 0.25).map(|(_, p)| *p).collect();
+    if band.is_empty() {
+        return 0.0;
+    }
+    band.sort_by(f64::total_cmp);
+    // Median of an averaged periodogram is below its mean (χ² with few degrees of freedom);
+    // with ≥ 3 half-overlapping segments the ratio is ≈ 0.9.
+    (band[band.len() / 2] / 0.9 * 0.5).sqrt()
 }
