@@ -11,6 +11,6 @@ fn main() {
     }
     let d = ehactl_ident::diagnose(&case.nominal.plant, &case.record, None, &Default::default()).unwrap();
     println!("tones {:?}", d.analysis_refit.tones);
-    println!("floor {} refit {:?}", d.noise_floor, d.nrmse_refit);
+    println!("causes {:?} gain {:.3} floor {} refit {:?}", d.causes, d.gain, d.noise_floor, d.nrmse_refit);
     for c in &d.candidates { println!("{} {:?} {}", c.effect, c.params, c.nrmse_validation); }
 }

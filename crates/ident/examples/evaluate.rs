@@ -51,7 +51,7 @@ fn main() {
         let hn: Vec<&str> = hidden.iter().map(|e| e.as_str()).collect();
         let label = if hn.is_empty() { "none".to_string() } else { hn.join("+") };
         let line = format!("seed {seed} hidden {label} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { "none".into() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
-        bar.println(&line);
+        bar.suspend(|| eprintln!("{line}"));
         let _ = writeln!(lines, "{line}");
         if hidden.is_empty() {
             n_clean += 1;
