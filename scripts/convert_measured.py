@@ -9,12 +9,13 @@ Sjöberg et al. 1995 robot-arm actuator (actuator.csv: k, u, p, x):
   p_a = 5 MPa − 1 MPa · p     (p is zero-mean and scaled; read as chamber-A pressure around half of a
                                10 MPa supply, 1 unit = 1 MPa, sign chosen so that opening towards A raises p_a)
   x   = not used (undocumented)
+Usage: python3 scripts/convert_measured.py [DIR_WITH_MTS_TXT]
 Writes sjoberg/estimation.csv (samples 0–511) and sjoberg/validation.csv (512–1023), the split of the literature.
 
 UTFSM MTS press (0A.txt/1A.txt, 1 kHz, CHANNEL0 x_m ×10 mm, CHANNEL1 F ×9806.65 N, CHANNEL2 x_ref ×10 mm):
   u = K_p · (x_ref − x_m) with K_p = 2000 V/m (10 V at 5 mm error): the valve command of the MTS's
       proportional displacement loop, reconstructed because the file holds no valve signal (assumed P-only loop)
-  x = 0.05 m + x_m (mid-stroke offset, m);  force = F (N)
+  x = 0.05 m + x_m, ref = 0.05 m + x_ref (mid-stroke offset, m); the force channel is not used (see mts())
   Segment 5–15 s of each file (0.4–2 Hz sweep part, 2 mm amplitude) decimated to 500 Hz.
 """
 import pathlib
@@ -40,9 +41,11 @@ def sjoberg():
         write(ROOT / "sjoberg" / f"{name}.csv", {"t": t[sl] - t[sl][0], "u": u[sl], "p_a": pa[sl]})
 
 
-def mts(name):
-    src = ROOT / "utfsm_mts" / f"{name}.txt"
+def mts(name, src_dir):
+    """The raw DAQ files (4 MB each) are not in the repo; pass their directory."""
+    src = pathlib.Path(src_dir) / f"{name}.txt"
     if not src.exists():
+        print(f"skip MTS {name}: {src} not found", file=sys.stderr)
         return
     d = np.genfromtxt(src, delimiter=",", skip_header=7, usecols=(2, 3, 4))
     xm = d[:, 0] * 10e-3
@@ -50,11 +53,14 @@ def mts(name):
     xr = d[:, 2] * 10e-3
     sl = slice(5000, 15000, 2)
     t = np.arange(len(xm))[sl] * 1e-3
-    write(ROOT / "utfsm_mts" / f"{name}_5to15s.csv", {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "force": f[sl]})
+    # The load-cell force is not written: the plant's force output (spring + external load)
+    # cannot represent the damper force on the rod, so it would only add an unexplained channel.
+    write(ROOT / "utfsm_mts" / f"{name}_5to15s.csv", {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl]})
 
 
 if __name__ == "__main__":
     sjoberg()
-    mts("0A")
-    mts("1A")
+    if len(sys.argv) > 1:  # directory holding the UTFSM 0A.txt / 1A.txt
+        mts("0A", sys.argv[1])
+        mts("1A", sys.argv[1])
     print("converted", file=sys.stderr)

@@ -48,7 +48,26 @@ pub fn cmd_diagnose(config: &Path, data_path: &Path, validate: Option<&Path>, ou
     for w in rec.warnings.iter().chain(val.iter().flat_map(|v| v.warnings.iter())) {
         eprintln!("ehactl: warning: {w}");
     }
-    let opts = Options { progress: true, ..Options::default() };
+    // Closed-loop position records (a `ref` column and a PD position loop in the config) are
+    // replayed through the same controller: an integrating plant would drift open loop.
+    let drive = match (&cfg.control.mode, cfg.pd_gains(), &rec.reference) {
+        (ehactl_controller::config::ControlMode::Position, Some(g), Some(_)) => {
+            eprintln!("ehactl: note: closed-loop replay: the config's PD position controller acts on the recorded `ref`; the recorded `u` is not used");
+            ehactl_ident::replay::Drive::PositionPd(g)
+        }
+        _ => {
+            if rec.reference.is_some() {
+                eprintln!("ehactl: note: open-loop replay with the recorded valve command `u` (the config has no PD position loop to replay `ref` through)");
+            }
+            ehactl_ident::replay::Drive::Recorded
+        }
+    };
+    if let (ehactl_ident::replay::Drive::PositionPd(_), Some(v)) = (&drive, &val) {
+        if v.reference.is_none() {
+            return bad(format!("{}: closed-loop replay needs a `ref` column in the validation file too", v.source));
+        }
+    }
+    let opts = Options { progress: true, drive, ..Options::default() };
     let d = match diagnose(&cfg.plant, &rec, val.as_ref(), &opts) {
         Ok(d) => d,
         Err(e) => return bad(e),

@@ -4,7 +4,7 @@
 use crate::analysis::{analyse, Analysis};
 use crate::data::Record;
 use crate::fit::{base_params, effect_params, nelder_mead, FreeParam, Scales};
-use crate::replay::{nrmse, overall, replay, replay_params, std, Replay};
+use crate::replay::{nrmse, overall, replay_params, replay_with, std, Drive, Replay};
 use ehactl_plant::{EffectId, PlantParams};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -30,6 +30,11 @@ pub struct Options {
     pub effects: Vec<EffectId>,
     /// Nelder–Mead evaluation budget per free parameter (plus a fixed 60).
     pub evals_per_param: usize,
+    /// Valve command during replay: recorded (open loop) or the rig's PD on `ref`.
+    pub drive: Drive,
+    /// At most this many samples from the start of the fitting part enter the fit cost (the
+    /// held-out part is always scored whole); bounds the run time on long, fast records.
+    pub max_fit_samples: usize,
 }
 
 impl Default for Options {
@@ -41,6 +46,8 @@ impl Default for Options {
             max_effects: 3,
             effects: EffectId::ALL.to_vec(),
             evals_per_param: 30,
+            drive: Drive::Recorded,
+            max_fit_samples: 12_000,
         }
     }
 }
@@ -153,11 +160,12 @@ struct Ctx<'a> {
     val_base: PlantParams,
     val_range: std::ops::Range<usize>,
     sd_fit: Vec<f64>,
+    drive: Drive,
 }
 
 impl Ctx<'_> {
     fn cost_fit(&self, p: &PlantParams) -> f64 {
-        match replay(p, self.fit_rec, self.n_fit) {
+        match replay_with(p, self.fit_rec, self.n_fit, self.drive) {
             Ok(sim) => {
                 let mut j = 0.0;
                 for (c, (ch, yh)) in self.fit_rec.channels.iter().zip(&sim.y).enumerate() {
@@ -176,7 +184,7 @@ impl Ctx<'_> {
     }
     fn val_errors(&self, h: &Hyp) -> (Errors, Replay) {
         let p = h.build(&self.val_base);
-        let sim = replay(&p, self.val_rec, self.val_rec.len()).unwrap_or_else(|_| Replay { y: vec![vec![0.0; self.val_rec.len()]; self.val_rec.channels.len()], v: vec![0.0; self.val_rec.len()], failed: true });
+        let sim = replay_with(&p, self.val_rec, self.val_rec.len(), self.drive).unwrap_or_else(|_| Replay { y: vec![vec![0.0; self.val_rec.len()]; self.val_rec.channels.len()], v: vec![0.0; self.val_rec.len()], failed: true });
         (errors(self.val_rec, &sim, self.val_range.clone()), sim)
     }
     fn fit(&self, mut h: Hyp, first_new: usize, evals_per_param: usize) -> (Hyp, f64) {
@@ -253,13 +261,26 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
             (nf, rec, nf..n, format!("first {nf} samples ({:.3} s) for fitting, last {} ({:.3} s) held out; the held-out part is replayed continuously from the start", nf as f64 * rec.dt, n - nf, (n - nf) as f64 * rec.dt))
         }
     };
+    let split = format!(
+        "{split}; {}",
+        match opts.drive {
+            Drive::Recorded => "open-loop replay of the recorded valve command `u`".to_string(),
+            Drive::PositionPd(g) => format!("closed-loop replay: the rig's PD position loop (k_p = {} V/m, T_D = {} s) on the recorded `ref`", g.kp, g.td),
+        }
+    );
     let fit_base = replay_params(nominal, rec);
     let val_base = replay_params(nominal, val_rec);
-    let sd_fit: Vec<f64> = rec.channels.iter().map(|c| std(&c.values[..n_fit]).max(1e-300)).collect();
-    let ctx = Ctx { nominal, fit_rec: rec, fit_base: fit_base.clone(), n_fit, val_rec, val_base, val_range: val_range.clone(), sd_fit };
+    let sd_fit: Vec<f64> = rec.channels.iter().map(|c| std(&c.values[..n_fit.min(opts.max_fit_samples.max(100))]).max(1e-300)).collect();
+    let n_cost = n_fit.min(opts.max_fit_samples.max(100));
+    let split = if n_cost < n_fit {
+        format!("{split}; the fit cost uses the first {n_cost} samples of the fitting part")
+    } else {
+        split
+    };
+    let ctx = Ctx { nominal, fit_rec: rec, fit_base: fit_base.clone(), n_fit: n_cost, val_rec, val_base, val_range: val_range.clone(), sd_fit, drive: opts.drive };
     let _ = ctx.nominal;
     // 1. Nominal replay and residual analysis.
-    let nom_sim = replay(&fit_base, rec, n).map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
+    let nom_sim = replay_with(&fit_base, rec, n, opts.drive).map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
     let analysis = analyse(rec, &nom_sim, 0..n_fit);
     let empty = Hyp { effects: vec![], params: vec![], values: vec![] };
     let (nom_err, nom_val_sim) = ctx.val_errors(&empty);
@@ -300,7 +321,7 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     };
     // Residual analysis of the refit model: what is left once parameter errors are absorbed.
     // Its findings are the evidence and the start values of the effect fits.
-    let analysis_refit = match replay(&h0.build(&ctx.fit_base), rec, n) {
+    let analysis_refit = match replay_with(&h0.build(&ctx.fit_base), rec, n, opts.drive) {
         Ok(sim) => analyse(rec, &sim, 0..n_fit),
         Err(_) => analysis.clone(),
     };
@@ -421,8 +442,23 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
         }
         let (e, _, h, ctrain, err) = best;
         if round > 0 {
+            // Report the numbers of the round in which the effect was accepted.
             if let Some(c) = candidates.get_mut(&e) {
-                c.evidence.push_str(&format!("; accepted in round {} on top of {}", round + 1, accepted.iter().map(|a| a.as_str()).collect::<Vec<_>>().join(" + ")));
+                let j = err.overall.powi(2);
+                let excess_ratio = (j - jn).max(0.0) / (j_cur - jn).max(1e-300);
+                c.params = h.params[first_new..].iter().zip(&h.values[first_new..]).map(|(p, v)| (p.name.clone(), *v)).collect();
+                c.nrmse_train = ctrain.sqrt();
+                c.nrmse_validation = err.overall;
+                c.score = score(j, h.params.len());
+                let prior = analysis_refit.prior.iter().find(|p| p.0 == e).map(|p| p.2.clone()).unwrap_or_default();
+                c.evidence = format!(
+                    "{prior}; accepted in round {} on top of {}: held-out NRMSE {:.4} → {:.4}, {:.0} % of the remaining error above the noise floor explained",
+                    round + 1,
+                    accepted.iter().map(|a| a.as_str()).collect::<Vec<_>>().join(" + "),
+                    cur_err.overall,
+                    err.overall,
+                    100.0 * (1.0 - excess_ratio.min(1.0))
+                );
             }
         }
         if let Some(c) = candidates.get_mut(&e) {
@@ -436,7 +472,7 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     bar.finish_and_clear();
     let (ext_err, ext_val_sim) = ctx.val_errors(&current);
     let extended = current.build(nominal);
-    let ext_fit_sim = replay(&current.build(&ctx.fit_base), rec, n).ok();
+    let ext_fit_sim = replay_with(&current.build(&ctx.fit_base), rec, n, opts.drive).ok();
     let gain = 1.0 - ext_err.overall / nom_err.overall;
     let cause = accepted.first().map_or("none".to_string(), |e| e.as_str().to_string());
     let mut cands: Vec<Candidate> = candidates.into_values().collect();

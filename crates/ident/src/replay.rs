@@ -39,10 +39,36 @@ pub fn replay_params(nominal: &PlantParams, rec: &Record) -> PlantParams {
     p
 }
 
+/// How the valve command is produced during a replay.
+#[derive(Debug, Clone, Copy, Default)]
+pub enum Drive {
+    /// Open loop: the recorded command `u` (V).
+    #[default]
+    Recorded,
+    /// Closed loop: the rig's PD position controller (the config's `[control.pd]`) acting on
+    /// the recorded setpoint `ref` (m) and the model's own position, for integrating plants
+    /// whose open-loop replay would drift.
+    PositionPd(ehactl_controller::pd::PdGains),
+}
+
 /// Replay the first `n` samples of `rec` through a plant with `params` at the record's
-/// sample period. Sample k of the output is measured before command u_k is applied
-/// (the order of `ehactl run`'s loop: read, compute, write).
+/// sample period, open loop. Sample k of the output is measured before command u_k is
+/// applied (the order of `ehactl run`'s loop: read, compute, write).
 pub fn replay(params: &PlantParams, rec: &Record, n: usize) -> Result<Replay, String> {
+    replay_with(params, rec, n, Drive::Recorded)
+}
+
+/// Replay with the given [`Drive`] (see [`replay`]).
+pub fn replay_with(params: &PlantParams, rec: &Record, n: usize, drive: Drive) -> Result<Replay, String> {
+    let mut pd = match drive {
+        Drive::PositionPd(g) => {
+            if rec.reference.is_none() {
+                return Err(format!("{}: closed-loop replay needs a `ref` column", rec.source));
+            }
+            Some(ehactl_controller::pd::Pd::new(g))
+        }
+        Drive::Recorded => None,
+    };
     let mut plant = Plant::configure(params, rec.dt).map_err(|e| e.to_string())?;
     let n = n.min(rec.len());
     let kinds: Vec<ChannelKind> = rec.channels.iter().map(|c| c.kind).collect();
@@ -55,7 +81,11 @@ pub fn replay(params: &PlantParams, rec: &Record, n: usize) -> Result<Replay, St
             y[c].push(kind.pick(&m));
         }
         v.push(plant.state().v);
-        if !failed && plant.step(rec.u[k]).is_err() {
+        let u = match (&mut pd, &rec.reference) {
+            (Some(pd), Some(r)) => pd.step(r[k], 0.0, m.position, rec.dt).u,
+            _ => rec.u[k],
+        };
+        if !failed && plant.step(u).is_err() {
             failed = true;
         }
         if failed {
