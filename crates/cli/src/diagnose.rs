@@ -7,7 +7,13 @@ use std::process::ExitCode;
 
 /// Run the diagnosis of `data_path` against the nominal `config`; exit 0 ok, 2 bad config
 /// or data, 1 other failure (I/O).
-pub fn cmd_diagnose(config: &Path, data_path: &Path, validate: Option<&Path>, out: Option<PathBuf>, json: bool) -> ExitCode {
+pub fn cmd_diagnose(
+    config: &Path,
+    data_path: &Path,
+    validate: Option<&Path>,
+    out: Option<PathBuf>,
+    json: bool,
+) -> ExitCode {
     let bad = |msg: String| {
         eprintln!("ehactl: {msg}");
         ExitCode::from(2)
@@ -42,10 +48,17 @@ pub fn cmd_diagnose(config: &Path, data_path: &Path, validate: Option<&Path>, ou
             ));
         }
         if (v.dt - rec.dt).abs() > 1e-6 * rec.dt {
-            return bad(format!("{}: sample period {} s differs from the data file's {} s", v.source, v.dt, rec.dt));
+            return bad(format!(
+                "{}: sample period {} s differs from the data file's {} s",
+                v.source, v.dt, rec.dt
+            ));
         }
     }
-    for w in rec.warnings.iter().chain(val.iter().flat_map(|v| v.warnings.iter())) {
+    for w in rec
+        .warnings
+        .iter()
+        .chain(val.iter().flat_map(|v| v.warnings.iter()))
+    {
         eprintln!("ehactl: warning: {w}");
     }
     // Closed-loop position records (a `ref` column and a PD position loop in the config) are
@@ -64,16 +77,30 @@ pub fn cmd_diagnose(config: &Path, data_path: &Path, validate: Option<&Path>, ou
     };
     if let (ehactl_ident::replay::Drive::PositionPd(_), Some(v)) = (&drive, &val) {
         if v.reference.is_none() {
-            return bad(format!("{}: closed-loop replay needs a `ref` column in the validation file too", v.source));
+            return bad(format!(
+                "{}: closed-loop replay needs a `ref` column in the validation file too",
+                v.source
+            ));
         }
     }
-    let opts = Options { progress: true, drive, ..Options::default() };
+    let opts = Options {
+        progress: true,
+        drive,
+        ..Options::default()
+    };
     let d = match diagnose(&cfg.plant, &rec, val.as_ref(), &opts) {
         Ok(d) => d,
         Err(e) => return bad(e),
     };
     let files = match &out {
-        Some(dir) => match report::write_report(dir, &cfg, &config.display().to_string(), &rec, val.as_ref(), &d) {
+        Some(dir) => match report::write_report(
+            dir,
+            &cfg,
+            &config.display().to_string(),
+            &rec,
+            val.as_ref(),
+            &d,
+        ) {
             Ok(f) => {
                 for w in &f.warnings {
                     eprintln!("ehactl: warning: {w}");
@@ -89,18 +116,46 @@ pub fn cmd_diagnose(config: &Path, data_path: &Path, validate: Option<&Path>, ou
     };
     if json {
         let mut v = serde_json::to_value(&d).unwrap_or_default();
-        v["extended_config"] = files.as_ref().map_or(serde_json::Value::Null, |f| f.extended_config.display().to_string().into());
-        v["report"] = files.as_ref().map_or(serde_json::Value::Null, |f| f.report.display().to_string().into());
-        v["plots"] = files.as_ref().map_or(serde_json::Value::Null, |f| f.plots.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().into());
+        v["extended_config"] = files.as_ref().map_or(serde_json::Value::Null, |f| {
+            f.extended_config.display().to_string().into()
+        });
+        v["report"] = files.as_ref().map_or(serde_json::Value::Null, |f| {
+            f.report.display().to_string().into()
+        });
+        v["plots"] = files.as_ref().map_or(serde_json::Value::Null, |f| {
+            f.plots
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .into()
+        });
         println!("{v}");
     } else {
-        println!("ehactl diagnose {} (config {})", data_path.display(), config.display());
+        println!(
+            "ehactl diagnose {} (config {})",
+            data_path.display(),
+            config.display()
+        );
         println!("  {}", d.split);
-        println!("  cause         {}{}", d.cause, if d.causes.len() > 1 { format!(" (accepted: {})", d.causes.join(", ")) } else { String::new() });
+        println!(
+            "  cause         {}{}",
+            d.cause,
+            if d.causes.len() > 1 {
+                format!(" (accepted: {})", d.causes.join(", "))
+            } else {
+                String::new()
+            }
+        );
         println!("  held-out NRMSE nominal {:.4} → refit {:.4} → extended {:.4} (gain {:.1} %, noise floor {:.4})", d.nrmse_nominal.overall, d.nrmse_refit.overall, d.nrmse_extended.overall, d.gain * 100.0, d.noise_floor);
         println!("  candidates:");
         for c in &d.candidates {
-            println!("    {} {:<22} held-out {:.4}  {}", if c.accepted { "*" } else { " " }, c.effect, c.nrmse_validation, c.evidence);
+            println!(
+                "    {} {:<22} held-out {:.4}  {}",
+                if c.accepted { "*" } else { " " },
+                c.effect,
+                c.nrmse_validation,
+                c.evidence
+            );
         }
         for a in &d.ambiguities {
             println!("  ambiguity: {a}");

@@ -5,6 +5,8 @@ fn main() {
     let pl = ehactl_plant::Plant::configure(&p, case.record.dt).unwrap();
     println!("substeps {}", pl.substeps());
     let t0 = std::time::Instant::now();
-    for _ in 0..100 { ehactl_ident::replay::replay(&p, &case.record, case.record.len()).unwrap(); }
+    for _ in 0..100 {
+        ehactl_ident::replay::replay(&p, &case.record, case.record.len()).unwrap();
+    }
     println!("replay {:.3} ms", t0.elapsed().as_secs_f64() * 10.0);
 }

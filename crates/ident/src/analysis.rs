@@ -114,7 +114,9 @@ pub fn welch(y: &[f64], dt: f64) -> (Vec<f64>, Vec<f64>) {
     }
     let count = count.max(1) as f64;
     psd.iter_mut().for_each(|p| *p /= count);
-    let f = (0..=seg / 2).map(|k| k as f64 / (seg as f64 * dt)).collect();
+    let f = (0..=seg / 2)
+        .map(|k| k as f64 / (seg as f64 * dt))
+        .collect();
     (f, psd)
 }
 
@@ -139,9 +141,9 @@ fn best_lag(y: &[f64], yh: &[f64], max_lag: usize) -> i64 {
     let mut best = (f64::NEG_INFINITY, 0i64);
     for l in -(max_lag as i64)..=(max_lag as i64) {
         let mut s = 0.0;
-        for k in max_lag..n - max_lag {
+        for (k, yk) in y.iter().enumerate().take(n - max_lag).skip(max_lag) {
             let j = (k as i64 - l) as usize;
-            s += (y[k] - my) * (yh[j] - mh);
+            s += (yk - my) * (yh[j] - mh);
         }
         if s > best.0 {
             best = (s, l);
@@ -286,7 +288,10 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
         for k in 3..m.saturating_sub(3) {
             let lo = k.saturating_sub(12).max(1);
             let hi = (k + 13).min(m);
-            let mut nb: Vec<f64> = (lo..hi).filter(|&j| j.abs_diff(k) > 2).map(|j| pe[j]).collect();
+            let mut nb: Vec<f64> = (lo..hi)
+                .filter(|&j| j.abs_diff(k) > 2)
+                .map(|j| pe[j])
+                .collect();
             nb.sort_by(f64::total_cmp);
             let med = nb[nb.len() / 2].max(1e-300);
             if pe[k] > pe[k - 1] && pe[k] >= pe[k + 1] && pe[k] / med > 30.0 {
@@ -298,10 +303,18 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
                 tones.push(Peak {
                     channel: c.kind.column(),
                     frequency: fr,
-                    amplitude: if amp > 0.0 { amp } else { (2.0 * p / 1.5).sqrt() },
+                    amplitude: if amp > 0.0 {
+                        amp
+                    } else {
+                        (2.0 * p / 1.5).sqrt()
+                    },
                     prominence: pe[k] / med,
                 });
-                for t in is_tone.iter_mut().take((k + 4).min(m)).skip(k.saturating_sub(3)) {
+                for t in is_tone
+                    .iter_mut()
+                    .take((k + 4).min(m))
+                    .skip(k.saturating_sub(3))
+                {
                     *t = true;
                 }
             }

@@ -396,7 +396,11 @@ pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
 
 /// Check the record against the rig: sample period vs control period, units that look wrong
 /// (pressures in bar or MPa, positions in mm). Returns warnings; unit mismatches are errors.
-pub fn check_against(rec: &Record, params: &ehactl_plant::PlantParams, control_dt: f64) -> Result<Vec<String>, DataError> {
+pub fn check_against(
+    rec: &Record,
+    params: &ehactl_plant::PlantParams,
+    control_dt: f64,
+) -> Result<Vec<String>, DataError> {
     let mut w = Vec::new();
     let src = &rec.source;
     if (rec.dt - control_dt).abs() > 1e-6 * control_dt {

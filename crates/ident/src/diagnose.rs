@@ -134,6 +134,9 @@ pub struct Traces {
     pub split_index: usize,
 }
 
+/// One candidate's outcome: effect, and (fitted hypothesis, training cost, held-out errors).
+type FitResult = (EffectId, Option<(Hyp, f64, Errors)>);
+
 #[derive(Clone)]
 struct Hyp {
     effects: Vec<EffectId>,
@@ -169,7 +172,12 @@ impl Ctx<'_> {
             Ok(sim) => {
                 let mut j = 0.0;
                 for (c, (ch, yh)) in self.fit_rec.channels.iter().zip(&sim.y).enumerate() {
-                    let e: f64 = ch.values[..self.n_fit].iter().zip(yh).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / self.n_fit as f64;
+                    let e: f64 = ch.values[..self.n_fit]
+                        .iter()
+                        .zip(yh)
+                        .map(|(a, b)| (a - b) * (a - b))
+                        .sum::<f64>()
+                        / self.n_fit as f64;
                     j += e / (self.sd_fit[c] * self.sd_fit[c]).max(1e-300);
                 }
                 let j = j / self.fit_rec.channels.len() as f64;
@@ -184,12 +192,23 @@ impl Ctx<'_> {
     }
     fn val_errors(&self, h: &Hyp) -> (Errors, Replay) {
         let p = h.build(&self.val_base);
-        let sim = replay_with(&p, self.val_rec, self.val_rec.len(), self.drive).unwrap_or_else(|_| Replay { y: vec![vec![0.0; self.val_rec.len()]; self.val_rec.channels.len()], v: vec![0.0; self.val_rec.len()], failed: true });
+        let sim =
+            replay_with(&p, self.val_rec, self.val_rec.len(), self.drive).unwrap_or_else(|_| {
+                Replay {
+                    y: vec![vec![0.0; self.val_rec.len()]; self.val_rec.channels.len()],
+                    v: vec![0.0; self.val_rec.len()],
+                    failed: true,
+                }
+            });
         (errors(self.val_rec, &sim, self.val_range.clone()), sim)
     }
     fn fit(&self, mut h: Hyp, first_new: usize, evals_per_param: usize) -> (Hyp, f64) {
         let cost = |vals: &[f64]| {
-            let hh = Hyp { effects: vec![], params: h.params.clone(), values: vals.to_vec() };
+            let hh = Hyp {
+                effects: vec![],
+                params: h.params.clone(),
+                values: vals.to_vec(),
+            };
             self.cost_fit(&hh.build(&self.fit_base))
         };
         // Coarse grid over the first new parameter (the effect's magnitude) before the simplex.
@@ -206,16 +225,31 @@ impl Ctx<'_> {
             }
             h.values[first_new] = best.1;
         }
-        let u0: Vec<f64> = h.params.iter().zip(&h.values).map(|(p, v)| p.to_unit(*v)).collect();
+        let u0: Vec<f64> = h
+            .params
+            .iter()
+            .zip(&h.values)
+            .map(|(p, v)| p.to_unit(*v))
+            .collect();
         let n = u0.len();
         let mut fu = |u: &[f64]| {
-            let vals: Vec<f64> = h.params.iter().zip(u).map(|(p, s)| p.from_unit(*s)).collect();
+            let vals: Vec<f64> = h
+                .params
+                .iter()
+                .zip(u)
+                .map(|(p, s)| p.from_unit(*s))
+                .collect();
             cost(&vals)
         };
         let budget = 60 + evals_per_param * n;
         let (u1, _, _) = nelder_mead(&mut fu, &u0, 0.15, budget * 2 / 3, 1e-6);
         let (u2, c2, _) = nelder_mead(&mut fu, &u1, 0.05, budget / 3, 1e-7);
-        h.values = h.params.iter().zip(&u2).map(|(p, s)| p.from_unit(*s)).collect();
+        h.values = h
+            .params
+            .iter()
+            .zip(&u2)
+            .map(|(p, s)| p.from_unit(*s))
+            .collect();
         (h, c2)
     }
 }
@@ -223,7 +257,12 @@ impl Ctx<'_> {
 fn errors(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Errors {
     let v = nrmse(rec, sim, range);
     Errors {
-        channels: rec.channels.iter().zip(&v).map(|(c, e)| (c.kind.column().to_string(), *e)).collect(),
+        channels: rec
+            .channels
+            .iter()
+            .zip(&v)
+            .map(|(c, e)| (c.kind.column().to_string(), *e))
+            .collect(),
         overall: overall(&v),
     }
 }
@@ -238,7 +277,10 @@ pub fn separating_experiment(a: EffectId, b: EffectId) -> String {
         "a sine sweep of the valve command to the spool bandwidth: a delay adds phase linearly in frequency at constant gain, spool dynamics also lower the gain".into()
     } else if pair(InternalLeakage, ExternalLeakage) {
         "hold the piston against an end stop and step the command: internal leakage equalises p_a and p_b, external leakage lowers both towards tank".into()
-    } else if pair(BulkModulusPressure, LineDynamics) || pair(BulkModulusPressure, FlexibleMount) || pair(LineDynamics, FlexibleMount) {
+    } else if pair(BulkModulusPressure, LineDynamics)
+        || pair(BulkModulusPressure, FlexibleMount)
+        || pair(LineDynamics, FlexibleMount)
+    {
         "frequency responses at two supply pressures and two load masses: a pressure-dependent β moves the resonance with pressure, a compliant mount with the load mass, line modes with neither".into()
     } else if pair(ValveSaturation, SupplyPressureDrop) {
         "large steady commands at a low load: a spool limit caps flow at any pressure, a supply sag shows as falling supply pressure at high flow (log p_s)".into()
@@ -249,14 +291,34 @@ pub fn separating_experiment(a: EffectId, b: EffectId) -> String {
 
 /// Run the diagnosis. `val` is an optional separate validation record; without it the last
 /// `opts.holdout` of `rec` is held out.
-pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts: &Options) -> Result<Diagnosis, String> {
+pub fn diagnose(
+    nominal: &PlantParams,
+    rec: &Record,
+    val: Option<&Record>,
+    opts: &Options,
+) -> Result<Diagnosis, String> {
     let n = rec.len();
     let (n_fit, val_rec, val_range, split) = match val {
-        Some(v) => (n, v, 0..v.len(), format!("fit on {} ({} samples), validated on {} ({} samples)", rec.source, n, v.source, v.len())),
+        Some(v) => (
+            n,
+            v,
+            0..v.len(),
+            format!(
+                "fit on {} ({} samples), validated on {} ({} samples)",
+                rec.source,
+                n,
+                v.source,
+                v.len()
+            ),
+        ),
         None => {
             let nf = ((1.0 - opts.holdout) * n as f64).round() as usize;
             if nf < 10 || n - nf < 10 {
-                return Err(format!("{}: {n} samples are too few to hold out {:.0} %", rec.source, opts.holdout * 100.0));
+                return Err(format!(
+                    "{}: {n} samples are too few to hold out {:.0} %",
+                    rec.source,
+                    opts.holdout * 100.0
+                ));
             }
             (nf, rec, nf..n, format!("first {nf} samples ({:.3} s) for fitting, last {} ({:.3} s) held out; the held-out part is replayed continuously from the start", nf as f64 * rec.dt, n - nf, (n - nf) as f64 * rec.dt))
         }
@@ -270,24 +332,49 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     );
     let fit_base = replay_params(nominal, rec);
     let val_base = replay_params(nominal, val_rec);
-    let sd_fit: Vec<f64> = rec.channels.iter().map(|c| std(&c.values[..n_fit.min(opts.max_fit_samples.max(100))]).max(1e-300)).collect();
+    let sd_fit: Vec<f64> = rec
+        .channels
+        .iter()
+        .map(|c| std(&c.values[..n_fit.min(opts.max_fit_samples.max(100))]).max(1e-300))
+        .collect();
     let n_cost = n_fit.min(opts.max_fit_samples.max(100));
     let split = if n_cost < n_fit {
         format!("{split}; the fit cost uses the first {n_cost} samples of the fitting part")
     } else {
         split
     };
-    let ctx = Ctx { nominal, fit_rec: rec, fit_base: fit_base.clone(), n_fit: n_cost, val_rec, val_base, val_range: val_range.clone(), sd_fit, drive: opts.drive };
+    let ctx = Ctx {
+        nominal,
+        fit_rec: rec,
+        fit_base: fit_base.clone(),
+        n_fit: n_cost,
+        val_rec,
+        val_base,
+        val_range: val_range.clone(),
+        sd_fit,
+        drive: opts.drive,
+    };
     let _ = ctx.nominal;
     // 1. Nominal replay and residual analysis.
-    let nom_sim = replay_with(&fit_base, rec, n, opts.drive).map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
+    let nom_sim = replay_with(&fit_base, rec, n, opts.drive)
+        .map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
     let analysis = analyse(rec, &nom_sim, 0..n_fit);
-    let empty = Hyp { effects: vec![], params: vec![], values: vec![] };
+    let empty = Hyp {
+        effects: vec![],
+        params: vec![],
+        values: vec![],
+    };
     let (nom_err, nom_val_sim) = ctx.val_errors(&empty);
     let scales = Scales::new(nominal, rec);
     let bar = if opts.progress {
         let b = indicatif::ProgressBar::new(1 + opts.effects.len() as u64);
-        b.set_style(indicatif::ProgressStyle::with_template("{spinner} diagnose {msg} [{bar:30}] {pos}/{len} fits {elapsed_precise}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()).progress_chars("=> "));
+        b.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{spinner} diagnose {msg} [{bar:30}] {pos}/{len} fits {elapsed_precise}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
         b.set_message("refit nominal");
         b
     } else {
@@ -295,7 +382,11 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     };
     // 2. Refit the nominal parameters alone: the reference every effect must beat.
     let base = base_params(nominal);
-    let h0 = Hyp { effects: vec![], values: base.iter().map(|p| p.init).collect(), params: base };
+    let h0 = Hyp {
+        effects: vec![],
+        values: base.iter().map(|p| p.init).collect(),
+        params: base,
+    };
     let (h0, c0_train) = ctx.fit(h0, usize::MAX, opts.evals_per_param);
     bar.inc(1);
     let (refit_err, refit_val_sim) = ctx.val_errors(&h0);
@@ -308,8 +399,13 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
             .zip(&refit_val_sim.y)
             .map(|(c, yh)| {
                 let y = &c.values[val_range.clone()];
-                let e: Vec<f64> = y.iter().zip(&yh[val_range.clone()]).map(|(a, b)| a - b).collect();
-                crate::replay::noise_level(&e).min(crate::replay::noise_level(y)) / std(y).max(1e-300)
+                let e: Vec<f64> = y
+                    .iter()
+                    .zip(&yh[val_range.clone()])
+                    .map(|(a, b)| a - b)
+                    .collect();
+                crate::replay::noise_level(&e).min(crate::replay::noise_level(y))
+                    / std(y).max(1e-300)
             })
             .collect()
     };
@@ -317,7 +413,11 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     let jn = noise_floor * noise_floor;
     // Within the noise only when every channel is (a small tone on one channel is not noise).
     let within_noise = |e: &Errors| {
-        val_rec.channels.iter().zip(&floor_ch).all(|(c, f)| e.channels.get(c.kind.column()).is_some_and(|v| *v < FLOOR_FACTOR * f))
+        val_rec.channels.iter().zip(&floor_ch).all(|(c, f)| {
+            e.channels
+                .get(c.kind.column())
+                .is_some_and(|v| *v < FLOOR_FACTOR * f)
+        })
     };
     // Residual analysis of the refit model: what is left once parameter errors are absorbed.
     // Its findings are the evidence and the start values of the effect fits.
@@ -325,7 +425,11 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
         Ok(sim) => analyse(rec, &sim, 0..n_fit),
         Err(_) => analysis.clone(),
     };
-    let threads = if opts.threads == 0 { std::thread::available_parallelism().map_or(2, |n| n.get()) } else { opts.threads };
+    let threads = if opts.threads == 0 {
+        std::thread::available_parallelism().map_or(2, |n| n.get())
+    } else {
+        opts.threads
+    };
     let mut current = h0.clone();
     let mut cur_err = refit_err.clone();
     let mut cur_train = c0_train;
@@ -335,7 +439,12 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     let kappa = 0.02;
     let score = |j: f64, p: usize| j.max(1e-300).ln() + kappa * p as f64;
     for round in 0..opts.max_effects {
-        let remaining: Vec<EffectId> = opts.effects.iter().copied().filter(|e| !accepted.contains(e)).collect();
+        let remaining: Vec<EffectId> = opts
+            .effects
+            .iter()
+            .copied()
+            .filter(|e| !accepted.contains(e))
+            .collect();
         if remaining.is_empty() {
             break;
         }
@@ -349,18 +458,21 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
             bar.inc_length(remaining.len() as u64);
         }
         bar.set_message(format!("round {}", round + 1));
-        let jobs: Vec<(EffectId, Option<Hyp>)> = remaining.iter().map(|&e| {
-            let h = effect_params(e, nominal, &scales, &analysis_refit).map(|ep| {
-                let mut h = current.clone();
-                h.effects.push(e);
-                h.values.extend(ep.iter().map(|p| p.init));
-                h.params.extend(ep);
-                h
-            });
-            (e, h)
-        }).collect();
+        let jobs: Vec<(EffectId, Option<Hyp>)> = remaining
+            .iter()
+            .map(|&e| {
+                let h = effect_params(e, nominal, &scales, &analysis_refit).map(|ep| {
+                    let mut h = current.clone();
+                    h.effects.push(e);
+                    h.values.extend(ep.iter().map(|p| p.init));
+                    h.params.extend(ep);
+                    h
+                });
+                (e, h)
+            })
+            .collect();
         let next = AtomicUsize::new(0);
-        let results: Mutex<Vec<(EffectId, Option<(Hyp, f64, Errors)>)>> = Mutex::new(Vec::new());
+        let results: Mutex<Vec<FitResult>> = Mutex::new(Vec::new());
         let first_new = current.params.len();
         std::thread::scope(|s| {
             for _ in 0..threads.min(jobs.len()).max(1) {
@@ -388,11 +500,27 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
         let s_cur = score(j_cur, current.params.len());
         let mut passing: Vec<(EffectId, f64, Hyp, f64, Errors)> = Vec::new();
         for (e, r) in results {
-            let prior = analysis_refit.prior.iter().find(|p| p.0 == e).map(|p| p.2.clone()).unwrap_or_default();
+            let prior = analysis_refit
+                .prior
+                .iter()
+                .find(|p| p.0 == e)
+                .map(|p| p.2.clone())
+                .unwrap_or_default();
             match r {
                 None => {
                     if round == 0 {
-                        candidates.insert(e, Candidate { effect: e.as_str().into(), params: BTreeMap::new(), nrmse_train: f64::NAN, nrmse_validation: f64::NAN, score: f64::NAN, accepted: false, evidence: format!("not testable on this record: {prior}") });
+                        candidates.insert(
+                            e,
+                            Candidate {
+                                effect: e.as_str().into(),
+                                params: BTreeMap::new(),
+                                nrmse_train: f64::NAN,
+                                nrmse_validation: f64::NAN,
+                                score: f64::NAN,
+                                accepted: false,
+                                evidence: format!("not testable on this record: {prior}"),
+                            },
+                        );
                     }
                 }
                 Some((h, ctrain, err)) => {
@@ -401,7 +529,11 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
                     let excess_ratio = (j - jn).max(0.0) / (j_cur - jn).max(1e-300);
                     // Later rounds need stronger evidence: the first effect already took the bulk.
                     let (jr, er) = if round == 0 { (0.9, 0.75) } else { (0.8, 0.5) };
-                    let significant = !near_floor && j < jr * j_cur && excess_ratio < er && sc < s_cur && ctrain < cur_train;
+                    let significant = !near_floor
+                        && j < jr * j_cur
+                        && excess_ratio < er
+                        && sc < s_cur
+                        && ctrain < cur_train;
                     let verdict = format!(
                         "fit: held-out NRMSE {:.4} → {:.4} ({:+.1} %), {:.0} % of the error above the noise floor explained{}",
                         cur_err.overall,
@@ -412,15 +544,22 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
                     );
                     if round == 0 || !candidates.contains_key(&e) {
                         let n_new = h.params.len() - first_new;
-                        candidates.insert(e, Candidate {
-                            effect: e.as_str().into(),
-                            params: h.params[first_new..].iter().zip(&h.values[first_new..]).map(|(p, v)| (p.name.clone(), *v)).collect(),
-                            nrmse_train: ctrain.sqrt(),
-                            nrmse_validation: err.overall,
-                            score: sc,
-                            accepted: false,
-                            evidence: format!("{prior}; {verdict} with {n_new} parameter(s)"),
-                        });
+                        candidates.insert(
+                            e,
+                            Candidate {
+                                effect: e.as_str().into(),
+                                params: h.params[first_new..]
+                                    .iter()
+                                    .zip(&h.values[first_new..])
+                                    .map(|(p, v)| (p.name.clone(), *v))
+                                    .collect(),
+                                nrmse_train: ctrain.sqrt(),
+                                nrmse_validation: err.overall,
+                                score: sc,
+                                accepted: false,
+                                evidence: format!("{prior}; {verdict} with {n_new} parameter(s)"),
+                            },
+                        );
                     }
                     if significant {
                         passing.push((e, sc, h, ctrain, err));
@@ -429,7 +568,9 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
             }
         }
         passing.sort_by(|a, b| a.1.total_cmp(&b.1));
-        let Some(best) = passing.first().cloned() else { break };
+        let Some(best) = passing.first().cloned() else {
+            break;
+        };
         let j_best = best.4.overall.powi(2);
         for other in passing.iter().skip(1) {
             let j_o = other.4.overall.powi(2);
@@ -446,11 +587,20 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
             if let Some(c) = candidates.get_mut(&e) {
                 let j = err.overall.powi(2);
                 let excess_ratio = (j - jn).max(0.0) / (j_cur - jn).max(1e-300);
-                c.params = h.params[first_new..].iter().zip(&h.values[first_new..]).map(|(p, v)| (p.name.clone(), *v)).collect();
+                c.params = h.params[first_new..]
+                    .iter()
+                    .zip(&h.values[first_new..])
+                    .map(|(p, v)| (p.name.clone(), *v))
+                    .collect();
                 c.nrmse_train = ctrain.sqrt();
                 c.nrmse_validation = err.overall;
                 c.score = score(j, h.params.len());
-                let prior = analysis_refit.prior.iter().find(|p| p.0 == e).map(|p| p.2.clone()).unwrap_or_default();
+                let prior = analysis_refit
+                    .prior
+                    .iter()
+                    .find(|p| p.0 == e)
+                    .map(|p| p.2.clone())
+                    .unwrap_or_default();
                 c.evidence = format!(
                     "{prior}; accepted in round {} on top of {}: held-out NRMSE {:.4} → {:.4}, {:.0} % of the remaining error above the noise floor explained",
                     round + 1,
@@ -474,14 +624,34 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
     let extended = current.build(nominal);
     let ext_fit_sim = replay_with(&current.build(&ctx.fit_base), rec, n, opts.drive).ok();
     let gain = 1.0 - ext_err.overall / nom_err.overall;
-    let cause = accepted.first().map_or("none".to_string(), |e| e.as_str().to_string());
+    let cause = accepted
+        .first()
+        .map_or("none".to_string(), |e| e.as_str().to_string());
     let mut cands: Vec<Candidate> = candidates.into_values().collect();
-    cands.sort_by(|a, b| b.accepted.cmp(&a.accepted).then(a.score.total_cmp(&b.score)));
-    let summary = summary_text(&accepted, &cands, &analysis_refit, &nom_err, &refit_err, &ext_err, gain, noise_floor, &ambiguities);
+    cands.sort_by(|a, b| {
+        b.accepted
+            .cmp(&a.accepted)
+            .then(a.score.total_cmp(&b.score))
+    });
+    let summary = summary_text(
+        &accepted,
+        &cands,
+        &analysis_refit,
+        &nom_err,
+        &refit_err,
+        &ext_err,
+        gain,
+        noise_floor,
+        &ambiguities,
+    );
     let traces = Traces {
         nominal: Some(nom_sim),
         extended: ext_fit_sim,
-        validation: if val.is_some() { Some((nom_val_sim, ext_val_sim)) } else { None },
+        validation: if val.is_some() {
+            Some((nom_val_sim, ext_val_sim))
+        } else {
+            None
+        },
         split_index: n_fit,
     };
     Ok(Diagnosis {
@@ -493,9 +663,23 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
         gain,
         noise_floor,
         candidates: cands,
-        extended_params: current.params.iter().zip(&current.values).map(|(p, v)| (p.name.clone(), *v)).collect(),
+        extended_params: current
+            .params
+            .iter()
+            .zip(&current.values)
+            .map(|(p, v)| (p.name.clone(), *v))
+            .collect(),
         ambiguities,
-        warnings: rec.warnings.iter().chain(if val.is_some() { val_rec.warnings.iter() } else { [].iter() }).cloned().collect(),
+        warnings: rec
+            .warnings
+            .iter()
+            .chain(if val.is_some() {
+                val_rec.warnings.iter()
+            } else {
+                [].iter()
+            })
+            .cloned()
+            .collect(),
         analysis,
         analysis_refit,
         split,
@@ -506,7 +690,17 @@ pub fn diagnose(nominal: &PlantParams, rec: &Record, val: Option<&Record>, opts:
 }
 
 #[allow(clippy::too_many_arguments)]
-fn summary_text(accepted: &[EffectId], cands: &[Candidate], an: &Analysis, nom: &Errors, refit: &Errors, ext: &Errors, gain: f64, floor: f64, amb: &[String]) -> String {
+fn summary_text(
+    accepted: &[EffectId],
+    cands: &[Candidate],
+    an: &Analysis,
+    nom: &Errors,
+    refit: &Errors,
+    ext: &Errors,
+    gain: f64,
+    floor: f64,
+    amb: &[String],
+) -> String {
     let mut s = String::new();
     if accepted.is_empty() {
         s.push_str(&format!(
@@ -515,14 +709,33 @@ fn summary_text(accepted: &[EffectId], cands: &[Candidate], an: &Analysis, nom: 
         ));
     } else {
         let names: Vec<&str> = accepted.iter().map(|e| e.as_str()).collect();
-        s.push_str(&format!("The simulation disagrees with the data mainly because of `{}`", names[0]));
+        s.push_str(&format!(
+            "The simulation disagrees with the data mainly because of `{}`",
+            names[0]
+        ));
         if names.len() > 1 {
-            s.push_str(&format!(" (then {})", names[1..].iter().map(|n| format!("`{n}`")).collect::<Vec<_>>().join(", ")));
+            s.push_str(&format!(
+                " (then {})",
+                names[1..]
+                    .iter()
+                    .map(|n| format!("`{n}`"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
         }
         s.push_str(". ");
         for e in accepted {
             if let Some(c) = cands.iter().find(|c| c.effect == e.as_str()) {
-                s.push_str(&format!("Evidence for `{}`: {}. Fitted: {}. ", c.effect, c.evidence, c.params.iter().map(|(k, v)| format!("{k} = {v:.4e}")).collect::<Vec<_>>().join(", ")));
+                s.push_str(&format!(
+                    "Evidence for `{}`: {}. Fitted: {}. ",
+                    c.effect,
+                    c.evidence,
+                    c.params
+                        .iter()
+                        .map(|(k, v)| format!("{k} = {v:.4e}"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
             }
         }
         s.push_str(&format!(
@@ -532,7 +745,10 @@ fn summary_text(accepted: &[EffectId], cands: &[Candidate], an: &Analysis, nom: 
         ));
     }
     if !an.tones.is_empty() && !accepted.contains(&EffectId::SensorTone) {
-        s.push_str(&format!(" A narrow residual line at {:.1} Hz on `{}` was seen but not confirmed by the fit.", an.tones[0].frequency, an.tones[0].channel));
+        s.push_str(&format!(
+            " A narrow residual line at {:.1} Hz on `{}` was seen but not confirmed by the fit.",
+            an.tones[0].frequency, an.tones[0].channel
+        ));
     }
     for a in amb {
         s.push(' ');

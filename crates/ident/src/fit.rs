@@ -117,28 +117,77 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
     match nominal.valve.flow_form {
         FlowForm::Kq => {
             let q0 = n.valve.rated_flow.unwrap_or(0.0);
-            v.push(FreeParam::new("valve.rated_flow×", lo, hi, false, 1.0, Arc::new(move |p, s| p.valve.rated_flow = Some(q0 * s))));
+            v.push(FreeParam::new(
+                "valve.rated_flow×",
+                lo,
+                hi,
+                false,
+                1.0,
+                Arc::new(move |p, s| p.valve.rated_flow = Some(q0 * s)),
+            ));
         }
         FlowForm::Orifice => {
             let a0 = n.valve.area_max.unwrap_or(0.0);
-            v.push(FreeParam::new("valve.area_max×", lo, hi, false, 1.0, Arc::new(move |p, s| p.valve.area_max = Some(a0 * s))));
+            v.push(FreeParam::new(
+                "valve.area_max×",
+                lo,
+                hi,
+                false,
+                1.0,
+                Arc::new(move |p, s| p.valve.area_max = Some(a0 * s)),
+            ));
         }
         FlowForm::PowerLaw => {
             let q0 = n.valve.flow_at_1mpa.unwrap_or(0.0);
-            v.push(FreeParam::new("valve.flow_at_1mpa×", lo, hi, false, 1.0, Arc::new(move |p, s| p.valve.flow_at_1mpa = Some(q0 * s))));
+            v.push(FreeParam::new(
+                "valve.flow_at_1mpa×",
+                lo,
+                hi,
+                false,
+                1.0,
+                Arc::new(move |p, s| p.valve.flow_at_1mpa = Some(q0 * s)),
+            ));
         }
     }
     let b0 = n.fluid.bulk_modulus;
-    v.push(FreeParam::new("fluid.bulk_modulus×", lo, hi, false, 1.0, Arc::new(move |p, s| p.fluid.bulk_modulus = b0 * s)));
+    v.push(FreeParam::new(
+        "fluid.bulk_modulus×",
+        lo,
+        hi,
+        false,
+        1.0,
+        Arc::new(move |p, s| p.fluid.bulk_modulus = b0 * s),
+    ));
     let m0 = n.mechanics.mass;
-    v.push(FreeParam::new("mechanics.mass×", lo, hi, false, 1.0, Arc::new(move |p, s| p.mechanics.mass = m0 * s)));
+    v.push(FreeParam::new(
+        "mechanics.mass×",
+        lo,
+        hi,
+        false,
+        1.0,
+        Arc::new(move |p, s| p.mechanics.mass = m0 * s),
+    ));
     if n.mechanics.damping > 0.0 {
         let d0 = n.mechanics.damping;
-        v.push(FreeParam::new("mechanics.damping×", lo, hi, false, 1.0, Arc::new(move |p, s| p.mechanics.damping = d0 * s)));
+        v.push(FreeParam::new(
+            "mechanics.damping×",
+            lo,
+            hi,
+            false,
+            1.0,
+            Arc::new(move |p, s| p.mechanics.damping = d0 * s),
+        ));
     }
     if n.mechanics.load_stiffness > 0.0 {
         let k0 = n.mechanics.load_stiffness;
-        v.push(FreeParam::new("mechanics.load_stiffness×", lo, hi, false, 1.0, Arc::new(move |p, s| p.mechanics.load_stiffness = k0 * s)));
+        v.push(FreeParam::new(
+            "mechanics.load_stiffness×",
+            lo,
+            hi,
+            false,
+            1.0,
+            Arc::new(move |p, s| p.mechanics.load_stiffness = k0 * s),
+        ));
     }
     v
 }
@@ -146,9 +195,16 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
 /// Free parameters of effect `e` (bounds from the rig scales, start values from the nominal
 /// section if it exists, else from the residual analysis). `None` when the effect cannot be
 /// tested on this record (e.g. a tone with no line in any residual spectrum).
-pub fn effect_params(e: EffectId, nominal: &PlantParams, sc: &Scales, an: &Analysis) -> Option<Vec<FreeParam>> {
+pub fn effect_params(
+    e: EffectId,
+    nominal: &PlantParams,
+    sc: &Scales,
+    an: &Analysis,
+) -> Option<Vec<FreeParam>> {
     let ef = &nominal.effects;
-    let p = |name: &str, lo: f64, hi: f64, log: bool, init: f64, set: Setter| FreeParam::new(name, lo, hi, log, init, set);
+    let p = |name: &str, lo: f64, hi: f64, log: bool, init: f64, set: Setter| {
+        FreeParam::new(name, lo, hi, log, init, set)
+    };
     Some(match e {
         EffectId::Friction => {
             let f0 = ef.friction.clone().unwrap_or(Friction {
@@ -164,56 +220,125 @@ pub fn effect_params(e: EffectId, nominal: &PlantParams, sc: &Scales, an: &Analy
                 f
             }
             let (g1, g2, g3) = (f0.clone(), f0.clone(), f0.clone());
-            let c0 = ef.friction.as_ref().map_or(0.005 * sc.force, |f| f.coulomb_force.max(1e-3 * sc.force));
-            let r0 = ef.friction.as_ref().map_or(1.2, |f| f.static_force / f.coulomb_force.max(1e-9));
+            let c0 = ef
+                .friction
+                .as_ref()
+                .map_or(0.005 * sc.force, |f| f.coulomb_force.max(1e-3 * sc.force));
+            let r0 = ef
+                .friction
+                .as_ref()
+                .map_or(1.2, |f| f.static_force / f.coulomb_force.max(1e-9));
             vec![
-                p("effects.friction.coulomb_force", 1e-4 * sc.force, 0.1 * sc.force, true, c0, Arc::new(move |p, v| {
-                    let f = fr(p, &g1);
-                    f.coulomb_force = v;
-                    f.static_force = v;
-                })),
-                p("effects.friction.static_force/coulomb_force", 1.0, 2.5, false, r0, Arc::new(move |p, v| {
-                    let f = fr(p, &g2);
-                    f.static_force = f.coulomb_force * v;
-                })),
-                p("effects.friction.stribeck_velocity", 1e-3, 0.1, true, 0.01, Arc::new(move |p, v| fr(p, &g3).stribeck_velocity = v)),
+                p(
+                    "effects.friction.coulomb_force",
+                    1e-4 * sc.force,
+                    0.1 * sc.force,
+                    true,
+                    c0,
+                    Arc::new(move |p, v| {
+                        let f = fr(p, &g1);
+                        f.coulomb_force = v;
+                        f.static_force = v;
+                    }),
+                ),
+                p(
+                    "effects.friction.static_force/coulomb_force",
+                    1.0,
+                    2.5,
+                    false,
+                    r0,
+                    Arc::new(move |p, v| {
+                        let f = fr(p, &g2);
+                        f.static_force = f.coulomb_force * v;
+                    }),
+                ),
+                p(
+                    "effects.friction.stribeck_velocity",
+                    1e-3,
+                    0.1,
+                    true,
+                    0.01,
+                    Arc::new(move |p, v| fr(p, &g3).stribeck_velocity = v),
+                ),
             ]
         }
         EffectId::ValveDeadband => {
-            let d0 = ef.valve_deadband.clone().unwrap_or(ValveDeadband { enabled: true, overlap: 0.0, zero_offset: 0.0 });
+            let d0 = ef.valve_deadband.clone().unwrap_or(ValveDeadband {
+                enabled: true,
+                overlap: 0.0,
+                zero_offset: 0.0,
+            });
             let (d1, d2) = (d0.clone(), d0.clone());
             vec![
-                p("effects.valve_deadband.overlap", 0.0, 0.3, false, d0.overlap.max(0.02), Arc::new(move |p, v| {
-                    let d = p.effects.valve_deadband.get_or_insert_with(|| d1.clone());
-                    d.enabled = true;
-                    d.overlap = v;
-                })),
-                p("effects.valve_deadband.zero_offset", -0.05, 0.05, false, d0.zero_offset, Arc::new(move |p, v| {
-                    let d = p.effects.valve_deadband.get_or_insert_with(|| d2.clone());
-                    d.enabled = true;
-                    d.zero_offset = v;
-                })),
+                p(
+                    "effects.valve_deadband.overlap",
+                    0.0,
+                    0.3,
+                    false,
+                    d0.overlap.max(0.02),
+                    Arc::new(move |p, v| {
+                        let d = p.effects.valve_deadband.get_or_insert_with(|| d1.clone());
+                        d.enabled = true;
+                        d.overlap = v;
+                    }),
+                ),
+                p(
+                    "effects.valve_deadband.zero_offset",
+                    -0.05,
+                    0.05,
+                    false,
+                    d0.zero_offset,
+                    Arc::new(move |p, v| {
+                        let d = p.effects.valve_deadband.get_or_insert_with(|| d2.clone());
+                        d.enabled = true;
+                        d.zero_offset = v;
+                    }),
+                ),
             ]
         }
         EffectId::ValveSaturation => {
-            let s0 = ef.valve_saturation.clone().unwrap_or(ValveSaturation { enabled: true, spool_limit: 1.0, max_flow: 0.0 });
+            let s0 = ef.valve_saturation.clone().unwrap_or(ValveSaturation {
+                enabled: true,
+                spool_limit: 1.0,
+                max_flow: 0.0,
+            });
             let init = s0.spool_limit.min(0.9);
-            vec![p("effects.valve_saturation.spool_limit", 0.05, 1.0, false, init, Arc::new(move |p, v| {
-                let s = p.effects.valve_saturation.get_or_insert_with(|| s0.clone());
-                s.enabled = true;
-                s.spool_limit = v;
-            }))]
+            vec![p(
+                "effects.valve_saturation.spool_limit",
+                0.05,
+                1.0,
+                false,
+                init,
+                Arc::new(move |p, v| {
+                    let s = p.effects.valve_saturation.get_or_insert_with(|| s0.clone());
+                    s.enabled = true;
+                    s.spool_limit = v;
+                }),
+            )]
         }
         EffectId::ValveDynamics => match ef.valve_dynamics.clone() {
             Some(d) if d.order == 1 => {
-                vec![p("effects.valve_dynamics.time_constant", 1e-4, 0.3, true, d.time_constant, Arc::new(move |p, v| {
-                    let s = p.effects.valve_dynamics.get_or_insert_with(|| d.clone());
-                    s.enabled = true;
-                    s.time_constant = v;
-                }))]
+                vec![p(
+                    "effects.valve_dynamics.time_constant",
+                    1e-4,
+                    0.3,
+                    true,
+                    d.time_constant,
+                    Arc::new(move |p, v| {
+                        let s = p.effects.valve_dynamics.get_or_insert_with(|| d.clone());
+                        s.enabled = true;
+                        s.time_constant = v;
+                    }),
+                )]
             }
             other => {
-                let d0 = other.unwrap_or(ValveDynamics { enabled: true, order: 2, time_constant: 0.0, natural_frequency: 0.0, damping_ratio: 0.7 });
+                let d0 = other.unwrap_or(ValveDynamics {
+                    enabled: true,
+                    order: 2,
+                    time_constant: 0.0,
+                    natural_frequency: 0.0,
+                    damping_ratio: 0.7,
+                });
                 let (w0, z0) = if d0.natural_frequency > 0.0 {
                     (d0.natural_frequency, d0.damping_ratio)
                 } else {
@@ -221,97 +346,213 @@ pub fn effect_params(e: EffectId, nominal: &PlantParams, sc: &Scales, an: &Analy
                 };
                 let (a, b) = (d0.clone(), d0);
                 vec![
-                    p("effects.valve_dynamics.natural_frequency", std::f64::consts::TAU * 1.0, std::f64::consts::TAU * (0.5 / sc.dt).min(3000.0), true, w0, Arc::new(move |p, v| {
-                        let s = p.effects.valve_dynamics.get_or_insert_with(|| a.clone());
-                        s.enabled = true;
-                        s.order = 2;
-                        s.natural_frequency = v;
-                        if s.damping_ratio <= 0.0 {
-                            s.damping_ratio = 0.7;
-                        }
-                    })),
-                    p("effects.valve_dynamics.damping_ratio", 0.2, 2.0, false, z0, Arc::new(move |p, v| {
-                        let s = p.effects.valve_dynamics.get_or_insert_with(|| b.clone());
-                        s.enabled = true;
-                        s.order = 2;
-                        s.damping_ratio = v;
-                    })),
+                    p(
+                        "effects.valve_dynamics.natural_frequency",
+                        std::f64::consts::TAU * 1.0,
+                        std::f64::consts::TAU * (0.5 / sc.dt).min(3000.0),
+                        true,
+                        w0,
+                        Arc::new(move |p, v| {
+                            let s = p.effects.valve_dynamics.get_or_insert_with(|| a.clone());
+                            s.enabled = true;
+                            s.order = 2;
+                            s.natural_frequency = v;
+                            if s.damping_ratio <= 0.0 {
+                                s.damping_ratio = 0.7;
+                            }
+                        }),
+                    ),
+                    p(
+                        "effects.valve_dynamics.damping_ratio",
+                        0.2,
+                        2.0,
+                        false,
+                        z0,
+                        Arc::new(move |p, v| {
+                            let s = p.effects.valve_dynamics.get_or_insert_with(|| b.clone());
+                            s.enabled = true;
+                            s.order = 2;
+                            s.damping_ratio = v;
+                        }),
+                    ),
                 ]
             }
         },
         EffectId::InternalLeakage | EffectId::ExternalLeakage => {
             let internal = e == EffectId::InternalLeakage;
-            let cur = if internal { ef.internal_leakage.clone() } else { ef.external_leakage.clone() };
+            let cur = if internal {
+                ef.internal_leakage.clone()
+            } else {
+                ef.external_leakage.clone()
+            };
             let kc = sc.flow / sc.pressure;
-            let init = cur.as_ref().map_or(0.01 * kc, |l| l.coefficient.max(1e-6 * kc));
-            let name = if internal { "effects.internal_leakage.coefficient" } else { "effects.external_leakage.coefficient" };
-            vec![p(name, 1e-5 * kc, 1.0 * kc, true, init, Arc::new(move |p, v| {
-                let slot = if internal { &mut p.effects.internal_leakage } else { &mut p.effects.external_leakage };
-                let l = slot.get_or_insert(Leakage { enabled: true, coefficient: v });
-                l.enabled = true;
-                l.coefficient = v;
-            }))]
+            let init = cur
+                .as_ref()
+                .map_or(0.01 * kc, |l| l.coefficient.max(1e-6 * kc));
+            let name = if internal {
+                "effects.internal_leakage.coefficient"
+            } else {
+                "effects.external_leakage.coefficient"
+            };
+            vec![p(
+                name,
+                1e-5 * kc,
+                1.0 * kc,
+                true,
+                init,
+                Arc::new(move |p, v| {
+                    let slot = if internal {
+                        &mut p.effects.internal_leakage
+                    } else {
+                        &mut p.effects.external_leakage
+                    };
+                    let l = slot.get_or_insert(Leakage {
+                        enabled: true,
+                        coefficient: v,
+                    });
+                    l.enabled = true;
+                    l.coefficient = v;
+                }),
+            )]
         }
         EffectId::BulkModulusPressure => {
             let b0 = nominal.fluid.bulk_modulus;
-            let cur = ef.bulk_modulus_pressure.clone().unwrap_or(BulkModulusPressure { enabled: true, slope: 0.0, max: (2.2e9f64).max(1.6 * b0) });
+            let cur = ef
+                .bulk_modulus_pressure
+                .clone()
+                .unwrap_or(BulkModulusPressure {
+                    enabled: true,
+                    slope: 0.0,
+                    max: (2.2e9f64).max(1.6 * b0),
+                });
             let init = cur.slope.max(5.0);
-            vec![p("effects.bulk_modulus_pressure.slope", 0.0, 400.0, false, init, Arc::new(move |p, v| {
-                let b = p.effects.bulk_modulus_pressure.get_or_insert_with(|| cur.clone());
-                b.enabled = true;
-                b.slope = v;
-            }))]
+            vec![p(
+                "effects.bulk_modulus_pressure.slope",
+                0.0,
+                400.0,
+                false,
+                init,
+                Arc::new(move |p, v| {
+                    let b = p
+                        .effects
+                        .bulk_modulus_pressure
+                        .get_or_insert_with(|| cur.clone());
+                    b.enabled = true;
+                    b.slope = v;
+                }),
+            )]
         }
         EffectId::LineDynamics => {
-            let cur = ef.line_dynamics.clone().unwrap_or(LineDynamics { enabled: true, length: 1.0, diameter: 8e-3, segments: 2, bulk_modulus: None });
+            let cur = ef.line_dynamics.clone().unwrap_or(LineDynamics {
+                enabled: true,
+                length: 1.0,
+                diameter: 8e-3,
+                segments: 2,
+                bulk_modulus: None,
+            });
             let (a, b) = (cur.clone(), cur.clone());
             vec![
-                p("effects.line_dynamics.length", 0.1, 15.0, true, cur.length, Arc::new(move |p, v| {
-                    let l = p.effects.line_dynamics.get_or_insert_with(|| a.clone());
-                    l.enabled = true;
-                    l.length = v;
-                })),
-                p("effects.line_dynamics.diameter", 2e-3, 3e-2, true, cur.diameter, Arc::new(move |p, v| {
-                    let l = p.effects.line_dynamics.get_or_insert_with(|| b.clone());
-                    l.enabled = true;
-                    l.diameter = v;
-                })),
+                p(
+                    "effects.line_dynamics.length",
+                    0.1,
+                    15.0,
+                    true,
+                    cur.length,
+                    Arc::new(move |p, v| {
+                        let l = p.effects.line_dynamics.get_or_insert_with(|| a.clone());
+                        l.enabled = true;
+                        l.length = v;
+                    }),
+                ),
+                p(
+                    "effects.line_dynamics.diameter",
+                    2e-3,
+                    3e-2,
+                    true,
+                    cur.diameter,
+                    Arc::new(move |p, v| {
+                        let l = p.effects.line_dynamics.get_or_insert_with(|| b.clone());
+                        l.enabled = true;
+                        l.diameter = v;
+                    }),
+                ),
             ]
         }
         EffectId::FlexibleMount => {
             let cur = ef.flexible_mount.clone();
             let m0 = cur.as_ref().map_or(sc.mass, |m| m.load_mass);
             let w = std::f64::consts::TAU * an.mode_frequency.max(1.0);
-            let k0 = cur.as_ref().map_or((m0 * w * w).clamp(1e-3 * sc.stiffness, 10.0 * sc.stiffness), |m| m.stiffness);
-            let z0 = cur.as_ref().map_or(0.1, |m| m.damping / (2.0 * (m.stiffness * m.load_mass).sqrt()));
-            let base = cur.unwrap_or(FlexibleMount { enabled: true, load_mass: m0, stiffness: k0, damping: 0.0 });
+            let k0 = cur.as_ref().map_or(
+                (m0 * w * w).clamp(1e-3 * sc.stiffness, 10.0 * sc.stiffness),
+                |m| m.stiffness,
+            );
+            let z0 = cur.as_ref().map_or(0.1, |m| {
+                m.damping / (2.0 * (m.stiffness * m.load_mass).sqrt())
+            });
+            let base = cur.unwrap_or(FlexibleMount {
+                enabled: true,
+                load_mass: m0,
+                stiffness: k0,
+                damping: 0.0,
+            });
             let (a, b, c) = (base.clone(), base.clone(), base);
             vec![
-                p("effects.flexible_mount.load_mass", 0.02 * sc.mass, 20.0 * sc.mass, true, m0, Arc::new(move |p, v| {
-                    let m = p.effects.flexible_mount.get_or_insert_with(|| a.clone());
-                    m.enabled = true;
-                    m.load_mass = v;
-                })),
-                p("effects.flexible_mount.stiffness", 1e-3 * sc.stiffness, 10.0 * sc.stiffness, true, k0, Arc::new(move |p, v| {
-                    let m = p.effects.flexible_mount.get_or_insert_with(|| b.clone());
-                    m.enabled = true;
-                    m.stiffness = v;
-                })),
-                p("effects.flexible_mount.damping/critical", 0.005, 2.0, true, z0, Arc::new(move |p, v| {
-                    let m = p.effects.flexible_mount.get_or_insert_with(|| c.clone());
-                    m.enabled = true;
-                    m.damping = v * 2.0 * (m.stiffness * m.load_mass).sqrt();
-                })),
+                p(
+                    "effects.flexible_mount.load_mass",
+                    0.02 * sc.mass,
+                    20.0 * sc.mass,
+                    true,
+                    m0,
+                    Arc::new(move |p, v| {
+                        let m = p.effects.flexible_mount.get_or_insert_with(|| a.clone());
+                        m.enabled = true;
+                        m.load_mass = v;
+                    }),
+                ),
+                p(
+                    "effects.flexible_mount.stiffness",
+                    1e-3 * sc.stiffness,
+                    10.0 * sc.stiffness,
+                    true,
+                    k0,
+                    Arc::new(move |p, v| {
+                        let m = p.effects.flexible_mount.get_or_insert_with(|| b.clone());
+                        m.enabled = true;
+                        m.stiffness = v;
+                    }),
+                ),
+                p(
+                    "effects.flexible_mount.damping/critical",
+                    0.005,
+                    2.0,
+                    true,
+                    z0,
+                    Arc::new(move |p, v| {
+                        let m = p.effects.flexible_mount.get_or_insert_with(|| c.clone());
+                        m.enabled = true;
+                        m.damping = v * 2.0 * (m.stiffness * m.load_mass).sqrt();
+                    }),
+                ),
             ]
         }
         EffectId::TimeDelay => {
             let cur = ef.time_delay.as_ref().map_or(0.0, |d| d.delay);
             let init = if cur > 0.0 { cur } else { an.lag.max(sc.dt) };
-            vec![p("effects.time_delay.delay", 0.0, (60.0 * sc.dt).min(0.2), false, init, Arc::new(move |p, v| {
-                let d = p.effects.time_delay.get_or_insert(TimeDelay { enabled: true, delay: v });
-                d.enabled = true;
-                d.delay = v;
-            }))]
+            vec![p(
+                "effects.time_delay.delay",
+                0.0,
+                (60.0 * sc.dt).min(0.2),
+                false,
+                init,
+                Arc::new(move |p, v| {
+                    let d = p.effects.time_delay.get_or_insert(TimeDelay {
+                        enabled: true,
+                        delay: v,
+                    });
+                    d.enabled = true;
+                    d.delay = v;
+                }),
+            )]
         }
         EffectId::SensorTone => {
             let top = an.tones.first()?;
@@ -322,47 +563,105 @@ pub fn effect_params(e: EffectId, nominal: &PlantParams, sc: &Scales, an: &Analy
                 "p_b" => SensorChannel::PressureB,
                 _ => return None,
             };
-            let lines: Vec<_> = an.tones.iter().filter(|t| t.channel == top.channel).take(2).copied().collect();
+            let lines: Vec<_> = an
+                .tones
+                .iter()
+                .filter(|t| t.channel == top.channel)
+                .take(2)
+                .copied()
+                .collect();
             let nt = lines.len();
-            let base = SensorTone { enabled: true, channel: ch, frequencies: lines.iter().map(|l| l.frequency).collect(), amplitudes: vec![0.0; nt] };
+            let base = SensorTone {
+                enabled: true,
+                channel: ch,
+                frequencies: lines.iter().map(|l| l.frequency).collect(),
+                amplitudes: vec![0.0; nt],
+            };
             // Frequencies are refined by the analysis to a small fraction of a Welch bin.
             let df = 0.02 / (sc.dt * 1024.0);
             let mut v = Vec::new();
             for (i, l) in lines.iter().enumerate() {
                 let (a, b) = (base.clone(), base.clone());
-                v.push(p(&format!("effects.sensor_tone.frequencies[{i}]"), (l.frequency - df).max(0.1), l.frequency + df, false, l.frequency, Arc::new(move |p, x| {
-                    let t = p.effects.sensor_tone.get_or_insert_with(|| a.clone());
-                    t.frequencies[i] = x;
-                })));
-                v.push(p(&format!("effects.sensor_tone.amplitudes[{i}]"), 0.0, 4.0 * l.amplitude, false, l.amplitude, Arc::new(move |p, x| {
-                    let t = p.effects.sensor_tone.get_or_insert_with(|| b.clone());
-                    t.amplitudes[i] = x;
-                })));
+                v.push(p(
+                    &format!("effects.sensor_tone.frequencies[{i}]"),
+                    (l.frequency - df).max(0.1),
+                    l.frequency + df,
+                    false,
+                    l.frequency,
+                    Arc::new(move |p, x| {
+                        let t = p.effects.sensor_tone.get_or_insert_with(|| a.clone());
+                        t.frequencies[i] = x;
+                    }),
+                ));
+                v.push(p(
+                    &format!("effects.sensor_tone.amplitudes[{i}]"),
+                    0.0,
+                    4.0 * l.amplitude,
+                    false,
+                    l.amplitude,
+                    Arc::new(move |p, x| {
+                        let t = p.effects.sensor_tone.get_or_insert_with(|| b.clone());
+                        t.amplitudes[i] = x;
+                    }),
+                ));
             }
             v
         }
         EffectId::SupplyPressureDrop => {
             let r_s = sc.pressure / sc.flow;
-            let cur = ef.supply_pressure_drop.clone().unwrap_or(SupplyPressureDrop { enabled: true, resistance: 0.05 * r_s, time_constant: 0.02 });
+            let cur = ef
+                .supply_pressure_drop
+                .clone()
+                .unwrap_or(SupplyPressureDrop {
+                    enabled: true,
+                    resistance: 0.05 * r_s,
+                    time_constant: 0.02,
+                });
             let (a, b) = (cur.clone(), cur.clone());
             vec![
-                p("effects.supply_pressure_drop.resistance", 1e-3 * r_s, 2.0 * r_s, true, cur.resistance, Arc::new(move |p, v| {
-                    let s = p.effects.supply_pressure_drop.get_or_insert_with(|| a.clone());
-                    s.enabled = true;
-                    s.resistance = v;
-                })),
-                p("effects.supply_pressure_drop.time_constant", 1e-3, 1.0, true, cur.time_constant, Arc::new(move |p, v| {
-                    let s = p.effects.supply_pressure_drop.get_or_insert_with(|| b.clone());
-                    s.enabled = true;
-                    s.time_constant = v;
-                })),
+                p(
+                    "effects.supply_pressure_drop.resistance",
+                    1e-3 * r_s,
+                    2.0 * r_s,
+                    true,
+                    cur.resistance,
+                    Arc::new(move |p, v| {
+                        let s = p
+                            .effects
+                            .supply_pressure_drop
+                            .get_or_insert_with(|| a.clone());
+                        s.enabled = true;
+                        s.resistance = v;
+                    }),
+                ),
+                p(
+                    "effects.supply_pressure_drop.time_constant",
+                    1e-3,
+                    1.0,
+                    true,
+                    cur.time_constant,
+                    Arc::new(move |p, v| {
+                        let s = p
+                            .effects
+                            .supply_pressure_drop
+                            .get_or_insert_with(|| b.clone());
+                        s.enabled = true;
+                        s.time_constant = v;
+                    }),
+                ),
             ]
         }
     })
 }
 
 /// Bounded Nelder–Mead in the unit cube. Returns (best point, best cost, evaluations).
-pub fn nelder_mead(f: &mut dyn FnMut(&[f64]) -> f64, x0: &[f64], step: f64, max_evals: usize, tol: f64) -> (Vec<f64>, f64, usize) {
+pub fn nelder_mead(
+    f: &mut dyn FnMut(&[f64]) -> f64,
+    x0: &[f64],
+    step: f64,
+    max_evals: usize,
+    tol: f64,
+) -> (Vec<f64>, f64, usize) {
     let n = x0.len();
     let clamp = |x: &mut Vec<f64>| x.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
     let mut evals = 0;
@@ -393,7 +692,16 @@ pub fn nelder_mead(f: &mut dyn FnMut(&[f64]) -> f64, x0: &[f64], step: f64, max_
     while evals < max_evals {
         simplex.sort_by(|a, b| a.1.total_cmp(&b.1));
         let (best, worst) = (simplex[0].1, simplex[n].1);
-        let spread = simplex.iter().skip(1).map(|(x, _)| x.iter().zip(&simplex[0].0).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)).fold(0.0, f64::max);
+        let spread = simplex
+            .iter()
+            .skip(1)
+            .map(|(x, _)| {
+                x.iter()
+                    .zip(&simplex[0].0)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max)
+            })
+            .fold(0.0, f64::max);
         if (worst - best).abs() <= tol * best.abs().max(1e-12) && spread < 1e-3 {
             break;
         }
@@ -404,7 +712,9 @@ pub fn nelder_mead(f: &mut dyn FnMut(&[f64]) -> f64, x0: &[f64], step: f64, max_
             }
         }
         let pt = |a: f64| -> Vec<f64> {
-            let mut x: Vec<f64> = (0..n).map(|j| c[j] + a * (simplex[n].0[j] - c[j])).collect();
+            let mut x: Vec<f64> = (0..n)
+                .map(|j| c[j] + a * (simplex[n].0[j] - c[j]))
+                .collect();
             x.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
             x
         };
@@ -431,7 +741,11 @@ pub fn nelder_mead(f: &mut dyn FnMut(&[f64]) -> f64, x0: &[f64], step: f64, max_
             } else {
                 let x0 = simplex[0].0.clone();
                 for s in simplex.iter_mut().skip(1) {
-                    let x: Vec<f64> = s.0.iter().zip(&x0).map(|(a, b)| b + 0.5 * (a - b)).collect();
+                    let x: Vec<f64> =
+                        s.0.iter()
+                            .zip(&x0)
+                            .map(|(a, b)| b + 0.5 * (a - b))
+                            .collect();
                     let v = eval(&x, &mut evals);
                     *s = (x, v);
                 }

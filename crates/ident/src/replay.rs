@@ -59,11 +59,19 @@ pub fn replay(params: &PlantParams, rec: &Record, n: usize) -> Result<Replay, St
 }
 
 /// Replay with the given [`Drive`] (see [`replay`]).
-pub fn replay_with(params: &PlantParams, rec: &Record, n: usize, drive: Drive) -> Result<Replay, String> {
+pub fn replay_with(
+    params: &PlantParams,
+    rec: &Record,
+    n: usize,
+    drive: Drive,
+) -> Result<Replay, String> {
     let mut pd = match drive {
         Drive::PositionPd(g) => {
             if rec.reference.is_none() {
-                return Err(format!("{}: closed-loop replay needs a `ref` column", rec.source));
+                return Err(format!(
+                    "{}: closed-loop replay needs a `ref` column",
+                    rec.source
+                ));
             }
             Some(ehactl_controller::pd::Pd::new(g))
         }
@@ -90,9 +98,9 @@ pub fn replay_with(params: &PlantParams, rec: &Record, n: usize, drive: Drive) -
         }
         if failed {
             // Keep the last good outputs; the fit sees a large error, never a NaN.
-            for c in 0..kinds.len() {
-                let last = y[c][k];
-                y[c][k] = if last.is_finite() { last } else { 0.0 };
+            for yc in y.iter_mut() {
+                let last = yc[k];
+                yc[k] = if last.is_finite() { last } else { 0.0 };
             }
         }
     }
@@ -150,7 +158,12 @@ pub fn noise_level(y: &[f64]) -> f64 {
     }
     // dt = 1: the PSD per cycle/sample; variance = PSD·(1/2) for white noise.
     let (f, psd) = crate::analysis::welch(y, 1.0);
-    let mut band: Vec<f64> = f.iter().zip(&psd).filter(|(f, _)| **f >= 0.25).map(|(_, p)| *p).collect();
+    let mut band: Vec<f64> = f
+        .iter()
+        .zip(&psd)
+        .filter(|(f, _)| **f >= 0.25)
+        .map(|(_, p)| *p)
+        .collect();
     if band.is_empty() {
         return 0.0;
     }

@@ -37,8 +37,15 @@ pub fn extended_config_text(nominal: &RigConfig, d: &Diagnosis, data: &str) -> S
     );
     let mut s = String::new();
     let _ = writeln!(s, "# Written by `ehactl diagnose` from data {data}.");
-    let _ = writeln!(s, "# Nominal config plus accepted effects [{}] with fitted parameters", d.causes.join(", "));
-    let _ = writeln!(s, "# (nominal valve gain, β₀, damping and spring rate refit within ±15 %). SI units.");
+    let _ = writeln!(
+        s,
+        "# Nominal config plus accepted effects [{}] with fitted parameters",
+        d.causes.join(", ")
+    );
+    let _ = writeln!(
+        s,
+        "# (nominal valve gain, β₀, damping and spring rate refit within ±15 %). SI units."
+    );
     for (k, v) in &d.extended_params {
         let _ = writeln!(s, "#   {k} = {v:.6e}");
     }
@@ -61,7 +68,14 @@ fn trace_csv(rec: &Record, nom: &Replay, ext: &Replay, split: usize) -> String {
     }
     s.push('\n');
     for k in 0..rec.len() {
-        let _ = write!(s, "{:e},{:e},{},{:e}", rec.t[k], rec.u[k], (k >= split) as u8, nom.v.get(k).copied().unwrap_or(f64::NAN));
+        let _ = write!(
+            s,
+            "{:e},{:e},{},{:e}",
+            rec.t[k],
+            rec.u[k],
+            (k >= split) as u8,
+            nom.v.get(k).copied().unwrap_or(f64::NAN)
+        );
         for (c, ch) in rec.channels.iter().enumerate() {
             let _ = write!(
                 s,
@@ -77,13 +91,18 @@ fn trace_csv(rec: &Record, nom: &Replay, ext: &Replay, split: usize) -> String {
 }
 
 fn table(d: &Diagnosis) -> String {
-    let mut s = String::from("| channel | nominal | nominal refit | extended |\n|---|---|---|---|\n");
+    let mut s =
+        String::from("| channel | nominal | nominal refit | extended |\n|---|---|---|---|\n");
     for (k, v) in &d.nrmse_nominal.channels {
         let _ = writeln!(
             s,
             "| `{k}` | {v:.4} | {:.4} | {:.4} |",
             d.nrmse_refit.channels.get(k).copied().unwrap_or(f64::NAN),
-            d.nrmse_extended.channels.get(k).copied().unwrap_or(f64::NAN)
+            d.nrmse_extended
+                .channels
+                .get(k)
+                .copied()
+                .unwrap_or(f64::NAN)
         );
     }
     let _ = writeln!(
@@ -96,17 +115,31 @@ fn table(d: &Diagnosis) -> String {
 
 /// Write extended.toml, traces.csv (and validation_traces.csv), diagnosis.json, the plots
 /// and report.md into `dir`.
-pub fn write_report(dir: &Path, nominal: &RigConfig, config_path: &str, rec: &Record, val: Option<&Record>, d: &Diagnosis) -> Result<ReportFiles, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: cannot create output directory: {e}", dir.display()))?;
+pub fn write_report(
+    dir: &Path,
+    nominal: &RigConfig,
+    config_path: &str,
+    rec: &Record,
+    val: Option<&Record>,
+    d: &Diagnosis,
+) -> Result<ReportFiles, String> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| format!("{}: cannot create output directory: {e}", dir.display()))?;
     let w = |name: &str, text: &str| -> Result<PathBuf, String> {
         let p = dir.join(name);
         std::fs::write(&p, text).map_err(|e| format!("{}: cannot write: {e}", p.display()))?;
         Ok(p)
     };
-    let extended_config = w("extended.toml", &extended_config_text(nominal, d, &rec.source))?;
+    let extended_config = w(
+        "extended.toml",
+        &extended_config_text(nominal, d, &rec.source),
+    )?;
     let mut warnings = Vec::new();
     if let (Some(nom), Some(ext)) = (&d.traces.nominal, &d.traces.extended) {
-        w("traces.csv", &trace_csv(rec, nom, ext, d.traces.split_index))?;
+        w(
+            "traces.csv",
+            &trace_csv(rec, nom, ext, d.traces.split_index),
+        )?;
     }
     if let (Some(v), Some((nom, ext))) = (val, &d.traces.validation) {
         w("validation_traces.csv", &trace_csv(v, nom, ext, 0))?;
@@ -134,24 +167,66 @@ pub fn write_report(dir: &Path, nominal: &RigConfig, config_path: &str, rec: &Re
     let mut r = String::new();
     let _ = writeln!(r, "# ehactl diagnose: {}\n", rec.source);
     let _ = writeln!(r, "Nominal config: `{config_path}`. {}.\n", d.split);
-    let _ = writeln!(r, "## Conclusion\n\n**Cause: `{}`**{}\n", d.cause, if d.causes.len() > 1 { format!(" (accepted in order: {})", d.causes.join(", ")) } else { String::new() });
+    let _ = writeln!(
+        r,
+        "## Conclusion\n\n**Cause: `{}`**{}\n",
+        d.cause,
+        if d.causes.len() > 1 {
+            format!(" (accepted in order: {})", d.causes.join(", "))
+        } else {
+            String::new()
+        }
+    );
     let _ = writeln!(r, "{}\n", d.summary);
-    let _ = writeln!(r, "Extended config: [`extended.toml`](extended.toml) (runnable with `ehactl run`).\n");
-    let _ = writeln!(r, "## Held-out NRMSE (rms error / std of the measured channel)\n\n{}", table(d));
-    let _ = writeln!(r, "Gain (1 − extended/nominal overall): **{:.1} %**; estimated noise floor {:.4}.\n", d.gain * 100.0, d.noise_floor);
-    for (title, a) in [("nominal replay", &d.analysis), ("nominal parameters refit within ±15 % (the evidence used)", &d.analysis_refit)] {
+    let _ = writeln!(
+        r,
+        "Extended config: [`extended.toml`](extended.toml) (runnable with `ehactl run`).\n"
+    );
+    let _ = writeln!(
+        r,
+        "## Held-out NRMSE (rms error / std of the measured channel)\n\n{}",
+        table(d)
+    );
+    let _ = writeln!(
+        r,
+        "Gain (1 − extended/nominal overall): **{:.1} %**; estimated noise floor {:.4}.\n",
+        d.gain * 100.0,
+        d.noise_floor
+    );
+    for (title, a) in [
+        ("nominal replay", &d.analysis),
+        (
+            "nominal parameters refit within ±15 % (the evidence used)",
+            &d.analysis_refit,
+        ),
+    ] {
         let _ = writeln!(r, "## Residual analysis: {title} (fitting part)\n");
         let _ = writeln!(r, "- velocity reversals: residual RMS within 10 ms of a reversal is {:.2}× the overall RMS", a.reversal_ratio);
         let _ = writeln!(r, "- small command (|u| < 5 % of max): {:.2}× the overall RMS; large command (> 70 %): {:.2}×", a.small_command_ratio, a.large_command_ratio);
-        let _ = writeln!(r, "- mean pressure residual is {:.0} % of its RMS (level shift)", a.bias_share * 100.0);
-        let _ = writeln!(r, "- measured outputs lag the model by {:.2} ms (cross-correlation)", a.lag * 1e3);
-        let _ = writeln!(r, "- residual-to-signal spectrum ratio peaks near {:.1} Hz", a.mode_frequency);
+        let _ = writeln!(
+            r,
+            "- mean pressure residual is {:.0} % of its RMS (level shift)",
+            a.bias_share * 100.0
+        );
+        let _ = writeln!(
+            r,
+            "- measured outputs lag the model by {:.2} ms (cross-correlation)",
+            a.lag * 1e3
+        );
+        let _ = writeln!(
+            r,
+            "- residual-to-signal spectrum ratio peaks near {:.1} Hz",
+            a.mode_frequency
+        );
         for t in &a.tones {
             let _ = writeln!(r, "- narrow residual line: {:.1} Hz on `{}`, amplitude ≈ {:.3e}, {:.0}× its neighbourhood", t.frequency, t.channel, t.amplitude, t.prominence);
         }
         r.push('\n');
     }
-    let _ = writeln!(r, "## Hypothesis tests (every catalogue effect against the refit nominal model)\n");
+    let _ = writeln!(
+        r,
+        "## Hypothesis tests (every catalogue effect against the refit nominal model)\n"
+    );
     let _ = writeln!(r, "| effect | accepted | NRMSE train | NRMSE held-out | score | parameters | evidence |\n|---|---|---|---|---|---|---|");
     for c in &d.candidates {
         let _ = writeln!(
@@ -162,7 +237,11 @@ pub fn write_report(dir: &Path, nominal: &RigConfig, config_path: &str, rec: &Re
             c.nrmse_train,
             c.nrmse_validation,
             c.score,
-            c.params.iter().map(|(k, v)| format!("{k} = {v:.3e}")).collect::<Vec<_>>().join("<br>"),
+            c.params
+                .iter()
+                .map(|(k, v)| format!("{k} = {v:.3e}"))
+                .collect::<Vec<_>>()
+                .join("<br>"),
             c.evidence.replace('|', "/")
         );
     }
@@ -182,10 +261,17 @@ pub fn write_report(dir: &Path, nominal: &RigConfig, config_path: &str, rec: &Re
     if !plots.is_empty() {
         let _ = writeln!(r, "\n## Plots\n");
         for p in &plots {
-            let name = p.file_name().map_or(String::new(), |n| n.to_string_lossy().into_owned());
+            let name = p
+                .file_name()
+                .map_or(String::new(), |n| n.to_string_lossy().into_owned());
             let _ = writeln!(r, "![{name}]({name})\n");
         }
     }
     let report = w("report.md", &r)?;
-    Ok(ReportFiles { extended_config, report, plots, warnings })
+    Ok(ReportFiles {
+        extended_config,
+        report,
+        plots,
+        warnings,
+    })
 }

@@ -58,13 +58,21 @@ pub fn excitation(seed: u64, dt: f64, n: usize) -> Vec<f64> {
     for k in 0..n {
         let t = k as f64 * dt;
         if t >= next_change {
-            level = if rng.uniform() < 0.33 { rng.range(-1.0, 1.0) } else { rng.range(-9.0, 9.0) };
+            level = if rng.uniform() < 0.33 {
+                rng.range(-1.0, 1.0)
+            } else {
+                rng.range(-9.0, 9.0)
+            };
             next_change = t + rng.range(0.06, 0.18);
         }
         let tau = t % period;
         let (f0, f1) = (1.0, 40.0);
         let phase = std::f64::consts::TAU * (f0 * tau + 0.5 * (f1 - f0) / period * tau * tau);
-        u.push(if t < 0.05 { 0.0 } else { level + 1.5 * phase.sin() });
+        u.push(if t < 0.05 {
+            0.0
+        } else {
+            level + 1.5 * phase.sin()
+        });
     }
     u
 }
@@ -75,37 +83,107 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
     match e {
         EffectId::Friction => {
             let fc = rng.range(150.0, 400.0);
-            ef.friction = Some(Friction { enabled: true, coulomb_force: fc, static_force: fc * rng.range(1.1, 1.6), stribeck_velocity: rng.log_range(0.005, 0.02), viscous: 0.0 });
+            ef.friction = Some(Friction {
+                enabled: true,
+                coulomb_force: fc,
+                static_force: fc * rng.range(1.1, 1.6),
+                stribeck_velocity: rng.log_range(0.005, 0.02),
+                viscous: 0.0,
+            });
         }
         EffectId::ValveDeadband => {
-            ef.valve_deadband = Some(ValveDeadband { enabled: true, overlap: rng.range(0.05, 0.12), zero_offset: rng.range(-0.01, 0.01) });
+            ef.valve_deadband = Some(ValveDeadband {
+                enabled: true,
+                overlap: rng.range(0.05, 0.12),
+                zero_offset: rng.range(-0.01, 0.01),
+            });
         }
         EffectId::ValveSaturation => {
-            ef.valve_saturation = Some(ValveSaturation { enabled: true, spool_limit: rng.range(0.45, 0.7), max_flow: 0.0 });
+            ef.valve_saturation = Some(ValveSaturation {
+                enabled: true,
+                spool_limit: rng.range(0.45, 0.7),
+                max_flow: 0.0,
+            });
         }
         EffectId::ValveDynamics => {
-            ef.valve_dynamics = Some(ValveDynamics { enabled: true, order: 2, time_constant: 0.0, natural_frequency: std::f64::consts::TAU * rng.range(15.0, 45.0), damping_ratio: rng.range(0.5, 0.9) });
+            ef.valve_dynamics = Some(ValveDynamics {
+                enabled: true,
+                order: 2,
+                time_constant: 0.0,
+                natural_frequency: std::f64::consts::TAU * rng.range(15.0, 45.0),
+                damping_ratio: rng.range(0.5, 0.9),
+            });
         }
-        EffectId::InternalLeakage => ef.internal_leakage = Some(Leakage { enabled: true, coefficient: rng.log_range(2e-12, 8e-12) }),
-        EffectId::ExternalLeakage => ef.external_leakage = Some(Leakage { enabled: true, coefficient: rng.log_range(2e-12, 8e-12) }),
-        EffectId::BulkModulusPressure => ef.bulk_modulus_pressure = Some(BulkModulusPressure { enabled: true, slope: rng.range(80.0, 200.0), max: 2.2e9 }),
-        EffectId::LineDynamics => ef.line_dynamics = Some(LineDynamics { enabled: true, length: rng.range(1.5, 4.0), diameter: rng.range(6e-3, 10e-3), segments: 3, bulk_modulus: None }),
+        EffectId::InternalLeakage => {
+            ef.internal_leakage = Some(Leakage {
+                enabled: true,
+                coefficient: rng.log_range(2e-12, 8e-12),
+            })
+        }
+        EffectId::ExternalLeakage => {
+            ef.external_leakage = Some(Leakage {
+                enabled: true,
+                coefficient: rng.log_range(2e-12, 8e-12),
+            })
+        }
+        EffectId::BulkModulusPressure => {
+            ef.bulk_modulus_pressure = Some(BulkModulusPressure {
+                enabled: true,
+                slope: rng.range(80.0, 200.0),
+                max: 2.2e9,
+            })
+        }
+        EffectId::LineDynamics => {
+            ef.line_dynamics = Some(LineDynamics {
+                enabled: true,
+                length: rng.range(1.5, 4.0),
+                diameter: rng.range(6e-3, 10e-3),
+                segments: 3,
+                bulk_modulus: None,
+            })
+        }
         EffectId::FlexibleMount => {
             let m = rng.range(10.0, 40.0);
             let k = rng.log_range(2e6, 8e6);
-            ef.flexible_mount = Some(FlexibleMount { enabled: true, load_mass: m, stiffness: k, damping: rng.range(0.05, 0.2) * 2.0 * (k * m).sqrt() });
+            ef.flexible_mount = Some(FlexibleMount {
+                enabled: true,
+                load_mass: m,
+                stiffness: k,
+                damping: rng.range(0.05, 0.2) * 2.0 * (k * m).sqrt(),
+            });
         }
-        EffectId::TimeDelay => ef.time_delay = Some(TimeDelay { enabled: true, delay: rng.range(0.003, 0.010) }),
+        EffectId::TimeDelay => {
+            ef.time_delay = Some(TimeDelay {
+                enabled: true,
+                delay: rng.range(0.003, 0.010),
+            })
+        }
         EffectId::SensorTone => {
             let force = rng.uniform() < 0.5;
             let f = rng.range(80.0, 300.0);
             ef.sensor_tone = Some(if force {
-                SensorTone { enabled: true, channel: SensorChannel::Force, frequencies: vec![f], amplitudes: vec![rng.range(20.0, 40.0)] }
+                SensorTone {
+                    enabled: true,
+                    channel: SensorChannel::Force,
+                    frequencies: vec![f],
+                    amplitudes: vec![rng.range(20.0, 40.0)],
+                }
             } else {
-                SensorTone { enabled: true, channel: SensorChannel::PressureA, frequencies: vec![f], amplitudes: vec![rng.range(8e4, 1.6e5)] }
+                SensorTone {
+                    enabled: true,
+                    channel: SensorChannel::PressureA,
+                    frequencies: vec![f],
+                    amplitudes: vec![rng.range(8e4, 1.6e5)],
+                }
             });
         }
-        EffectId::SupplyPressureDrop => ef.supply_pressure_drop = Some(SupplyPressureDrop { enabled: true, resistance: rng.range(1.0e10, 2.5e10), time_constant: rng.log_range(0.01, 0.05) }),
+        EffectId::SupplyPressureDrop => {
+            ef.supply_pressure_drop = Some(SupplyPressureDrop {
+                enabled: true,
+                resistance: rng.range(1.0e10, 2.5e10),
+                time_constant: rng.log_range(0.01, 0.05),
+            })
+        }
     }
 }
 
@@ -152,7 +230,12 @@ pub fn make_case_at(seed: u64, hidden: &[EffectId], duration: f64, dt: f64) -> C
     let n = (duration / dt).round() as usize;
     let u = excitation(seed, dt, n);
     let mut plant = Plant::configure(&truth, dt).expect("generated plant is valid");
-    let kinds = [ChannelKind::Force, ChannelKind::Position, ChannelKind::PressureA, ChannelKind::PressureB];
+    let kinds = [
+        ChannelKind::Force,
+        ChannelKind::Position,
+        ChannelKind::PressureA,
+        ChannelKind::PressureB,
+    ];
     let mut cols: Vec<Vec<f64>> = vec![Vec::with_capacity(n); kinds.len()];
     let mut t = Vec::with_capacity(n);
     for &uk in &u {
@@ -163,9 +246,23 @@ pub fn make_case_at(seed: u64, hidden: &[EffectId], duration: f64, dt: f64) -> C
         }
         plant.step(uk).expect("generated plant stays finite");
     }
-    let channels = kinds.iter().zip(cols).map(|(k, v)| Channel { kind: *k, values: v }).collect();
-    let record = Record::from_columns(&format!("synthetic seed {seed}"), t, u, channels, None, 0).expect("generated record is valid");
-    Case { seed, hidden: hidden.to_vec(), nominal, truth, record }
+    let channels = kinds
+        .iter()
+        .zip(cols)
+        .map(|(k, v)| Channel {
+            kind: *k,
+            values: v,
+        })
+        .collect();
+    let record = Record::from_columns(&format!("synthetic seed {seed}"), t, u, channels, None, 0)
+        .expect("generated record is valid");
+    Case {
+        seed,
+        hidden: hidden.to_vec(),
+        nominal,
+        truth,
+        record,
+    }
 }
 
 /// Write a record as CSV in DESIGN.md's format.

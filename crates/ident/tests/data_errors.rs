@@ -3,7 +3,7 @@
 //! the generator (a model with the true parameters reproduces the data to the noise).
 
 use ehactl_ident::data::{check_against, parse_csv};
-use ehactl_ident::replay::{nrmse, noise_level, replay, replay_params};
+use ehactl_ident::replay::{noise_level, nrmse, replay, replay_params};
 use ehactl_ident::synth::{make_case, testrig, to_csv, Rng};
 
 fn csv(rows: &[&str]) -> String {
@@ -11,13 +11,20 @@ fn csv(rows: &[&str]) -> String {
 }
 
 fn good_rows(n: usize) -> Vec<String> {
-    (0..n).map(|k| format!("{},{},{},{}", k as f64 * 1e-3, 0.1, 5.0e6, 4.0e6)).collect()
+    (0..n)
+        .map(|k| format!("{},{},{},{}", k as f64 * 1e-3, 0.1, 5.0e6, 4.0e6))
+        .collect()
 }
 
 #[test]
 fn missing_u_column_is_named() {
-    let e = parse_csv("f.csv", &csv(&["t,p_a", "0,1", "0.001,2"])).unwrap_err().0;
-    assert!(e.contains("missing required column `u`") && e.contains("f.csv"), "{e}");
+    let e = parse_csv("f.csv", &csv(&["t,p_a", "0,1", "0.001,2"]))
+        .unwrap_err()
+        .0;
+    assert!(
+        e.contains("missing required column `u`") && e.contains("f.csv"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -45,7 +52,9 @@ fn pressures_in_bar_are_refused() {
     rows.extend((0..30).map(|k| format!("{},0.1,50.0,40.0", k as f64 * 1e-3)));
     let rec = parse_csv("f.csv", &rows.join("\n")).unwrap();
     let cfg = testrig();
-    let e = check_against(&rec, &cfg.plant, cfg.control_dt()).unwrap_err().0;
+    let e = check_against(&rec, &cfg.plant, cfg.control_dt())
+        .unwrap_err()
+        .0;
     assert!(e.contains("looks like bar") && e.contains("`p_a`"), "{e}");
 }
 
@@ -55,13 +64,19 @@ fn positions_in_mm_are_refused_and_rate_mismatch_is_warned() {
     rows.extend((0..30).map(|k| format!("{},0.1,{}", k as f64 * 2e-4, 100.0 + k as f64)));
     let rec = parse_csv("f.csv", &rows.join("\n")).unwrap();
     let cfg = testrig();
-    let e = check_against(&rec, &cfg.plant, cfg.control_dt()).unwrap_err().0;
+    let e = check_against(&rec, &cfg.plant, cfg.control_dt())
+        .unwrap_err()
+        .0;
     assert!(e.contains("looks like mm"), "{e}");
     let mut rows = vec!["t,u,x".to_string()];
     rows.extend((0..30).map(|k| format!("{},0.1,{}", k as f64 * 2e-4, 0.1)));
     let rec = parse_csv("f.csv", &rows.join("\n")).unwrap();
     let w = check_against(&rec, &cfg.plant, cfg.control_dt()).unwrap();
-    assert!(w.iter().any(|w| w.contains("differs from the config's control period")), "{w:?}");
+    assert!(
+        w.iter()
+            .any(|w| w.contains("differs from the config's control period")),
+        "{w:?}"
+    );
 }
 
 #[test]
@@ -71,7 +86,8 @@ fn noise_level_recovers_white_noise() {
     let y: Vec<f64> = (0..20000)
         .map(|k| {
             let (a, b) = (rng.uniform().max(1e-12), rng.uniform());
-            (k as f64 * 1e-3).sin() + 0.3 * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+            (k as f64 * 1e-3).sin()
+                + 0.3 * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
         })
         .collect();
     let s = noise_level(&y);
@@ -89,6 +105,10 @@ fn true_model_replays_generated_data_to_the_noise_and_csv_round_trips() {
     let e = nrmse(&rec, &sim, 0..rec.len());
     for (c, v) in rec.channels.iter().zip(&e) {
         let floor = noise_level(&c.values) / ehactl_ident::replay::std(&c.values);
-        assert!(*v < 3.0 * floor + 0.01, "{}: NRMSE {v} vs noise floor {floor}", c.kind.column());
+        assert!(
+            *v < 3.0 * floor + 0.01,
+            "{}: NRMSE {v} vs noise floor {floor}",
+            c.kind.column()
+        );
     }
 }

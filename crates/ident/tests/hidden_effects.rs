@@ -10,22 +10,36 @@ use ehactl_plant::EffectId;
 
 fn check(seed: u64, hidden: &[EffectId]) {
     let case = make_case(seed, hidden, 2.0);
-    let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default()).expect("diagnosis runs");
+    let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default())
+        .expect("diagnosis runs");
     let names: Vec<&str> = hidden.iter().map(|e| e.as_str()).collect();
     let report = format!(
         "seed {seed}, hidden {names:?}: causes {:?}, held-out NRMSE {:.4} → {:.4} (gain {:.1} %), floor {:.4}\n{}",
         d.causes, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.gain * 100.0, d.noise_floor, d.summary
     );
-    assert_eq!(d.candidates.len(), EffectId::ALL.len(), "every catalogue effect is a candidate: {report}");
+    assert_eq!(
+        d.candidates.len(),
+        EffectId::ALL.len(),
+        "every catalogue effect is a candidate: {report}"
+    );
     if hidden.is_empty() {
         assert_eq!(d.cause, "none", "{report}");
         return;
     }
     for n in &names {
-        assert!(d.causes.iter().any(|c| c == n), "hidden `{n}` not named: {report}");
+        assert!(
+            d.causes.iter().any(|c| c == n),
+            "hidden `{n}` not named: {report}"
+        );
     }
-    assert!(names.contains(&d.cause.as_str()), "top cause is not a hidden effect: {report}");
-    assert!(d.gain >= 0.5, "held-out NRMSE fell by less than 50 %: {report}");
+    assert!(
+        names.contains(&d.cause.as_str()),
+        "top cause is not a hidden effect: {report}"
+    );
+    assert!(
+        d.gain >= 0.5,
+        "held-out NRMSE fell by less than 50 %: {report}"
+    );
 }
 
 macro_rules! hidden {
