@@ -15,6 +15,11 @@ use std::sync::Mutex;
 /// channel is not extended further (-).
 pub const FLOOR_FACTOR: f64 = 1.2;
 
+/// After the first accepted effect, the search also stops when the overall held-out NRMSE is
+/// below this factor × the overall noise floor (-): the per-channel test alone lets a second
+/// effect soak up the small remainder of an imperfect lumped fit on a low-noise channel.
+pub const LATER_FLOOR_FACTOR: f64 = 1.5;
+
 /// Settings of a diagnosis.
 #[derive(Debug, Clone)]
 pub struct Options {
@@ -450,7 +455,8 @@ pub fn diagnose(
         }
         // Nothing left to explain: the current model is within the noise (round 0 still
         // fits every candidate so that the report lists them all).
-        let near_floor = within_noise(&cur_err);
+        let near_floor = within_noise(&cur_err)
+            || (round > 0 && cur_err.overall < LATER_FLOOR_FACTOR * noise_floor);
         if round > 0 && near_floor {
             break;
         }
