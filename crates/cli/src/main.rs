@@ -10,6 +10,8 @@ mod analysis_cmd;
 mod canbus;
 
 use canbus::HalKind;
+mod diagnose;
+
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
 use ehactl_controller::control_socket::ControlServer;
@@ -91,6 +93,25 @@ enum Command {
     Analyze {
         /// Rig config (TOML).
         config: PathBuf,
+        /// Print exactly one JSON object on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Find what the simulation of CONFIG gets wrong on measured data, name the cause from the
+    /// effect catalogue, extend the model and measure the gain on held-out data.
+    Diagnose {
+        /// Nominal rig config (TOML).
+        #[arg(long)]
+        config: PathBuf,
+        /// Measured data: CSV (t, u, any of force, x, p_a, p_b, x_v, ref; SI) or an ehactl MCAP.
+        #[arg(long)]
+        data: PathBuf,
+        /// Separate validation record (default: the last 30 % of --data is held out).
+        #[arg(long)]
+        validate: Option<PathBuf>,
+        /// Output directory for extended.toml, report.md and plots.
+        #[arg(long)]
+        out: Option<PathBuf>,
         /// Print exactly one JSON object on stdout.
         #[arg(long)]
         json: bool,
@@ -201,6 +222,13 @@ fn main() -> ExitCode {
         Command::Analyze { config, json } => analysis_cmd::analyze(&config, json),
         Command::Sweep(args) => analysis_cmd::sweep(&args),
         Command::Canbus { command } => canbus::run(command),
+        Command::Diagnose {
+            config,
+            data,
+            validate,
+            out,
+            json,
+        } => diagnose::cmd_diagnose(&config, &data, validate.as_deref(), out, json),
         Command::Params => {
             for table in registries() {
                 for p in table {

@@ -1,0 +1,27 @@
+//! Debug one generated case: `debug_case SEED effects...` prints truth effects, analysis and candidates.
+use ehactl_plant::EffectId;
+fn main() {
+    let a: Vec<String> = std::env::args().collect();
+    let seed: u64 = a[1].parse().unwrap();
+    let hidden: Vec<EffectId> = a[2..].iter().filter_map(|s| EffectId::parse(s)).collect();
+    let case = ehactl_ident::synth::make_case(seed, &hidden, 2.0);
+    println!("truth effects: {:?}", case.truth.effects);
+    for c in &case.record.channels {
+        println!(
+            "{} std {:.4e} noise est {:.4e}",
+            c.kind.column(),
+            ehactl_ident::replay::std(&c.values),
+            ehactl_ident::replay::noise_level(&c.values)
+        );
+    }
+    let d = ehactl_ident::diagnose(&case.nominal.plant, &case.record, None, &Default::default())
+        .unwrap();
+    println!("tones {:?}", d.analysis_refit.tones);
+    println!(
+        "causes {:?} gain {:.3} floor {} refit {:?}",
+        d.causes, d.gain, d.noise_floor, d.nrmse_refit
+    );
+    for c in &d.candidates {
+        println!("{} {:?} {}", c.effect, c.params, c.nrmse_validation);
+    }
+}

@@ -1,0 +1,176 @@
+//! Slow evaluation of `diagnose` over seeded hidden-effect cases (not part of CI):
+//! `cargo run --release -p ehactl-ident --example evaluate -- [per_effect] [clean] [pairs] [first_seed] [OUT.md]`.
+//! Writes a Markdown section (confusion matrix, rates, gains) to OUT.md (default
+//! bench/results/diagnose_eval.md) and one line per case to stdout.
+use ehactl_ident::synth::make_case;
+use ehactl_ident::{diagnose, Options};
+use ehactl_plant::EffectId;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+fn main() {
+    let a: Vec<String> = std::env::args().collect();
+    let arg = |i: usize, d: u64| a.get(i).and_then(|s| s.parse().ok()).unwrap_or(d);
+    let (per_effect, clean, pairs, first) = (arg(1, 6), arg(2, 20), arg(3, 8), arg(4, 5000));
+    let out = a
+        .get(5)
+        .cloned()
+        .unwrap_or_else(|| "bench/results/diagnose_eval.md".into());
+    let mut cases: Vec<Vec<EffectId>> = Vec::new();
+    for _ in 0..per_effect {
+        for e in EffectId::ALL {
+            cases.push(vec![e]);
+        }
+    }
+    for _ in 0..clean {
+        cases.push(vec![]);
+    }
+    let mut pr = ehactl_ident::synth::Rng::new(first);
+    for _ in 0..pairs {
+        let i = (pr.uniform() * 12.0) as usize;
+        let mut j = (pr.uniform() * 11.0) as usize;
+        if j >= i {
+            j += 1;
+        }
+        cases.push(vec![EffectId::ALL[i], EffectId::ALL[j]]);
+    }
+    let bar = indicatif::ProgressBar::new(cases.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} evaluate [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}",
+        )
+        .unwrap()
+        .progress_chars("=> "),
+    );
+    let mut conf: BTreeMap<(String, String), usize> = BTreeMap::new();
+    let (mut top_ok, mut exact_ok, mut false_none, mut n_hidden) = (0, 0, 0, 0);
+    let (mut clean_ok, mut n_clean) = (0, 0);
+    let (mut pair_both, mut n_pair) = (0, 0);
+    let mut gains = Vec::new();
+    let mut gain50 = 0;
+    let mut lines = String::new();
+    let mut times = Vec::new();
+    for (i, hidden) in cases.iter().enumerate() {
+        let seed = first + i as u64;
+        let case = make_case(seed, hidden, 2.0);
+        let t0 = std::time::Instant::now();
+        let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default())
+            .expect("diagnosis runs");
+        let dt = t0.elapsed().as_secs_f64();
+        times.push(dt);
+        let hn: Vec<&str> = hidden.iter().map(|e| e.as_str()).collect();
+        let label = if hn.is_empty() {
+            "none".to_string()
+        } else {
+            hn.join("+")
+        };
+        let line = format!("seed {seed} hidden {label} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { "none".into() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
+        bar.suspend(|| eprintln!("{line}"));
+        let _ = writeln!(lines, "{line}");
+        if hidden.is_empty() {
+            n_clean += 1;
+            clean_ok += (d.cause == "none") as usize;
+            *conf.entry(("none".into(), d.cause.clone())).or_default() += 1;
+        } else {
+            n_hidden += 1;
+            let top = hn.contains(&d.cause.as_str());
+            top_ok += top as usize;
+            false_none += (d.cause == "none") as usize;
+            let mut a: Vec<&str> = d.causes.iter().map(|s| s.as_str()).collect();
+            let mut b = hn.clone();
+            a.sort();
+            b.sort();
+            exact_ok += (a == b) as usize;
+            gains.push(d.gain);
+            gain50 += (d.gain >= 0.5) as usize;
+            if hidden.len() == 1 {
+                *conf.entry((label.clone(), d.cause.clone())).or_default() += 1;
+            } else {
+                n_pair += 1;
+                pair_both += hn.iter().all(|h| d.causes.iter().any(|c| c == h)) as usize;
+            }
+        }
+        bar.inc(1);
+    }
+    bar.finish();
+    gains.sort_by(f64::total_cmp);
+    times.sort_by(f64::total_cmp);
+    let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
+    let mut s = String::new();
+    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %.\n", cases.len(), first + cases.len() as u64 - 1);
+    let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
+    let _ = writeln!(s, "| top cause is a hidden effect (cases with hidden effects) | {top_ok}/{n_hidden} = {:.1} % | ≥ 90 % |", pct(top_ok, n_hidden));
+    let _ = writeln!(
+        s,
+        "| accepted set equals the hidden set exactly | {exact_ok}/{n_hidden} = {:.1} % | — |",
+        pct(exact_ok, n_hidden)
+    );
+    let _ = writeln!(
+        s,
+        "| both hidden effects named (two-effect cases) | {pair_both}/{n_pair} = {:.1} % | — |",
+        pct(pair_both, n_pair)
+    );
+    let _ = writeln!(s, "| false `none` | {false_none}/{n_hidden} | 0 |");
+    let _ = writeln!(
+        s,
+        "| clean cases answered `none` | {clean_ok}/{n_clean} = {:.1} % | ≥ 95 % |",
+        pct(clean_ok, n_clean)
+    );
+    let _ = writeln!(
+        s,
+        "| held-out NRMSE gain ≥ 50 % (hidden cases) | {gain50}/{n_hidden} = {:.1} % | — |",
+        pct(gain50, n_hidden)
+    );
+    if !gains.is_empty() {
+        let _ = writeln!(
+            s,
+            "| gain min / median / max | {:.1} % / {:.1} % / {:.1} % | — |",
+            gains[0] * 100.0,
+            gains[gains.len() / 2] * 100.0,
+            gains[gains.len() - 1] * 100.0
+        );
+    }
+    let _ = writeln!(
+        s,
+        "| wall time per case min / median / max | {:.1} s / {:.1} s / {:.1} s | — |\n",
+        times[0],
+        times[times.len() / 2],
+        times[times.len() - 1]
+    );
+    let cols: Vec<String> = EffectId::ALL
+        .iter()
+        .map(|e| e.as_str().to_string())
+        .chain(["none".to_string()])
+        .collect();
+    let _ = writeln!(s, "Confusion matrix (rows: hidden, single-effect and clean cases; columns: top cause named):\n");
+    let _ = writeln!(
+        s,
+        "| hidden \\ named | {} |",
+        cols.iter()
+            .map(|c| format!("`{c}`"))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    let _ = writeln!(s, "|---|{}", "---|".repeat(cols.len()));
+    for r in &cols {
+        let _ = writeln!(
+            s,
+            "| `{r}` | {} |",
+            cols.iter()
+                .map(|c| conf
+                    .get(&(r.clone(), c.clone()))
+                    .map_or(String::new(), |n| n.to_string()))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n<details><summary>Per-case results</summary>\n\n```\n{lines}```\n</details>"
+    );
+    if let Some(dir) = std::path::Path::new(&out).parent() {
+        let _ = std::fs::create_dir_all(dir);
+    }
+    std::fs::write(&out, &s).expect("write evaluation");
+    println!("{s}");
+}

@@ -1,0 +1,760 @@
+//! Free parameters of the nominal model and of every catalogue effect, and a bounded
+//! Nelder–Mead minimiser working in normalised (optionally logarithmic) coordinates.
+
+use crate::analysis::Analysis;
+use crate::data::Record;
+use ehactl_plant::params::{
+    BulkModulusPressure, FlexibleMount, FlowForm, Friction, Leakage, LineDynamics, SensorChannel,
+    SensorTone, SupplyPressureDrop, TimeDelay, ValveDeadband, ValveDynamics, ValveSaturation,
+};
+use ehactl_plant::{EffectId, PlantParams};
+use std::sync::Arc;
+
+type Setter = Arc<dyn Fn(&mut PlantParams, f64) + Send + Sync>;
+
+/// One free parameter: dotted config path, bounds (SI), scale, start value and how to set it.
+#[derive(Clone)]
+pub struct FreeParam {
+    /// Dotted config path (or `<path>×` for a scale factor on the nominal value).
+    pub name: String,
+    /// Lower bound (SI or factor).
+    pub lo: f64,
+    /// Upper bound.
+    pub hi: f64,
+    /// Search in log space (bounds must be > 0).
+    pub log: bool,
+    /// Start value.
+    pub init: f64,
+    /// Writes the value into the parameters.
+    pub set: Setter,
+}
+
+impl std::fmt::Debug for FreeParam {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ∈ [{}, {}]", self.name, self.lo, self.hi)
+    }
+}
+
+impl FreeParam {
+    fn new(name: &str, lo: f64, hi: f64, log: bool, init: f64, set: Setter) -> Self {
+        Self {
+            name: name.to_string(),
+            lo,
+            hi,
+            log,
+            init: init.clamp(lo, hi),
+            set,
+        }
+    }
+    /// Value → normalised coordinate in [0, 1].
+    pub fn to_unit(&self, v: f64) -> f64 {
+        let v = v.clamp(self.lo, self.hi);
+        if self.hi <= self.lo {
+            return 0.0;
+        }
+        if self.log {
+            (v / self.lo).ln() / (self.hi / self.lo).ln()
+        } else {
+            (v - self.lo) / (self.hi - self.lo)
+        }
+    }
+    /// Normalised coordinate → value.
+    pub fn from_unit(&self, s: f64) -> f64 {
+        let s = s.clamp(0.0, 1.0);
+        if self.log {
+            self.lo * (self.hi / self.lo).powf(s)
+        } else {
+            self.lo + s * (self.hi - self.lo)
+        }
+    }
+}
+
+/// Scales of the rig used to bound effect parameters.
+#[derive(Debug, Clone, Copy)]
+pub struct Scales {
+    /// Supply pressure × cap area (N).
+    pub force: f64,
+    /// Edge flow at full opening and Δp = p_s/2 (m³/s).
+    pub flow: f64,
+    /// Supply pressure (Pa).
+    pub pressure: f64,
+    /// Moving mass (kg).
+    pub mass: f64,
+    /// Hydraulic stiffness at the initial position (N/m).
+    pub stiffness: f64,
+    /// Sample period (s).
+    pub dt: f64,
+}
+
+impl Scales {
+    /// Derive from the nominal parameters and the record.
+    pub fn new(p: &PlantParams, rec: &Record) -> Self {
+        let law = ehactl_plant::valve::EdgeLaw::new(p);
+        let ps = p.supply.pressure - p.supply.tank_pressure;
+        let flow = law.k * (0.5 * ps).powf(law.n);
+        let stiffness = ehactl_plant::Plant::configure(p, rec.dt)
+            .map(|pl| pl.hydraulic_stiffness(p.cylinder.initial_position))
+            .unwrap_or(1e7)
+            + p.mechanics.load_stiffness;
+        Self {
+            force: ps * p.cylinder.area_a,
+            flow,
+            pressure: ps,
+            mass: p.mechanics.mass,
+            stiffness,
+            dt: rec.dt,
+        }
+    }
+}
+
+/// Nominal parameters refit with every hypothesis within ±15 %, so that realistic (±10 %)
+/// errors of the nominal config are not blamed on an effect: valve flow gain, β₀, moving mass,
+/// viscous damping and load stiffness (when present).
+pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
+    let mut v = Vec::new();
+    let (lo, hi) = (0.85, 1.15);
+    let n = nominal.clone();
+    match nominal.valve.flow_form {
+        FlowForm::Kq => {
+            let q0 = n.valve.rated_flow.unwrap_or(0.0);
+            v.push(FreeParam::new(
+                "valve.rated_flow×",
+                lo,
+                hi,
+                false,
+                1.0,
+                Arc::new(move |p, s| p.valve.rated_flow = Some(q0 * s)),
+            ));
+        }
+        FlowForm::Orifice => {
+            let a0 = n.valve.area_max.unwrap_or(0.0);
+            v.push(FreeParam::new(
+                "valve.area_max×",
+                lo,
+                hi,
+                false,
+                1.0,
+                Arc::new(move |p, s| p.valve.area_max = Some(a0 * s)),
+            ));
+        }
+        FlowForm::PowerLaw => {
+            let q0 = n.valve.flow_at_1mpa.unwrap_or(0.0);
+            v.push(FreeParam::new(
+                "valve.flow_at_1mpa×",
+                lo,
+                hi,
+                false,
+                1.0,
+                Arc::new(move |p, s| p.valve.flow_at_1mpa = Some(q0 * s)),
+            ));
+        }
+    }
+    let b0 = n.fluid.bulk_modulus;
+    v.push(FreeParam::new(
+        "fluid.bulk_modulus×",
+        lo,
+        hi,
+        false,
+        1.0,
+        Arc::new(move |p, s| p.fluid.bulk_modulus = b0 * s),
+    ));
+    let m0 = n.mechanics.mass;
+    v.push(FreeParam::new(
+        "mechanics.mass×",
+        lo,
+        hi,
+        false,
+        1.0,
+        Arc::new(move |p, s| p.mechanics.mass = m0 * s),
+    ));
+    if n.mechanics.damping > 0.0 {
+        let d0 = n.mechanics.damping;
+        v.push(FreeParam::new(
+            "mechanics.damping×",
+            lo,
+            hi,
+            false,
+            1.0,
+            Arc::new(move |p, s| p.mechanics.damping = d0 * s),
+        ));
+    }
+    if n.mechanics.load_stiffness > 0.0 {
+        let k0 = n.mechanics.load_stiffness;
+        v.push(FreeParam::new(
+            "mechanics.load_stiffness×",
+            lo,
+            hi,
+            false,
+            1.0,
+            Arc::new(move |p, s| p.mechanics.load_stiffness = k0 * s),
+        ));
+    }
+    v
+}
+
+/// Free parameters of effect `e` (bounds from the rig scales, start values from the nominal
+/// section if it exists, else from the residual analysis). `None` when the effect cannot be
+/// tested on this record (e.g. a tone with no line in any residual spectrum).
+pub fn effect_params(
+    e: EffectId,
+    nominal: &PlantParams,
+    sc: &Scales,
+    an: &Analysis,
+) -> Option<Vec<FreeParam>> {
+    let ef = &nominal.effects;
+    let p = |name: &str, lo: f64, hi: f64, log: bool, init: f64, set: Setter| {
+        FreeParam::new(name, lo, hi, log, init, set)
+    };
+    Some(match e {
+        EffectId::Friction => {
+            let f0 = ef.friction.clone().unwrap_or(Friction {
+                enabled: true,
+                static_force: 0.0,
+                coulomb_force: 0.0,
+                stribeck_velocity: 0.01,
+                viscous: 0.0,
+            });
+            fn fr<'a>(p: &'a mut PlantParams, f0: &Friction) -> &'a mut Friction {
+                let f = p.effects.friction.get_or_insert_with(|| f0.clone());
+                f.enabled = true;
+                f
+            }
+            let (g1, g2, g3) = (f0.clone(), f0.clone(), f0.clone());
+            let c0 = ef
+                .friction
+                .as_ref()
+                .map_or(0.005 * sc.force, |f| f.coulomb_force.max(1e-3 * sc.force));
+            let r0 = ef
+                .friction
+                .as_ref()
+                .map_or(1.2, |f| f.static_force / f.coulomb_force.max(1e-9));
+            vec![
+                p(
+                    "effects.friction.coulomb_force",
+                    1e-4 * sc.force,
+                    0.1 * sc.force,
+                    true,
+                    c0,
+                    Arc::new(move |p, v| {
+                        let f = fr(p, &g1);
+                        f.coulomb_force = v;
+                        f.static_force = v;
+                    }),
+                ),
+                p(
+                    "effects.friction.static_force/coulomb_force",
+                    1.0,
+                    2.5,
+                    false,
+                    r0,
+                    Arc::new(move |p, v| {
+                        let f = fr(p, &g2);
+                        f.static_force = f.coulomb_force * v;
+                    }),
+                ),
+                p(
+                    "effects.friction.stribeck_velocity",
+                    1e-3,
+                    0.1,
+                    true,
+                    0.01,
+                    Arc::new(move |p, v| fr(p, &g3).stribeck_velocity = v),
+                ),
+            ]
+        }
+        EffectId::ValveDeadband => {
+            let d0 = ef.valve_deadband.clone().unwrap_or(ValveDeadband {
+                enabled: true,
+                overlap: 0.0,
+                zero_offset: 0.0,
+            });
+            let (d1, d2) = (d0.clone(), d0.clone());
+            vec![
+                p(
+                    "effects.valve_deadband.overlap",
+                    0.0,
+                    0.3,
+                    false,
+                    d0.overlap.max(0.02),
+                    Arc::new(move |p, v| {
+                        let d = p.effects.valve_deadband.get_or_insert_with(|| d1.clone());
+                        d.enabled = true;
+                        d.overlap = v;
+                    }),
+                ),
+                p(
+                    "effects.valve_deadband.zero_offset",
+                    -0.05,
+                    0.05,
+                    false,
+                    d0.zero_offset,
+                    Arc::new(move |p, v| {
+                        let d = p.effects.valve_deadband.get_or_insert_with(|| d2.clone());
+                        d.enabled = true;
+                        d.zero_offset = v;
+                    }),
+                ),
+            ]
+        }
+        EffectId::ValveSaturation => {
+            let s0 = ef.valve_saturation.clone().unwrap_or(ValveSaturation {
+                enabled: true,
+                spool_limit: 1.0,
+                max_flow: 0.0,
+            });
+            let init = s0.spool_limit.min(0.9);
+            vec![p(
+                "effects.valve_saturation.spool_limit",
+                0.05,
+                1.0,
+                false,
+                init,
+                Arc::new(move |p, v| {
+                    let s = p.effects.valve_saturation.get_or_insert_with(|| s0.clone());
+                    s.enabled = true;
+                    s.spool_limit = v;
+                }),
+            )]
+        }
+        EffectId::ValveDynamics => match ef.valve_dynamics.clone() {
+            Some(d) if d.order == 1 => {
+                vec![p(
+                    "effects.valve_dynamics.time_constant",
+                    1e-4,
+                    0.3,
+                    true,
+                    d.time_constant,
+                    Arc::new(move |p, v| {
+                        let s = p.effects.valve_dynamics.get_or_insert_with(|| d.clone());
+                        s.enabled = true;
+                        s.time_constant = v;
+                    }),
+                )]
+            }
+            other => {
+                let d0 = other.unwrap_or(ValveDynamics {
+                    enabled: true,
+                    order: 2,
+                    time_constant: 0.0,
+                    natural_frequency: 0.0,
+                    damping_ratio: 0.7,
+                });
+                let (w0, z0) = if d0.natural_frequency > 0.0 {
+                    (d0.natural_frequency, d0.damping_ratio)
+                } else {
+                    (std::f64::consts::TAU * (0.1 / sc.dt).min(200.0), 0.7)
+                };
+                let (a, b) = (d0.clone(), d0);
+                vec![
+                    p(
+                        "effects.valve_dynamics.natural_frequency",
+                        std::f64::consts::TAU * 1.0,
+                        std::f64::consts::TAU * (0.5 / sc.dt).min(3000.0),
+                        true,
+                        w0,
+                        Arc::new(move |p, v| {
+                            let s = p.effects.valve_dynamics.get_or_insert_with(|| a.clone());
+                            s.enabled = true;
+                            s.order = 2;
+                            s.natural_frequency = v;
+                            if s.damping_ratio <= 0.0 {
+                                s.damping_ratio = 0.7;
+                            }
+                        }),
+                    ),
+                    p(
+                        "effects.valve_dynamics.damping_ratio",
+                        0.2,
+                        2.0,
+                        false,
+                        z0,
+                        Arc::new(move |p, v| {
+                            let s = p.effects.valve_dynamics.get_or_insert_with(|| b.clone());
+                            s.enabled = true;
+                            s.order = 2;
+                            s.damping_ratio = v;
+                        }),
+                    ),
+                ]
+            }
+        },
+        EffectId::InternalLeakage | EffectId::ExternalLeakage => {
+            let internal = e == EffectId::InternalLeakage;
+            let cur = if internal {
+                ef.internal_leakage.clone()
+            } else {
+                ef.external_leakage.clone()
+            };
+            let kc = sc.flow / sc.pressure;
+            let init = cur
+                .as_ref()
+                .map_or(0.01 * kc, |l| l.coefficient.max(1e-6 * kc));
+            let name = if internal {
+                "effects.internal_leakage.coefficient"
+            } else {
+                "effects.external_leakage.coefficient"
+            };
+            vec![p(
+                name,
+                1e-5 * kc,
+                1.0 * kc,
+                true,
+                init,
+                Arc::new(move |p, v| {
+                    let slot = if internal {
+                        &mut p.effects.internal_leakage
+                    } else {
+                        &mut p.effects.external_leakage
+                    };
+                    let l = slot.get_or_insert(Leakage {
+                        enabled: true,
+                        coefficient: v,
+                    });
+                    l.enabled = true;
+                    l.coefficient = v;
+                }),
+            )]
+        }
+        EffectId::BulkModulusPressure => {
+            let b0 = nominal.fluid.bulk_modulus;
+            let cur = ef
+                .bulk_modulus_pressure
+                .clone()
+                .unwrap_or(BulkModulusPressure {
+                    enabled: true,
+                    slope: 0.0,
+                    max: (2.2e9f64).max(1.6 * b0),
+                });
+            let init = cur.slope.max(5.0);
+            vec![p(
+                "effects.bulk_modulus_pressure.slope",
+                0.0,
+                400.0,
+                false,
+                init,
+                Arc::new(move |p, v| {
+                    let b = p
+                        .effects
+                        .bulk_modulus_pressure
+                        .get_or_insert_with(|| cur.clone());
+                    b.enabled = true;
+                    b.slope = v;
+                }),
+            )]
+        }
+        EffectId::LineDynamics => {
+            let cur = ef.line_dynamics.clone().unwrap_or(LineDynamics {
+                enabled: true,
+                length: 1.0,
+                diameter: 8e-3,
+                segments: 2,
+                bulk_modulus: None,
+                port_volume: 0.0,
+                friction: Default::default(),
+            });
+            let (a, b) = (cur.clone(), cur.clone());
+            vec![
+                p(
+                    "effects.line_dynamics.length",
+                    0.1,
+                    15.0,
+                    true,
+                    cur.length,
+                    Arc::new(move |p, v| {
+                        let l = p.effects.line_dynamics.get_or_insert_with(|| a.clone());
+                        l.enabled = true;
+                        l.length = v;
+                    }),
+                ),
+                p(
+                    "effects.line_dynamics.diameter",
+                    2e-3,
+                    3e-2,
+                    true,
+                    cur.diameter,
+                    Arc::new(move |p, v| {
+                        let l = p.effects.line_dynamics.get_or_insert_with(|| b.clone());
+                        l.enabled = true;
+                        l.diameter = v;
+                    }),
+                ),
+            ]
+        }
+        EffectId::FlexibleMount => {
+            let cur = ef.flexible_mount.clone();
+            let m0 = cur.as_ref().map_or(sc.mass, |m| m.load_mass);
+            let w = std::f64::consts::TAU * an.mode_frequency.max(1.0);
+            let k0 = cur.as_ref().map_or(
+                (m0 * w * w).clamp(1e-3 * sc.stiffness, 10.0 * sc.stiffness),
+                |m| m.stiffness,
+            );
+            let z0 = cur.as_ref().map_or(0.1, |m| {
+                m.damping / (2.0 * (m.stiffness * m.load_mass).sqrt())
+            });
+            let base = cur.unwrap_or(FlexibleMount {
+                enabled: true,
+                load_mass: m0,
+                stiffness: k0,
+                damping: 0.0,
+            });
+            let (a, b, c) = (base.clone(), base.clone(), base);
+            vec![
+                p(
+                    "effects.flexible_mount.load_mass",
+                    0.02 * sc.mass,
+                    20.0 * sc.mass,
+                    true,
+                    m0,
+                    Arc::new(move |p, v| {
+                        let m = p.effects.flexible_mount.get_or_insert_with(|| a.clone());
+                        m.enabled = true;
+                        m.load_mass = v;
+                    }),
+                ),
+                p(
+                    "effects.flexible_mount.stiffness",
+                    1e-3 * sc.stiffness,
+                    10.0 * sc.stiffness,
+                    true,
+                    k0,
+                    Arc::new(move |p, v| {
+                        let m = p.effects.flexible_mount.get_or_insert_with(|| b.clone());
+                        m.enabled = true;
+                        m.stiffness = v;
+                    }),
+                ),
+                p(
+                    "effects.flexible_mount.damping/critical",
+                    0.005,
+                    2.0,
+                    true,
+                    z0,
+                    Arc::new(move |p, v| {
+                        let m = p.effects.flexible_mount.get_or_insert_with(|| c.clone());
+                        m.enabled = true;
+                        m.damping = v * 2.0 * (m.stiffness * m.load_mass).sqrt();
+                    }),
+                ),
+            ]
+        }
+        EffectId::TimeDelay => {
+            let cur = ef.time_delay.as_ref().map_or(0.0, |d| d.delay);
+            let init = if cur > 0.0 { cur } else { an.lag.max(sc.dt) };
+            vec![p(
+                "effects.time_delay.delay",
+                0.0,
+                (60.0 * sc.dt).min(0.2),
+                false,
+                init,
+                Arc::new(move |p, v| {
+                    let d = p.effects.time_delay.get_or_insert(TimeDelay {
+                        enabled: true,
+                        delay: v,
+                    });
+                    d.enabled = true;
+                    d.delay = v;
+                }),
+            )]
+        }
+        EffectId::SensorTone => {
+            let top = an.tones.first()?;
+            let ch = match top.channel {
+                "force" => SensorChannel::Force,
+                "x" => SensorChannel::Position,
+                "p_a" => SensorChannel::PressureA,
+                "p_b" => SensorChannel::PressureB,
+                _ => return None,
+            };
+            let lines: Vec<_> = an
+                .tones
+                .iter()
+                .filter(|t| t.channel == top.channel)
+                .take(2)
+                .copied()
+                .collect();
+            let nt = lines.len();
+            let base = SensorTone {
+                enabled: true,
+                channel: ch,
+                frequencies: lines.iter().map(|l| l.frequency).collect(),
+                amplitudes: vec![0.0; nt],
+            };
+            // Frequencies are refined by the analysis to a small fraction of a Welch bin.
+            let df = 0.02 / (sc.dt * 1024.0);
+            let mut v = Vec::new();
+            for (i, l) in lines.iter().enumerate() {
+                let (a, b) = (base.clone(), base.clone());
+                v.push(p(
+                    &format!("effects.sensor_tone.frequencies[{i}]"),
+                    (l.frequency - df).max(0.1),
+                    l.frequency + df,
+                    false,
+                    l.frequency,
+                    Arc::new(move |p, x| {
+                        let t = p.effects.sensor_tone.get_or_insert_with(|| a.clone());
+                        t.frequencies[i] = x;
+                    }),
+                ));
+                v.push(p(
+                    &format!("effects.sensor_tone.amplitudes[{i}]"),
+                    0.0,
+                    4.0 * l.amplitude,
+                    false,
+                    l.amplitude,
+                    Arc::new(move |p, x| {
+                        let t = p.effects.sensor_tone.get_or_insert_with(|| b.clone());
+                        t.amplitudes[i] = x;
+                    }),
+                ));
+            }
+            v
+        }
+        EffectId::SupplyPressureDrop => {
+            let r_s = sc.pressure / sc.flow;
+            let cur = ef
+                .supply_pressure_drop
+                .clone()
+                .unwrap_or(SupplyPressureDrop {
+                    enabled: true,
+                    resistance: 0.05 * r_s,
+                    time_constant: 0.02,
+                });
+            let (a, b) = (cur.clone(), cur.clone());
+            vec![
+                p(
+                    "effects.supply_pressure_drop.resistance",
+                    1e-3 * r_s,
+                    2.0 * r_s,
+                    true,
+                    cur.resistance,
+                    Arc::new(move |p, v| {
+                        let s = p
+                            .effects
+                            .supply_pressure_drop
+                            .get_or_insert_with(|| a.clone());
+                        s.enabled = true;
+                        s.resistance = v;
+                    }),
+                ),
+                p(
+                    "effects.supply_pressure_drop.time_constant",
+                    1e-3,
+                    1.0,
+                    true,
+                    cur.time_constant,
+                    Arc::new(move |p, v| {
+                        let s = p
+                            .effects
+                            .supply_pressure_drop
+                            .get_or_insert_with(|| b.clone());
+                        s.enabled = true;
+                        s.time_constant = v;
+                    }),
+                ),
+            ]
+        }
+    })
+}
+
+/// Bounded Nelder–Mead in the unit cube. Returns (best point, best cost, evaluations).
+pub fn nelder_mead(
+    f: &mut dyn FnMut(&[f64]) -> f64,
+    x0: &[f64],
+    step: f64,
+    max_evals: usize,
+    tol: f64,
+) -> (Vec<f64>, f64, usize) {
+    let n = x0.len();
+    let clamp = |x: &mut Vec<f64>| x.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+    let mut evals = 0;
+    let mut eval = |x: &[f64], evals: &mut usize| {
+        *evals += 1;
+        let v = f(x);
+        if v.is_finite() {
+            v
+        } else {
+            f64::MAX
+        }
+    };
+    if n == 0 {
+        let v = eval(x0, &mut evals);
+        return (vec![], v, evals);
+    }
+    let mut simplex: Vec<(Vec<f64>, f64)> = Vec::with_capacity(n + 1);
+    let x0v = x0.to_vec();
+    let f0 = eval(&x0v, &mut evals);
+    simplex.push((x0v.clone(), f0));
+    for i in 0..n {
+        let mut x = x0v.clone();
+        x[i] += if x[i] + step <= 1.0 { step } else { -step };
+        clamp(&mut x);
+        let fx = eval(&x, &mut evals);
+        simplex.push((x, fx));
+    }
+    while evals < max_evals {
+        simplex.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let (best, worst) = (simplex[0].1, simplex[n].1);
+        let spread = simplex
+            .iter()
+            .skip(1)
+            .map(|(x, _)| {
+                x.iter()
+                    .zip(&simplex[0].0)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max)
+            })
+            .fold(0.0, f64::max);
+        if (worst - best).abs() <= tol * best.abs().max(1e-12) && spread < 1e-3 {
+            break;
+        }
+        let mut c = vec![0.0; n];
+        for (x, _) in &simplex[..n] {
+            for j in 0..n {
+                c[j] += x[j] / n as f64;
+            }
+        }
+        let pt = |a: f64| -> Vec<f64> {
+            let mut x: Vec<f64> = (0..n)
+                .map(|j| c[j] + a * (simplex[n].0[j] - c[j]))
+                .collect();
+            x.iter_mut().for_each(|v| *v = v.clamp(0.0, 1.0));
+            x
+        };
+        let xr = pt(-1.0);
+        let fr = eval(&xr, &mut evals);
+        if fr < simplex[0].1 {
+            let xe = pt(-2.0);
+            let fe = eval(&xe, &mut evals);
+            simplex[n] = if fe < fr { (xe, fe) } else { (xr, fr) };
+        } else if fr < simplex[n - 1].1 {
+            simplex[n] = (xr, fr);
+        } else {
+            let (xc, fc) = if fr < simplex[n].1 {
+                let x = pt(-0.5);
+                let v = eval(&x, &mut evals);
+                (x, v)
+            } else {
+                let x = pt(0.5);
+                let v = eval(&x, &mut evals);
+                (x, v)
+            };
+            if fc < simplex[n].1.min(fr) {
+                simplex[n] = (xc, fc);
+            } else {
+                let x0 = simplex[0].0.clone();
+                for s in simplex.iter_mut().skip(1) {
+                    let x: Vec<f64> =
+                        s.0.iter()
+                            .zip(&x0)
+                            .map(|(a, b)| b + 0.5 * (a - b))
+                            .collect();
+                    let v = eval(&x, &mut evals);
+                    *s = (x, v);
+                }
+            }
+        }
+    }
+    simplex.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let (x, v) = simplex.swap_remove(0);
+    (x, v, evals)
+}

@@ -1,0 +1,277 @@
+//! Report output: extended config (TOML runnable by `ehactl run`), trace CSVs for the plots
+//! (drawn by `scripts/diagnose_plots.py` with matplotlib) and the Markdown report.
+
+use crate::data::Record;
+use crate::diagnose::Diagnosis;
+use crate::replay::Replay;
+use ehactl_controller::RigConfig;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// The plot script, embedded so the binary works from any directory.
+pub const PLOT_SCRIPT: &str = include_str!("../../../scripts/diagnose_plots.py");
+
+/// Files written by [`write_report`].
+#[derive(Debug, Clone)]
+pub struct ReportFiles {
+    /// Extended config.
+    pub extended_config: PathBuf,
+    /// Markdown report.
+    pub report: PathBuf,
+    /// PNG plots that were made.
+    pub plots: Vec<PathBuf>,
+    /// Warnings (e.g. plots not made because python3/matplotlib is missing).
+    pub warnings: Vec<String>,
+}
+
+/// The nominal config with the plant replaced by the extended plant, as TOML text with a
+/// comment header naming the accepted effects.
+pub fn extended_config_text(nominal: &RigConfig, d: &Diagnosis, data: &str) -> String {
+    let mut cfg = nominal.clone();
+    cfg.plant = d.extended.clone();
+    cfg.rig.name = format!("{}_extended", nominal.rig.name);
+    cfg.rig.description = format!(
+        "{} — extended by `ehactl diagnose` with [{}]",
+        nominal.rig.description,
+        d.causes.join(", ")
+    );
+    let mut s = String::new();
+    let _ = writeln!(s, "# Written by `ehactl diagnose` from data {data}.");
+    let _ = writeln!(
+        s,
+        "# Nominal config plus accepted effects [{}] with fitted parameters",
+        d.causes.join(", ")
+    );
+    let _ = writeln!(
+        s,
+        "# (nominal valve gain, β₀, damping and spring rate refit within ±15 %). SI units."
+    );
+    for (k, v) in &d.extended_params {
+        let _ = writeln!(s, "#   {k} = {v:.6e}");
+    }
+    let _ = writeln!(
+        s,
+        "# Held-out NRMSE: nominal {:.4} → extended {:.4} (gain {:.1} %).\n",
+        d.nrmse_nominal.overall,
+        d.nrmse_extended.overall,
+        d.gain * 100.0
+    );
+    s.push_str(&cfg.to_toml_string());
+    s
+}
+
+fn trace_csv(rec: &Record, nom: &Replay, ext: &Replay, split: usize) -> String {
+    let mut s = String::from("t,u,held_out,v_model");
+    for c in &rec.channels {
+        let n = c.kind.column();
+        let _ = write!(s, ",meas_{n},nom_{n},ext_{n}");
+    }
+    s.push('\n');
+    for k in 0..rec.len() {
+        let _ = write!(
+            s,
+            "{:e},{:e},{},{:e}",
+            rec.t[k],
+            rec.u[k],
+            (k >= split) as u8,
+            nom.v.get(k).copied().unwrap_or(f64::NAN)
+        );
+        for (c, ch) in rec.channels.iter().enumerate() {
+            let _ = write!(
+                s,
+                ",{:e},{:e},{:e}",
+                ch.values[k],
+                nom.y[c].get(k).copied().unwrap_or(f64::NAN),
+                ext.y[c].get(k).copied().unwrap_or(f64::NAN)
+            );
+        }
+        s.push('\n');
+    }
+    s
+}
+
+fn table(d: &Diagnosis) -> String {
+    let mut s =
+        String::from("| channel | nominal | nominal refit | extended |\n|---|---|---|---|\n");
+    for (k, v) in &d.nrmse_nominal.channels {
+        let _ = writeln!(
+            s,
+            "| `{k}` | {v:.4} | {:.4} | {:.4} |",
+            d.nrmse_refit.channels.get(k).copied().unwrap_or(f64::NAN),
+            d.nrmse_extended
+                .channels
+                .get(k)
+                .copied()
+                .unwrap_or(f64::NAN)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "| **overall** | **{:.4}** | **{:.4}** | **{:.4}** |",
+        d.nrmse_nominal.overall, d.nrmse_refit.overall, d.nrmse_extended.overall
+    );
+    s
+}
+
+/// Write extended.toml, traces.csv (and validation_traces.csv), diagnosis.json, the plots
+/// and report.md into `dir`.
+pub fn write_report(
+    dir: &Path,
+    nominal: &RigConfig,
+    config_path: &str,
+    rec: &Record,
+    val: Option<&Record>,
+    d: &Diagnosis,
+) -> Result<ReportFiles, String> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| format!("{}: cannot create output directory: {e}", dir.display()))?;
+    let w = |name: &str, text: &str| -> Result<PathBuf, String> {
+        let p = dir.join(name);
+        std::fs::write(&p, text).map_err(|e| format!("{}: cannot write: {e}", p.display()))?;
+        Ok(p)
+    };
+    let extended_config = w(
+        "extended.toml",
+        &extended_config_text(nominal, d, &rec.source),
+    )?;
+    let mut warnings = Vec::new();
+    if let (Some(nom), Some(ext)) = (&d.traces.nominal, &d.traces.extended) {
+        w(
+            "traces.csv",
+            &trace_csv(rec, nom, ext, d.traces.split_index),
+        )?;
+    }
+    if let (Some(v), Some((nom, ext))) = (val, &d.traces.validation) {
+        w("validation_traces.csv", &trace_csv(v, nom, ext, 0))?;
+    }
+    let json = serde_json::to_string_pretty(d).map_err(|e| e.to_string())?;
+    w("diagnosis.json", &json)?;
+    let script = w("diagnose_plots.py", PLOT_SCRIPT)?;
+    let mut plots = Vec::new();
+    match std::process::Command::new("python3").arg(&script).arg(dir).output() {
+        Ok(out) if out.status.success() => {
+            for l in String::from_utf8_lossy(&out.stdout).lines() {
+                let p = PathBuf::from(l.trim());
+                if p.extension().and_then(|e| e.to_str()) == Some("png") {
+                    plots.push(p);
+                }
+            }
+        }
+        Ok(out) => warnings.push(format!(
+            "plots not made: `python3 {}` failed: {} (install matplotlib and numpy: pip install matplotlib numpy)",
+            script.display(),
+            String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("no message")
+        )),
+        Err(e) => warnings.push(format!("plots not made: cannot run python3: {e}")),
+    }
+    let mut r = String::new();
+    let _ = writeln!(r, "# ehactl diagnose: {}\n", rec.source);
+    let _ = writeln!(r, "Nominal config: `{config_path}`. {}.\n", d.split);
+    let _ = writeln!(
+        r,
+        "## Conclusion\n\n**Cause: `{}`**{}\n",
+        d.cause,
+        if d.causes.len() > 1 {
+            format!(" (accepted in order: {})", d.causes.join(", "))
+        } else {
+            String::new()
+        }
+    );
+    let _ = writeln!(r, "{}\n", d.summary);
+    let _ = writeln!(
+        r,
+        "Extended config: [`extended.toml`](extended.toml) (runnable with `ehactl run`).\n"
+    );
+    let _ = writeln!(
+        r,
+        "## Held-out NRMSE (rms error / std of the measured channel)\n\n{}",
+        table(d)
+    );
+    let _ = writeln!(
+        r,
+        "Gain (1 − extended/nominal overall): **{:.1} %**; estimated noise floor {:.4}.\n",
+        d.gain * 100.0,
+        d.noise_floor
+    );
+    for (title, a) in [
+        ("nominal replay", &d.analysis),
+        (
+            "nominal parameters refit within ±15 % (the evidence used)",
+            &d.analysis_refit,
+        ),
+    ] {
+        let _ = writeln!(r, "## Residual analysis: {title} (fitting part)\n");
+        let _ = writeln!(r, "- velocity reversals: residual RMS within 10 ms of a reversal is {:.2}× the overall RMS", a.reversal_ratio);
+        let _ = writeln!(r, "- small command (|u| < 5 % of max): {:.2}× the overall RMS; large command (> 70 %): {:.2}×", a.small_command_ratio, a.large_command_ratio);
+        let _ = writeln!(
+            r,
+            "- mean pressure residual is {:.0} % of its RMS (level shift)",
+            a.bias_share * 100.0
+        );
+        let _ = writeln!(
+            r,
+            "- measured outputs lag the model by {:.2} ms (cross-correlation)",
+            a.lag * 1e3
+        );
+        let _ = writeln!(
+            r,
+            "- residual-to-signal spectrum ratio peaks near {:.1} Hz",
+            a.mode_frequency
+        );
+        for t in &a.tones {
+            let _ = writeln!(r, "- narrow residual line: {:.1} Hz on `{}`, amplitude ≈ {:.3e}, {:.0}× its neighbourhood", t.frequency, t.channel, t.amplitude, t.prominence);
+        }
+        r.push('\n');
+    }
+    let _ = writeln!(
+        r,
+        "## Hypothesis tests (every catalogue effect against the refit nominal model)\n"
+    );
+    let _ = writeln!(r, "| effect | accepted | NRMSE train | NRMSE held-out | score | parameters | evidence |\n|---|---|---|---|---|---|---|");
+    for c in &d.candidates {
+        let _ = writeln!(
+            r,
+            "| `{}` | {} | {:.4} | {:.4} | {:.3} | {} | {} |",
+            c.effect,
+            if c.accepted { "**yes**" } else { "no" },
+            c.nrmse_train,
+            c.nrmse_validation,
+            c.score,
+            c.params
+                .iter()
+                .map(|(k, v)| format!("{k} = {v:.3e}"))
+                .collect::<Vec<_>>()
+                .join("<br>"),
+            c.evidence.replace('|', "/")
+        );
+    }
+    if !d.ambiguities.is_empty() {
+        let _ = writeln!(r, "\n## What the data cannot tell apart\n");
+        for a in &d.ambiguities {
+            let _ = writeln!(r, "- {a}");
+        }
+    }
+    let all_warn: Vec<&String> = d.warnings.iter().chain(&warnings).collect();
+    if !all_warn.is_empty() {
+        let _ = writeln!(r, "\n## Warnings\n");
+        for w in all_warn {
+            let _ = writeln!(r, "- {w}");
+        }
+    }
+    if !plots.is_empty() {
+        let _ = writeln!(r, "\n## Plots\n");
+        for p in &plots {
+            let name = p
+                .file_name()
+                .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+            let _ = writeln!(r, "![{name}]({name})\n");
+        }
+    }
+    let report = w("report.md", &r)?;
+    Ok(ReportFiles {
+        extended_config,
+        report,
+        plots,
+        warnings,
+    })
+}

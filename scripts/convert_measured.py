@@ -1,0 +1,66 @@
+#!/usr/bin/env python3
+"""Convert the measured records in tests/data/measured/ to the CSV format of DESIGN.md
+(t, u, outputs in SI) for `ehactl diagnose`. Every scaling below is an ASSUMPTION (the
+sources give no units); it is repeated in the rig configs under configs/.
+
+Sjöberg et al. 1995 robot-arm actuator (actuator.csv: k, u, p, x):
+  t   = k · 0.01 s            (sample period not published; assumed 10 ms, see configs/sjoberg1995_actuator.toml)
+  u   = valve opening as is   (read as V with command_full_scale = 2: |u| ≤ 1.46 is 73 % opening)
+  p_a = 5 MPa − 1 MPa · p     (p is zero-mean and scaled; read as chamber-A pressure around half of a
+                               10 MPa supply, 1 unit = 1 MPa, sign chosen so that opening towards A raises p_a)
+  x   = not used (undocumented)
+Usage: python3 scripts/convert_measured.py [DIR_WITH_MTS_TXT]
+Writes sjoberg/estimation.csv (samples 0–511) and sjoberg/validation.csv (512–1023), the split of the literature.
+
+UTFSM MTS press (0A.txt/1A.txt, 1 kHz, CHANNEL0 x_m ×10 mm, CHANNEL1 F ×9806.65 N, CHANNEL2 x_ref ×10 mm):
+  u = K_p · (x_ref − x_m) with K_p = 2000 V/m (10 V at 5 mm error): the valve command of the MTS's
+      proportional displacement loop, reconstructed because the file holds no valve signal (assumed P-only loop)
+  x = 0.05 m + x_m, ref = 0.05 m + x_ref (mid-stroke offset, m); the force channel is not used (see mts())
+  Segment 5–15 s of each file (0.4–2 Hz sweep part, 2 mm amplitude) decimated to 500 Hz.
+"""
+import pathlib
+import sys
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1] / "tests" / "data" / "measured"
+
+
+def write(path, cols):
+    names = list(cols)
+    data = np.column_stack([cols[n] for n in names])
+    np.savetxt(path, data, delimiter=",", header=",".join(names), comments="", fmt="%.9g")
+
+
+def sjoberg():
+    d = np.genfromtxt(ROOT / "sjoberg" / "actuator.csv", delimiter=",", names=True)
+    t = d["k"] * 0.01
+    u = d["u"]
+    pa = 5.0e6 - 1.0e6 * d["p"]
+    for name, sl in (("estimation", slice(0, 512)), ("validation", slice(512, 1024))):
+        write(ROOT / "sjoberg" / f"{name}.csv", {"t": t[sl] - t[sl][0], "u": u[sl], "p_a": pa[sl]})
+
+
+def mts(name, src_dir):
+    """The raw DAQ files (4 MB each) are not in the repo; pass their directory."""
+    src = pathlib.Path(src_dir) / f"{name}.txt"
+    if not src.exists():
+        print(f"skip MTS {name}: {src} not found", file=sys.stderr)
+        return
+    d = np.genfromtxt(src, delimiter=",", skip_header=7, usecols=(2, 3, 4))
+    xm = d[:, 0] * 10e-3
+    f = d[:, 1] * 9806.65
+    xr = d[:, 2] * 10e-3
+    sl = slice(5000, 15000, 2)
+    t = np.arange(len(xm))[sl] * 1e-3
+    # The load-cell force is not written: the plant's force output (spring + external load)
+    # cannot represent the damper force on the rod, so it would only add an unexplained channel.
+    write(ROOT / "utfsm_mts" / f"{name}_5to15s.csv", {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl]})
+
+
+if __name__ == "__main__":
+    sjoberg()
+    if len(sys.argv) > 1:  # directory holding the UTFSM 0A.txt / 1A.txt
+        mts("0A", sys.argv[1])
+        mts("1A", sys.argv[1])
+    print("converted", file=sys.stderr)
