@@ -8,6 +8,7 @@
 mod analysis;
 mod columns;
 mod config;
+mod diagnose;
 mod linear;
 mod mcapread;
 mod plant;
@@ -37,5 +38,6 @@ fn _ehactl(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(linear::linear_plant_response, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::analyze_json, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::sweep_json, m)?)?;
+    m.add_function(wrap_pyfunction!(diagnose::diagnose_json, m)?)?;
     Ok(())
 }

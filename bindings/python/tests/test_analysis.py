@@ -54,3 +54,22 @@ def test_sweep_bad_arguments_raise_value_errors(force_cfg):
         ehactl.sweep(force_cfg, 5.0, 100.0, points=4, output="torque")
     with pytest.raises(ValueError, match="--points"):
         ehactl.sweep(force_cfg, 5.0, 100.0, points=1)
+
+
+def test_diagnose_names_a_hidden_delay_like_the_cli(tmp_path):
+    """A run of the test rig with a hidden 5 ms command delay, logged to MCAP from Python,
+    diagnosed against the nominal rig from Python: the same session as `ehactl diagnose`."""
+    rig = ehactl.Config.load(CONFIGS / "diagnose_testrig.toml")
+    truth = tmp_path / "truth.toml"
+    truth.write_text((CONFIGS / "diagnose_testrig.toml").read_text() + "\n[effects.time_delay]\ndelay = 0.005\n")
+    mcap = tmp_path / "rig.mcap"
+    ehactl.run(ehactl.Config.load(truth), mcap=mcap)
+    d = ehactl.diagnose(rig, mcap, out=tmp_path / "diag")
+    assert d["cause"] == "time_delay"
+    assert abs(d["extended_params"]["effects.time_delay.delay"] - 0.005) < 0.001
+    assert d["gain"] >= 0.5 and len(d["candidates"]) == 12
+    assert os.path.exists(d["extended_config"]) and os.path.exists(d["report"])
+    with pytest.raises(ValueError, match="t"):
+        bad = tmp_path / "bad.csv"
+        bad.write_text("time,u\n0,0\n")
+        ehactl.diagnose(rig, bad)

@@ -1,7 +1,7 @@
 //! `ehactl diagnose`: name what the simulation gets wrong on measured data (see ehactl-ident).
 
 use ehactl_controller::RigConfig;
-use ehactl_ident::{data, diagnose, report, Options};
+use ehactl_ident::session::{self, SessionError};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -22,114 +22,30 @@ pub fn cmd_diagnose(
         Ok(c) => c,
         Err(e) => return bad(format!("{}: {e}", config.display())),
     };
-    let load = |p: &Path| -> Result<data::Record, String> {
-        let mut r = data::load(p).map_err(|e| e.to_string())?;
-        let w = data::check_against(&r, &cfg.plant, cfg.control_dt()).map_err(|e| e.to_string())?;
-        r.warnings.extend(w);
-        Ok(r)
-    };
-    let rec = match load(data_path) {
+    let run = match session::run(
+        &cfg,
+        &config.display().to_string(),
+        data_path,
+        validate,
+        out.as_deref(),
+        true,
+    ) {
         Ok(r) => r,
-        Err(e) => return bad(e),
-    };
-    let val = match validate.map(load).transpose() {
-        Ok(v) => v,
-        Err(e) => return bad(e),
-    };
-    if let Some(v) = &val {
-        let a: Vec<_> = rec.channels.iter().map(|c| c.kind).collect();
-        let b: Vec<_> = v.channels.iter().map(|c| c.kind).collect();
-        if a != b {
-            return bad(format!(
-                "{}: channels [{}] differ from the data file's [{}]; the validation file must have the same output columns",
-                v.source,
-                b.iter().map(|k| k.column()).collect::<Vec<_>>().join(", "),
-                a.iter().map(|k| k.column()).collect::<Vec<_>>().join(", ")
-            ));
+        Err(SessionError::Input(e)) => return bad(e),
+        Err(SessionError::Io(e)) => {
+            eprintln!("ehactl: {e}");
+            return ExitCode::from(1);
         }
-        if (v.dt - rec.dt).abs() > 1e-6 * rec.dt {
-            return bad(format!(
-                "{}: sample period {} s differs from the data file's {} s",
-                v.source, v.dt, rec.dt
-            ));
-        }
-    }
-    for w in rec
-        .warnings
-        .iter()
-        .chain(val.iter().flat_map(|v| v.warnings.iter()))
-    {
+    };
+    for w in &run.warnings {
         eprintln!("ehactl: warning: {w}");
     }
-    // Closed-loop position records (a `ref` column and a PD position loop in the config) are
-    // replayed through the same controller: an integrating plant would drift open loop.
-    let drive = match (&cfg.control.mode, cfg.pd_gains(), &rec.reference) {
-        (ehactl_controller::config::ControlMode::Position, Some(g), Some(_)) => {
-            eprintln!("ehactl: note: closed-loop replay: the config's PD position controller acts on the recorded `ref`; the recorded `u` is not used");
-            ehactl_ident::replay::Drive::PositionPd(g)
-        }
-        _ => {
-            if rec.reference.is_some() {
-                eprintln!("ehactl: note: open-loop replay with the recorded valve command `u` (the config has no PD position loop to replay `ref` through)");
-            }
-            ehactl_ident::replay::Drive::Recorded
-        }
-    };
-    if let (ehactl_ident::replay::Drive::PositionPd(_), Some(v)) = (&drive, &val) {
-        if v.reference.is_none() {
-            return bad(format!(
-                "{}: closed-loop replay needs a `ref` column in the validation file too",
-                v.source
-            ));
-        }
+    for n in &run.notes {
+        eprintln!("ehactl: note: {n}");
     }
-    let opts = Options {
-        progress: true,
-        drive,
-        ..Options::default()
-    };
-    let d = match diagnose(&cfg.plant, &rec, val.as_ref(), &opts) {
-        Ok(d) => d,
-        Err(e) => return bad(e),
-    };
-    let files = match &out {
-        Some(dir) => match report::write_report(
-            dir,
-            &cfg,
-            &config.display().to_string(),
-            &rec,
-            val.as_ref(),
-            &d,
-        ) {
-            Ok(f) => {
-                for w in &f.warnings {
-                    eprintln!("ehactl: warning: {w}");
-                }
-                Some(f)
-            }
-            Err(e) => {
-                eprintln!("ehactl: {e}");
-                return ExitCode::from(1);
-            }
-        },
-        None => None,
-    };
+    let (d, files) = (&run.diagnosis, &run.files);
     if json {
-        let mut v = serde_json::to_value(&d).unwrap_or_default();
-        v["extended_config"] = files.as_ref().map_or(serde_json::Value::Null, |f| {
-            f.extended_config.display().to_string().into()
-        });
-        v["report"] = files.as_ref().map_or(serde_json::Value::Null, |f| {
-            f.report.display().to_string().into()
-        });
-        v["plots"] = files.as_ref().map_or(serde_json::Value::Null, |f| {
-            f.plots
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .into()
-        });
-        println!("{v}");
+        println!("{}", run.json);
     } else {
         println!(
             "ehactl diagnose {} (config {})",

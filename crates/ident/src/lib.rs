@@ -8,7 +8,8 @@
 //!
 //! Modules: [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
 //! noise level), [`analysis`] (residual analysis, evidence), [`fit`] (free parameters, bounded
-//! Nelder–Mead), [`diagnose`] (the decision), [`report`] (JSON, extended config, Markdown).
+//! Nelder–Mead), [`diagnose`] (the decision), [`report`] (JSON, extended config, Markdown),
+//! [`session`] (one complete diagnosis as the CLI and Python run it).
 #![deny(missing_docs)]
 
 pub mod analysis;
@@ -17,6 +18,7 @@ pub mod diagnose;
 pub mod fit;
 pub mod replay;
 pub mod report;
+pub mod session;
 pub mod synth;
 
 pub use data::{load, ChannelKind, DataError, Record};

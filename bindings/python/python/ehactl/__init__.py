@@ -11,9 +11,10 @@ and the real-time loop use. Units are SI throughout: s, N, m, Pa, V, m³/s.
     res.t, res.force, res.u                       # NumPy arrays (s, N, V)
     many = ehactl.run_many({"control.pi.kp": [0.3, 0.4, 0.5]}, base=cfg, duration=0.5)
 
-``ehactl.analyze(cfg)`` and ``ehactl.sweep(cfg, ...)`` mirror ``ehactl analyze`` /
-``ehactl sweep`` (margins and bandwidths of the linearised sampled loop; stepped-sine
-frequency response of the nonlinear plant).
+``ehactl.analyze(cfg)``, ``ehactl.sweep(cfg, ...)`` and ``ehactl.diagnose(cfg, data)`` mirror
+``ehactl analyze`` / ``ehactl sweep`` / ``ehactl diagnose`` (margins and bandwidths of the
+linearised sampled loop; stepped-sine frequency response of the nonlinear plant; model
+discrepancy on measured data).
 
 Submodules: :mod:`ehactl.tune` (critical-gain, model-based and optimisation tuning),
 :mod:`ehactl.metrics` (step / tracking metrics), :mod:`ehactl.plot` (matplotlib figures,
@@ -28,7 +29,7 @@ from ._ehactl import (  # noqa: F401  (re-exported)
     Plant,
     __version__,
 )
-from ._analysis import analyze, sweep
+from ._analysis import analyze, diagnose, sweep
 from ._runs import RunResult, param_grid, params, read_mcap, run, run_many
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "RunResult",
     "__version__",
     "analyze",
+    "diagnose",
     "param_grid",
     "params",
     "read_mcap",

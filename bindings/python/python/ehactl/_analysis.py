@@ -1,10 +1,11 @@
-"""``ehactl.analyze`` and ``ehactl.sweep``: the CLI's ``ehactl analyze`` / ``ehactl sweep``
-from Python (same compiled ``ehactl-analysis`` code, same JSON, arrays as NumPy)."""
+"""``ehactl.analyze``, ``ehactl.sweep`` and ``ehactl.diagnose``: the CLI's ``ehactl analyze`` /
+``ehactl sweep`` / ``ehactl diagnose`` from Python (same compiled code, same JSON, arrays as NumPy)."""
 
 from __future__ import annotations
 
 import json
 import os
+import warnings
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -100,4 +101,47 @@ def sweep(
     pts = r.pop("points")
     for k in ("f_hz", "mag_db", "phase_deg", "coherence", "gain", "distortion"):
         r[k] = np.array([p[k] for p in pts], dtype=float)
+    return r
+
+
+def diagnose(
+    cfg: ConfigLike,
+    data: str | os.PathLike,
+    validate: str | os.PathLike | None = None,
+    out: str | os.PathLike | None = None,
+    *,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """What the simulation of ``cfg`` gets wrong on measured data, like ``ehactl diagnose --json``.
+
+    Replays the measured valve command (or, for closed-loop position records with ``ref``,
+    the config's PD loop) through the plant, analyses the residual, fits every effect of the
+    catalogue (nominal parameters refit within ±15 %), scores them on held-out data and names
+    the cause.
+
+    Args:
+        cfg: nominal ``Config`` or path of its TOML.
+        data: measured record, CSV (``t, u`` and any of ``force, x, p_a, p_b, x_v, ref``; SI)
+            or an MCAP written by ehactl.
+        validate: separate held-out record; default the last 30 % of ``data``.
+        out: directory for ``extended.toml``, ``report.md`` and PNG plots.
+        progress: show the fits' progress bar on stderr.
+
+    Returns:
+        dict with ``cause``, ``causes``, ``nrmse_nominal``, ``nrmse_extended`` (held-out, per
+        channel and ``overall``), ``gain``, ``candidates`` (effect, params, nrmse_train,
+        nrmse_validation, score, accepted, evidence), ``extended_config``, ``report``,
+        ``plots``, ``warnings``. Data warnings are also issued as Python warnings.
+
+    Raises:
+        ValueError: bad data or config (the message names the file, row or field).
+        OSError: the report could not be written.
+    """
+    c = _as_config(cfg)
+    raw, notes = _ehactl.diagnose_json(c, os.fspath(data), None if validate is None else os.fspath(validate),
+                                       None if out is None else os.fspath(out), bool(progress))
+    r = json.loads(raw)
+    for w in r.get("warnings") or []:
+        warnings.warn(w, stacklevel=2)
+    r["notes"] = list(notes)
     return r

@@ -148,3 +148,12 @@ def sweep_json(
     progress: Callable[[int, int], None] | None = None,
 ) -> str:
     """``ehactl sweep --json`` of ``cfg`` as a JSON string (see ``ehactl.sweep``)."""
+
+def diagnose_json(
+    cfg: Config,
+    data: _Path,
+    validate: _Path | None = None,
+    out: _Path | None = None,
+    progress: bool = False,
+) -> tuple[str, list[str]]:
+    """``ehactl diagnose --json`` of ``data`` against ``cfg`` and the replay notes (see ``ehactl.diagnose``)."""

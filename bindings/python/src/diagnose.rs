@@ -1,0 +1,41 @@
+//! `ehactl diagnose` for Python: the same `ehactl-ident` session as the CLI, the `--json`
+//! object handed over as a JSON string (parsed into a dict by `ehactl._analysis`).
+
+use crate::config::Config;
+use ehactl_ident::session::{self, SessionError};
+use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::prelude::*;
+use std::path::PathBuf;
+
+/// Diagnose the measured record `data` (CSV or ehactl MCAP) against the nominal `cfg`;
+/// `validate` is a separate held-out record (default: the last 30 % of `data`), `out` a
+/// directory for extended.toml, report.md and plots. Returns (json, notes). Bad data or
+/// config raise ValueError, an unwritable report OSError. The GIL is released meanwhile.
+#[pyfunction]
+#[pyo3(signature = (cfg, data, validate = None, out = None, progress = false))]
+pub fn diagnose_json(
+    py: Python<'_>,
+    cfg: &Config,
+    data: PathBuf,
+    validate: Option<PathBuf>,
+    out: Option<PathBuf>,
+    progress: bool,
+) -> PyResult<(String, Vec<String>)> {
+    let rc = cfg.cfg.clone();
+    let label = cfg.source.clone().unwrap_or_else(|| rc.rig.name.clone());
+    let run = py.detach(|| {
+        session::run(
+            &rc,
+            &label,
+            &data,
+            validate.as_deref(),
+            out.as_deref(),
+            progress,
+        )
+    });
+    match run {
+        Ok(r) => Ok((r.json.to_string(), r.notes)),
+        Err(SessionError::Input(e)) => Err(PyValueError::new_err(e)),
+        Err(SessionError::Io(e)) => Err(PyOSError::new_err(e)),
+    }
+}
