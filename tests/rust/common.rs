@@ -44,3 +44,39 @@ end_stops = false
     );
     toml::from_str(&text).expect("valid plant")
 }
+
+/// A global allocator that forwards to the system allocator and counts allocations per
+/// thread, for the zero-allocation tests. A test binary installs it with
+/// `#[global_allocator] static GLOBAL: CountingAlloc = CountingAlloc;` and reads
+/// [`allocations`] around the code under test.
+pub struct CountingAlloc;
+
+thread_local! {
+    // Per thread: other tests of the same binary run in parallel threads.
+    static ALLOCS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
+
+/// Allocations made so far by the calling thread (0 unless [`CountingAlloc`] is installed).
+pub fn allocations() -> u64 {
+    ALLOCS.with(|c| c.get())
+}
+
+// SAFETY: forwards to the system allocator; only counts (a const-initialised Cell
+// thread-local needs no allocation and no destructor).
+unsafe impl std::alloc::GlobalAlloc for CountingAlloc {
+    unsafe fn alloc(&self, l: std::alloc::Layout) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        std::alloc::System.alloc(l)
+    }
+    unsafe fn alloc_zeroed(&self, l: std::alloc::Layout) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        std::alloc::System.alloc_zeroed(l)
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: std::alloc::Layout, n: usize) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        std::alloc::System.realloc(p, l, n)
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: std::alloc::Layout) {
+        std::alloc::System.dealloc(p, l)
+    }
+}

@@ -12,43 +12,12 @@ use ehactl_hal::logger::Overflow;
 use ehactl_hal::record::{CycleTiming, Event};
 use ehactl_hal::sim::SimHal;
 use ehactl_tests::config;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+use ehactl_tests::{allocations, CountingAlloc};
 use std::sync::Arc;
 use std::time::Duration;
 
-struct Counting;
-
-thread_local! {
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-}
-
-// SAFETY: forwards to the system allocator; only counts (a const-initialised Cell
-// thread-local needs no allocation and no destructor).
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        ALLOCS.with(|c| c.set(c.get() + 1));
-        System.alloc(l)
-    }
-    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-        ALLOCS.with(|c| c.set(c.get() + 1));
-        System.alloc_zeroed(l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        ALLOCS.with(|c| c.set(c.get() + 1));
-        System.realloc(p, l, n)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        System.dealloc(p, l)
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
-
-fn allocs() -> u64 {
-    ALLOCS.with(|c| c.get())
-}
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 /// Wraps the real pacer and notes this thread's allocation count at every cycle boundary
 /// into a preallocated array (indexing does not allocate).
@@ -60,7 +29,7 @@ struct Watch {
 impl Pacer for Watch {
     fn wait_for_cycle(&mut self, k: u64) -> bool {
         if let Some(slot) = self.at.get_mut(k as usize) {
-            *slot = allocs();
+            *slot = allocations();
         }
         self.inner.wait_for_cycle(k)
     }
@@ -140,9 +109,9 @@ fn no_allocation_per_cycle_after_start_up() {
         &bad[..bad.len().min(20)]
     );
     // Sanity: the counter works on this thread (this Vec allocates).
-    let before = allocs();
+    let before = allocations();
     let v: Vec<u8> = Vec::with_capacity(10);
-    assert!(allocs() > before && v.capacity() >= 10);
+    assert!(allocations() > before && v.capacity() >= 10);
     let log = s.log.as_ref().unwrap();
     assert_eq!(log.records_written + log.records_dropped, CYCLES);
     println!(

@@ -15,39 +15,12 @@ use ehactl_controller::RigConfig;
 use ehactl_plant::line::Line;
 use ehactl_plant::params::{Fluid, LineDynamics, LineFriction};
 use ehactl_plant::Plant;
+use ehactl_tests::{allocations, CountingAlloc};
 use nalgebra::Complex;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::f64::consts::{PI, TAU};
 
-struct Counting;
-
-thread_local! {
-    // Per thread: other tests of this binary run in parallel threads.
-    static ALLOCS: Cell<u64> = const { Cell::new(0) };
-}
-
-// SAFETY: forwards to the system allocator; only counts (a const-initialised Cell
-// thread-local needs no allocation and no destructor).
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        ALLOCS.with(|c| c.set(c.get() + 1));
-        System.alloc(l)
-    }
-    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
-        ALLOCS.with(|c| c.set(c.get() + 1));
-        System.alloc_zeroed(l)
-    }
-    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
-        ALLOCS.with(|c| c.set(c.get() + 1));
-        System.realloc(p, l, n)
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        System.dealloc(p, l)
-    }
-}
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 fn circuit_text() -> String {
     let path = concat!(
@@ -182,17 +155,16 @@ fn unsteady_line_steps_without_allocating_and_stays_finite() {
     assert_eq!(n, 2 * line.segments as usize * 10 + 4, "{names:?}");
     assert!(names.iter().any(|s| s == "line_a.q[0].y[7]"));
     plant.step(1.0).unwrap();
-    let allocs = || ALLOCS.with(|c| c.get());
-    let before = allocs();
+    let before = allocations();
     for k in 0..500 {
         let u = (k as f64 * 0.3).sin();
         plant.step(u).unwrap();
     }
-    let n_allocs = allocs() - before;
+    let n_allocs = allocations() - before;
     assert_eq!(n_allocs, 0, "allocations in 500 plant steps");
     // The counter works on this thread.
     let v: Vec<u8> = Vec::with_capacity(8);
-    assert!(allocs() > before && v.capacity() >= 8);
+    assert!(allocations() > before && v.capacity() >= 8);
     assert!(plant.linear_state().iter().all(|v| v.is_finite()));
     // set_linear_state ∘ linear_state is the identity, convolution states included.
     let mut x = plant.linear_state();
