@@ -18,7 +18,8 @@ use ehactl_controller::control_socket::ControlServer;
 use ehactl_controller::live::LiveParams;
 use ehactl_controller::realtime::WallClockPacer;
 use ehactl_controller::session::{
-    build_plant, run_sim, run_with_live, Backend, Session, SessionError, SessionOptions,
+    build_plant, run_sim, run_sim_live, run_with_live, Backend, Session, SessionError,
+    SessionOptions,
 };
 use ehactl_controller::RigConfig;
 use ehactl_hal::logger::Overflow;
@@ -448,29 +449,6 @@ fn cmd_run(
     } else {
         ExitCode::SUCCESS
     }
-}
-
-/// Simulated time with live changes.
-fn run_sim_live(
-    cfg: &RigConfig,
-    opts: SessionOptions<'_>,
-    live: Option<&LiveParams>,
-) -> Result<Session, SessionError> {
-    let mut cfg_run = cfg.clone();
-    if let Some(d) = opts.duration {
-        cfg_run.run.duration = d;
-    }
-    let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
-    let substeps = plant.substeps();
-    let mut hal = SimHal::new(plant);
-    let mut pacer = ehactl_controller::runloop::SimulatedTime;
-    let backend = Backend {
-        hal: &mut hal,
-        pacer: &mut pacer,
-        overflow: Overflow::Block,
-        substeps,
-    };
-    run_with_live(cfg, backend, opts, live)
 }
 
 /// A backend paced in real time by the wall-clock executor: the sim plant, or `hardware`

@@ -165,6 +165,16 @@ pub fn build_plant(cfg: &RigConfig) -> Result<Plant, ConfigError> {
 
 /// Run `cfg` against the simulated plant in simulated time.
 pub fn run_sim(cfg: &RigConfig, opts: SessionOptions<'_>) -> Result<Session, SessionError> {
+    run_sim_live(cfg, opts, None)
+}
+
+/// [`run_sim`] with gains and setpoint changeable while it runs (`live`, swapped at cycle
+/// boundaries; see [`crate::live`]).
+pub fn run_sim_live(
+    cfg: &RigConfig,
+    opts: SessionOptions<'_>,
+    live: Option<&LiveParams>,
+) -> Result<Session, SessionError> {
     let mut cfg_run = cfg.clone();
     if let Some(d) = opts.duration {
         cfg_run.run.duration = d;
@@ -178,7 +188,7 @@ pub fn run_sim(cfg: &RigConfig, opts: SessionOptions<'_>) -> Result<Session, Ses
         overflow: Overflow::Block,
         substeps,
     };
-    run_with(cfg, backend, opts)
+    run_with_live(cfg, backend, opts, live)
 }
 
 /// The hardware side of a session: which `Hal`, how cycles are paced, and what the logger
