@@ -162,11 +162,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     let dt = settings.dt;
     let n = settings.cycles;
     let step = (n / 100).max(1);
-    let mut sum_sq = 0.0;
-    let mut n_err = 0u64;
-    let mut sum_sq_settled = 0.0;
-    let mut n_settled = 0u64;
-    let mut max_abs: f64 = 0.0;
+    let mut errors = ErrorStats::default();
     let mut trip = None;
     let mut interrupted = false;
     let mut k = 0u64;
@@ -231,34 +227,32 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             let plant = hal.plant_state();
             let safe = supervisor.safe_command();
             let fb = controller.feedback(&meas);
-            let e = r - fb;
-            if e.is_finite() && !matches!(controller, Controller::OpenLoop) {
-                sum_sq += e * e;
-                n_err += 1;
-                max_abs = max_abs.max(e.abs());
-            }
-            record(&CycleRecord {
-                cycle: k,
+            let e = if matches!(controller, Controller::OpenLoop) {
+                f64::NAN
+            } else {
+                r - fb
+            };
+            errors.add(e, t, settings.settle_time);
+            let held = ControlTerms {
+                u: safe,
+                u_unsat: safe,
+                error: e,
+                p: f64::NAN,
+                i: f64::NAN,
+                d: f64::NAN,
+                ff: f64::NAN,
+            };
+            record(&cycle_record(
+                k,
                 t,
-                setpoint: r,
-                setpoint_rate: rdot,
-                feedback: fb,
-                error: if matches!(controller, Controller::OpenLoop) {
-                    f64::NAN
-                } else {
-                    e
-                },
-                command: safe,
-                command_unsat: safe,
-                p_term: f64::NAN,
-                i_term: f64::NAN,
-                d_term: f64::NAN,
-                ff_term: f64::NAN,
+                (r, rdot),
+                fb,
+                &held,
+                safe,
                 meas,
-                plant: plant.unwrap_or_default(),
-                has_plant: plant.is_some(),
+                plant,
                 timing,
-            });
+            ));
             k += 1;
             trip = Some(ev);
             break;
@@ -273,24 +267,8 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             event(ev);
         }
         let plant = hal.plant_state();
-        let rec = CycleRecord {
-            cycle: k,
-            t,
-            setpoint: r,
-            setpoint_rate: rdot,
-            feedback: controller.feedback(&meas),
-            error: terms.error,
-            command: u,
-            command_unsat: terms.u_unsat,
-            p_term: terms.p,
-            i_term: terms.i,
-            d_term: terms.d,
-            ff_term: terms.ff,
-            meas,
-            plant: plant.unwrap_or_default(),
-            has_plant: plant.is_some(),
-            timing,
-        };
+        let fb = controller.feedback(&meas);
+        let rec = cycle_record(k, t, (r, rdot), fb, &terms, u, meas, plant, timing);
         if let Err(e) = hal.write(t, dt, u) {
             record(&rec);
             trip = Some(hal_fault(e));
@@ -298,15 +276,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             break;
         }
         record(&rec);
-        if terms.error.is_finite() {
-            sum_sq += terms.error * terms.error;
-            n_err += 1;
-            max_abs = max_abs.max(terms.error.abs());
-            if t >= settings.settle_time {
-                sum_sq_settled += terms.error * terms.error;
-                n_settled += 1;
-            }
-        }
+        errors.add(terms.error, t, settings.settle_time);
         k += 1;
         if k % step == 0 {
             progress(k);
@@ -359,20 +329,88 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
         unit: "V",
     });
     progress(k);
-    let rms = |s: f64, n: u64| {
-        if n > 0 {
-            (s / n as f64).sqrt()
-        } else {
-            f64::NAN
-        }
-    };
     RunOutcome {
         cycles: k,
         duration_s: end_t,
         trip,
         interrupted,
-        rms_error: rms(sum_sq, n_err),
-        max_abs_error: if n_err > 0 { max_abs } else { f64::NAN },
-        rms_error_settled: rms(sum_sq_settled, n_settled),
+        rms_error: rms(errors.sum_sq, errors.n),
+        max_abs_error: if errors.n > 0 {
+            errors.max_abs
+        } else {
+            f64::NAN
+        },
+        rms_error_settled: rms(errors.sum_sq_settled, errors.n_settled),
+    }
+}
+
+/// Control-error statistics of a run (N or m), accumulated without allocation.
+#[derive(Default)]
+struct ErrorStats {
+    sum_sq: f64,
+    n: u64,
+    sum_sq_settled: f64,
+    n_settled: u64,
+    max_abs: f64,
+}
+
+impl ErrorStats {
+    /// Add the error `e` of the cycle at `t` (s); errors after `settle` (s) also count as
+    /// settled. Non-finite errors (open loop) are skipped.
+    #[inline]
+    fn add(&mut self, e: f64, t: f64, settle: f64) {
+        if !e.is_finite() {
+            return;
+        }
+        self.sum_sq += e * e;
+        self.n += 1;
+        self.max_abs = self.max_abs.max(e.abs());
+        if t >= settle {
+            self.sum_sq_settled += e * e;
+            self.n_settled += 1;
+        }
+    }
+}
+
+fn rms(sum_sq: f64, n: u64) -> f64 {
+    if n > 0 {
+        (sum_sq / n as f64).sqrt()
+    } else {
+        f64::NAN
+    }
+}
+
+/// The record of cycle `k` at `t` (s): setpoint and its rate, feedback, the law's terms and
+/// the command `u` (V) actually applied. Fixed size, no allocation.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn cycle_record(
+    k: u64,
+    t: f64,
+    (setpoint, setpoint_rate): (f64, f64),
+    feedback: f64,
+    terms: &ControlTerms,
+    u: f64,
+    meas: Measurements,
+    plant: Option<ehactl_hal::PlantState>,
+    timing: Option<CycleTiming>,
+) -> CycleRecord {
+    CycleRecord {
+        cycle: k,
+        t,
+        setpoint,
+        setpoint_rate,
+        feedback,
+        error: terms.error,
+        command: u,
+        command_unsat: terms.u_unsat,
+        p_term: terms.p,
+        i_term: terms.i,
+        d_term: terms.d,
+        ff_term: terms.ff,
+        meas,
+        plant: plant.unwrap_or_default(),
+        has_plant: plant.is_some(),
+        timing,
     }
 }
