@@ -59,88 +59,72 @@ impl Default for CanopenConfig {
     }
 }
 
-const fn param(
-    path: &'static str,
-    unit: &'static str,
-    range: Range,
-    description: &'static str,
-    kind: Kind,
-) -> Param {
-    Param {
-        path,
-        unit,
-        description,
-        range,
-        kind,
-    }
-}
-
 /// Registry of the `[canopen]` parameters (for `ehactl params` and config checks).
 pub const CANOPEN_PARAMS: &[Param] = &[
-    param(
+    Param::new(
         "canopen.bitrate",
         "bit/s",
         Range::Within(10e3, 1e6),
         "CAN bit rate (ICD default 1 Mbit/s)",
         Kind::Integer,
     ),
-    param(
+    Param::new(
         "canopen.sync_rate_hz",
         "Hz",
         Range::Within(1.0, 10e3),
         "SYNC producer rate; CAN I/O rate, sample-and-hold to the control rate",
         Kind::Float,
     ),
-    param(
+    Param::new(
         "canopen.heartbeat_ms",
         "ms",
         Range::Within(1.0, 65535.0),
         "heartbeat producer time written to 0x1017 of each device",
         Kind::Integer,
     ),
-    param(
+    Param::new(
         "canopen.heartbeat_timeout_ms",
         "ms",
         Range::Within(1.0, 65535.0),
         "master's heartbeat consumer timeout (> heartbeat_ms)",
         Kind::Integer,
     ),
-    param(
+    Param::new(
         "canopen.boot_timeout_s",
         "s",
         Range::Within(0.01, 600.0),
         "time allowed for every device's boot-up",
         Kind::Float,
     ),
-    param(
+    Param::new(
         "canopen.sdo_timeout_ms",
         "ms",
         Range::Within(1.0, 60000.0),
         "SDO response timeout",
         Kind::Integer,
     ),
-    param(
+    Param::new(
         "canopen.transducer_node_id",
         "-",
         Range::Within(1.0, 127.0),
         "node id of the CiA 406 position transducer (ICD 32 = 0x20)",
         Kind::Integer,
     ),
-    param(
+    Param::new(
         "canopen.valve_node_id",
         "-",
         Range::Within(1.0, 127.0),
         "node id of the CiA 408 valve (ICD 48 = 0x30)",
         Kind::Integer,
     ),
-    param(
+    Param::new(
         "canopen.position_step_nm",
         "nm",
         Range::Within(1.0, 1e9),
         "position step written to 0x6005:01",
         Kind::Integer,
     ),
-    param(
+    Param::new(
         "canopen.valve_status_pdo",
         "bool",
         Range::Finite,

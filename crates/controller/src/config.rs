@@ -269,207 +269,178 @@ pub struct RigConfig {
 
 use Range::*;
 
-const fn p(
-    path: &'static str,
-    unit: &'static str,
-    range: Range,
-    description: &'static str,
-) -> Param {
-    Param {
-        path,
-        unit,
-        description,
-        range,
-        kind: spec::Kind::Float,
-    }
-}
-const fn int(
-    path: &'static str,
-    unit: &'static str,
-    range: Range,
-    description: &'static str,
-) -> Param {
-    Param {
-        path,
-        unit,
-        description,
-        range,
-        kind: spec::Kind::Integer,
-    }
-}
-
 /// Control, setpoint, supervisor, run and log parameters.
 pub const CONTROL_PARAMS: &[Param] = &[
-    p(
+    Param::float(
         "control.pi.kp",
         "V/V",
         NonNegative,
         "PI proportional gain K_P (004: 0.57)",
     ),
-    p(
+    Param::float(
         "control.pi.integral",
         "1/s",
         NonNegative,
         "PI integral rate I (004: 386.24)",
     ),
-    p(
+    Param::float(
         "control.pi.error_scale",
         "V/N",
         Positive,
         "error scale, load-cell sensitivity (004: 0.5097e-3)",
     ),
-    p("control.pi.u_min", "V", Finite, "lower command limit"),
-    p("control.pi.u_max", "V", Finite, "upper command limit"),
-    p(
+    Param::float("control.pi.u_min", "V", Finite, "lower command limit"),
+    Param::float("control.pi.u_max", "V", Finite, "upper command limit"),
+    Param::float(
         "control.pi.tracking",
         "1/s",
         NonNegative,
         "back-calculation anti-windup gain",
     ),
-    p(
+    Param::float(
         "control.pi.feedforward",
         "V/N",
         Finite,
         "setpoint feed-forward",
     ),
-    p(
+    Param::float(
         "control.pd.kp",
         "V/m",
         NonNegative,
         "PD proportional gain K_P (003 eq. 32)",
     ),
-    p(
+    Param::float(
         "control.pd.td",
         "s",
         NonNegative,
         "derivative time T_D (003 eq. 32)",
     ),
-    p(
+    Param::float(
         "control.pd.filter_n",
         "-",
         NonNegative,
         "derivative filter ratio N",
     ),
-    p("control.pd.u_max", "V", Positive, "command limit"),
-    p(
+    Param::float("control.pd.u_max", "V", Positive, "command limit"),
+    Param::float(
         "control.pd.feedforward_velocity",
         "V·s/m",
         Finite,
         "velocity feed-forward",
     ),
-    p(
+    Param::float(
         "setpoint.initial",
         "N or m",
         Finite,
         "initial value / lower bound",
     ),
-    p(
+    Param::float(
         "setpoint.final",
         "N or m",
         Finite,
         "final value / upper bound",
     ),
-    p("setpoint.start", "s", NonNegative, "start time"),
-    p(
+    Param::float("setpoint.start", "s", NonNegative, "start time"),
+    Param::float(
         "setpoint.duration",
         "s",
         NonNegative,
         "ramp / sweep duration",
     ),
-    p("setpoint.offset", "N or m", Finite, "static part / offset"),
-    p(
+    Param::float("setpoint.offset", "N or m", Finite, "static part / offset"),
+    Param::float(
         "setpoint.amplitude",
         "N or m",
         NonNegative,
         "dynamic amplitude",
     ),
-    p("setpoint.f0", "Hz", NonNegative, "start frequency"),
-    p("setpoint.f1", "Hz", NonNegative, "end frequency"),
-    int(
+    Param::float("setpoint.f0", "Hz", NonNegative, "start frequency"),
+    Param::float("setpoint.f1", "Hz", NonNegative, "end frequency"),
+    Param::int(
         "setpoint.steps",
         "-",
         NonNegative,
         "frequencies of a stepped sweep",
     ),
-    p("setpoint.ramp_time", "s", NonNegative, "static ramp time"),
-    p("setpoint.hold", "s", NonNegative, "random-step hold time"),
-    int("setpoint.seed", "-", NonNegative, "random-step seed"),
-    p(
+    Param::float("setpoint.ramp_time", "s", NonNegative, "static ramp time"),
+    Param::float("setpoint.hold", "s", NonNegative, "random-step hold time"),
+    Param::int("setpoint.seed", "-", NonNegative, "random-step seed"),
+    Param::float(
         "supervisor.max_pressure",
         "Pa",
         Positive,
         "pressure trip limit",
     ),
-    p(
+    Param::float(
         "supervisor.min_position",
         "m",
         Finite,
         "lower position trip limit",
     ),
-    p(
+    Param::float(
         "supervisor.max_position",
         "m",
         Finite,
         "upper position trip limit",
     ),
-    p("supervisor.max_force", "N", Positive, "force trip limit"),
-    p("supervisor.max_command", "V", Positive, "command clamp"),
-    p(
+    Param::float("supervisor.max_force", "N", Positive, "force trip limit"),
+    Param::float("supervisor.max_command", "V", Positive, "command clamp"),
+    Param::float(
         "supervisor.safe_command",
         "V",
         Finite,
         "command on trip / end",
     ),
-    p(
+    Param::float(
         "supervisor.stale_timeout",
         "s",
         Positive,
         "sensor staleness timeout",
     ),
-    p(
+    Param::float(
         "supervisor.force_range",
         "N",
         Positive,
         "plausible load-cell range",
     ),
-    p(
+    Param::float(
         "supervisor.pressure_range",
         "Pa",
         Positive,
         "plausible pressure range",
     ),
-    p("run.duration", "s", Within(1e-6, 1.0e6), "run duration"),
-    p(
+    Param::float("run.duration", "s", Within(1e-6, 1.0e6), "run duration"),
+    Param::float(
         "run.control_rate_hz",
         "Hz",
         Within(1.0, 1.0e6),
         "control rate (004: 5000)",
     ),
-    int(
+    Param::int(
         "log.queue_capacity",
         "records",
         Within(16.0, 1.0e8),
         "logger queue capacity",
     ),
-    int(
+    Param::int(
         "realtime.priority",
         "-",
         Within(0.0, 99.0),
         "SCHED_FIFO priority of the loop with --realtime (0 = normal scheduler)",
     ),
-    int(
+    Param::int(
         "realtime.cpu",
         "-",
         Within(-1.0, 4095.0),
         "CPU to pin the loop to with --realtime (-1 = none)",
     ),
-    p(
+    Param::float(
         "realtime.spin",
         "s",
         Within(0.0, 1.0),
         "busy-wait tail before each deadline (< period)",
     ),
-    int(
+    Param::int(
         "realtime.trip_after",
         "cycles",
         Within(1.0, 1.0e9),

@@ -73,63 +73,57 @@ pub struct Param {
     pub kind: Kind,
 }
 
-const fn p(
-    path: &'static str,
-    unit: &'static str,
-    range: Range,
-    description: &'static str,
-) -> Param {
-    Param {
-        path,
-        unit,
-        description,
-        range,
-        kind: Kind::Float,
+impl Param {
+    /// A registry entry; const so that every crate can build its parameter table statically.
+    pub const fn new(
+        path: &'static str,
+        unit: &'static str,
+        range: Range,
+        description: &'static str,
+        kind: Kind,
+    ) -> Param {
+        Param {
+            path,
+            unit,
+            description,
+            range,
+            kind,
+        }
+    }
+
+    /// A floating-point entry.
+    pub const fn float(
+        path: &'static str,
+        unit: &'static str,
+        range: Range,
+        description: &'static str,
+    ) -> Param {
+        Param::new(path, unit, range, description, Kind::Float)
+    }
+
+    /// An integer entry.
+    pub const fn int(
+        path: &'static str,
+        unit: &'static str,
+        range: Range,
+        description: &'static str,
+    ) -> Param {
+        Param::new(path, unit, range, description, Kind::Integer)
     }
 }
 
-const fn int(
-    path: &'static str,
-    unit: &'static str,
-    range: Range,
-    description: &'static str,
-) -> Param {
-    Param {
-        path,
-        unit,
-        description,
-        range,
-        kind: Kind::Integer,
-    }
+use Param as P;
+const fn p(path: &'static str, unit: &'static str, range: Range, d: &'static str) -> Param {
+    P::float(path, unit, range, d)
 }
-
-const fn arr(
-    path: &'static str,
-    unit: &'static str,
-    range: Range,
-    description: &'static str,
-) -> Param {
-    Param {
-        path,
-        unit,
-        description,
-        range,
-        kind: Kind::FloatArray,
-    }
+const fn int(path: &'static str, unit: &'static str, range: Range, d: &'static str) -> Param {
+    P::int(path, unit, range, d)
 }
-
-const fn choice(
-    path: &'static str,
-    choices: &'static [&'static str],
-    description: &'static str,
-) -> Param {
-    Param {
-        path,
-        unit: "-",
-        description,
-        range: Finite,
-        kind: Kind::Choice(choices),
-    }
+const fn arr(path: &'static str, unit: &'static str, range: Range, d: &'static str) -> Param {
+    P::new(path, unit, range, d, Kind::FloatArray)
+}
+const fn choice(path: &'static str, choices: &'static [&'static str], d: &'static str) -> Param {
+    P::new(path, "-", Finite, d, Kind::Choice(choices))
 }
 
 use Range::*;
