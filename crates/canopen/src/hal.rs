@@ -915,41 +915,30 @@ impl CanopenHal {
                         );
                     }
                     (Some(NmtState::Operational), _, _) => {}
-                    (Some(NmtState::BootUp), _, Dev::Valve) => {
-                        return Err(self.trip(
-                            t,
-                            node,
-                            "valve rebooted (boot-up during the run)",
-                            f64::from(node),
-                            "node",
-                        ))
-                    }
-                    (Some(NmtState::BootUp), _, Dev::Transducer) => {
-                        return Err(self.trip(
-                            t,
-                            node,
-                            "transducer rebooted (boot-up during the run)",
-                            f64::from(node),
-                            "node",
-                        ))
-                    }
-                    (Some(s), _, Dev::Valve) => {
-                        return Err(self.trip(
-                            t,
-                            node,
-                            "valve left NMT OPERATIONAL",
-                            f64::from(s as u8 as u32),
-                            "NMT state",
-                        ))
-                    }
-                    (Some(s), _, Dev::Transducer) => {
-                        return Err(self.trip(
-                            t,
-                            node,
-                            "transducer left NMT OPERATIONAL",
-                            f64::from(s as u8 as u32),
-                            "NMT state",
-                        ))
+                    (Some(s), _, dev) => {
+                        let (what, value, unit) = match (s, dev) {
+                            (NmtState::BootUp, Dev::Valve) => (
+                                "valve rebooted (boot-up during the run)",
+                                f64::from(node),
+                                "node",
+                            ),
+                            (NmtState::BootUp, Dev::Transducer) => (
+                                "transducer rebooted (boot-up during the run)",
+                                f64::from(node),
+                                "node",
+                            ),
+                            (_, Dev::Valve) => (
+                                "valve left NMT OPERATIONAL",
+                                f64::from(s as u8 as u32),
+                                "NMT state",
+                            ),
+                            (_, Dev::Transducer) => (
+                                "transducer left NMT OPERATIONAL",
+                                f64::from(s as u8 as u32),
+                                "NMT state",
+                            ),
+                        };
+                        return Err(self.trip(t, node, what, value, unit));
                     }
                 }
             }
