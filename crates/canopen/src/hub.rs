@@ -255,28 +255,39 @@ fn client_loop(
                                 Ok(s) => s,
                                 Err(e) => return format!("cannot clone socket: {e}"),
                             };
-                            // Reply first, then register: no frame can precede the `< ok >`.
-                            if stream.write_all(b"< ok >").is_err() {
-                                return "write error".into();
-                            }
+                            // Register first, held (not ready), then reply: frames relayed
+                            // from now on are kept for this client, none is lost in the gap
+                            // between the reply and the registration, and none can precede
+                            // the `< ok >` because held frames are written only by
+                            // `make_ready`, after the reply.
                             if let Ok(mut r) = reg.lock() {
                                 r.clients.push(Client {
                                     id,
                                     channel: ch.clone(),
                                     stream: writer,
-                                    ready: join_delay.is_zero(),
+                                    ready: false,
                                     pending: Vec::new(),
                                     overflowed: false,
                                 });
                             }
-                            if !join_delay.is_zero() {
+                            if stream.write_all(b"< ok >").is_err() {
+                                return "write error".into();
+                            }
+                            let delayed = !join_delay.is_zero() && {
                                 let reg = reg.clone();
-                                let _ = std::thread::Builder::new()
+                                std::thread::Builder::new()
                                     .name(format!("hub-join-{id}"))
                                     .spawn(move || {
                                         std::thread::sleep(join_delay);
                                         make_ready(&reg, id);
-                                    });
+                                    })
+                                    .is_ok()
+                            };
+                            if !delayed {
+                                // No delay asked for, or no thread for it: sleep here (this
+                                // client's own frames wait in its socket meanwhile).
+                                std::thread::sleep(join_delay);
+                                make_ready(reg, id);
                             }
                             if !quiet {
                                 eprintln!("hub: client {id} ({peer}) in rawmode on {ch}");
