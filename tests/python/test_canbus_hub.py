@@ -1,4 +1,5 @@
 """`ehactl canbus hub` against the real python-can `socketcand` interface as peers."""
+import json
 import socket
 import threading
 import time
@@ -7,6 +8,7 @@ import can
 import pytest
 
 from canhub import hub
+from ehactl_mcap import read_run
 
 
 def bus(port, channel="can0"):
@@ -147,6 +149,37 @@ def test_bad_bus_arguments_exit_2(tmp_path, args, words):
     assert r.stdout == "" and not out.exists()
 
 
+def startup_failure(r, out):
+    """Exit 4 with the reason on the first stderr line, the log's path on the second, the
+    same summary on stdout (--json) as in the log; the MCAP reads back with the official
+    reader: /config, one hal_fault trip on /events, /summary with trip_kind `startup`,
+    no cycle records. Returns (reason line, summary, /can frames)."""
+    assert r.returncode == 4, r
+    assert "panicked" not in r.stderr
+    lines = [l for l in r.stderr.splitlines() if l.strip()]
+    assert len(lines) == 2 and lines[1] == f"ehactl: start-up attempt logged to {out}", r.stderr
+    run = read_run(out)
+    summary = json.loads(r.stdout.strip().splitlines()[-1])
+    assert run["summary"] == summary
+    assert summary["trip_kind"] == "startup" and summary["exit_code"] == 4
+    assert summary["trip"] in lines[0] and summary["cycles"] == 0
+    assert run["config"]["backend"] == "canopen"
+    assert run["config"]["config"]["canopen"]["valve_node_id"] == 48
+    assert len(run["control"]["t"]) == 0
+    trips = [e for e in run["events"] if e["severity"] == "trip"]
+    assert len(trips) == 1 and trips[0]["kind"] == "hal_fault", run["events"]
+    assert trips[0]["channel"] == "canopen start-up"
+    assert trips[0]["value"] == pytest.approx(summary["startup_s"])
+    from mcap.reader import make_reader
+
+    frames = []
+    with open(out, "rb") as f:
+        for _s, _c, msg in make_reader(f).iter_messages(topics=["/can"]):
+            frames.append(json.loads(msg.data))
+    assert len(frames) == summary["can_startup_frames"]
+    return lines[0], summary, frames
+
+
 def test_no_devices_on_the_bus_is_a_startup_failure_exit_4(tmp_path):
     cfg = tmp_path / "boom.toml"
     cfg.write_text(BOOM.read_text() + "\n[canopen]\nboot_timeout_s = 0.3\n")
@@ -154,10 +187,14 @@ def test_no_devices_on_the_bus_is_a_startup_failure_exit_4(tmp_path):
     with hub() as (_, port):
         r = run_cli("run", str(cfg), "--json", "--out", str(out), "--hal", "canopen",
                     "--bus", f"socketcand://127.0.0.1:{port}/can0")
-    assert r.returncode == 4, r
-    line = one_line(r.stderr)
+    line, summary, frames = startup_failure(r, out)
     assert "transducer (node 32 = 0x20) sent no boot-up" in line and "0.3 s" in line, line
-    assert not out.exists()
+    assert summary["startup_s"] >= 0.3
+    # the attempt on /can: NMT reset communication to both nodes, sent by us, nothing back
+    assert [(f["dir"], f["id"], f["data"]) for f in frames] == [
+        ("tx", 0x000, "8220"), ("tx", 0x000, "8230")]
+    assert all(-summary["startup_s"] - 1e-6 <= f["t"] <= 0 for f in frames), frames
+    assert frames[0]["t"] <= -0.3
 
 
 def test_nothing_listening_is_a_startup_failure_exit_4(tmp_path):
@@ -165,10 +202,12 @@ def test_nothing_listening_is_a_startup_failure_exit_4(tmp_path):
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()
-    r = run_cli("run", str(BOOM), "--json", "--out", str(tmp_path / "x.mcap"), "--hal", "canopen",
+    out = tmp_path / "x.mcap"
+    r = run_cli("run", str(BOOM), "--json", "--out", str(out), "--hal", "canopen",
                 "--bus", f"socketcand://127.0.0.1:{port}/can0")
-    assert r.returncode == 4, r
-    assert "cannot connect" in one_line(r.stderr)
+    line, summary, frames = startup_failure(r, out)
+    assert "cannot connect" in line
+    assert frames == []
 
 
 def test_bus_overload_is_refused_by_check_config(tmp_path):

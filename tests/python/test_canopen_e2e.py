@@ -215,7 +215,13 @@ def test_sdo_abort_at_configuration_ends_startup(tmp_path):
         dsum = finish(dev)
     assert rc == 4, (rc, err)
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "0x06090030" in lines[0] and "valve" in lines[0].lower(), err
+    assert len(lines) == 2 and "0x06090030" in lines[0] and "valve" in lines[0].lower(), err
+    # the attempt is logged: the refused SDO write and its abort answer are on /can
+    assert summary["trip_kind"] == "startup" and "0x06090030" in summary["trip"]
+    frames = read_can(tmp_path / "x.mcap")
+    aborts = [f for f in frames if f["dir"] == "rx" and f["id"] == 0x5B0
+              and f["data"].startswith("80") and f["data"].endswith("30000906")]
+    assert len(aborts) == 1, frames
     assert injected(dev, "sdo-abort")
     assert wall < 2.0, wall  # no waiting on timeouts: the abort ends the start-up at once
     assert "ACTIVE" not in [e["state"] for e in dev.events("state")]
@@ -233,7 +239,11 @@ def test_device_that_never_boots(tmp_path):
         dsum = finish(dev)
     assert rc == 4, (rc, err)
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "node 48" in lines[0] and "boot-up" in lines[0], err
+    assert len(lines) == 2 and "node 48" in lines[0] and "boot-up" in lines[0], err
+    # logged: the transducer's boot-up is on /can, the valve's is not
+    assert summary["trip_kind"] == "startup" and "node 48" in summary["trip"]
+    rx = {(f["id"], f["data"]) for f in read_can(tmp_path / "x.mcap") if f["dir"] == "rx"}
+    assert (0x720, "00") in rx and (0x730, "00") not in rx, rx
     assert 3.0 <= wall < 4.5, wall
     assert dsum["valve_state"] == "NOT_READY" and dsum["sync_count"] == 0
     assert dsum["frames_sent"].get("0x730", 0) == 0 and dsum["frames_sent"].get("0x5B0", 0) == 0

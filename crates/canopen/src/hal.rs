@@ -6,7 +6,9 @@
 //!   communication → boot-ups (`boot_timeout_s`), NMT pre-operational, SDO configuration
 //!   (device types, 0x1017 heartbeat, PDO re-mapping, transducer step, valve device mode),
 //!   NMT start, heartbeats OPERATIONAL, valve DISABLED → HOLD → ACTIVE by SDO control word,
-//!   one priming SYNC so that the first cycle has a position;
+//!   one priming SYNC so that the first cycle has a position; a failure after the valve
+//!   is ACTIVE (priming) first returns it to HOLD with setpoint 0, and
+//!   [`CanopenHal::connect_logged`] hands back every frame of a failed attempt for the log;
 //! - an RX thread owns the receiving side of the bus and pushes every frame into a
 //!   lock-free queue for the cycle (and into the `/can` log queue);
 //! - a TX thread owns the sending side and sends what the cycle pushed into another
@@ -97,6 +99,28 @@ pub enum StartupError {
     },
     /// A device did not do what the master asked (wrong profile, state not reached).
     Device(String),
+}
+
+/// A failed start-up with what was on the bus meanwhile.
+#[derive(Debug)]
+pub struct StartupFailure {
+    /// Why it failed.
+    pub error: StartupError,
+    /// Every frame sent and received during the attempt, in order; times relative to the
+    /// failure (ns, all ≤ 0).
+    pub frames: Vec<CanFrameRecord>,
+    /// Time from the start of the attempt to the failure (s).
+    pub elapsed_s: f64,
+}
+
+impl StartupError {
+    /// The time limit that ran out, if the failure is a timeout (s).
+    pub fn time_limit_s(&self) -> Option<f64> {
+        match self {
+            StartupError::NoBoot { timeout_s, .. } => Some(*timeout_s),
+            _ => None,
+        }
+    }
 }
 
 impl std::fmt::Display for StartupError {
@@ -290,7 +314,43 @@ impl CanopenHal {
     /// Open the bus and bring both devices up (see the module docs). Blocks for at most
     /// `boot_timeout_s` plus a few SDO timeouts.
     pub fn connect(s: CanopenSettings) -> Result<CanopenHal, StartupError> {
+        Self::connect_logged(s).map_err(|f| f.error)
+    }
+
+    /// [`CanopenHal::connect`], and on failure also every frame of the attempt (for the
+    /// log: a failed start-up is recorded like a trip, see [`StartupFailure`]).
+    pub fn connect_logged(s: CanopenSettings) -> Result<CanopenHal, StartupFailure> {
         let t_start = Instant::now();
+        let mut st = Startup {
+            frames: Vec::with_capacity(512),
+            ids: [s.canopen.transducer_node_id, s.canopen.valve_node_id],
+            booted: [false; 2],
+            state: [None; 2],
+            emcy: None,
+            verbose: s.verbose,
+        };
+        Self::bring_up(s, t_start, &mut st).map_err(|error| {
+            let failed_at = Instant::now();
+            StartupFailure {
+                error,
+                frames: st
+                    .frames
+                    .iter()
+                    .map(|(at, f, tx)| {
+                        let before = failed_at.saturating_duration_since(*at).as_nanos();
+                        record(f, -(before.min(i64::MAX as u128) as i64), *tx)
+                    })
+                    .collect(),
+                elapsed_s: failed_at.duration_since(t_start).as_secs_f64(),
+            }
+        })
+    }
+
+    fn bring_up(
+        s: CanopenSettings,
+        t_start: Instant,
+        mut st: &mut Startup,
+    ) -> Result<CanopenHal, StartupError> {
         let c = s.canopen.clone();
         c.validate()
             .map_err(|e| StartupError::Settings(e.to_string()))?;
@@ -308,14 +368,6 @@ impl CanopenHal {
         }
         let mut bus = bus::open(&s.bus, Duration::from_secs(3))?;
         let ids = [c.transducer_node_id, c.valve_node_id];
-        let mut st = Startup {
-            frames: Vec::with_capacity(512),
-            ids,
-            booted: [false; 2],
-            state: [None; 2],
-            emcy: None,
-            verbose: s.verbose,
-        };
         let send = |bus: &mut dyn CanBus, st: &mut Startup, f: CanFrame| -> Result<(), BusError> {
             bus.send(&f)?;
             st.observe(&f, Direction::Tx);
@@ -652,51 +704,76 @@ impl CanopenHal {
             ValveState::Active,
         )?;
 
-        // 6. Priming: setpoint 0 + one SYNC so that the first cycle has a position.
-        let mut meas = Measurements {
-            t: f64::NAN,
-            force: f64::NAN,
-            position: f64::NAN,
-            p_a: f64::NAN,
-            p_b: f64::NAN,
-            spool: f64::NAN,
-        };
-        send(
-            &mut *bus,
-            &mut st,
-            CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()),
-        )?;
-        send(&mut *bus, &mut st, sync::frame())?;
-        let deadline = Instant::now() + sdo_t;
-        while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
+        // 6. Priming: setpoint 0 + one SYNC so that the first cycle has a position. The
+        //    valve is ACTIVE from here: if priming fails, it is commanded back to HOLD
+        //    (setpoint 0, control word HOLD; best effort) before the error is returned.
+        let mut prime = || -> Result<Measurements, StartupError> {
+            let mut meas = Measurements {
+                t: f64::NAN,
+                force: f64::NAN,
+                position: f64::NAN,
+                p_a: f64::NAN,
+                p_b: f64::NAN,
+                spool: f64::NAN,
+            };
+            send(
+                &mut *bus,
+                &mut st,
+                CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()),
+            )?;
+            send(&mut *bus, &mut st, sync::frame())?;
+            let deadline = Instant::now() + sdo_t;
+            while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
+                let left = deadline.saturating_duration_since(Instant::now());
+                if left.is_zero() {
+                    return Err(StartupError::Device(format!(
+                        "no {} TPDO1 within {} ms after the first SYNC; are the PDOs mapped and the devices OPERATIONAL?",
+                        if meas.position.is_nan() { "transducer" } else { "valve" },
+                        sdo_t.as_millis()
+                    )));
+                }
+                if let Some(f) = bus.recv_timeout(left)? {
+                    st.observe(&f, Direction::Rx);
+                    if f.id == u32::from(TPDO1_BASE + u16::from(tr)) && f.dlc == 4 {
+                        meas.position =
+                            cia406::position_m(pdo::get_i32(&f.data, 0, 4), c.position_step_nm);
+                    }
+                    if f.id == u32::from(TPDO1_BASE + u16::from(va)) && f.dlc == 4 {
+                        meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
+                    }
+                }
+            }
+            if let Some(e) = st.emcy {
                 return Err(StartupError::Device(format!(
-                    "no {} TPDO1 within {} ms after the first SYNC; are the PDOs mapped and the devices OPERATIONAL?",
-                    if meas.position.is_nan() { "transducer" } else { "valve" },
-                    sdo_t.as_millis()
+                    "{} (node {}) sent EMCY 0x{:04X} ({}) during start-up",
+                    if e.node == tr { "transducer" } else { "valve" },
+                    e.node,
+                    e.code,
+                    e.class()
                 )));
             }
-            if let Some(f) = bus.recv_timeout(left)? {
-                st.observe(&f, Direction::Rx);
-                if f.id == u32::from(TPDO1_BASE + u16::from(tr)) && f.dlc == 4 {
-                    meas.position =
-                        cia406::position_m(pdo::get_i32(&f.data, 0, 4), c.position_step_nm);
-                }
-                if f.id == u32::from(TPDO1_BASE + u16::from(va)) && f.dlc == 4 {
-                    meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
-                }
+            Ok(meas)
+        };
+        let mut meas = match prime() {
+            Ok(m) => m,
+            Err(e) => {
+                let _ = send(
+                    &mut *bus,
+                    &mut st,
+                    CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()),
+                );
+                let _ = write(
+                    &mut *bus,
+                    &mut st,
+                    va,
+                    cia408::CONTROL_WORD,
+                    0,
+                    &cia408::CW_HOLD_STATE.to_le_bytes(),
+                    "returning the valve to HOLD after a failed start-up",
+                );
+                return Err(e);
             }
-        }
-        if let Some(e) = st.emcy {
-            return Err(StartupError::Device(format!(
-                "{} (node {}) sent EMCY 0x{:04X} ({}) during start-up",
-                if e.node == tr { "transducer" } else { "valve" },
-                e.node,
-                e.code,
-                e.class()
-            )));
-        }
+        };
         if s.verbose {
             eprintln!(
                 "canopen: start-up done in {:.2} s; first position {:.6} m",
@@ -762,7 +839,7 @@ impl CanopenHal {
             tx_thread: Some(tx_thread),
             tx_waker: Some(waker),
             bus_after_stop: None,
-            startup_frames: st.frames,
+            startup_frames: std::mem::take(&mut st.frames),
             started: false,
             last_read_t: 0.0,
             last_write_t: None,

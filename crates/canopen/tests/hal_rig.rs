@@ -53,6 +53,8 @@ struct Knobs {
     emcy: AtomicBool,
     leave_active: AtomicBool,
     malformed: AtomicBool,
+    /// The transducer sends no TPDO (its PDO mapping is broken).
+    mute_transducer_pdo: AtomicBool,
     abort_index: AtomicU32,
     stop: AtomicBool,
     /// Every frame the rig received (id, data), for sequence checks.
@@ -183,7 +185,7 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                             CanFrame::std(0x180 + u16::from(VA), d)
                         });
                     }
-                    if nodes[0].nmt == 5 {
+                    if nodes[0].nmt == 5 && !knobs.mute_transducer_pdo.load(Ordering::Relaxed) {
                         let steps = (pos * 1e6).round() as i32; // 1000 nm steps
                         send(
                             &mut bus,
@@ -556,6 +558,42 @@ fn sdo_abort_at_configuration_names_step_object_and_meaning() {
 }
 
 #[test]
+fn a_failure_after_the_valve_went_active_returns_it_to_hold() {
+    // The transducer's TPDO never comes: priming (the first SYNC) fails after the valve was
+    // made ACTIVE; the master sets the setpoint to 0 and the valve back to HOLD first.
+    let (port, knobs, _one_at_a_time) = start();
+    knobs.mute_transducer_pdo.store(true, Ordering::Relaxed);
+    let rig_thread = rig(port, knobs.clone());
+    let failure = CanopenHal::connect_logged(settings(port, test_bus())).unwrap_err();
+    let msg = failure.error.to_string();
+    assert!(msg.contains("no transducer TPDO1"), "{msg}");
+    std::thread::sleep(Duration::from_millis(50));
+    let seen = knobs.seen.lock().unwrap().clone();
+    let active = seen
+        .iter()
+        .position(|f| *f == (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x07, 0x00, 0, 0]))
+        .expect("valve made ACTIVE");
+    let after: Vec<_> = seen[active..].to_vec();
+    let zero = after
+        .iter()
+        .rposition(|f| *f == (0x230, vec![0, 0]))
+        .expect("setpoint 0 after ACTIVE");
+    let hold = after
+        .iter()
+        .rposition(|f| *f == (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x03, 0x00, 0, 0]))
+        .expect("control word HOLD after the failure");
+    assert!(zero < hold, "{after:?}");
+    // and the logged attempt ends with that HOLD write
+    let last_tx = failure.frames.iter().rev().find(|r| r.tx).unwrap();
+    assert_eq!(
+        (last_tx.id, &last_tx.data[..]),
+        (0x630, &[0x2B, 0x40, 0x60, 0x00, 0x03, 0x00, 0, 0][..])
+    );
+    knobs.stop.store(true, Ordering::Relaxed);
+    rig_thread.join().unwrap();
+}
+
+#[test]
 fn a_device_that_never_boots_is_named() {
     let (port, knobs, _one_at_a_time) = start();
     knobs.no_boot_valve.store(true, Ordering::Relaxed);
@@ -565,7 +603,31 @@ fn a_device_that_never_boots_is_named() {
         ..test_bus()
     };
     let t0 = Instant::now();
-    let e = CanopenHal::connect(settings(port, cfg)).unwrap_err();
+    let failure = CanopenHal::connect_logged(settings(port, cfg)).unwrap_err();
+    // The attempt, for the log: our two NMT resets, the transducer's boot-up, no valve
+    // frame; times up to the failure (≤ 0), the first one at least the boot timeout before.
+    let seen: Vec<(bool, u32, Vec<u8>)> = failure
+        .frames
+        .iter()
+        .map(|r| (r.tx, r.id, r.data[..usize::from(r.dlc)].to_vec()))
+        .collect();
+    assert!(seen.contains(&(true, 0x000, vec![0x82, TR])), "{seen:?}");
+    assert!(seen.contains(&(true, 0x000, vec![0x82, VA])), "{seen:?}");
+    assert!(
+        seen.contains(&(false, 0x700 + u32::from(TR), vec![0])),
+        "{seen:?}"
+    );
+    assert!(!seen
+        .iter()
+        .any(|(_, id, _)| *id & 0x7F == u32::from(VA) && *id != 0x000));
+    assert!(failure.frames.iter().all(|r| r.t_ns <= 0));
+    assert!(
+        failure.frames[0].t_ns <= -300_000_000,
+        "{:?}",
+        failure.frames[0]
+    );
+    assert!(failure.elapsed_s >= 0.3);
+    let e = failure.error;
     assert!(
         matches!(
             e,

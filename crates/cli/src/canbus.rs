@@ -1,12 +1,16 @@
 //! `ehactl canbus ...`: CAN bus tools.
 
 use clap::Subcommand;
-use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError};
+use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError, StartupFailure};
 use ehactl_canopen::hub::Hub;
 use ehactl_canopen::BusUrl;
 use ehactl_controller::RigConfig;
+use ehactl_hal::logger::{FrameLog, LogOptions, Logger, RunMetadata};
+use ehactl_hal::record::{Event, EventKind, Severity};
 use std::io::Write;
+use std::path::Path;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 /// `ehactl canbus` subcommands.
 #[derive(Subcommand)]
@@ -77,12 +81,14 @@ pub enum HalKind {
 /// Exit code when the hardware could not be brought up.
 pub const EXIT_STARTUP: u8 = 4;
 
-/// Bring the CAN rig up for `--hal canopen`; `Ok(None)` for the sim backend.
+/// Bring the CAN rig up for `--hal canopen`; `Ok(None)` for the sim backend. A failed
+/// start-up (exit code 4) is still logged to `out`: the frames of the attempt on `/can`, a
+/// trip on `/events` and the reason in `/summary` (printed on stdout with `json`).
 pub fn connect(
     cfg: &RigConfig,
-    hal: HalKind,
-    bus: Option<&str>,
-    verbose: bool,
+    (hal, bus): (HalKind, Option<&str>),
+    out: &Path,
+    json: bool,
 ) -> Result<Option<CanopenHal>, ExitCode> {
     let arg_err = |m: String| {
         eprintln!("ehactl: {m}");
@@ -104,20 +110,83 @@ pub fn connect(
                 canopen: cfg.canopen.clone(),
                 command_full_scale: cfg.plant.valve.command_full_scale,
                 control_rate_hz: cfg.run.control_rate_hz,
-                verbose,
+                verbose: !json,
             };
-            match CanopenHal::connect(settings) {
+            match CanopenHal::connect_logged(settings) {
                 Ok(h) => Ok(Some(h)),
-                Err(e) => {
-                    eprintln!("ehactl: {e}");
-                    Err(ExitCode::from(match e {
-                        StartupError::Settings(_) => 2,
-                        _ => EXIT_STARTUP,
-                    }))
+                Err(f) => {
+                    eprintln!("ehactl: {}", f.error);
+                    if let StartupError::Settings(_) = f.error {
+                        return Err(ExitCode::from(2));
+                    }
+                    match log_failed_startup(cfg, b, out, &f) {
+                        Ok(summary) => {
+                            eprintln!("ehactl: start-up attempt logged to {}", out.display());
+                            if json {
+                                println!("{summary}");
+                            }
+                        }
+                        Err(e) => eprintln!("ehactl: {e}"),
+                    }
+                    Err(ExitCode::from(EXIT_STARTUP))
                 }
             }
         }
     }
+}
+
+/// Write the MCAP of a failed start-up: `/config`, `/can` (every frame of the attempt, times
+/// ≤ 0 up to the failure), one `hal_fault` trip on `/events`, and `/summary` with the reason
+/// (`trip`, `trip_kind` = `startup`); returns the summary.
+fn log_failed_startup(
+    cfg: &RigConfig,
+    bus: &str,
+    out: &Path,
+    f: &StartupFailure,
+) -> Result<serde_json::Value, String> {
+    let logger = Logger::create(
+        out,
+        LogOptions::default(),
+        &RunMetadata {
+            config_toml: cfg.to_toml_string(),
+            config_json: cfg.to_json(),
+            backend: "canopen".into(),
+            control_rate_hz: cfg.run.control_rate_hz,
+        },
+    )
+    .map_err(|e| e.to_string())?;
+    let frames = Arc::new(FrameLog::new(f.frames.len().max(1)));
+    for r in &f.frames {
+        frames.push(*r);
+    }
+    logger.attach_frames(frames);
+    logger.event(Event {
+        t: 0.0,
+        cycle: 0,
+        severity: Severity::Trip,
+        kind: EventKind::HalFault,
+        channel: "canopen start-up",
+        value: f.elapsed_s,
+        limit: f.error.time_limit_s().unwrap_or(f64::NAN),
+        unit: "s",
+    });
+    let reason = f.error.to_string();
+    let mut summary = serde_json::json!({
+        "backend": "canopen",
+        "bus": bus,
+        "cycles": 0,
+        "duration_s": 0.0,
+        "trip": reason,
+        "trip_kind": "startup",
+        "startup_s": f.elapsed_s,
+        "can_startup_frames": f.frames.len(),
+        "exit_code": EXIT_STARTUP,
+        "mcap": out.display().to_string(),
+    });
+    let stats = logger.finish(summary.clone()).map_err(|e| e.to_string())?;
+    // What the logger added to the logged summary, so that both are the same.
+    summary["records_written"] = stats.records_written.into();
+    Ok(summary)
 }
 
 /// Human-readable CAN lines of the run summary (nothing for the sim backend).

@@ -293,7 +293,7 @@ fn cmd_run(
     let stop = stop_flag();
     // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s); a
     // signal meanwhile ends the run at its first cycle, through the safe stop.
-    let mut can_hal = match canbus::connect(&cfg, hal, bus.as_deref(), !json) {
+    let mut can_hal = match canbus::connect(&cfg, (hal, bus.as_deref()), &out, json) {
         Ok(h) => h,
         Err(code) => return code,
     };
