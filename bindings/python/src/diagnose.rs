@@ -9,10 +9,11 @@ use std::path::PathBuf;
 
 /// Diagnose the measured record `data` (CSV or ehactl MCAP) against the nominal `cfg`;
 /// `validate` is a separate held-out record (default: the last 30 % of `data`), `out` a
-/// directory for extended.toml, report.md and plots. Returns (json, notes). Bad data or
+/// directory for extended.toml, report.md and plots; `sensor_offsets` estimates a constant
+/// zero error per measured channel for every model. Returns (json, notes). Bad data or
 /// config raise ValueError, an unwritable report OSError. The GIL is released meanwhile.
 #[pyfunction]
-#[pyo3(signature = (cfg, data, validate = None, out = None, progress = false))]
+#[pyo3(signature = (cfg, data, validate = None, out = None, progress = false, sensor_offsets = true))]
 pub fn diagnose_json(
     py: Python<'_>,
     cfg: &Config,
@@ -20,6 +21,7 @@ pub fn diagnose_json(
     validate: Option<PathBuf>,
     out: Option<PathBuf>,
     progress: bool,
+    sensor_offsets: bool,
 ) -> PyResult<(String, Vec<String>)> {
     let rc = cfg.cfg.clone();
     let label = cfg.source.clone().unwrap_or_else(|| rc.rig.name.clone());
@@ -30,7 +32,10 @@ pub fn diagnose_json(
             &data,
             validate.as_deref(),
             out.as_deref(),
-            progress,
+            session::RunChoices {
+                progress,
+                sensor_offsets,
+            },
         )
     });
     match run {

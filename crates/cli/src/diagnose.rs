@@ -12,7 +12,7 @@ pub fn cmd_diagnose(
     data_path: &Path,
     validate: Option<&Path>,
     out: Option<PathBuf>,
-    json: bool,
+    (json, sensor_offsets): (bool, bool),
 ) -> ExitCode {
     let bad = |msg: String| {
         eprintln!("ehactl: {msg}");
@@ -28,7 +28,10 @@ pub fn cmd_diagnose(
         data_path,
         validate,
         out.as_deref(),
-        true,
+        session::RunChoices {
+            progress: true,
+            sensor_offsets,
+        },
     ) {
         Ok(r) => r,
         Err(SessionError::Input(e)) => return bad(e),

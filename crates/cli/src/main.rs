@@ -116,6 +116,10 @@ enum Command {
         /// Print exactly one JSON object on stdout.
         #[arg(long)]
         json: bool,
+        /// Trust the sensors' zeros: do not estimate a constant offset per measured channel
+        /// (by default every model gets one, fitted on the fitting part).
+        #[arg(long)]
+        no_sensor_offsets: bool,
     },
     /// Measure the frequency response of the nonlinear plant by a stepped sine (logged to MCAP).
     Sweep(analysis_cmd::SweepArgs),
@@ -229,7 +233,14 @@ fn main() -> ExitCode {
             validate,
             out,
             json,
-        } => diagnose::cmd_diagnose(&config, &data, validate.as_deref(), out, json),
+            no_sensor_offsets,
+        } => diagnose::cmd_diagnose(
+            &config,
+            &data,
+            validate.as_deref(),
+            out,
+            (json, !no_sensor_offsets),
+        ),
         Command::Params => {
             for table in registries() {
                 for p in table {

@@ -255,11 +255,16 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
     let umax = r.clone().fold(0.0f64, |a, k| a.max(rec.u[k].abs()));
     let small_command_ratio = ratio(&|k| rec.u[r.start + k].abs() < 0.05 * umax);
     let large_command_ratio = ratio(&|k| rec.u[r.start + k].abs() > 0.7 * umax);
+    // Level shift of the pressure residual before any sensor offset was profiled out of the
+    // replay (a zero error and a leak both shift the level; only the leak's shift moves
+    // with the operating point, which the fits tell apart).
     let mut bias = Vec::new();
-    for (c, e) in rec.channels.iter().zip(&resid) {
+    for (i, (c, e)) in rec.channels.iter().zip(&resid).enumerate() {
         if matches!(c.kind, ChannelKind::PressureA | ChannelKind::PressureB) {
+            let b = sim.offsets.get(i).copied().unwrap_or(0.0);
             let m = e.iter().sum::<f64>() / n as f64;
-            bias.push(m.abs() / rms(e.iter().copied()).max(1e-300));
+            let r2 = rms(e.iter().copied()).powi(2) + 2.0 * b * m + b * b;
+            bias.push((m + b).abs() / r2.max(0.0).sqrt().max(1e-300));
         }
     }
     let bias_share = if bias.is_empty() {

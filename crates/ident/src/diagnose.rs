@@ -4,7 +4,10 @@
 use crate::analysis::{analyse, Analysis};
 use crate::data::Record;
 use crate::fit::{base_params, effect_params, nelder_mead, FreeParam, Scales};
-use crate::replay::{nrmse, overall, replay_params, replay_with, std, Drive, Replay};
+use crate::replay::{
+    apply_offsets, nrmse, offsets, overall, replay_params, replay_params_zeroed, replay_with, std,
+    Drive, Replay,
+};
 use ehactl_plant::{EffectId, PlantParams};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -40,6 +43,10 @@ pub struct Options {
     /// At most this many samples from the start of the fitting part enter the fit cost (the
     /// held-out part is always scored whole); bounds the run time on long, fast records.
     pub max_fit_samples: usize,
+    /// Estimate a constant offset per measured channel (transducer zero error) for every
+    /// model on the fitting part and apply it to the held-out part too; `false` trusts the
+    /// sensors' zeros (then a level shift counts as model error).
+    pub sensor_offsets: bool,
 }
 
 impl Default for Options {
@@ -53,6 +60,7 @@ impl Default for Options {
             evals_per_param: 30,
             drive: Drive::Recorded,
             max_fit_samples: 12_000,
+            sensor_offsets: true,
         }
     }
 }
@@ -106,6 +114,9 @@ pub struct Diagnosis {
     pub candidates: Vec<Candidate>,
     /// Parameters of the extended model (dotted path → value).
     pub extended_params: BTreeMap<String, f64>,
+    /// Sensor offsets estimated with the extended model (measured − model on the fitting
+    /// part), per channel in its SI unit (N, m, Pa); empty when `sensor_offsets` is off.
+    pub sensor_offsets: BTreeMap<String, f64>,
     /// Effect pairs the data cannot separate, with the experiment that would.
     pub ambiguities: Vec<String>,
     /// Warnings from loading and checking the data.
@@ -160,7 +171,6 @@ impl Hyp {
 }
 
 struct Ctx<'a> {
-    nominal: &'a PlantParams,
     fit_rec: &'a Record,
     fit_base: PlantParams,
     n_fit: usize,
@@ -169,12 +179,88 @@ struct Ctx<'a> {
     val_range: std::ops::Range<usize>,
     sd_fit: Vec<f64>,
     drive: Drive,
+    /// Profile out a constant sensor offset per channel (see `Options::sensor_offsets`).
+    offsets: bool,
 }
 
 impl Ctx<'_> {
-    fn cost_fit(&self, p: &PlantParams) -> f64 {
-        match replay_with(p, self.fit_rec, self.n_fit, self.drive) {
-            Ok(sim) => {
+    /// The sensor offsets of model `p` on `rec` (per channel, SI), estimated on samples
+    /// `0..n_off` together with the initial state they imply: the replay starts from the
+    /// data's first samples less the offsets (a position transducer's zero error must not
+    /// preload the model's spring, nor a pressure transducer's start it off equilibrium), and
+    /// the offsets are the mean residual of that replay: a fixed point b = F(b). F contracts
+    /// geometrically (the initial-state error decays with the plant's slowest mode, so its
+    /// share of the window mean falls by a constant factor per pass); three passes and
+    /// Aitken's extrapolation per channel on the last two steps give the limit.
+    fn offsets_fixed_point(&self, p: &PlantParams, rec: &Record, n_off: usize) -> Vec<f64> {
+        let pass = |b: &[f64]| -> Option<Vec<f64>> {
+            let sim = replay_with(&replay_params_zeroed(p, rec, b), rec, n_off, self.drive).ok()?;
+            (!sim.failed).then(|| offsets(rec, &sim, 0..n_off))
+        };
+        let zero = vec![0.0; rec.channels.len()];
+        let Some(x1) = pass(&zero) else { return zero };
+        let Some(x2) = pass(&x1) else { return x1 };
+        let Some(x3) = pass(&x2) else { return x2 };
+        x1.iter()
+            .zip(&x2)
+            .zip(&x3)
+            .map(|((a, b), c)| {
+                let (d1, d2) = (b - a, c - b);
+                let ratio = d2 / d1;
+                if d1.abs() > 0.0 && ratio.is_finite() && (-0.5..0.9).contains(&ratio) {
+                    b + d2 / (1.0 - ratio)
+                } else {
+                    *c
+                }
+            })
+            .collect()
+    }
+
+    /// Replay the first `n` samples of `rec` with `p`; when `offsets` is on, from the initial
+    /// state less this model's sensor offsets ([`Ctx::offsets_fixed_point`] on `0..n_off`),
+    /// with the offsets (mean residual on `0..n_off`) added to its outputs.
+    fn replay_zeroed(
+        &self,
+        p: &PlantParams,
+        rec: &Record,
+        n: usize,
+        n_off: usize,
+    ) -> Result<Replay, String> {
+        if !self.offsets {
+            return replay_with(p, rec, n, self.drive);
+        }
+        let b = self.offsets_fixed_point(p, rec, n_off);
+        let mut sim = replay_with(&replay_params_zeroed(p, rec, &b), rec, n, self.drive)?;
+        let b = offsets(rec, &sim, 0..n_off);
+        apply_offsets(&mut sim, &b);
+        Ok(sim)
+    }
+
+    /// Replay of the whole fit record with parameters `p` (offsets from the fitting part).
+    fn fit_replay(&self, p: &PlantParams) -> Result<Replay, String> {
+        self.replay_zeroed(p, self.fit_rec, self.fit_rec.len(), self.n_fit)
+    }
+
+    /// Fit cost of `p`: mean over channels of (rms residual / std of the channel)² on the
+    /// fitting part. With offsets, `warm` holds the sensor offsets of the previous evaluation
+    /// of this fit: the replay starts from the initial state they imply and leaves this
+    /// model's offsets there (one fixed-point step per evaluation; successive simplex points
+    /// are close, so the offsets follow the fit at the cost of one replay).
+    fn cost_fit(&self, p: &PlantParams, warm: &std::cell::RefCell<Vec<f64>>) -> f64 {
+        let start = if self.offsets {
+            replay_params_zeroed(p, self.fit_rec, &warm.borrow())
+        } else {
+            p.clone()
+        };
+        match replay_with(&start, self.fit_rec, self.n_fit, self.drive) {
+            Ok(mut sim) => {
+                if self.offsets {
+                    let b = offsets(self.fit_rec, &sim, 0..self.n_fit);
+                    apply_offsets(&mut sim, &b);
+                    if !sim.failed {
+                        *warm.borrow_mut() = b;
+                    }
+                }
                 let mut j = 0.0;
                 for (c, (ch, yh)) in self.fit_rec.channels.iter().zip(&sim.y).enumerate() {
                     let e: f64 = ch.values[..self.n_fit]
@@ -195,26 +281,52 @@ impl Ctx<'_> {
             Err(_) => 1e6,
         }
     }
+
+    /// Held-out errors of hypothesis `h` and its replay of the validation record. Sensor
+    /// offsets come from the fitting part only, never from the held-out samples.
     fn val_errors(&self, h: &Hyp) -> (Errors, Replay) {
+        let n = self.val_rec.len();
+        let failed = || Replay {
+            y: vec![vec![0.0; n]; self.val_rec.channels.len()],
+            v: vec![0.0; n],
+            failed: true,
+            offsets: vec![0.0; self.val_rec.channels.len()],
+        };
         let p = h.build(&self.val_base);
-        let sim =
-            replay_with(&p, self.val_rec, self.val_rec.len(), self.drive).unwrap_or_else(|_| {
-                Replay {
-                    y: vec![vec![0.0; self.val_rec.len()]; self.val_rec.channels.len()],
-                    v: vec![0.0; self.val_rec.len()],
-                    failed: true,
-                }
-            });
+        let sim = if std::ptr::eq(self.val_rec, self.fit_rec) {
+            self.replay_zeroed(&p, self.val_rec, n, self.n_fit)
+        } else if self.offsets {
+            // A separate record taken with the same sensors: the fit record's offsets.
+            self.fit_replay(&h.build(&self.fit_base)).and_then(|f| {
+                let mut sim = replay_with(
+                    &replay_params_zeroed(&p, self.val_rec, &f.offsets),
+                    self.val_rec,
+                    n,
+                    self.drive,
+                )?;
+                apply_offsets(&mut sim, &f.offsets);
+                Ok(sim)
+            })
+        } else {
+            replay_with(&p, self.val_rec, n, self.drive)
+        };
+        let sim = sim.unwrap_or_else(|_| failed());
         (errors(self.val_rec, &sim, self.val_range.clone()), sim)
     }
+
     fn fit(&self, mut h: Hyp, first_new: usize, evals_per_param: usize) -> (Hyp, f64) {
+        let warm = std::cell::RefCell::new(if self.offsets {
+            self.offsets_fixed_point(&h.build(&self.fit_base), self.fit_rec, self.n_fit)
+        } else {
+            Vec::new()
+        });
         let cost = |vals: &[f64]| {
             let hh = Hyp {
                 effects: vec![],
                 params: h.params.clone(),
                 values: vals.to_vec(),
             };
-            self.cost_fit(&hh.build(&self.fit_base))
+            self.cost_fit(&hh.build(&self.fit_base), &warm)
         };
         // Coarse grid over the first new parameter (the effect's magnitude) before the simplex.
         if first_new < h.params.len() {
@@ -349,26 +461,26 @@ pub fn diagnose(
         split
     };
     let ctx = Ctx {
-        nominal,
         fit_rec: rec,
-        fit_base: fit_base.clone(),
+        fit_base,
         n_fit: n_cost,
         val_rec,
         val_base,
         val_range: val_range.clone(),
         sd_fit,
         drive: opts.drive,
+        offsets: opts.sensor_offsets,
     };
-    let _ = ctx.nominal;
-    // 1. Nominal replay and residual analysis.
-    let nom_sim = replay_with(&fit_base, rec, n, opts.drive)
-        .map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
-    let analysis = analyse(rec, &nom_sim, 0..n_fit);
     let empty = Hyp {
         effects: vec![],
         params: vec![],
         values: vec![],
     };
+    // 1. Nominal replay and residual analysis.
+    let nom_sim = ctx
+        .fit_replay(&ctx.fit_base)
+        .map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
+    let analysis = analyse(rec, &nom_sim, 0..n_fit);
     let (nom_err, nom_val_sim) = ctx.val_errors(&empty);
     let scales = Scales::new(nominal, rec);
     let bar = if opts.progress {
@@ -426,7 +538,7 @@ pub fn diagnose(
     };
     // Residual analysis of the refit model: what is left once parameter errors are absorbed.
     // Its findings are the evidence and the start values of the effect fits.
-    let analysis_refit = match replay_with(&h0.build(&ctx.fit_base), rec, n, opts.drive) {
+    let analysis_refit = match ctx.fit_replay(&h0.build(&ctx.fit_base)) {
         Ok(sim) => analyse(rec, &sim, 0..n_fit),
         Err(_) => analysis.clone(),
     };
@@ -628,7 +740,16 @@ pub fn diagnose(
     bar.finish_and_clear();
     let (ext_err, ext_val_sim) = ctx.val_errors(&current);
     let extended = current.build(nominal);
-    let ext_fit_sim = replay_with(&current.build(&ctx.fit_base), rec, n, opts.drive).ok();
+    let ext_fit_sim = ctx.fit_replay(&current.build(&ctx.fit_base)).ok();
+    let sensor_offsets = if opts.sensor_offsets {
+        rec.channels
+            .iter()
+            .zip(&ext_val_sim.offsets)
+            .map(|(c, b)| (c.kind.column().to_string(), *b))
+            .collect()
+    } else {
+        BTreeMap::new()
+    };
     let gain = 1.0 - ext_err.overall / nom_err.overall;
     let cause = accepted
         .first()
@@ -675,6 +796,7 @@ pub fn diagnose(
             .zip(&current.values)
             .map(|(p, v)| (p.name.clone(), *v))
             .collect(),
+        sensor_offsets,
         ambiguities,
         warnings: rec
             .warnings

@@ -12,11 +12,29 @@ pub struct Replay {
     pub v: Vec<f64>,
     /// Whether the integration failed (outputs after failure are held).
     pub failed: bool,
+    /// Sensor offsets already added to `y`, per channel in the channel's SI unit (zero
+    /// unless [`apply_offsets`] was called).
+    pub offsets: Vec<f64>,
 }
 
 /// Parameters as used for replay: sensor noise off (the data carry their own), initial
 /// position and pressures from the first samples of the record (median of up to 10).
 pub fn replay_params(nominal: &PlantParams, rec: &Record) -> PlantParams {
+    replay_params_zeroed(nominal, rec, &[])
+}
+
+/// [`replay_params`] with the initial position and pressures taken from the first samples
+/// less the channels' sensor offsets `b` (per record channel, SI; missing = 0): a zero error
+/// of the position transducer must not preload the model's spring, nor one of a pressure
+/// transducer start the model off its equilibrium.
+pub fn replay_params_zeroed(nominal: &PlantParams, rec: &Record, b: &[f64]) -> PlantParams {
+    let offset = |kind: ChannelKind| {
+        rec.channels
+            .iter()
+            .position(|c| c.kind == kind)
+            .and_then(|i| b.get(i).copied())
+            .unwrap_or(0.0)
+    };
     let mut p = nominal.clone();
     p.sensors.force.noise = 0.0;
     p.sensors.pressure.noise = 0.0;
@@ -28,13 +46,14 @@ pub fn replay_params(nominal: &PlantParams, rec: &Record) -> PlantParams {
         h[h.len() / 2]
     };
     if let Some(x) = rec.channel(ChannelKind::Position) {
-        p.cylinder.initial_position = head(x).clamp(0.0, p.cylinder.stroke);
+        p.cylinder.initial_position =
+            (head(x) - offset(ChannelKind::Position)).clamp(0.0, p.cylinder.stroke);
     }
     if let Some(pa) = rec.channel(ChannelKind::PressureA) {
-        p.cylinder.initial_pressure_a = Some(head(pa));
+        p.cylinder.initial_pressure_a = Some(head(pa) - offset(ChannelKind::PressureA));
     }
     if let Some(pb) = rec.channel(ChannelKind::PressureB) {
-        p.cylinder.initial_pressure_b = Some(head(pb));
+        p.cylinder.initial_pressure_b = Some(head(pb) - offset(ChannelKind::PressureB));
     }
     p
 }
@@ -104,7 +123,46 @@ pub fn replay_with(
             }
         }
     }
-    Ok(Replay { y, v, failed })
+    let offsets = vec![0.0; y.len()];
+    Ok(Replay {
+        y,
+        v,
+        failed,
+        offsets,
+    })
+}
+
+/// Sensor offsets: per channel, the mean of measured − model over `range` (channel's SI
+/// unit). A constant offset is how a zero error of a transducer or its amplifier shows up; it
+/// is a nuisance parameter of every model, profiled out in closed form (the least-squares
+/// offset of a residual is its mean).
+pub fn offsets(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Vec<f64> {
+    rec.channels
+        .iter()
+        .zip(&sim.y)
+        .map(|(c, yh)| {
+            let r = range.start..range.end.min(yh.len()).min(c.values.len());
+            if r.is_empty() {
+                return 0.0;
+            }
+            c.values[r.clone()]
+                .iter()
+                .zip(&yh[r.clone()])
+                .map(|(a, b)| a - b)
+                .sum::<f64>()
+                / r.len() as f64
+        })
+        .collect()
+}
+
+/// Add per-channel sensor offsets `b` to the model outputs (so model + offset ≈ measured).
+pub fn apply_offsets(sim: &mut Replay, b: &[f64]) {
+    for ((yc, o), bc) in sim.y.iter_mut().zip(sim.offsets.iter_mut()).zip(b) {
+        for v in yc.iter_mut() {
+            *v += bc;
+        }
+        *o += bc;
+    }
 }
 
 /// Per-channel normalised RMS error over `range`: rms(y − ŷ)/std(y).

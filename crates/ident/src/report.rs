@@ -193,6 +193,30 @@ pub fn write_report(
         d.gain * 100.0,
         d.noise_floor
     );
+    if d.sensor_offsets.is_empty() {
+        let _ = writeln!(
+            r,
+            "Sensor offsets: not estimated (`--no-sensor-offsets`): the sensors' zeros are trusted and a level shift counts as model error.\n"
+        );
+    } else {
+        let unit = |ch: &str| match ch {
+            "force" => "N",
+            "x" => "m",
+            "p_a" | "p_b" => "Pa",
+            "x_v" => "(fraction of spool travel)",
+            _ => "",
+        };
+        let list: Vec<String> = d
+            .sensor_offsets
+            .iter()
+            .map(|(ch, b)| format!("`{ch}` {b:+.4e} {}", unit(ch)))
+            .collect();
+        let _ = writeln!(
+            r,
+            "Sensor offsets (measured − extended model, mean over the fitting part; every model gets its own, fitted the same way, and they carry over to the held-out part): {}.\n",
+            list.join(", ")
+        );
+    }
     for (title, a) in [
         ("nominal replay", &d.analysis),
         (
@@ -205,7 +229,7 @@ pub fn write_report(
         let _ = writeln!(r, "- small command (|u| < 5 % of max): {:.2}× the overall RMS; large command (> 70 %): {:.2}×", a.small_command_ratio, a.large_command_ratio);
         let _ = writeln!(
             r,
-            "- mean pressure residual is {:.0} % of its RMS (level shift)",
+            "- mean pressure residual (before any sensor offset) is {:.0} % of its RMS (level shift)",
             a.bias_share * 100.0
         );
         let _ = writeln!(

@@ -44,16 +44,34 @@ pub struct DiagnoseRun {
     pub files: Option<report::ReportFiles>,
 }
 
+/// How a diagnosis runs (what the front ends let the user choose).
+#[derive(Debug, Clone, Copy)]
+pub struct RunChoices {
+    /// Show an indicatif progress bar on stderr.
+    pub progress: bool,
+    /// Estimate a constant offset per measured channel ([`Options::sensor_offsets`]).
+    pub sensor_offsets: bool,
+}
+
+impl Default for RunChoices {
+    fn default() -> Self {
+        Self {
+            progress: false,
+            sensor_offsets: true,
+        }
+    }
+}
+
 /// Diagnose `data_path` (CSV or ehactl MCAP) against the nominal `cfg` (labelled
 /// `config_label` in the report), holding out `validate` or the last 30 %; write the report to
-/// `out` when given. `progress` shows an indicatif bar on stderr.
+/// `out` when given.
 pub fn run(
     cfg: &RigConfig,
     config_label: &str,
     data_path: &Path,
     validate: Option<&Path>,
     out: Option<&Path>,
-    progress: bool,
+    choices: RunChoices,
 ) -> Result<DiagnoseRun, SessionError> {
     let load = |p: &Path| -> Result<data::Record, SessionError> {
         let mut r = data::load(p).map_err(|e| SessionError::Input(e.to_string()))?;
@@ -112,7 +130,8 @@ pub fn run(
         }
     }
     let opts = Options {
-        progress,
+        progress: choices.progress,
+        sensor_offsets: choices.sensor_offsets,
         drive,
         ..Options::default()
     };

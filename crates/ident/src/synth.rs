@@ -267,6 +267,31 @@ pub fn make_case_at(seed: u64, hidden: &[EffectId], duration: f64, dt: f64) -> C
     }
 }
 
+/// Sensor zero errors of a realistic bench, per channel (SI): pressure transducers +2.0 and
+/// −1.5 bar (≈ 0.8 % and 0.6 % of a 250 bar range), the load cell 5 % of the signal's
+/// standard deviation, the position transducer +0.5 mm (its zero against the mounting).
+pub fn realistic_offsets(rec: &Record) -> Vec<(ChannelKind, f64)> {
+    rec.channels
+        .iter()
+        .filter_map(|c| match c.kind {
+            ChannelKind::PressureA => Some((c.kind, 2.0e5)),
+            ChannelKind::PressureB => Some((c.kind, -1.5e5)),
+            ChannelKind::Force => Some((c.kind, 0.05 * crate::replay::std(&c.values))),
+            ChannelKind::Position => Some((c.kind, 5.0e-4)),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Add constant sensor offsets (per channel kind, SI) to a record's measured channels.
+pub fn add_sensor_offsets(rec: &mut Record, offsets: &[(ChannelKind, f64)]) {
+    for c in rec.channels.iter_mut() {
+        for (_, b) in offsets.iter().filter(|(k, _)| *k == c.kind) {
+            c.values.iter_mut().for_each(|v| *v += b);
+        }
+    }
+}
+
 /// Write a record as CSV in DESIGN.md's format.
 pub fn to_csv(rec: &Record) -> String {
     let mut s = String::from("t,u");

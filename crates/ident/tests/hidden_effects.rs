@@ -4,7 +4,7 @@
 //! hidden effect and cut the held-out NRMSE by at least 50 %; with nothing hidden it must say
 //! `none`. Seeds are fixed (1000 + catalogue index), not chosen after looking at results.
 
-use ehactl_ident::synth::make_case;
+use ehactl_ident::synth::{self, make_case};
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
 
@@ -83,4 +83,61 @@ fn two_effects_deadband_and_delay() {
 #[test]
 fn two_effects_internal_leakage_and_tone() {
     check(3001, &[EffectId::InternalLeakage, EffectId::SensorTone]);
+}
+
+/// Issue 4 asks for robustness to sensor offsets. Constant zero errors on every channel
+/// (`synth::realistic_offsets`: +2 / −1.5 bar, 5 % of the force's std, +0.5 mm) must not
+/// change the decision or the held-out errors, and the offsets the diagnosis estimates must
+/// move by exactly what was added (the estimate itself also carries the model's own mean
+/// error, which is the same with and without the zero errors).
+#[test]
+fn sensor_offsets_change_nothing() {
+    let clean = make_case(4000, &[EffectId::Friction], 2.0);
+    let mut shifted = clean.record.clone();
+    let added = synth::realistic_offsets(&shifted);
+    synth::add_sensor_offsets(&mut shifted, &added);
+    let opts = Options::default();
+    let a = diagnose(&clean.nominal.plant, &clean.record, None, &opts).unwrap();
+    let b = diagnose(&clean.nominal.plant, &shifted, None, &opts).unwrap();
+    assert_eq!(a.causes, b.causes);
+    assert!(a.causes.iter().any(|c| c == "friction"), "{:?}", a.causes);
+    let rel = |x: f64, y: f64| (x - y).abs() / x.abs().max(1e-12);
+    assert!(
+        rel(a.nrmse_extended.overall, b.nrmse_extended.overall) < 0.02,
+        "{} vs {}",
+        a.nrmse_extended.overall,
+        b.nrmse_extended.overall
+    );
+    for (kind, off) in &added {
+        let ch = kind.column();
+        let moved = b.sensor_offsets[ch] - a.sensor_offsets[ch];
+        assert!(
+            rel(*off, moved) < 0.01,
+            "{ch}: added {off:e}, estimate moved by {moved:e}"
+        );
+    }
+}
+
+/// The clean case of `clean_data_gives_none` with the same zero errors added: still `none`
+/// (trusting the zeros, they looked like a valve null bias and `valve_deadband` was
+/// accepted), and trusting them makes even the refit nominal model far worse.
+#[test]
+fn sensor_offsets_alone_give_none() {
+    let mut case = make_case(2000, &[], 2.0);
+    let added = synth::realistic_offsets(&case.record);
+    synth::add_sensor_offsets(&mut case.record, &added);
+    let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default()).unwrap();
+    assert_eq!(d.cause, "none", "{}", d.summary);
+    let trusting = Options {
+        sensor_offsets: false,
+        ..Options::default()
+    };
+    let t = diagnose(&case.nominal.plant, &case.record, None, &trusting).unwrap();
+    assert!(t.sensor_offsets.is_empty());
+    assert!(
+        t.nrmse_refit.overall > 2.0 * d.nrmse_refit.overall,
+        "trusting the zeros: refit NRMSE {} vs {} with offsets",
+        t.nrmse_refit.overall,
+        d.nrmse_refit.overall
+    );
 }

@@ -111,6 +111,7 @@ def diagnose(
     out: str | os.PathLike | None = None,
     *,
     progress: bool = False,
+    sensor_offsets: bool = True,
 ) -> dict[str, Any]:
     """What the simulation of ``cfg`` gets wrong on measured data, like ``ehactl diagnose --json``.
 
@@ -126,12 +127,14 @@ def diagnose(
         validate: separate held-out record; default the last 30 % of ``data``.
         out: directory for ``extended.toml``, ``report.md`` and PNG plots.
         progress: show the fits' progress bar on stderr.
+        sensor_offsets: estimate a constant zero error per measured channel for every model
+            (on the fitting part; applied to the held-out part); False trusts the zeros.
 
     Returns:
         dict with ``cause``, ``causes``, ``nrmse_nominal``, ``nrmse_extended`` (held-out, per
         channel and ``overall``), ``gain``, ``candidates`` (effect, params, nrmse_train,
-        nrmse_validation, score, accepted, evidence), ``extended_config``, ``report``,
-        ``plots``, ``warnings``. Data warnings are also issued as Python warnings.
+        nrmse_validation, score, accepted, evidence), ``sensor_offsets`` (channel → offset in
+        N, m or Pa), ``extended_config``, ``report``, ``plots``, ``warnings``. Data warnings are also issued as Python warnings.
 
     Raises:
         ValueError: bad data or config (the message names the file, row or field).
@@ -139,7 +142,8 @@ def diagnose(
     """
     c = _as_config(cfg)
     raw, notes = _ehactl.diagnose_json(c, os.fspath(data), None if validate is None else os.fspath(validate),
-                                       None if out is None else os.fspath(out), bool(progress))
+                                       None if out is None else os.fspath(out), bool(progress),
+                                       bool(sensor_offsets))
     r = json.loads(raw)
     for w in r.get("warnings") or []:
         warnings.warn(w, stacklevel=2)
