@@ -13,7 +13,7 @@ use std::path::PathBuf;
 /// zero error per measured channel for every model. Returns (json, notes). Bad data or
 /// config raise ValueError, an unwritable report OSError. The GIL is released meanwhile.
 #[pyfunction]
-#[pyo3(signature = (cfg, data, validate = None, out = None, progress = false, sensor_offsets = true))]
+#[pyo3(signature = (cfg, data, validate = None, out = None, progress = false, sensor_offsets = false))]
 pub fn diagnose_json(
     py: Python<'_>,
     cfg: &Config,

@@ -69,10 +69,13 @@ def test_diagnose_names_a_hidden_delay_like_the_cli(tmp_path):
     assert abs(d["extended_params"]["effects.time_delay.delay"] - 0.005) < 0.001
     assert d["gain"] >= 0.5 and len(d["candidates"]) == 12
     assert os.path.exists(d["extended_config"]) and os.path.exists(d["report"])
-    # Trusting the sensors' zeros: same answer here (the run has no zero errors), no offsets.
-    t = ehactl.diagnose(rig, mcap, sensor_offsets=False)
-    assert t["cause"] == "time_delay" and t["sensor_offsets"] == {}
-    assert set(d["sensor_offsets"]) == set(d["nrmse_nominal"]["channels"])
+    assert d["sensor_offsets"] == {}  # the zeros are trusted by default
+    # Estimating a zero offset per channel: the same answer here (the run has no zero
+    # errors), and offsets far below each signal.
+    t = ehactl.diagnose(rig, mcap, sensor_offsets=True)
+    assert t["cause"] == "time_delay"
+    assert set(t["sensor_offsets"]) == set(t["nrmse_nominal"]["channels"])
+    assert abs(t["sensor_offsets"]["x"]) < 1e-4 and abs(t["sensor_offsets"]["p_a"]) < 1e5
     with pytest.raises(ValueError, match="t"):
         bad = tmp_path / "bad.csv"
         bad.write_text("time,u\n0,0\n")

@@ -116,10 +116,11 @@ enum Command {
         /// Print exactly one JSON object on stdout.
         #[arg(long)]
         json: bool,
-        /// Trust the sensors' zeros: do not estimate a constant offset per measured channel
-        /// (by default every model gets one, fitted on the fitting part).
+        /// Estimate a constant zero offset per measured channel for every model (fitted on the
+        /// fitting part, carried to the held-out part); by default the sensors' zeros are
+        /// trusted.
         #[arg(long)]
-        no_sensor_offsets: bool,
+        sensor_offsets: bool,
     },
     /// Measure the frequency response of the nonlinear plant by a stepped sine (logged to MCAP).
     Sweep(analysis_cmd::SweepArgs),
@@ -233,13 +234,13 @@ fn main() -> ExitCode {
             validate,
             out,
             json,
-            no_sensor_offsets,
+            sensor_offsets,
         } => diagnose::cmd_diagnose(
             &config,
             &data,
             validate.as_deref(),
             out,
-            (json, !no_sensor_offsets),
+            (json, sensor_offsets),
         ),
         Command::Params => {
             for table in registries() {

@@ -2,7 +2,8 @@
 //! `cargo run --release -p ehactl-ident --example evaluate -- [per_effect] [clean] [pairs] [first_seed] [OUT.md]`.
 //! Writes a Markdown section (confusion matrix, rates, gains) to OUT.md (default
 //! bench/results/diagnose_eval.md) and one line per case to stdout. With `OFFSETS=1` in the
-//! environment every record also gets `synth::realistic_offsets` (sensor zero errors).
+//! environment every record also gets `synth::realistic_offsets` (sensor zero errors); with
+//! `SENSOR_OFFSETS=1` the diagnosis estimates them (`Options::sensor_offsets`).
 use ehactl_ident::synth::make_case;
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
@@ -60,8 +61,11 @@ fn main() {
             ehactl_ident::synth::add_sensor_offsets(&mut case.record, &b);
         }
         let t0 = std::time::Instant::now();
-        let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default())
-            .expect("diagnosis runs");
+        let opts = Options {
+            sensor_offsets: std::env::var("SENSOR_OFFSETS").is_ok_and(|v| v == "1"),
+            ..Options::default()
+        };
+        let d = diagnose(&case.nominal.plant, &case.record, None, &opts).expect("diagnosis runs");
         let dt = t0.elapsed().as_secs_f64();
         times.push(dt);
         let hn: Vec<&str> = hidden.iter().map(|e| e.as_str()).collect();
@@ -103,7 +107,7 @@ fn main() {
     times.sort_by(f64::total_cmp);
     let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
     let mut s = String::new();
-    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}.\n", cases.len(), first + cases.len() as u64 - 1, if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" });
+    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}.\n", cases.len(), first + cases.len() as u64 - 1, format!("{}{}", if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if std::env::var("SENSOR_OFFSETS").is_ok_and(|v| v == "1") { "; diagnosed with `--sensor-offsets`" } else { "" }));
     let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
     let _ = writeln!(s, "| top cause is a hidden effect (cases with hidden effects) | {top_ok}/{n_hidden} = {:.1} % | ≥ 90 % |", pct(top_ok, n_hidden));
     let _ = writeln!(

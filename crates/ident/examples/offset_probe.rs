@@ -1,45 +1,42 @@
-use ehactl_ident::data::ChannelKind;
-use ehactl_ident::synth::make_case;
+//! Scratch: refit-nominal held-out NRMSE with and without sensor offsets, on data with and
+//! without zero errors (threshold for deciding whether a record has sensor offsets).
+use ehactl_ident::synth::{add_sensor_offsets, make_case, realistic_offsets};
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
 fn main() {
-    let effects: Vec<Vec<EffectId>> = vec![
-        vec![],
-        vec![EffectId::Friction],
-        vec![EffectId::ValveDeadband],
-        vec![EffectId::InternalLeakage],
-        vec![EffectId::ExternalLeakage],
-        vec![EffectId::TimeDelay],
-        vec![EffectId::SensorTone],
-    ];
-    for (i, h) in effects.iter().enumerate() {
-        for with in [false, true] {
-            let mut case = make_case(1000 + i as u64, h, 2.0);
-            if with {
-                for c in case.record.channels.iter_mut() {
-                    let sd = ehactl_ident::replay::std(&c.values);
-                    let off = match c.kind {
-                        ChannelKind::PressureA => 2e5,
-                        ChannelKind::PressureB => -1.5e5,
-                        ChannelKind::Force => 0.05 * sd,
-                        ChannelKind::Position => 5e-4,
-                        _ => 0.0,
-                    };
-                    for v in c.values.iter_mut() {
-                        *v += off;
-                    }
-                    eprintln!("  {:?} sd {sd:.3e}", c.kind);
-                }
-            }
-            let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default()).unwrap();
-            println!(
-                "{:?} offsets={with}: causes {:?} nrmse {:.4} -> {:.4} gain {:.1}%",
-                h.iter().map(|e| e.as_str()).collect::<Vec<_>>(),
-                d.causes,
-                d.nrmse_nominal.overall,
-                d.nrmse_extended.overall,
-                d.gain * 100.0
-            );
+    let mut cases: Vec<(u64, Vec<EffectId>)> = EffectId::ALL
+        .iter()
+        .enumerate()
+        .map(|(i, e)| (5000 + i as u64, vec![*e]))
+        .collect();
+    cases.push((5037, vec![EffectId::ValveDeadband]));
+    cases.push((5070, vec![EffectId::SensorTone]));
+    for s in [5080u64, 5090, 5091, 5095] {
+        cases.push((s, vec![]));
+    }
+    for (seed, hidden) in cases {
+        let case = make_case(seed, &hidden, 2.0);
+        let mut shifted = case.record.clone();
+        add_sensor_offsets(&mut shifted, &realistic_offsets(&case.record));
+        let mut line = format!(
+            "{seed} {:?}:",
+            hidden.iter().map(|e| e.as_str()).collect::<Vec<_>>()
+        );
+        for (label, rec) in [("clean", &case.record), ("zero-err", &shifted)] {
+            let r = |on: bool| {
+                let o = Options {
+                    sensor_offsets: on,
+                    effects: vec![],
+                    ..Options::default()
+                };
+                diagnose(&case.nominal.plant, rec, None, &o)
+                    .unwrap()
+                    .nrmse_refit
+                    .overall
+            };
+            let (on, off) = (r(true), r(false));
+            line += &format!("  {label}: on {on:.4} off {off:.4} ratio {:.3}", on / off);
         }
+        println!("{line}");
     }
 }

@@ -44,8 +44,9 @@ pub struct Options {
     /// held-out part is always scored whole); bounds the run time on long, fast records.
     pub max_fit_samples: usize,
     /// Estimate a constant offset per measured channel (transducer zero error) for every
-    /// model on the fitting part and apply it to the held-out part too; `false` trusts the
-    /// sensors' zeros (then a level shift counts as model error).
+    /// model on the fitting part and apply it to the held-out part too. Off by default: the
+    /// sensors' zeros are trusted and a level shift counts as model error (on data with good
+    /// zeros the offsets cost accuracy, see DIAGNOSIS.md).
     pub sensor_offsets: bool,
 }
 
@@ -60,7 +61,7 @@ impl Default for Options {
             evals_per_param: 30,
             drive: Drive::Recorded,
             max_fit_samples: 12_000,
-            sensor_offsets: true,
+            sensor_offsets: false,
         }
     }
 }
@@ -328,6 +329,19 @@ impl Ctx<'_> {
             };
             self.cost_fit(&hh.build(&self.fit_base), &warm)
         };
+        // The grid points are far apart: each starts from its own converged offsets, not
+        // from the previous point's (which would start it off its equilibrium).
+        let settle = |vals: &[f64]| {
+            if self.offsets {
+                let hh = Hyp {
+                    effects: vec![],
+                    params: h.params.clone(),
+                    values: vals.to_vec(),
+                };
+                *warm.borrow_mut() =
+                    self.offsets_fixed_point(&hh.build(&self.fit_base), self.fit_rec, self.n_fit);
+            }
+        };
         // Coarse grid over the first new parameter (the effect's magnitude) before the simplex.
         if first_new < h.params.len() {
             let fp = h.params[first_new].clone();
@@ -335,12 +349,14 @@ impl Ctx<'_> {
             for s in [0.1, 0.3, 0.5, 0.7, 0.9] {
                 let mut v = h.values.clone();
                 v[first_new] = fp.from_unit(s);
+                settle(&v);
                 let c = cost(&v);
                 if c < best.0 {
                     best = (c, v[first_new]);
                 }
             }
             h.values[first_new] = best.1;
+            settle(&h.values);
         }
         let u0: Vec<f64> = h
             .params

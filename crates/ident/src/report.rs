@@ -196,7 +196,7 @@ pub fn write_report(
     if d.sensor_offsets.is_empty() {
         let _ = writeln!(
             r,
-            "Sensor offsets: not estimated (`--no-sensor-offsets`): the sensors' zeros are trusted and a level shift counts as model error.\n"
+            "Sensor offsets: not estimated (the sensors' zeros are trusted and a level shift counts as model error; `--sensor-offsets` estimates one per channel).\n"
         );
     } else {
         let unit = |ch: &str| match ch {

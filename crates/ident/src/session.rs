@@ -57,7 +57,7 @@ impl Default for RunChoices {
     fn default() -> Self {
         Self {
             progress: false,
-            sensor_offsets: true,
+            sensor_offsets: false,
         }
     }
 }

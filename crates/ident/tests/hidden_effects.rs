@@ -85,7 +85,8 @@ fn two_effects_internal_leakage_and_tone() {
     check(3001, &[EffectId::InternalLeakage, EffectId::SensorTone]);
 }
 
-/// Issue 4 asks for robustness to sensor offsets. Constant zero errors on every channel
+/// Issue 4 asks for robustness to sensor offsets (`Options::sensor_offsets`, CLI
+/// `--sensor-offsets`). Constant zero errors on every channel
 /// (`synth::realistic_offsets`: +2 / −1.5 bar, 5 % of the force's std, +0.5 mm) must not
 /// change the decision or the held-out errors, and the offsets the diagnosis estimates must
 /// move by exactly what was added (the estimate itself also carries the model's own mean
@@ -96,7 +97,10 @@ fn sensor_offsets_change_nothing() {
     let mut shifted = clean.record.clone();
     let added = synth::realistic_offsets(&shifted);
     synth::add_sensor_offsets(&mut shifted, &added);
-    let opts = Options::default();
+    let opts = Options {
+        sensor_offsets: true,
+        ..Options::default()
+    };
     let a = diagnose(&clean.nominal.plant, &clean.record, None, &opts).unwrap();
     let b = diagnose(&clean.nominal.plant, &shifted, None, &opts).unwrap();
     assert_eq!(a.causes, b.causes);
@@ -119,19 +123,20 @@ fn sensor_offsets_change_nothing() {
 }
 
 /// The clean case of `clean_data_gives_none` with the same zero errors added: still `none`
-/// (trusting the zeros, they looked like a valve null bias and `valve_deadband` was
-/// accepted), and trusting them makes even the refit nominal model far worse.
+/// with the offsets estimated, and trusting the zeros makes even the refit nominal model far
+/// worse.
 #[test]
 fn sensor_offsets_alone_give_none() {
     let mut case = make_case(2000, &[], 2.0);
     let added = synth::realistic_offsets(&case.record);
     synth::add_sensor_offsets(&mut case.record, &added);
-    let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default()).unwrap();
-    assert_eq!(d.cause, "none", "{}", d.summary);
-    let trusting = Options {
-        sensor_offsets: false,
+    let estimating = Options {
+        sensor_offsets: true,
         ..Options::default()
     };
+    let d = diagnose(&case.nominal.plant, &case.record, None, &estimating).unwrap();
+    assert_eq!(d.cause, "none", "{}", d.summary);
+    let trusting = Options::default();
     let t = diagnose(&case.nominal.plant, &case.record, None, &trusting).unwrap();
     assert!(t.sensor_offsets.is_empty());
     assert!(

@@ -111,7 +111,7 @@ def diagnose(
     out: str | os.PathLike | None = None,
     *,
     progress: bool = False,
-    sensor_offsets: bool = True,
+    sensor_offsets: bool = False,
 ) -> dict[str, Any]:
     """What the simulation of ``cfg`` gets wrong on measured data, like ``ehactl diagnose --json``.
 
@@ -128,7 +128,7 @@ def diagnose(
         out: directory for ``extended.toml``, ``report.md`` and PNG plots.
         progress: show the fits' progress bar on stderr.
         sensor_offsets: estimate a constant zero error per measured channel for every model
-            (on the fitting part; applied to the held-out part); False trusts the zeros.
+            (on the fitting part; applied to the held-out part); default False trusts the zeros.
 
     Returns:
         dict with ``cause``, ``causes``, ``nrmse_nominal``, ``nrmse_extended`` (held-out, per

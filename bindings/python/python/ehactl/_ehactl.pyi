@@ -155,6 +155,6 @@ def diagnose_json(
     validate: _Path | None = None,
     out: _Path | None = None,
     progress: bool = False,
-    sensor_offsets: bool = True,
+    sensor_offsets: bool = False,
 ) -> tuple[str, list[str]]:
     """``ehactl diagnose --json`` of ``data`` against ``cfg`` and the replay notes (see ``ehactl.diagnose``)."""
