@@ -1,42 +1,22 @@
-//! Scratch: refit-nominal held-out NRMSE with and without sensor offsets, on data with and
-//! without zero errors (threshold for deciding whether a record has sensor offsets).
-use ehactl_ident::synth::{add_sensor_offsets, make_case, realistic_offsets};
+//! Scratch: one case, refit nominal only, offsets on/off.
+use ehactl_ident::synth::make_case;
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
 fn main() {
-    let mut cases: Vec<(u64, Vec<EffectId>)> = EffectId::ALL
-        .iter()
-        .enumerate()
-        .map(|(i, e)| (5000 + i as u64, vec![*e]))
-        .collect();
-    cases.push((5037, vec![EffectId::ValveDeadband]));
-    cases.push((5070, vec![EffectId::SensorTone]));
-    for s in [5080u64, 5090, 5091, 5095] {
-        cases.push((s, vec![]));
-    }
-    for (seed, hidden) in cases {
-        let case = make_case(seed, &hidden, 2.0);
-        let mut shifted = case.record.clone();
-        add_sensor_offsets(&mut shifted, &realistic_offsets(&case.record));
-        let mut line = format!(
-            "{seed} {:?}:",
-            hidden.iter().map(|e| e.as_str()).collect::<Vec<_>>()
+    let a: Vec<String> = std::env::args().collect();
+    let seed: u64 = a[1].parse().unwrap();
+    let hidden: Vec<EffectId> = a[2..].iter().filter_map(|s| EffectId::parse(s)).collect();
+    let case = make_case(seed, &hidden, 2.0);
+    for on in [true, false] {
+        let o = Options {
+            sensor_offsets: on,
+            effects: vec![],
+            ..Options::default()
+        };
+        let d = diagnose(&case.nominal.plant, &case.record, None, &o).unwrap();
+        println!(
+            "offsets={on}: nom {:?}\n refit {:?}\n offsets {:?}\n params {:?}",
+            d.nrmse_nominal, d.nrmse_refit, d.sensor_offsets, d.extended_params
         );
-        for (label, rec) in [("clean", &case.record), ("zero-err", &shifted)] {
-            let r = |on: bool| {
-                let o = Options {
-                    sensor_offsets: on,
-                    effects: vec![],
-                    ..Options::default()
-                };
-                diagnose(&case.nominal.plant, rec, None, &o)
-                    .unwrap()
-                    .nrmse_refit
-                    .overall
-            };
-            let (on, off) = (r(true), r(false));
-            line += &format!("  {label}: on {on:.4} off {off:.4} ratio {:.3}", on / off);
-        }
-        println!("{line}");
     }
 }

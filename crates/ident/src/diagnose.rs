@@ -243,10 +243,10 @@ impl Ctx<'_> {
     }
 
     /// Fit cost of `p`: mean over channels of (rms residual / std of the channel)² on the
-    /// fitting part. With offsets, `warm` holds the sensor offsets of the previous evaluation
-    /// of this fit: the replay starts from the initial state they imply and leaves this
-    /// model's offsets there (one fixed-point step per evaluation; successive simplex points
-    /// are close, so the offsets follow the fit at the cost of one replay).
+    /// fitting part. With offsets, `warm` holds offsets solved at a reference point of this
+    /// fit ([`Ctx::offsets_fixed_point`]): the replay starts from the initial state they
+    /// imply (the same for every evaluation, so the cost has no memory) and its own offsets
+    /// are profiled out of the outputs in closed form. One replay per evaluation.
     fn cost_fit(&self, p: &PlantParams, warm: &std::cell::RefCell<Vec<f64>>) -> f64 {
         let start = if self.offsets {
             replay_params_zeroed(p, self.fit_rec, &warm.borrow())
@@ -258,9 +258,6 @@ impl Ctx<'_> {
                 if self.offsets {
                     let b = offsets(self.fit_rec, &sim, 0..self.n_fit);
                     apply_offsets(&mut sim, &b);
-                    if !sim.failed {
-                        *warm.borrow_mut() = b;
-                    }
                 }
                 let mut j = 0.0;
                 for (c, (ch, yh)) in self.fit_rec.channels.iter().zip(&sim.y).enumerate() {
@@ -376,7 +373,26 @@ impl Ctx<'_> {
         };
         let budget = 60 + evals_per_param * n;
         let (u1, _, _) = nelder_mead(&mut fu, &u0, 0.15, budget * 2 / 3, 1e-6);
-        let (u2, c2, _) = nelder_mead(&mut fu, &u1, 0.05, budget / 3, 1e-7);
+        // Re-solve the offsets' initial state at the first stage's optimum for the second.
+        let v1: Vec<f64> = h
+            .params
+            .iter()
+            .zip(&u1)
+            .map(|(p, s)| p.from_unit(*s))
+            .collect();
+        settle(&v1);
+        let (mut u2, mut c2, _) = nelder_mead(&mut fu, &u1, 0.05, budget / 3, 1e-7);
+        if self.offsets {
+            // Once more at the second stage's optimum: the initial state follows the model.
+            let v2: Vec<f64> = h
+                .params
+                .iter()
+                .zip(&u2)
+                .map(|(p, s)| p.from_unit(*s))
+                .collect();
+            settle(&v2);
+            (u2, c2, _) = nelder_mead(&mut fu, &u2, 0.03, budget / 3, 1e-7);
+        }
         h.values = h
             .params
             .iter()
