@@ -4,8 +4,9 @@ use clap::Subcommand;
 use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError, StartupFailure};
 use ehactl_canopen::hub::Hub;
 use ehactl_canopen::BusUrl;
+use ehactl_controller::session::open_log;
 use ehactl_controller::RigConfig;
-use ehactl_hal::logger::{FrameLog, LogOptions, Logger, RunMetadata};
+use ehactl_hal::logger::{FrameLog, Overflow};
 use ehactl_hal::record::{Event, EventKind, Severity};
 use std::io::Write;
 use std::path::Path;
@@ -144,17 +145,7 @@ fn log_failed_startup(
     out: &Path,
     f: &StartupFailure,
 ) -> Result<serde_json::Value, String> {
-    let logger = Logger::create(
-        out,
-        LogOptions::default(),
-        &RunMetadata {
-            config_toml: cfg.to_toml_string(),
-            config_json: cfg.to_json(),
-            backend: "canopen".into(),
-            control_rate_hz: cfg.run.control_rate_hz,
-        },
-    )
-    .map_err(|e| e.to_string())?;
+    let logger = open_log(cfg, out, "canopen", Overflow::Block).map_err(|e| e.to_string())?;
     let frames = Arc::new(FrameLog::new(f.frames.len().max(1)));
     for r in &f.frames {
         frames.push(*r);

@@ -204,6 +204,34 @@ pub struct Backend<'a> {
     pub substeps: u32,
 }
 
+/// Create the MCAP log of a run of `cfg` on `backend` at `path`: the config's `[log]`
+/// compression and queue capacity, the config as metadata. The one place a log is opened,
+/// for runs and for a hardware start-up that failed before the run.
+pub fn open_log(
+    cfg: &RigConfig,
+    path: &std::path::Path,
+    backend: &str,
+    overflow: Overflow,
+) -> Result<Logger, ehactl_hal::logger::LogError> {
+    Logger::create(
+        path,
+        LogOptions {
+            compression: match cfg.log.compression {
+                Compression::None => LogCompression::None,
+                Compression::Lz4 => LogCompression::Lz4,
+            },
+            queue_capacity: cfg.log.queue_capacity as usize,
+            overflow,
+        },
+        &RunMetadata {
+            config_toml: cfg.to_toml_string(),
+            config_json: cfg.to_json(),
+            backend: backend.into(),
+            control_rate_hz: cfg.run.control_rate_hz,
+        },
+    )
+}
+
 /// Run `cfg` against any backend: the one loop shared by the simulated and the hardware
 /// runs (the CLI, the Python bindings and the wall-clock executor all end up here).
 pub fn run_with(
@@ -247,26 +275,7 @@ pub fn run_with_live(
     let mut supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
     let setpoint = Setpoint::new(&cfg.setpoint);
     let logger = match &opts.mcap {
-        Some(path) => Some(
-            Logger::create(
-                path,
-                LogOptions {
-                    compression: match cfg.log.compression {
-                        Compression::None => LogCompression::None,
-                        Compression::Lz4 => LogCompression::Lz4,
-                    },
-                    queue_capacity: cfg.log.queue_capacity as usize,
-                    overflow,
-                },
-                &RunMetadata {
-                    config_toml: cfg.to_toml_string(),
-                    config_json: cfg.to_json(),
-                    backend: hal.name().into(),
-                    control_rate_hz: cfg.run.control_rate_hz,
-                },
-            )
-            .map_err(SessionError::Log)?,
-        ),
+        Some(path) => Some(open_log(cfg, path, hal.name(), overflow).map_err(SessionError::Log)?),
         None => None,
     };
     if let (Some(l), Some(frames)) = (logger.as_ref(), hal.frame_log()) {
