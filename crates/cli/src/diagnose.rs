@@ -12,7 +12,8 @@ pub fn cmd_diagnose(
     data_path: &Path,
     validate: Option<&Path>,
     out: Option<PathBuf>,
-    (json, sensor_offsets): (bool, bool),
+    json: bool,
+    sensor_offsets: bool,
 ) -> ExitCode {
     let bad = |msg: String| {
         eprintln!("ehactl: {msg}");

@@ -240,7 +240,8 @@ fn main() -> ExitCode {
             &data,
             validate.as_deref(),
             out,
-            (json, sensor_offsets),
+            json,
+            sensor_offsets,
         ),
         Command::Params => {
             for table in registries() {

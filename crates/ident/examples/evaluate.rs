@@ -19,6 +19,7 @@ fn main() {
         .cloned()
         .unwrap_or_else(|| "bench/results/diagnose_eval.md".into());
     let with_offsets = std::env::var("OFFSETS").is_ok_and(|v| v == "1");
+    let estimate_offsets = std::env::var("SENSOR_OFFSETS").is_ok_and(|v| v == "1");
     let mut cases: Vec<Vec<EffectId>> = Vec::new();
     for _ in 0..per_effect {
         for e in EffectId::ALL {
@@ -62,7 +63,7 @@ fn main() {
         }
         let t0 = std::time::Instant::now();
         let opts = Options {
-            sensor_offsets: std::env::var("SENSOR_OFFSETS").is_ok_and(|v| v == "1"),
+            sensor_offsets: estimate_offsets,
             ..Options::default()
         };
         let d = diagnose(&case.nominal.plant, &case.record, None, &opts).expect("diagnosis runs");
@@ -107,7 +108,7 @@ fn main() {
     times.sort_by(f64::total_cmp);
     let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
     let mut s = String::new();
-    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}.\n", cases.len(), first + cases.len() as u64 - 1, format!("{}{}", if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if std::env::var("SENSOR_OFFSETS").is_ok_and(|v| v == "1") { "; diagnosed with `--sensor-offsets`" } else { "" }));
+    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}{}.\n", cases.len(), first + cases.len() as u64 - 1, if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if estimate_offsets { "; diagnosed with `--sensor-offsets`" } else { "" });
     let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
     let _ = writeln!(s, "| top cause is a hidden effect (cases with hidden effects) | {top_ok}/{n_hidden} = {:.1} % | ≥ 90 % |", pct(top_ok, n_hidden));
     let _ = writeln!(

@@ -163,12 +163,17 @@ struct Hyp {
 
 impl Hyp {
     fn build(&self, base: &PlantParams) -> PlantParams {
-        let mut p = base.clone();
-        for (fp, v) in self.params.iter().zip(&self.values) {
-            (fp.set)(&mut p, *v);
-        }
-        p
+        with_values(base, &self.params, &self.values)
     }
+}
+
+/// `base` with free parameters `params` set to `values`.
+fn with_values(base: &PlantParams, params: &[FreeParam], values: &[f64]) -> PlantParams {
+    let mut p = base.clone();
+    for (fp, v) in params.iter().zip(values) {
+        (fp.set)(&mut p, *v);
+    }
+    p
 }
 
 struct Ctx<'a> {
@@ -243,17 +248,19 @@ impl Ctx<'_> {
     }
 
     /// Fit cost of `p`: mean over channels of (rms residual / std of the channel)² on the
-    /// fitting part. With offsets, `warm` holds offsets solved at a reference point of this
-    /// fit ([`Ctx::offsets_fixed_point`]): the replay starts from the initial state they
-    /// imply (the same for every evaluation, so the cost has no memory) and its own offsets
+    /// fitting part. With offsets, `reference` holds the offsets solved at this fit's
+    /// reference point ([`Ctx::offsets_fixed_point`]): the replay starts from the initial
+    /// state they imply (the same for every evaluation, so the cost has no memory) and its own offsets
     /// are profiled out of the outputs in closed form. One replay per evaluation.
-    fn cost_fit(&self, p: &PlantParams, warm: &std::cell::RefCell<Vec<f64>>) -> f64 {
+    fn cost_fit(&self, p: &PlantParams, reference: &std::cell::RefCell<Vec<f64>>) -> f64 {
+        let zeroed;
         let start = if self.offsets {
-            replay_params_zeroed(p, self.fit_rec, &warm.borrow())
+            zeroed = replay_params_zeroed(p, self.fit_rec, &reference.borrow());
+            &zeroed
         } else {
-            p.clone()
+            p
         };
-        match replay_with(&start, self.fit_rec, self.n_fit, self.drive) {
+        match replay_with(start, self.fit_rec, self.n_fit, self.drive) {
             Ok(mut sim) => {
                 if self.offsets {
                     let b = offsets(self.fit_rec, &sim, 0..self.n_fit);
@@ -313,32 +320,27 @@ impl Ctx<'_> {
     }
 
     fn fit(&self, mut h: Hyp, first_new: usize, evals_per_param: usize) -> (Hyp, f64) {
-        let warm = std::cell::RefCell::new(if self.offsets {
-            self.offsets_fixed_point(&h.build(&self.fit_base), self.fit_rec, self.n_fit)
-        } else {
-            Vec::new()
-        });
-        let cost = |vals: &[f64]| {
-            let hh = Hyp {
-                effects: vec![],
-                params: h.params.clone(),
-                values: vals.to_vec(),
-            };
-            self.cost_fit(&hh.build(&self.fit_base), &warm)
+        let at = |vals: &[f64]| with_values(&self.fit_base, &h.params, vals);
+        let from_units = |u: &[f64]| -> Vec<f64> {
+            h.params
+                .iter()
+                .zip(u)
+                .map(|(p, s)| p.from_unit(*s))
+                .collect()
         };
-        // The grid points are far apart: each starts from its own converged offsets, not
-        // from the previous point's (which would start it off its equilibrium).
+        let reference = std::cell::RefCell::new(Vec::new());
+        let cost = |vals: &[f64]| self.cost_fit(&at(vals), &reference);
+        // With offsets: solve the initial state they imply at `vals` (the reference of the
+        // memoryless cost). Done at the start, per coarse grid point (the points are far
+        // apart: each starts from its own converged offsets, not from the previous point's)
+        // and between simplex stages.
         let settle = |vals: &[f64]| {
             if self.offsets {
-                let hh = Hyp {
-                    effects: vec![],
-                    params: h.params.clone(),
-                    values: vals.to_vec(),
-                };
-                *warm.borrow_mut() =
-                    self.offsets_fixed_point(&hh.build(&self.fit_base), self.fit_rec, self.n_fit);
+                *reference.borrow_mut() =
+                    self.offsets_fixed_point(&at(vals), self.fit_rec, self.n_fit);
             }
         };
+        settle(&h.values);
         // Coarse grid over the first new parameter (the effect's magnitude) before the simplex.
         if first_new < h.params.len() {
             let fp = h.params[first_new].clone();
@@ -361,44 +363,17 @@ impl Ctx<'_> {
             .zip(&h.values)
             .map(|(p, v)| p.to_unit(*v))
             .collect();
-        let n = u0.len();
-        let mut fu = |u: &[f64]| {
-            let vals: Vec<f64> = h
-                .params
-                .iter()
-                .zip(u)
-                .map(|(p, s)| p.from_unit(*s))
-                .collect();
-            cost(&vals)
-        };
-        let budget = 60 + evals_per_param * n;
+        let mut fu = |u: &[f64]| cost(&from_units(u));
+        let budget = 60 + evals_per_param * u0.len();
         let (u1, _, _) = nelder_mead(&mut fu, &u0, 0.15, budget * 2 / 3, 1e-6);
-        // Re-solve the offsets' initial state at the first stage's optimum for the second.
-        let v1: Vec<f64> = h
-            .params
-            .iter()
-            .zip(&u1)
-            .map(|(p, s)| p.from_unit(*s))
-            .collect();
-        settle(&v1);
+        settle(&from_units(&u1));
         let (mut u2, mut c2, _) = nelder_mead(&mut fu, &u1, 0.05, budget / 3, 1e-7);
         if self.offsets {
-            // Once more at the second stage's optimum: the initial state follows the model.
-            let v2: Vec<f64> = h
-                .params
-                .iter()
-                .zip(&u2)
-                .map(|(p, s)| p.from_unit(*s))
-                .collect();
-            settle(&v2);
+            // A third stage: the initial state follows the model.
+            settle(&from_units(&u2));
             (u2, c2, _) = nelder_mead(&mut fu, &u2, 0.03, budget / 3, 1e-7);
         }
-        h.values = h
-            .params
-            .iter()
-            .zip(&u2)
-            .map(|(p, s)| p.from_unit(*s))
-            .collect();
+        h.values = from_units(&u2);
         (h, c2)
     }
 }

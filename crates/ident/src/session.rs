@@ -44,8 +44,9 @@ pub struct DiagnoseRun {
     pub files: Option<report::ReportFiles>,
 }
 
-/// How a diagnosis runs (what the front ends let the user choose).
-#[derive(Debug, Clone, Copy)]
+/// How a diagnosis runs (what the front ends let the user choose); the default shows no
+/// progress bar and trusts the sensors' zeros.
+#[derive(Debug, Clone, Copy, Default)]
 pub struct RunChoices {
     /// Show an indicatif progress bar on stderr.
     pub progress: bool,
@@ -53,14 +54,6 @@ pub struct RunChoices {
     pub sensor_offsets: bool,
 }
 
-impl Default for RunChoices {
-    fn default() -> Self {
-        Self {
-            progress: false,
-            sensor_offsets: false,
-        }
-    }
-}
 
 /// Diagnose `data_path` (CSV or ehactl MCAP) against the nominal `cfg` (labelled
 /// `config_label` in the report), holding out `validate` or the last 30 %; write the report to
