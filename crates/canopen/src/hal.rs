@@ -349,7 +349,7 @@ impl CanopenHal {
     fn bring_up(
         s: CanopenSettings,
         t_start: Instant,
-        mut st: &mut Startup,
+        st: &mut Startup,
     ) -> Result<CanopenHal, StartupError> {
         let c = s.canopen.clone();
         c.validate()
@@ -378,7 +378,7 @@ impl CanopenHal {
         for &n in &ids {
             send(
                 &mut *bus,
-                &mut st,
+                st,
                 nmt::command(NmtCommand::ResetCommunication, n),
             )?;
         }
@@ -401,7 +401,7 @@ impl CanopenHal {
         for &n in &ids {
             send(
                 &mut *bus,
-                &mut st,
+                st,
                 nmt::command(NmtCommand::EnterPreOperational, n),
             )?;
         }
@@ -442,7 +442,7 @@ impl CanopenHal {
             (1, Dev::Valve, cia408::PROFILE),
         ] {
             let n = ids[i];
-            let d = read(&mut *bus, &mut st, n, 0x1000, 0, "reading the device type")?;
+            let d = read(&mut *bus, st, n, 0x1000, 0, "reading the device type")?;
             let mut b = [0u8; 4];
             b[..d.len().min(4)].copy_from_slice(&d[..d.len().min(4)]);
             let dt = u32::from_le_bytes(b);
@@ -479,7 +479,7 @@ impl CanopenHal {
             }
             write(
                 &mut *bus,
-                &mut st,
+                st,
                 n,
                 0x1017,
                 0,
@@ -491,7 +491,7 @@ impl CanopenHal {
         let va = ids[1];
         write(
             &mut *bus,
-            &mut st,
+            st,
             tr,
             cia406::POSITION_STEP,
             1,
@@ -500,7 +500,7 @@ impl CanopenHal {
         )?;
         write(
             &mut *bus,
-            &mut st,
+            st,
             tr,
             cia406::CYCLIC_TIMER,
             0,
@@ -536,7 +536,7 @@ impl CanopenHal {
         };
         remap(
             &mut *bus,
-            &mut st,
+            st,
             &mut write,
             tr,
             TPDO1_COMM,
@@ -547,7 +547,7 @@ impl CanopenHal {
         )?;
         write(
             &mut *bus,
-            &mut st,
+            st,
             va,
             cia408::DEVICE_MODE,
             0,
@@ -556,7 +556,7 @@ impl CanopenHal {
         )?;
         write(
             &mut *bus,
-            &mut st,
+            st,
             va,
             cia408::SPOOL_SETPOINT,
             1,
@@ -565,7 +565,7 @@ impl CanopenHal {
         )?;
         remap(
             &mut *bus,
-            &mut st,
+            st,
             &mut write,
             va,
             RPDO1_COMM,
@@ -577,7 +577,7 @@ impl CanopenHal {
         if c.valve_status_pdo {
             remap(
                 &mut *bus,
-                &mut st,
+                st,
                 &mut write,
                 va,
                 TPDO1_COMM,
@@ -589,7 +589,7 @@ impl CanopenHal {
         } else {
             write(
                 &mut *bus,
-                &mut st,
+                st,
                 va,
                 TPDO1_COMM,
                 1,
@@ -603,7 +603,7 @@ impl CanopenHal {
 
         // 4. NMT start; wait for OPERATIONAL heartbeats.
         for &n in &ids {
-            send(&mut *bus, &mut st, nmt::command(NmtCommand::Start, n))?;
+            send(&mut *bus, st, nmt::command(NmtCommand::Start, n))?;
         }
         st.state = [None; 2];
         let op_wait = Duration::from_millis(
@@ -680,29 +680,24 @@ impl CanopenHal {
                 std::thread::sleep(Duration::from_millis(10));
             }
         };
-        let sw = status(&mut *bus, &mut st)?;
+        let sw = status(&mut *bus, st)?;
         if ValveState::from_status(sw) == ValveState::Fault {
             if s.verbose {
                 eprintln!("canopen: valve in FAULT at start-up: fault reset (control word bit 3)");
             }
             write(
                 &mut *bus,
-                &mut st,
+                st,
                 va,
                 cia408::CONTROL_WORD,
                 0,
                 &cia408::CW_DISABLED.to_le_bytes(),
                 "clearing the valve control word",
             )?;
-            goto(&mut *bus, &mut st, cia408::CW_RESET, ValveState::Disabled)?;
+            goto(&mut *bus, st, cia408::CW_RESET, ValveState::Disabled)?;
         }
-        goto(&mut *bus, &mut st, cia408::CW_HOLD_STATE, ValveState::Hold)?;
-        goto(
-            &mut *bus,
-            &mut st,
-            cia408::CW_ACTIVE_STATE,
-            ValveState::Active,
-        )?;
+        goto(&mut *bus, st, cia408::CW_HOLD_STATE, ValveState::Hold)?;
+        goto(&mut *bus, st, cia408::CW_ACTIVE_STATE, ValveState::Active)?;
 
         // 6. Priming: setpoint 0 + one SYNC so that the first cycle has a position. The
         //    valve is ACTIVE from here: if priming fails, it is commanded back to HOLD
@@ -718,10 +713,10 @@ impl CanopenHal {
             };
             send(
                 &mut *bus,
-                &mut st,
+                st,
                 CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()),
             )?;
-            send(&mut *bus, &mut st, sync::frame())?;
+            send(&mut *bus, st, sync::frame())?;
             let deadline = Instant::now() + sdo_t;
             while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
                 let left = deadline.saturating_duration_since(Instant::now());
@@ -759,12 +754,12 @@ impl CanopenHal {
             Err(e) => {
                 let _ = send(
                     &mut *bus,
-                    &mut st,
+                    st,
                     CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()),
                 );
                 let _ = write(
                     &mut *bus,
-                    &mut st,
+                    st,
                     va,
                     cia408::CONTROL_WORD,
                     0,
