@@ -297,3 +297,16 @@ __all__ = [
     "decode_plant",
     "read_run",
 ]
+
+
+def read_can(path: str | Path, require_channel: bool = True) -> list[dict[str, Any]]:
+    """Every record of the raw CAN channel `/can` (official `mcap` reader, JSON payloads).
+    The channel is created with the first frame: `require_channel` asserts it exists."""
+    frames = []
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        topics = {c.topic for c in reader.get_summary().channels.values()}
+        assert "/can" in topics or not require_channel, topics
+        for _schema, _channel, msg in reader.iter_messages(topics=["/can"]):
+            frames.append(json.loads(msg.data))
+    return frames

@@ -8,7 +8,7 @@ import can
 import pytest
 
 from canhub import hub
-from ehactl_mcap import read_run
+from ehactl_mcap import read_can, read_run
 
 
 def bus(port, channel="can0"):
@@ -170,12 +170,7 @@ def startup_failure(r, out):
     assert len(trips) == 1 and trips[0]["kind"] == "hal_fault", run["events"]
     assert trips[0]["channel"] == "canopen start-up"
     assert trips[0]["value"] == pytest.approx(summary["startup_s"])
-    from mcap.reader import make_reader
-
-    frames = []
-    with open(out, "rb") as f:
-        for _s, _c, msg in make_reader(f).iter_messages(topics=["/can"]):
-            frames.append(json.loads(msg.data))
+    frames = read_can(out, require_channel=summary["can_startup_frames"] > 0)
     assert len(frames) == summary["can_startup_frames"]
     return lines[0], summary, frames
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from canhub import BIN, hub
-from ehactl_mcap import read_run
+from ehactl_mcap import read_can, read_run
 from simrig import BOOM, REPO, bus_url, devices, require_bindings
 
 require_bindings()
@@ -48,20 +48,6 @@ def run_master(port, out, duration, timeout=60):
             summary = None
     assert "panicked" not in p.stderr and "RUST_BACKTRACE" not in p.stderr, p.stderr
     return p.returncode, summary, p.stderr
-
-
-def read_can(path):
-    """Every record of the raw CAN channel `/can` (official `mcap` reader, JSON payloads)."""
-    from mcap.reader import make_reader
-
-    frames = []
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        topics = {c.topic for c in reader.get_summary().channels.values()}
-        assert "/can" in topics, topics
-        for _schema, _channel, msg in reader.iter_messages(topics=["/can"]):
-            frames.append(json.loads(msg.data))
-    return frames
 
 
 def sync_times(frames):
@@ -218,19 +204,29 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
         assert dsum["valve_state"] == "HOLD"
 
 
-def test_sdo_abort_at_configuration_ends_startup(tmp_path):
-    """The valve refuses the first PDO mapping write: start-up fails with the abort code and
-    its meaning, the valve was never made ACTIVE and no SYNC moved the plant."""
-    with hub() as (_, port), devices(port, tmp_path, "--fault", "sdo-abort") as dev:
+def failed_startup(tmp_path, fault):
+    """`ehactl run --hal canopen` against devices with `fault` at start-up: exit 4, the reason
+    on the first stderr line and the log's path on the second, the attempt logged with
+    trip_kind `startup`. Returns (devices, their summary, reason line, run summary, wall s)."""
+    with hub() as (_, port), devices(port, tmp_path, "--fault", fault) as dev:
         t0 = time.monotonic()
         rc, summary, err = run_master(port, tmp_path / "x.mcap", 1.0)
         wall = time.monotonic() - t0
         dsum = finish(dev)
     assert rc == 4, (rc, err)
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 2 and "0x06090030" in lines[0] and "valve" in lines[0].lower(), err
+    assert len(lines) == 2 and "logged to" in lines[1], err
+    assert summary["trip_kind"] == "startup"
+    return dev, dsum, lines[0], summary, wall
+
+
+def test_sdo_abort_at_configuration_ends_startup(tmp_path):
+    """The valve refuses the first PDO mapping write: start-up fails with the abort code and
+    its meaning, the valve was never made ACTIVE and no SYNC moved the plant."""
+    dev, dsum, reason, summary, wall = failed_startup(tmp_path, "sdo-abort")
+    assert "0x06090030" in reason and "valve" in reason.lower(), reason
     # the attempt is logged: the refused SDO write and its abort answer are on /can
-    assert summary["trip_kind"] == "startup" and "0x06090030" in summary["trip"]
+    assert "0x06090030" in summary["trip"]
     frames = read_can(tmp_path / "x.mcap")
     aborts = [f for f in frames if f["dir"] == "rx" and f["id"] == 0x5B0
               and f["data"].startswith("80") and f["data"].endswith("30000906")]
@@ -245,16 +241,10 @@ def test_sdo_abort_at_configuration_ends_startup(tmp_path):
 def test_device_that_never_boots(tmp_path):
     """The valve stays silent: the master gives up after canopen.boot_timeout_s (3 s) naming
     the node, and never starts SYNC."""
-    with hub() as (_, port), devices(port, tmp_path, "--fault", "no-boot") as dev:
-        t0 = time.monotonic()
-        rc, summary, err = run_master(port, tmp_path / "x.mcap", 1.0)
-        wall = time.monotonic() - t0
-        dsum = finish(dev)
-    assert rc == 4, (rc, err)
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 2 and "node 48" in lines[0] and "boot-up" in lines[0], err
+    dev, dsum, reason, summary, wall = failed_startup(tmp_path, "no-boot")
+    assert "node 48" in reason and "boot-up" in reason, reason
     # logged: the transducer's boot-up is on /can, the valve's is not
-    assert summary["trip_kind"] == "startup" and "node 48" in summary["trip"]
+    assert "node 48" in summary["trip"]
     rx = {(f["id"], f["data"]) for f in read_can(tmp_path / "x.mcap") if f["dir"] == "rx"}
     assert (0x720, "00") in rx and (0x730, "00") not in rx, rx
     assert 3.0 <= wall < 4.5, wall
