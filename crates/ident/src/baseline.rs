@@ -157,8 +157,7 @@ pub fn fit(rec: &Record, u: &[f64], n_fit: usize, input_name: &str) -> Baseline 
         for na in 1..=MAX_ORDER {
             for nb in 1..=MAX_ORDER {
                 for nk in 1..=MAX_ORDER {
-                    let Some(mut m) = fit_arx(ch.kind.column(), uf, y, 0..n_fit, na, nb, nk)
-                    else {
+                    let Some(mut m) = fit_arx(ch.kind.column(), uf, y, 0..n_fit, na, nb, nk) else {
                         continue;
                     };
                     let Some(sim) = m.simulate(uf, y) else {
@@ -203,7 +202,10 @@ pub fn score(
     b.models
         .iter()
         .filter_map(|m| {
-            let ch = val_rec.channels.iter().find(|c| c.kind.column() == m.channel)?;
+            let ch = val_rec
+                .channels
+                .iter()
+                .find(|c| c.kind.column() == m.channel)?;
             let e = match m.simulate(u, &ch.values) {
                 Some(sim) => nrmse_range(&ch.values, &sim, range.clone()),
                 None => f64::INFINITY,
@@ -223,7 +225,9 @@ mod tests {
     #[test]
     fn recovers_first_order_system_exactly() {
         let n = 400;
-        let u: Vec<f64> = (0..n).map(|k| ((k / 17) % 2) as f64 * 2.0 - 1.0 + 0.3 * (k as f64 * 0.37).sin()).collect();
+        let u: Vec<f64> = (0..n)
+            .map(|k| ((k / 17) % 2) as f64 * 2.0 - 1.0 + 0.3 * (k as f64 * 0.37).sin())
+            .collect();
         let mut y = vec![0.0; n];
         for k in 2..n {
             y[k] = 0.9 * y[k - 1] + 0.5 * u[k - 2] + 0.1;
@@ -233,7 +237,11 @@ mod tests {
         assert!((m.b[0] - 0.5).abs() < 1e-9, "{:?}", m.b);
         assert!((m.c - 0.1).abs() < 1e-9, "{}", m.c);
         let sim = m.simulate(&u, &y).expect("stable");
-        let err = sim.iter().zip(&y).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        let err = sim
+            .iter()
+            .zip(&y)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
         assert!(err < 1e-9, "{err}");
     }
 }
