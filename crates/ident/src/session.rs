@@ -54,6 +54,10 @@ pub struct RunChoices {
     pub sensor_offsets: bool,
 }
 
+/// Substep refinements allowed to bring the replay's integration error below 0.3 × the
+/// noise floor for `ehactl diagnose` and the Python bindings ([`Options::integration_refinements`]).
+pub const USER_INTEGRATION_REFINEMENTS: u32 = 5;
+
 /// Diagnose `data_path` (CSV or ehactl MCAP) against the nominal `cfg` (labelled
 /// `config_label` in the report), holding out `validate` or the last 30 %; write the report to
 /// `out` when given.
@@ -125,6 +129,8 @@ pub fn run(
         progress: choices.progress,
         sensor_offsets: choices.sensor_offsets,
         drive,
+        // The user's path guarantees replay accuracy (DIAGNOSIS.md "Replay accuracy").
+        integration_refinements: USER_INTEGRATION_REFINEMENTS,
         ..Options::default()
     };
     let d = diagnose(&cfg.plant, &rec, val.as_ref(), &opts).map_err(SessionError::Input)?;
