@@ -158,6 +158,30 @@ fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
     PathBuf::from("out").join(format!("{stem}{suffix}.mcap"))
 }
 
+/// `v` with `digits` significant digits, without float noise (`3.05`, not
+/// `3.0500000000000003`); scientific notation outside 1e-3 ≤ |v| < 1e6.
+pub(crate) fn sig(v: f64, digits: usize) -> String {
+    if !v.is_finite() {
+        return v.to_string();
+    }
+    if v == 0.0 {
+        return "0".into();
+    }
+    let digits = digits.max(1);
+    let e = v.abs().log10().floor() as i32;
+    if (-3..6).contains(&e) {
+        let decimals = (digits as i32 - 1 - e).max(0) as usize;
+        let s = format!("{v:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        format!("{v:.*e}", digits - 1)
+    }
+}
+
 /// Stop flag set by SIGINT / SIGTERM.
 fn stop_flag() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
@@ -206,10 +230,13 @@ fn main() -> ExitCode {
             match ehactl_controller::session::build_plant(&cfg) {
                 Ok(plant) => {
                     println!(
-                        "{}: ok — mode {:?}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
+                        "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
                         config.display(),
-                        cfg.control.mode,
-                        cfg.run.control_rate_hz,
+                        serde_json::to_value(cfg.control.mode)
+                            .ok()
+                            .and_then(|v| v.as_str().map(str::to_owned))
+                            .unwrap_or_default(),
+                        sig(cfg.run.control_rate_hz, 6),
                         plant.substeps(),
                         plant.substep_length() * 1e6,
                         cfg.plant
@@ -373,7 +400,7 @@ fn cmd_run(
             stop: Some(&stop),
             capture: false,
             progress: Some(&mut progress),
-            observer: None,
+            ..Default::default()
         };
         if live_ref.is_some() {
             run_sim_live(&cfg, opts, live_ref)
@@ -397,18 +424,34 @@ fn cmd_run(
         let o = &session.outcome;
         println!("ehactl run {}", config.display());
         println!(
-            "  cycles        {} at {} Hz ({} s simulated, {} substeps/cycle)",
-            o.cycles, session.control_rate_hz, o.duration_s, session.substeps
+            "  cycles        {} at {} Hz ({} s {}, {} substeps/cycle)",
+            o.cycles,
+            sig(session.control_rate_hz, 6),
+            sig(o.duration_s, 6),
+            if session.timing.is_some() {
+                "run"
+            } else {
+                "simulated"
+            },
+            session.substeps
         );
+        if cfg.control.mode == ehactl_controller::config::ControlMode::OpenLoop {
+            // No feedback: the setpoint (V) is the valve command, there is no tracking error.
+            println!("  error         none: open loop (the setpoint is the valve command, V); see the log for the response");
+        } else {
+            println!(
+                "  rms error     {} {} (after start of dynamics: {} {})",
+                sig(o.rms_error, 4),
+                session.unit,
+                sig(o.rms_error_settled, 4),
+                session.unit
+            );
+            println!("  max |error|   {} {}", sig(o.max_abs_error, 4), session.unit);
+        }
         println!(
-            "  rms error     {:.6e} {} (after start of dynamics: {:.6e})",
-            o.rms_error, session.unit, o.rms_error_settled
-        );
-        println!("  max |error|   {:.6e} {}", o.max_abs_error, session.unit);
-        println!(
-            "  speed         {:.1}× real time ({:.3} s wall)",
-            summary["sim_speed_x_realtime"].as_f64().unwrap_or(0.0),
-            session.wall_time_s
+            "  speed         {}× real time ({} s wall)",
+            sig(summary["sim_speed_x_realtime"].as_f64().unwrap_or(0.0), 3),
+            sig(session.wall_time_s, 3)
         );
         if let Some(l) = &session.log {
             println!(
@@ -507,7 +550,7 @@ fn run_realtime(
             stop: Some(stop),
             capture: false,
             progress: Some(progress),
-            observer: None,
+            ..Default::default()
         },
         live,
     )

@@ -11,7 +11,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from . import _ehactl
-from ._runs import ConfigLike, _as_config, _progress_bar
+from ._runs import ConfigLike, _as_config, _must_exist, _progress_bar
 
 
 def analyze(cfg: ConfigLike, *, params: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -137,10 +137,14 @@ def diagnose(
         N, m or Pa), ``extended_config``, ``report``, ``plots``, ``warnings``. Data warnings are also issued as Python warnings.
 
     Raises:
+        FileNotFoundError: ``cfg`` (a path), ``data`` or ``validate`` does not exist.
         ValueError: bad data or config (the message names the file, row or field).
         OSError: the report could not be written.
     """
     c = _as_config(cfg)
+    _must_exist(data, "measured data file")
+    if validate is not None:
+        _must_exist(validate, "validation data file")
     raw, notes = _ehactl.diagnose_json(c, os.fspath(data), None if validate is None else os.fspath(validate),
                                        None if out is None else os.fspath(out), bool(progress),
                                        bool(sensor_offsets))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import os
@@ -20,12 +21,21 @@ FIELDS: tuple[tuple[str, str], ...] = tuple(_ehactl.record_fields())
 _UNITS = dict(FIELDS)
 _UNITS.update({"cycle": "-", "stuck": "bool"})
 _ALIASES = {"command": "u", "valve_command": "plant_command"}
+# Columns whose unit follows the control mode (u = N, m or V).
+_MODE_COLUMNS = {"setpoint": "{u}", "feedback": "{u}", "error": "{u}", "setpoint_rate": "{u}/s"}
+
+
+def _must_exist(path: str | os.PathLike, what: str) -> None:
+    """Raise FileNotFoundError (errno ENOENT, with the path) if ``path`` does not exist."""
+    if not os.path.exists(path):
+        raise FileNotFoundError(errno.ENOENT, f"{what} not found", os.fspath(path))
 
 
 def _as_config(cfg: ConfigLike) -> Config:
     if isinstance(cfg, Config):
         return cfg
     if isinstance(cfg, (str, os.PathLike)):
+        _must_exist(cfg, "config file")
         return Config.load(cfg)
     raise TypeError(f"expected an ehactl.Config or a path to a TOML config, got {type(cfg).__name__}")
 
@@ -68,7 +78,8 @@ class RunResult:
     ``v_load`` (m/s), ``plant_p_a``, ``plant_p_b``, ``p_s`` (Pa), ``plant_spool`` (-),
     ``spool_velocity`` (1/s), ``q_a``, ``q_b`` (m³/s), ``friction``, ``external``,
     ``rod_force`` (N), ``plant_command`` (V, after any delay), ``stuck`` (bool), ``cycle``.
-    ``units`` maps column → unit.
+    ``units`` maps every column to its unit; ``unit`` is ``units["error"]``, the unit of
+    setpoint / feedback / error in this run's control mode. ``dir(res)`` lists the columns.
     """
 
     __slots__ = ("columns", "summary", "config")
@@ -91,6 +102,12 @@ class RunResult:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.columns[_ALIASES.get(name, name)]
 
+    def __dir__(self) -> list[str]:
+        # Columns and their aliases, for tab completion.
+        cols = object.__getattribute__(self, "columns")
+        aliases = [a for a, c in _ALIASES.items() if c in cols]
+        return sorted(set(super().__dir__()) | set(cols) | set(aliases))
+
     def keys(self) -> list[str]:
         """Column names."""
         return list(self.columns)
@@ -100,12 +117,21 @@ class RunResult:
 
     @property
     def units(self) -> dict[str, str]:
-        """Unit of each column ("N or m" columns follow the control mode: see ``unit``)."""
-        return {k: _UNITS.get(k, "") for k in self.columns}
+        """Unit of each column; setpoint / feedback / error (and their rates) in this run's
+        control mode: N (force), m (position) or V (open loop)."""
+        u = self.unit
+        out = {}
+        for k in self.columns:
+            v = _UNITS.get(k, "")
+            if k in _MODE_COLUMNS:
+                v = _MODE_COLUMNS[k].format(u=u) if u else v
+            out[k] = v
+        return out
 
     @property
     def unit(self) -> str:
-        """Unit of setpoint / feedback / error: "N" (force mode), "m" (position) or "V"."""
+        """Unit of setpoint / feedback / error (= ``units["error"]``): "N" (force mode),
+        "m" (position) or "V" (open loop)."""
         return self.summary.get("error_unit", "")
 
     @property
@@ -145,7 +171,8 @@ def _progress_bar(total: int, desc: str, unit: str):
         from tqdm.auto import tqdm
     except ImportError:  # pragma: no cover - tqdm is optional
         return None, None
-    bar = tqdm(total=total, desc=desc, unit=unit)
+    # disable=None: no bar when stderr is not a terminal (logs, CI, Dask workers).
+    bar = tqdm(total=total, desc=desc, unit=unit, disable=None)
 
     def cb(done: int, _total: int) -> None:
         bar.n = done

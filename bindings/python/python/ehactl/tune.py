@@ -368,7 +368,7 @@ def critical_gain(
         try:
             from tqdm.auto import tqdm
 
-            bar = tqdm(desc="critical gain", unit="batch")
+            bar = tqdm(desc="critical gain", unit="batch", disable=None)
         except ImportError:  # pragma: no cover
             bar = None
     grid = np.geomspace(lo_r, hi_r, 16)
@@ -555,7 +555,7 @@ def optimize(
         try:
             from tqdm.auto import tqdm
 
-            bar = tqdm(total=generations, desc="optimize", unit="gen")
+            bar = tqdm(total=generations, desc="optimize", unit="gen", disable=None)
         except ImportError:  # pragma: no cover
             bar = None
     for gen in range(generations):
