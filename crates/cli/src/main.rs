@@ -11,6 +11,7 @@ mod canbus;
 
 use canbus::HalKind;
 mod diagnose;
+mod live;
 
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
@@ -30,6 +31,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
@@ -72,6 +74,11 @@ enum Command {
         /// CAN bus for --hal canopen: socketcan://IFACE or socketcand://HOST:PORT/CHANNEL.
         #[arg(long, value_name = "URL")]
         bus: Option<String>,
+        /// Serve the run live to Foxglove (Foxglove WebSocket protocol, same channels as the
+        /// MCAP log) on HOST:PORT (default 127.0.0.1:8765; port 0 = any free port). Best with
+        /// --realtime; messages a viewer cannot take are dropped and counted, never waited for.
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live::DEFAULT_ADDR)]
+        live: Option<String>,
     },
     /// Change gains or setpoint parameters of a running `ehactl run --control-socket PATH`;
     /// the change lands at a cycle boundary and is logged as a `param_change` event.
@@ -209,6 +216,7 @@ fn main() -> ExitCode {
             control_socket,
             hal,
             bus,
+            live,
         } => cmd_run(
             &config,
             duration,
@@ -217,6 +225,7 @@ fn main() -> ExitCode {
             realtime,
             control_socket,
             (hal, bus),
+            live.as_deref(),
         ),
         Command::Set {
             socket,
@@ -319,6 +328,7 @@ fn cmd_run(
     realtime: bool,
     control_socket: Option<PathBuf>,
     (hal, bus): (HalKind, Option<String>),
+    live_addr: Option<&str>,
 ) -> ExitCode {
     let cfg = match load(config) {
         Ok(c) => c,
@@ -337,6 +347,21 @@ fn cmd_run(
         Ok(h) => h,
         Err(code) => return code,
     };
+    if let Some(Err(e)) = live_addr.map(live::parse_addr) {
+        return config_error(e);
+    }
+    let live_view = match live_addr.map(live::LiveView::start).transpose() {
+        Ok(v) => v,
+        Err(e) => {
+            eprintln!("ehactl: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    if let Some(v) = &live_view {
+        // Parsed by tests and scripts: the URL is the last word.
+        eprintln!("ehactl: live view (Foxglove WebSocket) on {}", v.url);
+    }
+    let tap = live_view.as_ref().map(|v| v.tap());
     let bar = progress_bar(String::new());
     let live = Arc::new(LiveParams::new());
     let _server = match &control_socket {
@@ -384,6 +409,7 @@ fn cmd_run(
             &mut progress,
             live_ref,
             can_hal.as_mut().map(|h| h as &mut dyn Hal),
+            tap,
         );
         finished.store(true, Ordering::Relaxed);
         let _ = watcher.join();
@@ -400,6 +426,7 @@ fn cmd_run(
             stop: Some(&stop),
             capture: false,
             progress: Some(&mut progress),
+            tap,
             ..Default::default()
         };
         if live_ref.is_some() {
@@ -409,6 +436,10 @@ fn cmd_run(
         }
     };
     bar.finish_and_clear();
+    let live_stats = live_view.map(|v| {
+        let url = v.url.clone();
+        (url, v.finish(Duration::from_secs(5), Duration::from_millis(500)))
+    });
     let session = match result {
         Ok(s) => s,
         Err(SessionError::Config(e)) => return config_error(format!("{}: {e}", config.display())),
@@ -417,7 +448,15 @@ fn cmd_run(
             return ExitCode::from(1);
         }
     };
-    let summary = session.summary_json();
+    let mut summary = session.summary_json();
+    if let Some((url, st)) = &live_stats {
+        summary["live"] = serde_json::json!({
+            "url": url,
+            "messages_published": st.published,
+            "messages_dropped": st.dropped,
+            "clients_at_end": st.clients,
+        });
+    }
     if json {
         println!("{summary}");
     } else {
@@ -461,6 +500,12 @@ fn cmd_run(
                 l.records_dropped,
                 l.queue_high_water,
                 l.queue_capacity
+            );
+        }
+        if let Some((url, st)) = &live_stats {
+            println!(
+                "  live          {url}: {} messages published, {} dropped (viewer too slow), {} client(s) at the end",
+                st.published, st.dropped, st.clients
             );
         }
         canbus::print_summary(&summary);
@@ -517,6 +562,7 @@ fn run_realtime(
     progress: &mut dyn FnMut(u64, u64),
     live: Option<&LiveParams>,
     hardware: Option<&mut dyn Hal>,
+    tap: Option<Arc<ehactl_hal::logger::LogTap>>,
 ) -> Result<Session, SessionError> {
     let mut cfg_run = cfg.clone();
     if let Some(d) = duration {
@@ -550,6 +596,7 @@ fn run_realtime(
             stop: Some(stop),
             capture: false,
             progress: Some(progress),
+            tap,
             ..Default::default()
         },
         live,
