@@ -13,8 +13,8 @@ command -v python3 >/dev/null || { echo "error: python3 not found; install Pytho
 echo "== installing the ehactl binary (cargo install --path crates/cli --locked)"
 cargo install --quiet --path crates/cli --locked
 bin_dir="${CARGO_INSTALL_ROOT:-${CARGO_HOME:-$HOME/.cargo}}/bin"
-echo "== installing the Python package ehactl with its extras (pip install ./bindings/python[all])"
-python3 -m pip install --quiet "./bindings/python[all]"
+echo "== installing the Python package ehactl with its extras (pip install "./bindings/python[all,devices]")"
+python3 -m pip install --quiet "./bindings/python[all,devices]"
 if [ "$(command -v ehactl || true)" != "$bin_dir/ehactl" ]; then
   echo "note: $bin_dir is not first on PATH; add it, e.g. to ~/.bashrc:" >&2
   echo "      export PATH=\"$bin_dir:\$PATH\"" >&2

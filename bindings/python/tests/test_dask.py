@@ -63,15 +63,22 @@ def test_tuning_on_the_cluster_gives_the_local_gains(client, force_cfg):
 
 
 def test_diagnose_many_on_the_cluster(client, tmp_path):
-    data = REPO / "tests/data/measured/utfsm_mts"
-    files = sorted(data.glob("*.csv"))[:2]
-    assert files, "no measured UTFSM records in tests/data"
-    cases = [{"config": REPO / "configs/utfsm_mts_mrdamper.toml", "data": f} for f in files]
+    # a small fleet: two 0.5 s logs of the diagnosis test rig, one with a hidden 5 ms delay
+    rig = REPO / "configs/diagnose_testrig.toml"
+    nominal = ehactl.Config.load(rig)
+    delayed = ehactl.Config.from_toml(nominal.to_toml() + "\n[effects.time_delay]\ndelay = 0.005\n")
+    logs = []
+    for name, cfg in (("nominal", nominal), ("delayed", delayed)):
+        ehactl.run(cfg, duration=0.5, mcap=tmp_path / f"{name}.mcap")
+        logs.append(tmp_path / f"{name}.mcap")
+    cases = [{"config": rig, "data": f} for f in logs]
     remote = ehactl.diagnose_many(cases, client=client)
     local = ehactl.diagnose_many(cases)
-    assert list(remote["data"]) == [str(f) for f in files]
+    assert list(remote["data"]) == [str(f) for f in logs]
     pd.testing.assert_frame_equal(remote, local)
     assert remote["nrmse_nominal"].notna().all()
+    # the delayed rig fits the nominal model worse than the nominal one
+    assert remote["nrmse_nominal"][1] > remote["nrmse_nominal"][0]
 
 
 def test_bad_client_and_missing_file(force_cfg, tmp_path):

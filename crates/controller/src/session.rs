@@ -111,6 +111,7 @@ impl Session {
             "sim_speed_x_realtime": if self.wall_time_s > 0.0 { o.duration_s / self.wall_time_s } else { 0.0 },
             "wall_time_s": self.wall_time_s,
             "substeps": self.substeps,
+            "log_decimation": self.log_every,
             "log": self.log.as_ref().map(|l| json!({
                 "records_written": l.records_written,
                 "records_dropped": l.records_dropped,
@@ -118,7 +119,6 @@ impl Session {
                 "events_written": l.events_written,
                 "queue_high_water": l.queue_high_water,
                 "queue_capacity": l.queue_capacity,
-                "decimation": self.log_every,
                 "can_frames_written": l.frames_written,
                 "can_frames_dropped": l.frames_dropped,
             })),

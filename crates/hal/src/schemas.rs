@@ -74,6 +74,7 @@ pub fn summary_schema() -> Value {
             "substeps": int("plant substeps per control period (0 on hardware)"),
             "realtime": {"type": "boolean", "description": "paced by the wall clock"},
             "records_written": int("cycle records written to the log"),
+            "log_decimation": int("one cycle in N written to the log (events, first and last cycle always)"),
             "log": {"type": ["object", "null"], "description": "logger counters", "properties": {
                 "records_written": int("cycle records written"),
                 "records_dropped": int("cycle records dropped (queue full, wall-clock runs)"),
@@ -81,7 +82,6 @@ pub fn summary_schema() -> Value {
                 "events_written": int("events written"),
                 "queue_high_water": int("highest queue occupancy (records)"),
                 "queue_capacity": int("queue capacity (records)"),
-                "decimation": int("one cycle in N logged"),
                 "can_frames_written": int("raw CAN frames written to /can"),
                 "can_frames_dropped": int("raw CAN frames dropped"),
             }},

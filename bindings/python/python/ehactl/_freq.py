@@ -197,7 +197,7 @@ def frequency_response(
         if len(gidx) == 0:
             continue
         dur = float(durations[gidx].max())
-        rs = run_many([cfgs[i] for i in gidx], duration=dur, fields=["t", "setpoint", "feedback", "u"], threads=threads, client=client, progress=progress)
+        rs = run_many([cfgs[i] for i in gidx], duration=dur, fields=["t", "setpoint", "feedback", "u"], threads=threads, client=client, frame=False, progress=progress)
         for i, r in zip(gidx, rs):
             results[int(i)] = r
     for i, fi in enumerate(f):

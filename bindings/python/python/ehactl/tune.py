@@ -202,7 +202,7 @@ def evaluate(
     test = test or StepTest.default(base)
     gains = list(gains) if gains is not None else [{}]
     cfgs = [base.with_values(g) if g else base for g in gains]
-    res = run_many(cfgs, duration=test.duration, setpoint=test.setpoint(), fields=test.fields(), threads=threads, client=client)
+    res = run_many(cfgs, duration=test.duration, setpoint=test.setpoint(), fields=test.fields(), threads=threads, client=client, frame=False)
     return [score(r, test) for r in res]
 
 
@@ -350,7 +350,7 @@ def critical_gain(
             duration=test.duration,
             setpoint=test.setpoint(),
             fields=["t", test.signal],
-            threads=threads, client=client,
+            threads=threads, client=client, frame=False,
         )
         out = []
         for k, r in zip(kps, res):
