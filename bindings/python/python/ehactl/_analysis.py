@@ -71,7 +71,7 @@ def sweep(
         points: number of log-spaced frequencies.
         amplitude: sine amplitude (N or m closed loop, V open loop).
         output: "force", "position", "p_a" or "p_b" (default the loop's feedback).
-        mcap: MCAP log of the sweep run.
+        mcap: MCAP log of the sweep run (one control cycle in 5, as `ehactl sweep`).
         params: dotted-path overrides.
         progress: True for a tqdm bar, or a callable ``(done_cycles, total_cycles)``.
 
