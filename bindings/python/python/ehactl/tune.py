@@ -18,6 +18,11 @@ Gains: force mode → ``control.pi.kp`` (V/V) and ``control.pi.integral`` (1/s, 
 K_P(1 + I/s), 004 §6); position mode → ``control.pd.kp`` (V/m) and ``control.pd.td`` (s,
 003 eq. 32). Every metric is computed on the nonlinear simulated plant from the ground
 truth (``rod_force`` or ``x``), so sensor noise does not enter the score.
+
+Every function that runs batches (:func:`evaluate`, :func:`critical_gain`,
+:func:`optimize`, :func:`model_based`, :func:`frequency_response`) takes ``client=``, a
+``dask.distributed.Client``: its batches then run on the cluster's workers (see
+:func:`ehactl.run_many`) with the same numbers; the default is the local rayon path.
 """
 
 from __future__ import annotations
