@@ -69,7 +69,7 @@ fn every_field_is_in_the_registry_with_a_unit() {
 fn bus_load_limit_follows_the_formula() {
     // Largest SYNC rate at 80 % on 1 Mbit/s with the default set (SYNC, 4, 2, 4 bytes).
     let per_sync: u32 = [0, 4, 2, 4].into_iter().map(frame_bits).sum();
-    let hb = 2.0 * f64::from(frame_bits(1)) / 0.020;
+    let hb = 3.0 * f64::from(frame_bits(1)) / 0.020; // 2 devices + ehactl, every 20 ms
     let f_max = (0.8e6 - hb) / f64::from(per_sync);
     let ok = boom() + &format!("\n[canopen]\nsync_rate_hz = {}\n", (f_max - 1.0).floor());
     assert!(RigConfig::from_toml_str(&ok).is_ok());

@@ -339,6 +339,8 @@ class SimRig:
             "valve_setpoint": v.setpoint() if v.powered else None,
             "valve_nmt": v.nmt_state, "transducer_nmt": self.transducer.nmt_state,
             "last_command_v": self.last_command_v,
+            # what the valve would drive now (V): hold setpoint / failsafe after a fault
+            "valve_command_v": v.command_volts() if v.powered else 0.0,
             "position_m": self.transducer.position_m,
             "bus_lost": self.bus_lost,
             "frames_sent": {f"0x{k:03X}": v for k, v in sorted(self.network.frames_sent.items())},
@@ -365,6 +367,8 @@ class SimRig:
         if len(data) > 1:
             return  # SYNC has no data or a 1-byte counter (CiA 301 7.2.5)
         self.sync_count += 1
+        if self.valve.powered:
+            self.valve.sync_tick()
         self._inject_faults()
         for n in self.nodes:
             if n.powered and n.nmt_state in (PRE_OPERATIONAL, OPERATIONAL):
@@ -449,8 +453,11 @@ class SimRig:
             now = time.monotonic()
             try:
                 for n in self.nodes:
+                    with n.lock:
+                        n.consumers_due(now)
                     n.heartbeat_due(now)
                     n.async_tpdos_due(now)
+                self.valve.timer_tick(now)
             except (OSError, can.CanError) as e:
                 if self.bus_lost is None:
                     self._on_bus_lost(f"send failed: {e}")
