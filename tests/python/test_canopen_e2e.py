@@ -59,6 +59,13 @@ def after_last_active(dev):
     return states[k + 1] if k + 1 < len(states) else None
 
 
+def why(summary, err):
+    """Failure message of a run: the trip reason (from the --json summary on stdout) and
+    stderr, so that a failing assertion on the exit code says what happened."""
+    trip = summary.get("trip") if isinstance(summary, dict) else None
+    return f"trip: {trip}; stderr: {err.strip()[-1500:]}"
+
+
 def sync_times(frames):
     """Loop times (s) of the SYNCs the master sent, in order (SYNC k → index k-1)."""
     return [f["t"] for f in frames if f["dir"] == "tx" and f["id"] == 0x080]
@@ -95,7 +102,7 @@ def test_boom_position_step_closes_over_can(tmp_path):
     with hub() as (_, port), devices(port, tmp_path) as dev:
         out = tmp_path / "can.mcap"
         rc, summary, err = run_master(port, out, duration)
-        assert rc == 0, err
+        assert rc == 0, why(summary, err)
         dsum = finish(dev)
     assert summary["trip"] is None
     # the master brought both devices to OPERATIONAL and the valve to ACTIVE, and left the
@@ -176,7 +183,7 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
         out = tmp_path / "fault.mcap"
         rc, summary, err = run_master(port, out, 1.5)
         dsum = finish(dev)
-    assert rc == 3, (rc, err)
+    assert rc == 3, (rc, why(summary, err))
     assert summary is not None and summary["trip"] is not None
     assert reason.lower() in json.dumps(summary["trip"]).lower(), summary["trip"]
     run = read_run(out)
@@ -226,7 +233,7 @@ def failed_startup(tmp_path, fault):
         rc, summary, err = run_master(port, tmp_path / "x.mcap", 1.0)
         wall = time.monotonic() - t0
         dsum = finish(dev)
-    assert rc == 4, (rc, err)
+    assert rc == 4, (rc, why(summary, err))
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 2 and "logged to" in lines[1], err
     assert summary["trip_kind"] == "startup"
@@ -273,7 +280,7 @@ def test_malformed_frames_logged_and_ignored(tmp_path):
         out = tmp_path / "m.mcap"
         rc, summary, err = run_master(port, out, 1.5)
         dsum = finish(dev)
-    assert rc == 0, err
+    assert rc == 0, why(summary, err)
     assert injected(dev, "malformed")
     assert summary["can_wrong_dlc"] == 1 and summary["can_unknown_cob_id"] == 1
     run = read_run(out)
@@ -339,8 +346,8 @@ def test_sigkill_of_ehactl_takes_the_valve_out_of_active(tmp_path):
     import can
 
     with hub() as (_, port), devices(port, tmp_path) as dev:
-        # an independent observer on the bus: arrival times of ehactl's heartbeats (wall clock,
-        # as the devices' event times)
+        # an independent observer on the bus: ehactl's heartbeats with the hub's relay time
+        # (wall clock, as the devices' event times)
         obs = can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel="can0",
                       tcp_tune=True)
         beats, stop = [], threading.Event()
@@ -349,7 +356,7 @@ def test_sigkill_of_ehactl_takes_the_valve_out_of_active(tmp_path):
             while not stop.is_set():
                 m = obs.recv(0.05)
                 if m is not None and m.arbitration_id == MASTER_HB_COB:
-                    beats.append(time.time())
+                    beats.append(m.timestamp)  # the hub's relay time (wall clock)
 
         w = threading.Thread(target=watch, daemon=True)
         w.start()
@@ -382,10 +389,10 @@ def test_sigkill_of_ehactl_takes_the_valve_out_of_active(tmp_path):
     states = [e["state"] for e in dev.events("state")]
     assert states[-2:] == ["FAULT_REACTION", "FAULT_HOLD"], states
     assert dsum["valve_state"] == "FAULT_HOLD" and dsum["valve_command_v"] == 0.0
-    # Out of ACTIVE one consumer time after the last heartbeat on the bus: not before it
-    # (minus 10 ms: the observer's and the valve's receive times of that frame differ by the
-    # hub's two relays), and within it plus 25 ms of scheduling slack of the Python devices
-    # on a loaded 2-core machine (their timer ticks every 1 ms), as in the other e2e bounds.
+    # Out of ACTIVE one consumer time after the last heartbeat on the bus (its hub relay
+    # time, the time base of the valve's consumer): not before it, and within it plus 25 ms
+    # of scheduling slack of the Python devices on a loaded 2-core machine (their timer ticks
+    # every 1 ms), as in the other e2e bounds.
     after_last = left["t_wall"] - t_last
-    assert DEVICE_HB_TIMEOUT_S - 0.010 <= after_last <= DEVICE_HB_TIMEOUT_S + 0.025, after_last
+    assert DEVICE_HB_TIMEOUT_S <= after_last <= DEVICE_HB_TIMEOUT_S + 0.025, after_last
     assert left["t_wall"] - t_kill <= DEVICE_HB_TIMEOUT_S + 0.025, left["t_wall"] - t_kill

@@ -82,3 +82,19 @@ fn bus_load_limit_follows_the_formula() {
     assert_eq!(e.path, "canopen.valve_status_pdo");
     assert!(e.message.contains("expected true or false"), "{e}");
 }
+
+#[test]
+fn safe_command_outside_the_valve_range_is_refused() {
+    // The case: -1e9 V passed check-config and saturated to a fully open spool.
+    for v in ["-1e9", "10.5", "-10.000001"] {
+        let text = boom().replace("safe_command = 0.0 ", &format!("safe_command = {v} "));
+        let e = RigConfig::from_toml_str(&text).unwrap_err();
+        assert_eq!(e.path, "supervisor.safe_command", "{e}");
+        assert!(e.message.contains("valve.command_full_scale = 10 V"), "{e}");
+    }
+    let ok = boom().replace("safe_command = 0.0 ", "safe_command = -10.0 ");
+    assert!(RigConfig::from_toml_str(&ok).is_ok());
+    let clamp = boom().replace("safe_command = 0.0 ", "safe_command = 3.0\nmax_command = 2.0 ");
+    let e = RigConfig::from_toml_str(&clamp).unwrap_err();
+    assert!(e.message.contains("supervisor.max_command = 2 V"), "{e}");
+}

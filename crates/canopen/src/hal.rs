@@ -78,6 +78,9 @@ pub struct CanopenSettings {
     pub command_full_scale: f64,
     /// Control rate (Hz), `run.control_rate_hz`.
     pub control_rate_hz: f64,
+    /// Command of the safe stop (V), `supervisor.safe_command`: must be closed centre
+    /// (spool setpoint 0) on a CAN valve, checked before the bus is opened.
+    pub safe_command: f64,
     /// Print start-up progress on stderr.
     pub verbose: bool,
 }
@@ -482,6 +485,19 @@ impl CanopenHal {
             [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
         );
         let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
+        // Closed centre only: the safe stop sends this setpoint and then HOLD, where the valve
+        // controls to the hold setpoint 0x6314:01 = 0; any other value would open the valve
+        // on a trip (a huge value saturates to a fully open spool).
+        let safe_sp = cia408::setpoint_from_command(s.safe_command, s.command_full_scale);
+        if !s.safe_command.is_finite() || safe_sp != 0 {
+            return Err(StartupError::Settings(format!(
+                "supervisor.safe_command = {} V is no closed-centre command for the CAN valve: it is spool setpoint {safe_sp} of ±{} (expected 0, i.e. |safe_command| < {:.3e} V with valve.command_full_scale = {} V)",
+                s.safe_command,
+                cia408::FULL_SCALE,
+                s.command_full_scale / f64::from(cia408::FULL_SCALE) / 2.0,
+                s.command_full_scale
+            )));
+        }
         let mut bus = Box::new(StartBus {
             inner: bus::open(&s.bus, Duration::from_secs(3))?,
             hb: master_hb,

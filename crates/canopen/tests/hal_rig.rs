@@ -316,6 +316,7 @@ fn settings(port: u16, cfg: CanopenConfig) -> CanopenSettings {
         canopen: cfg,
         command_full_scale: 10.0,
         control_rate_hz: 2000.0,
+        safe_command: 0.0,
         verbose: false,
     }
 }
@@ -775,4 +776,28 @@ fn a_valve_in_fault_hold_is_reset_by_a_rising_edge_of_r_with_d_and_h_held() {
     let _ = hal.safe_stop(0.0);
     knobs.stop.store(true, Ordering::Relaxed);
     rig_thread.join().unwrap();
+}
+
+#[test]
+fn a_safe_command_that_is_not_closed_centre_is_refused_before_the_bus_is_opened() {
+    // Nothing listens on port 1: the check comes first, so the error is the setting's.
+    for (u, setpoint) in [(1.0, "1638"), (-1e9, "-16384"), (f64::NAN, "0")] {
+        let mut s = settings(1, test_bus());
+        s.safe_command = u;
+        let e = CanopenHal::connect(s).unwrap_err();
+        let StartupError::Settings(m) = &e else {
+            panic!("{e}")
+        };
+        assert!(
+            m.contains("supervisor.safe_command") && m.contains(&format!("setpoint {setpoint} ")),
+            "{m}"
+        );
+    }
+    // half an LSB of the ±16384 scale still rounds to setpoint 0: accepted (fails on the bus)
+    let mut s = settings(1, test_bus());
+    s.safe_command = 10.0 / 16384.0 / 2.0 * 0.99;
+    assert!(matches!(
+        CanopenHal::connect(s).unwrap_err(),
+        StartupError::Bus(_)
+    ));
 }

@@ -230,22 +230,26 @@ class SimNode:
                 continue
             self._consumers[producer] = [ms / 1000.0, None]
             cob = 0x700 + producer
-            cb = (lambda p: (lambda can_id, data, ts: self._on_producer_heartbeat(p, data)))(
+            cb = (lambda p: (lambda can_id, data, ts: self._on_producer_heartbeat(p, data, ts)))(
                 producer)
             self.network.subscribe(cob, cb)
             self._consumer_subscribed[cob] = cb
 
-    def _on_producer_heartbeat(self, producer: int, data: bytes) -> None:
+    def _on_producer_heartbeat(self, producer: int, data: bytes, ts: float) -> None:
         if len(data) != 1 or not self.powered:
             return
         c = self._consumers.get(producer)
         if c is not None:
-            c[1] = time.monotonic()
+            c[1] = ts if ts else time.time()
 
     def consumers_due(self, now: float) -> None:
-        """Timer thread: a monitored producer silent for its consumer time is lost (heartbeat
-        event, CiA 301 7.2.8.3.2.2): EMCY 0x8130 and the profile's reaction; monitoring
-        restarts with its next heartbeat."""
+        """A monitored producer silent for its consumer time is lost (heartbeat event, CiA 301
+        7.2.8.3.2.2): EMCY 0x8130 and the profile's reaction; monitoring restarts with its next
+        heartbeat. Times are bus times (the receive stamp of each frame, wall clock s): the rig
+        checks at every received frame with that frame's stamp and, when nothing arrives, with
+        the wall clock. A real device handles each frame as it arrives; this Python one may be
+        behind its receive queue on a loaded machine, and a heartbeat still waiting in that
+        queue is no loss."""
         if not self.powered or self.nmt_state == INITIALISING:
             return
         for producer, c in list(self._consumers.items()):
