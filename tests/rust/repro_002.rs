@@ -220,6 +220,6 @@ fn bulk_modulus_swing_over_the_run() {
     // span the working range. The config's K_b gives that over tank-to-supply (±1 %) ...
     assert!((swing_range - 0.10).abs() < 0.01, "{swing_range}");
     // ... while this lift at constant load only spans a few MPa (reported, see
-    // REPRODUCTION_001_002.md): the swing over the run must be the law applied to its range.
+    // REPRODUCTION.md, seed 002): the swing over the run must be the law applied to its range.
     assert!(swing > 0.0 && swing < swing_range, "{swing}");
 }
