@@ -94,7 +94,10 @@ fn safe_command_outside_the_valve_range_is_refused() {
     }
     let ok = boom().replace("safe_command = 0.0 ", "safe_command = -10.0 ");
     assert!(RigConfig::from_toml_str(&ok).is_ok());
-    let clamp = boom().replace("safe_command = 0.0 ", "safe_command = 3.0\nmax_command = 2.0 ");
+    let clamp = boom().replace(
+        "safe_command = 0.0 ",
+        "safe_command = 3.0\nmax_command = 2.0 ",
+    );
     let e = RigConfig::from_toml_str(&clamp).unwrap_err();
     assert!(e.message.contains("supervisor.max_command = 2 V"), "{e}");
 }

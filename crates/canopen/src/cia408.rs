@@ -220,7 +220,11 @@ mod tests {
         ];
         for (code, st) in published {
             assert_eq!(ValveState::from_status(code), st, "0x{code:04X}");
-            assert_eq!(ValveState::from_status(code | 0x0610), st, "high bits ignored");
+            assert_eq!(
+                ValveState::from_status(code | 0x0610),
+                st,
+                "high bits ignored"
+            );
             assert_eq!(st.status_bits(), code);
             assert_eq!(st.is_fault(), code & SW_READY == 0);
         }
@@ -229,8 +233,13 @@ mod tests {
         assert_eq!(ValveState::from_status(0x000B), ValveState::Hold);
         assert!(ValveState::from_status(0x0003).is_fault());
         assert!(ValveState::from_status(0x0007).is_fault());
-        for code in [0b0010u16, 0b0100, 0b0101, 0b0110, 0b1010, 0b1100, 0b1101, 0b1110] {
-            assert_eq!(ValveState::from_status(code), ValveState::Unknown(code as u8));
+        for code in [
+            0b0010u16, 0b0100, 0b0101, 0b0110, 0b1010, 0b1100, 0b1101, 0b1110,
+        ] {
+            assert_eq!(
+                ValveState::from_status(code),
+                ValveState::Unknown(code as u8)
+            );
         }
         // control words of fig. 19: DISABLED MHD xx1, HOLD x11, ACTIVE 111
         assert_eq!(CW_DISABLED_STATE, 0b001);

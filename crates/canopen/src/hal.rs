@@ -626,8 +626,8 @@ impl CanopenHal {
             )?;
             // Consumer of ehactl's heartbeat (CiA 301 0x1016:01 = node id << 16 | time ms):
             // the device enters its fault reaction when ehactl stops (DEPLOY.md).
-            let consumer = (u32::from(c.master_node_id) << 16)
-                | u32::from(c.device_heartbeat_timeout_ms);
+            let consumer =
+                (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
             let step = format!(
                 "setting the {} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)",
                 dev.name()
@@ -853,7 +853,8 @@ impl CanopenHal {
         // FAULT_INIT 0000→1000).
         let mut sw = status(&mut *bus, st)?;
         let deadline = Instant::now() + sdo_t;
-        while ValveState::from_status(sw) == ValveState::FaultReaction && Instant::now() < deadline {
+        while ValveState::from_status(sw) == ValveState::FaultReaction && Instant::now() < deadline
+        {
             std::thread::sleep(Duration::from_millis(5));
             sw = status(&mut *bus, st)?;
         }
@@ -899,7 +900,12 @@ impl CanopenHal {
                 )));
             }
         }
-        goto(&mut *bus, st, cia408::CW_DISABLED_STATE, ValveState::Disabled)?;
+        goto(
+            &mut *bus,
+            st,
+            cia408::CW_DISABLED_STATE,
+            ValveState::Disabled,
+        )?;
         goto(&mut *bus, st, cia408::CW_HOLD_STATE, ValveState::Hold)?;
         goto(&mut *bus, st, cia408::CW_ACTIVE_STATE, ValveState::Active)?;
 

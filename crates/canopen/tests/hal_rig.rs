@@ -770,7 +770,11 @@ fn a_valve_in_fault_hold_is_reset_by_a_rising_edge_of_r_with_d_and_h_held() {
         .filter(|(id, d)| *id == 0x630 && d[..4] == [0x2B, 0x40, 0x60, 0x00])
         .map(|(_, d)| d[4])
         .collect();
-    assert_eq!(cws, vec![0x03, 0x0B, 0x01, 0x03, 0x07], "control words {cws:02X?}");
+    assert_eq!(
+        cws,
+        vec![0x03, 0x0B, 0x01, 0x03, 0x07],
+        "control words {cws:02X?}"
+    );
     let (_, _, err, _) = drive(&mut hal, 0.1, 0.0, &mut |_| {});
     assert!(err.is_none(), "{err:?}");
     let _ = hal.safe_stop(0.0);
