@@ -244,7 +244,12 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
             ));
         }
     }
-    if let Some(cb) = p.effects.counterbalance_valve.as_ref().filter(|c| c.enabled) {
+    if let Some(cb) = p
+        .effects
+        .counterbalance_valve
+        .as_ref()
+        .filter(|c| c.enabled)
+    {
         if !p.effects.line_dynamics.as_ref().is_some_and(|l| l.enabled) {
             return Err(ConfigError::new(
                 "effects.counterbalance_valve",
@@ -816,8 +821,22 @@ impl Plant {
                 let lam_b = beta_b / vb * (-c.k_in - c.k_ext - dinto[1]);
                 s.p_a = (s.p_a + h * fa * phi1(lam_a * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lam_b * h)).max(c.p_cav);
-                la.advance_flows(h, if self.cbv[0].is_some() { p_end[0] } else { s.p_a });
-                lb.advance_flows(h, if self.cbv[1].is_some() { p_end[1] } else { s.p_b });
+                la.advance_flows(
+                    h,
+                    if self.cbv[0].is_some() {
+                        p_end[0]
+                    } else {
+                        s.p_a
+                    },
+                );
+                lb.advance_flows(
+                    h,
+                    if self.cbv[1].is_some() {
+                        p_end[1]
+                    } else {
+                        s.p_b
+                    },
+                );
             }
         }
         // Supply sag (000): first-order towards p_s0 − R·Q_s.
