@@ -484,3 +484,15 @@ fn crane_cycle_with_counterbalance_valves() {
         "steady tracking {steady:?}"
     );
 }
+
+#[test]
+fn counterbalance_valve_needs_lines() {
+    let mut cfg = config("cristofori2015_crane_cycle.toml");
+    cfg.plant.effects.line_dynamics = None;
+    let e = Plant::configure(&cfg.plant, cfg.control_dt()).expect_err("a CBV without lines");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("effects.counterbalance_valve") && msg.contains("line_dynamics"),
+        "{msg}"
+    );
+}
