@@ -51,8 +51,7 @@ def margins_chunk(tomls: list[str]) -> list[dict]:
 
     out = []
     for t in tomls:
-        a = eh.analyze(eh.Config.from_toml(t))
-        d = a.get("discrete") or {}
+        d = eh.analyze(eh.Config.from_toml(t))  # top-level keys: the sampled (ZOH) loop
         out.append({
             "phase_margin_deg": d.get("phase_margin_deg"),
             "gain_margin_db": d.get("gain_margin_db"),
