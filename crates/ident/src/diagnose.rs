@@ -52,9 +52,8 @@ pub struct Options {
     /// At most this many substep refinements (each ≥ 2× the substeps) to bring the replay's
     /// integration error below [`crate::replay::INTEGRATION_RATIO`] × the noise floor
     /// ([`crate::replay::check_integration`]); 0 keeps the config's integration and only
-    /// reports the figure. The library default is 0 (the synthetic tests generate their data
-    /// with the same integrator at the same settings, and each refinement doubles the cost);
-    /// the CLI and the Python bindings use [`crate::session::USER_INTEGRATION_REFINEMENTS`].
+    /// reports the figure (and warns when it is not met). Default 0: each refinement at least
+    /// doubles the cost (see [`crate::session::USER_INTEGRATION_REFINEMENTS`]).
     pub integration_refinements: u32,
 }
 
@@ -872,6 +871,7 @@ pub fn diagnose(
             )
         };
     }
+    let int_warning = integration_warning(&integration);
     let traces = Traces {
         nominal: Some(nom_sim),
         extended: ext_fit_sim,
@@ -912,6 +912,7 @@ pub fn diagnose(
                 [].iter()
             })
             .cloned()
+            .chain(int_warning)
             .collect(),
         analysis,
         analysis_refit,
@@ -920,6 +921,25 @@ pub fn diagnose(
         extended,
         traces,
     })
+}
+
+/// A warning when the replay's integration error is not well below the noise floor, with
+/// the `integration.max_omega_h` that would make it so (the scheme is first order: the error
+/// scales with the step).
+fn integration_warning(ig: &crate::replay::IntegrationCheck) -> Option<String> {
+    if ig.met {
+        return None;
+    }
+    let worst = ig
+        .error
+        .iter()
+        .map(|(k, e)| (k, e / ig.floor.get(k).copied().unwrap_or(0.0).max(1e-12)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
+    let need = ig.max_omega_h * ig.ratio_limit / worst.1;
+    Some(format!(
+        "replay integration error on `{}` is {:.2}× its noise floor (required ≤ {}): part of the residual may be the simulation's own error; set [plant.integration] max_omega_h = {:.3} (now {}) in the config for an accurate replay (≈ {:.0}× the run time)",
+        worst.0, worst.1, ig.ratio_limit, need, ig.max_omega_h, ig.max_omega_h / need
+    ))
 }
 
 #[allow(clippy::too_many_arguments)]
