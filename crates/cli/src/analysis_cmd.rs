@@ -139,6 +139,9 @@ pub fn sweep(args: &SweepArgs) -> ExitCode {
         .out
         .clone()
         .unwrap_or_else(|| default_log_path(config, "_sweep"));
+    if let Err(code) = crate::check_log_path(&out, config, false) {
+        return code;
+    }
     let stop = stop_flag();
     let bar = progress_bar(format!("sweep {}", config.display()));
     let mut progress = |k: u64, n: u64| {

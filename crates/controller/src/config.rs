@@ -127,11 +127,19 @@ pub struct LogConfig {
     /// Record queue capacity (records).
     #[serde(default = "LogConfig::default_queue")]
     pub queue_capacity: u64,
+    /// Longest span of records held in an open MCAP chunk before it is closed and flushed
+    /// (s); with a simulated plant the loop also never runs more than this far ahead of the
+    /// file. Bounds what a SIGKILL or power loss can lose (`ehactl recover` rebuilds the rest).
+    #[serde(default = "LogConfig::default_chunk_interval")]
+    pub chunk_interval: f64,
 }
 
 impl LogConfig {
     fn default_queue() -> u64 {
         65_536
+    }
+    fn default_chunk_interval() -> f64 {
+        0.1
     }
 }
 
@@ -140,6 +148,7 @@ impl Default for LogConfig {
         Self {
             compression: Compression::default(),
             queue_capacity: Self::default_queue(),
+            chunk_interval: Self::default_chunk_interval(),
         }
     }
 }
@@ -421,6 +430,12 @@ pub const CONTROL_PARAMS: &[Param] = &[
         "records",
         Within(16.0, 1.0e8),
         "logger queue capacity",
+    ),
+    Param::float(
+        "log.chunk_interval",
+        "s",
+        Within(1e-3, 10.0),
+        "longest span of records in an open MCAP chunk (bounds the loss on SIGKILL)",
     ),
     Param::int(
         "realtime.priority",
