@@ -426,6 +426,20 @@ fn cmd_run(
     if let Err(code) = check_log_path(&out, config, force) {
         return code;
     }
+    let live = Arc::new(LiveParams::new());
+    let _server = match &control_socket {
+        Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
+            Ok(s) => Some(s),
+            Err(ehactl_controller::control_socket::StartError::PathInUse(e)) => {
+                return config_error(format!("--control-socket {}: {e}", path.display()));
+            }
+            Err(e) => {
+                eprintln!("ehactl: --control-socket {}: {e}", path.display());
+                return ExitCode::from(1);
+            }
+        },
+        None => None,
+    };
     let stop = stop_flag();
     // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s); a
     // signal meanwhile ends the run at its first cycle, through the safe stop.
@@ -434,17 +448,6 @@ fn cmd_run(
         Err(code) => return code,
     };
     let bar = progress_bar(String::new());
-    let live = Arc::new(LiveParams::new());
-    let _server = match &control_socket {
-        Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
-            Ok(s) => Some(s),
-            Err(e) => {
-                eprintln!("ehactl: --control-socket {}: {e}", path.display());
-                return ExitCode::from(1);
-            }
-        },
-        None => None,
-    };
     let live_ref = control_socket.as_ref().map(|_| &*live);
     let result = if realtime || can_hal.is_some() {
         // The loop thread only stores the cycle count; the bar is drawn by this watcher
