@@ -281,6 +281,11 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             }
             event(ev);
         }
+        let saturated = terms.u != terms.u_unsat || u != terms.u;
+        if let Some(ev) = supervisor.check_saturation(t, k, saturated, dt) {
+            trip = Some(ev);
+            break;
+        }
         let plant = hal.plant_state();
         let fb = controller.feedback(&meas);
         let rec = cycle_record(k, t, (r, rdot), fb, &terms, u, meas, plant, timing);

@@ -96,6 +96,8 @@ pub enum EventKind {
     CanBus,
     /// The MCAP writer failed (disk full, I/O error): the run stops at once.
     LogFailed,
+    /// The command sat at a limit for too much of the supervisor's saturation window.
+    Saturation,
 }
 
 impl EventKind {
@@ -119,6 +121,7 @@ impl EventKind {
             EventKind::SafeStop => "safe_stop",
             EventKind::CanBus => "can_bus",
             EventKind::LogFailed => "log_failed",
+            EventKind::Saturation => "saturation",
         }
     }
 }
