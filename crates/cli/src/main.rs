@@ -289,6 +289,22 @@ fn load(path: &Path) -> Result<RigConfig, ExitCode> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // Commands that only write to stdout end quietly when the reader goes away
+    // (`ehactl diagnose … --json | head`), as Unix filters do: SIGPIPE back to its default.
+    // Not for `run`, `set` and `canbus`, which also write to sockets: there a closed peer
+    // must be an error to handle, never a silent death with a valve attached.
+    if matches!(
+        cli.command,
+        Command::CheckConfig { .. }
+            | Command::Params
+            | Command::Analyze { .. }
+            | Command::Diagnose { .. }
+            | Command::Sweep(_)
+            | Command::Recover { .. }
+    ) {
+        // SAFETY: restoring a default signal disposition before any thread is started.
+        unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
+    }
     match cli.command {
         Command::Run {
             config,
@@ -521,7 +537,10 @@ fn cmd_run(
     };
     let summary = session.summary_json();
     if json {
-        println!("{summary}");
+        // Not println!: a reader that went away (`| head`) must not turn a finished run
+        // into a panic.
+        use std::io::Write;
+        let _ = writeln!(std::io::stdout(), "{summary}");
     } else {
         let o = &session.outcome;
         println!("ehactl run {}", config.display());
