@@ -325,11 +325,22 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
 
 /// Read the `/control` channel of an ehactl MCAP log (ROS 2 CDR, see `ehactl_hal::record`).
 pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
-    use ehactl_hal::record::CONTROL_FIELDS;
     let source = path.display().to_string();
     let bytes = std::fs::read(path)
         .map_err(|e| DataError(format!("{source}: cannot read MCAP file: {e}")))?;
-    let stream = mcap::MessageStream::new(&bytes)
+    parse_mcap(&source, &bytes)
+}
+
+/// [`load_mcap`] on bytes already read (`source` names them in errors).
+pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
+    use ehactl_hal::record::CONTROL_FIELDS;
+    let source = source.to_string();
+    if let (_, Some(problem)) = ehactl_hal::recover::readable_prefix(bytes) {
+        return Err(DataError(format!(
+            "{source}: not a readable MCAP file: {problem} (a log cut off by a killed run can be rebuilt with `ehactl recover`)"
+        )));
+    }
+    let stream = mcap::MessageStream::new(bytes)
         .map_err(|e| DataError(format!("{source}: not a readable MCAP file: {e}")))?;
     let idx = |n: &str| CONTROL_FIELDS.iter().position(|f| *f == n).unwrap_or(0);
     let (i_t, i_u, i_sp) = (idx("t"), idx("command"), idx("setpoint"));
