@@ -214,6 +214,24 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
     Ok(())
 }
 
+/// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written.
+fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
+    let fail = |e: std::io::Error| {
+        eprintln!("ehactl: --out {}: cannot write the MCAP log: {e}", out.display());
+        ExitCode::from(1)
+    };
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(fail)?;
+    }
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(out)
+        .map(drop)
+        .map_err(fail)
+}
+
 fn mcap_magic() -> &'static [u8; 8] {
     &[0x89, b'M', b'C', b'A', b'P', 0x30, b'\r', b'\n']
 }
@@ -439,7 +457,7 @@ fn cmd_run(
         }
     }
     let out = out.unwrap_or_else(|| default_log_path(config, ""));
-    if let Err(code) = check_log_path(&out, config, force) {
+    if let Err(code) = check_log_path(&out, config, force).and_then(|_| check_log_writable(&out)) {
         return code;
     }
     let live = Arc::new(LiveParams::new());
