@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""PNG plots of the seed-001/002 reproductions (REPRODUCTION_001_002.md).
+"""PNG plots of the seed-001/002 reproductions (REPRODUCTION.md, seeds 001 and 002).
 
 Usage (from the repo root):
     python3 scripts/repro_001_002_plots.py [--data docs/repro/data] [--out docs/repro] [--regen]

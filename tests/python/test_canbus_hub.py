@@ -186,8 +186,12 @@ def test_no_devices_on_the_bus_is_a_startup_failure_exit_4(tmp_path):
     assert "transducer (node 32 = 0x20) sent no boot-up" in line and "0.3 s" in line, line
     assert summary["startup_s"] >= 0.3
     # the attempt on /can: NMT reset communication to both nodes, sent by us, nothing back
-    assert [(f["dir"], f["id"], f["data"]) for f in frames] == [
+    assert [(f["dir"], f["id"], f["data"]) for f in frames if f["id"] != 0x701] == [
         ("tx", 0x000, "8220"), ("tx", 0x000, "8230")]
+    # ehactl's own heartbeat (node 1, OPERATIONAL) every 20 ms from the start of the attempt
+    beats = [f for f in frames if f["id"] == 0x701]
+    assert {(f["dir"], f["data"]) for f in beats} == {("tx", "05")}
+    assert 0.3 / 0.020 * 0.5 <= len(beats) <= summary["startup_s"] / 0.020 + 2, len(beats)
     assert all(-summary["startup_s"] - 1e-6 <= f["t"] <= 0 for f in frames), frames
     assert frames[0]["t"] <= -0.3
 
@@ -216,5 +220,6 @@ def test_bus_overload_is_refused_by_check_config(tmp_path):
     bits = lambda n: 8 * n + 47 + (34 + 8 * n - 1) // 4
     per_sync = sum(bits(n) for n in (0, 4, 2, 4))
     assert per_sync == 320
-    load = (per_sync * 3000.0 + 2 * bits(1) / 0.020) / 1e6
+    # + heartbeats of the two devices and of ehactl itself (master_heartbeat_ms), 20 ms each
+    load = (per_sync * 3000.0 + 3 * bits(1) / 0.020) / 1e6
     assert "canopen.sync_rate_hz" in line and f"bus load {load * 100:.1f} % exceeds 80 %" in line, line

@@ -50,6 +50,22 @@ def run_master(port, out, duration, timeout=60):
     return p.returncode, summary, p.stderr
 
 
+def after_last_active(dev):
+    """The valve state that followed its last ACTIVE (after the run ehactl's heartbeat stops
+    and the valve's consumer may move it on to FAULT_HOLD, see test_sigkill_...)."""
+    states = [e["state"] for e in dev.events("state")]
+    assert "ACTIVE" in states, states
+    k = len(states) - 1 - states[::-1].index("ACTIVE")
+    return states[k + 1] if k + 1 < len(states) else None
+
+
+def why(summary, err):
+    """Failure message of a run: the trip reason (from the --json summary on stdout) and
+    stderr, so that a failing assertion on the exit code says what happened."""
+    trip = summary.get("trip") if isinstance(summary, dict) else None
+    return f"trip: {trip}; stderr: {err.strip()[-1500:]}"
+
+
 def sync_times(frames):
     """Loop times (s) of the SYNCs the master sent, in order (SYNC k → index k-1)."""
     return [f["t"] for f in frames if f["dir"] == "tx" and f["id"] == 0x080]
@@ -86,14 +102,14 @@ def test_boom_position_step_closes_over_can(tmp_path):
     with hub() as (_, port), devices(port, tmp_path) as dev:
         out = tmp_path / "can.mcap"
         rc, summary, err = run_master(port, out, duration)
-        assert rc == 0, err
+        assert rc == 0, why(summary, err)
         dsum = finish(dev)
     assert summary["trip"] is None
     # the master brought both devices to OPERATIONAL and the valve to ACTIVE, and left the
     # valve in its safe state (HOLD, setpoint 0) at the end
     nmt = [(e["node_id"], e["state"]) for e in dev.events("nmt")]
     assert (32, "OPERATIONAL") in nmt and (48, "OPERATIONAL") in nmt, nmt
-    assert [e["state"] for e in dev.events("state")][-2:] == ["ACTIVE", "HOLD"]
+    assert after_last_active(dev) == "HOLD"
     assert dsum["valve_setpoint"] == 0 and dsum["last_command_v"] == 0.0
     run = read_run(out)
     c = run["control"]
@@ -167,7 +183,7 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
         out = tmp_path / "fault.mcap"
         rc, summary, err = run_master(port, out, 1.5)
         dsum = finish(dev)
-    assert rc == 3, (rc, err)
+    assert rc == 3, (rc, why(summary, err))
     assert summary is not None and summary["trip"] is not None
     assert reason.lower() in json.dumps(summary["trip"]).lower(), summary["trip"]
     run = read_run(out)
@@ -196,12 +212,16 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
         assert t_safe - t_inject <= HB_TIMEOUT_S + 2 * SYNC_PERIOD_S, t_safe - t_inject
     assert hold_written(frames, t_safe)
     # the valve got its safe command: spool command 0 V, setpoint 0, not ACTIVE
-    assert dsum["last_command_v"] == 0.0
-    assert dsum["valve_state"] in ("HOLD", "FAULT", "DISABLED"), dsum
-    if kind != "emcy":  # in FAULT the valve ignores setpoints (spool held at 0 anyway)
+    assert dsum["last_command_v"] == 0.0 and dsum["valve_command_v"] == 0.0
+    assert dsum["valve_state"] in ("HOLD", "FAULT_HOLD", "DISABLED", "FAULT_DISABLED"), dsum
+    if kind != "emcy":  # in FAULT_HOLD the valve ignores setpoints (hold setpoint 0 acts)
         assert dsum["valve_setpoint"] == 0, dsum
     if kind == "leave-active":
-        assert dsum["valve_state"] == "HOLD"
+        assert after_last_active(dev) == "HOLD"
+    if kind == "emcy":  # the published fault reaction: FAULT_REACTION, then FAULT_HOLD
+        states = [e["state"] for e in dev.events("state")]
+        k = states.index("FAULT_REACTION")
+        assert states[k - 1] == "ACTIVE" and states[k + 1] == "FAULT_HOLD", states
 
 
 def failed_startup(tmp_path, fault):
@@ -213,7 +233,7 @@ def failed_startup(tmp_path, fault):
         rc, summary, err = run_master(port, tmp_path / "x.mcap", 1.0)
         wall = time.monotonic() - t0
         dsum = finish(dev)
-    assert rc == 4, (rc, err)
+    assert rc == 4, (rc, why(summary, err))
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 2 and "logged to" in lines[1], err
     assert summary["trip_kind"] == "startup"
@@ -260,7 +280,7 @@ def test_malformed_frames_logged_and_ignored(tmp_path):
         out = tmp_path / "m.mcap"
         rc, summary, err = run_master(port, out, 1.5)
         dsum = finish(dev)
-    assert rc == 0, err
+    assert rc == 0, why(summary, err)
     assert injected(dev, "malformed")
     assert summary["can_wrong_dlc"] == 1 and summary["can_unknown_cob_id"] == 1
     run = read_run(out)
@@ -271,7 +291,7 @@ def test_malformed_frames_logged_and_ignored(tmp_path):
     assert any(f["id"] == 0x2A0 and f["dlc"] == 4 for f in frames)
     c = run["control"]
     assert abs(np.mean(c["position"][c["t"] > 1.25]) - 0.6) < 0.010
-    assert dsum["last_command_v"] == 0.0 and dsum["valve_state"] == "HOLD"
+    assert dsum["last_command_v"] == 0.0 and after_last_active(dev) == "HOLD"
 
 
 def test_hub_connection_drop_mid_run(tmp_path):
@@ -305,5 +325,74 @@ def test_hub_connection_drop_mid_run(tmp_path):
     assert 0 <= ev["t"] - t_last_sample <= HB_TIMEOUT_S + 2 * SYNC_PERIOD_S, (
         ev["t"], t_last_sample)
     assert ev["t"] < 2.0  # well before the end of the 3 s run
-    assert dsum["valve_state"] == "HOLD" and dsum["last_command_v"] == 0.0
+    # HOLD by its own bus-loss reaction, or FAULT_HOLD if the consumer of ehactl's heartbeat
+    # (silent since the hub died) fired first
+    assert dsum["valve_state"] in ("HOLD", "FAULT_HOLD") and dsum["last_command_v"] == 0.0
     assert [e for e in dev.events("bus-lost")]
+
+
+DEVICE_HB_TIMEOUT_S = 0.100  # [canopen] device_heartbeat_timeout_ms default (0x1016:01)
+MASTER_HB_COB = 0x701  # [canopen] master_node_id default 1
+
+
+def test_sigkill_of_ehactl_takes_the_valve_out_of_active(tmp_path):
+    """Master loss: ehactl configured 0x1016 on the valve with its own heartbeat; after SIGKILL
+    of `ehactl run --hal canopen` the valve leaves ACTIVE (FAULT_REACTION → FAULT_HOLD, hold
+    setpoint 0) one consumer time after the last master heartbeat it received, without any
+    further frame from ehactl."""
+    import signal
+    import threading
+
+    import can
+
+    with hub() as (_, port), devices(port, tmp_path) as dev:
+        # an independent observer on the bus: ehactl's heartbeats with the hub's relay time
+        # (wall clock, as the devices' event times)
+        obs = can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel="can0",
+                      tcp_tune=True)
+        beats, stop = [], threading.Event()
+
+        def watch():
+            while not stop.is_set():
+                m = obs.recv(0.05)
+                if m is not None and m.arbitration_id == MASTER_HB_COB:
+                    beats.append(m.timestamp)  # the hub's relay time (wall clock)
+
+        w = threading.Thread(target=watch, daemon=True)
+        w.start()
+        cmd = [BIN, "run", BOOM, "--hal", "canopen", "--bus", bus_url(port), "--json",
+               "--duration", "10.0", "--out", str(tmp_path / "kill.mcap")]
+        m = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             cwd=str(REPO))
+        try:
+            dev.wait_event("state", timeout=15, state="ACTIVE")
+            time.sleep(0.4)  # the loop runs; the piston moves
+            t_kill = time.time()
+            m.send_signal(signal.SIGKILL)
+            m.wait(timeout=10)
+        finally:
+            if m.poll() is None:
+                m.kill()
+                m.wait()
+        left = dev.wait_event("state", timeout=5, old="ACTIVE")
+        lost = dev.wait_event("heartbeat-lost", timeout=5)
+        time.sleep(0.05)
+        stop.set()
+        w.join(2)
+        obs.shutdown()
+        dsum = finish(dev)
+    assert m.returncode == -signal.SIGKILL
+    assert beats, "no heartbeat of ehactl on the bus"
+    t_last = max(b for b in beats if b <= t_kill + 0.05)
+    assert left["state"] == "FAULT_REACTION" and "heartbeat of node 1" in left["why"], left
+    assert lost["producer"] == 1 and abs(lost["consumer_time_s"] - DEVICE_HB_TIMEOUT_S) < 1e-9
+    states = [e["state"] for e in dev.events("state")]
+    assert states[-2:] == ["FAULT_REACTION", "FAULT_HOLD"], states
+    assert dsum["valve_state"] == "FAULT_HOLD" and dsum["valve_command_v"] == 0.0
+    # Out of ACTIVE one consumer time after the last heartbeat on the bus (its hub relay
+    # time, the time base of the valve's consumer): not before it, and within it plus 25 ms
+    # of scheduling slack of the Python devices on a loaded 2-core machine (their timer ticks
+    # every 1 ms), as in the other e2e bounds.
+    after_last = left["t_wall"] - t_last
+    assert DEVICE_HB_TIMEOUT_S <= after_last <= DEVICE_HB_TIMEOUT_S + 0.025, after_last
+    assert left["t_wall"] - t_kill <= DEVICE_HB_TIMEOUT_S + 0.025, left["t_wall"] - t_kill

@@ -30,13 +30,14 @@ U8, U16, U32, I8, I16, I32 = 0x5, 0x6, 0x7, 0x2, 0x3, 0x4
 COMMON = [(0x1000, 0, U32, "ro"), (0x1001, 0, U8, "ro"), (0x1017, 0, U16, "rw"),
           (0x1018, 1, U32, "ro"), (0x1018, 2, U32, "ro"), (0x1018, 3, U32, "ro"),
           (0x1018, 4, U32, "ro"), (0x1800, 1, U32, "rw"), (0x1800, 2, U8, "rw"),
-          (0x1A00, 0, U8, "rw"), (0x1A00, 1, U32, "rw")]
+          (0x1A00, 0, U8, "rw"), (0x1A00, 1, U32, "rw"), (0x1016, 1, U32, "rw")]
 ICD_OBJECTS = {
     "transducer": COMMON + [(0x6005, 1, U32, "rw"), (0x6006, 1, U32, "rw"),
                             (0x6020, 1, I32, "ro"), (0x6030, 1, I16, "ro"), (0x6200, 0, U16, "rw")],
     "valve": COMMON + [(0x1400, 1, U32, "rw"), (0x1400, 2, U8, "rw"), (0x1600, 0, U8, "rw"),
                        (0x1600, 1, U32, "rw"), (0x6040, 0, U16, "rw"), (0x6041, 0, U16, "ro"),
-                       (0x6042, 0, I8, "rw"), (0x6300, 1, I16, "rw"), (0x6301, 1, I16, "ro")],
+                       (0x6042, 0, I8, "rw"), (0x6043, 0, I8, "rw"), (0x6300, 1, I16, "rw"),
+                       (0x6301, 1, I16, "ro"), (0x6314, 1, I16, "rw")],
 }
 
 
@@ -152,7 +153,7 @@ def test_boot_up_and_sdo_reads(rig):
     assert td.sdo[0x6005][1].raw == 1000
     assert td.sdo[0x1A00][1].raw == 0x60200120
     assert va.sdo[0x6042].raw == 1
-    assert va.sdo[0x6041].raw == 0x0001  # DISABLED after boot-up
+    assert va.sdo[0x6041].raw == 0x0008  # INIT after boot-up (RMHD 1000, Moog B99224-DV018)
     assert va.sdo[0x1A00][0].raw == 2
     # errors are SDO aborts with the CiA 301 codes
     with pytest.raises(SdoAbortedError) as e:
@@ -278,60 +279,156 @@ def test_valve_state_machine_setpoint_only_in_active(rig):
         status, actual = struct.unpack("<Hh", log.of(cob_tpdo)[-1][1])
         return status, actual
 
-    # DISABLED: setpoint ignored, spool stays closed
-    assert step(20, 8192) == (0x0001, 0)
-    # HOLD: still ignored
+    # INIT (RMHD 1000): setpoint ignored, spool at its failsafe position (closed centre)
+    assert step(20, 8192) == (0x0008, 0)
+    # HOLD (1011; INIT → DISABLED → HOLD by one control word): the hold setpoint 0x6314 acts
     va.sdo[0x6040].raw = 0x0003
-    assert step(20, 8192) == (0x0003, 0)
-    # ACTIVE: 8192 = 50 % → spool follows the first-order valve (T_z = 10 ms, seed 003)
+    assert step(20, 8192) == (0x000B, 0)
+    # ACTIVE (1111): 8192 = 50 % → spool follows the first-order valve (T_z = 10 ms, seed 003)
     va.sdo[0x6040].raw = 0x0007
     n = 30
     status, actual = step(n, 8192)
-    assert status == 0x0007
+    assert status == 0x000F
     expect = 0.5 * (1 - math.exp(-n * SYNC_PERIOD / 0.01)) * 16384
     assert abs(actual - expect) < 0.01 * 16384, (actual, expect)
-    # back to HOLD: spool returns to 0 although the setpoint stays 8192
+    # back to HOLD: the spool goes to the hold setpoint (here -25 %), not to the bus setpoint
+    va.sdo[0x6314][1].raw = -4096
     va.sdo[0x6040].raw = 0x0003
-    status, actual = step(60, 8192)
-    assert status == 0x0003 and abs(actual) < 0.01 * 16384
-    # D = 0 from anywhere → DISABLED
+    status, actual = step(80, 8192)
+    assert status == 0x000B and abs(actual + 4096) < 0.01 * 16384, actual
+    va.sdo[0x6314][1].raw = 0
+    status, actual = step(80, 8192)
+    assert abs(actual) < 0.01 * 16384
+    # MHD = 000 from HOLD: TR6 then TR7 → INIT
     va.sdo[0x6040].raw = 0x0000
-    assert va.sdo[0x6041].raw == 0x0001
+    assert va.sdo[0x6041].raw == 0x0008
     # events of the device log name every transition
     states = [e["state"] for e in dev.events("state")]
-    assert states[-4:] == ["HOLD", "ACTIVE", "HOLD", "DISABLED"]
+    assert states[-5:] == ["HOLD", "ACTIVE", "HOLD", "DISABLED", "INIT"]
 
 
 def test_fault_reset_acts_on_rising_edge_only(tmp_path):
+    """Published reset (Moog B99224-DV018 §5.2.2.1, TR11): a rising edge of R with D/H held
+    (0011 → 1011) leaves FAULT_HOLD for HOLD; R as a level, R with M set or R without D/H do
+    not."""
     with hub() as (_, port), master(port) as (net, td, va):
         log = FrameLog()
         net.notifier.add_listener(log)
         with boot(port, tmp_path, "--fault", "emcy@0.010") as dev:
             log.wait_count(0x700 + VALVE_ID, 1)
-            va.sdo[0x6040].raw = 0x000F  # D,H,A with R already high
-            assert va.sdo[0x6041].raw == 0x0007
+            va.sdo[0x6040].raw = 0x000F  # D,H,M with R already high
+            assert va.sdo[0x6041].raw == 0x000F  # ACTIVE
             net.nmt.send_command(0x01)
             time.sleep(0.05)
             emcys = []
             va.emcy.add_callback(emcys.append)
             sync(net, 15, log, 0x180 + VALVE_ID)
-            assert va.sdo[0x6041].raw == 0x0008  # FAULT
+            sws = [struct.unpack("<H", d[:2])[0] for _, d, _ in log.of(0x180 + VALVE_ID)]
+            # ACTIVE, then FAULT_REACTION (0111) for one SYNC, then FAULT_HOLD (0011)
+            k = sws.index(0x0007)
+            assert sws[:k] and set(sws[:k]) == {0x000F} and set(sws[k + 1:]) == {0x0003}, sws
+            assert va.sdo[0x6041].raw == 0x0003  # FAULT_HOLD
             assert emcys and emcys[0].code == 0x5000 and emcys[0].register & 0x01
             assert va.sdo[0x1001].raw & 0x01
             assert va.sdo[0x1003][0].raw == 1 and va.sdo[0x1003][1].raw == 0x5000
             va.sdo[0x6040].raw = 0x000F  # level, no edge
-            assert va.sdo[0x6041].raw == 0x0008
-            va.sdo[0x6040].raw = 0x0007  # R falls
-            assert va.sdo[0x6041].raw == 0x0008
-            va.sdo[0x6040].raw = 0x000F  # rising edge → DISABLED (no re-activation)
-            assert va.sdo[0x6041].raw == 0x0001
+            assert va.sdo[0x6041].raw == 0x0003
+            va.sdo[0x6040].raw = 0x0007  # R falls; M cannot raise a fault state
+            assert va.sdo[0x6041].raw == 0x0003
+            va.sdo[0x6040].raw = 0x000F  # rising edge, but M = 1: not the TR11 pattern
+            assert va.sdo[0x6041].raw == 0x0003
+            va.sdo[0x6040].raw = 0x0003  # R falls, D/H held
+            va.sdo[0x6040].raw = 0x000B  # rising edge with D/H held → HOLD (TR11)
+            assert va.sdo[0x6041].raw == 0x000B
             time.sleep(0.05)
             assert emcys[-1].code == 0x0000  # error reset EMCY
             assert va.sdo[0x1001].raw == 0
             va.sdo[0x6040].raw = 0x0007
-            assert va.sdo[0x6041].raw == 0x0007
+            assert va.sdo[0x6041].raw == 0x000F
             ev = dev.wait_event("fault-injected", fault="emcy")
             assert abs(ev["t_sim"] - 0.010) < 1.5 * SYNC_PERIOD
+
+
+# Transitions of the CiA 408 device state machine as published by Moog (B99224-DV018-D-211,
+# §5.2 fig. 19 and the tables of §5.2.2), typed in from the manual: (state before as its RMHD
+# status code, control words written in order, RMHD status code after). Codes: NOT_READY /
+# FAULT_INIT 0000, INIT 1000, DISABLED 1001, HOLD 1011, ACTIVE 1111, FAULT_REACTION 0111,
+# FAULT_HOLD 0011, FAULT_DISABLED 0001.
+PUBLISHED_TRANSITIONS = [
+    # TR2 INIT → DISABLED: xxx1
+    ("INIT", [0b0001], 0b1001),
+    # TR3 DISABLED → HOLD: x011
+    ("DISABLED", [0b0011], 0b1011),
+    # TR4 HOLD → ACTIVE: x111
+    ("HOLD", [0b0111], 0b1111),
+    # TR5 ACTIVE → HOLD: M = 0
+    ("ACTIVE", [0b0011], 0b1011),
+    # TR5 + TR6 ACTIVE → DISABLED: M = 0, H = 0 ("every transition ... will be processed")
+    ("ACTIVE", [0b0001], 0b1001),
+    # TR6 HOLD → DISABLED: M = 0, H = 0
+    ("HOLD", [0b0001], 0b1001),
+    # TR7 DISABLED → INIT: 000
+    ("DISABLED", [0b0000], 0b1000),
+    # INIT → ACTIVE by one control word 111 (TR2, TR3, TR4)
+    ("INIT", [0b0111], 0b1111),
+    # TR10 FAULT_DISABLED → DISABLED: 0001 → 1001 (rising edge of R, D held)
+    ("FAULT_DISABLED", [0b0001, 0b1001], 0b1001),
+    # TR11 FAULT_HOLD → HOLD: 0011 → 1011
+    ("FAULT_HOLD", [0b0011, 0b1011], 0b1011),
+    # TR14 FAULT_INIT → INIT: 0000 → 1000
+    ("FAULT_INIT", [0b0000, 0b1000], 0b1000),
+    # R as a level is no reset: its edge came with M = 1 (no TR11 pattern), D/H alone later
+    ("FAULT_HOLD", [0b1111, 0b1011], 0b0011),
+    # the control word never raises a fault state
+    ("FAULT_HOLD", [0b0111], 0b0011),
+    ("FAULT_DISABLED", [0b0011], 0b0001),
+    # a reset edge with other D/H bits than the fault state's is no TR10/TR11
+    ("FAULT_HOLD", [0b0111, 0b1111], 0b0011),
+    # TR15 FAULT_HOLD → FAULT_DISABLED, TR16 FAULT_DISABLED → FAULT_INIT (control word lowers)
+    ("FAULT_HOLD", [0b0001], 0b0001),
+    ("FAULT_DISABLED", [0b0000], 0b0000),
+]
+
+
+def _dsm_in(state_name):
+    """A ValveDsm brought into `state_name` through published transitions only."""
+    from ehactl.devices.valve import ValveDsm
+
+    m = ValveDsm()
+    m.power_on()  # TR0, TR1 → INIT
+    path = {"INIT": [], "DISABLED": [0b0001], "HOLD": [0b0011], "ACTIVE": [0b0111]}
+    if state_name in path:
+        for cw in path[state_name]:
+            m.control_word(cw)
+        return m
+    # fault states: a fault in HOLD → FAULT_REACTION → FAULT_HOLD (TR8, TR9), then lowered by
+    # the control word (TR15, TR16); or a fault in DISABLED / INIT (redirected, TR12 / TR13)
+    before = {"FAULT_HOLD": 0b0011, "FAULT_DISABLED": 0b0001, "FAULT_INIT": 0b0000}[state_name]
+    m.control_word(before)
+    assert m.fault("test")
+    assert m.state.bits == 0b0111  # FAULT_REACTION
+    m.end_reaction()
+    return m
+
+
+@pytest.mark.parametrize("before,cws,after", PUBLISHED_TRANSITIONS)
+def test_valve_dsm_follows_the_published_transition_table(before, cws, after):
+    m = _dsm_in(before)
+    assert m.state.name == before
+    for cw in cws:
+        m.control_word(cw)
+    assert m.state.bits == after, (before, [bin(c) for c in cws], m.state)
+
+
+def test_valve_fault_reaction_never_raises_the_state():
+    """TR8 from each state and the fault state reached (TR9 / TR12 / TR13: FAULT_HOLD as this
+    valve's fault reaction, redirected to FAULT_DISABLED / FAULT_INIT from DISABLED / INIT)."""
+    for before, after in [("ACTIVE", 0b0011), ("HOLD", 0b0011), ("DISABLED", 0b0001),
+                          ("INIT", 0b0000)]:
+        m = _dsm_in(before)
+        assert m.fault("x") and m.state.bits == 0b0111
+        m.end_reaction()
+        assert m.state.bits == after, (before, m.state)
 
 
 def test_sync_position_matches_plant_stepped_directly(rig):
@@ -414,7 +511,7 @@ def test_malformed_requests_are_ignored(rig):
     net.send_message(0x600 + VALVE_ID, b"\x40\x41\x60\x00")  # upload request, DLC 4
     time.sleep(0.1)
     assert not log.of(0x580 + VALVE_ID)
-    assert va.sdo[0x6041].raw == 0x0001  # still answers proper requests
+    assert va.sdo[0x6041].raw == 0x0008  # still answers proper requests
     net.send_message(0x080, b"")
     assert no_frames(log, 0x180 + TRANSDUCER_ID)  # still PRE-OPERATIONAL: no PDO
     net.nmt.send_command(0x01)

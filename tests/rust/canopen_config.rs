@@ -69,7 +69,7 @@ fn every_field_is_in_the_registry_with_a_unit() {
 fn bus_load_limit_follows_the_formula() {
     // Largest SYNC rate at 80 % on 1 Mbit/s with the default set (SYNC, 4, 2, 4 bytes).
     let per_sync: u32 = [0, 4, 2, 4].into_iter().map(frame_bits).sum();
-    let hb = 2.0 * f64::from(frame_bits(1)) / 0.020;
+    let hb = 3.0 * f64::from(frame_bits(1)) / 0.020; // 2 devices + ehactl, every 20 ms
     let f_max = (0.8e6 - hb) / f64::from(per_sync);
     let ok = boom() + &format!("\n[canopen]\nsync_rate_hz = {}\n", (f_max - 1.0).floor());
     assert!(RigConfig::from_toml_str(&ok).is_ok());
@@ -81,4 +81,23 @@ fn bus_load_limit_follows_the_formula() {
         .unwrap_err();
     assert_eq!(e.path, "canopen.valve_status_pdo");
     assert!(e.message.contains("expected true or false"), "{e}");
+}
+
+#[test]
+fn safe_command_outside_the_valve_range_is_refused() {
+    // The case: -1e9 V passed check-config and saturated to a fully open spool.
+    for v in ["-1e9", "10.5", "-10.000001"] {
+        let text = boom().replace("safe_command = 0.0 ", &format!("safe_command = {v} "));
+        let e = RigConfig::from_toml_str(&text).unwrap_err();
+        assert_eq!(e.path, "supervisor.safe_command", "{e}");
+        assert!(e.message.contains("valve.command_full_scale = 10 V"), "{e}");
+    }
+    let ok = boom().replace("safe_command = 0.0 ", "safe_command = -10.0 ");
+    assert!(RigConfig::from_toml_str(&ok).is_ok());
+    let clamp = boom().replace(
+        "safe_command = 0.0 ",
+        "safe_command = 3.0\nmax_command = 2.0 ",
+    );
+    let e = RigConfig::from_toml_str(&clamp).unwrap_err();
+    assert!(e.message.contains("supervisor.max_command = 2 V"), "{e}");
 }

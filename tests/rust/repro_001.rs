@@ -3,7 +3,7 @@
 //! lumped R-L-C line (002 eq. 9–17) against the transfer matrix as the segments grow.
 //!
 //! Run: `cargo test --release -p ehactl-tests --test repro_001 -- --nocapture` (prints the
-//! figures quoted in REPRODUCTION_001_002.md).
+//! figures quoted in REPRODUCTION.md, "Seed 001").
 
 use ehactl_analysis::linear::{self, Output};
 use ehactl_analysis::oppoint;

@@ -1,6 +1,6 @@
-//! CiA 408 style proportional valve with on-board electronics (seed 003: Rexroth 4WRSE):
-//! control word / status word device state machine (simplified, see the ICD), spool
-//! setpoint scaling (±16384 = ±100 % spool).
+//! CiA 408 proportional valve with on-board electronics (seed 003: Rexroth 4WRSE): the
+//! device state machine as published (control word / status word bits D, H, M, R), device
+//! and control mode, hold setpoint, spool setpoint scaling (±16384 = ±100 % spool).
 
 use crate::pdo::MapEntry;
 
@@ -21,21 +21,140 @@ pub const MODE_SETPOINT_FROM_BUS: u8 = 1;
 /// ±100 % spool in setpoint units.
 pub const FULL_SCALE: i32 = 16384;
 
-/// Control word bit 0: D, enable (leave DISABLED).
-pub const CW_ENABLE: u16 = 1 << 0;
-/// Control word bit 1: H, hold enable.
-pub const CW_HOLD: u16 = 1 << 1;
-/// Control word bit 2: A, device mode active enable.
-pub const CW_ACTIVE: u16 = 1 << 2;
-/// Control word bit 3: R, fault reset (rising edge).
-pub const CW_RESET: u16 = 1 << 3;
+/// Control mode (INTEGER8).
+pub const CONTROL_MODE: u16 = 0x6043;
+/// Spool hold setpoint (INTEGER16), sub 1: the spool position the valve controls to in HOLD
+/// and FAULT_HOLD (Moog B99224-DV018 §5.2.1, object 0x6314).
+pub const SPOOL_HOLD_SETPOINT: u16 = 0x6314;
+/// Control mode 0x6043 = 2: spool position control, closed loop (CiA 408; Moog
+/// B99224-DV018 §7.1 "Control modes").
+pub const CONTROL_MODE_SPOOL_CLOSED_LOOP: i8 = 2;
 
-/// Control word for DISABLED.
+// Device state machine of CiA 408 as published by Moog, "Moog ACV with CANopen bus
+// interface", B99224-DV018-D-211 Rev. A (2018), §5.2 "Device state machine (DSM)", fig. 19
+// and §5.2.2 tables (cross-checked against Beckhoff TF8560 ST_CoE408_StatusWord /
+// ST_CoE408_ControlWord: status bit 3 = Ready, control bit 3 = Reset).
+// Control word bits: D (0, disable → enable), H (1, hold), M (2, device mode active),
+// R (3, reset fault, rising edge). Status word bits: D, H, M, R (3 = Ready, *not* fault).
+
+/// Control word bit 0: D (DISABLED reachable: TR2 for x001).
+pub const CW_ENABLE: u16 = 1 << 0;
+/// Control word bit 1: H (HOLD: TR3 for x011).
+pub const CW_HOLD: u16 = 1 << 1;
+/// Control word bit 2: M (ACTIVE: TR4 for x111).
+pub const CW_ACTIVE: u16 = 1 << 2;
+/// Control word bit 3: R, reset fault; acts on its rising edge with D/H held (TR10, TR11, TR14).
+pub const CW_RESET: u16 = 1 << 3;
+/// Status word bit 3: R, Ready (set in every non-fault state from INIT on).
+pub const SW_READY: u16 = 1 << 3;
+
+/// Control word for INIT (MHD = 000, TR7 from DISABLED).
 pub const CW_DISABLED: u16 = 0;
-/// Control word for HOLD (D=1, H=1, A=0): closed centre, the safe state.
+/// Control word for DISABLED (MHD = 001).
+pub const CW_DISABLED_STATE: u16 = CW_ENABLE;
+/// Control word for HOLD (MHD = 011): the valve controls to the hold setpoint 0x6314.
 pub const CW_HOLD_STATE: u16 = CW_ENABLE | CW_HOLD;
-/// Control word for ACTIVE (D=1, H=1, A=1).
+/// Control word for ACTIVE (MHD = 111).
 pub const CW_ACTIVE_STATE: u16 = CW_ENABLE | CW_HOLD | CW_ACTIVE;
+
+/// Valve device state (status word bits 0..3 = D, H, M, R).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ValveState {
+    /// RMHD 0000 before boot-up (indistinguishable from FAULT_INIT by the status word).
+    NotReady,
+    /// RMHD 1000: communication up, device function disabled.
+    Init,
+    /// RMHD 1001: device function disabled, actual values available (failsafe spool).
+    Disabled,
+    /// RMHD 1011: control loop active on the hold setpoint 0x6314.
+    Hold,
+    /// RMHD 1111: setpoint from the bus acts.
+    Active,
+    /// RMHD 0111: fault detected, vendor fault reaction running (EMCY sent on entry, TR8).
+    FaultReaction,
+    /// RMHD 0011: after a fault, holding the hold setpoint.
+    FaultHold,
+    /// RMHD 0001: after a fault, failsafe spool.
+    FaultDisabled,
+    /// RMHD 0000: after a fault, device function disabled.
+    FaultInit,
+    /// Any other bit pattern of bits 0..3 (e.g. 0x0C), not a state of the DSM.
+    Unknown(u8),
+}
+
+impl ValveState {
+    /// Decode bits 0..3 of the status word 0x6041 (fig. 19 of B99224-DV018). 0000 is both
+    /// NOT_READY and FAULT_INIT; it is reported as FAULT_INIT (a device that has booted is
+    /// past NOT_READY, and either way it is no state to run in).
+    #[inline]
+    pub fn from_status(sw: u16) -> ValveState {
+        match (sw & 0x0F) as u8 {
+            0b1000 => ValveState::Init,
+            0b1001 => ValveState::Disabled,
+            0b1011 => ValveState::Hold,
+            0b1111 => ValveState::Active,
+            0b0111 => ValveState::FaultReaction,
+            0b0011 => ValveState::FaultHold,
+            0b0001 => ValveState::FaultDisabled,
+            0b0000 => ValveState::FaultInit,
+            x => ValveState::Unknown(x),
+        }
+    }
+
+    /// Status word bits 0..3 of the state (RMHD); 0 for `Unknown`.
+    pub fn status_bits(self) -> u16 {
+        match self {
+            ValveState::NotReady | ValveState::FaultInit => 0b0000,
+            ValveState::Init => 0b1000,
+            ValveState::Disabled => 0b1001,
+            ValveState::Hold => 0b1011,
+            ValveState::Active => 0b1111,
+            ValveState::FaultReaction => 0b0111,
+            ValveState::FaultHold => 0b0011,
+            ValveState::FaultDisabled => 0b0001,
+            ValveState::Unknown(x) => u16::from(x),
+        }
+    }
+
+    /// One of the fault states (FAULT_REACTION, FAULT_HOLD, FAULT_DISABLED, FAULT_INIT).
+    pub fn is_fault(self) -> bool {
+        matches!(
+            self,
+            ValveState::FaultReaction
+                | ValveState::FaultHold
+                | ValveState::FaultDisabled
+                | ValveState::FaultInit
+        )
+    }
+
+    /// Control word bits MHD that a fault reset of this state must hold while R rises
+    /// (TR10: 0001, TR11: 0011, TR14: 0000); None for non-fault states and FAULT_REACTION
+    /// (which ends by itself, TR9/TR12/TR13).
+    pub fn reset_hold_bits(self) -> Option<u16> {
+        match self {
+            ValveState::FaultDisabled => Some(CW_DISABLED_STATE),
+            ValveState::FaultHold => Some(CW_HOLD_STATE),
+            ValveState::FaultInit => Some(CW_DISABLED),
+            _ => None,
+        }
+    }
+
+    /// Name as in the profile.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ValveState::NotReady => "NOT_READY",
+            ValveState::Init => "INIT",
+            ValveState::Disabled => "DISABLED",
+            ValveState::Hold => "HOLD",
+            ValveState::Active => "ACTIVE",
+            ValveState::FaultReaction => "FAULT_REACTION",
+            ValveState::FaultHold => "FAULT_HOLD",
+            ValveState::FaultDisabled => "FAULT_DISABLED",
+            ValveState::FaultInit => "FAULT_INIT",
+            ValveState::Unknown(_) => "UNKNOWN",
+        }
+    }
+}
 
 /// RPDO1 mapping: spool setpoint (2 bytes).
 pub const RPDO1_MAP: [MapEntry; 1] = [MapEntry {
@@ -56,52 +175,6 @@ pub const TPDO1_MAP: [MapEntry; 2] = [
         bits: 16,
     },
 ];
-
-/// Valve device state (status word bits 0..3).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ValveState {
-    /// 0b000: after power-on, before boot-up.
-    NotReady,
-    /// 0b001: no setpoint acts, spool at 0.
-    Disabled,
-    /// 0b011: hold (closed centre).
-    Hold,
-    /// 0b111: setpoint from the bus acts.
-    Active,
-    /// Bit 3: fault, spool held at 0.
-    Fault,
-    /// Any other bit pattern.
-    Unknown(u8),
-}
-
-impl ValveState {
-    /// Decode the status word.
-    #[inline]
-    pub fn from_status(sw: u16) -> ValveState {
-        if sw & 0x08 != 0 {
-            return ValveState::Fault;
-        }
-        match (sw & 0x07) as u8 {
-            0b000 => ValveState::NotReady,
-            0b001 => ValveState::Disabled,
-            0b011 => ValveState::Hold,
-            0b111 => ValveState::Active,
-            x => ValveState::Unknown(x),
-        }
-    }
-
-    /// Name.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            ValveState::NotReady => "NOT_READY",
-            ValveState::Disabled => "DISABLED",
-            ValveState::Hold => "HOLD",
-            ValveState::Active => "ACTIVE",
-            ValveState::Fault => "FAULT",
-            ValveState::Unknown(_) => "UNKNOWN",
-        }
-    }
-}
 
 /// Spool setpoint (INT16, ±16384 = ±100 %) for a valve command `u` (V) with full scale
 /// `full_scale` (V, plant.valve.command_full_scale); saturates at ±100 %.
@@ -131,17 +204,52 @@ pub fn spool_fraction(raw: i16) -> f64 {
 mod tests {
     use super::*;
 
+    /// Status word codes RMHD of fig. 19 of Moog B99224-DV018 (typed in from the manual,
+    /// not from this module), with bits above 3 set to show they are ignored.
     #[test]
-    fn status_word_decodes_states() {
-        assert_eq!(ValveState::from_status(0x0001), ValveState::Disabled);
-        assert_eq!(ValveState::from_status(0x0003), ValveState::Hold);
-        assert_eq!(ValveState::from_status(0x0007), ValveState::Active);
-        assert_eq!(ValveState::from_status(0x0008), ValveState::Fault);
-        assert_eq!(ValveState::from_status(0x000F), ValveState::Fault);
-        assert_eq!(ValveState::from_status(0x0000), ValveState::NotReady);
-        assert_eq!(ValveState::from_status(0x0005), ValveState::Unknown(5));
-        assert_eq!(CW_HOLD_STATE, 0x0003);
-        assert_eq!(CW_ACTIVE_STATE, 0x0007);
+    fn status_word_decodes_the_published_codes() {
+        let published: [(u16, ValveState); 8] = [
+            (0b1000, ValveState::Init),
+            (0b1001, ValveState::Disabled),
+            (0b1011, ValveState::Hold),
+            (0b1111, ValveState::Active),
+            (0b0111, ValveState::FaultReaction),
+            (0b0011, ValveState::FaultHold),
+            (0b0001, ValveState::FaultDisabled),
+            (0b0000, ValveState::FaultInit),
+        ];
+        for (code, st) in published {
+            assert_eq!(ValveState::from_status(code), st, "0x{code:04X}");
+            assert_eq!(
+                ValveState::from_status(code | 0x0610),
+                st,
+                "high bits ignored"
+            );
+            assert_eq!(st.status_bits(), code);
+            assert_eq!(st.is_fault(), code & SW_READY == 0);
+        }
+        // The issue's case: a conforming valve in HOLD (0x000B) is HOLD, not a fault; a
+        // FAULT_HOLD (0x0003) is no HOLD and a FAULT_REACTION (0x0007) is no ACTIVE.
+        assert_eq!(ValveState::from_status(0x000B), ValveState::Hold);
+        assert!(ValveState::from_status(0x0003).is_fault());
+        assert!(ValveState::from_status(0x0007).is_fault());
+        for code in [
+            0b0010u16, 0b0100, 0b0101, 0b0110, 0b1010, 0b1100, 0b1101, 0b1110,
+        ] {
+            assert_eq!(
+                ValveState::from_status(code),
+                ValveState::Unknown(code as u8)
+            );
+        }
+        // control words of fig. 19: DISABLED MHD xx1, HOLD x11, ACTIVE 111
+        assert_eq!(CW_DISABLED_STATE, 0b001);
+        assert_eq!(CW_HOLD_STATE, 0b011);
+        assert_eq!(CW_ACTIVE_STATE, 0b111);
+        // fault reset: R rises with D/H as in TR10 (0001→1001), TR11 (0011→1011), TR14 (0000→1000)
+        assert_eq!(ValveState::FaultDisabled.reset_hold_bits(), Some(0b0001));
+        assert_eq!(ValveState::FaultHold.reset_hold_bits(), Some(0b0011));
+        assert_eq!(ValveState::FaultInit.reset_hold_bits(), Some(0b0000));
+        assert_eq!(ValveState::FaultReaction.reset_hold_bits(), None);
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //! Bus load: every SYNC period carries SYNC (0 bytes), the transducer TPDO1 (position,
 //! 4 bytes), the valve RPDO1 (setpoint, 2 bytes) and, with `valve_status_pdo`, the valve
 //! TPDO1 (status word + actual spool, 4 bytes); heartbeats of both devices add
-//! 1-byte frames every `heartbeat_ms`. A classic frame with an 11-bit id and N data bytes
+//! 1-byte frames every `heartbeat_ms`, ehactl's own heartbeat one every `master_heartbeat_ms`. A classic frame with an 11-bit id and N data bytes
 //! takes at most `8N + 47 + floor((34 + 8N − 1)/4)` bit times with worst-case bit stuffing
 //! (55 bits for N = 0, 75 for N = 2, 95 for N = 4). At 1 Mbit/s SYNC + 4-byte position +
 //! 2-byte setpoint therefore take 225 µs per SYNC period (320 µs with the valve status
@@ -40,6 +40,15 @@ pub struct CanopenConfig {
     pub position_step_nm: u32,
     /// Map the valve TPDO1 (status word + actual spool).
     pub valve_status_pdo: bool,
+    /// Node id of ehactl itself (the NMT master's heartbeat is 0x700 + this id).
+    pub master_node_id: u8,
+    /// Heartbeat producer time of ehactl (ms): the control cycle sends 0x700 + master id
+    /// [05] this often.
+    pub master_heartbeat_ms: u16,
+    /// Consumer time of ehactl's heartbeat written to 0x1016:01 of every device (ms): a
+    /// device that hears no master heartbeat for this long enters its fault reaction
+    /// (valve: FAULT_HOLD, see DEPLOY.md).
+    pub device_heartbeat_timeout_ms: u16,
 }
 
 impl Default for CanopenConfig {
@@ -55,6 +64,9 @@ impl Default for CanopenConfig {
             valve_node_id: 48,
             position_step_nm: 1000,
             valve_status_pdo: true,
+            master_node_id: 1,
+            master_heartbeat_ms: 20,
+            device_heartbeat_timeout_ms: 100,
         }
     }
 }
@@ -131,6 +143,27 @@ pub const CANOPEN_PARAMS: &[Param] = &[
         "map valve TPDO1 (status word + actual spool); true or false",
         Kind::Bool,
     ),
+    Param::new(
+        "canopen.master_node_id",
+        "-",
+        Range::Within(1.0, 127.0),
+        "node id of ehactl (its heartbeat COB-ID is 0x700 + id)",
+        Kind::Integer,
+    ),
+    Param::new(
+        "canopen.master_heartbeat_ms",
+        "ms",
+        Range::Within(1.0, 65535.0),
+        "heartbeat producer time of ehactl (sent by the control cycle)",
+        Kind::Integer,
+    ),
+    Param::new(
+        "canopen.device_heartbeat_timeout_ms",
+        "ms",
+        Range::Within(1.0, 65535.0),
+        "consumer time of ehactl's heartbeat written to 0x1016:01 of every device (> master_heartbeat_ms)",
+        Kind::Integer,
+    ),
 ];
 
 /// Largest bus load accepted (fraction).
@@ -167,7 +200,8 @@ impl CanopenConfig {
     pub fn bus_load(&self) -> BusLoad {
         let bits: u32 = self.frames_per_sync().into_iter().map(frame_bits).sum();
         let br = f64::from(self.bitrate.max(1));
-        let hb = 2.0 * f64::from(frame_bits(1)) / (f64::from(self.heartbeat_ms.max(1)) * 1e-3);
+        let hb = 2.0 * f64::from(frame_bits(1)) / (f64::from(self.heartbeat_ms.max(1)) * 1e-3)
+            + f64::from(frame_bits(1)) / (f64::from(self.master_heartbeat_ms.max(1)) * 1e-3);
         BusLoad {
             bits_per_sync: bits,
             time_per_sync_s: f64::from(bits) / br,
@@ -192,6 +226,28 @@ impl CanopenConfig {
                 format!(
                     "consumer timeout {} ms must exceed the producer time heartbeat_ms = {} ms (typically 2-3×)",
                     self.heartbeat_timeout_ms, self.heartbeat_ms
+                ),
+            ));
+        }
+        for (what, id) in [
+            ("transducer", self.transducer_node_id),
+            ("valve", self.valve_node_id),
+        ] {
+            if id == self.master_node_id {
+                return Err(ConfigError::new(
+                    "canopen.master_node_id",
+                    format!(
+                        "node id {id} is also the {what}'s; expected a node id 1..127 that no device uses"
+                    ),
+                ));
+            }
+        }
+        if self.device_heartbeat_timeout_ms <= self.master_heartbeat_ms {
+            return Err(ConfigError::new(
+                "canopen.device_heartbeat_timeout_ms",
+                format!(
+                    "device consumer time {} ms must exceed ehactl's producer time master_heartbeat_ms = {} ms (typically 3-5×)",
+                    self.device_heartbeat_timeout_ms, self.master_heartbeat_ms
                 ),
             ));
         }
@@ -235,8 +291,8 @@ mod tests {
         let l = c.bus_load();
         assert_eq!(l.bits_per_sync, 225);
         assert!((l.time_per_sync_s - 225e-6).abs() < 1e-12);
-        // + 2 heartbeats of 65 bits every 20 ms.
-        assert!((l.load - (0.225 + 2.0 * 65.0 / 0.02 / 1e6)).abs() < 1e-12);
+        // + 2 device heartbeats and the master's of 65 bits every 20 ms.
+        assert!((l.load - (0.225 + 3.0 * 65.0 / 0.02 / 1e6)).abs() < 1e-12);
         let d = CanopenConfig::default().bus_load();
         assert_eq!(d.bits_per_sync, 320);
         assert!(CanopenConfig::default().validate().is_ok());
@@ -268,6 +324,21 @@ mod tests {
         assert_eq!(
             c.validate().unwrap_err().path,
             "canopen.heartbeat_timeout_ms"
+        );
+        let c = CanopenConfig {
+            master_node_id: 48,
+            ..Default::default()
+        };
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.path, "canopen.master_node_id");
+        assert!(e.message.contains("valve"), "{e}");
+        let c = CanopenConfig {
+            device_heartbeat_timeout_ms: 20,
+            ..Default::default()
+        };
+        assert_eq!(
+            c.validate().unwrap_err().path,
+            "canopen.device_heartbeat_timeout_ms"
         );
     }
 }

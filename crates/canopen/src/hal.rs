@@ -4,8 +4,12 @@
 //! Threads and queues:
 //! - start-up ([`CanopenHal::connect`]) runs before the loop and may block: NMT reset
 //!   communication → boot-ups (`boot_timeout_s`), NMT pre-operational, SDO configuration
-//!   (device types, 0x1017 heartbeat, PDO re-mapping, transducer step, valve device mode),
-//!   NMT start, heartbeats OPERATIONAL, valve DISABLED → HOLD → ACTIVE by SDO control word,
+//!   (device types, 0x1017 heartbeat, 0x1016 consumer of ehactl's heartbeat, PDO
+//!   re-mapping, transducer step, valve device mode 0x6042 / control mode 0x6043 / hold
+//!   setpoint 0x6314 written and read back), NMT start, heartbeats OPERATIONAL, a fault reset
+//!   of the valve if it is in a fault state (rising edge of control-word R with its D/H bits
+//!   held, CiA 408 as published in Moog B99224-DV018 §5.2), valve DISABLED → HOLD → ACTIVE
+//!   by SDO control word,
 //!   one priming SYNC so that the first cycle has a position; a failure after the valve
 //!   is ACTIVE (priming) first returns it to HOLD with setpoint 0, and
 //!   [`CanopenHal::connect_logged`] hands back every frame of a failed attempt for the log;
@@ -13,6 +17,10 @@
 //!   lock-free queue for the cycle (and into the `/can` log queue);
 //! - a TX thread owns the sending side and sends what the cycle pushed into another
 //!   lock-free queue (woken by `unpark`, which does not block the cycle);
+//! - ehactl's own heartbeat (0x700 + `master_node_id`): during start-up sent by the start-up
+//!   bus wrapper while it waits for frames, until the first cycle by the TX thread, then
+//!   queued by the control cycle in `write` every `master_heartbeat_ms`, so that a dead or
+//!   hung cycle silences it and the devices' consumers (0x1016) react;
 //! - the cycle (`read` / `write`) never touches the bus: `read` drains the RX queue
 //!   (TPDO decode, heartbeat consumer, EMCY consumer, valve status) with the loop time as
 //!   injected time base; `write` converts the command to the spool setpoint and, when the
@@ -23,7 +31,7 @@
 //! Faults become `HalError::Device`, so the loop trips, calls `safe_stop` and ends the run
 //! with the reason: heartbeat timeout (detected `heartbeat_timeout_ms` after the last
 //! heartbeat), a device leaving OPERATIONAL or rebooting, EMCY with a non-zero code, the
-//! valve leaving ACTIVE or reporting FAULT (next status TPDO, i.e. within one SYNC), the
+//! valve leaving ACTIVE or reporting a fault state (next status TPDO, i.e. within one SYNC), the
 //! bus connection dropping (next cycle), queue overflow.
 //!
 //! Malformed and unexpected frames (documented decision): a frame with a wrong DLC for its
@@ -70,6 +78,9 @@ pub struct CanopenSettings {
     pub command_full_scale: f64,
     /// Control rate (Hz), `run.control_rate_hz`.
     pub control_rate_hz: f64,
+    /// Command of the safe stop (V), `supervisor.safe_command`: must be closed centre
+    /// (spool setpoint 0) on a CAN valve, checked before the bus is opened.
+    pub safe_command: f64,
     /// Print start-up progress on stderr.
     pub verbose: bool,
 }
@@ -157,6 +168,9 @@ impl From<BusError> for StartupError {
 /// the I/O threads set once and that is read outside the cycle).
 struct IoShared {
     stop: AtomicBool,
+    /// Set by the first cycle: from then on the cycle produces ehactl's heartbeat; before
+    /// (between start-up and the loop's first cycle) the TX thread does.
+    cycle_started: AtomicBool,
     failed: AtomicBool,
     error: Mutex<Option<String>>,
     epoch: Instant,
@@ -236,6 +250,10 @@ pub struct CanopenHal {
     last_read_t: f64,
     last_write_t: Option<f64>,
     sync: SyncProducer,
+    /// ehactl's heartbeat frame, its producer period and the time since it was last queued (ns).
+    master_hb: CanFrame,
+    master_hb_period_ns: u64,
+    master_hb_since_ns: u64,
     hb: [HeartbeatConsumer; 2],
     meas: Measurements,
     valve_state: Option<ValveState>,
@@ -259,9 +277,70 @@ impl std::fmt::Debug for CanopenHal {
     }
 }
 
+/// The bus during start-up: sends ehactl's heartbeat (0x700 + master id, state
+/// OPERATIONAL [05]) every `master_heartbeat_ms` while the start-up waits for frames, so
+/// that the devices' heartbeat consumers (0x1016) see the master alive from the moment
+/// they are configured. The heartbeats it sent are kept for the log.
+struct StartBus {
+    inner: Box<dyn CanBus>,
+    hb: CanFrame,
+    period: Duration,
+    next: Instant,
+    sent: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
+}
+
+impl StartBus {
+    fn beat_if_due(&mut self) -> Result<(), BusError> {
+        let now = Instant::now();
+        if now >= self.next {
+            self.inner.send(&self.hb)?;
+            if let Ok(mut v) = self.sent.lock() {
+                v.push((now, self.hb));
+            }
+            self.next += self.period;
+            if self.next < now {
+                self.next = now + self.period;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl CanBus for StartBus {
+    fn send(&mut self, frame: &CanFrame) -> Result<(), BusError> {
+        self.inner.send(frame)
+    }
+    fn try_recv(&mut self) -> Result<Option<CanFrame>, BusError> {
+        self.beat_if_due()?;
+        self.inner.try_recv()
+    }
+    fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<CanFrame>, BusError> {
+        let end = Instant::now() + timeout;
+        loop {
+            self.beat_if_due()?;
+            let now = Instant::now();
+            if now >= end {
+                return Ok(None);
+            }
+            let wait = end.min(self.next).saturating_duration_since(now);
+            if let Some(f) = self.inner.recv_timeout(wait)? {
+                return Ok(Some(f));
+            }
+        }
+    }
+    fn try_clone_bus(&self) -> Result<Box<dyn CanBus>, BusError> {
+        self.inner.try_clone_bus()
+    }
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+}
+
 /// Start-up bookkeeping: every frame (for the log) and what the devices reported.
 struct Startup {
     frames: Vec<(Instant, CanFrame, bool)>,
+    /// Master heartbeats sent by [`StartBus`] (merged into `frames` by [`Startup::merge`]).
+    heartbeats: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
     ids: [u8; 2],
     booted: [bool; 2],
     state: [Option<NmtState>; 2],
@@ -270,6 +349,20 @@ struct Startup {
 }
 
 impl Startup {
+    /// Move the master heartbeats into `frames`, in time order.
+    fn merge(&mut self) {
+        let hb = self
+            .heartbeats
+            .lock()
+            .map(|mut v| std::mem::take(&mut *v))
+            .unwrap_or_default();
+        if !hb.is_empty() {
+            self.frames
+                .extend(hb.into_iter().map(|(at, f)| (at, f, true)));
+            self.frames.sort_by_key(|(at, _, _)| *at);
+        }
+    }
+
     fn observe(&mut self, f: &CanFrame, dir: Direction) {
         self.frames.push((Instant::now(), *f, dir == Direction::Tx));
         if dir == Direction::Tx {
@@ -305,6 +398,25 @@ impl Startup {
 type SdoWriteFn<'a> = dyn FnMut(&mut dyn CanBus, &mut Startup, u8, u16, u8, &[u8], &str) -> Result<(), StartupError>
     + 'a;
 
+/// A value read back after a start-up write must be the value written.
+fn readback(
+    step: &str,
+    node: u8,
+    index: u16,
+    sub: u8,
+    wrote: &[u8],
+    got: &[u8],
+) -> Result<(), StartupError> {
+    let n = wrote.len();
+    if got.len() < n || got[..n] != *wrote || got[n..].iter().any(|b| *b != 0) {
+        return Err(StartupError::Device(format!(
+            "{step}: node {node} (0x{node:02X}) accepted the write of 0x{index:04X}:{sub:02X} but reads back {:02X?} instead of {:02X?}",
+            got, wrote
+        )));
+    }
+    Ok(())
+}
+
 fn sdo_err(step: impl Into<String>) -> impl FnOnce(SdoError) -> StartupError {
     let step = step.into();
     move |error| StartupError::Sdo { step, error }
@@ -323,6 +435,7 @@ impl CanopenHal {
         let t_start = Instant::now();
         let mut st = Startup {
             frames: Vec::with_capacity(512),
+            heartbeats: Arc::new(Mutex::new(Vec::new())),
             ids: [s.canopen.transducer_node_id, s.canopen.valve_node_id],
             booted: [false; 2],
             state: [None; 2],
@@ -331,6 +444,7 @@ impl CanopenHal {
         };
         Self::bring_up(s, t_start, &mut st).map_err(|error| {
             let failed_at = Instant::now();
+            st.merge();
             StartupFailure {
                 error,
                 frames: st
@@ -366,7 +480,31 @@ impl CanopenHal {
                 s.command_full_scale
             )));
         }
-        let mut bus = bus::open(&s.bus, Duration::from_secs(3))?;
+        let master_hb = CanFrame::std(
+            HEARTBEAT_BASE + u16::from(c.master_node_id),
+            [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
+        );
+        let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
+        // Closed centre only: the safe stop sends this setpoint and then HOLD, where the valve
+        // controls to the hold setpoint 0x6314:01 = 0; any other value would open the valve
+        // on a trip (a huge value saturates to a fully open spool).
+        let safe_sp = cia408::setpoint_from_command(s.safe_command, s.command_full_scale);
+        if !s.safe_command.is_finite() || safe_sp != 0 {
+            return Err(StartupError::Settings(format!(
+                "supervisor.safe_command = {} V is no closed-centre command for the CAN valve: it is spool setpoint {safe_sp} of ±{} (expected 0, i.e. |safe_command| < {:.3e} V with valve.command_full_scale = {} V)",
+                s.safe_command,
+                cia408::FULL_SCALE,
+                s.command_full_scale / f64::from(cia408::FULL_SCALE) / 2.0,
+                s.command_full_scale
+            )));
+        }
+        let mut bus = Box::new(StartBus {
+            inner: bus::open(&s.bus, Duration::from_secs(3))?,
+            hb: master_hb,
+            period: master_hb_period,
+            next: Instant::now(),
+            sent: st.heartbeats.clone(),
+        });
         let ids = [c.transducer_node_id, c.valve_node_id];
         let send = |bus: &mut dyn CanBus, st: &mut Startup, f: CanFrame| -> Result<(), BusError> {
             bus.send(&f)?;
@@ -486,6 +624,17 @@ impl CanopenHal {
                 &c.heartbeat_ms.to_le_bytes(),
                 &format!("setting the {} heartbeat producer time", dev.name()),
             )?;
+            // Consumer of ehactl's heartbeat (CiA 301 0x1016:01 = node id << 16 | time ms):
+            // the device enters its fault reaction when ehactl stops (DEPLOY.md).
+            let consumer =
+                (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
+            let step = format!(
+                "setting the {} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)",
+                dev.name()
+            );
+            write(&mut *bus, st, n, 0x1016, 1, &consumer.to_le_bytes(), &step)?;
+            let got = read(&mut *bus, st, n, 0x1016, 1, &step)?;
+            readback(&step, n, 0x1016, 1, &consumer.to_le_bytes(), &got)?;
         }
         let tr = ids[0];
         let va = ids[1];
@@ -545,15 +694,33 @@ impl CanopenHal {
             &cia406::TPDO1_MAP,
             "the transducer TPDO1 (position 0x6020:01)",
         )?;
-        write(
-            &mut *bus,
-            st,
-            va,
-            cia408::DEVICE_MODE,
-            0,
-            &[cia408::MODE_SETPOINT_FROM_BUS],
-            "setting the valve device mode 0x6042 = 1 (setpoint from the bus)",
-        )?;
+        // Device mode, control mode and hold setpoint, each read back: a valve that keeps
+        // another mode (e.g. set by its local interface) would ignore the bus setpoint or
+        // hold somewhere else.
+        for (index, sub, bytes, what) in [
+            (
+                cia408::DEVICE_MODE,
+                0u8,
+                vec![cia408::MODE_SETPOINT_FROM_BUS],
+                "setting the valve device mode 0x6042 = 1 (setpoint from the bus)",
+            ),
+            (
+                cia408::CONTROL_MODE,
+                0,
+                vec![cia408::CONTROL_MODE_SPOOL_CLOSED_LOOP as u8],
+                "setting the valve control mode 0x6043 = 2 (spool position, closed loop)",
+            ),
+            (
+                cia408::SPOOL_HOLD_SETPOINT,
+                1,
+                0i16.to_le_bytes().to_vec(),
+                "setting the valve hold setpoint 0x6314:01 = 0 (closed centre in HOLD)",
+            ),
+        ] {
+            write(&mut *bus, st, va, index, sub, &bytes, what)?;
+            let got = read(&mut *bus, st, va, index, sub, what)?;
+            readback(what, va, index, sub, &bytes, &got)?;
+        }
         write(
             &mut *bus,
             st,
@@ -680,10 +847,30 @@ impl CanopenHal {
                 std::thread::sleep(Duration::from_millis(10));
             }
         };
-        let sw = status(&mut *bus, st)?;
-        if ValveState::from_status(sw) == ValveState::Fault {
+        // A valve in a fault state is reset as published (Moog B99224-DV018 §5.2.2.1):
+        // FAULT_REACTION ends by itself (TR9/12/13); then R rises with the D/H bits of the
+        // fault state held (TR10 FAULT_DISABLED 0001→1001, TR11 FAULT_HOLD 0011→1011, TR14
+        // FAULT_INIT 0000→1000).
+        let mut sw = status(&mut *bus, st)?;
+        let deadline = Instant::now() + sdo_t;
+        while ValveState::from_status(sw) == ValveState::FaultReaction && Instant::now() < deadline
+        {
+            std::thread::sleep(Duration::from_millis(5));
+            sw = status(&mut *bus, st)?;
+        }
+        let fault = ValveState::from_status(sw);
+        if fault.is_fault() {
+            let Some(held) = fault.reset_hold_bits() else {
+                return Err(StartupError::Device(format!(
+                    "valve (node {va}) stayed in FAULT_REACTION (status word 0x{sw:04X}) for {} ms",
+                    sdo_t.as_millis()
+                )));
+            };
             if s.verbose {
-                eprintln!("canopen: valve in FAULT at start-up: fault reset (control word bit 3)");
+                eprintln!(
+                    "canopen: valve in {} at start-up: fault reset (rising edge of control word bit R)",
+                    fault.as_str()
+                );
             }
             write(
                 &mut *bus,
@@ -691,11 +878,34 @@ impl CanopenHal {
                 va,
                 cia408::CONTROL_WORD,
                 0,
-                &cia408::CW_DISABLED.to_le_bytes(),
-                "clearing the valve control word",
+                &held.to_le_bytes(),
+                "preparing the valve fault reset (R = 0, D/H held)",
             )?;
-            goto(&mut *bus, st, cia408::CW_RESET, ValveState::Disabled)?;
+            write(
+                &mut *bus,
+                st,
+                va,
+                cia408::CONTROL_WORD,
+                0,
+                &(held | cia408::CW_RESET).to_le_bytes(),
+                "resetting the valve fault (rising edge of R)",
+            )?;
+            let sw = status(&mut *bus, st)?;
+            let got = ValveState::from_status(sw);
+            if got.is_fault() || matches!(got, ValveState::Unknown(_)) {
+                return Err(StartupError::Device(format!(
+                    "valve (node {va}) still in {} after the fault reset (control word 0x{:04X}): status word 0x{sw:04X}; the fault persists",
+                    got.as_str(),
+                    held | cia408::CW_RESET
+                )));
+            }
         }
+        goto(
+            &mut *bus,
+            st,
+            cia408::CW_DISABLED_STATE,
+            ValveState::Disabled,
+        )?;
         goto(&mut *bus, st, cia408::CW_HOLD_STATE, ValveState::Hold)?;
         goto(&mut *bus, st, cia408::CW_ACTIVE_STATE, ValveState::Active)?;
 
@@ -781,6 +991,7 @@ impl CanopenHal {
         // 7. I/O threads.
         let shared = Arc::new(IoShared {
             stop: AtomicBool::new(false),
+            cycle_started: AtomicBool::new(false),
             failed: AtomicBool::new(false),
             error: Mutex::new(None),
             epoch: t_start,
@@ -793,6 +1004,7 @@ impl CanopenHal {
         let frame_log = Arc::new(FrameLog::new(FRAME_LOG));
         let rxq = Arc::new(ArrayQueue::new(RX_QUEUE));
         let txq = Arc::new(ArrayQueue::new(TX_QUEUE));
+        let bus: Box<dyn CanBus> = bus.inner;
         let tx_bus = bus.try_clone_bus()?;
         let spawn_err = |e: std::io::Error| {
             StartupError::Bus(BusError::new(
@@ -811,7 +1023,7 @@ impl CanopenHal {
             let (sh, q, lg) = (shared.clone(), txq.clone(), frame_log.clone());
             std::thread::Builder::new()
                 .name("ehactl-can-tx".into())
-                .spawn(move || tx_loop(tx_bus, &sh, &q, &lg))
+                .spawn(move || tx_loop(tx_bus, &sh, &q, &lg, master_hb, master_hb_period))
                 .map_err(spawn_err)?
         };
         let waker = tx_thread.thread().clone();
@@ -825,6 +1037,9 @@ impl CanopenHal {
         }
         Ok(CanopenHal {
             sync: SyncProducer::new(1.0 / c.sync_rate_hz),
+            master_hb,
+            master_hb_period_ns: u64::from(c.master_heartbeat_ms) * 1_000_000,
+            master_hb_since_ns: u64::from(c.master_heartbeat_ms) * 1_000_000,
             ids,
             shared,
             frame_log,
@@ -834,7 +1049,10 @@ impl CanopenHal {
             tx_thread: Some(tx_thread),
             tx_waker: Some(waker),
             bus_after_stop: None,
-            startup_frames: std::mem::take(&mut st.frames),
+            startup_frames: {
+                st.merge();
+                std::mem::take(&mut st.frames)
+            },
             started: false,
             last_read_t: 0.0,
             last_write_t: None,
@@ -948,11 +1166,20 @@ impl CanopenHal {
                     self.valve_state = Some(st);
                     match st {
                         ValveState::Active => {}
-                        ValveState::Fault => {
+                        ValveState::FaultReaction => {
                             return Err(self.trip(
                                 t,
                                 u32::from(sw),
-                                "valve reports FAULT (status word)",
+                                "valve reports FAULT_REACTION (status word)",
+                                f64::from(sw),
+                                "status word",
+                            ))
+                        }
+                        s if s.is_fault() => {
+                            return Err(self.trip(
+                                t,
+                                u32::from(sw),
+                                "valve reports a fault state (status word)",
                                 f64::from(sw),
                                 "status word",
                             ))
@@ -1132,8 +1359,22 @@ fn tx_loop(
     sh: &IoShared,
     q: &ArrayQueue<CanFrame>,
     log: &FrameLog,
+    master_hb: CanFrame,
+    master_hb_period: Duration,
 ) -> Box<dyn CanBus> {
+    let mut next_hb = Instant::now();
     loop {
+        // Until the first cycle runs (the run loop still sets up), ehactl's heartbeat comes
+        // from here, so that the devices' consumers do not fire in the hand-over.
+        if !sh.cycle_started.load(Ordering::Acquire) && Instant::now() >= next_hb {
+            next_hb = Instant::now() + master_hb_period;
+            if let Err(e) = bus.send(&master_hb) {
+                sh.fail(e.message);
+                return bus;
+            }
+            log.push(record(&master_hb, sh.stamp(Instant::now()), true));
+            sh.tx_frames.fetch_add(1, Ordering::Relaxed);
+        }
         while let Some(f) = q.pop() {
             match bus.send(&f) {
                 Ok(()) => {
@@ -1164,6 +1405,7 @@ impl Hal for CanopenHal {
     fn read(&mut self, t: f64, _period: f64) -> Result<Measurements, HalError> {
         if !self.started {
             self.started = true;
+            self.shared.cycle_started.store(true, Ordering::Release);
             let now = Instant::now();
             let zero = now.saturating_duration_since(self.shared.epoch).as_nanos() as i64;
             self.shared.zero_ns.store(zero, Ordering::Relaxed);
@@ -1218,6 +1460,22 @@ impl Hal for CanopenHal {
             Some(l) => ((t - l).max(0.0) * 1e9).round() as u64,
         };
         self.last_write_t = Some(t);
+        // ehactl's heartbeat comes from the control cycle itself: if the cycle stops (crash,
+        // SIGKILL, hang), the devices' consumers (0x1016) notice within their consumer time.
+        self.master_hb_since_ns += elapsed_ns;
+        if self.master_hb_since_ns >= self.master_hb_period_ns {
+            self.master_hb_since_ns = if self.master_hb_since_ns >= 2 * self.master_hb_period_ns {
+                0
+            } else {
+                self.master_hb_since_ns - self.master_hb_period_ns
+            };
+            if self.txq.push(self.master_hb).is_err() {
+                return Err(self.trip(t, 0, "CAN transmit queue overflow", f64::NAN, ""));
+            }
+            if let Some(w) = &self.tx_waker {
+                w.unpark();
+            }
+        }
         if self.sync.process(elapsed_ns) {
             let rpdo = CanFrame::std(
                 RPDO1_BASE + u16::from(self.ids[1]),

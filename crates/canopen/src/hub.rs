@@ -9,12 +9,21 @@
 //! *read* its `< ok >` (a frame written right after it can land in the same `recv` on a
 //! busy machine), so frames for a newly joined client are held for a join delay
 //! (default 200 ms) after the `< ok >` and then delivered in order: nothing is lost.
+//!
+//! Isolation: each client has its own bounded queue ([`CLIENT_QUEUE`] frames) and its own
+//! writer thread. Relaying a frame only formats it once and pushes it into every other
+//! client's queue without waiting; a client whose queue is full (it stopped reading: its
+//! socket buffer and then its queue filled up) is dropped (its connection is shut down,
+//! `clients_dropped` counts it, one line on stderr), so a stalled client never delays the
+//! others. Text a client sent is quoted in the hub's log lines only sanitised (printable
+//! ASCII, at most 80 characters, see [`sanitize`]).
 
 use crate::frame::CanFrame;
 use crate::socketcand::{format_frame, parse_send, words, Framer};
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -27,19 +36,21 @@ pub struct HubStats {
     pub frames_out: AtomicU64,
     /// Malformed messages received (reported on stderr).
     pub malformed: AtomicU64,
+    /// Clients dropped because their queue was full (they did not read).
+    pub clients_dropped: AtomicU64,
 }
 
-/// Most bytes held for a client during its join delay (≈ 4000 frames).
-const MAX_PENDING: usize = 256 * 1024;
+/// Frames queued per client before it counts as not reading and is dropped: 2048 frames
+/// are 0.5 s of a 1 kHz SYNC cycle with 4 frames per period, more than a join delay holds.
+pub const CLIENT_QUEUE: usize = 2048;
 
 struct Client {
     id: u64,
     channel: String,
+    /// Handle for shutting the connection down when the client is dropped.
     stream: TcpStream,
-    /// False during the join delay: frames go to `pending`.
-    ready: bool,
-    pending: Vec<u8>,
-    overflowed: bool,
+    /// This client's queue; its writer thread writes the frames to the socket.
+    queue: SyncSender<Arc<[u8]>>,
 }
 
 #[derive(Default)]
@@ -128,26 +139,24 @@ fn now() -> Duration {
 }
 
 fn relay(reg: &Mutex<Registry>, stats: &HubStats, from: u64, channel: &str, f: &CanFrame) {
-    let msg = format_frame(f, now());
+    let msg: Arc<[u8]> = Arc::from(format_frame(f, now()).as_bytes());
     let Ok(mut r) = reg.lock() else { return };
     let mut dead = Vec::new();
-    for c in r.clients.iter_mut() {
+    for c in r.clients.iter() {
         if c.id == from || c.channel != channel {
             continue;
         }
-        if !c.ready {
-            if c.pending.len() + msg.as_bytes().len() <= MAX_PENDING {
-                c.pending.extend_from_slice(msg.as_bytes());
-            } else if !c.overflowed {
-                c.overflowed = true;
-                eprintln!("hub: client {}: more than {MAX_PENDING} bytes of frames during its join delay; later ones dropped until it is ready", c.id);
+        match c.queue.try_send(msg.clone()) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_)) => {
+                stats.clients_dropped.fetch_add(1, Ordering::Relaxed);
+                eprintln!(
+                    "hub: client {} dropped: it did not read ({CLIENT_QUEUE} frames queued); the others are not held up",
+                    c.id
+                );
+                dead.push(c.id);
             }
-            continue;
-        }
-        if c.stream.write_all(msg.as_bytes()).is_err() {
-            dead.push(c.id);
-        } else {
-            stats.frames_out.fetch_add(1, Ordering::Relaxed);
+            Err(TrySendError::Disconnected(_)) => dead.push(c.id),
         }
     }
     if !dead.is_empty() {
@@ -158,35 +167,62 @@ fn relay(reg: &Mutex<Registry>, stats: &HubStats, from: u64, channel: &str, f: &
     }
 }
 
+/// A client's writer thread: after the join delay, writes its queued frames in order
+/// until the queue is dropped (client removed) or a write fails.
+fn writer_loop(
+    mut stream: TcpStream,
+    q: Receiver<Arc<[u8]>>,
+    join_delay: Duration,
+    stats: &HubStats,
+) {
+    std::thread::sleep(join_delay);
+    while let Ok(m) = q.recv() {
+        if stream.write_all(&m).is_err() {
+            let _ = stream.shutdown(std::net::Shutdown::Both);
+            return;
+        }
+        stats.frames_out.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// Client text for a log line: printable ASCII kept, everything else (control characters,
+/// escape sequences, non-ASCII) as `\xNN` / `\u{..}`, at most 80 characters (then `…`).
+pub fn sanitize(s: &str) -> String {
+    let mut out = String::new();
+    for (n, c) in s.chars().enumerate() {
+        if n >= 80 {
+            out.push('…');
+            break;
+        }
+        if c.is_ascii_graphic() || c == ' ' {
+            out.push(c);
+        } else if c.is_ascii() {
+            out.push_str(&format!("\\x{:02X}", c as u32));
+        } else {
+            out.push_str(&format!("\\u{{{:X}}}", c as u32));
+        }
+    }
+    out
+}
+
 enum State {
     Greeted,
     Opened(String),
     Raw(String),
 }
 
-/// End of a client's join delay: deliver what was held, then relay directly.
-fn make_ready(reg: &Mutex<Registry>, id: u64) {
-    let Ok(mut r) = reg.lock() else { return };
-    if let Some(c) = r.clients.iter_mut().find(|c| c.id == id) {
-        let pending = std::mem::take(&mut c.pending);
-        if !pending.is_empty() && c.stream.write_all(&pending).is_err() {
-            let _ = c.stream.shutdown(std::net::Shutdown::Both);
-        }
-        c.ready = true;
-    }
-}
-
 fn client_loop(
     id: u64,
     mut stream: TcpStream,
     reg: &Arc<Mutex<Registry>>,
-    stats: &HubStats,
+    stats: &Arc<HubStats>,
     quiet: bool,
     peer: &str,
     join_delay: Duration,
 ) -> String {
     let _ = stream.set_nodelay(true);
-    // A client that stops reading must not stall the bus for long.
+    // Only this client's writer thread waits on a client that stops reading; its queue fills
+    // and the relay drops it (see the module docs).
     let _ = stream.set_write_timeout(Some(Duration::from_millis(500)));
     if let Err(e) = stream.write_all(b"< hi >") {
         return format!("cannot greet: {e}");
@@ -196,7 +232,7 @@ fn client_loop(
     let mut buf = [0u8; 4096];
     let complain = |what: &str| {
         stats.malformed.fetch_add(1, Ordering::Relaxed);
-        eprintln!("hub: client {id} ({peer}): {what}");
+        eprintln!("hub: client {id} ({peer}): {}", sanitize(what));
     };
     loop {
         let n = match stream.read(&mut buf) {
@@ -255,39 +291,32 @@ fn client_loop(
                                 Ok(s) => s,
                                 Err(e) => return format!("cannot clone socket: {e}"),
                             };
-                            // Register first, held (not ready), then reply: frames relayed
-                            // from now on are kept for this client, none is lost in the gap
-                            // between the reply and the registration, and none can precede
-                            // the `< ok >` because held frames are written only by
-                            // `make_ready`, after the reply.
+                            // Register first (frames from now on are queued for this
+                            // client, none lost in the gap), reply, then start the writer:
+                            // it waits the join delay before the first frame, so no frame
+                            // precedes the `< ok >` or shares its `recv`.
+                            let (tx, rx) = sync_channel::<Arc<[u8]>>(CLIENT_QUEUE);
+                            let shut = match stream.try_clone() {
+                                Ok(s) => s,
+                                Err(e) => return format!("cannot clone socket: {e}"),
+                            };
                             if let Ok(mut r) = reg.lock() {
                                 r.clients.push(Client {
                                     id,
                                     channel: ch.clone(),
-                                    stream: writer,
-                                    ready: false,
-                                    pending: Vec::new(),
-                                    overflowed: false,
+                                    stream: shut,
+                                    queue: tx,
                                 });
                             }
                             if stream.write_all(b"< ok >").is_err() {
                                 return "write error".into();
                             }
-                            let delayed = !join_delay.is_zero() && {
-                                let reg = reg.clone();
-                                std::thread::Builder::new()
-                                    .name(format!("hub-join-{id}"))
-                                    .spawn(move || {
-                                        std::thread::sleep(join_delay);
-                                        make_ready(&reg, id);
-                                    })
-                                    .is_ok()
-                            };
-                            if !delayed {
-                                // No delay asked for, or no thread for it: sleep here (this
-                                // client's own frames wait in its socket meanwhile).
-                                std::thread::sleep(join_delay);
-                                make_ready(reg, id);
+                            let st = stats.clone();
+                            if let Err(e) = std::thread::Builder::new()
+                                .name(format!("hub-writer-{id}"))
+                                .spawn(move || writer_loop(writer, rx, join_delay, &st))
+                            {
+                                return format!("cannot start a writer thread: {e}");
                             }
                             if !quiet {
                                 eprintln!("hub: client {id} ({peer}) in rawmode on {ch}");

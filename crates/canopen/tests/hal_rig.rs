@@ -3,8 +3,10 @@
 //! within one heartbeat timeout plus two SYNC periods.
 //!
 //! The scripted rig is a minimal CiA 301 slave pair written for this test (expedited SDO
-//! server, NMT, heartbeat producer, SYNC-driven TPDOs, the simplified CiA 408 state
-//! machine of the ICD); the full simulated devices with the plant are the Python ones.
+//! server, NMT, heartbeat producer, SYNC-driven TPDOs, the part of the CiA 408 device state
+//! machine the master uses, with the status codes RMHD of Moog B99224-DV018 fig. 19: INIT
+//! 1000, DISABLED 1001, HOLD 1011, ACTIVE 1111, FAULT_REACTION 0111, FAULT_HOLD 0011); the
+//! full simulated devices with the plant are the Python ones.
 
 use ehactl_canopen::cia408;
 use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError};
@@ -55,6 +57,8 @@ struct Knobs {
     malformed: AtomicBool,
     /// The transducer sends no TPDO (its PDO mapping is broken).
     mute_transducer_pdo: AtomicBool,
+    /// The valve is in FAULT_HOLD when the master connects (a fault from an earlier run).
+    start_in_fault_hold: AtomicBool,
     abort_index: AtomicU32,
     stop: AtomicBool,
     /// Every frame the rig received (id, data), for sequence checks.
@@ -86,7 +90,19 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
         nodes[1]
             .od
             .insert((0x1000, 0), 0x0001_0198u32.to_le_bytes().to_vec());
-        let mut state: u16 = 0b001;
+        // CiA 408 status codes RMHD (Moog B99224-DV018 fig. 19).
+        const INIT: u16 = 0b1000;
+        const DISABLED: u16 = 0b1001;
+        const HOLD: u16 = 0b1011;
+        const ACTIVE: u16 = 0b1111;
+        const FAULT_REACTION: u16 = 0b0111;
+        const FAULT_HOLD: u16 = 0b0011;
+        let mut state: u16 = if knobs.start_in_fault_hold.load(Ordering::Relaxed) {
+            FAULT_HOLD
+        } else {
+            INIT
+        };
+        let mut prev_cw: u16 = 0;
         let mut latched: i16 = 0;
         let mut spool: i16;
         let mut pos = 0.0f64;
@@ -122,15 +138,15 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
             }
             if knobs.emcy.load(Ordering::Relaxed) && !emcy_sent {
                 emcy_sent = true;
-                state = 0b1000;
+                state = FAULT_REACTION; // TR8, EMCY on entry
                 send(
                     &mut bus,
                     false,
                     CanFrame::std(0x080 + u16::from(VA), [0x00, 0x50, 0x01, 0, 0, 0, 0, 0]),
                 );
             }
-            if knobs.leave_active.load(Ordering::Relaxed) && state == 0b111 {
-                state = 0b011;
+            if knobs.leave_active.load(Ordering::Relaxed) && state == ACTIVE {
+                state = HOLD;
             }
             if knobs.malformed.load(Ordering::Relaxed) && !malformed_sent {
                 malformed_sent = true;
@@ -175,9 +191,12 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                 }
                 0x080 if f.dlc == 0 => {
                     if nodes[1].nmt == 5 {
-                        spool = if state == 0b111 { latched } else { 0 };
+                        spool = if state == ACTIVE { latched } else { 0 };
                         pos += f64::from(spool) / 16384.0 * V_FULL * 1e-3;
                         let sw = state;
+                        if state == FAULT_REACTION {
+                            state = FAULT_HOLD; // TR9: the reaction ends after one SYNC
+                        }
                         send(&mut bus, silent_va, {
                             let mut d = [0u8; 4];
                             d[..2].copy_from_slice(&sw.to_le_bytes());
@@ -222,12 +241,16 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         let v = f.data[4..4 + n].to_vec();
                         if node == VA && index == 0x6040 {
                             let cw = u16::from_le_bytes([v[0], v[1]]);
-                            state = match (state, cw) {
-                                (0b1000, c) if c & 0x08 != 0 => 0b001,
-                                (0b1000, _) => 0b1000,
-                                (_, c) if c & 1 == 0 => 0b001,
-                                (0b001 | 0b011 | 0b111, 0x03) => 0b011,
-                                (0b011 | 0b111, 0x07) => 0b111,
+                            let rising_r = cw & 0x08 != 0 && prev_cw & 0x08 == 0;
+                            prev_cw = cw;
+                            state = match (state, cw & 0x07) {
+                                // TR11: rising edge of R with MHD = 011 held
+                                (FAULT_HOLD, 0b011) if rising_r => HOLD,
+                                (FAULT_HOLD | FAULT_REACTION, _) => state,
+                                (_, m) if m & 1 == 0 => INIT,
+                                (_, 0b001) => DISABLED,
+                                (_, 0b011) => HOLD,
+                                (HOLD | ACTIVE, 0b111) => ACTIVE,
                                 (s, _) => s,
                             };
                         }
@@ -293,6 +316,7 @@ fn settings(port: u16, cfg: CanopenConfig) -> CanopenSettings {
         canopen: cfg,
         command_full_scale: 10.0,
         control_rate_hz: 2000.0,
+        safe_command: 0.0,
         verbose: false,
     }
 }
@@ -357,6 +381,9 @@ fn start_up_sequence_and_closed_data_path() {
         (0x000, vec![0x80, TR]),
         (0x620, vec![0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0]),
         (0x620, vec![0x2B, 0x17, 0x10, 0x00, 50, 0, 0, 0]),
+        // consumer of the master's heartbeat: node 1, 100 ms (0x1016:01 = 0x0001_0064)
+        (0x620, vec![0x23, 0x16, 0x10, 0x01, 0x64, 0x00, 0x01, 0x00]),
+        (0x620, vec![0x40, 0x16, 0x10, 0x01, 0, 0, 0, 0]),
         (0x620, vec![0x23, 0x05, 0x60, 0x01, 0xE8, 0x03, 0, 0]),
         (0x620, vec![0x23, 0x00, 0x18, 0x01, 0xA0, 0x01, 0x00, 0x80]),
         (0x620, vec![0x2F, 0x00, 0x1A, 0x00, 0, 0, 0, 0]),
@@ -364,9 +391,15 @@ fn start_up_sequence_and_closed_data_path() {
         (0x620, vec![0x2F, 0x00, 0x1A, 0x00, 1, 0, 0, 0]),
         (0x620, vec![0x23, 0x00, 0x18, 0x01, 0xA0, 0x01, 0x00, 0x00]),
         (0x630, vec![0x2F, 0x42, 0x60, 0x00, 1, 0, 0, 0]),
+        (0x630, vec![0x40, 0x42, 0x60, 0x00, 0, 0, 0, 0]),
+        (0x630, vec![0x2F, 0x43, 0x60, 0x00, 2, 0, 0, 0]),
+        (0x630, vec![0x40, 0x43, 0x60, 0x00, 0, 0, 0, 0]),
+        (0x630, vec![0x2B, 0x14, 0x63, 0x01, 0, 0, 0, 0]),
+        (0x630, vec![0x40, 0x14, 0x63, 0x01, 0, 0, 0, 0]),
         (0x630, vec![0x23, 0x00, 0x16, 0x01, 0x10, 0x01, 0x00, 0x63]),
         (0x630, vec![0x23, 0x00, 0x1A, 0x02, 0x10, 0x01, 0x01, 0x63]),
         (0x000, vec![0x01, TR]),
+        (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x01, 0x00, 0, 0]),
         (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x03, 0x00, 0, 0]),
         (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x07, 0x00, 0, 0]),
         (0x230, vec![0x00, 0x00]),
@@ -384,6 +417,8 @@ fn start_up_sequence_and_closed_data_path() {
                 .collect::<Vec<_>>()
         );
     }
+    // ehactl's heartbeat (node 1, OPERATIONAL) is on the bus from the start-up on.
+    assert!(seen.contains(&(0x701, vec![0x05])), "no master heartbeat");
     // +5 V = +50 % spool → the scripted piston moves at 0.05 m/s.
     let before = CYCLE_ALLOCS.load(Ordering::Relaxed);
     let (pos, t, err, cycles) = drive(&mut hal, 0.6, 5.0, &mut |_| {});
@@ -409,8 +444,13 @@ fn start_up_sequence_and_closed_data_path() {
         "{syncs} SYNCs in {t} s over {cycles} cycles: {rep}"
     );
     hal.safe_stop(0.0).unwrap();
-    // Safe stop ends with setpoint 0 and control word HOLD.
+    // The control cycle produced ehactl's heartbeat every 20 ms of the run (a stalled cycle
+    // on a loaded machine sends fewer, never more).
     let seen = knobs.seen.lock().unwrap().clone();
+    let beats = seen.iter().filter(|f| f.0 == 0x701).count() as f64;
+    assert!(beats <= (t + 3.0) / 0.020 + 2.0, "{beats} heartbeats");
+    assert!(beats >= 0.5 * t / 0.020, "{beats} heartbeats in {t} s");
+    // Safe stop ends with setpoint 0 and control word HOLD.
     let tail: Vec<_> = seen.iter().rev().take(8).cloned().collect();
     assert!(tail.contains(&(0x230, vec![0, 0])), "{tail:?}");
     assert!(
@@ -712,4 +752,56 @@ fn connection_drop_trips_on_the_next_cycle() {
     knobs.stop.store(true, Ordering::Relaxed);
     rig_thread.join().unwrap();
     let _ = cia408::CW_HOLD_STATE;
+}
+
+#[test]
+fn a_valve_in_fault_hold_is_reset_by_a_rising_edge_of_r_with_d_and_h_held() {
+    // Published reset TR11 (Moog B99224-DV018 §5.2.2.1): control word 0011 then 1011.
+    let (port, knobs, _one_at_a_time) = start();
+    knobs.start_in_fault_hold.store(true, Ordering::Relaxed);
+    let rig_thread = rig(port, knobs.clone());
+    let mut hal = match CanopenHal::connect(settings(port, test_bus())) {
+        Ok(h) => h,
+        Err(e) => panic!("{e}; rig saw {:?}", knobs.seen.lock().unwrap()),
+    };
+    let seen = knobs.seen.lock().unwrap().clone();
+    let cws: Vec<u8> = seen
+        .iter()
+        .filter(|(id, d)| *id == 0x630 && d[..4] == [0x2B, 0x40, 0x60, 0x00])
+        .map(|(_, d)| d[4])
+        .collect();
+    assert_eq!(
+        cws,
+        vec![0x03, 0x0B, 0x01, 0x03, 0x07],
+        "control words {cws:02X?}"
+    );
+    let (_, _, err, _) = drive(&mut hal, 0.1, 0.0, &mut |_| {});
+    assert!(err.is_none(), "{err:?}");
+    let _ = hal.safe_stop(0.0);
+    knobs.stop.store(true, Ordering::Relaxed);
+    rig_thread.join().unwrap();
+}
+
+#[test]
+fn a_safe_command_that_is_not_closed_centre_is_refused_before_the_bus_is_opened() {
+    // Nothing listens on port 1: the check comes first, so the error is the setting's.
+    for (u, setpoint) in [(1.0, "1638"), (-1e9, "-16384"), (f64::NAN, "0")] {
+        let mut s = settings(1, test_bus());
+        s.safe_command = u;
+        let e = CanopenHal::connect(s).unwrap_err();
+        let StartupError::Settings(m) = &e else {
+            panic!("{e}")
+        };
+        assert!(
+            m.contains("supervisor.safe_command") && m.contains(&format!("setpoint {setpoint} ")),
+            "{m}"
+        );
+    }
+    // half an LSB of the ±16384 scale still rounds to setpoint 0: accepted (fails on the bus)
+    let mut s = settings(1, test_bus());
+    s.safe_command = 10.0 / 16384.0 / 2.0 * 0.99;
+    assert!(matches!(
+        CanopenHal::connect(s).unwrap_err(),
+        StartupError::Bus(_)
+    ));
 }

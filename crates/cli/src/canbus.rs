@@ -111,6 +111,7 @@ pub fn connect(
                 canopen: cfg.canopen.clone(),
                 command_full_scale: cfg.plant.valve.command_full_scale,
                 control_rate_hz: cfg.run.control_rate_hz,
+                safe_command: cfg.supervisor.safe_command,
                 verbose: !json,
             };
             match CanopenHal::connect_logged(settings) {

@@ -67,6 +67,10 @@ pub fn cmd_diagnose(
             }
         );
         println!("  held-out NRMSE nominal {:.4} → refit {:.4} → extended {:.4} (gain {:.1} %, noise floor {:.4})", d.nrmse_nominal.overall, d.nrmse_refit.overall, d.nrmse_extended.overall, d.gain * 100.0, d.noise_floor);
+        println!(
+            "  ARX baseline held-out NRMSE {:.4} (same split)",
+            d.nrmse_baseline.overall
+        );
         println!("  candidates:");
         for c in &d.candidates {
             println!(

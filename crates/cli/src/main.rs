@@ -11,6 +11,7 @@ mod canbus;
 
 use canbus::HalKind;
 mod diagnose;
+mod live;
 
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
@@ -30,6 +31,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
@@ -76,6 +78,11 @@ enum Command {
         /// config being run).
         #[arg(long)]
         force: bool,
+        /// Serve the run live to Foxglove (Foxglove WebSocket protocol, same channels as the
+        /// MCAP log) on HOST:PORT (default 127.0.0.1:8765; port 0 = any free port). Best with
+        /// --realtime; messages a viewer cannot take are dropped and counted, never waited for.
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live::DEFAULT_ADDR)]
+        live: Option<String>,
     },
     /// Rebuild a valid, indexed MCAP file from a log whose writer was killed (SIGKILL, power
     /// loss, full disk): every intact chunk is kept, a cut-off one is dropped.
@@ -290,6 +297,30 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
     }
 }
 
+/// `v` with `digits` significant digits, without float noise (`3.05`, not
+/// `3.0500000000000003`); scientific notation outside 1e-3 ≤ |v| < 1e6.
+pub(crate) fn sig(v: f64, digits: usize) -> String {
+    if !v.is_finite() {
+        return v.to_string();
+    }
+    if v == 0.0 {
+        return "0".into();
+    }
+    let digits = digits.max(1);
+    let e = v.abs().log10().floor() as i32;
+    if (-3..6).contains(&e) {
+        let decimals = (digits as i32 - 1 - e).max(0) as usize;
+        let s = format!("{v:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        format!("{v:.*e}", digits - 1)
+    }
+}
+
 /// Stop flag set by SIGINT / SIGTERM.
 fn stop_flag() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
@@ -334,6 +365,7 @@ fn main() -> ExitCode {
             hal,
             bus,
             force,
+            live,
         } => cmd_run(
             &config,
             duration,
@@ -342,6 +374,7 @@ fn main() -> ExitCode {
             realtime,
             control_socket,
             (hal, bus),
+            live.as_deref(),
         ),
         Command::Recover {
             input,
@@ -360,10 +393,13 @@ fn main() -> ExitCode {
             match ehactl_controller::session::build_plant(&cfg) {
                 Ok(plant) => {
                     println!(
-                        "{}: ok — mode {:?}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
+                        "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
                         config.display(),
-                        cfg.control.mode,
-                        cfg.run.control_rate_hz,
+                        serde_json::to_value(cfg.control.mode)
+                            .ok()
+                            .and_then(|v| v.as_str().map(str::to_owned))
+                            .unwrap_or_default(),
+                        sig(cfg.run.control_rate_hz, 6),
                         plant.substeps(),
                         plant.substep_length() * 1e6,
                         cfg.plant
@@ -446,6 +482,7 @@ fn cmd_run(
     realtime: bool,
     control_socket: Option<PathBuf>,
     (hal, bus): (HalKind, Option<String>),
+    live_addr: Option<&str>,
 ) -> ExitCode {
     let cfg = match load(config) {
         Ok(c) => c,
@@ -481,6 +518,21 @@ fn cmd_run(
         Ok(h) => h,
         Err(code) => return code,
     };
+    if let Some(Err(e)) = live_addr.map(live::parse_addr) {
+        return config_error(e);
+    }
+    let live_view = match live_addr.map(live::LiveView::start).transpose() {
+        Ok(v) => v,
+        Err(e) => {
+            eprintln!("ehactl: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    if let Some(v) = &live_view {
+        // Parsed by tests and scripts: the URL is the last word.
+        eprintln!("ehactl: live view (Foxglove WebSocket) on {}", v.url);
+    }
+    let tap = live_view.as_ref().map(|v| v.tap());
     let bar = progress_bar(String::new());
     let live_ref = control_socket.as_ref().map(|_| &*live);
     let result = if realtime || can_hal.is_some() {
@@ -517,6 +569,7 @@ fn cmd_run(
             &mut progress,
             live_ref,
             can_hal.as_mut().map(|h| h as &mut dyn Hal),
+            tap,
         );
         finished.store(true, Ordering::Relaxed);
         let _ = watcher.join();
@@ -533,7 +586,8 @@ fn cmd_run(
             stop: Some(&stop),
             capture: false,
             progress: Some(&mut progress),
-            observer: None,
+            tap,
+            ..Default::default()
         };
         if live_ref.is_some() {
             run_sim_live(&cfg, opts, live_ref)
@@ -542,6 +596,10 @@ fn cmd_run(
         }
     };
     bar.finish_and_clear();
+    let live_stats = live_view.map(|v| {
+        let url = v.url.clone();
+        (url, v.finish(Duration::from_secs(5), Duration::from_millis(500)))
+    });
     let session = match result {
         Ok(s) => s,
         Err(SessionError::Config(e)) => return config_error(format!("{}: {e}", config.display())),
@@ -553,7 +611,15 @@ fn cmd_run(
             return ExitCode::from(1);
         }
     };
-    let summary = session.summary_json();
+    let mut summary = session.summary_json();
+    if let Some((url, st)) = &live_stats {
+        summary["live"] = serde_json::json!({
+            "url": url,
+            "messages_published": st.published,
+            "messages_dropped": st.dropped,
+            "clients_at_end": st.clients,
+        });
+    }
     if json {
         // Not println!: a reader that went away (`| head`) must not turn a finished run
         // into a panic.
@@ -563,18 +629,34 @@ fn cmd_run(
         let o = &session.outcome;
         println!("ehactl run {}", config.display());
         println!(
-            "  cycles        {} at {} Hz ({} s simulated, {} substeps/cycle)",
-            o.cycles, session.control_rate_hz, o.duration_s, session.substeps
+            "  cycles        {} at {} Hz ({} s {}, {} substeps/cycle)",
+            o.cycles,
+            sig(session.control_rate_hz, 6),
+            sig(o.duration_s, 6),
+            if session.timing.is_some() {
+                "run"
+            } else {
+                "simulated"
+            },
+            session.substeps
         );
+        if cfg.control.mode == ehactl_controller::config::ControlMode::OpenLoop {
+            // No feedback: the setpoint (V) is the valve command, there is no tracking error.
+            println!("  error         none: open loop (the setpoint is the valve command, V); see the log for the response");
+        } else {
+            println!(
+                "  rms error     {} {} (after start of dynamics: {} {})",
+                sig(o.rms_error, 4),
+                session.unit,
+                sig(o.rms_error_settled, 4),
+                session.unit
+            );
+            println!("  max |error|   {} {}", sig(o.max_abs_error, 4), session.unit);
+        }
         println!(
-            "  rms error     {:.6e} {} (after start of dynamics: {:.6e})",
-            o.rms_error, session.unit, o.rms_error_settled
-        );
-        println!("  max |error|   {:.6e} {}", o.max_abs_error, session.unit);
-        println!(
-            "  speed         {:.1}× real time ({:.3} s wall)",
-            summary["sim_speed_x_realtime"].as_f64().unwrap_or(0.0),
-            session.wall_time_s
+            "  speed         {}× real time ({} s wall)",
+            sig(summary["sim_speed_x_realtime"].as_f64().unwrap_or(0.0), 3),
+            sig(session.wall_time_s, 3)
         );
         if let Some(l) = &session.log {
             println!(
@@ -584,6 +666,12 @@ fn cmd_run(
                 l.records_dropped,
                 l.queue_high_water,
                 l.queue_capacity
+            );
+        }
+        if let Some((url, st)) = &live_stats {
+            println!(
+                "  live          {url}: {} messages published, {} dropped (viewer too slow), {} client(s) at the end",
+                st.published, st.dropped, st.clients
             );
         }
         canbus::print_summary(&summary);
@@ -640,6 +728,7 @@ fn run_realtime(
     progress: &mut dyn FnMut(u64, u64),
     live: Option<&LiveParams>,
     hardware: Option<&mut dyn Hal>,
+    tap: Option<Arc<ehactl_hal::logger::LogTap>>,
 ) -> Result<Session, SessionError> {
     let mut cfg_run = cfg.clone();
     if let Some(d) = duration {
@@ -673,7 +762,8 @@ fn run_realtime(
             stop: Some(stop),
             capture: false,
             progress: Some(progress),
-            observer: None,
+            tap,
+            ..Default::default()
         },
         live,
     )

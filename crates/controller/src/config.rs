@@ -634,6 +634,22 @@ impl RigConfig {
             SetpointKind::Step => {}
         }
         self.canopen.validate()?;
+        // The safe command goes to the valve on every trip and at the end: it must be within
+        // the valve's range (±valve.command_full_scale = ±100 % spool) and the command clamp.
+        let sc = self.supervisor.safe_command;
+        let fs = self.plant.valve.command_full_scale;
+        let lim = self.supervisor.max_command.map_or(fs, |m| m.min(fs));
+        if !(sc.abs() <= lim) {
+            return Err(ConfigError::new(
+                "supervisor.safe_command",
+                format!(
+                    "{sc} V is outside the valve's range: expected |safe_command| <= {lim} V (valve.command_full_scale = {fs} V = 100 % spool{})",
+                    self.supervisor
+                        .max_command
+                        .map_or(String::new(), |m| format!(", supervisor.max_command = {m} V"))
+                ),
+            ));
+        }
         if self.realtime.spin >= self.control_dt() {
             return Err(ConfigError::new(
                 "realtime.spin",

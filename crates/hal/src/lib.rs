@@ -12,6 +12,7 @@
 pub mod logger;
 pub mod record;
 pub mod recover;
+pub mod schemas;
 pub mod sim;
 
 pub use ehactl_plant::{Measurements, PlantState};

@@ -2,6 +2,7 @@
 //! held-out scoring with a parameter penalty, greedy acceptance.
 
 use crate::analysis::{analyse, Analysis};
+use crate::baseline::Baseline;
 use crate::data::Record;
 use crate::fit::{base_params, effect_params, nelder_mead, FreeParam, Scales};
 use crate::replay::{
@@ -80,7 +81,7 @@ pub struct Errors {
 pub struct Candidate {
     /// Effect id.
     pub effect: String,
-    /// Fitted parameters (dotted path → value; `×` marks scale factors on nominal values).
+    /// Fitted parameters (dotted path → value; `<path>/nominal` marks factors on nominal values).
     pub params: BTreeMap<String, f64>,
     /// Overall NRMSE on the fitting data (-).
     pub nrmse_train: f64,
@@ -107,6 +108,11 @@ pub struct Diagnosis {
     pub nrmse_refit: Errors,
     /// Extended model on the held-out data.
     pub nrmse_extended: Errors,
+    /// Black-box baseline (linear ARX per channel, [`crate::baseline`]) fitted on the same
+    /// fitting part and scored free-run on the same held-out data.
+    pub nrmse_baseline: Errors,
+    /// The baseline's structure and coefficients.
+    pub baseline: Baseline,
     /// 1 − overall_extended/overall_nominal (-).
     pub gain: f64,
     /// Estimated noise floor of the overall held-out NRMSE (-).
@@ -489,6 +495,25 @@ pub fn diagnose(
         .map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
     let analysis = analyse(rec, &nom_sim, 0..n_fit);
     let (nom_err, nom_val_sim) = ctx.val_errors(&empty);
+    // Black-box baseline on the same split (input: the recorded command, or the setpoint
+    // when the rig's own loop is replayed).
+    let (input, input_name) = match (opts.drive, &rec.reference) {
+        (Drive::PositionPd(_), Some(r)) => (r.clone(), "ref"),
+        _ => (rec.u.clone(), "u"),
+    };
+    let baseline = crate::baseline::fit(rec, &input, n_fit, input_name);
+    let val_input = match (opts.drive, &val_rec.reference) {
+        (Drive::PositionPd(_), Some(r)) => r.clone(),
+        _ => val_rec.u.clone(),
+    };
+    let nrmse_baseline = {
+        let ch = crate::baseline::score(&baseline, val_rec, &val_input, val_range.clone());
+        let v: Vec<f64> = ch.values().copied().collect();
+        Errors {
+            overall: overall(&v),
+            channels: ch,
+        }
+    };
     let scales = Scales::new(nominal, rec);
     let bar = if opts.progress {
         let b = indicatif::ProgressBar::new(1 + opts.effects.len() as u64);
@@ -794,6 +819,8 @@ pub fn diagnose(
         nrmse_nominal: nom_err,
         nrmse_refit: refit_err,
         nrmse_extended: ext_err,
+        nrmse_baseline,
+        baseline,
         gain,
         noise_floor,
         candidates: cands,

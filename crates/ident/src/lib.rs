@@ -6,13 +6,14 @@
 //! of DESIGN.md (with the nominal parameters refit within ±15 %), score each on held-out data
 //! with a parameter penalty and accept effects greedily while the gain is significant.
 //!
-//! Modules: [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
+//! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
 //! noise level), [`analysis`] (residual analysis, evidence), [`fit`] (free parameters, bounded
 //! Nelder–Mead), [`diagnose`] (the decision), [`report`] (JSON, extended config, Markdown),
 //! [`session`] (one complete diagnosis as the CLI and Python run it).
 #![deny(missing_docs)]
 
 pub mod analysis;
+pub mod baseline;
 pub mod data;
 pub mod diagnose;
 pub mod fit;

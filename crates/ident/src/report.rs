@@ -91,24 +91,26 @@ fn trace_csv(rec: &Record, nom: &Replay, ext: &Replay, split: usize) -> String {
 }
 
 fn table(d: &Diagnosis) -> String {
-    let mut s =
-        String::from("| channel | nominal | nominal refit | extended |\n|---|---|---|---|\n");
+    let mut s = String::from(
+        "| channel | nominal | nominal refit | extended | ARX baseline |\n|---|---|---|---|---|\n",
+    );
+    let get = |e: &crate::diagnose::Errors, k: &str| e.channels.get(k).copied().unwrap_or(f64::NAN);
     for (k, v) in &d.nrmse_nominal.channels {
         let _ = writeln!(
             s,
-            "| `{k}` | {v:.4} | {:.4} | {:.4} |",
-            d.nrmse_refit.channels.get(k).copied().unwrap_or(f64::NAN),
-            d.nrmse_extended
-                .channels
-                .get(k)
-                .copied()
-                .unwrap_or(f64::NAN)
+            "| `{k}` | {v:.4} | {:.4} | {:.4} | {:.4} |",
+            get(&d.nrmse_refit, k),
+            get(&d.nrmse_extended, k),
+            get(&d.nrmse_baseline, k)
         );
     }
     let _ = writeln!(
         s,
-        "| **overall** | **{:.4}** | **{:.4}** | **{:.4}** |",
-        d.nrmse_nominal.overall, d.nrmse_refit.overall, d.nrmse_extended.overall
+        "| **overall** | **{:.4}** | **{:.4}** | **{:.4}** | **{:.4}** |",
+        d.nrmse_nominal.overall,
+        d.nrmse_refit.overall,
+        d.nrmse_extended.overall,
+        d.nrmse_baseline.overall
     );
     s
 }
@@ -193,6 +195,17 @@ pub fn write_report(
         d.gain * 100.0,
         d.noise_floor
     );
+    let _ = writeln!(
+        r,
+        "ARX baseline: {}. Extended / baseline held-out NRMSE = {:.2} ({}).\n",
+        d.baseline.structure,
+        d.nrmse_extended.overall / d.nrmse_baseline.overall,
+        if d.nrmse_extended.overall < d.nrmse_baseline.overall {
+            "the physical model is better than the black-box baseline"
+        } else {
+            "the black-box baseline is as good or better: the physical model does not yet earn its keep on this record"
+        }
+    );
     if d.sensor_offsets.is_empty() {
         let _ = writeln!(
             r,
@@ -227,11 +240,13 @@ pub fn write_report(
         let _ = writeln!(r, "## Residual analysis: {title} (fitting part)\n");
         let _ = writeln!(r, "- velocity reversals: residual RMS within 10 ms of a reversal is {:.2}× the overall RMS", a.reversal_ratio);
         let _ = writeln!(r, "- small command (|u| < 5 % of max): {:.2}× the overall RMS; large command (> 70 %): {:.2}×", a.small_command_ratio, a.large_command_ratio);
-        let _ = writeln!(
-            r,
-            "- mean pressure residual (before any sensor offset) is {:.0} % of its RMS (level shift)",
-            a.bias_share * 100.0
-        );
+        if let Some(b) = a.bias_share {
+            let _ = writeln!(
+                r,
+                "- mean pressure residual (before any sensor offset) is {:.0} % of its RMS (level shift)",
+                b * 100.0
+            );
+        }
         let _ = writeln!(
             r,
             "- measured outputs lag the model by {:.2} ms (cross-correlation)",

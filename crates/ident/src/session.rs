@@ -54,7 +54,6 @@ pub struct RunChoices {
     pub sensor_offsets: bool,
 }
 
-
 /// Diagnose `data_path` (CSV or ehactl MCAP) against the nominal `cfg` (labelled
 /// `config_label` in the report), holding out `validate` or the last 30 %; write the report to
 /// `out` when given.

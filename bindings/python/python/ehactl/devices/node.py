@@ -107,8 +107,11 @@ class SimNode:
         self._abort_hooks: List[Callable[[int, int], Optional[int]]] = []
         self._pending_after: List[Callable[[], None]] = []
         self.lock = threading.RLock()
+        # Heartbeat consumers (0x1016): producer node id -> [consumer time s, last seen or None]
+        self._consumers: Dict[int, list] = {}
+        self._consumer_subscribed: Dict[int, Callable] = {}
         self.counters = {"rpdo": 0, "rpdo_bad_length": 0, "tpdo": 0, "sdo": 0,
-                         "nmt": 0}
+                         "nmt": 0, "heartbeat_lost": 0}
 
     # ----------------------------------------------------------------- object access
     def var(self, index: int, sub: int = 0) -> ODVariable:
@@ -150,6 +153,7 @@ class SimNode:
             self.emit(self.kind, "boot-up", node_id=self.node_id)
             self._set_nmt(PRE_OPERATIONAL)
             self._restart_heartbeat()
+            self._reload_consumers()
 
     def on_nmt(self, data: bytes) -> None:
         """Handle an NMT command frame (COB-ID 0x000)."""
@@ -209,6 +213,58 @@ class SimNode:
             if self.hb_next < now:  # we fell behind (overloaded machine): do not burst
                 self.hb_next = now + self.hb_period_s
 
+    # ----------------------------------------------------------------- heartbeat consumer
+    def _reload_consumers(self) -> None:
+        """Re-read 0x1016 (CiA 301 7.5.2.14: sub k = producer node id << 16 | time ms; 0 off).
+        A consumer starts monitoring at the first heartbeat it receives."""
+        for cob, cb in self._consumer_subscribed.items():
+            self.network.unsubscribe(cob, cb)
+        self._consumer_subscribed = {}
+        self._consumers = {}
+        if 0x1016 not in self.od:
+            return
+        for k in range(1, self.value(0x1016, 0) + 1):
+            v = self.value(0x1016, k)
+            producer, ms = (v >> 16) & 0x7F, v & 0xFFFF
+            if producer == 0 or ms == 0:
+                continue
+            self._consumers[producer] = [ms / 1000.0, None]
+            cob = 0x700 + producer
+            cb = (lambda p: (lambda can_id, data, ts: self._on_producer_heartbeat(p, data, ts)))(
+                producer)
+            self.network.subscribe(cob, cb)
+            self._consumer_subscribed[cob] = cb
+
+    def _on_producer_heartbeat(self, producer: int, data: bytes, ts: float) -> None:
+        if len(data) != 1 or not self.powered:
+            return
+        c = self._consumers.get(producer)
+        if c is not None:
+            c[1] = ts if ts else time.time()
+
+    def consumers_due(self, now: float) -> None:
+        """A monitored producer silent for its consumer time is lost (heartbeat event, CiA 301
+        7.2.8.3.2.2): EMCY 0x8130 and the profile's reaction; monitoring restarts with its next
+        heartbeat. Times are bus times (the receive stamp of each frame, wall clock s): the rig
+        checks at every received frame with that frame's stamp and, when nothing arrives, with
+        the wall clock. A real device handles each frame as it arrives; this Python one may be
+        behind its receive queue on a loaded machine, and a heartbeat still waiting in that
+        queue is no loss."""
+        if not self.powered or self.nmt_state == INITIALISING:
+            return
+        for producer, c in list(self._consumers.items()):
+            t, last = c
+            if last is not None and now - last > t:
+                c[1] = None
+                self.counters["heartbeat_lost"] += 1
+                self.emit(self.kind, "heartbeat-lost", node_id=self.node_id, producer=producer,
+                          consumer_time_s=t, silent_s=now - last)
+                self.on_heartbeat_lost(producer)
+
+    def on_heartbeat_lost(self, producer: int) -> None:
+        """Profile hook: the heartbeat of `producer` was lost (default: EMCY 0x8130)."""
+        self.emcy(0x8130, 0x10)
+
     # ----------------------------------------------------------------- SDO
     def _on_sdo_request(self, can_id, data, timestamp):
         # SDO is served in PRE-OPERATIONAL and OPERATIONAL only (CiA 301 table 76).
@@ -247,11 +303,13 @@ class SimNode:
                 raise SdoAbortedError(ABORT_VALUE_RANGE)
             self.error_history.clear()
             return
-        elif index != 0x1017:
+        elif index not in (0x1016, 0x1017):
             self.on_app_write(index, subindex, value)
         # LocalNode stores the value after the callbacks: apply dependent state afterwards.
         if index == 0x1017:
             self.network_after(self._restart_heartbeat)
+        elif index == 0x1016:
+            self.network_after(self._reload_consumers)
         elif 0x1400 <= index <= 0x1BFF:
             self.network_after(self.reload_pdos)
 

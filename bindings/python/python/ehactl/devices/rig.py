@@ -162,6 +162,30 @@ class _HubBus(SocketCanDaemonBus):
         return msg, filtered
 
 
+    def rx_pending(self) -> bool:
+        """Frames received but not yet handed to the notifier (parsed or still in the socket)."""
+        if getattr(self, "_SocketCanDaemonBus__message_buffer", None):
+            return True
+        sock = getattr(self, "_SocketCanDaemonBus__socket", None)
+        if sock is None:
+            return False
+        try:
+            ready, _, _ = select.select([sock], [], [], 0)
+        except (OSError, ValueError):
+            return False
+        return bool(ready)
+
+
+class _DispatchStart(can.Listener):
+    """First listener of the notifier: marks that a frame is being dispatched."""
+
+    def __init__(self):
+        self.busy = False
+
+    def on_message_received(self, msg) -> None:
+        self.busy = True
+
+
 def open_bus(url: str) -> can.BusABC:
     """Open `socketcand://HOST:PORT/CHANNEL` or `socketcan://CHANNEL` with python-can."""
     u = urllib.parse.urlparse(url)
@@ -199,7 +223,17 @@ class RigNetwork(canopen.Network):
         self._count_lock = threading.Lock()
         self.frames_sent: Dict[int, int] = {}      # COB-ID -> frames sent by this process
         self.frames_received: Dict[int, int] = {}  # COB-ID -> frames received
-        self.listeners.append(_CountingListener(self.frames_received))
+        self.dispatching = _DispatchStart()
+        self.listeners.insert(0, self.dispatching)
+        self.counting = _CountingListener(self.frames_received)
+        self.listeners.append(self.counting)
+
+    def rx_idle(self) -> bool:
+        """Every received frame has been handled (nothing queued, none being dispatched)."""
+        if self.dispatching.busy:
+            return False
+        pending = getattr(self.bus, "rx_pending", None)
+        return not pending() if pending is not None else True
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if can_id not in (0x000, 0x080) and (can_id & 0x7F) in self.silenced_nodes:
@@ -210,11 +244,17 @@ class RigNetwork(canopen.Network):
 
 
 class _CountingListener(can.Listener):
+    """Counts frames; after each frame has been dispatched (this listener comes after
+    canopen's), calls ``after(bus_time)`` with its receive stamp (s)."""
+
     def __init__(self, counts: Dict[int, int]):
         self.counts = counts
+        self.after = None
 
     def on_message_received(self, msg) -> None:
         self.counts[msg.arbitration_id] = self.counts.get(msg.arbitration_id, 0) + 1
+        if self.after is not None:
+            self.after(msg.timestamp or time.time())
 
 
 class EventLog:
@@ -288,6 +328,9 @@ class SimRig:
                               find_eds(EDS_NAMES["valve"], eds_dir), self.events,
                               full_scale_v=self.full_scale_v)
         self.nodes = [self.transducer, self.valve]
+        #: wall time (s) the last received frame was handled (heartbeat consumers, see node.py)
+        self._rx_handled = 0.0
+        self.network.counting.after = self._after_frame
         self.network.subscribe(0x000, self._on_nmt)
         self.network.subscribe(0x080, self._on_sync)
         for f in self.faults:
@@ -339,6 +382,8 @@ class SimRig:
             "valve_setpoint": v.setpoint() if v.powered else None,
             "valve_nmt": v.nmt_state, "transducer_nmt": self.transducer.nmt_state,
             "last_command_v": self.last_command_v,
+            # what the valve would drive now (V): hold setpoint / failsafe after a fault
+            "valve_command_v": v.command_volts() if v.powered else 0.0,
             "position_m": self.transducer.position_m,
             "bus_lost": self.bus_lost,
             "frames_sent": {f"0x{k:03X}": v for k, v in sorted(self.network.frames_sent.items())},
@@ -357,6 +402,17 @@ class SimRig:
         self.stop_event.set()
 
     # ------------------------------------------------------------------ frames
+    #: The receive side counts as idle (nothing queued) after this long without a frame (s).
+    RX_IDLE_S = 0.002
+
+    def _after_frame(self, bus_time: float) -> None:
+        """Notifier thread, after each frame: heartbeat consumers checked at its bus time."""
+        self._rx_handled = time.time()
+        self.network.dispatching.busy = False
+        for n in self.nodes:
+            with n.lock:
+                n.consumers_due(bus_time)
+
     def _on_nmt(self, can_id, data, timestamp) -> None:
         for n in self.nodes:
             n.on_nmt(bytes(data))
@@ -365,6 +421,8 @@ class SimRig:
         if len(data) > 1:
             return  # SYNC has no data or a 1-byte counter (CiA 301 7.2.5)
         self.sync_count += 1
+        if self.valve.powered:
+            self.valve.sync_tick()
         self._inject_faults()
         for n in self.nodes:
             if n.powered and n.nmt_state in (PRE_OPERATIONAL, OPERATIONAL):
@@ -448,9 +506,16 @@ class SimRig:
         while not self.stop_event.is_set():
             now = time.monotonic()
             try:
+                wall = time.time()
+                # With nothing left to handle, the wall clock is the bus time of the next frame.
+                idle = self.network.rx_idle() and wall - self._rx_handled > self.RX_IDLE_S
                 for n in self.nodes:
+                    if idle:
+                        with n.lock:
+                            n.consumers_due(wall)
                     n.heartbeat_due(now)
                     n.async_tpdos_due(now)
+                self.valve.timer_tick(now)
             except (OSError, can.CanError) as e:
                 if self.bus_lost is None:
                     self._on_bus_lost(f"send failed: {e}")
