@@ -74,10 +74,8 @@ fn run_briefly(c: &RigConfig) {
         SessionOptions {
             duration: Some(20.0 * dt),
             mcap: None,
-            stop: None,
             capture: true,
-            progress: None,
-            observer: None,
+            ..Default::default()
         },
     )
     .expect("a validated config must run");
@@ -273,10 +271,8 @@ fn sample_log() -> &'static Vec<u8> {
             SessionOptions {
                 duration: Some(0.2),
                 mcap: Some(path.clone()),
-                stop: None,
                 capture: false,
-                progress: None,
-                observer: None,
+                ..Default::default()
             },
         )
         .unwrap();

@@ -156,10 +156,8 @@ fn opts(duration: f64) -> SessionOptions<'static> {
     SessionOptions {
         duration: Some(duration),
         mcap: None,
-        stop: None,
         capture: true,
-        progress: None,
-        observer: None,
+        ..Default::default()
     }
 }
 
