@@ -720,9 +720,9 @@ impl RigConfig {
         Ok(())
     }
 
-    /// The setpoint stays where the rig can go: inside the stroke and the position limits
-    /// (position), within the force limit and what the supply pressure can push on the
-    /// larger area (force), within the valve's input range (open loop).
+    /// The setpoint stays where the rig can go: inside the stroke (position), within what the
+    /// supply pressure can push on the larger area (force), within the valve's input range
+    /// (open loop).
     fn validate_setpoint_range(&self) -> Result<(), ConfigError> {
         let ((lo, lo_field), (hi, hi_field)) = crate::setpoint::envelope(&self.setpoint);
         let out = |field: &str, v: f64, what: String| {
@@ -732,40 +732,33 @@ impl RigConfig {
             ))
         };
         match self.control.mode {
+            // Physical bounds only: a supervisor limit inside the setpoint's range is a
+            // legitimate way to test a trip.
             ControlMode::Position => {
                 let stroke = self.plant.cylinder.stroke;
-                let (mut a, mut b, mut why) = (0.0, stroke, "the stroke [0, cylinder.stroke]");
-                let sv = &self.supervisor;
-                if let (Some(x), Some(y)) = (sv.min_position, sv.max_position) {
-                    if x.max(0.0) < y.min(stroke) {
-                        (a, b, why) = (x.max(0.0), y.min(stroke), "the stroke and the supervisor's position limits");
-                    }
+                if lo < 0.0 {
+                    return out(lo_field, lo, "m, below 0 m (the stroke is [0, cylinder.stroke])".into());
                 }
-                if lo < a {
-                    return out(lo_field, lo, format!("m, below {a} m ({why})"));
-                }
-                if hi > b {
-                    return out(hi_field, hi, format!("m, above {b} m ({why})"));
+                if hi > stroke {
+                    return out(hi_field, hi, format!("m, above cylinder.stroke = {stroke} m"));
                 }
             }
             ControlMode::Force => {
                 let c = &self.plant.cylinder;
                 let f_max = self.plant.supply.pressure * c.area_a.max(c.area_b);
-                let (lim, why) = match self.supervisor.max_force {
-                    Some(m) if m < f_max => (m, "supervisor.max_force"),
-                    _ => (f_max, "supply.pressure × the larger piston area"),
-                };
                 for (field, v) in [(lo_field, lo), (hi_field, hi)] {
-                    if v.abs() > lim {
-                        return out(field, v, format!("N, beyond ±{lim:.6e} N ({why})"));
+                    if v.abs() > f_max {
+                        return out(field, v, format!("N, beyond ±{f_max:.6e} N (supply.pressure × the larger piston area: more than the cylinder can push)"));
                     }
                 }
             }
             ControlMode::OpenLoop => {
-                let fs = self.plant.valve.command_full_scale;
+                // The valve clips at full scale, so a command a little beyond it is a deliberate
+                // flat top; 1.5 × full scale is the bound diagnose also applies to `u`.
+                let fs = 1.5 * self.plant.valve.command_full_scale;
                 for (field, v) in [(lo_field, lo), (hi_field, hi)] {
                     if v.abs() > fs {
-                        return out(field, v, format!("V, beyond the valve's input range ±{fs} V (valve.command_full_scale)"));
+                        return out(field, v, format!("V, beyond ±{fs} V (1.5 × valve.command_full_scale; the valve saturates at full scale)"));
                     }
                 }
             }
