@@ -11,11 +11,14 @@ the ehactl binary, so they are an independent check of what the docs say:
   refit  the K_Ct / K_Qv refit: the exact blocked-actuator model (chamber compliance V_t/4beta,
          mass M, damping C, load-cell spring K_L, Table 1's valve) fitted to eq. 17's
          valve-to-force response over 1-300 Hz; largest remaining error in dB and degrees.
+  eq20   seed 004 eq. 20 (valve flow curve of fig. 5) at the 785 N operating point against the
+         refit K_Qv and Table 1's K_Qv (assumes fig. 5 is at full 10 V opening and P_d is the
+         drop per metering edge: neither is stated).
   woods  seed 001 eq. 12: Woods' approximation of the Bessel ratio against the exact
          B_r = 2 J1(k)/(k J0(k)) (mpmath, independent of ehactl's continued fraction) at
          001's tube (1/8 in x 0.028 in, 2 cSt) and 350 Hz, i.e. omega/omega_v ~ 105.
 
-Usage: python3 scripts/repro_derived.py [eq17|refit|woods|all] [--json]
+Usage: python3 scripts/repro_derived.py [eq17|refit|eq20|woods|all] [--json]
 Needs numpy; `woods` also mpmath (both in tests/python/requirements.txt).
 """
 import argparse
@@ -166,6 +169,20 @@ def cmd_refit():
     return out
 
 
+def cmd_eq20(kqv_refit=4.129e-6):
+    p_l = 785.0 / A_P  # Pa, load pressure holding 785 N
+    p_d = (20e6 - p_l) / 2  # Pa per edge, 20 MPa supply (004 section 5.2)
+    q = 1.4075e-4 * (p_d / 1e6) ** 0.4667  # m^3/s, 004 eq. 20 (P_d in MPa)
+    kqv_curve = q / 10.0  # m^3/s/V at 10 V
+    out = {"load_pressure_Pa": p_l, "edge_drop_Pa": p_d, "flow_m3_s": q,
+           "K_Qv_curve_m3_s_V": kqv_curve, "curve_over_refit": kqv_curve / kqv_refit,
+           "table1_over_curve": K_QV / kqv_curve}
+    print(f"seed 004 eq. 20 at 785 N: p_L {p_l / 1e6:.2f} MPa, {p_d / 1e6:.2f} MPa per edge, Q {q:.3e} m^3/s")
+    print(f"  K_Qv from the curve (10 V) {kqv_curve:.3e} m^3/s/V: {out['curve_over_refit']:.1f} x the refit's "
+          f"{kqv_refit:.3e}; Table 1's {K_QV:.2e} is {out['table1_over_curve']:.0f} x the curve's")
+    return out
+
+
 def cmd_woods():
     import mpmath
 
@@ -193,11 +210,11 @@ def cmd_woods():
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", nargs="?", default="all", choices=["eq17", "refit", "woods", "all"])
+    ap.add_argument("what", nargs="?", default="all", choices=["eq17", "refit", "eq20", "woods", "all"])
     ap.add_argument("--json", action="store_true", help="print one JSON object at the end")
     a = ap.parse_args()
     res = {}
-    for name, fn in (("eq17", cmd_eq17), ("refit", cmd_refit), ("woods", cmd_woods)):
+    for name, fn in (("eq17", cmd_eq17), ("refit", cmd_refit), ("eq20", cmd_eq20), ("woods", cmd_woods)):
         if a.what in (name, "all"):
             res[name] = fn()
     if a.json:

@@ -13,6 +13,7 @@ Usage: python scripts/repro_plots.py [--ehactl target/release/ehactl] [--out doc
 import argparse
 import json
 import pathlib
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -56,7 +57,9 @@ def bode(ax_m, ax_p, f, h_db, ph, **kw):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--ehactl", default=str(ROOT / "target" / "release" / "ehactl"))
+    built = ROOT / "target" / "release" / "ehactl"
+    # the workspace build, else the installed binary (scripts/install_and_run.sh)
+    ap.add_argument("--ehactl", default=str(built) if built.exists() else (shutil.which("ehactl") or str(built)))
     ap.add_argument("--out", type=pathlib.Path, default=ROOT / "docs" / "repro")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)

@@ -38,7 +38,8 @@ def test_analyze_json_has_the_issue_keys_and_says_the_loop_is_sampled():
 
 def test_sweep_json_points_and_log(tmp_path):
     out = tmp_path / "sweep.mcap"
-    p = run("sweep", SAHU, "--from", "5", "--to", "300", "--points", "8", "--json", "--out", str(out))
+    p = run("sweep", SAHU, "--from", "5", "--to", "300", "--points", "8", "--json", "--out", str(out),
+            "--log-every", "1")
     assert p.returncode == 0, p.stderr
     r = json.loads(p.stdout)
     assert r["mode"] == "closed_loop" and len(r["points"]) == 8
@@ -48,7 +49,8 @@ def test_sweep_json_points_and_log(tmp_path):
         assert set(q) >= {"f_hz", "mag_db", "phase_deg", "coherence"}
         assert 0.0 <= q["coherence"] <= 1.0 + 1e-12
     assert 170 <= r["bandwidth_hz"] <= 240
-    # The sweep is an ordinary logged run: every cycle in the MCAP, setpoint = the stepped sine.
+    # The sweep is an ordinary logged run: with --log-every 1 every cycle is in the MCAP
+    # (by default one in 5, see test_newcomer.py), setpoint = the stepped sine.
     run_log = read_run(out)
     c = run_log["control"]
     assert len(c["t"]) == round(r["duration_s"] * 5000)

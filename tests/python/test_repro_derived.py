@@ -43,6 +43,13 @@ def test_refit_of_kct_kqv_to_eq17():
     assert d["dominant_pole_rad_s"] == pytest.approx(413, abs=0.5)
 
 
+def test_eq20_valve_curve_against_the_flow_gains():
+    d = derived("eq20")
+    assert d["edge_drop_Pa"] == pytest.approx(8.34e6, abs=5e3)
+    assert d["curve_over_refit"] == pytest.approx(9.2, abs=0.05)
+    assert d["table1_over_curve"] == pytest.approx(88, abs=0.5)
+
+
 def test_woods_against_exact_bessel():
     pytest.importorskip("mpmath")
     d = derived("woods")

@@ -41,28 +41,46 @@ fn seed004_margins_of_the_sampled_loop() {
     let gm = d.gain_margin_db.expect("gain margin");
     // PM, paper "60°": ±0.5° (its last digit) + 0.3° (the refit's residual against eq. 17,
     // 0.24°, and eq. 17's own 60.3°): calibrated, and met.
-    assert!((pm_c - 60.0).abs() <= 0.8, "continuous phase margin {pm_c}°");
+    assert!(
+        (pm_c - 60.0).abs() <= 0.8,
+        "continuous phase margin {pm_c}°"
+    );
     // Sample and hold cost at most ωT/2 at the crossover (3.5° at 96 Hz, 5 kHz).
     let zoh = 180.0 * gc * 2e-4; // deg: ω·T/2 = 2π·f·T/2
-    assert!(pm < pm_c && pm_c - pm <= zoh, "sampled {pm}° vs continuous {pm_c}° (ωT/2 {zoh}°)");
+    assert!(
+        pm < pm_c && pm_c - pm <= zoh,
+        "sampled {pm}° vs continuous {pm_c}° (ωT/2 {zoh}°)"
+    );
     // |L| = 1 crossover, paper 99.63 Hz: MISSED. ehactl 93.4 Hz continuous (−6.3 %), 96.1 Hz
     // sampled; the plant's slow pole sits 9 % below eq. 17's 66 Hz. Asserted at the measured
     // values (grid resolution 0.3 %) and as a miss of more than 5 %.
-    assert!((gc_c - 93.37).abs() <= 0.3, "continuous gain crossover {gc_c} Hz");
+    assert!(
+        (gc_c - 93.37).abs() <= 0.3,
+        "continuous gain crossover {gc_c} Hz"
+    );
     assert!((gc - 96.07).abs() <= 0.3, "sampled gain crossover {gc} Hz");
     assert!(gc_c < 0.95 * 99.63, "the −6 % miss closed? {gc_c} Hz");
     // ∠L = −180° crossover, paper 262.6 Hz: MISSED (eq. 17 with Table 1 gives 241.8 Hz).
-    assert!((pc_c - 238.08).abs() <= 0.8, "continuous phase crossover {pc_c} Hz");
+    assert!(
+        (pc_c - 238.08).abs() <= 0.8,
+        "continuous phase crossover {pc_c} Hz"
+    );
     assert!(pc_c < 0.95 * 262.6);
     // Gain margin, paper 10.8 dB: MISSED (eq. 17 with Table 1 gives 9.25 dB). ehactl 9.90 dB
     // continuous, 8.84 dB sampled, within ±0.05 dB (the paper's own precision).
-    assert!((gm_c - 9.90).abs() <= 0.05, "continuous gain margin {gm_c} dB");
+    assert!(
+        (gm_c - 9.90).abs() <= 0.05,
+        "continuous gain margin {gm_c} dB"
+    );
     assert!((gm - 8.84).abs() <= 0.05, "sampled gain margin {gm} dB");
     assert!(10.8 - gm_c > 0.5, "the gain-margin miss closed? {gm_c} dB");
     // Closed-loop bandwidth from the sampled linearisation, paper "≈ 200 Hz" (one digit:
     // 150–250 Hz); ehactl 209.2 Hz pinned to the grid resolution.
     let bw = d.closed_loop_bandwidth_hz.expect("bandwidth");
-    assert!((150.0..=250.0).contains(&bw), "closed-loop bandwidth {bw} Hz");
+    assert!(
+        (150.0..=250.0).contains(&bw),
+        "closed-loop bandwidth {bw} Hz"
+    );
     assert!((bw - 209.2).abs() <= 1.0, "closed-loop bandwidth {bw} Hz");
 }
 
@@ -146,7 +164,10 @@ fn seed004_open_loop_bandwidth_from_a_sweep() {
         r.points[0].gain
     );
     assert!((bw - 58.54).abs() <= 1.0, "open-loop bandwidth {bw} Hz");
-    assert!(bw > 50.0, "the paper's < 50 Hz is met now: update REPRODUCTION.md ({bw} Hz)");
+    assert!(
+        bw > 50.0,
+        "the paper's < 50 Hz is met now: update REPRODUCTION.md ({bw} Hz)"
+    );
     // Static gain K_Qv·A_p/K_Ct = 5213 N/V from Table 1 (3 significant digits each: ±0.5 %),
     // CALIBRATED (the refit keeps the ratio); +0.9 % from the valve's own K_c at the 785 N
     // operating point (documented): within 1.5 %, and ehactl's 5262 N/V within 0.3 %.
@@ -308,7 +329,11 @@ fn seed000_natural_frequency_rises_as_the_chamber_shortens() {
         "000 natural frequency {f250:.1} Hz at 250 mm, {f50:.1} Hz at 50 mm, ratio {:.4}",
         f50 / f250
     );
-    assert!(within(f50 / f250, 782.0 / 350.0, 0.003), "ratio {}", f50 / f250);
+    assert!(
+        within(f50 / f250, 782.0 / 350.0, 0.003),
+        "ratio {}",
+        f50 / f250
+    );
     // Calibration consistency: the mass was chosen for 350 Hz at 250 mm.
     assert!((f250 - 350.0).abs() <= 0.5, "{f250} Hz");
     // Not calibrated: 782 Hz at 50 mm follows (3 digits: ±0.5 Hz, plus the ratio's 0.08 %).

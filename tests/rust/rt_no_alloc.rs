@@ -120,3 +120,18 @@ fn no_allocation_per_cycle_after_start_up() {
     );
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// The counterbalance-valve plant (crates/plant/src/cbv.rs) steps without allocating:
+/// raising then lowering through both CBVs of the seed-002 cycle config.
+#[test]
+fn counterbalance_valve_plant_step_does_not_allocate() {
+    let cfg = config("cristofori2015_crane_cycle.toml");
+    let mut plant = ehactl_plant::Plant::configure(&cfg.plant, cfg.control_dt()).unwrap();
+    plant.step(5.0).unwrap();
+    let before = allocations();
+    for k in 0..2000 {
+        plant.step(if k < 1000 { 8.0 } else { -8.0 }).unwrap();
+        let _ = plant.counterbalance_valves();
+    }
+    assert_eq!(allocations() - before, 0);
+}

@@ -84,6 +84,7 @@ pub fn sweep_json(
                 mcap,
                 stop: Some(&stop),
                 progress: Some(&mut report),
+                ..Default::default()
             },
         )
     })?;

@@ -171,6 +171,13 @@ impl Config {
     /// Load and validate a TOML rig config (path: str or PathLike).
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Config> {
+        if !path.exists() {
+            return Err(pyo3::exceptions::PyFileNotFoundError::new_err((
+                2,
+                format!("config file not found: {}", path.display()),
+                path.display().to_string(),
+            )));
+        }
         let cfg = RigConfig::load(&path).map_err(config_err)?;
         Ok(Config {
             cfg,

@@ -163,8 +163,17 @@ impl CdrTopic {
 /// `metadata` {name: {key: value}}, `profile`, `library`.
 #[pyfunction]
 pub fn read_mcap_raw<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
-    let bytes = std::fs::read(&path)
-        .map_err(|e| PyOSError::new_err(format!("cannot read {}: {e}", path.display())))?;
+    let bytes = std::fs::read(&path).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            pyo3::exceptions::PyFileNotFoundError::new_err((
+                2,
+                format!("MCAP file not found: {}", path.display()),
+                path.display().to_string(),
+            ))
+        } else {
+            PyOSError::new_err(format!("cannot read {}: {e}", path.display()))
+        }
+    })?;
     let bad = |what: String| PyValueError::new_err(format!("{}: {what}", path.display()));
     let mut cdr: BTreeMap<String, CdrTopic> = BTreeMap::new();
     let mut json: BTreeMap<String, Vec<String>> = BTreeMap::new();

@@ -61,6 +61,7 @@ fn one(
             capture: false,
             progress: Some(&mut report),
             observer: Some(&mut observe),
+            ..Default::default()
         },
     )
     .map_err(|e| e.to_string())?;

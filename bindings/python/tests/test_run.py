@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import ehactl
+from conftest import CONFIGS
 
 
 def test_run_columns(force_cfg):
@@ -151,3 +152,42 @@ def test_ctrl_c_stops_the_run_and_finalises_the_log(force_cfg, tmp_path):
             ehactl.run_many([force_cfg] * 40, duration=50.0, fields=["t"])
     finally:
         signal.signal(signal.SIGINT, old)
+
+
+def test_columns_are_in_dir_for_tab_completion(force_cfg):
+    res = ehactl.run(force_cfg, duration=0.01, fields=["t", "force", "u", "setpoint"])
+    names = dir(res)
+    for col in ("t", "force", "u", "setpoint", "command"):  # command: alias of u
+        assert col in names, col
+    assert "x" not in names  # not requested, not offered
+    assert "to_pandas" in names and "units" in names
+
+
+def test_unit_and_units_agree_with_the_control_mode(force_cfg, boom_cfg):
+    f = ehactl.run(force_cfg, duration=0.01)
+    assert f.unit == f.units["error"] == f.units["setpoint"] == f.units["feedback"] == "N"
+    assert f.units["setpoint_rate"] == "N/s" and f.units["force"] == "N" and f.units["p_a"] == "Pa"
+    b = ehactl.run(boom_cfg, duration=0.01)
+    assert b.unit == b.units["error"] == b.units["setpoint"] == "m"
+
+
+def test_missing_files_raise_file_not_found(tmp_path):
+    import errno
+
+    for call in (
+        lambda: ehactl.Config.load(tmp_path / "nope.toml"),
+        lambda: ehactl.run(tmp_path / "nope.toml", duration=0.01),
+        lambda: ehactl.read_mcap(tmp_path / "nope.mcap"),
+        lambda: ehactl.diagnose(CONFIGS / "diagnose_testrig.toml", tmp_path / "nope.csv"),
+    ):
+        with pytest.raises(FileNotFoundError) as e:
+            call()
+        assert e.value.errno == errno.ENOENT and "nope" in str(e.value)
+
+
+def test_progress_bars_stay_out_of_non_tty_logs(force_cfg, capfd):
+    pytest.importorskip("tqdm")
+    ehactl.run(force_cfg, duration=0.05, progress=True)
+    ehactl.run_many([force_cfg] * 2, duration=0.02, progress=True)
+    err = capfd.readouterr().err
+    assert "it/s" not in err and "cycle" not in err and "%|" not in err, err

@@ -10,6 +10,17 @@
 //!    position by finite differences, eq. 31 (extension chamber) or eq. 32 (retraction
 //!    chamber), with the pressure-dependent bulk modulus β = K_b·p + β₀ of eq. 35–36.
 //!
+//! With counterbalance valves (`effects.counterbalance_valve`), flow into a chamber passes the
+//! CBV's free-flow check: p_C loses p_crack + R_UV·Q_C² more (002 eq. 18–19, "case 1"; the
+//! cracking term is the plant's check spring, 0 in 002). At stop (I = 0: every metering edge
+//! of the valve closed, 002 "case 3") a side with a CBV keeps its last chamber pressure with no
+//! flow (eq. 25 with the volume held, so the estimate stands still; eq. 26's p_Cr = p_Wr needs
+//! the retraction CBV pilot-opened at stop, which a valve with a neutral A,B→T bleed does not
+//! do). Flow out through the pilot-operated relief (002 "case 2", eq. 20–24) is not
+//! implemented: with 002's switching (eq. 31 while raising and after lowering, eq. 32
+//! otherwise) the side in use while moving is always the one fed through its check. The
+//! valve's neutral bleed (`port_bleed`) is part of the characterised valve law.
+//!
 //! The flow model here is the plant's own valve law (`ehactl_plant::valve`), i.e. a perfectly
 //! characterised valve, as 002 characterises its valve on a test bench (its section
 //! "Experimental characterization of the proportional valve"). Friction never enters: its
@@ -143,6 +154,8 @@ struct Side {
     p_c: f64,
     q_c: f64,
     x: f64,
+    /// CBV side isolated since the last stop (check shut), eq. 25.
+    held: bool,
 }
 
 /// The estimator of 002 eq. 1–36 at a fixed sample period.
@@ -162,6 +175,10 @@ pub struct MotionEstimator {
     spool_velocity: f64,
     sides: [Side; 2],
     started: bool,
+    /// CBV check of each side: (R_UV Pa·s²/m⁶, p_crack Pa), eq. 18–19.
+    check: [Option<(f64, f64)>; 2],
+    /// Work port → tank bleed of the valve (m³/(s·Pa)) with the CBVs.
+    bleed: f64,
 }
 
 impl MotionEstimator {
@@ -186,7 +203,22 @@ impl MotionEstimator {
                 )
             });
         let cyl = &p.cylinder;
+        let cbv = p
+            .effects
+            .counterbalance_valve
+            .as_ref()
+            .filter(|c| c.enabled);
+        let check = [
+            ehactl_plant::cbv::CbvSides::A,
+            ehactl_plant::cbv::CbvSides::B,
+        ]
+        .map(|side| {
+            cbv.filter(|c| c.sides == side || c.sides == ehactl_plant::cbv::CbvSides::Both)
+                .map(|c| (c.check_resistance, c.check_cracking))
+        });
         let mut s = Self {
+            check,
+            bleed: cbv.map_or(0.0, |c| c.port_bleed),
             dt,
             full_scale: p.valve.command_full_scale,
             spool_model: SpoolModel::new(p, dt),
@@ -236,6 +268,9 @@ impl MotionEstimator {
         let o = self.edges.openings(self.spool);
         let (q_we, _, _) = self.edges.port(o[0], o[1], m.p_supply, m.p_tank, m.p_we);
         let (q_wr, _, _) = self.edges.port(o[2], o[3], m.p_supply, m.p_tank, m.p_wr);
+        let q_we = q_we - self.bleed * (m.p_we - m.p_tank);
+        let q_wr = q_wr - self.bleed * (m.p_wr - m.p_tank);
+        let stopped = o.iter().all(|&x| x <= 0.0);
         let dt = self.dt;
         let ln = match self.terms {
             LineTerms::Full => self.line,
@@ -253,8 +288,17 @@ impl MotionEstimator {
             let dp_w = if first { 0.0 } else { (p_w - prev.p_w) / dt };
             let q_l = q_w - ln.c * dp_w;
             let dq_l = if first { 0.0 } else { (q_l - prev.q_l) / dt };
-            let p_c = p_w - ln.r * q_l - ln.l * dq_l;
-            let q_c = q_l;
+            // CBV free-flow check for flow into the chamber, eq. 18–19.
+            let check = match self.check[i] {
+                Some((r_uv, crack)) if q_l > 0.0 => crack + r_uv * q_l * q_l,
+                _ => 0.0,
+            };
+            let p_in = p_w - ln.r * q_l - ln.l * dq_l - check;
+            let cbv = self.check[i].is_some() && !first;
+            // Case 3 (eq. 25): at stop the CBV isolates the chamber; it stays isolated until
+            // the valve feeds it above the held pressure (the check opens, case 1).
+            let held = cbv && (stopped || (prev.held && !(q_l > 0.0 && p_in >= prev.p_c)));
+            let (p_c, q_c) = if held { (prev.p_c, 0.0) } else { (p_in, q_l) };
             let beta = self.beta.beta(p_c);
             let a = self.area[i];
             let x = if first {
@@ -283,6 +327,7 @@ impl MotionEstimator {
                 p_c,
                 q_c,
                 x,
+                held,
             };
         }
         self.started = true;

@@ -33,9 +33,14 @@ pub struct SweepArgs {
     /// Periods of the lowest frequency per dwell (≥ 6).
     #[arg(long, default_value_t = 6.0)]
     periods: f64,
-    /// MCAP log (default out/<config name>_sweep.mcap).
+    /// MCAP log (default out/<config name>_sweep.mcap closed loop,
+    /// out/<config name>_sweep_open.mcap open loop).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Log one control cycle in N to the MCAP file (1 = every cycle); the estimate always
+    /// uses every cycle.
+    #[arg(long, value_name = "N", default_value_t = ehactl_analysis::sweep::DEFAULT_LOG_EVERY)]
+    log_every: u64,
     /// Print exactly one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -138,7 +143,19 @@ pub fn sweep(args: &SweepArgs) -> ExitCode {
     let out = args
         .out
         .clone()
-        .unwrap_or_else(|| default_log_path(config, "_sweep"));
+        .unwrap_or_else(|| {
+            default_log_path(
+                config,
+                if args.open_loop {
+                    "_sweep_open"
+                } else {
+                    "_sweep"
+                },
+            )
+        });
+    if args.log_every == 0 {
+        return config_error("--log-every 0: expected an integer ≥ 1 (log one cycle in N)");
+    }
     let stop = stop_flag();
     let bar = progress_bar(format!("sweep {}", config.display()));
     let mut progress = |k: u64, n: u64| {
@@ -158,6 +175,7 @@ pub fn sweep(args: &SweepArgs) -> ExitCode {
             mcap: Some(out),
             stop: Some(&stop),
             progress: Some(&mut progress),
+            log_every: args.log_every,
         },
     );
     bar.finish_and_clear();
@@ -169,7 +187,7 @@ pub fn sweep(args: &SweepArgs) -> ExitCode {
         println!("{}", serde_json::to_value(&r).unwrap_or_default());
     } else {
         println!(
-            "ehactl sweep {} — {}: {} → {}, offset {:.4}, amplitude {:.4}, {:.3} s per frequency",
+            "ehactl sweep {} — {}: {} → {}, offset {:.4}, amplitude {:.4}, {:.4} s per frequency",
             config.display(),
             r.mode,
             r.input,

@@ -11,6 +11,7 @@ mod canbus;
 
 use canbus::HalKind;
 mod diagnose;
+mod live;
 
 use clap::{Parser, Subcommand};
 use ehactl_controller::config::registries;
@@ -30,6 +31,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
+use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
@@ -72,6 +74,11 @@ enum Command {
         /// CAN bus for --hal canopen: socketcan://IFACE or socketcand://HOST:PORT/CHANNEL.
         #[arg(long, value_name = "URL")]
         bus: Option<String>,
+        /// Serve the run live to Foxglove (Foxglove WebSocket protocol, same channels as the
+        /// MCAP log) on HOST:PORT (default 127.0.0.1:8765; port 0 = any free port). Best with
+        /// --realtime; messages a viewer cannot take are dropped and counted, never waited for.
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live::DEFAULT_ADDR)]
+        live: Option<String>,
     },
     /// Change gains or setpoint parameters of a running `ehactl run --control-socket PATH`;
     /// the change lands at a cycle boundary and is logged as a `param_change` event.
@@ -158,6 +165,30 @@ fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
     PathBuf::from("out").join(format!("{stem}{suffix}.mcap"))
 }
 
+/// `v` with `digits` significant digits, without float noise (`3.05`, not
+/// `3.0500000000000003`); scientific notation outside 1e-3 ≤ |v| < 1e6.
+pub(crate) fn sig(v: f64, digits: usize) -> String {
+    if !v.is_finite() {
+        return v.to_string();
+    }
+    if v == 0.0 {
+        return "0".into();
+    }
+    let digits = digits.max(1);
+    let e = v.abs().log10().floor() as i32;
+    if (-3..6).contains(&e) {
+        let decimals = (digits as i32 - 1 - e).max(0) as usize;
+        let s = format!("{v:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        format!("{v:.*e}", digits - 1)
+    }
+}
+
 /// Stop flag set by SIGINT / SIGTERM.
 fn stop_flag() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
@@ -185,6 +216,7 @@ fn main() -> ExitCode {
             control_socket,
             hal,
             bus,
+            live,
         } => cmd_run(
             &config,
             duration,
@@ -193,6 +225,7 @@ fn main() -> ExitCode {
             realtime,
             control_socket,
             (hal, bus),
+            live.as_deref(),
         ),
         Command::Set {
             socket,
@@ -206,10 +239,13 @@ fn main() -> ExitCode {
             match ehactl_controller::session::build_plant(&cfg) {
                 Ok(plant) => {
                     println!(
-                        "{}: ok — mode {:?}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
+                        "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
                         config.display(),
-                        cfg.control.mode,
-                        cfg.run.control_rate_hz,
+                        serde_json::to_value(cfg.control.mode)
+                            .ok()
+                            .and_then(|v| v.as_str().map(str::to_owned))
+                            .unwrap_or_default(),
+                        sig(cfg.run.control_rate_hz, 6),
                         plant.substeps(),
                         plant.substep_length() * 1e6,
                         cfg.plant
@@ -292,6 +328,7 @@ fn cmd_run(
     realtime: bool,
     control_socket: Option<PathBuf>,
     (hal, bus): (HalKind, Option<String>),
+    live_addr: Option<&str>,
 ) -> ExitCode {
     let cfg = match load(config) {
         Ok(c) => c,
@@ -310,6 +347,21 @@ fn cmd_run(
         Ok(h) => h,
         Err(code) => return code,
     };
+    if let Some(Err(e)) = live_addr.map(live::parse_addr) {
+        return config_error(e);
+    }
+    let live_view = match live_addr.map(live::LiveView::start).transpose() {
+        Ok(v) => v,
+        Err(e) => {
+            eprintln!("ehactl: {e}");
+            return ExitCode::from(1);
+        }
+    };
+    if let Some(v) = &live_view {
+        // Parsed by tests and scripts: the URL is the last word.
+        eprintln!("ehactl: live view (Foxglove WebSocket) on {}", v.url);
+    }
+    let tap = live_view.as_ref().map(|v| v.tap());
     let bar = progress_bar(String::new());
     let live = Arc::new(LiveParams::new());
     let _server = match &control_socket {
@@ -357,6 +409,7 @@ fn cmd_run(
             &mut progress,
             live_ref,
             can_hal.as_mut().map(|h| h as &mut dyn Hal),
+            tap,
         );
         finished.store(true, Ordering::Relaxed);
         let _ = watcher.join();
@@ -373,7 +426,8 @@ fn cmd_run(
             stop: Some(&stop),
             capture: false,
             progress: Some(&mut progress),
-            observer: None,
+            tap,
+            ..Default::default()
         };
         if live_ref.is_some() {
             run_sim_live(&cfg, opts, live_ref)
@@ -382,6 +436,10 @@ fn cmd_run(
         }
     };
     bar.finish_and_clear();
+    let live_stats = live_view.map(|v| {
+        let url = v.url.clone();
+        (url, v.finish(Duration::from_secs(5), Duration::from_millis(500)))
+    });
     let session = match result {
         Ok(s) => s,
         Err(SessionError::Config(e)) => return config_error(format!("{}: {e}", config.display())),
@@ -390,25 +448,49 @@ fn cmd_run(
             return ExitCode::from(1);
         }
     };
-    let summary = session.summary_json();
+    let mut summary = session.summary_json();
+    if let Some((url, st)) = &live_stats {
+        summary["live"] = serde_json::json!({
+            "url": url,
+            "messages_published": st.published,
+            "messages_dropped": st.dropped,
+            "clients_at_end": st.clients,
+        });
+    }
     if json {
         println!("{summary}");
     } else {
         let o = &session.outcome;
         println!("ehactl run {}", config.display());
         println!(
-            "  cycles        {} at {} Hz ({} s simulated, {} substeps/cycle)",
-            o.cycles, session.control_rate_hz, o.duration_s, session.substeps
+            "  cycles        {} at {} Hz ({} s {}, {} substeps/cycle)",
+            o.cycles,
+            sig(session.control_rate_hz, 6),
+            sig(o.duration_s, 6),
+            if session.timing.is_some() {
+                "run"
+            } else {
+                "simulated"
+            },
+            session.substeps
         );
+        if cfg.control.mode == ehactl_controller::config::ControlMode::OpenLoop {
+            // No feedback: the setpoint (V) is the valve command, there is no tracking error.
+            println!("  error         none: open loop (the setpoint is the valve command, V); see the log for the response");
+        } else {
+            println!(
+                "  rms error     {} {} (after start of dynamics: {} {})",
+                sig(o.rms_error, 4),
+                session.unit,
+                sig(o.rms_error_settled, 4),
+                session.unit
+            );
+            println!("  max |error|   {} {}", sig(o.max_abs_error, 4), session.unit);
+        }
         println!(
-            "  rms error     {:.6e} {} (after start of dynamics: {:.6e})",
-            o.rms_error, session.unit, o.rms_error_settled
-        );
-        println!("  max |error|   {:.6e} {}", o.max_abs_error, session.unit);
-        println!(
-            "  speed         {:.1}× real time ({:.3} s wall)",
-            summary["sim_speed_x_realtime"].as_f64().unwrap_or(0.0),
-            session.wall_time_s
+            "  speed         {}× real time ({} s wall)",
+            sig(summary["sim_speed_x_realtime"].as_f64().unwrap_or(0.0), 3),
+            sig(session.wall_time_s, 3)
         );
         if let Some(l) = &session.log {
             println!(
@@ -418,6 +500,12 @@ fn cmd_run(
                 l.records_dropped,
                 l.queue_high_water,
                 l.queue_capacity
+            );
+        }
+        if let Some((url, st)) = &live_stats {
+            println!(
+                "  live          {url}: {} messages published, {} dropped (viewer too slow), {} client(s) at the end",
+                st.published, st.dropped, st.clients
             );
         }
         canbus::print_summary(&summary);
@@ -474,6 +562,7 @@ fn run_realtime(
     progress: &mut dyn FnMut(u64, u64),
     live: Option<&LiveParams>,
     hardware: Option<&mut dyn Hal>,
+    tap: Option<Arc<ehactl_hal::logger::LogTap>>,
 ) -> Result<Session, SessionError> {
     let mut cfg_run = cfg.clone();
     if let Some(d) = duration {
@@ -507,7 +596,8 @@ fn run_realtime(
             stop: Some(stop),
             capture: false,
             progress: Some(progress),
-            observer: None,
+            tap,
+            ..Default::default()
         },
         live,
     )

@@ -124,6 +124,7 @@ fn run(cfg: &RigConfig, duration: f64, capture: bool, mcap: Option<PathBuf>) -> 
             capture,
             progress: None,
             observer: None,
+            ..Default::default()
         },
     )
     .expect("run_sim");

@@ -33,6 +33,11 @@ pub struct SessionOptions<'a> {
     pub progress: Option<&'a mut dyn FnMut(u64, u64)>,
     /// Sees every cycle record as it is produced (streaming estimators, e.g. `ehactl sweep`).
     pub observer: Option<&'a mut dyn FnMut(&CycleRecord)>,
+    /// Log one cycle in `log_every` to the MCAP file (0 or 1: every cycle); events, the
+    /// first and the last cycle are always logged. Observers and captures see every cycle.
+    pub log_every: u64,
+    /// Also hand everything logged to this tap (live view, `ehactl run --live`).
+    pub tap: Option<std::sync::Arc<ehactl_hal::logger::LogTap>>,
 }
 
 /// Result of a run.
@@ -56,6 +61,8 @@ pub struct Session {
     pub backend_report: Option<serde_json::Value>,
     /// Wall-clock timing statistics (wall-clock pacers only).
     pub timing: Option<TimingReport>,
+    /// One cycle in `log_every` was logged.
+    pub log_every: u64,
 }
 
 /// Why a run could not start or its log could not be written.
@@ -104,6 +111,7 @@ impl Session {
             "sim_speed_x_realtime": if self.wall_time_s > 0.0 { o.duration_s / self.wall_time_s } else { 0.0 },
             "wall_time_s": self.wall_time_s,
             "substeps": self.substeps,
+            "log_decimation": self.log_every,
             "log": self.log.as_ref().map(|l| json!({
                 "records_written": l.records_written,
                 "records_dropped": l.records_dropped,
@@ -228,8 +236,44 @@ pub fn open_log(
             config_json: cfg.to_json(),
             backend: backend.into(),
             control_rate_hz: cfg.run.control_rate_hz,
+            config_schema: config_json_schema(),
         },
     )
+}
+
+/// JSON Schema of a config as JSON ([`RigConfig::to_json`]), built from the parameter
+/// registries: every registered field with its type, unit and meaning (the `/config` schema,
+/// so that Foxglove lists the fields).
+pub fn config_json_schema() -> serde_json::Value {
+    use ehactl_plant::spec::Kind;
+    let mut root = serde_json::Map::new();
+    for table in crate::config::registries() {
+        for p in table {
+            let mut node = &mut root;
+            let parts: Vec<&str> = p.path.split('.').collect();
+            for part in &parts[..parts.len() - 1] {
+                let entry = node
+                    .entry(part.to_string())
+                    .or_insert_with(|| json!({"type": "object", "properties": {}}));
+                node = entry["properties"].as_object_mut().expect("object node");
+            }
+            let description = if p.unit == "-" || p.unit.is_empty() {
+                p.description.to_string()
+            } else {
+                format!("{} ({})", p.description, p.unit)
+            };
+            let mut leaf = match p.kind {
+                Kind::Float => json!({"type": "number"}),
+                Kind::Integer => json!({"type": "integer"}),
+                Kind::FloatArray => json!({"type": "array", "items": {"type": "number"}}),
+                Kind::Bool => json!({"type": "boolean"}),
+                Kind::Choice(c) => json!({"type": "string", "enum": c}),
+            };
+            leaf["description"] = json!(description);
+            node.insert(parts[parts.len() - 1].to_string(), leaf);
+        }
+    }
+    json!({"type": "object", "description": "rig config (SI units)", "properties": root})
 }
 
 /// Run `cfg` against any backend: the one loop shared by the simulated and the hardware
@@ -296,12 +340,18 @@ pub fn run_with_live(
         live,
     };
     let start = Instant::now();
+    if let (Some(l), Some(tap)) = (logger.as_ref(), opts.tap.clone()) {
+        l.attach_tap(tap);
+    }
+    let log_every = opts.log_every.max(1);
     let outcome = {
         let lg = logger.as_ref();
         let observer = &mut opts.observer;
         let mut on_record = |r: &CycleRecord| {
             if let Some(l) = lg {
-                l.push(r);
+                if r.cycle % log_every == 0 || r.cycle + 1 >= cycles {
+                    l.push(r);
+                }
             }
             if let Some(o) = observer.as_mut() {
                 o(r);
@@ -349,6 +399,7 @@ pub fn run_with_live(
         unit,
         backend_report: hal.report(),
         timing,
+        log_every,
     };
     if let Some(l) = logger {
         let mut summary = session.summary_json();

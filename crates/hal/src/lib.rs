@@ -11,6 +11,7 @@
 
 pub mod logger;
 pub mod record;
+pub mod schemas;
 pub mod sim;
 
 pub use ehactl_plant::{Measurements, PlantState};

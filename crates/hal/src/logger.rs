@@ -6,6 +6,7 @@
 //! [`Logger::finish`], and by `Drop` if a run unwinds.
 
 use crate::record::{control_schema, plant_schema, timing_schema, CycleRecord, Event};
+use crate::schemas;
 use crossbeam_queue::ArrayQueue;
 use mcap::records::{MessageHeader, Metadata};
 use std::collections::BTreeMap;
@@ -67,6 +68,69 @@ pub struct RunMetadata {
     pub backend: String,
     /// Control rate (Hz).
     pub control_rate_hz: f64,
+    /// JSON Schema of the `config` object (fields with units), for `/config`'s schema.
+    pub config_schema: serde_json::Value,
+}
+
+/// What the writer thread hands to a [`LogTap`]: the same messages it logs.
+#[derive(Debug, Clone)]
+pub enum TapMessage {
+    /// A cycle record (`/control`, `/plant`, `/timing`).
+    Record(CycleRecord),
+    /// An event (`/events` and `/log`).
+    Event(Event),
+    /// The `/config` message (JSON text).
+    Config(String),
+    /// The `/summary` message (JSON text).
+    Summary(String),
+}
+
+/// A copy of the log for a live viewer (`ehactl run --live`): the writer thread — never the
+/// cycle — offers every message it writes to a bounded lock-free queue; when the queue is
+/// full the message is dropped and counted, so a slow viewer never slows the log or the loop.
+#[derive(Debug)]
+pub struct LogTap {
+    queue: ArrayQueue<TapMessage>,
+    dropped: AtomicU64,
+    closed: AtomicBool,
+}
+
+impl LogTap {
+    /// A tap holding up to `capacity` messages.
+    pub fn new(capacity: usize) -> LogTap {
+        LogTap {
+            queue: ArrayQueue::new(capacity.max(16)),
+            dropped: AtomicU64::new(0),
+            closed: AtomicBool::new(false),
+        }
+    }
+
+    /// Queue a message (never blocks; counted as dropped if full).
+    pub fn offer(&self, m: TapMessage) {
+        if self.queue.push(m).is_err() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Take the oldest message.
+    pub fn pop(&self) -> Option<TapMessage> {
+        self.queue.pop()
+    }
+
+    /// Messages dropped because the queue was full.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// True once the log is finalised (nothing more will be offered).
+    pub fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Acquire)
+    }
+
+    /// Mark the tap closed.
+    pub fn close(&self) {
+        self.closed.store(true, Ordering::Release);
+    }
 }
 
 /// Counters reported at the end of a run.
@@ -212,6 +276,8 @@ struct Shared {
     summary: Mutex<Option<serde_json::Value>>,
     frames: OnceLock<Arc<FrameLog>>,
     frames_written: AtomicU64,
+    tap: OnceLock<Arc<LogTap>>,
+    config_msg: String,
 }
 
 /// Handle owned by the run; cheap to push from the cycle.
@@ -268,10 +334,22 @@ impl Logger {
                 timing_schema().as_bytes(),
             )
             .map_err(me)?;
-        let json_schema = serde_json::json!({"type": "object"}).to_string();
-        let s_json = w
-            .add_schema("ehactl.Json", "jsonschema", json_schema.as_bytes())
-            .map_err(me)?;
+        let mut json_schema = |name: &str, schema: serde_json::Value| {
+            w.add_schema(name, "jsonschema", schema.to_string().as_bytes())
+        };
+        let s_config = json_schema(
+            schemas::CONFIG_SCHEMA_NAME,
+            schemas::config_schema(meta.config_schema.clone()),
+        )
+        .map_err(me)?;
+        let s_events = json_schema(schemas::EVENT_SCHEMA_NAME, schemas::event_schema()).map_err(me)?;
+        let s_summary =
+            json_schema(schemas::SUMMARY_SCHEMA_NAME, schemas::summary_schema()).map_err(me)?;
+        let s_log = json_schema(
+            schemas::FOXGLOVE_LOG_SCHEMA_NAME,
+            schemas::foxglove_log_schema(),
+        )
+        .map_err(me)?;
         let none = BTreeMap::new();
         let ch_control = w
             .add_channel(s_control, "/control", "cdr", &none)
@@ -282,14 +360,16 @@ impl Logger {
             .add_channel(s_timing, "/timing", "cdr", &none)
             .map_err(me)?;
         let ch_config = w
-            .add_channel(s_json, "/config", "json", &none)
+            .add_channel(s_config, "/config", "json", &none)
             .map_err(me)?;
         let ch_events = w
-            .add_channel(s_json, "/events", "json", &none)
+            .add_channel(s_events, "/events", "json", &none)
             .map_err(me)?;
         let ch_summary = w
-            .add_channel(s_json, "/summary", "json", &none)
+            .add_channel(s_summary, "/summary", "json", &none)
             .map_err(me)?;
+        // The events again as foxglove.Log, for Foxglove's Log panel.
+        let ch_log = w.add_channel(s_log, "/log", "json", &none).map_err(me)?;
         let mut md = BTreeMap::new();
         md.insert("config_toml".to_string(), meta.config_toml.clone());
         md.insert("backend".to_string(), meta.backend.clone());
@@ -306,7 +386,7 @@ impl Logger {
             metadata: md,
         })
         .map_err(me)?;
-        let cfg = serde_json::json!({"toml": meta.config_toml, "config": meta.config_json, "backend": meta.backend});
+        let config_msg = serde_json::json!({"toml": meta.config_toml, "config": meta.config_json, "backend": meta.backend}).to_string();
         w.write_to_known_channel(
             &MessageHeader {
                 channel_id: ch_config,
@@ -314,7 +394,7 @@ impl Logger {
                 log_time: 0,
                 publish_time: 0,
             },
-            cfg.to_string().as_bytes(),
+            config_msg.as_bytes(),
         )
         .map_err(me)?;
         let shared = Arc::new(Shared {
@@ -327,6 +407,8 @@ impl Logger {
             summary: Mutex::new(None),
             frames: OnceLock::new(),
             frames_written: AtomicU64::new(0),
+            tap: OnceLock::new(),
+            config_msg,
         });
         let sh = shared.clone();
         let thread = std::thread::Builder::new()
@@ -335,7 +417,7 @@ impl Logger {
                 writer_loop(
                     w,
                     sh,
-                    [ch_control, ch_plant, ch_events, ch_summary, ch_timing],
+                    [ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log],
                 )
             })
             .map_err(|e| err(format!("cannot start writer thread: {e}")))?;
@@ -388,6 +470,13 @@ impl Logger {
     /// The channel is created when the first frame arrives; one source per logger.
     pub fn attach_frames(&self, frames: Arc<FrameLog>) {
         let _ = self.shared.frames.set(frames);
+    }
+
+    /// Offer everything written from now on (and the `/config` message) to `tap` as well;
+    /// one tap per logger. The writer thread closes the tap when the file is finalised.
+    pub fn attach_tap(&self, tap: Arc<LogTap>) {
+        tap.offer(TapMessage::Config(self.shared.config_msg.clone()));
+        let _ = self.shared.tap.set(tap);
     }
 
     /// Path of the file.
@@ -445,9 +534,9 @@ impl Drop for Logger {
 fn writer_loop(
     mut w: mcap::Writer<BufWriter<File>>,
     sh: Arc<Shared>,
-    ch: [u16; 5],
+    ch: [u16; 6],
 ) -> Result<(u64, u64), String> {
-    let [ch_control, ch_plant, ch_events, ch_summary, ch_timing] = ch;
+    let [ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log] = ch;
     let mut buf = Vec::with_capacity(256);
     let mut written = 0u64;
     let mut events = 0u64;
@@ -499,6 +588,9 @@ fn writer_loop(
                 )
                 .map_err(|e| e.to_string())?;
             }
+            if let Some(tp) = sh.tap.get() {
+                tp.offer(TapMessage::Record(rec));
+            }
             written += 1;
             if written % 4096 == 0 {
                 break;
@@ -521,6 +613,19 @@ fn writer_loop(
                 ev.to_json().to_string().as_bytes(),
             )
             .map_err(|e| e.to_string())?;
+            w.write_to_known_channel(
+                &MessageHeader {
+                    channel_id: ch_log,
+                    sequence: events as u32,
+                    log_time: ns,
+                    publish_time: ns,
+                },
+                schemas::event_to_foxglove_log(&ev).to_string().as_bytes(),
+            )
+            .map_err(|e| e.to_string())?;
+            if let Some(tp) = sh.tap.get() {
+                tp.offer(TapMessage::Event(ev));
+            }
             events += 1;
         }
         if let Some(fl) = sh.frames.get() {
@@ -592,6 +697,12 @@ fn writer_loop(
             summary.to_string().as_bytes(),
         )
         .map_err(|e| e.to_string())?;
+        if let Some(tp) = sh.tap.get() {
+            tp.offer(TapMessage::Summary(summary.to_string()));
+        }
+    }
+    if let Some(tp) = sh.tap.get() {
+        tp.close();
     }
     w.finish().map_err(|e| e.to_string())?;
     Ok((written, events))

@@ -34,8 +34,9 @@ pub struct Analysis {
     pub small_command_ratio: f64,
     /// RMS residual where |u| > 70 % of max |u| over overall RMS (-).
     pub large_command_ratio: f64,
-    /// |mean residual| / RMS residual, averaged over pressure channels (-): a level shift.
-    pub bias_share: f64,
+    /// |mean residual| / RMS residual, averaged over pressure channels (-): a level shift;
+    /// None when the data has no pressure channel.
+    pub bias_share: Option<f64>,
     /// Lag of the measured signal behind the model by cross-correlation (s), median over channels.
     pub lag: f64,
     /// Narrow residual lines (tones), strongest first.
@@ -268,9 +269,9 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
         }
     }
     let bias_share = if bias.is_empty() {
-        0.0
+        None
     } else {
-        bias.iter().sum::<f64>() / bias.len() as f64
+        Some(bias.iter().sum::<f64>() / bias.len() as f64)
     };
     let max_lag = ((0.05 / rec.dt).round() as usize).clamp(2, n / 4);
     let mut lags: Vec<f64> = rec
@@ -377,8 +378,11 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
                 ),
             ),
             EffectId::InternalLeakage | EffectId::ExternalLeakage => (
-                1.0 + bias_share,
-                format!("mean pressure residual is {:.0} % of its RMS (a level shift)", bias_share * 100.0),
+                1.0 + bias_share.unwrap_or(0.0),
+                match bias_share {
+                    Some(b) => format!("mean pressure residual is {:.0} % of its RMS (a level shift)", b * 100.0),
+                    None => "no pressure measured: judged by the fits alone".into(),
+                },
             ),
             EffectId::SensorTone => match tones.first() {
                 Some(p) => (

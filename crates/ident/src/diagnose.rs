@@ -81,7 +81,7 @@ pub struct Errors {
 pub struct Candidate {
     /// Effect id.
     pub effect: String,
-    /// Fitted parameters (dotted path → value; `×` marks scale factors on nominal values).
+    /// Fitted parameters (dotted path → value; `<path>/nominal` marks factors on nominal values).
     pub params: BTreeMap<String, f64>,
     /// Overall NRMSE on the fitting data (-).
     pub nrmse_train: f64,

@@ -15,7 +15,7 @@ type Setter = Arc<dyn Fn(&mut PlantParams, f64) + Send + Sync>;
 /// One free parameter: dotted config path, bounds (SI), scale, start value and how to set it.
 #[derive(Clone)]
 pub struct FreeParam {
-    /// Dotted config path (or `<path>×` for a scale factor on the nominal value).
+    /// Dotted config path (or `<path>/nominal` for a factor on the nominal value).
     pub name: String,
     /// Lower bound (SI or factor).
     pub lo: f64,
@@ -118,7 +118,7 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
         FlowForm::Kq => {
             let q0 = n.valve.rated_flow.unwrap_or(0.0);
             v.push(FreeParam::new(
-                "valve.rated_flow×",
+                "valve.rated_flow/nominal",
                 lo,
                 hi,
                 false,
@@ -129,7 +129,7 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
         FlowForm::Orifice => {
             let a0 = n.valve.area_max.unwrap_or(0.0);
             v.push(FreeParam::new(
-                "valve.area_max×",
+                "valve.area_max/nominal",
                 lo,
                 hi,
                 false,
@@ -140,7 +140,7 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
         FlowForm::PowerLaw => {
             let q0 = n.valve.flow_at_1mpa.unwrap_or(0.0);
             v.push(FreeParam::new(
-                "valve.flow_at_1mpa×",
+                "valve.flow_at_1mpa/nominal",
                 lo,
                 hi,
                 false,
@@ -151,7 +151,7 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
     }
     let b0 = n.fluid.bulk_modulus;
     v.push(FreeParam::new(
-        "fluid.bulk_modulus×",
+        "fluid.bulk_modulus/nominal",
         lo,
         hi,
         false,
@@ -160,7 +160,7 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
     ));
     let m0 = n.mechanics.mass;
     v.push(FreeParam::new(
-        "mechanics.mass×",
+        "mechanics.mass/nominal",
         lo,
         hi,
         false,
@@ -170,7 +170,7 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
     if n.mechanics.damping > 0.0 {
         let d0 = n.mechanics.damping;
         v.push(FreeParam::new(
-            "mechanics.damping×",
+            "mechanics.damping/nominal",
             lo,
             hi,
             false,
@@ -181,7 +181,7 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
     if n.mechanics.load_stiffness > 0.0 {
         let k0 = n.mechanics.load_stiffness;
         v.push(FreeParam::new(
-            "mechanics.load_stiffness×",
+            "mechanics.load_stiffness/nominal",
             lo,
             hi,
             false,

@@ -240,11 +240,13 @@ pub fn write_report(
         let _ = writeln!(r, "## Residual analysis: {title} (fitting part)\n");
         let _ = writeln!(r, "- velocity reversals: residual RMS within 10 ms of a reversal is {:.2}× the overall RMS", a.reversal_ratio);
         let _ = writeln!(r, "- small command (|u| < 5 % of max): {:.2}× the overall RMS; large command (> 70 %): {:.2}×", a.small_command_ratio, a.large_command_ratio);
-        let _ = writeln!(
-            r,
-            "- mean pressure residual (before any sensor offset) is {:.0} % of its RMS (level shift)",
-            a.bias_share * 100.0
-        );
+        if let Some(b) = a.bias_share {
+            let _ = writeln!(
+                r,
+                "- mean pressure residual (before any sensor offset) is {:.0} % of its RMS (level shift)",
+                b * 100.0
+            );
+        }
         let _ = writeln!(
             r,
             "- measured outputs lag the model by {:.2} ms (cross-correlation)",

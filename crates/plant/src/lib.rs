@@ -10,12 +10,14 @@
 //! | [`model`] | chambers over stroke, β(p), leakage, cavitation, mechanics, end stops, supply | 002 eq. 35, 003 eq. 1, 7–8, 14–15 |
 //! | [`friction`] | static/Coulomb/Stribeck with true stick | 003 eq. 5, 004 eq. 28–34 |
 //! | [`line`] | lumped R-L-C lines | 002 eq. 9–17 |
+//! | [`cbv`] | counterbalance valves: pilot-assisted relief + free-flow check | 002 eq. 18–19, fig. 2 |
 //! | [`excitation`] | constant, harmonic, impact train | 003 eq. 2, 17 |
 //! | [`sensors`] | load cell, pressures, position transducer, spool | 004, 003 |
 //!
 //! Parameters and their units are declared once in [`spec::PARAMS`].
 #![deny(missing_docs)]
 
+pub mod cbv;
 pub mod effects;
 pub mod excitation;
 pub mod friction;

@@ -15,6 +15,7 @@
 //! Steps 2→3 form a symplectic Euler pair for the hydraulic spring, stable for ω·h < 2;
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
 
+use crate::cbv::{Cbv, CbvSides, CbvState};
 use crate::excitation::ExcitationModel;
 use crate::friction::FrictionModel;
 use crate::line::Line;
@@ -100,6 +101,10 @@ pub struct Plant {
     excitation: ExcitationModel,
     sensors: SensorModel,
     lines: Option<(Line, Line)>,
+    /// Counterbalance valves at the cylinder ends of lines A and B ([`crate::cbv`]).
+    cbv: [Option<Cbv>; 2],
+    /// Work port → tank bleed of the directional valve (m³/(s·Pa)), with the CBVs.
+    port_bleed: f64,
     control_dt: f64,
     substeps: u32,
     h: f64,
@@ -239,6 +244,29 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
             ));
         }
     }
+    if let Some(cb) = p
+        .effects
+        .counterbalance_valve
+        .as_ref()
+        .filter(|c| c.enabled)
+    {
+        if !p.effects.line_dynamics.as_ref().is_some_and(|l| l.enabled) {
+            return Err(ConfigError::new(
+                "effects.counterbalance_valve",
+                "a counterbalance valve sits at the cylinder end of a line: it needs \
+                 [effects.line_dynamics]",
+            ));
+        }
+        if cb.setting <= p.supply.tank_pressure {
+            return Err(ConfigError::new(
+                "effects.counterbalance_valve.setting",
+                format!(
+                    "setting {} Pa must exceed the tank pressure {} Pa",
+                    cb.setting, p.supply.tank_pressure
+                ),
+            ));
+        }
+    }
     Ok(())
 }
 
@@ -306,6 +334,12 @@ impl Plant {
                 Line::new(l, &params.fluid, 0.0),
             )
         });
+        let cbv_cfg = e.counterbalance_valve.as_ref().filter(|c| c.enabled);
+        let cbv = [CbvSides::A, CbvSides::B].map(|side| {
+            cbv_cfg
+                .filter(|c| c.sides == side || c.sides == CbvSides::Both)
+                .map(|c| Cbv::new(c, params.fluid.density, params.fluid.bulk_modulus))
+        });
         // Fastest oscillatory mode over the stroke (rad/s).
         let mut k_total = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0) + c.k_load;
         let mut omega_max: f64 = 0.0;
@@ -320,6 +354,10 @@ impl Plant {
             // Line node coupled to the chamber through the last segment.
             let c_min = la.c.min(c.v_a0.min(c.v_b0) / c.beta_max);
             omega_max = omega_max.max(2.0 / (la.l * c_min).sqrt());
+            // Last segment against a CBV body volume.
+            for cb in cbv.iter().flatten() {
+                omega_max = omega_max.max(2.0 / (la.l * cb.c_node.min(la.c)).sqrt());
+            }
         }
         let substeps = if params.integration.substeps > 0 {
             params.integration.substeps
@@ -349,6 +387,8 @@ impl Plant {
             excitation: ExcitationModel::new(&params.excitation),
             sensors: SensorModel::new(&params.sensors, e.sensor_tone.as_ref()),
             lines,
+            cbv,
+            port_bleed: cbv_cfg.map_or(0.0, |c| c.port_bleed),
             control_dt,
             substeps,
             h,
@@ -405,6 +445,15 @@ impl Plant {
             lb.p.iter_mut().for_each(|p| *p = p_b);
             lb.q.iter_mut().for_each(|q| *q = 0.0);
             lb.y.iter_mut().for_each(|y| *y = 0.0);
+        }
+        for (cb, p) in self.cbv.iter_mut().zip([p_a, p_b]) {
+            if let Some(cb) = cb {
+                cb.s = CbvState {
+                    p_node: p,
+                    opening: 0.0,
+                    q: 0.0,
+                };
+            }
         }
         self.cycle = 0;
         self.delay_buf.iter_mut().for_each(|u| *u = 0.0);
@@ -469,6 +518,12 @@ impl Plant {
         self.lines.as_ref().map(|(la, lb)| (la.p[0], lb.p[0]))
     }
 
+    /// State of the counterbalance valves on lines A and B (`None` where none is fitted):
+    /// port-2 node pressure (Pa), poppet opening (-), flow into the chamber (m³/s).
+    pub fn counterbalance_valves(&self) -> [Option<CbvState>; 2] {
+        self.cbv.each_ref().map(|c| c.as_ref().map(|c| c.s))
+    }
+
     /// Names of the continuous states that [`Plant::linear_state`] returns, in order:
     /// spool (if the spool has dynamics), spool velocity (2nd order), p_a, p_b, p_s (with
     /// supply sag), x, v, x_load and v_load (with a flexible mount), then the line node
@@ -497,6 +552,12 @@ impl Plant {
                 n.extend((0..l.q.len()).map(|i| format!("line_{tag}.q[{i}]")));
                 let t = l.terms();
                 n.extend((0..l.y.len()).map(|k| format!("line_{tag}.q[{}].y[{}]", k / t, k % t)));
+            }
+        }
+        for (tag, cb) in ["a", "b"].iter().zip(&self.cbv) {
+            if cb.is_some() {
+                n.push(format!("cbv_{tag}.p_node"));
+                n.push(format!("cbv_{tag}.opening"));
             }
         }
         n
@@ -537,6 +598,9 @@ impl Plant {
                 v.extend_from_slice(&l.q);
                 v.extend_from_slice(&l.y);
             }
+        }
+        for cb in self.cbv.iter().flatten() {
+            v.extend([cb.s.p_node, cb.s.opening]);
         }
         v
     }
@@ -582,6 +646,10 @@ impl Plant {
                     *y = next();
                 }
             }
+        }
+        for cb in self.cbv.iter_mut().flatten() {
+            cb.s.p_node = next();
+            cb.s.opening = next();
         }
         let c = &self.c;
         s.rod_force = c.k_load * (s.x - c.x_contact)
@@ -697,6 +765,10 @@ impl Plant {
                 // Valve-side nodes, exponential Euler in their own pressure.
                 let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, la.p[0]);
                 let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, lb.p[0]);
+                // Neutral A,B→T bleed with the CBVs (crate::cbv, `port_bleed`).
+                let kb = self.port_bleed;
+                let (qa, dqa) = (qa - kb * (la.p[0] - c.pt), dqa - kb);
+                let (qb, dqb) = (qb - kb * (lb.p[0] - c.pt), dqb - kb);
                 s.q_a = qa;
                 s.q_b = qb;
                 q_sa = qsa;
@@ -714,14 +786,57 @@ impl Plant {
                 }
                 let qla = *la.q.last().unwrap_or(&0.0);
                 let qlb = *lb.q.last().unwrap_or(&0.0);
-                let fa = beta_a / va * (qla - c.a_a * s.v - q_in - c.k_ext * s.p_a);
-                let lam_a = beta_a / va * (-c.k_in - c.k_ext);
-                let fb = beta_b / vb * (qlb + c.a_b * s.v + q_in - c.k_ext * s.p_b);
-                let lam_b = beta_b / vb * (-c.k_in - c.k_ext);
+                // Counterbalance valves between line end and chamber (crate::cbv): the node
+                // (port 2) in exponential Euler in its own pressure, the chamber takes the
+                // CBV flow with its derivative in its own linearisation.
+                let ends = [
+                    (*la.p.last().unwrap_or(&s.p_a), qla, s.p_a),
+                    (*lb.p.last().unwrap_or(&s.p_b), qlb, s.p_b),
+                ];
+                let mut into = [qla, qlb];
+                let mut dinto = [0.0; 2];
+                let mut p_end = [s.p_a, s.p_b];
+                for i in 0..2 {
+                    // Pilot: the other line at the cylinder (its CBV node, else its last node).
+                    let pilot = match &self.cbv[1 - i] {
+                        Some(o) => o.s.p_node,
+                        None => ends[1 - i].0,
+                    };
+                    if let Some(cb) = self.cbv[i].as_mut() {
+                        let (_, q_line, p_ch) = ends[i];
+                        cb.advance_poppet(h, p_ch, pilot);
+                        let (q, dq) = cb.flow(cb.s.p_node, p_ch);
+                        let f = (q_line - q) / cb.c_node;
+                        let pn = cb.s.p_node + h * f * phi1(-dq / cb.c_node * h);
+                        cb.s.p_node = pn.max(c.p_cav);
+                        cb.s.q = q;
+                        into[i] = q;
+                        dinto[i] = dq;
+                        p_end[i] = cb.s.p_node;
+                    }
+                }
+                let fa = beta_a / va * (into[0] - c.a_a * s.v - q_in - c.k_ext * s.p_a);
+                let lam_a = beta_a / va * (-c.k_in - c.k_ext - dinto[0]);
+                let fb = beta_b / vb * (into[1] + c.a_b * s.v + q_in - c.k_ext * s.p_b);
+                let lam_b = beta_b / vb * (-c.k_in - c.k_ext - dinto[1]);
                 s.p_a = (s.p_a + h * fa * phi1(lam_a * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lam_b * h)).max(c.p_cav);
-                la.advance_flows(h, s.p_a);
-                lb.advance_flows(h, s.p_b);
+                la.advance_flows(
+                    h,
+                    if self.cbv[0].is_some() {
+                        p_end[0]
+                    } else {
+                        s.p_a
+                    },
+                );
+                lb.advance_flows(
+                    h,
+                    if self.cbv[1].is_some() {
+                        p_end[1]
+                    } else {
+                        s.p_b
+                    },
+                );
             }
         }
         // Supply sag (000): first-order towards p_s0 − R·Q_s.

@@ -467,6 +467,10 @@ pub struct Effects {
     /// `supply_pressure_drop`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub supply_pressure_drop: Option<SupplyPressureDrop>,
+    /// `counterbalance_valve`: a circuit component (002 fig. 2), not a catalogue effect
+    /// (see [`crate::cbv`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub counterbalance_valve: Option<crate::cbv::CounterbalanceValve>,
 }
 
 /// Load-cell model.

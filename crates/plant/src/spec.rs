@@ -432,6 +432,78 @@ pub const PARAMS: &[Param] = &[
         "segment wall friction: steady Hagen–Poiseuille (default), unsteady (Zielke 1968 \
          weighting function, 8 states per segment) or unsteady_trikha (Trikha 1975, 3 states)",
     ),
+    // Counterbalance valve (crate::cbv; 002 fig. 2, eq. 18–19).
+    choice(
+        "effects.counterbalance_valve.sides",
+        crate::cbv::CbvSides::NAMES,
+        "lines fitted with a CBV at the cylinder end (default both)",
+    ),
+    p(
+        "effects.counterbalance_valve.pilot_ratio",
+        "-",
+        Positive,
+        "pilot ratio ψ: opens when p_load + ψ·p_pilot ≥ setting",
+    ),
+    p(
+        "effects.counterbalance_valve.setting",
+        "Pa",
+        Positive,
+        "relief setting p_set (cracking load pressure without pilot)",
+    ),
+    p(
+        "effects.counterbalance_valve.opening_pressure",
+        "Pa",
+        Positive,
+        "rise of p_load + ψ·p_pilot from cracking to full opening",
+    ),
+    p(
+        "effects.counterbalance_valve.area_max",
+        "m²",
+        Positive,
+        "poppet metering area fully open",
+    ),
+    p(
+        "effects.counterbalance_valve.discharge_coefficient",
+        "-",
+        Within(0.01, 1.0),
+        "poppet discharge coefficient (default 0.7)",
+    ),
+    p(
+        "effects.counterbalance_valve.check_resistance",
+        "Pa·s²/m⁶",
+        Positive,
+        "free-flow check R_UV, Δp = R_UV·Q² (002 eq. 18–19)",
+    ),
+    p(
+        "effects.counterbalance_valve.check_cracking",
+        "Pa",
+        NonNegative,
+        "check-valve cracking pressure (default 0)",
+    ),
+    p(
+        "effects.counterbalance_valve.time_constant",
+        "s",
+        Positive,
+        "poppet first-order time constant",
+    ),
+    p(
+        "effects.counterbalance_valve.volume",
+        "m³",
+        Positive,
+        "oil volume between line end and poppet",
+    ),
+    p(
+        "effects.counterbalance_valve.port_bleed",
+        "m³/(s·Pa)",
+        NonNegative,
+        "directional valve work port → tank bleed (neutral A,B→T), default 0",
+    ),
+    p(
+        "effects.counterbalance_valve.laminar_pressure",
+        "Pa",
+        Positive,
+        "laminar transition of the CBV orifice laws (default 5e4)",
+    ),
     p(
         "effects.flexible_mount.load_mass",
         "kg",

@@ -29,8 +29,8 @@ from ._ehactl import (  # noqa: F401  (re-exported)
     Plant,
     __version__,
 )
-from ._analysis import analyze, diagnose, sweep
-from ._runs import RunResult, param_grid, params, read_mcap, run, run_many
+from ._analysis import analyze, diagnose, diagnose_many, sweep
+from ._runs import RunResult, param_grid, params, read_mcap, results_frame, run, run_many
 
 __all__ = [
     "Config",
@@ -40,9 +40,11 @@ __all__ = [
     "__version__",
     "analyze",
     "diagnose",
+    "diagnose_many",
     "param_grid",
     "params",
     "read_mcap",
+    "results_frame",
     "run",
     "run_many",
     "sweep",

@@ -6,12 +6,12 @@ from __future__ import annotations
 import json
 import os
 import warnings
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from . import _ehactl
-from ._runs import ConfigLike, _as_config, _progress_bar
+from ._runs import ConfigLike, _as_config, _must_exist, _progress_bar
 
 
 def analyze(cfg: ConfigLike, *, params: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -71,7 +71,7 @@ def sweep(
         points: number of log-spaced frequencies.
         amplitude: sine amplitude (N or m closed loop, V open loop).
         output: "force", "position", "p_a" or "p_b" (default the loop's feedback).
-        mcap: MCAP log of the sweep run.
+        mcap: MCAP log of the sweep run (one control cycle in 5, as `ehactl sweep`).
         params: dotted-path overrides.
         progress: True for a tqdm bar, or a callable ``(done_cycles, total_cycles)``.
 
@@ -137,10 +137,14 @@ def diagnose(
         N, m or Pa), ``extended_config``, ``report``, ``plots``, ``warnings``. Data warnings are also issued as Python warnings.
 
     Raises:
+        FileNotFoundError: ``cfg`` (a path), ``data`` or ``validate`` does not exist.
         ValueError: bad data or config (the message names the file, row or field).
         OSError: the report could not be written.
     """
     c = _as_config(cfg)
+    _must_exist(data, "measured data file")
+    if validate is not None:
+        _must_exist(validate, "validation data file")
     raw, notes = _ehactl.diagnose_json(c, os.fspath(data), None if validate is None else os.fspath(validate),
                                        None if out is None else os.fspath(out), bool(progress),
                                        bool(sensor_offsets))
@@ -149,3 +153,53 @@ def diagnose(
         warnings.warn(w, stacklevel=2)
     r["notes"] = list(notes)
     return r
+
+
+def diagnose_many(
+    cases: Sequence[Mapping[str, Any] | tuple],
+    *,
+    client: Any = None,
+    sensor_offsets: bool = False,
+):
+    """Diagnose a fleet of records (e.g. one log per rig) and tabulate the causes.
+
+    Args:
+        cases: each a dict with ``config`` (``Config`` or path), ``data`` (CSV or ehactl
+            MCAP) and optionally ``validate`` and ``out`` (report directory), or a tuple
+            ``(config, data[, validate[, out]])``.
+        client: a ``dask.distributed.Client``: one Dask task per case on its workers (data
+            paths must be readable there, e.g. a shared file system); default: one after
+            the other in this process.
+        sensor_offsets: as in :func:`diagnose`.
+
+    Returns:
+        ``pandas.DataFrame`` with one row per case in input order: ``data``, ``cause``,
+        ``causes`` (comma-separated), ``gain``, ``nrmse_nominal`` and ``nrmse_extended``
+        (held-out, overall), ``warnings`` (count), ``report`` (path or None).
+    """
+    import pandas as pd
+
+    from . import _dask
+
+    norm = []
+    for c in cases:
+        if isinstance(c, Mapping):
+            cfg, data, val, out = c["config"], c["data"], c.get("validate"), c.get("out")
+        else:
+            c = tuple(c) + (None,) * (4 - len(c))
+            cfg, data, val, out = c[:4]
+        _must_exist(data, "measured data file")
+        if val is not None:
+            _must_exist(val, "validation data file")
+        norm.append((_as_config(cfg), os.fspath(data), None if val is None else os.fspath(val),
+                     None if out is None else os.fspath(out)))
+    if client is not None:
+        raws = _dask.diagnose_batch(client, [(c.to_toml(), d, v, o) for c, d, v, o in norm], bool(sensor_offsets))
+    else:
+        raws = [_ehactl.diagnose_json(c, d, v, o, False, bool(sensor_offsets)) for c, d, v, o in norm]
+    rows = []
+    for (c, d, _v, _o), (raw, _notes) in zip(norm, raws):
+        row = {"data": d}
+        row.update(_dask.diagnose_row(json.loads(raw)))
+        rows.append(row)
+    return pd.DataFrame(rows)

@@ -151,6 +151,7 @@ def frequency_response(
     min_periods: int = 4,
     min_window: float = 0.05,
     threads: int | None = None,
+    client: Any = None,
     progress: bool = False,
 ) -> FrequencyResponse:
     """Measure the loop's frequency response on the nonlinear plant (stepped sine, one run
@@ -196,7 +197,7 @@ def frequency_response(
         if len(gidx) == 0:
             continue
         dur = float(durations[gidx].max())
-        rs = run_many([cfgs[i] for i in gidx], duration=dur, fields=["t", "setpoint", "feedback", "u"], threads=threads, progress=progress)
+        rs = run_many([cfgs[i] for i in gidx], duration=dur, fields=["t", "setpoint", "feedback", "u"], threads=threads, client=client, frame=False, progress=progress)
         for i, r in zip(gidx, rs):
             results[int(i)] = r
     for i, fi in enumerate(f):
@@ -318,6 +319,7 @@ def model_based(
     fr: FrequencyResponse | None = None,
     test=None,
     threads: int | None = None,
+    client: Any = None,
     progress: bool = False,
 ):
     """Model-based tuning: PI (force) or PD (position) gains that give ``phase_margin_deg``
@@ -348,7 +350,7 @@ def model_based(
         if source == "linear":
             fr = linear_response(base)
         elif source == "measured":
-            fr = frequency_response(base, threads=threads, progress=progress)
+            fr = frequency_response(base, threads=threads, client=client, progress=progress)
         else:
             raise ValueError(f"source = {source!r}; expected \"linear\" or \"measured\"")
     ok = np.isfinite(fr.plant)
@@ -406,4 +408,4 @@ def model_based(
         "plant_model": fr.details.get("source", "measured"),
         "frequency_response": fr,
     }
-    return _finish("model_based", base, gains, test, details, threads)
+    return _finish("model_based", base, gains, test, details, threads, client=client)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import os
@@ -20,12 +21,21 @@ FIELDS: tuple[tuple[str, str], ...] = tuple(_ehactl.record_fields())
 _UNITS = dict(FIELDS)
 _UNITS.update({"cycle": "-", "stuck": "bool"})
 _ALIASES = {"command": "u", "valve_command": "plant_command"}
+# Columns whose unit follows the control mode (u = N, m or V).
+_MODE_COLUMNS = {"setpoint": "{u}", "feedback": "{u}", "error": "{u}", "setpoint_rate": "{u}/s"}
+
+
+def _must_exist(path: str | os.PathLike, what: str) -> None:
+    """Raise FileNotFoundError (errno ENOENT, with the path) if ``path`` does not exist."""
+    if not os.path.exists(path):
+        raise FileNotFoundError(errno.ENOENT, f"{what} not found", os.fspath(path))
 
 
 def _as_config(cfg: ConfigLike) -> Config:
     if isinstance(cfg, Config):
         return cfg
     if isinstance(cfg, (str, os.PathLike)):
+        _must_exist(cfg, "config file")
         return Config.load(cfg)
     raise TypeError(f"expected an ehactl.Config or a path to a TOML config, got {type(cfg).__name__}")
 
@@ -68,7 +78,8 @@ class RunResult:
     ``v_load`` (m/s), ``plant_p_a``, ``plant_p_b``, ``p_s`` (Pa), ``plant_spool`` (-),
     ``spool_velocity`` (1/s), ``q_a``, ``q_b`` (m³/s), ``friction``, ``external``,
     ``rod_force`` (N), ``plant_command`` (V, after any delay), ``stuck`` (bool), ``cycle``.
-    ``units`` maps column → unit.
+    ``units`` maps every column to its unit; ``unit`` is ``units["error"]``, the unit of
+    setpoint / feedback / error in this run's control mode. ``dir(res)`` lists the columns.
     """
 
     __slots__ = ("columns", "summary", "config")
@@ -91,6 +102,12 @@ class RunResult:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.columns[_ALIASES.get(name, name)]
 
+    def __dir__(self) -> list[str]:
+        # Columns and their aliases, for tab completion.
+        cols = object.__getattribute__(self, "columns")
+        aliases = [a for a, c in _ALIASES.items() if c in cols]
+        return sorted(set(super().__dir__()) | set(cols) | set(aliases))
+
     def keys(self) -> list[str]:
         """Column names."""
         return list(self.columns)
@@ -100,12 +117,21 @@ class RunResult:
 
     @property
     def units(self) -> dict[str, str]:
-        """Unit of each column ("N or m" columns follow the control mode: see ``unit``)."""
-        return {k: _UNITS.get(k, "") for k in self.columns}
+        """Unit of each column; setpoint / feedback / error (and their rates) in this run's
+        control mode: N (force), m (position) or V (open loop)."""
+        u = self.unit
+        out = {}
+        for k in self.columns:
+            v = _UNITS.get(k, "")
+            if k in _MODE_COLUMNS:
+                v = _MODE_COLUMNS[k].format(u=u) if u else v
+            out[k] = v
+        return out
 
     @property
     def unit(self) -> str:
-        """Unit of setpoint / feedback / error: "N" (force mode), "m" (position) or "V"."""
+        """Unit of setpoint / feedback / error (= ``units["error"]``): "N" (force mode),
+        "m" (position) or "V" (open loop)."""
         return self.summary.get("error_unit", "")
 
     @property
@@ -145,7 +171,8 @@ def _progress_bar(total: int, desc: str, unit: str):
         from tqdm.auto import tqdm
     except ImportError:  # pragma: no cover - tqdm is optional
         return None, None
-    bar = tqdm(total=total, desc=desc, unit=unit)
+    # disable=None: no bar when stderr is not a terminal (logs, CI, Dask workers).
+    bar = tqdm(total=total, desc=desc, unit=unit, disable=None)
 
     def cb(done: int, _total: int) -> None:
         bar.n = done
@@ -219,8 +246,12 @@ def run_many(
     threads: int | None = None,
     mcap_dir: str | os.PathLike | None = None,
     progress: bool | Callable[[int, int], None] = False,
-) -> list[RunResult]:
-    """Run many closed loops in parallel on all cores (rayon), GIL released.
+    client: Any = None,
+    chunk_size: int | None = None,
+    frame: bool | None = None,
+):
+    """Run many closed loops in parallel on all cores (rayon), GIL released — or on a Dask
+    cluster with ``client=``.
 
     Args:
         cfgs: a list of ``Config``/paths, or a parameter grid ``{dotted path: values}``
@@ -229,13 +260,26 @@ def run_many(
         threads: worker threads (default: one per core).
         mcap_dir: if given, write ``run_0000.mcap``, ``run_0001.mcap``, … there.
         progress: True for a tqdm bar over runs, or a callable ``(done_runs, total_runs)``.
+        client: a ``dask.distributed.Client`` (``Client(LocalCluster())``, or
+            ``Client("tcp://scheduler:8786")`` for a remote cluster whose workers have the
+            same ehactl installed): the runs go to its workers in chunks of ``chunk_size``
+            (default: about 4 chunks per worker thread), each chunk run by the same compiled
+            code as the local path, so the numbers are identical. ``mcap_dir`` must then be
+            a path every worker can write (shared file system).
+        frame: return a ``pandas.DataFrame`` (one row per run: the grid's parameters or
+            the config name, then ``rms_error``, ``rms_error_settled``, ``max_abs_error``,
+            ``error_unit``, ``trip``, ``interrupted``, ``cycles``, ``duration_s``, ``mcap``)
+            instead of the list of results; default True with a client, False without.
 
-    Returns the results in input order.
+    Returns the results in input order (a list of :class:`RunResult`, or a DataFrame).
     """
+    grid_rows: list[dict[str, Any]] | None = None
     if isinstance(cfgs, Mapping):
         if base is None:
             raise ValueError("run_many: a parameter grid needs base=<Config or path>")
         configs = param_grid(base, cfgs)
+        keys = list(cfgs)
+        grid_rows = [dict(zip(keys, combo)) for combo in itertools.product(*[list(cfgs[k]) for k in keys])]
     else:
         configs = [_as_config(c) for c in cfgs]
     configs = [_prepare(c, setpoint, params) for c in configs]
@@ -250,14 +294,40 @@ def run_many(
         bar, cb = _progress_bar(len(configs), "run_many", "run")
     elif callable(progress):
         cb = progress
+    flist = None if fields is None else list(fields)
     try:
-        outs = _ehactl.run_batch(
-            configs, duration, mcap, None if fields is None else list(fields), threads, cb
-        )
+        if client is not None:
+            from . import _dask
+
+            outs = _dask.run_batch(client, configs, duration, mcap, flist, chunk_size, cb)
+        else:
+            outs = _ehactl.run_batch(configs, duration, mcap, flist, threads, cb)
     finally:
         if bar is not None:
             bar.close()
-    return [RunResult(cols, json.loads(s), c) for (cols, s), c in zip(outs, configs)]
+    results = [RunResult(cols, json.loads(s), c) for (cols, s), c in zip(outs, configs)]
+    if frame is None:
+        frame = client is not None
+    if not frame:
+        return results
+    return results_frame(results, grid_rows)
+
+
+def results_frame(results: Sequence[RunResult], params: Sequence[Mapping[str, Any]] | None = None):
+    """One ``pandas.DataFrame`` row per run: ``params`` (e.g. the grid point) or the config
+    name, then the scalar summary fields (see :func:`run_many`'s ``frame``)."""
+    try:
+        import pandas as pd
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError("a DataFrame of results needs pandas: pip install pandas") from e
+    from ._dask import summary_row
+
+    rows = []
+    for i, r in enumerate(results):
+        row: dict[str, Any] = dict(params[i]) if params is not None else {"config": r.config.name}
+        row.update(summary_row(r.summary))
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def params() -> list[dict[str, str]]:

@@ -18,6 +18,11 @@ Gains: force mode → ``control.pi.kp`` (V/V) and ``control.pi.integral`` (1/s, 
 K_P(1 + I/s), 004 §6); position mode → ``control.pd.kp`` (V/m) and ``control.pd.td`` (s,
 003 eq. 32). Every metric is computed on the nonlinear simulated plant from the ground
 truth (``rod_force`` or ``x``), so sensor noise does not enter the score.
+
+Every function that runs batches (:func:`evaluate`, :func:`critical_gain`,
+:func:`optimize`, :func:`model_based`, :func:`frequency_response`) takes ``client=``, a
+``dask.distributed.Client``: its batches then run on the cluster's workers (see
+:func:`ehactl.run_many`) with the same numbers; the default is the local rayon path.
 """
 
 from __future__ import annotations
@@ -194,6 +199,7 @@ def evaluate(
     gains: Sequence[dict[str, float]] | None = None,
     test: "StepTest | TrackingTest | None" = None,
     threads: int | None = None,
+    client: Any = None,
 ) -> list[dict[str, float]]:
     """Score each gain set (dict dotted path → value; ``{}`` = the config as is) with the
     test (default :meth:`StepTest.default`) on the nonlinear plant, in one parallel batch."""
@@ -201,7 +207,7 @@ def evaluate(
     test = test or StepTest.default(base)
     gains = list(gains) if gains is not None else [{}]
     cfgs = [base.with_values(g) if g else base for g in gains]
-    res = run_many(cfgs, duration=test.duration, setpoint=test.setpoint(), fields=test.fields(), threads=threads)
+    res = run_many(cfgs, duration=test.duration, setpoint=test.setpoint(), fields=test.fields(), threads=threads, client=client, frame=False)
     return [score(r, test) for r in res]
 
 
@@ -249,13 +255,13 @@ class TuneResult:
         return f"TuneResult({self.method}: {g}; {key} {self.baseline.get(key, math.nan):.4g} → {self.metrics.get(key, math.nan):.4g})"
 
 
-def _finish(method: str, base: Config, gains: dict[str, float], test, details: dict, threads, constraint_test=None) -> TuneResult:
+def _finish(method: str, base: Config, gains: dict[str, float], test, details: dict, threads, constraint_test=None, client=None) -> TuneResult:
     paths = gain_paths(base)
     base_gains = {p: float(base[p]) for p in paths}
     tuned = base.with_values(gains)
-    m_base, m_tuned = evaluate(base, [{}, gains], test, threads)
+    m_base, m_tuned = evaluate(base, [{}, gains], test, threads, client=client)
     if constraint_test is not None:
-        c_base, c_tuned = evaluate(base, [{}, gains], constraint_test, threads)
+        c_base, c_tuned = evaluate(base, [{}, gains], constraint_test, threads, client=client)
         m_base = _merge(m_base, c_base)
         m_tuned = _merge(m_tuned, c_tuned)
     return TuneResult(method, dict(gains), m_tuned, base_gains, m_base, tuned, test, details)
@@ -309,6 +315,7 @@ def critical_gain(
     growth_threshold: float = 0.9,
     noise_free: bool = True,
     threads: int | None = None,
+    client: Any = None,
     progress: bool = False,
 ) -> TuneResult:
     """Critical-gain tuning (seed 003 §5, Ziegler–Nichols ultimate sensitivity).
@@ -348,7 +355,7 @@ def critical_gain(
             duration=test.duration,
             setpoint=test.setpoint(),
             fields=["t", test.signal],
-            threads=threads,
+            threads=threads, client=client, frame=False,
         )
         out = []
         for k, r in zip(kps, res):
@@ -368,7 +375,7 @@ def critical_gain(
         try:
             from tqdm.auto import tqdm
 
-            bar = tqdm(desc="critical gain", unit="batch")
+            bar = tqdm(desc="critical gain", unit="batch", disable=None)
         except ImportError:  # pragma: no cover
             bar = None
     grid = np.geomspace(lo_r, hi_r, 16)
@@ -415,7 +422,7 @@ def critical_gain(
         "scanned": sorted(scanned),
         "noise_free_identification": noise_free,
     }
-    return _finish("critical_gain", base, gains, test, details, threads)
+    return _finish("critical_gain", base, gains, test, details, threads, client=client)
 
 
 def _cost(
@@ -497,6 +504,7 @@ def optimize(
     limits: dict[str, float] | None = None,
     seed: int = 0,
     threads: int | None = None,
+    client: Any = None,
     progress: bool = False,
 ) -> TuneResult:
     """Minimise a time-domain cost of the step test on the nonlinear plant.
@@ -530,9 +538,9 @@ def optimize(
 
     def run_gen(z: np.ndarray) -> list[tuple[float, bool, dict, dict]]:
         gains = [to_gains(np.exp(row)) for row in z]
-        ms = evaluate(base, gains, test, threads)
+        ms = evaluate(base, gains, test, threads, client=client)
         if constraint_test is not None:
-            ms = [_merge(a, c) for a, c in zip(ms, evaluate(base, gains, constraint_test, threads))]
+            ms = [_merge(a, c) for a, c in zip(ms, evaluate(base, gains, constraint_test, threads, client=client))]
         out = []
         for g, m in zip(gains, ms):
             c, feas = _cost(m, objective, max_overshoot_pct, max_saturation, limits)
@@ -555,7 +563,7 @@ def optimize(
         try:
             from tqdm.auto import tqdm
 
-            bar = tqdm(total=generations, desc="optimize", unit="gen")
+            bar = tqdm(total=generations, desc="optimize", unit="gen", disable=None)
         except ImportError:  # pragma: no cover
             bar = None
     for gen in range(generations):
@@ -616,7 +624,7 @@ def optimize(
         "constraint_test": constraint_test,
         "limits": dict(limits or {}),
     }
-    return _finish("optimize", base, best[2], test, details, threads, constraint_test)
+    return _finish("optimize", base, best[2], test, details, threads, constraint_test, client=client)
 
 
 # ---------------------------------------------------------------------------------------

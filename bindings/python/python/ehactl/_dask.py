@@ -1,0 +1,148 @@
+"""Batches on a Dask distributed cluster (``client=`` of :func:`ehactl.run_many`, the
+:mod:`ehactl.tune` functions and :func:`ehactl.diagnose_many`).
+
+The work is cut into chunks, one Dask task per chunk; each task runs its chunk with the same
+compiled code as the local path (a rayon batch of ``_ehactl.run_batch`` with one thread, or
+``diagnose``), so a cluster returns the same numbers as a local run. Configs travel as their
+TOML text (``Config`` pickles that way); results come back as NumPy arrays and dicts. Every
+worker needs the same ``ehactl`` version installed (``pip install ./bindings/python``); a
+worker with another version is refused by the task's version check.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Sequence
+
+from . import _ehactl
+
+
+def _check_version(version: str) -> None:
+    if version != _ehactl.__version__:
+        raise RuntimeError(
+            f"ehactl {_ehactl.__version__} on this Dask worker, {version} on the client: "
+            "install the same ehactl on every worker (pip install ./bindings/python)"
+        )
+
+
+def _run_chunk(version: str, tomls: Sequence[str], duration, mcaps, fields):
+    """Worker side of :func:`run_many`: one chunk, sequentially (one rayon thread)."""
+    _check_version(version)
+    cfgs = [_ehactl.Config.from_toml(t) for t in tomls]
+    return _ehactl.run_batch(cfgs, duration, mcaps, fields, 1, None)
+
+
+def _diagnose_one(version: str, toml: str, data: str, validate, out, sensor_offsets: bool):
+    """Worker side of :func:`diagnose_many`: one case, the JSON report and notes."""
+    _check_version(version)
+    cfg = _ehactl.Config.from_toml(toml)
+    raw, notes = _ehactl.diagnose_json(cfg, data, validate, out, False, sensor_offsets)
+    return raw, list(notes)
+
+
+def _client(client: Any):
+    """Accept a ``dask.distributed.Client`` (anything with ``submit`` and ``gather``)."""
+    if not (hasattr(client, "submit") and hasattr(client, "gather")):
+        raise TypeError(
+            f"client: expected a dask.distributed.Client (e.g. Client(LocalCluster()) or "
+            f"Client('tcp://scheduler:8786')), got {type(client).__name__}"
+        )
+    return client
+
+
+def chunks(n: int, client: Any, chunk_size: int | None) -> list[range]:
+    """Split ``n`` items into chunks: by default 4 per worker thread (load balance), at most
+    64 items each."""
+    if chunk_size is None:
+        try:
+            threads = sum(client.nthreads().values())
+        except Exception:  # pragma: no cover - a client without nthreads()
+            threads = 1
+        chunk_size = max(1, min(64, -(-n // max(1, 4 * threads))))
+    if chunk_size < 1:
+        raise ValueError(f"chunk_size = {chunk_size}: expected an integer ≥ 1")
+    return [range(i, min(n, i + chunk_size)) for i in range(0, n, chunk_size)]
+
+
+def run_batch(client: Any, configs, duration, mcaps, fields, chunk_size, progress_cb):
+    """``_ehactl.run_batch`` on the cluster: same inputs, same outputs, input order."""
+    from dask.distributed import as_completed
+
+    client = _client(client)
+    tomls = [c.to_toml() for c in configs]
+    parts = chunks(len(tomls), client, chunk_size)
+    futs = []
+    for r in parts:
+        futs.append(
+            client.submit(
+                _run_chunk,
+                _ehactl.__version__,
+                [tomls[i] for i in r],
+                duration,
+                None if mcaps is None else [mcaps[i] for i in r],
+                fields,
+                pure=False,
+            )
+        )
+    index = {f.key: k for k, f in enumerate(futs)}
+    out: list[Any] = [None] * len(tomls)
+    done = 0
+    for fut in as_completed(futs):
+        k = index[fut.key]
+        res = fut.result()
+        for i, o in zip(parts[k], res):
+            out[i] = o
+        done += len(parts[k])
+        if progress_cb is not None:
+            progress_cb(done, len(tomls))
+    return out
+
+
+def diagnose_batch(client: Any, cases, sensor_offsets: bool):
+    """Diagnose every (config TOML, data, validate, out) case on the cluster; input order."""
+    client = _client(client)
+    futs = [
+        client.submit(_diagnose_one, _ehactl.__version__, t, d, v, o, sensor_offsets, pure=False)
+        for (t, d, v, o) in cases
+    ]
+    return client.gather(futs)
+
+
+def summary_row(summary: dict[str, Any]) -> dict[str, Any]:
+    """Flat scalar fields of a run summary for a DataFrame row."""
+    keys = (
+        "rms_error",
+        "rms_error_settled",
+        "max_abs_error",
+        "error_unit",
+        "trip",
+        "interrupted",
+        "cycles",
+        "duration_s",
+        "mcap",
+    )
+    return {k: summary.get(k) for k in keys}
+
+
+def diagnose_row(r: dict[str, Any]) -> dict[str, Any]:
+    """Flat fields of a diagnosis for a DataFrame row."""
+    nom = r.get("nrmse_nominal") or {}
+    ext = r.get("nrmse_extended") or {}
+    return {
+        "cause": r.get("cause"),
+        "causes": ",".join(r.get("causes") or []),
+        "gain": r.get("gain"),
+        "nrmse_nominal": nom.get("overall") if isinstance(nom, dict) else nom,
+        "nrmse_extended": ext.get("overall") if isinstance(ext, dict) else ext,
+        "warnings": len(r.get("warnings") or []),
+        "report": r.get("report"),
+    }
+
+
+def loads(raw: str) -> dict[str, Any]:
+    return json.loads(raw)
+
+
+def fspath_or_none(p) -> str | None:
+    return None if p is None else os.fspath(p)

@@ -1,0 +1,302 @@
+//! `ehactl run --live [ADDR]`: the running loop served to Foxglove over the Foxglove WebSocket
+//! protocol (subprotocol `foxglove.sdk.v1`, the SDK's name for `foxglove.websocket.v1`) by Foxglove's own SDK (the `foxglove`
+//! crate's `WebSocketServer`), with the channels, schemas and message bytes of the MCAP log.
+//!
+//! Data path: the cycle pushes records to the MCAP logger's lock-free queue as always; the
+//! logger's writer thread offers each message it writes to a bounded [`LogTap`] (dropped and
+//! counted when full); this module's thread takes them from the tap and publishes them. So
+//! neither the cycle nor the log ever waits for a viewer. The SDK then queues per client and
+//! drops the oldest messages for a slow client.
+
+use ehactl_hal::logger::{LogTap, TapMessage};
+use ehactl_hal::record::{control_schema, plant_schema, timing_schema};
+use ehactl_hal::schemas;
+use foxglove::{Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// Default address, the Foxglove app's default connection (`ws://localhost:8765`).
+pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
+
+/// Tap capacity (messages): about 0.4 s of a 5 kHz run with /control, /plant and /timing.
+const TAP_CAPACITY: usize = 8192;
+
+/// What the live view did.
+#[derive(Debug, Clone, Copy)]
+pub struct LiveStats {
+    /// Messages handed to the server (all channels).
+    pub published: u64,
+    /// Messages dropped before the server because the tap was full.
+    pub dropped: u64,
+    /// Clients connected when the run ended.
+    pub clients: usize,
+}
+
+/// A running live view.
+pub struct LiveView {
+    // Channels and the server belong to this context; it lives as long as the view.
+    _ctx: Arc<Context>,
+    tap: Arc<LogTap>,
+    server: Option<foxglove::WebSocketServerHandle>,
+    thread: Option<JoinHandle<()>>,
+    published: Arc<AtomicU64>,
+    abort: Arc<AtomicBool>,
+    /// `ws://host:port` the server listens on.
+    pub url: String,
+}
+
+struct Channels {
+    control: Arc<RawChannel>,
+    plant: Arc<RawChannel>,
+    timing: Arc<RawChannel>,
+    config: Arc<RawChannel>,
+    events: Arc<RawChannel>,
+    log: Arc<RawChannel>,
+    summary: Arc<RawChannel>,
+}
+
+fn channel(
+    ctx: &Arc<Context>,
+    topic: &str,
+    encoding: &str,
+    schema: Schema,
+) -> Result<Arc<RawChannel>, String> {
+    ctx.channel_builder(topic)
+        .message_encoding(encoding)
+        .schema(schema)
+        .build_raw()
+        .map_err(|e| format!("--live: channel {topic}: {e}"))
+}
+
+fn json_schema(name: &str, schema: serde_json::Value) -> Schema {
+    Schema::new(name, "jsonschema", schema.to_string().into_bytes())
+}
+
+/// Parse `HOST:PORT` (port 0 = any free port).
+pub fn parse_addr(addr: &str) -> Result<(String, u16), String> {
+    let (host, port) = addr.rsplit_once(':').ok_or_else(|| {
+        format!("--live {addr}: expected HOST:PORT, e.g. {DEFAULT_ADDR} (port 0 = any free port)")
+    })?;
+    let port: u16 = port.parse().map_err(|_| {
+        format!("--live {addr}: port {port:?} is not an integer in 0..=65535")
+    })?;
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    if host.is_empty() {
+        return Err(format!("--live {addr}: empty host; e.g. {DEFAULT_ADDR}"));
+    }
+    Ok((host.to_string(), port))
+}
+
+impl LiveView {
+    /// Start the server on `addr` (`HOST:PORT`) and the publishing thread.
+    pub fn start(addr: &str) -> Result<LiveView, String> {
+        let (host, port) = parse_addr(addr)?;
+        let ctx = Context::new();
+        let ch = Channels {
+            control: channel(
+                &ctx,
+                "/control",
+                "cdr",
+                Schema::new("ehactl_msgs/msg/ControlCycle", "ros2msg", control_schema().into_bytes()),
+            )?,
+            plant: channel(
+                &ctx,
+                "/plant",
+                "cdr",
+                Schema::new("ehactl_msgs/msg/PlantState", "ros2msg", plant_schema().into_bytes()),
+            )?,
+            timing: channel(
+                &ctx,
+                "/timing",
+                "cdr",
+                Schema::new("ehactl_msgs/msg/CycleTiming", "ros2msg", timing_schema().into_bytes()),
+            )?,
+            config: channel(
+                &ctx,
+                "/config",
+                "json",
+                json_schema(
+                    schemas::CONFIG_SCHEMA_NAME,
+                    schemas::config_schema(ehactl_controller::session::config_json_schema()),
+                ),
+            )?,
+            events: channel(
+                &ctx,
+                "/events",
+                "json",
+                json_schema(schemas::EVENT_SCHEMA_NAME, schemas::event_schema()),
+            )?,
+            log: channel(
+                &ctx,
+                "/log",
+                "json",
+                json_schema(schemas::FOXGLOVE_LOG_SCHEMA_NAME, schemas::foxglove_log_schema()),
+            )?,
+            summary: channel(
+                &ctx,
+                "/summary",
+                "json",
+                json_schema(schemas::SUMMARY_SCHEMA_NAME, schemas::summary_schema()),
+            )?,
+        };
+        let server = WebSocketServer::new()
+            .name(concat!("ehactl ", env!("CARGO_PKG_VERSION")))
+            .context(&ctx)
+            .bind(host.clone(), port)
+            .start_blocking()
+            .map_err(|e| format!("--live {addr}: cannot start the Foxglove WebSocket server: {e}"))?;
+        let url = format!("ws://{}:{}", host, server.port());
+        let tap = Arc::new(LogTap::new(TAP_CAPACITY));
+        let published = Arc::new(AtomicU64::new(0));
+        let abort = Arc::new(AtomicBool::new(false));
+        let thread = {
+            let (tap, published, abort) = (tap.clone(), published.clone(), abort.clone());
+            std::thread::Builder::new()
+                .name("ehactl-live".into())
+                .spawn(move || publish_loop(&ch, &tap, &published, &abort))
+                .map_err(|e| format!("--live: cannot start the publishing thread: {e}"))?
+        };
+        Ok(LiveView {
+            _ctx: ctx,
+            tap,
+            server: Some(server),
+            thread: Some(thread),
+            published,
+            abort,
+            url,
+        })
+    }
+
+    /// The tap to attach to the run's logger.
+    pub fn tap(&self) -> Arc<LogTap> {
+        self.tap.clone()
+    }
+
+    /// Publish what is left (up to `drain` if the log never closed the tap), give connected
+    /// clients `linger` to receive the last messages, stop the server.
+    pub fn finish(mut self, drain: Duration, linger: Duration) -> LiveStats {
+        let t0 = Instant::now();
+        while !self.tap.is_closed() && t0.elapsed() < drain {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        self.abort.store(true, Ordering::Release);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        let clients = self.server.as_ref().map_or(0, |s| s.client_count());
+        if clients > 0 {
+            std::thread::sleep(linger);
+        }
+        if let Some(s) = self.server.take() {
+            s.stop().wait_blocking();
+        }
+        LiveStats {
+            published: self.published.load(Ordering::Relaxed),
+            dropped: self.tap.dropped(),
+            clients,
+        }
+    }
+}
+
+fn publish_loop(ch: &Channels, tap: &LogTap, published: &AtomicU64, abort: &AtomicBool) {
+    // Log times: the wall clock at the start of the view + the run time of each message, so
+    // that the Foxglove timeline shows the run as it happens.
+    let t0_ns = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    let at = |t: f64| PartialMetadata::with_log_time(t0_ns + (t.max(0.0) * 1e9) as u64);
+    let mut buf = Vec::with_capacity(256);
+    let mut last_t = 0.0;
+    let mut n = 0u64;
+    // The config is sent once by the log; repeat it every second for clients that connect
+    // later (a live stream has no history).
+    let mut config: Option<String> = None;
+    let mut config_sent = Instant::now();
+    loop {
+        if let Some(c) = &config {
+            if config_sent.elapsed() >= Duration::from_secs(1) {
+                ch.config.log_with_meta(c.as_bytes(), at(last_t));
+                config_sent = Instant::now();
+                n += 1;
+            }
+        }
+        let m = tap.pop();
+        if let Some(TapMessage::Config(c)) = &m {
+            config = Some(c.clone());
+            config_sent = Instant::now();
+        }
+        let Some(m) = m else {
+            // Closed and drained, or told to stop (the log failed and never closed the tap).
+            if tap.is_closed() && tap.pop().is_none() || abort.load(Ordering::Acquire) {
+                while let Some(m) = tap.pop() {
+                    n += publish(ch, m, &mut buf, &mut last_t, &at);
+                }
+                published.store(n, Ordering::Relaxed);
+                return;
+            }
+            published.store(n, Ordering::Relaxed);
+            std::thread::sleep(Duration::from_micros(500));
+            continue;
+        };
+        n += publish(ch, m, &mut buf, &mut last_t, &at);
+    }
+}
+
+fn publish(
+    ch: &Channels,
+    m: TapMessage,
+    buf: &mut Vec<u8>,
+    last_t: &mut f64,
+    at: &dyn Fn(f64) -> PartialMetadata,
+) -> u64 {
+    match m {
+        TapMessage::Record(r) => {
+            *last_t = r.t;
+            let mut k = 1;
+            r.encode_control(buf);
+            ch.control.log_with_meta(buf, at(r.t));
+            if r.has_plant {
+                r.encode_plant(buf);
+                ch.plant.log_with_meta(buf, at(r.t));
+                k += 1;
+            }
+            if r.encode_timing(buf) {
+                ch.timing.log_with_meta(buf, at(r.t));
+                k += 1;
+            }
+            k
+        }
+        TapMessage::Event(ev) => {
+            ch.events
+                .log_with_meta(ev.to_json().to_string().as_bytes(), at(ev.t));
+            ch.log.log_with_meta(
+                schemas::event_to_foxglove_log(&ev).to_string().as_bytes(),
+                at(ev.t),
+            );
+            2
+        }
+        TapMessage::Config(s) => {
+            ch.config.log_with_meta(s.as_bytes(), at(0.0));
+            1
+        }
+        TapMessage::Summary(s) => {
+            ch.summary.log_with_meta(s.as_bytes(), at(*last_t));
+            1
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_addr;
+
+    #[test]
+    fn addresses() {
+        assert_eq!(parse_addr("127.0.0.1:8765").unwrap(), ("127.0.0.1".into(), 8765));
+        assert_eq!(parse_addr("[::1]:0").unwrap(), ("::1".into(), 0));
+        assert!(parse_addr("8765").unwrap_err().contains("HOST:PORT"));
+        assert!(parse_addr("localhost:99999").unwrap_err().contains("0..=65535"));
+    }
+}
