@@ -8,8 +8,9 @@
    and SDO code the master uses) for N pings and N SDO uploads; for context also a
    python-can client doing the same pings.
 3. With --mcap RUN.mcap (a closed-loop `ehactl run --hal canopen` log), measures from the
-   /can channel the time from each SYNC sent to the transducer TPDO received, i.e. the
-   extra dead time CAN adds to the loop on top of the SYNC period's sample-and-hold.
+   /can channel the time from each SYNC sent to the transducer TPDO that answers it (the k-th
+   SYNC paired with the k-th TPDO), i.e. the extra dead time CAN adds to the loop on top of the
+   SYNC period's sample-and-hold, and the fraction of TPDOs that arrive after the next SYNC.
 
 Build first: cargo build --release -p ehactl-cli -p ehactl-canopen --examples
 Usage: python3 bench/can_latency.py [--n 2000] [--mcap out/run.mcap] [--sim-mcap out/sim.mcap]
@@ -126,6 +127,26 @@ def plot(out, rust, mcap, sim_mcap):
     fig.savefig(out, dpi=120)
 
 
+def pair_sync_tpdo(frames, node):
+    """Latency of each synchronous TPDO of `node` from the SYNC it answers (µs): the k-th SYNC
+    the master sent (t >= 0) is paired with the k-th TPDO received. Pairing each TPDO with the
+    latest SYNC before it (the earlier method, also returned) hides TPDOs that arrive after the
+    next SYNC. Returns (latencies, fraction of TPDOs after the next SYNC, #SYNC, #TPDO, latest)."""
+    syncs = [f["t"] for f in frames if f["t"] >= 0 and f["dir"] == "tx" and f["id"] == 0x080
+             and f["dlc"] == 0]
+    tpdos = [f["t"] for f in frames if f["t"] >= 0 and f["dir"] == "rx" and f["id"] == 0x180 + node]
+    n = min(len(syncs), len(tpdos))
+    lat = [(tpdos[k] - syncs[k]) * 1e6 for k in range(n)]
+    late = sum(1 for k in range(n) if k + 1 < len(syncs) and tpdos[k] > syncs[k + 1])
+    latest, j = [], -1
+    for t in tpdos:
+        while j + 1 < len(syncs) and syncs[j + 1] <= t:
+            j += 1
+        if j >= 0:
+            latest.append((t - syncs[j]) * 1e6)
+    return lat, (late / n if n else None), len(syncs), len(tpdos), latest
+
+
 def loop_effect(mcap_path):
     from mcap.reader import make_reader
     frames = []
@@ -136,20 +157,15 @@ def loop_effect(mcap_path):
     with open(mcap_path, "rb") as f:
         for _, ch, m in make_reader(f).iter_messages(topics=["/summary"]):
             summary = json.loads(m.data)
-    lat, pending = [], None
-    node = 0x20
-    for fr in frames:
-        if fr["t"] < 0:
-            continue
-        if fr["dir"] == "tx" and fr["id"] == 0x080 and fr["dlc"] == 0:
-            pending = fr["t"]
-        elif fr["dir"] == "rx" and fr["id"] == 0x180 + node and pending is not None:
-            lat.append((fr["t"] - pending) * 1e6)
-            pending = None
+    lat, late, n_sync, n_tpdo, latest = pair_sync_tpdo(frames, 0x20)
     LOOP_SAMPLES.extend(lat)
     sync_hz = (summary or {}).get("sync_rate_hz", 1000.0)
     return {
-        "syncs": len(lat),
+        "syncs": n_sync,
+        "position_tpdos": n_tpdo,
+        "pairing": "k-th SYNC with k-th TPDO (transmission type 1: one TPDO per SYNC, in order)",
+        "tpdo_after_next_sync_fraction": late,
+        "latest_sync_pairing_median_us": statistics.median(latest) if latest else None,
         "sync_to_position_tpdo_median_us": statistics.median(lat),
         "sync_to_position_tpdo_p99_us": q(lat, 0.99),
         "sync_to_position_tpdo_max_us": max(lat),

@@ -257,6 +257,12 @@ pub struct CanopenHal {
     hb: [HeartbeatConsumer; 2],
     meas: Measurements,
     valve_state: Option<ValveState>,
+    /// The transducer's first TPDO of the loop has arrived (start-up grace, see `read`).
+    first_tpdo: bool,
+    /// Loop time of the first cycle (s).
+    loop_t0: Option<f64>,
+    /// Start-up grace (s): `heartbeat_timeout_ms`.
+    grace_s: f64,
     setpoint: i16,
     fault: Option<HalError>,
     wrong_dlc: u64,
@@ -472,6 +478,18 @@ impl CanopenHal {
             return Err(StartupError::Settings(format!(
                 "canopen.sync_rate_hz = {} Hz exceeds run.control_rate_hz = {} Hz; SYNC is produced by the control cycle, expected sync_rate_hz <= control rate",
                 c.sync_rate_hz, s.control_rate_hz
+            )));
+        }
+        // SYNC is produced by the control cycle: a SYNC period that is no whole number of
+        // control periods would jitter by one control period (e.g. 400/600 µs for 2 kHz SYNC
+        // at 5 kHz control), so it is refused.
+        let ratio = s.control_rate_hz / c.sync_rate_hz;
+        if (ratio - ratio.round()).abs() > 1e-9 * ratio.max(1.0) {
+            return Err(StartupError::Settings(format!(
+                "canopen.sync_rate_hz = {} Hz does not divide run.control_rate_hz = {} Hz ({ratio:.4} control periods per SYNC); SYNC is sent by the control cycle and would jitter by one control period; expected control_rate_hz / sync_rate_hz to be a whole number, e.g. {} Hz",
+                c.sync_rate_hz,
+                s.control_rate_hz,
+                s.control_rate_hz / ratio.round().max(1.0)
             )));
         }
         if !(s.command_full_scale.is_finite() && s.command_full_scale > 0.0) {
@@ -1059,6 +1077,9 @@ impl CanopenHal {
             hb,
             meas,
             valve_state: Some(ValveState::Active),
+            first_tpdo: false,
+            loop_t0: None,
+            grace_s: f64::from(c.heartbeat_timeout_ms) * 1e-3,
             setpoint: 0,
             fault: None,
             wrong_dlc: 0,
@@ -1154,6 +1175,7 @@ impl CanopenHal {
                         self.s.canopen.position_step_nm,
                     );
                     self.meas.t = t;
+                    self.first_tpdo = true;
                 }
             }
             (TPDO1_BASE, Some(Dev::Valve)) if self.s.canopen.valve_status_pdo => {
@@ -1428,6 +1450,17 @@ impl Hal for CanopenHal {
         }
         while let Some((f, _)) = self.rxq.pop() {
             self.dispatch(&f, t)?;
+        }
+        // Start-up grace: until the transducer's first TPDO of the loop has arrived, at most
+        // `heartbeat_timeout_ms` of loop time, the primed position counts as fresh, so the
+        // supervisor's staleness check starts with the first PDO (a device answering the
+        // first SYNCs late on a loaded machine is no stale sensor). Bounded: after the grace
+        // the sample time stops and `supervisor.stale_timeout` trips as usual.
+        if !self.first_tpdo {
+            let t0 = *self.loop_t0.get_or_insert(t);
+            if t - t0 <= self.grace_s {
+                self.meas.t = t;
+            }
         }
         for i in 0..2 {
             if let Some(HeartbeatEvent::Timeout { silent_ns }) = self.hb[i].process(elapsed_ns) {

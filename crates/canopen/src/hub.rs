@@ -11,8 +11,9 @@
 //! (default 200 ms) after the `< ok >` and then delivered in order: nothing is lost.
 //!
 //! Isolation: each client has its own bounded queue ([`CLIENT_QUEUE`] frames) and its own
-//! writer thread. Relaying a frame only formats it once and pushes it into every other
-//! client's queue without waiting; a client whose queue is full (it stopped reading: its
+//! writer thread. Relaying a frame formats it once and, for every other client, writes it
+//! to the socket without waiting (`MSG_DONTWAIT`) while that client's queue is empty, else
+//! (or for the part that did not fit) pushes it into the queue; a client whose queue is full (it stopped reading: its
 //! socket buffer and then its queue filled up) is dropped (its connection is shut down,
 //! `clients_dropped` counts it, one line on stderr), so a stalled client never delays the
 //! others. Text a client sent is quoted in the hub's log lines only sanitised (printable
@@ -51,6 +52,45 @@ struct Client {
     stream: TcpStream,
     /// This client's queue; its writer thread writes the frames to the socket.
     queue: SyncSender<Arc<[u8]>>,
+    /// Messages in `queue` not yet completely written by the writer thread. While it is 0
+    /// the relay writes to the socket itself without waiting (`MSG_DONTWAIT`): no thread
+    /// hop for a client that keeps up; what does not fit goes to the queue, in order.
+    queued: Arc<AtomicU64>,
+    /// Raw socket for the non-waiting send.
+    fd: std::os::fd::RawFd,
+}
+
+impl Client {
+    /// Send without waiting; returns how many bytes went out (0 if the socket is full).
+    fn send_now(&self, b: &[u8]) -> std::io::Result<usize> {
+        // SAFETY: `fd` is the open socket of `self.stream` (kept alive by it); `b` is a
+        // valid buffer of `b.len()` bytes.
+        let n = unsafe {
+            libc::send(
+                self.fd,
+                b.as_ptr().cast(),
+                b.len(),
+                libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL,
+            )
+        };
+        if n >= 0 {
+            return Ok(n as usize);
+        }
+        let e = std::io::Error::last_os_error();
+        if e.kind() == std::io::ErrorKind::WouldBlock {
+            Ok(0)
+        } else {
+            Err(e)
+        }
+    }
+
+    /// Queue `m` for the writer thread; an error if the queue is full (client not reading).
+    fn enqueue(&self, m: Arc<[u8]>) -> Result<(), TrySendError<Arc<[u8]>>> {
+        self.queued.fetch_add(1, Ordering::AcqRel);
+        self.queue.try_send(m).inspect_err(|_| {
+            self.queued.fetch_sub(1, Ordering::AcqRel);
+        })
+    }
 }
 
 #[derive(Default)]
@@ -146,7 +186,20 @@ fn relay(reg: &Mutex<Registry>, stats: &HubStats, from: u64, channel: &str, f: &
         if c.id == from || c.channel != channel {
             continue;
         }
-        match c.queue.try_send(msg.clone()) {
+        // Fast path: nothing queued, write directly (never waits); the rest is queued.
+        let r = if c.queued.load(Ordering::Acquire) == 0 {
+            match c.send_now(&msg) {
+                Ok(n) if n == msg.len() => {
+                    stats.frames_out.fetch_add(1, Ordering::Relaxed);
+                    Ok(())
+                }
+                Ok(n) => c.enqueue(Arc::from(&msg[n..])),
+                Err(_) => Err(TrySendError::Disconnected(msg.clone())),
+            }
+        } else {
+            c.enqueue(msg.clone())
+        };
+        match r {
             Ok(()) => {}
             Err(TrySendError::Full(_)) => {
                 stats.clients_dropped.fetch_add(1, Ordering::Relaxed);
@@ -172,6 +225,7 @@ fn relay(reg: &Mutex<Registry>, stats: &HubStats, from: u64, channel: &str, f: &
 fn writer_loop(
     mut stream: TcpStream,
     q: Receiver<Arc<[u8]>>,
+    queued: Arc<AtomicU64>,
     join_delay: Duration,
     stats: &HubStats,
 ) {
@@ -181,7 +235,10 @@ fn writer_loop(
             let _ = stream.shutdown(std::net::Shutdown::Both);
             return;
         }
-        stats.frames_out.fetch_add(1, Ordering::Relaxed);
+        if !m.is_empty() {
+            stats.frames_out.fetch_add(1, Ordering::Relaxed);
+        }
+        queued.fetch_sub(1, Ordering::AcqRel);
     }
 }
 
@@ -296,16 +353,24 @@ fn client_loop(
                             // it waits the join delay before the first frame, so no frame
                             // precedes the `< ok >` or shares its `recv`.
                             let (tx, rx) = sync_channel::<Arc<[u8]>>(CLIENT_QUEUE);
+                            // An empty marker message, counted as queued, keeps the relay
+                            // queueing (not sending) until the writer has passed the join
+                            // delay and taken it off.
+                            let queued = Arc::new(AtomicU64::new(1));
+                            let _ = tx.try_send(Arc::from(&b""[..]));
                             let shut = match stream.try_clone() {
                                 Ok(s) => s,
                                 Err(e) => return format!("cannot clone socket: {e}"),
                             };
                             if let Ok(mut r) = reg.lock() {
+                                let fd = std::os::fd::AsRawFd::as_raw_fd(&shut);
                                 r.clients.push(Client {
                                     id,
                                     channel: ch.clone(),
                                     stream: shut,
                                     queue: tx,
+                                    queued: queued.clone(),
+                                    fd,
                                 });
                             }
                             if stream.write_all(b"< ok >").is_err() {
@@ -314,7 +379,7 @@ fn client_loop(
                             let st = stats.clone();
                             if let Err(e) = std::thread::Builder::new()
                                 .name(format!("hub-writer-{id}"))
-                                .spawn(move || writer_loop(writer, rx, join_delay, &st))
+                                .spawn(move || writer_loop(writer, rx, queued, join_delay, &st))
                             {
                                 return format!("cannot start a writer thread: {e}");
                             }

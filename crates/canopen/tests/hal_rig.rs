@@ -805,3 +805,71 @@ fn a_safe_command_that_is_not_closed_centre_is_refused_before_the_bus_is_opened(
         StartupError::Bus(_)
     ));
 }
+
+#[test]
+fn staleness_starts_with_the_first_pdo_after_a_bounded_grace() {
+    // The transducer answers no SYNC of the loop: for heartbeat_timeout_ms of loop time the
+    // primed sample counts as fresh (sample time = loop time), then its time stops, so the
+    // supervisor's staleness check trips stale_timeout later as usual.
+    let (port, knobs, _one_at_a_time) = start();
+    let rig_thread = rig(port, knobs.clone());
+    let cfg = test_bus();
+    let grace = f64::from(cfg.heartbeat_timeout_ms) * 1e-3;
+    let mut hal = CanopenHal::connect(settings(port, cfg)).unwrap();
+    knobs.mute_transducer_pdo.store(true, Ordering::Relaxed);
+    let dt = 1.0 / 2000.0;
+    let mut last_t = f64::NAN;
+    let n = ((grace + 0.05) / dt) as u64;
+    let t_start = Instant::now();
+    for k in 0..n {
+        let t = k as f64 * dt;
+        // paced by the wall clock (the heartbeat consumers count loop time)
+        if let Some(w) =
+            (t_start + Duration::from_secs_f64(t)).checked_duration_since(Instant::now())
+        {
+            std::thread::sleep(w);
+        }
+        let m = hal.read(t, dt).unwrap();
+        hal.write(t, dt, 0.0).unwrap();
+        if t <= grace {
+            assert_eq!(m.t, t, "inside the grace the primed sample is fresh");
+        } else {
+            assert!(
+                m.t <= grace,
+                "after the grace the sample time stops: {} at {t}",
+                m.t
+            );
+        }
+        last_t = m.t;
+    }
+    assert!(last_t <= grace && last_t > grace - 2.0 * dt, "{last_t}");
+    let _ = hal.safe_stop(0.0);
+    knobs.stop.store(true, Ordering::Relaxed);
+    rig_thread.join().unwrap();
+}
+
+#[test]
+fn a_sync_rate_that_does_not_divide_the_control_rate_is_refused() {
+    // 2000 Hz control (settings()), SYNC 1500 Hz: 1.333 control periods per SYNC.
+    let cfg = CanopenConfig {
+        sync_rate_hz: 1500.0,
+        ..test_bus()
+    };
+    let e = CanopenHal::connect(settings(1, cfg)).unwrap_err();
+    let StartupError::Settings(m) = &e else {
+        panic!("{e}")
+    };
+    assert!(
+        m.contains("does not divide") && m.contains("2000 Hz"),
+        "{m}"
+    );
+    // 500 Hz divides 2000 Hz: the settings pass (and the missing bus is the error)
+    let cfg = CanopenConfig {
+        sync_rate_hz: 500.0,
+        ..test_bus()
+    };
+    assert!(matches!(
+        CanopenHal::connect(settings(1, cfg)).unwrap_err(),
+        StartupError::Bus(_)
+    ));
+}
