@@ -156,6 +156,9 @@ pub fn sweep(args: &SweepArgs) -> ExitCode {
     if args.log_every == 0 {
         return config_error("--log-every 0: expected an integer ≥ 1 (log one cycle in N)");
     }
+    if let Err(code) = crate::check_log_path(&out, config, false) {
+        return code;
+    }
     let stop = stop_flag();
     let bar = progress_bar(format!("sweep {}", config.display()));
     let mut progress = |k: u64, n: u64| {

@@ -74,11 +74,26 @@ enum Command {
         /// CAN bus for --hal canopen: socketcan://IFACE or socketcand://HOST:PORT/CHANNEL.
         #[arg(long, value_name = "URL")]
         bus: Option<String>,
+        /// Overwrite --out even if it is an existing file that is not an MCAP log (never the
+        /// config being run).
+        #[arg(long)]
+        force: bool,
         /// Serve the run live to Foxglove (Foxglove WebSocket protocol, same channels as the
         /// MCAP log) on HOST:PORT (default 127.0.0.1:8765; port 0 = any free port). Best with
         /// --realtime; messages a viewer cannot take are dropped and counted, never waited for.
         #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live::DEFAULT_ADDR)]
         live: Option<String>,
+    },
+    /// Rebuild a valid, indexed MCAP file from a log whose writer was killed (SIGKILL, power
+    /// loss, full disk): every intact chunk is kept, a cut-off one is dropped.
+    Recover {
+        /// Damaged MCAP log.
+        input: PathBuf,
+        /// New file to write (must not exist).
+        output: PathBuf,
+        /// Print exactly one JSON object on stdout.
+        #[arg(long)]
+        json: bool,
     },
     /// Change gains or setpoint parameters of a running `ehactl run --control-socket PATH`;
     /// the change lands at a cycle boundary and is logged as a `param_change` event.
@@ -165,6 +180,123 @@ fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
     PathBuf::from("out").join(format!("{stem}{suffix}.mcap"))
 }
 
+/// Refuse a log path that would destroy something of the user's: the config being run
+/// (always), a directory, or an existing file that is not an MCAP log (unless `force`). An
+/// earlier MCAP log at the path is replaced, as a re-run is expected to do.
+pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(), ExitCode> {
+    let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    };
+    if same(out, config) {
+        return Err(config_error(format!(
+            "--out {}: is the config being run; choose another file for the MCAP log",
+            out.display()
+        )));
+    }
+    let Ok(meta) = std::fs::symlink_metadata(out) else {
+        return Ok(()); // nothing there yet
+    };
+    if meta.is_dir() {
+        return Err(config_error(format!(
+            "--out {}: is a directory; expected a file path for the MCAP log (e.g. {}/run.mcap)",
+            out.display(),
+            out.display()
+        )));
+    }
+    let is_mcap = meta.is_file() && {
+        use std::io::Read;
+        let mut magic = [0u8; 8];
+        std::fs::File::open(out)
+            .and_then(|mut f| f.read_exact(&mut magic))
+            .is_ok()
+            && magic == *mcap_magic()
+    };
+    if !is_mcap && !force {
+        return Err(config_error(format!(
+            "--out {}: exists and is not an MCAP log; refusing to overwrite it (choose another path or add --force)",
+            out.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written.
+fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
+    let fail = |e: std::io::Error| {
+        eprintln!("ehactl: --out {}: cannot write the MCAP log: {e}", out.display());
+        ExitCode::from(1)
+    };
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(fail)?;
+    }
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(out)
+        .map(drop)
+        .map_err(fail)
+}
+
+fn mcap_magic() -> &'static [u8; 8] {
+    &[0x89, b'M', b'C', b'A', b'P', 0x30, b'\r', b'\n']
+}
+
+/// `ehactl recover IN OUT`.
+fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
+    if std::fs::symlink_metadata(output).is_ok() {
+        return config_error(format!(
+            "{}: exists; recover writes a new file and never overwrites one",
+            output.display()
+        ));
+    }
+    match ehactl_hal::recover::recover(input, output) {
+        Ok(rep) => {
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({
+                        "input": input.display().to_string(),
+                        "output": output.display().to_string(),
+                        "was_complete": rep.was_complete,
+                        "stopped_early": rep.stopped_early,
+                        "chunks": rep.chunks,
+                        "bad_chunks": rep.bad_chunks,
+                        "messages": rep.messages,
+                        "last_time_s": rep.last_time_s,
+                    })
+                );
+            } else {
+                println!("ehactl recover {} → {}", input.display(), output.display());
+                println!(
+                    "  input         {}",
+                    if rep.was_complete {
+                        "complete (had its footer)"
+                    } else if rep.stopped_early {
+                        "cut off: read up to the first incomplete record"
+                    } else {
+                        "no footer"
+                    }
+                );
+                println!(
+                    "  chunks        {} kept, {} dropped (bad CRC or contents)",
+                    rep.chunks, rep.bad_chunks
+                );
+                for (topic, n) in &rep.messages {
+                    println!("  {topic:<13} {n} messages");
+                }
+                println!("  last message  t = {:.4} s", rep.last_time_s);
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("ehactl: recover: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
 /// `v` with `digits` significant digits, without float noise (`3.05`, not
 /// `3.0500000000000003`); scientific notation outside 1e-3 ≤ |v| < 1e6.
 pub(crate) fn sig(v: f64, digits: usize) -> String {
@@ -206,6 +338,22 @@ fn load(path: &Path) -> Result<RigConfig, ExitCode> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // Commands that only write to stdout end quietly when the reader goes away
+    // (`ehactl diagnose … --json | head`), as Unix filters do: SIGPIPE back to its default.
+    // Not for `run`, `set` and `canbus`, which also write to sockets: there a closed peer
+    // must be an error to handle, never a silent death with a valve attached.
+    if matches!(
+        cli.command,
+        Command::CheckConfig { .. }
+            | Command::Params
+            | Command::Analyze { .. }
+            | Command::Diagnose { .. }
+            | Command::Sweep(_)
+            | Command::Recover { .. }
+    ) {
+        // SAFETY: restoring a default signal disposition before any thread is started.
+        unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
+    }
     match cli.command {
         Command::Run {
             config,
@@ -216,17 +364,23 @@ fn main() -> ExitCode {
             control_socket,
             hal,
             bus,
+            force,
             live,
         } => cmd_run(
             &config,
             duration,
-            out,
+            (out, force),
             json,
             realtime,
             control_socket,
             (hal, bus),
             live.as_deref(),
         ),
+        Command::Recover {
+            input,
+            output,
+            json,
+        } => cmd_recover(&input, &output, json),
         Command::Set {
             socket,
             assignments,
@@ -323,7 +477,7 @@ fn rt_warning(msg: &str) {
 fn cmd_run(
     config: &Path,
     duration: Option<f64>,
-    out: Option<PathBuf>,
+    (out, force): (Option<PathBuf>, bool),
     json: bool,
     realtime: bool,
     control_socket: Option<PathBuf>,
@@ -340,6 +494,23 @@ fn cmd_run(
         }
     }
     let out = out.unwrap_or_else(|| default_log_path(config, ""));
+    if let Err(code) = check_log_path(&out, config, force).and_then(|_| check_log_writable(&out)) {
+        return code;
+    }
+    let live = Arc::new(LiveParams::new());
+    let _server = match &control_socket {
+        Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
+            Ok(s) => Some(s),
+            Err(ehactl_controller::control_socket::StartError::PathInUse(e)) => {
+                return config_error(format!("--control-socket {}: {e}", path.display()));
+            }
+            Err(e) => {
+                eprintln!("ehactl: --control-socket {}: {e}", path.display());
+                return ExitCode::from(1);
+            }
+        },
+        None => None,
+    };
     let stop = stop_flag();
     // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s); a
     // signal meanwhile ends the run at its first cycle, through the safe stop.
@@ -363,17 +534,6 @@ fn cmd_run(
     }
     let tap = live_view.as_ref().map(|v| v.tap());
     let bar = progress_bar(String::new());
-    let live = Arc::new(LiveParams::new());
-    let _server = match &control_socket {
-        Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
-            Ok(s) => Some(s),
-            Err(e) => {
-                eprintln!("ehactl: --control-socket {}: {e}", path.display());
-                return ExitCode::from(1);
-            }
-        },
-        None => None,
-    };
     let live_ref = control_socket.as_ref().map(|_| &*live);
     let result = if realtime || can_hal.is_some() {
         // The loop thread only stores the cycle count; the bar is drawn by this watcher
@@ -443,8 +603,11 @@ fn cmd_run(
     let session = match result {
         Ok(s) => s,
         Err(SessionError::Config(e)) => return config_error(format!("{}: {e}", config.display())),
-        Err(e) => {
-            eprintln!("ehactl: {e}");
+        Err(SessionError::Log(e)) => {
+            eprintln!(
+                "ehactl: {e}; the run was stopped (valve to safe command); what reached the file can be rebuilt with `ehactl recover {} NEW.mcap`",
+                e.path.display()
+            );
             return ExitCode::from(1);
         }
     };
@@ -458,7 +621,10 @@ fn cmd_run(
         });
     }
     if json {
-        println!("{summary}");
+        // Not println!: a reader that went away (`| head`) must not turn a finished run
+        // into a panic.
+        use std::io::Write;
+        let _ = writeln!(std::io::stdout(), "{summary}");
     } else {
         let o = &session.outcome;
         println!("ehactl run {}", config.display());

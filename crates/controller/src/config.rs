@@ -127,11 +127,19 @@ pub struct LogConfig {
     /// Record queue capacity (records).
     #[serde(default = "LogConfig::default_queue")]
     pub queue_capacity: u64,
+    /// Longest span of records held in an open MCAP chunk before it is closed and flushed
+    /// (s); with a simulated plant the loop also never runs more than this far ahead of the
+    /// file. Bounds what a SIGKILL or power loss can lose (`ehactl recover` rebuilds the rest).
+    #[serde(default = "LogConfig::default_chunk_interval")]
+    pub chunk_interval: f64,
 }
 
 impl LogConfig {
     fn default_queue() -> u64 {
         65_536
+    }
+    fn default_chunk_interval() -> f64 {
+        0.1
     }
 }
 
@@ -140,6 +148,7 @@ impl Default for LogConfig {
         Self {
             compression: Compression::default(),
             queue_capacity: Self::default_queue(),
+            chunk_interval: Self::default_chunk_interval(),
         }
     }
 }
@@ -274,13 +283,13 @@ pub const CONTROL_PARAMS: &[Param] = &[
     Param::float(
         "control.pi.kp",
         "V/V",
-        NonNegative,
+        Within(0.0, 1.0e3),
         "PI proportional gain K_P (004: 0.57)",
     ),
     Param::float(
         "control.pi.integral",
         "1/s",
-        NonNegative,
+        Within(0.0, 1.0e6),
         "PI integral rate I (004: 386.24)",
     ),
     Param::float(
@@ -294,7 +303,7 @@ pub const CONTROL_PARAMS: &[Param] = &[
     Param::float(
         "control.pi.tracking",
         "1/s",
-        NonNegative,
+        Within(0.0, 1.0e6),
         "back-calculation anti-windup gain",
     ),
     Param::float(
@@ -306,19 +315,19 @@ pub const CONTROL_PARAMS: &[Param] = &[
     Param::float(
         "control.pd.kp",
         "V/m",
-        NonNegative,
+        Within(0.0, 1.0e7),
         "PD proportional gain K_P (003 eq. 32)",
     ),
     Param::float(
         "control.pd.td",
         "s",
-        NonNegative,
+        Within(0.0, 10.0),
         "derivative time T_D (003 eq. 32)",
     ),
     Param::float(
         "control.pd.filter_n",
         "-",
-        NonNegative,
+        Within(0.0, 1.0e3),
         "derivative filter ratio N",
     ),
     Param::float("control.pd.u_max", "V", Positive, "command limit"),
@@ -354,8 +363,8 @@ pub const CONTROL_PARAMS: &[Param] = &[
         NonNegative,
         "dynamic amplitude",
     ),
-    Param::float("setpoint.f0", "Hz", NonNegative, "start frequency"),
-    Param::float("setpoint.f1", "Hz", NonNegative, "end frequency"),
+    Param::float("setpoint.f0", "Hz", Within(0.0, 1.0e6), "start frequency"),
+    Param::float("setpoint.f1", "Hz", Within(0.0, 1.0e6), "end frequency"),
     Param::int(
         "setpoint.steps",
         "-",
@@ -404,6 +413,18 @@ pub const CONTROL_PARAMS: &[Param] = &[
         "plausible load-cell range",
     ),
     Param::float(
+        "supervisor.saturation_window",
+        "s",
+        Within(1e-4, 1e3),
+        "trip when the command sits at a limit for > max_saturation of this window (absent = off)",
+    ),
+    Param::float(
+        "supervisor.max_saturation",
+        "-",
+        Within(0.01, 0.999),
+        "share of the saturation window allowed at a limit",
+    ),
+    Param::float(
         "supervisor.pressure_range",
         "Pa",
         Positive,
@@ -421,6 +442,12 @@ pub const CONTROL_PARAMS: &[Param] = &[
         "records",
         Within(16.0, 1.0e8),
         "logger queue capacity",
+    ),
+    Param::float(
+        "log.chunk_interval",
+        "s",
+        Within(1e-3, 10.0),
+        "longest span of records in an open MCAP chunk (bounds the loss on SIGKILL)",
     ),
     Param::int(
         "realtime.priority",
@@ -578,14 +605,7 @@ impl RigConfig {
             }
             _ => {}
         }
-        if let Some(pi) = &self.control.pi {
-            if pi.u_min >= pi.u_max {
-                return Err(ConfigError::new(
-                    "control.pi.u_min",
-                    format!("u_min {} V must be below u_max {} V", pi.u_min, pi.u_max),
-                ));
-            }
-        }
+        self.validate_control()?;
         let s = &self.setpoint;
         let need = |ok: bool, field: &str, what: &str| -> Result<(), ConfigError> {
             if ok {
@@ -641,15 +661,107 @@ impl RigConfig {
             ));
         }
         let nyq = self.run.control_rate_hz / 2.0;
-        if matches!(
-            s.kind,
-            SetpointKind::Chirp | SetpointKind::StaticDynamic | SetpointKind::Sine
-        ) && s.f0.max(s.f1) >= nyq
-        {
-            return Err(ConfigError::new(
-                "setpoint.f1",
-                format!("sweep frequency {} Hz is at or above the Nyquist frequency {} Hz of run.control_rate_hz", s.f0.max(s.f1), nyq),
-            ));
+        let swept = matches!(s.kind, SetpointKind::Chirp | SetpointKind::StaticDynamic);
+        for (field, f) in [("f0", s.f0), ("f1", s.f1)] {
+            if (swept || (s.kind == SetpointKind::Sine && field == "f0")) && f >= nyq {
+                return Err(ConfigError::new(
+                    format!("setpoint.{field}"),
+                    format!("frequency {f} Hz is at or above the Nyquist frequency {nyq} Hz of run.control_rate_hz"),
+                ));
+            }
+        }
+        self.validate_setpoint_range()?;
+        self.supervisor.validate()?;
+        Ok(())
+    }
+
+    /// Controller limits against each other and the valve's input range, and the PI
+    /// integral rate against the sample rate.
+    fn validate_control(&self) -> Result<(), ConfigError> {
+        let fs = self.plant.valve.command_full_scale;
+        let within_valve = |path: &str, u: f64| -> Result<(), ConfigError> {
+            if u.abs() > fs {
+                Err(ConfigError::new(
+                    path,
+                    format!("{u} V is beyond the valve's input range ±{fs} V (valve.command_full_scale)"),
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        if let Some(pi) = &self.control.pi {
+            if pi.u_min >= pi.u_max {
+                return Err(ConfigError::new(
+                    "control.pi.u_min",
+                    format!("u_min {} V must be below u_max {} V", pi.u_min, pi.u_max),
+                ));
+            }
+            within_valve("control.pi.u_min", pi.u_min)?;
+            within_valve("control.pi.u_max", pi.u_max)?;
+            // Backward-Euler integral: I·T_s is the share of the error added per sample;
+            // above 1/2 (T_i < 2 T_s) the integral acts faster than the loop can sample.
+            let lim = 0.5 * self.run.control_rate_hz;
+            if pi.integral > lim {
+                return Err(ConfigError::new(
+                    "control.pi.integral",
+                    format!(
+                        "{} 1/s is above half the control rate ({lim} 1/s): T_i = 1/I must be at least two control periods",
+                        pi.integral
+                    ),
+                ));
+            }
+        }
+        if let Some(pd) = &self.control.pd {
+            within_valve("control.pd.u_max", pd.u_max)?;
+        }
+        if let Some(m) = self.supervisor.max_command {
+            within_valve("supervisor.max_command", m)?;
+        }
+        Ok(())
+    }
+
+    /// The setpoint stays where the rig can go: inside the stroke (position), within what the
+    /// supply pressure can push on the larger area (force), within the valve's input range
+    /// (open loop).
+    fn validate_setpoint_range(&self) -> Result<(), ConfigError> {
+        let ((lo, lo_field), (hi, hi_field)) = crate::setpoint::envelope(&self.setpoint);
+        let out = |field: &str, v: f64, what: String| {
+            Err(ConfigError::new(
+                format!("setpoint.{field}"),
+                format!("the setpoint reaches {v} {what}"),
+            ))
+        };
+        match self.control.mode {
+            // Physical bounds only: a supervisor limit inside the setpoint's range is a
+            // legitimate way to test a trip.
+            ControlMode::Position => {
+                let stroke = self.plant.cylinder.stroke;
+                if lo < 0.0 {
+                    return out(lo_field, lo, "m, below 0 m (the stroke is [0, cylinder.stroke])".into());
+                }
+                if hi > stroke {
+                    return out(hi_field, hi, format!("m, above cylinder.stroke = {stroke} m"));
+                }
+            }
+            ControlMode::Force => {
+                let c = &self.plant.cylinder;
+                let f_max = self.plant.supply.pressure * c.area_a.max(c.area_b);
+                for (field, v) in [(lo_field, lo), (hi_field, hi)] {
+                    if v.abs() > f_max {
+                        return out(field, v, format!("N, beyond ±{f_max:.6e} N (supply.pressure × the larger piston area: more than the cylinder can push)"));
+                    }
+                }
+            }
+            ControlMode::OpenLoop => {
+                // The valve clips at full scale, so a command a little beyond it is a deliberate
+                // flat top; 1.5 × full scale is the bound diagnose also applies to `u`.
+                let fs = 1.5 * self.plant.valve.command_full_scale;
+                for (field, v) in [(lo_field, lo), (hi_field, hi)] {
+                    if v.abs() > fs {
+                        return out(field, v, format!("V, beyond ±{fs} V (1.5 × valve.command_full_scale; the valve saturates at full scale)"));
+                    }
+                }
+            }
         }
         Ok(())
     }

@@ -143,6 +143,8 @@ pub struct LoopSettings<'a> {
     pub settle_time: f64,
     /// Live gain / setpoint changes, taken over at cycle boundaries (None = fixed).
     pub live: Option<&'a LiveParams>,
+    /// Set when the log writer has failed (disk full, I/O error): the run trips.
+    pub log_failed: Option<&'a AtomicBool>,
 }
 
 /// Run the loop. `record` receives every cycle's record (the logger push), `event`
@@ -182,6 +184,19 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     while k < n {
         if settings.stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
             interrupted = true;
+            break;
+        }
+        if settings.log_failed.is_some_and(|f| f.load(Ordering::Relaxed)) {
+            trip = Some(Event {
+                t: k as f64 * dt,
+                cycle: k,
+                severity: Severity::Trip,
+                kind: EventKind::LogFailed,
+                channel: "mcap",
+                value: f64::NAN,
+                limit: f64::NAN,
+                unit: "",
+            });
             break;
         }
         let go = pacer.wait_for_cycle(k);
@@ -265,6 +280,11 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
                 break;
             }
             event(ev);
+        }
+        let saturated = terms.u != terms.u_unsat || u != terms.u;
+        if let Some(ev) = supervisor.check_saturation(t, k, saturated, dt) {
+            trip = Some(ev);
+            break;
         }
         let plant = hal.plant_state();
         let fb = controller.feedback(&meas);

@@ -230,6 +230,8 @@ pub fn open_log(
             },
             queue_capacity: cfg.log.queue_capacity as usize,
             overflow,
+            chunk_interval: cfg.log.chunk_interval,
+            max_lag: (cfg.log.chunk_interval * cfg.run.control_rate_hz).ceil() as usize,
         },
         &RunMetadata {
             config_toml: cfg.to_toml_string(),
@@ -338,6 +340,7 @@ pub fn run_with_live(
         stop: opts.stop,
         settle_time: settle,
         live,
+        log_failed: logger.as_ref().map(|l| l.failed_flag()),
     };
     let start = Instant::now();
     if let (Some(l), Some(tap)) = (logger.as_ref(), opts.tap.clone()) {

@@ -23,6 +23,31 @@ pub enum SetpointKind {
     RandomSteps,
 }
 
+/// See [`Setpoint::envelope`].
+pub fn envelope(c: &SetpointConfig) -> ((f64, &'static str), (f64, &'static str)) {
+    let order = |a: (f64, &'static str), b: (f64, &'static str)| {
+        if a.0 <= b.0 {
+            (a, b)
+        } else {
+            (b, a)
+        }
+    };
+    match c.kind {
+        SetpointKind::Step | SetpointKind::Ramp | SetpointKind::RandomSteps => {
+            order((c.initial, "initial"), (c.final_value, "final"))
+        }
+        SetpointKind::Sine | SetpointKind::Chirp => (
+            (c.offset - c.amplitude, "offset"),
+            (c.offset + c.amplitude, "offset"),
+        ),
+        // Ramp from 0 to `offset`, then the sweep around it.
+        SetpointKind::StaticDynamic => (
+            ((c.offset - c.amplitude).min(0.0), "offset"),
+            ((c.offset + c.amplitude).max(0.0), "offset"),
+        ),
+    }
+}
+
 /// Frequency sweep law.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
 #[serde(rename_all = "snake_case")]
@@ -206,6 +231,12 @@ impl Setpoint {
                 (c.initial + (c.final_value - c.initial) * r, 0.0)
             }
         }
+    }
+
+    /// Smallest and largest value the setpoint can take (its unit: N, m or V), with the
+    /// config fields that set each bound (for error messages).
+    pub fn envelope(&self) -> ((f64, &'static str), (f64, &'static str)) {
+        envelope(&self.c)
     }
 
     /// Time (s) at which the dynamic part of the setpoint starts (for analysis windows).

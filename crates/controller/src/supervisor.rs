@@ -37,11 +37,36 @@ pub struct SupervisorConfig {
     /// Plausible pressure range (Pa): readings outside [−1e5, this] are implausible.
     #[serde(default)]
     pub pressure_range: Option<f64>,
+    /// Saturation watch (s): when set, the run trips once the command has been at a limit
+    /// (the law's own or `max_command`) for more than `max_saturation` of an exponentially
+    /// weighted window of this length. Catches a loop stuck against a limit and bang-bang
+    /// limit cycling (e.g. after an absurd live gain). Off when absent.
+    #[serde(default)]
+    pub saturation_window: Option<f64>,
+    /// Share of the saturation window the command may spend at a limit (-).
+    #[serde(default = "SupervisorConfig::default_max_saturation")]
+    pub max_saturation: f64,
 }
 
 impl SupervisorConfig {
     fn default_stale() -> f64 {
         0.05
+    }
+    fn default_max_saturation() -> f64 {
+        0.9
+    }
+
+    /// Cross-field checks.
+    pub fn validate(&self) -> Result<(), ehactl_plant::ConfigError> {
+        if let (Some(lo), Some(hi)) = (self.min_position, self.max_position) {
+            if lo >= hi {
+                return Err(ehactl_plant::ConfigError::new(
+                    "supervisor.min_position",
+                    format!("min_position {lo} m must be below max_position {hi} m"),
+                ));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -57,6 +82,8 @@ impl Default for SupervisorConfig {
             stale_timeout: Self::default_stale(),
             force_range: None,
             pressure_range: None,
+            saturation_window: None,
+            max_saturation: Self::default_max_saturation(),
         }
     }
 }
@@ -78,6 +105,8 @@ pub struct Supervisor {
     last_sample_t: f64,
     last_advance_t: f64,
     command_clamped_reported: bool,
+    /// Exponentially weighted share of recent cycles spent at a command limit (-).
+    saturated_share: f64,
 }
 
 impl Supervisor {
@@ -89,6 +118,7 @@ impl Supervisor {
             last_sample_t: f64::NEG_INFINITY,
             last_advance_t: 0.0,
             command_clamped_reported: false,
+            saturated_share: 0.0,
         }
     }
 
@@ -226,6 +256,32 @@ impl Supervisor {
             }
         }
         None
+    }
+
+    /// Saturation watch (see [`SupervisorConfig::saturation_window`]): `saturated` says whether
+    /// this cycle's command sat at a limit; `dt` is the control period (s).
+    #[inline]
+    pub fn check_saturation(
+        &mut self,
+        t: f64,
+        cycle: u64,
+        saturated: bool,
+        dt: f64,
+    ) -> Option<Event> {
+        let window = self.cfg.saturation_window?;
+        let a = (dt / window).min(1.0);
+        self.saturated_share += a * (f64::from(u8::from(saturated)) - self.saturated_share);
+        (self.saturated_share > self.cfg.max_saturation).then(|| {
+            Self::trip(
+                t,
+                cycle,
+                EventKind::Saturation,
+                "command",
+                self.saturated_share,
+                self.cfg.max_saturation,
+                "-",
+            )
+        })
     }
 
     /// Limit the command; returns the command to apply and a warning the first time it clamps.

@@ -11,6 +11,7 @@
 
 pub mod logger;
 pub mod record;
+pub mod recover;
 pub mod schemas;
 pub mod sim;
 

@@ -45,6 +45,15 @@ pub struct LogOptions {
     pub queue_capacity: usize,
     /// Overflow policy.
     pub overflow: Overflow,
+    /// Longest span of record time an open chunk may hold before it is closed and flushed
+    /// to the file (s). Bounds what a SIGKILL or power loss can take: at most this much in
+    /// the open chunk, plus what waits in the queue (see `max_lag`).
+    pub chunk_interval: f64,
+    /// With [`Overflow::Block`], the producer waits once this many records are queued
+    /// (records; 0 = the whole queue). Set from `chunk_interval` × the record rate so that
+    /// a simulated run, whose loop outpaces the writer, never runs more than one chunk
+    /// interval ahead of the file.
+    pub max_lag: usize,
 }
 
 impl Default for LogOptions {
@@ -53,6 +62,8 @@ impl Default for LogOptions {
             compression: LogCompression::Lz4,
             queue_capacity: 65_536,
             overflow: Overflow::Block,
+            chunk_interval: 0.1,
+            max_lag: 0,
         }
     }
 }
@@ -276,6 +287,9 @@ struct Shared {
     summary: Mutex<Option<serde_json::Value>>,
     frames: OnceLock<Arc<FrameLog>>,
     frames_written: AtomicU64,
+    /// Set by the writer when it can no longer write (disk full, I/O error): producers stop
+    /// waiting for it and the run trips (see [`Logger::failed_flag`]).
+    failed: AtomicBool,
     tap: OnceLock<Arc<LogTap>>,
     config_msg: String,
 }
@@ -287,6 +301,7 @@ pub struct Logger {
     overflow: Overflow,
     path: PathBuf,
     capacity: usize,
+    max_lag: usize,
 }
 
 impl Logger {
@@ -407,18 +422,25 @@ impl Logger {
             summary: Mutex::new(None),
             frames: OnceLock::new(),
             frames_written: AtomicU64::new(0),
+            failed: AtomicBool::new(false),
             tap: OnceLock::new(),
             config_msg,
         });
         let sh = shared.clone();
+        let chunk_ns = (opts.chunk_interval.max(0.0) * 1e9) as u64;
         let thread = std::thread::Builder::new()
             .name("ehactl-mcap".into())
             .spawn(move || {
-                writer_loop(
+                let r = writer_loop(
                     w,
-                    sh,
+                    sh.clone(),
                     [ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log],
-                )
+                    chunk_ns,
+                );
+                if r.is_err() {
+                    sh.failed.store(true, Ordering::Release);
+                }
+                r
             })
             .map_err(|e| err(format!("cannot start writer thread: {e}")))?;
         Ok(Logger {
@@ -427,6 +449,10 @@ impl Logger {
             overflow: opts.overflow,
             path: path.to_path_buf(),
             capacity: opts.queue_capacity.max(16),
+            max_lag: match opts.max_lag {
+                0 => usize::MAX,
+                n => n.max(16),
+            },
         })
     }
 
@@ -435,10 +461,21 @@ impl Logger {
     pub fn push(&self, rec: &CycleRecord) {
         let q = &self.shared.records;
         let mut r = *rec;
+        let failed = &self.shared.failed;
+        if self.overflow == Overflow::Block && q.len() >= self.max_lag {
+            self.shared.waited.fetch_add(1, Ordering::Relaxed);
+            while q.len() >= self.max_lag && !failed.load(Ordering::Relaxed) {
+                std::thread::yield_now();
+            }
+        }
         loop {
             match q.push(r) {
                 Ok(()) => break,
                 Err(back) => match self.overflow {
+                    _ if failed.load(Ordering::Relaxed) => {
+                        self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+                        return;
+                    }
                     Overflow::Drop => {
                         self.shared.dropped.fetch_add(1, Ordering::Relaxed);
                         return;
@@ -461,9 +498,18 @@ impl Logger {
     pub fn event(&self, ev: Event) {
         let mut e = ev;
         while let Err(back) = self.shared.events.push(e) {
+            if self.shared.failed.load(Ordering::Relaxed) {
+                return;
+            }
             e = back;
             std::thread::yield_now();
         }
+    }
+
+    /// Set once the writer has failed (disk full, I/O error); the loop checks it every
+    /// cycle and trips, so a run never goes on without its log.
+    pub fn failed_flag(&self) -> &AtomicBool {
+        &self.shared.failed
     }
 
     /// Log every frame of `frames` to the `/can` channel (JSON, see [`CanFrameRecord::to_json`]).
@@ -531,12 +577,31 @@ impl Drop for Logger {
     }
 }
 
+/// An MCAP error with its cause (the mcap crate's own text hides the OS error, e.g.
+/// "No space left on device").
+fn mcap_error(e: mcap::McapError) -> String {
+    let mut msg = e.to_string();
+    let mut src = std::error::Error::source(&e);
+    while let Some(s) = src {
+        msg.push_str(": ");
+        msg.push_str(&s.to_string());
+        src = s.source();
+    }
+    msg
+}
+
 fn writer_loop(
     mut w: mcap::Writer<BufWriter<File>>,
     sh: Arc<Shared>,
     ch: [u16; 6],
+    chunk_ns: u64,
 ) -> Result<(u64, u64), String> {
     let [ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log] = ch;
+    // Record time (ns) of the first message in the open chunk; the chunk is closed and
+    // flushed to the file once it spans `chunk_ns`, and whenever the queues run dry, so a
+    // killed process loses at most one chunk interval of what the writer had taken.
+    let mut chunk_start: Option<u64> = None;
+    let mut wall_flush = std::time::Instant::now();
     let mut buf = Vec::with_capacity(256);
     let mut written = 0u64;
     let mut events = 0u64;
@@ -562,7 +627,7 @@ fn writer_loop(
                 },
                 &buf,
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(mcap_error)?;
             if rec.has_plant {
                 rec.encode_plant(&mut buf);
                 w.write_to_known_channel(
@@ -574,7 +639,7 @@ fn writer_loop(
                     },
                     &buf,
                 )
-                .map_err(|e| e.to_string())?;
+                .map_err(mcap_error)?;
             }
             if rec.encode_timing(&mut buf) {
                 w.write_to_known_channel(
@@ -586,12 +651,18 @@ fn writer_loop(
                     },
                     &buf,
                 )
-                .map_err(|e| e.to_string())?;
+                .map_err(mcap_error)?;
             }
             if let Some(tp) = sh.tap.get() {
                 tp.offer(TapMessage::Record(rec));
             }
             written += 1;
+            let start = *chunk_start.get_or_insert(ns);
+            if ns.saturating_sub(start) >= chunk_ns {
+                w.flush().map_err(mcap_error)?;
+                chunk_start = None;
+                wall_flush = std::time::Instant::now();
+            }
             if written % 4096 == 0 {
                 break;
             }
@@ -612,7 +683,7 @@ fn writer_loop(
                 },
                 ev.to_json().to_string().as_bytes(),
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(mcap_error)?;
             w.write_to_known_channel(
                 &MessageHeader {
                     channel_id: ch_log,
@@ -622,11 +693,12 @@ fn writer_loop(
                 },
                 schemas::event_to_foxglove_log(&ev).to_string().as_bytes(),
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(mcap_error)?;
             if let Some(tp) = sh.tap.get() {
                 tp.offer(TapMessage::Event(ev));
             }
             events += 1;
+            chunk_start.get_or_insert(ns);
         }
         if let Some(fl) = sh.frames.get() {
             // While closing, take what is queued now: the I/O threads may still be receiving.
@@ -649,10 +721,10 @@ fn writer_loop(
                         .to_string();
                         let s = w
                             .add_schema("ehactl.CanFrame", "jsonschema", schema.as_bytes())
-                            .map_err(|e| e.to_string())?;
+                            .map_err(mcap_error)?;
                         let c = w
                             .add_channel(s, "/can", "json", &BTreeMap::new())
-                            .map_err(|e| e.to_string())?;
+                            .map_err(mcap_error)?;
                         ch_can = Some(c);
                         c
                     }
@@ -667,8 +739,9 @@ fn writer_loop(
                     },
                     f.to_json().to_string().as_bytes(),
                 )
-                .map_err(|e| e.to_string())?;
+                .map_err(mcap_error)?;
                 frames_written += 1;
+                chunk_start.get_or_insert(ns);
                 sh.frames_written.store(frames_written, Ordering::Relaxed);
                 if !closing && n >= 4096 {
                     break;
@@ -679,6 +752,13 @@ fn writer_loop(
             break;
         }
         if idle {
+            // Nothing queued: close the open chunk once it is older than one interval of
+            // wall time too (a paused or slow loop must not keep records unflushed).
+            if chunk_start.is_some() && wall_flush.elapsed().as_nanos() as u64 >= chunk_ns {
+                w.flush().map_err(mcap_error)?;
+                chunk_start = None;
+                wall_flush = std::time::Instant::now();
+            }
             std::thread::sleep(Duration::from_micros(200));
         }
     }
@@ -696,7 +776,7 @@ fn writer_loop(
             },
             summary.to_string().as_bytes(),
         )
-        .map_err(|e| e.to_string())?;
+        .map_err(mcap_error)?;
         if let Some(tp) = sh.tap.get() {
             tp.offer(TapMessage::Summary(summary.to_string()));
         }
@@ -704,6 +784,6 @@ fn writer_loop(
     if let Some(tp) = sh.tap.get() {
         tp.close();
     }
-    w.finish().map_err(|e| e.to_string())?;
+    w.finish().map_err(mcap_error)?;
     Ok((written, events))
 }

@@ -94,6 +94,10 @@ pub enum EventKind {
     /// Something on the CAN bus worth recording (malformed or unexpected frame, EMCY, device
     /// state); the backend decides whether it also trips (then a `hal_fault` follows).
     CanBus,
+    /// The MCAP writer failed (disk full, I/O error): the run stops at once.
+    LogFailed,
+    /// The command sat at a limit for too much of the supervisor's saturation window.
+    Saturation,
 }
 
 impl EventKind {
@@ -116,6 +120,8 @@ impl EventKind {
             EventKind::ParamChange => "param_change",
             EventKind::SafeStop => "safe_stop",
             EventKind::CanBus => "can_bus",
+            EventKind::LogFailed => "log_failed",
+            EventKind::Saturation => "saturation",
         }
     }
 }

@@ -325,11 +325,22 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
 
 /// Read the `/control` channel of an ehactl MCAP log (ROS 2 CDR, see `ehactl_hal::record`).
 pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
-    use ehactl_hal::record::CONTROL_FIELDS;
     let source = path.display().to_string();
     let bytes = std::fs::read(path)
         .map_err(|e| DataError(format!("{source}: cannot read MCAP file: {e}")))?;
-    let stream = mcap::MessageStream::new(&bytes)
+    parse_mcap(&source, &bytes)
+}
+
+/// [`load_mcap`] on bytes already read (`source` names them in errors).
+pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
+    use ehactl_hal::record::CONTROL_FIELDS;
+    let source = source.to_string();
+    if let (_, Some(problem)) = ehactl_hal::recover::readable_prefix(bytes) {
+        return Err(DataError(format!(
+            "{source}: not a readable MCAP file: {problem} (a log cut off by a killed run can be rebuilt with `ehactl recover`)"
+        )));
+    }
+    let stream = mcap::MessageStream::new(bytes)
         .map_err(|e| DataError(format!("{source}: not a readable MCAP file: {e}")))?;
     let idx = |n: &str| CONTROL_FIELDS.iter().position(|f| *f == n).unwrap_or(0);
     let (i_t, i_u, i_sp) = (idx("t"), idx("command"), idx("setpoint"));
@@ -394,6 +405,14 @@ pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
     Ok(rec)
 }
 
+/// Row index and value of the largest |value| (NaN skipped).
+fn peak_row(v: &[f64]) -> (usize, f64) {
+    v.iter()
+        .enumerate()
+        .filter(|(_, x)| x.is_finite())
+        .fold((0, 0.0), |a, (i, &x)| if x.abs() > a.1 { (i, x.abs()) } else { a })
+}
+
 /// Check the record against the rig: sample period vs control period, units that look wrong
 /// (pressures in bar or MPa, positions in mm). Returns warnings; unit mismatches are errors.
 pub fn check_against(
@@ -403,6 +422,18 @@ pub fn check_against(
 ) -> Result<Vec<String>, DataError> {
     let mut w = Vec::new();
     let src = &rec.source;
+    let ratio = rec.dt / control_dt;
+    if !(0.01..=100.0).contains(&ratio) {
+        let hint = if ratio > 100.0 {
+            "; is `t` in ms or µs? expected s"
+        } else {
+            "; is `t` in ks or a sample index scaled wrongly? expected s"
+        };
+        return Err(DataError(format!(
+            "{src}: sample period {} s is {ratio:.3e} × the config's control period {control_dt} s (run.control_rate_hz){hint}",
+            rec.dt
+        )));
+    }
     if (rec.dt - control_dt).abs() > 1e-6 * control_dt {
         w.push(format!(
             "{src}: sample period {} s differs from the config's control period {} s; the plant is replayed at the data's period {} s (no resampling)",
@@ -426,11 +457,26 @@ pub fn check_against(
         let max = c.values.iter().fold(0.0f64, |a, v| a.max(v.abs()));
         match c.kind {
             ChannelKind::PressureA | ChannelKind::PressureB => {
-                if max < 1e-3 * ps && max > 0.0 {
-                    let guess = if max * 1e5 < 2.0 * ps { "bar" } else { "MPa" };
+                if max < 1e-2 * ps && max > 0.0 {
+                    // The unit that puts the record's peak nearest to ≈ 0.7 × supply.
+                    let guess = [("kPa", 1e3), ("psi", 6894.757), ("bar", 1e5), ("MPa", 1e6)]
+                        .iter()
+                        .min_by(|a, b| {
+                            let d = |f: f64| (max * f / (0.7 * ps)).ln().abs();
+                            d(a.1).total_cmp(&d(b.1))
+                        })
+                        .map_or("another unit", |g| g.0);
                     return Err(DataError(format!(
                         "{src}: column `{}` peaks at {max:.4}, which looks like {guess}, not Pa (supply.pressure is {ps:.4e} Pa); convert to Pa",
                         c.kind.column()
+                    )));
+                }
+                if max > 10.0 * ps {
+                    let (row, _) = peak_row(&c.values);
+                    return Err(DataError(format!(
+                        "{src}: column `{}` reaches {max:.4e} Pa at data row {}, more than 10 × supply.pressure {ps:.4e} Pa: not a plausible pressure; check the data and its unit (Pa)",
+                        c.kind.column(),
+                        row + 1
                     )));
                 }
                 if max > 3.0 * ps {
@@ -456,12 +502,14 @@ pub fn check_against(
             ChannelKind::Force => {
                 let fmax = ps * params.cylinder.area_a.max(params.cylinder.area_b);
                 if max > 10.0 * fmax {
+                    let (row, _) = peak_row(&c.values);
+                    return Err(DataError(format!(
+                        "{src}: column `force` reaches {max:.4e} N at data row {}, 10 × more than supply × piston area = {fmax:.4e} N: not a plausible force; check units (N, not mN)",
+                        row + 1
+                    )));
+                } else if max > 0.0 && max < 1e-2 * fmax {
                     w.push(format!(
-                        "{src}: column `force` reaches {max:.4e} N, 10 × more than supply × piston area = {fmax:.4e} N; check units (N, not mN)"
-                    ));
-                } else if max > 0.0 && max < 1e-4 * fmax {
-                    w.push(format!(
-                        "{src}: column `force` peaks at {max:.4e} N, far below supply × piston area = {fmax:.4e} N; check units (N, not kN)"
+                        "{src}: column `force` peaks at {max:.4e} N, below 1 % of supply × piston area = {fmax:.4e} N; if it is in kN, convert to N"
                     ));
                 }
             }

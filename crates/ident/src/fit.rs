@@ -37,6 +37,9 @@ impl std::fmt::Debug for FreeParam {
 
 impl FreeParam {
     fn new(name: &str, lo: f64, hi: f64, log: bool, init: f64, set: Setter) -> Self {
+        // Bounds derived from the data (e.g. a tone frequency up to Nyquist) can cross on
+        // odd records: the parameter is then pinned at `lo` instead of panicking in clamp.
+        let hi = if hi >= lo { hi } else { lo };
         Self {
             name: name.to_string(),
             lo,

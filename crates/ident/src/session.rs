@@ -74,6 +74,17 @@ pub fn run(
     };
     let rec = load(data_path)?;
     let val = validate.map(load).transpose()?;
+    // Long records take minutes; say so at once instead of going silent (the progress bar is
+    // hidden when stderr is not a terminal). Figure: 50 000 samples of the 5 kHz bench record
+    // take ≈ 21 s on 2 idle cores (BENCHMARKS.md, bench/diagnose_bench.sh).
+    let n_total = rec.t.len() + val.as_ref().map_or(0, |v| v.t.len());
+    if n_total > 50_000 {
+        eprintln!(
+            "ehactl: note: {n_total} samples to replay per candidate model; expect about {:.0} s or more on 2 cores (fits use the first {} samples of the fitting part, scoring uses all held-out samples)",
+            21.0 * n_total as f64 / 50_000.0,
+            crate::diagnose::Options::default().max_fit_samples
+        );
+    }
     if let Some(v) = &val {
         let a: Vec<_> = rec.channels.iter().map(|c| c.kind).collect();
         let b: Vec<_> = v.channels.iter().map(|c| c.kind).collect();

@@ -133,6 +133,11 @@ impl std::fmt::Display for NumericalFailure {
     }
 }
 
+/// Most substeps per control period the automatic choice may take: beyond this a run is
+/// slower than real time on a desktop core (≈ 60 ns per substep at 5 kHz), which means a
+/// parameter is outside what the rig can be.
+pub const MAX_SUBSTEPS: u32 = 10_000;
+
 /// Cross-field checks that the per-field registry cannot express.
 pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
     use crate::params::FlowForm;
@@ -363,7 +368,16 @@ impl Plant {
             params.integration.substeps
         } else {
             let n = (control_dt * omega_max / params.integration.max_omega_h).ceil();
-            n.clamp(1.0, 100_000.0) as u32
+            if !(n <= MAX_SUBSTEPS as f64) {
+                return Err(ConfigError::new(
+                    "integration.substeps",
+                    format!(
+                        "the fastest mode of this rig (ω = {omega_max:.3e} rad/s: hydraulic spring, mount or line segments) needs {n:.0} substeps per control period for ω·h ≤ {}; at most {MAX_SUBSTEPS} are allowed (slower than real time); check the line, volume, stiffness and mass parameters or raise integration.max_omega_h",
+                        params.integration.max_omega_h
+                    ),
+                ));
+            }
+            n.max(1.0) as u32
         };
         let h = control_dt / substeps as f64;
         let mut lines = lines;

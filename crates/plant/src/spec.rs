@@ -363,7 +363,7 @@ pub const PARAMS: &[Param] = &[
     p(
         "effects.valve_dynamics.natural_frequency",
         "rad/s",
-        NonNegative,
+        Within(0.0, 1.0e6),
         "spool ω_nv (004: 1507.9)",
     ),
     p(
@@ -399,13 +399,13 @@ pub const PARAMS: &[Param] = &[
     p(
         "effects.line_dynamics.length",
         "m",
-        Positive,
+        Within(1.0e-3, 1.0e3),
         "line length per side",
     ),
     p(
         "effects.line_dynamics.diameter",
         "m",
-        Positive,
+        Within(1.0e-4, 0.5),
         "line inner diameter",
     ),
     int(
