@@ -466,11 +466,10 @@ impl CanopenHal {
         })
     }
 
-    fn bring_up(
-        s: CanopenSettings,
-        t_start: Instant,
-        st: &mut Startup,
-    ) -> Result<CanopenHal, StartupError> {
+    /// The checks of the settings that need no bus (config consistency, SYNC rate against
+    /// the control rate, valve full scale, closed-centre safe command): run by
+    /// [`CanopenHal::connect`] first, and by the CLI before it opens the log.
+    pub fn check_settings(s: &CanopenSettings) -> Result<(), StartupError> {
         let c = s.canopen.clone();
         c.validate()
             .map_err(|e| StartupError::Settings(e.to_string()))?;
@@ -498,11 +497,6 @@ impl CanopenHal {
                 s.command_full_scale
             )));
         }
-        let master_hb = CanFrame::std(
-            HEARTBEAT_BASE + u16::from(c.master_node_id),
-            [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
-        );
-        let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
         // Closed centre only: the safe stop sends this setpoint and then HOLD, where the valve
         // controls to the hold setpoint 0x6314:01 = 0; any other value would open the valve
         // on a trip (a huge value saturates to a fully open spool).
@@ -516,6 +510,21 @@ impl CanopenHal {
                 s.command_full_scale
             )));
         }
+        Ok(())
+    }
+
+    fn bring_up(
+        s: CanopenSettings,
+        t_start: Instant,
+        st: &mut Startup,
+    ) -> Result<CanopenHal, StartupError> {
+        Self::check_settings(&s)?;
+        let c = s.canopen.clone();
+        let master_hb = CanFrame::std(
+            HEARTBEAT_BASE + u16::from(c.master_node_id),
+            [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
+        );
+        let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
         let mut bus = Box::new(StartBus {
             inner: bus::open(&s.bus, Duration::from_secs(3))?,
             hb: master_hb,
