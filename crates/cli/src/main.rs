@@ -493,6 +493,9 @@ fn cmd_run(
             return config_error(format!("--duration {d}: expected a finite number > 0 in s"));
         }
     }
+    if let Some(Err(e)) = live_addr.map(live::parse_addr) {
+        return config_error(e);
+    }
     let out = out.unwrap_or_else(|| default_log_path(config, ""));
     // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
     if let Err(code) = canbus::check_args(&cfg, (hal, bus.as_deref())) {
@@ -522,9 +525,6 @@ fn cmd_run(
         Ok(h) => h,
         Err(code) => return code,
     };
-    if let Some(Err(e)) = live_addr.map(live::parse_addr) {
-        return config_error(e);
-    }
     let live_view = match live_addr.map(live::LiveView::start).transpose() {
         Ok(v) => v,
         Err(e) => {
