@@ -497,6 +497,10 @@ fn cmd_run(
         return config_error(e);
     }
     let out = out.unwrap_or_else(|| default_log_path(config, ""));
+    // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
+    if let Err(code) = canbus::check_args(&cfg, (hal, bus.as_deref())) {
+        return code;
+    }
     if let Err(code) = check_log_path(&out, config, force).and_then(|_| check_log_writable(&out)) {
         return code;
     }
