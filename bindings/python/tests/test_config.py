@@ -80,7 +80,7 @@ def test_save_load_roundtrip_and_pickle(force_cfg, tmp_path):
 
 
 def test_load_errors():
-    with pytest.raises(ValueError, match="cannot read config file"):
+    with pytest.raises(FileNotFoundError, match="config file not found"):
         ehactl.Config.load("/nonexistent/x.toml")
     with pytest.raises(ValueError, match="TOML syntax error"):
         ehactl.Config.from_toml("[fluid\n")

@@ -499,7 +499,14 @@ fn cmd_run(
             return config_error(format!("--duration {d}: expected a finite number > 0 in s"));
         }
     }
+    if let Some(Err(e)) = live_addr.map(live::parse_addr) {
+        return config_error(e);
+    }
     let out = out.unwrap_or_else(|| default_log_path(config, ""));
+    // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
+    if let Err(code) = canbus::check_args(&cfg, (hal, bus.as_deref())) {
+        return code;
+    }
     if let Err(code) = check_log_path(&out, config, force).and_then(|_| check_log_writable(&out)) {
         return code;
     }
@@ -524,9 +531,6 @@ fn cmd_run(
         Ok(h) => h,
         Err(code) => return code,
     };
-    if let Some(Err(e)) = live_addr.map(live::parse_addr) {
-        return config_error(e);
-    }
     let live_view = match live_addr.map(live::LiveView::start).transpose() {
         Ok(v) => v,
         Err(e) => {
