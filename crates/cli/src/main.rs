@@ -230,13 +230,19 @@ fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(fail)?;
     }
+    let existed = std::fs::symlink_metadata(out).is_ok();
     std::fs::OpenOptions::new()
         .write(true)
         .create(true)
         .truncate(false)
         .open(out)
         .map(drop)
-        .map_err(fail)
+        .map_err(fail)?;
+    if !existed {
+        // Only a probe: a run that fails before logging must not leave an empty file.
+        let _ = std::fs::remove_file(out);
+    }
+    Ok(())
 }
 
 fn mcap_magic() -> &'static [u8; 8] {
