@@ -16,7 +16,10 @@ fn text(name: &str) -> String {
 fn err_of(text: &str) -> String {
     match RigConfig::from_toml_str(text) {
         Ok(c) => match ehactl_controller::session::build_plant(&c) {
-            Ok(p) => panic!("config should be rejected; it builds with {} substeps", p.substeps()),
+            Ok(p) => panic!(
+                "config should be rejected; it builds with {} substeps",
+                p.substeps()
+            ),
             Err(e) => e.to_string(),
         },
         Err(e) => e.to_string(),
@@ -42,7 +45,10 @@ fn min_position_above_max_position_is_a_config_error() {
         "min_position = 2.0",
     );
     let e = err_of(&t);
-    assert!(e.contains("`supervisor.min_position`") && e.contains("below max_position"), "{e}");
+    assert!(
+        e.contains("`supervisor.min_position`") && e.contains("below max_position"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -53,7 +59,10 @@ fn a_line_of_absurd_diameter_is_refused_not_run_at_100000_substeps() {
         .find(|l| l.trim_start().starts_with("diameter"))
         .expect("diameter line");
     let e = err_of(&t.replacen(line, "diameter = 1e308", 1));
-    assert!(e.contains("`effects.line_dynamics.diameter`") && e.contains("m"), "{e}");
+    assert!(
+        e.contains("`effects.line_dynamics.diameter`") && e.contains("m"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -86,7 +95,10 @@ fn absurd_valve_natural_frequency_is_refused() {
         "natural_frequency = 1e308",
     );
     let e = err_of(&t);
-    assert!(e.contains("`effects.valve_dynamics.natural_frequency`") && e.contains("rad/s"), "{e}");
+    assert!(
+        e.contains("`effects.valve_dynamics.natural_frequency`") && e.contains("rad/s"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -101,17 +113,31 @@ fn nyquist_error_names_the_field_that_is_too_high() {
 fn setpoint_outside_the_stroke_or_force_capacity_is_refused() {
     let t = replace(&text("dindorf2022_boom.toml"), "final = 0.6", "final = 5.0");
     let e = err_of(&t);
-    assert!(e.contains("`setpoint.final`") && e.contains("stroke"), "{e}");
-    let t = replace(&text("sahu2022_force.toml"), "offset = 785.0", "offset = 1e12");
+    assert!(
+        e.contains("`setpoint.final`") && e.contains("stroke"),
+        "{e}"
+    );
+    let t = replace(
+        &text("sahu2022_force.toml"),
+        "offset = 785.0",
+        "offset = 1e12",
+    );
     let e = err_of(&t);
     assert!(e.contains("`setpoint.offset`") && e.contains("N"), "{e}");
 }
 
 #[test]
 fn pi_limits_beyond_the_valve_range_are_refused() {
-    let t = replace(&text("sahu2022_force.toml"), "u_min = -10.0", "u_min = -1e9");
+    let t = replace(
+        &text("sahu2022_force.toml"),
+        "u_min = -10.0",
+        "u_min = -1e9",
+    );
     let e = err_of(&t);
-    assert!(e.contains("`control.pi.u_min`") && e.contains("command_full_scale"), "{e}");
+    assert!(
+        e.contains("`control.pi.u_min`") && e.contains("command_full_scale"),
+        "{e}"
+    );
 }
 
 /// Every value the probe got an `ok` for is now refused by the same checks as the config,
@@ -136,7 +162,10 @@ fn live_set_refuses_what_the_config_refuses() {
             .err()
             .unwrap_or_else(|| panic!("{path}={v} was accepted"));
         assert!(e.to_string().contains(expect), "{path}={v}: {e}");
-        assert_eq!(cfg, cfg0, "a refused change must leave the running config alone");
+        assert_eq!(
+            cfg, cfg0,
+            "a refused change must leave the running config alone"
+        );
     }
     // A sane change still passes.
     let mut cfg = cfg0.clone();
@@ -208,6 +237,9 @@ fn a_live_change_into_saturation_is_caught() {
     };
     let s = run_sim_live(&cfg, opts(2.0), Some(&live)).unwrap();
     writer.join().unwrap();
-    let trip = s.outcome.trip.expect("saturation trip after the live change");
+    let trip = s
+        .outcome
+        .trip
+        .expect("saturation trip after the live change");
     assert_eq!(trip.kind.as_str(), "saturation");
 }

@@ -145,7 +145,7 @@ impl std::fmt::Display for StartupError {
                 timeout_s,
             } => write!(
                 f,
-                "CANopen start-up: {device} (node {node} = 0x{node:02X}) sent no boot-up (0x{:03X} [00]) within {timeout_s} s after NMT reset communication (canopen.boot_timeout_s); is it powered, on the bus and using this node id?",
+                "CANopen start-up: {device} (node {node} = 0x{node:02X}) sent no boot-up (0x{:03X} [00]) within {timeout_s} s after NMT reset communication (canopen.boot_timeout_s) and did not answer an SDO probe of 0x1000; is it powered, on the bus and using this node id?",
                 HEARTBEAT_BASE + u16::from(*node)
             ),
             StartupError::Sdo { step, error } => {
@@ -466,11 +466,10 @@ impl CanopenHal {
         })
     }
 
-    fn bring_up(
-        s: CanopenSettings,
-        t_start: Instant,
-        st: &mut Startup,
-    ) -> Result<CanopenHal, StartupError> {
+    /// The checks of the settings that need no bus (config consistency, SYNC rate against
+    /// the control rate, valve full scale, closed-centre safe command): run by
+    /// [`CanopenHal::connect`] first, and by the CLI before it opens the log.
+    pub fn check_settings(s: &CanopenSettings) -> Result<(), StartupError> {
         let c = s.canopen.clone();
         c.validate()
             .map_err(|e| StartupError::Settings(e.to_string()))?;
@@ -498,11 +497,6 @@ impl CanopenHal {
                 s.command_full_scale
             )));
         }
-        let master_hb = CanFrame::std(
-            HEARTBEAT_BASE + u16::from(c.master_node_id),
-            [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
-        );
-        let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
         // Closed centre only: the safe stop sends this setpoint and then HOLD, where the valve
         // controls to the hold setpoint 0x6314:01 = 0; any other value would open the valve
         // on a trip (a huge value saturates to a fully open spool).
@@ -516,6 +510,21 @@ impl CanopenHal {
                 s.command_full_scale
             )));
         }
+        Ok(())
+    }
+
+    fn bring_up(
+        s: CanopenSettings,
+        t_start: Instant,
+        st: &mut Startup,
+    ) -> Result<CanopenHal, StartupError> {
+        Self::check_settings(&s)?;
+        let c = s.canopen.clone();
+        let master_hb = CanFrame::std(
+            HEARTBEAT_BASE + u16::from(c.master_node_id),
+            [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
+        );
+        let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
         let mut bus = Box::new(StartBus {
             inner: bus::open(&s.bus, Duration::from_secs(3))?,
             hb: master_hb,
@@ -542,12 +551,35 @@ impl CanopenHal {
         while !st.booted.iter().all(|b| *b) {
             let left = boot_deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
-                let i = st.booted.iter().position(|b| !b).unwrap_or(0);
-                return Err(StartupError::NoBoot {
-                    device: [Dev::Transducer, Dev::Valve][i].name(),
-                    node: ids[i],
-                    timeout_s: c.boot_timeout_s,
-                });
+                // A missed boot-up is answered by an SDO probe (read 0x1000): some slaves
+                // (e.g. python `canopen`'s LocalNode) send no boot-up after NMT reset
+                // communication, and a boot-up can be lost while the master connects. A
+                // device that answers is there; one that does not is reported.
+                let sdo_t = Duration::from_millis(u64::from(c.sdo_timeout_ms));
+                for i in 0..2 {
+                    if st.booted[i] {
+                        continue;
+                    }
+                    let mut cl = SdoClient::new(ids[i], sdo_t);
+                    let req = cl.upload(0x1000, 0);
+                    let ok = sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d))
+                        .is_ok();
+                    if !ok {
+                        return Err(StartupError::NoBoot {
+                            device: [Dev::Transducer, Dev::Valve][i].name(),
+                            node: ids[i],
+                            timeout_s: c.boot_timeout_s,
+                        });
+                    }
+                    if s.verbose {
+                        eprintln!(
+                            "canopen: node {} (0x{:02X}) sent no boot-up but answered an SDO probe of 0x1000",
+                            ids[i], ids[i]
+                        );
+                    }
+                    st.booted[i] = true;
+                }
+                continue;
             }
             if let Some(f) = bus.recv_timeout(left.min(Duration::from_millis(50)))? {
                 st.observe(&f, Direction::Rx);
@@ -656,15 +688,44 @@ impl CanopenHal {
         }
         let tr = ids[0];
         let va = ids[1];
-        write(
-            &mut *bus,
-            st,
-            tr,
-            cia406::POSITION_STEP,
-            1,
-            &c.position_step_nm.to_le_bytes(),
-            "setting the transducer position step (canopen.position_step_nm)",
-        )?;
+        // Position step: read first and written only if it differs. 0x6005 is read-only on
+        // several transducers (e.g. Temposonics): there a matching value passes, a different
+        // one is an error naming the device's value.
+        let want = c.position_step_nm.to_le_bytes();
+        let have = {
+            let mut cl = SdoClient::new(tr, sdo_t);
+            let req = cl.upload(cia406::POSITION_STEP, 1);
+            sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d))
+                .ok()
+                .map(|()| cl.data().to_vec())
+        };
+        let have_nm = have
+            .as_ref()
+            .filter(|h| h.len() == 4)
+            .map(|h| u32::from_le_bytes([h[0], h[1], h[2], h[3]]));
+        if have_nm != Some(c.position_step_nm) {
+            let mut cl = SdoClient::new(tr, sdo_t);
+            let req = cl.download(cia406::POSITION_STEP, 1, &want);
+            match sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d)) {
+                Ok(()) => {}
+                Err(SdoError::Abort { code, .. }) if code == 0x0601_0002 && have_nm.is_some() => {
+                    return Err(StartupError::Device(format!(
+                        "transducer (node {tr}) position step 0x6005:01 is read-only and is {} nm, not canopen.position_step_nm = {} nm; set canopen.position_step_nm = {}",
+                        have_nm.unwrap_or(0),
+                        c.position_step_nm,
+                        have_nm.unwrap_or(0)
+                    )))
+                }
+                Err(error) => {
+                    return Err(StartupError::Sdo {
+                        step: format!(
+                            "setting the transducer position step (canopen.position_step_nm) (write 0x6005:01 on node {tr} = 0x{tr:02X})"
+                        ),
+                        error,
+                    })
+                }
+            }
+        }
         write(
             &mut *bus,
             st,

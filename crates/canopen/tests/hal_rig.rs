@@ -51,6 +51,10 @@ const V_FULL: f64 = 0.1;
 #[derive(Default)]
 struct Knobs {
     no_boot_valve: AtomicBool,
+    /// The valve resets and answers SDO but sends no boot-up message.
+    no_boot_message_valve: AtomicBool,
+    /// Non-zero: the transducer's position step 0x6005:01 is read-only with this value (nm).
+    position_step_ro: AtomicU32,
     silence_valve: AtomicBool,
     emcy: AtomicBool,
     leave_active: AtomicBool,
@@ -175,9 +179,12 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                                     n.id == VA && knobs.no_boot_valve.load(Ordering::Relaxed);
                                 if !silent {
                                     n.nmt = 0x7F;
+                                    // like canopen's LocalNode: no boot-up after a reset
+                                    let quiet = n.id == VA
+                                        && knobs.no_boot_message_valve.load(Ordering::Relaxed);
                                     send(
                                         &mut bus,
-                                        false,
+                                        quiet,
                                         CanFrame::std(0x700 + u16::from(n.id), [0]),
                                     );
                                 }
@@ -221,7 +228,9 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         continue;
                     };
                     let node = nodes[k].id;
-                    let silent = node == VA && silent_va;
+                    // a valve that is not there (no_boot_valve) answers nothing
+                    let silent =
+                        node == VA && (silent_va || knobs.no_boot_valve.load(Ordering::Relaxed));
                     let index = u16::from_le_bytes([f.data[1], f.data[2]]);
                     let sub = f.data[3];
                     let cs = f.data[0];
@@ -230,6 +239,16 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         d[4..4 + data.len()].copy_from_slice(data);
                         CanFrame::std(0x580 + u16::from(node), d)
                     };
+                    let ro_step = knobs.position_step_ro.load(Ordering::Relaxed);
+                    if ro_step != 0 && node == TR && index == 0x6005 {
+                        if cs == 0x40 {
+                            send(&mut bus, false, reply(0x43, &ro_step.to_le_bytes()));
+                        } else {
+                            // write to a read-only object
+                            send(&mut bus, false, reply(0x80, &0x0601_0002u32.to_le_bytes()));
+                        }
+                        continue;
+                    }
                     if cs & 0xE0 == 0x20 {
                         if node == VA
                             && u32::from(index) == knobs.abort_index.load(Ordering::Relaxed)
@@ -657,9 +676,14 @@ fn a_device_that_never_boots_is_named() {
         seen.contains(&(false, 0x700 + u32::from(TR), vec![0])),
         "{seen:?}"
     );
+    // nothing from the valve; the master's SDO probe of 0x1000 went unanswered
     assert!(!seen
         .iter()
-        .any(|(_, id, _)| *id & 0x7F == u32::from(VA) && *id != 0x000));
+        .any(|(tx, id, _)| !*tx && *id & 0x7F == u32::from(VA) && *id != 0x000));
+    assert!(
+        seen.contains(&(true, 0x630, vec![0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])),
+        "{seen:?}"
+    );
     assert!(failure.frames.iter().all(|r| r.t_ns <= 0));
     assert!(
         failure.frames[0].t_ns <= -300_000_000,
@@ -872,4 +896,72 @@ fn a_sync_rate_that_does_not_divide_the_control_rate_is_refused() {
         CanopenHal::connect(settings(1, cfg)).unwrap_err(),
         StartupError::Bus(_)
     ));
+}
+
+#[test]
+fn a_missed_boot_up_is_answered_by_an_sdo_probe() {
+    // The valve resets but sends no boot-up (as python canopen's LocalNode after NMT reset
+    // communication): after boot_timeout_s the master reads 0x1000 by SDO, gets an answer and
+    // brings the rig up.
+    let (port, knobs, _one_at_a_time) = start();
+    knobs.no_boot_message_valve.store(true, Ordering::Relaxed);
+    let rig_thread = rig(port, knobs.clone());
+    let cfg = CanopenConfig {
+        boot_timeout_s: 0.3,
+        ..test_bus()
+    };
+    let mut hal = match CanopenHal::connect(settings(port, cfg)) {
+        Ok(h) => h,
+        Err(e) => panic!("{e}"),
+    };
+    let seen = knobs.seen.lock().unwrap().clone();
+    // the probe: an upload of 0x1000 to the valve before its NMT pre-operational
+    let probe = seen
+        .iter()
+        .position(|f| *f == (0x630, vec![0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0]))
+        .expect("SDO probe of the valve");
+    let preop = seen
+        .iter()
+        .position(|f| *f == (0x000, vec![0x80, VA]))
+        .expect("NMT pre-operational");
+    assert!(probe < preop);
+    let (_, _, err, _) = drive(&mut hal, 0.1, 0.0, &mut |_| {});
+    assert!(err.is_none(), "{err:?}");
+    let _ = hal.safe_stop(0.0);
+    knobs.stop.store(true, Ordering::Relaxed);
+    rig_thread.join().unwrap();
+}
+
+#[test]
+fn a_read_only_position_step_is_read_and_checked_never_written() {
+    // As on Temposonics transducers: 0x6005:01 read-only. Equal to the config: no write, the
+    // start-up goes on; different: a start-up error naming the device's value.
+    for (ro, ok) in [(1000u32, true), (5000, false)] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs.position_step_ro.store(ro, Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        let r = CanopenHal::connect(settings(port, test_bus()));
+        let seen = knobs.seen.lock().unwrap().clone();
+        let writes = seen
+            .iter()
+            .filter(|(id, d)| *id == 0x620 && d[0] & 0xE0 == 0x20 && d[1..4] == [0x05, 0x60, 0x01])
+            .count();
+        match r {
+            Ok(mut hal) => {
+                assert!(ok, "start-up should fail with a {ro} nm read-only step");
+                assert_eq!(writes, 0, "0x6005 written");
+                let _ = hal.safe_stop(0.0);
+            }
+            Err(e) => {
+                assert!(!ok, "{e}");
+                let m = e.to_string();
+                assert!(
+                    m.contains("read-only") && m.contains("position_step_nm = 5000"),
+                    "{m}"
+                );
+            }
+        }
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
 }

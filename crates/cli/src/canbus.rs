@@ -82,6 +82,37 @@ pub enum HalKind {
 /// Exit code when the hardware could not be brought up.
 pub const EXIT_STARTUP: u8 = 4;
 
+/// Check `--hal`/`--bus` and the CAN settings that need no bus (exit 2 with one line), before
+/// anything is opened or written (the log file included).
+pub fn check_args(cfg: &RigConfig, (hal, bus): (HalKind, Option<&str>)) -> Result<(), ExitCode> {
+    let arg_err = |m: String| {
+        eprintln!("ehactl: {m}");
+        ExitCode::from(2)
+    };
+    match (hal, bus) {
+        (HalKind::Sim, None) => Ok(()),
+        (HalKind::Sim, Some(b)) => Err(arg_err(format!(
+            "--bus {b} needs --hal canopen (the sim backend has no bus)"
+        ))),
+        (HalKind::Canopen, None) => Err(arg_err(
+            "--hal canopen needs --bus socketcan://IFACE or --bus socketcand://HOST:PORT/CHANNEL"
+                .into(),
+        )),
+        (HalKind::Canopen, Some(b)) => {
+            let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
+            CanopenHal::check_settings(&CanopenSettings {
+                bus: url,
+                canopen: cfg.canopen.clone(),
+                command_full_scale: cfg.plant.valve.command_full_scale,
+                control_rate_hz: cfg.run.control_rate_hz,
+                safe_command: cfg.supervisor.safe_command,
+                verbose: false,
+            })
+            .map_err(|e| arg_err(e.to_string()))
+        }
+    }
+}
+
 /// Bring the CAN rig up for `--hal canopen`; `Ok(None)` for the sim backend. A failed
 /// start-up (exit code 4) is still logged to `out`: the frames of the attempt on `/can`, a
 /// trip on `/events` and the reason in `/summary` (printed on stdout with `json`).

@@ -230,13 +230,19 @@ fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(fail)?;
     }
+    let existed = std::fs::symlink_metadata(out).is_ok();
     std::fs::OpenOptions::new()
         .write(true)
         .create(true)
         .truncate(false)
         .open(out)
         .map(drop)
-        .map_err(fail)
+        .map_err(fail)?;
+    if !existed {
+        // Only a probe: a run that fails before logging must not leave an empty file.
+        let _ = std::fs::remove_file(out);
+    }
+    Ok(())
 }
 
 fn mcap_magic() -> &'static [u8; 8] {
@@ -497,6 +503,10 @@ fn cmd_run(
         return config_error(e);
     }
     let out = out.unwrap_or_else(|| default_log_path(config, ""));
+    // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
+    if let Err(code) = canbus::check_args(&cfg, (hal, bus.as_deref())) {
+        return code;
+    }
     if let Err(code) = check_log_path(&out, config, force).and_then(|_| check_log_writable(&out)) {
         return code;
     }

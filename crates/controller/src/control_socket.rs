@@ -226,7 +226,11 @@ pub fn read_request(stream: &mut UnixStream) -> Result<String, String> {
     String::from_utf8(buf).map_err(|_| "request is not UTF-8 text".to_string())
 }
 
-fn handle(mut stream: UnixStream, cfg: &Mutex<RigConfig>, live: &LiveParams) -> std::io::Result<()> {
+fn handle(
+    mut stream: UnixStream,
+    cfg: &Mutex<RigConfig>,
+    live: &LiveParams,
+) -> std::io::Result<()> {
     let reply = match read_request(&mut stream) {
         Ok(line) => {
             let mut cfg = cfg.lock().unwrap_or_else(|p| p.into_inner());

@@ -77,10 +77,12 @@ pub fn chunk_size_plausible(compression: &str, uncompressed: u64, stored: u64) -
 /// handed to it.
 pub fn readable_prefix(data: &[u8]) -> (usize, Option<String>) {
     let u64_at = |b: &[u8], at: usize| -> Option<u64> {
-        b.get(at..at + 8).map(|s| u64::from_le_bytes(s.try_into().unwrap()))
+        b.get(at..at + 8)
+            .map(|s| u64::from_le_bytes(s.try_into().unwrap()))
     };
     let u32_at = |b: &[u8], at: usize| -> Option<u32> {
-        b.get(at..at + 4).map(|s| u32::from_le_bytes(s.try_into().unwrap()))
+        b.get(at..at + 4)
+            .map(|s| u32::from_le_bytes(s.try_into().unwrap()))
     };
     if data.len() < 8 || &data[..8] != mcap::MAGIC {
         return (0, Some("does not start with the MCAP magic bytes".into()));
@@ -91,7 +93,10 @@ pub fn readable_prefix(data: &[u8]) -> (usize, Option<String>) {
             return (pos, None);
         }
         if pos + 9 > data.len() {
-            return (pos, Some(format!("cut off at byte {pos} (a record header)")));
+            return (
+                pos,
+                Some(format!("cut off at byte {pos} (a record header)")),
+            );
         }
         let op = data[pos];
         let len = u64_at(data, pos + 1).unwrap_or(u64::MAX);
@@ -114,7 +119,8 @@ pub fn readable_prefix(data: &[u8]) -> (usize, Option<String>) {
             let parsed = (|| {
                 let uncompressed = u64_at(b, 16)?;
                 let clen = u32_at(b, 28)? as usize;
-                let compression = std::str::from_utf8(b.get(32..32usize.checked_add(clen)?)?).ok()?;
+                let compression =
+                    std::str::from_utf8(b.get(32..32usize.checked_add(clen)?)?).ok()?;
                 let stored = u64_at(b, 32 + clen)?;
                 (stored <= (b.len() - 40 - clen) as u64).then_some(())?;
                 Some((uncompressed, compression.to_string(), stored))
@@ -147,7 +153,12 @@ pub fn readable_prefix(data: &[u8]) -> (usize, Option<String>) {
 /// Decompress a chunk body (bounded by its plausible claimed size), check its CRC when it
 /// has one, and walk its records: every record length must fit. Only then may the `mcap`
 /// crate parse it (see [`readable_prefix`]).
-fn chunk_contents_valid(body: &[u8], uncompressed: u64, compression: &str, stored: u64) -> Result<(), String> {
+fn chunk_contents_valid(
+    body: &[u8],
+    uncompressed: u64,
+    compression: &str,
+    stored: u64,
+) -> Result<(), String> {
     use std::io::Read;
     let crc = u32::from_le_bytes(body[24..28].try_into().unwrap());
     let start = body.len() - stored as usize;
@@ -191,9 +202,51 @@ fn chunk_contents_valid(body: &[u8], uncompressed: u64, compression: &str, store
     Ok(())
 }
 
+/// What was read so far: schemas and channels by id, metadata and messages in file order.
+#[derive(Default)]
+struct Found {
+    schemas: HashMap<u16, Schema>,
+    channels: HashMap<u16, Channel>,
+    metadata: Vec<Metadata>,
+    messages: Vec<(MessageHeader, Vec<u8>)>,
+}
+
+impl Found {
+    /// Keep one record, top-level or from inside a chunk.
+    fn take(&mut self, rec: Record<'_>) {
+        match rec {
+            Record::Schema { header, data } => {
+                self.schemas.insert(
+                    header.id,
+                    Schema {
+                        name: header.name,
+                        encoding: header.encoding,
+                        data: data.into_owned(),
+                    },
+                );
+            }
+            Record::Channel(c) => {
+                self.channels.insert(
+                    c.id,
+                    Channel {
+                        schema_id: c.schema_id,
+                        topic: c.topic,
+                        encoding: c.message_encoding,
+                        metadata: c.metadata,
+                    },
+                );
+            }
+            Record::Message { header, data } => self.messages.push((header, data.into_owned())),
+            Record::Metadata(m) => self.metadata.push(m),
+            _ => {}
+        }
+    }
+}
+
 /// Rebuild `input` into `output` (which must not exist yet; see the CLI for the checks).
 pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
-    let data = std::fs::read(input).map_err(|e| format!("{}: cannot read: {e}", input.display()))?;
+    let data =
+        std::fs::read(input).map_err(|e| format!("{}: cannot read: {e}", input.display()))?;
     if data.len() < 8 || &data[..8] != mcap::MAGIC {
         return Err(format!(
             "{}: not an MCAP file (it does not start with the MCAP magic bytes)",
@@ -204,11 +257,7 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
         was_complete: data.len() >= 16 && &data[data.len() - 8..] == mcap::MAGIC,
         ..Default::default()
     };
-    let mut schemas: HashMap<u16, Schema> = HashMap::new();
-    let mut channels: HashMap<u16, Channel> = HashMap::new();
-    let mut metadata: Vec<Metadata> = Vec::new();
-    // Messages in file order: (channel id, header, payload).
-    let mut messages: Vec<(MessageHeader, Vec<u8>)> = Vec::new();
+    let mut found = Found::default();
     let (end, problem) = readable_prefix(&data);
     rep.stopped_early = problem.is_some();
     let reader = LinearReader::new_with_options(&data[..end], Options::IgnoreEndMagic.into())
@@ -222,103 +271,47 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
             }
         };
         match rec {
-            Record::Schema { header, data } => {
-                schemas.insert(
-                    header.id,
-                    Schema {
-                        name: header.name,
-                        encoding: header.encoding,
-                        data: data.into_owned(),
-                    },
-                );
-            }
-            Record::Channel(c) => {
-                channels.insert(
-                    c.id,
-                    Channel {
-                        schema_id: c.schema_id,
-                        topic: c.topic,
-                        encoding: c.message_encoding,
-                        metadata: c.metadata,
-                    },
-                );
-            }
-            Record::Message { header, data } => messages.push((header, data.into_owned())),
-            Record::Metadata(m) => metadata.push(m),
             Record::Chunk { header, data } => {
                 // Take the chunk whole only if every record in it parses and its CRC holds.
-                let mut inner = Vec::new();
-                let mut ok = chunk_size_plausible(
+                let plausible = chunk_size_plausible(
                     &header.compression,
                     header.uncompressed_size,
                     data.len() as u64,
                 );
-                let reader = if ok {
-                    ChunkReader::new(header, &data).ok()
-                } else {
-                    None
-                };
-                match reader {
-                    Some(cr) => {
-                        for r in cr {
-                            match r {
-                                Ok(r) => inner.push(r),
-                                Err(_) => {
-                                    ok = false;
-                                    break;
-                                }
-                            }
-                        }
+                let inner: Option<Vec<Record<'_>>> = plausible
+                    .then(|| ChunkReader::new(header, &data).ok())
+                    .flatten()
+                    .and_then(|cr| cr.collect::<Result<Vec<_>, _>>().ok());
+                match inner {
+                    Some(records) => {
+                        rep.chunks += 1;
+                        records.into_iter().for_each(|r| found.take(r));
                     }
-                    None => ok = false,
-                }
-                if !ok {
-                    rep.bad_chunks += 1;
-                    continue;
-                }
-                rep.chunks += 1;
-                for r in inner {
-                    match r {
-                        Record::Schema { header, data } => {
-                            schemas.insert(
-                                header.id,
-                                Schema {
-                                    name: header.name,
-                                    encoding: header.encoding,
-                                    data: data.into_owned(),
-                                },
-                            );
-                        }
-                        Record::Channel(c) => {
-                            channels.insert(
-                                c.id,
-                                Channel {
-                                    schema_id: c.schema_id,
-                                    topic: c.topic,
-                                    encoding: c.message_encoding,
-                                    metadata: c.metadata,
-                                },
-                            );
-                        }
-                        Record::Message { header, data } => {
-                            messages.push((header, data.into_owned()))
-                        }
-                        _ => {}
-                    }
+                    None => rep.bad_chunks += 1,
                 }
             }
             // The summary section of a complete file repeats what we already have.
             Record::DataEnd(_) | Record::Footer(_) => break,
-            _ => {}
+            other => found.take(other),
         }
     }
+    let Found {
+        schemas,
+        channels,
+        metadata,
+        messages,
+    } = found;
 
     let file = File::create_new(output)
         .map_err(|e| format!("{}: cannot create: {e}", output.display()))?;
     let mut w = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Lz4))
         .profile("ros2")
-        .library(concat!("ehactl ", env!("CARGO_PKG_VERSION"), " (recovered)"))
+        .library(concat!(
+            "ehactl ",
+            env!("CARGO_PKG_VERSION"),
+            " (recovered)"
+        ))
         .create(BufWriter::new(file))
         .map_err(|e| format!("{}: {e}", output.display()))?;
     let me = |e: mcap::McapError| format!("{}: {e}", output.display());
@@ -373,4 +366,3 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
     rep.last_time_s = last_ns as f64 * 1e-9;
     Ok(rep)
 }
-

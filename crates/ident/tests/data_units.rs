@@ -41,13 +41,18 @@ fn an_impossible_pressure_is_an_error_naming_the_row() {
         format!("0.1,{p},{}", 0.4 * ps())
     });
     let e = check(&text).unwrap_err();
-    assert!(e.contains("`p_a`") && e.contains("row 8") && e.contains("not a plausible"), "{e}");
+    assert!(
+        e.contains("`p_a`") && e.contains("row 8") && e.contains("not a plausible"),
+        "{e}"
+    );
 }
 
 #[test]
 fn time_in_integer_samples_or_microseconds_is_refused() {
     for (dt, hint) in [(1.0, "ms or µs"), (1e3, "ms or µs")] {
-        let text = rows("t,u,x", 100, dt, |k| format!("{},{}", (k as f64 * 0.2).sin(), 0.1));
+        let text = rows("t,u,x", 100, dt, |k| {
+            format!("{},{}", (k as f64 * 0.2).sin(), 0.1)
+        });
         let e = check(&text).unwrap_err();
         assert!(e.contains("sample period") && e.contains(hint), "{e}");
     }
