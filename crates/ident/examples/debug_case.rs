@@ -22,6 +22,8 @@ fn main() {
     }
     let d = ehactl_ident::diagnose(&case.nominal.plant, &case.record, None, &Default::default())
         .unwrap();
+    println!("integration {:?}", d.integration);
+    println!("baseline {:?}", d.nrmse_baseline);
     println!("tones {:?}", d.analysis_refit.tones);
     println!("estimated sensor offsets {:?}", d.sensor_offsets);
     println!(

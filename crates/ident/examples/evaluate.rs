@@ -48,6 +48,7 @@ fn main() {
     );
     let mut conf: BTreeMap<(String, String), usize> = BTreeMap::new();
     let (mut top_ok, mut exact_ok, mut false_none, mut n_hidden) = (0, 0, 0, 0);
+    let (mut unexplained_hidden, mut unexplained_clean) = (0, 0);
     let (mut clean_ok, mut n_clean) = (0, 0);
     let (mut pair_both, mut n_pair) = (0, 0);
     let mut gains = Vec::new();
@@ -64,6 +65,11 @@ fn main() {
         let t0 = std::time::Instant::now();
         let opts = Options {
             sensor_offsets: estimate_offsets,
+            // INTEGRATION_REFINEMENTS=5 gives the CLI's replay-accuracy guarantee (slower).
+            integration_refinements: std::env::var("INTEGRATION_REFINEMENTS")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0),
             ..Options::default()
         };
         let d = diagnose(&case.nominal.plant, &case.record, None, &opts).expect("diagnosis runs");
@@ -75,18 +81,20 @@ fn main() {
         } else {
             hn.join("+")
         };
-        let line = format!("seed {seed} hidden {label} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { "none".into() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
+        let line = format!("seed {seed} hidden {label} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { d.cause.clone() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
         bar.suspend(|| eprintln!("{line}"));
         let _ = writeln!(lines, "{line}");
         if hidden.is_empty() {
             n_clean += 1;
             clean_ok += (d.cause == "none") as usize;
+            unexplained_clean += (d.cause == "unexplained") as usize;
             *conf.entry(("none".into(), d.cause.clone())).or_default() += 1;
         } else {
             n_hidden += 1;
             let top = hn.contains(&d.cause.as_str());
             top_ok += top as usize;
             false_none += (d.cause == "none") as usize;
+            unexplained_hidden += (d.cause == "unexplained") as usize;
             let mut a: Vec<&str> = d.causes.iter().map(|s| s.as_str()).collect();
             let mut b = hn.clone();
             a.sort();
@@ -122,6 +130,7 @@ fn main() {
         pct(pair_both, n_pair)
     );
     let _ = writeln!(s, "| false `none` | {false_none}/{n_hidden} | 0 |");
+    let _ = writeln!(s, "| `unexplained` (hidden-effect cases / clean cases) | {unexplained_hidden}/{n_hidden} / {unexplained_clean}/{n_clean} | — |");
     let _ = writeln!(
         s,
         "| clean cases answered `none` | {clean_ok}/{n_clean} = {:.1} % | ≥ 95 % |",
@@ -151,7 +160,7 @@ fn main() {
     let cols: Vec<String> = EffectId::ALL
         .iter()
         .map(|e| e.as_str().to_string())
-        .chain(["none".to_string()])
+        .chain(["none".to_string(), "unexplained".to_string()])
         .collect();
     let _ = writeln!(s, "Confusion matrix (rows: hidden, single-effect and clean cases; columns: top cause named):\n");
     let _ = writeln!(

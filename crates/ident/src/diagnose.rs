@@ -49,6 +49,12 @@ pub struct Options {
     /// sensors' zeros are trusted and a level shift counts as model error (on data with good
     /// zeros the offsets cost accuracy, see DIAGNOSIS.md).
     pub sensor_offsets: bool,
+    /// At most this many substep refinements (each ≥ 2× the substeps) to bring the replay's
+    /// integration error below [`crate::replay::INTEGRATION_RATIO`] × the noise floor
+    /// ([`crate::replay::check_integration`]); 0 keeps the config's integration and only
+    /// reports the figure (and warns when it is not met). Default 0: each refinement at least
+    /// doubles the cost (see [`crate::session::USER_INTEGRATION_REFINEMENTS`]).
+    pub integration_refinements: u32,
 }
 
 impl Default for Options {
@@ -63,6 +69,7 @@ impl Default for Options {
             drive: Drive::Recorded,
             max_fit_samples: 12_000,
             sensor_offsets: false,
+            integration_refinements: 0,
         }
     }
 }
@@ -98,7 +105,8 @@ pub struct Candidate {
 /// Full result of a diagnosis.
 #[derive(Debug, Clone, Serialize)]
 pub struct Diagnosis {
-    /// Top effect id or `none`.
+    /// Top effect id, `none` (the nominal model explains the data within the noise) or
+    /// `unexplained` (the residual is not noise and no catalogue effect explains it).
     pub cause: String,
     /// Accepted effect ids in order of acceptance.
     pub causes: Vec<String>,
@@ -113,6 +121,11 @@ pub struct Diagnosis {
     pub nrmse_baseline: Errors,
     /// The baseline's structure and coefficients.
     pub baseline: Baseline,
+    /// Whether the extended model's held-out residual is noise (level and whiteness per
+    /// channel) and, if not, its signature.
+    pub residual_test: crate::residual::ResidualTest,
+    /// Replay accuracy: substeps chosen and the integration error left (step-halving test).
+    pub integration: crate::replay::IntegrationCheck,
     /// 1 − overall_extended/overall_nominal (-).
     pub gain: f64,
     /// Estimated noise floor of the overall held-out NRMSE (-).
@@ -460,8 +473,17 @@ pub fn diagnose(
             Drive::PositionPd(g) => format!("closed-loop replay: the rig's PD position loop (k_p = {} V/m, T_D = {} s) on the recorded `ref`", g.kp, g.td),
         }
     );
-    let fit_base = replay_params(nominal, rec);
-    let val_base = replay_params(nominal, val_rec);
+    // Replay accuracy first: the integration error must sit well below the noise floor, or
+    // it is taken for a model error (a clean record was once answered `line_dynamics`).
+    let (fit_base, integration) = crate::replay::check_integration(
+        &replay_params(nominal, rec),
+        rec,
+        n_fit.min(opts.max_fit_samples.max(100)),
+        opts.drive,
+        opts.integration_refinements,
+    );
+    let mut val_base = replay_params(nominal, val_rec);
+    val_base.integration = fit_base.integration.clone();
     let sd_fit: Vec<f64> = rec
         .channels
         .iter()
@@ -783,16 +805,35 @@ pub fn diagnose(
         BTreeMap::new()
     };
     let gain = 1.0 - ext_err.overall / nom_err.overall;
-    let cause = accepted
-        .first()
-        .map_or("none".to_string(), |e| e.as_str().to_string());
+    // `none` only when the residual is noise; otherwise `unexplained` with its signature.
+    let residual_test = crate::residual::test(
+        if accepted.is_empty() {
+            "nominal refit"
+        } else {
+            "extended"
+        },
+        val_rec,
+        &ext_val_sim,
+        val_range.clone(),
+        &floor_ch,
+    );
+    let cause = accepted.first().map_or_else(
+        || {
+            if residual_test.noise {
+                "none".to_string()
+            } else {
+                "unexplained".to_string()
+            }
+        },
+        |e| e.as_str().to_string(),
+    );
     let mut cands: Vec<Candidate> = candidates.into_values().collect();
     cands.sort_by(|a, b| {
         b.accepted
             .cmp(&a.accepted)
             .then(a.score.total_cmp(&b.score))
     });
-    let summary = summary_text(
+    let mut summary = summary_text(
         &accepted,
         &cands,
         &analysis_refit,
@@ -803,6 +844,34 @@ pub fn diagnose(
         noise_floor,
         &ambiguities,
     );
+    if let Some(sig) = &residual_test.signature {
+        let lv: Vec<String> = residual_test
+            .channels
+            .iter()
+            .map(|c| {
+                format!(
+                    "`{}` {:.1}× floor, Ljung–Box Q {:.0}{}",
+                    c.channel,
+                    c.level,
+                    c.ljung_box,
+                    if c.white { " (white)" } else { "" }
+                )
+            })
+            .collect();
+        summary = if accepted.is_empty() {
+            format!(
+                "The answer is `unexplained`, not `none`: no catalogue effect explains the discrepancy (after refitting the nominal parameters the held-out NRMSE is {:.4}, noise floor {:.4}), and the held-out residual is not noise ({}). Signature: {}.",
+                refit_err.overall, noise_floor, lv.join("; "), sig.text
+            )
+        } else {
+            format!(
+                "{summary} The remaining held-out residual is still not noise ({}): {}.",
+                lv.join("; "),
+                sig.text
+            )
+        };
+    }
+    let int_warning = integration_warning(&integration);
     let traces = Traces {
         nominal: Some(nom_sim),
         extended: ext_fit_sim,
@@ -821,6 +890,8 @@ pub fn diagnose(
         nrmse_extended: ext_err,
         nrmse_baseline,
         baseline,
+        residual_test,
+        integration,
         gain,
         noise_floor,
         candidates: cands,
@@ -841,6 +912,7 @@ pub fn diagnose(
                 [].iter()
             })
             .cloned()
+            .chain(int_warning)
             .collect(),
         analysis,
         analysis_refit,
@@ -849,6 +921,25 @@ pub fn diagnose(
         extended,
         traces,
     })
+}
+
+/// A warning when the replay's integration error is not well below the noise floor, with
+/// the `integration.max_omega_h` that would make it so (the scheme is first order: the error
+/// scales with the step).
+fn integration_warning(ig: &crate::replay::IntegrationCheck) -> Option<String> {
+    if ig.met {
+        return None;
+    }
+    let worst = ig
+        .error
+        .iter()
+        .map(|(k, e)| (k, e / ig.floor.get(k).copied().unwrap_or(0.0).max(1e-12)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
+    let need = ig.max_omega_h * ig.ratio_limit / worst.1;
+    Some(format!(
+        "replay integration error on `{}` is {:.2}× its noise floor (required ≤ {}): part of the residual may be the simulation's own error; set [plant.integration] max_omega_h = {:.3} (now {}) in the config for an accurate replay (≈ {:.0}× the run time)",
+        worst.0, worst.1, ig.ratio_limit, need, ig.max_omega_h, ig.max_omega_h / need
+    ))
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -19,6 +19,7 @@ pub mod diagnose;
 pub mod fit;
 pub mod replay;
 pub mod report;
+pub mod residual;
 pub mod session;
 pub mod synth;
 

@@ -230,3 +230,126 @@ pub fn noise_level(y: &[f64]) -> f64 {
     // with ≥ 3 half-overlapping segments the ratio is ≈ 0.9.
     (band[band.len() / 2] / 0.9 * 0.5).sqrt()
 }
+
+/// Replay accuracy: how the substeps were chosen and the integration error they leave.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct IntegrationCheck {
+    /// Substeps per sample period of the nominal model after the check.
+    pub substeps: u32,
+    /// `integration.max_omega_h` used for replay (-), the config's value or smaller.
+    pub max_omega_h: f64,
+    /// Per channel: rms difference between the replay and the replay with half the step, on
+    /// the fitting window, over the measured channel's std (NRMSE units, -). An estimate of the
+    /// replay's own integration error (the step-halving test).
+    pub error: std::collections::BTreeMap<String, f64>,
+    /// Per channel: the noise floor it is compared with (NRMSE units, -), from the nominal
+    /// replay's residual on the fitting window.
+    pub floor: std::collections::BTreeMap<String, f64>,
+    /// Required: error ≤ this fraction of the floor on every channel (-).
+    pub ratio_limit: f64,
+    /// Whether the requirement was met within the refinement budget.
+    pub met: bool,
+    /// Substep refinements made (each at least doubles the substeps).
+    pub refinements: u32,
+}
+
+/// The integration error must stay below this fraction of the noise floor (-): added in
+/// quadrature to white noise it raises the residual RMS by at most √(1 + 0.3²) − 1 ≈ 4.4 %.
+pub const INTEGRATION_RATIO: f64 = 0.3;
+
+/// Choose the replay's integration so that its own error is well below the noise floor:
+/// replay the first `n` samples with the plant's substeps N and with 2N (step halving), and
+/// while their difference exceeds [`INTEGRATION_RATIO`] × the noise floor on any channel,
+/// halve `integration.max_omega_h` (or double fixed substeps) — at most `max_refinements` times. Returns the
+/// parameters to replay with and the figures for the report.
+pub fn check_integration(
+    p: &PlantParams,
+    rec: &Record,
+    n: usize,
+    drive: Drive,
+    max_refinements: u32,
+) -> (PlantParams, IntegrationCheck) {
+    let n = n.min(rec.len());
+    let mut p = p.clone();
+    let sd: Vec<f64> = rec
+        .channels
+        .iter()
+        .map(|c| std(&c.values[..n]).max(1e-300))
+        .collect();
+    let names: Vec<String> = rec
+        .channels
+        .iter()
+        .map(|c| c.kind.column().to_string())
+        .collect();
+    // Noise floor per channel from the nominal replay's residual (as in the diagnosis).
+    let floor: Vec<f64> = match replay_with(&p, rec, n, drive) {
+        Ok(sim) => rec
+            .channels
+            .iter()
+            .zip(&sim.y)
+            .zip(&sd)
+            .map(|((c, yh), s)| {
+                let e: Vec<f64> = c.values[..n].iter().zip(yh).map(|(a, b)| a - b).collect();
+                noise_level(&e).min(noise_level(&c.values[..n])) / s
+            })
+            .collect(),
+        Err(_) => vec![0.0; sd.len()],
+    };
+    let substeps_of = |p: &PlantParams| Plant::configure(p, rec.dt).map_or(1, |pl| pl.substeps());
+    let mut refinements = 0;
+    loop {
+        let ns = substeps_of(&p);
+        let mut half = p.clone();
+        half.integration.substeps = 2 * ns;
+        let err: Vec<f64> = match (
+            replay_with(&p, rec, n, drive),
+            replay_with(&half, rec, n, drive),
+        ) {
+            (Ok(a), Ok(b)) => {
+                a.y.iter()
+                    .zip(&b.y)
+                    .zip(&sd)
+                    .map(|((ya, yb), s)| {
+                        (ya.iter()
+                            .zip(yb)
+                            .map(|(x, y)| (x - y) * (x - y))
+                            .sum::<f64>()
+                            / n.max(1) as f64)
+                            .sqrt()
+                            / s
+                    })
+                    .collect()
+            }
+            _ => vec![f64::INFINITY; sd.len()],
+        };
+        // 1e-6 of the std: numerically insignificant even on noise-free data.
+        let met = err
+            .iter()
+            .zip(&floor)
+            .all(|(e, f)| *e <= (INTEGRATION_RATIO * f).max(1e-6));
+        if met || refinements >= max_refinements {
+            let check = IntegrationCheck {
+                substeps: ns,
+                max_omega_h: p.integration.max_omega_h,
+                error: names.iter().cloned().zip(err).collect(),
+                floor: names.iter().cloned().zip(floor.iter().copied()).collect(),
+                ratio_limit: INTEGRATION_RATIO,
+                met,
+                refinements,
+            };
+            return (p, check);
+        }
+        refinements += 1;
+        if p.integration.substeps > 0 {
+            p.integration.substeps *= 2;
+        } else {
+            // Halve ω·h until the automatic choice gives at least 2N substeps.
+            for _ in 0..20 {
+                p.integration.max_omega_h *= 0.5;
+                if substeps_of(&p) >= 2 * ns {
+                    break;
+                }
+            }
+        }
+    }
+}

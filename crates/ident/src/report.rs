@@ -206,6 +206,50 @@ pub fn write_report(
             "the black-box baseline is as good or better: the physical model does not yet earn its keep on this record"
         }
     );
+    let rt = &d.residual_test;
+    let _ = writeln!(
+        r,
+        "## Is the held-out residual noise? ({} model)\n\n| channel | NRMSE / noise floor | Ljung–Box Q (20 lags; white if ≤ {:.1}) | noise |\n|---|---|---|---|",
+        rt.model,
+        crate::residual::LB_CRIT_20
+    );
+    for c in &rt.channels {
+        let _ = writeln!(
+            r,
+            "| `{}` | {:.2} | {:.1} | {} |",
+            c.channel,
+            c.level,
+            c.ljung_box,
+            if c.noise { "yes" } else { "**no**" }
+        );
+    }
+    let _ = writeln!(
+        r,
+        "\nA channel counts as noise when its level is ≤ {} or ≤ {} and white. {}\n",
+        crate::residual::LEVEL_SOFT,
+        crate::residual::LEVEL_HARD,
+        rt.signature
+            .as_ref()
+            .map_or("Every channel is noise.".to_string(), |s| format!(
+                "Signature: {}.",
+                s.text
+            ))
+    );
+    let ig = &d.integration;
+    let _ = writeln!(
+        r,
+        "Replay accuracy: {} substeps per sample (max ω·h {:.4}, {} refinement(s)); integration error by step halving on the fitting window {} vs noise floor {} — {}.\n",
+        ig.substeps,
+        ig.max_omega_h,
+        ig.refinements,
+        ig.error.iter().map(|(k, v)| format!("`{k}` {v:.2e}")).collect::<Vec<_>>().join(", "),
+        ig.floor.iter().map(|(k, v)| format!("`{k}` {v:.2e}")).collect::<Vec<_>>().join(", "),
+        if ig.met {
+            format!("below {:.0} % of the floor on every channel", ig.ratio_limit * 100.0)
+        } else {
+            "NOT below the required fraction of the floor after 5 refinements: part of the residual may be the replay's own error".to_string()
+        }
+    );
     if d.sensor_offsets.is_empty() {
         let _ = writeln!(
             r,
