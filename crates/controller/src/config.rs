@@ -289,7 +289,7 @@ pub const CONTROL_PARAMS: &[Param] = &[
     Param::float(
         "control.pi.integral",
         "1/s",
-        Within(0.0, 1.0e6),
+        Within(0.0, 1.0e9),
         "PI integral rate I (004: 386.24)",
     ),
     Param::float(
@@ -303,7 +303,7 @@ pub const CONTROL_PARAMS: &[Param] = &[
     Param::float(
         "control.pi.tracking",
         "1/s",
-        Within(0.0, 1.0e6),
+        Within(0.0, 1.0e9),
         "back-calculation anti-windup gain",
     ),
     Param::float(
