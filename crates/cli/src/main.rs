@@ -204,14 +204,7 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
             out.display()
         )));
     }
-    let is_mcap = meta.is_file() && {
-        use std::io::Read;
-        let mut magic = [0u8; 8];
-        std::fs::File::open(out)
-            .and_then(|mut f| f.read_exact(&mut magic))
-            .is_ok()
-            && magic == *mcap_magic()
-    };
+    let is_mcap = meta.is_file() && ehactl_hal::recover::is_mcap_file(out);
     if !is_mcap && !force {
         return Err(config_error(format!(
             "--out {}: exists and is not an MCAP log; refusing to overwrite it (choose another path or add --force)",
@@ -243,10 +236,6 @@ fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
         let _ = std::fs::remove_file(out);
     }
     Ok(())
-}
-
-fn mcap_magic() -> &'static [u8; 8] {
-    &[0x89, b'M', b'C', b'A', b'P', 0x30, b'\r', b'\n']
 }
 
 /// `ehactl recover IN OUT`.
