@@ -217,7 +217,10 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
 /// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written.
 fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
     let fail = |e: std::io::Error| {
-        eprintln!("ehactl: --out {}: cannot write the MCAP log: {e}", out.display());
+        eprintln!(
+            "ehactl: --out {}: cannot write the MCAP log: {e}",
+            out.display()
+        );
         ExitCode::from(1)
     };
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -597,7 +600,10 @@ fn cmd_run(
     bar.finish_and_clear();
     let live_stats = live_view.map(|v| {
         let url = v.url.clone();
-        (url, v.finish(Duration::from_secs(5), Duration::from_millis(500)))
+        (
+            url,
+            v.finish(Duration::from_secs(5), Duration::from_millis(500)),
+        )
     });
     let session = match result {
         Ok(s) => s,
@@ -650,7 +656,11 @@ fn cmd_run(
                 sig(o.rms_error_settled, 4),
                 session.unit
             );
-            println!("  max |error|   {} {}", sig(o.max_abs_error, 4), session.unit);
+            println!(
+                "  max |error|   {} {}",
+                sig(o.max_abs_error, 4),
+                session.unit
+            );
         }
         println!(
             "  speed         {}× real time ({} s wall)",
