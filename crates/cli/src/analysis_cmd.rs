@@ -140,19 +140,16 @@ pub fn sweep(args: &SweepArgs) -> ExitCode {
             ))
         }
     };
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| {
-            default_log_path(
-                config,
-                if args.open_loop {
-                    "_sweep_open"
-                } else {
-                    "_sweep"
-                },
-            )
-        });
+    let out = args.out.clone().unwrap_or_else(|| {
+        default_log_path(
+            config,
+            if args.open_loop {
+                "_sweep_open"
+            } else {
+                "_sweep"
+            },
+        )
+    });
     if args.log_every == 0 {
         return config_error("--log-every 0: expected an integer ≥ 1 (log one cycle in N)");
     }

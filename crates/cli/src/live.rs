@@ -79,9 +79,9 @@ pub fn parse_addr(addr: &str) -> Result<(String, u16), String> {
     let (host, port) = addr.rsplit_once(':').ok_or_else(|| {
         format!("--live {addr}: expected HOST:PORT, e.g. {DEFAULT_ADDR} (port 0 = any free port)")
     })?;
-    let port: u16 = port.parse().map_err(|_| {
-        format!("--live {addr}: port {port:?} is not an integer in 0..=65535")
-    })?;
+    let port: u16 = port
+        .parse()
+        .map_err(|_| format!("--live {addr}: port {port:?} is not an integer in 0..=65535"))?;
     let host = host.trim_start_matches('[').trim_end_matches(']');
     if host.is_empty() {
         return Err(format!("--live {addr}: empty host; e.g. {DEFAULT_ADDR}"));
@@ -99,19 +99,31 @@ impl LiveView {
                 &ctx,
                 "/control",
                 "cdr",
-                Schema::new("ehactl_msgs/msg/ControlCycle", "ros2msg", control_schema().into_bytes()),
+                Schema::new(
+                    "ehactl_msgs/msg/ControlCycle",
+                    "ros2msg",
+                    control_schema().into_bytes(),
+                ),
             )?,
             plant: channel(
                 &ctx,
                 "/plant",
                 "cdr",
-                Schema::new("ehactl_msgs/msg/PlantState", "ros2msg", plant_schema().into_bytes()),
+                Schema::new(
+                    "ehactl_msgs/msg/PlantState",
+                    "ros2msg",
+                    plant_schema().into_bytes(),
+                ),
             )?,
             timing: channel(
                 &ctx,
                 "/timing",
                 "cdr",
-                Schema::new("ehactl_msgs/msg/CycleTiming", "ros2msg", timing_schema().into_bytes()),
+                Schema::new(
+                    "ehactl_msgs/msg/CycleTiming",
+                    "ros2msg",
+                    timing_schema().into_bytes(),
+                ),
             )?,
             config: channel(
                 &ctx,
@@ -132,7 +144,10 @@ impl LiveView {
                 &ctx,
                 "/log",
                 "json",
-                json_schema(schemas::FOXGLOVE_LOG_SCHEMA_NAME, schemas::foxglove_log_schema()),
+                json_schema(
+                    schemas::FOXGLOVE_LOG_SCHEMA_NAME,
+                    schemas::foxglove_log_schema(),
+                ),
             )?,
             summary: channel(
                 &ctx,
@@ -146,7 +161,9 @@ impl LiveView {
             .context(&ctx)
             .bind(host.clone(), port)
             .start_blocking()
-            .map_err(|e| format!("--live {addr}: cannot start the Foxglove WebSocket server: {e}"))?;
+            .map_err(|e| {
+                format!("--live {addr}: cannot start the Foxglove WebSocket server: {e}")
+            })?;
         let url = format!("ws://{}:{}", host, server.port());
         let tap = Arc::new(LogTap::new(TAP_CAPACITY));
         let published = Arc::new(AtomicU64::new(0));
@@ -294,9 +311,14 @@ mod tests {
 
     #[test]
     fn addresses() {
-        assert_eq!(parse_addr("127.0.0.1:8765").unwrap(), ("127.0.0.1".into(), 8765));
+        assert_eq!(
+            parse_addr("127.0.0.1:8765").unwrap(),
+            ("127.0.0.1".into(), 8765)
+        );
         assert_eq!(parse_addr("[::1]:0").unwrap(), ("::1".into(), 0));
         assert!(parse_addr("8765").unwrap_err().contains("HOST:PORT"));
-        assert!(parse_addr("localhost:99999").unwrap_err().contains("0..=65535"));
+        assert!(parse_addr("localhost:99999")
+            .unwrap_err()
+            .contains("0..=65535"));
     }
 }

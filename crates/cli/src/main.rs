@@ -204,14 +204,7 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
             out.display()
         )));
     }
-    let is_mcap = meta.is_file() && {
-        use std::io::Read;
-        let mut magic = [0u8; 8];
-        std::fs::File::open(out)
-            .and_then(|mut f| f.read_exact(&mut magic))
-            .is_ok()
-            && magic == *mcap_magic()
-    };
+    let is_mcap = meta.is_file() && ehactl_hal::recover::is_mcap_file(out);
     if !is_mcap && !force {
         return Err(config_error(format!(
             "--out {}: exists and is not an MCAP log; refusing to overwrite it (choose another path or add --force)",
@@ -224,7 +217,10 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
 /// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written.
 fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
     let fail = |e: std::io::Error| {
-        eprintln!("ehactl: --out {}: cannot write the MCAP log: {e}", out.display());
+        eprintln!(
+            "ehactl: --out {}: cannot write the MCAP log: {e}",
+            out.display()
+        );
         ExitCode::from(1)
     };
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -243,10 +239,6 @@ fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
         let _ = std::fs::remove_file(out);
     }
     Ok(())
-}
-
-fn mcap_magic() -> &'static [u8; 8] {
-    &[0x89, b'M', b'C', b'A', b'P', 0x30, b'\r', b'\n']
 }
 
 /// `ehactl recover IN OUT`.
@@ -608,7 +600,10 @@ fn cmd_run(
     bar.finish_and_clear();
     let live_stats = live_view.map(|v| {
         let url = v.url.clone();
-        (url, v.finish(Duration::from_secs(5), Duration::from_millis(500)))
+        (
+            url,
+            v.finish(Duration::from_secs(5), Duration::from_millis(500)),
+        )
     });
     let session = match result {
         Ok(s) => s,
@@ -661,7 +656,11 @@ fn cmd_run(
                 sig(o.rms_error_settled, 4),
                 session.unit
             );
-            println!("  max |error|   {} {}", sig(o.max_abs_error, 4), session.unit);
+            println!(
+                "  max |error|   {} {}",
+                sig(o.max_abs_error, 4),
+                session.unit
+            );
         }
         println!(
             "  speed         {}× real time ({} s wall)",

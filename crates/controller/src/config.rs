@@ -723,10 +723,18 @@ impl RigConfig {
             ControlMode::Position => {
                 let stroke = self.plant.cylinder.stroke;
                 if lo < 0.0 {
-                    return out(lo_field, lo, "m, below 0 m (the stroke is [0, cylinder.stroke])".into());
+                    return out(
+                        lo_field,
+                        lo,
+                        "m, below 0 m (the stroke is [0, cylinder.stroke])".into(),
+                    );
                 }
                 if hi > stroke {
-                    return out(hi_field, hi, format!("m, above cylinder.stroke = {stroke} m"));
+                    return out(
+                        hi_field,
+                        hi,
+                        format!("m, above cylinder.stroke = {stroke} m"),
+                    );
                 }
             }
             ControlMode::Force => {

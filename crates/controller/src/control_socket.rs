@@ -243,26 +243,33 @@ fn handle(
     stream.write_all(b"\n")
 }
 
-/// Handle one request line; returns the reply line.
-pub fn respond(line: &str, cfg: &mut RigConfig, live: &LiveParams) -> String {
+/// Parse one request line and validate it against the running config `cfg` (the same
+/// checks as a config file): the config it would produce and the update to publish. `cfg`
+/// itself is not changed.
+pub fn parse_request(line: &str, cfg: &RigConfig) -> Result<(RigConfig, live::Update), String> {
     let mut words = line.split_whitespace();
     match words.next() {
         Some("set") => {}
         Some(other) => {
-            return format!("error: unknown request `{other}`; expected `set PATH=VALUE …`")
+            return Err(format!(
+                "unknown request `{other}`; expected `set PATH=VALUE …`"
+            ))
         }
-        None => return "error: empty request; expected `set PATH=VALUE …`".into(),
+        None => return Err("empty request; expected `set PATH=VALUE …`".into()),
     }
-    let mut parsed = Vec::new();
-    for w in words {
-        match live::parse_assignment(w) {
-            Ok(a) => parsed.push(a),
-            Err(e) => return format!("error: {e}"),
-        }
-    }
+    let parsed = words
+        .map(live::parse_assignment)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| e.to_string())?;
     let mut trial = cfg.clone();
-    let update = match live::prepare(&mut trial, &parsed) {
-        Ok(u) => u,
+    let update = live::prepare(&mut trial, &parsed).map_err(|e| e.to_string())?;
+    Ok((trial, update))
+}
+
+/// Handle one request line; returns the reply line.
+pub fn respond(line: &str, cfg: &mut RigConfig, live: &LiveParams) -> String {
+    let (trial, update) = match parse_request(line, cfg) {
+        Ok(r) => r,
         Err(e) => return format!("error: {e}"),
     };
     let text: Vec<String> = update

@@ -186,7 +186,10 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             interrupted = true;
             break;
         }
-        if settings.log_failed.is_some_and(|f| f.load(Ordering::Relaxed)) {
+        if settings
+            .log_failed
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+        {
             trip = Some(Event {
                 t: k as f64 * dt,
                 cycle: k,

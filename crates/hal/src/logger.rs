@@ -49,8 +49,8 @@ pub struct LogOptions {
     /// to the file (s). Bounds what a SIGKILL or power loss can take: at most this much in
     /// the open chunk, plus what waits in the queue (see `max_lag`).
     pub chunk_interval: f64,
-    /// With [`Overflow::Block`], the producer waits once this many records are queued
-    /// (records; 0 = the whole queue). Set from `chunk_interval` × the record rate so that
+    /// With [`Overflow::Block`], the producer waits while this many records are queued
+    /// (records; 0 or more than `queue_capacity` = the whole queue). Set from `chunk_interval` × the record rate so that
     /// a simulated run, whose loop outpaces the writer, never runs more than one chunk
     /// interval ahead of the file.
     pub max_lag: usize,
@@ -357,7 +357,8 @@ impl Logger {
             schemas::config_schema(meta.config_schema.clone()),
         )
         .map_err(me)?;
-        let s_events = json_schema(schemas::EVENT_SCHEMA_NAME, schemas::event_schema()).map_err(me)?;
+        let s_events =
+            json_schema(schemas::EVENT_SCHEMA_NAME, schemas::event_schema()).map_err(me)?;
         let s_summary =
             json_schema(schemas::SUMMARY_SCHEMA_NAME, schemas::summary_schema()).map_err(me)?;
         let s_log = json_schema(
@@ -434,7 +435,9 @@ impl Logger {
                 let r = writer_loop(
                     w,
                     sh.clone(),
-                    [ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log],
+                    [
+                        ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log,
+                    ],
                     chunk_ns,
                 );
                 if r.is_err() {
@@ -449,9 +452,10 @@ impl Logger {
             overflow: opts.overflow,
             path: path.to_path_buf(),
             capacity: opts.queue_capacity.max(16),
+            // The whole queue, or less (see LogOptions::max_lag).
             max_lag: match opts.max_lag {
-                0 => usize::MAX,
-                n => n.max(16),
+                0 => opts.queue_capacity.max(16),
+                n => n.clamp(16, opts.queue_capacity.max(16)),
             },
         })
     }
@@ -460,33 +464,19 @@ impl Logger {
     #[inline]
     pub fn push(&self, rec: &CycleRecord) {
         let q = &self.shared.records;
-        let mut r = *rec;
         let failed = &self.shared.failed;
         if self.overflow == Overflow::Block && q.len() >= self.max_lag {
+            // Simulated time: wait for the writer to make room (it always does, unless it
+            // has failed). The loop is the only producer, so the push below then succeeds.
             self.shared.waited.fetch_add(1, Ordering::Relaxed);
             while q.len() >= self.max_lag && !failed.load(Ordering::Relaxed) {
                 std::thread::yield_now();
             }
         }
-        loop {
-            match q.push(r) {
-                Ok(()) => break,
-                Err(back) => match self.overflow {
-                    _ if failed.load(Ordering::Relaxed) => {
-                        self.shared.dropped.fetch_add(1, Ordering::Relaxed);
-                        return;
-                    }
-                    Overflow::Drop => {
-                        self.shared.dropped.fetch_add(1, Ordering::Relaxed);
-                        return;
-                    }
-                    Overflow::Block => {
-                        self.shared.waited.fetch_add(1, Ordering::Relaxed);
-                        r = back;
-                        std::thread::yield_now();
-                    }
-                },
-            }
+        if q.push(*rec).is_err() {
+            // Wall clock with a full queue, or a writer that failed: lost, and counted.
+            self.shared.dropped.fetch_add(1, Ordering::Relaxed);
+            return;
         }
         let n = q.len();
         if n > self.shared.high_water.load(Ordering::Relaxed) {
@@ -590,6 +580,18 @@ fn mcap_error(e: mcap::McapError) -> String {
     msg
 }
 
+/// Close the open chunk and flush it to the file; the chunk clock starts again.
+fn close_chunk(
+    w: &mut mcap::Writer<BufWriter<File>>,
+    chunk_start: &mut Option<u64>,
+    wall_flush: &mut std::time::Instant,
+) -> Result<(), String> {
+    w.flush().map_err(mcap_error)?;
+    *chunk_start = None;
+    *wall_flush = std::time::Instant::now();
+    Ok(())
+}
+
 fn writer_loop(
     mut w: mcap::Writer<BufWriter<File>>,
     sh: Arc<Shared>,
@@ -659,9 +661,7 @@ fn writer_loop(
             written += 1;
             let start = *chunk_start.get_or_insert(ns);
             if ns.saturating_sub(start) >= chunk_ns {
-                w.flush().map_err(mcap_error)?;
-                chunk_start = None;
-                wall_flush = std::time::Instant::now();
+                close_chunk(&mut w, &mut chunk_start, &mut wall_flush)?;
             }
             if written % 4096 == 0 {
                 break;
@@ -755,9 +755,7 @@ fn writer_loop(
             // Nothing queued: close the open chunk once it is older than one interval of
             // wall time too (a paused or slow loop must not keep records unflushed).
             if chunk_start.is_some() && wall_flush.elapsed().as_nanos() as u64 >= chunk_ns {
-                w.flush().map_err(mcap_error)?;
-                chunk_start = None;
-                wall_flush = std::time::Instant::now();
+                close_chunk(&mut w, &mut chunk_start, &mut wall_flush)?;
             }
             std::thread::sleep(Duration::from_micros(200));
         }

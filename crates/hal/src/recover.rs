@@ -243,11 +243,22 @@ impl Found {
     }
 }
 
+/// Whether the file at `path` starts with the MCAP magic bytes (an MCAP log, complete or not).
+pub fn is_mcap_file(path: &Path) -> bool {
+    use std::io::Read;
+    let mut magic = [0u8; 8];
+    File::open(path)
+        .and_then(|mut f| f.read_exact(&mut magic))
+        .is_ok()
+        && magic == mcap::MAGIC
+}
+
 /// Rebuild `input` into `output` (which must not exist yet; see the CLI for the checks).
 pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
     let data =
         std::fs::read(input).map_err(|e| format!("{}: cannot read: {e}", input.display()))?;
-    if data.len() < 8 || &data[..8] != mcap::MAGIC {
+    let (end, problem) = readable_prefix(&data);
+    if end == 0 {
         return Err(format!(
             "{}: not an MCAP file (it does not start with the MCAP magic bytes)",
             input.display()
@@ -255,11 +266,10 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
     }
     let mut rep = RecoverReport {
         was_complete: data.len() >= 16 && &data[data.len() - 8..] == mcap::MAGIC,
+        stopped_early: problem.is_some(),
         ..Default::default()
     };
     let mut found = Found::default();
-    let (end, problem) = readable_prefix(&data);
-    rep.stopped_early = problem.is_some();
     let reader = LinearReader::new_with_options(&data[..end], Options::IgnoreEndMagic.into())
         .map_err(|e| format!("{}: {e}", input.display()))?;
     for rec in reader {
@@ -272,15 +282,10 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
         };
         match rec {
             Record::Chunk { header, data } => {
-                // Take the chunk whole only if every record in it parses and its CRC holds.
-                let plausible = chunk_size_plausible(
-                    &header.compression,
-                    header.uncompressed_size,
-                    data.len() as u64,
-                );
-                let inner: Option<Vec<Record<'_>>> = plausible
-                    .then(|| ChunkReader::new(header, &data).ok())
-                    .flatten()
+                // Sizes, contents and CRC were checked by `readable_prefix`; the chunk is still
+                // taken whole or not at all.
+                let inner: Option<Vec<Record<'_>>> = ChunkReader::new(header, &data)
+                    .ok()
                     .and_then(|cr| cr.collect::<Result<Vec<_>, _>>().ok());
                 match inner {
                     Some(records) => {

@@ -410,7 +410,10 @@ fn peak_row(v: &[f64]) -> (usize, f64) {
     v.iter()
         .enumerate()
         .filter(|(_, x)| x.is_finite())
-        .fold((0, 0.0), |a, (i, &x)| if x.abs() > a.1 { (i, x.abs()) } else { a })
+        .fold(
+            (0, 0.0),
+            |a, (i, &x)| if x.abs() > a.1 { (i, x.abs()) } else { a },
+        )
 }
 
 /// Check the record against the rig: sample period vs control period, units that look wrong
