@@ -63,19 +63,19 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 p.mechanics.load_stiffness = k_load;
                 p.mechanics.load_contact_position = pos * stroke;
             }
-            p.effects.friction = fric.then(|| Friction {
+            p.effects.friction = fric.then_some(Friction {
                 enabled: true,
                 static_force: 200.0,
                 coulomb_force: 150.0,
                 stribeck_velocity: 0.01,
                 viscous: 10.0,
             });
-            p.effects.valve_deadband = dband.then(|| ValveDeadband {
+            p.effects.valve_deadband = dband.then_some(ValveDeadband {
                 enabled: true,
                 overlap: 0.05,
                 zero_offset: 0.01,
             });
-            p.effects.valve_saturation = sat.then(|| ValveSaturation {
+            p.effects.valve_saturation = sat.then_some(ValveSaturation {
                 enabled: true,
                 spool_limit: 0.8,
                 max_flow: rated * 0.5,
@@ -87,20 +87,20 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 natural_frequency: wn,
                 damping_ratio: zeta,
             });
-            p.effects.internal_leakage = leak_i.then(|| Leakage {
+            p.effects.internal_leakage = leak_i.then_some(Leakage {
                 enabled: true,
                 coefficient: 1e-11,
             });
-            p.effects.external_leakage = leak_e.then(|| Leakage {
+            p.effects.external_leakage = leak_e.then_some(Leakage {
                 enabled: true,
                 coefficient: 1e-12,
             });
-            p.effects.bulk_modulus_pressure = bmp.then(|| BulkModulusPressure {
+            p.effects.bulk_modulus_pressure = bmp.then_some(BulkModulusPressure {
                 enabled: true,
                 slope: 10.0,
                 max: 2.2e9,
             });
-            p.effects.line_dynamics = lines.then(|| LineDynamics {
+            p.effects.line_dynamics = lines.then_some(LineDynamics {
                 enabled: true,
                 length: 1.0,
                 diameter: 0.01,
@@ -114,13 +114,13 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                     LineFriction::Steady
                 },
             });
-            p.effects.flexible_mount = mount.then(|| FlexibleMount {
+            p.effects.flexible_mount = mount.then_some(FlexibleMount {
                 enabled: true,
                 load_mass: 100.0,
                 stiffness: 5e4,
                 damping: 1e4,
             });
-            p.effects.time_delay = delay.then(|| TimeDelay {
+            p.effects.time_delay = delay.then_some(TimeDelay {
                 enabled: true,
                 delay: 0.0013,
             });
@@ -130,7 +130,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 frequencies: vec![225.0],
                 amplitudes: vec![1.0],
             });
-            p.effects.supply_pressure_drop = sdrop.then(|| SupplyPressureDrop {
+            p.effects.supply_pressure_drop = sdrop.then_some(SupplyPressureDrop {
                 enabled: true,
                 resistance: 1e10,
                 time_constant: 0.01,

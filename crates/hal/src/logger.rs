@@ -84,6 +84,9 @@ pub struct RunMetadata {
 }
 
 /// What the writer thread hands to a [`LogTap`]: the same messages it logs.
+/// Records are not boxed: the writer hands them over by value, and a box would allocate
+/// once per cycle for every tap.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 pub enum TapMessage {
     /// A cycle record (`/control`, `/plant`, `/timing`).
@@ -663,7 +666,7 @@ fn writer_loop(
             if ns.saturating_sub(start) >= chunk_ns {
                 close_chunk(&mut w, &mut chunk_start, &mut wall_flush)?;
             }
-            if written % 4096 == 0 {
+            if written.is_multiple_of(4096) {
                 break;
             }
         }

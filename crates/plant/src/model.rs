@@ -368,7 +368,7 @@ impl Plant {
             params.integration.substeps
         } else {
             let n = (control_dt * omega_max / params.integration.max_omega_h).ceil();
-            if !(n <= MAX_SUBSTEPS as f64) {
+            if n.is_nan() || n > MAX_SUBSTEPS as f64 {
                 return Err(ConfigError::new(
                     "integration.substeps",
                     format!(

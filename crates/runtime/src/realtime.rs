@@ -712,7 +712,7 @@ mod tests {
             x ^= x << 13;
             x ^= x >> 7;
             x ^= x << 17;
-            let v = if x % 1000 == 0 {
+            let v = if x.is_multiple_of(1000) {
                 x % 5_000_000
             } else {
                 1000 + x % 40_000
