@@ -333,7 +333,7 @@ pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
 
 /// [`load_mcap`] on bytes already read (`source` names them in errors).
 pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
-    use ehactl_hal::record::CONTROL_FIELDS;
+    use ehactl_hal::record::CycleRecord;
     let source = source.to_string();
     if let (_, Some(problem)) = ehactl_hal::recover::readable_prefix(bytes) {
         return Err(DataError(format!(
@@ -342,36 +342,14 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
     }
     let stream = mcap::MessageStream::new(bytes)
         .map_err(|e| DataError(format!("{source}: not a readable MCAP file: {e}")))?;
-    let idx = |n: &str| CONTROL_FIELDS.iter().position(|f| *f == n).unwrap_or(0);
-    let (i_t, i_u, i_sp) = (idx("t"), idx("command"), idx("setpoint"));
-    let outs = [
-        (ChannelKind::Force, idx("force")),
-        (ChannelKind::Position, idx("position")),
-        (ChannelKind::PressureA, idx("p_a")),
-        (ChannelKind::PressureB, idx("p_b")),
-        (ChannelKind::Spool, idx("spool")),
-    ];
-    let mut rows: Vec<[f64; 16]> = Vec::new();
+    let mut rows: Vec<CycleRecord> = Vec::new();
     for m in stream {
         let m = m.map_err(|e| DataError(format!("{source}: corrupt MCAP record: {e}")))?;
         if m.channel.topic != "/control" {
             continue;
         }
-        let d = &m.data;
-        if d.len() < 4 + 8 + 16 * 8 {
-            return Err(DataError(format!(
-                "{source}: /control message of {} bytes; expected {} (CDR header, cycle, 16 float64)",
-                d.len(),
-                4 + 8 + 16 * 8
-            )));
-        }
-        let mut r = [0.0; 16];
-        for (k, v) in r.iter_mut().enumerate() {
-            let o = 12 + 8 * k;
-            let mut b = [0u8; 8];
-            b.copy_from_slice(&d[o..o + 8]);
-            *v = f64::from_le_bytes(b);
-        }
+        let r = CycleRecord::decode_control(&m.data)
+            .map_err(|e| DataError(format!("{source}: {e} (MCAP sequence {})", m.sequence)))?;
         rows.push(r);
     }
     if rows.is_empty() {
@@ -379,13 +357,20 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
             "{source}: no /control messages; expected an MCAP log written by `ehactl run`"
         )));
     }
-    let col = |i: usize| rows.iter().map(|r| r[i]).collect::<Vec<f64>>();
+    let col = |f: fn(&CycleRecord) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
+    let outs: [(ChannelKind, fn(&CycleRecord) -> f64); 5] = [
+        (ChannelKind::Force, |r| r.meas.force),
+        (ChannelKind::Position, |r| r.meas.position),
+        (ChannelKind::PressureA, |r| r.meas.p_a),
+        (ChannelKind::PressureB, |r| r.meas.p_b),
+        (ChannelKind::Spool, |r| r.meas.spool),
+    ];
     let mut warnings = vec![format!(
         "{source}: closed-loop record read from MCAP; replayed open loop with the recorded valve command"
     )];
     let mut channels = Vec::new();
-    for (k, i) in outs {
-        let v = col(i);
+    for (k, f) in outs {
+        let v = col(f);
         let nan = v.iter().filter(|x| !x.is_finite()).count();
         if nan == v.len() {
             continue; // the backend did not have this sensor (NaN by convention)
@@ -400,7 +385,14 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
         }
         channels.push(Channel { kind: k, values: v });
     }
-    let mut rec = Record::from_columns(&source, col(i_t), col(i_u), channels, Some(col(i_sp)), 0)?;
+    let mut rec = Record::from_columns(
+        &source,
+        col(|r| r.t),
+        col(|r| r.command),
+        channels,
+        Some(col(|r| r.setpoint)),
+        0,
+    )?;
     rec.warnings.extend(warnings);
     Ok(rec)
 }
