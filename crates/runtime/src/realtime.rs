@@ -862,6 +862,10 @@ mod tests {
         let ev = p.take_event().unwrap();
         assert_eq!(ev.kind, EventKind::RtSetup);
         assert_eq!(ev.channel, "cpu_affinity");
-        assert!(p.take_event().is_none());
+        // Only the one set-up warning; an overrun of cycle 1 on a loaded machine is a
+        // different event and not what this test is about.
+        while let Some(ev) = p.take_event() {
+            assert_eq!(ev.kind, EventKind::Overrun, "unexpected event {ev:?}");
+        }
     }
 }
