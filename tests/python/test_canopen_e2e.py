@@ -14,7 +14,7 @@ import functools
 import pathlib
 import tempfile
 
-from simrig import BOOM, REPO, bus_url, devices as _devices, require_bindings
+from simrig import BOOM, REPO, bus_url, devices as _devices, require_bindings, syncs_between
 
 require_bindings()
 
@@ -211,10 +211,11 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
     inj = injected(dev, kind)
     t_inject = sync_times(frames)[inj["sync"] - 1]
     t_safe = safe_setpoint_time(frames, t_inject)
-    # Scheduling slack for the Python devices, the hub and the master on a loaded 2-core CI
-    # machine (as in crates/canopen/tests/hal_rig.rs): 25 ms.
-    assert 0 <= t_safe - t_inject <= HB_TIMEOUT_S + 2 * SYNC_PERIOD_S + 0.025, t_safe - t_inject
     if kind == "heartbeat-loss":
+        # Scheduling slack for the Python devices, the hub and the master on a loaded 2-core
+        # CI machine (as in crates/canopen/tests/hal_rig.rs): 25 ms.
+        assert 0 <= t_safe - t_inject <= HB_TIMEOUT_S + 2 * SYNC_PERIOD_S + 0.025, (
+            t_safe - t_inject, why(summary, ""))
         # The consumer counts (in loop time) from the cycle that took in the last valve
         # heartbeat: the trip comes the consumer time after that heartbeat reached the
         # master, within 2 SYNC periods; 10 ms below and 25 ms above for a cycle running
@@ -224,7 +225,20 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
         after_last = t_safe - hb[-1]
         assert HB_TIMEOUT_S - 0.010 <= after_last <= HB_TIMEOUT_S + 2 * SYNC_PERIOD_S + 0.025, after_last
     else:
-        assert t_safe - t_inject <= HB_TIMEOUT_S + 2 * SYNC_PERIOD_S, t_safe - t_inject
+        # Issue 15: "an injected valve fault trips ehactl within 2 SYNC periods", counted in
+        # SYNCs on the /can log (one clock) from the valve's frame that reports the fault
+        # (EMCY 0x0B0, or the first valve TPDO 0x1B0 with a status word other than ACTIVE
+        # 0x000F) to the safe setpoint RPDO of the trip. Counting SYNCs, not wall ms, keeps
+        # this independent of how loaded the machine is: the master's control cycle produces
+        # SYNC, so a stalled master stalls the count as well.
+        if kind == "emcy":
+            t_fault = min(f["t"] for f in frames if f["dir"] == "rx" and f["id"] == 0x0B0)
+        else:
+            t_fault = min(f["t"] for f in frames if f["dir"] == "rx" and f["id"] == 0x1B0
+                          and f["t"] >= t_inject and f["data"][:4] != "0f00")
+        assert t_fault <= t_safe, (t_fault, t_safe)
+        n = syncs_between(frames, t_fault, t_safe)
+        assert n <= 2, f"{n} SYNC periods from the fault frame to the trip; {why(summary, '')}"
     assert hold_written(frames, t_safe)
     # the valve got its safe command: spool command 0 V, setpoint 0, not ACTIVE
     assert dsum["last_command_v"] == 0.0 and dsum["valve_command_v"] == 0.0

@@ -32,7 +32,7 @@ COMMON = [(0x1000, 0, U32, "ro"), (0x1001, 0, U8, "ro"), (0x1017, 0, U16, "rw"),
           (0x1018, 4, U32, "ro"), (0x1800, 1, U32, "rw"), (0x1800, 2, U8, "rw"),
           (0x1A00, 0, U8, "rw"), (0x1A00, 1, U32, "rw"), (0x1016, 1, U32, "rw")]
 ICD_OBJECTS = {
-    "transducer": COMMON + [(0x6005, 1, U32, "rw"), (0x6006, 1, U32, "rw"),
+    "transducer": COMMON + [(0x6005, 1, U32, "rw"), (0x6005, 2, U32, "rw"), (0x6004, 0, I32, "ro"),
                             (0x6020, 1, I32, "ro"), (0x6030, 1, I16, "ro"), (0x6200, 0, U16, "rw")],
     "valve": COMMON + [(0x1400, 1, U32, "rw"), (0x1400, 2, U8, "rw"), (0x1600, 0, U8, "rw"),
                        (0x1600, 1, U32, "rw"), (0x6040, 0, U16, "rw"), (0x6041, 0, U16, "ro"),
@@ -60,7 +60,9 @@ def test_eds_has_icd_objects_and_defaults(which, path, node_id):
     assert _obj(od, 0x1800, 2).default == 1
     if which == "transducer":
         assert _obj(od, 0x6005, 1).default == 1000  # nm = 1 µm
-        assert _obj(od, 0x6006, 1).default == 1000  # µm/s = 1 mm/s
+        # speed step at 0x6005:02 as in the vendor manuals (Temposonics E-Series table 17)
+        assert _obj(od, 0x6005, 2).default == 1000 and 0x6006 not in od  # µm/s = 1 mm/s
+        assert _obj(od, 0x6004, 0).pdo_mappable
         assert _obj(od, 0x6200, 0).default == 0
         assert [_obj(od, 0x1A00, k).default for k in range(2)] == [1, 0x60200120]
         assert _obj(od, 0x6020, 1).pdo_mappable and _obj(od, 0x6030, 1).pdo_mappable

@@ -212,6 +212,9 @@ fn record(f: &CanFrame, t_ns: i64, tx: bool) -> CanFrameRecord {
 }
 
 const RX_QUEUE: usize = 4096;
+/// While waiting for boot-ups, nodes not heard from are probed by SDO this often (and once
+/// more at `boot_timeout_s`).
+const BOOT_PROBE_EVERY: Duration = Duration::from_millis(250);
 const TX_QUEUE: usize = 1024;
 const FRAME_LOG: usize = 1 << 17;
 /// Warning events logged per kind (the counters in the summary keep counting).
@@ -548,39 +551,47 @@ impl CanopenHal {
             )?;
         }
         let boot_deadline = Instant::now() + Duration::from_secs_f64(c.boot_timeout_s);
+        // A missed boot-up is answered by an SDO probe (read 0x1000): some slaves (python
+        // `canopen`'s LocalNode) send no boot-up after NMT reset communication, and a
+        // boot-up can be lost while the master connects. SDO is served in PRE-OPERATIONAL and
+        // OPERATIONAL only (CiA 301 table 76), so a node that answers has finished its
+        // initialisation. Probes go out every BOOT_PROBE_EVERY while waiting, a last one at
+        // the deadline; a node that never answers is reported (NoBoot).
+        let sdo_t = Duration::from_millis(u64::from(c.sdo_timeout_ms));
+        let mut next_probe = Instant::now() + BOOT_PROBE_EVERY;
         while !st.booted.iter().all(|b| *b) {
-            let left = boot_deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                // A missed boot-up is answered by an SDO probe (read 0x1000): some slaves
-                // (e.g. python `canopen`'s LocalNode) send no boot-up after NMT reset
-                // communication, and a boot-up can be lost while the master connects. A
-                // device that answers is there; one that does not is reported.
-                let sdo_t = Duration::from_millis(u64::from(c.sdo_timeout_ms));
+            let now = Instant::now();
+            let last = now >= boot_deadline;
+            if last || now >= next_probe {
                 for i in 0..2 {
                     if st.booted[i] {
                         continue;
                     }
-                    let mut cl = SdoClient::new(ids[i], sdo_t);
+                    let wait = if last { sdo_t } else { sdo_t.min(BOOT_PROBE_EVERY) };
+                    let mut cl = SdoClient::new(ids[i], wait);
                     let req = cl.upload(0x1000, 0);
                     let ok = sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d))
                         .is_ok();
-                    if !ok {
+                    if ok {
+                        if s.verbose {
+                            eprintln!(
+                                "canopen: node {} (0x{:02X}) sent no boot-up but answered an SDO probe of 0x1000",
+                                ids[i], ids[i]
+                            );
+                        }
+                        st.booted[i] = true;
+                    } else if last && !st.booted[i] {
                         return Err(StartupError::NoBoot {
                             device: [Dev::Transducer, Dev::Valve][i].name(),
                             node: ids[i],
                             timeout_s: c.boot_timeout_s,
                         });
                     }
-                    if s.verbose {
-                        eprintln!(
-                            "canopen: node {} (0x{:02X}) sent no boot-up but answered an SDO probe of 0x1000",
-                            ids[i], ids[i]
-                        );
-                    }
-                    st.booted[i] = true;
                 }
+                next_probe = Instant::now() + BOOT_PROBE_EVERY;
                 continue;
             }
+            let left = boot_deadline.min(next_probe).saturating_duration_since(now);
             if let Some(f) = bus.recv_timeout(left.min(Duration::from_millis(50)))? {
                 st.observe(&f, Direction::Rx);
             }
@@ -593,7 +604,6 @@ impl CanopenHal {
                 nmt::command(NmtCommand::EnterPreOperational, n),
             )?;
         }
-        let sdo_t = Duration::from_millis(u64::from(c.sdo_timeout_ms));
         let mut write = |bus: &mut dyn CanBus,
                          st: &mut Startup,
                          node: u8,
