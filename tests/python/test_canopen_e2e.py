@@ -34,17 +34,28 @@ def _canopen_hal_missing():
 MISSING = _canopen_hal_missing()
 pytestmark = pytest.mark.skipif(MISSING is not None, reason=MISSING or "")
 
-HB_TIMEOUT_S = 0.060  # [canopen] heartbeat_timeout_ms default
 SYNC_PERIOD_S = 1e-3  # [canopen] sync_rate_hz default
-# The devices' consumer time of ehactl's heartbeat in these tests (default 100 ms): the
-# master process, the hub and the Python devices share a loaded 2-core CI machine where a
-# process can stall for ~100 ms, which is a (correctly detected) master loss that no test
-# here but the SIGKILL one is about; as crates/canopen/tests/hal_rig.rs does for the device
-# heartbeats. The SIGKILL test checks the detection time against this value.
-DEVICE_HB_TIMEOUT_S = 0.250
+# Heartbeat timing of these tests, in both directions, written to a temp copy of the boom
+# config (defaults 20 / 60 / 100 ms): the master, the hub and the Python devices share a
+# loaded 2-core CI machine where a process can stall for ~100 ms, which is a (correctly
+# detected) device or master loss that no test here but the heartbeat ones is about; as
+# crates/canopen/tests/hal_rig.rs does. The heartbeat-loss, hub-drop and SIGKILL tests check
+# their detection times against these values, with the same structure as the defaults.
+HB_PRODUCER_MS = 50   # canopen.heartbeat_ms (devices' heartbeat)
+HB_TIMEOUT_S = 0.250  # canopen.heartbeat_timeout_ms (ehactl's consumer of the devices)
+DEVICE_HB_TIMEOUT_S = 0.250  # canopen.device_heartbeat_timeout_ms (devices' consumer of ehactl)
+RPDO_TIMEOUT_MS = 250  # canopen.valve_rpdo_timeout_ms (valve's setpoint deadline)
+# canopen.max_pdo_age_syncs (default 50): the Python devices lag up to ~75 SYNC periods behind
+# the first SYNCs of a run on the loaded machine (seen: trip at t = 75 ms); 250 as the timeouts.
+MAX_PDO_AGE_SYNCS = 250
 CAN_BOOM = pathlib.Path(tempfile.mkdtemp(prefix="ehactl_e2e_")) / "dindorf2022_boom_can.toml"
 CAN_BOOM.write_text(pathlib.Path(BOOM).read_text()
-                    + f"\n[canopen]\ndevice_heartbeat_timeout_ms = {round(DEVICE_HB_TIMEOUT_S * 1e3)}\n")
+                    + "\n[canopen]\n"
+                    + f"heartbeat_ms = {HB_PRODUCER_MS}\n"
+                    + f"heartbeat_timeout_ms = {round(HB_TIMEOUT_S * 1e3)}\n"
+                    + f"device_heartbeat_timeout_ms = {round(DEVICE_HB_TIMEOUT_S * 1e3)}\n"
+                    + f"valve_rpdo_timeout_ms = {RPDO_TIMEOUT_MS}\n"
+                    + f"max_pdo_age_syncs = {MAX_PDO_AGE_SYNCS}\n")
 CAN_BOOM = str(CAN_BOOM)
 devices = functools.partial(_devices, config=CAN_BOOM)
 
@@ -120,6 +131,10 @@ def test_boom_position_step_closes_over_can(tmp_path):
         assert rc == 0, why(summary, err)
         dsum = finish(dev)
     assert summary["trip"] is None
+    # PDO age check (issue 15): late TPDOs are counted, none reached the trip limit
+    for d in ("transducer", "valve"):
+        assert 0 <= summary["pdo_late"][d] <= summary["syncs_sent"], summary["pdo_late"]
+        assert summary["pdo_max_age_syncs"][d] <= MAX_PDO_AGE_SYNCS
     # the master brought both devices to OPERATIONAL and the valve to ACTIVE, and left the
     # valve in its safe state (HOLD, setpoint 0) at the end
     nmt = [(e["node_id"], e["state"]) for e in dev.events("nmt")]

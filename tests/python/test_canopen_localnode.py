@@ -10,6 +10,7 @@ import json
 import pathlib
 import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -23,6 +24,13 @@ require_bindings()  # the devices' plant is ehactl.Plant
 
 HERE = pathlib.Path(__file__).resolve().parent
 TR, VA = 32, 48
+# The master's timing for these tests, as in test_canopen_e2e.py (a loaded 2-core machine where
+# the Python devices stall for ~100 ms): heartbeats 50 ms / consumer 250 ms, PDO age limit 250
+# SYNC periods. Everything else (EDS files, node ids, SYNC 1 kHz) is the default.
+CAN_BOOM = pathlib.Path(tempfile.mkdtemp(prefix="ehactl_ln_")) / "dindorf2022_boom_can.toml"
+CAN_BOOM.write_text(pathlib.Path(BOOM).read_text() + "\n[canopen]\nheartbeat_ms = 50\n"
+                    "heartbeat_timeout_ms = 250\ndevice_heartbeat_timeout_ms = 250\n"
+                    "max_pdo_age_syncs = 250\n")
 
 
 class LocalNodeDevices:
@@ -70,7 +78,7 @@ def localnode_devices(port, tmp_path, *extra):
 
 
 def run_master(port, out, duration):
-    p = subprocess.run([BIN, "run", BOOM, "--hal", "canopen", "--bus", bus_url(port), "--json",
+    p = subprocess.run([BIN, "run", str(CAN_BOOM), "--hal", "canopen", "--bus", bus_url(port), "--json",
                         "--duration", str(duration), "--out", str(out)],
                        capture_output=True, text=True, timeout=90, cwd=str(REPO))
     lines = [ln for ln in p.stdout.splitlines() if ln.strip()]
