@@ -44,10 +44,15 @@ SYNC_PERIOD_S = 1e-3  # [canopen] sync_rate_hz default
 HB_PRODUCER_MS = 50   # canopen.heartbeat_ms (devices' heartbeat)
 HB_TIMEOUT_S = 0.250  # canopen.heartbeat_timeout_ms (ehactl's consumer of the devices)
 DEVICE_HB_TIMEOUT_S = 0.250  # canopen.device_heartbeat_timeout_ms (devices' consumer of ehactl)
-RPDO_TIMEOUT_MS = 250  # canopen.valve_rpdo_timeout_ms (valve's setpoint deadline)
-# canopen.max_pdo_age_syncs (default 50): the Python devices lag up to ~75 SYNC periods behind
-# the first SYNCs of a run on the loaded machine (seen: trip at t = 75 ms); 250 as the timeouts.
-MAX_PDO_AGE_SYNCS = 250
+# canopen.valve_rpdo_timeout_ms (valve's setpoint deadline): longer than the device consumer
+# time, so that the SIGKILL test sees the heartbeat path (the deadline has its own test in
+# test_devices.py)
+RPDO_TIMEOUT_MS = 400
+# canopen.max_pdo_age_syncs (default 50): on the loaded machine the Python devices (or the hub)
+# stall for up to ~300 ms while the master keeps sending SYNC (seen: TPDOs 75 and 258 SYNC
+# periods old, arriving in one burst); no test here is about PDO age (hal_rig.rs
+# late_tpdos_are_counted_and_too_old_ones_trip is), so the limit is 1 s here.
+MAX_PDO_AGE_SYNCS = 1000
 CAN_BOOM = pathlib.Path(tempfile.mkdtemp(prefix="ehactl_e2e_")) / "dindorf2022_boom_can.toml"
 CAN_BOOM.write_text(pathlib.Path(BOOM).read_text()
                     + "\n[canopen]\n"
@@ -424,7 +429,8 @@ def test_sigkill_of_ehactl_takes_the_valve_out_of_active(tmp_path):
         w.join(2)
         obs.shutdown()
         dsum = finish(dev)
-    assert m.returncode == -signal.SIGKILL
+    assert m.returncode == -signal.SIGKILL, (m.returncode, m.stdout.read()[-1500:],
+                                             m.stderr.read()[-1500:])
     assert beats, "no heartbeat of ehactl on the bus"
     t_last = max(b for b in beats if b <= t_kill + 0.05)
     assert left["state"] == "FAULT_REACTION" and "heartbeat of node 1" in left["why"], left

@@ -25,12 +25,12 @@ require_bindings()  # the devices' plant is ehactl.Plant
 HERE = pathlib.Path(__file__).resolve().parent
 TR, VA = 32, 48
 # The master's timing for these tests, as in test_canopen_e2e.py (a loaded 2-core machine where
-# the Python devices stall for ~100 ms): heartbeats 50 ms / consumer 250 ms, PDO age limit 250
-# SYNC periods. Everything else (EDS files, node ids, SYNC 1 kHz) is the default.
+# the Python devices stall for ~100-300 ms): heartbeats 50 ms / consumer 250 ms, PDO age limit
+# 1000 SYNC periods. Everything else (EDS files, node ids, SYNC 1 kHz) is the default.
 CAN_BOOM = pathlib.Path(tempfile.mkdtemp(prefix="ehactl_ln_")) / "dindorf2022_boom_can.toml"
 CAN_BOOM.write_text(pathlib.Path(BOOM).read_text() + "\n[canopen]\nheartbeat_ms = 50\n"
                     "heartbeat_timeout_ms = 250\ndevice_heartbeat_timeout_ms = 250\n"
-                    "max_pdo_age_syncs = 250\n")
+                    "max_pdo_age_syncs = 1000\n")
 
 
 class LocalNodeDevices:

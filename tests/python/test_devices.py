@@ -505,6 +505,39 @@ def test_short_rpdo_ignored_with_emcy(rig):
     assert emcys and emcys[0].code == 0x8210
 
 
+def test_rpdo_deadline_takes_an_active_valve_to_fault_hold(rig):
+    """RPDO1 event timer 0x1400:05 as deadline (CiA 301 v4.2 7.5.2.35): with setpoints every
+    SYNC the valve stays ACTIVE; when they stop (the master's cycle hung) it misses the
+    deadline, sends EMCY 0x8250 (RPDO timeout) and goes FAULT_REACTION → FAULT_HOLD. Timing in
+    bus time: not before the deadline after the last RPDO received (hub relay stamps)."""
+    net, td, va, log, dev = rig
+    deadline_s = 0.150
+    va.sdo[0x1400][5].raw = round(deadline_s * 1e3)
+    va.sdo[0x6040].raw = 0x0007
+    net.nmt.send_command(0x01)
+    time.sleep(0.05)
+    emcys = []
+    va.emcy.add_callback(emcys.append)
+    cob_rpdo = 0x200 + VALVE_ID
+    for _ in range(50):  # 50 setpoints over ~0.25 s, each within the deadline
+        net.send_message(cob_rpdo, struct.pack("<h", 0))
+        sync(net, 1, log, 0x180 + VALVE_ID)
+        time.sleep(0.004)
+    assert va.sdo[0x6041].raw == 0x000F and not emcys
+    t_last = time.time()
+    ev = dev.wait_event("rpdo-timeout", timeout=5)
+    assert abs(ev["deadline_s"] - deadline_s) < 1e-9 and ev["silent_s"] > deadline_s, ev
+    assert ev["t_wall"] - t_last >= deadline_s - 0.010, (ev, t_last)
+    dev.wait_event("state", timeout=2, state="FAULT_HOLD")
+    states = [e["state"] for e in dev.events("state")]
+    assert states[-2:] == ["FAULT_REACTION", "FAULT_HOLD"], states
+    for _ in range(100):
+        if emcys:
+            break
+        time.sleep(0.01)
+    assert emcys and emcys[0].code == 0x8250, emcys
+
+
 def test_malformed_requests_are_ignored(rig):
     """NMT with a wrong DLC, an SDO request shorter than 8 bytes and a SYNC with 2 data
     bytes are not CiA 301 frames: no state change, no answer, no plant step."""
