@@ -255,7 +255,7 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
             t_fault = min(f["t"] for f in frames if f["dir"] == "rx" and f["id"] == 0x0B0)
         else:
             t_fault = min(f["t"] for f in frames if f["dir"] == "rx" and f["id"] == 0x1B0
-                          and f["t"] >= t_inject and f["data"][:4] != "0f00")
+                          and f["t"] >= t_inject and f["data"][:4].upper() != "0F00")
         assert t_fault <= t_safe, (t_fault, t_safe)
         n = syncs_between(frames, t_fault, t_safe)
         assert n <= 2, f"{n} SYNC periods from the fault frame to the trip; {why(summary, '')}"

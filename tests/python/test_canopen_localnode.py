@@ -26,11 +26,12 @@ HERE = pathlib.Path(__file__).resolve().parent
 TR, VA = 32, 48
 # The master's timing for these tests, as in test_canopen_e2e.py (a loaded 2-core machine where
 # the Python devices stall for ~100-300 ms): heartbeats 50 ms / consumer 250 ms, PDO age limit
-# 1000 SYNC periods. Everything else (EDS files, node ids, SYNC 1 kHz) is the default.
+# 1000 SYNC periods. SYNC with counter 1..10 (0x1019 in the EDS files; LocalNode stores it).
+# Everything else (EDS files, node ids, SYNC 1 kHz) is the default.
 CAN_BOOM = pathlib.Path(tempfile.mkdtemp(prefix="ehactl_ln_")) / "dindorf2022_boom_can.toml"
 CAN_BOOM.write_text(pathlib.Path(BOOM).read_text() + "\n[canopen]\nheartbeat_ms = 50\n"
                     "heartbeat_timeout_ms = 250\ndevice_heartbeat_timeout_ms = 250\n"
-                    "max_pdo_age_syncs = 1000\n")
+                    "max_pdo_age_syncs = 1000\nsync_counter_overflow = 10\n")
 
 
 class LocalNodeDevices:
@@ -132,6 +133,17 @@ def test_localnode_devices_close_a_3s_loop(tmp_path):
                     and f["t"] > reset[0]], "LocalNode unexpectedly sent a boot-up"
         assert any(f["id"] == 0x600 + node and f["data"].startswith("40001000") for f in tx)
         assert any(f["id"] == 0x580 + node and f["data"].startswith("43001000") for f in rx)
+    # SYNC counter (CiA 301 7.2.5): 0x1006 cleared, 0x1019 = 10 written to both nodes (SDO
+    # expedited download, 1 byte), then SYNC k carries 1 + (k - 1) mod 10 (the priming SYNC
+    # is SYNC 1)
+    for node in (TR, VA):
+        writes = [f["data"].upper() for f in tx if f["id"] == 0x600 + node
+                  and f["data"][:2].upper() in ("2F", "23")]
+        assert "2F1910000A000000" in writes, writes
+        k19 = writes.index("2F1910000A000000")
+        assert "2306100000000000" in writes[:k19], writes
+    counters = [int(f["data"], 16) for f in tx if f["id"] == 0x80]
+    assert counters == [1 + k % 10 for k in range(len(counters))], counters[:30]
     # every SYNC the master sent reached the devices; every TPDO LocalNode sent is in the
     # log but those answering the last SYNC (safe stop) after the master stopped listening
     syncs = sum(1 for f in tx if f["id"] == 0x80)
