@@ -133,15 +133,15 @@ def test_localnode_devices_close_a_3s_loop(tmp_path):
                     and f["t"] > reset[0]], "LocalNode unexpectedly sent a boot-up"
         assert any(f["id"] == 0x600 + node and f["data"].startswith("40001000") for f in tx)
         assert any(f["id"] == 0x580 + node and f["data"].startswith("43001000") for f in rx)
-    # SYNC counter (CiA 301 7.2.5): 0x1006 cleared, 0x1019 = 10 written to both nodes (SDO
-    # expedited download, 1 byte), then SYNC k carries 1 + (k - 1) mod 10 (the priming SYNC
-    # is SYNC 1)
+    # SYNC counter (CiA 301 7.2.5): 0x1019 = 10 written to both nodes (SDO expedited download,
+    # 1 byte) while 0x1006 is 0 (read first: 0 on a fresh node, so not written), then 0x1006 =
+    # 1000 µs; SYNC k carries 1 + (k - 1) mod 10 (the priming SYNC is SYNC 1)
     for node in (TR, VA):
         writes = [f["data"].upper() for f in tx if f["id"] == 0x600 + node
                   and f["data"][:2].upper() in ("2F", "23")]
         assert "2F1910000A000000" in writes, writes
         k19 = writes.index("2F1910000A000000")
-        assert "2306100000000000" in writes[:k19], writes
+        assert "23061000E8030000" in writes[k19:], writes
     counters = [int(f["data"], 16) for f in tx if f["id"] == 0x80]
     assert counters == [1 + k % 10 for k in range(len(counters))], counters[:30]
     # every SYNC the master sent reached the devices; every TPDO LocalNode sent is in the
