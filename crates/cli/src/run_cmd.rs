@@ -104,7 +104,7 @@ fn prepare(args: &RunArgs<'_>) -> Result<(RigConfig, PathBuf), ExitCode> {
         .clone()
         .unwrap_or_else(|| default_log_path(args.config, ""));
     // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
-    canbus::check_args(&cfg, (args.hal, args.bus.as_deref()))?;
+    canbus::check_args(&cfg, args.config, (args.hal, args.bus.as_deref()))?;
     check_log_path(&out, args.config, args.force)?;
     check_log_writable(&out)?;
     Ok((cfg, out))
@@ -146,7 +146,13 @@ impl Services {
         let stop = stop_flag();
         // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s);
         // a signal meanwhile ends the run at its first cycle, through the safe stop.
-        let can_hal = canbus::connect(cfg, (args.hal, args.bus.as_deref()), out, args.json)?;
+        let can_hal = canbus::connect(
+            cfg,
+            args.config,
+            (args.hal, args.bus.as_deref()),
+            out,
+            args.json,
+        )?;
         let live_view = match args.live.map(live::LiveView::start).transpose() {
             Ok(v) => v,
             Err(e) => {
