@@ -17,6 +17,8 @@ python3 -m pip install --quiet -r tests/python/requirements.txt
 if command -v npm >/dev/null; then
   (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; })
 fi
+echo "== cross-built aarch64 binary run under qemu user-mode emulation (apt: qemu-user, libc6-arm64-cross; same run as native)"
+scripts/qemu_run.sh aarch64-unknown-linux-gnu
 echo "== Python bindings for the simulated CANopen devices (python -m ehactl.devices)"
 python3 -m pip install --quiet "./bindings/python[devices]"
 echo "== Python tests"
