@@ -103,13 +103,14 @@ TIMING_FIELDS: tuple[str, ...] = (
     "exec_prev_us",
     "skipped",
     "overrun",
+    "overrun_exec",
 )
 TIMING_DTYPE = np.dtype(
     [("_cdr_header", "V4"), ("cycle", "<u8")]
     + [(f, "<f8") for f in TIMING_FIELDS[1:6]]
-    + [("skipped", "<u4"), ("overrun", "u1")]
+    + [("skipped", "<u4"), ("overrun", "u1"), ("overrun_exec", "u1")]
 )
-assert TIMING_DTYPE.itemsize == 4 + 8 + 5 * 8 + 4 + 1
+assert TIMING_DTYPE.itemsize == 4 + 8 + 5 * 8 + 4 + 1 + 1
 
 CDR_TOPICS = {
     "/control": (CONTROL_SCHEMA, CONTROL_DTYPE),
@@ -155,10 +156,11 @@ def _decode_cdr_column(topic: str, dtype: np.dtype, payloads: list[bytes]) -> di
         if np.any(out["stuck"] > 1):
             raise McapContentError(f"{topic}: bool 'stuck' has a byte other than 0/1")
         out["stuck"] = out["stuck"].astype(bool)
-    if "overrun" in out:
-        if np.any(out["overrun"] > 1):
-            raise McapContentError(f"{topic}: bool 'overrun' has a byte other than 0/1")
-        out["overrun"] = out["overrun"].astype(bool)
+    for flag in ("overrun", "overrun_exec"):
+        if flag in out:
+            if np.any(out[flag] > 1):
+                raise McapContentError(f"{topic}: bool '{flag}' has a byte other than 0/1")
+            out[flag] = out[flag].astype(bool)
     return out
 
 

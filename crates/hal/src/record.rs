@@ -56,6 +56,10 @@ pub struct CycleTiming {
     pub skipped: u32,
     /// Whether the previous cycle overran (finished after this cycle's deadline).
     pub overrun: bool,
+    /// Whether that overrun was the previous cycle's own doing: its execution
+    /// (`exec_prev_us`) alone exceeded the period. False for an overrun of a cycle that fit
+    /// in the period but started late (the thread was not running at its deadline).
+    pub overrun_exec: bool,
 }
 
 /// What an event reports.
@@ -271,7 +275,8 @@ pub fn plant_schema() -> String {
 }
 
 /// Field names of the `/timing` message after `cycle` and `t` (all float64), in order;
-/// then `uint32 skipped` and `bool overrun`.
+/// then `uint32 skipped`, `bool overrun` and `bool overrun_exec` (appended in issue 16;
+/// readers of the older layout, which ends at `overrun`, still read a prefix).
 pub const TIMING_FIELDS: [&str; 4] = ["wall_t", "lateness_us", "period_us", "exec_prev_us"];
 
 /// ros2msg schema text of `/timing`.
@@ -284,7 +289,7 @@ pub fn timing_schema() -> String {
         s.push_str(f);
         s.push('\n');
     }
-    s.push_str("uint32 skipped\nbool overrun\n");
+    s.push_str("uint32 skipped\nbool overrun\nbool overrun_exec\n");
     s
 }
 
@@ -349,8 +354,8 @@ impl CycleRecord {
     }
 
     /// CDR encoding of `/timing` into `buf` (cleared first); false if the record has no
-    /// timing. Layout: cycle u64, t and [`TIMING_FIELDS`] f64, skipped u32, overrun u8
-    /// (every field naturally aligned, so no padding).
+    /// timing. Layout: cycle u64, t and [`TIMING_FIELDS`] f64, skipped u32, overrun u8,
+    /// overrun_exec u8 (every field naturally aligned, so no padding).
     pub fn encode_timing(&self, buf: &mut Vec<u8>) -> bool {
         let Some(tm) = self.timing else {
             return false;
@@ -369,6 +374,7 @@ impl CycleRecord {
         }
         buf.extend_from_slice(&tm.skipped.to_le_bytes());
         buf.push(tm.overrun as u8);
+        buf.push(tm.overrun_exec as u8);
         true
     }
 
