@@ -172,6 +172,10 @@ pub struct Step {
     pub kind: StepKind,
     /// What it is for (messages).
     pub what: String,
+    /// An optional feature (SYNC objects at their neutral value, RPDO deadline, cyclic timer
+    /// off): a device that answers "object does not exist" (0x06020000 / 0x06090011) although
+    /// its file lists it is used without it, and the step is reported as skipped.
+    pub optional: bool,
 }
 
 /// What ehactl does to one device at start-up, decided from its EDS / DCF before the bus
@@ -251,8 +255,16 @@ impl DevicePlan {
             access,
             kind,
             what: what.into(),
+            optional: false,
         });
         Ok(())
+    }
+
+    /// Mark the last planned step optional (see [`Step::optional`]).
+    fn optional(&mut self) {
+        if let Some(s) = self.steps.last_mut() {
+            s.optional = true;
+        }
     }
 
     /// Plan one PDO: the CiA 301 re-mapping procedure where the mapping object is writable,
@@ -443,6 +455,7 @@ impl Plan {
                     StepKind::Ensure,
                     "clearing the communication cycle period 0x1006 (before 0x1019)",
                 )?;
+                p.optional();
             }
             if p.eds.get(0x1019, 0).is_some() {
                 p.push(
@@ -452,6 +465,9 @@ impl Plan {
                     StepKind::Ensure,
                     "setting the SYNC counter overflow 0x1019 (canopen.sync_counter_overflow)",
                 )?;
+                if c.sync_counter_overflow == 0 {
+                    p.optional();
+                }
             } else if c.sync_counter_overflow != 0 {
                 return Err(settings_err(format!(
                     "{} ({}): canopen.sync_counter_overflow = {} but the {name} has no 0x1019 (its SYNC consumer expects SYNC without counter); set it to 0",
@@ -468,6 +484,9 @@ impl Plan {
                     StepKind::Ensure,
                     "setting the synchronous window 0x1007 (canopen.sync_window_us)",
                 )?;
+                if c.sync_window_us == 0 {
+                    p.optional();
+                }
             }
             if p.eds.get(0x1006, 0).is_some() {
                 p.push(
@@ -477,6 +496,7 @@ impl Plan {
                     StepKind::Ensure,
                     "setting the communication cycle period 0x1006 (µs, 1 / canopen.sync_rate_hz)",
                 )?;
+                p.optional();
             }
         }
         // 4. Profile objects.
@@ -496,6 +516,7 @@ impl Plan {
                 StepKind::Ensure,
                 "switching the transducer cyclic timer off (TPDO on SYNC)",
             )?;
+            t.optional();
         }
         t.pdo(
             TPDO1_COMM,
@@ -551,6 +572,7 @@ impl Plan {
                 StepKind::Ensure,
                 "setting the valve RPDO1 deadline 0x1400:05 (canopen.valve_rpdo_timeout_ms)",
             )?;
+            v.optional();
         }
         v.pdo(
             RPDO1_COMM,
@@ -770,6 +792,8 @@ pub(crate) struct Bringup<'a> {
     ids: [u8; 2],
     /// Device names read from 0x1008 (optional object).
     pub(crate) names: [Option<String>; 2],
+    /// Optional steps the devices did not support ("node N 0x1006:00 (what)").
+    pub(crate) skipped: Vec<String>,
 }
 
 /// What the activate step hands to the run: the first measurements.
@@ -801,6 +825,7 @@ impl<'a> Bringup<'a> {
             sdo_t: Duration::from_millis(u64::from(c.sdo_timeout_ms)),
             ids: [c.transducer_node_id, c.valve_node_id],
             names: [None, None],
+            skipped: Vec::new(),
         })
     }
 
@@ -1052,6 +1077,21 @@ impl<'a> Bringup<'a> {
             }
             match self.sdo_write(n, index, sub, want) {
                 Ok(()) => {}
+                Err(SdoError::Abort {
+                    code: 0x0602_0000 | 0x0609_0011,
+                    ..
+                }) if step.optional => {
+                    if self.s.verbose {
+                        eprintln!(
+                            "canopen: {} (node {n}) has no 0x{index:04X}:{sub:02X} although its EDS lists it; optional, skipped ({})",
+                            dev.name(),
+                            step.what
+                        );
+                    }
+                    self.skipped
+                        .push(format!("node {n} 0x{index:04X}:{sub:02X} ({})", step.what));
+                    continue;
+                }
                 // The file says rw, the device refuses the write as read-only (0x06010002):
                 // name the device's value if it has one.
                 Err(SdoError::Abort {

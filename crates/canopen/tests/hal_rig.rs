@@ -69,6 +69,9 @@ struct Knobs {
     /// The transducer answers SYNC k with the position of SYNC k only after SYNC k + this
     /// (its TPDOs are this many SYNC periods old on arrival).
     tpdo_lag: AtomicU32,
+    /// Both nodes answer 0x1006 / 0x1007 / 0x1019 with "object does not exist" (0x06020000)
+    /// although the EDS lists them.
+    no_sync_objects: AtomicBool,
     stop: AtomicBool,
     /// Every frame the rig received (id, data), for sequence checks.
     seen: Mutex<Vec<(u32, Vec<u8>)>>,
@@ -269,6 +272,12 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         d[4..4 + data.len()].copy_from_slice(data);
                         CanFrame::std(0x580 + u16::from(node), d)
                     };
+                    if knobs.no_sync_objects.load(Ordering::Relaxed)
+                        && matches!(index, 0x1006 | 0x1007 | 0x1019)
+                    {
+                        send(&mut bus, silent, reply(0x80, &0x0602_0000u32.to_le_bytes()));
+                        continue;
+                    }
                     let ro_step = knobs.position_step_ro.load(Ordering::Relaxed);
                     if ro_step != 0 && node == TR && index == 0x6005 {
                         if cs == 0x40 {
@@ -1107,6 +1116,55 @@ fn late_tpdos_are_counted_and_too_old_ones_trip() {
             assert!(late_valve < late / 2, "{rep}");
         }
         let _ = hal.safe_stop(0.0);
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
+}
+
+#[test]
+fn optional_sync_objects_a_device_lacks_are_skipped_a_needed_counter_is_not() {
+    // The EDS lists 0x1006/0x1007/0x1019, the devices say "object does not exist": at their
+    // neutral values (no counter, no window) the steps are skipped and reported; a SYNC
+    // counter the devices cannot take ends the start-up.
+    for (overflow, ok) in [(0u8, true), (5, false)] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs.no_sync_objects.store(true, Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        let cfg = CanopenConfig {
+            sync_counter_overflow: overflow,
+            ..test_bus()
+        };
+        match CanopenHal::connect(settings(port, cfg)) {
+            Ok(mut hal) => {
+                assert!(ok, "a SYNC counter of {overflow} was accepted");
+                let rep = hal.report().unwrap();
+                let skipped: Vec<String> = rep["startup_skipped"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_str().unwrap().to_string())
+                    .collect();
+                for obj in ["0x1006:00", "0x1007:00", "0x1019:00"] {
+                    for node in [TR, VA] {
+                        assert!(
+                            skipped
+                                .iter()
+                                .any(|s| s.contains(obj) && s.contains(&format!("node {node}"))),
+                            "{obj} of node {node} not reported: {skipped:?}"
+                        );
+                    }
+                }
+                let _ = hal.safe_stop(0.0);
+            }
+            Err(e) => {
+                assert!(!ok, "{e}");
+                let m = e.to_string();
+                assert!(
+                    m.contains("0x1019") && m.contains("object does not exist"),
+                    "{m}"
+                );
+            }
+        }
         knobs.stop.store(true, Ordering::Relaxed);
         rig_thread.join().unwrap();
     }
