@@ -16,6 +16,7 @@
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
+use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
 use crate::friction::FrictionModel;
 use crate::line::Line;
@@ -97,6 +98,10 @@ pub struct Plant {
     c: Consts,
     edges: EdgeLaw,
     spool_model: SpoolModel,
+    /// Spool discretised over h/2, for the mid-step valve opening of `linear_exact`.
+    spool_half: SpoolModel,
+    /// Exact linear transition of chambers and mechanics (`integration.method = "linear_exact"`).
+    linear: Option<LinearExact>,
     friction: Option<FrictionModel>,
     excitation: ExcitationModel,
     sensors: SensorModel,
@@ -249,6 +254,22 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
             ));
         }
     }
+    if p.integration.method == crate::params::IntegrationMethod::LinearExact {
+        for (on, what) in [
+            (p.effects.line_dynamics.as_ref().is_some_and(|l| l.enabled), "line_dynamics"),
+            (p.effects.friction.as_ref().is_some_and(|f| f.enabled), "friction"),
+        ] {
+            if on {
+                return Err(ConfigError::new(
+                    "integration.method",
+                    format!(
+                        "\"linear_exact\" treats chambers and mechanics as one linear system and \
+                         does not support [effects.{what}]; use \"exponential_euler\""
+                    ),
+                ));
+            }
+        }
+    }
     if let Some(cb) = p
         .effects
         .counterbalance_valve
@@ -364,6 +385,21 @@ impl Plant {
                 omega_max = omega_max.max(2.0 / (la.l * cb.c_node.min(la.c)).sqrt());
             }
         }
+        let linear_exact =
+            params.integration.method == crate::params::IntegrationMethod::LinearExact;
+        if linear_exact {
+            // Hydraulic spring, load spring and mount are exact: the step is limited only by
+            // what enters explicitly, the spool (its mid-step position sets the valve flow)
+            // and the supply sag.
+            omega_max = match e.valve_dynamics.as_ref().filter(|d| d.enabled) {
+                Some(d) if d.order == 1 && d.time_constant > 0.0 => 1.0 / d.time_constant,
+                Some(d) if d.order == 2 => d.natural_frequency,
+                _ => 0.0,
+            };
+            if sdrop.is_some() {
+                omega_max = omega_max.max(1.0 / c.supply_tau);
+            }
+        }
         let substeps = if params.integration.substeps > 0 {
             params.integration.substeps
         } else {
@@ -393,6 +429,25 @@ impl Plant {
         let mut plant = Plant {
             edges: EdgeLaw::new(params),
             spool_model: SpoolModel::new(params, h),
+            spool_half: SpoolModel::new(params, 0.5 * h),
+            linear: linear_exact.then(|| {
+                LinearExact::new(
+                    LinearCoefficients {
+                        a_a: c.a_a,
+                        a_b: c.a_b,
+                        k_in: c.k_in,
+                        k_ext: c.k_ext,
+                        mass: c.mass,
+                        damping: c.damping,
+                        k_load: c.k_load,
+                        x_contact: c.x_contact,
+                        mount: c.mount,
+                    },
+                    h,
+                    c.beta0 / c.v_a0,
+                    c.beta0 / c.v_b0,
+                )
+            }),
             friction: e
                 .friction
                 .as_ref()
@@ -743,8 +798,88 @@ impl Plant {
         }
     }
 
+    /// Times the `linear_exact` transition was computed (0 for `exponential_euler`).
+    pub fn discretisations(&self) -> u64 {
+        self.linear.as_ref().map_or(0, |l| l.count)
+    }
+
+    /// One substep of `linear_exact` ([`crate::exact`]): spool exact; valve flow at the
+    /// mid-step spool opening, linearised in its port pressure about the start of the step
+    /// and evaluated at the step-mean pressure of the exact linear solution (second order;
+    /// the self term solved implicitly, so the stiff flow–pressure term stays stable);
+    /// external force at mid-step; then the exact linear transition.
+    #[inline]
+    fn advance_substep_linear(&mut self, t: f64, u: f64) {
+        let h = self.h;
+        let c = &self.c;
+        let mut s = self.state;
+        s.command = u;
+        let target = u / c.full_scale;
+        let (mut sm, mut smd) = (s.spool, s.spool_velocity);
+        self.spool_half.advance(&mut sm, &mut smd, target);
+        self.spool_model
+            .advance(&mut s.spool, &mut s.spool_velocity, target);
+        let o = self.edges.openings(sm);
+        let (va, vb) = self.volumes(s.x);
+        let ca = self.bulk_modulus(s.p_a) / va;
+        let cb = self.bulk_modulus(s.p_b) / vb;
+        let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, s.p_a);
+        let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, s.p_b);
+        let f_mid = self.excitation.force(t + 0.5 * h);
+        let lin = self.linear.as_mut().expect("linear_exact configured");
+        if lin.stale(ca, cb) {
+            lin.discretise(ca, cb);
+        }
+        let mut z = [s.p_a, s.p_b, s.x, s.v, s.x_load, s.v_load];
+        // Valve flow at the step-mean pressures: Q = Q₀ + dQ/dp·(p̄(Q) − p₀), with p̄ linear
+        // in Q through the exact solution (self-coupling solved, cross-coupling predicted).
+        let (pm, dpm) = lin.mean_pressures(&z, &[qa, qb, f_mid, 1.0]);
+        let qa_eff = qa + dqa * (pm[0] - s.p_a) / (1.0 - dqa * dpm[0]);
+        let qb_eff = qb + dqb * (pm[1] - s.p_b) / (1.0 - dqb * dpm[1]);
+        lin.advance(&mut z, &[qa_eff, qb_eff, f_mid, 1.0]);
+        s.p_a = z[0].max(c.p_cav);
+        s.p_b = z[1].max(c.p_cav);
+        s.x = z[2];
+        s.v = z[3];
+        if c.mount.is_some() {
+            s.x_load = z[4];
+            s.v_load = z[5];
+        } else {
+            s.x_load = s.x;
+            s.v_load = s.v;
+        }
+        s.q_a = qa_eff;
+        s.q_b = qb_eff;
+        if c.supply_r > 0.0 {
+            let target = (c.ps0 - c.supply_r * (qsa + qsb)).max(c.pt);
+            s.p_s += (target - s.p_s) * (1.0 - (-h / c.supply_tau).exp());
+        }
+        let f_ext = self.excitation.force(t + h);
+        s.external = f_ext;
+        s.friction = 0.0;
+        s.stuck = false;
+        if c.end_stops {
+            if s.x < 0.0 {
+                s.x = 0.0;
+                s.v = s.v.max(0.0);
+            } else if s.x > c.stroke {
+                s.x = c.stroke;
+                s.v = s.v.min(0.0);
+            }
+        }
+        s.rod_force = c.k_load * (s.x - c.x_contact)
+            + match c.mount {
+                Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
+                None => f_ext,
+            };
+        self.state = s;
+    }
+
     #[inline]
     fn advance_substep(&mut self, t: f64, u: f64) {
+        if self.linear.is_some() {
+            return self.advance_substep_linear(t, u);
+        }
         let h = self.h;
         let c = &self.c;
         let mut s = self.state;
