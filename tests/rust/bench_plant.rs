@@ -26,9 +26,9 @@
 //! in `target/bench/` (`sahu_reference_noisefree.csv`, noise-free variant, and
 //! `sahu_rust_timing_noisefree.csv`).
 
-use ehactl_controller::config::ControlMode;
-use ehactl_controller::session::{build_plant, run_sim, Session, SessionOptions};
-use ehactl_controller::RigConfig;
+use ehactl_config::ControlMode;
+use ehactl_runtime::session::{build_plant, run_sim, Session, SessionOptions};
+use ehactl_config::RigConfig;
 use ehactl_plant::params::IntegrationMethod;
 use std::fmt::Write as _;
 use std::io::Write as _;
