@@ -21,6 +21,8 @@
 //!    (`CLOCK_THREAD_CPUTIME_ID`), both as × real time. On a shared machine the CPU-time
 //!    figure is the one to trust: it excludes time the thread was not running.
 //!
+//! `EHACTL_BENCH_PROFILE=N`: only N runs of each selected rig as shipped (for `perf record`).
+//!
 //! Output: a markdown table on stdout and in `target/bench/plant_accuracy.md`; for
 //! `sahu2022_force`, CSV traces for `bench/scipy_baseline.py` and `bench/python_fixed_step.py`
 //! in `target/bench/` (`sahu_reference_noisefree.csv`, noise-free variant, and
@@ -166,9 +168,7 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
     }];
     let mut push = |c: Candidate| {
         let probe = with(cfg, c.method, c.substeps, c.max_omega_h);
-        let shipped = build_plant(cfg).map(|p| p.substeps()).ok();
-        let same = c.method == ig.method
-            && build_plant(&probe).map(|p| p.substeps()).ok() == shipped;
+        let same = probe.plant.integration == *ig;
         if !same && build_plant(&probe).is_ok() && !v.contains(&c) {
             v.push(c);
         }
@@ -179,6 +179,19 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
         max_omega_h: Some(0.25),
         shipped: false,
     });
+    // Before issue 16 the automatic count was fixed at the smallest chamber volumes
+    // (stroke ends) for the whole run: that is `substeps` = the worst-case count.
+    if ig.method == ee {
+        let worst = build_plant(cfg).map(|p| p.substeps()).unwrap_or(0);
+        if worst > 0 {
+            push(Candidate {
+                method: ee,
+                substeps: worst,
+                max_omega_h: None,
+                shipped: false,
+            });
+        }
+    }
     let e = &cfg.plant.effects;
     let linear_ok = !e.line_dynamics.as_ref().is_some_and(|l| l.enabled)
         && !e.friction.as_ref().is_some_and(|f| f.enabled);
@@ -233,6 +246,21 @@ fn main() {
     if !args.is_empty() {
         rigs.retain(|r| args.iter().any(|a| a == r));
     }
+    // Profiling mode (`perf record`): only N runs of each selected rig as shipped.
+    let profile: usize = env_or("EHACTL_BENCH_PROFILE", 0);
+    if profile > 0 {
+        for rig in &rigs {
+            let cfg = RigConfig::load(&root().join("configs").join(format!("{rig}.toml")))
+                .expect("config");
+            let d = if dur_env > 0.0 { dur_env } else { cfg.run.duration.min(3.0) };
+            let mut cpu = Vec::new();
+            for _ in 0..profile {
+                cpu.push(run(&cfg, d, false).1);
+            }
+            println!("{rig}: {:.0}× real time (thread CPU, median of {profile})", d / median(&cpu));
+        }
+        return;
+    }
     let mut md = String::new();
     let _ = writeln!(
         md,
@@ -241,7 +269,7 @@ fn main() {
     );
     let _ = writeln!(
         md,
-        "| rig | sim s | candidate | substeps | NRMSE output | NRMSE p_A | ref err | × real time (wall, median) | × real time (thread CPU, median) | re-discretisations |"
+        "| rig | sim s | candidate | mean substeps / period | NRMSE output | NRMSE p_A | ref err | × real time (wall, median) | × real time (thread CPU, median) | re-discretisations |"
     );
     let _ = writeln!(md, "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|");
     print!("{md}");
@@ -253,9 +281,16 @@ fn main() {
         } else {
             cfg.run.duration.min(3.0)
         };
-        let auto = build_plant(&with(&cfg, IntegrationMethod::ExponentialEuler, 0, Some(0.25)))
-            .expect("plant")
-            .substeps();
+        // Mean substeps per period of the default rule (ω·h ≤ 0.25, re-chosen per period).
+        let auto = {
+            let c = with(&cfg, IntegrationMethod::ExponentialEuler, 0, Some(0.25));
+            let (s, _) = run(&c, duration, true);
+            let mut plant = build_plant(&c).expect("plant");
+            for r in &s.records {
+                plant.step(r.command).expect("replay");
+            }
+            (plant.substeps_taken() as f64 / s.records.len() as f64).ceil() as u32
+        };
         let ref_cfg = |n: u32| with(&cfg, IntegrationMethod::ExponentialEuler, n, Some(0.25));
         let (r_fine, _) = run(&ref_cfg(auto * ref_mult), duration, true);
         let (r_half, _) = run(&ref_cfg(auto * ref_mult / 2), duration, true);
@@ -280,7 +315,7 @@ fn main() {
             acc.push((
                 nrmse(&y, &y_ref),
                 nrmse(&pa, &pa_ref),
-                s.substeps,
+                plant.substeps_taken() as f64 / s.records.len() as f64,
                 plant.discretisations(),
             ));
         }
@@ -295,9 +330,13 @@ fn main() {
         }
         for (i, c) in cands.iter().enumerate() {
             let line = format!(
-                "| {rig} | {duration} | {}{}{} | {} | {:.4} % | {:.4} % | {:.1e} % | {:.0}× | {:.0}× | {} |\n",
+                "| {rig} | {duration} | {}{}{} | {:.1} | {:.4} % | {:.4} % | {:.1e} % | {:.0}× | {:.0}× | {} |\n",
                 method_name(c.method),
-                c.max_omega_h.map_or(String::new(), |m| format!(" ω·h ≤ {m}")),
+                match (c.substeps, c.max_omega_h) {
+                    (0, Some(m)) => format!(" auto ω·h ≤ {m}"),
+                    (0, None) => " auto".to_string(),
+                    (n, _) => format!(" fixed {n}"),
+                },
                 if c.shipped { " (shipped)" } else { "" },
                 acc[i].2,
                 100.0 * acc[i].0,
@@ -325,7 +364,9 @@ fn main() {
             let mut t = String::from("method,substeps,duration_s,median_wall_s,median_cpu_s\n");
             for (m, n) in [
                 (IntegrationMethod::LinearExact, 1),
+                (IntegrationMethod::LinearExact, 2),
                 (IntegrationMethod::ExponentialEuler, 8),
+                (IntegrationMethod::ExponentialEuler, 22),
             ] {
                 let c = with(&nf, m, n, None);
                 let (s, _) = run(&c, duration, true);

@@ -111,7 +111,15 @@ pub struct Plant {
     /// Work port → tank bleed of the directional valve (m³/(s·Pa)), with the CBVs.
     port_bleed: f64,
     control_dt: f64,
+    /// Substeps of the current period.
     substeps: u32,
+    /// Most substeps any period may take: the count at the smallest chamber volumes.
+    substeps_max: u32,
+    /// `Some(max ω·h)`: automatic substeps re-chosen every period from the volumes the
+    /// piston can reach within it (`exponential_euler` with `integration.substeps = 0`).
+    adaptive: Option<f64>,
+    /// Substeps taken since the start (for cost figures).
+    substeps_taken: u64,
     h: f64,
     state: PlantState,
     cycle: u64,
@@ -366,25 +374,9 @@ impl Plant {
                 .filter(|c| c.sides == side || c.sides == CbvSides::Both)
                 .map(|c| Cbv::new(c, params.fluid.density, params.fluid.bulk_modulus))
         });
-        // Fastest oscillatory mode over the stroke (rad/s).
-        let mut k_total = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0) + c.k_load;
-        let mut omega_max: f64 = 0.0;
-        if let Some((ml, km, dm)) = c.mount {
-            k_total += km;
-            omega_max = omega_max.max((km / ml).sqrt()).max(dm / ml);
-            omega_max = omega_max.max(dm / c.mass);
-        }
-        omega_max = omega_max.max((k_total / c.mass).sqrt());
-        if let Some((la, _)) = &lines {
-            omega_max = omega_max.max(la.omega_max());
-            // Line node coupled to the chamber through the last segment.
-            let c_min = la.c.min(c.v_a0.min(c.v_b0) / c.beta_max);
-            omega_max = omega_max.max(2.0 / (la.l * c_min).sqrt());
-            // Last segment against a CBV body volume.
-            for cb in cbv.iter().flatten() {
-                omega_max = omega_max.max(2.0 / (la.l * cb.c_node.min(la.c)).sqrt());
-            }
-        }
+        // Fastest oscillatory mode over the whole stroke (rad/s): the smallest chamber volumes.
+        let mut omega_max = fastest_mode(&c, lines.as_ref().map(|l| &l.0), &cbv, c.v_a0, c.v_b0);
+        let x0 = params.cylinder.initial_position.clamp(0.0, c.stroke);
         let linear_exact =
             params.integration.method == crate::params::IntegrationMethod::LinearExact;
         if linear_exact {
@@ -444,8 +436,10 @@ impl Plant {
                         mount: c.mount,
                     },
                     h,
-                    c.beta0 / c.v_a0,
-                    c.beta0 / c.v_b0,
+                    // At the initial position; re-discretised at the first substep if β(p)
+                    // or the volume differs by more than the tolerance.
+                    c.beta0 / (c.v_a0 + c.a_a * x0),
+                    c.beta0 / (c.v_b0 + c.a_b * (c.stroke - x0)),
                 )
             }),
             friction: e
@@ -460,6 +454,10 @@ impl Plant {
             port_bleed: cbv_cfg.map_or(0.0, |c| c.port_bleed),
             control_dt,
             substeps,
+            substeps_max: substeps,
+            adaptive: (params.integration.substeps == 0 && !linear_exact)
+                .then_some(params.integration.max_omega_h),
+            substeps_taken: 0,
             h,
             state: PlantState::default(),
             cycle: 0,
@@ -525,6 +523,10 @@ impl Plant {
             }
         }
         self.cycle = 0;
+        if self.substeps != self.substeps_max {
+            self.set_substeps(self.substeps_max);
+        }
+        self.substeps_taken = 0;
         self.delay_buf.iter_mut().for_each(|u| *u = 0.0);
         self.sensors = SensorModel::new(
             &self.params.sensors,
@@ -542,9 +544,11 @@ impl Plant {
         &self.state
     }
 
-    /// Substeps per control period.
+    /// Most substeps per control period: the configured count, or with automatic substeps
+    /// the count at the smallest chamber volumes (stroke ends); a period mid-stroke may take
+    /// fewer ([`Plant::substeps_taken`]).
     pub fn substeps(&self) -> u32 {
-        self.substeps
+        self.substeps_max
     }
 
     /// Substep length (s).
@@ -761,9 +765,49 @@ impl Plant {
         self.delay_buf[(k % len) as usize]
     }
 
+    /// Automatic substeps for the coming period: ω·h ≤ max ω·h at the smallest chamber
+    /// volumes the piston can reach within it (|v| over two periods either side), so a
+    /// piston mid-stroke is not integrated at the step its stroke ends would need. Raised at
+    /// once, lowered only by a quarter or more (no flapping).
+    fn choose_substeps(&mut self, max_omega_h: f64) {
+        let c = &self.c;
+        let s = &self.state;
+        let reach = 2.0 * s.v.abs() * self.control_dt;
+        let x_lo = (s.x - reach).clamp(0.0, c.stroke);
+        let x_hi = (s.x + reach).clamp(0.0, c.stroke);
+        let va = c.v_a0 + c.a_a * x_lo;
+        let vb = c.v_b0 + c.a_b * (c.stroke - x_hi);
+        let w = fastest_mode(c, self.lines.as_ref().map(|l| &l.0), &self.cbv, va, vb);
+        let n = ((self.control_dt * w / max_omega_h).ceil() as u32).clamp(1, self.substeps_max);
+        if n > self.substeps || 4 * n <= 3 * self.substeps {
+            self.set_substeps(n);
+        }
+    }
+
+    /// Re-discretise for `n` substeps per period (no allocation).
+    fn set_substeps(&mut self, n: u32) {
+        self.substeps = n;
+        self.h = self.control_dt / n as f64;
+        self.spool_model = SpoolModel::new(&self.params, self.h);
+        self.spool_half = SpoolModel::new(&self.params, 0.5 * self.h);
+        if let Some((la, lb)) = self.lines.as_mut() {
+            la.prepare(self.h);
+            lb.prepare(self.h);
+        }
+    }
+
+    /// Substeps taken since the start (sum over periods; cost figures).
+    pub fn substeps_taken(&self) -> u64 {
+        self.substeps_taken
+    }
+
     /// Advance one control period with the command `u` (V) held (zero-order hold).
     /// Real-time safe: no allocation, no I/O, bounded time.
     pub fn step(&mut self, u: f64) -> Result<(), NumericalFailure> {
+        if let Some(moh) = self.adaptive {
+            self.choose_substeps(moh);
+        }
+        self.substeps_taken += self.substeps as u64;
         let len = self.delay_buf.len() as u64;
         let u = if u.is_finite() { u } else { 0.0 };
         self.delay_buf[(self.cycle % len) as usize] = u;
@@ -1038,6 +1082,31 @@ impl Plant {
             };
         self.state = s;
     }
+}
+
+/// Fastest oscillatory mode (rad/s) of the `exponential_euler` scheme with chamber volumes
+/// `va`, `vb` (m³): hydraulic spring + load spring on the piston mass, mount, line segments,
+/// line end against the chamber or a CBV body.
+fn fastest_mode(c: &Consts, line: Option<&Line>, cbv: &[Option<Cbv>; 2], va: f64, vb: f64) -> f64 {
+    let mut k_total = c.beta_max * (c.a_a * c.a_a / va + c.a_b * c.a_b / vb) + c.k_load;
+    let mut omega_max: f64 = 0.0;
+    if let Some((ml, km, dm)) = c.mount {
+        k_total += km;
+        omega_max = omega_max.max((km / ml).sqrt()).max(dm / ml);
+        omega_max = omega_max.max(dm / c.mass);
+    }
+    omega_max = omega_max.max((k_total / c.mass).sqrt());
+    if let Some(la) = line {
+        omega_max = omega_max.max(la.omega_max());
+        // Line node coupled to the chamber through the last segment.
+        let c_min = la.c.min(va.min(vb) / c.beta_max);
+        omega_max = omega_max.max(2.0 / (la.l * c_min).sqrt());
+        // Last segment against a CBV body volume.
+        for cb in cbv.iter().flatten() {
+            omega_max = omega_max.max(2.0 / (la.l * cb.c_node.min(la.c)).sqrt());
+        }
+    }
+    omega_max
 }
 
 /// φ₁(z) = (eᶻ − 1)/z, the exponential-Euler weight (→ 1 as z → 0).
