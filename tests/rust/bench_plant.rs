@@ -29,9 +29,9 @@
 //! `sahu_rust_timing_noisefree.csv`).
 
 use ehactl_config::ControlMode;
-use ehactl_runtime::session::{build_plant, run_sim, Session, SessionOptions};
 use ehactl_config::RigConfig;
 use ehactl_plant::params::IntegrationMethod;
+use ehactl_runtime::session::{build_plant, run_sim, Session, SessionOptions};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -135,7 +135,11 @@ fn output(cfg: &RigConfig, s: &Session) -> (Vec<f64>, Vec<f64>) {
 /// RMS(f − r) / (max r − min r).
 fn nrmse(f: &[f64], r: &[f64]) -> f64 {
     let n = r.len().min(f.len());
-    let ss: f64 = f[..n].iter().zip(&r[..n]).map(|(a, b)| (a - b) * (a - b)).sum();
+    let ss: f64 = f[..n]
+        .iter()
+        .zip(&r[..n])
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum();
     let (lo, hi) = r[..n]
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
@@ -239,7 +243,11 @@ fn main() {
         .expect("configs/")
         .filter_map(|e| {
             let p = e.ok()?.path();
-            if p.extension()? == "toml" { Some(p.file_stem()?.to_string_lossy().into_owned()) } else { None }
+            if p.extension()? == "toml" {
+                Some(p.file_stem()?.to_string_lossy().into_owned())
+            } else {
+                None
+            }
         })
         .collect();
     rigs.sort();
@@ -252,12 +260,19 @@ fn main() {
         for rig in &rigs {
             let cfg = RigConfig::load(&root().join("configs").join(format!("{rig}.toml")))
                 .expect("config");
-            let d = if dur_env > 0.0 { dur_env } else { cfg.run.duration.min(3.0) };
+            let d = if dur_env > 0.0 {
+                dur_env
+            } else {
+                cfg.run.duration.min(3.0)
+            };
             let mut cpu = Vec::new();
             for _ in 0..profile {
                 cpu.push(run(&cfg, d, false).1);
             }
-            println!("{rig}: {:.0}× real time (thread CPU, median of {profile})", d / median(&cpu));
+            println!(
+                "{rig}: {:.0}× real time (thread CPU, median of {profile})",
+                d / median(&cpu)
+            );
         }
         return;
     }

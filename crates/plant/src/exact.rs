@@ -287,7 +287,8 @@ mod tests {
     /// (one substep per 1 ms period) the exact discretisation must still follow it to round-off.
     #[test]
     fn linear_exact_matches_the_damped_chamber_mass_closed_form() {
-        let (beta, a, v0, m, d, kl, p0, dp) = (1.8e9, 1.96e-3, 1.0e-4, 100.0, 2.0e4, 5.0e7, 10.0e6, 1.0e4);
+        let (beta, a, v0, m, d, kl, p0, dp) =
+            (1.8e9, 1.96e-3, 1.0e-4, 100.0, 2.0e4, 5.0e7, 10.0e6, 1.0e4);
         let text = format!(
             r#"
 [fluid]
@@ -343,8 +344,15 @@ substeps = 1
                         * ((wd * t).cos() + zeta / (1.0 - zeta * zeta).sqrt() * (wd * t).sin()));
             worst = worst.max((plant.state().x - x).abs());
         }
-        assert_eq!(plant.discretisations(), 1, "volumes drifted: a re-discretisation");
+        assert_eq!(
+            plant.discretisations(),
+            1,
+            "volumes drifted: a re-discretisation"
+        );
         // Round-off of a 6×6 transition applied 200 times to a 1e-7 m motion at 1e7 Pa.
-        assert!(worst <= 1e-6 * xs, "max |x − closed form| = {worst:e} m of {xs:e} m");
+        assert!(
+            worst <= 1e-6 * xs,
+            "max |x − closed form| = {worst:e} m of {xs:e} m"
+        );
     }
 }

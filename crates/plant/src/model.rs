@@ -266,22 +266,6 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
             ));
         }
     }
-    if p.integration.method == crate::params::IntegrationMethod::LinearExact {
-        for (on, what) in [
-            (p.effects.line_dynamics.as_ref().is_some_and(|l| l.enabled), "line_dynamics"),
-            (p.effects.friction.as_ref().is_some_and(|f| f.enabled), "friction"),
-        ] {
-            if on {
-                return Err(ConfigError::new(
-                    "integration.method",
-                    format!(
-                        "\"linear_exact\" treats chambers and mechanics as one linear system and \
-                         does not support [effects.{what}]; use \"exponential_euler\""
-                    ),
-                ));
-            }
-        }
-    }
     if let Some(cb) = p
         .effects
         .counterbalance_valve
@@ -381,8 +365,16 @@ impl Plant {
         // Fastest oscillatory mode over the whole stroke (rad/s): the smallest chamber volumes.
         let mut omega_max = fastest_mode(&c, lines.as_ref().map(|l| &l.0), &cbv, c.v_a0, c.v_b0);
         let x0 = params.cylinder.initial_position.clamp(0.0, c.stroke);
-        let linear_exact =
-            params.integration.method == crate::params::IntegrationMethod::LinearExact;
+        // `linear_exact` covers chambers, leakage, springs, dampers and the mount; with lines,
+        // friction (stick) or the grey-box polynomial effects the plant integrates with
+        // `exponential_euler` instead (e.g. when `ehactl diagnose` adds such an effect to a
+        // `linear_exact` rig); [`Plant::method`] tells which one runs.
+        let linear_exact = params.integration.method
+            == crate::params::IntegrationMethod::LinearExact
+            && lines.is_none()
+            && !e.friction.as_ref().is_some_and(|f| f.enabled)
+            && !e.polynomial_force.is_some_and(|f| f.enabled)
+            && !e.polynomial_flow.is_some_and(|f| f.enabled);
         if linear_exact {
             // Hydraulic spring, load spring and mount are exact: the step is limited only by
             // what enters explicitly, the spool (its mid-step position sets the valve flow)
@@ -847,6 +839,16 @@ impl Plant {
         match bad {
             Some((what, _)) => Err(NumericalFailure { t: s.t, what }),
             None => Ok(()),
+        }
+    }
+
+    /// The integration scheme that runs (`linear_exact` only where it applies, see
+    /// [`Plant::configure`]).
+    pub fn method(&self) -> crate::params::IntegrationMethod {
+        if self.linear.is_some() {
+            crate::params::IntegrationMethod::LinearExact
+        } else {
+            crate::params::IntegrationMethod::ExponentialEuler
         }
     }
 

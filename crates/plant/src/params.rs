@@ -586,7 +586,8 @@ pub enum IntegrationMethod {
     #[default]
     ExponentialEuler,
     /// Chambers, piston (and load mass) as one linear system discretised exactly per substep,
-    /// valve flow at the mid-step spool position (rigs without lines or friction).
+    /// valve flow at the mid-step spool position; rigs with lines, friction or the polynomial
+    /// grey-box effects run `exponential_euler` instead.
     LinearExact,
 }
 

@@ -145,7 +145,10 @@ impl SensorModel {
                     .collect()
             }),
             rngs: std::array::from_fn(|k| {
-                NoiseRng::new(cfg.seed.wrapping_add((k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)))
+                NoiseRng::new(
+                    cfg.seed
+                        .wrapping_add((k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
+                )
             }),
             held_position: f64::NAN,
             next_position_update: f64::NEG_INFINITY,
@@ -173,7 +176,12 @@ impl SensorModel {
     /// Sample every sensor. Does not allocate.
     pub fn sample(&mut self, v: &TrueValues) -> Measurements {
         let c = &self.cfg;
-        let (sf, sx, sp, ss) = (c.force.noise, c.position.noise, c.pressure.noise, c.spool.noise);
+        let (sf, sx, sp, ss) = (
+            c.force.noise,
+            c.position.noise,
+            c.pressure.noise,
+            c.spool.noise,
+        );
         let (res, upd) = (c.position.resolution, c.position.update_period);
         let force = v.force + self.noise(0, sf) + self.tone(SensorChannel::Force, v.t);
         if v.t + 1e-12 >= self.next_position_update {

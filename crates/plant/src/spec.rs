@@ -678,7 +678,7 @@ pub const PARAMS: &[Param] = &[
         "integration.method",
         crate::params::IntegrationMethod::NAMES,
         "substep scheme: exponential_euler (default) or linear_exact (chambers + mechanics \
-         discretised exactly; no lines, no friction)",
+         discretised exactly; exponential_euler is used with lines, friction or polynomial effects)",
     ),
 ];
 
