@@ -546,6 +546,7 @@ impl Plant {
     /// Most substeps per control period: the configured count, or with automatic substeps
     /// the count at the smallest chamber volumes (stroke ends); a period mid-stroke may take
     /// fewer ([`Plant::substeps_taken`]).
+    #[allow(clippy::misnamed_getters)] // `substeps` is the per-period count in use; this is its maximum
     pub fn substeps(&self) -> u32 {
         self.substeps_max
     }
