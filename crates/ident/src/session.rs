@@ -145,6 +145,8 @@ pub fn run(
         drive,
         // Replay accuracy is checked and reported (DIAGNOSIS.md "Replay accuracy").
         integration_refinements: USER_INTEGRATION_REFINEMENTS,
+        // Grey-box extension when the catalogue is exhausted (DIAGNOSIS.md "Grey-box").
+        greybox: true,
         ..Options::default()
     };
     let d = diagnose(&cfg.plant, &rec, val.as_ref(), &opts).map_err(SessionError::Input)?;
