@@ -84,7 +84,7 @@ def run(binary: Path, scenario: str, duration: float, tmp: Path) -> dict:
         "scenario": scenario,
         "spin_us": spin * 1e6,
         "warnings": [line for line in proc.stderr.splitlines() if "warning" in line],
-        "summary": {k: js[k] for k in js if k.endswith("_us") or k in ("cycles", "overruns", "longest_overrun_streak", "skipped_deadlines", "log_queue_high_water")},
+        "summary": {k: js[k] for k in js if k.endswith("_us") or k in ("cycles", "overruns", "overruns_exec", "overruns_wakeup", "longest_overrun_streak", "skipped_deadlines", "log_queue_high_water")},
         "rt": js["timing"]["rt"],
         "records_dropped": js["log"]["records_dropped"],
         "lateness_us_sorted": late,
