@@ -88,6 +88,8 @@ pub struct Errors {
 pub struct Candidate {
     /// Effect id.
     pub effect: String,
+    /// Structural variant of the effect that fitted best (`-` for effects with one form).
+    pub variant: String,
     /// Fitted parameters (dotted path → value; `<path>/nominal` marks factors on nominal values).
     pub params: BTreeMap<String, f64>,
     /// Overall NRMSE on the fitting data (-).
@@ -685,6 +687,7 @@ pub fn diagnose(
                             e,
                             Candidate {
                                 effect: e.as_str().into(),
+                                variant: "-".into(),
                                 params: BTreeMap::new(),
                                 nrmse_train: f64::NAN,
                                 nrmse_validation: f64::NAN,
@@ -720,6 +723,7 @@ pub fn diagnose(
                             e,
                             Candidate {
                                 effect: e.as_str().into(),
+                                variant: "-".into(),
                                 params: h.params[first_new..]
                                     .iter()
                                     .zip(&h.values[first_new..])

@@ -17,6 +17,7 @@ pub mod baseline;
 pub mod data;
 pub mod diagnose;
 pub mod fit;
+pub mod indep;
 pub mod replay;
 pub mod report;
 pub mod residual;
