@@ -359,6 +359,10 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
     })
 }
 
+/// Cavitation floor of every pressure (Pa gauge): ≈ 5 kPa absolute, the vapour pressure
+/// region of mineral oil.
+pub const P_CAV: f64 = -0.95e5;
+
 /// Right-hand side, state layout and outputs of the generator's rig with one hidden effect.
 struct Model<'a> {
     r: &'a Rig,
@@ -562,6 +566,9 @@ impl<'a> Model<'a> {
                     let cap = if j == 0 { 0.5 * cl } else { cl };
                     let q_in = if j == 0 { q_valve } else { y[iq + j - 1] };
                     dy[ip + j] = (q_in - y[iq + j]) / cap;
+                    if y[ip + j] <= P_CAV && dy[ip + j] < 0.0 {
+                        dy[ip + j] = 0.0;
+                    }
                     let p_next = if j + 1 < ns { y[ip + j + 1] } else { p_ch };
                     dy[iq + j] = (y[ip + j] - p_next - rl * y[iq + j]) / ll;
                 }
@@ -588,6 +595,13 @@ impl<'a> Model<'a> {
         let q_in = k_in * (pa - pb);
         dy[2] = self.beta(pa) / (va + extra) * (into_a - r.aa * v - q_in - k_ea * pa);
         dy[3] = self.beta(pb) / (vb + extra) * (into_b + r.ab * v + q_in - k_eb * pb);
+        // Cavitation: the oil releases vapour and air instead of going below P_CAV (a
+        // one-sided floor on every pressure state; the state is clamped after each step).
+        for (i, pi) in [(2, pa), (3, pb)] {
+            if pi <= P_CAV && dy[i] < 0.0 {
+                dy[i] = 0.0;
+            }
+        }
         // Mechanics.
         let f_h = pa * r.aa - pb * r.ab;
         let (f_fr, zd) = self.friction(y, v);
@@ -802,6 +816,17 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         model.rhs(&tmp, uc, &mut k[3]);
         for i in 0..y.len() {
             y[i] += h / 6.0 * (k[0][i] + 2.0 * k[1][i] + 2.0 * k[2][i] + k[3][i]);
+        }
+        y[2] = y[2].max(P_CAV);
+        y[3] = y[3].max(P_CAV);
+        if model.i_line != usize::MAX {
+            // Node pressures of side A at i_line.., of side B at i_line + 2·nseg...
+            let ns = model.line.3;
+            for j in 0..ns {
+                for i in [model.i_line + j, model.i_line + 2 * ns + j] {
+                    y[i] = y[i].max(P_CAV);
+                }
+            }
         }
     };
     let settle = (0.3 / h).round() as usize;

@@ -80,7 +80,8 @@ impl SensorModel {
                 .frequencies
                 .iter()
                 .zip(&tone.amplitudes)
-                .map(|(f, a)| a * (TAU * f * t).sin())
+                .enumerate()
+                .map(|(i, (f, a))| a * (TAU * f * t + tone.phases.get(i).copied().unwrap_or(0.0)).sin())
                 .sum(),
             _ => 0.0,
         }
