@@ -501,6 +501,7 @@ fn phase_nominal<'a>(
     val: Option<&'a Record>,
     opts: &Options,
 ) -> Result<NominalPhase<'a>, String> {
+    nominal.refit_ranges().map_err(|e| e.to_string())?;
     let n = rec.len();
     let (n_fit, val_rec, val_range, split) = match val {
         Some(v) => (
@@ -1045,7 +1046,7 @@ fn at_bounds(h: &Hyp) -> Vec<String> {
     h.params
         .iter()
         .zip(&h.values)
-        .filter(|(p, _)| p.name.ends_with("/nominal"))
+        .filter(|(p, _)| !p.name.starts_with("effects."))
         .filter_map(|(p, v)| {
             let u = p.to_unit(*v);
             let side = if u <= 0.005 {

@@ -4,7 +4,7 @@
 use crate::analysis::Analysis;
 use crate::data::Record;
 use ehactl_plant::params::{
-    BulkModulusPressure, BulkVariant, DeadbandVariant, FlexibleMount, FlowForm, Friction,
+    BulkModulusPressure, BulkVariant, DeadbandVariant, FlexibleMount, Friction,
     FrictionVariant, Leakage, LeakageVariant, LineDynamics, MountVariant, SaturationVariant,
     SensorChannel, SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband,
     ValveDynamics, ValveSaturation,
@@ -112,89 +112,38 @@ impl Scales {
     }
 }
 
-/// Nominal parameters refit with every hypothesis within ±15 %, so that realistic (±10 %)
-/// errors of the nominal config are not blamed on an effect: valve flow gain, β₀, moving mass,
-/// viscous damping and load stiffness (when present).
+/// Nominal parameters refit with every hypothesis, within the uncertainty the config states
+/// for them (`[uncertainty]`, [`PlantParams::refit_ranges`]; ±15 % for the valve flow gain,
+/// β₀, mass, damping and load stiffness when it is silent), so that realistic errors of the
+/// nominal config are not blamed on an effect. Each is a factor on its nominal value
+/// (`<path>/nominal`), or the value itself (`<path>`) when the nominal value is 0. A config
+/// whose `[uncertainty]` is invalid gives no refit parameters (it fails validation first).
 pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
-    let mut v = Vec::new();
-    let (lo, hi) = (0.85, 1.15);
-    let n = nominal.clone();
-    match nominal.valve.flow_form {
-        FlowForm::Kq => {
-            let q0 = n.valve.rated_flow.unwrap_or(0.0);
-            v.push(FreeParam::new(
-                "valve.rated_flow/nominal",
-                lo,
-                hi,
-                false,
-                1.0,
-                Arc::new(move |p, s| p.valve.rated_flow = Some(q0 * s)),
-            ));
-        }
-        FlowForm::Orifice => {
-            let a0 = n.valve.area_max.unwrap_or(0.0);
-            v.push(FreeParam::new(
-                "valve.area_max/nominal",
-                lo,
-                hi,
-                false,
-                1.0,
-                Arc::new(move |p, s| p.valve.area_max = Some(a0 * s)),
-            ));
-        }
-        FlowForm::PowerLaw => {
-            let q0 = n.valve.flow_at_1mpa.unwrap_or(0.0);
-            v.push(FreeParam::new(
-                "valve.flow_at_1mpa/nominal",
-                lo,
-                hi,
-                false,
-                1.0,
-                Arc::new(move |p, s| p.valve.flow_at_1mpa = Some(q0 * s)),
-            ));
-        }
-    }
-    let b0 = n.fluid.bulk_modulus;
-    v.push(FreeParam::new(
-        "fluid.bulk_modulus/nominal",
-        lo,
-        hi,
-        false,
-        1.0,
-        Arc::new(move |p, s| p.fluid.bulk_modulus = b0 * s),
-    ));
-    let m0 = n.mechanics.mass;
-    v.push(FreeParam::new(
-        "mechanics.mass/nominal",
-        lo,
-        hi,
-        false,
-        1.0,
-        Arc::new(move |p, s| p.mechanics.mass = m0 * s),
-    ));
-    if n.mechanics.damping > 0.0 {
-        let d0 = n.mechanics.damping;
-        v.push(FreeParam::new(
-            "mechanics.damping/nominal",
-            lo,
-            hi,
-            false,
-            1.0,
-            Arc::new(move |p, s| p.mechanics.damping = d0 * s),
-        ));
-    }
-    if n.mechanics.load_stiffness > 0.0 {
-        let k0 = n.mechanics.load_stiffness;
-        v.push(FreeParam::new(
-            "mechanics.load_stiffness/nominal",
-            lo,
-            hi,
-            false,
-            1.0,
-            Arc::new(move |p, s| p.mechanics.load_stiffness = k0 * s),
-        ));
-    }
-    v
+    let ranges = nominal.refit_ranges().unwrap_or_default();
+    ranges
+        .into_iter()
+        .map(|(path, v, lo, hi)| {
+            if v != 0.0 {
+                FreeParam::new(
+                    &format!("{path}/nominal"),
+                    lo / v,
+                    hi / v,
+                    false,
+                    1.0,
+                    Arc::new(move |p, s| p.set_nominal_value(path, v * s)),
+                )
+            } else {
+                FreeParam::new(
+                    path,
+                    lo,
+                    hi,
+                    false,
+                    v,
+                    Arc::new(move |p, x| p.set_nominal_value(path, x)),
+                )
+            }
+        })
+        .collect()
 }
 
 /// The structural variants of effect `e` to fit (DIAGNOSIS.md "Effect variants"): variant

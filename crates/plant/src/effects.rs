@@ -233,6 +233,7 @@ pub fn body_mount_step(
 pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::spec::ConfigError> {
     use crate::params::*;
     use crate::spec::ConfigError;
+    p.refit_ranges()?;
     let e = &p.effects;
     if let Some(l) = e.internal_leakage.as_ref() {
         if l.variant != LeakageVariant::Equal {

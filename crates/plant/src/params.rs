@@ -8,6 +8,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::effects::validate_variants;
+
 fn yes() -> bool {
     true
 }
@@ -766,4 +768,167 @@ pub struct PlantParams {
     /// Integration.
     #[serde(default)]
     pub integration: Integration,
+    /// Stated uncertainty of nominal parameters (`[uncertainty]`, dotted path → "15%" or an
+    /// absolute number in the parameter's SI unit): the bounds within which `ehactl diagnose`
+    /// refits them. See [`UNCERTAIN_PARAMS`]; unlisted defaults are ±15 %.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub uncertainty: std::collections::BTreeMap<String, Uncertainty>,
+}
+
+/// Stated uncertainty of one nominal parameter.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum Uncertainty {
+    /// ± this amount in the parameter's SI unit.
+    Absolute(f64),
+    /// ± this percentage of the nominal value, written like `"15%"`.
+    Relative(String),
+}
+
+/// Nominal parameters whose uncertainty a config may state, with their SI unit, and whether
+/// the diagnosis refits them by default (±[`DEFAULT_UNCERTAINTY`]) when the config is silent:
+/// the valve's flow gain (the one of its `flow_form`), β₀, mass, damping and load stiffness
+/// (the last two when nonzero). The others are refit only when listed.
+pub const UNCERTAIN_PARAMS: &[(&str, &str, bool)] = &[
+    ("valve.rated_flow", "m³/s", true),
+    ("valve.area_max", "m²", true),
+    ("valve.flow_at_1mpa", "m³/s", true),
+    ("fluid.bulk_modulus", "Pa", true),
+    ("mechanics.mass", "kg", true),
+    ("mechanics.damping", "N·s/m", true),
+    ("mechanics.load_stiffness", "N/m", true),
+    ("valve.underlap", "-", false),
+    ("cylinder.dead_volume_a", "m³", false),
+    ("cylinder.dead_volume_b", "m³", false),
+    ("supply.pressure", "Pa", false),
+    ("valve.command_full_scale", "V", false),
+];
+
+/// Relative uncertainty assumed for a default-refit nominal parameter the config is silent
+/// about (-).
+pub const DEFAULT_UNCERTAINTY: f64 = 0.15;
+
+impl PlantParams {
+    /// Value of an [`UNCERTAIN_PARAMS`] path (`None` for an unknown path or a flow-gain path
+    /// not used by this valve's `flow_form`).
+    pub fn nominal_value(&self, path: &str) -> Option<f64> {
+        Some(match path {
+            "valve.rated_flow" => self.valve.rated_flow.filter(|_| self.valve.flow_form == FlowForm::Kq)?,
+            "valve.area_max" => self.valve.area_max.filter(|_| self.valve.flow_form == FlowForm::Orifice)?,
+            "valve.flow_at_1mpa" => self
+                .valve
+                .flow_at_1mpa
+                .filter(|_| self.valve.flow_form == FlowForm::PowerLaw)?,
+            "fluid.bulk_modulus" => self.fluid.bulk_modulus,
+            "mechanics.mass" => self.mechanics.mass,
+            "mechanics.damping" => self.mechanics.damping,
+            "mechanics.load_stiffness" => self.mechanics.load_stiffness,
+            "valve.underlap" => self.valve.underlap,
+            "cylinder.dead_volume_a" => self.cylinder.dead_volume_a,
+            "cylinder.dead_volume_b" => self.cylinder.dead_volume_b,
+            "supply.pressure" => self.supply.pressure,
+            "valve.command_full_scale" => self.valve.command_full_scale,
+            _ => return None,
+        })
+    }
+
+    /// Write an [`UNCERTAIN_PARAMS`] path (unknown paths are ignored).
+    pub fn set_nominal_value(&mut self, path: &str, v: f64) {
+        match path {
+            "valve.rated_flow" => self.valve.rated_flow = Some(v),
+            "valve.area_max" => self.valve.area_max = Some(v),
+            "valve.flow_at_1mpa" => self.valve.flow_at_1mpa = Some(v),
+            "fluid.bulk_modulus" => self.fluid.bulk_modulus = v,
+            "mechanics.mass" => self.mechanics.mass = v,
+            "mechanics.damping" => self.mechanics.damping = v,
+            "mechanics.load_stiffness" => self.mechanics.load_stiffness = v,
+            "valve.underlap" => self.valve.underlap = v,
+            "cylinder.dead_volume_a" => self.cylinder.dead_volume_a = v,
+            "cylinder.dead_volume_b" => self.cylinder.dead_volume_b = v,
+            "supply.pressure" => self.supply.pressure = v,
+            "valve.command_full_scale" => self.valve.command_full_scale = v,
+            _ => {}
+        }
+    }
+
+    /// The refit range of every nominal parameter the diagnosis refits: (path, nominal value,
+    /// lower bound, upper bound) in SI units, from `[uncertainty]` and the defaults; a stated
+    /// uncertainty of 0 keeps the parameter fixed. Errors name the `[uncertainty]` key.
+    pub fn refit_ranges(&self) -> Result<Vec<(&'static str, f64, f64, f64)>, crate::spec::ConfigError> {
+        use crate::spec::ConfigError;
+        let key = |k: &str| format!("uncertainty.\"{k}\"");
+        for k in self.uncertainty.keys() {
+            match UNCERTAIN_PARAMS.iter().find(|u| u.0 == k) {
+                None => {
+                    return Err(ConfigError::new(
+                        key(k),
+                        format!(
+                            "not a parameter whose uncertainty can be stated; expected one of: {}",
+                            UNCERTAIN_PARAMS.iter().map(|u| u.0).collect::<Vec<_>>().join(", ")
+                        ),
+                    ))
+                }
+                Some(_) if self.nominal_value(k).is_none() => {
+                    return Err(ConfigError::new(
+                        key(k),
+                        "this valve's flow_form does not use the parameter (or it is not set); state the uncertainty of its own flow gain (kq: valve.rated_flow, orifice: valve.area_max, power_law: valve.flow_at_1mpa)",
+                    ))
+                }
+                Some(_) => {}
+            }
+        }
+        let mut out = Vec::new();
+        for &(path, unit, default) in UNCERTAIN_PARAMS {
+            let Some(v) = self.nominal_value(path) else { continue };
+            let half = match self.uncertainty.get(path) {
+                None if default && v > 0.0 => DEFAULT_UNCERTAINTY * v,
+                None => continue,
+                Some(Uncertainty::Absolute(a)) => {
+                    if !(a.is_finite() && *a >= 0.0) {
+                        return Err(ConfigError::new(
+                            key(path),
+                            format!("absolute uncertainty {a} is not a finite number ≥ 0; expected ± an amount in {unit} or a percentage like \"15%\""),
+                        ));
+                    }
+                    *a
+                }
+                Some(Uncertainty::Relative(t)) => {
+                    let r = t
+                        .trim()
+                        .strip_suffix('%')
+                        .and_then(|x| x.trim().parse::<f64>().ok())
+                        .filter(|r| r.is_finite() && (0.0..100.0).contains(r))
+                        .ok_or_else(|| {
+                            ConfigError::new(
+                                key(path),
+                                format!("got \"{t}\"; expected a percentage in [0, 100) like \"15%\", or an absolute number in {unit}"),
+                            )
+                        })?;
+                    if v == 0.0 && r > 0.0 {
+                        return Err(ConfigError::new(
+                            key(path),
+                            format!("the nominal value is 0, so a relative uncertainty is meaningless; state an absolute one in {unit}"),
+                        ));
+                    }
+                    r / 100.0 * v.abs()
+                }
+            };
+            if half == 0.0 {
+                continue;
+            }
+            // Physical parameters stay > 0 (the underlap may reach 0).
+            let lo = v - half;
+            if path == "valve.underlap" {
+                out.push((path, v, lo.max(0.0), v + half));
+            } else if lo <= 0.0 {
+                return Err(ConfigError::new(
+                    key(path),
+                    format!("± {half} {unit} around the nominal {v} {unit} reaches 0 or below; expected less than the nominal value"),
+                ));
+            } else {
+                out.push((path, v, lo, v + half));
+            }
+        }
+        Ok(out)
+    }
 }
