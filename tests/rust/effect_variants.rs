@@ -211,3 +211,67 @@ fn load_coulomb_friction_terminal_velocity() {
     }
     assert!((v - lo).abs() < 0.01 * lo, "v {v} vs {lo}");
 }
+
+/// `[uncertainty]` of the nominal parameters: parsed from a rig config, turned into refit
+/// ranges, and refused with a one-line error naming the key when wrong.
+mod uncertainty {
+    use ehactl_plant::PlantParams;
+
+    fn with(table: &str) -> Result<PlantParams, String> {
+        let base = ehactl_ident::synth::TESTRIG_TOML;
+        let text = format!("{base}\n[uncertainty]\n{table}\n");
+        ehactl_controller::RigConfig::from_toml_str(&text)
+            .map(|c| c.plant)
+            .map_err(|e| e.to_string())
+    }
+
+    fn range(p: &PlantParams, path: &str) -> Option<(f64, f64, f64)> {
+        p.refit_ranges()
+            .unwrap()
+            .into_iter()
+            .find(|r| r.0 == path)
+            .map(|r| (r.1, r.2, r.3))
+    }
+
+    #[test]
+    fn default_is_fifteen_percent_on_the_five_and_stated_values_replace_it() {
+        let p = with("").unwrap();
+        let (v, lo, hi) = range(&p, "mechanics.mass").unwrap();
+        assert!((lo - 0.85 * v).abs() < 1e-9 && (hi - 1.15 * v).abs() < 1e-9);
+        assert!(range(&p, "valve.underlap").is_none(), "not refit unless stated");
+        let p = with(
+            "\"valve.rated_flow\" = \"30%\"\n\"mechanics.mass\" = 2.5\n\"valve.underlap\" = 0.01\n\"mechanics.damping\" = \"0%\"",
+        )
+        .unwrap();
+        let (q, lo, hi) = range(&p, "valve.rated_flow").unwrap();
+        assert!((lo - 0.7 * q).abs() < 1e-15 && (hi - 1.3 * q).abs() < 1e-15);
+        let (m, lo, hi) = range(&p, "mechanics.mass").unwrap();
+        assert_eq!((lo, hi), (m - 2.5, m + 2.5));
+        let (u, lo, hi) = range(&p, "valve.underlap").unwrap();
+        assert!((lo - (u - 0.01)).abs() < 1e-15 && (hi - (u + 0.01)).abs() < 1e-15);
+        assert!(range(&p, "mechanics.damping").is_none(), "0 % keeps it fixed");
+        // The diagnosis refits exactly these.
+        let names: Vec<String> = ehactl_ident::fit::base_params(&p)
+            .iter()
+            .map(|f| f.name.clone())
+            .collect();
+        assert!(names.contains(&"valve.underlap/nominal".to_string()), "{names:?}");
+        assert!(!names.iter().any(|n| n.starts_with("mechanics.damping")), "{names:?}");
+    }
+
+    #[test]
+    fn bad_uncertainty_is_refused_with_the_key_named() {
+        for (table, needle) in [
+            ("\"valve.rated_flw\" = \"10%\"", "uncertainty.\"valve.rated_flw\""),
+            ("\"valve.area_max\" = \"10%\"", "flow_form"),
+            ("\"mechanics.mass\" = \"ten percent\"", "expected a percentage"),
+            ("\"mechanics.mass\" = \"150%\"", "expected a percentage"),
+            ("\"mechanics.mass\" = 40.0", "reaches 0"),
+            ("\"mechanics.mass\" = -1.0", "≥ 0"),
+        ] {
+            let e = with(table).expect_err(table);
+            assert!(e.contains(needle), "{table}: {e}");
+            assert!(!e.contains('\n'), "one line: {e}");
+        }
+    }
+}
