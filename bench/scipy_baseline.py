@@ -19,7 +19,7 @@ Model (SI units; same equations and parameters as crates/plant for this config):
   piston   m v̇ = p_A A_A − p_B A_B − K_L (x − x_c) − c v,  ẋ = v  (no friction in this config)
   force    F = K_L (x − x_c)  (the load cell; noise and tones off, see below)
   PI       e = g·(r − F), u = K_P·e + I_acc, I_acc += K_P·I·T_s·e with clamping anti-windup,
-           u clamped to ±10 V                                     (crates/controller/src/pi.rs)
+           u clamped to ±10 V                                     (crates/control/src/pi.rs)
   setpoint 785 N reached by a ramp over 50 ms, then + 196 N · sin(log chirp 1→300 Hz over 3 s)
 
 Not modelled because they never act in this run: the cavitation floor (pressures stay above
@@ -29,7 +29,7 @@ Sensor noise and the 225/420 Hz tones are disabled here and in the Rust runs it 
 with (the Rust bench's ``noise-free`` variant).
 
 Accuracy is measured against the Rust high-accuracy reference trace written by
-``cargo bench -p ehactl-controller --bench closed_loop`` to target/bench/reference_noisefree.csv:
+``cargo bench -p ehactl-runtime --bench closed_loop`` to target/bench/reference_noisefree.csv:
 NRMSE = RMS(F − F_ref) / (max F_ref − min F_ref) over the control instants of the window.
 
 By default each (method, rtol) runs the whole 3 s from t = 0, like the Rust runs, so nothing is
@@ -46,7 +46,7 @@ wall time per simulated second, SciPy / Rust.
 
 Usage:
   pip install -r bench/requirements.txt
-  cargo bench -p ehactl-controller --bench closed_loop      # writes target/bench/*.csv
+  cargo bench -p ehactl-runtime --bench closed_loop      # writes target/bench/*.csv
   python bench/scipy_baseline.py                            # defaults below
   python bench/scipy_baseline.py --methods LSODA,BDF --rtols 1e-4,1e-6 --horizon 0.3 --windows start,end
 """

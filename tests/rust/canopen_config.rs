@@ -2,7 +2,7 @@
 //! refusal with the worst-case bit-stuffing formula.
 
 use ehactl_canopen::config::{frame_bits, CanopenConfig, CANOPEN_PARAMS};
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 
 fn boom() -> String {
     let p =
@@ -60,7 +60,7 @@ fn every_field_is_in_the_registry_with_a_unit() {
             .unwrap_or_else(|| panic!("{k} not in registry"));
         assert!(!p.unit.is_empty() && !p.description.is_empty());
     }
-    assert!(ehactl_controller::config::registries()
+    assert!(ehactl_config::registries()
         .iter()
         .any(|t| t.iter().any(|p| p.path == "canopen.sync_rate_hz")));
 }

@@ -1,6 +1,6 @@
 //! Shared helpers for the integration tests.
 
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_plant::PlantParams;
 use std::path::PathBuf;
 

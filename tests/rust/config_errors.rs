@@ -2,7 +2,7 @@
 //! unit: missing field, wrong type, negative, non-finite, out of range, unknown effect id,
 //! unknown field, syntax error, cross-field inconsistency.
 
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_tests::repo;
 
 fn base() -> String {

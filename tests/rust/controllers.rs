@@ -1,8 +1,8 @@
 //! Control laws and setpoints against their closed forms.
 
-use ehactl_controller::pd::{Pd, PdGains};
-use ehactl_controller::pi::{Pi, PiGains};
-use ehactl_controller::setpoint::{Setpoint, SetpointConfig, SetpointKind, Sweep};
+use ehactl_control::pd::{Pd, PdGains};
+use ehactl_control::pi::{Pi, PiGains};
+use ehactl_control::setpoint::{Setpoint, SetpointConfig, SetpointKind, Sweep};
 
 fn pi(kp: f64, i: f64) -> Pi {
     Pi::new(PiGains {

@@ -11,9 +11,9 @@
 use ehactl_canopen::frame::CanFrame;
 use ehactl_canopen::sdo::{SdoClient, SdoStep};
 use ehactl_canopen::socketcand::{self, Framer};
-use ehactl_controller::control_socket;
-use ehactl_controller::session::{build_plant, run_sim, SessionOptions};
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
+use ehactl_runtime::control_socket;
+use ehactl_runtime::session::{build_plant, run_sim, SessionOptions};
 use ehactl_tests::repo;
 use proptest::prelude::*;
 use std::sync::OnceLock;
@@ -70,7 +70,7 @@ fn hostile_value() -> impl Strategy<Value = String> {
 /// Run a config that validated for a few cycles: it must end (trip or complete) with
 /// finite figures for the cycles it ran.
 fn run_briefly(c: &RigConfig) {
-    let dt = c.control_dt();
+    let dt = c.timebase().period();
     let s = run_sim(
         c,
         SessionOptions {
@@ -140,7 +140,7 @@ proptest! {
         }
         if let Ok(rec) = ehactl_ident::data::parse_csv("fuzz.csv", &csv) {
             let rig = ehactl_ident::synth::testrig();
-            let _ = ehactl_ident::data::check_against(&rec, &rig.plant, rig.control_dt());
+            let _ = ehactl_ident::data::check_against(&rec, &rig.plant, rig.timebase().period());
         }
     }
 

@@ -1,7 +1,7 @@
 //! Every cycle of a run is in the MCAP file and reads back (Rust reader; the Python `mcap`
 //! package and `@mcap/core` read the same files in tests/python).
 
-use ehactl_controller::session::{run_sim, SessionOptions};
+use ehactl_runtime::session::{run_sim, SessionOptions};
 use ehactl_tests::config;
 use std::collections::BTreeMap;
 

@@ -1,16 +1,16 @@
 //! Live gain / setpoint changes land at a cycle boundary and are logged as events; the
 //! wall-clock run reports timing in its summary and logs `/timing`.
 
-use ehactl_controller::control_socket::{self, ControlServer};
-use ehactl_controller::live::{self, LiveParams};
-use ehactl_controller::realtime::{RtOptions, WallClockPacer};
-use ehactl_controller::runloop::Pacer;
-use ehactl_controller::session::{build_plant, run_with_live, Backend, SessionOptions};
-use ehactl_controller::setpoint::Setpoint;
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
+use ehactl_control::setpoint::Setpoint;
 use ehactl_hal::logger::Overflow;
 use ehactl_hal::record::CycleRecord;
 use ehactl_hal::sim::SimHal;
+use ehactl_runtime::control_socket::{self, ControlServer};
+use ehactl_runtime::live::{self, LiveParams};
+use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
+use ehactl_runtime::runloop::Pacer;
+use ehactl_runtime::session::{build_plant, run_with_live, Backend, SessionOptions};
 use ehactl_tests::config;
 use std::path::Path;
 use std::sync::Arc;
@@ -55,7 +55,7 @@ fn run(
     mcap: &Path,
     live: &LiveParams,
     overflow: Overflow,
-) -> ehactl_controller::session::Session {
+) -> ehactl_runtime::session::Session {
     let mut c = cfg.clone();
     c.run.duration = duration;
     let plant = build_plant(&c).unwrap();
@@ -140,7 +140,7 @@ fn change_lands_exactly_at_the_cycle_boundary_and_is_logged() {
     for e in &ev {
         assert_eq!(e["cycle"], AT);
         // (serde_json's default float parser is not exactly round-trip: compare to 1e-12 s)
-        assert!((e["t"].as_f64().unwrap() - AT as f64 * cfg.control_dt()).abs() < 1e-12);
+        assert!((e["t"].as_f64().unwrap() - AT as f64 * cfg.timebase().period()).abs() < 1e-12);
     }
     assert_eq!(ev[0]["channel"], "control.pi.kp");
     assert_eq!(ev[0]["value"], 0.3);
@@ -173,7 +173,7 @@ fn control_socket_changes_gain_of_a_wall_clock_run_without_torn_state() {
         })
     };
     // Real settings off: this test is about the hand-over, not about scheduling.
-    let mut pacer = WallClockPacer::new(cfg.control_dt(), RtOptions::default());
+    let mut pacer = WallClockPacer::new(cfg.timebase(), RtOptions::default());
     let path = dir.join("socket.mcap");
     let s = run(&cfg, &mut pacer, 1.0, &path, &live, Overflow::Drop);
     let (bad_range, wrong_law, not_live, ok) = client.join().unwrap();

@@ -2,9 +2,9 @@
 //! validation and then tripped (or crawled) at run time, live `set` values that were
 //! accepted although absurd, and a loop that ran bang-bang at ±10 V without a trip.
 
-use ehactl_controller::live::{self, LiveParams};
-use ehactl_controller::session::{run_sim, run_sim_live, SessionOptions};
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
+use ehactl_runtime::live::{self, LiveParams};
+use ehactl_runtime::session::{run_sim, run_sim_live, SessionOptions};
 use ehactl_tests::{config, repo};
 use std::sync::Arc;
 use std::time::Duration;
@@ -15,7 +15,7 @@ fn text(name: &str) -> String {
 
 fn err_of(text: &str) -> String {
     match RigConfig::from_toml_str(text) {
-        Ok(c) => match ehactl_controller::session::build_plant(&c) {
+        Ok(c) => match ehactl_runtime::session::build_plant(&c) {
             Ok(p) => panic!(
                 "config should be rejected; it builds with {} substeps",
                 p.substeps()

@@ -11,7 +11,7 @@ use ehactl_analysis::tline::{
     first_peak, Chamber, Circuit, Friction, LineSection, OutputCylinder, PiezoPump, Source, INCH,
     SIROHI_TUBE_ID,
 };
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_plant::params::LineFriction;
 use ehactl_tests::config;
 use std::f64::consts::PI;

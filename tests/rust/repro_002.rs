@@ -6,10 +6,10 @@
 //! Run: `cargo test --release -p ehactl-tests --test repro_002 -- --nocapture`.
 
 use ehactl_analysis::motion::{LineTerms, MotionEstimator, PortSample};
-use ehactl_controller::runloop::Controller;
-use ehactl_controller::setpoint::Setpoint;
+use ehactl_control::setpoint::Setpoint;
 use ehactl_plant::rng::NoiseRng;
 use ehactl_plant::Plant;
+use ehactl_runtime::runloop::Controller;
 use ehactl_tests::config;
 
 /// One closed-loop run of the crane config, sampled at the control rate.
@@ -26,9 +26,9 @@ struct Run {
     p_tank: f64,
 }
 
-fn simulate() -> (Run, ehactl_controller::RigConfig) {
+fn simulate() -> (Run, ehactl_config::RigConfig) {
     let cfg = config("cristofori2015_crane.toml");
-    let dt = cfg.control_dt();
+    let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&cfg.plant, dt).expect("crane config");
     let mut ctrl = Controller::from_config(&cfg);
     let sp = Setpoint::new(&cfg.setpoint);
@@ -74,7 +74,7 @@ struct Errors {
 /// port-pressure noise σ (Pa).
 fn estimate(
     run: &Run,
-    cfg: &ehactl_controller::RigConfig,
+    cfg: &ehactl_config::RigConfig,
     terms: LineTerms,
     noise: f64,
     side: usize,
@@ -253,9 +253,9 @@ fn phase(u: f64, after_lower: bool) -> usize {
     }
 }
 
-fn simulate_cycle() -> (Cycle, ehactl_controller::RigConfig) {
+fn simulate_cycle() -> (Cycle, ehactl_config::RigConfig) {
     let cfg = config("cristofori2015_crane_cycle.toml");
-    let dt = cfg.control_dt();
+    let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&cfg.plant, dt).expect("cycle config");
     let mut ctrl = Controller::from_config(&cfg);
     let sp = Setpoint::new(&cfg.setpoint);
@@ -392,7 +392,7 @@ fn crane_cycle_with_counterbalance_valves() {
     let opened = lower.iter().map(|&i| c.opening[i].0).fold(0.0, f64::max);
     assert!(opened > 0.5, "lowering opens the A-side CBV: {opened}");
     // β(p) over the cycle (002 eq. 35–36), relative to β(100 bar).
-    let plant = Plant::configure(&cfg.plant, cfg.control_dt()).unwrap();
+    let plant = Plant::configure(&cfg.plant, cfg.timebase().period()).unwrap();
     let (lo, hi) = c
         .p_chamber
         .iter()
@@ -419,7 +419,7 @@ fn crane_cycle_with_counterbalance_valves() {
     // Motion estimate from the port pressures (002 eq. 31–36), switching as 002 does: eq. 31
     // for raise and stop after lowering, eq. 32 otherwise. Resistive line (002's choice), no
     // noise. The estimator does not model the CBV (002 eq. 18–26 are not implemented).
-    let dt = cfg.control_dt();
+    let dt = cfg.timebase().period();
     let mut est = MotionEstimator::new(&cfg.plant, dt, x0);
     let pt = cfg.plant.supply.tank_pressure;
     let mut x_prev = x0;
@@ -489,7 +489,7 @@ fn crane_cycle_with_counterbalance_valves() {
 fn counterbalance_valve_needs_lines() {
     let mut cfg = config("cristofori2015_crane_cycle.toml");
     cfg.plant.effects.line_dynamics = None;
-    let e = Plant::configure(&cfg.plant, cfg.control_dt()).expect_err("a CBV without lines");
+    let e = Plant::configure(&cfg.plant, cfg.timebase().period()).expect_err("a CBV without lines");
     let msg = e.to_string();
     assert!(
         msg.contains("effects.counterbalance_valve") && msg.contains("line_dynamics"),

@@ -10,8 +10,8 @@
 use ehactl_analysis::analyze::{analyze, natural_frequency};
 use ehactl_analysis::sdd::implied_mount;
 use ehactl_analysis::sweep::{sweep, Channel, SweepOptions};
-use ehactl_controller::session::{run_sim, SessionOptions};
 use ehactl_plant::Plant;
+use ehactl_runtime::session::{run_sim, SessionOptions};
 use ehactl_tests::config;
 
 fn within(v: f64, target: f64, rel: f64) -> bool {
@@ -321,7 +321,7 @@ fn seed000_natural_frequency_rises_as_the_chamber_shortens() {
         p.cylinder.stroke = stroke;
         p.cylinder.initial_position = stroke / 2.0;
         p.mechanics.load_contact_position = stroke / 2.0;
-        let plant = Plant::configure(&p, cfg.control_dt()).expect("plant");
+        let plant = Plant::configure(&p, cfg.timebase().period()).expect("plant");
         natural_frequency(&plant, stroke / 2.0, p.mechanics.mass)
     };
     let (f250, f50) = (f(0.25), f(0.05));

@@ -4,13 +4,13 @@
 //! published from another thread in the middle — and every cycle after start-up must
 //! allocate nothing. Its own test binary, because it installs its own #[global_allocator].
 
-use ehactl_controller::live::{self, LiveParams};
-use ehactl_controller::realtime::{TimingReport, WallClockPacer};
-use ehactl_controller::runloop::Pacer;
-use ehactl_controller::session::{build_plant, run_with_live, Backend, SessionOptions};
 use ehactl_hal::logger::Overflow;
 use ehactl_hal::record::{CycleTiming, Event};
 use ehactl_hal::sim::SimHal;
+use ehactl_runtime::live::{self, LiveParams};
+use ehactl_runtime::realtime::{RtOptions, TimingReport, WallClockPacer};
+use ehactl_runtime::runloop::Pacer;
+use ehactl_runtime::session::{build_plant, run_with_live, Backend, SessionOptions};
 use ehactl_tests::config;
 use ehactl_tests::{allocations, CountingAlloc};
 use std::sync::Arc;
@@ -52,13 +52,13 @@ fn no_allocation_per_cycle_after_start_up() {
     const CYCLES: u64 = 12_000; // 2.4 s at 5 kHz
     let cfg = config("sahu2022_force.toml");
     let mut cfg_run = cfg.clone();
-    cfg_run.run.duration = CYCLES as f64 * cfg.control_dt();
+    cfg_run.run.duration = CYCLES as f64 * cfg.timebase().period();
     let plant = build_plant(&cfg_run).unwrap();
     let substeps = plant.substeps();
     let mut hal = SimHal::new(plant);
     // Real-time settings as configured (they may be refused: a warning, still counted).
     let mut pacer = Watch {
-        inner: WallClockPacer::new(cfg.control_dt(), cfg.realtime.rt_options()),
+        inner: WallClockPacer::new(cfg.timebase(), RtOptions::from_config(&cfg.realtime)),
         at: vec![u64::MAX; CYCLES as usize + 1],
     };
     let live = Arc::new(LiveParams::new());
@@ -126,7 +126,7 @@ fn no_allocation_per_cycle_after_start_up() {
 #[test]
 fn counterbalance_valve_plant_step_does_not_allocate() {
     let cfg = config("cristofori2015_crane_cycle.toml");
-    let mut plant = ehactl_plant::Plant::configure(&cfg.plant, cfg.control_dt()).unwrap();
+    let mut plant = ehactl_plant::Plant::configure(&cfg.plant, cfg.timebase().period()).unwrap();
     plant.step(5.0).unwrap();
     let before = allocations();
     for k in 0..2000 {

@@ -11,7 +11,7 @@
 use ehactl_analysis::tline::{
     bessel_ratio, bessel_ratio_exact, viscous_frequency, Friction, LineSection, SIROHI_TUBE_ID,
 };
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_plant::line::Line;
 use ehactl_plant::params::{Fluid, LineDynamics, LineFriction};
 use ehactl_plant::Plant;
@@ -147,7 +147,7 @@ fn unsteady_line_steps_without_allocating_and_stays_finite() {
     let cfg = RigConfig::from_toml_str(&circuit_text()).expect("config");
     let line = cfg.plant.effects.line_dynamics.as_ref().unwrap();
     assert_eq!(line.friction, LineFriction::Unsteady);
-    let mut plant = Plant::configure(&cfg.plant, cfg.control_dt()).expect("plant");
+    let mut plant = Plant::configure(&cfg.plant, cfg.timebase().period()).expect("plant");
     let n = plant.linear_state().len();
     let names = plant.linear_state_names();
     assert_eq!(names.len(), n);

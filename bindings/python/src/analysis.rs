@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 fn to_py(e: AnalysisError) -> PyErr {
     match e {
         AnalysisError::Config(e) => PyValueError::new_err(e.to_string()),
-        AnalysisError::Session(ehactl_controller::session::SessionError::Config(e)) => {
+        AnalysisError::Session(ehactl_runtime::session::SessionError::Config(e)) => {
             PyValueError::new_err(e.to_string())
         }
         e => PyRuntimeError::new_err(e.to_string()),
@@ -64,7 +64,7 @@ pub fn sweep_json(
         periods,
         ..Default::default()
     };
-    let total = (plan.planned_duration(&rc) / rc.control_dt())
+    let total = (plan.planned_duration(&rc) / rc.timebase().period())
         .round()
         .max(1.0) as u64;
     let counter = AtomicU64::new(0);

@@ -2,7 +2,7 @@
 //! validated by the same loader as the CLI (`RigConfig::from_value`), so a config that
 //! Python accepts is one the 5 kHz loop accepts, and errors name the field and its unit.
 
-use ehactl_controller::config::{registries, RigConfig};
+use ehactl_config::{registries, RigConfig};
 use ehactl_plant::spec::{self, ConfigError, Kind};
 use pyo3::exceptions::{PyKeyError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -308,7 +308,7 @@ impl Config {
     /// Control period 1 / run.control_rate_hz (s).
     #[getter]
     fn control_dt(&self) -> f64 {
-        self.cfg.control_dt()
+        self.cfg.timebase().period()
     }
 
     /// Rig name (`rig.name`).
@@ -321,9 +321,9 @@ impl Config {
     #[getter]
     fn mode(&self) -> String {
         match self.cfg.control.mode {
-            ehactl_controller::config::ControlMode::Force => "force",
-            ehactl_controller::config::ControlMode::Position => "position",
-            ehactl_controller::config::ControlMode::OpenLoop => "open_loop",
+            ehactl_config::ControlMode::Force => "force",
+            ehactl_config::ControlMode::Position => "position",
+            ehactl_config::ControlMode::OpenLoop => "open_loop",
         }
         .to_string()
     }

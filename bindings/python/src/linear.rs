@@ -6,7 +6,7 @@ use crate::config::Config;
 use ehactl_analysis::linear::{self, Output};
 use ehactl_analysis::loopshape::Law;
 use ehactl_analysis::oppoint::{self, command_delay};
-use ehactl_controller::config::ControlMode;
+use ehactl_config::ControlMode;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -24,7 +24,7 @@ pub fn linear_plant_response<'py>(
     f_hz: Vec<f64>,
     max_time: f64,
 ) -> PyResult<(Vec<f64>, Vec<f64>, Bound<'py, PyDict>)> {
-    let nyq = 0.5 / cfg.cfg.control_dt();
+    let nyq = 0.5 / cfg.cfg.timebase().period();
     if let Some(f) = f_hz
         .iter()
         .find(|f| !(f.is_finite() && **f > 0.0 && **f < nyq))

@@ -70,7 +70,7 @@ impl Plant {
     #[new]
     #[pyo3(signature = (cfg, control_dt = None))]
     fn new(cfg: &Config, control_dt: Option<f64>) -> PyResult<Plant> {
-        let dt = control_dt.unwrap_or_else(|| cfg.cfg.control_dt());
+        let dt = control_dt.unwrap_or_else(|| cfg.cfg.timebase().period());
         if !(dt.is_finite() && dt > 0.0) {
             return Err(PyValueError::new_err(format!(
                 "control_dt = {dt} is not valid; expected a finite number > 0 in s"

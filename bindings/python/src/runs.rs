@@ -1,13 +1,13 @@
 //! Closed-loop runs: one (`run_one`) or a batch in parallel on a rayon pool (`run_batch`).
-//! Both call `ehactl_controller::session::run_sim` — the exact code behind `ehactl run` —
+//! Both call `ehactl_runtime::session::run_sim` — the exact code behind `ehactl run` —
 //! with the GIL released. The calling thread only wakes up to forward progress to a Python
 //! callback and to notice Ctrl-C (which stops the runs through the session's stop flag).
 
 use crate::columns::{self, ColumnSink, Columns, COLUMNS, STUCK};
 use crate::config::Config;
-use ehactl_controller::session::{run_sim, SessionOptions};
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_hal::record::CycleRecord;
+use ehactl_runtime::session::{run_sim, SessionOptions};
 use numpy::IntoPyArray;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -47,7 +47,7 @@ fn one(
             p.store(k, Ordering::Relaxed);
         }
     };
-    let cycles = (duration.unwrap_or(cfg.run.duration) / cfg.control_dt())
+    let cycles = (duration.unwrap_or(cfg.run.duration) / cfg.timebase().period())
         .round()
         .max(1.0) as usize;
     let mut sink = ColumnSink::new(idx, stuck, cycles);
@@ -159,7 +159,7 @@ pub fn run_one<'py>(
     check_duration(duration)?;
     let (idx, stuck) = columns::select(fields.as_deref()).map_err(PyValueError::new_err)?;
     let rc = cfg.cfg.clone();
-    let total = (duration.unwrap_or(rc.run.duration) / rc.control_dt())
+    let total = (duration.unwrap_or(rc.run.duration) / rc.timebase().period())
         .round()
         .max(1.0) as u64;
     let counter = AtomicU64::new(0);

@@ -16,12 +16,12 @@ use ehactl_analysis::linear::{self, Output};
 use ehactl_analysis::motion::{LineTerms, MotionEstimator, PortSample};
 use ehactl_analysis::oppoint;
 use ehactl_analysis::tline::{Circuit, INCH};
-use ehactl_controller::runloop::Controller;
-use ehactl_controller::setpoint::Setpoint;
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
+use ehactl_control::setpoint::Setpoint;
 use ehactl_plant::params::LineFriction;
 use ehactl_plant::rng::NoiseRng;
 use ehactl_plant::Plant;
+use ehactl_runtime::runloop::Controller;
 use std::f64::consts::PI;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -116,7 +116,7 @@ fn segments_table(path: &Path, root: &Path) -> Result<(), Box<dyn std::error::Er
 
 fn motion_table(path: &Path, root: &Path) -> Result<(), Box<dyn std::error::Error>> {
     let cfg = RigConfig::load(&root.join("configs/cristofori2015_crane.toml"))?;
-    let dt = cfg.control_dt();
+    let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&cfg.plant, dt)?;
     let mut ctrl = Controller::from_config(&cfg);
     let sp = Setpoint::new(&cfg.setpoint);

@@ -9,10 +9,10 @@
 //! then `python3 scripts/repro_002_cycle_plot.py` (which runs this itself if the data are absent).
 
 use ehactl_analysis::motion::{MotionEstimator, PortSample};
-use ehactl_controller::runloop::Controller;
-use ehactl_controller::setpoint::Setpoint;
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
+use ehactl_control::setpoint::Setpoint;
 use ehactl_plant::Plant;
+use ehactl_runtime::runloop::Controller;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -25,7 +25,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     std::fs::create_dir_all(&out)?;
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let cfg = RigConfig::load(&root.join("configs/cristofori2015_crane_cycle.toml"))?;
-    let dt = cfg.control_dt();
+    let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&cfg.plant, dt)?;
     let mut ctrl = Controller::from_config(&cfg);
     let sp = Setpoint::new(&cfg.setpoint);

@@ -5,7 +5,7 @@ use crate::loopshape::{log_grid, margins, open_loop_bandwidth, Law, Loop, Margin
 use crate::oppoint::{self, command_delay};
 use crate::sdd::{self, SddRatios};
 use crate::AnalysisError;
-use ehactl_controller::config::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_plant::Plant;
 use serde::Serialize;
 use serde_json::{json, Value};
@@ -117,7 +117,7 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
     let s = *plant.state();
     let m_rigid = rigid_mass(plant);
     let (fmin, xmin) = min_over_stroke(plant);
-    let dt = cfg.control_dt();
+    let dt = cfg.timebase().period();
     let nyquist = 0.5 / dt;
     let dmodel = linear::discrete(&op)?;
     let cmodel = linear::continuous(&op, 1e-7)?;

@@ -31,7 +31,7 @@ pub enum AnalysisError {
     /// The config is unusable.
     Config(ehactl_plant::ConfigError),
     /// The run or log failed.
-    Session(ehactl_controller::session::SessionError),
+    Session(ehactl_runtime::session::SessionError),
     /// The plant went non-finite while searching the operating point.
     Numerical(String),
 }

@@ -1,13 +1,13 @@
 //! Controller transfer functions, loop frequency responses and stability margins.
 //!
-//! The discrete laws are exactly those of `ehactl-controller`:
+//! The discrete laws are exactly those of `ehactl-control`:
 //! PI (backward-Euler integral, 004 §6.2: K_i = K_P·T_s·I): C(z) = K_P·g·(1 + I·T·z/(z − 1));
 //! PD (003 eq. 32 with the derivative filter T_f = T_D/N):
 //! C(z) = K_P + K_P·T_D·(1 − z⁻¹)/((T_f + T) − T_f·z⁻¹).
 //! Their continuous counterparts are K_P·g·(1 + I/s) and K_P·(1 + T_D·s/(1 + T_f·s)).
 
 use crate::linear::{LinearModel, Output};
-use ehactl_controller::config::{ControlMode, RigConfig};
+use ehactl_config::{ControlMode, RigConfig};
 use nalgebra::Complex;
 use serde::Serialize;
 use std::f64::consts::TAU;

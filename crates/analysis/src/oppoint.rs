@@ -2,11 +2,11 @@
 //! loop with a constant command) run to rest at the setpoint's static value.
 
 use crate::AnalysisError;
-use ehactl_controller::config::{ControlMode, RigConfig};
-use ehactl_controller::runloop::Controller;
-use ehactl_controller::setpoint::{SetpointConfig, SetpointKind};
+use ehactl_config::{ControlMode, RigConfig};
+use ehactl_control::setpoint::{SetpointConfig, SetpointKind};
 use ehactl_plant::params::{ExcitationKind, PlantParams};
 use ehactl_plant::Plant;
+use ehactl_runtime::runloop::Controller;
 
 /// The static value of a setpoint (N, m or V): the offset of a sine, chirp or static + dynamic
 /// setpoint, the final value of a step or ramp, the middle of random steps.
@@ -85,7 +85,7 @@ pub fn find(cfg: &RigConfig, max_time: f64) -> Result<OperatingPoint, AnalysisEr
     if cfg.control.mode == ControlMode::Position {
         params.cylinder.initial_position = reference.clamp(0.0, params.cylinder.stroke);
     }
-    let dt = cfg.control_dt();
+    let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&params, dt)?;
     let mut controller = Controller::from_config(cfg);
     let n = (max_time / dt).ceil() as u64;

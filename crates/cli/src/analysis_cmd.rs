@@ -49,7 +49,7 @@ pub struct SweepArgs {
 fn fail(config: &Path, e: AnalysisError) -> ExitCode {
     match e {
         AnalysisError::Config(e) => config_error(format!("{}: {e}", config.display())),
-        AnalysisError::Session(ehactl_controller::session::SessionError::Config(e)) => {
+        AnalysisError::Session(ehactl_runtime::session::SessionError::Config(e)) => {
             config_error(format!("{}: {e}", config.display()))
         }
         e => {

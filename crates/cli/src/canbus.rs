@@ -4,10 +4,10 @@ use clap::Subcommand;
 use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError, StartupFailure};
 use ehactl_canopen::hub::Hub;
 use ehactl_canopen::BusUrl;
-use ehactl_controller::session::open_log;
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_hal::logger::{FrameLog, Overflow};
 use ehactl_hal::record::{Event, EventKind, Severity};
+use ehactl_runtime::session::open_log;
 use std::io::Write;
 use std::path::Path;
 use std::process::ExitCode;
@@ -104,7 +104,7 @@ pub fn check_args(cfg: &RigConfig, (hal, bus): (HalKind, Option<&str>)) -> Resul
                 bus: url,
                 canopen: cfg.canopen.clone(),
                 command_full_scale: cfg.plant.valve.command_full_scale,
-                control_rate_hz: cfg.run.control_rate_hz,
+                control_rate_hz: cfg.timebase().rate_hz(),
                 safe_command: cfg.supervisor.safe_command,
                 verbose: false,
             })
@@ -141,7 +141,7 @@ pub fn connect(
                 bus: url,
                 canopen: cfg.canopen.clone(),
                 command_full_scale: cfg.plant.valve.command_full_scale,
-                control_rate_hz: cfg.run.control_rate_hz,
+                control_rate_hz: cfg.timebase().rate_hz(),
                 safe_command: cfg.supervisor.safe_command,
                 verbose: !json,
             };

@@ -1,6 +1,6 @@
 //! `ehactl diagnose`: name what the simulation gets wrong on measured data (see ehactl-ident).
 
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_ident::session::{self, SessionError};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

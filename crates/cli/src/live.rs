@@ -131,7 +131,7 @@ impl LiveView {
                 "json",
                 json_schema(
                     schemas::CONFIG_SCHEMA_NAME,
-                    schemas::config_schema(ehactl_controller::session::config_json_schema()),
+                    schemas::config_schema(ehactl_runtime::session::config_json_schema()),
                 ),
             )?,
             events: channel(

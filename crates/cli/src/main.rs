@@ -14,18 +14,18 @@ mod diagnose;
 mod live;
 
 use clap::{Parser, Subcommand};
-use ehactl_controller::config::registries;
-use ehactl_controller::control_socket::ControlServer;
-use ehactl_controller::live::LiveParams;
-use ehactl_controller::realtime::WallClockPacer;
-use ehactl_controller::session::{
-    build_plant, run_sim, run_sim_live, run_with_live, Backend, Session, SessionError,
-    SessionOptions,
-};
-use ehactl_controller::RigConfig;
+use ehactl_config::registries;
+use ehactl_config::RigConfig;
 use ehactl_hal::logger::Overflow;
 use ehactl_hal::sim::SimHal;
 use ehactl_hal::Hal;
+use ehactl_runtime::control_socket::ControlServer;
+use ehactl_runtime::live::LiveParams;
+use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
+use ehactl_runtime::session::{
+    build_plant, run_sim, run_sim_live, run_with_live, Backend, Session, SessionError,
+    SessionOptions,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -388,7 +388,7 @@ fn main() -> ExitCode {
                 Ok(c) => c,
                 Err(code) => return code,
             };
-            match ehactl_controller::session::build_plant(&cfg) {
+            match ehactl_runtime::session::build_plant(&cfg) {
                 Ok(plant) => {
                     println!(
                         "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
@@ -444,11 +444,11 @@ fn main() -> ExitCode {
 
 fn cmd_set(socket: &Path, assignments: &[String]) -> ExitCode {
     for a in assignments {
-        if let Err(e) = ehactl_controller::live::parse_assignment(a) {
+        if let Err(e) = ehactl_runtime::live::parse_assignment(a) {
             return config_error(e);
         }
     }
-    match ehactl_controller::control_socket::send(socket, assignments) {
+    match ehactl_runtime::control_socket::send(socket, assignments) {
         Ok(reply) if reply.starts_with("ok") => {
             println!("{reply}");
             ExitCode::SUCCESS
@@ -506,7 +506,7 @@ fn cmd_run(
     let _server = match &control_socket {
         Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
             Ok(s) => Some(s),
-            Err(ehactl_controller::control_socket::StartError::PathInUse(e)) => {
+            Err(ehactl_runtime::control_socket::StartError::PathInUse(e)) => {
                 return config_error(format!("--control-socket {}: {e}", path.display()));
             }
             Err(e) => {
@@ -645,7 +645,7 @@ fn cmd_run(
             },
             session.substeps
         );
-        if cfg.control.mode == ehactl_controller::config::ControlMode::OpenLoop {
+        if cfg.control.mode == ehactl_config::ControlMode::OpenLoop {
             // No feedback: the setpoint (V) is the valve command, there is no tracking error.
             println!("  error         none: open loop (the setpoint is the valve command, V); see the log for the response");
         } else {
@@ -753,9 +753,9 @@ fn run_realtime(
             (&mut sim, substeps)
         }
     };
-    let mut opts = cfg.realtime.rt_options();
+    let mut opts = RtOptions::from_config(&cfg.realtime);
     opts.warn = Some(rt_warning);
-    let mut pacer = WallClockPacer::new(cfg.control_dt(), opts);
+    let mut pacer = WallClockPacer::new(cfg.timebase(), opts);
     let backend = Backend {
         hal,
         pacer: &mut pacer,

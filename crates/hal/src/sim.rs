@@ -1,18 +1,44 @@
 //! Simulation backend: the in-process nonlinear plant behind the [`Hal`] trait.
 
-use crate::{Hal, HalError, Measurements, PlantState};
+use crate::{Hal, HalError, Measurements, PlantState, Timebase};
 use ehactl_plant::Plant;
 
+/// Relative deviation of a measured period from the nominal one above which a cycle is
+/// counted as off the grid (-).
+const OFF_GRID_TOLERANCE: f64 = 0.1;
+
 /// The plant as hardware: `read` samples the sensor models, `write` integrates one period.
+///
+/// The plant is discretised at the [`Timebase`] period, so each write advances exactly one
+/// nominal period whatever the measured one: simulated time stays on the control grid. The
+/// measured periods are checked: cycles more than 10 % off the nominal period (a late
+/// wall-clock start under `--realtime`) are counted and reported in the summary
+/// (`sim_off_grid_cycles`, `sim_max_period_s`), because the plant then runs slower than
+/// the wall clock.
 #[derive(Debug, Clone)]
 pub struct SimHal {
     plant: Plant,
+    timebase: Timebase,
+    off_grid: u64,
+    max_period: f64,
 }
 
 impl SimHal {
-    /// Wrap a configured plant.
+    /// Wrap a configured plant; its timebase is the plant's discretisation step.
     pub fn new(plant: Plant) -> Self {
-        Self { plant }
+        let timebase = Timebase::from_rate_hz(1.0 / plant.control_dt())
+            .expect("a configured plant has a finite, positive control period");
+        Self {
+            plant,
+            timebase,
+            off_grid: 0,
+            max_period: 0.0,
+        }
+    }
+
+    /// The control timebase the plant was discretised with.
+    pub fn timebase(&self) -> Timebase {
+        self.timebase
     }
 
     /// The plant.
@@ -36,9 +62,15 @@ impl Hal for SimHal {
         Ok(self.plant.measure())
     }
 
-    /// Advances the plant by one control period (`period` must equal the configured one).
-    /// Real-time safe: fixed substeps, no allocation.
-    fn write(&mut self, _t: f64, _period: f64, command: f64) -> Result<(), HalError> {
+    /// Advances the plant by one nominal control period and checks the measured `period`
+    /// (s) against it. Real-time safe: fixed substeps, no allocation.
+    fn write(&mut self, _t: f64, period: f64, command: f64) -> Result<(), HalError> {
+        if period.is_finite() {
+            self.max_period = self.max_period.max(period);
+            if self.timebase.is_off(period, OFF_GRID_TOLERANCE) {
+                self.off_grid += 1;
+            }
+        }
         self.plant.step(command).map_err(|e| HalError::Numerical {
             t: e.t,
             what: e.what,
@@ -51,5 +83,15 @@ impl Hal for SimHal {
 
     fn plant_state(&self) -> Option<PlantState> {
         Some(*self.plant.state())
+    }
+
+    /// Off-grid cycles only when there were any (simulated time never has them).
+    fn report(&self) -> Option<serde_json::Value> {
+        (self.off_grid > 0).then(|| {
+            serde_json::json!({
+                "sim_off_grid_cycles": self.off_grid,
+                "sim_max_period_s": self.max_period,
+            })
+        })
     }
 }

@@ -67,7 +67,7 @@ pub enum Drive {
     /// Closed loop: the rig's PD position controller (the config's `[control.pd]`) acting on
     /// the recorded setpoint `ref` (m) and the model's own position, for integrating plants
     /// whose open-loop replay would drift.
-    PositionPd(ehactl_controller::pd::PdGains),
+    PositionPd(ehactl_control::pd::PdGains),
 }
 
 /// Replay the first `n` samples of `rec` through a plant with `params` at the record's
@@ -92,7 +92,7 @@ pub fn replay_with(
                     rec.source
                 ));
             }
-            Some(ehactl_controller::pd::Pd::new(g))
+            Some(ehactl_control::pd::Pd::new(g))
         }
         Drive::Recorded => None,
     };

@@ -4,7 +4,7 @@
 use crate::data::Record;
 use crate::diagnose::Diagnosis;
 use crate::replay::Replay;
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

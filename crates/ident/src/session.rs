@@ -6,8 +6,8 @@
 use crate::diagnose::{diagnose, Diagnosis, Options};
 use crate::replay::Drive;
 use crate::{data, report};
-use ehactl_controller::config::ControlMode;
-use ehactl_controller::RigConfig;
+use ehactl_config::ControlMode;
+use ehactl_config::RigConfig;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
@@ -73,7 +73,7 @@ pub fn run(
 ) -> Result<DiagnoseRun, SessionError> {
     let load = |p: &Path| -> Result<data::Record, SessionError> {
         let mut r = data::load(p).map_err(|e| SessionError::Input(e.to_string()))?;
-        let w = data::check_against(&r, &cfg.plant, cfg.control_dt())
+        let w = data::check_against(&r, &cfg.plant, cfg.timebase().period())
             .map_err(|e| SessionError::Input(e.to_string()))?;
         r.warnings.extend(w);
         Ok(r)

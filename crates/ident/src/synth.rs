@@ -6,7 +6,7 @@
 //! and spring rate.
 
 use crate::data::{Channel, ChannelKind, Record};
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_plant::params::*;
 use ehactl_plant::{EffectId, Plant, PlantParams};
 

@@ -52,7 +52,7 @@ fn pressures_in_bar_are_refused() {
     rows.extend((0..30).map(|k| format!("{},0.1,50.0,40.0", k as f64 * 1e-3)));
     let rec = parse_csv("f.csv", &rows.join("\n")).unwrap();
     let cfg = testrig();
-    let e = check_against(&rec, &cfg.plant, cfg.control_dt())
+    let e = check_against(&rec, &cfg.plant, cfg.timebase().period())
         .unwrap_err()
         .0;
     assert!(e.contains("looks like bar") && e.contains("`p_a`"), "{e}");
@@ -64,14 +64,14 @@ fn positions_in_mm_are_refused_and_rate_mismatch_is_warned() {
     rows.extend((0..30).map(|k| format!("{},0.1,{}", k as f64 * 2e-4, 100.0 + k as f64)));
     let rec = parse_csv("f.csv", &rows.join("\n")).unwrap();
     let cfg = testrig();
-    let e = check_against(&rec, &cfg.plant, cfg.control_dt())
+    let e = check_against(&rec, &cfg.plant, cfg.timebase().period())
         .unwrap_err()
         .0;
     assert!(e.contains("looks like mm"), "{e}");
     let mut rows = vec!["t,u,x".to_string()];
     rows.extend((0..30).map(|k| format!("{},0.1,{}", k as f64 * 2e-4, 0.1)));
     let rec = parse_csv("f.csv", &rows.join("\n")).unwrap();
-    let w = check_against(&rec, &cfg.plant, cfg.control_dt()).unwrap();
+    let w = check_against(&rec, &cfg.plant, cfg.timebase().period()).unwrap();
     assert!(
         w.iter()
             .any(|w| w.contains("differs from the config's control period")),

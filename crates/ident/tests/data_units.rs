@@ -14,7 +14,7 @@ fn rows(header: &str, n: usize, dt: f64, row: impl Fn(usize) -> String) -> Strin
 fn check(text: &str) -> Result<Vec<String>, String> {
     let rec = parse_csv("f.csv", text).map_err(|e| e.0)?;
     let cfg = testrig();
-    check_against(&rec, &cfg.plant, cfg.control_dt()).map_err(|e| e.0)
+    check_against(&rec, &cfg.plant, cfg.timebase().period()).map_err(|e| e.0)
 }
 
 /// Supply pressure of the test rig (Pa): pressures below are a plausible 50 % / 40 % of it.

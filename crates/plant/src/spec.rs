@@ -129,7 +129,7 @@ const fn choice(path: &'static str, choices: &'static [&'static str], d: &'stati
 use Range::*;
 
 /// The plant's parameters. Controller, setpoint, supervisor and run parameters are
-/// declared in `ehactl-controller` and appended there.
+/// declared in `ehactl-config` and appended there.
 pub const PARAMS: &[Param] = &[
     p("fluid.density", "kg/m³", Positive, "fluid density ρ"),
     p(

@@ -1,7 +1,7 @@
 """ehactl: simulate, tune and analyse electro-hydraulic force / position loops from Python.
 
 The package wraps the compiled Rust crates that run the 5 kHz loop (``ehactl-plant``,
-``ehactl-controller``, ``ehactl-hal``), so a gain tuned here is exactly the one the CLI
+``ehactl-control``, ``ehactl-runtime``, ``ehactl-hal``), so a gain tuned here is exactly the one the CLI
 and the real-time loop use. Units are SI throughout: s, N, m, Pa, V, m³/s.
 
     import ehactl

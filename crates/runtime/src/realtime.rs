@@ -18,6 +18,7 @@
 
 use crate::runloop::Pacer;
 use ehactl_hal::record::{CycleTiming, Event, EventKind, Severity};
+use ehactl_hal::Timebase;
 use serde::Serialize;
 
 /// What to do after a cycle overran its period.
@@ -51,6 +52,27 @@ pub struct RtOptions {
     pub overrun: OverrunPolicy,
     /// Called once per real-time setting that could not be applied (start-up only).
     pub warn: Option<fn(&str)>,
+}
+
+impl RtOptions {
+    /// Options of the wall-clock pacer from the config's `[realtime]` section.
+    pub fn from_config(c: &ehactl_config::RealtimeConfig) -> RtOptions {
+        use ehactl_config::OverrunPolicyConfig;
+        RtOptions {
+            priority: (c.priority > 0).then_some(c.priority as i32),
+            cpu: (c.cpu >= 0).then_some(c.cpu as usize),
+            lock_memory: c.lock_memory,
+            spin: c.spin,
+            overrun: match c.overrun_policy {
+                OverrunPolicyConfig::Continue => OverrunPolicy::Continue,
+                OverrunPolicyConfig::Skip => OverrunPolicy::Skip,
+                OverrunPolicyConfig::Trip => OverrunPolicy::Trip {
+                    after: c.trip_after,
+                },
+            },
+            warn: None,
+        }
+    }
 }
 
 impl Default for RtOptions {
@@ -360,9 +382,10 @@ impl std::fmt::Debug for WallClockPacer {
 }
 
 impl WallClockPacer {
-    /// Pacer with period `period_s` (s, > 0). Nothing is applied until the first cycle.
-    pub fn new(period_s: f64, opts: RtOptions) -> Self {
-        let period_ns = (period_s * 1e9).round().max(1.0) as u64;
+    /// Pacer on the deadline grid of `timebase` (its period in whole ns). Nothing is
+    /// applied until the first cycle.
+    pub fn new(timebase: Timebase, opts: RtOptions) -> Self {
+        let period_ns = timebase.period_ns();
         let spin_ns = (opts.spin.max(0.0) * 1e9).round() as u64;
         Self {
             period_ns,
@@ -717,7 +740,7 @@ mod tests {
     fn paces_at_the_period_against_the_monotonic_clock() {
         // 500 cycles at 1 kHz must take ≥ 499 ms of monotonic time (deadlines are absolute:
         // the pacer can never run ahead), and every period sample is ≥ 0.
-        let mut p = WallClockPacer::new(1e-3, RtOptions::default());
+        let mut p = WallClockPacer::new(Timebase::at_rate_hz(1e3), RtOptions::default());
         let t0 = monotonic_ns();
         for k in 0..500 {
             assert!(p.wait_for_cycle(k));
@@ -741,7 +764,7 @@ mod tests {
     #[test]
     fn skip_policy_skips_missed_deadlines_without_a_burst() {
         // 10 ms period: wide margins against scheduling noise on a shared machine.
-        let mut p = WallClockPacer::new(10e-3, RtOptions::default());
+        let mut p = WallClockPacer::new(Timebase::at_rate_hz(100.0), RtOptions::default());
         assert!(p.wait_for_cycle(0));
         std::thread::sleep(std::time::Duration::from_millis(35));
         assert!(p.wait_for_cycle(1));
@@ -770,7 +793,7 @@ mod tests {
             overrun: OverrunPolicy::Continue,
             ..Default::default()
         };
-        let mut p = WallClockPacer::new(10e-3, opts);
+        let mut p = WallClockPacer::new(Timebase::at_rate_hz(100.0), opts);
         assert!(p.wait_for_cycle(0));
         std::thread::sleep(std::time::Duration::from_millis(25));
         let t_late = monotonic_ns();
@@ -793,7 +816,7 @@ mod tests {
             overrun: OverrunPolicy::Trip { after: 3 },
             ..Default::default()
         };
-        let mut p = WallClockPacer::new(10e-3, opts);
+        let mut p = WallClockPacer::new(Timebase::at_rate_hz(100.0), opts);
         assert!(p.wait_for_cycle(0));
         let mut k = 1;
         // Two overruns, then an on-time cycle resets the streak.
@@ -831,7 +854,7 @@ mod tests {
             cpu: Some(100_000),
             ..Default::default()
         };
-        let mut p = WallClockPacer::new(1e-3, opts);
+        let mut p = WallClockPacer::new(Timebase::at_rate_hz(1e3), opts);
         assert!(p.wait_for_cycle(0));
         assert!(p.wait_for_cycle(1));
         assert_eq!(p.applied().cpu, None);

@@ -1,7 +1,7 @@
 //! Closed-loop simulation speed and accuracy of the `sahu2022_force` rig (BENCHMARKS.md,
 //! section "Closed-loop simulation speed").
 //!
-//! Run with `cargo bench -p ehactl-controller --bench closed_loop`.
+//! Run with `cargo bench -p ehactl-runtime --bench closed_loop`.
 //!
 //! What it measures, for the rig config `configs/sahu2022_force.toml` (PI force loop at
 //! 5 kHz, 785 N + 196 N log chirp 1–300 Hz), 3 s simulated per run:
@@ -37,9 +37,9 @@
 //! `EHACTL_BENCH_PROFILE=N` (profiling mode: only N timed runs of the configured rig at
 //! `EHACTL_BENCH_SUBSTEPS`, default auto; for `perf record`).
 
-use ehactl_controller::session::{run_sim, Session, SessionOptions};
-use ehactl_controller::RigConfig;
+use ehactl_config::RigConfig;
 use ehactl_hal::record::CycleRecord;
+use ehactl_runtime::session::{run_sim, Session, SessionOptions};
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -53,7 +53,7 @@ const REF_BASE: u32 = 22;
 
 /// Substeps the config chooses itself (`integration.substeps` = 0: from `max_omega_h`).
 fn auto_substeps(variant: Variant) -> u32 {
-    ehactl_controller::session::build_plant(&config(variant, 0))
+    ehactl_runtime::session::build_plant(&config(variant, 0))
         .expect("plant")
         .substeps()
 }

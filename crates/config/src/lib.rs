@@ -1,12 +1,15 @@
+//! # ehactl-config
+//!
 //! Rig configuration: the plant sections of `ehactl-plant` plus control, setpoint,
-//! supervisor, run and log sections. Loading validates every field against the parameter
+//! supervisor, run, log, realtime and CANopen sections. Loading validates every field against the parameter
 //! registries and reports the first problem with its dotted path and expected unit.
 
-use crate::pd::PdGains;
-use crate::pi::PiGains;
-use crate::setpoint::{SetpointConfig, SetpointKind, Sweep};
-use crate::supervisor::SupervisorConfig;
 use ehactl_canopen::config::{CanopenConfig, CANOPEN_PARAMS};
+use ehactl_control::pd::PdGains;
+use ehactl_control::pi::PiGains;
+use ehactl_control::setpoint::{SetpointConfig, SetpointKind, Sweep};
+use ehactl_control::supervisor::SupervisorConfig;
+use ehactl_hal::Timebase;
 use ehactl_plant::spec::{self, ConfigError, Param, Range};
 use ehactl_plant::PlantParams;
 use serde::{Deserialize, Serialize};
@@ -206,25 +209,6 @@ impl RealtimeConfig {
     }
     fn default_trip_after() -> u32 {
         3
-    }
-
-    /// Options of the wall-clock pacer.
-    pub fn rt_options(&self) -> crate::realtime::RtOptions {
-        use crate::realtime::OverrunPolicy;
-        crate::realtime::RtOptions {
-            priority: (self.priority > 0).then_some(self.priority as i32),
-            cpu: (self.cpu >= 0).then_some(self.cpu as usize),
-            lock_memory: self.lock_memory,
-            spin: self.spin,
-            overrun: match self.overrun_policy {
-                OverrunPolicyConfig::Continue => OverrunPolicy::Continue,
-                OverrunPolicyConfig::Skip => OverrunPolicy::Skip,
-                OverrunPolicyConfig::Trip => OverrunPolicy::Trip {
-                    after: self.trip_after,
-                },
-            },
-            warn: None,
-        }
     }
 }
 
@@ -650,13 +634,13 @@ impl RigConfig {
                 ),
             ));
         }
-        if self.realtime.spin >= self.control_dt() {
+        if self.realtime.spin >= self.timebase().period() {
             return Err(ConfigError::new(
                 "realtime.spin",
                 format!(
                     "busy-wait tail {} s must be below the control period {} s",
                     self.realtime.spin,
-                    self.control_dt()
+                    self.timebase().period()
                 ),
             ));
         }
@@ -671,7 +655,14 @@ impl RigConfig {
             }
         }
         self.validate_setpoint_range()?;
-        self.supervisor.validate()?;
+        if let (Some(lo), Some(hi)) = (self.supervisor.min_position, self.supervisor.max_position) {
+            if lo >= hi {
+                return Err(ConfigError::new(
+                    "supervisor.min_position",
+                    format!("min_position {lo} m must be below max_position {hi} m"),
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -710,7 +701,7 @@ impl RigConfig {
     /// The setpoint stays where the rig can go: inside the stroke (position), within what the
     /// supply pressure can push on the larger area (force).
     fn validate_setpoint_range(&self) -> Result<(), ConfigError> {
-        let ((lo, lo_field), (hi, hi_field)) = crate::setpoint::envelope(&self.setpoint);
+        let ((lo, lo_field), (hi, hi_field)) = ehactl_control::setpoint::envelope(&self.setpoint);
         let out = |field: &str, v: f64, what: String| {
             Err(ConfigError::new(
                 format!("setpoint.{field}"),
@@ -753,9 +744,10 @@ impl RigConfig {
         Ok(())
     }
 
-    /// Control period (s).
-    pub fn control_dt(&self) -> f64 {
-        1.0 / self.run.control_rate_hz
+    /// The control timebase (`run.control_rate_hz`): the one owner of the control period,
+    /// handed to the plant, the pacer and the backends.
+    pub fn timebase(&self) -> Timebase {
+        Timebase::at_rate_hz(self.run.control_rate_hz)
     }
 
     /// PI gains from the config.

@@ -11,9 +11,9 @@
 //! applied half-way. Every change is logged as a `param_change` event at the cycle it
 //! took effect.
 
-use crate::config::{ControlMode, RigConfig};
 use crate::runloop::Controller;
-use crate::setpoint::Setpoint;
+use ehactl_config::{ControlMode, RigConfig};
+use ehactl_control::setpoint::Setpoint;
 use ehactl_hal::record::{Event, EventKind, Severity};
 use ehactl_plant::spec::Param;
 use ehactl_plant::ConfigError;
@@ -53,9 +53,9 @@ pub struct Update {
 #[derive(Debug, Clone, Copy)]
 pub enum Tunables {
     /// PI gains (force mode).
-    Pi(crate::pi::PiGains),
+    Pi(ehactl_control::pi::PiGains),
     /// PD gains (position mode).
-    Pd(crate::pd::PdGains),
+    Pd(ehactl_control::pd::PdGains),
     /// Open loop: nothing to tune.
     None,
 }
@@ -258,7 +258,7 @@ pub fn prepare(cfg: &mut RigConfig, assignments: &[(&str, f64)]) -> Result<Updat
     let mut tree = cfg.to_value();
     let mut changes = [None; MAX_CHANGES];
     for (i, &(path, value)) in assignments.iter().enumerate() {
-        let param = crate::config::registries()
+        let param = ehactl_config::registries()
             .into_iter()
             .flat_map(|t| t.iter())
             .find(|p| p.path == path)

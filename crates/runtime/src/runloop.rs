@@ -3,15 +3,15 @@
 //! (the sim backend, as fast as the CPU allows) and against a wall clock: only the
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
-use crate::config::{ControlMode, RigConfig};
 use crate::live::LiveParams;
-use crate::pd::Pd;
-use crate::pi::{ControlTerms, Pi};
 use crate::realtime::TimingReport;
-use crate::setpoint::Setpoint;
-use crate::supervisor::{FeedbackChannel, Supervisor};
+use ehactl_config::{ControlMode, RigConfig};
+use ehactl_control::pd::Pd;
+use ehactl_control::pi::{ControlTerms, Pi};
+use ehactl_control::setpoint::Setpoint;
+use ehactl_control::supervisor::{FeedbackChannel, Supervisor};
 use ehactl_hal::record::{CycleRecord, CycleTiming, Event, EventKind, Severity};
-use ehactl_hal::{Hal, Measurements};
+use ehactl_hal::{Hal, Measurements, Timebase};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 /// The configured control law.
@@ -135,8 +135,8 @@ pub struct RunOutcome {
 pub struct LoopSettings<'a> {
     /// Number of cycles.
     pub cycles: u64,
-    /// Control period (s).
-    pub dt: f64,
+    /// The control timebase: cycle `k` runs at `t = k · period`.
+    pub timebase: Timebase,
     /// Set asynchronously (signal handler) to stop the run.
     pub stop: Option<&'a AtomicBool>,
     /// Errors before this time are excluded from `rms_error_settled` (s).
@@ -161,7 +161,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     event: &mut dyn FnMut(Event),
     progress: &mut dyn FnMut(u64),
 ) -> RunOutcome {
-    let dt = settings.dt;
+    let dt = settings.timebase.period();
     let n = settings.cycles;
     let step = (n / 100).max(1);
     let mut errors = ErrorStats::default();
@@ -219,6 +219,12 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             live.apply_pending(k, t, controller, &mut setpoint, event);
         }
         let timing = pacer.cycle_timing();
+        // The measured period handed to the backend (ros2_control's `period`): wall-clock
+        // pacers measure it, simulated time has the nominal one.
+        let period = timing
+            .map(|c| c.period_us * 1e-6)
+            .filter(|p| p.is_finite() && *p > 0.0)
+            .unwrap_or(dt);
         let hal_fault = |e: ehactl_hal::HalError| Event {
             t,
             cycle: k,
@@ -232,7 +238,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
             limit: f64::NAN,
             unit: "",
         };
-        let meas = match hal.read(t, dt) {
+        let meas = match hal.read(t, period) {
             Ok(m) => m,
             Err(e) => {
                 trip = Some(hal_fault(e));
@@ -292,7 +298,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
         let plant = hal.plant_state();
         let fb = controller.feedback(&meas);
         let rec = cycle_record(k, t, (r, rdot), fb, &terms, u, meas, plant, timing);
-        if let Err(e) = hal.write(t, dt, u) {
+        if let Err(e) = hal.write(t, period, u) {
             record(&rec);
             trip = Some(hal_fault(e));
             k += 1;

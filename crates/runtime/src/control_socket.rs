@@ -9,7 +9,7 @@
 //! `ok cycle N: PATH=VALUE UNIT, …` or `error: …`.
 
 use crate::live::{self, LiveParams};
-use crate::RigConfig;
+use ehactl_config::RigConfig;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::fs::{FileTypeExt, PermissionsExt};
 use std::os::unix::net::{UnixListener, UnixStream};

@@ -2,12 +2,12 @@
 //! setpoint, run the loop in simulated time, log every cycle to MCAP and summarise.
 //! Shared by the CLI and the Python bindings so both run exactly the same code.
 
-use crate::config::{Compression, ControlMode, RigConfig};
 use crate::live::LiveParams;
 use crate::realtime::TimingReport;
 use crate::runloop::{run_loop, Controller, LoopSettings, Pacer, RunOutcome, SimulatedTime};
-use crate::setpoint::Setpoint;
-use crate::supervisor::Supervisor;
+use ehactl_config::{Compression, ControlMode, RigConfig};
+use ehactl_control::setpoint::Setpoint;
+use ehactl_control::supervisor::Supervisor;
 use ehactl_hal::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
 use ehactl_hal::record::CycleRecord;
 use ehactl_hal::sim::SimHal;
@@ -168,7 +168,7 @@ impl Session {
 
 /// Configure the plant for a config.
 pub fn build_plant(cfg: &RigConfig) -> Result<Plant, ConfigError> {
-    Plant::configure(&cfg.plant, cfg.control_dt())
+    Plant::configure(&cfg.plant, cfg.timebase().period())
 }
 
 /// Run `cfg` against the simulated plant in simulated time.
@@ -249,7 +249,7 @@ pub fn open_log(
 pub fn config_json_schema() -> serde_json::Value {
     use ehactl_plant::spec::Kind;
     let mut root = serde_json::Map::new();
-    for table in crate::config::registries() {
+    for table in ehactl_config::registries() {
         for p in table {
             let mut node = &mut root;
             let parts: Vec<&str> = p.path.split('.').collect();
@@ -308,7 +308,7 @@ pub fn run_with_live(
         overflow,
         substeps,
     } = backend;
-    let dt = cfg.control_dt();
+    let timebase = cfg.timebase();
     let duration = opts.duration.unwrap_or(cfg.run.duration);
     if !(duration.is_finite() && duration > 0.0) {
         return Err(SessionError::Config(ConfigError::new(
@@ -316,7 +316,7 @@ pub fn run_with_live(
             format!("{duration} is not a valid duration; expected a finite number > 0 in s"),
         )));
     }
-    let cycles = (duration / dt).round().max(1.0) as u64;
+    let cycles = timebase.cycles_in(duration).max(1);
     let mut controller = Controller::from_config(cfg);
     let mut supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
     let setpoint = Setpoint::new(&cfg.setpoint);
@@ -336,7 +336,7 @@ pub fn run_with_live(
     let settle = setpoint.dynamic_start();
     let settings = LoopSettings {
         cycles,
-        dt,
+        timebase,
         stop: opts.stop,
         settle_time: settle,
         live,

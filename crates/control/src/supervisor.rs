@@ -55,19 +55,6 @@ impl SupervisorConfig {
     fn default_max_saturation() -> f64 {
         0.9
     }
-
-    /// Cross-field checks.
-    pub fn validate(&self) -> Result<(), ehactl_plant::ConfigError> {
-        if let (Some(lo), Some(hi)) = (self.min_position, self.max_position) {
-            if lo >= hi {
-                return Err(ehactl_plant::ConfigError::new(
-                    "supervisor.min_position",
-                    format!("min_position {lo} m must be below max_position {hi} m"),
-                ));
-            }
-        }
-        Ok(())
-    }
 }
 
 impl Default for SupervisorConfig {

@@ -1,0 +1,19 @@
+//! # ehactl-runtime
+//!
+//! Everything that runs the control laws of `ehactl-control` against a [`ehactl_hal::Hal`]:
+//! - [`runloop`]: the fixed-step loop (read → supervise → control → write → log) and the
+//!   [`runloop::Pacer`] trait that starts each cycle,
+//! - [`realtime`]: the wall-clock pacer (absolute deadlines, SCHED_FIFO, jitter statistics),
+//! - [`live`]: gain / setpoint changes while running (handed over at a cycle boundary),
+//! - [`control_socket`]: the Unix socket that feeds [`live`] (`ehactl set`),
+//! - [`session`]: a complete run (plant or bus backend, loop, MCAP log, summary) as used by
+//!   the CLI and the Python bindings.
+//!
+//! The data flow of one cycle is described in ARCHITECTURE.md.
+#![deny(missing_docs)]
+
+pub mod control_socket;
+pub mod live;
+pub mod realtime;
+pub mod runloop;
+pub mod session;
