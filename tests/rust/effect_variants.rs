@@ -220,7 +220,7 @@ mod uncertainty {
     fn with(table: &str) -> Result<PlantParams, String> {
         let base = ehactl_ident::synth::TESTRIG_TOML;
         let text = format!("{base}\n[uncertainty]\n{table}\n");
-        ehactl_controller::RigConfig::from_toml_str(&text)
+        ehactl_config::RigConfig::from_toml_str(&text)
             .map(|c| c.plant)
             .map_err(|e| e.to_string())
     }
