@@ -82,10 +82,9 @@ LOOP_SAMPLES = []
 
 
 def read_control(path):
-    from mcap.reader import make_reader
-    sys.path.insert(0, str(REPO / "tests" / "python"))
-    from ehactl_mcap import read_run
-    c = read_run(path)["control"]
+    import ehactl  # the log reader of the Python bindings
+
+    c = ehactl.read_mcap(path)["control"]
     return c["t"], c["position"], c["setpoint"]
 
 

@@ -30,8 +30,10 @@ import numpy as np
 from tqdm import tqdm
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests" / "python"))
-from ehactl_mcap import read_run  # noqa: E402
+try:
+    import ehactl  # noqa: E402  (the log reader of the Python bindings: ehactl.read_mcap)
+except ImportError as e:  # pragma: no cover
+    raise SystemExit(f"{e}: install the Python bindings first: python3 -m pip install ./bindings/python")
 
 CONFIG = REPO / "configs" / "sahu2022_force.toml"
 SCENARIOS = ("idle", "idle_nospin", "other_core_busy", "same_core_busy")
@@ -75,7 +77,7 @@ def run(binary: Path, scenario: str, duration: float, tmp: Path) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"{scenario}: ehactl exited {proc.returncode}: {proc.stderr.strip()}")
     js = json.loads(proc.stdout)
-    tm = read_run(out, full_crc_pass=False)["timing"]
+    tm = ehactl.read_mcap(out)["timing"]
     late = np.sort(tm["lateness_us"])
     out.unlink()
     return {

@@ -5,16 +5,16 @@ Usage: python scripts/plot_run.py RUN.mcap [-o RUN.png]
 """
 import argparse
 import pathlib
-import sys
-
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests" / "python"))
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from ehactl_mcap import read_run  # noqa: E402
+try:
+    import ehactl  # noqa: E402  (the log reader of the Python bindings: ehactl.read_mcap)
+except ImportError as e:  # pragma: no cover
+    raise SystemExit(f"{e}: install the Python bindings first: python3 -m pip install ./bindings/python")
 
 
 def main() -> int:
@@ -22,7 +22,7 @@ def main() -> int:
     ap.add_argument("mcap", type=pathlib.Path)
     ap.add_argument("-o", "--out", type=pathlib.Path)
     a = ap.parse_args()
-    run = read_run(a.mcap)
+    run = ehactl.read_mcap(a.mcap)
     c = run["control"]
     p = run.get("plant")
     fig, ax = plt.subplots(4, 1, figsize=(11, 10), sharex=True)

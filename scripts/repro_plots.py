@@ -15,19 +15,19 @@ import json
 import pathlib
 import shutil
 import subprocess
-import sys
 import tempfile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "python"))
-
 import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ehactl_mcap import read_run  # noqa: E402
+try:
+    import ehactl  # noqa: E402  (the log reader of the Python bindings: ehactl.read_mcap)
+except ImportError as e:  # pragma: no cover
+    raise SystemExit(f"{e}: install the Python bindings first: python3 -m pip install ./bindings/python")
 
 
 def ehactl_json(exe, *args):
@@ -124,7 +124,7 @@ def main():
         path = tmp / f"{name}.mcap"
         subprocess.run([exe, "run", str(ROOT / "configs" / f"{name}.toml"), "--out", str(path),
                         "--json"], check=True, capture_output=True)
-        runs[name] = read_run(path)
+        runs[name] = ehactl.read_mcap(path)
     fig, ax = plt.subplots(4, 2, figsize=(12, 10), sharex="col")
     for col, (t0, t1) in enumerate([(0.0, 3.0), (2.5, 2.7)]):
         for name, color, label in (("dindorf2022_boom_rigid", "C2", "rigid (m_y + m_L on the rod)"),

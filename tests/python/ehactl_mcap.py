@@ -1,10 +1,13 @@
-"""Read an ehactl MCAP log back into numpy arrays.
+"""Read an ehactl MCAP log back into numpy arrays — the tests' own reader, independent of
+the Rust decoder (``ehactl_hal::record``) and of the Python bindings.
 
 Uses the official ``mcap`` package (``mcap.reader.make_reader``) with chunk CRC
-validation on, and decodes the ROS 2 CDR payloads of ``/control`` and ``/plant``
-by hand with numpy (every field is 8 bytes wide and starts 8-aligned after the
-4-byte encapsulation header, so there is no padding; ``/plant`` ends in one
-``bool`` byte).
+validation on, and decodes the ROS 2 CDR payloads of every CDR channel with numpy from
+the ``ros2msg`` schema the log publishes for it (a small generic decoder: a numpy
+structured dtype built from the schema's primitive fields with CDR alignment, so no byte
+offset is written here). The field *names* the format documents (DESIGN.md) are listed
+below and checked against the published schemas; the byte layout itself is pinned by
+``test_mcap_roundtrip.py`` and cross-checked there with the official ``mcap_ros2`` decoder.
 
     run = read_run("out/sahu2022_force.mcap")
     run["control"]["t"]          # float64 array, one entry per cycle
@@ -38,7 +41,9 @@ CDR_LE_HEADER = b"\x00\x01\x00\x00"  # CDR, little endian, options 0
 
 CONTROL_SCHEMA = "ehactl_msgs/msg/ControlCycle"
 PLANT_SCHEMA = "ehactl_msgs/msg/PlantState"
+TIMING_SCHEMA = "ehactl_msgs/msg/CycleTiming"  # wall-clock runs only (`ehactl run --realtime`)
 
+# Documented field names of each message, in order (DESIGN.md).
 CONTROL_FIELDS: tuple[str, ...] = (
     "cycle",
     "t",
@@ -79,21 +84,6 @@ PLANT_FIELDS: tuple[str, ...] = (
     "stuck",
 )
 
-CONTROL_DTYPE = np.dtype(
-    [("_cdr_header", "V4"), ("cycle", "<u8")] + [(f, "<f8") for f in CONTROL_FIELDS[1:]]
-)
-PLANT_DTYPE = np.dtype(
-    [("_cdr_header", "V4")] + [(f, "<f8") for f in PLANT_FIELDS[:-1]] + [("stuck", "u1")]
-)
-assert CONTROL_DTYPE.itemsize == 4 + 17 * 8
-assert PLANT_DTYPE.itemsize == 4 + 16 * 8 + 1
-
-# struct formats for one message, used for single-message decoding and cross-checks
-CONTROL_STRUCT = struct.Struct("<4sQ16d")
-PLANT_STRUCT = struct.Struct("<4s16d?")
-
-# /timing: wall-clock runs only (`ehactl run --realtime`); empty otherwise.
-TIMING_SCHEMA = "ehactl_msgs/msg/CycleTiming"
 TIMING_FIELDS: tuple[str, ...] = (
     "cycle",
     "t",
@@ -104,61 +94,91 @@ TIMING_FIELDS: tuple[str, ...] = (
     "skipped",
     "overrun",
 )
-TIMING_DTYPE = np.dtype(
-    [("_cdr_header", "V4"), ("cycle", "<u8")]
-    + [(f, "<f8") for f in TIMING_FIELDS[1:6]]
-    + [("skipped", "<u4"), ("overrun", "u1")]
-)
-assert TIMING_DTYPE.itemsize == 4 + 8 + 5 * 8 + 4 + 1
 
 CDR_TOPICS = {
-    "/control": (CONTROL_SCHEMA, CONTROL_DTYPE),
-    "/plant": (PLANT_SCHEMA, PLANT_DTYPE),
-    "/timing": (TIMING_SCHEMA, TIMING_DTYPE),
+    "/control": (CONTROL_SCHEMA, CONTROL_FIELDS),
+    "/plant": (PLANT_SCHEMA, PLANT_FIELDS),
+    "/timing": (TIMING_SCHEMA, TIMING_FIELDS),
 }
 JSON_TOPICS = ("/config", "/events", "/summary")
+
+# ros2msg primitive -> numpy type (size = CDR alignment); bool is read as a byte and checked.
+ROS2_PRIMITIVES = {
+    "float64": "f8",
+    "float32": "f4",
+    "int64": "i8",
+    "int32": "i4",
+    "int16": "i2",
+    "int8": "i1",
+    "uint64": "u8",
+    "uint32": "u4",
+    "uint16": "u2",
+    "uint8": "u1",
+    "byte": "u1",
+    "char": "u1",
+    "bool": "u1",
+}
 
 
 class McapContentError(ValueError):
     """The file is valid MCAP but its content does not match the ehactl layout."""
 
 
-def decode_control(data: bytes) -> dict[str, Any]:
-    """Decode one /control CDR payload into a dict (struct-based, for spot checks)."""
-    if len(data) != CONTROL_STRUCT.size:
-        raise McapContentError(f"/control payload is {len(data)} bytes, expected {CONTROL_STRUCT.size}")
-    header, *values = CONTROL_STRUCT.unpack(data)
-    if header != CDR_LE_HEADER:
-        raise McapContentError(f"/control CDR header {header.hex()} != {CDR_LE_HEADER.hex()}")
-    return dict(zip(CONTROL_FIELDS, values))
+def schema_fields(schema_text: str) -> list[tuple[str, str]]:
+    """(name, ros2msg type) of each field of a flat ros2msg schema, in order (comments and
+    constants skipped; the first ``====`` line ends the message)."""
+    fields = []
+    for raw in schema_text.splitlines():
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        if line.startswith("===="):
+            break
+        parts = line.split()
+        if len(parts) < 2:
+            raise McapContentError(f"cannot parse schema line {raw!r}")
+        ty, name = parts[0], parts[1]
+        if "=" in name or (len(parts) > 2 and parts[2].startswith("=")):
+            continue  # constant
+        if ty not in ROS2_PRIMITIVES:
+            raise McapContentError(f"schema field {name!r} has type {ty!r}; only flat primitive messages are read")
+        fields.append((name, ty))
+    return fields
 
 
-def decode_plant(data: bytes) -> dict[str, Any]:
-    """Decode one /plant CDR payload into a dict (struct-based, for spot checks)."""
-    if len(data) != PLANT_STRUCT.size:
-        raise McapContentError(f"/plant payload is {len(data)} bytes, expected {PLANT_STRUCT.size}")
-    header, *values = PLANT_STRUCT.unpack(data)
-    if header != CDR_LE_HEADER:
-        raise McapContentError(f"/plant CDR header {header.hex()} != {CDR_LE_HEADER.hex()}")
-    return dict(zip(PLANT_FIELDS, values))
+def schema_dtype(schema_text: str) -> np.dtype:
+    """numpy structured dtype of one little-endian CDR message of a flat ros2msg schema:
+    the 4-byte encapsulation header, then each field aligned to its own size counted from
+    the end of the header (XCDR1, as ROS 2 writes it)."""
+    names, formats, offsets = ["_cdr_header"], ["V4"], [0]
+    off = 0
+    for name, ty in schema_fields(schema_text):
+        t = np.dtype("<" + ROS2_PRIMITIVES[ty])
+        off = -(-off // t.itemsize) * t.itemsize
+        names.append(name)
+        formats.append(t)
+        offsets.append(4 + off)
+        off += t.itemsize
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": 4 + off})
 
 
-def _decode_cdr_column(topic: str, dtype: np.dtype, payloads: list[bytes]) -> dict[str, np.ndarray]:
+def decode_cdr(topic: str, schema_text: str, payloads: list[bytes]) -> dict[str, np.ndarray]:
+    """Decode the payloads of one CDR channel with the dtype of its published schema."""
+    dtype = schema_dtype(schema_text)
     sizes = {len(p) for p in payloads}
     if sizes and sizes != {dtype.itemsize}:
-        raise McapContentError(f"{topic}: payload sizes {sorted(sizes)}, expected {dtype.itemsize}")
+        raise McapContentError(f"{topic}: payload sizes {sorted(sizes)}, schema gives {dtype.itemsize}")
     arr = np.frombuffer(b"".join(payloads), dtype=dtype)
     if len(arr) and not np.all(arr["_cdr_header"] == np.void(CDR_LE_HEADER)):
         raise McapContentError(f"{topic}: a CDR encapsulation header is not {CDR_LE_HEADER.hex()}")
-    out = {name: arr[name].copy() for name in dtype.names if name != "_cdr_header"}
-    if "stuck" in out:
-        if np.any(out["stuck"] > 1):
-            raise McapContentError(f"{topic}: bool 'stuck' has a byte other than 0/1")
-        out["stuck"] = out["stuck"].astype(bool)
-    if "overrun" in out:
-        if np.any(out["overrun"] > 1):
-            raise McapContentError(f"{topic}: bool 'overrun' has a byte other than 0/1")
-        out["overrun"] = out["overrun"].astype(bool)
+    out = {}
+    for name, ty in schema_fields(schema_text):
+        col = arr[name].copy()
+        if ty == "bool":
+            if np.any(col > 1):
+                raise McapContentError(f"{topic}: bool {name!r} has a byte other than 0/1")
+            col = col.astype(bool)
+        out[name] = col
     return out
 
 
@@ -216,28 +236,43 @@ def read_run(path: str | Path, validate_crcs: bool = True, full_crc_pass: bool =
       crcs: {chunk: [...], data_section: int, summary: int} (0 = not computed).
     """
     path = Path(path)
-    payloads: dict[str, list[bytes]] = {t: [] for t in CDR_TOPICS}
-    seq: dict[str, list[int]] = {t: [] for t in CDR_TOPICS}
-    log_time: dict[str, list[int]] = {t: [] for t in CDR_TOPICS}
-    pub_time: dict[str, list[int]] = {t: [] for t in CDR_TOPICS}
+    payloads: dict[str, list[bytes]] = {}
+    seq: dict[str, list[int]] = {}
+    log_time: dict[str, list[int]] = {}
+    pub_time: dict[str, list[int]] = {}
+    cdr_schema: dict[str, str] = {}
     json_msgs: dict[str, list[Any]] = {t: [] for t in JSON_TOPICS}
     counts: dict[str, int] = {}
     schemas: dict[str, tuple[str, str]] = {}
     encodings: dict[str, str] = {}
 
+    def see(schema, channel) -> None:
+        topic = channel.topic
+        if topic in schemas:
+            return
+        schemas[topic] = (schema.name if schema else "", schema.encoding if schema else "")
+        encodings[topic] = channel.message_encoding
+        if channel.message_encoding == "cdr":
+            if schema is None or schema.encoding != "ros2msg":
+                raise McapContentError(f"{topic}: CDR channel without a ros2msg schema")
+            cdr_schema[topic] = schema.data.decode()
+            for d in (payloads, seq, log_time, pub_time):
+                d[topic] = []
+
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=validate_crcs)
         header = reader.get_header()
         summary_rec = reader.get_summary()
+        if summary_rec is not None:  # channels registered without messages
+            for ch in summary_rec.channels.values():
+                see(summary_rec.schemas.get(ch.schema_id), ch)
         # File order (chunk by chunk) rather than a log-time merge: cheaper, and the
         # sequence check below then also tests the writer's ordering.
         for schema, channel, message in reader.iter_messages(log_time_order=False):
             topic = channel.topic
             counts[topic] = counts.get(topic, 0) + 1
-            if topic not in schemas:
-                schemas[topic] = (schema.name if schema else "", schema.encoding if schema else "")
-                encodings[topic] = channel.message_encoding
-            if topic in CDR_TOPICS:
+            see(schema, channel)
+            if topic in cdr_schema:
                 payloads[topic].append(message.data)
                 seq[topic].append(message.sequence)
                 log_time[topic].append(message.log_time)
@@ -254,13 +289,20 @@ def read_run(path: str | Path, validate_crcs: bool = True, full_crc_pass: bool =
         "message_counts": counts,
         "metadata": metadata,
     }
-    for topic, (schema_name, dtype) in CDR_TOPICS.items():
-        if topic in schemas and schemas[topic][0] != schema_name:
-            raise McapContentError(f"{topic}: schema {schemas[topic][0]!r}, expected {schema_name!r}")
-        cols = _decode_cdr_column(topic, dtype, payloads[topic])
-        cols["_sequence"] = np.asarray(seq[topic], dtype=np.uint64)
-        cols["_log_time"] = np.asarray(log_time[topic], dtype=np.uint64)
-        cols["_publish_time"] = np.asarray(pub_time[topic], dtype=np.uint64)
+    for topic, (schema_name, fields) in CDR_TOPICS.items():
+        if topic not in cdr_schema:
+            # channel never registered (e.g. /timing of a simulated-time run): empty columns
+            cols = {f: np.empty(0) for f in fields}
+        else:
+            if schemas[topic][0] != schema_name:
+                raise McapContentError(f"{topic}: schema {schemas[topic][0]!r}, expected {schema_name!r}")
+            published = tuple(n for n, _ in schema_fields(cdr_schema[topic]))
+            if published != fields:
+                raise McapContentError(f"{topic}: schema fields {published}, documented {fields}")
+            cols = decode_cdr(topic, cdr_schema[topic], payloads[topic])
+        cols["_sequence"] = np.asarray(seq.get(topic, []), dtype=np.uint64)
+        cols["_log_time"] = np.asarray(log_time.get(topic, []), dtype=np.uint64)
+        cols["_publish_time"] = np.asarray(pub_time.get(topic, []), dtype=np.uint64)
         out[topic.lstrip("/")] = cols
 
     out["config"] = json_msgs["/config"][0] if json_msgs["/config"] else None
@@ -293,9 +335,11 @@ __all__ = [
     "TIMING_FIELDS",
     "McapContentError",
     "check_summary_crc",
-    "decode_control",
-    "decode_plant",
+    "decode_cdr",
+    "read_can",
     "read_run",
+    "schema_dtype",
+    "schema_fields",
 ]
 
 

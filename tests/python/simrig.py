@@ -151,3 +151,9 @@ class FrameLog(can.Listener):
                 return self.of(cob_id)
             time.sleep(0.002)
         return self.of(cob_id)
+
+
+def syncs_between(frames, t0, t1):
+    """SYNCs (0x080) the master sent with t0 < t <= t1 on the /can log (one clock): the
+    number of SYNC periods between two bus events, independent of how fast the machine is."""
+    return sum(1 for f in frames if f["dir"] == "tx" and f["id"] == 0x080 and t0 < f["t"] <= t1)

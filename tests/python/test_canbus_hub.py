@@ -185,12 +185,18 @@ def test_no_devices_on_the_bus_is_a_startup_failure_exit_4(tmp_path):
     line, summary, frames = startup_failure(r, out)
     assert "transducer (node 32 = 0x20) sent no boot-up" in line and "0.3 s" in line, line
     assert summary["startup_s"] >= 0.3
-    # the attempt on /can: NMT reset communication to both nodes, then the SDO probe of the
-    # silent transducer (upload 0x1000) and its abort on timeout (0x05040000), all sent by
-    # us, nothing back
-    assert [(f["dir"], f["id"], f["data"]) for f in frames if f["id"] != 0x701] == [
-        ("tx", 0x000, "8220"), ("tx", 0x000, "8230"), ("tx", 0x620, "4000100000000000"),
-        ("tx", 0x620, "8000100000000405")]
+    # the attempt on /can: NMT reset communication to both nodes, then SDO probes of the
+    # silent nodes (upload 0x1000, every 250 ms while waiting and once at the deadline), each
+    # ended by its abort on timeout (0x05040000); the last one, of the transducer, ends the
+    # start-up. All sent by us, nothing back.
+    seq = [(f["dir"], f["id"], f["data"]) for f in frames if f["id"] != 0x701]
+    assert seq[:2] == [("tx", 0x000, "8220"), ("tx", 0x000, "8230")], seq
+    probes = seq[2:]
+    assert len(probes) >= 2 and len(probes) % 2 == 0, seq
+    for (d1, id1, req), (d2, id2, abort) in zip(probes[::2], probes[1::2]):
+        assert (d1, d2) == ("tx", "tx") and id1 == id2 and id1 in (0x620, 0x630), seq
+        assert (req, abort) == ("4000100000000000", "8000100000000405"), seq
+    assert probes[-2][1] == 0x620, seq
     # ehactl's own heartbeat (node 1, OPERATIONAL) every 20 ms from the start of the attempt
     beats = [f for f in frames if f["id"] == 0x701]
     assert {(f["dir"], f["data"]) for f in beats} == {("tx", "05")}

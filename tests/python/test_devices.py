@@ -32,7 +32,7 @@ COMMON = [(0x1000, 0, U32, "ro"), (0x1001, 0, U8, "ro"), (0x1017, 0, U16, "rw"),
           (0x1018, 4, U32, "ro"), (0x1800, 1, U32, "rw"), (0x1800, 2, U8, "rw"),
           (0x1A00, 0, U8, "rw"), (0x1A00, 1, U32, "rw"), (0x1016, 1, U32, "rw")]
 ICD_OBJECTS = {
-    "transducer": COMMON + [(0x6005, 1, U32, "rw"), (0x6006, 1, U32, "rw"),
+    "transducer": COMMON + [(0x6005, 1, U32, "rw"), (0x6005, 2, U32, "rw"), (0x6004, 0, I32, "ro"),
                             (0x6020, 1, I32, "ro"), (0x6030, 1, I16, "ro"), (0x6200, 0, U16, "rw")],
     "valve": COMMON + [(0x1400, 1, U32, "rw"), (0x1400, 2, U8, "rw"), (0x1600, 0, U8, "rw"),
                        (0x1600, 1, U32, "rw"), (0x6040, 0, U16, "rw"), (0x6041, 0, U16, "ro"),
@@ -60,7 +60,9 @@ def test_eds_has_icd_objects_and_defaults(which, path, node_id):
     assert _obj(od, 0x1800, 2).default == 1
     if which == "transducer":
         assert _obj(od, 0x6005, 1).default == 1000  # nm = 1 µm
-        assert _obj(od, 0x6006, 1).default == 1000  # µm/s = 1 mm/s
+        # speed step at 0x6005:02 as in the vendor manuals (Temposonics E-Series table 17)
+        assert _obj(od, 0x6005, 2).default == 1000 and 0x6006 not in od  # µm/s = 1 mm/s
+        assert _obj(od, 0x6004, 0).pdo_mappable
         assert _obj(od, 0x6200, 0).default == 0
         assert [_obj(od, 0x1A00, k).default for k in range(2)] == [1, 0x60200120]
         assert _obj(od, 0x6020, 1).pdo_mappable and _obj(od, 0x6030, 1).pdo_mappable
@@ -501,6 +503,39 @@ def test_short_rpdo_ignored_with_emcy(rig):
     sync(net, 5, log, 0x180 + VALVE_ID)
     assert va.sdo[0x6300][1].raw == 0
     assert emcys and emcys[0].code == 0x8210
+
+
+def test_rpdo_deadline_takes_an_active_valve_to_fault_hold(rig):
+    """RPDO1 event timer 0x1400:05 as deadline (CiA 301 v4.2 7.5.2.35): with setpoints every
+    SYNC the valve stays ACTIVE; when they stop (the master's cycle hung) it misses the
+    deadline, sends EMCY 0x8250 (RPDO timeout) and goes FAULT_REACTION → FAULT_HOLD. Timing in
+    bus time: not before the deadline after the last RPDO received (hub relay stamps)."""
+    net, td, va, log, dev = rig
+    deadline_s = 0.150
+    va.sdo[0x1400][5].raw = round(deadline_s * 1e3)
+    va.sdo[0x6040].raw = 0x0007
+    net.nmt.send_command(0x01)
+    time.sleep(0.05)
+    emcys = []
+    va.emcy.add_callback(emcys.append)
+    cob_rpdo = 0x200 + VALVE_ID
+    for _ in range(50):  # 50 setpoints over ~0.25 s, each within the deadline
+        net.send_message(cob_rpdo, struct.pack("<h", 0))
+        sync(net, 1, log, 0x180 + VALVE_ID)
+        time.sleep(0.004)
+    assert va.sdo[0x6041].raw == 0x000F and not emcys
+    t_last = time.time()
+    ev = dev.wait_event("rpdo-timeout", timeout=5)
+    assert abs(ev["deadline_s"] - deadline_s) < 1e-9 and ev["silent_s"] > deadline_s, ev
+    assert ev["t_wall"] - t_last >= deadline_s - 0.010, (ev, t_last)
+    dev.wait_event("state", timeout=2, state="FAULT_HOLD")
+    states = [e["state"] for e in dev.events("state")]
+    assert states[-2:] == ["FAULT_REACTION", "FAULT_HOLD"], states
+    for _ in range(100):
+        if emcys:
+            break
+        time.sleep(0.01)
+    assert emcys and emcys[0].code == 0x8250, emcys
 
 
 def test_malformed_requests_are_ignored(rig):

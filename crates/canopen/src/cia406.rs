@@ -7,8 +7,14 @@ use crate::pdo::MapEntry;
 pub const PROFILE: u16 = 406;
 /// Position step setting (UNSIGNED32, nm), sub 1.
 pub const POSITION_STEP: u16 = 0x6005;
-/// Speed step setting (UNSIGNED32, µm/s), sub 1.
-pub const SPEED_STEP: u16 = 0x6006;
+/// Speed step setting (UNSIGNED32, µm/s in this project's EDS), 0x6005:02: the index of the
+/// published CiA DS 406 tables of vendor manuals (Temposonics E-Series CANopen operation
+/// manual, table 17: 0x6005 sub 1 position measuring step, sub 2 velocity measuring step;
+/// there read-only, velocity in 0.01 mm/s). Not 0x6006 (an earlier version of ehactl).
+pub const SPEED_STEP: (u16, u8) = (0x6005, 2);
+/// Position value (INTEGER32 here, in position steps), 0x6004: CiA 406 position value of the
+/// single-magnet device; 0x6020:01 is the multi-sensor object that the TPDO maps.
+pub const POSITION_VALUE: u16 = 0x6004;
 /// Position value of magnet 1 (INTEGER32, in position steps), 0x6020:01.
 pub const POSITION: u16 = 0x6020;
 /// Speed value of magnet 1 (INTEGER16, in speed steps), 0x6030:01.

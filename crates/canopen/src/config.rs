@@ -49,6 +49,25 @@ pub struct CanopenConfig {
     /// device that hears no master heartbeat for this long enters its fault reaction
     /// (valve: FAULT_HOLD, see DEPLOY.md).
     pub device_heartbeat_timeout_ms: u16,
+    /// EDS / DCF of the transducer (path, relative to the config file; `""` = the built-in
+    /// EDS of the project's simulated transducer, configs/eds/ehactl_transducer_406.eds).
+    /// Identity, object set, access types and DCF `ParameterValue`s drive the start-up.
+    #[serde(skip_serializing_if = "String::is_empty")]
+    pub transducer_eds: String,
+    /// EDS / DCF of the valve (as `transducer_eds`; built-in: ehactl_valve_408.eds).
+    #[serde(skip_serializing_if = "String::is_empty")]
+    pub valve_eds: String,
+    /// SYNC counter overflow value written to 0x1019 of every device that has it (0 = SYNC
+    /// without counter, else 2..240: SYNC carries a counter 1..this value, CiA 301 7.5.2.22).
+    pub sync_counter_overflow: u8,
+    /// Synchronous window length written to 0x1007 of every device that has it (µs, 0 = off).
+    pub sync_window_us: u32,
+    /// PDO age limit (SYNC periods): a synchronous TPDO answering SYNC k that arrives after
+    /// SYNC k + 1 is late (counted); one older than this many SYNC periods trips.
+    pub max_pdo_age_syncs: u32,
+    /// RPDO deadline written to the valve's RPDO1 event timer 0x1400:05 where its EDS has it
+    /// (ms, 0 = off): a valve that gets no setpoint for this long reacts as to a master loss.
+    pub valve_rpdo_timeout_ms: u16,
 }
 
 impl Default for CanopenConfig {
@@ -67,6 +86,12 @@ impl Default for CanopenConfig {
             master_node_id: 1,
             master_heartbeat_ms: 20,
             device_heartbeat_timeout_ms: 100,
+            transducer_eds: String::new(),
+            valve_eds: String::new(),
+            sync_counter_overflow: 0,
+            sync_window_us: 0,
+            max_pdo_age_syncs: 50,
+            valve_rpdo_timeout_ms: 100,
         }
     }
 }
@@ -164,6 +189,34 @@ pub const CANOPEN_PARAMS: &[Param] = &[
         "consumer time of ehactl's heartbeat written to 0x1016:01 of every device (> master_heartbeat_ms)",
         Kind::Integer,
     ),
+    Param::new(
+        "canopen.sync_counter_overflow",
+        "-",
+        Range::Within(0.0, 240.0),
+        "SYNC counter overflow value written to 0x1019 where the EDS has it (0 = no counter, else 2..240)",
+        Kind::Integer,
+    ),
+    Param::new(
+        "canopen.sync_window_us",
+        "µs",
+        Range::Within(0.0, 4.0e9),
+        "synchronous window length written to 0x1007 where the EDS has it (0 = off; < SYNC period)",
+        Kind::Integer,
+    ),
+    Param::new(
+        "canopen.max_pdo_age_syncs",
+        "SYNC periods",
+        Range::Within(1.0, 1.0e6),
+        "a synchronous TPDO older than this many SYNC periods on arrival trips (later than the next SYNC: counted)",
+        Kind::Integer,
+    ),
+    Param::new(
+        "canopen.valve_rpdo_timeout_ms",
+        "ms",
+        Range::Within(0.0, 65535.0),
+        "valve RPDO1 event timer 0x1400:05 (setpoint deadline) where the EDS has it (0 = off; > 2 SYNC periods)",
+        Kind::Integer,
+    ),
 ];
 
 /// Largest bus load accepted (fraction).
@@ -248,6 +301,36 @@ impl CanopenConfig {
                 format!(
                     "device consumer time {} ms must exceed ehactl's producer time master_heartbeat_ms = {} ms (typically 3-5×)",
                     self.device_heartbeat_timeout_ms, self.master_heartbeat_ms
+                ),
+            ));
+        }
+        if self.sync_counter_overflow == 1 {
+            return Err(ConfigError::new(
+                "canopen.sync_counter_overflow",
+                "1 is no SYNC counter overflow value; expected 0 (no counter) or 2..240 (CiA 301 0x1019)",
+            ));
+        }
+        let sync_period_us = 1e6 / self.sync_rate_hz;
+        if f64::from(self.sync_window_us) >= sync_period_us {
+            return Err(ConfigError::new(
+                "canopen.sync_window_us",
+                format!(
+                    "synchronous window {} µs must be shorter than the SYNC period {sync_period_us:.0} µs (or 0 = off)",
+                    self.sync_window_us
+                ),
+            ));
+        }
+        if self.valve_rpdo_timeout_ms != 0
+            && (f64::from(self.valve_rpdo_timeout_ms) * 1e3 <= 2.0 * sync_period_us
+                || self.valve_rpdo_timeout_ms <= self.master_heartbeat_ms)
+        {
+            return Err(ConfigError::new(
+                "canopen.valve_rpdo_timeout_ms",
+                format!(
+                    "RPDO deadline {} ms must exceed two SYNC periods ({:.3} ms; the setpoint RPDO comes once per SYNC) and master_heartbeat_ms = {} ms (the keep-alive period before the first cycle), or be 0 = off",
+                    self.valve_rpdo_timeout_ms,
+                    2.0 * sync_period_us * 1e-3,
+                    self.master_heartbeat_ms
                 ),
             ));
         }

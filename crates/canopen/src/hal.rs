@@ -2,16 +2,19 @@
 //! valve (seed 003's boom: magnetostrictive transducer + 4WRSE OBE).
 //!
 //! Threads and queues:
-//! - start-up ([`CanopenHal::connect`]) runs before the loop and may block: NMT reset
-//!   communication → boot-ups (`boot_timeout_s`), NMT pre-operational, SDO configuration
-//!   (device types, 0x1017 heartbeat, 0x1016 consumer of ehactl's heartbeat, PDO
-//!   re-mapping, transducer step, valve device mode 0x6042 / control mode 0x6043 / hold
-//!   setpoint 0x6314 written and read back), NMT start, heartbeats OPERATIONAL, a fault reset
-//!   of the valve if it is in a fault state (rising edge of control-word R with its D/H bits
-//!   held, CiA 408 as published in Moog B99224-DV018 §5.2), valve DISABLED → HOLD → ACTIVE
-//!   by SDO control word,
-//!   one priming SYNC so that the first cycle has a position; a failure after the valve
-//!   is ACTIVE (priming) first returns it to HOLD with setpoint 0, and
+//! - start-up ([`CanopenHal::connect`], [`crate::startup`]) runs before the loop and may
+//!   block. A plan is made from the settings and the devices' EDS / DCF files without the bus
+//!   ([`CanopenHal::check_settings`]); then *configure*: NMT reset communication → boot-ups
+//!   (or an SDO probe, `boot_timeout_s`), NMT pre-operational, device type and identity
+//!   0x1018 against the files, the planned objects (heartbeat 0x1017, consumer 0x1016 of
+//!   ehactl's heartbeat, SYNC objects 0x1006/0x1019/0x1007, transducer step, PDO mappings,
+//!   valve device mode 0x6042 / control mode 0x6043 / hold setpoint 0x6314, RPDO deadline
+//!   0x1400:05: read first, written and read back where the file allows, read-only ones
+//!   checked); then *activate*: NMT start, heartbeats OPERATIONAL, a fault reset of the
+//!   valve if it is in a fault state (rising edge of control-word R with its D/H bits held,
+//!   CiA 408 as published in Moog B99224-DV018 §5.2), valve DISABLED → HOLD → ACTIVE by SDO
+//!   control word, one priming SYNC so that the first cycle has a position; a failure after
+//!   the valve is ACTIVE (priming) first returns it to HOLD with setpoint 0, and
 //!   [`CanopenHal::connect_logged`] hands back every frame of a failed attempt for the log;
 //! - an RX thread owns the receiving side of the bus and pushes every frame into a
 //!   lock-free queue for the cycle (and into the `/can` log queue);
@@ -22,8 +25,8 @@
 //!   queued by the control cycle in `write` every `master_heartbeat_ms`, so that a dead or
 //!   hung cycle silences it and the devices' consumers (0x1016) react;
 //! - the cycle (`read` / `write`) never touches the bus: `read` drains the RX queue
-//!   (TPDO decode, heartbeat consumer, EMCY consumer, valve status) with the loop time as
-//!   injected time base; `write` converts the command to the spool setpoint and, when the
+//!   (TPDO decode, PDO age, heartbeat consumer, EMCY consumer, valve status) with the loop
+//!   time as injected time base; `write` converts the command to the spool setpoint and, when the
 //!   SYNC producer is due, queues RPDO1 (setpoint) then SYNC. Between SYNCs the control law
 //!   runs on held samples (sample-and-hold): CAN I/O at `sync_rate_hz`, control at
 //!   `run.control_rate_hz`.
@@ -44,24 +47,24 @@
 //! Safe stop: RPDO setpoint for the safe command (0) + SYNC, then the I/O threads are
 //! stopped and the valve control word is set to HOLD (D=1, H=1, A=0) by SDO.
 
-use crate::bus::{self, BusError, BusErrorKind, BusUrl, CanBus};
+use crate::bus::{BusError, BusErrorKind, BusUrl, CanBus};
 use crate::cia406;
 use crate::cia408::{self, ValveState};
 use crate::config::CanopenConfig;
 use crate::emcy::{Emcy, EMCY_BASE};
 use crate::frame::{CanFrame, Direction};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
-use crate::nmt::{self, NmtCommand, NmtState, HEARTBEAT_BASE};
-use crate::pdo::{
-    self, MapEntry, PdoMap, COB_ID_INVALID, RPDO1_BASE, RPDO1_COMM, RPDO1_MAP, TPDO1_BASE,
-    TPDO1_COMM, TPDO1_MAP,
-};
-use crate::sdo::{self, SdoClient, SdoError, SDO_TX_BASE};
+use crate::nmt::{NmtState, HEARTBEAT_BASE};
+use crate::pdo::{self, RPDO1_BASE, TPDO1_BASE};
+use crate::sdo::{self, SdoClient, SDO_TX_BASE};
+pub use crate::startup::{StartupError, StartupFailure};
+use crate::startup::{Activated, Bringup, Dev, Plan, Startup};
 use crate::sync::{self, SyncProducer};
 use crossbeam_queue::ArrayQueue;
 use ehactl_hal::logger::{CanFrameRecord, FrameLog};
 use ehactl_hal::record::{Event, EventKind, Severity};
 use ehactl_hal::{Hal, HalError, Measurements};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -83,85 +86,9 @@ pub struct CanopenSettings {
     pub safe_command: f64,
     /// Print start-up progress on stderr.
     pub verbose: bool,
-}
-
-/// Why the rig could not be brought up (before the loop). One line each.
-#[derive(Debug, Clone)]
-pub enum StartupError {
-    /// Inconsistent settings.
-    Settings(String),
-    /// The bus could not be opened or failed.
-    Bus(BusError),
-    /// A device sent no boot-up in time.
-    NoBoot {
-        /// Device name.
-        device: &'static str,
-        /// Node id.
-        node: u8,
-        /// Allowed time (s).
-        timeout_s: f64,
-    },
-    /// An SDO transfer of the configuration failed.
-    Sdo {
-        /// Configuration step.
-        step: String,
-        /// The SDO error (abort code and meaning, timeout, ...).
-        error: SdoError,
-    },
-    /// A device did not do what the master asked (wrong profile, state not reached).
-    Device(String),
-}
-
-/// A failed start-up with what was on the bus meanwhile.
-#[derive(Debug)]
-pub struct StartupFailure {
-    /// Why it failed.
-    pub error: StartupError,
-    /// Every frame sent and received during the attempt, in order; times relative to the
-    /// failure (ns, all ≤ 0).
-    pub frames: Vec<CanFrameRecord>,
-    /// Time from the start of the attempt to the failure (s).
-    pub elapsed_s: f64,
-}
-
-impl StartupError {
-    /// The time limit that ran out, if the failure is a timeout (s).
-    pub fn time_limit_s(&self) -> Option<f64> {
-        match self {
-            StartupError::NoBoot { timeout_s, .. } => Some(*timeout_s),
-            _ => None,
-        }
-    }
-}
-
-impl std::fmt::Display for StartupError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            StartupError::Settings(m) => write!(f, "CANopen start-up: {m}"),
-            StartupError::Bus(e) => write!(f, "CANopen start-up: {e}"),
-            StartupError::NoBoot {
-                device,
-                node,
-                timeout_s,
-            } => write!(
-                f,
-                "CANopen start-up: {device} (node {node} = 0x{node:02X}) sent no boot-up (0x{:03X} [00]) within {timeout_s} s after NMT reset communication (canopen.boot_timeout_s) and did not answer an SDO probe of 0x1000; is it powered, on the bus and using this node id?",
-                HEARTBEAT_BASE + u16::from(*node)
-            ),
-            StartupError::Sdo { step, error } => {
-                write!(f, "CANopen start-up: {step}: {error}")
-            }
-            StartupError::Device(m) => write!(f, "CANopen start-up: {m}"),
-        }
-    }
-}
-
-impl std::error::Error for StartupError {}
-
-impl From<BusError> for StartupError {
-    fn from(e: BusError) -> Self {
-        StartupError::Bus(e)
-    }
+    /// Directory of the config file: relative `canopen.transducer_eds` / `valve_eds` paths
+    /// are taken from here (None: the current directory).
+    pub config_dir: Option<PathBuf>,
 }
 
 /// State shared by the cycle and the I/O threads (atomics only, plus one error text that
@@ -217,22 +144,6 @@ const FRAME_LOG: usize = 1 << 17;
 /// Warning events logged per kind (the counters in the summary keep counting).
 const MAX_WARNINGS: u64 = 100;
 
-/// Which device a frame belongs to.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Dev {
-    Transducer = 0,
-    Valve = 1,
-}
-
-impl Dev {
-    fn name(self) -> &'static str {
-        match self {
-            Dev::Transducer => "transducer",
-            Dev::Valve => "valve",
-        }
-    }
-}
-
 /// The CANopen backend (see the module docs).
 pub struct CanopenHal {
     s: CanopenSettings,
@@ -259,6 +170,12 @@ pub struct CanopenHal {
     valve_state: Option<ValveState>,
     /// The transducer's first TPDO of the loop has arrived (start-up grace, see `read`).
     first_tpdo: bool,
+    /// PDO age (per device): SYNCs queued whose synchronous TPDO has not arrived yet.
+    pending: [u32; 2],
+    /// Synchronous TPDOs that arrived after the next SYNC had been sent (age ≥ 1 SYNC).
+    late: [u64; 2],
+    /// Largest TPDO age seen (SYNC periods).
+    max_age: [u32; 2],
     /// Loop time of the first cycle (s).
     loop_t0: Option<f64>,
     /// Start-up grace (s): `heartbeat_timeout_ms`.
@@ -283,151 +200,6 @@ impl std::fmt::Debug for CanopenHal {
     }
 }
 
-/// The bus during start-up: sends ehactl's heartbeat (0x700 + master id, state
-/// OPERATIONAL [05]) every `master_heartbeat_ms` while the start-up waits for frames, so
-/// that the devices' heartbeat consumers (0x1016) see the master alive from the moment
-/// they are configured. The heartbeats it sent are kept for the log.
-struct StartBus {
-    inner: Box<dyn CanBus>,
-    hb: CanFrame,
-    period: Duration,
-    next: Instant,
-    sent: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
-}
-
-impl StartBus {
-    fn beat_if_due(&mut self) -> Result<(), BusError> {
-        let now = Instant::now();
-        if now >= self.next {
-            self.inner.send(&self.hb)?;
-            if let Ok(mut v) = self.sent.lock() {
-                v.push((now, self.hb));
-            }
-            self.next += self.period;
-            if self.next < now {
-                self.next = now + self.period;
-            }
-        }
-        Ok(())
-    }
-}
-
-impl CanBus for StartBus {
-    fn send(&mut self, frame: &CanFrame) -> Result<(), BusError> {
-        self.inner.send(frame)
-    }
-    fn try_recv(&mut self) -> Result<Option<CanFrame>, BusError> {
-        self.beat_if_due()?;
-        self.inner.try_recv()
-    }
-    fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<CanFrame>, BusError> {
-        let end = Instant::now() + timeout;
-        loop {
-            self.beat_if_due()?;
-            let now = Instant::now();
-            if now >= end {
-                return Ok(None);
-            }
-            let wait = end.min(self.next).saturating_duration_since(now);
-            if let Some(f) = self.inner.recv_timeout(wait)? {
-                return Ok(Some(f));
-            }
-        }
-    }
-    fn try_clone_bus(&self) -> Result<Box<dyn CanBus>, BusError> {
-        self.inner.try_clone_bus()
-    }
-    fn describe(&self) -> String {
-        self.inner.describe()
-    }
-}
-
-/// Start-up bookkeeping: every frame (for the log) and what the devices reported.
-struct Startup {
-    frames: Vec<(Instant, CanFrame, bool)>,
-    /// Master heartbeats sent by [`StartBus`] (merged into `frames` by [`Startup::merge`]).
-    heartbeats: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
-    ids: [u8; 2],
-    booted: [bool; 2],
-    state: [Option<NmtState>; 2],
-    emcy: Option<Emcy>,
-    verbose: bool,
-}
-
-impl Startup {
-    /// Move the master heartbeats into `frames`, in time order.
-    fn merge(&mut self) {
-        let hb = self
-            .heartbeats
-            .lock()
-            .map(|mut v| std::mem::take(&mut *v))
-            .unwrap_or_default();
-        if !hb.is_empty() {
-            self.frames
-                .extend(hb.into_iter().map(|(at, f)| (at, f, true)));
-            self.frames.sort_by_key(|(at, _, _)| *at);
-        }
-    }
-
-    fn observe(&mut self, f: &CanFrame, dir: Direction) {
-        self.frames.push((Instant::now(), *f, dir == Direction::Tx));
-        if dir == Direction::Tx {
-            return;
-        }
-        if let Some((node, b)) = nmt::parse_error_control(f) {
-            for i in 0..2 {
-                if self.ids[i] == node {
-                    let st = NmtState::from_byte(b);
-                    if st == Some(NmtState::BootUp) {
-                        if self.verbose && !self.booted[i] {
-                            eprintln!("canopen: node {node} (0x{node:02X}) boot-up");
-                        }
-                        self.booted[i] = true;
-                    }
-                    self.state[i] = st;
-                }
-            }
-        }
-        for i in 0..2 {
-            if !f.extended && f.id == u32::from(EMCY_BASE + u16::from(self.ids[i])) {
-                if let Ok(e) = Emcy::parse(self.ids[i], f.payload()) {
-                    if !e.is_reset() {
-                        self.emcy = Some(e);
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// An SDO write of the start-up: (bus, bookkeeping, node, index, sub, bytes, step name).
-type SdoWriteFn<'a> = dyn FnMut(&mut dyn CanBus, &mut Startup, u8, u16, u8, &[u8], &str) -> Result<(), StartupError>
-    + 'a;
-
-/// A value read back after a start-up write must be the value written.
-fn readback(
-    step: &str,
-    node: u8,
-    index: u16,
-    sub: u8,
-    wrote: &[u8],
-    got: &[u8],
-) -> Result<(), StartupError> {
-    let n = wrote.len();
-    if got.len() < n || got[..n] != *wrote || got[n..].iter().any(|b| *b != 0) {
-        return Err(StartupError::Device(format!(
-            "{step}: node {node} (0x{node:02X}) accepted the write of 0x{index:04X}:{sub:02X} but reads back {:02X?} instead of {:02X?}",
-            got, wrote
-        )));
-    }
-    Ok(())
-}
-
-fn sdo_err(step: impl Into<String>) -> impl FnOnce(SdoError) -> StartupError {
-    let step = step.into();
-    move |error| StartupError::Sdo { step, error }
-}
-
 impl CanopenHal {
     /// Open the bus and bring both devices up (see the module docs). Blocks for at most
     /// `boot_timeout_s` plus a few SDO timeouts.
@@ -439,15 +211,10 @@ impl CanopenHal {
     /// log: a failed start-up is recorded like a trip, see [`StartupFailure`]).
     pub fn connect_logged(s: CanopenSettings) -> Result<CanopenHal, StartupFailure> {
         let t_start = Instant::now();
-        let mut st = Startup {
-            frames: Vec::with_capacity(512),
-            heartbeats: Arc::new(Mutex::new(Vec::new())),
-            ids: [s.canopen.transducer_node_id, s.canopen.valve_node_id],
-            booted: [false; 2],
-            state: [None; 2],
-            emcy: None,
-            verbose: s.verbose,
-        };
+        let mut st = Startup::new(
+            [s.canopen.transducer_node_id, s.canopen.valve_node_id],
+            s.verbose,
+        );
         Self::bring_up(s, t_start, &mut st).map_err(|error| {
             let failed_at = Instant::now();
             st.merge();
@@ -467,9 +234,10 @@ impl CanopenHal {
     }
 
     /// The checks of the settings that need no bus (config consistency, SYNC rate against
-    /// the control rate, valve full scale, closed-centre safe command): run by
-    /// [`CanopenHal::connect`] first, and by the CLI before it opens the log.
-    pub fn check_settings(s: &CanopenSettings) -> Result<(), StartupError> {
+    /// the control rate, valve full scale, closed-centre safe command, the EDS / DCF files
+    /// and the start-up plan made from them): run by [`CanopenHal::connect`] first, and by
+    /// the CLI before it opens the log.
+    pub fn check_settings(s: &CanopenSettings) -> Result<Plan, StartupError> {
         let c = s.canopen.clone();
         c.validate()
             .map_err(|e| StartupError::Settings(e.to_string()))?;
@@ -510,554 +278,24 @@ impl CanopenHal {
                 s.command_full_scale
             )));
         }
-        Ok(())
+        Plan::new(s)
     }
 
+    /// configure then activate (see [`crate::startup`]), then the I/O threads.
     fn bring_up(
         s: CanopenSettings,
         t_start: Instant,
         st: &mut Startup,
     ) -> Result<CanopenHal, StartupError> {
-        Self::check_settings(&s)?;
+        let plan = Self::check_settings(&s)?;
         let c = s.canopen.clone();
         let master_hb = CanFrame::std(
             HEARTBEAT_BASE + u16::from(c.master_node_id),
             [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
         );
-        let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
-        let mut bus = Box::new(StartBus {
-            inner: bus::open(&s.bus, Duration::from_secs(3))?,
-            hb: master_hb,
-            period: master_hb_period,
-            next: Instant::now(),
-            sent: st.heartbeats.clone(),
-        });
-        let ids = [c.transducer_node_id, c.valve_node_id];
-        let send = |bus: &mut dyn CanBus, st: &mut Startup, f: CanFrame| -> Result<(), BusError> {
-            bus.send(&f)?;
-            st.observe(&f, Direction::Tx);
-            Ok(())
-        };
-
-        // 1. NMT reset communication → boot-up of every device.
-        for &n in &ids {
-            send(
-                &mut *bus,
-                st,
-                nmt::command(NmtCommand::ResetCommunication, n),
-            )?;
-        }
-        let boot_deadline = Instant::now() + Duration::from_secs_f64(c.boot_timeout_s);
-        while !st.booted.iter().all(|b| *b) {
-            let left = boot_deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                // A missed boot-up is answered by an SDO probe (read 0x1000): some slaves
-                // (e.g. python `canopen`'s LocalNode) send no boot-up after NMT reset
-                // communication, and a boot-up can be lost while the master connects. A
-                // device that answers is there; one that does not is reported.
-                let sdo_t = Duration::from_millis(u64::from(c.sdo_timeout_ms));
-                for i in 0..2 {
-                    if st.booted[i] {
-                        continue;
-                    }
-                    let mut cl = SdoClient::new(ids[i], sdo_t);
-                    let req = cl.upload(0x1000, 0);
-                    let ok = sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d))
-                        .is_ok();
-                    if !ok {
-                        return Err(StartupError::NoBoot {
-                            device: [Dev::Transducer, Dev::Valve][i].name(),
-                            node: ids[i],
-                            timeout_s: c.boot_timeout_s,
-                        });
-                    }
-                    if s.verbose {
-                        eprintln!(
-                            "canopen: node {} (0x{:02X}) sent no boot-up but answered an SDO probe of 0x1000",
-                            ids[i], ids[i]
-                        );
-                    }
-                    st.booted[i] = true;
-                }
-                continue;
-            }
-            if let Some(f) = bus.recv_timeout(left.min(Duration::from_millis(50)))? {
-                st.observe(&f, Direction::Rx);
-            }
-        }
-        // 2. Explicitly PRE-OPERATIONAL (where SDO configuration belongs).
-        for &n in &ids {
-            send(
-                &mut *bus,
-                st,
-                nmt::command(NmtCommand::EnterPreOperational, n),
-            )?;
-        }
-        let sdo_t = Duration::from_millis(u64::from(c.sdo_timeout_ms));
-        let mut write = |bus: &mut dyn CanBus,
-                         st: &mut Startup,
-                         node: u8,
-                         index: u16,
-                         sub: u8,
-                         bytes: &[u8],
-                         step: &str|
-         -> Result<(), StartupError> {
-            let mut cl = SdoClient::new(node, sdo_t);
-            let req = cl.download(index, sub, bytes);
-            sdo::transfer(bus, &mut cl, req, &mut |f, d| st.observe(f, d)).map_err(sdo_err(
-                format!("{step} (write 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"),
-            ))
-        };
-        let read = |bus: &mut dyn CanBus,
-                    st: &mut Startup,
-                    node: u8,
-                    index: u16,
-                    sub: u8,
-                    step: &str|
-         -> Result<Vec<u8>, StartupError> {
-            let mut cl = SdoClient::new(node, sdo_t);
-            let req = cl.upload(index, sub);
-            sdo::transfer(bus, &mut cl, req, &mut |f, d| st.observe(f, d)).map_err(sdo_err(
-                format!("{step} (read 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"),
-            ))?;
-            Ok(cl.data().to_vec())
-        };
-
-        // 3. Configuration by SDO.
-        let mut names: [Option<String>; 2] = [None, None];
-        for (i, dev, profile) in [
-            (0usize, Dev::Transducer, cia406::PROFILE),
-            (1, Dev::Valve, cia408::PROFILE),
-        ] {
-            let n = ids[i];
-            let d = read(&mut *bus, st, n, 0x1000, 0, "reading the device type")?;
-            let mut b = [0u8; 4];
-            b[..d.len().min(4)].copy_from_slice(&d[..d.len().min(4)]);
-            let dt = u32::from_le_bytes(b);
-            if dt & 0xFFFF != u32::from(profile) {
-                return Err(StartupError::Device(format!(
-                    "node {n} (0x{n:02X}) should be the {} (CiA {profile}) but its device type 0x1000 is 0x{dt:08X} (profile {})",
-                    dev.name(),
-                    dt & 0xFFFF
-                )));
-            }
-            // Manufacturer device name (VISIBLE_STRING, segmented upload); optional object.
-            let mut cl = SdoClient::new(n, sdo_t);
-            let req = cl.upload(0x1008, 0);
-            match sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d)) {
-                Ok(()) => {
-                    let name = String::from_utf8_lossy(cl.data())
-                        .trim_end_matches('\0')
-                        .to_string();
-                    if s.verbose {
-                        eprintln!("canopen: node {n} (0x{n:02X}): \"{name}\" (CiA {profile})");
-                    }
-                    names[i] = Some(name);
-                }
-                Err(SdoError::Abort { .. }) => {}
-                Err(e) => {
-                    return Err(StartupError::Sdo {
-                        step: format!(
-                            "reading the {} device name (read 0x1008:00 on node {n})",
-                            dev.name()
-                        ),
-                        error: e,
-                    })
-                }
-            }
-            write(
-                &mut *bus,
-                st,
-                n,
-                0x1017,
-                0,
-                &c.heartbeat_ms.to_le_bytes(),
-                &format!("setting the {} heartbeat producer time", dev.name()),
-            )?;
-            // Consumer of ehactl's heartbeat (CiA 301 0x1016:01 = node id << 16 | time ms):
-            // the device enters its fault reaction when ehactl stops (DEPLOY.md).
-            let consumer =
-                (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
-            let step = format!(
-                "setting the {} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)",
-                dev.name()
-            );
-            write(&mut *bus, st, n, 0x1016, 1, &consumer.to_le_bytes(), &step)?;
-            let got = read(&mut *bus, st, n, 0x1016, 1, &step)?;
-            readback(&step, n, 0x1016, 1, &consumer.to_le_bytes(), &got)?;
-        }
-        let tr = ids[0];
-        let va = ids[1];
-        // Position step: read first and written only if it differs. 0x6005 is read-only on
-        // several transducers (e.g. Temposonics): there a matching value passes, a different
-        // one is an error naming the device's value.
-        let want = c.position_step_nm.to_le_bytes();
-        let have = {
-            let mut cl = SdoClient::new(tr, sdo_t);
-            let req = cl.upload(cia406::POSITION_STEP, 1);
-            sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d))
-                .ok()
-                .map(|()| cl.data().to_vec())
-        };
-        let have_nm = have
-            .as_ref()
-            .filter(|h| h.len() == 4)
-            .map(|h| u32::from_le_bytes([h[0], h[1], h[2], h[3]]));
-        if have_nm != Some(c.position_step_nm) {
-            let mut cl = SdoClient::new(tr, sdo_t);
-            let req = cl.download(cia406::POSITION_STEP, 1, &want);
-            match sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| st.observe(f, d)) {
-                Ok(()) => {}
-                Err(SdoError::Abort { code, .. }) if code == 0x0601_0002 && have_nm.is_some() => {
-                    return Err(StartupError::Device(format!(
-                        "transducer (node {tr}) position step 0x6005:01 is read-only and is {} nm, not canopen.position_step_nm = {} nm; set canopen.position_step_nm = {}",
-                        have_nm.unwrap_or(0),
-                        c.position_step_nm,
-                        have_nm.unwrap_or(0)
-                    )))
-                }
-                Err(error) => {
-                    return Err(StartupError::Sdo {
-                        step: format!(
-                            "setting the transducer position step (canopen.position_step_nm) (write 0x6005:01 on node {tr} = 0x{tr:02X})"
-                        ),
-                        error,
-                    })
-                }
-            }
-        }
-        write(
-            &mut *bus,
-            st,
-            tr,
-            cia406::CYCLIC_TIMER,
-            0,
-            &0u16.to_le_bytes(),
-            "switching the transducer cyclic timer off (TPDO on SYNC)",
-        )?;
-        let remap = |bus: &mut dyn CanBus,
-                     st: &mut Startup,
-                     write: &mut SdoWriteFn<'_>,
-                     node: u8,
-                     comm: u16,
-                     map_idx: u16,
-                     cob: u16,
-                     entries: &[MapEntry],
-                     what: &str|
-         -> Result<(), StartupError> {
-            let map = PdoMap::new(entries).ok_or_else(|| {
-                StartupError::Settings(format!("{what}: mapping longer than 8 bytes"))
-            })?;
-            for w in pdo::remap_sequence(comm, map_idx, cob, pdo::TRANSMISSION_SYNC_EVERY, &map) {
-                let (b, n) = w.bytes();
-                write(
-                    bus,
-                    st,
-                    node,
-                    w.index,
-                    w.sub,
-                    &b[..n],
-                    &format!("mapping {what}"),
-                )?;
-            }
-            Ok(())
-        };
-        remap(
-            &mut *bus,
-            st,
-            &mut write,
-            tr,
-            TPDO1_COMM,
-            TPDO1_MAP,
-            TPDO1_BASE + u16::from(tr),
-            &cia406::TPDO1_MAP,
-            "the transducer TPDO1 (position 0x6020:01)",
-        )?;
-        // Device mode, control mode and hold setpoint, each read back: a valve that keeps
-        // another mode (e.g. set by its local interface) would ignore the bus setpoint or
-        // hold somewhere else.
-        for (index, sub, bytes, what) in [
-            (
-                cia408::DEVICE_MODE,
-                0u8,
-                vec![cia408::MODE_SETPOINT_FROM_BUS],
-                "setting the valve device mode 0x6042 = 1 (setpoint from the bus)",
-            ),
-            (
-                cia408::CONTROL_MODE,
-                0,
-                vec![cia408::CONTROL_MODE_SPOOL_CLOSED_LOOP as u8],
-                "setting the valve control mode 0x6043 = 2 (spool position, closed loop)",
-            ),
-            (
-                cia408::SPOOL_HOLD_SETPOINT,
-                1,
-                0i16.to_le_bytes().to_vec(),
-                "setting the valve hold setpoint 0x6314:01 = 0 (closed centre in HOLD)",
-            ),
-        ] {
-            write(&mut *bus, st, va, index, sub, &bytes, what)?;
-            let got = read(&mut *bus, st, va, index, sub, what)?;
-            readback(what, va, index, sub, &bytes, &got)?;
-        }
-        write(
-            &mut *bus,
-            st,
-            va,
-            cia408::SPOOL_SETPOINT,
-            1,
-            &0i16.to_le_bytes(),
-            "zeroing the valve spool setpoint",
-        )?;
-        remap(
-            &mut *bus,
-            st,
-            &mut write,
-            va,
-            RPDO1_COMM,
-            RPDO1_MAP,
-            RPDO1_BASE + u16::from(va),
-            &cia408::RPDO1_MAP,
-            "the valve RPDO1 (spool setpoint 0x6300:01)",
-        )?;
-        if c.valve_status_pdo {
-            remap(
-                &mut *bus,
-                st,
-                &mut write,
-                va,
-                TPDO1_COMM,
-                TPDO1_MAP,
-                TPDO1_BASE + u16::from(va),
-                &cia408::TPDO1_MAP,
-                "the valve TPDO1 (status word 0x6041 + actual spool 0x6301:01)",
-            )?;
-        } else {
-            write(
-                &mut *bus,
-                st,
-                va,
-                TPDO1_COMM,
-                1,
-                &(COB_ID_INVALID | u32::from(TPDO1_BASE + u16::from(va))).to_le_bytes(),
-                "disabling the valve TPDO1 (canopen.valve_status_pdo = false)",
-            )?;
-        }
-        if s.verbose {
-            eprintln!("canopen: PDO mappings and heartbeats configured");
-        }
-
-        // 4. NMT start; wait for OPERATIONAL heartbeats.
-        for &n in &ids {
-            send(&mut *bus, st, nmt::command(NmtCommand::Start, n))?;
-        }
-        st.state = [None; 2];
-        let op_wait = Duration::from_millis(
-            (3 * u64::from(c.heartbeat_timeout_ms)).max(u64::from(c.sdo_timeout_ms)),
-        );
-        let deadline = Instant::now() + op_wait;
-        while !st.state.iter().all(|x| *x == Some(NmtState::Operational)) {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                let i = st
-                    .state
-                    .iter()
-                    .position(|x| *x != Some(NmtState::Operational))
-                    .unwrap_or(0);
-                return Err(StartupError::Device(format!(
-                    "{} (node {}) did not report OPERATIONAL by heartbeat within {} ms after NMT start (last state: {})",
-                    [Dev::Transducer, Dev::Valve][i].name(),
-                    ids[i],
-                    op_wait.as_millis(),
-                    st.state[i].map_or("no heartbeat", |x| x.as_str())
-                )));
-            }
-            if let Some(f) = bus.recv_timeout(left.min(Duration::from_millis(50)))? {
-                st.observe(&f, Direction::Rx);
-            }
-        }
-
-        // 5. Valve state machine by SDO control word: (FAULT → reset) DISABLED → HOLD → ACTIVE.
-        let status = |bus: &mut dyn CanBus, st: &mut Startup| -> Result<u16, StartupError> {
-            let d = read(
-                bus,
-                st,
-                va,
-                cia408::STATUS_WORD,
-                0,
-                "reading the valve status word",
-            )?;
-            Ok(u16::from_le_bytes([
-                d.first().copied().unwrap_or(0),
-                d.get(1).copied().unwrap_or(0),
-            ]))
-        };
-        let goto = |bus: &mut dyn CanBus,
-                    st: &mut Startup,
-                    cw: u16,
-                    want: ValveState|
-         -> Result<(), StartupError> {
-            write(
-                bus,
-                st,
-                va,
-                cia408::CONTROL_WORD,
-                0,
-                &cw.to_le_bytes(),
-                &format!("commanding the valve to {}", want.as_str()),
-            )?;
-            let deadline = Instant::now() + sdo_t;
-            loop {
-                let sw = status(bus, st)?;
-                let got = ValveState::from_status(sw);
-                if got == want {
-                    if s.verbose {
-                        eprintln!("canopen: valve {}", want.as_str());
-                    }
-                    return Ok(());
-                }
-                if Instant::now() >= deadline {
-                    return Err(StartupError::Device(format!(
-                        "valve (node {va}) did not enter {} after control word 0x{cw:04X}: status word 0x{sw:04X} ({})",
-                        want.as_str(),
-                        got.as_str()
-                    )));
-                }
-                std::thread::sleep(Duration::from_millis(10));
-            }
-        };
-        // A valve in a fault state is reset as published (Moog B99224-DV018 §5.2.2.1):
-        // FAULT_REACTION ends by itself (TR9/12/13); then R rises with the D/H bits of the
-        // fault state held (TR10 FAULT_DISABLED 0001→1001, TR11 FAULT_HOLD 0011→1011, TR14
-        // FAULT_INIT 0000→1000).
-        let mut sw = status(&mut *bus, st)?;
-        let deadline = Instant::now() + sdo_t;
-        while ValveState::from_status(sw) == ValveState::FaultReaction && Instant::now() < deadline
-        {
-            std::thread::sleep(Duration::from_millis(5));
-            sw = status(&mut *bus, st)?;
-        }
-        let fault = ValveState::from_status(sw);
-        if fault.is_fault() {
-            let Some(held) = fault.reset_hold_bits() else {
-                return Err(StartupError::Device(format!(
-                    "valve (node {va}) stayed in FAULT_REACTION (status word 0x{sw:04X}) for {} ms",
-                    sdo_t.as_millis()
-                )));
-            };
-            if s.verbose {
-                eprintln!(
-                    "canopen: valve in {} at start-up: fault reset (rising edge of control word bit R)",
-                    fault.as_str()
-                );
-            }
-            write(
-                &mut *bus,
-                st,
-                va,
-                cia408::CONTROL_WORD,
-                0,
-                &held.to_le_bytes(),
-                "preparing the valve fault reset (R = 0, D/H held)",
-            )?;
-            write(
-                &mut *bus,
-                st,
-                va,
-                cia408::CONTROL_WORD,
-                0,
-                &(held | cia408::CW_RESET).to_le_bytes(),
-                "resetting the valve fault (rising edge of R)",
-            )?;
-            let sw = status(&mut *bus, st)?;
-            let got = ValveState::from_status(sw);
-            if got.is_fault() || matches!(got, ValveState::Unknown(_)) {
-                return Err(StartupError::Device(format!(
-                    "valve (node {va}) still in {} after the fault reset (control word 0x{:04X}): status word 0x{sw:04X}; the fault persists",
-                    got.as_str(),
-                    held | cia408::CW_RESET
-                )));
-            }
-        }
-        goto(
-            &mut *bus,
-            st,
-            cia408::CW_DISABLED_STATE,
-            ValveState::Disabled,
-        )?;
-        goto(&mut *bus, st, cia408::CW_HOLD_STATE, ValveState::Hold)?;
-        goto(&mut *bus, st, cia408::CW_ACTIVE_STATE, ValveState::Active)?;
-
-        // 6. Priming: setpoint 0 + one SYNC so that the first cycle has a position. The
-        //    valve is ACTIVE from here: if priming fails, it is commanded back to HOLD
-        //    (setpoint 0, control word HOLD; best effort) before the error is returned.
-        let mut prime = || -> Result<Measurements, StartupError> {
-            let mut meas = Measurements {
-                t: f64::NAN,
-                force: f64::NAN,
-                position: f64::NAN,
-                p_a: f64::NAN,
-                p_b: f64::NAN,
-                spool: f64::NAN,
-            };
-            send(
-                &mut *bus,
-                st,
-                CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()),
-            )?;
-            send(&mut *bus, st, sync::frame())?;
-            let deadline = Instant::now() + sdo_t;
-            while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
-                let left = deadline.saturating_duration_since(Instant::now());
-                if left.is_zero() {
-                    return Err(StartupError::Device(format!(
-                        "no {} TPDO1 within {} ms after the first SYNC; are the PDOs mapped and the devices OPERATIONAL?",
-                        if meas.position.is_nan() { "transducer" } else { "valve" },
-                        sdo_t.as_millis()
-                    )));
-                }
-                if let Some(f) = bus.recv_timeout(left)? {
-                    st.observe(&f, Direction::Rx);
-                    if f.id == u32::from(TPDO1_BASE + u16::from(tr)) && f.dlc == 4 {
-                        meas.position =
-                            cia406::position_m(pdo::get_i32(&f.data, 0, 4), c.position_step_nm);
-                    }
-                    if f.id == u32::from(TPDO1_BASE + u16::from(va)) && f.dlc == 4 {
-                        meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
-                    }
-                }
-            }
-            if let Some(e) = st.emcy {
-                return Err(StartupError::Device(format!(
-                    "{} (node {}) sent EMCY 0x{:04X} ({}) during start-up",
-                    if e.node == tr { "transducer" } else { "valve" },
-                    e.node,
-                    e.code,
-                    e.class()
-                )));
-            }
-            Ok(meas)
-        };
-        let mut meas = match prime() {
-            Ok(m) => m,
-            Err(e) => {
-                let _ = send(
-                    &mut *bus,
-                    st,
-                    CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()),
-                );
-                let _ = write(
-                    &mut *bus,
-                    st,
-                    va,
-                    cia408::CONTROL_WORD,
-                    0,
-                    &cia408::CW_HOLD_STATE.to_le_bytes(),
-                    "returning the valve to HOLD after a failed start-up",
-                );
-                return Err(e);
-            }
-        };
+        let mut b = Bringup::open(&s, plan, st, master_hb)?;
+        b.configure()?;
+        let Activated { mut meas } = b.activate()?;
         if s.verbose {
             eprintln!(
                 "canopen: start-up done in {:.2} s; first position {:.6} m",
@@ -1066,8 +304,26 @@ impl CanopenHal {
             );
         }
         meas.t = 0.0;
+        let names = std::mem::take(&mut b.names);
+        let bus: Box<dyn CanBus> = b.bus.inner;
+        Self::spawn_io(s, bus, t_start, st, master_hb, meas, names)
+    }
 
-        // 7. I/O threads.
+    /// The I/O threads and the run-time state, after a successful start-up.
+    fn spawn_io(
+        s: CanopenSettings,
+        bus: Box<dyn CanBus>,
+        t_start: Instant,
+        st: &mut Startup,
+        master_hb: CanFrame,
+        meas: Measurements,
+        names: [Option<String>; 2],
+    ) -> Result<CanopenHal, StartupError> {
+        let c = s.canopen.clone();
+        let ids = [c.transducer_node_id, c.valve_node_id];
+        let (tr, va) = (ids[0], ids[1]);
+        let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
+        let keepalive = CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes());
         let shared = Arc::new(IoShared {
             stop: AtomicBool::new(false),
             cycle_started: AtomicBool::new(false),
@@ -1083,7 +339,6 @@ impl CanopenHal {
         let frame_log = Arc::new(FrameLog::new(FRAME_LOG));
         let rxq = Arc::new(ArrayQueue::new(RX_QUEUE));
         let txq = Arc::new(ArrayQueue::new(TX_QUEUE));
-        let bus: Box<dyn CanBus> = bus.inner;
         let tx_bus = bus.try_clone_bus()?;
         let spawn_err = |e: std::io::Error| {
             StartupError::Bus(BusError::new(
@@ -1102,7 +357,9 @@ impl CanopenHal {
             let (sh, q, lg) = (shared.clone(), txq.clone(), frame_log.clone());
             std::thread::Builder::new()
                 .name("ehactl-can-tx".into())
-                .spawn(move || tx_loop(tx_bus, &sh, &q, &lg, master_hb, master_hb_period))
+                .spawn(move || {
+                    tx_loop(tx_bus, &sh, &q, &lg, master_hb, master_hb_period, keepalive)
+                })
                 .map_err(spawn_err)?
         };
         let waker = tx_thread.thread().clone();
@@ -1115,7 +372,8 @@ impl CanopenHal {
             h.on_heartbeat(NmtState::Operational);
         }
         Ok(CanopenHal {
-            sync: SyncProducer::new(1.0 / c.sync_rate_hz),
+            // the start-up's priming SYNC was SYNC 1 (for the SYNC counter)
+            sync: SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1),
             master_hb,
             master_hb_period_ns: u64::from(c.master_heartbeat_ms) * 1_000_000,
             master_hb_since_ns: u64::from(c.master_heartbeat_ms) * 1_000_000,
@@ -1139,6 +397,9 @@ impl CanopenHal {
             meas,
             valve_state: Some(ValveState::Active),
             first_tpdo: false,
+            pending: [0; 2],
+            late: [0; 2],
+            max_age: [0; 2],
             loop_t0: None,
             grace_s: f64::from(c.heartbeat_timeout_ms) * 1e-3,
             setpoint: 0,
@@ -1206,6 +467,34 @@ impl CanopenHal {
         }
     }
 
+    /// PDO age check of a synchronous TPDO of `d` (any DLC: it answers one SYNC). Its age is
+    /// the number of SYNCs the cycle queued after the one it answers: 0 = before the next
+    /// SYNC; ≥ 1 = late (counted); above `canopen.max_pdo_age_syncs` = trip. The cycle
+    /// takes frames in once per control period, so ages are exact to one control period.
+    /// A TPDO the device never sent counts as late for the rest of the run (CAN retransmits
+    /// lost frames: a missing TPDO is a device fault).
+    #[inline]
+    fn pdo_age(&mut self, d: Dev, t: f64) -> Result<(), HalError> {
+        let i = d as usize;
+        if d == Dev::Valve && !self.s.canopen.valve_status_pdo {
+            return Ok(());
+        }
+        let age = self.pending[i].saturating_sub(1);
+        self.pending[i] = self.pending[i].saturating_sub(1);
+        if age >= 1 {
+            self.late[i] += 1;
+            self.max_age[i] = self.max_age[i].max(age);
+            if age > self.s.canopen.max_pdo_age_syncs {
+                let what = match d {
+                    Dev::Transducer => "transducer TPDO older than canopen.max_pdo_age_syncs",
+                    Dev::Valve => "valve TPDO older than canopen.max_pdo_age_syncs",
+                };
+                return Err(self.trip(t, u32::from(self.ids[i]), what, f64::from(age), "SYNC periods"));
+            }
+        }
+        Ok(())
+    }
+
     /// Handle one received frame in the cycle.
     #[inline]
     fn dispatch(&mut self, f: &CanFrame, t: f64) -> Result<(), HalError> {
@@ -1226,6 +515,11 @@ impl CanopenHal {
             me.wrong_dlc += 1;
             me.warn(t, what, f64::from(id), me.wrong_dlc);
         };
+        if base as u16 == TPDO1_BASE {
+            if let Some(d) = dev {
+                self.pdo_age(d, t)?;
+            }
+        }
         match (base as u16, dev) {
             (TPDO1_BASE, Some(Dev::Transducer)) => {
                 if f.dlc != 4 {
@@ -1444,19 +738,23 @@ fn tx_loop(
     log: &FrameLog,
     master_hb: CanFrame,
     master_hb_period: Duration,
+    keepalive: CanFrame,
 ) -> Box<dyn CanBus> {
     let mut next_hb = Instant::now();
     loop {
-        // Until the first cycle runs (the run loop still sets up), ehactl's heartbeat comes
-        // from here, so that the devices' consumers do not fire in the hand-over.
+        // Until the first cycle runs (the run loop still sets up), ehactl's heartbeat and the
+        // valve's setpoint RPDO (0, as primed) come from here, so that the devices' consumers
+        // (0x1016) and the valve's RPDO deadline (0x1400:05) do not fire in the hand-over.
         if !sh.cycle_started.load(Ordering::Acquire) && Instant::now() >= next_hb {
             next_hb = Instant::now() + master_hb_period;
-            if let Err(e) = bus.send(&master_hb) {
-                sh.fail(e.message);
-                return bus;
+            for f in [&master_hb, &keepalive] {
+                if let Err(e) = bus.send(f) {
+                    sh.fail(e.message);
+                    return bus;
+                }
+                log.push(record(f, sh.stamp(Instant::now()), true));
+                sh.tx_frames.fetch_add(1, Ordering::Relaxed);
             }
-            log.push(record(&master_hb, sh.stamp(Instant::now()), true));
-            sh.tx_frames.fetch_add(1, Ordering::Relaxed);
         }
         while let Some(f) = q.pop() {
             match bus.send(&f) {
@@ -1575,7 +873,10 @@ impl Hal for CanopenHal {
                 RPDO1_BASE + u16::from(self.ids[1]),
                 self.setpoint.to_le_bytes(),
             );
-            if self.txq.push(rpdo).is_err() || self.txq.push(sync::frame()).is_err() {
+            for p in self.pending.iter_mut() {
+                *p = p.saturating_add(1);
+            }
+            if self.txq.push(rpdo).is_err() || self.txq.push(self.sync.frame()).is_err() {
                 return Err(self.trip(t, 0, "CAN transmit queue overflow", f64::NAN, ""));
             }
             if let Some(w) = &self.tx_waker {
@@ -1594,7 +895,10 @@ impl Hal for CanopenHal {
             let _ = self
                 .txq
                 .push(CanFrame::std(RPDO1_BASE + u16::from(va), s.to_le_bytes()));
-            let _ = self.txq.push(sync::frame());
+            let _ = self.txq.push(sync::frame_with_counter(
+                self.s.canopen.sync_counter_overflow,
+                2 + self.sync.count(),
+            ));
             if let Some(w) = &self.tx_waker {
                 w.unpark();
             }
@@ -1661,6 +965,9 @@ impl Hal for CanopenHal {
             "bus_time_per_sync_us": l.time_per_sync_s * 1e6,
             "sync_rate_hz": self.s.canopen.sync_rate_hz,
             "syncs_sent": self.sync.count(),
+            "sync_counter_overflow": self.s.canopen.sync_counter_overflow,
+            "pdo_late": {"transducer": self.late[0], "valve": self.late[1]},
+            "pdo_max_age_syncs": {"transducer": self.max_age[0], "valve": self.max_age[1]},
             "can_rx_frames": sh.rx_frames.load(Ordering::Relaxed),
             "can_tx_frames": sh.tx_frames.load(Ordering::Relaxed),
             "can_wrong_dlc": self.wrong_dlc,

@@ -11,6 +11,9 @@
 //!   (CANopenNode style), so time is injected and the protocol is testable frame by frame,
 //! - the device profiles [`cia406`] (position transducer) and [`cia408`] (valve with OBE),
 //! - [`config`]: the `[canopen]` config section and the bus-load check,
+//! - [`eds`]: EDS / DCF files (CiA 306) that drive the start-up,
+//! - [`startup`]: the start-up in phases (configure: boot, identity, EDS-driven SDO
+//!   configuration; activate: NMT start, valve state machine, priming),
 //! - [`hal`]: [`hal::CanopenHal`], the `Hal` implementation: I/O threads own the bus, the
 //!   control cycle talks to them through lock-free queues.
 #![deny(missing_docs)]
@@ -19,6 +22,7 @@ pub mod bus;
 pub mod cia406;
 pub mod cia408;
 pub mod config;
+pub mod eds;
 pub mod emcy;
 pub mod frame;
 pub mod hal;
@@ -29,6 +33,7 @@ pub mod pdo;
 pub mod sdo;
 pub mod socketcan_bus;
 pub mod socketcand;
+pub mod startup;
 pub mod sync;
 
 pub use bus::{BusError, BusErrorKind, BusUrl, CanBus};

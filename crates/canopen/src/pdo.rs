@@ -45,6 +45,11 @@ pub struct PdoMap {
 }
 
 impl PdoMap {
+    /// Number of mapped entries.
+    pub fn count(&self) -> usize {
+        self.n
+    }
+
     /// Mapping from `entries`; `None` if more than 8 entries or more than 8 bytes.
     pub fn new(entries: &[MapEntry]) -> Option<PdoMap> {
         let bits: u32 = entries.iter().map(|e| u32::from(e.bits)).sum();

@@ -13,12 +13,27 @@ pub fn frame() -> CanFrame {
     CanFrame::std(SYNC_COB_ID, [])
 }
 
+/// SYNC with the counter of CiA 301 §7.2.5.2.1 when `overflow` (0x1019) is 2..240: the
+/// `k`-th SYNC (k = 1, 2, ...) carries 1 + (k − 1) mod overflow; `overflow` 0: no data.
+#[inline]
+pub fn frame_with_counter(overflow: u8, k: u64) -> CanFrame {
+    if overflow == 0 {
+        frame()
+    } else {
+        CanFrame::std(SYNC_COB_ID, [(1 + (k.saturating_sub(1)) % u64::from(overflow)) as u8])
+    }
+}
+
 /// Decides when to send SYNC. Integer nanoseconds: no drift over long runs.
 #[derive(Debug, Clone)]
 pub struct SyncProducer {
     period_ns: u64,
     timer_ns: u64,
     count: u64,
+    /// SYNC counter overflow value (0x1019; 0 = SYNC without counter).
+    overflow: u8,
+    /// SYNCs sent before this producer (the start-up's priming SYNC), for the counter.
+    before: u64,
 }
 
 impl SyncProducer {
@@ -29,7 +44,24 @@ impl SyncProducer {
             period_ns,
             timer_ns: period_ns,
             count: 0,
+            overflow: 0,
+            before: 0,
         }
+    }
+
+    /// With the SYNC counter (`overflow` 2..240, 0 = none), `before` SYNCs already sent.
+    pub fn with_counter(period_s: f64, overflow: u8, before: u64) -> SyncProducer {
+        SyncProducer {
+            overflow,
+            before,
+            ..SyncProducer::new(period_s)
+        }
+    }
+
+    /// The frame of the SYNC just produced (with its counter, if configured).
+    #[inline]
+    pub fn frame(&self) -> CanFrame {
+        frame_with_counter(self.overflow, self.before + self.count)
     }
 
     /// Advance by `elapsed_ns` (ns); true if a SYNC is due now. At most one SYNC per
@@ -91,5 +123,20 @@ mod tests {
         let mut s = SyncProducer::new(1e-3);
         assert!(s.process(10_000_000));
         assert!(!s.process(0));
+    }
+
+    #[test]
+    fn the_counter_runs_1_to_overflow() {
+        // CiA 301 7.2.5.2.1: counter 1..0x1019, then 1 again; none when 0x1019 = 0.
+        let mut s = SyncProducer::with_counter(1e-3, 3, 1); // the priming SYNC had 1
+        let c: Vec<u8> = (0..5)
+            .map(|_| {
+                assert!(s.process(1_000_000));
+                s.frame().data[0]
+            })
+            .collect();
+        assert_eq!(c, vec![2, 3, 1, 2, 3]);
+        assert_eq!(frame_with_counter(3, 1).payload(), &[1]);
+        assert_eq!(frame_with_counter(0, 7).payload().len(), 0);
     }
 }

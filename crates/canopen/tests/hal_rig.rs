@@ -64,6 +64,11 @@ struct Knobs {
     /// The valve is in FAULT_HOLD when the master connects (a fault from an earlier run).
     start_in_fault_hold: AtomicBool,
     abort_index: AtomicU32,
+    /// The valve's vendor-ID in 0x1018:01 (the built-in EDS says 0).
+    vendor_valve: AtomicU32,
+    /// The transducer answers SYNC k with the position of SYNC k only after SYNC k + this
+    /// (its TPDOs are this many SYNC periods old on arrival).
+    tpdo_lag: AtomicU32,
     stop: AtomicBool,
     /// Every frame the rig received (id, data), for sequence checks.
     seen: Mutex<Vec<(u32, Vec<u8>)>>,
@@ -94,6 +99,15 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
         nodes[1]
             .od
             .insert((0x1000, 0), 0x0001_0198u32.to_le_bytes().to_vec());
+        // identity 0x1018:01/02 as in the built-in EDS files (vendor 0, product 0x196/0x198)
+        nodes[0].od.insert((0x1018, 1), 0u32.to_le_bytes().to_vec());
+        nodes[0].od.insert((0x1018, 2), 0x196u32.to_le_bytes().to_vec());
+        nodes[1].od.insert(
+            (0x1018, 1),
+            knobs.vendor_valve.load(Ordering::Relaxed).to_le_bytes().to_vec(),
+        );
+        nodes[1].od.insert((0x1018, 2), 0x198u32.to_le_bytes().to_vec());
+        let mut syncs_op = 0u32;
         // CiA 408 status codes RMHD (Moog B99224-DV018 fig. 19).
         const INIT: u16 = 0b1000;
         const DISABLED: u16 = 0b1001;
@@ -211,7 +225,15 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                             CanFrame::std(0x180 + u16::from(VA), d)
                         });
                     }
-                    if nodes[0].nmt == 5 && !knobs.mute_transducer_pdo.load(Ordering::Relaxed) {
+                    if nodes[0].nmt == 5 {
+                        syncs_op += 1;
+                    }
+                    let lagging = syncs_op <= knobs.tpdo_lag.load(Ordering::Relaxed) + 1
+                        && syncs_op > 1;
+                    if nodes[0].nmt == 5
+                        && !knobs.mute_transducer_pdo.load(Ordering::Relaxed)
+                        && !lagging
+                    {
                         let steps = (pos * 1e6).round() as i32; // 1000 nm steps
                         send(
                             &mut bus,
@@ -337,6 +359,7 @@ fn settings(port: u16, cfg: CanopenConfig) -> CanopenSettings {
         control_rate_hz: 2000.0,
         safe_command: 0.0,
         verbose: false,
+        config_dir: None,
     }
 }
 
@@ -961,6 +984,116 @@ fn a_read_only_position_step_is_read_and_checked_never_written() {
                 );
             }
         }
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
+}
+
+#[test]
+fn an_identity_that_differs_from_the_eds_ends_the_start_up() {
+    // 0x1018:01 vendor-ID 0x2A on the bus, 0 in the valve's (built-in) EDS: wrong device or
+    // wrong file; the master stops before configuring anything of the valve.
+    let (port, knobs, _one_at_a_time) = start();
+    knobs.vendor_valve.store(0x2A, Ordering::Relaxed);
+    let rig_thread = rig(port, knobs.clone());
+    let e = CanopenHal::connect(settings(port, test_bus())).unwrap_err();
+    let m = e.to_string();
+    assert!(
+        m.contains("vendor-ID 0x1018:01 is 0x0000002A")
+            && m.contains("canopen.valve_eds")
+            && m.contains("0x00000000"),
+        "{m}"
+    );
+    let seen = knobs.seen.lock().unwrap().clone();
+    assert!(
+        !seen.iter().any(|(id, d)| *id == 0x630 && d[0] & 0xE0 == 0x20),
+        "the valve was written to"
+    );
+    knobs.stop.store(true, Ordering::Relaxed);
+    rig_thread.join().unwrap();
+}
+
+#[test]
+fn an_object_read_only_in_the_eds_is_read_and_checked_never_written() {
+    // A transducer EDS (as Temposonics') with 0x6005:01 AccessType=ro: the master reads it;
+    // equal to the config it goes on, different it names the value, and never writes it.
+    let eds = ehactl_canopen::eds::BUILTIN_TRANSDUCER_EDS.replace(
+        "[6005sub1]\nParameterName=Position step setting (nm)\nObjectType=0x7\nDataType=0x0007\nLowLimit=1\nHighLimit=1000000\nAccessType=rw",
+        "[6005sub1]\nParameterName=Position step setting (nm)\nObjectType=0x7\nDataType=0x0007\nLowLimit=1\nHighLimit=1000000\nAccessType=ro",
+    );
+    assert!(eds.contains("HighLimit=1000000\nAccessType=ro"));
+    let path = std::env::temp_dir().join(format!("ehactl_ro_{}.eds", std::process::id()));
+    std::fs::write(&path, eds).unwrap();
+    for (ro, ok) in [(1000u32, true), (5000, false)] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs.position_step_ro.store(ro, Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        let cfg = CanopenConfig {
+            transducer_eds: path.display().to_string(),
+            ..test_bus()
+        };
+        let r = CanopenHal::connect(settings(port, cfg));
+        let seen = knobs.seen.lock().unwrap().clone();
+        let writes = seen
+            .iter()
+            .filter(|(id, d)| *id == 0x620 && d[0] & 0xE0 == 0x20 && d[1..4] == [0x05, 0x60, 0x01])
+            .count();
+        assert_eq!(writes, 0, "0x6005:01 written although its EDS says ro");
+        match r {
+            Ok(mut hal) => {
+                assert!(ok, "start-up should fail with a {ro} nm read-only step");
+                let _ = hal.safe_stop(0.0);
+            }
+            Err(e) => {
+                assert!(!ok, "{e}");
+                let m = e.to_string();
+                assert!(
+                    m.contains("AccessType=ro")
+                        && m.contains("never writes")
+                        && m.contains("position_step_nm = 5000"),
+                    "{m}"
+                );
+            }
+        }
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
+    let _ = std::fs::remove_file(&path);
+}
+
+#[test]
+fn late_tpdos_are_counted_and_too_old_ones_trip() {
+    // The transducer's TPDOs arrive `lag` SYNC periods late (PDO age check of issue 15). Below
+    // canopen.max_pdo_age_syncs they are counted, above it the loop trips.
+    // (A rig thread descheduled on a loaded machine makes any TPDO a few SYNCs late too:
+    // the no-trip case keeps a wide limit and checks ages from below only.)
+    for (lag, max_age, trips) in [(3u32, 50u32, false), (12, 10, true)] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs.tpdo_lag.store(lag, Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        let cfg = CanopenConfig {
+            max_pdo_age_syncs: max_age,
+            ..test_bus()
+        };
+        let mut hal = CanopenHal::connect(settings(port, cfg)).unwrap();
+        let (_, _, err, _) = drive(&mut hal, 0.3, 0.0, &mut |_| {});
+        let rep = hal.report().unwrap();
+        let age = rep["pdo_max_age_syncs"]["transducer"].as_u64().unwrap() as u32;
+        if trips {
+            let e = err.expect("no trip on TPDOs 12 SYNC periods old");
+            assert!(format!("{e:?}").contains("older than canopen.max_pdo_age_syncs"), "{e:?}");
+            assert!(age > max_age, "{rep}");
+        } else {
+            assert!(err.is_none(), "{err:?}");
+            // every transducer TPDO after the first `lag` SYNCs is at least `lag` old
+            assert!(age >= lag, "{rep}");
+            let late = rep["pdo_late"]["transducer"].as_u64().unwrap();
+            let syncs = rep["syncs_sent"].as_u64().unwrap();
+            assert!(late + u64::from(lag) + 2 >= syncs && late > 0, "{rep}");
+            let late_valve = rep["pdo_late"]["valve"].as_u64().unwrap();
+            assert!(late_valve < late / 2, "{rep}");
+        }
+        let _ = hal.safe_stop(0.0);
         knobs.stop.store(true, Ordering::Relaxed);
         rig_thread.join().unwrap();
     }

@@ -79,12 +79,29 @@ pub enum HalKind {
     Canopen,
 }
 
+/// The directory of the config file (for relative `[canopen]` EDS / DCF paths).
+fn config_dir(config: &Path) -> Option<std::path::PathBuf> {
+    config.parent().map(|d| {
+        if d.as_os_str().is_empty() {
+            std::path::PathBuf::from(".")
+        } else {
+            d.to_path_buf()
+        }
+    })
+}
+
 /// Exit code when the hardware could not be brought up.
 pub const EXIT_STARTUP: u8 = 4;
 
 /// Check `--hal`/`--bus` and the CAN settings that need no bus (exit 2 with one line), before
 /// anything is opened or written (the log file included).
-pub fn check_args(cfg: &RigConfig, (hal, bus): (HalKind, Option<&str>)) -> Result<(), ExitCode> {
+/// `config` is the config file (relative EDS / DCF paths of `[canopen]` are taken from its
+/// directory).
+pub fn check_args(
+    cfg: &RigConfig,
+    config: &Path,
+    (hal, bus): (HalKind, Option<&str>),
+) -> Result<(), ExitCode> {
     let arg_err = |m: String| {
         eprintln!("ehactl: {m}");
         ExitCode::from(2)
@@ -107,7 +124,9 @@ pub fn check_args(cfg: &RigConfig, (hal, bus): (HalKind, Option<&str>)) -> Resul
                 control_rate_hz: cfg.timebase().rate_hz(),
                 safe_command: cfg.supervisor.safe_command,
                 verbose: false,
+                config_dir: config_dir(config),
             })
+            .map(|_plan| ())
             .map_err(|e| arg_err(e.to_string()))
         }
     }
@@ -118,6 +137,7 @@ pub fn check_args(cfg: &RigConfig, (hal, bus): (HalKind, Option<&str>)) -> Resul
 /// trip on `/events` and the reason in `/summary` (printed on stdout with `json`).
 pub fn connect(
     cfg: &RigConfig,
+    config: &Path,
     (hal, bus): (HalKind, Option<&str>),
     out: &Path,
     json: bool,
@@ -144,6 +164,7 @@ pub fn connect(
                 control_rate_hz: cfg.timebase().rate_hz(),
                 safe_command: cfg.supervisor.safe_command,
                 verbose: !json,
+                config_dir: config_dir(config),
             };
             match CanopenHal::connect_logged(settings) {
                 Ok(h) => Ok(Some(h)),

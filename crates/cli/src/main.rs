@@ -496,7 +496,7 @@ fn cmd_run(
     }
     let out = out.unwrap_or_else(|| default_log_path(config, ""));
     // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
-    if let Err(code) = canbus::check_args(&cfg, (hal, bus.as_deref())) {
+    if let Err(code) = canbus::check_args(&cfg, config, (hal, bus.as_deref())) {
         return code;
     }
     if let Err(code) = check_log_path(&out, config, force).and_then(|_| check_log_writable(&out)) {
@@ -519,7 +519,7 @@ fn cmd_run(
     let stop = stop_flag();
     // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s); a
     // signal meanwhile ends the run at its first cycle, through the safe stop.
-    let mut can_hal = match canbus::connect(&cfg, (hal, bus.as_deref()), &out, json) {
+    let mut can_hal = match canbus::connect(&cfg, config, (hal, bus.as_deref()), &out, json) {
         Ok(h) => h,
         Err(code) => return code,
     };

@@ -2,8 +2,11 @@
 //!
 //! CSV: header row, SI units; `t` (s) and `u` (valve command, V) required; any of `force` (N),
 //! `x` (piston position, m), `p_a`, `p_b` (chamber pressures, Pa), `x_v` (spool, fraction of
-//! travel), `ref` (setpoint) optional. Lines starting with `#` are comments. Every problem is an
-//! error naming the file, row and column; nothing is dropped silently.
+//! travel), `ref` (setpoint) optional. Lines starting with `#` are comments. Lab exports are
+//! read too: fields may be quoted, a UTF-8 byte-order mark is skipped, the separator is `,`,
+//! `;` or tab (detected from the header) and a `;`- or tab-separated file may write decimal
+//! commas (`0,25`). Every problem is an error naming the file, row and column; nothing is
+//! dropped silently.
 
 use std::fmt;
 use std::path::Path;
@@ -231,22 +234,95 @@ pub fn load(path: &Path) -> Result<Record, DataError> {
     }
 }
 
-/// Parse CSV text (see the module doc).
-pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
-    let mut lines = text
+/// The field separator of a CSV text: `,`, `;` or tab, whichever occurs most often outside
+/// quotes in the header line (the first line that is neither blank nor a `#` comment);
+/// `,` if none does.
+fn detect_delimiter(text: &str) -> u8 {
+    let header = text
         .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-    let (header_line, header) = lines
+        .find(|l| !l.trim().is_empty() && !l.trim_start().starts_with('#'))
+        .unwrap_or("");
+    let mut counts = [(b',', 0usize), (b';', 0), (b'\t', 0)];
+    let mut quoted = false;
+    for c in header.bytes() {
+        if c == b'"' {
+            quoted = !quoted;
+        } else if !quoted {
+            for (d, n) in counts.iter_mut() {
+                if c == *d {
+                    *n += 1;
+                }
+            }
+        }
+    }
+    // max_by_key keeps the last maximum: order ties so that `,` wins
+    counts.reverse();
+    counts
+        .iter()
+        .max_by_key(|(_, n)| *n)
+        .filter(|(_, n)| *n > 0)
+        .map_or(b',', |(d, _)| *d)
+}
+
+/// Parse one numeric field; `decimal_comma` accepts `1,5` for 1.5 (lab exports separated by
+/// `;` or tab). Empty and `nan` are NaN (refused later with their line, see `from_columns`).
+fn parse_number(f: &str, decimal_comma: bool) -> Option<f64> {
+    if f.is_empty() || f.eq_ignore_ascii_case("nan") {
+        return Some(f64::NAN);
+    }
+    if decimal_comma && f.contains(',') {
+        if f.contains('.') || f.matches(',').count() > 1 {
+            return None; // thousands separators are ambiguous: refused
+        }
+        return f.replace(',', ".").parse().ok();
+    }
+    f.parse().ok()
+}
+
+/// Parse CSV text (see the module doc) with the `csv` crate: RFC 4180 quoting, a UTF-8
+/// byte-order mark, `#` comment lines, blank lines; the separator is detected (`,`, `;` or
+/// tab, see [`detect_delimiter`]) and a `;`- or tab-separated file may use a decimal comma.
+pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let delim = detect_delimiter(text);
+    let decimal_comma = delim != b',';
+    let sep_name = match delim {
+        b';' => "`;`",
+        b'\t' => "tab",
+        _ => "`,`",
+    };
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .delimiter(delim)
+        .comment(Some(b'#'))
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    let mut records = rdr.records().filter_map(|r| match r {
+        // a line of blanks only is skipped like an empty line
+        Ok(r) if r.len() == 1 && r[0].is_empty() => None,
+        other => Some(other),
+    });
+    let line_of = |r: &csv::StringRecord| r.position().map_or(0, |p| p.line() as usize);
+    let csv_err = |e: csv::Error| {
+        let at = e
+            .position()
+            .map_or(String::new(), |p| format!(" at line {}", p.line()));
+        DataError(format!("{source}: not a readable CSV file{at}: {e}"))
+    };
+    let header = records
         .next()
+        .transpose()
+        .map_err(csv_err)?
         .ok_or_else(|| DataError(format!("{source}: empty file; expected a CSV header row")))?;
-    let names: Vec<String> = header.split(',').map(|s| s.trim().to_string()).collect();
+    let header_line = line_of(&header);
+    let names: Vec<String> = header.iter().map(|s| s.to_string()).collect();
     let col = |n: &str| names.iter().position(|h| h == n);
     let need = |n: &str, what: &str| {
         col(n).ok_or_else(|| {
             DataError(format!(
-                "{source}: missing required column `{n}` ({what}) in header line {}: found [{}]",
-                header_line + 1,
+                "{source}: missing required column `{n}` ({what}) in header line {header_line} \
+                 ({sep_name}-separated): found [{}]",
                 names.join(", ")
             ))
         })
@@ -276,34 +352,36 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
     let iref = col("ref");
     let mut cols: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
     let mut first_data_line = None;
-    for (ln, line) in lines {
-        first_data_line.get_or_insert(ln + 1);
-        let fields: Vec<&str> = line.split(',').collect();
-        if fields.len() != names.len() {
+    for r in records {
+        let r = r.map_err(csv_err)?;
+        let ln = line_of(&r);
+        first_data_line.get_or_insert(ln);
+        if r.len() != names.len() {
             return Err(DataError(format!(
-                "{source}: line {} has {} fields; the header has {}",
-                ln + 1,
-                fields.len(),
+                "{source}: line {ln} has {} fields; the header has {} ({sep_name}-separated)",
+                r.len(),
                 names.len()
             )));
         }
-        for (j, f) in fields.iter().enumerate() {
-            let f = f.trim();
-            let v = if f.is_empty() || f.eq_ignore_ascii_case("nan") {
-                f64::NAN
-            } else {
-                f.parse::<f64>().map_err(|_| {
-                    DataError(format!(
-                        "{source}: line {}, column `{}`: `{f}` is not a number",
-                        ln + 1,
-                        names[j]
-                    ))
-                })?
-            };
+        for (j, f) in r.iter().enumerate() {
+            if !known.contains(&names[j].as_str()) {
+                continue; // not used (warned above): may hold text, e.g. a quoted note
+            }
+            let v = parse_number(f, decimal_comma).ok_or_else(|| {
+                DataError(format!(
+                    "{source}: line {ln}, column `{}`: `{f}` is not a number; expected a decimal number{}",
+                    names[j],
+                    if decimal_comma {
+                        " with `.` or `,` as decimal mark and no thousands separator"
+                    } else {
+                        " with `.` as decimal mark"
+                    }
+                ))
+            })?;
             cols[j].push(v);
         }
     }
-    let off = first_data_line.unwrap_or(header_line + 2);
+    let off = first_data_line.unwrap_or(header_line + 1);
     let channels = ich
         .iter()
         .map(|&(k, i)| Channel {
@@ -333,7 +411,7 @@ pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
 
 /// [`load_mcap`] on bytes already read (`source` names them in errors).
 pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
-    use ehactl_hal::record::CONTROL_FIELDS;
+    use ehactl_hal::record::CycleRecord;
     let source = source.to_string();
     if let (_, Some(problem)) = ehactl_hal::recover::readable_prefix(bytes) {
         return Err(DataError(format!(
@@ -342,36 +420,14 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
     }
     let stream = mcap::MessageStream::new(bytes)
         .map_err(|e| DataError(format!("{source}: not a readable MCAP file: {e}")))?;
-    let idx = |n: &str| CONTROL_FIELDS.iter().position(|f| *f == n).unwrap_or(0);
-    let (i_t, i_u, i_sp) = (idx("t"), idx("command"), idx("setpoint"));
-    let outs = [
-        (ChannelKind::Force, idx("force")),
-        (ChannelKind::Position, idx("position")),
-        (ChannelKind::PressureA, idx("p_a")),
-        (ChannelKind::PressureB, idx("p_b")),
-        (ChannelKind::Spool, idx("spool")),
-    ];
-    let mut rows: Vec<[f64; 16]> = Vec::new();
+    let mut rows: Vec<CycleRecord> = Vec::new();
     for m in stream {
         let m = m.map_err(|e| DataError(format!("{source}: corrupt MCAP record: {e}")))?;
         if m.channel.topic != "/control" {
             continue;
         }
-        let d = &m.data;
-        if d.len() < 4 + 8 + 16 * 8 {
-            return Err(DataError(format!(
-                "{source}: /control message of {} bytes; expected {} (CDR header, cycle, 16 float64)",
-                d.len(),
-                4 + 8 + 16 * 8
-            )));
-        }
-        let mut r = [0.0; 16];
-        for (k, v) in r.iter_mut().enumerate() {
-            let o = 12 + 8 * k;
-            let mut b = [0u8; 8];
-            b.copy_from_slice(&d[o..o + 8]);
-            *v = f64::from_le_bytes(b);
-        }
+        let r = CycleRecord::decode_control(&m.data)
+            .map_err(|e| DataError(format!("{source}: {e} (MCAP sequence {})", m.sequence)))?;
         rows.push(r);
     }
     if rows.is_empty() {
@@ -379,13 +435,20 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
             "{source}: no /control messages; expected an MCAP log written by `ehactl run`"
         )));
     }
-    let col = |i: usize| rows.iter().map(|r| r[i]).collect::<Vec<f64>>();
+    let col = |f: fn(&CycleRecord) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
+    let outs: [(ChannelKind, fn(&CycleRecord) -> f64); 5] = [
+        (ChannelKind::Force, |r| r.meas.force),
+        (ChannelKind::Position, |r| r.meas.position),
+        (ChannelKind::PressureA, |r| r.meas.p_a),
+        (ChannelKind::PressureB, |r| r.meas.p_b),
+        (ChannelKind::Spool, |r| r.meas.spool),
+    ];
     let mut warnings = vec![format!(
         "{source}: closed-loop record read from MCAP; replayed open loop with the recorded valve command"
     )];
     let mut channels = Vec::new();
-    for (k, i) in outs {
-        let v = col(i);
+    for (k, f) in outs {
+        let v = col(f);
         let nan = v.iter().filter(|x| !x.is_finite()).count();
         if nan == v.len() {
             continue; // the backend did not have this sensor (NaN by convention)
@@ -400,7 +463,14 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
         }
         channels.push(Channel { kind: k, values: v });
     }
-    let mut rec = Record::from_columns(&source, col(i_t), col(i_u), channels, Some(col(i_sp)), 0)?;
+    let mut rec = Record::from_columns(
+        &source,
+        col(|r| r.t),
+        col(|r| r.command),
+        channels,
+        Some(col(|r| r.setpoint)),
+        0,
+    )?;
     rec.warnings.extend(warnings);
     Ok(rec)
 }
@@ -526,4 +596,178 @@ pub fn check_against(
         }
     }
     Ok(w)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 25 rows of `t,u,p_a,p_b` with `sep` between fields and `dec` as decimal mark.
+    fn rows(sep: &str, dec: &str) -> String {
+        let mut s = format!("t{sep}u{sep}p_a{sep}p_b\n");
+        for k in 0..25 {
+            let f = |x: f64| format!("{x:?}").replace('.', dec);
+            s.push_str(&format!(
+                "{}{sep}{}{sep}{}{sep}{}\n",
+                f(k as f64 * 1e-3),
+                f(0.25),
+                f(5.0e6 + k as f64),
+                f(4.0e6)
+            ));
+        }
+        s
+    }
+
+    fn same(a: &Record, b: &Record) {
+        assert_eq!(a.t, b.t);
+        assert_eq!(a.u, b.u);
+        assert_eq!(
+            a.channel(ChannelKind::PressureA),
+            b.channel(ChannelKind::PressureA)
+        );
+        assert_eq!(
+            a.channel(ChannelKind::PressureB),
+            b.channel(ChannelKind::PressureB)
+        );
+    }
+
+    #[test]
+    fn separators_and_decimal_commas_of_lab_exports() {
+        let base = parse_csv("a.csv", &rows(",", ".")).unwrap();
+        assert_eq!(base.len(), 25);
+        assert_eq!(base.u[3], 0.25);
+        same(&base, &parse_csv("b.csv", &rows(";", ",")).unwrap());
+        same(&base, &parse_csv("c.csv", &rows(";", ".")).unwrap());
+        same(&base, &parse_csv("d.csv", &rows("\t", ",")).unwrap());
+        // BOM, CRLF, quoted names, spaces around fields
+        let quoted = rows(" , ", ".")
+            .replace("t , u , p_a , p_b", "\"t\",\"u\",\"p_a\",\"p_b\"")
+            .replace('\n', "\r\n");
+        same(
+            &base,
+            &parse_csv("e.csv", &format!("\u{feff}{quoted}")).unwrap(),
+        );
+    }
+
+    #[test]
+    fn german_spreadsheet_export_file() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/lab_export_de.csv");
+        let rec = load(&path).unwrap();
+        assert_eq!(rec.len(), 25);
+        assert_eq!(rec.t[1], 0.001);
+        assert_eq!(rec.u[2], 0.12);
+        assert_eq!(rec.channel(ChannelKind::PressureA).unwrap()[4], 5_004_000.0);
+        assert_eq!(rec.channel(ChannelKind::PressureB).unwrap()[2], 3_999_000.0);
+        assert!((rec.dt - 1e-3).abs() < 1e-12);
+        // the text column (a quoted `;` inside) is reported as unused, not parsed
+        assert!(
+            rec.warnings.iter().any(|w| w.contains("Bemerkung")),
+            "{:?}",
+            rec.warnings
+        );
+    }
+
+    #[test]
+    fn bad_fields_are_clear_errors() {
+        // a comma-separated file cannot hold a decimal comma (it would split the field)
+        let text = rows(",", ".").replacen("0.25", "\"0,25\"", 1);
+        let e = parse_csv("f.csv", &text).unwrap_err().0;
+        assert_eq!(
+            e,
+            "f.csv: line 2, column `u`: `0,25` is not a number; expected a decimal number with `.` as decimal mark"
+        );
+        // thousands separators are ambiguous in a `;` file
+        let text = rows(";", ",").replacen("5000003,0", "5.000.003,0", 1);
+        let e = parse_csv("f.csv", &text).unwrap_err().0;
+        assert!(
+            e.starts_with("f.csv: line 5, column `p_a`: `5.000.003,0` is not a number")
+                && e.contains("no thousands separator"),
+            "{e}"
+        );
+        // a row with a field too many names its line and the separator found
+        let mut text = rows(";", ",");
+        text.push_str("0,025;0,25;1;2;3\n");
+        let e = parse_csv("f.csv", &text).unwrap_err().0;
+        assert_eq!(
+            e,
+            "f.csv: line 27 has 5 fields; the header has 4 (`;`-separated)"
+        );
+        // the header names the separator when `t`/`u` are missing (e.g. a wrong guess)
+        let e = parse_csv("f.csv", "time;volts\n0;1\n").unwrap_err().0;
+        assert!(
+            e.contains("missing required column `t`") && e.contains("`;`-separated"),
+            "{e}"
+        );
+        let e = parse_csv("f.csv", "\u{feff}\n# only a comment\n")
+            .unwrap_err()
+            .0;
+        assert_eq!(e, "f.csv: empty file; expected a CSV header row");
+    }
+
+    #[test]
+    fn delimiter_detection() {
+        assert_eq!(detect_delimiter("# a, b, c\nt;u;x\n"), b';');
+        assert_eq!(detect_delimiter("t\tu\tx\n"), b'\t');
+        assert_eq!(detect_delimiter("\"a;b\",t,u\n"), b',');
+        assert_eq!(detect_delimiter("t\n"), b',');
+    }
+
+    /// An MCAP log's `/control` channel read through the hal decoder (no offsets here);
+    /// a message cut short is a clear error naming the file.
+    #[test]
+    fn mcap_control_channel() {
+        use ehactl_hal::record::{control_schema, CycleRecord};
+        let write = |cut: bool| {
+            let mut w = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+            let sid = w
+                .add_schema(
+                    "ehactl_msgs/msg/ControlCycle",
+                    "ros2msg",
+                    control_schema().as_bytes(),
+                )
+                .unwrap();
+            let ch = w
+                .add_channel(sid, "/control", "cdr", &Default::default())
+                .unwrap();
+            let mut buf = Vec::new();
+            for k in 0..30u64 {
+                let t = k as f64 * 2e-4;
+                let mut r = CycleRecord {
+                    cycle: k,
+                    t,
+                    setpoint: 100.0,
+                    command: 0.5 + t,
+                    ..Default::default()
+                };
+                r.meas.force = 90.0 + k as f64;
+                r.encode_control(&mut buf);
+                if cut && k == 7 {
+                    buf.truncate(100);
+                }
+                let header = mcap::records::MessageHeader {
+                    channel_id: ch,
+                    sequence: k as u32,
+                    log_time: k * 200_000,
+                    publish_time: k * 200_000,
+                };
+                w.write_to_known_channel(&header, &buf).unwrap();
+            }
+            w.finish().unwrap();
+            w.into_inner().into_inner()
+        };
+        let rec = parse_mcap("run.mcap", &write(false)).unwrap();
+        assert_eq!(rec.len(), 30);
+        assert_eq!(rec.u[10], 0.5 + 10.0 * 2e-4);
+        assert_eq!(rec.reference.as_ref().unwrap()[3], 100.0);
+        assert_eq!(rec.channel(ChannelKind::Force).unwrap()[5], 95.0);
+        assert!(
+            rec.channel(ChannelKind::Position).is_none(),
+            "all-NaN channel left out"
+        );
+        let e = parse_mcap("run.mcap", &write(true)).unwrap_err().0;
+        assert_eq!(
+            e,
+            "run.mcap: /control message of 100 bytes; expected 140 (4-byte CDR header + fields of its schema) (MCAP sequence 7)"
+        );
+    }
 }

@@ -44,6 +44,7 @@ ABORT_DEVICE_STATE = 0x08000022
 
 # EMCY error codes (CiA 301 table 21).
 EMCY_PDO_LENGTH = 0x8210  # PDO not processed due to length error
+EMCY_RPDO_TIMEOUT = 0x8250  # RPDO timeout (deadline of the event timer missed)
 
 COB_INVALID = 0x80000000  # bit 31 of a PDO COB-ID: PDO does not exist / is disabled
 
@@ -110,8 +111,11 @@ class SimNode:
         # Heartbeat consumers (0x1016): producer node id -> [consumer time s, last seen or None]
         self._consumers: Dict[int, list] = {}
         self._consumer_subscribed: Dict[int, Callable] = {}
+        # RPDO deadline monitoring (event timer 0x140x:05, CiA 301 v4.2 7.5.2.35): RPDO comm
+        # index -> bus time of its last reception (None: not monitoring)
+        self._rpdo_last: Dict[int, Optional[float]] = {}
         self.counters = {"rpdo": 0, "rpdo_bad_length": 0, "tpdo": 0, "sdo": 0,
-                         "nmt": 0, "heartbeat_lost": 0}
+                         "nmt": 0, "heartbeat_lost": 0, "rpdo_timeout": 0}
 
     # ----------------------------------------------------------------- object access
     def var(self, index: int, sub: int = 0) -> ODVariable:
@@ -252,6 +256,7 @@ class SimNode:
         queue is no loss."""
         if not self.powered or self.nmt_state == INITIALISING:
             return
+        self.rpdo_deadlines_due(now)
         for producer, c in list(self._consumers.items()):
             t, last = c
             if last is not None and now - last > t:
@@ -260,6 +265,29 @@ class SimNode:
                 self.emit(self.kind, "heartbeat-lost", node_id=self.node_id, producer=producer,
                           consumer_time_s=t, silent_s=now - last)
                 self.on_heartbeat_lost(producer)
+
+    def rpdo_deadlines_due(self, now: float) -> None:
+        """An RPDO with an event timer (0x140x:05, ms) not received for that long in
+        OPERATIONAL: deadline missed (CiA 301 v4.2 7.5.2.35), EMCY 0x8250 and the profile's
+        reaction; monitoring restarts with the next reception. Bus time as for heartbeats."""
+        if self.nmt_state != OPERATIONAL:
+            self._rpdo_last = {}
+            return
+        for comm, last in list(self._rpdo_last.items()):
+            cfg = self.rpdos.get(comm)
+            if last is None or cfg is None or cfg.event_timer_ms <= 0:
+                continue
+            if now - last > cfg.event_timer_ms / 1000.0:
+                self._rpdo_last[comm] = None
+                self.counters["rpdo_timeout"] += 1
+                self.emit(self.kind, "rpdo-timeout", node_id=self.node_id,
+                          rpdo=f"0x{comm:04X}", deadline_s=cfg.event_timer_ms / 1000.0,
+                          silent_s=now - last)
+                self.on_rpdo_timeout(comm)
+
+    def on_rpdo_timeout(self, comm: int) -> None:
+        """Profile hook: an RPDO missed its deadline (default: EMCY 0x8250, RPDO timeout)."""
+        self.emcy(EMCY_RPDO_TIMEOUT, 0x10)
 
     def on_heartbeat_lost(self, producer: int) -> None:
         """Profile hook: the heartbeat of `producer` was lost (default: EMCY 0x8130)."""
@@ -406,21 +434,25 @@ class SimNode:
         self._rpdo_subscribed = {}
         for comm, cfg in self.rpdos.items():
             if cfg.valid:
-                cb = (lambda c: (lambda can_id, data, ts: self._on_rpdo(c, data)))(comm)
+                cb = (lambda c: (lambda can_id, data, ts: self._on_rpdo(c, data, ts)))(comm)
                 self.network.subscribe(cfg.cob_id, cb)
                 self._rpdo_subscribed[cfg.cob_id] = cb
         self._latched.clear()
+        self._rpdo_last = {}
         self._sync_counter = {c: 0 for c in self.tpdos}
         self._last_sent.clear()
 
     # ----------------------------------------------------------------- PDO traffic
-    def _on_rpdo(self, comm: int, data: bytes) -> None:
+    def _on_rpdo(self, comm: int, data: bytes, ts: float = 0.0) -> None:
         if self.nmt_state != OPERATIONAL or not self.powered:
             return  # PDOs are only processed in OPERATIONAL
         cfg = self.rpdos.get(comm)
         if cfg is None or not cfg.valid:
             return
         self.counters["rpdo"] += 1
+        if cfg.event_timer_ms > 0:
+            # deadline monitoring starts with the first reception (CiA 301 v4.2 7.5.2.35)
+            self._rpdo_last[comm] = ts if ts else time.time()
         if len(data) < cfg.nbytes:
             self.counters["rpdo_bad_length"] += 1
             self.emcy(EMCY_PDO_LENGTH, 0x10)  # communication error bit (CiA 301 0x1001 bit 4)

@@ -1,6 +1,6 @@
 """Simulated CiA 406 magnetostrictive linear position transducer (like the Novostrictive TMI of
 seed 003): position of magnet 1 (0x6020:01, INTEGER32 in steps of 0x6005:01 nm) and its speed
-(0x6030:01, INTEGER16 in steps of 0x6006:01 µm/s), sent synchronously on SYNC (TPDO type 1..240)
+(0x6030:01, INTEGER16 in steps of 0x6005:02 µm/s; 0x6004 = position value, same as 0x6020:01), sent synchronously on SYNC (TPDO type 1..240)
 or cyclically every 0x6200 ms (TPDO type 254/255)."""
 
 from __future__ import annotations
@@ -42,18 +42,18 @@ class Transducer(SimNode):
         return _clamp(round(self.position_m / step_m), I32_MIN, I32_MAX)
 
     def speed_counts(self) -> int:
-        step_m_s = self.value(0x6006, 1) * 1e-6
+        step_m_s = self.value(0x6005, 2) * 1e-6
         return _clamp(round(self.speed_m_s / step_m_s), I16_MIN, I16_MAX)
 
     def live_value(self, index: int, sub: int):
-        if index == 0x6020 and sub == 1:
+        if (index == 0x6020 and sub == 1) or index == 0x6004:
             return self.position_counts()
         if index == 0x6030 and sub == 1:
             return self.speed_counts()
         return super().live_value(index, sub)
 
     def on_app_write(self, index: int, sub: int, value) -> None:
-        pass  # 0x6005/0x6006/0x6200 are plain parameters (limits checked from the EDS)
+        pass  # 0x6000/0x6005/0x6200 are plain parameters (limits checked from the EDS)
 
     def async_period_s(self, cfg: PdoConfig) -> float:
         """CiA 406: the cyclic timer 0x6200 (ms) drives the event-driven TPDO; else 0x180x:05."""

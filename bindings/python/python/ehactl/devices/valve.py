@@ -30,7 +30,9 @@ In HOLD, FAULT_HOLD and FAULT_REACTION the spool is controlled to the hold setpo
 (control mode 0x6043 = 2, spool position closed loop); in ACTIVE to the bus setpoint 0x6300:01
 (device mode 0x6042 = 1); in every other state it is at its failsafe position, closed centre
 in this plant. The master's heartbeat is consumed through 0x1016 (node.py): its loss is a
-fault (EMCY 0x8130) and so leads to FAULT_HOLD."""
+fault (EMCY 0x8130) and so leads to FAULT_HOLD; so is a missed RPDO deadline in ACTIVE (RPDO1
+event timer 0x1400:05, CiA 301 v4.2: the setpoint stream stopped; EMCY 0x8250), which catches a
+hung master whose heartbeat still runs."""
 
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ import time
 
 from canopen.sdo import SdoAbortedError
 
-from .node import ABORT_VALUE_RANGE, OPERATIONAL, SimNode
+from .node import ABORT_VALUE_RANGE, EMCY_RPDO_TIMEOUT, OPERATIONAL, SimNode
 
 CW_D, CW_H, CW_M, CW_R = 0x1, 0x2, 0x4, 0x8
 CW_A = CW_M  # older name of the M bit ("device mode active enable")
@@ -227,6 +229,16 @@ class ValveObe(SimNode):
         # CiA 301 heartbeat event → device fault → FAULT_REACTION → FAULT_HOLD (the hold
         # setpoint 0x6314 acts; a real valve does what its fault reaction type says, DEPLOY.md).
         self.fault(EMCY_HEARTBEAT, f"heartbeat of node {producer} lost (0x1016)", 0x11)
+
+    def on_rpdo_timeout(self, comm: int) -> None:
+        # The setpoint stream stopped (ehactl dead or its cycle hung) while the heartbeat may
+        # still run: a fault in ACTIVE (FAULT_REACTION → FAULT_HOLD, hold setpoint 0x6314),
+        # as the heartbeat loss; in other states the setpoint is not used: EMCY only.
+        if self.state is ValveState.ACTIVE:
+            self.fault(EMCY_RPDO_TIMEOUT, f"RPDO 0x{comm:04X} deadline missed (0x{comm:04X}:05)",
+                       0x11)
+        else:
+            super().on_rpdo_timeout(comm)
 
     def on_nmt_change(self, old: int, new: int) -> None:
         # Without OPERATIONAL there is no setpoint stream: an ACTIVE valve holds.

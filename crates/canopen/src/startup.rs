@@ -1,0 +1,1322 @@
+//! Start-up of the CAN rig, in the two lifecycle steps of ros2_control's hardware interfaces:
+//!
+//! - [`Plan::new`] (no bus; also run by `ehactl run` before the log file is created): the
+//!   settings checks and the EDS / DCF files named in the config → one [`DevicePlan`] per
+//!   device: the identity to check, and every SDO object to configure with its value and the
+//!   access type the file gives (ro / const objects are read and checked, never written);
+//! - **configure** ([`Bringup::configure`]): NMT reset communication → boot-up, or an SDO probe
+//!   for a node that sends none ([`Bringup::boot`]); NMT pre-operational; per device the
+//!   device type and identity 0x1018 against its file, then the planned objects
+//!   ([`Bringup::apply_plan`]);
+//! - **activate** ([`Bringup::activate`]): NMT start and OPERATIONAL heartbeats
+//!   ([`Bringup::start_nodes`]), the CiA 408 device state machine of the valve from a fault
+//!   state, if any, to ACTIVE ([`Bringup::enable_valve`]), one priming SYNC
+//!   ([`Bringup::prime`]; a failure returns the valve to HOLD).
+//!
+//! Every frame of the attempt is kept ([`Startup`]) for the log, and ehactl's heartbeat runs
+//! from the first frame on ([`StartBus`]).
+
+use crate::bus::{self, BusError, CanBus};
+use crate::cia406;
+use crate::cia408::{self, ValveState};
+use crate::eds::{Access, Eds, BUILTIN_TRANSDUCER_EDS, BUILTIN_VALVE_EDS};
+use crate::emcy::{Emcy, EMCY_BASE};
+use crate::frame::{CanFrame, Direction};
+use crate::hal::CanopenSettings;
+use crate::nmt::{self, NmtCommand, NmtState, HEARTBEAT_BASE};
+use crate::pdo::{
+    self, MapEntry, PdoMap, COB_ID_INVALID, RPDO1_BASE, RPDO1_COMM, RPDO1_MAP, TPDO1_BASE,
+    TPDO1_COMM, TPDO1_MAP,
+};
+use crate::sdo::{self, SdoClient, SdoError};
+use crate::sync;
+use ehactl_hal::logger::CanFrameRecord;
+use ehactl_hal::Measurements;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// While waiting for boot-ups, nodes not heard from are probed by SDO this often (and once
+/// more at `boot_timeout_s`).
+pub const BOOT_PROBE_EVERY: Duration = Duration::from_millis(250);
+
+/// Which device.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Dev {
+    /// The CiA 406 position transducer.
+    Transducer = 0,
+    /// The CiA 408 valve.
+    Valve = 1,
+}
+
+impl Dev {
+    /// Short name for messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Dev::Transducer => "transducer",
+            Dev::Valve => "valve",
+        }
+    }
+    fn config_key(self) -> &'static str {
+        match self {
+            Dev::Transducer => "canopen.transducer_eds",
+            Dev::Valve => "canopen.valve_eds",
+        }
+    }
+}
+
+/// Why the rig could not be brought up (before the loop). One line each.
+#[derive(Debug, Clone)]
+pub enum StartupError {
+    /// Inconsistent settings or device description files (no bus needed to see it).
+    Settings(String),
+    /// The bus could not be opened or failed.
+    Bus(BusError),
+    /// A device sent no boot-up in time.
+    NoBoot {
+        /// Device name.
+        device: &'static str,
+        /// Node id.
+        node: u8,
+        /// Allowed time (s).
+        timeout_s: f64,
+    },
+    /// An SDO transfer of the configuration failed.
+    Sdo {
+        /// Configuration step.
+        step: String,
+        /// The SDO error (abort code and meaning, timeout, ...).
+        error: SdoError,
+    },
+    /// A device did not do what the master asked (wrong profile or identity, state not
+    /// reached, read-only object with another value).
+    Device(String),
+}
+
+/// A failed start-up with what was on the bus meanwhile.
+#[derive(Debug)]
+pub struct StartupFailure {
+    /// Why it failed.
+    pub error: StartupError,
+    /// Every frame sent and received during the attempt, in order; times relative to the
+    /// failure (ns, all ≤ 0).
+    pub frames: Vec<CanFrameRecord>,
+    /// Time from the start of the attempt to the failure (s).
+    pub elapsed_s: f64,
+}
+
+impl StartupError {
+    /// The time limit that ran out, if the failure is a timeout (s).
+    pub fn time_limit_s(&self) -> Option<f64> {
+        match self {
+            StartupError::NoBoot { timeout_s, .. } => Some(*timeout_s),
+            _ => None,
+        }
+    }
+}
+
+impl std::fmt::Display for StartupError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StartupError::Settings(m) => write!(f, "CANopen start-up: {m}"),
+            StartupError::Bus(e) => write!(f, "CANopen start-up: {e}"),
+            StartupError::NoBoot {
+                device,
+                node,
+                timeout_s,
+            } => write!(
+                f,
+                "CANopen start-up: {device} (node {node} = 0x{node:02X}) sent no boot-up (0x{:03X} [00]) within {timeout_s} s after NMT reset communication (canopen.boot_timeout_s) and did not answer an SDO probe of 0x1000; is it powered, on the bus and using this node id?",
+                HEARTBEAT_BASE + u16::from(*node)
+            ),
+            StartupError::Sdo { step, error } => {
+                write!(f, "CANopen start-up: {step}: {error}")
+            }
+            StartupError::Device(m) => write!(f, "CANopen start-up: {m}"),
+        }
+    }
+}
+
+impl std::error::Error for StartupError {}
+
+impl From<BusError> for StartupError {
+    fn from(e: BusError) -> Self {
+        StartupError::Bus(e)
+    }
+}
+
+// ------------------------------------------------------------------------------ the plan
+
+/// How one planned object is brought to its value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StepKind {
+    /// Read first; equal: nothing to do; different: write (writable objects) and read back.
+    /// A read-only / const object with another value is an error; it is never written.
+    Ensure,
+    /// Always write (write-only objects, and steps of a procedure such as PDO re-mapping
+    /// that must happen in order), then read back if readable.
+    Write,
+}
+
+/// One planned SDO step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Step {
+    /// Object index.
+    pub index: u16,
+    /// Sub-index.
+    pub sub: u8,
+    /// Value (little endian, the object's size).
+    pub value: Vec<u8>,
+    /// Access type from the device's file.
+    pub access: Access,
+    /// How.
+    pub kind: StepKind,
+    /// What it is for (messages).
+    pub what: String,
+}
+
+/// What ehactl does to one device at start-up, decided from its EDS / DCF before the bus
+/// is opened.
+#[derive(Debug, Clone)]
+pub struct DevicePlan {
+    /// Which device.
+    pub dev: Dev,
+    /// Node id.
+    pub node: u8,
+    /// Its description file.
+    pub eds: Eds,
+    /// CiA profile number expected in 0x1000 bits 0..15 (406 / 408).
+    pub profile: u16,
+    /// Vendor-ID and product code to check in 0x1018:01 / :02 (from [DeviceInfo]).
+    pub identity: (Option<u32>, Option<u32>),
+    /// The SDO steps, in order.
+    pub steps: Vec<Step>,
+}
+
+/// The start-up plan of both devices.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    /// Transducer, valve.
+    pub devices: [DevicePlan; 2],
+}
+
+fn settings_err(m: String) -> StartupError {
+    StartupError::Settings(m)
+}
+
+impl DevicePlan {
+    fn obj(&self, index: u16, sub: u8) -> Result<&crate::eds::EdsObject, StartupError> {
+        self.eds.get(index, sub).ok_or_else(|| {
+            settings_err(format!(
+                "{} ({}): the {} has no object 0x{index:04X}:{sub:02X} in its EDS, which ehactl needs",
+                self.eds.source,
+                self.dev.config_key(),
+                self.dev.name()
+            ))
+        })
+    }
+
+    /// Plan `index:sub` = `value` (bytes), checked against the file: the object exists and
+    /// has the value's size.
+    fn push(
+        &mut self,
+        index: u16,
+        sub: u8,
+        value: Vec<u8>,
+        kind: StepKind,
+        what: impl Into<String>,
+    ) -> Result<(), StartupError> {
+        let o = self.obj(index, sub)?;
+        if let Some(n) = o.size() {
+            if n != value.len() {
+                return Err(settings_err(format!(
+                    "{} ({}): 0x{index:04X}:{sub:02X} ({}) has data type 0x{:04X} of {n} bytes, ehactl writes {} bytes there",
+                    self.eds.source,
+                    self.dev.config_key(),
+                    o.name,
+                    o.data_type,
+                    value.len()
+                )));
+            }
+        }
+        let access = o.access;
+        let kind = if access == Access::Wo {
+            StepKind::Write
+        } else {
+            kind
+        };
+        self.steps.push(Step {
+            index,
+            sub,
+            value,
+            access,
+            kind,
+            what: what.into(),
+        });
+        Ok(())
+    }
+
+    /// Plan one PDO: the CiA 301 re-mapping procedure where the mapping object is writable,
+    /// a check of the fixed mapping where the file makes it ro / const. The mapped objects
+    /// must exist, be PDO-mappable and have the mapped size.
+    fn pdo(
+        &mut self,
+        comm: u16,
+        map_idx: u16,
+        cob: u16,
+        entries: &[MapEntry],
+        what: &str,
+    ) -> Result<(), StartupError> {
+        let map = PdoMap::new(entries)
+            .ok_or_else(|| settings_err(format!("{what}: mapping longer than 8 bytes")))?;
+        for e in entries {
+            let o = self.obj(e.index, e.sub)?;
+            if !o.pdo_mapping || o.size().map(|n| 8 * n) != Some(usize::from(e.bits)) {
+                return Err(settings_err(format!(
+                    "{} ({}): {what}: 0x{:04X}:{:02X} ({}) is {} in the EDS; ehactl maps it with {} bits",
+                    self.eds.source,
+                    self.dev.config_key(),
+                    e.index,
+                    e.sub,
+                    o.name,
+                    if o.pdo_mapping { "of another size" } else { "not PDO-mappable" },
+                    e.bits
+                )));
+            }
+        }
+        let fixed = !self.obj(map_idx, 0)?.access.writable();
+        let what_m = format!("mapping {what}");
+        if fixed {
+            self.push(comm, 2, vec![pdo::TRANSMISSION_SYNC_EVERY], StepKind::Ensure, &what_m)?;
+            self.push(map_idx, 0, vec![map.count() as u8], StepKind::Ensure, &what_m)?;
+            for (i, e) in entries.iter().enumerate() {
+                self.push(
+                    map_idx,
+                    (i + 1) as u8,
+                    e.encode().to_le_bytes().to_vec(),
+                    StepKind::Ensure,
+                    &what_m,
+                )?;
+            }
+            self.push(comm, 1, u32::from(cob).to_le_bytes().to_vec(), StepKind::Ensure, &what_m)?;
+            return Ok(());
+        }
+        for w in pdo::remap_sequence(comm, map_idx, cob, pdo::TRANSMISSION_SYNC_EVERY, &map) {
+            let (b, n) = w.bytes();
+            self.push(w.index, w.sub, b[..n].to_vec(), StepKind::Write, &what_m)?;
+        }
+        Ok(())
+    }
+}
+
+impl Plan {
+    /// Build the plan from the settings and the device files (no bus).
+    pub fn new(s: &CanopenSettings) -> Result<Plan, StartupError> {
+        let c = &s.canopen;
+        let base = s.config_dir.as_deref();
+        let load = |dev: Dev| -> Result<Eds, StartupError> {
+            let (path, builtin, name) = match dev {
+                Dev::Transducer => (
+                    &c.transducer_eds,
+                    BUILTIN_TRANSDUCER_EDS,
+                    "built-in ehactl_transducer_406.eds",
+                ),
+                Dev::Valve => (&c.valve_eds, BUILTIN_VALVE_EDS, "built-in ehactl_valve_408.eds"),
+            };
+            Eds::from_config(path, base, builtin, name)
+                .map_err(|e| settings_err(format!("{}: {e}", dev.config_key())))
+        };
+        let mut devices = [Dev::Transducer, Dev::Valve].map(|dev| -> Result<DevicePlan, StartupError> {
+            let eds = load(dev)?;
+            let (node, profile) = match dev {
+                Dev::Transducer => (c.transducer_node_id, cia406::PROFILE),
+                Dev::Valve => (c.valve_node_id, cia408::PROFILE),
+            };
+            if let Some(dcf) = eds.dcf_node_id.filter(|n| *n != 0 && *n != node) {
+                return Err(settings_err(format!(
+                    "{} ({}): the DCF is for node {dcf}, the config has {} node id {node}",
+                    eds.source,
+                    dev.config_key(),
+                    dev.name()
+                )));
+            }
+            match eds.default_number(0x1000, 0, node) {
+                Some(dt) if dt & 0xFFFF == i128::from(profile) => {}
+                other => {
+                    return Err(settings_err(format!(
+                        "{} ({}): device type 0x1000 = {} is no CiA {profile} device; expected the {}'s file",
+                        eds.source,
+                        dev.config_key(),
+                        other.map_or("(missing)".into(), |v| format!("0x{v:08X}")),
+                        dev.name()
+                    )))
+                }
+            }
+            let identity = (
+                eds.vendor.or_else(|| eds.default_number(0x1018, 1, node).map(|v| v as u32)),
+                eds.product.or_else(|| eds.default_number(0x1018, 2, node).map(|v| v as u32)),
+            );
+            Ok(DevicePlan {
+                dev,
+                node,
+                eds,
+                profile,
+                identity,
+                steps: Vec::new(),
+            })
+        });
+        let [t, v] = &mut devices;
+        let (mut t, mut v) = (
+            std::mem::replace(t, Err(StartupError::Settings(String::new())))?,
+            std::mem::replace(v, Err(StartupError::Settings(String::new())))?,
+        );
+        // Objects ehactl itself configures: a DCF value for them must agree (checked below).
+        let sync_period_us = (1e6 / c.sync_rate_hz).round() as u32;
+        for p in [&mut t, &mut v] {
+            // 1. Device-specific settings of a DCF (ParameterValue), in index order.
+            let dcf: Vec<(u16, u8, Vec<u8>, String)> = p
+                .eds
+                .parameter_values()
+                .map(|((i, sub), o)| {
+                    p.eds
+                        .encode(i, sub, o.parameter_value.as_deref().unwrap_or(""), p.node)
+                        .map(|b| (i, sub, b, o.name.clone()))
+                })
+                .collect::<Result<_, _>>()
+                .map_err(settings_err)?;
+            for (i, sub, b, name) in dcf {
+                p.push(i, sub, b, StepKind::Ensure, format!("DCF setting {name}"))?;
+            }
+            let name = p.dev.name();
+            // 2. Error control: heartbeat producer, consumer of ehactl's heartbeat.
+            p.push(
+                0x1017,
+                0,
+                c.heartbeat_ms.to_le_bytes().to_vec(),
+                StepKind::Ensure,
+                format!("setting the {name} heartbeat producer time"),
+            )?;
+            if p.eds.get(0x1016, 1).is_none() {
+                return Err(settings_err(format!(
+                    "{} ({}): the {name} has no heartbeat consumer 0x1016:01, so it cannot detect a dead ehactl (canopen.device_heartbeat_timeout_ms); ehactl refuses to drive it",
+                    p.eds.source,
+                    p.dev.config_key()
+                )));
+            }
+            let consumer =
+                (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
+            p.push(
+                0x1016,
+                1,
+                consumer.to_le_bytes().to_vec(),
+                StepKind::Ensure,
+                format!("setting the {name} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)"),
+            )?;
+            // 3. SYNC objects where the file has them (CiA 301 7.5.2.6/7/22): 0x1019 may only
+            //    change while 0x1006 = 0, so the period is cleared first.
+            if p.eds.get(0x1006, 0).is_some_and(|o| o.access.writable()) {
+                p.push(0x1006, 0, 0u32.to_le_bytes().to_vec(), StepKind::Ensure, "clearing the communication cycle period 0x1006 (before 0x1019)")?;
+            }
+            if p.eds.get(0x1019, 0).is_some() {
+                p.push(0x1019, 0, vec![c.sync_counter_overflow], StepKind::Ensure, "setting the SYNC counter overflow 0x1019 (canopen.sync_counter_overflow)")?;
+            } else if c.sync_counter_overflow != 0 {
+                return Err(settings_err(format!(
+                    "{} ({}): canopen.sync_counter_overflow = {} but the {name} has no 0x1019 (its SYNC consumer expects SYNC without counter); set it to 0",
+                    p.eds.source,
+                    p.dev.config_key(),
+                    c.sync_counter_overflow
+                )));
+            }
+            if p.eds.get(0x1007, 0).is_some() {
+                p.push(0x1007, 0, c.sync_window_us.to_le_bytes().to_vec(), StepKind::Ensure, "setting the synchronous window 0x1007 (canopen.sync_window_us)")?;
+            }
+            if p.eds.get(0x1006, 0).is_some() {
+                p.push(0x1006, 0, sync_period_us.to_le_bytes().to_vec(), StepKind::Ensure, "setting the communication cycle period 0x1006 (µs, 1 / canopen.sync_rate_hz)")?;
+            }
+        }
+        // 4. Profile objects.
+        let tr = t.node;
+        t.push(
+            cia406::POSITION_STEP,
+            1,
+            c.position_step_nm.to_le_bytes().to_vec(),
+            StepKind::Ensure,
+            "setting the transducer position step 0x6005:01 (canopen.position_step_nm)",
+        )?;
+        if t.eds.get(cia406::CYCLIC_TIMER, 0).is_some() {
+            t.push(
+                cia406::CYCLIC_TIMER,
+                0,
+                0u16.to_le_bytes().to_vec(),
+                StepKind::Ensure,
+                "switching the transducer cyclic timer off (TPDO on SYNC)",
+            )?;
+        }
+        t.pdo(
+            TPDO1_COMM,
+            TPDO1_MAP,
+            TPDO1_BASE + u16::from(tr),
+            &cia406::TPDO1_MAP,
+            "the transducer TPDO1 (position 0x6020:01)",
+        )?;
+        let va = v.node;
+        for (index, sub, bytes, what) in [
+            (
+                cia408::DEVICE_MODE,
+                0u8,
+                vec![cia408::MODE_SETPOINT_FROM_BUS],
+                "setting the valve device mode 0x6042 = 1 (setpoint from the bus)",
+            ),
+            (
+                cia408::CONTROL_MODE,
+                0,
+                vec![cia408::CONTROL_MODE_SPOOL_CLOSED_LOOP as u8],
+                "setting the valve control mode 0x6043 = 2 (spool position, closed loop)",
+            ),
+            (
+                cia408::SPOOL_HOLD_SETPOINT,
+                1,
+                0i16.to_le_bytes().to_vec(),
+                "setting the valve hold setpoint 0x6314:01 = 0 (closed centre in HOLD)",
+            ),
+            (
+                cia408::SPOOL_SETPOINT,
+                1,
+                0i16.to_le_bytes().to_vec(),
+                "zeroing the valve spool setpoint",
+            ),
+        ] {
+            v.push(index, sub, bytes, StepKind::Ensure, what)?;
+        }
+        for (index, what) in [
+            (cia408::CONTROL_WORD, "the valve control word 0x6040"),
+            (cia408::STATUS_WORD, "the valve status word 0x6041"),
+        ] {
+            v.obj(index, 0).map_err(|_| {
+                settings_err(format!("{}: no {what} in the valve's EDS", v.eds.source))
+            })?;
+        }
+        if c.valve_rpdo_timeout_ms != 0 && v.eds.get(RPDO1_COMM, 5).is_some() {
+            // RPDO deadline monitoring (CiA 301 v4.2 7.5.2.35 sub 5): set before the RPDO is
+            // re-mapped, so that the re-mapping's enable starts it.
+            v.push(
+                RPDO1_COMM,
+                5,
+                c.valve_rpdo_timeout_ms.to_le_bytes().to_vec(),
+                StepKind::Ensure,
+                "setting the valve RPDO1 deadline 0x1400:05 (canopen.valve_rpdo_timeout_ms)",
+            )?;
+        }
+        v.pdo(
+            RPDO1_COMM,
+            RPDO1_MAP,
+            RPDO1_BASE + u16::from(va),
+            &cia408::RPDO1_MAP,
+            "the valve RPDO1 (spool setpoint 0x6300:01)",
+        )?;
+        if c.valve_status_pdo {
+            v.pdo(
+                TPDO1_COMM,
+                TPDO1_MAP,
+                TPDO1_BASE + u16::from(va),
+                &cia408::TPDO1_MAP,
+                "the valve TPDO1 (status word 0x6041 + actual spool 0x6301:01)",
+            )?;
+        } else {
+            v.push(
+                TPDO1_COMM,
+                1,
+                (COB_ID_INVALID | u32::from(TPDO1_BASE + u16::from(va)))
+                    .to_le_bytes()
+                    .to_vec(),
+                StepKind::Ensure,
+                "disabling the valve TPDO1 (canopen.valve_status_pdo = false)",
+            )?;
+        }
+        // A DCF value that ehactl overrides would be silently lost: refuse it.
+        for p in [&t, &v] {
+            for ((i, sub), o) in p.eds.parameter_values() {
+                let Some(last) = p.steps.iter().rev().find(|s| (s.index, s.sub) == (i, sub)) else {
+                    continue;
+                };
+                let dcf = p
+                    .eds
+                    .encode(i, sub, o.parameter_value.as_deref().unwrap_or(""), p.node)
+                    .map_err(settings_err)?;
+                if last.value != dcf {
+                    return Err(settings_err(format!(
+                        "{} ({}): the DCF sets 0x{i:04X}:{sub:02X} ({}) = {}, but ehactl sets it to {:02X?} ({}); remove the ParameterValue or change the config",
+                        p.eds.source,
+                        p.dev.config_key(),
+                        o.name,
+                        o.parameter_value.as_deref().unwrap_or(""),
+                        last.value,
+                        last.what
+                    )));
+                }
+            }
+        }
+        Ok(Plan { devices: [t, v] })
+    }
+}
+
+// ------------------------------------------------------------------------ the bus side
+
+/// The bus during start-up: sends ehactl's heartbeat (0x700 + master id, state
+/// OPERATIONAL [05]) every `master_heartbeat_ms` while the start-up waits for frames, so
+/// that the devices' heartbeat consumers (0x1016) see the master alive from the moment
+/// they are configured. The heartbeats it sent are kept for the log.
+pub(crate) struct StartBus {
+    pub(crate) inner: Box<dyn CanBus>,
+    hb: CanFrame,
+    period: Duration,
+    next: Instant,
+    sent: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
+}
+
+impl StartBus {
+    fn beat_if_due(&mut self) -> Result<(), BusError> {
+        let now = Instant::now();
+        if now >= self.next {
+            self.inner.send(&self.hb)?;
+            if let Ok(mut v) = self.sent.lock() {
+                v.push((now, self.hb));
+            }
+            self.next += self.period;
+            if self.next < now {
+                self.next = now + self.period;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl CanBus for StartBus {
+    fn send(&mut self, frame: &CanFrame) -> Result<(), BusError> {
+        self.inner.send(frame)
+    }
+    fn try_recv(&mut self) -> Result<Option<CanFrame>, BusError> {
+        self.beat_if_due()?;
+        self.inner.try_recv()
+    }
+    fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<CanFrame>, BusError> {
+        let end = Instant::now() + timeout;
+        loop {
+            self.beat_if_due()?;
+            let now = Instant::now();
+            if now >= end {
+                return Ok(None);
+            }
+            let wait = end.min(self.next).saturating_duration_since(now);
+            if let Some(f) = self.inner.recv_timeout(wait)? {
+                return Ok(Some(f));
+            }
+        }
+    }
+    fn try_clone_bus(&self) -> Result<Box<dyn CanBus>, BusError> {
+        self.inner.try_clone_bus()
+    }
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+}
+
+/// Start-up bookkeeping: every frame (for the log) and what the devices reported.
+pub(crate) struct Startup {
+    pub(crate) frames: Vec<(Instant, CanFrame, bool)>,
+    /// Master heartbeats sent by [`StartBus`] (merged into `frames` by [`Startup::merge`]).
+    pub(crate) heartbeats: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
+    ids: [u8; 2],
+    booted: [bool; 2],
+    state: [Option<NmtState>; 2],
+    emcy: Option<Emcy>,
+    verbose: bool,
+}
+
+impl Startup {
+    pub(crate) fn new(ids: [u8; 2], verbose: bool) -> Startup {
+        Startup {
+            frames: Vec::with_capacity(512),
+            heartbeats: Arc::new(Mutex::new(Vec::new())),
+            ids,
+            booted: [false; 2],
+            state: [None; 2],
+            emcy: None,
+            verbose,
+        }
+    }
+
+    /// Move the master heartbeats into `frames`, in time order.
+    pub(crate) fn merge(&mut self) {
+        let hb = self
+            .heartbeats
+            .lock()
+            .map(|mut v| std::mem::take(&mut *v))
+            .unwrap_or_default();
+        if !hb.is_empty() {
+            self.frames
+                .extend(hb.into_iter().map(|(at, f)| (at, f, true)));
+            self.frames.sort_by_key(|(at, _, _)| *at);
+        }
+    }
+
+    fn observe(&mut self, f: &CanFrame, dir: Direction) {
+        self.frames.push((Instant::now(), *f, dir == Direction::Tx));
+        if dir == Direction::Tx {
+            return;
+        }
+        if let Some((node, b)) = nmt::parse_error_control(f) {
+            for i in 0..2 {
+                if self.ids[i] == node {
+                    let st = NmtState::from_byte(b);
+                    if st == Some(NmtState::BootUp) {
+                        if self.verbose && !self.booted[i] {
+                            eprintln!("canopen: node {node} (0x{node:02X}) boot-up");
+                        }
+                        self.booted[i] = true;
+                    }
+                    self.state[i] = st;
+                }
+            }
+        }
+        for i in 0..2 {
+            if !f.extended && f.id == u32::from(EMCY_BASE + u16::from(self.ids[i])) {
+                if let Ok(e) = Emcy::parse(self.ids[i], f.payload()) {
+                    if !e.is_reset() {
+                        self.emcy = Some(e);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// A value read back after a start-up write must be the value written.
+fn readback(
+    step: &str,
+    node: u8,
+    index: u16,
+    sub: u8,
+    wrote: &[u8],
+    got: &[u8],
+) -> Result<(), StartupError> {
+    if !same_value(wrote, got) {
+        return Err(StartupError::Device(format!(
+            "{step}: node {node} (0x{node:02X}) accepted the write of 0x{index:04X}:{sub:02X} but reads back {:02X?} instead of {:02X?}",
+            got, wrote
+        )));
+    }
+    Ok(())
+}
+
+/// `got` holds the value `want` (an expedited upload may pad with zeros).
+fn same_value(want: &[u8], got: &[u8]) -> bool {
+    let n = want.len();
+    got.len() >= n && got[..n] == *want && got[n..].iter().all(|b| *b == 0)
+}
+
+/// The start-up in progress: the bus, the plan and the bookkeeping.
+pub(crate) struct Bringup<'a> {
+    pub(crate) s: &'a CanopenSettings,
+    plan: Plan,
+    pub(crate) bus: Box<StartBus>,
+    st: &'a mut Startup,
+    sdo_t: Duration,
+    ids: [u8; 2],
+    /// Device names read from 0x1008 (optional object).
+    pub(crate) names: [Option<String>; 2],
+}
+
+/// What the activate step hands to the run: the first measurements.
+pub(crate) struct Activated {
+    pub(crate) meas: Measurements,
+}
+
+impl<'a> Bringup<'a> {
+    /// Open the bus (ehactl's heartbeat starts with it).
+    pub(crate) fn open(
+        s: &'a CanopenSettings,
+        plan: Plan,
+        st: &'a mut Startup,
+        master_hb: CanFrame,
+    ) -> Result<Bringup<'a>, StartupError> {
+        let c = &s.canopen;
+        let bus = Box::new(StartBus {
+            inner: bus::open(&s.bus, Duration::from_secs(3))?,
+            hb: master_hb,
+            period: Duration::from_millis(u64::from(c.master_heartbeat_ms)),
+            next: Instant::now(),
+            sent: st.heartbeats.clone(),
+        });
+        Ok(Bringup {
+            s,
+            plan,
+            bus,
+            st,
+            sdo_t: Duration::from_millis(u64::from(c.sdo_timeout_ms)),
+            ids: [c.transducer_node_id, c.valve_node_id],
+            names: [None, None],
+        })
+    }
+
+    fn send(&mut self, f: CanFrame) -> Result<(), StartupError> {
+        self.bus.send(&f)?;
+        self.st.observe(&f, Direction::Tx);
+        Ok(())
+    }
+
+    fn sdo_read(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
+        let mut cl = SdoClient::new(node, self.sdo_t);
+        let req = cl.upload(index, sub);
+        let st = &mut *self.st;
+        sdo::transfer(&mut *self.bus, &mut cl, req, &mut |f, d| st.observe(f, d))?;
+        Ok(cl.data().to_vec())
+    }
+
+    fn sdo_write(&mut self, node: u8, index: u16, sub: u8, bytes: &[u8]) -> Result<(), SdoError> {
+        let mut cl = SdoClient::new(node, self.sdo_t);
+        let req = cl.download(index, sub, bytes);
+        let st = &mut *self.st;
+        sdo::transfer(&mut *self.bus, &mut cl, req, &mut |f, d| st.observe(f, d))
+    }
+
+    fn read(&mut self, node: u8, index: u16, sub: u8, step: &str) -> Result<Vec<u8>, StartupError> {
+        self.sdo_read(node, index, sub).map_err(|error| StartupError::Sdo {
+            step: format!("{step} (read 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"),
+            error,
+        })
+    }
+
+    fn write(&mut self, node: u8, index: u16, sub: u8, bytes: &[u8], step: &str) -> Result<(), StartupError> {
+        self.sdo_write(node, index, sub, bytes).map_err(|error| StartupError::Sdo {
+            step: format!("{step} (write 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"),
+            error,
+        })
+    }
+
+    /// configure: boot, pre-operational, identity, planned objects.
+    pub(crate) fn configure(&mut self) -> Result<(), StartupError> {
+        self.boot()?;
+        for n in self.ids {
+            self.send(nmt::command(NmtCommand::EnterPreOperational, n))?;
+        }
+        for i in 0..2 {
+            self.identify(i)?;
+        }
+        for i in 0..2 {
+            self.apply_plan(i)?;
+        }
+        if self.s.verbose {
+            eprintln!("canopen: configured from the EDS files (identity, heartbeats, SYNC objects, PDO mappings, profile objects)");
+        }
+        Ok(())
+    }
+
+    /// activate: NMT start, valve to ACTIVE, priming SYNC.
+    pub(crate) fn activate(&mut self) -> Result<Activated, StartupError> {
+        self.start_nodes()?;
+        self.enable_valve()?;
+        let meas = match self.prime() {
+            Ok(m) => m,
+            Err(e) => {
+                // The valve is ACTIVE here: back to HOLD with setpoint 0 (best effort).
+                let va = self.ids[1];
+                let _ = self.send(CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()));
+                let _ = self.write(
+                    va,
+                    cia408::CONTROL_WORD,
+                    0,
+                    &cia408::CW_HOLD_STATE.to_le_bytes(),
+                    "returning the valve to HOLD after a failed start-up",
+                );
+                return Err(e);
+            }
+        };
+        Ok(Activated { meas })
+    }
+
+    /// NMT reset communication → boot-up of every device; a node that sends none is probed
+    /// by SDO (read 0x1000): some slaves (python `canopen`'s LocalNode) send no boot-up after
+    /// reset communication, and a boot-up can be lost while the master connects. SDO is
+    /// served in PRE-OPERATIONAL and OPERATIONAL only (CiA 301 table 76), so a node that
+    /// answers has finished its initialisation. Probes every [`BOOT_PROBE_EVERY`] while
+    /// waiting, a last one at `boot_timeout_s`; a node that never answers is reported.
+    pub(crate) fn boot(&mut self) -> Result<(), StartupError> {
+        let c = &self.s.canopen;
+        for n in self.ids {
+            self.send(nmt::command(NmtCommand::ResetCommunication, n))?;
+        }
+        let boot_deadline = Instant::now() + Duration::from_secs_f64(c.boot_timeout_s);
+        let mut next_probe = Instant::now() + BOOT_PROBE_EVERY;
+        while !self.st.booted.iter().all(|b| *b) {
+            let now = Instant::now();
+            let last = now >= boot_deadline;
+            if last || now >= next_probe {
+                for i in 0..2 {
+                    if self.st.booted[i] {
+                        continue;
+                    }
+                    let wait = if last {
+                        self.sdo_t
+                    } else {
+                        self.sdo_t.min(BOOT_PROBE_EVERY)
+                    };
+                    let mut cl = SdoClient::new(self.ids[i], wait);
+                    let req = cl.upload(0x1000, 0);
+                    let st = &mut *self.st;
+                    let ok = sdo::transfer(&mut *self.bus, &mut cl, req, &mut |f, d| st.observe(f, d))
+                        .is_ok();
+                    if ok {
+                        if self.s.verbose {
+                            eprintln!(
+                                "canopen: node {} (0x{:02X}) sent no boot-up but answered an SDO probe of 0x1000",
+                                self.ids[i], self.ids[i]
+                            );
+                        }
+                        self.st.booted[i] = true;
+                    } else if last && !self.st.booted[i] {
+                        return Err(StartupError::NoBoot {
+                            device: [Dev::Transducer, Dev::Valve][i].name(),
+                            node: self.ids[i],
+                            timeout_s: c.boot_timeout_s,
+                        });
+                    }
+                }
+                next_probe = Instant::now() + BOOT_PROBE_EVERY;
+                continue;
+            }
+            let left = boot_deadline.min(next_probe).saturating_duration_since(now);
+            if let Some(f) = self.bus.recv_timeout(left.min(Duration::from_millis(50)))? {
+                self.st.observe(&f, Direction::Rx);
+            }
+        }
+        Ok(())
+    }
+
+    /// Device type (profile), identity 0x1018:01/02 against the device's file, name 0x1008.
+    fn identify(&mut self, i: usize) -> Result<(), StartupError> {
+        let p = &self.plan.devices[i];
+        let (n, dev, profile, identity, source) =
+            (p.node, p.dev, p.profile, p.identity, p.eds.source.clone());
+        let d = self.read(n, 0x1000, 0, "reading the device type")?;
+        let dt = u32::from_le_bytes(le4(&d));
+        if dt & 0xFFFF != u32::from(profile) {
+            return Err(StartupError::Device(format!(
+                "node {n} (0x{n:02X}) should be the {} (CiA {profile}) but its device type 0x1000 is 0x{dt:08X} (profile {})",
+                dev.name(),
+                dt & 0xFFFF
+            )));
+        }
+        for (sub, want, what) in [(1u8, identity.0, "vendor-ID"), (2, identity.1, "product code")] {
+            let Some(want) = want else { continue };
+            let got = u32::from_le_bytes(le4(&self.read(
+                n,
+                0x1018,
+                sub,
+                &format!("reading the {} identity", dev.name()),
+            )?));
+            if got != want {
+                return Err(StartupError::Device(format!(
+                    "{} (node {n} = 0x{n:02X}): {what} 0x1018:{sub:02X} is 0x{got:08X} but its device description {source} ({}) is for 0x{want:08X}; is this the right device or file?",
+                    dev.name(),
+                    dev.config_key()
+                )));
+            }
+        }
+        // Manufacturer device name (VISIBLE_STRING, segmented upload); optional object.
+        match self.sdo_read(n, 0x1008, 0) {
+            Ok(b) => {
+                let name = String::from_utf8_lossy(&b).trim_end_matches('\0').to_string();
+                if self.s.verbose {
+                    eprintln!("canopen: node {n} (0x{n:02X}): \"{name}\" (CiA {profile})");
+                }
+                self.names[i] = Some(name);
+            }
+            Err(SdoError::Abort { .. }) => {}
+            Err(error) => {
+                return Err(StartupError::Sdo {
+                    step: format!(
+                        "reading the {} device name (read 0x1008:00 on node {n})",
+                        dev.name()
+                    ),
+                    error,
+                })
+            }
+        }
+        Ok(())
+    }
+
+    /// The planned objects of device `i`, in order (see [`StepKind`]).
+    pub(crate) fn apply_plan(&mut self, i: usize) -> Result<(), StartupError> {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].dev);
+        let steps = self.plan.devices[i].steps.clone();
+        for step in &steps {
+            let (index, sub, want) = (step.index, step.sub, &step.value);
+            if step.kind == StepKind::Ensure {
+                let have = self.sdo_read(n, index, sub);
+                match have {
+                    Ok(h) if same_value(want, &h) => continue,
+                    Ok(h) if !step.access.writable() => {
+                        let extra = if (index, sub) == (cia406::POSITION_STEP, 1) {
+                            format!("; set canopen.position_step_nm = {}", u32::from_le_bytes(le4(&h)))
+                        } else {
+                            String::new()
+                        };
+                        return Err(StartupError::Device(format!(
+                            "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is {} (AccessType={} in {}) and reads {:02X?}, not {:02X?}; ehactl never writes read-only objects{extra}",
+                            step.what,
+                            dev.name(),
+                            if step.access == Access::Const { "constant" } else { "read-only" },
+                            step.access.as_str(),
+                            self.plan.devices[i].eds.source,
+                            h,
+                            want
+                        )));
+                    }
+                    Err(e) if !step.access.writable() => {
+                        return Err(StartupError::Sdo {
+                            step: format!("{} (read-only object: read 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})", step.what),
+                            error: e,
+                        })
+                    }
+                    // Different, or not readable right now (e.g. no value yet): write it.
+                    _ => {}
+                }
+            }
+            match self.sdo_write(n, index, sub, want) {
+                Ok(()) => {}
+                // The file says rw, the device refuses the write as read-only (0x06010002):
+                // name the device's value if it has one.
+                Err(SdoError::Abort { code: 0x0601_0002, .. }) => {
+                    let h = self.sdo_read(n, index, sub).ok();
+                    let extra = match (&h, (index, sub) == (cia406::POSITION_STEP, 1)) {
+                        (Some(h), true) => format!(
+                            "; it is {} nm: set canopen.position_step_nm = {}",
+                            u32::from_le_bytes(le4(h)),
+                            u32::from_le_bytes(le4(h))
+                        ),
+                        (Some(h), false) => format!("; it reads {h:02X?}"),
+                        (None, _) => String::new(),
+                    };
+                    return Err(StartupError::Device(format!(
+                        "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is read-only on the device (abort 0x06010002) although its EDS says {}; ehactl wanted {:02X?}{extra}",
+                        step.what,
+                        dev.name(),
+                        step.access.as_str(),
+                        want
+                    )));
+                }
+                Err(error) => {
+                    return Err(StartupError::Sdo {
+                        step: format!(
+                            "{} (write 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})",
+                            step.what
+                        ),
+                        error,
+                    })
+                }
+            }
+            if step.access.readable() && step.kind == StepKind::Ensure {
+                let got = self.read(n, index, sub, &step.what)?;
+                readback(&step.what, n, index, sub, want, &got)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// NMT start; wait for OPERATIONAL heartbeats.
+    pub(crate) fn start_nodes(&mut self) -> Result<(), StartupError> {
+        let c = &self.s.canopen;
+        for n in self.ids {
+            self.send(nmt::command(NmtCommand::Start, n))?;
+        }
+        self.st.state = [None; 2];
+        let op_wait = Duration::from_millis(
+            (3 * u64::from(c.heartbeat_timeout_ms)).max(u64::from(c.sdo_timeout_ms)),
+        );
+        let deadline = Instant::now() + op_wait;
+        while !self
+            .st
+            .state
+            .iter()
+            .all(|x| *x == Some(NmtState::Operational))
+        {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                let i = self
+                    .st
+                    .state
+                    .iter()
+                    .position(|x| *x != Some(NmtState::Operational))
+                    .unwrap_or(0);
+                return Err(StartupError::Device(format!(
+                    "{} (node {}) did not report OPERATIONAL by heartbeat within {} ms after NMT start (last state: {})",
+                    [Dev::Transducer, Dev::Valve][i].name(),
+                    self.ids[i],
+                    op_wait.as_millis(),
+                    self.st.state[i].map_or("no heartbeat", |x| x.as_str())
+                )));
+            }
+            if let Some(f) = self.bus.recv_timeout(left.min(Duration::from_millis(50)))? {
+                self.st.observe(&f, Direction::Rx);
+            }
+        }
+        Ok(())
+    }
+
+    fn status(&mut self) -> Result<u16, StartupError> {
+        let d = self.read(self.ids[1], cia408::STATUS_WORD, 0, "reading the valve status word")?;
+        Ok(u16::from_le_bytes([
+            d.first().copied().unwrap_or(0),
+            d.get(1).copied().unwrap_or(0),
+        ]))
+    }
+
+    fn goto(&mut self, cw: u16, want: ValveState) -> Result<(), StartupError> {
+        let va = self.ids[1];
+        self.write(
+            va,
+            cia408::CONTROL_WORD,
+            0,
+            &cw.to_le_bytes(),
+            &format!("commanding the valve to {}", want.as_str()),
+        )?;
+        let deadline = Instant::now() + self.sdo_t;
+        loop {
+            let sw = self.status()?;
+            let got = ValveState::from_status(sw);
+            if got == want {
+                if self.s.verbose {
+                    eprintln!("canopen: valve {}", want.as_str());
+                }
+                return Ok(());
+            }
+            if Instant::now() >= deadline {
+                return Err(StartupError::Device(format!(
+                    "valve (node {va}) did not enter {} after control word 0x{cw:04X}: status word 0x{sw:04X} ({})",
+                    want.as_str(),
+                    got.as_str()
+                )));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// Valve state machine by SDO control word: (fault → reset) DISABLED → HOLD → ACTIVE.
+    /// A valve in a fault state is reset as published (Moog B99224-DV018 §5.2.2.1):
+    /// FAULT_REACTION ends by itself (TR9/12/13); then R rises with the D/H bits of the
+    /// fault state held (TR10 FAULT_DISABLED 0001→1001, TR11 FAULT_HOLD 0011→1011, TR14
+    /// FAULT_INIT 0000→1000).
+    pub(crate) fn enable_valve(&mut self) -> Result<(), StartupError> {
+        let va = self.ids[1];
+        let mut sw = self.status()?;
+        let deadline = Instant::now() + self.sdo_t;
+        while ValveState::from_status(sw) == ValveState::FaultReaction && Instant::now() < deadline
+        {
+            std::thread::sleep(Duration::from_millis(5));
+            sw = self.status()?;
+        }
+        let fault = ValveState::from_status(sw);
+        if fault.is_fault() {
+            let Some(held) = fault.reset_hold_bits() else {
+                return Err(StartupError::Device(format!(
+                    "valve (node {va}) stayed in FAULT_REACTION (status word 0x{sw:04X}) for {} ms",
+                    self.sdo_t.as_millis()
+                )));
+            };
+            if self.s.verbose {
+                eprintln!(
+                    "canopen: valve in {} at start-up: fault reset (rising edge of control word bit R)",
+                    fault.as_str()
+                );
+            }
+            self.write(
+                va,
+                cia408::CONTROL_WORD,
+                0,
+                &held.to_le_bytes(),
+                "preparing the valve fault reset (R = 0, D/H held)",
+            )?;
+            self.write(
+                va,
+                cia408::CONTROL_WORD,
+                0,
+                &(held | cia408::CW_RESET).to_le_bytes(),
+                "resetting the valve fault (rising edge of R)",
+            )?;
+            let sw = self.status()?;
+            let got = ValveState::from_status(sw);
+            if got.is_fault() || matches!(got, ValveState::Unknown(_)) {
+                return Err(StartupError::Device(format!(
+                    "valve (node {va}) still in {} after the fault reset (control word 0x{:04X}): status word 0x{sw:04X}; the fault persists",
+                    got.as_str(),
+                    held | cia408::CW_RESET
+                )));
+            }
+        }
+        self.goto(cia408::CW_DISABLED_STATE, ValveState::Disabled)?;
+        self.goto(cia408::CW_HOLD_STATE, ValveState::Hold)?;
+        self.goto(cia408::CW_ACTIVE_STATE, ValveState::Active)
+    }
+
+    /// Setpoint 0 + one SYNC so that the first cycle has a position (and spool).
+    pub(crate) fn prime(&mut self) -> Result<Measurements, StartupError> {
+        let c = &self.s.canopen;
+        let (tr, va) = (self.ids[0], self.ids[1]);
+        let mut meas = Measurements {
+            t: f64::NAN,
+            force: f64::NAN,
+            position: f64::NAN,
+            p_a: f64::NAN,
+            p_b: f64::NAN,
+            spool: f64::NAN,
+        };
+        self.send(CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()))?;
+        self.send(sync::frame_with_counter(c.sync_counter_overflow, 1))?;
+        let deadline = Instant::now() + self.sdo_t;
+        while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(StartupError::Device(format!(
+                    "no {} TPDO1 within {} ms after the first SYNC; are the PDOs mapped and the devices OPERATIONAL?",
+                    if meas.position.is_nan() { "transducer" } else { "valve" },
+                    self.sdo_t.as_millis()
+                )));
+            }
+            if let Some(f) = self.bus.recv_timeout(left)? {
+                self.st.observe(&f, Direction::Rx);
+                if f.id == u32::from(TPDO1_BASE + u16::from(tr)) && f.dlc == 4 {
+                    meas.position =
+                        cia406::position_m(pdo::get_i32(&f.data, 0, 4), c.position_step_nm);
+                }
+                if f.id == u32::from(TPDO1_BASE + u16::from(va)) && f.dlc == 4 {
+                    meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
+                }
+            }
+        }
+        if let Some(e) = self.st.emcy {
+            return Err(StartupError::Device(format!(
+                "{} (node {}) sent EMCY 0x{:04X} ({}) during start-up",
+                if e.node == tr { "transducer" } else { "valve" },
+                e.node,
+                e.code,
+                e.class()
+            )));
+        }
+        Ok(meas)
+    }
+}
+
+fn le4(d: &[u8]) -> [u8; 4] {
+    let mut b = [0u8; 4];
+    b[..d.len().min(4)].copy_from_slice(&d[..d.len().min(4)]);
+    b
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::BusUrl;
+    use crate::config::CanopenConfig;
+
+    fn settings(c: CanopenConfig) -> CanopenSettings {
+        CanopenSettings {
+            bus: BusUrl::parse("socketcand://127.0.0.1:1/can0").unwrap(),
+            canopen: c,
+            command_full_scale: 10.0,
+            control_rate_hz: 5000.0,
+            safe_command: 0.0,
+            verbose: false,
+            config_dir: None,
+        }
+    }
+
+    #[test]
+    fn the_plan_follows_the_built_in_eds_files() {
+        let p = Plan::new(&settings(CanopenConfig::default())).unwrap();
+        let [t, v] = &p.devices;
+        assert_eq!((t.identity, v.identity), ((Some(0), Some(0x196)), (Some(0), Some(0x198))));
+        let at = |d: &DevicePlan, i: u16, s: u8| d.steps.iter().filter(|x| (x.index, x.sub) == (i, s)).count();
+        // heartbeat, consumer, SYNC objects (0x1006 cleared before 0x1019, then set), profile
+        for d in [t, v] {
+            assert_eq!(at(d, 0x1017, 0) + at(d, 0x1016, 1) + at(d, 0x1019, 0) + at(d, 0x1007, 0), 4);
+            assert_eq!(at(d, 0x1006, 0), 2);
+            let k = |i| d.steps.iter().position(|x| x.index == i).unwrap();
+            assert!(k(0x1006) < k(0x1019));
+            let last = d.steps.iter().rev().find(|x| x.index == 0x1006).unwrap();
+            assert_eq!(last.value, 1000u32.to_le_bytes()); // µs at 1 kHz SYNC
+        }
+        assert_eq!(at(t, 0x6005, 1), 1);
+        assert_eq!(at(v, 0x1400, 5), 1); // RPDO deadline where the EDS has it
+        assert!(v.steps.iter().all(|s| s.access.writable()));
+    }
+
+    #[test]
+    fn files_that_do_not_fit_are_refused_before_the_bus() {
+        let dir = std::env::temp_dir().join(format!("ehactl_eds_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let w = |name: &str, text: String| {
+            std::fs::write(dir.join(name), text).unwrap();
+            name.to_string()
+        };
+        let run = |c: CanopenConfig| {
+            let mut s = settings(c);
+            s.config_dir = Some(dir.clone());
+            Plan::new(&s).map(|_| ()).unwrap_err().to_string()
+        };
+        // the transducer file given as the valve's
+        let e = run(CanopenConfig {
+            valve_eds: w("t.eds", BUILTIN_TRANSDUCER_EDS.into()),
+            ..Default::default()
+        });
+        assert!(e.contains("canopen.valve_eds") && e.contains("no CiA 408"), "{e}");
+        // no heartbeat consumer: no master-loss detection, refused
+        let no_1016 = BUILTIN_VALVE_EDS.replace("[1016sub1]", "[1016subX]");
+        let e = run(CanopenConfig {
+            valve_eds: w("v.eds", no_1016),
+            ..Default::default()
+        });
+        assert!(e.contains("0x1016:01"), "{e}");
+        // position not PDO-mappable
+        let e = run(CanopenConfig {
+            transducer_eds: w(
+                "t2.eds",
+                BUILTIN_TRANSDUCER_EDS.replace(
+                    "ParameterName=Position of magnet 1\nObjectType=0x7\nDataType=0x0004\nAccessType=ro\nDefaultValue=0\nPDOMapping=1",
+                    "ParameterName=Position of magnet 1\nObjectType=0x7\nDataType=0x0004\nAccessType=ro\nDefaultValue=0\nPDOMapping=0",
+                ),
+            ),
+            ..Default::default()
+        });
+        assert!(e.contains("not PDO-mappable"), "{e}");
+        // a DCF value that ehactl would override
+        let dcf = BUILTIN_TRANSDUCER_EDS.replace(
+            "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=0\n",
+            "[1017]\nParameterName=Producer heartbeat time\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=0\nParameterValue=100\n",
+        );
+        assert!(dcf.contains("ParameterValue=100"));
+        let e = run(CanopenConfig {
+            transducer_eds: w("t.dcf", dcf),
+            ..Default::default()
+        });
+        assert!(e.contains("the DCF sets 0x1017:00"), "{e}");
+        let e = run(CanopenConfig {
+            transducer_eds: "missing.eds".into(),
+            ..Default::default()
+        });
+        assert!(e.contains("canopen.transducer_eds") && e.contains("missing.eds"), "{e}");
+        // a DCF setting of a device-specific object is planned first, as an Ensure step
+        let dcf = BUILTIN_TRANSDUCER_EDS.replace(
+            "[6000]\nParameterName=Operating parameters\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=0x0000\n",
+            "[6000]\nParameterName=Operating parameters\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=0x0000\nParameterValue=0x0004\n",
+        );
+        let mut s = settings(CanopenConfig {
+            transducer_eds: w("t3.dcf", dcf),
+            ..Default::default()
+        });
+        s.config_dir = Some(dir.clone());
+        let p = Plan::new(&s).unwrap();
+        assert_eq!(p.devices[0].steps[0].index, 0x6000);
+        assert_eq!(p.devices[0].steps[0].value, vec![4, 0]);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

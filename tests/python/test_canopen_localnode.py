@@ -1,0 +1,185 @@
+"""Issue 15: devices built on the `canopen` package's own `LocalNode` (its SDO server, NMT
+slave, heartbeat producer, PDO maps and EMCY producer, loaded from the shipped EDS files, with
+a small CiA 408 state machine on top: tests/python/localnode_devices.py, written apart from
+ehactl.devices) run a closed loop with `ehactl run --hal canopen` over the hub.
+
+Timing assertions count SYNCs on the CAN log (robust by design on a loaded machine: the
+master's control cycle produces SYNC, so a stalled process stalls the count too), not wall ms."""
+import contextlib
+import json
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+import pytest
+
+from canhub import BIN, hub
+from ehactl_mcap import read_can, read_run
+from simrig import BOOM, REPO, bus_url, require_bindings, syncs_between
+
+require_bindings()  # the devices' plant is ehactl.Plant
+
+HERE = pathlib.Path(__file__).resolve().parent
+TR, VA = 32, 48
+# The master's timing for these tests, as in test_canopen_e2e.py (a loaded 2-core machine where
+# the Python devices stall for ~100-300 ms): heartbeats 50 ms / consumer 250 ms, PDO age limit
+# 1000 SYNC periods. SYNC with counter 1..10 (0x1019 in the EDS files; LocalNode stores it).
+# Everything else (EDS files, node ids, SYNC 1 kHz) is the default.
+CAN_BOOM = pathlib.Path(tempfile.mkdtemp(prefix="ehactl_ln_")) / "dindorf2022_boom_can.toml"
+CAN_BOOM.write_text(pathlib.Path(BOOM).read_text() + "\n[canopen]\nheartbeat_ms = 50\n"
+                    "heartbeat_timeout_ms = 250\ndevice_heartbeat_timeout_ms = 250\n"
+                    "max_pdo_age_syncs = 1000\nsync_counter_overflow = 10\n")
+
+
+class LocalNodeDevices:
+    def __init__(self, proc, events):
+        self.proc, self.events_path, self.out = proc, events, None
+
+    def events(self, kind=None, event=None):
+        p = pathlib.Path(self.events_path)
+        evs = [json.loads(ln) for ln in p.read_text().splitlines() if ln.strip()] if p.exists() else []
+        return [e for e in evs if (kind is None or e["kind"] == kind)
+                and (event is None or e["event"] == event)]
+
+    def stop(self):
+        """SIGTERM; returns the JSON summary the device program prints."""
+        if self.out is None:
+            self.proc.terminate()
+            out, err = self.proc.communicate(timeout=20)
+            lines = [ln for ln in out.splitlines() if ln.startswith("{")]
+            assert lines, (out, err)
+            self.out = json.loads(lines[-1])
+        return self.out
+
+
+@contextlib.contextmanager
+def localnode_devices(port, tmp_path, *extra):
+    events = str(tmp_path / f"localnode_{time.monotonic_ns()}.jsonl")
+    proc = subprocess.Popen([sys.executable, str(HERE / "localnode_devices.py"), "--port",
+                             str(port), "--config", BOOM, "--events", events, *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=str(REPO))
+    line = proc.stdout.readline()
+    d = LocalNodeDevices(proc, events)
+    try:
+        if not line.startswith("localnode devices ready"):
+            proc.kill()
+            raise AssertionError(f"LocalNode devices did not start: {line} {proc.stderr.read()}")
+        # the devices are powered before the master starts: their power-on boot-ups are on the
+        # bus before its NMT reset communication (so any later boot-up would be the reset's)
+        time.sleep(0.5)
+        yield d
+    finally:
+        if d.out is None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def run_master(port, out, duration):
+    p = subprocess.run([BIN, "run", str(CAN_BOOM), "--hal", "canopen", "--bus", bus_url(port), "--json",
+                        "--duration", str(duration), "--out", str(out)],
+                       capture_output=True, text=True, timeout=90, cwd=str(REPO))
+    lines = [ln for ln in p.stdout.splitlines() if ln.strip()]
+    summary = json.loads(lines[-1]) if lines else None
+    assert "panicked" not in p.stderr, p.stderr
+    return p.returncode, summary, p.stderr
+
+
+def why(summary, err):
+    trip = summary.get("trip") if isinstance(summary, dict) else None
+    return f"trip: {trip}; stderr: {err.strip()[-1500:]}"
+
+
+def sim_final_position(duration, tmp_path):
+    out = tmp_path / "sim.mcap"
+    p = subprocess.run([BIN, "run", BOOM, "--duration", str(duration), "--out", str(out),
+                        "--json"], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    c = read_run(out)["control"]
+    return float(np.mean(c["position"][c["t"] > duration - 0.25]))
+
+
+def test_localnode_devices_close_a_3s_loop(tmp_path):
+    duration = 3.0
+    with hub() as (_, port), localnode_devices(port, tmp_path) as dev:
+        out = tmp_path / "ln.mcap"
+        rc, summary, err = run_master(port, out, duration)
+        time.sleep(0.1)
+        dsum = dev.stop()
+    assert rc == 0, why(summary, err)
+    assert summary["trip"] is None
+    assert summary["can_wrong_dlc"] == 0 and summary["can_unknown_cob_id"] == 0, summary
+    # names read from the LocalNodes (0x1008 VISIBLE_STRING: segmented SDO upload)
+    assert summary["device_names"] == {"transducer": "ehactl sim CiA 406 linear transducer",
+                                       "valve": "ehactl sim CiA 408 valve OBE"}
+    # the valve went DISABLED → HOLD → ACTIVE by the published transitions and the safe stop
+    # left it in HOLD with the spool at the hold setpoint 0
+    tr = [e["why"] for e in dev.events("valve", "state")]
+    assert tr[:3] == ["TR2", "TR3", "TR4"] and tr[-1] == "TR5", tr
+    assert dsum["valve_state"] == "HOLD" and dsum["spool"] == 0.0, dsum
+    assert dsum["nmt"] == {"transducer": "OPERATIONAL", "valve": "OPERATIONAL"}
+    frames = read_can(out)
+    rx = [f for f in frames if f["dir"] == "rx"]
+    tx = [f for f in frames if f["dir"] == "tx"]
+    # LocalNode sends no boot-up after NMT reset communication: the master probed each node
+    # by SDO (upload of 0x1000) and it answered
+    for node in (TR, VA):
+        reset = [f["t"] for f in tx if f["id"] == 0 and f["data"] == f"82{node:02x}"]
+        assert reset, f"no NMT reset communication of node {node}"
+        assert not [f for f in rx if f["id"] == 0x700 + node and f["data"] == "00"
+                    and f["t"] > reset[0]], "LocalNode unexpectedly sent a boot-up"
+        assert any(f["id"] == 0x600 + node and f["data"].startswith("40001000") for f in tx)
+        assert any(f["id"] == 0x580 + node and f["data"].startswith("43001000") for f in rx)
+    # SYNC counter (CiA 301 7.2.5): 0x1019 = 10 written to both nodes (SDO expedited download,
+    # 1 byte) while 0x1006 is 0 (read first: 0 on a fresh node, so not written), then 0x1006 =
+    # 1000 µs; SYNC k carries 1 + (k - 1) mod 10 (the priming SYNC is SYNC 1)
+    for node in (TR, VA):
+        writes = [f["data"].upper() for f in tx if f["id"] == 0x600 + node
+                  and f["data"][:2].upper() in ("2F", "23")]
+        assert "2F1910000A000000" in writes, writes
+        k19 = writes.index("2F1910000A000000")
+        assert "23061000E8030000" in writes[k19:], writes
+    counters = [int(f["data"], 16) for f in tx if f["id"] == 0x80]
+    assert counters == [1 + k % 10 for k in range(len(counters))], counters[:30]
+    # every SYNC the master sent reached the devices; every TPDO LocalNode sent is in the
+    # log but those answering the last SYNC (safe stop) after the master stopped listening
+    syncs = sum(1 for f in tx if f["id"] == 0x80)
+    assert dsum["syncs"] == syncs, (dsum["syncs"], syncs)
+    for cob in ("0x1A0", "0x1B0"):
+        logged = sum(1 for f in rx if f"0x{f['id']:03X}" == cob)
+        assert 0 <= dsum["tpdo_sent"][cob] - logged <= 1, (cob, dsum["tpdo_sent"], logged)
+    # closed loop: the piston settles at y_set = 0.6 m as in the in-process simulation
+    c = read_run(out)["control"]
+    settled = float(np.mean(c["position"][c["t"] > duration - 0.25]))
+    assert abs(settled - 0.6) < 0.010, settled
+    assert abs(settled - sim_final_position(duration, tmp_path)) < 0.002, settled
+
+
+def test_localnode_valve_fault_trips_within_two_sync_periods(tmp_path):
+    """An injected valve fault (FAULT_REACTION with EMCY 0x5000 at SYNC 1000) trips ehactl
+    within 2 SYNC periods, counted on the CAN log from the valve's EMCY frame to the safe
+    setpoint RPDO the trip sends; the valve ends in FAULT_HOLD at the hold setpoint 0."""
+    with hub() as (_, port), localnode_devices(port, tmp_path, "--fault", "emcy@1.0") as dev:
+        out = tmp_path / "f.mcap"
+        rc, summary, err = run_master(port, out, 3.0)
+        time.sleep(0.1)
+        dsum = dev.stop()
+    assert rc == 3, why(summary, err)
+    assert "EMCY" in json.dumps(summary["trip"]), summary["trip"]
+    assert dsum["emcy_sent"] == 1
+    frames = read_can(out)
+    emcy = [f["t"] for f in frames if f["dir"] == "rx" and f["id"] == 0x80 + VA]
+    assert emcy, "no EMCY on the bus"
+    safe = [f["t"] for f in frames if f["dir"] == "tx" and f["id"] == 0x200 + VA
+            and f["data"] == "0000" and f["t"] >= emcy[0]]
+    assert safe, "no safe setpoint after the EMCY"
+    n = syncs_between(frames, emcy[0], safe[0])
+    assert n <= 2, f"{n} SYNC periods from the EMCY to the trip; {why(summary, err)}"
+    # the trip event is logged (its time is loop time, a different clock from the bus stamps)
+    assert any("EMCY" in json.dumps(e) for e in read_run(out)["events"])
+    states = [e["state"] for e in dev.events("valve", "state")]
+    assert states[-2:] == ["FAULT_REACTION", "FAULT_HOLD"], states
+    assert dsum["valve_state"] == "FAULT_HOLD" and dsum["spool"] == 0.0, dsum
