@@ -15,8 +15,18 @@ Writes sjoberg/estimation.csv (samples 0–511) and sjoberg/validation.csv (512�
 UTFSM MTS press (0A.txt/1A.txt, 1 kHz, CHANNEL0 x_m ×10 mm, CHANNEL1 F ×9806.65 N, CHANNEL2 x_ref ×10 mm):
   u = K_p · (x_ref − x_m) with K_p = 2000 V/m (10 V at 5 mm error): the valve command of the MTS's
       proportional displacement loop, reconstructed because the file holds no valve signal (assumed P-only loop)
-  x = 0.05 m + x_m, ref = 0.05 m + x_ref (mid-stroke offset, m); the force channel is not used (see mts())
-  Segment 5–15 s of each file (0.4–2 Hz sweep part, 2 mm amplitude) decimated to 500 Hz.
+  x = 0.05 m + x_m, ref = 0.05 m + x_ref (mid-stroke offset, m)
+  force = 9806.65 N/V · CHANNEL1 − F_rest: the load-cell force on the rod in N, with the scale of the
+      source's own Preprocesamiento/sincronize.m ("Fuerza medida en N"); F_rest is the mean of the first
+      4000 samples (4 s at rest before either sweep starts: 0A.txt starts moving near sample 7700,
+      1A.txt near 5300), the zeroing at rest that sincronize.m also does (it subtracts a rest mean).
+      Sign: positive when the damper pushes against +x (it correlates positively with the
+      velocity, r = 0.70 at 0 A, 0.80 at 1 A), which is the plant's rod-force convention.
+  Segment 5–15 s of each file (0.4–2 Hz sweep part, 2 mm amplitude) decimated to 500 Hz
+  (every second sample, as in the earlier conversion, so x and ref are unchanged).
+Usage for the MTS part: python3 scripts/convert_measured.py ../shared/data/measured/utfsm-mts-servohydraulic-mrdamper
+Source files: 0A.txt sha256 7ac3fd85ba301805323fc8f20a967ff3e989babcbcd9719b9bf5aa9d734168d1,
+              1A.txt sha256 5c25dcda73680c3c793157edfc2c37411a7c5e264ce1b4c28fe227bf5f03ce1a.
 """
 import pathlib
 import sys
@@ -51,11 +61,13 @@ def mts(name, src_dir):
     xm = d[:, 0] * 10e-3
     f = d[:, 1] * 9806.65
     xr = d[:, 2] * 10e-3
+    f = f - f[:4000].mean()  # load-cell zero at rest (see the module doc)
     sl = slice(5000, 15000, 2)
     t = np.arange(len(xm))[sl] * 1e-3
-    # The load-cell force is not written: the plant's force output (spring + external load)
-    # cannot represent the damper force on the rod, so it would only add an unexplained channel.
-    write(ROOT / "utfsm_mts" / f"{name}_5to15s.csv", {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl]})
+    write(
+        ROOT / "utfsm_mts" / f"{name}_5to15s.csv",
+        {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl], "force": f[sl]},
+    )
 
 
 if __name__ == "__main__":

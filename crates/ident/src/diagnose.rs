@@ -56,6 +56,10 @@ pub struct Options {
     /// reported and added to the noise floor, so it is never blamed on an effect. Default
     /// [`crate::replay::DEFAULT_INTEGRATION_COST`].
     pub integration_max_cost: f64,
+    /// Run the grey-box extension ([`crate::greybox`]) when the catalogue is exhausted (the
+    /// held-out residual of the catalogue model is not noise). Off in the library default
+    /// (the synthetic suites measure the catalogue); on in `ehactl diagnose` and Python.
+    pub greybox: bool,
 }
 
 impl Default for Options {
@@ -71,6 +75,7 @@ impl Default for Options {
             max_fit_samples: 12_000,
             sensor_offsets: false,
             integration_max_cost: crate::replay::DEFAULT_INTEGRATION_COST,
+            greybox: false,
         }
     }
 }
@@ -133,6 +138,11 @@ pub struct Diagnosis {
     pub residual_test: crate::residual::ResidualTest,
     /// Replay accuracy: substeps chosen and the integration error left (step-halving test).
     pub integration: crate::replay::IntegrationCheck,
+    /// Grey-box extension (a rod-force law from a library of physical-state terms) when the
+    /// catalogue was exhausted; `None` when it did not run. When accepted, `extended`,
+    /// `extended_params` and the extended traces include it; `nrmse_extended` stays the
+    /// catalogue model's figure and `greybox.nrmse_validation` is the combined model's.
+    pub greybox: Option<crate::greybox::GreyBox>,
     /// 1 − overall_extended/overall_nominal (-).
     pub gain: f64,
     /// Estimated noise floor of the overall held-out NRMSE (-).
@@ -184,16 +194,16 @@ pub struct Traces {
 
 
 #[derive(Clone)]
-struct Hyp {
-    effects: Vec<EffectId>,
+pub(crate) struct Hyp {
+    pub(crate) effects: Vec<EffectId>,
     /// Structural variant of each effect in `effects` (`-` for effects with one form).
-    variants: Vec<&'static str>,
-    params: Vec<FreeParam>,
-    values: Vec<f64>,
+    pub(crate) variants: Vec<&'static str>,
+    pub(crate) params: Vec<FreeParam>,
+    pub(crate) values: Vec<f64>,
 }
 
 impl Hyp {
-    fn empty() -> Hyp {
+    pub(crate) fn empty() -> Hyp {
         Hyp {
             effects: vec![],
             variants: vec![],
@@ -202,7 +212,7 @@ impl Hyp {
         }
     }
 
-    fn build(&self, base: &PlantParams) -> PlantParams {
+    pub(crate) fn build(&self, base: &PlantParams) -> PlantParams {
         with_values(base, &self.params, &self.values)
     }
 }
@@ -216,7 +226,7 @@ fn with_values(base: &PlantParams, params: &[FreeParam], values: &[f64]) -> Plan
     p
 }
 
-struct Ctx<'a> {
+pub(crate) struct Ctx<'a> {
     fit_rec: &'a Record,
     fit_base: PlantParams,
     n_fit: usize,
@@ -230,6 +240,33 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
+    /// The same fit and held-out set-up with hypothesis `h` frozen into the base parameters
+    /// (used by [`crate::greybox`] to fit terms on top of the catalogue model).
+    pub(crate) fn frozen(&self, h: &Hyp) -> Ctx<'_> {
+        Ctx {
+            fit_rec: self.fit_rec,
+            fit_base: h.build(&self.fit_base),
+            n_fit: self.n_fit,
+            val_rec: self.val_rec,
+            val_base: h.build(&self.val_base),
+            val_range: self.val_range.clone(),
+            sd_fit: self.sd_fit.clone(),
+            drive: self.drive,
+            offsets: self.offsets,
+        }
+    }
+    /// Base parameters of the fit record.
+    pub(crate) fn fit_base_params(&self) -> &PlantParams {
+        &self.fit_base
+    }
+    /// Samples of the fit record in the fit cost.
+    pub(crate) fn n_fit(&self) -> usize {
+        self.n_fit
+    }
+    /// The fit record.
+    pub(crate) fn fit_rec(&self) -> &Record {
+        self.fit_rec
+    }
     /// The sensor offsets of model `p` on `rec` (per channel, SI), estimated on samples
     /// `0..n_off` together with the initial state they imply: the replay starts from the
     /// data's first samples less the offsets (a position transducer's zero error must not
@@ -283,7 +320,7 @@ impl Ctx<'_> {
     }
 
     /// Replay of the whole fit record with parameters `p` (offsets from the fitting part).
-    fn fit_replay(&self, p: &PlantParams) -> Result<Replay, String> {
+    pub(crate) fn fit_replay(&self, p: &PlantParams) -> Result<Replay, String> {
         self.replay_zeroed(p, self.fit_rec, self.fit_rec.len(), self.n_fit)
     }
 
@@ -329,7 +366,7 @@ impl Ctx<'_> {
 
     /// Held-out errors of hypothesis `h` and its replay of the validation record. Sensor
     /// offsets come from the fitting part only, never from the held-out samples.
-    fn val_errors(&self, h: &Hyp) -> (Errors, Replay) {
+    pub(crate) fn val_errors(&self, h: &Hyp) -> (Errors, Replay) {
         let n = self.val_rec.len();
         let failed = || Replay {
             y: vec![vec![0.0; n]; self.val_rec.channels.len()],
@@ -359,7 +396,7 @@ impl Ctx<'_> {
         (errors(self.val_rec, &sim, self.val_range.clone()), sim)
     }
 
-    fn fit(&self, mut h: Hyp, first_new: usize, evals_per_param: usize) -> (Hyp, f64) {
+    pub(crate) fn fit(&self, mut h: Hyp, first_new: usize, evals_per_param: usize) -> (Hyp, f64) {
         let at = |vals: &[f64]| with_values(&self.fit_base, &h.params, vals);
         let from_units = |u: &[f64]| -> Vec<f64> {
             h.params
@@ -747,6 +784,8 @@ fn phase_variants(
 /// What the candidate search hands on.
 struct SearchPhase {
     current: Hyp,
+    /// Fitting-part cost of `current`.
+    cur_train: f64,
     accepted: Vec<EffectId>,
     candidates: BTreeMap<EffectId, Candidate>,
     ambiguities: Vec<String>,
@@ -989,6 +1028,7 @@ fn phase_candidates(
     }
     SearchPhase {
         current,
+        cur_train,
         accepted,
         candidates,
         ambiguities,
@@ -1079,6 +1119,7 @@ fn phase_report(
     let ctx = &nom.ctx;
     let SearchPhase {
         current,
+        cur_train,
         accepted,
         candidates,
         ambiguities,
@@ -1101,6 +1142,33 @@ fn phase_report(
         BTreeMap::new()
     };
     let gain = 1.0 - ext_err.overall / nom.nom_err.overall;
+    // Grey-box extension when the catalogue is exhausted (fitting part only; scored once).
+    let mut final_hyp = current.clone();
+    let greybox = if opts.greybox && !residual_test.noise {
+        let (h, g) = crate::greybox::extend(
+            ctx,
+            &current,
+            cur_train,
+            &rf.scales,
+            nom.nrmse_baseline.overall,
+            opts.evals_per_param,
+        );
+        if let Some(h) = h {
+            final_hyp = h;
+        }
+        Some(g)
+    } else {
+        None
+    };
+    let (extended, ext_fit_sim, ext_val_sim) = if greybox.as_ref().is_some_and(|g| g.accepted) {
+        (
+            final_hyp.build(nominal),
+            ctx.fit_replay(&final_hyp.build(&ctx.fit_base)).ok(),
+            ctx.val_errors(&final_hyp).1,
+        )
+    } else {
+        (extended, ext_fit_sim, ext_val_sim)
+    };
     let mut cands: Vec<Candidate> = candidates.into_values().collect();
     cands.sort_by(|a, b| {
         b.accepted
@@ -1181,13 +1249,14 @@ fn phase_report(
         baseline: nom.baseline,
         residual_test,
         integration: nom.integration,
+        greybox,
         gain,
         noise_floor: rf.noise_floor,
         candidates: cands,
-        extended_params: current
+        extended_params: final_hyp
             .params
             .iter()
-            .zip(&current.values)
+            .zip(&final_hyp.values)
             .map(|(p, v)| (p.name.clone(), *v))
             .collect(),
         refit_at_bounds,

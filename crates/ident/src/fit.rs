@@ -12,7 +12,8 @@ use ehactl_plant::params::{
 use ehactl_plant::{EffectId, PlantParams};
 use std::sync::Arc;
 
-type Setter = Arc<dyn Fn(&mut PlantParams, f64) + Send + Sync>;
+/// Writes a free parameter's value into the plant parameters.
+pub type Setter = Arc<dyn Fn(&mut PlantParams, f64) + Send + Sync>;
 
 /// One free parameter: dotted config path, bounds (SI), scale, start value and how to set it.
 #[derive(Clone)]

@@ -8,7 +8,7 @@
 //!
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
 //! noise level), [`analysis`] (residual analysis, evidence), [`fit`] (free parameters, bounded
-//! Nelder–Mead), [`diagnose`] (the decision), [`report`] (JSON, extended config, Markdown),
+//! Nelder–Mead), [`diagnose`] (the decision), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
 //! [`session`] (one complete diagnosis as the CLI and Python run it).
 #![deny(missing_docs)]
 
@@ -17,6 +17,7 @@ pub mod baseline;
 pub mod data;
 pub mod diagnose;
 pub mod fit;
+pub mod greybox;
 pub mod indep;
 pub mod replay;
 pub mod report;

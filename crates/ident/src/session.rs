@@ -144,6 +144,8 @@ pub fn run(
         drive,
         // Replay accuracy is checked and reported (DIAGNOSIS.md "Replay accuracy").
         integration_max_cost: USER_INTEGRATION_COST,
+        // Grey-box extension when the catalogue is exhausted (DIAGNOSIS.md "Grey-box").
+        greybox: true,
         ..Options::default()
     };
     let d = diagnose(&cfg.plant, &rec, val.as_ref(), &opts).map_err(SessionError::Input)?;

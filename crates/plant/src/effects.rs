@@ -1,6 +1,7 @@
 //! The effect catalogue of DESIGN.md: stable ids shared by configs, diagnosis and tests.
 
 use crate::params::Effects;
+use serde::{Deserialize, Serialize};
 
 /// One effect of the catalogue.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -286,4 +287,320 @@ pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::sp
         }
     }
     Ok(())
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// `polynomial_force`: a force on the rod between piston and ground, written as a short
+/// sum of declared terms on physical states. It is what `ehactl diagnose` writes when it
+/// extends a model beyond the catalogue (grey-box extension, DIAGNOSIS.md), and it can also
+/// state a known load law in a nominal config (e.g. the Bingham model of an MR damper,
+/// Stanway et al. 1987: F = c₀·v + F_y·sign(v) + F₀, with F₀ the accumulator preload):
+///
+/// F = F₀ + c_v·v + F_c·tanh(v/v_s) + c_q·|v|·v + k·(x − x₀) + A_p·(p_a − p_b)
+///     + A_c·tanh(v/v_s)·|p_a − p_b|
+///
+/// F opposes +x on the piston and is carried by the rod, so a load cell sees it (it is added
+/// to the rod force). All coefficients default to 0 (term absent). The sign is smoothed by
+/// tanh with `smoothing_velocity` so that the velocity update can treat the term implicitly.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PolynomialForce {
+    /// Effect switch.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Constant force F₀ (N), e.g. the gas preload of a damper's accumulator.
+    #[serde(default)]
+    pub constant: f64,
+    /// Viscous coefficient c_v (N·s/m) of the term c_v·v.
+    #[serde(default)]
+    pub viscous: f64,
+    /// Coulomb / yield force F_c (N) of the term F_c·tanh(v/v_s).
+    #[serde(default)]
+    pub coulomb: f64,
+    /// Quadratic (turbulent) damping c_q (N·s²/m²) of the term c_q·|v|·v.
+    #[serde(default)]
+    pub quadratic: f64,
+    /// Stiffness k (N/m) of the term k·(x − x₀).
+    #[serde(default)]
+    pub stiffness: f64,
+    /// Position x₀ (m) at which the stiffness term is zero.
+    #[serde(default)]
+    pub origin: f64,
+    /// Area A_p (m²) of the term A_p·(p_a − p_b): a load-pressure force not in the nominal
+    /// areas (area error, pressure-loaded seal).
+    #[serde(default)]
+    pub pressure: f64,
+    /// Area A_c (m²) of the term A_c·tanh(v/v_s)·|p_a − p_b|: seal friction growing with
+    /// the load pressure (Coulomb force ∝ |Δp|).
+    #[serde(default)]
+    pub pressure_coulomb: f64,
+    /// Smoothing velocity v_s (m/s) of the sign terms.
+    #[serde(default = "PolynomialForce::default_vs")]
+    pub smoothing_velocity: f64,
+}
+
+impl PolynomialForce {
+    fn default_vs() -> f64 {
+        1e-3
+    }
+
+    /// A section with every term zero (the neutral element the diagnosis starts from).
+    pub fn zero() -> Self {
+        Self {
+            enabled: true,
+            constant: 0.0,
+            viscous: 0.0,
+            coulomb: 0.0,
+            quadratic: 0.0,
+            stiffness: 0.0,
+            origin: 0.0,
+            pressure: 0.0,
+            pressure_coulomb: 0.0,
+            smoothing_velocity: Self::default_vs(),
+        }
+    }
+
+    /// Force F (N, opposing +x) at position `x` (m), velocity `v` (m/s) and chamber
+    /// pressures `p_a`, `p_b` (Pa), and its derivative ∂F/∂v (N·s/m) for an implicit
+    /// velocity update.
+    #[inline]
+    pub fn force(&self, x: f64, v: f64, p_a: f64, p_b: f64) -> (f64, f64) {
+        let vs = self.smoothing_velocity.max(1e-12);
+        let th = (v / vs).tanh();
+        let dth = (1.0 - th * th) / vs;
+        let dp = p_a - p_b;
+        let f = self.constant
+            + self.viscous * v
+            + self.coulomb * th
+            + self.quadratic * v.abs() * v
+            + self.stiffness * (x - self.origin)
+            + self.pressure * dp
+            + self.pressure_coulomb * th * dp.abs();
+        let dfdv = self.viscous
+            + self.coulomb * dth
+            + 2.0 * self.quadratic * v.abs()
+            + self.pressure_coulomb * dth * dp.abs();
+        (f, dfdv)
+    }
+
+    /// The terms that are present, in words with their values and units (for reports).
+    pub fn describe(&self) -> Vec<String> {
+        let mut s = Vec::new();
+        let mut t = |c: f64, what: String| {
+            if c != 0.0 {
+                s.push(what);
+            }
+        };
+        t(
+            self.constant,
+            format!("constant force {:.4e} N", self.constant),
+        );
+        t(
+            self.viscous,
+            format!("viscous force {:.4e} N·s/m · v", self.viscous),
+        );
+        t(
+            self.coulomb,
+            format!(
+                "Coulomb/yield force {:.4e} N · sign(v) (smoothed over {:.1e} m/s)",
+                self.coulomb, self.smoothing_velocity
+            ),
+        );
+        t(
+            self.quadratic,
+            format!("quadratic damping {:.4e} N·s²/m² · |v|·v", self.quadratic),
+        );
+        t(
+            self.stiffness,
+            format!(
+                "stiffness {:.4e} N/m · (x − {:.4} m)",
+                self.stiffness, self.origin
+            ),
+        );
+        t(
+            self.pressure,
+            format!("load-pressure force {:.4e} m² · (p_a − p_b)", self.pressure),
+        );
+        t(
+            self.pressure_coulomb,
+            format!(
+                "pressure-dependent friction {:.4e} m² · sign(v)·|p_a − p_b|",
+                self.pressure_coulomb
+            ),
+        );
+        s
+    }
+}
+
+/// `polynomial_flow`: a flow from port B to port A (into chamber A, out of chamber B, m³/s)
+/// as a short sum of declared terms on the spool position x_v (fraction of travel), the
+/// flow-side counterpart of [`PolynomialForce`] for the grey-box extension of
+/// `ehactl diagnose`:
+///
+/// Q = q₀ + q_s·x_v + q_a·|x_v|
+///
+/// q₀ is a null-bias flow (a spool or torque-motor offset, or a bias in the drive
+/// electronics: ISO 10770-1 "null bias"), q_s a flow-gain error, q_a a direction asymmetry of
+/// the flow gain (different metering edges for A and B). All default to 0 (term absent).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PolynomialFlow {
+    /// Effect switch.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Null-bias flow q₀ (m³/s) from B to A.
+    #[serde(default)]
+    pub constant: f64,
+    /// Flow-gain error q_s (m³/s per unit spool travel) of the term q_s·x_v.
+    #[serde(default)]
+    pub spool: f64,
+    /// Direction asymmetry q_a (m³/s per unit spool travel) of the term q_a·|x_v|.
+    #[serde(default)]
+    pub spool_abs: f64,
+}
+
+impl PolynomialFlow {
+    /// A section with every term zero.
+    pub fn zero() -> Self {
+        Self {
+            enabled: true,
+            constant: 0.0,
+            spool: 0.0,
+            spool_abs: 0.0,
+        }
+    }
+
+    /// Flow Q (m³/s) from port B to port A at spool position `x_v` (fraction of travel).
+    #[inline]
+    pub fn flow(&self, x_v: f64) -> f64 {
+        self.constant + self.spool * x_v + self.spool_abs * x_v.abs()
+    }
+
+    /// The terms that are present, in words with their values and units (for reports).
+    pub fn describe(&self) -> Vec<String> {
+        let mut s = Vec::new();
+        if self.constant != 0.0 {
+            s.push(format!("null-bias flow {:.4e} m³/s", self.constant));
+        }
+        if self.spool != 0.0 {
+            s.push(format!("flow-gain error {:.4e} m³/s · x_v", self.spool));
+        }
+        if self.spool_abs != 0.0 {
+            s.push(format!(
+                "direction asymmetry {:.4e} m³/s · |x_v|",
+                self.spool_abs
+            ));
+        }
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::PlantParams;
+    use crate::Plant;
+
+    /// A closed critical-centre valve, a double-ended cylinder, no leakage: the only flow is
+    /// the null bias q₀, so in steady state (dp/dt = 0 in both chambers) the piston moves at
+    /// v = q₀/A (continuity), the chambers hold p_a − p_b = F/A (force balance on the
+    /// massive piston, a = 0) and the load cell reads F = c_v·v + F_c·tanh(v/v_s) + F₀.
+    #[test]
+    fn null_bias_flow_against_a_damper_closed_form() {
+        let area = 7.0e-4;
+        let (q0, cv, fc, f0, vs): (f64, f64, f64, f64, f64) = (3.5e-6, 2.0e4, 150.0, -40.0, 1e-3);
+        let toml = format!(
+            r#"
+            [fluid]
+            density = 870.0
+            bulk_modulus = 1.4e9
+            [supply]
+            pressure = 21.0e6
+            [valve]
+            command_full_scale = 10.0
+            flow_form = "kq"
+            rated_flow = 5.4e-5
+            rated_pressure_drop = 1.0e6
+            [cylinder]
+            area_a = {area}
+            area_b = {area}
+            dead_volume_a = 1.0e-4
+            dead_volume_b = 1.0e-4
+            stroke = 0.1
+            initial_position = 0.02
+            [mechanics]
+            mass = 10.0
+            end_stops = false
+            [effects.polynomial_force]
+            viscous = {cv}
+            coulomb = {fc}
+            constant = {f0}
+            smoothing_velocity = {vs}
+            [effects.polynomial_flow]
+            constant = {q0}
+            "#
+        );
+        let p: PlantParams = toml::from_str(&toml).unwrap();
+        let mut plant = Plant::configure(&p, 1e-3).unwrap();
+        for _ in 0..2000 {
+            plant.step(0.0).unwrap();
+        }
+        let s = *plant.state();
+        let v = q0 / area;
+        let f = cv * v + fc * (v / vs).tanh() + f0;
+        assert!(
+            (s.v - v).abs() < 1e-9 * v.max(1.0) + 1e-6 * v,
+            "v {} vs {v}",
+            s.v
+        );
+        assert!(
+            (s.rod_force - f).abs() < 1e-6 * f.abs(),
+            "F {} vs {f}",
+            s.rod_force
+        );
+        let dp = s.p_a - s.p_b;
+        assert!(
+            (dp - f / area).abs() < 1e-6 * (f / area).abs(),
+            "Δp {dp} vs {}",
+            f / area
+        );
+    }
+
+    /// Every term of the force law against its formula, and ∂F/∂v against a central
+    /// difference.
+    #[test]
+    fn force_terms_and_derivative() {
+        let f = PolynomialForce {
+            constant: 10.0,
+            viscous: 300.0,
+            coulomb: 50.0,
+            quadratic: 2.0e3,
+            stiffness: 1.0e4,
+            origin: 0.05,
+            pressure: 1e-5,
+            pressure_coulomb: 2e-6,
+            smoothing_velocity: 2e-3,
+            ..PolynomialForce::zero()
+        };
+        let (x, v, pa, pb) = (0.06, -0.004, 5.0e6, 2.0e6);
+        let th = (v / 2e-3_f64).tanh();
+        let want = 10.0
+            + 300.0 * v
+            + 50.0 * th
+            + 2.0e3 * v.abs() * v
+            + 1.0e4 * 0.01
+            + 1e-5 * 3.0e6
+            + 2e-6 * th * 3.0e6;
+        let (got, d) = f.force(x, v, pa, pb);
+        assert!(
+            (got - want).abs() < 1e-12 * want.abs().max(1.0),
+            "{got} vs {want}"
+        );
+        let h = 1e-7;
+        let num = (f.force(x, v + h, pa, pb).0 - f.force(x, v - h, pa, pb).0) / (2.0 * h);
+        assert!((d - num).abs() < 1e-5 * num.abs(), "{d} vs {num}");
+    }
 }

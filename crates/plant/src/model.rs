@@ -106,6 +106,10 @@ pub struct Plant {
     edges: EdgeLaw,
     spool_model: SpoolModel,
     friction: Option<FrictionModel>,
+    /// `polynomial_force` on the rod ([`crate::effects::PolynomialForce`]).
+    poly: Option<crate::effects::PolynomialForce>,
+    /// `polynomial_flow` B→A ([`crate::effects::PolynomialFlow`]).
+    poly_flow: Option<crate::effects::PolynomialFlow>,
     excitation: ExcitationModel,
     sensors: SensorModel,
     lines: Option<(Line, Line)>,
@@ -428,6 +432,8 @@ impl Plant {
                 .as_ref()
                 .filter(|f| f.enabled)
                 .map(FrictionModel::new),
+            poly: e.polynomial_force.filter(|f| f.enabled),
+            poly_flow: e.polynomial_flow.filter(|f| f.enabled),
             excitation: ExcitationModel::new(&params.excitation),
             sensors: SensorModel::new(&params.sensors, e.sensor_tone.as_ref()),
             lines,
@@ -453,7 +459,8 @@ impl Plant {
         let cyl = &self.params.cylinder;
         let x0 = cyl.initial_position;
         let f_ext0 = self.excitation.force(0.0);
-        let f_load0 = f_ext0 + c.k_load * (x0 - c.x_contact);
+        let f_poly0 = self.poly.map_or(0.0, |f| f.force(x0, 0.0, 0.0, 0.0).0);
+        let f_load0 = f_ext0 + c.k_load * (x0 - c.x_contact) + f_poly0;
         // 003 eq. 14 with α = A₂/A₁ and p_L = F/A₁.
         let alpha = c.a_b / c.a_a;
         let p_l = f_load0 / c.a_a;
@@ -704,7 +711,8 @@ impl Plant {
             + match c.mount {
                 Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
                 None => s.external,
-            };
+            }
+            + self.poly.map_or(0.0, |f| f.force(s.x, s.v, s.p_a, s.p_b).0);
     }
 
     /// Sample the sensors at the current state.
@@ -792,7 +800,8 @@ impl Plant {
         let (va, vb) = self.volumes(s.x);
         let beta_a = self.bulk_modulus(s.p_a);
         let beta_b = self.bulk_modulus(s.p_b);
-        let q_in = c.k_in * (s.p_a - s.p_b);
+        // Internal leakage less the grey-box B→A flow (crate::effects::PolynomialFlow).
+        let q_in = c.k_in * (s.p_a - s.p_b) - self.poly_flow.map_or(0.0, |f| f.flow(s.spool));
         let (q_sa, q_sb);
         match self.lines.as_mut() {
             None => {
@@ -905,17 +914,25 @@ impl Plant {
         } else {
             f_ext
         };
-        let mut f_other = f_hyd - f_spring - f_mount - f_on_piston_ext;
+        // Rod force law, linearly implicit in v (stable for a stiff damper or smoothed sign).
+        let (f_poly, df_poly) = self
+            .poly
+            .map_or((0.0, 0.0), |f| f.force(s.x, s.v, s.p_a, s.p_b));
+        let df_poly = df_poly.max(0.0); // a falling branch stays explicit
+        let mut f_other = f_hyd - f_spring - f_mount - f_on_piston_ext - f_poly + df_poly * s.v;
         if c.body_mount {
             // Compliant cylinder mount: the body takes the reaction of the oil, seal and
             // viscous forces; x, v are relative to it, the load spring sees x + x_body.
             let mb = c.mount.unwrap_or((1.0, 0.0, 0.0));
             let f_rel = f_hyd - c.damping * s.v - s.friction;
-            let a_body = crate::effects::body_mount_step(&mut s.x_load, &mut s.v_load, f_rel, mb, h);
-            f_other = f_hyd - c.k_load * (s.x + s.x_load - c.x_contact) - f_ext - c.mass * a_body;
+            let a_body =
+                crate::effects::body_mount_step(&mut s.x_load, &mut s.v_load, f_rel, mb, h);
+            f_other = f_hyd - c.k_load * (s.x + s.x_load - c.x_contact) - f_ext - c.mass * a_body
+                - f_poly
+                + df_poly * s.v;
         }
         let d_mount = if c.body_mount { 0.0 } else { d_mount };
-        let m_eff = c.mass + h * (c.damping + d_mount);
+        let m_eff = c.mass + h * (c.damping + d_mount + df_poly);
         let v_free = (c.mass * s.v + h * f_other) / m_eff;
         let (v_new, f_fric, stuck) = match &self.friction {
             Some(fm) => fm.project(s.v, v_free, m_eff, h),
@@ -952,7 +969,7 @@ impl Plant {
                     Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
                     None => f_ext,
                 }
-        };
+        } + self.poly.map_or(0.0, |f| f.force(s.x, s.v, s.p_a, s.p_b).0);
         self.state = s;
     }
 }

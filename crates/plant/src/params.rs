@@ -632,6 +632,15 @@ pub struct Effects {
     /// (see [`crate::cbv`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub counterbalance_valve: Option<crate::cbv::CounterbalanceValve>,
+    /// `polynomial_force`: a force law on the rod as a sum of declared terms, the grey-box
+    /// extension of `ehactl diagnose` (not a catalogue effect, see
+    /// [`crate::effects::PolynomialForce`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub polynomial_force: Option<crate::effects::PolynomialForce>,
+    /// `polynomial_flow`: a B→A flow law as a sum of declared spool terms, the flow-side
+    /// grey-box extension (see [`crate::effects::PolynomialFlow`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub polynomial_flow: Option<crate::effects::PolynomialFlow>,
 }
 
 /// Load-cell model.

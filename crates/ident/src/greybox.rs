@@ -1,0 +1,513 @@
+//! Grey-box extension when the catalogue is exhausted: a short force law on the rod, selected
+//! term by term from a library of physical-state terms, fitted on the fitting part only and
+//! scored once on the held-out part.
+//!
+//! Library (the terms of `[effects.polynomial_force]`, [`ehactl_plant::effects::PolynomialForce`]):
+//! constant F₀, viscous c_v·v, Coulomb/yield F_c·sign(v), quadratic c_q·|v|·v, stiffness
+//! k·(x − x₀), load-pressure A_p·(p_a − p_b) and pressure-dependent friction
+//! A_c·sign(v)·|p_a − p_b|. Because every term is a field of the plant config, the extended
+//! config stays runnable by `ehactl run` and the Python bindings.
+//!
+//! Selection: forward stepwise sparse regression in output error (the free-run simulation
+//! error, not the one-step equation error of SINDy's sequentially thresholded least squares,
+//! Brunton et al., PNAS 113(15):3932–3937, 2016: on a closed-loop rig with unmeasured
+//! velocity and pressures the equation error cannot be formed without differentiating noisy
+//! signals, and a free-run error is what the held-out score measures). Each round fits every
+//! remaining term on top of the model so far (terms in parallel, the catalogue model frozen),
+//! keeps the one that lowers the fitting-part cost J (mean NRMSE²) most if it lowers it by at
+//! least [`MIN_REL_GAIN`] (the threshold that keeps the law sparse), and stops after
+//! [`MAX_TERMS`] terms. The held-out part never enters a choice: it is scored once at the end.
+//! When the record has a force channel, each term starts from the least-squares coefficient of
+//! the force residual on that term (the equation-error estimate), computed on the fitting part.
+
+use crate::data::ChannelKind;
+use crate::diagnose::{Ctx, Errors, Hyp};
+use crate::fit::{FreeParam, Scales};
+use ehactl_plant::effects::{PolynomialFlow, PolynomialForce};
+use ehactl_plant::PlantParams;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::sync::Arc;
+
+/// At most this many library terms are selected (-).
+pub const MAX_TERMS: usize = 4;
+/// A term is selected only if it lowers the fitting-part cost J by at least this fraction (-).
+pub const MIN_REL_GAIN: f64 = 0.05;
+
+/// One selected term.
+#[derive(Debug, Clone, Serialize)]
+pub struct Term {
+    /// Config path of the coefficient (`effects.polynomial_force.<field>`).
+    pub path: String,
+    /// Fitted coefficient (SI, see `unit`).
+    pub value: f64,
+    /// Unit of the coefficient.
+    pub unit: String,
+    /// The term in physical words.
+    pub physics: String,
+    /// Fitting-part overall NRMSE after this term was added (-).
+    pub nrmse_train: f64,
+}
+
+/// Result of the grey-box extension.
+#[derive(Debug, Clone, Serialize)]
+pub struct GreyBox {
+    /// The force law in words (the selected terms).
+    pub structure: String,
+    /// Selected terms in order of selection.
+    pub terms: Vec<Term>,
+    /// Fitting-part overall NRMSE before the extension (catalogue model) (-).
+    pub nrmse_train_before: f64,
+    /// Fitting-part overall NRMSE with the selected terms (-).
+    pub nrmse_train: f64,
+    /// Held-out NRMSE of catalogue model + grey-box law (per channel and overall) (-).
+    pub nrmse_validation: Errors,
+    /// Held-out overall NRMSE / ARX baseline overall NRMSE (-).
+    pub ratio_to_baseline: f64,
+    /// Whether at least one term was selected (the extended config then carries
+    /// `[effects.polynomial_force]`).
+    pub accepted: bool,
+    /// Selection log: each round's best candidate and its fitting-part cost.
+    pub selection: Vec<String>,
+}
+
+/// A library entry: section, field name, unit, physics and coefficient bound.
+struct Lib {
+    /// `polynomial_force` or `polynomial_flow`.
+    section: &'static str,
+    field: &'static str,
+    unit: &'static str,
+    physics: &'static str,
+    bound: f64,
+    /// Regressor for the least-squares start (force records): f(x, v) or None.
+    feature: Option<fn(f64, f64, &PolynomialForce) -> f64>,
+}
+
+fn set_flow(f: &mut PolynomialFlow, field: &str, v: f64) {
+    match field {
+        "constant" => f.constant = v,
+        "spool" => f.spool = v,
+        "spool_abs" => f.spool_abs = v,
+        _ => {}
+    }
+}
+
+fn set_field(f: &mut PolynomialForce, field: &str, v: f64) {
+    match field {
+        "constant" => f.constant = v,
+        "viscous" => f.viscous = v,
+        "coulomb" => f.coulomb = v,
+        "quadratic" => f.quadratic = v,
+        "stiffness" => f.stiffness = v,
+        "pressure" => f.pressure = v,
+        "pressure_coulomb" => f.pressure_coulomb = v,
+        _ => {}
+    }
+}
+
+fn get_field(f: &PolynomialForce, field: &str) -> f64 {
+    match field {
+        "constant" => f.constant,
+        "viscous" => f.viscous,
+        "coulomb" => f.coulomb,
+        "quadratic" => f.quadratic,
+        "stiffness" => f.stiffness,
+        "pressure" => f.pressure,
+        "pressure_coulomb" => f.pressure_coulomb,
+        _ => 0.0,
+    }
+}
+
+/// Robust velocity scale of a trace: the 99th percentile of |v| (m/s).
+fn v_scale(v: &[f64]) -> f64 {
+    let mut a: Vec<f64> = v
+        .iter()
+        .map(|x| x.abs())
+        .filter(|x| x.is_finite())
+        .collect();
+    if a.is_empty() {
+        return 0.0;
+    }
+    a.sort_by(f64::total_cmp);
+    a[((a.len() - 1) as f64 * 0.99) as usize]
+}
+
+/// Run the grey-box extension on top of hypothesis `current` (whose fitting-part cost is
+/// `cur_train`). Returns the extended hypothesis when a term was selected, and the report.
+/// `baseline` is the ARX baseline's held-out overall NRMSE.
+pub(crate) fn extend(
+    ctx: &Ctx,
+    current: &Hyp,
+    cur_train: f64,
+    scales: &Scales,
+    baseline: f64,
+    evals_per_param: usize,
+) -> (Option<Hyp>, GreyBox) {
+    // The catalogue model is frozen: the library terms are fitted on top of it.
+    let frozen = ctx.frozen(current);
+    let base_fit = frozen.fit_base_params().clone();
+    let sim = frozen.fit_replay(&base_fit).ok();
+    let vr = sim
+        .as_ref()
+        .map(|s| v_scale(&s.v[..frozen.n_fit().min(s.v.len())]))
+        .unwrap_or(0.0);
+    let vr = if vr > 0.0 { vr } else { 1e-2 };
+    let fs = scales.force.max(1e-9);
+    let area = base_fit.cylinder.area_a;
+    let prior = base_fit
+        .effects
+        .polynomial_force
+        .unwrap_or_else(PolynomialForce::zero);
+    // Sign smoothing at 2 % of the velocity scale; stiffness origin at the data's mean position.
+    let vs = if base_fit.effects.polynomial_force.is_some() {
+        prior.smoothing_velocity
+    } else {
+        0.02 * vr
+    };
+    let rec = frozen.fit_rec();
+    let n_fit = frozen.n_fit();
+    let origin = if base_fit.effects.polynomial_force.is_some() {
+        prior.origin
+    } else {
+        rec.channel(ChannelKind::Position)
+            .map(|x| x[..n_fit].iter().sum::<f64>() / n_fit as f64)
+            .unwrap_or(base_fit.cylinder.initial_position)
+    };
+    let lib = [
+        Lib {
+            section: "polynomial_force",
+            field: "constant",
+            unit: "N",
+            physics: "constant force (preload)",
+            bound: 0.2 * fs,
+            feature: Some(|_, _, _| 1.0),
+        },
+        Lib {
+            section: "polynomial_force",
+            field: "viscous",
+            unit: "N·s/m",
+            physics: "viscous force ∝ v",
+            bound: 0.3 * fs / vr,
+            feature: Some(|_, v, _| v),
+        },
+        Lib {
+            section: "polynomial_force",
+            field: "coulomb",
+            unit: "N",
+            physics: "Coulomb/yield force ∝ sign(v)",
+            bound: 0.2 * fs,
+            feature: Some(|_, v, f| (v / f.smoothing_velocity).tanh()),
+        },
+        Lib {
+            section: "polynomial_force",
+            field: "quadratic",
+            unit: "N·s²/m²",
+            physics: "quadratic damping ∝ |v|·v",
+            bound: 0.3 * fs / (vr * vr),
+            feature: Some(|_, v, _| v.abs() * v),
+        },
+        Lib {
+            section: "polynomial_force",
+            field: "stiffness",
+            unit: "N/m",
+            physics: "stiffness ∝ (x − x₀)",
+            bound: 0.5 * scales.stiffness.max(fs / base_fit.cylinder.stroke),
+            feature: Some(|x, _, f| x - f.origin),
+        },
+        Lib {
+            section: "polynomial_force",
+            field: "pressure",
+            unit: "m²",
+            physics: "load-pressure force ∝ (p_a − p_b)",
+            bound: 0.3 * area,
+            feature: None,
+        },
+        Lib {
+            section: "polynomial_force",
+            field: "pressure_coulomb",
+            unit: "m²",
+            physics: "pressure-dependent friction ∝ sign(v)·|p_a − p_b|",
+            bound: 0.3 * area,
+            feature: None,
+        },
+        Lib {
+            section: "polynomial_flow",
+            field: "constant",
+            unit: "m³/s",
+            physics: "valve null-bias flow (B→A)",
+            bound: 0.2 * scales.flow,
+            feature: None,
+        },
+        Lib {
+            section: "polynomial_flow",
+            field: "spool",
+            unit: "m³/s",
+            physics: "flow-gain error ∝ x_v",
+            bound: 0.5 * scales.flow,
+            feature: None,
+        },
+        Lib {
+            section: "polynomial_flow",
+            field: "spool_abs",
+            unit: "m³/s",
+            physics: "flow-gain direction asymmetry ∝ |x_v|",
+            bound: 0.5 * scales.flow,
+            feature: None,
+        },
+    ];
+    let mut start = prior;
+    start.enabled = true;
+    start.smoothing_velocity = vs;
+    start.origin = origin;
+    // Force residual of the frozen model on the fitting part (equation-error starts).
+    let force_resid: Option<(Vec<f64>, Vec<f64>, Vec<f64>)> = (|| {
+        let s = sim.as_ref()?;
+        let fc = rec
+            .channels
+            .iter()
+            .position(|c| c.kind == ChannelKind::Force)?;
+        let xs: Vec<f64> = match rec
+            .channels
+            .iter()
+            .position(|c| c.kind == ChannelKind::Position)
+        {
+            Some(i) => s.y[i][..n_fit].to_vec(),
+            None => vec![origin; n_fit],
+        };
+        let r: Vec<f64> = rec.channels[fc].values[..n_fit]
+            .iter()
+            .zip(&s.y[fc][..n_fit])
+            .map(|(a, b)| a - b)
+            .collect();
+        Some((r, xs, s.v[..n_fit].to_vec()))
+    })();
+    let prior_flow = base_fit.effects.polynomial_flow;
+    let make_param = |l: &Lib, init: f64| -> FreeParam {
+        let p0 = if l.section == "polynomial_force" {
+            get_field(&prior, l.field)
+        } else {
+            prior_flow.map_or(0.0, |f| match l.field {
+                "constant" => f.constant,
+                "spool" => f.spool,
+                _ => f.spool_abs,
+            })
+        };
+        let b = l.bound.max(2.0 * p0.abs());
+        let field = l.field;
+        let st = start;
+        let set: crate::fit::Setter = if l.section == "polynomial_force" {
+            Arc::new(move |p: &mut PlantParams, v| {
+                let f = p.effects.polynomial_force.get_or_insert(st);
+                f.enabled = true;
+                f.smoothing_velocity = st.smoothing_velocity;
+                f.origin = st.origin;
+                set_field(f, field, v);
+            })
+        } else {
+            Arc::new(move |p: &mut PlantParams, v| {
+                let f = p
+                    .effects
+                    .polynomial_flow
+                    .get_or_insert_with(PolynomialFlow::zero);
+                f.enabled = true;
+                set_flow(f, field, v);
+            })
+        };
+        FreeParam {
+            name: format!("effects.{}.{field}", l.section),
+            lo: -b,
+            hi: b,
+            log: false,
+            init: (p0 + init).clamp(-b, b),
+            set,
+        }
+    };
+    // Per-channel fitting-part cost (NRMSE² per channel) of parameters `p`.
+    let sd: Vec<f64> = rec
+        .channels
+        .iter()
+        .map(|c| crate::replay::std(&c.values[..n_fit]).max(1e-300))
+        .collect();
+    let channel_costs = |p: &PlantParams| -> Vec<f64> {
+        match frozen.fit_replay(p) {
+            Ok(s) if !s.failed => rec
+                .channels
+                .iter()
+                .zip(&s.y)
+                .zip(&sd)
+                .map(|((c, y), sd)| {
+                    c.values[..n_fit]
+                        .iter()
+                        .zip(y)
+                        .map(|(a, b)| (a - b) * (a - b))
+                        .sum::<f64>()
+                        / n_fit as f64
+                        / (sd * sd)
+                })
+                .collect(),
+            _ => vec![1e6; rec.channels.len()],
+        }
+    };
+    // Selection criterion: mean over channels of ln J_c (the negative log-likelihood of
+    // Gaussian errors with an unknown variance per channel, up to constants), so a term that
+    // fixes a small channel counts as much as one that fixes a large one.
+    let log_cost = |jc: &[f64]| -> f64 {
+        jc.iter().map(|j| j.max(1e-300).ln()).sum::<f64>() / jc.len().max(1) as f64
+    };
+    let ls_start = |l: &Lib, resid: &[f64]| -> f64 {
+        let (Some(feat), Some((_, xs, v))) = (l.feature, force_resid.as_ref()) else {
+            return 0.0;
+        };
+        let (mut num, mut den) = (0.0, 0.0);
+        for ((r, x), v) in resid.iter().zip(xs).zip(v) {
+            let phi = feat(*x, *v, &start);
+            num += phi * r;
+            den += phi * phi;
+        }
+        if den > 0.0 {
+            num / den
+        } else {
+            0.0
+        }
+    };
+    let mut h = Hyp {
+        effects: vec![],
+        variants: vec![],
+        params: vec![],
+        values: vec![],
+    };
+    let mut j_cur = cur_train;
+    let mut l_cur = log_cost(&channel_costs(&base_fit));
+    let mut terms: Vec<Term> = Vec::new();
+    let mut selection = Vec::new();
+    let mut used: Vec<(&'static str, &'static str)> = Vec::new();
+    let mut resid = force_resid
+        .as_ref()
+        .map(|r| r.0.clone())
+        .unwrap_or_default();
+    for _round in 0..MAX_TERMS {
+        let cands: Vec<&Lib> = lib
+            .iter()
+            .filter(|l| !used.contains(&(l.section, l.field)))
+            .collect();
+        let results: Vec<(usize, Hyp, f64, f64)> = cands
+            .par_iter()
+            .enumerate()
+            .map(|(i, l)| {
+                let mut hh = h.clone();
+                let fp = make_param(l, ls_start(l, &resid));
+                hh.values.push(fp.init);
+                hh.params.push(fp);
+                let first_new = hh.params.len() - 1;
+                let (hh, c) = frozen.fit(hh, first_new, evals_per_param);
+                let lc = log_cost(&channel_costs(&hh.build(&base_fit)));
+                (i, hh, c, lc)
+            })
+            .collect();
+        let Some((i, hb, cb, lb)) = results
+            .into_iter()
+            .filter(|r| r.2 <= j_cur)
+            .min_by(|a, b| a.3.total_cmp(&b.3))
+        else {
+            break;
+        };
+        let l = cands[i];
+        // Geometric-mean reduction of the per-channel fitting-part cost.
+        let gain = 1.0 - (lb - l_cur).exp();
+        selection.push(format!(
+            "round {}: best {}.{} ({}): fitting-part NRMSE {:.4} → {:.4}, geometric mean of the per-channel J −{:.1} %{}",
+            terms.len() + 1,
+            l.section,
+            l.field,
+            l.physics,
+            j_cur.sqrt(),
+            cb.sqrt(),
+            100.0 * gain,
+            if gain >= MIN_REL_GAIN { "" } else { " — below the threshold, stop" }
+        ));
+        if gain < MIN_REL_GAIN {
+            break;
+        }
+        used.push((l.section, l.field));
+        h = hb;
+        j_cur = cb;
+        l_cur = lb;
+        let value = *h.values.last().unwrap_or(&0.0);
+        terms.push(Term {
+            path: format!("effects.{}.{}", l.section, l.field),
+            value,
+            unit: l.unit.to_string(),
+            physics: l.physics.to_string(),
+            nrmse_train: cb.sqrt(),
+        });
+        // Force residual after this term (for the next starts).
+        if force_resid.is_some() {
+            let p = h.build(&base_fit);
+            if let Ok(s) = frozen.fit_replay(&p) {
+                if let Some(fc) = rec
+                    .channels
+                    .iter()
+                    .position(|c| c.kind == ChannelKind::Force)
+                {
+                    resid = rec.channels[fc].values[..n_fit]
+                        .iter()
+                        .zip(&s.y[fc][..n_fit])
+                        .map(|(a, b)| a - b)
+                        .collect();
+                }
+            }
+        }
+    }
+    // Final values of every selected term (the last joint fit moved the earlier ones too).
+    for t in terms.iter_mut() {
+        if let Some(k) = h.params.iter().position(|p| p.name == t.path) {
+            t.value = h.values[k];
+        }
+    }
+    let accepted = !terms.is_empty();
+    let (val, _) = frozen.val_errors(&h);
+    let structure = if accepted {
+        let p = h.build(&base_fit);
+        let mut parts = Vec::new();
+        if let Some(f) = p
+            .effects
+            .polynomial_force
+            .filter(|_| terms.iter().any(|t| t.path.contains("force")))
+        {
+            parts.push(format!(
+                "rod force law (opposing +x, seen by the load cell) = {}",
+                f.describe().join(" + ")
+            ));
+        }
+        if let Some(f) = p
+            .effects
+            .polynomial_flow
+            .filter(|_| terms.iter().any(|t| t.path.contains("flow")))
+        {
+            parts.push(format!("B→A flow law = {}", f.describe().join(" + ")));
+        }
+        parts.join("; ")
+    } else {
+        "no library term lowered the fitting-part error (geometric mean over channels) by ≥ 5 %"
+            .to_string()
+    };
+    let ratio = val.overall / baseline;
+    let report = GreyBox {
+        structure,
+        terms,
+        nrmse_train_before: cur_train.sqrt(),
+        nrmse_train: j_cur.sqrt(),
+        nrmse_validation: val,
+        ratio_to_baseline: ratio,
+        accepted,
+        selection,
+    };
+    if !accepted {
+        return (None, report);
+    }
+    // Combine: the catalogue hypothesis plus the grey-box parameters.
+    let mut out = current.clone();
+    out.params.extend(h.params);
+    out.values.extend(h.values);
+    (Some(out), report)
+}
