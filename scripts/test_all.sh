@@ -10,13 +10,15 @@ echo "== SocketCAN transport (feature build; this machine has no AF_CAN, so only
 cargo build --release -p ehactl-canopen --features socketcan
 echo "== Rust tests"
 cargo test --release --workspace
-echo "== cross-build for aarch64 (DEPLOY.md; skipped with a message if the toolchain cannot be installed)"
-scripts/cross_build.sh aarch64-unknown-linux-gnu
+echo "== cross-build for aarch64 and armv7 (DEPLOY.md; skipped with a message if the toolchain cannot be installed)"
+scripts/cross_build.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
 echo "== Python test dependencies"
 python3 -m pip install --quiet -r tests/python/requirements.txt
 if command -v npm >/dev/null; then
   (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; })
 fi
+echo "== cross-built binaries run under qemu user-mode emulation (apt: qemu-user, libc6-arm64-cross, libc6-armhf-cross; same run as native)"
+scripts/qemu_run.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
 echo "== Python bindings for the simulated CANopen devices (python -m ehactl.devices)"
 python3 -m pip install --quiet "./bindings/python[devices]"
 echo "== Python tests"

@@ -93,6 +93,7 @@ TIMING_FIELDS: tuple[str, ...] = (
     "exec_prev_us",
     "skipped",
     "overrun",
+    "overrun_exec",
 )
 
 CDR_TOPICS = {

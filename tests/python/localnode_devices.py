@@ -195,6 +195,13 @@ class Rig:
             off += nb
 
     def _on_sync(self, can_id, data, ts):
+        try:
+            self._sync(ts)
+        except Exception as e:  # logged, so that a failing test says why
+            self.log("rig", "sync-error", why=repr(e), sync=self.syncs)
+            raise
+
+    def _sync(self, ts):
         with self.lock:
             self.syncs += 1
             if self._last_sync is not None:

@@ -168,7 +168,7 @@ def test_localnode_valve_fault_trips_within_two_sync_periods(tmp_path):
         time.sleep(0.1)
         dsum = dev.stop()
     assert rc == 3, why(summary, err)
-    assert "EMCY" in json.dumps(summary["trip"]), summary["trip"]
+    assert "EMCY" in json.dumps(summary["trip"]), (summary["trip"], dsum, dev.events()[-5:])
     assert dsum["emcy_sent"] == 1
     frames = read_can(out)
     emcy = [f["t"] for f in frames if f["dir"] == "rx" and f["id"] == 0x80 + VA]

@@ -40,7 +40,13 @@ TIMING_KEYS = (
     "period_p50_us",
     "period_p99_us",
     "period_max_us",
+    "exec_p50_us",
+    "exec_p99_us",
+    "exec_p999_us",
+    "exec_max_us",
     "overruns",
+    "overruns_exec",
+    "overruns_wakeup",
     "longest_overrun_streak",
     "skipped_deadlines",
 )
@@ -86,6 +92,17 @@ def assert_timing_consistent(run: dict, js: dict, n: int) -> None:
     exact_p50 = float(np.quantile(tm["period_us"][1:], 0.5, method="inverted_cdf"))
     assert exact_p50 - 1e-6 <= js["period_p50_us"] <= exact_p50 * (1 + 1 / 256) + 1e-3
     assert js["longest_overrun_streak"] <= js["overruns"]
+    # The overrun split (issue 16): our execution vs a late start, per cycle and in total.
+    assert js["overruns_exec"] + js["overruns_wakeup"] == js["overruns"]
+    assert int(tm["overrun_exec"].sum()) == js["overruns_exec"]
+    assert not np.any(tm["overrun_exec"] & ~tm["overrun"]), "overrun_exec without an overrun"
+    period_us = 1e6 / RATE_HZ
+    over = tm["overrun"]
+    np.testing.assert_array_equal(tm["overrun_exec"][over], tm["exec_prev_us"][over] > period_us)
+    exec_us = tm["exec_prev_us"][1:]
+    exact_exec_p99 = float(np.quantile(exec_us, 0.99, method="inverted_cdf"))
+    assert exact_exec_p99 - 1e-6 <= js["exec_p99_us"] <= exact_exec_p99 * (1 + 1 / 256) + 1e-3
+    assert js["exec_max_us"] == pytest.approx(float(exec_us.max()), abs=1e-6)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])

@@ -36,6 +36,8 @@ fn _ehactl(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(runs::record_fields, m)?)?;
     m.add_function(wrap_pyfunction!(mcapread::read_mcap_raw, m)?)?;
     m.add_function(wrap_pyfunction!(linear::linear_plant_response, m)?)?;
+    m.add_function(wrap_pyfunction!(linear::controller_response, m)?)?;
+    m.add_function(wrap_pyfunction!(linear::sampled_margins, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::analyze_json, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::sweep_json, m)?)?;
     m.add_function(wrap_pyfunction!(diagnose::diagnose_json, m)?)?;

@@ -80,3 +80,61 @@ pub fn linear_plant_response<'py>(
     info.set_item("states", n)?;
     Ok((re, im, info))
 }
+
+/// Discrete controller response C(e^{jωT}) of `cfg`'s law (`ehactl-analysis`
+/// `loopshape::Law`, the exact discrete PI / PD of the loop) at `f_hz` (Hz): (real parts,
+/// imaginary parts) in V/N (force) or V/m (position). ValueError in open loop.
+#[pyfunction]
+pub fn controller_response(cfg: &Config, f_hz: Vec<f64>) -> PyResult<(Vec<f64>, Vec<f64>)> {
+    let law = Law::from_config(&cfg.cfg).ok_or_else(|| {
+        PyValueError::new_err("controller_response: open_loop mode has no controller")
+    })?;
+    let dt = cfg.cfg.timebase().period();
+    Ok(f_hz
+        .iter()
+        .map(|&f| {
+            let c = law.eval(nalgebra::Complex::from_polar(1.0, TAU * f * dt), Some(dt));
+            (c.re, c.im)
+        })
+        .unzip())
+}
+
+/// Margins of a loop L sampled at `f_hz` (Hz, increasing) given as real and imaginary
+/// parts (`ehactl-analysis` `loopshape::sampled_margins`): dict with crossover_hz,
+/// phase_margin_deg, phase_crossover_hz, gain_margin_db, bandwidth_hz, peak_closed_db
+/// (NaN where no crossing lies in the grid).
+#[pyfunction]
+pub fn sampled_margins<'py>(
+    py: Python<'py>,
+    f_hz: Vec<f64>,
+    re: Vec<f64>,
+    im: Vec<f64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    if f_hz.len() != re.len() || re.len() != im.len() {
+        return Err(PyValueError::new_err(format!(
+            "sampled_margins: {} frequencies but {} real and {} imaginary parts; expected one of each per frequency",
+            f_hz.len(),
+            re.len(),
+            im.len()
+        )));
+    }
+    if f_hz.windows(2).any(|w| !(w[1] > w[0])) || f_hz.first().is_some_and(|f| !(*f > 0.0)) {
+        return Err(PyValueError::new_err(
+            "sampled_margins: frequencies must be > 0 Hz and strictly increasing",
+        ));
+    }
+    let l: Vec<nalgebra::Complex<f64>> = re
+        .iter()
+        .zip(&im)
+        .map(|(&a, &b)| nalgebra::Complex::new(a, b))
+        .collect();
+    let m = ehactl_analysis::loopshape::sampled_margins(&f_hz, &l);
+    let d = PyDict::new(py);
+    d.set_item("crossover_hz", m.crossover_hz)?;
+    d.set_item("phase_margin_deg", m.phase_margin_deg)?;
+    d.set_item("phase_crossover_hz", m.phase_crossover_hz)?;
+    d.set_item("gain_margin_db", m.gain_margin_db)?;
+    d.set_item("bandwidth_hz", m.bandwidth_hz)?;
+    d.set_item("peak_closed_db", m.peak_closed_db)?;
+    Ok(d)
+}

@@ -249,6 +249,121 @@ pub fn margins(lp: &Loop<'_>, f0: f64, f1: f64) -> Margins {
     m
 }
 
+/// Margins of a loop known only on a frequency grid (a measured response, or a model
+/// sampled for tuning), in the definitions of the Python tuner (`ehactl.tune`), which
+/// calls this: phase unwrapped along the grid (numpy's `unwrap` rule) and shifted so that
+/// it starts at or below +90°; crossings interpolated linearly in ln f; NaN where no
+/// crossing lies in the grid or a needed point is NaN (NaN propagates as in numpy).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SampledMargins {
+    /// First downward crossing of |L| = 1 (Hz).
+    pub crossover_hz: f64,
+    /// 180° + ∠L at that crossover (deg).
+    pub phase_margin_deg: f64,
+    /// First downward crossing of ∠L = −180° (Hz).
+    pub phase_crossover_hz: f64,
+    /// −20·log₁₀|L| there (dB).
+    pub gain_margin_db: f64,
+    /// First downward crossing of |L/(1+L)| = −3 dB (absolute, not relative) (Hz).
+    pub bandwidth_hz: f64,
+    /// Largest |L/(1+L)| on the grid (dB).
+    pub peak_closed_db: f64,
+}
+
+/// Positions (in ln f) where `a − level` goes from > 0 to ≤ 0 between grid points.
+fn downward_crossings<'a>(
+    lf: &'a [f64],
+    a: &'a [f64],
+    level: f64,
+) -> impl Iterator<Item = f64> + 'a {
+    (0..a.len().saturating_sub(1)).filter_map(move |i| {
+        let (y0, y1) = (a[i] - level, a[i + 1] - level);
+        (y0 > 0.0 && 0.0 >= y1).then(|| lf[i] + (lf[i + 1] - lf[i]) * y0 / (y0 - y1))
+    })
+}
+
+/// Linear interpolation of (xp, fp) at x inside the grid (xp increasing), like `numpy.interp`.
+fn interp(x: f64, xp: &[f64], fp: &[f64]) -> f64 {
+    let j = xp.partition_point(|&v| v <= x).clamp(1, xp.len() - 1);
+    let (x0, x1) = (xp[j - 1], xp[j]);
+    if x == x1 {
+        return fp[j];
+    }
+    fp[j - 1] + (fp[j] - fp[j - 1]) * (x - x0) / (x1 - x0)
+}
+
+/// Phase (rad) unwrapped along the grid by numpy's rule: each step is brought into
+/// [−π, π) (+π kept for a positive step of exactly π) when its size is at least π.
+fn numpy_unwrap(p: &[f64]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(p.len());
+    let mut corr = 0.0;
+    for (i, &v) in p.iter().enumerate() {
+        if i > 0 {
+            let d = v - p[i - 1];
+            let mut dd = (d + std::f64::consts::PI).rem_euclid(TAU) - std::f64::consts::PI;
+            if dd == -std::f64::consts::PI && d > 0.0 {
+                dd = std::f64::consts::PI;
+            }
+            if d.abs() >= std::f64::consts::PI {
+                corr += dd - d;
+            } else if d.is_nan() {
+                corr = f64::NAN;
+            }
+        }
+        out.push(v + corr);
+    }
+    out
+}
+
+/// [`SampledMargins`] of L sampled at `f` (Hz, increasing, > 0). `f` and `l` have one
+/// entry per frequency; fewer than two points give NaN everywhere.
+pub fn sampled_margins(f: &[f64], l: &[Complex<f64>]) -> SampledMargins {
+    let nan = SampledMargins {
+        crossover_hz: f64::NAN,
+        phase_margin_deg: f64::NAN,
+        phase_crossover_hz: f64::NAN,
+        gain_margin_db: f64::NAN,
+        bandwidth_hz: f64::NAN,
+        peak_closed_db: f64::NAN,
+    };
+    let n = f.len().min(l.len());
+    if n < 2 {
+        return nan;
+    }
+    let (f, l) = (&f[..n], &l[..n]);
+    let lf: Vec<f64> = f.iter().map(|x| x.ln()).collect();
+    let mag_db: Vec<f64> = l.iter().map(|v| 20.0 * v.norm().log10()).collect();
+    let arg: Vec<f64> = l.iter().map(|v| v.arg()).collect();
+    let mut ph: Vec<f64> = numpy_unwrap(&arg).iter().map(|p| p.to_degrees()).collect();
+    if ph[0] > 90.0 {
+        let shift = 360.0 * ((ph[0] - 90.0) / 360.0).ceil();
+        ph.iter_mut().for_each(|p| *p -= shift);
+    }
+    let mut m = nan;
+    if let Some(x) = downward_crossings(&lf, &mag_db, 0.0).next() {
+        m.crossover_hz = x.exp();
+        m.phase_margin_deg = 180.0 + interp(x, &lf, &ph);
+    }
+    if let Some(x) = downward_crossings(&lf, &ph, -180.0).next() {
+        m.phase_crossover_hz = x.exp();
+        m.gain_margin_db = -interp(x, &lf, &mag_db);
+    }
+    let one = Complex::new(1.0, 0.0);
+    let tdb: Vec<f64> = l
+        .iter()
+        .map(|&v| 20.0 * (v / (one + v)).norm().log10())
+        .collect();
+    if let Some(x) = downward_crossings(&lf, &tdb, -3.0).next() {
+        m.bandwidth_hz = x.exp();
+    }
+    m.peak_closed_db = if tdb.iter().any(|t| t.is_nan()) {
+        f64::NAN
+    } else {
+        tdb.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+    };
+    m
+}
+
 /// −3 dB bandwidth of a plant with a finite static gain (Hz); None for an integrating plant
 /// (its gain still rising 20 dB/decade towards f0) or when |P| never falls 3 dB below it.
 pub fn open_loop_bandwidth(p: &LinearModel, out: Output, f0: f64, f1: f64) -> Option<f64> {

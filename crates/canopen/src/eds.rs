@@ -142,7 +142,9 @@ pub fn parse_number(text: &str, node_id: u8) -> Result<i128, String> {
 }
 
 fn parse_hex_index(s: &str) -> Option<u16> {
-    (s.len() == 4).then(|| u16::from_str_radix(s, 16).ok()).flatten()
+    (s.len() == 4)
+        .then(|| u16::from_str_radix(s, 16).ok())
+        .flatten()
 }
 
 impl Eds {
@@ -162,7 +164,9 @@ impl Eds {
                     .ok()
                     .and_then(|x| u32::try_from(x).ok())
                     .map(Some)
-                    .ok_or_else(|| format!("{source}: [{sec}] {key}={v}: expected a 32-bit number")),
+                    .ok_or_else(|| {
+                        format!("{source}: [{sec}] {key}={v}: expected a 32-bit number")
+                    }),
             }
         };
         let mut eds = Eds {
@@ -173,8 +177,7 @@ impl Eds {
             product_name: ini
                 .get_from(Some("DeviceInfo"), "ProductName")
                 .map(str::to_string),
-            dcf_node_id: num("DeviceComissioning", "NodeID")?
-                .map(|n| u8::try_from(n).unwrap_or(0)),
+            dcf_node_id: num("DeviceComissioning", "NodeID")?.map(|n| u8::try_from(n).unwrap_or(0)),
             objects: BTreeMap::new(),
         };
         for (name, props) in ini.iter() {
@@ -205,7 +208,9 @@ impl Eds {
                     parse_number(v, 0)
                         .ok()
                         .and_then(|x| u16::try_from(x).ok())
-                        .ok_or_else(|| format!("{}={v}: expected a data type index", at("DataType")))
+                        .ok_or_else(|| {
+                            format!("{}={v}: expected a data type index", at("DataType"))
+                        })
                 })?;
             let access = match props
                 .get("AccessType")
@@ -356,7 +361,10 @@ mod tests {
         assert_eq!(v.product, Some(0x198));
         assert_eq!(v.get(0x6041, 0).unwrap().access, Access::Ro);
         assert_eq!(v.encode(0x6300, 1, "-16384", 48).unwrap(), vec![0x00, 0xC0]);
-        assert_eq!(v.encode(0x1400, 1, "$NODEID+0x200", 48).unwrap(), vec![0x30, 2, 0, 0]);
+        assert_eq!(
+            v.encode(0x1400, 1, "$NODEID+0x200", 48).unwrap(),
+            vec![0x30, 2, 0, 0]
+        );
         assert!(v.encode(0x6042, 0, "300", 48).is_err());
         assert_eq!(v.parameter_values().count(), 0); // an EDS, not a DCF
     }

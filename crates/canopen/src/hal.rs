@@ -57,8 +57,8 @@ use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::nmt::{NmtState, HEARTBEAT_BASE};
 use crate::pdo::{self, RPDO1_BASE, TPDO1_BASE};
 use crate::sdo::{self, SdoClient, SDO_TX_BASE};
-pub use crate::startup::{StartupError, StartupFailure};
 use crate::startup::{Activated, Bringup, Dev, Plan, Startup};
+pub use crate::startup::{StartupError, StartupFailure};
 use crate::sync::{self, SyncProducer};
 use crossbeam_queue::ArrayQueue;
 use ehactl_hal::logger::{CanFrameRecord, FrameLog};
@@ -189,6 +189,8 @@ pub struct CanopenHal {
     safe_stop_result: Option<String>,
     startup_s: f64,
     names: [Option<String>; 2],
+    /// Optional start-up steps the devices did not support.
+    skipped: Vec<String>,
 }
 
 impl std::fmt::Debug for CanopenHal {
@@ -305,8 +307,11 @@ impl CanopenHal {
         }
         meas.t = 0.0;
         let names = std::mem::take(&mut b.names);
+        let skipped = std::mem::take(&mut b.skipped);
         let bus: Box<dyn CanBus> = b.bus.inner;
-        Self::spawn_io(s, bus, t_start, st, master_hb, meas, names)
+        let mut hal = Self::spawn_io(s, bus, t_start, st, master_hb, meas, names)?;
+        hal.skipped = skipped;
+        Ok(hal)
     }
 
     /// The I/O threads and the run-time state, after a successful start-up.
@@ -411,6 +416,7 @@ impl CanopenHal {
             safe_stop_result: None,
             startup_s: t_start.elapsed().as_secs_f64(),
             names,
+            skipped: Vec::new(),
             s,
         })
     }
@@ -489,7 +495,13 @@ impl CanopenHal {
                     Dev::Transducer => "transducer TPDO older than canopen.max_pdo_age_syncs",
                     Dev::Valve => "valve TPDO older than canopen.max_pdo_age_syncs",
                 };
-                return Err(self.trip(t, u32::from(self.ids[i]), what, f64::from(age), "SYNC periods"));
+                return Err(self.trip(
+                    t,
+                    u32::from(self.ids[i]),
+                    what,
+                    f64::from(age),
+                    "SYNC periods",
+                ));
             }
         }
         Ok(())
@@ -981,6 +993,7 @@ impl Hal for CanopenHal {
             "valve_state": self.valve_state.map(|v| v.as_str()),
             "startup_s": self.startup_s,
             "device_names": {"transducer": self.names[0], "valve": self.names[1]},
+            "startup_skipped": self.skipped,
             "safe_stop": self.safe_stop_result,
         }))
     }

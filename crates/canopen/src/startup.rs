@@ -172,6 +172,10 @@ pub struct Step {
     pub kind: StepKind,
     /// What it is for (messages).
     pub what: String,
+    /// An optional feature (SYNC objects at their neutral value, RPDO deadline, cyclic timer
+    /// off): a device that answers "object does not exist" (0x06020000 / 0x06090011) although
+    /// its file lists it is used without it, and the step is reported as skipped.
+    pub optional: bool,
 }
 
 /// What ehactl does to one device at start-up, decided from its EDS / DCF before the bus
@@ -251,8 +255,16 @@ impl DevicePlan {
             access,
             kind,
             what: what.into(),
+            optional: false,
         });
         Ok(())
+    }
+
+    /// Mark the last planned step optional (see [`Step::optional`]).
+    fn optional(&mut self) {
+        if let Some(s) = self.steps.last_mut() {
+            s.optional = true;
+        }
     }
 
     /// Plan one PDO: the CiA 301 re-mapping procedure where the mapping object is writable,
@@ -286,8 +298,20 @@ impl DevicePlan {
         let fixed = !self.obj(map_idx, 0)?.access.writable();
         let what_m = format!("mapping {what}");
         if fixed {
-            self.push(comm, 2, vec![pdo::TRANSMISSION_SYNC_EVERY], StepKind::Ensure, &what_m)?;
-            self.push(map_idx, 0, vec![map.count() as u8], StepKind::Ensure, &what_m)?;
+            self.push(
+                comm,
+                2,
+                vec![pdo::TRANSMISSION_SYNC_EVERY],
+                StepKind::Ensure,
+                &what_m,
+            )?;
+            self.push(
+                map_idx,
+                0,
+                vec![map.count() as u8],
+                StepKind::Ensure,
+                &what_m,
+            )?;
             for (i, e) in entries.iter().enumerate() {
                 self.push(
                     map_idx,
@@ -297,7 +321,13 @@ impl DevicePlan {
                     &what_m,
                 )?;
             }
-            self.push(comm, 1, u32::from(cob).to_le_bytes().to_vec(), StepKind::Ensure, &what_m)?;
+            self.push(
+                comm,
+                1,
+                u32::from(cob).to_le_bytes().to_vec(),
+                StepKind::Ensure,
+                &what_m,
+            )?;
             return Ok(());
         }
         for w in pdo::remap_sequence(comm, map_idx, cob, pdo::TRANSMISSION_SYNC_EVERY, &map) {
@@ -320,7 +350,11 @@ impl Plan {
                     BUILTIN_TRANSDUCER_EDS,
                     "built-in ehactl_transducer_406.eds",
                 ),
-                Dev::Valve => (&c.valve_eds, BUILTIN_VALVE_EDS, "built-in ehactl_valve_408.eds"),
+                Dev::Valve => (
+                    &c.valve_eds,
+                    BUILTIN_VALVE_EDS,
+                    "built-in ehactl_valve_408.eds",
+                ),
             };
             Eds::from_config(path, base, builtin, name)
                 .map_err(|e| settings_err(format!("{}: {e}", dev.config_key())))
@@ -414,10 +448,26 @@ impl Plan {
             // 3. SYNC objects where the file has them (CiA 301 7.5.2.6/7/22): 0x1019 may only
             //    change while 0x1006 = 0, so the period is cleared first.
             if p.eds.get(0x1006, 0).is_some_and(|o| o.access.writable()) {
-                p.push(0x1006, 0, 0u32.to_le_bytes().to_vec(), StepKind::Ensure, "clearing the communication cycle period 0x1006 (before 0x1019)")?;
+                p.push(
+                    0x1006,
+                    0,
+                    0u32.to_le_bytes().to_vec(),
+                    StepKind::Ensure,
+                    "clearing the communication cycle period 0x1006 (before 0x1019)",
+                )?;
+                p.optional();
             }
             if p.eds.get(0x1019, 0).is_some() {
-                p.push(0x1019, 0, vec![c.sync_counter_overflow], StepKind::Ensure, "setting the SYNC counter overflow 0x1019 (canopen.sync_counter_overflow)")?;
+                p.push(
+                    0x1019,
+                    0,
+                    vec![c.sync_counter_overflow],
+                    StepKind::Ensure,
+                    "setting the SYNC counter overflow 0x1019 (canopen.sync_counter_overflow)",
+                )?;
+                if c.sync_counter_overflow == 0 {
+                    p.optional();
+                }
             } else if c.sync_counter_overflow != 0 {
                 return Err(settings_err(format!(
                     "{} ({}): canopen.sync_counter_overflow = {} but the {name} has no 0x1019 (its SYNC consumer expects SYNC without counter); set it to 0",
@@ -427,10 +477,26 @@ impl Plan {
                 )));
             }
             if p.eds.get(0x1007, 0).is_some() {
-                p.push(0x1007, 0, c.sync_window_us.to_le_bytes().to_vec(), StepKind::Ensure, "setting the synchronous window 0x1007 (canopen.sync_window_us)")?;
+                p.push(
+                    0x1007,
+                    0,
+                    c.sync_window_us.to_le_bytes().to_vec(),
+                    StepKind::Ensure,
+                    "setting the synchronous window 0x1007 (canopen.sync_window_us)",
+                )?;
+                if c.sync_window_us == 0 {
+                    p.optional();
+                }
             }
             if p.eds.get(0x1006, 0).is_some() {
-                p.push(0x1006, 0, sync_period_us.to_le_bytes().to_vec(), StepKind::Ensure, "setting the communication cycle period 0x1006 (µs, 1 / canopen.sync_rate_hz)")?;
+                p.push(
+                    0x1006,
+                    0,
+                    sync_period_us.to_le_bytes().to_vec(),
+                    StepKind::Ensure,
+                    "setting the communication cycle period 0x1006 (µs, 1 / canopen.sync_rate_hz)",
+                )?;
+                p.optional();
             }
         }
         // 4. Profile objects.
@@ -450,6 +516,7 @@ impl Plan {
                 StepKind::Ensure,
                 "switching the transducer cyclic timer off (TPDO on SYNC)",
             )?;
+            t.optional();
         }
         t.pdo(
             TPDO1_COMM,
@@ -505,6 +572,7 @@ impl Plan {
                 StepKind::Ensure,
                 "setting the valve RPDO1 deadline 0x1400:05 (canopen.valve_rpdo_timeout_ms)",
             )?;
+            v.optional();
         }
         v.pdo(
             RPDO1_COMM,
@@ -724,6 +792,8 @@ pub(crate) struct Bringup<'a> {
     ids: [u8; 2],
     /// Device names read from 0x1008 (optional object).
     pub(crate) names: [Option<String>; 2],
+    /// Optional steps the devices did not support ("node N 0x1006:00 (what)").
+    pub(crate) skipped: Vec<String>,
 }
 
 /// What the activate step hands to the run: the first measurements.
@@ -755,6 +825,7 @@ impl<'a> Bringup<'a> {
             sdo_t: Duration::from_millis(u64::from(c.sdo_timeout_ms)),
             ids: [c.transducer_node_id, c.valve_node_id],
             names: [None, None],
+            skipped: Vec::new(),
         })
     }
 
@@ -780,17 +851,30 @@ impl<'a> Bringup<'a> {
     }
 
     fn read(&mut self, node: u8, index: u16, sub: u8, step: &str) -> Result<Vec<u8>, StartupError> {
-        self.sdo_read(node, index, sub).map_err(|error| StartupError::Sdo {
-            step: format!("{step} (read 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"),
-            error,
-        })
+        self.sdo_read(node, index, sub)
+            .map_err(|error| StartupError::Sdo {
+                step: format!(
+                    "{step} (read 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"
+                ),
+                error,
+            })
     }
 
-    fn write(&mut self, node: u8, index: u16, sub: u8, bytes: &[u8], step: &str) -> Result<(), StartupError> {
-        self.sdo_write(node, index, sub, bytes).map_err(|error| StartupError::Sdo {
-            step: format!("{step} (write 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"),
-            error,
-        })
+    fn write(
+        &mut self,
+        node: u8,
+        index: u16,
+        sub: u8,
+        bytes: &[u8],
+        step: &str,
+    ) -> Result<(), StartupError> {
+        self.sdo_write(node, index, sub, bytes)
+            .map_err(|error| StartupError::Sdo {
+                step: format!(
+                    "{step} (write 0x{index:04X}:{sub:02X} on node {node} = 0x{node:02X})"
+                ),
+                error,
+            })
     }
 
     /// configure: boot, pre-operational, identity, planned objects.
@@ -820,7 +904,10 @@ impl<'a> Bringup<'a> {
             Err(e) => {
                 // The valve is ACTIVE here: back to HOLD with setpoint 0 (best effort).
                 let va = self.ids[1];
-                let _ = self.send(CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()));
+                let _ = self.send(CanFrame::std(
+                    RPDO1_BASE + u16::from(va),
+                    0i16.to_le_bytes(),
+                ));
                 let _ = self.write(
                     va,
                     cia408::CONTROL_WORD,
@@ -863,8 +950,9 @@ impl<'a> Bringup<'a> {
                     let mut cl = SdoClient::new(self.ids[i], wait);
                     let req = cl.upload(0x1000, 0);
                     let st = &mut *self.st;
-                    let ok = sdo::transfer(&mut *self.bus, &mut cl, req, &mut |f, d| st.observe(f, d))
-                        .is_ok();
+                    let ok =
+                        sdo::transfer(&mut *self.bus, &mut cl, req, &mut |f, d| st.observe(f, d))
+                            .is_ok();
                     if ok {
                         if self.s.verbose {
                             eprintln!(
@@ -906,7 +994,10 @@ impl<'a> Bringup<'a> {
                 dt & 0xFFFF
             )));
         }
-        for (sub, want, what) in [(1u8, identity.0, "vendor-ID"), (2, identity.1, "product code")] {
+        for (sub, want, what) in [
+            (1u8, identity.0, "vendor-ID"),
+            (2, identity.1, "product code"),
+        ] {
             let Some(want) = want else { continue };
             let got = u32::from_le_bytes(le4(&self.read(
                 n,
@@ -925,7 +1016,9 @@ impl<'a> Bringup<'a> {
         // Manufacturer device name (VISIBLE_STRING, segmented upload); optional object.
         match self.sdo_read(n, 0x1008, 0) {
             Ok(b) => {
-                let name = String::from_utf8_lossy(&b).trim_end_matches('\0').to_string();
+                let name = String::from_utf8_lossy(&b)
+                    .trim_end_matches('\0')
+                    .to_string();
                 if self.s.verbose {
                     eprintln!("canopen: node {n} (0x{n:02X}): \"{name}\" (CiA {profile})");
                 }
@@ -984,9 +1077,26 @@ impl<'a> Bringup<'a> {
             }
             match self.sdo_write(n, index, sub, want) {
                 Ok(()) => {}
+                Err(SdoError::Abort {
+                    code: 0x0602_0000 | 0x0609_0011,
+                    ..
+                }) if step.optional => {
+                    if self.s.verbose {
+                        eprintln!(
+                            "canopen: {} (node {n}) has no 0x{index:04X}:{sub:02X} although its EDS lists it; optional, skipped ({})",
+                            dev.name(),
+                            step.what
+                        );
+                    }
+                    self.skipped
+                        .push(format!("node {n} 0x{index:04X}:{sub:02X} ({})", step.what));
+                    continue;
+                }
                 // The file says rw, the device refuses the write as read-only (0x06010002):
                 // name the device's value if it has one.
-                Err(SdoError::Abort { code: 0x0601_0002, .. }) => {
+                Err(SdoError::Abort {
+                    code: 0x0601_0002, ..
+                }) => {
                     let h = self.sdo_read(n, index, sub).ok();
                     let extra = match (&h, (index, sub) == (cia406::POSITION_STEP, 1)) {
                         (Some(h), true) => format!(
@@ -1064,7 +1174,12 @@ impl<'a> Bringup<'a> {
     }
 
     fn status(&mut self) -> Result<u16, StartupError> {
-        let d = self.read(self.ids[1], cia408::STATUS_WORD, 0, "reading the valve status word")?;
+        let d = self.read(
+            self.ids[1],
+            cia408::STATUS_WORD,
+            0,
+            "reading the valve status word",
+        )?;
         Ok(u16::from_le_bytes([
             d.first().copied().unwrap_or(0),
             d.get(1).copied().unwrap_or(0),
@@ -1170,7 +1285,10 @@ impl<'a> Bringup<'a> {
             p_b: f64::NAN,
             spool: f64::NAN,
         };
-        self.send(CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes()))?;
+        self.send(CanFrame::std(
+            RPDO1_BASE + u16::from(va),
+            0i16.to_le_bytes(),
+        ))?;
         self.send(sync::frame_with_counter(c.sync_counter_overflow, 1))?;
         let deadline = Instant::now() + self.sdo_t;
         while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
@@ -1234,11 +1352,22 @@ mod tests {
     fn the_plan_follows_the_built_in_eds_files() {
         let p = Plan::new(&settings(CanopenConfig::default())).unwrap();
         let [t, v] = &p.devices;
-        assert_eq!((t.identity, v.identity), ((Some(0), Some(0x196)), (Some(0), Some(0x198))));
-        let at = |d: &DevicePlan, i: u16, s: u8| d.steps.iter().filter(|x| (x.index, x.sub) == (i, s)).count();
+        assert_eq!(
+            (t.identity, v.identity),
+            ((Some(0), Some(0x196)), (Some(0), Some(0x198)))
+        );
+        let at = |d: &DevicePlan, i: u16, s: u8| {
+            d.steps
+                .iter()
+                .filter(|x| (x.index, x.sub) == (i, s))
+                .count()
+        };
         // heartbeat, consumer, SYNC objects (0x1006 cleared before 0x1019, then set), profile
         for d in [t, v] {
-            assert_eq!(at(d, 0x1017, 0) + at(d, 0x1016, 1) + at(d, 0x1019, 0) + at(d, 0x1007, 0), 4);
+            assert_eq!(
+                at(d, 0x1017, 0) + at(d, 0x1016, 1) + at(d, 0x1019, 0) + at(d, 0x1007, 0),
+                4
+            );
             assert_eq!(at(d, 0x1006, 0), 2);
             let k = |i| d.steps.iter().position(|x| x.index == i).unwrap();
             assert!(k(0x1006) < k(0x1019));
@@ -1268,7 +1397,10 @@ mod tests {
             valve_eds: w("t.eds", BUILTIN_TRANSDUCER_EDS.into()),
             ..Default::default()
         });
-        assert!(e.contains("canopen.valve_eds") && e.contains("no CiA 408"), "{e}");
+        assert!(
+            e.contains("canopen.valve_eds") && e.contains("no CiA 408"),
+            "{e}"
+        );
         // no heartbeat consumer: no master-loss detection, refused
         let no_1016 = BUILTIN_VALVE_EDS.replace("[1016sub1]", "[1016subX]");
         let e = run(CanopenConfig {
@@ -1303,7 +1435,10 @@ mod tests {
             transducer_eds: "missing.eds".into(),
             ..Default::default()
         });
-        assert!(e.contains("canopen.transducer_eds") && e.contains("missing.eds"), "{e}");
+        assert!(
+            e.contains("canopen.transducer_eds") && e.contains("missing.eds"),
+            "{e}"
+        );
         // a DCF setting of a device-specific object is planned first, as an Ensure step
         let dcf = BUILTIN_TRANSDUCER_EDS.replace(
             "[6000]\nParameterName=Operating parameters\nObjectType=0x7\nDataType=0x0006\nAccessType=rw\nDefaultValue=0x0000\n",

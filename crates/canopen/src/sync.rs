@@ -20,7 +20,10 @@ pub fn frame_with_counter(overflow: u8, k: u64) -> CanFrame {
     if overflow == 0 {
         frame()
     } else {
-        CanFrame::std(SYNC_COB_ID, [(1 + (k.saturating_sub(1)) % u64::from(overflow)) as u8])
+        CanFrame::std(
+            SYNC_COB_ID,
+            [(1 + (k.saturating_sub(1)) % u64::from(overflow)) as u8],
+        )
     }
 }
 

@@ -69,6 +69,9 @@ struct Knobs {
     /// The transducer answers SYNC k with the position of SYNC k only after SYNC k + this
     /// (its TPDOs are this many SYNC periods old on arrival).
     tpdo_lag: AtomicU32,
+    /// Both nodes answer 0x1006 / 0x1007 / 0x1019 with "object does not exist" (0x06020000)
+    /// although the EDS lists them.
+    no_sync_objects: AtomicBool,
     stop: AtomicBool,
     /// Every frame the rig received (id, data), for sequence checks.
     seen: Mutex<Vec<(u32, Vec<u8>)>>,
@@ -101,12 +104,20 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
             .insert((0x1000, 0), 0x0001_0198u32.to_le_bytes().to_vec());
         // identity 0x1018:01/02 as in the built-in EDS files (vendor 0, product 0x196/0x198)
         nodes[0].od.insert((0x1018, 1), 0u32.to_le_bytes().to_vec());
-        nodes[0].od.insert((0x1018, 2), 0x196u32.to_le_bytes().to_vec());
+        nodes[0]
+            .od
+            .insert((0x1018, 2), 0x196u32.to_le_bytes().to_vec());
         nodes[1].od.insert(
             (0x1018, 1),
-            knobs.vendor_valve.load(Ordering::Relaxed).to_le_bytes().to_vec(),
+            knobs
+                .vendor_valve
+                .load(Ordering::Relaxed)
+                .to_le_bytes()
+                .to_vec(),
         );
-        nodes[1].od.insert((0x1018, 2), 0x198u32.to_le_bytes().to_vec());
+        nodes[1]
+            .od
+            .insert((0x1018, 2), 0x198u32.to_le_bytes().to_vec());
         let mut syncs_op = 0u32;
         // CiA 408 status codes RMHD (Moog B99224-DV018 fig. 19).
         const INIT: u16 = 0b1000;
@@ -228,8 +239,8 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                     if nodes[0].nmt == 5 {
                         syncs_op += 1;
                     }
-                    let lagging = syncs_op <= knobs.tpdo_lag.load(Ordering::Relaxed) + 1
-                        && syncs_op > 1;
+                    let lagging =
+                        syncs_op <= knobs.tpdo_lag.load(Ordering::Relaxed) + 1 && syncs_op > 1;
                     if nodes[0].nmt == 5
                         && !knobs.mute_transducer_pdo.load(Ordering::Relaxed)
                         && !lagging
@@ -261,6 +272,12 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         d[4..4 + data.len()].copy_from_slice(data);
                         CanFrame::std(0x580 + u16::from(node), d)
                     };
+                    if knobs.no_sync_objects.load(Ordering::Relaxed)
+                        && matches!(index, 0x1006 | 0x1007 | 0x1019)
+                    {
+                        send(&mut bus, silent, reply(0x80, &0x0602_0000u32.to_le_bytes()));
+                        continue;
+                    }
                     let ro_step = knobs.position_step_ro.load(Ordering::Relaxed);
                     if ro_step != 0 && node == TR && index == 0x6005 {
                         if cs == 0x40 {
@@ -1006,7 +1023,9 @@ fn an_identity_that_differs_from_the_eds_ends_the_start_up() {
     );
     let seen = knobs.seen.lock().unwrap().clone();
     assert!(
-        !seen.iter().any(|(id, d)| *id == 0x630 && d[0] & 0xE0 == 0x20),
+        !seen
+            .iter()
+            .any(|(id, d)| *id == 0x630 && d[0] & 0xE0 == 0x20),
         "the valve was written to"
     );
     knobs.stop.store(true, Ordering::Relaxed);
@@ -1067,7 +1086,7 @@ fn late_tpdos_are_counted_and_too_old_ones_trip() {
     // canopen.max_pdo_age_syncs they are counted, above it the loop trips.
     // (A rig thread descheduled on a loaded machine makes any TPDO a few SYNCs late too:
     // the no-trip case keeps a wide limit and checks ages from below only.)
-    for (lag, max_age, trips) in [(3u32, 50u32, false), (12, 10, true)] {
+    for (lag, max_age, trips) in [(3u32, 1000u32, false), (12, 10, true)] {
         let (port, knobs, _one_at_a_time) = start();
         knobs.tpdo_lag.store(lag, Ordering::Relaxed);
         let rig_thread = rig(port, knobs.clone());
@@ -1081,7 +1100,10 @@ fn late_tpdos_are_counted_and_too_old_ones_trip() {
         let age = rep["pdo_max_age_syncs"]["transducer"].as_u64().unwrap() as u32;
         if trips {
             let e = err.expect("no trip on TPDOs 12 SYNC periods old");
-            assert!(format!("{e:?}").contains("older than canopen.max_pdo_age_syncs"), "{e:?}");
+            assert!(
+                format!("{e:?}").contains("older than canopen.max_pdo_age_syncs"),
+                "{e:?}"
+            );
             assert!(age > max_age, "{rep}");
         } else {
             assert!(err.is_none(), "{err:?}");
@@ -1094,6 +1116,55 @@ fn late_tpdos_are_counted_and_too_old_ones_trip() {
             assert!(late_valve < late / 2, "{rep}");
         }
         let _ = hal.safe_stop(0.0);
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
+}
+
+#[test]
+fn optional_sync_objects_a_device_lacks_are_skipped_a_needed_counter_is_not() {
+    // The EDS lists 0x1006/0x1007/0x1019, the devices say "object does not exist": at their
+    // neutral values (no counter, no window) the steps are skipped and reported; a SYNC
+    // counter the devices cannot take ends the start-up.
+    for (overflow, ok) in [(0u8, true), (5, false)] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs.no_sync_objects.store(true, Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        let cfg = CanopenConfig {
+            sync_counter_overflow: overflow,
+            ..test_bus()
+        };
+        match CanopenHal::connect(settings(port, cfg)) {
+            Ok(mut hal) => {
+                assert!(ok, "a SYNC counter of {overflow} was accepted");
+                let rep = hal.report().unwrap();
+                let skipped: Vec<String> = rep["startup_skipped"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_str().unwrap().to_string())
+                    .collect();
+                for obj in ["0x1006:00", "0x1007:00", "0x1019:00"] {
+                    for node in [TR, VA] {
+                        assert!(
+                            skipped
+                                .iter()
+                                .any(|s| s.contains(obj) && s.contains(&format!("node {node}"))),
+                            "{obj} of node {node} not reported: {skipped:?}"
+                        );
+                    }
+                }
+                let _ = hal.safe_stop(0.0);
+            }
+            Err(e) => {
+                assert!(!ok, "{e}");
+                let m = e.to_string();
+                assert!(
+                    m.contains("0x1019") && m.contains("object does not exist"),
+                    "{m}"
+                );
+            }
+        }
         knobs.stop.store(true, Ordering::Relaxed);
         rig_thread.join().unwrap();
     }

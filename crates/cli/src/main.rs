@@ -690,12 +690,21 @@ fn cmd_run(
                 tm.jitter.p50, tm.jitter.p99, tm.jitter.p999, tm.jitter.max
             );
             println!(
-                "  period        p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs (nominal {:.1} µs); exec p99 {:.1} µs",
-                tm.period.p50, tm.period.p99, tm.period.max, tm.period_nominal_us, tm.exec.p99
+                "  period        p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs (nominal {:.1} µs)",
+                tm.period.p50, tm.period.p99, tm.period.max, tm.period_nominal_us
             );
             println!(
-                "  overruns      {} (longest streak {}, {} deadlines skipped, policy {})",
-                tm.overruns, tm.longest_overrun_streak, tm.skipped_deadlines, tm.overrun_policy
+                "  exec          p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (cycle start → next wait)",
+                tm.exec.p50, tm.exec.p99, tm.exec.p999, tm.exec.max
+            );
+            println!(
+                "  overruns      {} = {} our execution > period + {} late start (thread not running); longest streak {}, {} deadlines skipped, policy {}",
+                tm.overruns,
+                tm.overruns_exec,
+                tm.overruns_wakeup,
+                tm.longest_overrun_streak,
+                tm.skipped_deadlines,
+                tm.overrun_policy
             );
             println!(
                 "  rt            SCHED_FIFO {}, CPU {}, memory {}",

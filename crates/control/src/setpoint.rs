@@ -112,6 +112,8 @@ pub struct SetpointConfig {
 #[derive(Debug, Clone)]
 pub struct Setpoint {
     c: SetpointConfig,
+    /// ln(f1/f0)/duration (1/s) of the log sweep, computed once.
+    log_rate: f64,
 }
 
 fn hash01(seed: u64, k: u64) -> f64 {
@@ -125,7 +127,10 @@ fn hash01(seed: u64, k: u64) -> f64 {
 impl Setpoint {
     /// From a validated config section.
     pub fn new(c: &SetpointConfig) -> Self {
-        Self { c: c.clone() }
+        Self {
+            c: c.clone(),
+            log_rate: (c.f1 / c.f0).ln() / c.duration.max(1e-12),
+        }
     }
 
     /// The config.
@@ -144,11 +149,13 @@ impl Setpoint {
                 (c.f0 + k * tt, TAU * (c.f0 * tt + 0.5 * k * tt * tt))
             }
             Sweep::Log => {
-                let r = (c.f1 / c.f0).ln() / t_end;
+                let r = self.log_rate;
                 if r.abs() < 1e-12 {
                     (c.f0, TAU * c.f0 * tt)
                 } else {
-                    (c.f0 * (r * tt).exp(), TAU * c.f0 * ((r * tt).exp_m1()) / r)
+                    // One expm1 gives both f = f0·e^(rt) and φ = 2π·f0·(e^(rt) − 1)/r.
+                    let em1 = (r * tt).exp_m1();
+                    (c.f0 * (1.0 + em1), TAU * c.f0 * em1 / r)
                 }
             }
             Sweep::Stepped => {
@@ -202,10 +209,8 @@ impl Setpoint {
                     return (c.offset, 0.0);
                 }
                 let (f, ph) = self.sweep_phase(tau);
-                (
-                    c.offset + c.amplitude * ph.sin(),
-                    c.amplitude * TAU * f * ph.cos(),
-                )
+                let (s, co) = ph.sin_cos();
+                (c.offset + c.amplitude * s, c.amplitude * TAU * f * co)
             }
             SetpointKind::StaticDynamic => {
                 if t < c.ramp_time {
@@ -217,10 +222,8 @@ impl Setpoint {
                     return (c.offset, 0.0);
                 }
                 let (f, ph) = self.sweep_phase(td);
-                (
-                    c.offset + c.amplitude * ph.sin(),
-                    c.amplitude * TAU * f * ph.cos(),
-                )
+                let (s, co) = ph.sin_cos();
+                (c.offset + c.amplitude * s, c.amplitude * TAU * f * co)
             }
             SetpointKind::RandomSteps => {
                 if tau < 0.0 {

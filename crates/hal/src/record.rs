@@ -56,6 +56,10 @@ pub struct CycleTiming {
     pub skipped: u32,
     /// Whether the previous cycle overran (finished after this cycle's deadline).
     pub overrun: bool,
+    /// Whether that overrun was the previous cycle's own doing: its execution
+    /// (`exec_prev_us`) alone exceeded the period. False for an overrun of a cycle that fit
+    /// in the period but started late (the thread was not running at its deadline).
+    pub overrun_exec: bool,
 }
 
 /// What an event reports.
@@ -271,7 +275,8 @@ pub fn plant_schema() -> String {
 }
 
 /// Field names of the `/timing` message after `cycle` and `t` (all float64), in order;
-/// then `uint32 skipped` and `bool overrun`.
+/// then `uint32 skipped`, `bool overrun` and `bool overrun_exec` (appended in issue 16;
+/// readers of the older layout, which ends at `overrun`, still read a prefix).
 pub const TIMING_FIELDS: [&str; 4] = ["wall_t", "lateness_us", "period_us", "exec_prev_us"];
 
 /// ros2msg schema text of `/timing`.
@@ -284,7 +289,7 @@ pub fn timing_schema() -> String {
         s.push_str(f);
         s.push('\n');
     }
-    s.push_str("uint32 skipped\nbool overrun\n");
+    s.push_str("uint32 skipped\nbool overrun\nbool overrun_exec\n");
     s
 }
 
@@ -349,8 +354,8 @@ impl CycleRecord {
     }
 
     /// CDR encoding of `/timing` into `buf` (cleared first); false if the record has no
-    /// timing. Layout: cycle u64, t and [`TIMING_FIELDS`] f64, skipped u32, overrun u8
-    /// (every field naturally aligned, so no padding).
+    /// timing. Layout: cycle u64, t and [`TIMING_FIELDS`] f64, skipped u32, overrun u8,
+    /// overrun_exec u8 (every field naturally aligned, so no padding).
     pub fn encode_timing(&self, buf: &mut Vec<u8>) -> bool {
         let Some(tm) = self.timing else {
             return false;
@@ -369,6 +374,7 @@ impl CycleRecord {
         }
         buf.extend_from_slice(&tm.skipped.to_le_bytes());
         buf.push(tm.overrun as u8);
+        buf.push(tm.overrun_exec as u8);
         true
     }
 
@@ -582,13 +588,22 @@ impl CycleRecord {
         })
     }
 
-    /// Decode a `/timing` message written by [`CycleRecord::encode_timing`].
+    /// Decode a `/timing` message written by [`CycleRecord::encode_timing`]. Messages of
+    /// logs written before issue 16 end at `overrun` (one byte shorter, their schema has
+    /// no `overrun_exec`); they decode with `overrun_exec` false.
     pub fn decode_timing(data: &[u8]) -> Result<TimingMessage, DecodeError> {
-        let mut c = CdrCursor::new("/timing", data, 8 + 8 * (1 + TIMING_FIELDS.len()) + 4 + 1)?;
+        let old = 8 + 8 * (1 + TIMING_FIELDS.len()) + 4 + 1;
+        let size = if data.len() == CDR_LE.len() + old { old } else { old + 1 };
+        let mut c = CdrCursor::new("/timing", data, size)?;
         let cycle = c.u64();
         let [t, wall_t, lateness_us, period_us, exec_prev_us] = c.f64s::<5>();
         let skipped = c.u32();
         let overrun = c.bool("overrun")?;
+        let overrun_exec = if size > old {
+            c.bool("overrun_exec")?
+        } else {
+            false
+        };
         Ok(TimingMessage {
             cycle,
             t,
@@ -599,6 +614,7 @@ impl CycleRecord {
                 exec_prev_us,
                 skipped,
                 overrun,
+                overrun_exec,
             },
         })
     }
@@ -819,7 +835,7 @@ mod decode_tests {
     use super::*;
     use proptest::prelude::*;
 
-    fn record(v: &[f64; 33], cycle: u64, stuck: bool, timing: Option<(u32, bool)>) -> CycleRecord {
+    fn record(v: &[f64; 33], cycle: u64, stuck: bool, timing: Option<(u32, bool, bool)>) -> CycleRecord {
         CycleRecord {
             cycle,
             t: v[0],
@@ -861,13 +877,14 @@ mod decode_tests {
                 stuck,
             },
             has_plant: true,
-            timing: timing.map(|(skipped, overrun)| CycleTiming {
+            timing: timing.map(|(skipped, overrun, overrun_exec)| CycleTiming {
                 wall_t: v[32],
                 lateness_us: v[1],
                 period_us: v[2],
                 exec_prev_us: v[3],
                 skipped,
                 overrun,
+                overrun_exec,
             }),
         }
     }
@@ -891,11 +908,12 @@ mod decode_tests {
         /// and the schema-driven decoder reads the same values from the published schema.
         #[test]
         fn roundtrip(v in proptest::array::uniform32(any_f64()), w in any_f64(), cycle in any::<u64>(),
-                     stuck in any::<bool>(), skipped in any::<u32>(), overrun in any::<bool>()) {
+                     stuck in any::<bool>(), skipped in any::<u32>(), overrun in any::<bool>(),
+                     overrun_exec in any::<bool>()) {
             let mut a = [0.0; 33];
             a[..32].copy_from_slice(&v);
             a[32] = w;
-            let r = record(&a, cycle, stuck, Some((skipped, overrun)));
+            let r = record(&a, cycle, stuck, Some((skipped, overrun, overrun_exec)));
             let mut buf = Vec::new();
 
             r.encode_control(&mut buf);
@@ -933,12 +951,21 @@ mod decode_tests {
             let rt = r.timing.unwrap();
             prop_assert_eq!(bits([tm.timing.wall_t, tm.timing.lateness_us, tm.timing.period_us, tm.timing.exec_prev_us]),
                             bits([rt.wall_t, rt.lateness_us, rt.period_us, rt.exec_prev_us]));
-            prop_assert_eq!((tm.timing.skipped, tm.timing.overrun), (skipped, overrun));
+            prop_assert_eq!((tm.timing.skipped, tm.timing.overrun, tm.timing.overrun_exec),
+                            (skipped, overrun, overrun_exec));
+            // A message of the layout before issue 16 (no trailing `overrun_exec`) still
+            // decodes, with the flag false.
+            let mut old = buf.clone();
+            old.pop();
+            let to = CycleRecord::decode_timing(&old).unwrap();
+            prop_assert_eq!((to.timing.skipped, to.timing.overrun, to.timing.overrun_exec),
+                            (skipped, overrun, false));
             let s = FlatSchema::parse_ros2msg("/timing", &timing_schema()).unwrap();
             let mut got = Vec::new();
             s.decode(&buf, |_, v| got.push(v)).unwrap();
             prop_assert_eq!(got[6], Value::U(skipped as u64));
             prop_assert_eq!(got[7], Value::B(overrun));
+            prop_assert_eq!(got[8], Value::B(overrun_exec));
         }
 
         /// Arbitrary bytes never panic any decoder: they decode or give an error.
@@ -956,7 +983,7 @@ mod decode_tests {
 
     #[test]
     fn short_long_and_corrupt_messages_are_clear_errors() {
-        let r = record(&[1.5; 33], 7, false, Some((2, true)));
+        let r = record(&[1.5; 33], 7, false, Some((2, true, false)));
         let mut buf = Vec::new();
         r.encode_control(&mut buf);
         assert_eq!(buf.len(), 4 + 8 + 16 * 8, "the documented /control size");
@@ -1004,8 +1031,19 @@ mod decode_tests {
         ));
 
         r.encode_timing(&mut buf);
-        assert_eq!(buf.len(), 4 + 8 + 5 * 8 + 4 + 1);
-        assert!(CycleRecord::decode_timing(&buf[..buf.len() - 1]).is_err());
+        assert_eq!(buf.len(), 4 + 8 + 5 * 8 + 4 + 1 + 1);
+        // One byte short is the pre-issue-16 layout (decodes); two short is an error.
+        assert!(CycleRecord::decode_timing(&buf[..buf.len() - 1]).is_ok());
+        assert!(CycleRecord::decode_timing(&buf[..buf.len() - 2]).is_err());
+        let mut long = buf.clone();
+        long.push(0);
+        assert!(CycleRecord::decode_timing(&long).is_err());
+        let mut bad = buf.clone();
+        *bad.last_mut().unwrap() = 2;
+        assert!(matches!(
+            CycleRecord::decode_timing(&bad),
+            Err(DecodeError::Bool { .. })
+        ));
     }
 
     /// The schema decoder follows CDR alignment and byte order: a hand-built big-endian

@@ -73,6 +73,11 @@ pub fn summary_schema() -> Value {
             "wall_time_s": num("wall-clock time of the loop (s)"),
             "substeps": int("plant substeps per control period (0 on hardware)"),
             "realtime": {"type": "boolean", "description": "paced by the wall clock"},
+            "jitter_p99_us": nullable_num("wall-clock runs: 99th percentile of the wake-up lateness, cycle start − its deadline (µs); also _p50_us, _p999_us, _max_us"),
+            "exec_p99_us": nullable_num("wall-clock runs: 99th percentile of the execution time, cycle start → next wait (µs); also _p50_us, _p999_us, _max_us"),
+            "overruns": int("wall-clock runs: cycles that ended after the next deadline"),
+            "overruns_exec": int("wall-clock runs: overruns whose execution alone exceeded the period (our cycle took too long)"),
+            "overruns_wakeup": int("wall-clock runs: overruns of cycles that fit in the period but started late (the thread was not running at its deadline)"),
             "records_written": int("cycle records written to the log"),
             "log_decimation": int("one cycle in N written to the log (events, first and last cycle always)"),
             "log": {"type": ["object", "null"], "description": "logger counters", "properties": {

@@ -8,6 +8,7 @@
 //! |---|---|---|
 //! | [`valve`] | spool dynamics (PT1 / 2nd order), four metering edges, lap, saturation, K_C(P_d) | 003 eq. 9–13, 004 eq. 1, 20–23 |
 //! | [`model`] | chambers over stroke, β(p), leakage, cavitation, mechanics, end stops, supply | 002 eq. 35, 003 eq. 1, 7–8, 14–15 |
+//! | [`exact`] | exact discretisation of chambers + mechanics (`linear_exact`) | Van Loan 1978 |
 //! | [`friction`] | static/Coulomb/Stribeck with true stick | 003 eq. 5, 004 eq. 28–34 |
 //! | [`line`] | lumped R-L-C lines | 002 eq. 9–17 |
 //! | [`cbv`] | counterbalance valves: pilot-assisted relief + free-flow check | 002 eq. 18–19, fig. 2 |
@@ -19,6 +20,7 @@
 
 pub mod cbv;
 pub mod effects;
+pub mod exact;
 pub mod excitation;
 pub mod friction;
 pub mod line;

@@ -16,6 +16,7 @@
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
+use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
 use crate::friction::FrictionModel;
 use crate::line::Line;
@@ -92,6 +93,8 @@ struct Consts {
     full_scale: f64,
     /// Equivalent supply droop (Pa·s/m³), > 0 when the supply pressure is a state.
     supply_r: f64,
+    /// Supply time constant (s), variant `resistance` (the `linear_exact` step uses it).
+    supply_tau: f64,
     supply: Option<crate::effects::SupplyModel>,
     mount: Option<(f64, f64, f64)>,
     /// The mount is the cylinder body's (`flexible_mount` variant `piston_side`).
@@ -105,6 +108,10 @@ pub struct Plant {
     c: Consts,
     edges: EdgeLaw,
     spool_model: SpoolModel,
+    /// Spool discretised over h/2, for the mid-step valve opening of `linear_exact`.
+    spool_half: SpoolModel,
+    /// Exact linear transition of chambers and mechanics (`integration.method = "linear_exact"`).
+    linear: Option<LinearExact>,
     friction: Option<FrictionModel>,
     /// `polynomial_force` on the rod ([`crate::effects::PolynomialForce`]).
     poly: Option<crate::effects::PolynomialForce>,
@@ -118,7 +125,15 @@ pub struct Plant {
     /// Work port → tank bleed of the directional valve (m³/(s·Pa)), with the CBVs.
     port_bleed: f64,
     control_dt: f64,
+    /// Substeps of the current period.
     substeps: u32,
+    /// Most substeps any period may take: the count at the smallest chamber volumes.
+    substeps_max: u32,
+    /// `Some(max ω·h)`: automatic substeps re-chosen every period from the volumes the
+    /// piston can reach within it (`exponential_euler` with `integration.substeps = 0`).
+    adaptive: Option<f64>,
+    /// Substeps taken since the start (for cost figures).
+    substeps_taken: u64,
     h: f64,
     state: PlantState,
     cycle: u64,
@@ -352,6 +367,7 @@ impl Plant {
                 crate::effects::SupplyModel::new(s, params.supply.pressure, params.fluid.bulk_modulus)
                     .droop()
             }),
+            supply_tau: sdrop.map_or(1.0, |s| s.time_constant.max(1e-9)),
             supply: sdrop.map(|s| {
                 crate::effects::SupplyModel::new(s, params.supply.pressure, params.fluid.bulk_modulus)
             }),
@@ -375,27 +391,40 @@ impl Plant {
                 .filter(|c| c.sides == side || c.sides == CbvSides::Both)
                 .map(|c| Cbv::new(c, params.fluid.density, params.fluid.bulk_modulus))
         });
-        // Fastest oscillatory mode over the stroke (rad/s).
-        let mut k_total = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0) + c.k_load;
-        let mut omega_max: f64 = 0.0;
-        if let Some((ml, km, dm)) = c.mount {
-            if c.body_mount {
-                // The body sees its mount and the oil column (k_total so far).
-                omega_max = omega_max.max(((km + k_total) / ml).sqrt()).max(dm / ml);
-            }
-            k_total += km;
-            omega_max = omega_max.max((km / ml).sqrt()).max(dm / ml);
-            omega_max = omega_max.max(dm / c.mass);
+        // Fastest oscillatory mode over the whole stroke (rad/s): the smallest chamber volumes.
+        let mut omega_max = fastest_mode(&c, lines.as_ref().map(|l| &l.0), &cbv, c.v_a0, c.v_b0);
+        if let (true, Some((ml, km, dm))) = (c.body_mount, c.mount) {
+            // A compliant cylinder body sees its mount and the oil column.
+            let k_oil = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0);
+            omega_max = omega_max.max(((km + k_oil) / ml).sqrt()).max(dm / ml);
         }
-        omega_max = omega_max.max((k_total / c.mass).sqrt());
-        if let Some((la, _)) = &lines {
-            omega_max = omega_max.max(la.omega_max());
-            // Line node coupled to the chamber through the last segment.
-            let c_min = la.c.min(c.v_a0.min(c.v_b0) / c.beta_max);
-            omega_max = omega_max.max(2.0 / (la.l * c_min).sqrt());
-            // Last segment against a CBV body volume.
-            for cb in cbv.iter().flatten() {
-                omega_max = omega_max.max(2.0 / (la.l * cb.c_node.min(la.c)).sqrt());
+        let x0 = params.cylinder.initial_position.clamp(0.0, c.stroke);
+        // `linear_exact` covers chambers, leakage, springs, dampers and the mount; with lines,
+        // friction (stick) or the grey-box polynomial effects the plant integrates with
+        // `exponential_euler` instead (e.g. when `ehactl diagnose` adds such an effect to a
+        // `linear_exact` rig); [`Plant::method`] tells which one runs.
+        let linear_exact = params.integration.method
+            == crate::params::IntegrationMethod::LinearExact
+            && lines.is_none()
+            && !e.friction.as_ref().is_some_and(|f| f.enabled)
+            && !e.polynomial_force.is_some_and(|f| f.enabled)
+            && !e.polynomial_flow.is_some_and(|f| f.enabled)
+            // Issue-17 variants are integrated by the exponential-Euler substep only.
+            && !c.body_mount
+            && c.air.is_none()
+            && c.k_ext_b == c.k_ext
+            && !matches!(c.supply, Some(crate::effects::SupplyModel::PumpLimit { .. }));
+        if linear_exact {
+            // Hydraulic spring, load spring and mount are exact: the step is limited only by
+            // what enters explicitly, the spool (its mid-step position sets the valve flow)
+            // and the supply sag.
+            omega_max = match e.valve_dynamics.as_ref().filter(|d| d.enabled) {
+                Some(d) if d.order == 1 && d.time_constant > 0.0 => 1.0 / d.time_constant,
+                Some(d) if d.order == 2 => d.natural_frequency,
+                _ => 0.0,
+            };
+            if sdrop.is_some() {
+                omega_max = omega_max.max(1.0 / c.supply_tau);
             }
         }
         let substeps = if params.integration.substeps > 0 {
@@ -427,6 +456,27 @@ impl Plant {
         let mut plant = Plant {
             edges: EdgeLaw::new(params),
             spool_model: SpoolModel::new(params, h),
+            spool_half: SpoolModel::new(params, 0.5 * h),
+            linear: linear_exact.then(|| {
+                LinearExact::new(
+                    LinearCoefficients {
+                        a_a: c.a_a,
+                        a_b: c.a_b,
+                        k_in: c.k_in,
+                        k_ext: c.k_ext,
+                        mass: c.mass,
+                        damping: c.damping,
+                        k_load: c.k_load,
+                        x_contact: c.x_contact,
+                        mount: c.mount,
+                    },
+                    h,
+                    // At the initial position; re-discretised at the first substep if β(p)
+                    // or the volume differs by more than the tolerance.
+                    c.beta0 / (c.v_a0 + c.a_a * x0),
+                    c.beta0 / (c.v_b0 + c.a_b * (c.stroke - x0)),
+                )
+            }),
             friction: e
                 .friction
                 .as_ref()
@@ -441,6 +491,10 @@ impl Plant {
             port_bleed: cbv_cfg.map_or(0.0, |c| c.port_bleed),
             control_dt,
             substeps,
+            substeps_max: substeps,
+            adaptive: (params.integration.substeps == 0 && !linear_exact)
+                .then_some(params.integration.max_omega_h),
+            substeps_taken: 0,
             h,
             state: PlantState::default(),
             cycle: 0,
@@ -508,6 +562,10 @@ impl Plant {
             }
         }
         self.cycle = 0;
+        if self.substeps != self.substeps_max {
+            self.set_substeps(self.substeps_max);
+        }
+        self.substeps_taken = 0;
         self.delay_buf.iter_mut().for_each(|u| *u = 0.0);
         self.sensors = SensorModel::new(
             &self.params.sensors,
@@ -525,9 +583,11 @@ impl Plant {
         &self.state
     }
 
-    /// Substeps per control period.
+    /// Most substeps per control period: the configured count, or with automatic substeps
+    /// the count at the smallest chamber volumes (stroke ends); a period mid-stroke may take
+    /// fewer ([`Plant::substeps_taken`]).
     pub fn substeps(&self) -> u32 {
-        self.substeps
+        self.substeps_max
     }
 
     /// Substep length (s).
@@ -748,9 +808,49 @@ impl Plant {
         self.delay_buf[(k % len) as usize]
     }
 
+    /// Automatic substeps for the coming period: ω·h ≤ max ω·h at the smallest chamber
+    /// volumes the piston can reach within it (|v| over two periods either side), so a
+    /// piston mid-stroke is not integrated at the step its stroke ends would need. Raised at
+    /// once, lowered only by a quarter or more (no flapping).
+    fn choose_substeps(&mut self, max_omega_h: f64) {
+        let c = &self.c;
+        let s = &self.state;
+        let reach = 2.0 * s.v.abs() * self.control_dt;
+        let x_lo = (s.x - reach).clamp(0.0, c.stroke);
+        let x_hi = (s.x + reach).clamp(0.0, c.stroke);
+        let va = c.v_a0 + c.a_a * x_lo;
+        let vb = c.v_b0 + c.a_b * (c.stroke - x_hi);
+        let w = fastest_mode(c, self.lines.as_ref().map(|l| &l.0), &self.cbv, va, vb);
+        let n = ((self.control_dt * w / max_omega_h).ceil() as u32).clamp(1, self.substeps_max);
+        if n > self.substeps || 4 * n <= 3 * self.substeps {
+            self.set_substeps(n);
+        }
+    }
+
+    /// Re-discretise for `n` substeps per period (no allocation).
+    fn set_substeps(&mut self, n: u32) {
+        self.substeps = n;
+        self.h = self.control_dt / n as f64;
+        self.spool_model = SpoolModel::new(&self.params, self.h);
+        self.spool_half = SpoolModel::new(&self.params, 0.5 * self.h);
+        if let Some((la, lb)) = self.lines.as_mut() {
+            la.prepare(self.h);
+            lb.prepare(self.h);
+        }
+    }
+
+    /// Substeps taken since the start (sum over periods; cost figures).
+    pub fn substeps_taken(&self) -> u64 {
+        self.substeps_taken
+    }
+
     /// Advance one control period with the command `u` (V) held (zero-order hold).
     /// Real-time safe: no allocation, no I/O, bounded time.
     pub fn step(&mut self, u: f64) -> Result<(), NumericalFailure> {
+        if let Some(moh) = self.adaptive {
+            self.choose_substeps(moh);
+        }
+        self.substeps_taken += self.substeps as u64;
         let len = self.delay_buf.len() as u64;
         let u = if u.is_finite() { u } else { 0.0 };
         self.delay_buf[(self.cycle % len) as usize] = u;
@@ -785,8 +885,98 @@ impl Plant {
         }
     }
 
+    /// The integration scheme that runs (`linear_exact` only where it applies, see
+    /// [`Plant::configure`]).
+    pub fn method(&self) -> crate::params::IntegrationMethod {
+        if self.linear.is_some() {
+            crate::params::IntegrationMethod::LinearExact
+        } else {
+            crate::params::IntegrationMethod::ExponentialEuler
+        }
+    }
+
+    /// Times the `linear_exact` transition was computed (0 for `exponential_euler`).
+    pub fn discretisations(&self) -> u64 {
+        self.linear.as_ref().map_or(0, |l| l.count)
+    }
+
+    /// One substep of `linear_exact` ([`crate::exact`]): spool exact; valve flow at the
+    /// mid-step spool opening, linearised in its port pressure about the start of the step
+    /// and evaluated at the step-mean pressure of the exact linear solution (second order;
+    /// the self term solved implicitly, so the stiff flow–pressure term stays stable);
+    /// external force at mid-step; then the exact linear transition.
+    #[inline]
+    fn advance_substep_linear(&mut self, t: f64, u: f64) {
+        let h = self.h;
+        let c = &self.c;
+        let mut s = self.state;
+        s.command = u;
+        let target = u / c.full_scale;
+        let (mut sm, mut smd) = (s.spool, s.spool_velocity);
+        self.spool_half.advance(&mut sm, &mut smd, target);
+        self.spool_model
+            .advance(&mut s.spool, &mut s.spool_velocity, target);
+        let o = self.edges.openings(sm);
+        let (va, vb) = self.volumes(s.x);
+        let ca = self.bulk_modulus(s.p_a) / va;
+        let cb = self.bulk_modulus(s.p_b) / vb;
+        let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, s.p_a);
+        let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, s.p_b);
+        let f_mid = self.excitation.force(t + 0.5 * h);
+        let lin = self.linear.as_mut().expect("linear_exact configured");
+        if lin.stale(ca, cb) {
+            lin.discretise(ca, cb);
+        }
+        let mut z = [s.p_a, s.p_b, s.x, s.v, s.x_load, s.v_load];
+        // Valve flow at the step-mean pressures: Q = Q₀ + dQ/dp·(p̄(Q) − p₀), with p̄ linear
+        // in Q through the exact solution (self-coupling solved, cross-coupling predicted).
+        let (pm, dpm) = lin.mean_pressures(&z, &[qa, qb, f_mid, 1.0]);
+        let qa_eff = qa + dqa * (pm[0] - s.p_a) / (1.0 - dqa * dpm[0]);
+        let qb_eff = qb + dqb * (pm[1] - s.p_b) / (1.0 - dqb * dpm[1]);
+        lin.advance(&mut z, &[qa_eff, qb_eff, f_mid, 1.0]);
+        s.p_a = z[0].max(c.p_cav);
+        s.p_b = z[1].max(c.p_cav);
+        s.x = z[2];
+        s.v = z[3];
+        if c.mount.is_some() {
+            s.x_load = z[4];
+            s.v_load = z[5];
+        } else {
+            s.x_load = s.x;
+            s.v_load = s.v;
+        }
+        s.q_a = qa_eff;
+        s.q_b = qb_eff;
+        if c.supply_r > 0.0 {
+            let target = (c.ps0 - c.supply_r * (qsa + qsb)).max(c.pt);
+            s.p_s += (target - s.p_s) * (1.0 - (-h / c.supply_tau).exp());
+        }
+        let f_ext = self.excitation.force(t + h);
+        s.external = f_ext;
+        s.friction = 0.0;
+        s.stuck = false;
+        if c.end_stops {
+            if s.x < 0.0 {
+                s.x = 0.0;
+                s.v = s.v.max(0.0);
+            } else if s.x > c.stroke {
+                s.x = c.stroke;
+                s.v = s.v.min(0.0);
+            }
+        }
+        s.rod_force = c.k_load * (s.x - c.x_contact)
+            + match c.mount {
+                Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
+                None => f_ext,
+            };
+        self.state = s;
+    }
+
     #[inline]
     fn advance_substep(&mut self, t: f64, u: f64) {
+        if self.linear.is_some() {
+            return self.advance_substep_linear(t, u);
+        }
         let h = self.h;
         let c = &self.c;
         let mut s = self.state;
@@ -972,6 +1162,31 @@ impl Plant {
         } + self.poly.map_or(0.0, |f| f.force(s.x, s.v, s.p_a, s.p_b).0);
         self.state = s;
     }
+}
+
+/// Fastest oscillatory mode (rad/s) of the `exponential_euler` scheme with chamber volumes
+/// `va`, `vb` (m³): hydraulic spring + load spring on the piston mass, mount, line segments,
+/// line end against the chamber or a CBV body.
+fn fastest_mode(c: &Consts, line: Option<&Line>, cbv: &[Option<Cbv>; 2], va: f64, vb: f64) -> f64 {
+    let mut k_total = c.beta_max * (c.a_a * c.a_a / va + c.a_b * c.a_b / vb) + c.k_load;
+    let mut omega_max: f64 = 0.0;
+    if let Some((ml, km, dm)) = c.mount {
+        k_total += km;
+        omega_max = omega_max.max((km / ml).sqrt()).max(dm / ml);
+        omega_max = omega_max.max(dm / c.mass);
+    }
+    omega_max = omega_max.max((k_total / c.mass).sqrt());
+    if let Some(la) = line {
+        omega_max = omega_max.max(la.omega_max());
+        // Line node coupled to the chamber through the last segment.
+        let c_min = la.c.min(va.min(vb) / c.beta_max);
+        omega_max = omega_max.max(2.0 / (la.l * c_min).sqrt());
+        // Last segment against a CBV body volume.
+        for cb in cbv.iter().flatten() {
+            omega_max = omega_max.max(2.0 / (la.l * cb.c_node.min(la.c)).sqrt());
+        }
+    }
+    omega_max
 }
 
 /// φ₁(z) = (eᶻ − 1)/z, the exponential-Euler weight (→ 1 as z → 0).

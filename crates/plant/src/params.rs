@@ -734,6 +734,27 @@ pub struct Integration {
     /// Largest ω·h (-) allowed for the fastest oscillatory mode when choosing substeps.
     #[serde(default = "Integration::default_omega_h")]
     pub max_omega_h: f64,
+    /// Integration scheme of the substep (see [`crate::model`]).
+    #[serde(default)]
+    pub method: IntegrationMethod,
+}
+
+/// Integration scheme of one substep ([`crate::model`] explains both).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum IntegrationMethod {
+    /// Exponential Euler per pressure node, symplectic Euler mechanics (first order).
+    #[default]
+    ExponentialEuler,
+    /// Chambers, piston (and load mass) as one linear system discretised exactly per substep,
+    /// valve flow at the mid-step spool position; rigs with lines, friction or the polynomial
+    /// grey-box effects run `exponential_euler` instead.
+    LinearExact,
+}
+
+impl IntegrationMethod {
+    /// Config spellings.
+    pub const NAMES: &'static [&'static str] = &["exponential_euler", "linear_exact"];
 }
 
 impl Integration {
@@ -747,6 +768,7 @@ impl Default for Integration {
         Self {
             substeps: 0,
             max_omega_h: Self::default_omega_h(),
+            method: IntegrationMethod::default(),
         }
     }
 }

@@ -52,12 +52,83 @@ pub struct TrueValues {
     pub spool: f64,
 }
 
+/// One tone A·sin(2π f t) evaluated by rotation: when consecutive sample times are equally
+/// spaced (the control grid), (sin, cos) advance by one complex multiplication instead of a
+/// `sin` call; any other spacing, and every [`Tone::RESYNC`]-th sample, recomputes them
+/// exactly, so the rounding drift stays below 1e-13 of the amplitude.
+#[derive(Debug, Clone)]
+struct Tone {
+    w: f64,
+    /// Phase φ (rad): amp·sin(w·t + φ).
+    ph: f64,
+    amp: f64,
+    s: f64,
+    c: f64,
+    t_last: f64,
+    dt: f64,
+    rot: (f64, f64),
+    since_sync: u32,
+}
+
+impl Tone {
+    const RESYNC: u32 = 1024;
+
+    fn new(freq: f64, amp: f64, ph: f64) -> Self {
+        Self {
+            w: TAU * freq,
+            ph,
+            amp,
+            s: 0.0,
+            c: 1.0,
+            t_last: f64::NAN,
+            dt: f64::NAN,
+            rot: (0.0, 1.0),
+            since_sync: 0,
+        }
+    }
+
+    #[inline]
+    fn value(&mut self, t: f64) -> f64 {
+        let dt = t - self.t_last;
+        if dt == self.dt || (dt - self.dt).abs() <= 1e-12 * self.dt.abs() {
+            if self.since_sync < Self::RESYNC {
+                let (sd, cd) = self.rot;
+                let s = self.s * cd + self.c * sd;
+                self.c = self.c * cd - self.s * sd;
+                self.s = s;
+                self.since_sync += 1;
+                self.t_last = t;
+                return self.amp * self.s;
+            }
+        } else if dt.is_finite() && dt > 0.0 {
+            self.dt = dt;
+            self.rot = (self.w * dt).sin_cos();
+        }
+        let (s, c) = (self.w * t + self.ph).sin_cos();
+        self.s = s;
+        self.c = c;
+        self.since_sync = 0;
+        self.t_last = t;
+        self.amp * s
+    }
+}
+
+/// Noise channels, in the order of their generator streams.
+const CHANNELS: usize = 5;
+
 /// Stateful sensor set.
+///
+/// Noise: one xoshiro256++ stream per channel (force 0, position 1, pressure A 2, pressure B
+/// 3, spool 4), seeded from `sensors.seed` + k·0x9E3779B97F4A7C15 via SplitMix64 ([`NoiseRng`]);
+/// a channel draws one standard normal per sample (the position one per transducer update)
+/// only if its noise σ is non-zero. A channel's sequence thus depends only on the seed and
+/// its own samples: switching noise on for one channel does not change another's.
 #[derive(Debug, Clone)]
 pub struct SensorModel {
     cfg: Sensors,
-    tone: Option<SensorTone>,
-    rng: NoiseRng,
+    tone_channel: Option<SensorChannel>,
+    tones: Vec<Tone>,
+    rngs: [NoiseRng; CHANNELS],
     held_position: f64,
     next_position_update: f64,
 }
@@ -65,52 +136,75 @@ pub struct SensorModel {
 impl SensorModel {
     /// From config; `tone` is the `sensor_tone` effect when enabled.
     pub fn new(cfg: &Sensors, tone: Option<&SensorTone>) -> Self {
+        let tone = tone.filter(|t| t.enabled);
         Self {
             cfg: cfg.clone(),
-            tone: tone.filter(|t| t.enabled).cloned(),
-            rng: NoiseRng::new(cfg.seed),
+            tone_channel: tone.map(|t| t.channel),
+            tones: tone.map_or(Vec::new(), |t| {
+                t.frequencies
+                    .iter()
+                    .zip(&t.amplitudes)
+                    .enumerate()
+                    .map(|(i, (f, a))| Tone::new(*f, *a, t.phases.get(i).copied().unwrap_or(0.0)))
+                    .collect()
+            }),
+            rngs: std::array::from_fn(|k| {
+                NoiseRng::new(
+                    cfg.seed
+                        .wrapping_add((k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
+                )
+            }),
             held_position: f64::NAN,
             next_position_update: f64::NEG_INFINITY,
         }
     }
 
-    fn tone(&self, ch: SensorChannel, t: f64) -> f64 {
-        match &self.tone {
-            Some(tone) if tone.channel == ch => tone
-                .frequencies
-                .iter()
-                .zip(&tone.amplitudes)
-                .enumerate()
-                .map(|(i, (f, a))| a * (TAU * f * t + tone.phases.get(i).copied().unwrap_or(0.0)).sin())
-                .sum(),
-            _ => 0.0,
+    #[inline]
+    fn tone(&mut self, ch: SensorChannel, t: f64) -> f64 {
+        if self.tone_channel != Some(ch) {
+            return 0.0;
+        }
+        self.tones.iter_mut().map(|tone| tone.value(t)).sum()
+    }
+
+    /// σ·N(0, 1) from channel `k`'s stream, nothing drawn when σ = 0.
+    #[inline]
+    fn noise(&mut self, k: usize, sigma: f64) -> f64 {
+        if sigma == 0.0 {
+            0.0
+        } else {
+            sigma * self.rngs[k].normal()
         }
     }
 
     /// Sample every sensor. Does not allocate.
     pub fn sample(&mut self, v: &TrueValues) -> Measurements {
         let c = &self.cfg;
-        let force =
-            v.force + c.force.noise * self.rng.normal() + self.tone(SensorChannel::Force, v.t);
+        let (sf, sx, sp, ss) = (
+            c.force.noise,
+            c.position.noise,
+            c.pressure.noise,
+            c.spool.noise,
+        );
+        let (res, upd) = (c.position.resolution, c.position.update_period);
+        let force = v.force + self.noise(0, sf) + self.tone(SensorChannel::Force, v.t);
         if v.t + 1e-12 >= self.next_position_update {
-            let mut x = v.position + c.position.noise * self.rng.normal();
-            if c.position.resolution > 0.0 {
-                x = (x / c.position.resolution).round() * c.position.resolution;
+            let mut x = v.position + self.noise(1, sx);
+            if res > 0.0 {
+                x = (x / res).round() * res;
             }
             self.held_position = x;
-            self.next_position_update = if c.position.update_period > 0.0 {
-                let k = (v.t / c.position.update_period).floor() + 1.0;
-                k * c.position.update_period
+            self.next_position_update = if upd > 0.0 {
+                let k = (v.t / upd).floor() + 1.0;
+                k * upd
             } else {
                 f64::NEG_INFINITY
             };
         }
         let position = self.held_position + self.tone(SensorChannel::Position, v.t);
-        let p_a =
-            v.p_a + c.pressure.noise * self.rng.normal() + self.tone(SensorChannel::PressureA, v.t);
-        let p_b =
-            v.p_b + c.pressure.noise * self.rng.normal() + self.tone(SensorChannel::PressureB, v.t);
-        let spool = v.spool + c.spool.noise * self.rng.normal();
+        let p_a = v.p_a + self.noise(2, sp) + self.tone(SensorChannel::PressureA, v.t);
+        let p_b = v.p_b + self.noise(3, sp) + self.tone(SensorChannel::PressureB, v.t);
+        let spool = v.spool + self.noise(4, ss);
         Measurements {
             t: v.t,
             force,

@@ -782,6 +782,12 @@ pub const PARAMS: &[Param] = &[
         Within(0.01, 1.5),
         "largest ω·h for automatic substeps",
     ),
+    choice(
+        "integration.method",
+        crate::params::IntegrationMethod::NAMES,
+        "substep scheme: exponential_euler (default) or linear_exact (chambers + mechanics \
+         discretised exactly; exponential_euler is used with lines, friction or polynomial effects)",
+    ),
 ];
 
 /// A configuration error that names the field, what is wrong and what was expected.

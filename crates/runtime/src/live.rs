@@ -2,32 +2,34 @@
 //! cycle boundary, never a lock in the loop.
 //!
 //! The loop owns the *front* buffer (its controller gains and setpoint generator). A
-//! change is prepared off the loop (parse, range check, full config validation), written
-//! into the *back* buffer ([`LiveParams`]' single slot) and published with one atomic
-//! store. At the start of the next cycle the loop claims the slot with one
-//! compare-and-swap, copies it into its front buffer (plain numbers, no allocation) and
-//! releases it: wait-free for the loop. Writers are serialised among themselves and wait
+//! change is prepared off the loop (parse, range check, full config validation) and pushed
+//! into the *back* buffer: a one-slot [`crossbeam_queue::ArrayQueue`] (lock-free,
+//! preallocated at construction, so neither side allocates or locks when handing over). At
+//! the start of the next cycle the loop pops the slot and copies the change into its front
+//! buffer (plain numbers, no allocation). Writers are serialised among themselves and wait
 //! (off the loop) until the previous change has been taken, so no change is ever lost or
 //! applied half-way. Every change is logged as a `param_change` event at the cycle it
 //! took effect.
+//!
+//! Why a one-slot queue and not a triple buffer (`triple_buffer` crate): a triple buffer
+//! keeps only the latest value, so a change published twice before the loop looks would
+//! lose the first one's events, and its reader half needs `&mut` access, which the loop
+//! (sharing `&LiveParams` with the control socket) does not have. The queue hands over
+//! every change exactly once through a shared reference, with no `unsafe` here.
 
 use crate::runloop::Controller;
+use crossbeam_queue::ArrayQueue;
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_hal::record::{Event, EventKind, Severity};
 use ehactl_plant::spec::Param;
 use ehactl_plant::ConfigError;
-use std::cell::UnsafeCell;
-use std::sync::atomic::{AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 /// Most assignments in one change (they land together, in one cycle).
 pub const MAX_CHANGES: usize = 8;
-
-const EMPTY: u8 = 0;
-const FULL: u8 = 1;
-const TAKING: u8 = 2;
 
 /// One assignment: the registry entry (static path and unit) and the new value (SI).
 #[derive(Debug, Clone, Copy)]
@@ -62,19 +64,13 @@ pub enum Tunables {
 
 /// The back buffer shared between the writer (control socket, CLI) and the loop.
 pub struct LiveParams {
-    state: AtomicU8,
-    slot: UnsafeCell<Option<Update>>,
+    /// The back buffer: at most one change waiting for the loop.
+    slot: ArrayQueue<Update>,
     writers: Mutex<()>,
     published: AtomicU64,
     applied: AtomicU64,
     applied_cycle: AtomicU64,
 }
-
-// SAFETY: `slot` is only written by a writer holding `writers` while `state` is EMPTY
-// (the loop never touches the slot then), and only read by the loop between its
-// FULL→TAKING compare-and-swap (Acquire) and its TAKING→EMPTY store (Release); writers do
-// not touch it until they observe EMPTY (Acquire). So accesses never overlap.
-unsafe impl Sync for LiveParams {}
 
 impl std::fmt::Debug for LiveParams {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -117,8 +113,7 @@ impl LiveParams {
     /// Empty back buffer.
     pub fn new() -> Self {
         Self {
-            state: AtomicU8::new(EMPTY),
-            slot: UnsafeCell::new(None),
+            slot: ArrayQueue::new(1),
             writers: Mutex::new(()),
             published: AtomicU64::new(0),
             applied: AtomicU64::new(0),
@@ -131,18 +126,19 @@ impl LiveParams {
     pub fn publish(&self, update: Update, timeout: Duration) -> Result<u64, LiveError> {
         let _w = self.writers.lock().unwrap_or_else(|p| p.into_inner());
         let t0 = Instant::now();
-        while self.state.load(Ordering::Acquire) != EMPTY {
+        let seq = self.published.load(Ordering::Relaxed) + 1;
+        let mut update = update;
+        // The sequence number is counted before the push: once pushed, the loop may apply
+        // the change (and count it in `applied`) at once.
+        self.published.store(seq, Ordering::Relaxed);
+        while let Err(back) = self.slot.push(update) {
             if t0.elapsed() > timeout {
+                self.published.store(seq - 1, Ordering::Relaxed);
                 return Err(LiveError::Timeout);
             }
+            update = back;
             std::thread::sleep(Duration::from_micros(50));
         }
-        // SAFETY: state is EMPTY and we are the only writer: the loop does not access the
-        // slot until we store FULL below.
-        unsafe { *self.slot.get() = Some(update) };
-        let seq = self.published.load(Ordering::Relaxed) + 1;
-        self.published.store(seq, Ordering::Relaxed);
-        self.state.store(FULL, Ordering::Release);
         Ok(seq)
     }
 
@@ -178,42 +174,31 @@ impl LiveParams {
         setpoint: &mut Setpoint,
         event: &mut dyn FnMut(Event),
     ) {
-        if self.state.load(Ordering::Relaxed) != FULL {
+        let Some(u) = self.slot.pop() else {
             return;
+        };
+        match (controller, u.controller) {
+            (Controller::Force(pi), Tunables::Pi(g)) => pi.gains = g,
+            (Controller::Position(pd), Tunables::Pd(g)) => pd.gains = g,
+            _ => {}
         }
-        if self
-            .state
-            .compare_exchange(FULL, TAKING, Ordering::Acquire, Ordering::Relaxed)
-            .is_err()
-        {
-            return;
-        }
-        // SAFETY: TAKING: the writers wait for EMPTY, so the slot is ours until the store.
-        let slot = unsafe { &*self.slot.get() };
-        if let Some(u) = slot {
-            match (controller, u.controller) {
-                (Controller::Force(pi), Tunables::Pi(g)) => pi.gains = g,
-                (Controller::Position(pd), Tunables::Pd(g)) => pd.gains = g,
-                _ => {}
-            }
-            setpoint.clone_from(&u.setpoint);
-            for a in u.changes.iter().flatten() {
-                event(Event {
-                    t,
-                    cycle: k,
-                    severity: Severity::Info,
-                    kind: EventKind::ParamChange,
-                    channel: a.param.path,
-                    value: a.value,
-                    limit: f64::NAN,
-                    unit: a.param.unit,
-                });
-            }
+        // `Update` is plain numbers (no heap), so moving it out and dropping it frees nothing.
+        *setpoint = u.setpoint;
+        for a in u.changes.iter().flatten() {
+            event(Event {
+                t,
+                cycle: k,
+                severity: Severity::Info,
+                kind: EventKind::ParamChange,
+                channel: a.param.path,
+                value: a.value,
+                limit: f64::NAN,
+                unit: a.param.unit,
+            });
         }
         self.applied_cycle.store(k, Ordering::Relaxed);
         let n = self.applied.load(Ordering::Relaxed) + 1;
         self.applied.store(n, Ordering::Release);
-        self.state.store(EMPTY, Ordering::Release);
     }
 }
 
@@ -310,4 +295,50 @@ pub fn prepare(cfg: &mut RigConfig, assignments: &[(&str, f64)]) -> Result<Updat
     };
     *cfg = new_cfg;
     Ok(update)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Changes are handed over one at a time and never overwritten: a second publish waits
+    /// for the loop to take the first (and times out cleanly if it does not), then both
+    /// changes reach the loop in order, each with its event.
+    #[test]
+    fn every_change_is_taken_once_in_order() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/sahu2022_force.toml");
+        let mut cfg = RigConfig::load(&path).unwrap();
+        let mut controller = Controller::from_config(&cfg);
+        let mut setpoint = Setpoint::new(&cfg.setpoint);
+        let live = LiveParams::new();
+        let a = prepare(&mut cfg, &[("control.pi.kp", 0.31)]).unwrap();
+        let b = prepare(&mut cfg, &[("control.pi.kp", 0.32)]).unwrap();
+        assert_eq!(live.publish(a, Duration::from_secs(1)).unwrap(), 1);
+        let e = live
+            .publish(b.clone(), Duration::from_millis(5))
+            .unwrap_err();
+        assert!(matches!(e, LiveError::Timeout), "{e}");
+        let mut events = Vec::new();
+        let kp = |c: &Controller| match c {
+            Controller::Force(pi) => pi.gains.kp,
+            _ => unreachable!("force config"),
+        };
+        live.apply_pending(10, 0.002, &mut controller, &mut setpoint, &mut |e| {
+            events.push(e)
+        });
+        assert_eq!(kp(&controller), 0.31);
+        assert_eq!(live.publish(b, Duration::from_secs(1)).unwrap(), 2);
+        live.apply_pending(11, 0.0022, &mut controller, &mut setpoint, &mut |e| {
+            events.push(e)
+        });
+        live.apply_pending(12, 0.0024, &mut controller, &mut setpoint, &mut |e| {
+            events.push(e)
+        });
+        assert_eq!(kp(&controller), 0.32);
+        assert_eq!(live.applied_count(), 2);
+        assert_eq!(live.wait_applied(2, Duration::ZERO), Some(11));
+        let got: Vec<(u64, f64)> = events.iter().map(|e| (e.cycle, e.value)).collect();
+        assert_eq!(got, [(10, 0.31), (11, 0.32)]);
+    }
 }

@@ -266,6 +266,15 @@ pub struct TimingStats {
     pub exec: Histogram,
     /// Cycles that finished after the next deadline.
     pub overruns: u64,
+    /// Overruns caused by our own execution: the cycle's work (start to the next wait)
+    /// alone took longer than the period, so it would have overrun even if it had started
+    /// exactly on its deadline.
+    pub overruns_exec: u64,
+    /// Overruns caused by a late start: the work fit in the period, but the cycle started
+    /// so late (the thread was not running at its deadline; with `Continue` also a spill of
+    /// an earlier overrun) that it ended after the next deadline. `overruns_exec +
+    /// overruns_wakeup = overruns`.
+    pub overruns_wakeup: u64,
     /// Longest run of consecutive overruns (cycles).
     pub longest_overrun_streak: u64,
     /// Deadlines skipped by the `Skip` / `Trip` policies.
@@ -298,6 +307,12 @@ pub struct TimingReport {
     pub exec: Quantiles,
     /// Overruns (cycles).
     pub overruns: u64,
+    /// Overruns whose cycle's execution alone exceeded the period (cycles; see
+    /// [`TimingStats::overruns_exec`]).
+    pub overruns_exec: u64,
+    /// Overruns of cycles that fit in the period but started late (cycles; see
+    /// [`TimingStats::overruns_wakeup`]).
+    pub overruns_wakeup: u64,
     /// Longest streak of consecutive overruns (cycles).
     pub longest_overrun_streak: u64,
     /// Deadlines skipped by the overrun policy.
@@ -308,6 +323,31 @@ pub struct TimingReport {
     pub spin_us: f64,
     /// Real-time settings in effect.
     pub rt: RtApplied,
+}
+
+/// Time source of a [`WallClockPacer`]: [`Monotonic`] (CLOCK_MONOTONIC) in every run; tests
+/// substitute a scripted clock so that the pacer's decisions (overruns, skipped deadlines,
+/// no catch-up burst) are checked by counting, independent of how loaded the machine is.
+pub trait Clock {
+    /// Current time (ns, monotonic).
+    fn now_ns(&self) -> u64;
+    /// Sleep until the absolute time `t_ns` (ns, same clock as [`Clock::now_ns`]).
+    fn sleep_until(&self, t_ns: u64);
+}
+
+/// CLOCK_MONOTONIC, slept on with `clock_nanosleep(TIMER_ABSTIME)`.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Monotonic;
+
+impl Clock for Monotonic {
+    #[inline]
+    fn now_ns(&self) -> u64 {
+        monotonic_ns()
+    }
+    #[inline]
+    fn sleep_until(&self, t_ns: u64) {
+        sleep_until(t_ns)
+    }
 }
 
 /// Current CLOCK_MONOTONIC time (ns).
@@ -352,8 +392,10 @@ fn sleep_until(t_ns: u64) {
 const OVERRUN_EVENT_SPACING_NS: u64 = 1_000_000_000;
 const EVENT_SLOTS: usize = 8;
 
-/// The wall-clock pacer (see the module docs).
-pub struct WallClockPacer {
+/// The wall-clock pacer (see the module docs), on CLOCK_MONOTONIC unless a test gives it
+/// another [`Clock`].
+pub struct WallClockPacer<C: Clock = Monotonic> {
+    clock: C,
     period_ns: u64,
     spin_ns: u64,
     opts: RtOptions,
@@ -371,7 +413,7 @@ pub struct WallClockPacer {
     last_overrun_event: Option<u64>,
 }
 
-impl std::fmt::Debug for WallClockPacer {
+impl<C: Clock> std::fmt::Debug for WallClockPacer<C> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("WallClockPacer")
             .field("period_ns", &self.period_ns)
@@ -381,13 +423,21 @@ impl std::fmt::Debug for WallClockPacer {
     }
 }
 
-impl WallClockPacer {
+impl WallClockPacer<Monotonic> {
     /// Pacer on the deadline grid of `timebase` (its period in whole ns). Nothing is
     /// applied until the first cycle.
     pub fn new(timebase: Timebase, opts: RtOptions) -> Self {
+        WallClockPacer::with_clock(timebase, opts, Monotonic)
+    }
+}
+
+impl<C: Clock> WallClockPacer<C> {
+    /// [`WallClockPacer::new`] on another clock (tests).
+    pub fn with_clock(timebase: Timebase, opts: RtOptions, clock: C) -> Self {
         let period_ns = timebase.period_ns();
         let spin_ns = (opts.spin.max(0.0) * 1e9).round() as u64;
         Self {
+            clock,
             period_ns,
             spin_ns: spin_ns.min(period_ns),
             opts,
@@ -411,6 +461,11 @@ impl WallClockPacer {
         self.period_ns
     }
 
+    /// The clock.
+    pub fn clock(&self) -> &C {
+        &self.clock
+    }
+
     /// Running statistics.
     pub fn stats(&self) -> &TimingStats {
         &self.stats
@@ -429,6 +484,8 @@ impl WallClockPacer {
             period: self.stats.period.summary_us(),
             exec: self.stats.exec.summary_us(),
             overruns: self.stats.overruns,
+            overruns_exec: self.stats.overruns_exec,
+            overruns_wakeup: self.stats.overruns_wakeup,
             longest_overrun_streak: self.stats.longest_overrun_streak,
             skipped_deadlines: self.stats.skipped_deadlines,
             overrun_policy: match self.opts.overrun {
@@ -526,30 +583,30 @@ impl WallClockPacer {
     fn sleep_to(&self, deadline: u64) -> u64 {
         if self.spin_ns > 0 {
             let wake = deadline - self.spin_ns.min(deadline);
-            if monotonic_ns() < wake {
-                sleep_until(wake);
+            if self.clock.now_ns() < wake {
+                self.clock.sleep_until(wake);
             }
             loop {
-                let now = monotonic_ns();
+                let now = self.clock.now_ns();
                 if now >= deadline {
                     return now;
                 }
                 std::hint::spin_loop();
             }
         } else {
-            sleep_until(deadline);
-            monotonic_ns()
+            self.clock.sleep_until(deadline);
+            self.clock.now_ns()
         }
     }
 }
 
-impl Pacer for WallClockPacer {
+impl<C: Clock> Pacer for WallClockPacer<C> {
     fn wait_for_cycle(&mut self, k: u64) -> bool {
         if !self.started {
             self.started = true;
             self.apply_rt();
             // First deadline one period ahead, so start-up page faults settle first.
-            let now = monotonic_ns();
+            let now = self.clock.now_ns();
             self.origin = now + self.period_ns;
             self.deadline = self.origin;
             let start = self.sleep_to(self.deadline);
@@ -562,19 +619,27 @@ impl Pacer for WallClockPacer {
                 exec_prev_us: f64::NAN,
                 skipped: 0,
                 overrun: false,
+                overrun_exec: false,
             };
             return true;
         }
-        let now = monotonic_ns();
+        let now = self.clock.now_ns();
         let exec = now - self.last_start;
         self.stats.exec.record(exec);
         let nominal = self.deadline + self.period_ns;
         let mut deadline = nominal;
         let mut skipped = 0u64;
         let overrun = now > deadline;
+        // Whose fault: the work alone overran the period (ours), or it fit but started late.
+        let overrun_exec = overrun && exec > self.period_ns;
         if overrun {
             self.streak += 1;
             self.stats.overruns += 1;
+            if overrun_exec {
+                self.stats.overruns_exec += 1;
+            } else {
+                self.stats.overruns_wakeup += 1;
+            }
             self.stats.longest_overrun_streak = self.stats.longest_overrun_streak.max(self.streak);
             let late = now - deadline;
             let spaced = match self.last_overrun_event {
@@ -647,6 +712,7 @@ impl Pacer for WallClockPacer {
             exec_prev_us: exec as f64 * 1e-3,
             skipped: skipped.min(u32::MAX as u64) as u32,
             overrun,
+            overrun_exec,
         };
         self.deadline = deadline;
         self.last_start = start;
@@ -761,30 +827,112 @@ mod tests {
         );
     }
 
+    /// A scripted clock: time moves only when the test says so ([`Scripted::work`], the
+    /// cycle's execution) or when the pacer sleeps (to the requested time + `late_by`), so
+    /// every decision of the pacer is checked by counting, whatever the machine's load.
+    #[derive(Debug, Default)]
+    struct Scripted {
+        now: std::cell::Cell<u64>,
+        sleeps: std::cell::Cell<u64>,
+        /// A sleep returns this much after the requested time (ns): the thread was not
+        /// running when its deadline came.
+        late_by: std::cell::Cell<u64>,
+    }
+
+    impl Scripted {
+        /// The cycle's work takes `ns` of wall time.
+        fn work(&self, ns: u64) {
+            self.now.set(self.now.get() + ns);
+        }
+    }
+
+    impl Clock for Scripted {
+        fn now_ns(&self) -> u64 {
+            self.now.get()
+        }
+        fn sleep_until(&self, t_ns: u64) {
+            self.sleeps.set(self.sleeps.get() + 1);
+            self.now.set(self.now.get().max(t_ns) + self.late_by.get());
+        }
+    }
+
+    const MS: u64 = 1_000_000;
+
+    fn scripted(opts: RtOptions) -> WallClockPacer<Scripted> {
+        // 10 ms period; the clock starts at 1 s.
+        let clock = Scripted::default();
+        clock.now.set(1_000 * MS);
+        WallClockPacer::with_clock(Timebase::at_rate_hz(100.0), opts, clock)
+    }
+
     #[test]
     fn skip_policy_skips_missed_deadlines_without_a_burst() {
-        // 10 ms period: wide margins against scheduling noise on a shared machine.
-        let mut p = WallClockPacer::new(Timebase::at_rate_hz(100.0), RtOptions::default());
+        let mut p = scripted(RtOptions::default());
         assert!(p.wait_for_cycle(0));
-        std::thread::sleep(std::time::Duration::from_millis(35));
+        let d0 = 1_010 * MS; // first deadline: one period after the start-up call
+        assert_eq!(p.clock().now_ns(), d0);
+        // Cycle 0 works for 35 ms = 3.5 periods: it overran deadline 1 by 25 ms, so
+        // deadlines 1, 2, 3 are missed and skipped; cycle 1 starts on deadline 4 (the
+        // grid phase is kept) — not at once, which would begin a catch-up burst.
+        p.clock().work(35 * MS);
         assert!(p.wait_for_cycle(1));
-        // Overran by ≥ 2.5 periods: deadlines 1, 2, 3 (at least) are skipped and the
-        // cycle starts on the grid, in the future.
+        assert_eq!(p.clock().now_ns(), d0 + 4 * 10 * MS);
         let s = p.stats();
-        assert_eq!(s.overruns, 1);
-        assert!(s.skipped_deadlines >= 3, "{}", s.skipped_deadlines);
+        assert_eq!((s.overruns, s.skipped_deadlines), (1, 3));
+        // Our own execution (35 ms > 10 ms) caused it.
+        assert_eq!((s.overruns_exec, s.overruns_wakeup), (1, 0));
         let tm = p.cycle_timing().unwrap();
-        assert!(tm.overrun && tm.skipped >= 3);
-        // The next cycle is one period later (no catch-up burst).
-        let t1 = monotonic_ns();
-        assert!(p.wait_for_cycle(2));
-        let t2 = monotonic_ns();
-        assert!(t2 - t1 >= 9_000_000, "next cycle came after {} ns", t2 - t1);
-        assert_eq!(p.stats().overruns, 1);
-        assert_eq!(p.stats().longest_overrun_streak, 1);
+        assert!(tm.overrun && tm.overrun_exec);
+        assert_eq!(tm.skipped, 3);
+        assert_eq!(tm.exec_prev_us, 35_000.0);
+        assert_eq!(tm.lateness_us, 0.0);
         let ev = p.take_event().expect("overrun event");
         assert_eq!(ev.kind, EventKind::Overrun);
-        assert!(ev.value >= 25e-3, "{}", ev.value);
+        assert_eq!(ev.value, 25e-3);
+        // The cycles after it come one period apart, each on its grid point: no burst.
+        for k in 2..6u64 {
+            p.clock().work(MS);
+            assert!(p.wait_for_cycle(k));
+            assert_eq!(p.clock().now_ns(), d0 + (k + 3) * 10 * MS, "cycle {k}");
+            assert_eq!(p.cycle_timing().unwrap().period_us, 10_000.0);
+        }
+        let s = p.stats();
+        assert_eq!((s.overruns, s.skipped_deadlines, s.longest_overrun_streak), (1, 3, 1));
+        assert_eq!(s.period.count(), 5);
+        assert!(p.take_event().is_none(), "one overrun, one event");
+    }
+
+    #[test]
+    fn an_overrun_is_split_into_our_execution_and_a_late_start() {
+        let mut p = scripted(RtOptions::default());
+        assert!(p.wait_for_cycle(0));
+        p.clock().work(4 * MS);
+        // The thread is not running at deadline 1: its sleep returns 7 ms late. Cycle 1
+        // then does 4 ms of work: 7 + 4 = 11 ms > 10 ms, an overrun of a cycle that fit.
+        p.clock().late_by.set(7 * MS);
+        assert!(p.wait_for_cycle(1));
+        p.clock().late_by.set(0);
+        assert_eq!(p.cycle_timing().unwrap().lateness_us, 7_000.0);
+        p.clock().work(4 * MS);
+        assert!(p.wait_for_cycle(2));
+        let s = p.stats();
+        assert_eq!((s.overruns, s.overruns_exec, s.overruns_wakeup), (1, 0, 1));
+        let tm = p.cycle_timing().unwrap();
+        assert!(tm.overrun && !tm.overrun_exec);
+        assert_eq!(tm.exec_prev_us, 4_000.0);
+        // Cycle 2 starts on time and works 12 ms: our own overrun.
+        p.clock().work(12 * MS);
+        assert!(p.wait_for_cycle(3));
+        let tm = p.cycle_timing().unwrap();
+        assert!(tm.overrun && tm.overrun_exec);
+        let r = p.timing_report();
+        assert_eq!((r.overruns, r.overruns_exec, r.overruns_wakeup), (2, 1, 1));
+        // Execution is wall time from start to wait: a preemption inside the cycle counts
+        // as execution (DEPLOY.md says so), e.g. 3 ms of work + 8 ms not running.
+        p.clock().work(3 * MS);
+        p.clock().work(8 * MS);
+        assert!(p.wait_for_cycle(4));
+        assert_eq!(p.stats().overruns_exec, 2);
     }
 
     #[test]
@@ -793,21 +941,24 @@ mod tests {
             overrun: OverrunPolicy::Continue,
             ..Default::default()
         };
-        let mut p = WallClockPacer::new(Timebase::at_rate_hz(100.0), opts);
+        let mut p = scripted(opts);
         assert!(p.wait_for_cycle(0));
-        std::thread::sleep(std::time::Duration::from_millis(25));
-        let t_late = monotonic_ns();
+        let d0 = p.clock().now_ns();
+        p.clock().work(25 * MS);
+        let sleeps = p.clock().sleeps.get();
         assert!(p.wait_for_cycle(1));
-        // Started at once (no sleep to the next grid point, which is ≥ 5 ms away),
-        // nothing skipped, and the late start counts as jitter (≥ 15 ms).
-        assert!(monotonic_ns() - t_late < 4_000_000);
+        // Started at once (no sleep to the next grid point, 5 ms away), nothing skipped,
+        // and the late start (15 ms after the deadline it missed) counts as jitter.
+        assert_eq!(p.clock().sleeps.get(), sleeps);
+        assert_eq!(p.clock().now_ns(), d0 + 25 * MS);
         assert_eq!(p.stats().skipped_deadlines, 0);
         assert_eq!(p.stats().overruns, 1);
-        assert!(p.stats().jitter.max() >= 15_000_000);
-        let t1 = monotonic_ns();
+        assert_eq!(p.stats().jitter.max(), 15 * MS);
+        // The grid moved to that start: the next cycle one full period later, not at once.
+        p.clock().work(MS);
         assert!(p.wait_for_cycle(2));
-        // One full period after the late start, not an immediate catch-up cycle.
-        assert!(monotonic_ns() - t1 >= 9_000_000);
+        assert_eq!(p.clock().now_ns(), d0 + 35 * MS);
+        assert_eq!(p.stats().overruns, 1);
     }
 
     #[test]
@@ -816,34 +967,37 @@ mod tests {
             overrun: OverrunPolicy::Trip { after: 3 },
             ..Default::default()
         };
-        let mut p = WallClockPacer::new(Timebase::at_rate_hz(100.0), opts);
+        let mut p = scripted(opts);
         assert!(p.wait_for_cycle(0));
         let mut k = 1;
         // Two overruns, then an on-time cycle resets the streak.
         for _ in 0..2 {
-            std::thread::sleep(std::time::Duration::from_millis(15));
+            p.clock().work(15 * MS);
             assert!(p.wait_for_cycle(k));
             k += 1;
         }
+        p.clock().work(MS);
         assert!(p.wait_for_cycle(k));
         k += 1;
         assert!(p.trip().is_none());
         assert_eq!(p.stats().longest_overrun_streak, 2);
-        let mut ok = true;
-        for _ in 0..3 {
-            std::thread::sleep(std::time::Duration::from_millis(15));
-            ok = p.wait_for_cycle(k);
+        let mut trips_at = None;
+        for i in 0..3 {
+            p.clock().work(15 * MS);
+            let ok = p.wait_for_cycle(k);
             k += 1;
             if !ok {
+                trips_at = Some(i);
                 break;
             }
         }
-        assert!(!ok, "third consecutive overrun must trip");
+        assert_eq!(trips_at, Some(2), "the third consecutive overrun trips, not earlier");
         let ev = p.trip().expect("trip event");
         assert_eq!(ev.kind, EventKind::Overrun);
         assert_eq!(ev.severity, Severity::Trip);
         assert_eq!(ev.value, 3.0);
         assert_eq!(p.stats().overruns, 5);
+        assert_eq!(p.stats().overruns_exec, 5);
     }
 
     #[test]

@@ -141,6 +141,9 @@ impl Session {
             }
             put(obj, "period_min_us", tm.period.min);
             obj.insert("overruns".into(), json!(tm.overruns));
+            // The split of `overruns` (issue 16): our execution vs a late start.
+            obj.insert("overruns_exec".into(), json!(tm.overruns_exec));
+            obj.insert("overruns_wakeup".into(), json!(tm.overruns_wakeup));
             obj.insert(
                 "longest_overrun_streak".into(),
                 json!(tm.longest_overrun_streak),

@@ -126,6 +126,8 @@ def record_fields() -> list[tuple[str, str]]:
 def read_mcap_raw(path: _Path) -> dict[str, Any]:
     """Raw MCAP contents: cdr columns, json texts, schemas, metadata, profile, library."""
 
+def controller_response(cfg: Config, f_hz: Sequence[float]) -> tuple[list[float], list[float]]: ...
+def sampled_margins(f_hz: Sequence[float], re: Sequence[float], im: Sequence[float]) -> dict[str, float]: ...
 def linear_plant_response(
     cfg: Config, f_hz: Sequence[float], max_time: float = 5.0
 ) -> tuple[list[float], list[float], dict[str, Any]]:

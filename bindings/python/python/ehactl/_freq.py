@@ -27,18 +27,12 @@ from ._runs import ConfigLike, _as_config, run_many
 def controller_response(cfg: Config, f_hz: np.ndarray, gains: dict[str, float] | None = None) -> np.ndarray:
     """Discrete controller frequency response C(e^{jωT}) in V per unit of the controlled
     variable (V/N for force, V/m for position) at ``f_hz``, for the config's gains or
-    ``gains`` (dotted path → value)."""
+    ``gains`` (dotted path → value). Evaluated by ``ehactl-analysis`` (``loopshape::Law``,
+    the loop's own discrete PI / PD), not re-implemented here."""
     c = cfg.with_values(gains) if gains else cfg
-    T = c.control_dt
-    zi = np.exp(-1j * 2 * np.pi * np.asarray(f_hz, dtype=float) * T)  # z⁻¹
-    if c.mode == "force":
-        kp, integ, g = c["control.pi.kp"], c["control.pi.integral"], c["control.pi.error_scale"]
-        return g * kp * (1.0 + integ * T / (1.0 - zi))
-    if c.mode == "position":
-        kp, td, n = c["control.pd.kp"], c["control.pd.td"], c["control.pd.filter_n"]
-        tf = td / n if n > 0 else 0.0
-        return kp + kp * td * (1.0 - zi) / ((tf + T) - tf * zi)
-    raise ValueError("controller_response: open_loop mode has no controller")
+    f = np.atleast_1d(np.asarray(f_hz, dtype=float))
+    re, im = _ehactl.controller_response(c, [float(x) for x in f])
+    return (np.asarray(re) + 1j * np.asarray(im)).reshape(np.shape(f_hz))
 
 
 def _fourier(t: np.ndarray, x: np.ndarray, f: float) -> complex:
@@ -86,42 +80,14 @@ class FrequencyResponse:
         return loop_margins(self.f, self.loop)
 
 
-def _interp_crossing(lf: np.ndarray, a: np.ndarray, level: float, direction: int) -> list[float]:
-    out = []
-    for i in range(len(a) - 1):
-        y0, y1 = a[i] - level, a[i + 1] - level
-        if direction < 0 and y0 > 0 >= y1 or direction > 0 and y0 < 0 <= y1:
-            out.append(float(lf[i] + (lf[i + 1] - lf[i]) * y0 / (y0 - y1)))
-    return out
-
-
 def loop_margins(f: np.ndarray, L: np.ndarray) -> dict[str, float]:
     """Phase margin (deg), gain margin (dB), crossovers (Hz) and closed-loop −3 dB bandwidth
-    (Hz) of the loop L(j2πf) sampled at ``f`` (Hz); NaN where no crossing lies in the grid."""
+    (Hz) of the loop L(j2πf) sampled at ``f`` (Hz); NaN where no crossing lies in the grid.
+    Computed by ``ehactl-analysis`` (``loopshape::sampled_margins``): first downward
+    crossings interpolated in log f, phase unwrapped along the grid."""
     f = np.asarray(f, dtype=float)
-    lf = np.log(f)
-    mag_db = 20 * np.log10(np.abs(L))
-    ph = np.degrees(np.unwrap(np.angle(L)))
-    # keep the phase near the usual branch (−180° crossing)
-    if ph[0] > 90:
-        ph -= 360 * math.ceil((ph[0] - 90) / 360)
-    out = {"crossover_hz": math.nan, "phase_margin_deg": math.nan, "phase_crossover_hz": math.nan, "gain_margin_db": math.nan}
-    gc = _interp_crossing(lf, mag_db, 0.0, -1)
-    if gc:
-        x = gc[0]
-        out["crossover_hz"] = float(math.exp(x))
-        out["phase_margin_deg"] = float(180.0 + np.interp(x, lf, ph))
-    pcs = [x for x in _interp_crossing(lf, ph, -180.0, -1)]
-    if pcs:
-        x = pcs[0]
-        out["phase_crossover_hz"] = float(math.exp(x))
-        out["gain_margin_db"] = float(-np.interp(x, lf, mag_db))
-    T = L / (1 + L)
-    tdb = 20 * np.log10(np.abs(T))
-    bw = _interp_crossing(lf, tdb, -3.0, -1)
-    out["bandwidth_hz"] = float(math.exp(bw[0])) if bw else math.nan
-    out["peak_closed_db"] = float(np.max(tdb))
-    return out
+    L = np.asarray(L, dtype=complex)
+    return dict(_ehactl.sampled_margins([float(x) for x in f], L.real.tolist(), L.imag.tolist()))
 
 
 def _identification_config(cfg: Config, amplitude: float | None, settle: float, f0: float) -> tuple[Config, float, float]:

@@ -1,0 +1,121 @@
+#!/usr/bin/env bash
+# Run the cross-built ehactl (scripts/cross_build.sh) under QEMU user-mode emulation and check
+# that it gives the same run as the native build (DEPLOY.md, "Check the cross-built binary").
+#   aarch64-unknown-linux-gnu      qemu-aarch64 -L /usr/aarch64-linux-gnu   (libc6-arm64-cross)
+#   armv7-unknown-linux-gnueabihf  qemu-arm     -L /usr/arm-linux-gnueabihf (libc6-armhf-cross)
+# QEMU and the target's glibc come from Debian's packages (qemu-user, libc6-*-cross,
+# libgcc-s1-*-cross), installed with apt-get if missing; no binfmt registration is needed
+# because qemu is called directly.
+# The check: the shipped rig config (configs/sahu2022_force.toml, simulated time, its full
+# 3.05 s) run natively (target/release/ehactl) and emulated; the summaries must agree
+# (cycles, trip, records written exactly; rms/max errors to 1e-9 relative) and so must the
+# two MCAP logs, read with the official Python `mcap` reader: every /control and /plant field
+# of every cycle within 1e-9 relative + 1e-12 absolute — the only allowed difference is the
+# last bits of libm (expm1, sin, log) and FMA contraction on the other architecture.
+# Prints the emulated loop's time per cycle (an upper-bound sanity figure, not a board figure).
+# Usage: scripts/qemu_run.sh [TARGET ...]   (default: aarch64-unknown-linux-gnu)
+# Env: EHACTL_REQUIRE_QEMU=1 to fail (not skip) when qemu or the binary is missing;
+#      QEMU_DURATION to shorten the run (s).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+targets=("$@")
+[ ${#targets[@]} -gt 0 ] || targets=(aarch64-unknown-linux-gnu)
+config=configs/sahu2022_force.toml
+native=target/release/ehactl
+
+skip() {
+  if [ "${EHACTL_REQUIRE_QEMU:-0}" = 1 ]; then
+    echo "qemu_run: FAILED: $*" >&2
+    exit 1
+  fi
+  echo "qemu_run: SKIPPED: $* (set EHACTL_REQUIRE_QEMU=1 to make this an error)" >&2
+  exit 0
+}
+
+[ -x "$native" ] || skip "$native not built (cargo build --release -p ehactl-cli)"
+pkgs=(qemu-user)
+for t in "${targets[@]}"; do
+  case "$t" in
+    aarch64-*) pkgs+=(libc6-arm64-cross libgcc-s1-arm64-cross) ;;
+    armv7-*) pkgs+=(libc6-armhf-cross libgcc-s1-armhf-cross) ;;
+    *) echo "qemu_run: unknown target $t" >&2; exit 2 ;;
+  esac
+done
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  command -v apt-get >/dev/null || skip "apt-get not found to install ${missing[*]}"
+  sudo=""
+  [ "$(id -u)" = 0 ] || sudo="sudo -n"
+  echo "== installing ${missing[*]} (apt-get)"
+  { $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq \
+      --no-install-recommends "${missing[@]}" >/dev/null; } || skip "apt-get install ${missing[*]} failed"
+fi
+
+out=$(mktemp -d)
+trap 'rm -rf "$out"' EXIT
+dur=()
+[ -z "${QEMU_DURATION:-}" ] || dur=(--duration "$QEMU_DURATION")
+"$native" run "$config" "${dur[@]}" --out "$out/native.mcap" --json >"$out/native.json"
+
+for t in "${targets[@]}"; do
+  case "$t" in
+    aarch64-*) qemu=qemu-aarch64; sysroot=/usr/aarch64-linux-gnu ;;
+    armv7-*) qemu=qemu-arm; sysroot=/usr/arm-linux-gnueabihf ;;
+  esac
+  bin="target/$t/release/ehactl"
+  [ -x "$bin" ] || skip "$bin not built (scripts/cross_build.sh $t)"
+  command -v "$qemu" >/dev/null || skip "$qemu not found"
+  echo "== $t under $qemu (user-mode emulation): ehactl run $config ${dur[*]}"
+  start=$(date +%s.%N)
+  "$qemu" -L "$sysroot" "$bin" run "$config" "${dur[@]}" --out "$out/$t.mcap" --json >"$out/$t.json"
+  end=$(date +%s.%N)
+  python3 - "$out/native.json" "$out/$t.json" "$out/native.mcap" "$out/$t.mcap" "$t" "$start" "$end" <<'PY'
+import json, math, struct, sys
+from mcap.reader import make_reader
+
+nat_s, emu_s, nat_m, emu_m, target, t0, t1 = sys.argv[1:]
+a, b = json.load(open(nat_s)), json.load(open(emu_s))
+for k in ("cycles", "trip", "trip_kind", "interrupted", "substeps", "control_rate_hz"):
+    assert a[k] == b[k], f"{target}: summary {k}: native {a[k]!r}, emulated {b[k]!r}"
+assert a["log"]["records_written"] == b["log"]["records_written"] == a["cycles"], (a["log"], b["log"])
+assert b["log"]["records_dropped"] == 0
+for k in ("rms_error", "max_abs_error", "rms_error_settled"):
+    assert math.isclose(a[k], b[k], rel_tol=1e-9, abs_tol=1e-12), f"{target}: {k}: native {a[k]!r}, emulated {b[k]!r}"
+
+def fields(path):
+    """(topic -> list of float tuples) from the CDR payloads (after the 4-byte header)."""
+    out = {"/control": [], "/plant": []}
+    with open(path, "rb") as f:
+        for _, ch, msg in make_reader(f).iter_messages(topics=list(out)):
+            d = msg.data[4:]
+            if ch.topic == "/control":   # uint64 cycle + 16 float64
+                out[ch.topic].append(struct.unpack_from("<Q16d", d))
+            else:                         # 16 float64 + bool
+                out[ch.topic].append(struct.unpack_from("<16d", d))
+    return out
+
+fa, fb = fields(nat_m), fields(emu_m)
+worst, ndiff = 0.0, 0
+for topic in fa:
+    assert len(fa[topic]) == len(fb[topic]) == a["cycles"], (topic, len(fa[topic]), len(fb[topic]))
+    for i, (ra, rb) in enumerate(zip(fa[topic], fb[topic])):
+        for j, (x, y) in enumerate(zip(ra, rb)):
+            if x == y:
+                continue
+            assert math.isclose(x, y, rel_tol=1e-9, abs_tol=1e-12), \
+                f"{target}: {topic} record {i} field {j}: native {x!r}, emulated {y!r}"
+            ndiff += 1
+            worst = max(worst, abs(x - y) / max(1e-9 * max(abs(x), abs(y)), 1e-12))
+cycles = b["cycles"]
+print(f"{target}: same run as native ({cycles} cycles; summaries and every /control and /plant "
+      f"field agree; {ndiff} values differ in the last bits, the largest at {worst:.1e} of the "
+      f"tolerance); rms_error native "
+      f"{a['rms_error']!r} emulated {b['rms_error']!r}")
+print(f"{target}: EMULATED (qemu user mode on this host, not a board figure): loop "
+      f"{b['wall_time_s'] / cycles * 1e6:.1f} us per cycle (native {a['wall_time_s'] / cycles * 1e6:.2f}), "
+      f"{b['sim_speed_x_realtime']:.2f}x real time; whole process {float(t1) - float(t0):.2f} s")
+PY
+done
