@@ -100,7 +100,7 @@ def test_mts_ratios_to_arx_baseline(mts):
         assert g["ratio_to_baseline"] == pytest.approx(
             g["nrmse_validation"]["overall"] / d["nrmse_baseline"]["overall"], rel=1e-9)
         # Per channel the force is where the physics wins; the position stays behind the ARX
-        # model (0 A: 0.109 vs 0.020, 1 A: 0.036 vs 0.025): asserted at the achieved values.
+        # model (0 A: 0.058 vs 0.020, 1 A: 0.036 vs 0.025): asserted as found.
         assert g["nrmse_validation"]["channels"]["force"] < 0.6 * d["nrmse_baseline"]["channels"]["force"]
         assert g["nrmse_validation"]["channels"]["x"] > d["nrmse_baseline"]["channels"]["x"]
 
@@ -120,6 +120,10 @@ def test_sjoberg_greybox_ratio(tmp_path):
                  "--data", str(SJ / "estimation.csv"), "--validate", str(SJ / "validation.csv"))
     g = d["greybox"]
     assert g is not None and g["accepted"], g
-    # Issue 17 target ≤ 0.8 × ARX; achieved 0.806 (NRMSE 0.5005 vs 0.6208): a narrow miss,
-    # asserted at its value. Best reported black-box result on this split: NRMSE ≈ 0.28.
-    assert g["ratio_to_baseline"] == pytest.approx(0.806, abs=0.005), g["ratio_to_baseline"]
+    # Issue 17 target ≤ 0.8 × ARX: met, 0.743 (NRMSE 0.4612 vs 0.6208). Best reported
+    # black-box result on this split: NRMSE ≈ 0.28 (far better than ehactl).
+    assert g["ratio_to_baseline"] <= 0.8, g["ratio_to_baseline"]
+    assert g["nrmse_validation"]["overall"] == pytest.approx(0.4612, abs=0.002)
+    # Every selected term is named in physical words with its unit.
+    for t in g["terms"]:
+        assert t["unit"] and t["physics"] and t["path"].startswith("effects.polynomial_"), t

@@ -51,11 +51,19 @@ pub fn extended_config_text(nominal: &RigConfig, d: &Diagnosis, data: &str) -> S
     }
     let _ = writeln!(
         s,
-        "# Held-out NRMSE: nominal {:.4} → extended {:.4} (gain {:.1} %).\n",
+        "# Held-out NRMSE: nominal {:.4} → extended {:.4} (gain {:.1} %).",
         d.nrmse_nominal.overall,
         d.nrmse_extended.overall,
         d.gain * 100.0
     );
+    if let Some(g) = d.greybox.as_ref().filter(|g| g.accepted) {
+        let _ = writeln!(
+            s,
+            "# Grey-box extension (catalogue exhausted): {}.\n# Held-out NRMSE with it: {:.4} ({:.2} × the ARX baseline).",
+            g.structure, g.nrmse_validation.overall, g.ratio_to_baseline
+        );
+    }
+    s.push('\n');
     s.push_str(&cfg.to_toml_string());
     s
 }
@@ -86,6 +94,59 @@ fn trace_csv(rec: &Record, nom: &Replay, ext: &Replay, split: usize) -> String {
             );
         }
         s.push('\n');
+    }
+    s
+}
+
+/// The grey-box section of report.md ([`crate::greybox`]).
+fn greybox_section(d: &Diagnosis, g: &crate::greybox::GreyBox) -> String {
+    let mut s = format!(
+        "## Grey-box extension (catalogue exhausted)\n\n{}: {}.\n\n",
+        if g.accepted { "Accepted" } else { "Not accepted" },
+        g.structure
+    );
+    if !g.terms.is_empty() {
+        s.push_str("| term | coefficient | fitting-part NRMSE after | held-out NRMSE after (reported only) |\n|---|---|---|---|\n");
+        for t in &g.terms {
+            let _ = writeln!(
+                s,
+                "| {} (`{}`) | {:.4e} {}{} | {:.4} | {:.4} |",
+                t.physics,
+                t.path,
+                t.value,
+                t.unit,
+                if t.at_bound { " (on its bound: a proxy)" } else { "" },
+                t.nrmse_train,
+                t.nrmse_validation
+            );
+        }
+    }
+    s.push_str("\n| channel | extended (catalogue) | extended + grey-box | ARX baseline |\n|---|---|---|---|\n");
+    for (k, v) in &g.nrmse_validation.channels {
+        let _ = writeln!(
+            s,
+            "| `{k}` | {:.4} | {:.4} | {:.4} |",
+            d.nrmse_extended.channels.get(k).copied().unwrap_or(f64::NAN),
+            v,
+            d.nrmse_baseline.channels.get(k).copied().unwrap_or(f64::NAN)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "| **overall** | **{:.4}** | **{:.4}** | **{:.4}** |\n\nExtended + grey-box / ARX baseline held-out NRMSE = **{:.2}**. Terms were chosen on the fitting part only (fitting-part NRMSE {:.4} → {:.4}); the held-out part was scored afterwards. Selection:\n",
+        d.nrmse_extended.overall,
+        g.nrmse_validation.overall,
+        d.nrmse_baseline.overall,
+        g.ratio_to_baseline,
+        g.nrmse_train_before,
+        g.nrmse_train
+    );
+    for l in &g.selection {
+        let _ = writeln!(s, "- {l}");
+    }
+    s.push('\n');
+    if g.accepted {
+        s.push_str("The extended config (`extended.toml`) carries these terms; the plots show the extended + grey-box model.\n\n");
     }
     s
 }
@@ -206,6 +267,9 @@ pub fn write_report(
             "the black-box baseline is as good or better: the physical model does not yet earn its keep on this record"
         }
     );
+    if let Some(g) = &d.greybox {
+        r.push_str(&greybox_section(d, g));
+    }
     let rt = &d.residual_test;
     let _ = writeln!(
         r,
