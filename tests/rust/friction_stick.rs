@@ -14,6 +14,7 @@ fn soft_with_friction(force: f64, kind: ExcitationKind, freq: f64) -> PlantParam
     p.cylinder.dead_volume_b = 1.0e4;
     p.effects.friction = Some(Friction {
         enabled: true,
+        variant: Default::default(),
         static_force: 700.0,
         coulomb_force: 500.0,
         stribeck_velocity: 0.01,
@@ -113,6 +114,7 @@ fn harmonic_force_gives_stick_slip_without_chatter() {
 #[test]
 fn projection_is_exact_at_the_breakaway_boundary() {
     let fm = FrictionModel::new(&Friction {
+        variant: Default::default(),
         enabled: true,
         static_force: 44.0,
         coulomb_force: 39.0,

@@ -63,8 +63,15 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 p.mechanics.load_stiffness = k_load;
                 p.mechanics.load_contact_position = pos * stroke;
             }
+            // The structural variants of issue 17 on the odd segment counts.
+            let alt = nseg % 2 == 1;
             p.effects.friction = fric.then_some(Friction {
                 enabled: true,
+                variant: if alt {
+                    FrictionVariant::LoadCoulomb
+                } else {
+                    FrictionVariant::Stribeck
+                },
                 static_force: 200.0,
                 coulomb_force: 150.0,
                 stribeck_velocity: 0.01,
@@ -72,11 +79,23 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
             });
             p.effects.valve_deadband = dband.then_some(ValveDeadband {
                 enabled: true,
+                variant: if alt {
+                    DeadbandVariant::Amplifier
+                } else {
+                    DeadbandVariant::Overlap
+                },
+                deadzone: 0.05,
                 overlap: 0.05,
                 zero_offset: 0.01,
             });
             p.effects.valve_saturation = sat.then_some(ValveSaturation {
                 enabled: true,
+                variant: if alt {
+                    SaturationVariant::Asymmetric
+                } else {
+                    SaturationVariant::Symmetric
+                },
+                spool_limit_negative: 0.6,
                 spool_limit: 0.8,
                 max_flow: rated * 0.5,
             });
@@ -89,14 +108,29 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
             });
             p.effects.internal_leakage = leak_i.then_some(Leakage {
                 enabled: true,
+                variant: LeakageVariant::Equal,
+                coefficient_b: 0.0,
                 coefficient: 1e-11,
             });
             p.effects.external_leakage = leak_e.then_some(Leakage {
                 enabled: true,
+                variant: if alt {
+                    LeakageVariant::PerChamber
+                } else {
+                    LeakageVariant::Equal
+                },
+                coefficient_b: 3e-12,
                 coefficient: 1e-12,
             });
             p.effects.bulk_modulus_pressure = bmp.then_some(BulkModulusPressure {
                 enabled: true,
+                variant: if alt {
+                    BulkVariant::EntrainedAir
+                } else {
+                    BulkVariant::Linear
+                },
+                air_fraction: 0.02,
+                polytropic_index: 1.4,
                 slope: 10.0,
                 max: 2.2e9,
             });
@@ -116,6 +150,11 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
             });
             p.effects.flexible_mount = mount.then_some(FlexibleMount {
                 enabled: true,
+                variant: if alt {
+                    MountVariant::PistonSide
+                } else {
+                    MountVariant::LoadSide
+                },
                 load_mass: 100.0,
                 stiffness: 5e4,
                 damping: 1e4,
@@ -129,9 +168,18 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 channel: SensorChannel::Force,
                 frequencies: vec![225.0],
                 amplitudes: vec![1.0],
+                phases: vec![1.3],
             });
             p.effects.supply_pressure_drop = sdrop.then_some(SupplyPressureDrop {
                 enabled: true,
+                variant: if alt {
+                    SupplyVariant::PumpLimit
+                } else {
+                    SupplyVariant::Resistance
+                },
+                max_flow: rated,
+                regulation_band: 1.0e6,
+                volume: 5e-4,
                 resistance: 1e10,
                 time_constant: 0.01,
             });

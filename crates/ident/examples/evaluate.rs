@@ -65,11 +65,11 @@ fn main() {
         let t0 = std::time::Instant::now();
         let opts = Options {
             sensor_offsets: estimate_offsets,
-            // INTEGRATION_REFINEMENTS=5 gives the CLI's replay-accuracy guarantee (slower).
-            integration_refinements: std::env::var("INTEGRATION_REFINEMENTS")
+            // INTEGRATION_COST=4 gives the CLI's replay-accuracy choice (slower).
+            integration_max_cost: std::env::var("INTEGRATION_COST")
                 .ok()
                 .and_then(|v| v.parse().ok())
-                .unwrap_or(0),
+                .unwrap_or(ehactl_ident::replay::DEFAULT_INTEGRATION_COST),
             ..Options::default()
         };
         let d = diagnose(&case.nominal.plant, &case.record, None, &opts).expect("diagnosis runs");

@@ -1,22 +1,30 @@
-//! Replay integration error of one generated case at the automatic substeps and after each
-//! refinement: `integration_check SEED [effects...]` (step-halving difference per channel in
-//! NRMSE units, next to the noise floor).
-use ehactl_ident::replay::{check_integration, replay_params, Drive};
+//! Replay integration choice of one generated case: `integration_check SEED [effects...]`
+//! (prints, for cost limits 1, 2, 4, 8 × the config's substeps, the substeps chosen and the
+//! step-halving difference per channel in NRMSE units next to the noise floor). With
+//! `INDEP=KIND` the case comes from the independent generator instead (seed SEED).
+use ehactl_ident::replay::{choose_integration, replay_params, Drive};
 use ehactl_plant::EffectId;
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let seed: u64 = a[1].parse().unwrap();
-    let hidden: Vec<EffectId> = a[2..].iter().filter_map(|s| EffectId::parse(s)).collect();
-    let case = ehactl_ident::synth::make_case(seed, &hidden, 2.0);
-    let mut p = replay_params(&case.nominal.plant, &case.record);
-    let n = (0.7 * case.record.len() as f64) as usize;
-    for moh in [0.25, 0.125, 0.0625, 0.03125] {
-        p.integration.max_omega_h = moh;
-        // One refinement step at most: report the figures at this ω·h.
-        let (_, c) = check_integration(&p, &case.record, n, Drive::Recorded, 0);
+    let (nominal, record) = match std::env::var("INDEP") {
+        Ok(kind) => {
+            let c = ehactl_ident::indep::make_case(seed, &kind, 1.5, 1e-3).expect("generate");
+            (c.nominal, c.record)
+        }
+        Err(_) => {
+            let hidden: Vec<EffectId> = a[2..].iter().filter_map(|s| EffectId::parse(s)).collect();
+            let c = ehactl_ident::synth::make_case(seed, &hidden, 2.0);
+            (c.nominal.plant, c.record)
+        }
+    };
+    let p = replay_params(&nominal, &record);
+    let n = (0.7 * record.len() as f64) as usize;
+    for cost in [1.0, 2.0, 4.0, 8.0] {
+        let (_, c) = choose_integration(&p, &record, n, Drive::Recorded, cost);
         println!(
-            "max_omega_h {moh}: substeps {} error {:?} floor {:?}",
-            c.substeps, c.error, c.floor
+            "max cost {cost}: substeps {} (config {}) met {} error {:?} floor {:?}",
+            c.substeps, c.config_substeps, c.met, c.error, c.floor
         );
     }
 }

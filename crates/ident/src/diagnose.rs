@@ -4,7 +4,7 @@
 use crate::analysis::{analyse, Analysis};
 use crate::baseline::Baseline;
 use crate::data::Record;
-use crate::fit::{base_params, effect_params, nelder_mead, FreeParam, Scales};
+use crate::fit::{base_params, effect_variants, nelder_mead, FreeParam, Scales};
 use crate::replay::{
     apply_offsets, nrmse, offsets, overall, replay_params, replay_params_zeroed, replay_with, std,
     Drive, Replay,
@@ -49,12 +49,13 @@ pub struct Options {
     /// sensors' zeros are trusted and a level shift counts as model error (on data with good
     /// zeros the offsets cost accuracy, see DIAGNOSIS.md).
     pub sensor_offsets: bool,
-    /// At most this many substep refinements (each ≥ 2× the substeps) to bring the replay's
-    /// integration error below [`crate::replay::INTEGRATION_RATIO`] × the noise floor
-    /// ([`crate::replay::check_integration`]); 0 keeps the config's integration and only
-    /// reports the figure (and warns when it is not met). Default 0: each refinement at least
-    /// doubles the cost (see [`crate::session::USER_INTEGRATION_REFINEMENTS`]).
-    pub integration_refinements: u32,
+    /// Largest replay cost factor (substeps / the config's substeps) the integration choice
+    /// may spend to bring the replay's integration error below
+    /// [`crate::replay::INTEGRATION_RATIO`] × the noise floor
+    /// ([`crate::replay::choose_integration`]). Whatever error the chosen substeps leave is
+    /// reported and added to the noise floor, so it is never blamed on an effect. Default
+    /// [`crate::replay::DEFAULT_INTEGRATION_COST`].
+    pub integration_max_cost: f64,
     /// Run the grey-box extension ([`crate::greybox`]) when the catalogue is exhausted (the
     /// held-out residual of the catalogue model is not noise). Off in the library default
     /// (the synthetic suites measure the catalogue); on in `ehactl diagnose` and Python.
@@ -73,7 +74,7 @@ impl Default for Options {
             drive: Drive::Recorded,
             max_fit_samples: 12_000,
             sensor_offsets: false,
-            integration_refinements: 0,
+            integration_max_cost: crate::replay::DEFAULT_INTEGRATION_COST,
             greybox: false,
         }
     }
@@ -93,6 +94,8 @@ pub struct Errors {
 pub struct Candidate {
     /// Effect id.
     pub effect: String,
+    /// Structural variant of the effect that fitted best (`-` for effects with one form).
+    pub variant: String,
     /// Fitted parameters (dotted path → value; `<path>/nominal` marks factors on nominal values).
     pub params: BTreeMap<String, f64>,
     /// Overall NRMSE on the fitting data (-).
@@ -115,9 +118,13 @@ pub struct Diagnosis {
     pub cause: String,
     /// Accepted effect ids in order of acceptance.
     pub causes: Vec<String>,
+    /// Structural variant of each accepted effect (effect id → variant, `-` for effects with
+    /// one form; see DIAGNOSIS.md "Effect variants").
+    pub variants: BTreeMap<String, String>,
     /// Nominal model (no refit) on the held-out data.
     pub nrmse_nominal: Errors,
-    /// Nominal parameters refit within ±15 %, no effect added, on the held-out data.
+    /// Nominal parameters refit within their stated uncertainty (`[uncertainty]`, default
+    /// ±15 %), no effect added, on the held-out data.
     pub nrmse_refit: Errors,
     /// Extended model on the held-out data.
     pub nrmse_extended: Errors,
@@ -144,6 +151,11 @@ pub struct Diagnosis {
     pub candidates: Vec<Candidate>,
     /// Parameters of the extended model (dotted path → value).
     pub extended_params: BTreeMap<String, f64>,
+    /// Nominal parameters that the refit (no effect) left on a bound of their stated
+    /// uncertainty (`[uncertainty]` in the config, default ±15 %): evidence of a missing effect.
+    pub refit_at_bounds: Vec<String>,
+    /// The same for the final (extended) model.
+    pub extended_at_bounds: Vec<String>,
     /// Sensor offsets estimated with the extended model (measured − model on the fitting
     /// part), per channel in its SI unit (N, m, Pa); empty when `sensor_offsets` is off.
     pub sensor_offsets: BTreeMap<String, f64>,
@@ -180,17 +192,25 @@ pub struct Traces {
     pub split_index: usize,
 }
 
-/// One candidate's outcome: effect, and (fitted hypothesis, training cost, held-out errors).
-type FitResult = (EffectId, Option<(Hyp, f64, Errors)>);
-
 #[derive(Clone)]
 pub(crate) struct Hyp {
     pub(crate) effects: Vec<EffectId>,
+    /// Structural variant of each effect in `effects` (`-` for effects with one form).
+    pub(crate) variants: Vec<&'static str>,
     pub(crate) params: Vec<FreeParam>,
     pub(crate) values: Vec<f64>,
 }
 
 impl Hyp {
+    pub(crate) fn empty() -> Hyp {
+        Hyp {
+            effects: vec![],
+            variants: vec![],
+            params: vec![],
+            values: vec![],
+        }
+    }
+
     pub(crate) fn build(&self, base: &PlantParams) -> PlantParams {
         with_values(base, &self.params, &self.values)
     }
@@ -471,12 +491,55 @@ pub fn separating_experiment(a: EffectId, b: EffectId) -> String {
 
 /// Run the diagnosis. `val` is an optional separate validation record; without it the last
 /// `opts.holdout` of `rec` is held out.
+///
+/// The phases, each a function below: [`phase_nominal`] (split, replay accuracy, nominal
+/// replay, residual analysis, ARX baseline), [`phase_refit`] (nominal parameters refit within
+/// their stated uncertainty, noise floor), [`phase_candidates`] (greedy rounds; each round fits
+/// every catalogue effect in each of its structural variants via [`phase_variants`]),
+/// [`phase_residual_test`] (`none` / `unexplained`) and [`phase_report`] (summary and result).
 pub fn diagnose(
     nominal: &PlantParams,
     rec: &Record,
     val: Option<&Record>,
     opts: &Options,
 ) -> Result<Diagnosis, String> {
+    let nom = phase_nominal(nominal, rec, val, opts)?;
+    let bar = progress_bar(opts);
+    let refit = phase_refit(&nom, nominal, opts, &bar);
+    let search = phase_candidates(&nom, &refit, nominal, opts, &bar);
+    bar.finish_and_clear();
+    let resid = phase_residual_test(&nom, &refit, &search);
+    Ok(phase_report(
+        nom, refit, search, resid, nominal, rec, val, opts,
+    ))
+}
+
+/// What the nominal phase hands on.
+struct NominalPhase<'a> {
+    ctx: Ctx<'a>,
+    n_fit: usize,
+    val_rec: &'a Record,
+    val_range: std::ops::Range<usize>,
+    split: String,
+    integration: crate::replay::IntegrationCheck,
+    nom_sim: Replay,
+    nom_val_sim: Replay,
+    analysis: Analysis,
+    nom_err: Errors,
+    baseline: Baseline,
+    nrmse_baseline: Errors,
+}
+
+/// Phase 1: split the data, choose the replay's integration (its own error must sit well
+/// below the noise floor, or it is taken for a model error: a clean record was once answered
+/// `line_dynamics`), replay the nominal model, analyse its residual, fit the ARX baseline.
+fn phase_nominal<'a>(
+    nominal: &PlantParams,
+    rec: &'a Record,
+    val: Option<&'a Record>,
+    opts: &Options,
+) -> Result<NominalPhase<'a>, String> {
+    nominal.refit_ranges().map_err(|e| e.to_string())?;
     let n = rec.len();
     let (n_fit, val_rec, val_range, split) = match val {
         Some(v) => (
@@ -510,23 +573,21 @@ pub fn diagnose(
             Drive::PositionPd(g) => format!("closed-loop replay: the rig's PD position loop (k_p = {} V/m, T_D = {} s) on the recorded `ref`", g.kp, g.td),
         }
     );
-    // Replay accuracy first: the integration error must sit well below the noise floor, or
-    // it is taken for a model error (a clean record was once answered `line_dynamics`).
-    let (fit_base, integration) = crate::replay::check_integration(
+    let n_cost = n_fit.min(opts.max_fit_samples.max(100));
+    let (fit_base, integration) = crate::replay::choose_integration(
         &replay_params(nominal, rec),
         rec,
-        n_fit.min(opts.max_fit_samples.max(100)),
+        n_cost,
         opts.drive,
-        opts.integration_refinements,
+        opts.integration_max_cost,
     );
     let mut val_base = replay_params(nominal, val_rec);
     val_base.integration = fit_base.integration.clone();
     let sd_fit: Vec<f64> = rec
         .channels
         .iter()
-        .map(|c| std(&c.values[..n_fit.min(opts.max_fit_samples.max(100))]).max(1e-300))
+        .map(|c| std(&c.values[..n_cost]).max(1e-300))
         .collect();
-    let n_cost = n_fit.min(opts.max_fit_samples.max(100));
     let split = if n_cost < n_fit {
         format!("{split}; the fit cost uses the first {n_cost} samples of the fitting part")
     } else {
@@ -543,17 +604,11 @@ pub fn diagnose(
         drive: opts.drive,
         offsets: opts.sensor_offsets,
     };
-    let empty = Hyp {
-        effects: vec![],
-        params: vec![],
-        values: vec![],
-    };
-    // 1. Nominal replay and residual analysis.
     let nom_sim = ctx
         .fit_replay(&ctx.fit_base)
         .map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
     let analysis = analyse(rec, &nom_sim, 0..n_fit);
-    let (nom_err, nom_val_sim) = ctx.val_errors(&empty);
+    let (nom_err, nom_val_sim) = ctx.val_errors(&Hyp::empty());
     // Black-box baseline on the same split (input: the recorded command, or the setpoint
     // when the rig's own loop is replayed).
     let (input, input_name) = match (opts.drive, &rec.reference) {
@@ -573,8 +628,24 @@ pub fn diagnose(
             channels: ch,
         }
     };
-    let scales = Scales::new(nominal, rec);
-    let bar = if opts.progress {
+    Ok(NominalPhase {
+        ctx,
+        n_fit,
+        val_rec,
+        val_range,
+        split,
+        integration,
+        nom_sim,
+        nom_val_sim,
+        analysis,
+        nom_err,
+        baseline,
+        nrmse_baseline,
+    })
+}
+
+fn progress_bar(opts: &Options) -> indicatif::ProgressBar {
+    if opts.progress {
         let b = indicatif::ProgressBar::new(1 + opts.effects.len() as u64);
         b.set_style(
             indicatif::ProgressStyle::with_template(
@@ -587,11 +658,34 @@ pub fn diagnose(
         b
     } else {
         indicatif::ProgressBar::hidden()
-    };
-    // 2. Refit the nominal parameters alone: the reference every effect must beat.
+    }
+}
+
+/// What the refit phase hands on.
+struct RefitPhase {
+    h0: Hyp,
+    c0_train: f64,
+    refit_err: Errors,
+    /// Noise floor per channel (NRMSE units), incl. the replay's remaining integration error.
+    floor_ch: Vec<f64>,
+    noise_floor: f64,
+    analysis_refit: Analysis,
+    scales: Scales,
+}
+
+/// Phase 2: refit the nominal parameters alone within their stated uncertainty (the
+/// reference every effect must beat), estimate the noise floor from its held-out residual.
+fn phase_refit(
+    nom: &NominalPhase<'_>,
+    nominal: &PlantParams,
+    opts: &Options,
+    bar: &indicatif::ProgressBar,
+) -> RefitPhase {
+    let ctx = &nom.ctx;
     let base = base_params(nominal);
     let h0 = Hyp {
         effects: vec![],
+        variants: vec![],
         values: base.iter().map(|p| p.init).collect(),
         params: base,
     };
@@ -599,53 +693,152 @@ pub fn diagnose(
     bar.inc(1);
     let (refit_err, refit_val_sim) = ctx.val_errors(&h0);
     // Noise floor from the refit model's held-out residual (signal content removed); the
-    // PSD median over the upper half band ignores narrow lines and slow model error.
-    let floor_ch: Vec<f64> = {
-        val_rec
-            .channels
-            .iter()
-            .zip(&refit_val_sim.y)
-            .map(|(c, yh)| {
-                let y = &c.values[val_range.clone()];
-                let e: Vec<f64> = y
-                    .iter()
-                    .zip(&yh[val_range.clone()])
-                    .map(|(a, b)| a - b)
-                    .collect();
-                crate::replay::noise_level(&e).min(crate::replay::noise_level(y))
-                    / std(y).max(1e-300)
-            })
-            .collect()
-    };
+    // PSD median over the upper half band ignores narrow lines and slow model error. The
+    // replay's own integration error that the chosen substeps leave (step halving:
+    // ≈ 2 × the N-vs-2N difference for a first-order scheme) is added in quadrature, so that
+    // it can be blamed neither on an effect nor on `unexplained`.
+    let vr = nom.val_range.clone();
+    let floor_ch: Vec<f64> = nom
+        .val_rec
+        .channels
+        .iter()
+        .zip(&refit_val_sim.y)
+        .map(|(c, yh)| {
+            let y = &c.values[vr.clone()];
+            let e: Vec<f64> = y.iter().zip(&yh[vr.clone()]).map(|(a, b)| a - b).collect();
+            let f = crate::replay::noise_level(&e).min(crate::replay::noise_level(y))
+                / std(y).max(1e-300);
+            let ig = if nom.integration.met {
+                0.0
+            } else {
+                2.0 * nom
+                    .integration
+                    .error
+                    .get(c.kind.column())
+                    .copied()
+                    .unwrap_or(0.0)
+            };
+            f.hypot(ig)
+        })
+        .collect();
     let noise_floor = overall(&floor_ch);
-    let jn = noise_floor * noise_floor;
+    // Residual analysis of the refit model: what is left once parameter errors are absorbed.
+    // Its findings are the evidence and the start values of the effect fits.
+    let analysis_refit = match ctx.fit_replay(&h0.build(&ctx.fit_base)) {
+        Ok(sim) => analyse(ctx.fit_rec, &sim, 0..nom.n_fit),
+        Err(_) => nom.analysis.clone(),
+    };
+    RefitPhase {
+        h0,
+        c0_train,
+        refit_err,
+        floor_ch,
+        noise_floor,
+        analysis_refit,
+        scales: Scales::new(nominal, ctx.fit_rec),
+    }
+}
+
+/// One fitted variant of one effect: (fitted hypothesis, training cost, held-out errors).
+type VariantFit = (&'static str, Option<(Hyp, f64, Errors)>);
+
+/// Fits of every (effect, variant) job in parallel on `threads` workers.
+fn phase_variants(
+    ctx: &Ctx<'_>,
+    jobs: &[(EffectId, &'static str, Option<Hyp>)],
+    first_new: usize,
+    evals_per_param: usize,
+    threads: usize,
+    bar: &indicatif::ProgressBar,
+) -> BTreeMap<EffectId, Vec<VariantFit>> {
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<(usize, VariantFit)>> = Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..threads.min(jobs.len()).max(1) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::SeqCst);
+                if i >= jobs.len() {
+                    break;
+                }
+                let (_, v, h) = &jobs[i];
+                let r = h.clone().map(|h| {
+                    let (h, c) = ctx.fit(h, first_new, evals_per_param);
+                    let (err, _) = ctx.val_errors(&h);
+                    (h, c, err)
+                });
+                if let Ok(mut out) = results.lock() {
+                    out.push((i, (*v, r)));
+                }
+                bar.inc(1);
+            });
+        }
+    });
+    let mut results = results.into_inner().unwrap_or_default();
+    results.sort_by_key(|r| r.0);
+    let mut by_effect: BTreeMap<EffectId, Vec<VariantFit>> = BTreeMap::new();
+    for (i, r) in results {
+        by_effect.entry(jobs[i].0).or_default().push(r);
+    }
+    by_effect
+}
+
+/// What the candidate search hands on.
+struct SearchPhase {
+    current: Hyp,
+    /// Fitting-part cost of `current`.
+    cur_train: f64,
+    accepted: Vec<EffectId>,
+    candidates: BTreeMap<EffectId, Candidate>,
+    ambiguities: Vec<String>,
+}
+
+/// Score of a model: ln(J) + κ·(free parameters), J = mean NRMSE².
+fn score(j: f64, p: usize) -> f64 {
+    const KAPPA: f64 = 0.02;
+    j.max(1e-300).ln() + KAPPA * p as f64
+}
+
+/// Phase 3: greedy rounds; each round fits every remaining catalogue effect in each of its
+/// structural variants on top of the current model, keeps each effect's best variant by
+/// score, and accepts the best effect if its held-out gain is significant.
+fn phase_candidates(
+    nom: &NominalPhase<'_>,
+    rf: &RefitPhase,
+    nominal: &PlantParams,
+    opts: &Options,
+    bar: &indicatif::ProgressBar,
+) -> SearchPhase {
+    let ctx = &nom.ctx;
+    let jn = rf.noise_floor * rf.noise_floor;
     // Within the noise only when every channel is (a small tone on one channel is not noise).
     let within_noise = |e: &Errors| {
-        val_rec.channels.iter().zip(&floor_ch).all(|(c, f)| {
+        nom.val_rec.channels.iter().zip(&rf.floor_ch).all(|(c, f)| {
             e.channels
                 .get(c.kind.column())
                 .is_some_and(|v| *v < FLOOR_FACTOR * f)
         })
-    };
-    // Residual analysis of the refit model: what is left once parameter errors are absorbed.
-    // Its findings are the evidence and the start values of the effect fits.
-    let analysis_refit = match ctx.fit_replay(&h0.build(&ctx.fit_base)) {
-        Ok(sim) => analyse(rec, &sim, 0..n_fit),
-        Err(_) => analysis.clone(),
     };
     let threads = if opts.threads == 0 {
         std::thread::available_parallelism().map_or(2, |n| n.get())
     } else {
         opts.threads
     };
-    let mut current = h0.clone();
-    let mut cur_err = refit_err.clone();
-    let mut cur_train = c0_train;
+    let mut current = rf.h0.clone();
+    let mut cur_err = rf.refit_err.clone();
+    let mut cur_train = rf.c0_train;
     let mut accepted: Vec<EffectId> = Vec::new();
     let mut candidates: BTreeMap<EffectId, Candidate> = BTreeMap::new();
     let mut ambiguities = Vec::new();
-    let kappa = 0.02;
-    let score = |j: f64, p: usize| j.max(1e-300).ln() + kappa * p as f64;
+    // The variant each effect fitted best in round 0: later rounds refit only that one.
+    let mut round0_variant: BTreeMap<EffectId, &'static str> = BTreeMap::new();
+    let prior_of = |e: EffectId| {
+        rf.analysis_refit
+            .prior
+            .iter()
+            .find(|p| p.0 == e)
+            .map(|p| p.2.clone())
+            .unwrap_or_default()
+    };
     for round in 0..opts.max_effects {
         let remaining: Vec<EffectId> = opts
             .effects
@@ -659,121 +852,131 @@ pub fn diagnose(
         // Nothing left to explain: the current model is within the noise (round 0 still
         // fits every candidate so that the report lists them all).
         let near_floor = within_noise(&cur_err)
-            || (round > 0 && cur_err.overall < LATER_FLOOR_FACTOR * noise_floor);
+            || (round > 0 && cur_err.overall < LATER_FLOOR_FACTOR * rf.noise_floor);
         if round > 0 && near_floor {
             break;
         }
-        if round > 0 {
-            bar.inc_length(remaining.len() as u64);
+        let mut jobs: Vec<(EffectId, &'static str, Option<Hyp>)> = Vec::new();
+        for &e in &remaining {
+            let vars = effect_variants(e, nominal, &rf.scales, &rf.analysis_refit);
+            if vars.is_empty() {
+                jobs.push((e, "-", None));
+            }
+            for (v, ep) in vars {
+                if round > 0 && round0_variant.get(&e).is_some_and(|b| *b != v) {
+                    continue;
+                }
+                let mut h = current.clone();
+                h.effects.push(e);
+                h.variants.push(v);
+                h.values.extend(ep.iter().map(|p| p.init));
+                h.params.extend(ep);
+                jobs.push((e, v, Some(h)));
+            }
+        }
+        if round == 0 {
+            bar.set_length(1 + jobs.len() as u64);
+        } else {
+            bar.inc_length(jobs.len() as u64);
         }
         bar.set_message(format!("round {}", round + 1));
-        let jobs: Vec<(EffectId, Option<Hyp>)> = remaining
-            .iter()
-            .map(|&e| {
-                let h = effect_params(e, nominal, &scales, &analysis_refit).map(|ep| {
-                    let mut h = current.clone();
-                    h.effects.push(e);
-                    h.values.extend(ep.iter().map(|p| p.init));
-                    h.params.extend(ep);
-                    h
-                });
-                (e, h)
-            })
-            .collect();
-        let next = AtomicUsize::new(0);
-        let results: Mutex<Vec<FitResult>> = Mutex::new(Vec::new());
         let first_new = current.params.len();
-        std::thread::scope(|s| {
-            for _ in 0..threads.min(jobs.len()).max(1) {
-                s.spawn(|| loop {
-                    let i = next.fetch_add(1, Ordering::SeqCst);
-                    if i >= jobs.len() {
-                        break;
-                    }
-                    let (e, h) = &jobs[i];
-                    let r = h.clone().map(|h| {
-                        let (h, c) = ctx.fit(h, first_new, opts.evals_per_param);
-                        let (err, _) = ctx.val_errors(&h);
-                        (h, c, err)
-                    });
-                    if let Ok(mut v) = results.lock() {
-                        v.push((*e, r));
-                    }
-                    bar.inc(1);
-                });
-            }
-        });
-        let mut results = results.into_inner().unwrap_or_default();
-        results.sort_by_key(|r| r.0);
+        let fits = phase_variants(ctx, &jobs, first_new, opts.evals_per_param, threads, bar);
         let j_cur = cur_err.overall.powi(2);
         let s_cur = score(j_cur, current.params.len());
         let mut passing: Vec<(EffectId, f64, Hyp, f64, Errors)> = Vec::new();
-        for (e, r) in results {
-            let prior = analysis_refit
-                .prior
-                .iter()
-                .find(|p| p.0 == e)
-                .map(|p| p.2.clone())
-                .unwrap_or_default();
-            match r {
-                None => {
-                    if round == 0 {
-                        candidates.insert(
-                            e,
-                            Candidate {
-                                effect: e.as_str().into(),
-                                params: BTreeMap::new(),
-                                nrmse_train: f64::NAN,
-                                nrmse_validation: f64::NAN,
-                                score: f64::NAN,
-                                accepted: false,
-                                evidence: format!("not testable on this record: {prior}"),
-                            },
-                        );
-                    }
-                }
-                Some((h, ctrain, err)) => {
-                    let j = err.overall.powi(2);
-                    let sc = score(j, h.params.len());
-                    let excess_ratio = (j - jn).max(0.0) / (j_cur - jn).max(1e-300);
-                    // Later rounds need stronger evidence: the first effect already took the bulk.
-                    let (jr, er) = if round == 0 { (0.9, 0.75) } else { (0.8, 0.5) };
-                    let significant = !near_floor
-                        && j < jr * j_cur
-                        && excess_ratio < er
-                        && sc < s_cur
-                        && ctrain < cur_train;
-                    let verdict = format!(
-                        "fit: held-out NRMSE {:.4} → {:.4} ({:+.1} %), {:.0} % of the error above the noise floor explained{}",
-                        cur_err.overall,
-                        err.overall,
-                        100.0 * (err.overall / cur_err.overall - 1.0),
-                        100.0 * (1.0 - excess_ratio.min(1.0)),
-                        if significant { "" } else { " — not significant" }
+        for (e, vfits) in fits {
+            let prior = prior_of(e);
+            // The effect's best variant by held-out score, and the others for the evidence.
+            let mut scored: Vec<(&'static str, f64, Hyp, f64, Errors)> = vfits
+                .into_iter()
+                .filter_map(|(v, r)| {
+                    r.map(|(h, c, err)| {
+                        let sc = score(err.overall.powi(2), h.params.len());
+                        (v, sc, h, c, err)
+                    })
+                })
+                .collect();
+            scored.sort_by(|a, b| a.1.total_cmp(&b.1));
+            let variants_note = if scored.len() > 1 {
+                format!(
+                    " Variants (held-out NRMSE): {}.",
+                    scored
+                        .iter()
+                        .map(|s| format!("{} {:.4}", s.0, s.4.overall))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            } else {
+                String::new()
+            };
+            let Some((variant, sc, h, ctrain, err)) = scored.into_iter().next() else {
+                if round == 0 {
+                    candidates.insert(
+                        e,
+                        Candidate {
+                            effect: e.as_str().into(),
+                            variant: "-".into(),
+                            params: BTreeMap::new(),
+                            nrmse_train: f64::NAN,
+                            nrmse_validation: f64::NAN,
+                            score: f64::NAN,
+                            accepted: false,
+                            evidence: format!("not testable on this record: {prior}"),
+                        },
                     );
-                    if round == 0 || !candidates.contains_key(&e) {
-                        let n_new = h.params.len() - first_new;
-                        candidates.insert(
-                            e,
-                            Candidate {
-                                effect: e.as_str().into(),
-                                params: h.params[first_new..]
-                                    .iter()
-                                    .zip(&h.values[first_new..])
-                                    .map(|(p, v)| (p.name.clone(), *v))
-                                    .collect(),
-                                nrmse_train: ctrain.sqrt(),
-                                nrmse_validation: err.overall,
-                                score: sc,
-                                accepted: false,
-                                evidence: format!("{prior}; {verdict} with {n_new} parameter(s)"),
-                            },
-                        );
-                    }
-                    if significant {
-                        passing.push((e, sc, h, ctrain, err));
-                    }
                 }
+                continue;
+            };
+            if round == 0 {
+                round0_variant.insert(e, variant);
+            }
+            let j = err.overall.powi(2);
+            let excess_ratio = (j - jn).max(0.0) / (j_cur - jn).max(1e-300);
+            // Later rounds need stronger evidence: the first effect already took the bulk.
+            let (jr, er) = if round == 0 { (0.9, 0.75) } else { (0.8, 0.5) };
+            let significant = !near_floor
+                && j < jr * j_cur
+                && excess_ratio < er
+                && sc < s_cur
+                && ctrain < cur_train;
+            let verdict = format!(
+                "fit: held-out NRMSE {:.4} → {:.4} ({:+.1} %), {:.0} % of the error above the noise floor explained{}",
+                cur_err.overall,
+                err.overall,
+                100.0 * (err.overall / cur_err.overall - 1.0),
+                100.0 * (1.0 - excess_ratio.min(1.0)),
+                if significant { "" } else { " — not significant" }
+            );
+            if round == 0 || !candidates.contains_key(&e) {
+                let n_new = h.params.len() - first_new;
+                candidates.insert(
+                    e,
+                    Candidate {
+                        effect: e.as_str().into(),
+                        variant: variant.into(),
+                        params: h.params[first_new..]
+                            .iter()
+                            .zip(&h.values[first_new..])
+                            .map(|(p, v)| (p.name.clone(), *v))
+                            .collect(),
+                        nrmse_train: ctrain.sqrt(),
+                        nrmse_validation: err.overall,
+                        score: sc,
+                        accepted: false,
+                        evidence: format!(
+                            "{prior}; {verdict} with {n_new} parameter(s){}{variants_note}",
+                            if variant == "-" {
+                                String::new()
+                            } else {
+                                format!(", variant `{variant}`")
+                            }
+                        ),
+                    },
+                );
+            }
+            if significant {
+                passing.push((e, sc, h, ctrain, err));
             }
         }
         passing.sort_by(|a, b| a.1.total_cmp(&b.1));
@@ -801,17 +1004,13 @@ pub fn diagnose(
                     .zip(&h.values[first_new..])
                     .map(|(p, v)| (p.name.clone(), *v))
                     .collect();
+                c.variant = h.variants.last().copied().unwrap_or("-").to_string();
                 c.nrmse_train = ctrain.sqrt();
                 c.nrmse_validation = err.overall;
                 c.score = score(j, h.params.len());
-                let prior = analysis_refit
-                    .prior
-                    .iter()
-                    .find(|p| p.0 == e)
-                    .map(|p| p.2.clone())
-                    .unwrap_or_default();
                 c.evidence = format!(
-                    "{prior}; accepted in round {} on top of {}: held-out NRMSE {:.4} → {:.4}, {:.0} % of the remaining error above the noise floor explained",
+                    "{}; accepted in round {} on top of {}: held-out NRMSE {:.4} → {:.4}, {:.0} % of the remaining error above the noise floor explained",
+                    prior_of(e),
                     round + 1,
                     accepted.iter().map(|a| a.as_str()).collect::<Vec<_>>().join(" + "),
                     cur_err.overall,
@@ -828,8 +1027,110 @@ pub fn diagnose(
         cur_err = err;
         cur_train = ctrain;
     }
-    bar.finish_and_clear();
-    let (ext_err, ext_val_sim) = ctx.val_errors(&current);
+    SearchPhase {
+        current,
+        cur_train,
+        accepted,
+        candidates,
+        ambiguities,
+    }
+}
+
+/// What the residual test hands on.
+struct ResidualPhase {
+    ext_err: Errors,
+    ext_val_sim: Replay,
+    test: crate::residual::ResidualTest,
+    cause: String,
+}
+
+/// Phase 4: test the final model's held-out residual per channel (level and whiteness):
+/// `none` only when it is noise, `unexplained` when nothing was accepted and it is not.
+fn phase_residual_test(
+    nom: &NominalPhase<'_>,
+    rf: &RefitPhase,
+    search: &SearchPhase,
+) -> ResidualPhase {
+    let (ext_err, ext_val_sim) = nom.ctx.val_errors(&search.current);
+    let test = crate::residual::test(
+        if search.accepted.is_empty() {
+            "nominal refit"
+        } else {
+            "extended"
+        },
+        nom.val_rec,
+        &ext_val_sim,
+        nom.val_range.clone(),
+        &rf.floor_ch,
+    );
+    let cause = search.accepted.first().map_or_else(
+        || {
+            if test.noise {
+                "none".to_string()
+            } else {
+                "unexplained".to_string()
+            }
+        },
+        |e| e.as_str().to_string(),
+    );
+    ResidualPhase {
+        ext_err,
+        ext_val_sim,
+        test,
+        cause,
+    }
+}
+
+/// Nominal parameters that ended within 0.5 % of the span from a bound of their stated
+/// uncertainty: evidence of a missing effect (or of a wrong nominal value or uncertainty).
+fn at_bounds(h: &Hyp) -> Vec<String> {
+    h.params
+        .iter()
+        .zip(&h.values)
+        .filter(|(p, _)| !p.name.starts_with("effects."))
+        .filter_map(|(p, v)| {
+            let u = p.to_unit(*v);
+            let side = if u <= 0.005 {
+                "lower"
+            } else if u >= 0.995 {
+                "upper"
+            } else {
+                return None;
+            };
+            Some(format!(
+                "{} = {:.4} at its {side} bound [{:.4}, {:.4}]",
+                p.name, v, p.lo, p.hi
+            ))
+        })
+        .collect()
+}
+
+/// Phase 5: the plain-words summary and the result.
+#[allow(clippy::too_many_arguments)]
+fn phase_report(
+    nom: NominalPhase<'_>,
+    rf: RefitPhase,
+    search: SearchPhase,
+    resid: ResidualPhase,
+    nominal: &PlantParams,
+    rec: &Record,
+    val: Option<&Record>,
+    opts: &Options,
+) -> Diagnosis {
+    let ctx = &nom.ctx;
+    let SearchPhase {
+        current,
+        cur_train,
+        accepted,
+        candidates,
+        ambiguities,
+    } = search;
+    let ResidualPhase {
+        ext_err,
+        ext_val_sim,
+        test: residual_test,
+        cause,
+    } = resid;
     let extended = current.build(nominal);
     let ext_fit_sim = ctx.fit_replay(&current.build(&ctx.fit_base)).ok();
     let sensor_offsets = if opts.sensor_offsets {
@@ -841,28 +1142,16 @@ pub fn diagnose(
     } else {
         BTreeMap::new()
     };
-    let gain = 1.0 - ext_err.overall / nom_err.overall;
-    // `none` only when the residual is noise; otherwise `unexplained` with its signature.
-    let residual_test = crate::residual::test(
-        if accepted.is_empty() {
-            "nominal refit"
-        } else {
-            "extended"
-        },
-        val_rec,
-        &ext_val_sim,
-        val_range.clone(),
-        &floor_ch,
-    );
+    let gain = 1.0 - ext_err.overall / nom.nom_err.overall;
     // Grey-box extension when the catalogue is exhausted (fitting part only; scored once).
     let mut final_hyp = current.clone();
     let greybox = if opts.greybox && !residual_test.noise {
         let (h, g) = crate::greybox::extend(
-            &ctx,
+            ctx,
             &current,
             cur_train,
-            &scales,
-            nrmse_baseline.overall,
+            &rf.scales,
+            nom.nrmse_baseline.overall,
             opts.evals_per_param,
         );
         if let Some(h) = h {
@@ -881,31 +1170,23 @@ pub fn diagnose(
     } else {
         (extended, ext_fit_sim, ext_val_sim)
     };
-    let cause = accepted.first().map_or_else(
-        || {
-            if residual_test.noise {
-                "none".to_string()
-            } else {
-                "unexplained".to_string()
-            }
-        },
-        |e| e.as_str().to_string(),
-    );
     let mut cands: Vec<Candidate> = candidates.into_values().collect();
     cands.sort_by(|a, b| {
         b.accepted
             .cmp(&a.accepted)
             .then(a.score.total_cmp(&b.score))
     });
+    let refit_at_bounds = at_bounds(&rf.h0);
+    let extended_at_bounds = at_bounds(&current);
     let mut summary = summary_text(
         &accepted,
         &cands,
-        &analysis_refit,
-        &nom_err,
-        &refit_err,
+        &rf.analysis_refit,
+        &nom.nom_err,
+        &rf.refit_err,
         &ext_err,
         gain,
-        noise_floor,
+        rf.noise_floor,
         &ambiguities,
     );
     if let Some(sig) = &residual_test.signature {
@@ -924,8 +1205,8 @@ pub fn diagnose(
             .collect();
         summary = if accepted.is_empty() {
             format!(
-                "The answer is `unexplained`, not `none`: no catalogue effect explains the discrepancy (after refitting the nominal parameters the held-out NRMSE is {:.4}, noise floor {:.4}), and the held-out residual is not noise ({}). Signature: {}.",
-                refit_err.overall, noise_floor, lv.join("; "), sig.text
+                "The answer is `unexplained`, not `none`: no catalogue effect explains the discrepancy (after refitting the nominal parameters within their uncertainty the held-out NRMSE is {:.4}, noise floor {:.4}), and the held-out residual is not noise ({}). Signature: {}.",
+                rf.refit_err.overall, rf.noise_floor, lv.join("; "), sig.text
             )
         } else {
             format!(
@@ -935,30 +1216,43 @@ pub fn diagnose(
             )
         };
     }
-    let int_warning = integration_warning(&integration);
+    if !extended_at_bounds.is_empty() {
+        summary.push_str(&format!(
+            " Nominal parameters of the final model on a bound of their stated uncertainty (evidence of a missing effect, or of a wrong nominal value): {}.",
+            extended_at_bounds.join("; ")
+        ));
+    }
+    let int_warning = integration_warning(&nom.integration);
     let traces = Traces {
-        nominal: Some(nom_sim),
+        nominal: Some(nom.nom_sim),
         extended: ext_fit_sim,
         validation: if val.is_some() {
-            Some((nom_val_sim, ext_val_sim))
+            Some((nom.nom_val_sim, ext_val_sim))
         } else {
             None
         },
-        split_index: n_fit,
+        split_index: nom.n_fit,
     };
-    Ok(Diagnosis {
+    let variants = current
+        .effects
+        .iter()
+        .zip(&current.variants)
+        .map(|(e, v)| (e.as_str().to_string(), v.to_string()))
+        .collect();
+    Diagnosis {
         cause,
         causes: accepted.iter().map(|e| e.as_str().to_string()).collect(),
-        nrmse_nominal: nom_err,
-        nrmse_refit: refit_err,
+        variants,
+        nrmse_nominal: nom.nom_err,
+        nrmse_refit: rf.refit_err,
         nrmse_extended: ext_err,
-        nrmse_baseline,
-        baseline,
+        nrmse_baseline: nom.nrmse_baseline,
+        baseline: nom.baseline,
         residual_test,
-        integration,
+        integration: nom.integration,
         greybox,
         gain,
-        noise_floor,
+        noise_floor: rf.noise_floor,
         candidates: cands,
         extended_params: final_hyp
             .params
@@ -966,30 +1260,32 @@ pub fn diagnose(
             .zip(&final_hyp.values)
             .map(|(p, v)| (p.name.clone(), *v))
             .collect(),
+        refit_at_bounds,
+        extended_at_bounds,
         sensor_offsets,
         ambiguities,
         warnings: rec
             .warnings
             .iter()
             .chain(if val.is_some() {
-                val_rec.warnings.iter()
+                nom.val_rec.warnings.iter()
             } else {
                 [].iter()
             })
             .cloned()
             .chain(int_warning)
             .collect(),
-        analysis,
-        analysis_refit,
-        split,
+        analysis: nom.analysis,
+        analysis_refit: rf.analysis_refit,
+        split: nom.split,
         summary,
         extended,
         traces,
-    })
+    }
 }
 
-/// A warning when the replay's integration error is not well below the noise floor, with
-/// the `integration.max_omega_h` that would make it so (the scheme is first order: the error
+/// A warning when the replay's integration error could not be brought well below the noise
+/// floor within the allowed cost, with the substeps that would (first-order scheme: the error
 /// scales with the step).
 fn integration_warning(ig: &crate::replay::IntegrationCheck) -> Option<String> {
     if ig.met {
@@ -1000,10 +1296,10 @@ fn integration_warning(ig: &crate::replay::IntegrationCheck) -> Option<String> {
         .iter()
         .map(|(k, e)| (k, e / ig.floor.get(k).copied().unwrap_or(0.0).max(1e-12)))
         .max_by(|a, b| a.1.total_cmp(&b.1))?;
-    let need = ig.max_omega_h * ig.ratio_limit / worst.1;
+    let need = (ig.substeps as f64 * worst.1 / ig.ratio_limit * 1.2).ceil();
     Some(format!(
-        "replay integration error on `{}` is {:.2}× its noise floor (required ≤ {}): part of the residual may be the simulation's own error; set [plant.integration] max_omega_h = {:.3} (now {}) in the config for an accurate replay (≈ {:.0}× the run time)",
-        worst.0, worst.1, ig.ratio_limit, need, ig.max_omega_h, ig.max_omega_h / need
+        "replay integration error on `{}` is {:.2}× its noise floor with {} substeps (required ≤ {}; the cost limit {}× the config's {} substeps was reached): it is counted as noise (added to the floor), so small effects may go undetected; set [plant.integration] substeps = {need:.0} in the config for an accurate replay (≈ {:.0}× the run time)",
+        worst.0, worst.1, ig.substeps, ig.ratio_limit, ig.max_cost, ig.config_substeps, need / ig.config_substeps.max(1) as f64
     ))
 }
 
@@ -1022,7 +1318,7 @@ fn summary_text(
     let mut s = String::new();
     if accepted.is_empty() {
         s.push_str(&format!(
-            "No effect of the catalogue explains the discrepancy: after refitting the nominal parameters within ±15 % the held-out NRMSE is {:.4} (nominal {:.4}, estimated noise floor {:.4}), and no added effect reduced it significantly. The answer is `none`.",
+            "No effect of the catalogue explains the discrepancy: after refitting the nominal parameters within their stated uncertainty the held-out NRMSE is {:.4} (nominal {:.4}, estimated noise floor {:.4}), and no added effect reduced it significantly. The answer is `none`.",
             refit.overall, nom.overall, floor
         ));
     } else {

@@ -4,8 +4,10 @@
 use crate::analysis::Analysis;
 use crate::data::Record;
 use ehactl_plant::params::{
-    BulkModulusPressure, FlexibleMount, FlowForm, Friction, Leakage, LineDynamics, SensorChannel,
-    SensorTone, SupplyPressureDrop, TimeDelay, ValveDeadband, ValveDynamics, ValveSaturation,
+    BulkModulusPressure, BulkVariant, DeadbandVariant, FlexibleMount, Friction, FrictionVariant,
+    Leakage, LeakageVariant, LineDynamics, MountVariant, SaturationVariant, SensorChannel,
+    SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband, ValveDynamics,
+    ValveSaturation,
 };
 use ehactl_plant::{EffectId, PlantParams};
 use std::sync::Arc;
@@ -111,94 +113,401 @@ impl Scales {
     }
 }
 
-/// Nominal parameters refit with every hypothesis within ±15 %, so that realistic (±10 %)
-/// errors of the nominal config are not blamed on an effect: valve flow gain, β₀, moving mass,
-/// viscous damping and load stiffness (when present).
+/// Nominal parameters refit with every hypothesis, within the uncertainty the config states
+/// for them (`[uncertainty]`, [`PlantParams::refit_ranges`]; ±15 % for the valve flow gain,
+/// β₀, mass, damping and load stiffness when it is silent), so that realistic errors of the
+/// nominal config are not blamed on an effect. Each is a factor on its nominal value
+/// (`<path>/nominal`), or the value itself (`<path>`) when the nominal value is 0. A config
+/// whose `[uncertainty]` is invalid gives no refit parameters (it fails validation first).
 pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
-    let mut v = Vec::new();
-    let (lo, hi) = (0.85, 1.15);
-    let n = nominal.clone();
-    match nominal.valve.flow_form {
-        FlowForm::Kq => {
-            let q0 = n.valve.rated_flow.unwrap_or(0.0);
-            v.push(FreeParam::new(
-                "valve.rated_flow/nominal",
-                lo,
-                hi,
-                false,
-                1.0,
-                Arc::new(move |p, s| p.valve.rated_flow = Some(q0 * s)),
-            ));
-        }
-        FlowForm::Orifice => {
-            let a0 = n.valve.area_max.unwrap_or(0.0);
-            v.push(FreeParam::new(
-                "valve.area_max/nominal",
-                lo,
-                hi,
-                false,
-                1.0,
-                Arc::new(move |p, s| p.valve.area_max = Some(a0 * s)),
-            ));
-        }
-        FlowForm::PowerLaw => {
-            let q0 = n.valve.flow_at_1mpa.unwrap_or(0.0);
-            v.push(FreeParam::new(
-                "valve.flow_at_1mpa/nominal",
-                lo,
-                hi,
-                false,
-                1.0,
-                Arc::new(move |p, s| p.valve.flow_at_1mpa = Some(q0 * s)),
-            ));
-        }
-    }
-    let b0 = n.fluid.bulk_modulus;
-    v.push(FreeParam::new(
-        "fluid.bulk_modulus/nominal",
-        lo,
-        hi,
-        false,
-        1.0,
-        Arc::new(move |p, s| p.fluid.bulk_modulus = b0 * s),
-    ));
-    let m0 = n.mechanics.mass;
-    v.push(FreeParam::new(
-        "mechanics.mass/nominal",
-        lo,
-        hi,
-        false,
-        1.0,
-        Arc::new(move |p, s| p.mechanics.mass = m0 * s),
-    ));
-    if n.mechanics.damping > 0.0 {
-        let d0 = n.mechanics.damping;
-        v.push(FreeParam::new(
-            "mechanics.damping/nominal",
-            lo,
-            hi,
-            false,
-            1.0,
-            Arc::new(move |p, s| p.mechanics.damping = d0 * s),
-        ));
-    }
-    if n.mechanics.load_stiffness > 0.0 {
-        let k0 = n.mechanics.load_stiffness;
-        v.push(FreeParam::new(
-            "mechanics.load_stiffness/nominal",
-            lo,
-            hi,
-            false,
-            1.0,
-            Arc::new(move |p, s| p.mechanics.load_stiffness = k0 * s),
-        ));
-    }
-    v
+    let ranges = nominal.refit_ranges().unwrap_or_default();
+    ranges
+        .into_iter()
+        .map(|(path, v, lo, hi)| {
+            if v != 0.0 {
+                FreeParam::new(
+                    &format!("{path}/nominal"),
+                    lo / v,
+                    hi / v,
+                    false,
+                    1.0,
+                    Arc::new(move |p, s| p.set_nominal_value(path, v * s)),
+                )
+            } else {
+                FreeParam::new(
+                    path,
+                    lo,
+                    hi,
+                    false,
+                    v,
+                    Arc::new(move |p, x| p.set_nominal_value(path, x)),
+                )
+            }
+        })
+        .collect()
 }
 
-/// Free parameters of effect `e` (bounds from the rig scales, start values from the nominal
-/// section if it exists, else from the residual analysis). `None` when the effect cannot be
-/// tested on this record (e.g. a tone with no line in any residual spectrum).
+/// The structural variants of effect `e` to fit (DIAGNOSIS.md "Effect variants"): variant
+/// name (`-` for effects with one form) and its free parameters. Empty when the effect cannot
+/// be tested on this record (e.g. a tone with no line in any residual spectrum). When the
+/// nominal config already has the effect, only its configured variant is refit.
+pub fn effect_variants(
+    e: EffectId,
+    nominal: &PlantParams,
+    sc: &Scales,
+    an: &Analysis,
+) -> Vec<(&'static str, Vec<FreeParam>)> {
+    let ef = &nominal.effects;
+    let Some(first) = effect_params(e, nominal, sc, an) else {
+        return Vec::new();
+    };
+    let p = FreeParam::new;
+    let mut out = Vec::new();
+    match e {
+        EffectId::Friction => {
+            let cur = ef.friction.as_ref().map(|f| f.variant);
+            if cur != Some(FrictionVariant::LoadCoulomb) {
+                out.push(("stribeck", first));
+            }
+            if cur.is_none() || cur == Some(FrictionVariant::LoadCoulomb) {
+                let c0 = ef
+                    .friction
+                    .as_ref()
+                    .map_or(0.005 * sc.force, |f| f.coulomb_force.max(1e-3 * sc.force));
+                let base = Friction {
+                    enabled: true,
+                    variant: FrictionVariant::LoadCoulomb,
+                    static_force: c0,
+                    coulomb_force: c0,
+                    stribeck_velocity: 0.005,
+                    viscous: 0.0,
+                };
+                let (a, b) = (base.clone(), base);
+                out.push((
+                    "load_coulomb",
+                    vec![
+                        p(
+                            "effects.friction.coulomb_force",
+                            1e-4 * sc.force,
+                            0.1 * sc.force,
+                            true,
+                            c0,
+                            Arc::new(move |p, v| {
+                                let f = p.effects.friction.get_or_insert_with(|| a.clone());
+                                f.enabled = true;
+                                f.variant = FrictionVariant::LoadCoulomb;
+                                f.coulomb_force = v;
+                                f.static_force = v;
+                            }),
+                        ),
+                        p(
+                            "effects.friction.stribeck_velocity",
+                            2e-4,
+                            0.05,
+                            true,
+                            0.005,
+                            Arc::new(move |p, v| {
+                                let f = p.effects.friction.get_or_insert_with(|| b.clone());
+                                f.enabled = true;
+                                f.variant = FrictionVariant::LoadCoulomb;
+                                f.stribeck_velocity = v;
+                            }),
+                        ),
+                    ],
+                ));
+            }
+        }
+        EffectId::ValveDeadband => {
+            let cur = ef.valve_deadband.as_ref().map(|d| d.variant);
+            if cur != Some(DeadbandVariant::Amplifier) {
+                out.push(("overlap", first));
+            }
+            if cur.is_none() || cur == Some(DeadbandVariant::Amplifier) {
+                let d0 = ef.valve_deadband.clone().unwrap_or(ValveDeadband {
+                    enabled: true,
+                    variant: DeadbandVariant::Amplifier,
+                    deadzone: 0.0,
+                    overlap: 0.0,
+                    zero_offset: 0.0,
+                });
+                let (a, b) = (d0.clone(), d0.clone());
+                out.push((
+                    "amplifier",
+                    vec![
+                        p(
+                            "effects.valve_deadband.deadzone",
+                            0.0,
+                            0.3,
+                            false,
+                            d0.deadzone.max(0.02),
+                            Arc::new(move |p, v| {
+                                let d = p.effects.valve_deadband.get_or_insert_with(|| a.clone());
+                                d.enabled = true;
+                                d.variant = DeadbandVariant::Amplifier;
+                                d.overlap = 0.0;
+                                d.deadzone = v;
+                            }),
+                        ),
+                        p(
+                            "effects.valve_deadband.zero_offset",
+                            -0.05,
+                            0.05,
+                            false,
+                            d0.zero_offset,
+                            Arc::new(move |p, v| {
+                                let d = p.effects.valve_deadband.get_or_insert_with(|| b.clone());
+                                d.enabled = true;
+                                d.variant = DeadbandVariant::Amplifier;
+                                d.zero_offset = v;
+                            }),
+                        ),
+                    ],
+                ));
+            }
+        }
+        EffectId::ValveSaturation => {
+            let cur = ef.valve_saturation.as_ref().map(|d| d.variant);
+            if cur != Some(SaturationVariant::Asymmetric) {
+                out.push(("symmetric", first));
+            }
+            if cur.is_none() || cur == Some(SaturationVariant::Asymmetric) {
+                let s0 = ef.valve_saturation.clone().unwrap_or(ValveSaturation {
+                    enabled: true,
+                    variant: SaturationVariant::Asymmetric,
+                    spool_limit: 1.0,
+                    spool_limit_negative: 1.0,
+                    max_flow: 0.0,
+                });
+                let (a, b) = (s0.clone(), s0.clone());
+                out.push((
+                    "asymmetric",
+                    vec![
+                        p(
+                            "effects.valve_saturation.spool_limit",
+                            0.05,
+                            1.0,
+                            false,
+                            s0.spool_limit.min(0.9),
+                            Arc::new(move |p, v| {
+                                let s = p.effects.valve_saturation.get_or_insert_with(|| a.clone());
+                                s.enabled = true;
+                                s.variant = SaturationVariant::Asymmetric;
+                                s.spool_limit = v;
+                            }),
+                        ),
+                        p(
+                            "effects.valve_saturation.spool_limit_negative",
+                            0.05,
+                            1.0,
+                            false,
+                            s0.spool_limit_negative.min(0.9),
+                            Arc::new(move |p, v| {
+                                let s = p.effects.valve_saturation.get_or_insert_with(|| b.clone());
+                                s.enabled = true;
+                                s.variant = SaturationVariant::Asymmetric;
+                                s.spool_limit_negative = v;
+                            }),
+                        ),
+                    ],
+                ));
+            }
+        }
+        EffectId::ExternalLeakage => {
+            let cur = ef.external_leakage.as_ref().map(|d| d.variant);
+            if cur != Some(LeakageVariant::PerChamber) {
+                out.push(("equal", first));
+            }
+            if cur.is_none() || cur == Some(LeakageVariant::PerChamber) {
+                let kc = sc.flow / sc.pressure;
+                let l0 = ef.external_leakage.clone();
+                let ia = l0
+                    .as_ref()
+                    .map_or(0.01 * kc, |l| l.coefficient.max(1e-5 * kc));
+                let ib = l0
+                    .as_ref()
+                    .map_or(0.01 * kc, |l| l.coefficient_b.max(1e-5 * kc));
+                let set = |b_side: bool| -> Setter {
+                    Arc::new(move |p, v| {
+                        let l = p.effects.external_leakage.get_or_insert(Leakage {
+                            enabled: true,
+                            variant: LeakageVariant::PerChamber,
+                            coefficient: 0.0,
+                            coefficient_b: 0.0,
+                        });
+                        l.enabled = true;
+                        l.variant = LeakageVariant::PerChamber;
+                        if b_side {
+                            l.coefficient_b = v;
+                        } else {
+                            l.coefficient = v;
+                        }
+                    })
+                };
+                out.push((
+                    "per_chamber",
+                    vec![
+                        p(
+                            "effects.external_leakage.coefficient",
+                            1e-5 * kc,
+                            kc,
+                            true,
+                            ia,
+                            set(false),
+                        ),
+                        p(
+                            "effects.external_leakage.coefficient_b",
+                            1e-5 * kc,
+                            kc,
+                            true,
+                            ib,
+                            set(true),
+                        ),
+                    ],
+                ));
+            }
+        }
+        EffectId::BulkModulusPressure => {
+            let cur = ef.bulk_modulus_pressure.as_ref().map(|d| d.variant);
+            if cur != Some(BulkVariant::EntrainedAir) {
+                out.push(("linear", first));
+            }
+            if cur.is_none() || cur == Some(BulkVariant::EntrainedAir) {
+                let b0 = ef
+                    .bulk_modulus_pressure
+                    .clone()
+                    .unwrap_or(BulkModulusPressure {
+                        enabled: true,
+                        variant: BulkVariant::EntrainedAir,
+                        slope: 0.0,
+                        air_fraction: 0.005,
+                        polytropic_index: 1.4,
+                        max: 2.2e9,
+                    });
+                let init = b0.air_fraction.max(1e-3);
+                out.push((
+                    "entrained_air",
+                    vec![p(
+                        "effects.bulk_modulus_pressure.air_fraction",
+                        1e-5,
+                        0.1,
+                        true,
+                        init,
+                        Arc::new(move |p, v| {
+                            let b = p
+                                .effects
+                                .bulk_modulus_pressure
+                                .get_or_insert_with(|| b0.clone());
+                            b.enabled = true;
+                            b.variant = BulkVariant::EntrainedAir;
+                            b.air_fraction = v;
+                        }),
+                    )],
+                ));
+            }
+        }
+        EffectId::FlexibleMount => {
+            let cur = ef.flexible_mount.as_ref().map(|d| d.variant);
+            if cur.is_none() {
+                // Same parameters, the other structure: the body of the cylinder on the mount.
+                let body: Vec<FreeParam> = first
+                    .iter()
+                    .map(|fp| {
+                        let set = fp.set.clone();
+                        let mut q = fp.clone();
+                        q.set = Arc::new(move |p, v| {
+                            set(p, v);
+                            if let Some(m) = p.effects.flexible_mount.as_mut() {
+                                m.variant = MountVariant::PistonSide;
+                            }
+                        });
+                        q
+                    })
+                    .collect();
+                out.push(("load_side", first));
+                out.push(("piston_side", body));
+            } else {
+                let v = if cur == Some(MountVariant::PistonSide) {
+                    "piston_side"
+                } else {
+                    "load_side"
+                };
+                out.push((v, first));
+            }
+        }
+        EffectId::SupplyPressureDrop => {
+            let cur = ef.supply_pressure_drop.as_ref().map(|d| d.variant);
+            if cur != Some(SupplyVariant::PumpLimit) {
+                out.push(("resistance", first));
+            }
+            if cur.is_none() || cur == Some(SupplyVariant::PumpLimit) {
+                let s0 = ef
+                    .supply_pressure_drop
+                    .clone()
+                    .unwrap_or(SupplyPressureDrop {
+                        enabled: true,
+                        variant: SupplyVariant::PumpLimit,
+                        resistance: 0.0,
+                        time_constant: 0.0,
+                        max_flow: sc.flow,
+                        regulation_band: 0.05 * sc.pressure,
+                        volume: 5e-4,
+                    });
+                let set = |which: u8| -> Setter {
+                    let s0 = s0.clone();
+                    Arc::new(move |p, v| {
+                        let s = p
+                            .effects
+                            .supply_pressure_drop
+                            .get_or_insert_with(|| s0.clone());
+                        s.enabled = true;
+                        s.variant = SupplyVariant::PumpLimit;
+                        match which {
+                            0 => s.max_flow = v,
+                            1 => s.regulation_band = v,
+                            _ => s.volume = v,
+                        }
+                    })
+                };
+                out.push((
+                    "pump_limit",
+                    vec![
+                        p(
+                            "effects.supply_pressure_drop.max_flow",
+                            0.2 * sc.flow,
+                            4.0 * sc.flow,
+                            true,
+                            s0.max_flow,
+                            set(0),
+                        ),
+                        p(
+                            "effects.supply_pressure_drop.regulation_band",
+                            0.005 * sc.pressure,
+                            0.5 * sc.pressure,
+                            true,
+                            s0.regulation_band,
+                            set(1),
+                        ),
+                        p(
+                            "effects.supply_pressure_drop.volume",
+                            2e-5,
+                            1e-2,
+                            true,
+                            s0.volume,
+                            set(2),
+                        ),
+                    ],
+                ));
+            }
+        }
+        _ => out.push(("-", first)),
+    }
+    out
+}
+
+/// Free parameters of effect `e` in its first (or configured) variant (bounds from the rig
+/// scales, start values from the nominal section if it exists, else from the residual
+/// analysis). `None` when the effect cannot be tested on this record (e.g. a tone with no
+/// line in any residual spectrum). [`effect_variants`] adds the other structures.
 pub fn effect_params(
     e: EffectId,
     nominal: &PlantParams,
@@ -213,6 +522,7 @@ pub fn effect_params(
         EffectId::Friction => {
             let f0 = ef.friction.clone().unwrap_or(Friction {
                 enabled: true,
+                variant: FrictionVariant::Stribeck,
                 static_force: 0.0,
                 coulomb_force: 0.0,
                 stribeck_velocity: 0.01,
@@ -269,6 +579,8 @@ pub fn effect_params(
         EffectId::ValveDeadband => {
             let d0 = ef.valve_deadband.clone().unwrap_or(ValveDeadband {
                 enabled: true,
+                variant: DeadbandVariant::Overlap,
+                deadzone: 0.0,
                 overlap: 0.0,
                 zero_offset: 0.0,
             });
@@ -303,6 +615,8 @@ pub fn effect_params(
         EffectId::ValveSaturation => {
             let s0 = ef.valve_saturation.clone().unwrap_or(ValveSaturation {
                 enabled: true,
+                variant: SaturationVariant::Symmetric,
+                spool_limit_negative: 1.0,
                 spool_limit: 1.0,
                 max_flow: 0.0,
             });
@@ -412,7 +726,9 @@ pub fn effect_params(
                     };
                     let l = slot.get_or_insert(Leakage {
                         enabled: true,
+                        variant: LeakageVariant::Equal,
                         coefficient: v,
+                        coefficient_b: 0.0,
                     });
                     l.enabled = true;
                     l.coefficient = v;
@@ -426,6 +742,9 @@ pub fn effect_params(
                 .clone()
                 .unwrap_or(BulkModulusPressure {
                     enabled: true,
+                    variant: BulkVariant::Linear,
+                    air_fraction: 0.0,
+                    polytropic_index: 1.4,
                     slope: 0.0,
                     max: (2.2e9f64).max(1.6 * b0),
                 });
@@ -497,6 +816,7 @@ pub fn effect_params(
             });
             let base = cur.unwrap_or(FlexibleMount {
                 enabled: true,
+                variant: MountVariant::LoadSide,
                 load_mass: m0,
                 stiffness: k0,
                 damping: 0.0,
@@ -582,6 +902,7 @@ pub fn effect_params(
                 channel: ch,
                 frequencies: lines.iter().map(|l| l.frequency).collect(),
                 amplitudes: vec![0.0; nt],
+                phases: vec![0.0; nt],
             };
             // Frequencies are refined by the analysis to a small fraction of a Welch bin.
             let df = 0.02 / (sc.dt * 1024.0);
@@ -599,15 +920,44 @@ pub fn effect_params(
                         t.frequencies[i] = x;
                     }),
                 ));
+                // Arbitrary phase: a·sin(ωt + φ) = a_s·sin ωt + a_c·cos ωt, with the sine and
+                // cosine amplitudes fitted (a = √(a_s² + a_c²), φ = atan2(a_c, a_s)).
+                let c = base.clone();
+                let set_sc = |t: &mut SensorTone, i: usize, s: Option<f64>, co: Option<f64>| {
+                    if t.phases.len() != t.frequencies.len() {
+                        t.phases = vec![0.0; t.frequencies.len()];
+                    }
+                    let (a, ph) = (t.amplitudes[i], t.phases[i]);
+                    let (mut a_s, mut a_c) = (a * ph.cos(), a * ph.sin());
+                    if let Some(s) = s {
+                        a_s = s;
+                    }
+                    if let Some(co) = co {
+                        a_c = co;
+                    }
+                    t.amplitudes[i] = a_s.hypot(a_c);
+                    t.phases[i] = a_c.atan2(a_s);
+                };
                 v.push(p(
-                    &format!("effects.sensor_tone.amplitudes[{i}]"),
-                    0.0,
+                    &format!("effects.sensor_tone.sine_amplitudes[{i}]"),
+                    -4.0 * l.amplitude,
                     4.0 * l.amplitude,
                     false,
                     l.amplitude,
                     Arc::new(move |p, x| {
                         let t = p.effects.sensor_tone.get_or_insert_with(|| b.clone());
-                        t.amplitudes[i] = x;
+                        set_sc(t, i, Some(x), None);
+                    }),
+                ));
+                v.push(p(
+                    &format!("effects.sensor_tone.cosine_amplitudes[{i}]"),
+                    -4.0 * l.amplitude,
+                    4.0 * l.amplitude,
+                    false,
+                    0.0,
+                    Arc::new(move |p, x| {
+                        let t = p.effects.sensor_tone.get_or_insert_with(|| c.clone());
+                        set_sc(t, i, None, Some(x));
                     }),
                 ));
             }
@@ -620,8 +970,12 @@ pub fn effect_params(
                 .clone()
                 .unwrap_or(SupplyPressureDrop {
                     enabled: true,
+                    variant: SupplyVariant::Resistance,
                     resistance: 0.05 * r_s,
                     time_constant: 0.02,
+                    max_flow: 0.0,
+                    regulation_band: 0.0,
+                    volume: 0.0,
                 });
             let (a, b) = (cur.clone(), cur.clone());
             vec![

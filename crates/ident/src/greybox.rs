@@ -383,6 +383,7 @@ pub(crate) fn extend(
     };
     let mut h = Hyp {
         effects: vec![],
+        variants: vec![],
         params: vec![],
         values: vec![],
     };

@@ -18,6 +18,7 @@ pub mod data;
 pub mod diagnose;
 pub mod fit;
 pub mod greybox;
+pub mod indep;
 pub mod replay;
 pub mod report;
 pub mod residual;

@@ -234,40 +234,50 @@ pub fn noise_level(y: &[f64]) -> f64 {
 /// Replay accuracy: how the substeps were chosen and the integration error they leave.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct IntegrationCheck {
-    /// Substeps per sample period of the nominal model after the check.
+    /// Substeps per sample period chosen for the replay.
     pub substeps: u32,
-    /// `integration.max_omega_h` used for replay (-), the config's value or smaller.
+    /// Substeps the config's `[plant.integration]` gives at this sample period.
+    pub config_substeps: u32,
+    /// `integration.max_omega_h` of the config (-).
     pub max_omega_h: f64,
-    /// Per channel: rms difference between the replay and the replay with half the step, on
-    /// the fitting window, over the measured channel's std (NRMSE units, -). An estimate of the
-    /// replay's own integration error (the step-halving test).
+    /// Per channel: rms difference between the replay with the chosen substeps and with twice
+    /// as many, on the fitting window, over the measured channel's std (NRMSE units, -): the
+    /// step-halving estimate of the replay's own integration error (for the first-order scheme
+    /// the error itself is ≈ 2× this).
     pub error: std::collections::BTreeMap<String, f64>,
     /// Per channel: the noise floor it is compared with (NRMSE units, -), from the nominal
     /// replay's residual on the fitting window.
     pub floor: std::collections::BTreeMap<String, f64>,
     /// Required: error ≤ this fraction of the floor on every channel (-).
     pub ratio_limit: f64,
-    /// Whether the requirement was met within the refinement budget.
+    /// Largest cost factor (substeps / config substeps) the choice was allowed (-).
+    pub max_cost: f64,
+    /// Whether the requirement was met within that cost. When not, the remaining error is
+    /// added to the noise floor of the diagnosis (it is never blamed on an effect).
     pub met: bool,
-    /// Substep refinements made (each at least doubles the substeps).
-    pub refinements: u32,
 }
 
 /// The integration error must stay below this fraction of the noise floor (-): added in
 /// quadrature to white noise it raises the residual RMS by at most √(1 + 0.3²) − 1 ≈ 4.4 %.
 pub const INTEGRATION_RATIO: f64 = 0.3;
 
-/// Choose the replay's integration so that its own error is well below the noise floor:
-/// replay the first `n` samples with the plant's substeps N and with 2N (step halving), and
-/// while their difference exceeds [`INTEGRATION_RATIO`] × the noise floor on any channel,
-/// halve `integration.max_omega_h` (or double fixed substeps) — at most `max_refinements` times. Returns the
-/// parameters to replay with and the figures for the report.
-pub fn check_integration(
+/// Default largest replay cost factor of the integration choice for the library
+/// ([`crate::Options`]); `ehactl diagnose` and the Python bindings use
+/// [`crate::session::USER_INTEGRATION_COST`].
+pub const DEFAULT_INTEGRATION_COST: f64 = 1.0;
+
+/// Choose the replay's integration so that its own error is well below the noise floor: on
+/// the first `n` samples, measure the step-halving difference at the config's substeps N
+/// (replays with N and 2N); where it exceeds [`INTEGRATION_RATIO`] × the noise floor on a
+/// channel, predict the substeps that meet it from the scheme's first order (error ∝ step,
+/// with a 20 % margin), capped at `max_cost` × N, and check them the same way (at most twice).
+/// Returns the parameters to replay with (fixed substeps) and the figures for the report.
+pub fn choose_integration(
     p: &PlantParams,
     rec: &Record,
     n: usize,
     drive: Drive,
-    max_refinements: u32,
+    max_cost: f64,
 ) -> (PlantParams, IntegrationCheck) {
     let n = n.min(rec.len());
     let mut p = p.clone();
@@ -296,14 +306,14 @@ pub fn check_integration(
         Err(_) => vec![0.0; sd.len()],
     };
     let substeps_of = |p: &PlantParams| Plant::configure(p, rec.dt).map_or(1, |pl| pl.substeps());
-    let mut refinements = 0;
-    loop {
-        let ns = substeps_of(&p);
-        let mut half = p.clone();
-        half.integration.substeps = 2 * ns;
-        let err: Vec<f64> = match (
-            replay_with(&p, rec, n, drive),
-            replay_with(&half, rec, n, drive),
+    let step_halving = |p: &PlantParams, ns: u32| -> Vec<f64> {
+        let mut a = p.clone();
+        a.integration.substeps = ns;
+        let mut b = p.clone();
+        b.integration.substeps = 2 * ns;
+        match (
+            replay_with(&a, rec, n, drive),
+            replay_with(&b, rec, n, drive),
         ) {
             (Ok(a), Ok(b)) => {
                 a.y.iter()
@@ -321,35 +331,41 @@ pub fn check_integration(
                     .collect()
             }
             _ => vec![f64::INFINITY; sd.len()],
-        };
-        // 1e-6 of the std: numerically insignificant even on noise-free data.
-        let met = err
-            .iter()
+        }
+    };
+    // Worst ratio error / allowed over channels (1e-6 of the std: numerically insignificant
+    // even on noise-free data).
+    let worst = |err: &[f64]| {
+        err.iter()
             .zip(&floor)
-            .all(|(e, f)| *e <= (INTEGRATION_RATIO * f).max(1e-6));
-        if met || refinements >= max_refinements {
-            let check = IntegrationCheck {
-                substeps: ns,
-                max_omega_h: p.integration.max_omega_h,
-                error: names.iter().cloned().zip(err).collect(),
-                floor: names.iter().cloned().zip(floor.iter().copied()).collect(),
-                ratio_limit: INTEGRATION_RATIO,
-                met,
-                refinements,
-            };
-            return (p, check);
+            .map(|(e, f)| e / (INTEGRATION_RATIO * f).max(1e-6))
+            .fold(0.0, f64::max)
+    };
+    let n0 = substeps_of(&p);
+    let cap = ((n0 as f64 * max_cost.max(1.0)).floor() as u32)
+        .clamp(n0, ehactl_plant::model::MAX_SUBSTEPS);
+    let mut ns = n0;
+    let mut err = step_halving(&p, ns);
+    for _ in 0..2 {
+        let r = worst(&err);
+        if r <= 1.0 || ns >= cap || !r.is_finite() {
+            break;
         }
-        refinements += 1;
-        if p.integration.substeps > 0 {
-            p.integration.substeps *= 2;
-        } else {
-            // Halve ω·h until the automatic choice gives at least 2N substeps.
-            for _ in 0..20 {
-                p.integration.max_omega_h *= 0.5;
-                if substeps_of(&p) >= 2 * ns {
-                    break;
-                }
-            }
-        }
+        let next = ((ns as f64 * r * 1.2).ceil() as u32).clamp(ns + 1, cap);
+        ns = next;
+        err = step_halving(&p, ns);
     }
+    let met = worst(&err) <= 1.0;
+    p.integration.substeps = ns;
+    let check = IntegrationCheck {
+        substeps: ns,
+        config_substeps: n0,
+        max_omega_h: p.integration.max_omega_h,
+        error: names.iter().cloned().zip(err).collect(),
+        floor: names.iter().cloned().zip(floor.iter().copied()).collect(),
+        ratio_limit: INTEGRATION_RATIO,
+        max_cost,
+        met,
+    };
+    (p, check)
 }

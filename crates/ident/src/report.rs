@@ -318,18 +318,26 @@ pub fn write_report(
     let ig = &d.integration;
     let _ = writeln!(
         r,
-        "Replay accuracy: {} substeps per sample (max ω·h {:.4}, {} refinement(s)); integration error by step halving on the fitting window {} vs noise floor {} — {}.\n",
+        "Replay accuracy: {} substeps per sample (the config gives {}; cost limit {}×); integration error by step halving on the fitting window {} vs noise floor {} — {}.\n",
         ig.substeps,
-        ig.max_omega_h,
-        ig.refinements,
+        ig.config_substeps,
+        ig.max_cost,
         ig.error.iter().map(|(k, v)| format!("`{k}` {v:.2e}")).collect::<Vec<_>>().join(", "),
         ig.floor.iter().map(|(k, v)| format!("`{k}` {v:.2e}")).collect::<Vec<_>>().join(", "),
         if ig.met {
             format!("below {:.0} % of the floor on every channel", ig.ratio_limit * 100.0)
         } else {
-            "NOT below the required fraction of the floor after 5 refinements: part of the residual may be the replay's own error".to_string()
+            "NOT below the required fraction of the floor within the cost limit: the remaining integration error is counted as noise (added to the floor)".to_string()
         }
     );
+    if !d.refit_at_bounds.is_empty() || !d.extended_at_bounds.is_empty() {
+        let _ = writeln!(
+            r,
+            "Nominal parameters on a bound of their stated uncertainty (`[uncertainty]`, default ±15 %) — evidence of a missing effect or a wrong nominal value: refit {}; final model {}.\n",
+            if d.refit_at_bounds.is_empty() { "none".to_string() } else { d.refit_at_bounds.join("; ") },
+            if d.extended_at_bounds.is_empty() { "none".to_string() } else { d.extended_at_bounds.join("; ") },
+        );
+    }
     if d.sensor_offsets.is_empty() {
         let _ = writeln!(
             r,

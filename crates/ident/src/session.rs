@@ -54,12 +54,11 @@ pub struct RunChoices {
     pub sensor_offsets: bool,
 }
 
-/// Substep refinements allowed to bring the replay's integration error below 0.3 × the
-/// noise floor for `ehactl diagnose` and the Python bindings ([`Options::integration_refinements`]).
-/// 0: the figure is reported and a warning names the `max_omega_h` that would meet it. The
-/// automatic refinement (5) took the test bench's 2 s record past 10 minutes on the shared
-/// machine (35–70 substeps instead of 5), so it is not the default yet.
-pub const USER_INTEGRATION_REFINEMENTS: u32 = 0;
+/// Largest replay cost factor the integration choice may spend for `ehactl diagnose` and the
+/// Python bindings ([`Options::integration_max_cost`]): up to 4× the config's substeps to bring
+/// the replay's integration error below 0.3 × the noise floor; what remains is reported and
+/// counted as noise.
+pub const USER_INTEGRATION_COST: f64 = 4.0;
 
 /// Diagnose `data_path` (CSV or ehactl MCAP) against the nominal `cfg` (labelled
 /// `config_label` in the report), holding out `validate` or the last 30 %; write the report to
@@ -144,7 +143,7 @@ pub fn run(
         sensor_offsets: choices.sensor_offsets,
         drive,
         // Replay accuracy is checked and reported (DIAGNOSIS.md "Replay accuracy").
-        integration_refinements: USER_INTEGRATION_REFINEMENTS,
+        integration_max_cost: USER_INTEGRATION_COST,
         // Grey-box extension when the catalogue is exhausted (DIAGNOSIS.md "Grey-box").
         greybox: true,
         ..Options::default()

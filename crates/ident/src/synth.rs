@@ -85,6 +85,7 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
             let fc = rng.range(150.0, 400.0);
             ef.friction = Some(Friction {
                 enabled: true,
+                variant: Default::default(),
                 coulomb_force: fc,
                 static_force: fc * rng.range(1.1, 1.6),
                 stribeck_velocity: rng.log_range(0.005, 0.02),
@@ -94,6 +95,8 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
         EffectId::ValveDeadband => {
             ef.valve_deadband = Some(ValveDeadband {
                 enabled: true,
+                variant: Default::default(),
+                deadzone: 0.0,
                 overlap: rng.range(0.05, 0.12),
                 zero_offset: rng.range(-0.01, 0.01),
             });
@@ -101,6 +104,8 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
         EffectId::ValveSaturation => {
             ef.valve_saturation = Some(ValveSaturation {
                 enabled: true,
+                variant: Default::default(),
+                spool_limit_negative: 1.0,
                 spool_limit: rng.range(0.45, 0.7),
                 max_flow: 0.0,
             });
@@ -117,18 +122,25 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
         EffectId::InternalLeakage => {
             ef.internal_leakage = Some(Leakage {
                 enabled: true,
+                variant: Default::default(),
+                coefficient_b: 0.0,
                 coefficient: rng.log_range(2e-12, 8e-12),
             })
         }
         EffectId::ExternalLeakage => {
             ef.external_leakage = Some(Leakage {
                 enabled: true,
+                variant: Default::default(),
+                coefficient_b: 0.0,
                 coefficient: rng.log_range(2e-12, 8e-12),
             })
         }
         EffectId::BulkModulusPressure => {
             ef.bulk_modulus_pressure = Some(BulkModulusPressure {
                 enabled: true,
+                variant: Default::default(),
+                air_fraction: 0.0,
+                polytropic_index: 1.4,
                 slope: rng.range(80.0, 200.0),
                 max: 2.2e9,
             })
@@ -149,6 +161,7 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
             let k = rng.log_range(2e6, 8e6);
             ef.flexible_mount = Some(FlexibleMount {
                 enabled: true,
+                variant: Default::default(),
                 load_mass: m,
                 stiffness: k,
                 damping: rng.range(0.05, 0.2) * 2.0 * (k * m).sqrt(),
@@ -167,6 +180,7 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
                 SensorTone {
                     enabled: true,
                     channel: SensorChannel::Force,
+                    phases: vec![],
                     frequencies: vec![f],
                     amplitudes: vec![rng.range(20.0, 40.0)],
                 }
@@ -174,6 +188,7 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
                 SensorTone {
                     enabled: true,
                     channel: SensorChannel::PressureA,
+                    phases: vec![],
                     frequencies: vec![f],
                     amplitudes: vec![rng.range(8e4, 1.6e5)],
                 }
@@ -182,6 +197,10 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
         EffectId::SupplyPressureDrop => {
             ef.supply_pressure_drop = Some(SupplyPressureDrop {
                 enabled: true,
+                variant: Default::default(),
+                max_flow: 0.0,
+                regulation_band: 0.0,
+                volume: 0.0,
                 resistance: rng.range(1.0e10, 2.5e10),
                 time_constant: rng.log_range(0.01, 0.05),
             })

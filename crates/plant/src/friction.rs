@@ -14,6 +14,8 @@ pub struct FrictionModel {
     fs: f64,
     fc: f64,
     vs: f64,
+    /// Variant `load_coulomb`: F = F_C·tanh(v/v_s), no stick.
+    smooth: bool,
 }
 
 impl FrictionModel {
@@ -23,6 +25,7 @@ impl FrictionModel {
             fs: p.static_force.max(p.coulomb_force),
             fc: p.coulomb_force,
             vs: p.stribeck_velocity,
+            smooth: p.variant == crate::params::FrictionVariant::LoadCoulomb,
         }
     }
 
@@ -38,6 +41,14 @@ impl FrictionModel {
     /// substep (s). Returns (new velocity, friction force on the body opposing motion, stuck).
     #[inline]
     pub fn project(&self, v_old: f64, v_free: f64, m_eff: f64, h: f64) -> (f64, f64, bool) {
+        if self.smooth {
+            // F = F_C·tanh(v/v_s), linearly implicit about v_old (stable for any slope).
+            let th = (v_old / self.vs).tanh();
+            let f0 = self.fc * th;
+            let df = self.fc / self.vs * (1.0 - th * th);
+            let v_new = (m_eff * v_free - h * (f0 - df * v_old)) / (m_eff + h * df);
+            return (v_new, f0 + df * (v_new - v_old), false);
+        }
         let crossing = v_old == 0.0 || v_free == 0.0 || (v_old > 0.0) != (v_free > 0.0);
         if crossing {
             let f_hold = m_eff * v_free / h;

@@ -16,6 +16,7 @@
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
+use crate::effects::validate_variants;
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
 use crate::friction::FrictionModel;
@@ -80,15 +81,24 @@ struct Consts {
     pt: f64,
     k_in: f64,
     k_ext: f64,
+    /// Chamber B's external leakage (m³/(s·Pa)): `k_ext` unless `per_chamber`.
+    k_ext_b: f64,
+    /// Entrained air (α₀, n) of `bulk_modulus_pressure` variant `entrained_air`.
+    air: Option<(f64, f64)>,
     mass: f64,
     damping: f64,
     k_load: f64,
     x_contact: f64,
     end_stops: bool,
     full_scale: f64,
+    /// Equivalent supply droop (Pa·s/m³), > 0 when the supply pressure is a state.
     supply_r: f64,
+    /// Supply time constant (s), variant `resistance` (the `linear_exact` step uses it).
     supply_tau: f64,
+    supply: Option<crate::effects::SupplyModel>,
     mount: Option<(f64, f64, f64)>,
+    /// The mount is the cylinder body's (`flexible_mount` variant `piston_side`).
+    body_mount: bool,
     delay: f64,
 }
 
@@ -258,6 +268,7 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
             ));
         }
     }
+    validate_variants(p)?;
     if let Some(d) = p.effects.time_delay.as_ref() {
         if d.delay > 1.0 {
             return Err(ConfigError::new(
@@ -331,6 +342,17 @@ impl Plant {
                 .as_ref()
                 .filter(|l| l.enabled)
                 .map_or(0.0, |l| l.coefficient),
+            k_ext_b: e
+                .external_leakage
+                .as_ref()
+                .filter(|l| l.enabled)
+                .map_or(0.0, |l| match l.variant {
+                    crate::params::LeakageVariant::Equal => l.coefficient,
+                    crate::params::LeakageVariant::PerChamber => l.coefficient_b,
+                }),
+            air: bmp
+                .filter(|b| b.variant == crate::params::BulkVariant::EntrainedAir)
+                .map(|b| (b.air_fraction, b.polytropic_index)),
             mass: params.mechanics.mass,
             damping: params.mechanics.damping
                 + e.friction
@@ -341,9 +363,24 @@ impl Plant {
             x_contact: params.mechanics.load_contact_position,
             end_stops: params.mechanics.end_stops,
             full_scale: params.valve.command_full_scale,
-            supply_r: sdrop.map_or(0.0, |s| s.resistance),
-            supply_tau: sdrop.map_or(1.0, |s| s.time_constant),
+            supply_r: sdrop.map_or(0.0, |s| {
+                crate::effects::SupplyModel::new(
+                    s,
+                    params.supply.pressure,
+                    params.fluid.bulk_modulus,
+                )
+                .droop()
+            }),
+            supply_tau: sdrop.map_or(1.0, |s| s.time_constant.max(1e-9)),
+            supply: sdrop.map(|s| {
+                crate::effects::SupplyModel::new(
+                    s,
+                    params.supply.pressure,
+                    params.fluid.bulk_modulus,
+                )
+            }),
             mount: mount.map(|m| (m.load_mass, m.stiffness, m.damping)),
+            body_mount: mount.is_some_and(|m| m.variant == crate::params::MountVariant::PistonSide),
             delay: e
                 .time_delay
                 .as_ref()
@@ -364,6 +401,11 @@ impl Plant {
         });
         // Fastest oscillatory mode over the whole stroke (rad/s): the smallest chamber volumes.
         let mut omega_max = fastest_mode(&c, lines.as_ref().map(|l| &l.0), &cbv, c.v_a0, c.v_b0);
+        if let (true, Some((ml, km, dm))) = (c.body_mount, c.mount) {
+            // A compliant cylinder body sees its mount and the oil column.
+            let k_oil = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0);
+            omega_max = omega_max.max(((km + k_oil) / ml).sqrt()).max(dm / ml);
+        }
         let x0 = params.cylinder.initial_position.clamp(0.0, c.stroke);
         // `linear_exact` covers chambers, leakage, springs, dampers and the mount; with lines,
         // friction (stick) or the grey-box polynomial effects the plant integrates with
@@ -374,7 +416,12 @@ impl Plant {
             && lines.is_none()
             && !e.friction.as_ref().is_some_and(|f| f.enabled)
             && !e.polynomial_force.is_some_and(|f| f.enabled)
-            && !e.polynomial_flow.is_some_and(|f| f.enabled);
+            && !e.polynomial_flow.is_some_and(|f| f.enabled)
+            // Issue-17 variants are integrated by the exponential-Euler substep only.
+            && !c.body_mount
+            && c.air.is_none()
+            && c.k_ext_b == c.k_ext
+            && !matches!(c.supply, Some(crate::effects::SupplyModel::PumpLimit { .. }));
         if linear_exact {
             // Hydraulic spring, load spring and mount are exact: the step is limited only by
             // what enters explicitly, the spool (its mid-step position sets the valve flow)
@@ -495,7 +542,8 @@ impl Plant {
             p_s: c.ps0,
             x: x0,
             v: 0.0,
-            x_load: x0,
+            // With a compliant cylinder mount x_load is the body's displacement.
+            x_load: if c.body_mount { 0.0 } else { x0 },
             v_load: 0.0,
             q_a: 0.0,
             q_b: 0.0,
@@ -564,6 +612,9 @@ impl Plant {
     /// Effective bulk modulus at gauge pressure `p` (Pa): β₀ + K_b·p, capped (002 eq. 35).
     #[inline]
     pub fn bulk_modulus(&self, p: f64) -> f64 {
+        if let Some((alpha0, n)) = self.c.air {
+            return crate::effects::entrained_air_bulk_modulus(self.c.beta0, alpha0, n, p);
+        }
         (self.c.beta0 + self.c.beta_slope * p.max(0.0)).min(self.c.beta_max)
     }
 
@@ -940,7 +991,7 @@ impl Plant {
         let mut s = self.state;
         s.command = u;
         // 1. Spool.
-        let target = u / c.full_scale;
+        let target = self.edges.target(u / c.full_scale);
         self.spool_model
             .advance(&mut s.spool, &mut s.spool_velocity, target);
         let o = self.edges.openings(s.spool);
@@ -961,8 +1012,8 @@ impl Plant {
                 q_sb = qsb;
                 let fa = beta_a / va * (qa - c.a_a * s.v - q_in - c.k_ext * s.p_a);
                 let la = beta_a / va * (dqa - c.k_in - c.k_ext);
-                let fb = beta_b / vb * (qb + c.a_b * s.v + q_in - c.k_ext * s.p_b);
-                let lb = beta_b / vb * (dqb - c.k_in - c.k_ext);
+                let fb = beta_b / vb * (qb + c.a_b * s.v + q_in - c.k_ext_b * s.p_b);
+                let lb = beta_b / vb * (dqb - c.k_in - c.k_ext_b);
                 s.p_a = (s.p_a + h * fa * phi1(la * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lb * h)).max(c.p_cav);
             }
@@ -1022,8 +1073,8 @@ impl Plant {
                 }
                 let fa = beta_a / va * (into[0] - c.a_a * s.v - q_in - c.k_ext * s.p_a);
                 let lam_a = beta_a / va * (-c.k_in - c.k_ext - dinto[0]);
-                let fb = beta_b / vb * (into[1] + c.a_b * s.v + q_in - c.k_ext * s.p_b);
-                let lam_b = beta_b / vb * (-c.k_in - c.k_ext - dinto[1]);
+                let fb = beta_b / vb * (into[1] + c.a_b * s.v + q_in - c.k_ext_b * s.p_b);
+                let lam_b = beta_b / vb * (-c.k_in - c.k_ext_b - dinto[1]);
                 s.p_a = (s.p_a + h * fa * phi1(lam_a * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lam_b * h)).max(c.p_cav);
                 la.advance_flows(
@@ -1045,9 +1096,8 @@ impl Plant {
             }
         }
         // Supply sag (000): first-order towards p_s0 − R·Q_s.
-        if c.supply_r > 0.0 {
-            let target = (c.ps0 - c.supply_r * (q_sa + q_sb)).max(c.pt);
-            s.p_s += (target - s.p_s) * (1.0 - (-h / c.supply_tau).exp());
+        if let Some(sm) = &c.supply {
+            s.p_s = sm.advance(s.p_s, q_sa + q_sb, c.pt, h);
         }
         // 3. Mechanics.
         let f_ext = self.excitation.force(t + h);
@@ -1058,13 +1108,32 @@ impl Plant {
             Some((_, km, dm)) => (km * (s.x - s.x_load) - dm * s.v_load, dm),
             None => (0.0, 0.0),
         };
-        let f_on_piston_ext = if c.mount.is_some() { 0.0 } else { f_ext };
+        let f_on_piston_ext = if c.mount.is_some() && !c.body_mount {
+            0.0
+        } else {
+            f_ext
+        };
         // Rod force law, linearly implicit in v (stable for a stiff damper or smoothed sign).
         let (f_poly, df_poly) = self
             .poly
             .map_or((0.0, 0.0), |f| f.force(s.x, s.v, s.p_a, s.p_b));
         let df_poly = df_poly.max(0.0); // a falling branch stays explicit
-        let f_other = f_hyd - f_spring - f_mount - f_on_piston_ext - f_poly + df_poly * s.v;
+        let mut f_other = f_hyd - f_spring - f_mount - f_on_piston_ext - f_poly + df_poly * s.v;
+        if c.body_mount {
+            // Compliant cylinder mount: the body takes the reaction of the oil, seal and
+            // viscous forces; x, v are relative to it, the load spring sees x + x_body.
+            let mb = c.mount.unwrap_or((1.0, 0.0, 0.0));
+            let f_rel = f_hyd - c.damping * s.v - s.friction;
+            let a_body =
+                crate::effects::body_mount_step(&mut s.x_load, &mut s.v_load, f_rel, mb, h);
+            f_other = f_hyd
+                - c.k_load * (s.x + s.x_load - c.x_contact)
+                - f_ext
+                - c.mass * a_body
+                - f_poly
+                + df_poly * s.v;
+        }
+        let d_mount = if c.body_mount { 0.0 } else { d_mount };
         let m_eff = c.mass + h * (c.damping + d_mount + df_poly);
         let v_free = (c.mass * s.v + h * f_other) / m_eff;
         let (v_new, f_fric, stuck) = match &self.friction {
@@ -1075,7 +1144,9 @@ impl Plant {
         s.friction = f_fric;
         s.stuck = stuck;
         s.x += h * s.v;
-        if let Some((ml, km, dm)) = c.mount {
+        if c.body_mount {
+            // Body already advanced above.
+        } else if let Some((ml, km, dm)) = c.mount {
             let f = km * (s.x - s.x_load) + dm * s.v - f_ext;
             s.v_load = (ml * s.v_load + h * f) / (ml + h * dm);
             s.x_load += h * s.v_load;
@@ -1092,12 +1163,15 @@ impl Plant {
                 s.v = s.v.min(0.0);
             }
         }
-        s.rod_force = c.k_load * (s.x - c.x_contact)
-            + match c.mount {
-                Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
-                None => f_ext,
-            }
-            + self.poly.map_or(0.0, |f| f.force(s.x, s.v, s.p_a, s.p_b).0);
+        s.rod_force = if c.body_mount {
+            c.k_load * (s.x + s.x_load - c.x_contact) + f_ext
+        } else {
+            c.k_load * (s.x - c.x_contact)
+                + match c.mount {
+                    Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
+                    None => f_ext,
+                }
+        } + self.poly.map_or(0.0, |f| f.force(s.x, s.v, s.p_a, s.p_b).0);
         self.state = s;
     }
 }

@@ -8,6 +8,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::effects::validate_variants;
+
 fn yes() -> bool {
     true
 }
@@ -190,13 +192,31 @@ pub struct Excitation {
     pub start_time: f64,
 }
 
-/// `friction`: Stribeck seal friction with stick (003 eq. 5, 004 eq. 28–34).
+/// Structural variant of `friction`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FrictionVariant {
+    /// Seal friction on the piston: Stribeck curve with a true stick phase (003 eq. 5,
+    /// 004 eq. 28–34).
+    #[default]
+    Stribeck,
+    /// Load-side Coulomb force without stick, F = F_C·tanh(v/v_s) (the smooth Coulomb term of
+    /// MR-damper and guide models, e.g. Spencer et al. 1997 without the Bouc–Wen hysteresis);
+    /// `stribeck_velocity` is the smoothing velocity v_s, `static_force` is not used.
+    LoadCoulomb,
+}
+
+/// `friction`: Stribeck seal friction with stick (003 eq. 5, 004 eq. 28–34) or a load-side
+/// Coulomb force (variant `load_coulomb`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Friction {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
+    /// Structural variant (`stribeck` or `load_coulomb`).
+    #[serde(default)]
+    pub variant: FrictionVariant,
     /// Breakaway (static) friction F_s (N); 004: 44.
     pub static_force: f64,
     /// Coulomb friction F_C (N); 004: 39, 003: 500.
@@ -215,19 +235,53 @@ impl Friction {
     }
 }
 
-/// `valve_deadband`: spool overlap (dead zone) and zero offset (002: 42 %, 004: 0.0375 V).
+/// Structural variant of `valve_deadband`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum DeadbandVariant {
+    /// Spool overlap: each metering edge opens only after `overlap` of travel (002, 004).
+    #[default]
+    Overlap,
+    /// Dead zone of the valve amplifier ahead of the (underlapped) spool: spool target =
+    /// sign(c)·max(|c| − `deadzone`, 0) with c = u/full scale + `zero_offset` (the
+    /// amplifier's dead-band setting of proportional-valve electronics, e.g. Bosch Rexroth
+    /// VT-VRPA1 "dead band compensation" set to 0; 004 models it as a command dead zone).
+    Amplifier,
+}
+
+/// `valve_deadband`: spool overlap (dead zone) and zero offset (002: 42 %, 004: 0.0375 V), or
+/// an amplifier dead zone ahead of the spool (variant `amplifier`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ValveDeadband {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
+    /// Structural variant (`overlap` or `amplifier`).
+    #[serde(default)]
+    pub variant: DeadbandVariant,
+    /// Amplifier dead zone as a fraction of the full-scale command (-), variant `amplifier`.
+    #[serde(default)]
+    pub deadzone: f64,
     /// Overlap per edge as a fraction of full spool travel (-).
     #[serde(default)]
     pub overlap: f64,
     /// Zero offset of the spool as a fraction of full travel (-), signed.
     #[serde(default)]
     pub zero_offset: f64,
+}
+
+/// Structural variant of `valve_saturation`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum SaturationVariant {
+    /// The same travel limit in both directions.
+    #[default]
+    Symmetric,
+    /// Different limits for positive (`spool_limit`) and negative (`spool_limit_negative`)
+    /// spool travel: asymmetric amplifier clipping or end stops of the spool (002 fig. 6
+    /// shows an 87 % limit on one side).
+    Asymmetric,
 }
 
 /// `valve_saturation`: spool travel limit and/or edge flow limit (002: 87 %).
@@ -237,6 +291,12 @@ pub struct ValveSaturation {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
+    /// Structural variant (`symmetric` or `asymmetric`).
+    #[serde(default)]
+    pub variant: SaturationVariant,
+    /// Limit of negative spool travel as a fraction of full travel (-), variant `asymmetric`.
+    #[serde(default = "ValveSaturation::one")]
+    pub spool_limit_negative: f64,
     /// Maximum spool opening as a fraction of full travel (-), 0 < limit ≤ 1.
     #[serde(default = "ValveSaturation::one")]
     pub spool_limit: f64,
@@ -271,6 +331,19 @@ pub struct ValveDynamics {
     pub damping_ratio: f64,
 }
 
+/// Structural variant of a leakage.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LeakageVariant {
+    /// One coefficient: across the piston (`internal_leakage`) or from both chambers to tank
+    /// with the same coefficient (`external_leakage`).
+    #[default]
+    Equal,
+    /// `external_leakage` only: chamber A leaks with `coefficient`, chamber B with
+    /// `coefficient_b` (rod seal vs. a worn port or fitting; one chamber when the other is 0).
+    PerChamber,
+}
+
 /// `internal_leakage` / `external_leakage`: laminar leakage (003 eq. 1 k_l, k_le; 004 C_in).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -278,19 +351,51 @@ pub struct Leakage {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
-    /// Leakage coefficient (m³/(s·Pa)).
+    /// Structural variant (`equal` or, external leakage only, `per_chamber`).
+    #[serde(default)]
+    pub variant: LeakageVariant,
+    /// Leakage coefficient (m³/(s·Pa)); chamber A's for `per_chamber`.
     pub coefficient: f64,
+    /// Chamber B's leakage coefficient to tank (m³/(s·Pa)), variant `per_chamber`.
+    #[serde(default)]
+    pub coefficient_b: f64,
 }
 
-/// `bulk_modulus_pressure`: β(p) = β₀ + K_b·p, capped at `max` (002 eq. 35).
+/// Structural variant of `bulk_modulus_pressure`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum BulkVariant {
+    /// β(p) = β₀ + K_b·p, capped at `max` (002 eq. 35).
+    #[default]
+    Linear,
+    /// Entrained air compressed polytropically (Yu, Chen & Lu 1994; the "Yu" model of
+    /// Gholizadeh, Burton & Schoenau 2011, Int. J. Fluid Power 12(3)): with absolute pressure
+    /// P = p + 101325 Pa, air fraction at atmosphere α₀ and polytropic index n,
+    /// β(p) = [(1−α₀) + α₀(P₀/P)^(1/n)] / [(1−α₀)/β₀ + α₀(P₀/P)^(1/n)/(n·P)].
+    EntrainedAir,
+}
+
+/// `bulk_modulus_pressure`: β(p) = β₀ + K_b·p, capped at `max` (002 eq. 35), or entrained air
+/// (variant `entrained_air`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct BulkModulusPressure {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
-    /// Pressure slope K_b (-): dβ/dp.
+    /// Structural variant (`linear` or `entrained_air`).
+    #[serde(default)]
+    pub variant: BulkVariant,
+    /// Pressure slope K_b (-): dβ/dp, variant `linear`.
+    #[serde(default)]
     pub slope: f64,
+    /// Volume fraction of undissolved air at atmospheric pressure α₀ (-), variant
+    /// `entrained_air`; Gholizadeh 2011: 0.5–5 % typical.
+    #[serde(default)]
+    pub air_fraction: f64,
+    /// Polytropic index n of the air (-), variant `entrained_air`: 1 isothermal, 1.4 adiabatic.
+    #[serde(default = "BulkModulusPressure::default_n")]
+    pub polytropic_index: f64,
     /// Upper bound on β (Pa).
     #[serde(default = "BulkModulusPressure::default_max")]
     pub max: f64,
@@ -299,6 +404,9 @@ pub struct BulkModulusPressure {
 impl BulkModulusPressure {
     fn default_max() -> f64 {
         2.2e9
+    }
+    fn default_n() -> f64 {
+        1.4
     }
 }
 
@@ -352,14 +460,34 @@ impl LineFriction {
     pub const NAMES: &'static [&'static str] = &["steady", "unsteady", "unsteady_trikha"];
 }
 
-/// `flexible_mount`: spring-damper (SDD) from rod to a load mass (003 eq. 1).
+/// Structural variant of `flexible_mount`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum MountVariant {
+    /// Compliance on the load side: rod → spring-damper → load mass (003 eq. 1, SDD).
+    #[default]
+    LoadSide,
+    /// Compliance on the piston side: the cylinder body (mass `load_mass`) sits on a
+    /// spring-damper to ground and takes the reaction of the chamber pressures, seal friction
+    /// and viscous force; the position transducer measures the piston relative to the body
+    /// (chamber volumes follow it), the load spring acts on the absolute piston position
+    /// (two-mass frame-compliance model, e.g. Jelali & Kroll 2003, "Hydraulic Servo-systems",
+    /// §4.4 "mechanical structure").
+    PistonSide,
+}
+
+/// `flexible_mount`: spring-damper (SDD) from rod to a load mass (003 eq. 1), or a compliant
+/// cylinder mount (variant `piston_side`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct FlexibleMount {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
-    /// Load mass m_L (kg); 003: 250.
+    /// Structural variant (`load_side` or `piston_side`).
+    #[serde(default)]
+    pub variant: MountVariant,
+    /// Load mass m_L (kg); 003: 250. Variant `piston_side`: the cylinder body's mass.
     pub load_mass: f64,
     /// SDD stiffness k_m (N/m); 003 range 1e4–1e5.
     pub stiffness: f64,
@@ -406,6 +534,9 @@ pub struct SensorTone {
     pub frequencies: Vec<f64>,
     /// Tone amplitudes in the channel's unit (N, m or Pa), one per frequency.
     pub amplitudes: Vec<f64>,
+    /// Tone phases φ (rad), one per frequency (empty = all 0): a·sin(2πft + φ).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub phases: Vec<f64>,
 }
 
 impl SensorTone {
@@ -414,17 +545,47 @@ impl SensorTone {
     }
 }
 
-/// `supply_pressure_drop`: supply sags with flow, p_s → p_s0 − R·Q_s with time constant τ (000).
+/// Structural variant of `supply_pressure_drop`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum SupplyVariant {
+    /// p_s → p_s0 − R·Q_s with time constant τ (000): accumulator behind a supply resistance.
+    #[default]
+    Resistance,
+    /// Pressure-compensated pump with a flow limit feeding a supply volume V:
+    /// (V/β₀)·ṗ_s = Q_p − Q_s with Q_p = Q_max·clamp((p_s0 − p_s)/Δp_c, 0, 1): the compensator
+    /// destrokes linearly over its regulation band Δp_c below the setting p_s0, and the supply
+    /// collapses when the valve draws more than Q_max (Manring, "Hydraulic Control Systems"
+    /// 2005, §6.5 pressure-compensated pumps).
+    PumpLimit,
+}
+
+/// `supply_pressure_drop`: supply sags with flow, p_s → p_s0 − R·Q_s with time constant τ (000),
+/// or a flow-limited pressure-compensated pump (variant `pump_limit`).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SupplyPressureDrop {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
-    /// Flow resistance R (Pa·s/m³).
+    /// Structural variant (`resistance` or `pump_limit`).
+    #[serde(default)]
+    pub variant: SupplyVariant,
+    /// Flow resistance R (Pa·s/m³), variant `resistance`.
+    #[serde(default)]
     pub resistance: f64,
-    /// Time constant τ of the supply (accumulator / pump) (s).
+    /// Time constant τ of the supply (accumulator / pump) (s), variant `resistance`.
+    #[serde(default)]
     pub time_constant: f64,
+    /// Pump flow limit Q_max (m³/s), variant `pump_limit`.
+    #[serde(default)]
+    pub max_flow: f64,
+    /// Compensator regulation band Δp_c (Pa), variant `pump_limit`.
+    #[serde(default)]
+    pub regulation_band: f64,
+    /// Oil volume between pump and valve V (m³), variant `pump_limit`.
+    #[serde(default)]
+    pub volume: f64,
 }
 
 /// The effect catalogue of DESIGN.md: every section is optional.
@@ -638,4 +799,177 @@ pub struct PlantParams {
     /// Integration.
     #[serde(default)]
     pub integration: Integration,
+    /// Stated uncertainty of nominal parameters (`[uncertainty]`, dotted path → "15%" or an
+    /// absolute number in the parameter's SI unit): the bounds within which `ehactl diagnose`
+    /// refits them. See [`UNCERTAIN_PARAMS`]; unlisted defaults are ±15 %.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub uncertainty: std::collections::BTreeMap<String, Uncertainty>,
+}
+
+/// Stated uncertainty of one nominal parameter.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum Uncertainty {
+    /// ± this amount in the parameter's SI unit.
+    Absolute(f64),
+    /// ± this percentage of the nominal value, written like `"15%"`.
+    Relative(String),
+}
+
+/// Nominal parameters whose uncertainty a config may state, with their SI unit, and whether
+/// the diagnosis refits them by default (±[`DEFAULT_UNCERTAINTY`]) when the config is silent:
+/// the valve's flow gain (the one of its `flow_form`), β₀, mass, damping and load stiffness
+/// (the last two when nonzero). The others are refit only when listed.
+pub const UNCERTAIN_PARAMS: &[(&str, &str, bool)] = &[
+    ("valve.rated_flow", "m³/s", true),
+    ("valve.area_max", "m²", true),
+    ("valve.flow_at_1mpa", "m³/s", true),
+    ("fluid.bulk_modulus", "Pa", true),
+    ("mechanics.mass", "kg", true),
+    ("mechanics.damping", "N·s/m", true),
+    ("mechanics.load_stiffness", "N/m", true),
+    ("valve.underlap", "-", false),
+    ("cylinder.dead_volume_a", "m³", false),
+    ("cylinder.dead_volume_b", "m³", false),
+    ("supply.pressure", "Pa", false),
+    ("valve.command_full_scale", "V", false),
+];
+
+/// Relative uncertainty assumed for a default-refit nominal parameter the config is silent
+/// about (-).
+pub const DEFAULT_UNCERTAINTY: f64 = 0.15;
+
+impl PlantParams {
+    /// Value of an [`UNCERTAIN_PARAMS`] path (`None` for an unknown path or a flow-gain path
+    /// not used by this valve's `flow_form`).
+    pub fn nominal_value(&self, path: &str) -> Option<f64> {
+        Some(match path {
+            "valve.rated_flow" => self
+                .valve
+                .rated_flow
+                .filter(|_| self.valve.flow_form == FlowForm::Kq)?,
+            "valve.area_max" => self
+                .valve
+                .area_max
+                .filter(|_| self.valve.flow_form == FlowForm::Orifice)?,
+            "valve.flow_at_1mpa" => self
+                .valve
+                .flow_at_1mpa
+                .filter(|_| self.valve.flow_form == FlowForm::PowerLaw)?,
+            "fluid.bulk_modulus" => self.fluid.bulk_modulus,
+            "mechanics.mass" => self.mechanics.mass,
+            "mechanics.damping" => self.mechanics.damping,
+            "mechanics.load_stiffness" => self.mechanics.load_stiffness,
+            "valve.underlap" => self.valve.underlap,
+            "cylinder.dead_volume_a" => self.cylinder.dead_volume_a,
+            "cylinder.dead_volume_b" => self.cylinder.dead_volume_b,
+            "supply.pressure" => self.supply.pressure,
+            "valve.command_full_scale" => self.valve.command_full_scale,
+            _ => return None,
+        })
+    }
+
+    /// Write an [`UNCERTAIN_PARAMS`] path (unknown paths are ignored).
+    pub fn set_nominal_value(&mut self, path: &str, v: f64) {
+        match path {
+            "valve.rated_flow" => self.valve.rated_flow = Some(v),
+            "valve.area_max" => self.valve.area_max = Some(v),
+            "valve.flow_at_1mpa" => self.valve.flow_at_1mpa = Some(v),
+            "fluid.bulk_modulus" => self.fluid.bulk_modulus = v,
+            "mechanics.mass" => self.mechanics.mass = v,
+            "mechanics.damping" => self.mechanics.damping = v,
+            "mechanics.load_stiffness" => self.mechanics.load_stiffness = v,
+            "valve.underlap" => self.valve.underlap = v,
+            "cylinder.dead_volume_a" => self.cylinder.dead_volume_a = v,
+            "cylinder.dead_volume_b" => self.cylinder.dead_volume_b = v,
+            "supply.pressure" => self.supply.pressure = v,
+            "valve.command_full_scale" => self.valve.command_full_scale = v,
+            _ => {}
+        }
+    }
+
+    /// The refit range of every nominal parameter the diagnosis refits: (path, nominal value,
+    /// lower bound, upper bound) in SI units, from `[uncertainty]` and the defaults; a stated
+    /// uncertainty of 0 keeps the parameter fixed. Errors name the `[uncertainty]` key.
+    pub fn refit_ranges(
+        &self,
+    ) -> Result<Vec<(&'static str, f64, f64, f64)>, crate::spec::ConfigError> {
+        use crate::spec::ConfigError;
+        let key = |k: &str| format!("uncertainty.\"{k}\"");
+        for k in self.uncertainty.keys() {
+            match UNCERTAIN_PARAMS.iter().find(|u| u.0 == k) {
+                None => {
+                    return Err(ConfigError::new(
+                        key(k),
+                        format!(
+                            "not a parameter whose uncertainty can be stated; expected one of: {}",
+                            UNCERTAIN_PARAMS.iter().map(|u| u.0).collect::<Vec<_>>().join(", ")
+                        ),
+                    ))
+                }
+                Some(_) if self.nominal_value(k).is_none() => {
+                    return Err(ConfigError::new(
+                        key(k),
+                        "this valve's flow_form does not use the parameter (or it is not set); state the uncertainty of its own flow gain (kq: valve.rated_flow, orifice: valve.area_max, power_law: valve.flow_at_1mpa)",
+                    ))
+                }
+                Some(_) => {}
+            }
+        }
+        let mut out = Vec::new();
+        for &(path, unit, default) in UNCERTAIN_PARAMS {
+            let Some(v) = self.nominal_value(path) else {
+                continue;
+            };
+            let half = match self.uncertainty.get(path) {
+                None if default && v > 0.0 => DEFAULT_UNCERTAINTY * v,
+                None => continue,
+                Some(Uncertainty::Absolute(a)) => {
+                    if !(a.is_finite() && *a >= 0.0) {
+                        return Err(ConfigError::new(
+                            key(path),
+                            format!("absolute uncertainty {a} is not a finite number ≥ 0; expected ± an amount in {unit} or a percentage like \"15%\""),
+                        ));
+                    }
+                    *a
+                }
+                Some(Uncertainty::Relative(t)) => {
+                    let r = t
+                        .trim()
+                        .strip_suffix('%')
+                        .and_then(|x| x.trim().parse::<f64>().ok())
+                        .filter(|r| r.is_finite() && (0.0..100.0).contains(r))
+                        .ok_or_else(|| {
+                            ConfigError::new(
+                                key(path),
+                                format!("got \"{t}\"; expected a percentage in [0, 100) like \"15%\", or an absolute number in {unit}"),
+                            )
+                        })?;
+                    if v == 0.0 && r > 0.0 {
+                        return Err(ConfigError::new(
+                            key(path),
+                            format!("the nominal value is 0, so a relative uncertainty is meaningless; state an absolute one in {unit}"),
+                        ));
+                    }
+                    r / 100.0 * v.abs()
+                }
+            };
+            if half == 0.0 {
+                continue;
+            }
+            // Physical parameters stay > 0 (the underlap may reach 0).
+            let lo = v - half;
+            if path == "valve.underlap" {
+                out.push((path, v, lo.max(0.0), v + half));
+            } else if lo <= 0.0 {
+                return Err(ConfigError::new(
+                    key(path),
+                    format!("± {half} {unit} around the nominal {v} {unit} reaches 0 or below; expected less than the nominal value"),
+                ));
+            } else {
+                out.push((path, v, lo, v + half));
+            }
+        }
+        Ok(out)
+    }
 }

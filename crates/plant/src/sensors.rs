@@ -59,6 +59,8 @@ pub struct TrueValues {
 #[derive(Debug, Clone)]
 struct Tone {
     w: f64,
+    /// Phase φ (rad): amp·sin(w·t + φ).
+    ph: f64,
     amp: f64,
     s: f64,
     c: f64,
@@ -71,9 +73,10 @@ struct Tone {
 impl Tone {
     const RESYNC: u32 = 1024;
 
-    fn new(freq: f64, amp: f64) -> Self {
+    fn new(freq: f64, amp: f64, ph: f64) -> Self {
         Self {
             w: TAU * freq,
+            ph,
             amp,
             s: 0.0,
             c: 1.0,
@@ -101,7 +104,7 @@ impl Tone {
             self.dt = dt;
             self.rot = (self.w * dt).sin_cos();
         }
-        let (s, c) = (self.w * t).sin_cos();
+        let (s, c) = (self.w * t + self.ph).sin_cos();
         self.s = s;
         self.c = c;
         self.since_sync = 0;
@@ -141,7 +144,8 @@ impl SensorModel {
                 t.frequencies
                     .iter()
                     .zip(&t.amplitudes)
-                    .map(|(f, a)| Tone::new(*f, *a))
+                    .enumerate()
+                    .map(|(i, (f, a))| Tone::new(*f, *a, t.phases.get(i).copied().unwrap_or(0.0)))
                     .collect()
             }),
             rngs: std::array::from_fn(|k| {

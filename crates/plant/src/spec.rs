@@ -552,6 +552,114 @@ pub const PARAMS: &[Param] = &[
         Positive,
         "supply time constant τ",
     ),
+    // Structural variants of the catalogue effects (issue 17; DIAGNOSIS.md "Effect variants").
+    choice(
+        "effects.friction.variant",
+        &["stribeck", "load_coulomb"],
+        "stribeck: seal friction with stick (003 eq. 5, default); load_coulomb: F_C·tanh(v/v_s) \
+         without stick (MR damper / guide, Spencer 1997 without hysteresis)",
+    ),
+    choice(
+        "effects.valve_deadband.variant",
+        &["overlap", "amplifier"],
+        "overlap: spool overlap (default); amplifier: dead zone of the amplifier ahead of the \
+         underlapped spool",
+    ),
+    p(
+        "effects.valve_deadband.deadzone",
+        "-",
+        Within(0.0, 0.95),
+        "amplifier dead zone, fraction of the full-scale command (variant amplifier)",
+    ),
+    choice(
+        "effects.valve_saturation.variant",
+        &["symmetric", "asymmetric"],
+        "symmetric: one spool travel limit (default); asymmetric: spool_limit for + and \
+         spool_limit_negative for − travel",
+    ),
+    p(
+        "effects.valve_saturation.spool_limit_negative",
+        "-",
+        Within(0.01, 1.0),
+        "negative spool travel limit, fraction (variant asymmetric)",
+    ),
+    choice(
+        "effects.internal_leakage.variant",
+        &["equal"],
+        "cross-piston leakage has one coefficient",
+    ),
+    choice(
+        "effects.external_leakage.variant",
+        &["equal", "per_chamber"],
+        "equal: both chambers leak to tank with `coefficient` (default); per_chamber: A with \
+         `coefficient`, B with `coefficient_b`",
+    ),
+    p(
+        "effects.internal_leakage.coefficient_b",
+        "m³/(s·Pa)",
+        NonNegative,
+        "not used (cross-piston leakage has one coefficient)",
+    ),
+    p(
+        "effects.external_leakage.coefficient_b",
+        "m³/(s·Pa)",
+        NonNegative,
+        "chamber B leakage to tank (variant per_chamber)",
+    ),
+    choice(
+        "effects.bulk_modulus_pressure.variant",
+        &["linear", "entrained_air"],
+        "linear: β₀ + K_b·p (002 eq. 35, default); entrained_air: Yu 1994 / Gholizadeh 2011 \
+         air–oil mixture",
+    ),
+    p(
+        "effects.bulk_modulus_pressure.air_fraction",
+        "-",
+        Within(0.0, 0.5),
+        "undissolved air volume fraction at atmospheric pressure α₀ (variant entrained_air)",
+    ),
+    p(
+        "effects.bulk_modulus_pressure.polytropic_index",
+        "-",
+        Within(1.0, 1.4),
+        "polytropic index of the air n: 1 isothermal … 1.4 adiabatic (variant entrained_air)",
+    ),
+    choice(
+        "effects.flexible_mount.variant",
+        &["load_side", "piston_side"],
+        "load_side: rod → spring-damper → load mass (003 SDD, default); piston_side: the \
+         cylinder body (mass load_mass) on a spring-damper to ground",
+    ),
+    arr(
+        "effects.sensor_tone.phases",
+        "rad",
+        Finite,
+        "tone phases φ in a·sin(2πft + φ), one per frequency (default 0)",
+    ),
+    choice(
+        "effects.supply_pressure_drop.variant",
+        &["resistance", "pump_limit"],
+        "resistance: p_s0 − R·Q_s with lag τ (000, default); pump_limit: pressure-compensated \
+         pump with flow limit Q_max into a volume",
+    ),
+    p(
+        "effects.supply_pressure_drop.max_flow",
+        "m³/s",
+        Positive,
+        "pump flow limit Q_max (variant pump_limit)",
+    ),
+    p(
+        "effects.supply_pressure_drop.regulation_band",
+        "Pa",
+        Positive,
+        "compensator regulation band Δp_c below the setting (variant pump_limit)",
+    ),
+    p(
+        "effects.supply_pressure_drop.volume",
+        "m³",
+        Positive,
+        "oil volume between pump and valve (variant pump_limit)",
+    ),
     p(
         "effects.polynomial_force.constant",
         "N",

@@ -105,6 +105,13 @@ pub struct EdgeLaw {
     pub zero_offset: f64,
     /// Spool travel limit (fraction).
     pub spool_limit: f64,
+    /// Limit of negative spool travel (fraction); = `spool_limit` unless asymmetric.
+    pub spool_limit_neg: f64,
+    /// Amplifier dead zone on the spool target (fraction of full scale), `valve_deadband`
+    /// variant `amplifier`.
+    pub deadzone: f64,
+    /// Amplifier offset added to the command before the dead zone (fraction).
+    pub command_offset: f64,
     /// Edge flow limit (m³/s), infinite if none.
     pub max_flow: f64,
 }
@@ -141,15 +148,24 @@ impl EdgeLaw {
             .valve_saturation
             .as_ref()
             .filter(|d| d.enabled);
+        use crate::params::{DeadbandVariant, SaturationVariant};
+        let amp = db.filter(|d| d.variant == DeadbandVariant::Amplifier);
+        let spool_db = db.filter(|d| d.variant == DeadbandVariant::Overlap);
         Self {
             k,
             n,
             dp_lam: v.laminar_pressure,
             supply_offset: po,
             underlap: v.underlap,
-            overlap: db.map_or(0.0, |d| d.overlap),
-            zero_offset: db.map_or(0.0, |d| d.zero_offset),
+            overlap: spool_db.map_or(0.0, |d| d.overlap),
+            zero_offset: spool_db.map_or(0.0, |d| d.zero_offset),
+            deadzone: amp.map_or(0.0, |d| d.deadzone),
+            command_offset: amp.map_or(0.0, |d| d.zero_offset),
             spool_limit: sat.map_or(f64::INFINITY, |s| s.spool_limit),
+            spool_limit_neg: sat.map_or(f64::INFINITY, |s| match s.variant {
+                SaturationVariant::Symmetric => s.spool_limit,
+                SaturationVariant::Asymmetric => s.spool_limit_negative,
+            }),
             max_flow: sat
                 .map(|s| s.max_flow)
                 .filter(|m| *m > 0.0)
@@ -157,10 +173,21 @@ impl EdgeLaw {
         }
     }
 
+    /// Spool target (fraction) for the command `c` = u / full scale: `c`, or through the
+    /// amplifier's offset and dead zone sign(c')·max(|c'| − d, 0), c' = c + offset.
+    #[inline]
+    pub fn target(&self, c: f64) -> f64 {
+        if self.deadzone <= 0.0 && self.command_offset == 0.0 {
+            return c;
+        }
+        let c = c + self.command_offset;
+        (c.abs() - self.deadzone).max(0.0).copysign(c)
+    }
+
     /// Edge openings (P→A, A→T, P→B, B→T) for spool position `s` (fraction).
     #[inline]
     pub fn openings(&self, s: f64) -> [f64; 4] {
-        let se = (s - self.zero_offset).clamp(-self.spool_limit, self.spool_limit);
+        let se = (s - self.zero_offset).clamp(-self.spool_limit_neg, self.spool_limit);
         let pos = (se + self.underlap - self.overlap).max(0.0);
         let neg = (-se + self.underlap - self.overlap).max(0.0);
         [pos, neg, neg, pos]

