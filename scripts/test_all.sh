@@ -4,6 +4,10 @@
 # Installs what it needs itself.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+echo "== formatting and lints (rustfmt, clippy with warnings as errors)"
+rustup component add rustfmt clippy >/dev/null 2>&1 || true
+cargo fmt --all --check
+cargo clippy --release --workspace --all-targets -- -D warnings
 echo "== building (release)"
 cargo build --release --workspace --all-targets
 echo "== SocketCAN transport (feature build; this machine has no AF_CAN, so only compiled)"

@@ -56,7 +56,7 @@ fn every_field_is_in_the_registry_with_a_unit() {
     for k in &keys {
         let p = CANOPEN_PARAMS
             .iter()
-            .find(|p| &p.path == k)
+            .find(|p| p.path == k)
             .unwrap_or_else(|| panic!("{k} not in registry"));
         assert!(!p.unit.is_empty() && !p.description.is_empty());
     }

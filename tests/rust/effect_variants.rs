@@ -24,7 +24,10 @@ fn entrained_air_bulk_modulus_matches_the_mixture_law() {
         let dv = (1.0 - a0) / bl + vair / (n * pa);
         let exact = v / dv;
         let got = entrained_air_bulk_modulus(bl, a0, n, p_gauge);
-        assert!((got - exact).abs() / exact < 1e-12, "p {p_gauge}: {got} vs {exact}");
+        assert!(
+            (got - exact).abs() / exact < 1e-12,
+            "p {p_gauge}: {got} vs {exact}"
+        );
     }
     // 1 % air: at atmosphere the mixture is ~ n·P0/α0 ≈ 14 MPa stiff; at 20 MPa within 10 %
     // of the liquid.
@@ -77,7 +80,11 @@ fn amplifier_dead_zone_and_asymmetric_limits() {
     let e = EdgeLaw::new(&p);
     // sign(c + 0.02)·max(|c + 0.02| − 0.1, 0)
     for (c, want) in [(0.05, 0.0), (-0.11, 0.0), (0.3, 0.22), (-0.5, -0.38)] {
-        assert!((e.target(c) - want).abs() < 1e-12, "target({c}) = {}", e.target(c));
+        assert!(
+            (e.target(c) - want).abs() < 1e-12,
+            "target({c}) = {}",
+            e.target(c)
+        );
     }
     // No overlap with the amplifier variant; +0.5 / −0.8 spool limits.
     assert_eq!(e.openings(0.9), [0.5, 0.0, 0.0, 0.5]);
@@ -99,7 +106,11 @@ fn tone_phase_is_applied() {
     let pa0 = plant.state().p_a;
     let m = plant.measure();
     // Sample at t = 0: a·sin(φ), the chamber pressure is still its initial value.
-    assert!((m.p_a - pa0 - 1.0e5 * 4.2f64.sin()).abs() < 1e-6, "{}", m.p_a - pa0);
+    assert!(
+        (m.p_a - pa0 - 1.0e5 * 4.2f64.sin()).abs() < 1e-6,
+        "{}",
+        m.p_a - pa0
+    );
 }
 
 /// The blocked cylinder of the closed-form tests with its spring, for the mount tests.
@@ -143,7 +154,11 @@ fn piston_side_mount_deflects_by_the_reaction_over_its_stiffness() {
     );
     // Force balance on the piston: F_hyd = k_L·(x + x_body − x_c) + F_ext.
     let spring = 1.0e6 * (s.x + s.x_load - 0.5);
-    assert!((f_hyd - spring - 4000.0).abs() < 1.0, "{f_hyd} vs {}", spring + 4000.0);
+    assert!(
+        (f_hyd - spring - 4000.0).abs() < 1.0,
+        "{f_hyd} vs {}",
+        spring + 4000.0
+    );
     assert!((s.rod_force - spring - 4000.0).abs() < 1e-6);
 }
 
@@ -168,7 +183,11 @@ fn per_chamber_leakage_drains_one_chamber_only() {
     // B only follows the piston: its change is the compression by the piston's motion.
     let vb = p.cylinder.dead_volume_b + p.cylinder.area_b * (p.cylinder.stroke - s.x);
     let expect_b = b0 + 1.8e9 / vb * p.cylinder.area_b * (s.x - 0.5);
-    assert!((s.p_b - expect_b).abs() < 0.05 * (s.p_b - b0).abs().max(1e4), "p_b {} vs {expect_b}", s.p_b);
+    assert!(
+        (s.p_b - expect_b).abs() < 0.05 * (s.p_b - b0).abs().max(1e4),
+        "p_b {} vs {expect_b}",
+        s.p_b
+    );
 }
 
 #[test]
@@ -238,7 +257,10 @@ mod uncertainty {
         let p = with("").unwrap();
         let (v, lo, hi) = range(&p, "mechanics.mass").unwrap();
         assert!((lo - 0.85 * v).abs() < 1e-9 && (hi - 1.15 * v).abs() < 1e-9);
-        assert!(range(&p, "valve.underlap").is_none(), "not refit unless stated");
+        assert!(
+            range(&p, "valve.underlap").is_none(),
+            "not refit unless stated"
+        );
         let p = with(
             "\"valve.rated_flow\" = \"30%\"\n\"mechanics.mass\" = 2.5\n\"valve.underlap\" = 0.01\n\"mechanics.damping\" = \"0%\"",
         )
@@ -249,22 +271,37 @@ mod uncertainty {
         assert_eq!((lo, hi), (m - 2.5, m + 2.5));
         let (u, lo, hi) = range(&p, "valve.underlap").unwrap();
         assert!((lo - (u - 0.01)).abs() < 1e-15 && (hi - (u + 0.01)).abs() < 1e-15);
-        assert!(range(&p, "mechanics.damping").is_none(), "0 % keeps it fixed");
+        assert!(
+            range(&p, "mechanics.damping").is_none(),
+            "0 % keeps it fixed"
+        );
         // The diagnosis refits exactly these.
         let names: Vec<String> = ehactl_ident::fit::base_params(&p)
             .iter()
             .map(|f| f.name.clone())
             .collect();
-        assert!(names.contains(&"valve.underlap/nominal".to_string()), "{names:?}");
-        assert!(!names.iter().any(|n| n.starts_with("mechanics.damping")), "{names:?}");
+        assert!(
+            names.contains(&"valve.underlap/nominal".to_string()),
+            "{names:?}"
+        );
+        assert!(
+            !names.iter().any(|n| n.starts_with("mechanics.damping")),
+            "{names:?}"
+        );
     }
 
     #[test]
     fn bad_uncertainty_is_refused_with_the_key_named() {
         for (table, needle) in [
-            ("\"valve.rated_flw\" = \"10%\"", "uncertainty.\"valve.rated_flw\""),
+            (
+                "\"valve.rated_flw\" = \"10%\"",
+                "uncertainty.\"valve.rated_flw\"",
+            ),
             ("\"valve.area_max\" = \"10%\"", "flow_form"),
-            ("\"mechanics.mass\" = \"ten percent\"", "expected a percentage"),
+            (
+                "\"mechanics.mass\" = \"ten percent\"",
+                "expected a percentage",
+            ),
             ("\"mechanics.mass\" = \"150%\"", "expected a percentage"),
             ("\"mechanics.mass\" = 40.0", "reaches 0"),
             ("\"mechanics.mass\" = -1.0", "≥ 0"),

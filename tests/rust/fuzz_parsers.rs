@@ -229,12 +229,8 @@ proptest! {
         let _first = if upload { sdo.upload(0x1018, 1) } else { sdo.download(0x6005, 0, &[1, 2, 3, 4, 5, 6, 7]) };
         for (id, data) in &frames {
             let Some(f) = CanFrame::new(*id, data) else { continue };
-            if sdo.busy() {
-                match sdo.on_frame(&f) {
-                    SdoStep::Done => { let _ = sdo.data(); }
-                    _ => {}
-                }
-            }
+            if sdo.busy()
+                && sdo.on_frame(&f) == SdoStep::Done { let _ = sdo.data(); }
             let _ = ehactl_canopen::nmt::parse_error_control(&f);
             let _ = ehactl_canopen::emcy::Emcy::parse((id & 0x7F) as u8, f.payload());
             if f.payload().len() >= 2 {

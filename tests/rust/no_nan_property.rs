@@ -65,7 +65,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
             }
             // The structural variants of issue 17 on the odd segment counts.
             let alt = nseg % 2 == 1;
-            p.effects.friction = fric.then(|| Friction {
+            p.effects.friction = fric.then_some(Friction {
                 enabled: true,
                 variant: if alt {
                     FrictionVariant::LoadCoulomb
@@ -77,7 +77,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 stribeck_velocity: 0.01,
                 viscous: 10.0,
             });
-            p.effects.valve_deadband = dband.then(|| ValveDeadband {
+            p.effects.valve_deadband = dband.then_some(ValveDeadband {
                 enabled: true,
                 variant: if alt {
                     DeadbandVariant::Amplifier
@@ -88,7 +88,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 overlap: 0.05,
                 zero_offset: 0.01,
             });
-            p.effects.valve_saturation = sat.then(|| ValveSaturation {
+            p.effects.valve_saturation = sat.then_some(ValveSaturation {
                 enabled: true,
                 variant: if alt {
                     SaturationVariant::Asymmetric
@@ -106,13 +106,13 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 natural_frequency: wn,
                 damping_ratio: zeta,
             });
-            p.effects.internal_leakage = leak_i.then(|| Leakage {
+            p.effects.internal_leakage = leak_i.then_some(Leakage {
                 enabled: true,
                 variant: LeakageVariant::Equal,
                 coefficient_b: 0.0,
                 coefficient: 1e-11,
             });
-            p.effects.external_leakage = leak_e.then(|| Leakage {
+            p.effects.external_leakage = leak_e.then_some(Leakage {
                 enabled: true,
                 variant: if alt {
                     LeakageVariant::PerChamber
@@ -122,7 +122,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 coefficient_b: 3e-12,
                 coefficient: 1e-12,
             });
-            p.effects.bulk_modulus_pressure = bmp.then(|| BulkModulusPressure {
+            p.effects.bulk_modulus_pressure = bmp.then_some(BulkModulusPressure {
                 enabled: true,
                 variant: if alt {
                     BulkVariant::EntrainedAir
@@ -134,7 +134,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 slope: 10.0,
                 max: 2.2e9,
             });
-            p.effects.line_dynamics = lines.then(|| LineDynamics {
+            p.effects.line_dynamics = lines.then_some(LineDynamics {
                 enabled: true,
                 length: 1.0,
                 diameter: 0.01,
@@ -148,7 +148,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                     LineFriction::Steady
                 },
             });
-            p.effects.flexible_mount = mount.then(|| FlexibleMount {
+            p.effects.flexible_mount = mount.then_some(FlexibleMount {
                 enabled: true,
                 variant: if alt {
                     MountVariant::PistonSide
@@ -159,7 +159,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 stiffness: 5e4,
                 damping: 1e4,
             });
-            p.effects.time_delay = delay.then(|| TimeDelay {
+            p.effects.time_delay = delay.then_some(TimeDelay {
                 enabled: true,
                 delay: 0.0013,
             });
@@ -170,7 +170,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 amplitudes: vec![1.0],
                 phases: vec![1.3],
             });
-            p.effects.supply_pressure_drop = sdrop.then(|| SupplyPressureDrop {
+            p.effects.supply_pressure_drop = sdrop.then_some(SupplyPressureDrop {
                 enabled: true,
                 variant: if alt {
                     SupplyVariant::PumpLimit

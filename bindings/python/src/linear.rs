@@ -118,7 +118,9 @@ pub fn sampled_margins<'py>(
             im.len()
         )));
     }
-    if f_hz.windows(2).any(|w| !(w[1] > w[0])) || f_hz.first().is_some_and(|f| !(*f > 0.0)) {
+    let ascending = |w: &[f64]| w[1].partial_cmp(&w[0]) == Some(std::cmp::Ordering::Greater);
+    let positive = |f: &f64| f.partial_cmp(&0.0) == Some(std::cmp::Ordering::Greater);
+    if !f_hz.windows(2).all(ascending) || f_hz.first().is_some_and(|f| !positive(f)) {
         return Err(PyValueError::new_err(
             "sampled_margins: frequencies must be > 0 Hz and strictly increasing",
         ));

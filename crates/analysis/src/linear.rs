@@ -152,6 +152,8 @@ impl LinearModel {
         let mut d = vec![1.0f64; n];
         for _ in 0..100 {
             let mut converged = true;
+            #[allow(clippy::needless_range_loop)]
+            // i indexes rows and columns of `a` as well as `d`
             for i in 0..n {
                 let (mut c, mut r) = (0.0f64, 0.0f64);
                 for j in 0..n {

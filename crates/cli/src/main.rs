@@ -12,26 +12,16 @@ mod canbus;
 use canbus::HalKind;
 mod diagnose;
 mod live;
+mod run_cmd;
 
 use clap::{Parser, Subcommand};
 use ehactl_config::registries;
 use ehactl_config::RigConfig;
-use ehactl_hal::logger::Overflow;
-use ehactl_hal::sim::SimHal;
-use ehactl_hal::Hal;
-use ehactl_runtime::control_socket::ControlServer;
-use ehactl_runtime::live::LiveParams;
-use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
-use ehactl_runtime::session::{
-    build_plant, run_sim, run_sim_live, run_with_live, Backend, Session, SessionError,
-    SessionOptions,
-};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
-use std::time::Duration;
 
 #[derive(Parser)]
 #[command(
@@ -153,13 +143,13 @@ enum Command {
     },
 }
 
-fn config_error(e: impl std::fmt::Display) -> ExitCode {
+pub(crate) fn config_error(e: impl std::fmt::Display) -> ExitCode {
     eprintln!("ehactl: {e}");
     ExitCode::from(2)
 }
 
 /// A progress bar on stderr (hidden when stderr is not a terminal).
-fn progress_bar(msg: String) -> ProgressBar {
+pub(crate) fn progress_bar(msg: String) -> ProgressBar {
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template(
@@ -173,7 +163,7 @@ fn progress_bar(msg: String) -> ProgressBar {
 }
 
 /// `out/<config file stem><suffix>.mcap`, where runs are logged unless `--out` says otherwise.
-fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
+pub(crate) fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
     let stem = config
         .file_stem()
         .map_or("run".into(), |s| s.to_string_lossy().into_owned());
@@ -215,7 +205,7 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
 }
 
 /// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written.
-fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
+pub(crate) fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
     let fail = |e: std::io::Error| {
         eprintln!(
             "ehactl: --out {}: cannot write the MCAP log: {e}",
@@ -320,7 +310,7 @@ pub(crate) fn sig(v: f64, digits: usize) -> String {
 }
 
 /// Stop flag set by SIGINT / SIGTERM.
-fn stop_flag() -> Arc<AtomicBool> {
+pub(crate) fn stop_flag() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         if let Err(e) = signal_hook::flag::register(sig, stop.clone()) {
@@ -330,7 +320,7 @@ fn stop_flag() -> Arc<AtomicBool> {
     stop
 }
 
-fn load(path: &Path) -> Result<RigConfig, ExitCode> {
+pub(crate) fn load(path: &Path) -> Result<RigConfig, ExitCode> {
     RigConfig::load(path).map_err(|e| config_error(format!("{}: {e}", path.display())))
 }
 
@@ -364,16 +354,18 @@ fn main() -> ExitCode {
             bus,
             force,
             live,
-        } => cmd_run(
-            &config,
+        } => run_cmd::cmd_run(run_cmd::RunArgs {
+            config: &config,
             duration,
-            (out, force),
+            out,
+            force,
             json,
             realtime,
             control_socket,
-            (hal, bus),
-            live.as_deref(),
-        ),
+            hal,
+            bus,
+            live: live.as_deref(),
+        }),
         Command::Recover {
             input,
             output,
@@ -465,324 +457,4 @@ fn cmd_set(socket: &Path, assignments: &[String]) -> ExitCode {
             ExitCode::from(1)
         }
     }
-}
-
-fn rt_warning(msg: &str) {
-    eprintln!("ehactl: warning: {msg}");
-}
-
-#[allow(clippy::too_many_arguments)]
-fn cmd_run(
-    config: &Path,
-    duration: Option<f64>,
-    (out, force): (Option<PathBuf>, bool),
-    json: bool,
-    realtime: bool,
-    control_socket: Option<PathBuf>,
-    (hal, bus): (HalKind, Option<String>),
-    live_addr: Option<&str>,
-) -> ExitCode {
-    let cfg = match load(config) {
-        Ok(c) => c,
-        Err(code) => return code,
-    };
-    if let Some(d) = duration {
-        if !(d.is_finite() && d > 0.0) {
-            return config_error(format!("--duration {d}: expected a finite number > 0 in s"));
-        }
-    }
-    if let Some(Err(e)) = live_addr.map(live::parse_addr) {
-        return config_error(e);
-    }
-    let out = out.unwrap_or_else(|| default_log_path(config, ""));
-    // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
-    if let Err(code) = canbus::check_args(&cfg, config, (hal, bus.as_deref())) {
-        return code;
-    }
-    if let Err(code) = check_log_path(&out, config, force).and_then(|_| check_log_writable(&out)) {
-        return code;
-    }
-    let live = Arc::new(LiveParams::new());
-    let _server = match &control_socket {
-        Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
-            Ok(s) => Some(s),
-            Err(ehactl_runtime::control_socket::StartError::PathInUse(e)) => {
-                return config_error(format!("--control-socket {}: {e}", path.display()));
-            }
-            Err(e) => {
-                eprintln!("ehactl: --control-socket {}: {e}", path.display());
-                return ExitCode::from(1);
-            }
-        },
-        None => None,
-    };
-    let stop = stop_flag();
-    // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s); a
-    // signal meanwhile ends the run at its first cycle, through the safe stop.
-    let mut can_hal = match canbus::connect(&cfg, config, (hal, bus.as_deref()), &out, json) {
-        Ok(h) => h,
-        Err(code) => return code,
-    };
-    let live_view = match live_addr.map(live::LiveView::start).transpose() {
-        Ok(v) => v,
-        Err(e) => {
-            eprintln!("ehactl: {e}");
-            return ExitCode::from(1);
-        }
-    };
-    if let Some(v) = &live_view {
-        // Parsed by tests and scripts: the URL is the last word.
-        eprintln!("ehactl: live view (Foxglove WebSocket) on {}", v.url);
-    }
-    let tap = live_view.as_ref().map(|v| v.tap());
-    let bar = progress_bar(String::new());
-    let live_ref = control_socket.as_ref().map(|_| &*live);
-    let result = if realtime || can_hal.is_some() {
-        // The loop thread only stores the cycle count; the bar is drawn by this watcher
-        // thread so that no terminal I/O happens in the cycle.
-        bar.set_message(format!(
-            "{} (real time{})",
-            config.display(),
-            if can_hal.is_some() { ", canopen" } else { "" }
-        ));
-        let done = Arc::new(AtomicU64::new(0));
-        let total = Arc::new(AtomicU64::new(1));
-        let finished = Arc::new(AtomicBool::new(false));
-        let watcher = {
-            let (bar, done, total, finished) =
-                (bar.clone(), done.clone(), total.clone(), finished.clone());
-            std::thread::spawn(move || {
-                while !finished.load(Ordering::Relaxed) {
-                    bar.set_length(total.load(Ordering::Relaxed));
-                    bar.set_position(done.load(Ordering::Relaxed));
-                    std::thread::sleep(std::time::Duration::from_millis(100));
-                }
-            })
-        };
-        let mut progress = |k: u64, n: u64| {
-            total.store(n, Ordering::Relaxed);
-            done.store(k, Ordering::Relaxed);
-        };
-        let r = run_realtime(
-            &cfg,
-            duration,
-            out,
-            &stop,
-            &mut progress,
-            live_ref,
-            can_hal.as_mut().map(|h| h as &mut dyn Hal),
-            tap,
-        );
-        finished.store(true, Ordering::Relaxed);
-        let _ = watcher.join();
-        r
-    } else {
-        bar.set_message(format!("{} (simulated)", config.display()));
-        let mut progress = |k: u64, n: u64| {
-            bar.set_length(n);
-            bar.set_position(k);
-        };
-        let opts = SessionOptions {
-            duration,
-            mcap: Some(out),
-            stop: Some(&stop),
-            capture: false,
-            progress: Some(&mut progress),
-            tap,
-            ..Default::default()
-        };
-        if live_ref.is_some() {
-            run_sim_live(&cfg, opts, live_ref)
-        } else {
-            run_sim(&cfg, opts)
-        }
-    };
-    bar.finish_and_clear();
-    let live_stats = live_view.map(|v| {
-        let url = v.url.clone();
-        (
-            url,
-            v.finish(Duration::from_secs(5), Duration::from_millis(500)),
-        )
-    });
-    let session = match result {
-        Ok(s) => s,
-        Err(SessionError::Config(e)) => return config_error(format!("{}: {e}", config.display())),
-        Err(SessionError::Log(e)) => {
-            eprintln!(
-                "ehactl: {e}; the run was stopped (valve to safe command); what reached the file can be rebuilt with `ehactl recover {} NEW.mcap`",
-                e.path.display()
-            );
-            return ExitCode::from(1);
-        }
-    };
-    let mut summary = session.summary_json();
-    if let Some((url, st)) = &live_stats {
-        summary["live"] = serde_json::json!({
-            "url": url,
-            "messages_published": st.published,
-            "messages_dropped": st.dropped,
-            "clients_at_end": st.clients,
-        });
-    }
-    if json {
-        // Not println!: a reader that went away (`| head`) must not turn a finished run
-        // into a panic.
-        use std::io::Write;
-        let _ = writeln!(std::io::stdout(), "{summary}");
-    } else {
-        let o = &session.outcome;
-        println!("ehactl run {}", config.display());
-        println!(
-            "  cycles        {} at {} Hz ({} s {}, {} substeps/cycle)",
-            o.cycles,
-            sig(session.control_rate_hz, 6),
-            sig(o.duration_s, 6),
-            if session.timing.is_some() {
-                "run"
-            } else {
-                "simulated"
-            },
-            session.substeps
-        );
-        if cfg.control.mode == ehactl_config::ControlMode::OpenLoop {
-            // No feedback: the setpoint (V) is the valve command, there is no tracking error.
-            println!("  error         none: open loop (the setpoint is the valve command, V); see the log for the response");
-        } else {
-            println!(
-                "  rms error     {} {} (after start of dynamics: {} {})",
-                sig(o.rms_error, 4),
-                session.unit,
-                sig(o.rms_error_settled, 4),
-                session.unit
-            );
-            println!(
-                "  max |error|   {} {}",
-                sig(o.max_abs_error, 4),
-                session.unit
-            );
-        }
-        println!(
-            "  speed         {}× real time ({} s wall)",
-            sig(summary["sim_speed_x_realtime"].as_f64().unwrap_or(0.0), 3),
-            sig(session.wall_time_s, 3)
-        );
-        if let Some(l) = &session.log {
-            println!(
-                "  mcap          {} ({} cycles, {} dropped, queue high water {} of {})",
-                l.path.display(),
-                l.records_written,
-                l.records_dropped,
-                l.queue_high_water,
-                l.queue_capacity
-            );
-        }
-        if let Some((url, st)) = &live_stats {
-            println!(
-                "  live          {url}: {} messages published, {} dropped (viewer too slow), {} client(s) at the end",
-                st.published, st.dropped, st.clients
-            );
-        }
-        canbus::print_summary(&summary);
-        if let Some(tm) = &session.timing {
-            println!(
-                "  jitter        p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (start − deadline)",
-                tm.jitter.p50, tm.jitter.p99, tm.jitter.p999, tm.jitter.max
-            );
-            println!(
-                "  period        p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs (nominal {:.1} µs)",
-                tm.period.p50, tm.period.p99, tm.period.max, tm.period_nominal_us
-            );
-            println!(
-                "  exec          p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (cycle start → next wait)",
-                tm.exec.p50, tm.exec.p99, tm.exec.p999, tm.exec.max
-            );
-            println!(
-                "  overruns      {} = {} our execution > period + {} late start (thread not running); longest streak {}, {} deadlines skipped, policy {}",
-                tm.overruns,
-                tm.overruns_exec,
-                tm.overruns_wakeup,
-                tm.longest_overrun_streak,
-                tm.skipped_deadlines,
-                tm.overrun_policy
-            );
-            println!(
-                "  rt            SCHED_FIFO {}, CPU {}, memory {}",
-                tm.rt
-                    .sched_fifo_priority
-                    .map_or("off".to_string(), |p| format!("priority {p}")),
-                tm.rt.cpu.map_or("any".to_string(), |c| c.to_string()),
-                if tm.rt.memory_locked {
-                    "locked"
-                } else {
-                    "not locked"
-                }
-            );
-        }
-        match (&o.trip, o.interrupted) {
-            (Some(t), _) => println!("  TRIP          {}", t.describe()),
-            (None, true) => {
-                println!("  interrupted by signal; valve set to safe command, log finalised")
-            }
-            _ => println!("  trip          none"),
-        }
-    }
-    if session.outcome.trip.is_some() {
-        ExitCode::from(3)
-    } else if session.outcome.interrupted {
-        ExitCode::from(130)
-    } else {
-        ExitCode::SUCCESS
-    }
-}
-
-/// A backend paced in real time by the wall-clock executor: the sim plant, or `hardware`
-/// (e.g. the CANopen rig) when given.
-fn run_realtime(
-    cfg: &RigConfig,
-    duration: Option<f64>,
-    out: PathBuf,
-    stop: &AtomicBool,
-    progress: &mut dyn FnMut(u64, u64),
-    live: Option<&LiveParams>,
-    hardware: Option<&mut dyn Hal>,
-    tap: Option<Arc<ehactl_hal::logger::LogTap>>,
-) -> Result<Session, SessionError> {
-    let mut cfg_run = cfg.clone();
-    if let Some(d) = duration {
-        cfg_run.run.duration = d;
-    }
-    let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
-    let mut sim;
-    let (hal, substeps): (&mut dyn Hal, u32) = match hardware {
-        Some(h) => (h, 0),
-        None => {
-            let substeps = plant.substeps();
-            sim = SimHal::new(plant);
-            (&mut sim, substeps)
-        }
-    };
-    let mut opts = RtOptions::from_config(&cfg.realtime);
-    opts.warn = Some(rt_warning);
-    let mut pacer = WallClockPacer::new(cfg.timebase(), opts);
-    let backend = Backend {
-        hal,
-        pacer: &mut pacer,
-        overflow: Overflow::Drop,
-        substeps,
-    };
-    run_with_live(
-        cfg,
-        backend,
-        SessionOptions {
-            duration,
-            mcap: Some(out),
-            stop: Some(stop),
-            capture: false,
-            progress: Some(progress),
-            tap,
-            ..Default::default()
-        },
-        live,
-    )
 }

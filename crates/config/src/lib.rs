@@ -623,7 +623,7 @@ impl RigConfig {
         let sc = self.supervisor.safe_command;
         let fs = self.plant.valve.command_full_scale;
         let lim = self.supervisor.max_command.map_or(fs, |m| m.min(fs));
-        if !(sc.abs() <= lim) {
+        if sc.is_nan() || sc.abs() > lim {
             return Err(ConfigError::new(
                 "supervisor.safe_command",
                 format!(

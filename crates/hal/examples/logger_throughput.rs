@@ -23,15 +23,18 @@ fn cpu_time_s() -> f64 {
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let n: u64 = args.get(1).map_or(200_000, |s| s.parse().expect("N: record count"));
+    let n: u64 = args
+        .get(1)
+        .map_or(200_000, |s| s.parse().expect("N: record count"));
     let compression = match args.get(2).map(String::as_str).unwrap_or("lz4") {
         "lz4" => LogCompression::Lz4,
         "none" => LogCompression::None,
         other => panic!("compression {other:?}: expected lz4 or none"),
     };
-    let out = args.get(3).map(std::path::PathBuf::from).unwrap_or_else(|| {
-        std::env::temp_dir().join("ehactl_logger_throughput.mcap")
-    });
+    let out = args
+        .get(3)
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::env::temp_dir().join("ehactl_logger_throughput.mcap"));
     let rate = 5000.0;
     let opts = LogOptions {
         compression,
@@ -56,7 +59,9 @@ fn main() {
     };
     let mut lcg: u64 = 0x9E37_79B9_7F4A_7C15;
     let mut noise = || {
-        lcg = lcg.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        lcg = lcg
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (lcg >> 11) as f64 / (1u64 << 53) as f64 - 0.5
     };
     let t_loop = Instant::now();

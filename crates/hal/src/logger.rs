@@ -84,6 +84,9 @@ pub struct RunMetadata {
 }
 
 /// What the writer thread hands to a [`LogTap`]: the same messages it logs.
+/// Records are not boxed: the writer hands them over by value, and a box would allocate
+/// once per cycle for every tap.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
 pub enum TapMessage {
     /// A cycle record (`/control`, `/plant`, `/timing`).
@@ -716,7 +719,7 @@ fn writer_loop(
             if ns.saturating_sub(start) >= chunk_ns {
                 close_chunk(&mut w, &mut chunk_start, &mut wall_flush)?;
             }
-            if written % 4096 == 0 {
+            if written.is_multiple_of(4096) {
                 break;
             }
         }
@@ -886,7 +889,11 @@ mod tests {
         let st = log.finish(serde_json::json!({})).unwrap();
         // The queue is allocated for what the producer may hold, not for 65 536 records.
         assert_eq!(st.queue_capacity, 64);
-        assert!(st.queue_high_water <= 64, "high water {}", st.queue_high_water);
+        assert!(
+            st.queue_high_water <= 64,
+            "high water {}",
+            st.queue_high_water
+        );
         assert_eq!((st.records_written, st.records_dropped), (n, 0));
         // The producer outruns the writer here, so it must have waited for room; each
         // wait lasts until the queue is down to half (32), so it buys at least 32 pushes.
@@ -912,7 +919,10 @@ mod tests {
             ..opts
         };
         assert_eq!(effective_capacity(&block), 64);
-        let whole = LogOptions { max_lag: 0, ..block };
+        let whole = LogOptions {
+            max_lag: 0,
+            ..block
+        };
         assert_eq!(effective_capacity(&whole), 4096);
     }
 }

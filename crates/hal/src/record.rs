@@ -593,7 +593,11 @@ impl CycleRecord {
     /// no `overrun_exec`); they decode with `overrun_exec` false.
     pub fn decode_timing(data: &[u8]) -> Result<TimingMessage, DecodeError> {
         let old = 8 + 8 * (1 + TIMING_FIELDS.len()) + 4 + 1;
-        let size = if data.len() == CDR_LE.len() + old { old } else { old + 1 };
+        let size = if data.len() == CDR_LE.len() + old {
+            old
+        } else {
+            old + 1
+        };
         let mut c = CdrCursor::new("/timing", data, size)?;
         let cycle = c.u64();
         let [t, wall_t, lateness_us, period_us, exec_prev_us] = c.f64s::<5>();
@@ -835,7 +839,12 @@ mod decode_tests {
     use super::*;
     use proptest::prelude::*;
 
-    fn record(v: &[f64; 33], cycle: u64, stuck: bool, timing: Option<(u32, bool, bool)>) -> CycleRecord {
+    fn record(
+        v: &[f64; 33],
+        cycle: u64,
+        stuck: bool,
+        timing: Option<(u32, bool, bool)>,
+    ) -> CycleRecord {
         CycleRecord {
             cycle,
             t: v[0],

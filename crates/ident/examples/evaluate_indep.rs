@@ -55,9 +55,20 @@ fn main() {
                 .record
                 .channels
                 .iter()
-                .map(|c| format!("{} std {:.3e} min {:.3e}", c.kind.column(), ehactl_ident::replay::std(&c.values), c.values.iter().cloned().fold(f64::INFINITY, f64::min)))
+                .map(|c| {
+                    format!(
+                        "{} std {:.3e} min {:.3e}",
+                        c.kind.column(),
+                        ehactl_ident::replay::std(&c.values),
+                        c.values.iter().cloned().fold(f64::INFINITY, f64::min)
+                    )
+                })
                 .collect();
-            println!("seed {seed} {kind} ({want} {want_var}): {} | {:?}", sd.join(", "), case.hidden);
+            println!(
+                "seed {seed} {kind} ({want} {want_var}): {} | {:?}",
+                sd.join(", "),
+                case.hidden
+            );
             continue;
         }
         let t0 = std::time::Instant::now();
@@ -74,7 +85,10 @@ fn main() {
         if std::env::var("DEBUG").is_ok_and(|v| v == "1") {
             println!("tones {:?}", d.analysis_refit.tones);
             for c in &d.candidates {
-                println!("  {} [{}] {:.4} {:?} {}", c.effect, c.variant, c.nrmse_validation, c.params, c.evidence);
+                println!(
+                    "  {} [{}] {:.4} {:?} {}",
+                    c.effect, c.variant, c.nrmse_validation, c.params, c.evidence
+                );
             }
             println!("  residual {:?}", d.residual_test.channels);
         }
@@ -103,7 +117,12 @@ fn main() {
                     _ => rig.noise.2,
                 };
                 let floor = sigma / ehactl_ident::replay::std(&c.values[split..]);
-                d.nrmse_refit.channels.get(c.kind.column()).copied().unwrap_or(0.0) / floor
+                d.nrmse_refit
+                    .channels
+                    .get(c.kind.column())
+                    .copied()
+                    .unwrap_or(0.0)
+                    / floor
             })
             .fold(0.0, f64::max);
         let above = ratio > ehactl_ident::residual::LEVEL_SOFT;
@@ -199,13 +218,30 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
     let mut s = String::new();
     let _ = writeln!(s, "Independent generator (`crates/ident/src/indep.rs`, RK4, own equations per variant), cases from `{list}` ({listed} listed, {} run, {failed} failed to generate or diagnose), {duration} s at 1 kHz each, nominal errors ±10 %.\n", lines.len());
     let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
-    let _ = writeln!(s, "| top cause = hidden effect id | {top}/{n_h} = {:.1} % | ≥ 92 % |", pct(top, n_h));
+    let _ = writeln!(
+        s,
+        "| top cause = hidden effect id | {top}/{n_h} = {:.1} % | ≥ 92 % |",
+        pct(top, n_h)
+    );
     let _ = writeln!(s, "| variant named = generator's structure (correct id, variant-bearing effects) | {var_ok}/{var_n} = {:.1} % | — |", pct(var_ok, var_n));
     let _ = writeln!(s, "| `none` on hidden-effect cases (all / refit residual above noise) | {none_h}/{n_h} / {false_none_above} | 0 above noise |");
-    let _ = writeln!(s, "| `unexplained` on hidden-effect cases | {unexpl_h}/{n_h} = {:.1} % | — |", pct(unexpl_h, n_h));
-    let _ = writeln!(s, "| clean cases: `none` / `unexplained` | {none_c}/{n_c} / {unexpl_c}/{n_c} | — |");
+    let _ = writeln!(
+        s,
+        "| `unexplained` on hidden-effect cases | {unexpl_h}/{n_h} = {:.1} % | — |",
+        pct(unexpl_h, n_h)
+    );
+    let _ = writeln!(
+        s,
+        "| clean cases: `none` / `unexplained` | {none_c}/{n_c} / {unexpl_c}/{n_c} | — |"
+    );
     if !gains.is_empty() {
-        let _ = writeln!(s, "| gain (hidden cases) min / median / max | {:.1} % / {:.1} % / {:.1} % | — |", gains[0] * 100.0, gains[gains.len() / 2] * 100.0, gains[gains.len() - 1] * 100.0);
+        let _ = writeln!(
+            s,
+            "| gain (hidden cases) min / median / max | {:.1} % / {:.1} % / {:.1} % | — |",
+            gains[0] * 100.0,
+            gains[gains.len() / 2] * 100.0,
+            gains[gains.len() - 1] * 100.0
+        );
     }
     if !times.is_empty() {
         let _ = writeln!(s, "| wall time per case min / median / max (shared 2-core machine) | {:.1} s / {:.1} s / {:.1} s | — |", times[0], times[times.len() / 2], times[times.len() - 1]);

@@ -94,7 +94,7 @@ pub fn welch_segments(y: &[f64], dt: f64, seg: usize) -> (Vec<f64>, Vec<f64>) {
             .expect("buffers made by the plan have its lengths");
         for (k, (p, c)) in psd.iter_mut().zip(&spec).enumerate() {
             // one-sided: every bin but DC and (even length) Nyquist stands for two
-            let s = if k == 0 || (seg % 2 == 0 && k == seg / 2) {
+            let s = if k == 0 || (seg.is_multiple_of(2) && k == seg / 2) {
                 1.0
             } else {
                 2.0

@@ -435,8 +435,10 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
             "{source}: no /control messages; expected an MCAP log written by `ehactl run`"
         )));
     }
-    let col = |f: fn(&CycleRecord) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
-    let outs: [(ChannelKind, fn(&CycleRecord) -> f64); 5] = [
+    /// Reads one measured channel out of a cycle record.
+    type Field = fn(&CycleRecord) -> f64;
+    let col = |f: Field| rows.iter().map(f).collect::<Vec<f64>>();
+    let outs: [(ChannelKind, Field); 5] = [
         (ChannelKind::Force, |r| r.meas.force),
         (ChannelKind::Position, |r| r.meas.position),
         (ChannelKind::PressureA, |r| r.meas.p_a),

@@ -192,7 +192,6 @@ pub struct Traces {
     pub split_index: usize,
 }
 
-
 #[derive(Clone)]
 pub(crate) struct Hyp {
     pub(crate) effects: Vec<EffectId>,
@@ -510,7 +509,9 @@ pub fn diagnose(
     let search = phase_candidates(&nom, &refit, nominal, opts, &bar);
     bar.finish_and_clear();
     let resid = phase_residual_test(&nom, &refit, &search);
-    Ok(phase_report(nom, refit, search, resid, nominal, rec, val, opts))
+    Ok(phase_report(
+        nom, refit, search, resid, nominal, rec, val, opts,
+    ))
 }
 
 /// What the nominal phase hands on.

@@ -4,10 +4,10 @@
 use crate::analysis::Analysis;
 use crate::data::Record;
 use ehactl_plant::params::{
-    BulkModulusPressure, BulkVariant, DeadbandVariant, FlexibleMount, Friction,
-    FrictionVariant, Leakage, LeakageVariant, LineDynamics, MountVariant, SaturationVariant,
-    SensorChannel, SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband,
-    ValveDynamics, ValveSaturation,
+    BulkModulusPressure, BulkVariant, DeadbandVariant, FlexibleMount, Friction, FrictionVariant,
+    Leakage, LeakageVariant, LineDynamics, MountVariant, SaturationVariant, SensorChannel,
+    SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband, ValveDynamics,
+    ValveSaturation,
 };
 use ehactl_plant::{EffectId, PlantParams};
 use std::sync::Arc;
@@ -320,8 +320,12 @@ pub fn effect_variants(
             if cur.is_none() || cur == Some(LeakageVariant::PerChamber) {
                 let kc = sc.flow / sc.pressure;
                 let l0 = ef.external_leakage.clone();
-                let ia = l0.as_ref().map_or(0.01 * kc, |l| l.coefficient.max(1e-5 * kc));
-                let ib = l0.as_ref().map_or(0.01 * kc, |l| l.coefficient_b.max(1e-5 * kc));
+                let ia = l0
+                    .as_ref()
+                    .map_or(0.01 * kc, |l| l.coefficient.max(1e-5 * kc));
+                let ib = l0
+                    .as_ref()
+                    .map_or(0.01 * kc, |l| l.coefficient_b.max(1e-5 * kc));
                 let set = |b_side: bool| -> Setter {
                     Arc::new(move |p, v| {
                         let l = p.effects.external_leakage.get_or_insert(Leakage {
@@ -342,8 +346,22 @@ pub fn effect_variants(
                 out.push((
                     "per_chamber",
                     vec![
-                        p("effects.external_leakage.coefficient", 1e-5 * kc, kc, true, ia, set(false)),
-                        p("effects.external_leakage.coefficient_b", 1e-5 * kc, kc, true, ib, set(true)),
+                        p(
+                            "effects.external_leakage.coefficient",
+                            1e-5 * kc,
+                            kc,
+                            true,
+                            ia,
+                            set(false),
+                        ),
+                        p(
+                            "effects.external_leakage.coefficient_b",
+                            1e-5 * kc,
+                            kc,
+                            true,
+                            ib,
+                            set(true),
+                        ),
                     ],
                 ));
             }
@@ -354,14 +372,17 @@ pub fn effect_variants(
                 out.push(("linear", first));
             }
             if cur.is_none() || cur == Some(BulkVariant::EntrainedAir) {
-                let b0 = ef.bulk_modulus_pressure.clone().unwrap_or(BulkModulusPressure {
-                    enabled: true,
-                    variant: BulkVariant::EntrainedAir,
-                    slope: 0.0,
-                    air_fraction: 0.005,
-                    polytropic_index: 1.4,
-                    max: 2.2e9,
-                });
+                let b0 = ef
+                    .bulk_modulus_pressure
+                    .clone()
+                    .unwrap_or(BulkModulusPressure {
+                        enabled: true,
+                        variant: BulkVariant::EntrainedAir,
+                        slope: 0.0,
+                        air_fraction: 0.005,
+                        polytropic_index: 1.4,
+                        max: 2.2e9,
+                    });
                 let init = b0.air_fraction.max(1e-3);
                 out.push((
                     "entrained_air",
@@ -419,15 +440,18 @@ pub fn effect_variants(
                 out.push(("resistance", first));
             }
             if cur.is_none() || cur == Some(SupplyVariant::PumpLimit) {
-                let s0 = ef.supply_pressure_drop.clone().unwrap_or(SupplyPressureDrop {
-                    enabled: true,
-                    variant: SupplyVariant::PumpLimit,
-                    resistance: 0.0,
-                    time_constant: 0.0,
-                    max_flow: sc.flow,
-                    regulation_band: 0.05 * sc.pressure,
-                    volume: 5e-4,
-                });
+                let s0 = ef
+                    .supply_pressure_drop
+                    .clone()
+                    .unwrap_or(SupplyPressureDrop {
+                        enabled: true,
+                        variant: SupplyVariant::PumpLimit,
+                        resistance: 0.0,
+                        time_constant: 0.0,
+                        max_flow: sc.flow,
+                        regulation_band: 0.05 * sc.pressure,
+                        volume: 5e-4,
+                    });
                 let set = |which: u8| -> Setter {
                     let s0 = s0.clone();
                     Arc::new(move |p, v| {
@@ -447,9 +471,30 @@ pub fn effect_variants(
                 out.push((
                     "pump_limit",
                     vec![
-                        p("effects.supply_pressure_drop.max_flow", 0.2 * sc.flow, 4.0 * sc.flow, true, s0.max_flow, set(0)),
-                        p("effects.supply_pressure_drop.regulation_band", 0.005 * sc.pressure, 0.5 * sc.pressure, true, s0.regulation_band, set(1)),
-                        p("effects.supply_pressure_drop.volume", 2e-5, 1e-2, true, s0.volume, set(2)),
+                        p(
+                            "effects.supply_pressure_drop.max_flow",
+                            0.2 * sc.flow,
+                            4.0 * sc.flow,
+                            true,
+                            s0.max_flow,
+                            set(0),
+                        ),
+                        p(
+                            "effects.supply_pressure_drop.regulation_band",
+                            0.005 * sc.pressure,
+                            0.5 * sc.pressure,
+                            true,
+                            s0.regulation_band,
+                            set(1),
+                        ),
+                        p(
+                            "effects.supply_pressure_drop.volume",
+                            2e-5,
+                            1e-2,
+                            true,
+                            s0.volume,
+                            set(2),
+                        ),
                     ],
                 ));
             }

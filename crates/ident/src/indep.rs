@@ -25,7 +25,9 @@ pub struct Pcg(u64);
 impl Pcg {
     /// Seeded.
     pub fn new(seed: u64) -> Self {
-        let mut g = Pcg(seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407));
+        let mut g = Pcg(seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407));
         g.next_u32();
         g
     }
@@ -141,7 +143,13 @@ impl Default for Rig {
 pub enum Hidden {
     /// LuGre friction (Canudas de Wit 1995): ż = v − σ₀|v|z/g(v), F = σ₀z + σ₁ż,
     /// g = F_C + (F_S − F_C)·exp(−(v/v_s)²).
-    LuGre { fc: f64, fs: f64, vs: f64, s0: f64, s1: f64 },
+    LuGre {
+        fc: f64,
+        fs: f64,
+        vs: f64,
+        s0: f64,
+        s1: f64,
+    },
     /// Load-side Coulomb force without stick: F = F_C·(2/π)·atan(v/v_ε) (MR damper, guide).
     LoadCoulomb { fc: f64, veps: f64 },
     /// Spool overlap `ov` (reduces the underlap) and zero offset (fractions of travel).
@@ -177,7 +185,12 @@ pub enum Hidden {
     /// Command delay (s).
     Delay { tau: f64 },
     /// Tone a·sin(2πft + φ) on a channel (0 force, 1 position, 2 p_a).
-    Tone { ch: usize, f: f64, a: f64, phase: f64 },
+    Tone {
+        ch: usize,
+        f: f64,
+        a: f64,
+        phase: f64,
+    },
     /// Supply through a resistance from an accumulator: τ·ṗ_s = p₀ − R·Q_s − p_s.
     SupplyResistance { r: f64, tau: f64 },
     /// Pressure-compensated pump with a flow limit into a supply volume:
@@ -765,7 +778,10 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
     let hidden = if kind == "clean" {
         None
     } else {
-        Some(draw(kind, &rig, &mut g).ok_or_else(|| format!("unknown generator variant `{kind}`"))?)
+        Some(
+            draw(kind, &rig, &mut g)
+                .ok_or_else(|| format!("unknown generator variant `{kind}`"))?,
+        )
     };
     let f = [0; 5].map(|_| g.range(0.9, 1.1));
     let nominal = nominal_config(&rig, f, dt);
@@ -837,15 +853,19 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         Some(Hidden::Tone { ch, f, a, phase }) => (ch, Some((f, a, phase))),
         _ => (usize::MAX, None),
     };
-    let mut cols = vec![Vec::with_capacity(n); 4];
+    let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
     let mut t = Vec::with_capacity(n);
     for kk in 0..n {
         let tk = kk as f64 * dt;
         if !y.iter().all(|v| v.is_finite()) {
-            return Err(format!("seed {seed} {kind}: state not finite at t = {tk} s"));
+            return Err(format!(
+                "seed {seed} {kind}: state not finite at t = {tk} s"
+            ));
         }
         if y[0] < 0.0 || y[0] > rig.stroke {
-            return Err(format!("seed {seed} {kind}: piston left the stroke at t = {tk} s"));
+            return Err(format!(
+                "seed {seed} {kind}: piston left the stroke at t = {tk} s"
+            ));
         }
         let tone_at = |c: usize| match tone {
             Some((f, a, ph)) if tone_ch == c => a * (TAU * f * tk + ph).sin(),

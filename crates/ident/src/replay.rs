@@ -311,19 +311,25 @@ pub fn choose_integration(
         a.integration.substeps = ns;
         let mut b = p.clone();
         b.integration.substeps = 2 * ns;
-        match (replay_with(&a, rec, n, drive), replay_with(&b, rec, n, drive)) {
-            (Ok(a), Ok(b)) => a
-                .y
-                .iter()
-                .zip(&b.y)
-                .zip(&sd)
-                .map(|((ya, yb), s)| {
-                    (ya.iter().zip(yb).map(|(x, y)| (x - y) * (x - y)).sum::<f64>()
-                        / n.max(1) as f64)
-                        .sqrt()
-                        / s
-                })
-                .collect(),
+        match (
+            replay_with(&a, rec, n, drive),
+            replay_with(&b, rec, n, drive),
+        ) {
+            (Ok(a), Ok(b)) => {
+                a.y.iter()
+                    .zip(&b.y)
+                    .zip(&sd)
+                    .map(|((ya, yb), s)| {
+                        (ya.iter()
+                            .zip(yb)
+                            .map(|(x, y)| (x - y) * (x - y))
+                            .sum::<f64>()
+                            / n.max(1) as f64)
+                            .sqrt()
+                            / s
+                    })
+                    .collect()
+            }
             _ => vec![f64::INFINITY; sd.len()],
         }
     };
@@ -336,7 +342,8 @@ pub fn choose_integration(
             .fold(0.0, f64::max)
     };
     let n0 = substeps_of(&p);
-    let cap = ((n0 as f64 * max_cost.max(1.0)).floor() as u32).clamp(n0, ehactl_plant::model::MAX_SUBSTEPS);
+    let cap = ((n0 as f64 * max_cost.max(1.0)).floor() as u32)
+        .clamp(n0, ehactl_plant::model::MAX_SUBSTEPS);
     let mut ns = n0;
     let mut err = step_halving(&p, ns);
     for _ in 0..2 {

@@ -102,7 +102,11 @@ fn trace_csv(rec: &Record, nom: &Replay, ext: &Replay, split: usize) -> String {
 fn greybox_section(d: &Diagnosis, g: &crate::greybox::GreyBox) -> String {
     let mut s = format!(
         "## Grey-box extension (catalogue exhausted)\n\n{}: {}.\n\n",
-        if g.accepted { "Accepted" } else { "Not accepted" },
+        if g.accepted {
+            "Accepted"
+        } else {
+            "Not accepted"
+        },
         g.structure
     );
     if !g.terms.is_empty() {
@@ -115,7 +119,11 @@ fn greybox_section(d: &Diagnosis, g: &crate::greybox::GreyBox) -> String {
                 t.path,
                 t.value,
                 t.unit,
-                if t.at_bound { " (on its bound: a proxy)" } else { "" },
+                if t.at_bound {
+                    " (on its bound: a proxy)"
+                } else {
+                    ""
+                },
                 t.nrmse_train,
                 t.nrmse_validation
             );
@@ -126,9 +134,17 @@ fn greybox_section(d: &Diagnosis, g: &crate::greybox::GreyBox) -> String {
         let _ = writeln!(
             s,
             "| `{k}` | {:.4} | {:.4} | {:.4} |",
-            d.nrmse_extended.channels.get(k).copied().unwrap_or(f64::NAN),
+            d.nrmse_extended
+                .channels
+                .get(k)
+                .copied()
+                .unwrap_or(f64::NAN),
             v,
-            d.nrmse_baseline.channels.get(k).copied().unwrap_or(f64::NAN)
+            d.nrmse_baseline
+                .channels
+                .get(k)
+                .copied()
+                .unwrap_or(f64::NAN)
         );
     }
     let _ = writeln!(

@@ -16,9 +16,14 @@ fn check(seed: u64, kind: &str) {
 
 fn check_with(seed: u64, kind: &str, variant_must_match: bool) {
     let case = make_case(seed, kind, 1.5, 1e-3).expect("generated");
-    let d = diagnose(&case.nominal, &case.record, None, &Options::default()).expect("diagnosis runs");
+    let d =
+        diagnose(&case.nominal, &case.record, None, &Options::default()).expect("diagnosis runs");
     let (want, want_var) = case.hidden.as_ref().map_or(("none", "-"), expected);
-    let got_var = d.variants.get(&d.cause).cloned().unwrap_or_else(|| "-".into());
+    let got_var = d
+        .variants
+        .get(&d.cause)
+        .cloned()
+        .unwrap_or_else(|| "-".into());
     let report = format!(
         "seed {seed} {kind}: cause {} ({got_var}), causes {:?}, held-out {:.4} → {:.4}, floor {:.4}\n{}",
         d.cause, d.causes, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor, d.summary

@@ -241,8 +241,8 @@ impl LinearExact {
         for (i, o) in out.iter_mut().enumerate() {
             let g = &self.lam[i];
             let mut acc = g[0] * w[0] + g[1] * w[1] + g[2] * w[2] + g[3] * w[3];
-            for j in 0..N {
-                acc += self.psi[i][j] * z[j];
+            for (psi, zj) in self.psi[i].iter().zip(z).take(N) {
+                acc += psi * zj;
             }
             *o = acc;
         }

@@ -16,11 +16,11 @@
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
+use crate::effects::validate_variants;
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
 use crate::friction::FrictionModel;
 use crate::line::Line;
-use crate::effects::validate_variants;
 use crate::params::PlantParams;
 use crate::sensors::{Measurements, SensorModel, TrueValues};
 use crate::spec::ConfigError;
@@ -364,12 +364,20 @@ impl Plant {
             end_stops: params.mechanics.end_stops,
             full_scale: params.valve.command_full_scale,
             supply_r: sdrop.map_or(0.0, |s| {
-                crate::effects::SupplyModel::new(s, params.supply.pressure, params.fluid.bulk_modulus)
-                    .droop()
+                crate::effects::SupplyModel::new(
+                    s,
+                    params.supply.pressure,
+                    params.fluid.bulk_modulus,
+                )
+                .droop()
             }),
             supply_tau: sdrop.map_or(1.0, |s| s.time_constant.max(1e-9)),
             supply: sdrop.map(|s| {
-                crate::effects::SupplyModel::new(s, params.supply.pressure, params.fluid.bulk_modulus)
+                crate::effects::SupplyModel::new(
+                    s,
+                    params.supply.pressure,
+                    params.fluid.bulk_modulus,
+                )
             }),
             mount: mount.map(|m| (m.load_mass, m.stiffness, m.damping)),
             body_mount: mount.is_some_and(|m| m.variant == crate::params::MountVariant::PistonSide),
@@ -431,7 +439,7 @@ impl Plant {
             params.integration.substeps
         } else {
             let n = (control_dt * omega_max / params.integration.max_omega_h).ceil();
-            if !(n <= MAX_SUBSTEPS as f64) {
+            if n.is_nan() || n > MAX_SUBSTEPS as f64 {
                 return Err(ConfigError::new(
                     "integration.substeps",
                     format!(
@@ -586,6 +594,7 @@ impl Plant {
     /// Most substeps per control period: the configured count, or with automatic substeps
     /// the count at the smallest chamber volumes (stroke ends); a period mid-stroke may take
     /// fewer ([`Plant::substeps_taken`]).
+    #[allow(clippy::misnamed_getters)] // `substeps` is the per-period count in use; this is its maximum
     pub fn substeps(&self) -> u32 {
         self.substeps_max
     }
@@ -1117,7 +1126,10 @@ impl Plant {
             let f_rel = f_hyd - c.damping * s.v - s.friction;
             let a_body =
                 crate::effects::body_mount_step(&mut s.x_load, &mut s.v_load, f_rel, mb, h);
-            f_other = f_hyd - c.k_load * (s.x + s.x_load - c.x_contact) - f_ext - c.mass * a_body
+            f_other = f_hyd
+                - c.k_load * (s.x + s.x_load - c.x_contact)
+                - f_ext
+                - c.mass * a_body
                 - f_poly
                 + df_poly * s.v;
         }

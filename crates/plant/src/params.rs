@@ -844,8 +844,14 @@ impl PlantParams {
     /// not used by this valve's `flow_form`).
     pub fn nominal_value(&self, path: &str) -> Option<f64> {
         Some(match path {
-            "valve.rated_flow" => self.valve.rated_flow.filter(|_| self.valve.flow_form == FlowForm::Kq)?,
-            "valve.area_max" => self.valve.area_max.filter(|_| self.valve.flow_form == FlowForm::Orifice)?,
+            "valve.rated_flow" => self
+                .valve
+                .rated_flow
+                .filter(|_| self.valve.flow_form == FlowForm::Kq)?,
+            "valve.area_max" => self
+                .valve
+                .area_max
+                .filter(|_| self.valve.flow_form == FlowForm::Orifice)?,
             "valve.flow_at_1mpa" => self
                 .valve
                 .flow_at_1mpa
@@ -885,7 +891,9 @@ impl PlantParams {
     /// The refit range of every nominal parameter the diagnosis refits: (path, nominal value,
     /// lower bound, upper bound) in SI units, from `[uncertainty]` and the defaults; a stated
     /// uncertainty of 0 keeps the parameter fixed. Errors name the `[uncertainty]` key.
-    pub fn refit_ranges(&self) -> Result<Vec<(&'static str, f64, f64, f64)>, crate::spec::ConfigError> {
+    pub fn refit_ranges(
+        &self,
+    ) -> Result<Vec<(&'static str, f64, f64, f64)>, crate::spec::ConfigError> {
         use crate::spec::ConfigError;
         let key = |k: &str| format!("uncertainty.\"{k}\"");
         for k in self.uncertainty.keys() {
@@ -910,7 +918,9 @@ impl PlantParams {
         }
         let mut out = Vec::new();
         for &(path, unit, default) in UNCERTAIN_PARAMS {
-            let Some(v) = self.nominal_value(path) else { continue };
+            let Some(v) = self.nominal_value(path) else {
+                continue;
+            };
             let half = match self.uncertainty.get(path) {
                 None if default && v > 0.0 => DEFAULT_UNCERTAINTY * v,
                 None => continue,

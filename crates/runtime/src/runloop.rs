@@ -307,7 +307,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
         record(&rec);
         errors.add(terms.error, t, settings.settle_time);
         k += 1;
-        if k % step == 0 {
+        if k.is_multiple_of(step) {
             progress(k);
         }
     }

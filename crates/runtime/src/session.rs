@@ -355,7 +355,7 @@ pub fn run_with_live(
         let observer = &mut opts.observer;
         let mut on_record = |r: &CycleRecord| {
             if let Some(l) = lg {
-                if r.cycle % log_every == 0 || r.cycle + 1 >= cycles {
+                if r.cycle.is_multiple_of(log_every) || r.cycle + 1 >= cycles {
                     l.push(r);
                 }
             }

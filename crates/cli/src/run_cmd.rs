@@ -1,0 +1,433 @@
+//! `ehactl run`: one closed-loop run, in four phases — check everything that can be checked
+//! before anything starts ([`prepare`]), start the services around the loop (control socket,
+//! CAN rig, live view: [`Services::start`]), run the loop with a progress bar ([`execute`]),
+//! and report ([`report`]). Exit codes as listed in `main.rs`.
+
+use crate::canbus::{self, HalKind};
+use crate::{
+    check_log_path, check_log_writable, config_error, default_log_path, live, load, progress_bar,
+    sig, stop_flag,
+};
+use ehactl_config::{ControlMode, RigConfig};
+use ehactl_hal::logger::{LogTap, Overflow};
+use ehactl_hal::sim::SimHal;
+use ehactl_hal::Hal;
+use ehactl_runtime::control_socket::{ControlServer, StartError};
+use ehactl_runtime::live::LiveParams;
+use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
+use ehactl_runtime::session::{
+    build_plant, run_sim, run_sim_live, run_with_live, Backend, Session, SessionError,
+    SessionOptions,
+};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// The command line of `ehactl run`.
+pub struct RunArgs<'a> {
+    /// Rig config (TOML).
+    pub config: &'a Path,
+    /// `--duration` override (s).
+    pub duration: Option<f64>,
+    /// `--out` MCAP path (default `out/<config stem>.mcap`).
+    pub out: Option<PathBuf>,
+    /// `--force`: replace a non-MCAP file at `out`.
+    pub force: bool,
+    /// `--json`: one JSON summary on stdout.
+    pub json: bool,
+    /// `--realtime`: wall-clock pacing.
+    pub realtime: bool,
+    /// `--control-socket PATH`.
+    pub control_socket: Option<PathBuf>,
+    /// `--hal`.
+    pub hal: HalKind,
+    /// `--bus`.
+    pub bus: Option<String>,
+    /// `--live ADDR` (Foxglove WebSocket).
+    pub live: Option<&'a str>,
+}
+
+/// Run `ehactl run`.
+pub fn cmd_run(args: RunArgs<'_>) -> ExitCode {
+    let (cfg, out) = match prepare(&args) {
+        Ok(v) => v,
+        Err(code) => return code,
+    };
+    let live = Arc::new(LiveParams::new());
+    let mut services = match Services::start(&args, &cfg, &out, &live) {
+        Ok(s) => s,
+        Err(code) => return code,
+    };
+    let result = execute(&args, &cfg, out, &mut services, &live);
+    let live_stats = services.live_view.take().map(|v| {
+        let url = v.url.clone();
+        (
+            url,
+            v.finish(Duration::from_secs(5), Duration::from_millis(500)),
+        )
+    });
+    let session = match result {
+        Ok(s) => s,
+        Err(SessionError::Config(e)) => {
+            return config_error(format!("{}: {e}", args.config.display()))
+        }
+        Err(SessionError::Log(e)) => {
+            eprintln!(
+                "ehactl: {e}; the run was stopped (valve to safe command); what reached the file can be rebuilt with `ehactl recover {} NEW.mcap`",
+                e.path.display()
+            );
+            return ExitCode::from(1);
+        }
+    };
+    report(&args, &cfg, &session, live_stats.as_ref());
+    exit_code(&session)
+}
+
+/// Phase 1: everything that can be refused before anything starts (exit 2, or 1 for an
+/// unwritable log), so that no error leaves a brought-up rig or an empty log behind.
+fn prepare(args: &RunArgs<'_>) -> Result<(RigConfig, PathBuf), ExitCode> {
+    let cfg = load(args.config)?;
+    if let Some(d) = args.duration {
+        if !(d.is_finite() && d > 0.0) {
+            return Err(config_error(format!(
+                "--duration {d}: expected a finite number > 0 in s"
+            )));
+        }
+    }
+    if let Some(Err(e)) = args.live.map(live::parse_addr) {
+        return Err(config_error(e));
+    }
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_log_path(args.config, ""));
+    // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
+    canbus::check_args(&cfg, args.config, (args.hal, args.bus.as_deref()))?;
+    check_log_path(&out, args.config, args.force)?;
+    check_log_writable(&out)?;
+    Ok((cfg, out))
+}
+
+/// Phase 2: what runs beside the loop. Dropped at the end of the command (the control
+/// socket is removed, the CAN rig is released after its safe stop).
+struct Services {
+    _control: Option<ControlServer>,
+    can_hal: Option<ehactl_canopen::hal::CanopenHal>,
+    live_view: Option<live::LiveView>,
+    stop: Arc<AtomicBool>,
+}
+
+impl Services {
+    fn start(
+        args: &RunArgs<'_>,
+        cfg: &RigConfig,
+        out: &Path,
+        live: &Arc<LiveParams>,
+    ) -> Result<Services, ExitCode> {
+        // The socket is opened before CAN bring-up, so its errors never leave a started rig.
+        let control = match &args.control_socket {
+            Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
+                Ok(s) => Some(s),
+                Err(StartError::PathInUse(e)) => {
+                    return Err(config_error(format!(
+                        "--control-socket {}: {e}",
+                        path.display()
+                    )));
+                }
+                Err(e) => {
+                    eprintln!("ehactl: --control-socket {}: {e}", path.display());
+                    return Err(ExitCode::from(1));
+                }
+            },
+            None => None,
+        };
+        let stop = stop_flag();
+        // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s);
+        // a signal meanwhile ends the run at its first cycle, through the safe stop.
+        let can_hal = canbus::connect(
+            cfg,
+            args.config,
+            (args.hal, args.bus.as_deref()),
+            out,
+            args.json,
+        )?;
+        let live_view = match args.live.map(live::LiveView::start).transpose() {
+            Ok(v) => v,
+            Err(e) => {
+                eprintln!("ehactl: {e}");
+                return Err(ExitCode::from(1));
+            }
+        };
+        if let Some(v) = &live_view {
+            // Parsed by tests and scripts: the URL is the last word.
+            eprintln!("ehactl: live view (Foxglove WebSocket) on {}", v.url);
+        }
+        Ok(Services {
+            _control: control,
+            can_hal,
+            live_view,
+            stop,
+        })
+    }
+}
+
+/// Phase 3: the loop, under wall-clock pacing (`--realtime` or a CAN rig) or simulated
+/// time, with a progress bar on a terminal.
+fn execute(
+    args: &RunArgs<'_>,
+    cfg: &RigConfig,
+    out: PathBuf,
+    services: &mut Services,
+    live: &LiveParams,
+) -> Result<Session, SessionError> {
+    let tap = services.live_view.as_ref().map(|v| v.tap());
+    let bar = progress_bar(String::new());
+    let live_ref = args.control_socket.as_ref().map(|_| live);
+    let stop = services.stop.clone();
+    let result = if args.realtime || services.can_hal.is_some() {
+        // The loop thread only stores the cycle count; the bar is drawn by this watcher
+        // thread so that no terminal I/O happens in the cycle.
+        bar.set_message(format!(
+            "{} (real time{})",
+            args.config.display(),
+            if services.can_hal.is_some() {
+                ", canopen"
+            } else {
+                ""
+            }
+        ));
+        let done = Arc::new(AtomicU64::new(0));
+        let total = Arc::new(AtomicU64::new(1));
+        let finished = Arc::new(AtomicBool::new(false));
+        let watcher = {
+            let (bar, done, total, finished) =
+                (bar.clone(), done.clone(), total.clone(), finished.clone());
+            std::thread::spawn(move || {
+                while !finished.load(Ordering::Relaxed) {
+                    bar.set_length(total.load(Ordering::Relaxed));
+                    bar.set_position(done.load(Ordering::Relaxed));
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+            })
+        };
+        let mut progress = |k: u64, n: u64| {
+            total.store(n, Ordering::Relaxed);
+            done.store(k, Ordering::Relaxed);
+        };
+        let opts = session_options(args.duration, out, &stop, &mut progress, tap);
+        let hardware = services.can_hal.as_mut().map(|h| h as &mut dyn Hal);
+        let r = run_realtime(cfg, opts, live_ref, hardware);
+        finished.store(true, Ordering::Relaxed);
+        let _ = watcher.join();
+        r
+    } else {
+        bar.set_message(format!("{} (simulated)", args.config.display()));
+        let mut progress = |k: u64, n: u64| {
+            bar.set_length(n);
+            bar.set_position(k);
+        };
+        let opts = session_options(args.duration, out, &stop, &mut progress, tap);
+        if live_ref.is_some() {
+            run_sim_live(cfg, opts, live_ref)
+        } else {
+            run_sim(cfg, opts)
+        }
+    };
+    bar.finish_and_clear();
+    result
+}
+
+fn session_options<'a>(
+    duration: Option<f64>,
+    out: PathBuf,
+    stop: &'a AtomicBool,
+    progress: &'a mut dyn FnMut(u64, u64),
+    tap: Option<Arc<LogTap>>,
+) -> SessionOptions<'a> {
+    SessionOptions {
+        duration,
+        mcap: Some(out),
+        stop: Some(stop),
+        capture: false,
+        progress: Some(progress),
+        tap,
+        ..Default::default()
+    }
+}
+
+/// The loop on the wall clock: against `hardware` (a CAN rig) or, without it, against the
+/// simulated plant paced in real time (hardware-in-the-loop rehearsal).
+fn run_realtime(
+    cfg: &RigConfig,
+    opts: SessionOptions<'_>,
+    live: Option<&LiveParams>,
+    hardware: Option<&mut dyn Hal>,
+) -> Result<Session, SessionError> {
+    let mut cfg_run = cfg.clone();
+    if let Some(d) = opts.duration {
+        cfg_run.run.duration = d;
+    }
+    let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
+    let mut sim;
+    let (hal, substeps): (&mut dyn Hal, u32) = match hardware {
+        Some(h) => (h, 0),
+        None => {
+            let substeps = plant.substeps();
+            sim = SimHal::new(plant);
+            (&mut sim, substeps)
+        }
+    };
+    let mut rt = RtOptions::from_config(&cfg.realtime);
+    rt.warn = Some(|msg: &str| eprintln!("ehactl: warning: {msg}"));
+    let mut pacer = WallClockPacer::new(cfg.timebase(), rt);
+    let backend = Backend {
+        hal,
+        pacer: &mut pacer,
+        overflow: Overflow::Drop,
+        substeps,
+    };
+    run_with_live(cfg, backend, opts, live)
+}
+
+/// Phase 4: the summary, as one JSON object (`--json`) or as text.
+fn report(
+    args: &RunArgs<'_>,
+    cfg: &RigConfig,
+    session: &Session,
+    live_stats: Option<&(String, live::LiveStats)>,
+) {
+    let mut summary = session.summary_json();
+    if let Some((url, st)) = live_stats {
+        summary["live"] = serde_json::json!({
+            "url": url,
+            "messages_published": st.published,
+            "messages_dropped": st.dropped,
+            "clients_at_end": st.clients,
+        });
+    }
+    if args.json {
+        // Not println!: a reader that went away (`| head`) must not turn a finished run
+        // into a panic.
+        use std::io::Write;
+        let _ = writeln!(std::io::stdout(), "{summary}");
+    } else {
+        print_text_summary(args.config, cfg, session, &summary, live_stats);
+    }
+}
+
+fn print_text_summary(
+    config: &Path,
+    cfg: &RigConfig,
+    session: &Session,
+    summary: &serde_json::Value,
+    live_stats: Option<&(String, live::LiveStats)>,
+) {
+    let o = &session.outcome;
+    println!("ehactl run {}", config.display());
+    println!(
+        "  cycles        {} at {} Hz ({} s {}, {} substeps/cycle)",
+        o.cycles,
+        sig(session.control_rate_hz, 6),
+        sig(o.duration_s, 6),
+        if session.timing.is_some() {
+            "run"
+        } else {
+            "simulated"
+        },
+        session.substeps
+    );
+    if cfg.control.mode == ControlMode::OpenLoop {
+        // No feedback: the setpoint (V) is the valve command, there is no tracking error.
+        println!("  error         none: open loop (the setpoint is the valve command, V); see the log for the response");
+    } else {
+        println!(
+            "  rms error     {} {} (after start of dynamics: {} {})",
+            sig(o.rms_error, 4),
+            session.unit,
+            sig(o.rms_error_settled, 4),
+            session.unit
+        );
+        println!(
+            "  max |error|   {} {}",
+            sig(o.max_abs_error, 4),
+            session.unit
+        );
+    }
+    println!(
+        "  speed         {}× real time ({} s wall)",
+        sig(summary["sim_speed_x_realtime"].as_f64().unwrap_or(0.0), 3),
+        sig(session.wall_time_s, 3)
+    );
+    if let Some(l) = &session.log {
+        println!(
+            "  mcap          {} ({} cycles, {} dropped, queue high water {} of {})",
+            l.path.display(),
+            l.records_written,
+            l.records_dropped,
+            l.queue_high_water,
+            l.queue_capacity
+        );
+    }
+    if let Some((url, st)) = live_stats {
+        println!(
+            "  live          {url}: {} messages published, {} dropped (viewer too slow), {} client(s) at the end",
+            st.published, st.dropped, st.clients
+        );
+    }
+    canbus::print_summary(summary);
+    if let Some(tm) = &session.timing {
+        println!(
+            "  jitter        p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (start − deadline)",
+            tm.jitter.p50, tm.jitter.p99, tm.jitter.p999, tm.jitter.max
+        );
+        println!(
+            "  period        p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs (nominal {:.1} µs)",
+            tm.period.p50, tm.period.p99, tm.period.max, tm.period_nominal_us
+        );
+        println!(
+            "  exec          p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (cycle start → next wait)",
+            tm.exec.p50, tm.exec.p99, tm.exec.p999, tm.exec.max
+        );
+        println!(
+            "  overruns      {} = {} our execution > period + {} late start (thread not running); longest streak {}, {} deadlines skipped, policy {}",
+            tm.overruns,
+            tm.overruns_exec,
+            tm.overruns_wakeup,
+            tm.longest_overrun_streak,
+            tm.skipped_deadlines,
+            tm.overrun_policy
+        );
+        println!(
+            "  rt            SCHED_FIFO {}, CPU {}, memory {}",
+            tm.rt
+                .sched_fifo_priority
+                .map_or("off".to_string(), |p| format!("priority {p}")),
+            tm.rt.cpu.map_or("any".to_string(), |c| c.to_string()),
+            if tm.rt.memory_locked {
+                "locked"
+            } else {
+                "not locked"
+            }
+        );
+    }
+    match (&o.trip, o.interrupted) {
+        (Some(t), _) => println!("  TRIP          {}", t.describe()),
+        (None, true) => {
+            println!("  interrupted by signal; valve set to safe command, log finalised")
+        }
+        _ => println!("  trip          none"),
+    }
+}
+
+/// 3 on a trip, 130 after a signal, 0 otherwise.
+fn exit_code(session: &Session) -> ExitCode {
+    if session.outcome.trip.is_some() {
+        ExitCode::from(3)
+    } else if session.outcome.interrupted {
+        ExitCode::from(130)
+    } else {
+        ExitCode::SUCCESS
+    }
+}
