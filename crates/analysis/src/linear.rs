@@ -9,6 +9,7 @@
 
 use crate::oppoint::OperatingPoint;
 use crate::AnalysisError;
+use ehactl_plant::exact::balancing_scales;
 use ehactl_plant::Plant;
 use nalgebra::{Complex, DMatrix, DVector};
 
@@ -150,49 +151,14 @@ impl LinearModel {
     fn balance(&mut self) {
         let n = self.a.nrows();
         let mut d = vec![1.0f64; n];
-        for _ in 0..100 {
-            let mut converged = true;
-            #[allow(clippy::needless_range_loop)]
-            // i indexes rows and columns of `a` as well as `d`
-            for i in 0..n {
-                let (mut c, mut r) = (0.0f64, 0.0f64);
-                for j in 0..n {
-                    if j != i {
-                        c += self.a[(j, i)].abs();
-                        r += self.a[(i, j)].abs();
-                    }
-                }
-                if c == 0.0 || r == 0.0 {
-                    continue;
-                }
-                let mut f = 1.0;
-                let s = c + r;
-                let (mut cc, mut rr) = (c, r);
-                while cc < rr / 2.0 {
-                    cc *= 2.0;
-                    rr /= 2.0;
-                    f *= 2.0;
-                }
-                while cc >= rr * 2.0 {
-                    cc /= 2.0;
-                    rr *= 2.0;
-                    f /= 2.0;
-                }
-                if (cc + rr) < 0.95 * s {
-                    converged = false;
-                    d[i] *= f;
-                    for j in 0..n {
-                        self.a[(i, j)] /= f;
-                        self.a[(j, i)] *= f;
-                    }
-                    self.b[i] /= f;
-                    self.c_force[i] *= f;
-                    self.c_position[i] *= f;
-                }
+        balancing_scales(&mut d, |i, j| self.a[(i, j)], 100);
+        for i in 0..n {
+            for j in 0..n {
+                self.a[(i, j)] *= d[j] / d[i];
             }
-            if converged {
-                break;
-            }
+            self.b[i] /= d[i];
+            self.c_force[i] *= d[i];
+            self.c_position[i] *= d[i];
         }
         for (s, di) in self.scale.iter_mut().zip(d) {
             *s *= di;

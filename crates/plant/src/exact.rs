@@ -151,41 +151,7 @@ impl LinearExact {
         }
         // Balance (Parlett–Reinsch, powers of 2): M' = D⁻¹ M D, e^M = D e^(M') D⁻¹.
         let mut d = [1.0f64; NA];
-        for _ in 0..64 {
-            let mut done = true;
-            for i in 0..NA {
-                let (mut c, mut r) = (0.0f64, 0.0f64);
-                for j in 0..NA {
-                    if j != i {
-                        c += (m[(j, i)] * d[i] / d[j]).abs();
-                        r += (m[(i, j)] * d[j] / d[i]).abs();
-                    }
-                }
-                if c == 0.0 || r == 0.0 {
-                    continue;
-                }
-                let mut f = 1.0;
-                let s = c + r;
-                let (mut cc, mut rr) = (c, r);
-                while cc < rr / 2.0 {
-                    cc *= 2.0;
-                    rr /= 2.0;
-                    f *= 2.0;
-                }
-                while cc >= rr * 2.0 {
-                    cc /= 2.0;
-                    rr *= 2.0;
-                    f /= 2.0;
-                }
-                if (cc + rr) < 0.95 * s {
-                    d[i] *= f;
-                    done = false;
-                }
-            }
-            if done {
-                break;
-            }
-        }
+        balancing_scales(&mut d, |i, j| m[(i, j)], 64);
         let mut mb = m;
         for i in 0..NA {
             for j in 0..NA {
@@ -272,6 +238,52 @@ impl LinearExact {
             *o = acc;
         }
         z[..N].copy_from_slice(&out);
+    }
+}
+
+/// Parlett–Reinsch balancing: powers of 2 `d` (written into `d`, length n) such that every
+/// row and column of `D⁻¹ A D` has comparable off-diagonal norm, where `entry(i, j)` is
+/// `A[i][j]`. At most `max_sweeps` sweeps; stops when no scale changes. Powers of 2 make the
+/// scaling exact in floating point. No allocation (used when the plant re-discretises in
+/// the cycle). Source: Parlett & Reinsch, "Balancing a matrix for calculation of eigenvalues
+/// and eigenvectors", Numer. Math. 13 (1969).
+pub fn balancing_scales(d: &mut [f64], entry: impl Fn(usize, usize) -> f64, max_sweeps: usize) {
+    let n = d.len();
+    d.fill(1.0);
+    for _ in 0..max_sweeps {
+        let mut done = true;
+        for i in 0..n {
+            let (mut c, mut r) = (0.0f64, 0.0f64);
+            for j in 0..n {
+                if j != i {
+                    c += (entry(j, i) * d[i] / d[j]).abs();
+                    r += (entry(i, j) * d[j] / d[i]).abs();
+                }
+            }
+            if c == 0.0 || r == 0.0 {
+                continue;
+            }
+            let mut f = 1.0;
+            let s = c + r;
+            let (mut cc, mut rr) = (c, r);
+            while cc < rr / 2.0 {
+                cc *= 2.0;
+                rr /= 2.0;
+                f *= 2.0;
+            }
+            while cc >= rr * 2.0 {
+                cc /= 2.0;
+                rr *= 2.0;
+                f /= 2.0;
+            }
+            if (cc + rr) < 0.95 * s {
+                d[i] *= f;
+                done = false;
+            }
+        }
+        if done {
+            break;
+        }
     }
 }
 
