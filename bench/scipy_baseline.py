@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""SciPy baseline for the sahu2022_force closed loop (BENCHMARKS.md, "Closed-loop simulation speed").
+"""SciPy baseline for the sahu2022_force closed loop (BENCHMARKS.md, "Plant integration: accuracy against cost per rig").
 
 The same plant and controller as ehactl's Rust code for configs/sahu2022_force.toml, written
 the way a user would write it without ehactl: one ODE right-hand side, and a loop over the
