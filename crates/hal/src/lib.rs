@@ -30,20 +30,6 @@ pub struct Timebase {
 }
 
 impl Timebase {
-    /// A timebase at `rate_hz` (Hz). Errors unless the rate is finite, > 0 and its period is
-    /// at least 1 ns.
-    pub fn from_rate_hz(rate_hz: f64) -> Result<Timebase, String> {
-        if !rate_hz.is_finite() || rate_hz <= 0.0 || rate_hz > 1e9 {
-            return Err(format!(
-                "control rate {rate_hz} Hz is not usable; expected a finite rate in (0, 1e9] Hz"
-            ));
-        }
-        Ok(Timebase {
-            rate_hz,
-            period_ns: (1e9 / rate_hz).round().max(1.0) as u64,
-        })
-    }
-
     /// A timebase at a rate the caller has validated (the config loader checks
     /// `run.control_rate_hz` ∈ [1, 1e6] Hz). An unusable rate gives a non-finite or zero
     /// period, which `Plant::configure` and the pacer reject; nothing here panics.

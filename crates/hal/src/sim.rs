@@ -26,8 +26,8 @@ pub struct SimHal {
 impl SimHal {
     /// Wrap a configured plant; its timebase is the plant's discretisation step.
     pub fn new(plant: Plant) -> Self {
-        let timebase = Timebase::from_rate_hz(1.0 / plant.control_dt())
-            .expect("a configured plant has a finite, positive control period");
+        // `Plant::configure` accepted the period, so it is finite and > 0.
+        let timebase = Timebase::at_rate_hz(1.0 / plant.control_dt());
         Self {
             plant,
             timebase,
