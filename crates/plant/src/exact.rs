@@ -260,7 +260,9 @@ pub fn balancing_scales(d: &mut [f64], entry: impl Fn(usize, usize) -> f64, max_
                     r += (entry(i, j) * d[j] / d[i]).abs();
                 }
             }
-            if c == 0.0 || r == 0.0 {
+            // A zero row/column needs no scaling; a non-finite one cannot be balanced (and
+            // would never leave the halving loops below: inf / 2 = inf).
+            if c == 0.0 || r == 0.0 || !(c + r).is_finite() {
                 continue;
             }
             let mut f = 1.0;

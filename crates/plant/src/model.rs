@@ -406,6 +406,21 @@ impl Plant {
             let k_oil = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0);
             omega_max = omega_max.max(((km + k_oil) / ml).sqrt()).max(dm / ml);
         }
+        if !omega_max.is_finite() {
+            // e.g. `mechanics.mass = 5e-324`: every parameter is admissible alone, but A/m or
+            // β·A²/V overflows and no integrator (nor the exact discretisation) can step it.
+            let path = if !(c.a_a / c.mass).is_finite() || !(c.k_load / c.mass).is_finite() {
+                "mechanics.mass"
+            } else {
+                "cylinder.dead_volume_a"
+            };
+            return Err(ConfigError::new(
+                path,
+                format!(
+                    "the fastest mode of this rig is not representable (ω = {omega_max:e} rad/s from the hydraulic spring √(β·A²/(V·m)), load spring, mount or lines); check the mass (kg), chamber volumes (m³), areas (m²) and stiffnesses (N/m) for values off by many orders of magnitude"
+                ),
+            ));
+        }
         let x0 = params.cylinder.initial_position.clamp(0.0, c.stroke);
         // `linear_exact` covers chambers, leakage, springs, dampers and the mount; with lines,
         // friction (stick) or the grey-box polynomial effects the plant integrates with
