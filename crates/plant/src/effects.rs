@@ -105,6 +105,28 @@ impl Effects {
         }
     }
 
+    /// The `enabled` switch of effect `id`'s section, `None` when the section is absent.
+    pub fn enabled_mut(&mut self, id: EffectId) -> Option<&mut bool> {
+        match id {
+            EffectId::Friction => self.friction.as_mut().map(|e| &mut e.enabled),
+            EffectId::ValveDeadband => self.valve_deadband.as_mut().map(|e| &mut e.enabled),
+            EffectId::ValveSaturation => self.valve_saturation.as_mut().map(|e| &mut e.enabled),
+            EffectId::ValveDynamics => self.valve_dynamics.as_mut().map(|e| &mut e.enabled),
+            EffectId::InternalLeakage => self.internal_leakage.as_mut().map(|e| &mut e.enabled),
+            EffectId::ExternalLeakage => self.external_leakage.as_mut().map(|e| &mut e.enabled),
+            EffectId::BulkModulusPressure => {
+                self.bulk_modulus_pressure.as_mut().map(|e| &mut e.enabled)
+            }
+            EffectId::LineDynamics => self.line_dynamics.as_mut().map(|e| &mut e.enabled),
+            EffectId::FlexibleMount => self.flexible_mount.as_mut().map(|e| &mut e.enabled),
+            EffectId::TimeDelay => self.time_delay.as_mut().map(|e| &mut e.enabled),
+            EffectId::SensorTone => self.sensor_tone.as_mut().map(|e| &mut e.enabled),
+            EffectId::SupplyPressureDrop => {
+                self.supply_pressure_drop.as_mut().map(|e| &mut e.enabled)
+            }
+        }
+    }
+
     /// Ids of every enabled effect.
     pub fn enabled(&self) -> Vec<EffectId> {
         EffectId::ALL

@@ -968,52 +968,21 @@ pub const UNCERTAIN_PARAMS: &[(&str, &str, bool)] = &[
 pub const DEFAULT_UNCERTAINTY: f64 = 0.15;
 
 impl PlantParams {
-    /// Value of an [`UNCERTAIN_PARAMS`] path (`None` for an unknown path or a flow-gain path
-    /// not used by this valve's `flow_form`).
+    /// Value of an [`UNCERTAIN_PARAMS`] path (`None` for another path or a flow-gain path
+    /// not used by this valve's `flow_form`), read through the declared-parameter accessor.
     pub fn nominal_value(&self, path: &str) -> Option<f64> {
-        Some(match path {
-            "valve.rated_flow" => self
-                .valve
-                .rated_flow
-                .filter(|_| self.valve.flow_form == FlowForm::Kq)?,
-            "valve.area_max" => self
-                .valve
-                .area_max
-                .filter(|_| self.valve.flow_form == FlowForm::Orifice)?,
-            "valve.flow_at_1mpa" => self
-                .valve
-                .flow_at_1mpa
-                .filter(|_| self.valve.flow_form == FlowForm::PowerLaw)?,
-            "fluid.bulk_modulus" => self.fluid.bulk_modulus,
-            "mechanics.mass" => self.mechanics.mass,
-            "mechanics.damping" => self.mechanics.damping,
-            "mechanics.load_stiffness" => self.mechanics.load_stiffness,
-            "valve.underlap" => self.valve.underlap,
-            "cylinder.dead_volume_a" => self.cylinder.dead_volume_a,
-            "cylinder.dead_volume_b" => self.cylinder.dead_volume_b,
-            "supply.pressure" => self.supply.pressure,
-            "valve.command_full_scale" => self.valve.command_full_scale,
-            _ => return None,
-        })
-    }
-
-    /// Write an [`UNCERTAIN_PARAMS`] path (unknown paths are ignored).
-    pub fn set_nominal_value(&mut self, path: &str, v: f64) {
-        match path {
-            "valve.rated_flow" => self.valve.rated_flow = Some(v),
-            "valve.area_max" => self.valve.area_max = Some(v),
-            "valve.flow_at_1mpa" => self.valve.flow_at_1mpa = Some(v),
-            "fluid.bulk_modulus" => self.fluid.bulk_modulus = v,
-            "mechanics.mass" => self.mechanics.mass = v,
-            "mechanics.damping" => self.mechanics.damping = v,
-            "mechanics.load_stiffness" => self.mechanics.load_stiffness = v,
-            "valve.underlap" => self.valve.underlap = v,
-            "cylinder.dead_volume_a" => self.cylinder.dead_volume_a = v,
-            "cylinder.dead_volume_b" => self.cylinder.dead_volume_b = v,
-            "supply.pressure" => self.supply.pressure = v,
-            "valve.command_full_scale" => self.valve.command_full_scale = v,
-            _ => {}
+        let form = match path {
+            "valve.rated_flow" => Some(FlowForm::Kq),
+            "valve.area_max" => Some(FlowForm::Orifice),
+            "valve.flow_at_1mpa" => Some(FlowForm::PowerLaw),
+            _ => None,
+        };
+        if form.is_some_and(|f| f != self.valve.flow_form)
+            || !UNCERTAIN_PARAMS.iter().any(|u| u.0 == path)
+        {
+            return None;
         }
+        crate::spec::ParamTree::get_path(self, path)
     }
 
     /// The refit range of every nominal parameter the diagnosis refits: (path, nominal value,
