@@ -574,7 +574,7 @@ pub fn effect_params(
                     r0,
                     write("effects.friction.static_force", &seed, |p| {
                         if let Some(f) = p.effects.friction.as_mut() {
-                            f.static_force = f.coulomb_force * f.static_force;
+                            f.static_force *= f.coulomb_force;
                         }
                     }),
                 ),
