@@ -54,8 +54,17 @@ RPDO_TIMEOUT_MS = 400
 # periods old, arriving in one burst); no test here is about PDO age (hal_rig.rs
 # late_tpdos_are_counted_and_too_old_ones_trip is), so the limit is 1 s here.
 MAX_PDO_AGE_SYNCS = 1000
+# supervisor.stale_timeout (default 50 ms): for the same reason — under load (nice + a parallel
+# cargo build, load average 12) 3 of 3 heartbeat-loss runs tripped `sensor_stale` at 50 ms
+# before the injected fault. No test here is about staleness (crates/canopen/tests/hal_rig.rs
+# staleness_starts_with_the_first_pdo_after_a_bounded_grace and the supervisor's unit tests
+# are); 250 ms as the heartbeat consumer time.
+STALE_TIMEOUT_S = 0.250
+_boom = pathlib.Path(BOOM).read_text()
+assert _boom.count("[supervisor]\n") == 1 and "stale_timeout" not in _boom
 CAN_BOOM = pathlib.Path(tempfile.mkdtemp(prefix="ehactl_e2e_")) / "dindorf2022_boom_can.toml"
-CAN_BOOM.write_text(pathlib.Path(BOOM).read_text()
+CAN_BOOM.write_text(_boom.replace("[supervisor]\n",
+                                  f"[supervisor]\nstale_timeout = {STALE_TIMEOUT_S}\n")
                     + "\n[canopen]\n"
                     + f"heartbeat_ms = {HB_PRODUCER_MS}\n"
                     + f"heartbeat_timeout_ms = {round(HB_TIMEOUT_S * 1e3)}\n"
