@@ -30,6 +30,8 @@ const MAX_LINE: usize = 6000;
 
 type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
 type PlotResult<T> = Result<T, String>;
+/// An H1 estimate to draw: frequencies (Hz), H as (re, im), colour, legend label.
+type Curve = (Vec<f64>, Vec<(f64, f64)>, RGBColor, &'static str);
 
 fn err<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> String + '_ {
     move |e| format!("{}: cannot draw plot: {e}", path.display())
@@ -324,7 +326,7 @@ fn frf(path: &Path, rec: &Record, nom: &Replay, ext: &Replay) -> PlotResult<()> 
                 .map(|x| if x.is_finite() { *x } else { 0.0 })
                 .collect::<Vec<_>>()
         };
-        let curves: Vec<(Vec<f64>, Vec<(f64, f64)>, RGBColor, &str)> = [
+        let curves: Vec<Curve> = [
             (&ch.values, MEASURED, "measured"),
             (&nom.y[c], NOMINAL, "nominal"),
             (&ext.y[c], EXTENDED, "extended"),
