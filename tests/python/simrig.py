@@ -157,3 +157,15 @@ def syncs_between(frames, t0, t1):
     """SYNCs (0x080) the master sent with t0 < t <= t1 on the /can log (one clock): the
     number of SYNC periods between two bus events, independent of how fast the machine is."""
     return sum(1 for f in frames if f["dir"] == "tx" and f["id"] == 0x080 and t0 < f["t"] <= t1)
+
+
+def trip_safe_setpoint(frames, rpdo_cob):
+    """Bus time (/can log) of the safe setpoint RPDO the master's trip sent: its last RPDO
+    on `rpdo_cob` (the safe stop queues it behind every control setpoint, then stops the I/O
+    threads), which must carry setpoint 0. Not "the first RPDO 0 after the fault": the
+    control command crosses zero during a run (the boom step's at ≈ 0.57 s), and such a
+    setpoint taken for the trip's made a heartbeat-loss trip look 90 ms early (issue 15)."""
+    rp = [f for f in frames if f["dir"] == "tx" and f["id"] == rpdo_cob]
+    assert rp, f"no RPDO 0x{rpdo_cob:03X} on the bus"
+    assert rp[-1]["data"] == "0000", f"last RPDO 0x{rpdo_cob:03X} is {rp[-1]}, not setpoint 0"
+    return rp[-1]["t"]

@@ -1,9 +1,10 @@
 """`ehactl diagnose` end to end: an MCAP written by `ehactl run` from a plant with a hidden
 5 ms command delay is diagnosed against the nominal test-bench config (JSON keys, cause,
-extended config runnable, report with PNG plots); bad data files exit 2 with one message."""
+extended config runnable, report with SVG plots); bad data files exit 2 with one message."""
 import json
 import os
 import pathlib
+import xml.etree.ElementTree as ET
 import subprocess
 
 import numpy as np
@@ -44,9 +45,20 @@ def test_diagnose_mcap_names_hidden_delay(tmp_path):
     assert r.returncode == 0 and "time_delay" in r.stdout, r.stdout + r.stderr
     report = pathlib.Path(d["report"]).read_text()
     assert "Cause: `time_delay`" in report
-    for png in ("traces.png", "residual.png", "residual_state.png", "frf.png"):
-        assert (out / png).stat().st_size > 10_000, png
-        assert f"]({png})" in report
+    # Plots: SVG drawn in Rust (no Python needed), parsed here by the standard XML parser.
+    for svg in ("traces.svg", "residual.svg", "residual_state.svg", "frf.svg"):
+        root = ET.parse(out / svg).getroot()
+        assert root.tag.endswith("svg"), svg
+        lines = [e for e in root.iter() if e.tag.endswith("polyline") or e.tag.endswith("path")]
+        texts = " ".join((e.text or "") for e in root.iter() if e.tag.endswith("text"))
+        assert len(lines) >= 3, (svg, len(lines))
+        assert f"]({svg})" in report
+        if svg in ("traces.svg", "frf.svg"):
+            for name in ("measured", "nominal", "extended"):
+                assert name in texts, (svg, name)
+    # The circles of the residual-versus-state scatter are data points, not decoration.
+    circles = [e for e in ET.parse(out / "residual_state.svg").getroot().iter() if e.tag.endswith("circle")]
+    assert len(circles) > 1000, len(circles)
     # Traces file: held-out flag marks the last 30 %.
     tr = np.genfromtxt(out / "traces.csv", delimiter=",", names=True)
     assert abs(tr["held_out"].mean() - 0.3) < 0.01

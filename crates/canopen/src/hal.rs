@@ -26,14 +26,15 @@
 //!   hung cycle silences it and the devices' consumers (0x1016) react;
 //! - the cycle (`read` / `write`) never touches the bus: `read` drains the RX queue
 //!   (TPDO decode, PDO age, heartbeat consumer, EMCY consumer, valve status) with the loop
-//!   time as injected time base; `write` converts the command to the spool setpoint and, when the
+//!   time as injected time base — except the heartbeat consumers, which time from each
+//!   heartbeat's receive stamp against the monotonic clock (CiA 301 §7.2.8.3.2.2); `write` converts the command to the spool setpoint and, when the
 //!   SYNC producer is due, queues RPDO1 (setpoint) then SYNC. Between SYNCs the control law
 //!   runs on held samples (sample-and-hold): CAN I/O at `sync_rate_hz`, control at
 //!   `run.control_rate_hz`.
 //!
 //! Faults become `HalError::Device`, so the loop trips, calls `safe_stop` and ends the run
-//! with the reason: heartbeat timeout (detected `heartbeat_timeout_ms` after the last
-//! heartbeat), a device leaving OPERATIONAL or rebooting, EMCY with a non-zero code, the
+//! with the reason: heartbeat timeout (detected in the first cycle more than
+//! `heartbeat_timeout_ms` after the reception of the last heartbeat), a device leaving OPERATIONAL or rebooting, EMCY with a non-zero code, the
 //! valve leaving ACTIVE or reporting a fault state (next status TPDO, i.e. within one SYNC), the
 //! bus connection dropping (next cycle), queue overflow.
 //!
@@ -110,10 +111,17 @@ struct IoShared {
 }
 
 impl IoShared {
+    /// Time of the /can log (ns since loop time 0).
     #[inline]
     fn stamp(&self, at: Instant) -> i64 {
+        self.mono(at) - self.zero_ns.load(Ordering::Relaxed)
+    }
+
+    /// ns since `epoch` (monotonic; unlike `stamp` it does not move when the first cycle
+    /// sets loop time 0): the clock of the receive stamps the heartbeat consumers use.
+    #[inline]
+    fn mono(&self, at: Instant) -> i64 {
         at.saturating_duration_since(self.epoch).as_nanos() as i64
-            - self.zero_ns.load(Ordering::Relaxed)
     }
 
     fn fail(&self, msg: String) {
@@ -150,6 +158,7 @@ pub struct CanopenHal {
     ids: [u8; 2],
     shared: Arc<IoShared>,
     frame_log: Arc<FrameLog>,
+    /// Received frames with their receive time (ns, [`IoShared::mono`]).
     rxq: Arc<ArrayQueue<(CanFrame, i64)>>,
     txq: Arc<ArrayQueue<CanFrame>>,
     rx_thread: Option<JoinHandle<Box<dyn CanBus>>>,
@@ -158,7 +167,6 @@ pub struct CanopenHal {
     bus_after_stop: Option<Box<dyn CanBus>>,
     startup_frames: Vec<(Instant, CanFrame, bool)>,
     started: bool,
-    last_read_t: f64,
     last_write_t: Option<f64>,
     sync: SyncProducer,
     /// ehactl's heartbeat frame, its producer period and the time since it was last queued (ns).
@@ -373,8 +381,11 @@ impl CanopenHal {
             HeartbeatConsumer::new(tr, hb_ns),
             HeartbeatConsumer::new(va, hb_ns),
         ];
+        // the devices were OPERATIONAL with heartbeats at the end of start-up: the windows
+        // start now (the receive clock), the devices' next heartbeats come through the RX queue
+        let armed_at = shared.mono(Instant::now());
         for h in hb.iter_mut() {
-            h.on_heartbeat(NmtState::Operational);
+            h.on_heartbeat(NmtState::Operational, armed_at);
         }
         Ok(CanopenHal {
             // the start-up's priming SYNC was SYNC 1 (for the SYNC counter)
@@ -396,7 +407,6 @@ impl CanopenHal {
                 std::mem::take(&mut st.frames)
             },
             started: false,
-            last_read_t: 0.0,
             last_write_t: None,
             hb,
             meas,
@@ -508,8 +518,10 @@ impl CanopenHal {
     }
 
     /// Handle one received frame in the cycle.
+    /// `rx_ns`: its receive time ([`IoShared::mono`]), from which the heartbeat consumer's
+    /// window runs.
     #[inline]
-    fn dispatch(&mut self, f: &CanFrame, t: f64) -> Result<(), HalError> {
+    fn dispatch(&mut self, f: &CanFrame, t: f64, rx_ns: i64) -> Result<(), HalError> {
         let id = f.id;
         if f.extended {
             self.unknown += 1;
@@ -591,7 +603,7 @@ impl CanopenHal {
                     return Ok(());
                 }
                 let st = NmtState::from_byte(f.data[0]);
-                let ev = st.and_then(|s| self.hb[d as usize].on_heartbeat(s));
+                let ev = st.and_then(|s| self.hb[d as usize].on_heartbeat(s, rx_ns));
                 match (st, ev, d) {
                     (None, _, _) => {
                         self.unknown += 1;
@@ -710,10 +722,14 @@ fn rx_loop(
     while !sh.stop.load(Ordering::Acquire) {
         match bus.recv_timeout(Duration::from_millis(20)) {
             Ok(Some(f)) => {
-                let t = sh.stamp(Instant::now());
-                log.push(record(&f, t, false));
+                let rx_ns = sh.mono(Instant::now());
+                log.push(record(
+                    &f,
+                    rx_ns - sh.zero_ns.load(Ordering::Relaxed),
+                    false,
+                ));
                 sh.rx_frames.fetch_add(1, Ordering::Relaxed);
-                if q.push((f, t)).is_err() {
+                if q.push((f, rx_ns)).is_err() {
                     sh.rx_overflow.fetch_add(1, Ordering::Relaxed);
                 }
             }
@@ -806,10 +822,13 @@ impl Hal for CanopenHal {
                 let tn = at.saturating_duration_since(self.shared.epoch).as_nanos() as i64 - zero;
                 self.frame_log.push(record(&f, tn, tx));
             }
-            self.last_read_t = t;
         }
-        let elapsed_ns = ((t - self.last_read_t).max(0.0) * 1e9) as u64;
-        self.last_read_t = t;
+        // Heartbeat consumers (CiA 301 §7.2.8.3.2.2) time from the reception of each
+        // heartbeat (the RX thread's stamp), checked against the present time on the same
+        // clock — not loop time, which lags the wall clock when the pacer skips deadlines
+        // (a consumer counting loop time trips late by the skipped time). `now` is taken
+        // before the queue is drained, so every frame taken in below was received before it.
+        let now_ns = self.shared.mono(Instant::now());
         if let Some(e) = self.fault {
             return Err(e);
         }
@@ -819,8 +838,8 @@ impl Hal for CanopenHal {
         if self.shared.rx_overflow.load(Ordering::Relaxed) > 0 {
             return Err(self.trip(t, 0, "CAN receive queue overflow", f64::NAN, ""));
         }
-        while let Some((f, _)) = self.rxq.pop() {
-            self.dispatch(&f, t)?;
+        while let Some((f, rx_ns)) = self.rxq.pop() {
+            self.dispatch(&f, t, rx_ns)?;
         }
         // Start-up grace: until the transducer's first TPDO of the loop has arrived, at most
         // `heartbeat_timeout_ms` of loop time, the primed position counts as fresh, so the
@@ -834,7 +853,7 @@ impl Hal for CanopenHal {
             }
         }
         for i in 0..2 {
-            if let Some(HeartbeatEvent::Timeout { silent_ns }) = self.hb[i].process(elapsed_ns) {
+            if let Some(HeartbeatEvent::Timeout { silent_ns }) = self.hb[i].process(now_ns) {
                 let what = if i == 0 {
                     "transducer heartbeat lost (consumer timeout)"
                 } else {

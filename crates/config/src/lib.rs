@@ -461,7 +461,7 @@ pub const CONTROL_PARAMS: &[Param] = &[
 
 /// All registries (plant, control/run, CANopen), for lookups.
 pub fn registries() -> [&'static [Param]; 3] {
-    [spec::PARAMS, CONTROL_PARAMS, CANOPEN_PARAMS]
+    [spec::params(), CONTROL_PARAMS, CANOPEN_PARAMS]
 }
 
 const RIG_KEYS: [&str; 8] = [

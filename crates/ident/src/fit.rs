@@ -3,12 +3,14 @@
 
 use crate::analysis::Analysis;
 use crate::data::Record;
+use ehactl_plant::params::Effects;
 use ehactl_plant::params::{
     BulkModulusPressure, BulkVariant, DeadbandVariant, FlexibleMount, Friction, FrictionVariant,
     Leakage, LeakageVariant, LineDynamics, MountVariant, SaturationVariant, SensorChannel,
     SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband, ValveDynamics,
     ValveSaturation,
 };
+use ehactl_plant::spec::ParamTree;
 use ehactl_plant::{EffectId, PlantParams};
 use std::sync::Arc;
 
@@ -75,6 +77,62 @@ impl FreeParam {
     }
 }
 
+impl FreeParam {
+    /// The declared float parameter at `path` (bounds, log scale, start value), written
+    /// through the accessor `#[derive(Params)]` generates from its field declaration; see
+    /// [`write`].
+    fn at(path: &'static str, bounds: (f64, f64, bool, f64), seed: &PlantParams) -> Self {
+        Self::at_then(path, bounds, seed, |_| {})
+    }
+    /// As [`FreeParam::at`], then `then` (structural variant, coupled fields).
+    fn at_then(
+        path: &'static str,
+        (lo, hi, log, init): (f64, f64, bool, f64),
+        seed: &PlantParams,
+        then: impl Fn(&mut PlantParams) + Send + Sync + 'static,
+    ) -> Self {
+        Self::new(path, lo, hi, log, init, write(path, seed, then))
+    }
+}
+
+/// Setter of the declared float parameter at `path` (`ehactl_plant::spec::ParamTree`): an
+/// effect section the parameters lack is first copied from `seed` (the section the fit starts
+/// from), the value is written, the effect is switched on (`enabled = true`), then `then`
+/// runs. The path is checked against the registry when the fit is set up (debug builds) and
+/// by `every_setter_writes_its_declared_parameter` below.
+fn write(
+    path: &'static str,
+    seed: &PlantParams,
+    then: impl Fn(&mut PlantParams) + Send + Sync + 'static,
+) -> Setter {
+    debug_assert!(
+        PlantParams::knows(path),
+        "{path} is not a declared parameter"
+    );
+    let id = path
+        .strip_prefix("effects.")
+        .and_then(|r| r.split('.').next())
+        .and_then(EffectId::parse);
+    let seed = seed.clone();
+    Arc::new(move |p, v| {
+        // Cannot fail for a declared path whose section `seed` holds (tested below).
+        let written = p.set_path_or_insert(path, v, &seed);
+        debug_assert!(written.is_ok(), "{written:?}");
+        if let Some(on) = id.and_then(|id| p.effects.enabled_mut(id)) {
+            *on = true;
+        }
+        then(p);
+    })
+}
+
+/// `nominal` with its effect sections changed by `f`: the seed a fit's setters copy an
+/// absent section from.
+fn seeded(nominal: &PlantParams, f: impl FnOnce(&mut Effects)) -> PlantParams {
+    let mut seed = nominal.clone();
+    f(&mut seed.effects);
+    seed
+}
+
 /// Scales of the rig used to bound effect parameters.
 #[derive(Debug, Clone, Copy)]
 pub struct Scales {
@@ -131,20 +189,26 @@ pub fn base_params(nominal: &PlantParams) -> Vec<FreeParam> {
                     hi / v,
                     false,
                     1.0,
-                    Arc::new(move |p, s| p.set_nominal_value(path, v * s)),
+                    write_nominal(path, move |s| v * s),
                 )
             } else {
-                FreeParam::new(
-                    path,
-                    lo,
-                    hi,
-                    false,
-                    v,
-                    Arc::new(move |p, x| p.set_nominal_value(path, x)),
-                )
+                FreeParam::new(path, lo, hi, false, v, write_nominal(path, |x| x))
             }
         })
         .collect()
+}
+
+/// Setter of a nominal parameter (`UNCERTAIN_PARAMS` path, always present) through the
+/// declared-parameter accessor; `value` maps the free coordinate to the parameter value.
+fn write_nominal(path: &'static str, value: impl Fn(f64) -> f64 + Send + Sync + 'static) -> Setter {
+    debug_assert!(
+        PlantParams::knows(path),
+        "{path} is not a declared parameter"
+    );
+    Arc::new(move |p, s| {
+        let written = p.set_path(path, value(s));
+        debug_assert!(written.is_ok(), "{written:?}");
+    })
 }
 
 /// The structural variants of effect `e` to fit (DIAGNOSIS.md "Effect variants"): variant
@@ -161,7 +225,6 @@ pub fn effect_variants(
     let Some(first) = effect_params(e, nominal, sc, an) else {
         return Vec::new();
     };
-    let p = FreeParam::new;
     let mut out = Vec::new();
     match e {
         EffectId::Friction => {
@@ -174,44 +237,41 @@ pub fn effect_variants(
                     .friction
                     .as_ref()
                     .map_or(0.005 * sc.force, |f| f.coulomb_force.max(1e-3 * sc.force));
-                let base = Friction {
-                    enabled: true,
-                    variant: FrictionVariant::LoadCoulomb,
-                    static_force: c0,
-                    coulomb_force: c0,
-                    stribeck_velocity: 0.005,
-                    viscous: 0.0,
+                let seed = seeded(nominal, |e| {
+                    e.friction = Some(Friction {
+                        enabled: true,
+                        variant: FrictionVariant::LoadCoulomb,
+                        static_force: c0,
+                        coulomb_force: c0,
+                        stribeck_velocity: 0.005,
+                        viscous: 0.0,
+                    })
+                });
+                let variant = |p: &mut PlantParams| {
+                    if let Some(f) = p.effects.friction.as_mut() {
+                        f.variant = FrictionVariant::LoadCoulomb;
+                    }
                 };
-                let (a, b) = (base.clone(), base);
                 out.push((
                     "load_coulomb",
                     vec![
-                        p(
+                        // No stick: the breakaway force equals the Coulomb force.
+                        FreeParam::at_then(
                             "effects.friction.coulomb_force",
-                            1e-4 * sc.force,
-                            0.1 * sc.force,
-                            true,
-                            c0,
-                            Arc::new(move |p, v| {
-                                let f = p.effects.friction.get_or_insert_with(|| a.clone());
-                                f.enabled = true;
-                                f.variant = FrictionVariant::LoadCoulomb;
-                                f.coulomb_force = v;
-                                f.static_force = v;
-                            }),
+                            (1e-4 * sc.force, 0.1 * sc.force, true, c0),
+                            &seed,
+                            move |p| {
+                                variant(p);
+                                if let Some(f) = p.effects.friction.as_mut() {
+                                    f.static_force = f.coulomb_force;
+                                }
+                            },
                         ),
-                        p(
+                        FreeParam::at_then(
                             "effects.friction.stribeck_velocity",
-                            2e-4,
-                            0.05,
-                            true,
-                            0.005,
-                            Arc::new(move |p, v| {
-                                let f = p.effects.friction.get_or_insert_with(|| b.clone());
-                                f.enabled = true;
-                                f.variant = FrictionVariant::LoadCoulomb;
-                                f.stribeck_velocity = v;
-                            }),
+                            (2e-4, 0.05, true, 0.005),
+                            &seed,
+                            variant,
                         ),
                     ],
                 ));
@@ -230,36 +290,33 @@ pub fn effect_variants(
                     overlap: 0.0,
                     zero_offset: 0.0,
                 });
-                let (a, b) = (d0.clone(), d0.clone());
+                let (dz, zo) = (d0.deadzone.max(0.02), d0.zero_offset);
+                let seed = seeded(nominal, |e| e.valve_deadband = Some(d0));
+                let variant = |p: &mut PlantParams| {
+                    if let Some(d) = p.effects.valve_deadband.as_mut() {
+                        d.variant = DeadbandVariant::Amplifier;
+                    }
+                };
                 out.push((
                     "amplifier",
                     vec![
-                        p(
+                        // The amplifier's dead zone sits ahead of an underlapped spool.
+                        FreeParam::at_then(
                             "effects.valve_deadband.deadzone",
-                            0.0,
-                            0.3,
-                            false,
-                            d0.deadzone.max(0.02),
-                            Arc::new(move |p, v| {
-                                let d = p.effects.valve_deadband.get_or_insert_with(|| a.clone());
-                                d.enabled = true;
-                                d.variant = DeadbandVariant::Amplifier;
-                                d.overlap = 0.0;
-                                d.deadzone = v;
-                            }),
+                            (0.0, 0.3, false, dz),
+                            &seed,
+                            move |p| {
+                                variant(p);
+                                if let Some(d) = p.effects.valve_deadband.as_mut() {
+                                    d.overlap = 0.0;
+                                }
+                            },
                         ),
-                        p(
+                        FreeParam::at_then(
                             "effects.valve_deadband.zero_offset",
-                            -0.05,
-                            0.05,
-                            false,
-                            d0.zero_offset,
-                            Arc::new(move |p, v| {
-                                let d = p.effects.valve_deadband.get_or_insert_with(|| b.clone());
-                                d.enabled = true;
-                                d.variant = DeadbandVariant::Amplifier;
-                                d.zero_offset = v;
-                            }),
+                            (-0.05, 0.05, false, zo),
+                            &seed,
+                            variant,
                         ),
                     ],
                 ));
@@ -278,35 +335,27 @@ pub fn effect_variants(
                     spool_limit_negative: 1.0,
                     max_flow: 0.0,
                 });
-                let (a, b) = (s0.clone(), s0.clone());
+                let (pos, neg) = (s0.spool_limit.min(0.9), s0.spool_limit_negative.min(0.9));
+                let seed = seeded(nominal, |e| e.valve_saturation = Some(s0));
+                let variant = |p: &mut PlantParams| {
+                    if let Some(s) = p.effects.valve_saturation.as_mut() {
+                        s.variant = SaturationVariant::Asymmetric;
+                    }
+                };
                 out.push((
                     "asymmetric",
                     vec![
-                        p(
+                        FreeParam::at_then(
                             "effects.valve_saturation.spool_limit",
-                            0.05,
-                            1.0,
-                            false,
-                            s0.spool_limit.min(0.9),
-                            Arc::new(move |p, v| {
-                                let s = p.effects.valve_saturation.get_or_insert_with(|| a.clone());
-                                s.enabled = true;
-                                s.variant = SaturationVariant::Asymmetric;
-                                s.spool_limit = v;
-                            }),
+                            (0.05, 1.0, false, pos),
+                            &seed,
+                            variant,
                         ),
-                        p(
+                        FreeParam::at_then(
                             "effects.valve_saturation.spool_limit_negative",
-                            0.05,
-                            1.0,
-                            false,
-                            s0.spool_limit_negative.min(0.9),
-                            Arc::new(move |p, v| {
-                                let s = p.effects.valve_saturation.get_or_insert_with(|| b.clone());
-                                s.enabled = true;
-                                s.variant = SaturationVariant::Asymmetric;
-                                s.spool_limit_negative = v;
-                            }),
+                            (0.05, 1.0, false, neg),
+                            &seed,
+                            variant,
                         ),
                     ],
                 ));
@@ -319,48 +368,36 @@ pub fn effect_variants(
             }
             if cur.is_none() || cur == Some(LeakageVariant::PerChamber) {
                 let kc = sc.flow / sc.pressure;
-                let l0 = ef.external_leakage.clone();
-                let ia = l0
-                    .as_ref()
-                    .map_or(0.01 * kc, |l| l.coefficient.max(1e-5 * kc));
-                let ib = l0
-                    .as_ref()
-                    .map_or(0.01 * kc, |l| l.coefficient_b.max(1e-5 * kc));
-                let set = |b_side: bool| -> Setter {
-                    Arc::new(move |p, v| {
-                        let l = p.effects.external_leakage.get_or_insert(Leakage {
-                            enabled: true,
-                            variant: LeakageVariant::PerChamber,
-                            coefficient: 0.0,
-                            coefficient_b: 0.0,
-                        });
-                        l.enabled = true;
-                        l.variant = LeakageVariant::PerChamber;
-                        if b_side {
-                            l.coefficient_b = v;
-                        } else {
-                            l.coefficient = v;
-                        }
+                let l0 = ef.external_leakage.as_ref();
+                let ia = l0.map_or(0.01 * kc, |l| l.coefficient.max(1e-5 * kc));
+                let ib = l0.map_or(0.01 * kc, |l| l.coefficient_b.max(1e-5 * kc));
+                let seed = seeded(nominal, |e| {
+                    e.external_leakage = Some(Leakage {
+                        enabled: true,
+                        variant: LeakageVariant::PerChamber,
+                        coefficient: 0.0,
+                        coefficient_b: 0.0,
                     })
+                });
+                let variant = |p: &mut PlantParams| {
+                    if let Some(l) = p.effects.external_leakage.as_mut() {
+                        l.variant = LeakageVariant::PerChamber;
+                    }
                 };
                 out.push((
                     "per_chamber",
                     vec![
-                        p(
+                        FreeParam::at_then(
                             "effects.external_leakage.coefficient",
-                            1e-5 * kc,
-                            kc,
-                            true,
-                            ia,
-                            set(false),
+                            (1e-5 * kc, kc, true, ia),
+                            &seed,
+                            variant,
                         ),
-                        p(
+                        FreeParam::at_then(
                             "effects.external_leakage.coefficient_b",
-                            1e-5 * kc,
-                            kc,
-                            true,
-                            ib,
-                            set(true),
+                            (1e-5 * kc, kc, true, ib),
+                            &seed,
+                            variant,
                         ),
                     ],
                 ));
@@ -384,23 +421,18 @@ pub fn effect_variants(
                         max: 2.2e9,
                     });
                 let init = b0.air_fraction.max(1e-3);
+                let seed = seeded(nominal, |e| e.bulk_modulus_pressure = Some(b0));
                 out.push((
                     "entrained_air",
-                    vec![p(
+                    vec![FreeParam::at_then(
                         "effects.bulk_modulus_pressure.air_fraction",
-                        1e-5,
-                        0.1,
-                        true,
-                        init,
-                        Arc::new(move |p, v| {
-                            let b = p
-                                .effects
-                                .bulk_modulus_pressure
-                                .get_or_insert_with(|| b0.clone());
-                            b.enabled = true;
-                            b.variant = BulkVariant::EntrainedAir;
-                            b.air_fraction = v;
-                        }),
+                        (1e-5, 0.1, true, init),
+                        &seed,
+                        |p| {
+                            if let Some(b) = p.effects.bulk_modulus_pressure.as_mut() {
+                                b.variant = BulkVariant::EntrainedAir;
+                            }
+                        },
                     )],
                 ));
             }
@@ -452,48 +484,33 @@ pub fn effect_variants(
                         regulation_band: 0.05 * sc.pressure,
                         volume: 5e-4,
                     });
-                let set = |which: u8| -> Setter {
-                    let s0 = s0.clone();
-                    Arc::new(move |p, v| {
-                        let s = p
-                            .effects
-                            .supply_pressure_drop
-                            .get_or_insert_with(|| s0.clone());
-                        s.enabled = true;
+                let (q0, band0, v0) = (s0.max_flow, s0.regulation_band, s0.volume);
+                let seed = seeded(nominal, |e| e.supply_pressure_drop = Some(s0));
+                let variant = |p: &mut PlantParams| {
+                    if let Some(s) = p.effects.supply_pressure_drop.as_mut() {
                         s.variant = SupplyVariant::PumpLimit;
-                        match which {
-                            0 => s.max_flow = v,
-                            1 => s.regulation_band = v,
-                            _ => s.volume = v,
-                        }
-                    })
+                    }
                 };
                 out.push((
                     "pump_limit",
                     vec![
-                        p(
+                        FreeParam::at_then(
                             "effects.supply_pressure_drop.max_flow",
-                            0.2 * sc.flow,
-                            4.0 * sc.flow,
-                            true,
-                            s0.max_flow,
-                            set(0),
+                            (0.2 * sc.flow, 4.0 * sc.flow, true, q0),
+                            &seed,
+                            variant,
                         ),
-                        p(
+                        FreeParam::at_then(
                             "effects.supply_pressure_drop.regulation_band",
-                            0.005 * sc.pressure,
-                            0.5 * sc.pressure,
-                            true,
-                            s0.regulation_band,
-                            set(1),
+                            (0.005 * sc.pressure, 0.5 * sc.pressure, true, band0),
+                            &seed,
+                            variant,
                         ),
-                        p(
+                        FreeParam::at_then(
                             "effects.supply_pressure_drop.volume",
-                            2e-5,
-                            1e-2,
-                            true,
-                            s0.volume,
-                            set(2),
+                            (2e-5, 1e-2, true, v0),
+                            &seed,
+                            variant,
                         ),
                     ],
                 ));
@@ -515,25 +532,19 @@ pub fn effect_params(
     an: &Analysis,
 ) -> Option<Vec<FreeParam>> {
     let ef = &nominal.effects;
-    let p = |name: &str, lo: f64, hi: f64, log: bool, init: f64, set: Setter| {
-        FreeParam::new(name, lo, hi, log, init, set)
-    };
+    let at = FreeParam::at;
     Some(match e {
         EffectId::Friction => {
-            let f0 = ef.friction.clone().unwrap_or(Friction {
-                enabled: true,
-                variant: FrictionVariant::Stribeck,
-                static_force: 0.0,
-                coulomb_force: 0.0,
-                stribeck_velocity: 0.01,
-                viscous: 0.0,
+            let seed = seeded(nominal, |e| {
+                e.friction.get_or_insert(Friction {
+                    enabled: true,
+                    variant: FrictionVariant::Stribeck,
+                    static_force: 0.0,
+                    coulomb_force: 0.0,
+                    stribeck_velocity: 0.01,
+                    viscous: 0.0,
+                });
             });
-            fn fr<'a>(p: &'a mut PlantParams, f0: &Friction) -> &'a mut Friction {
-                let f = p.effects.friction.get_or_insert_with(|| f0.clone());
-                f.enabled = true;
-                f
-            }
-            let (g1, g2, g3) = (f0.clone(), f0.clone(), f0.clone());
             let c0 = ef
                 .friction
                 .as_ref()
@@ -543,36 +554,34 @@ pub fn effect_params(
                 .as_ref()
                 .map_or(1.2, |f| f.static_force / f.coulomb_force.max(1e-9));
             vec![
-                p(
+                // The Coulomb level moves the breakaway force with it (ratio kept by the next).
+                FreeParam::at_then(
                     "effects.friction.coulomb_force",
-                    1e-4 * sc.force,
-                    0.1 * sc.force,
-                    true,
-                    c0,
-                    Arc::new(move |p, v| {
-                        let f = fr(p, &g1);
-                        f.coulomb_force = v;
-                        f.static_force = v;
-                    }),
+                    (1e-4 * sc.force, 0.1 * sc.force, true, c0),
+                    &seed,
+                    |p| {
+                        if let Some(f) = p.effects.friction.as_mut() {
+                            f.static_force = f.coulomb_force;
+                        }
+                    },
                 ),
-                p(
+                // A ratio, not a declared parameter: the value written is scaled to F_s = ratio·F_C.
+                FreeParam::new(
                     "effects.friction.static_force/coulomb_force",
                     1.0,
                     2.5,
                     false,
                     r0,
-                    Arc::new(move |p, v| {
-                        let f = fr(p, &g2);
-                        f.static_force = f.coulomb_force * v;
+                    write("effects.friction.static_force", &seed, |p| {
+                        if let Some(f) = p.effects.friction.as_mut() {
+                            f.static_force *= f.coulomb_force;
+                        }
                     }),
                 ),
-                p(
+                at(
                     "effects.friction.stribeck_velocity",
-                    1e-3,
-                    0.1,
-                    true,
-                    0.01,
-                    Arc::new(move |p, v| fr(p, &g3).stribeck_velocity = v),
+                    (1e-3, 0.1, true, 0.01),
+                    &seed,
                 ),
             ]
         }
@@ -584,31 +593,18 @@ pub fn effect_params(
                 overlap: 0.0,
                 zero_offset: 0.0,
             });
-            let (d1, d2) = (d0.clone(), d0.clone());
+            let (overlap, zero_offset) = (d0.overlap.max(0.02), d0.zero_offset);
+            let seed = seeded(nominal, |e| e.valve_deadband = Some(d0));
             vec![
-                p(
+                at(
                     "effects.valve_deadband.overlap",
-                    0.0,
-                    0.3,
-                    false,
-                    d0.overlap.max(0.02),
-                    Arc::new(move |p, v| {
-                        let d = p.effects.valve_deadband.get_or_insert_with(|| d1.clone());
-                        d.enabled = true;
-                        d.overlap = v;
-                    }),
+                    (0.0, 0.3, false, overlap),
+                    &seed,
                 ),
-                p(
+                at(
                     "effects.valve_deadband.zero_offset",
-                    -0.05,
-                    0.05,
-                    false,
-                    d0.zero_offset,
-                    Arc::new(move |p, v| {
-                        let d = p.effects.valve_deadband.get_or_insert_with(|| d2.clone());
-                        d.enabled = true;
-                        d.zero_offset = v;
-                    }),
+                    (-0.05, 0.05, false, zero_offset),
+                    &seed,
                 ),
             ]
         }
@@ -621,32 +617,21 @@ pub fn effect_params(
                 max_flow: 0.0,
             });
             let init = s0.spool_limit.min(0.9);
-            vec![p(
+            let seed = seeded(nominal, |e| e.valve_saturation = Some(s0));
+            vec![at(
                 "effects.valve_saturation.spool_limit",
-                0.05,
-                1.0,
-                false,
-                init,
-                Arc::new(move |p, v| {
-                    let s = p.effects.valve_saturation.get_or_insert_with(|| s0.clone());
-                    s.enabled = true;
-                    s.spool_limit = v;
-                }),
+                (0.05, 1.0, false, init),
+                &seed,
             )]
         }
         EffectId::ValveDynamics => match ef.valve_dynamics.clone() {
             Some(d) if d.order == 1 => {
-                vec![p(
+                let init = d.time_constant;
+                let seed = seeded(nominal, |e| e.valve_dynamics = Some(d));
+                vec![at(
                     "effects.valve_dynamics.time_constant",
-                    1e-4,
-                    0.3,
-                    true,
-                    d.time_constant,
-                    Arc::new(move |p, v| {
-                        let s = p.effects.valve_dynamics.get_or_insert_with(|| d.clone());
-                        s.enabled = true;
-                        s.time_constant = v;
-                    }),
+                    (1e-4, 0.3, true, init),
+                    &seed,
                 )]
             }
             other => {
@@ -662,36 +647,35 @@ pub fn effect_params(
                 } else {
                     (std::f64::consts::TAU * (0.1 / sc.dt).min(200.0), 0.7)
                 };
-                let (a, b) = (d0.clone(), d0);
+                let seed = seeded(nominal, |e| e.valve_dynamics = Some(d0));
                 vec![
-                    p(
+                    FreeParam::at_then(
                         "effects.valve_dynamics.natural_frequency",
-                        std::f64::consts::TAU * 1.0,
-                        std::f64::consts::TAU * (0.5 / sc.dt).min(3000.0),
-                        true,
-                        w0,
-                        Arc::new(move |p, v| {
-                            let s = p.effects.valve_dynamics.get_or_insert_with(|| a.clone());
-                            s.enabled = true;
-                            s.order = 2;
-                            s.natural_frequency = v;
-                            if s.damping_ratio <= 0.0 {
-                                s.damping_ratio = 0.7;
+                        (
+                            std::f64::consts::TAU * 1.0,
+                            std::f64::consts::TAU * (0.5 / sc.dt).min(3000.0),
+                            true,
+                            w0,
+                        ),
+                        &seed,
+                        |p| {
+                            if let Some(s) = p.effects.valve_dynamics.as_mut() {
+                                s.order = 2;
+                                if s.damping_ratio <= 0.0 {
+                                    s.damping_ratio = 0.7;
+                                }
                             }
-                        }),
+                        },
                     ),
-                    p(
+                    FreeParam::at_then(
                         "effects.valve_dynamics.damping_ratio",
-                        0.2,
-                        2.0,
-                        false,
-                        z0,
-                        Arc::new(move |p, v| {
-                            let s = p.effects.valve_dynamics.get_or_insert_with(|| b.clone());
-                            s.enabled = true;
-                            s.order = 2;
-                            s.damping_ratio = v;
-                        }),
+                        (0.2, 2.0, false, z0),
+                        &seed,
+                        |p| {
+                            if let Some(s) = p.effects.valve_dynamics.as_mut() {
+                                s.order = 2;
+                            }
+                        },
                     ),
                 ]
             }
@@ -707,33 +691,24 @@ pub fn effect_params(
             let init = cur
                 .as_ref()
                 .map_or(0.01 * kc, |l| l.coefficient.max(1e-6 * kc));
-            let name = if internal {
-                "effects.internal_leakage.coefficient"
-            } else {
-                "effects.external_leakage.coefficient"
+            let fresh = Leakage {
+                enabled: true,
+                variant: LeakageVariant::Equal,
+                coefficient: init,
+                coefficient_b: 0.0,
             };
-            vec![p(
-                name,
-                1e-5 * kc,
-                1.0 * kc,
-                true,
-                init,
-                Arc::new(move |p, v| {
-                    let slot = if internal {
-                        &mut p.effects.internal_leakage
-                    } else {
-                        &mut p.effects.external_leakage
-                    };
-                    let l = slot.get_or_insert(Leakage {
-                        enabled: true,
-                        variant: LeakageVariant::Equal,
-                        coefficient: v,
-                        coefficient_b: 0.0,
-                    });
-                    l.enabled = true;
-                    l.coefficient = v;
-                }),
-            )]
+            let (name, seed) = if internal {
+                let s = seeded(nominal, |e| {
+                    e.internal_leakage.get_or_insert(fresh);
+                });
+                ("effects.internal_leakage.coefficient", s)
+            } else {
+                let s = seeded(nominal, |e| {
+                    e.external_leakage.get_or_insert(fresh);
+                });
+                ("effects.external_leakage.coefficient", s)
+            };
+            vec![at(name, (1e-5 * kc, 1.0 * kc, true, init), &seed)]
         }
         EffectId::BulkModulusPressure => {
             let b0 = nominal.fluid.bulk_modulus;
@@ -749,20 +724,11 @@ pub fn effect_params(
                     max: (2.2e9f64).max(1.6 * b0),
                 });
             let init = cur.slope.max(5.0);
-            vec![p(
+            let seed = seeded(nominal, |e| e.bulk_modulus_pressure = Some(cur));
+            vec![at(
                 "effects.bulk_modulus_pressure.slope",
-                0.0,
-                400.0,
-                false,
-                init,
-                Arc::new(move |p, v| {
-                    let b = p
-                        .effects
-                        .bulk_modulus_pressure
-                        .get_or_insert_with(|| cur.clone());
-                    b.enabled = true;
-                    b.slope = v;
-                }),
+                (0.0, 400.0, false, init),
+                &seed,
             )]
         }
         EffectId::LineDynamics => {
@@ -775,31 +741,14 @@ pub fn effect_params(
                 port_volume: 0.0,
                 friction: Default::default(),
             });
-            let (a, b) = (cur.clone(), cur.clone());
+            let (l0, d0) = (cur.length, cur.diameter);
+            let seed = seeded(nominal, |e| e.line_dynamics = Some(cur));
             vec![
-                p(
-                    "effects.line_dynamics.length",
-                    0.1,
-                    15.0,
-                    true,
-                    cur.length,
-                    Arc::new(move |p, v| {
-                        let l = p.effects.line_dynamics.get_or_insert_with(|| a.clone());
-                        l.enabled = true;
-                        l.length = v;
-                    }),
-                ),
-                p(
+                at("effects.line_dynamics.length", (0.1, 15.0, true, l0), &seed),
+                at(
                     "effects.line_dynamics.diameter",
-                    2e-3,
-                    3e-2,
-                    true,
-                    cur.diameter,
-                    Arc::new(move |p, v| {
-                        let l = p.effects.line_dynamics.get_or_insert_with(|| b.clone());
-                        l.enabled = true;
-                        l.diameter = v;
-                    }),
+                    (2e-3, 3e-2, true, d0),
+                    &seed,
                 ),
             ]
         }
@@ -821,42 +770,30 @@ pub fn effect_params(
                 stiffness: k0,
                 damping: 0.0,
             });
-            let (a, b, c) = (base.clone(), base.clone(), base);
+            let seed = seeded(nominal, |e| e.flexible_mount = Some(base));
             vec![
-                p(
+                at(
                     "effects.flexible_mount.load_mass",
-                    0.02 * sc.mass,
-                    20.0 * sc.mass,
-                    true,
-                    m0,
-                    Arc::new(move |p, v| {
-                        let m = p.effects.flexible_mount.get_or_insert_with(|| a.clone());
-                        m.enabled = true;
-                        m.load_mass = v;
-                    }),
+                    (0.02 * sc.mass, 20.0 * sc.mass, true, m0),
+                    &seed,
                 ),
-                p(
+                at(
                     "effects.flexible_mount.stiffness",
-                    1e-3 * sc.stiffness,
-                    10.0 * sc.stiffness,
-                    true,
-                    k0,
-                    Arc::new(move |p, v| {
-                        let m = p.effects.flexible_mount.get_or_insert_with(|| b.clone());
-                        m.enabled = true;
-                        m.stiffness = v;
-                    }),
+                    (1e-3 * sc.stiffness, 10.0 * sc.stiffness, true, k0),
+                    &seed,
                 ),
-                p(
+                // A damping ratio, not a declared parameter: the value written is scaled to
+                // d_m = ζ·2√(k_m·m_L).
+                FreeParam::new(
                     "effects.flexible_mount.damping/critical",
                     0.005,
                     2.0,
                     true,
                     z0,
-                    Arc::new(move |p, v| {
-                        let m = p.effects.flexible_mount.get_or_insert_with(|| c.clone());
-                        m.enabled = true;
-                        m.damping = v * 2.0 * (m.stiffness * m.load_mass).sqrt();
+                    write("effects.flexible_mount.damping", &seed, |p| {
+                        if let Some(m) = p.effects.flexible_mount.as_mut() {
+                            m.damping = m.damping * 2.0 * (m.stiffness * m.load_mass).sqrt();
+                        }
                     }),
                 ),
             ]
@@ -864,20 +801,16 @@ pub fn effect_params(
         EffectId::TimeDelay => {
             let cur = ef.time_delay.as_ref().map_or(0.0, |d| d.delay);
             let init = if cur > 0.0 { cur } else { an.lag.max(sc.dt) };
-            vec![p(
+            let seed = seeded(nominal, |e| {
+                e.time_delay.get_or_insert(TimeDelay {
+                    enabled: true,
+                    delay: init,
+                });
+            });
+            vec![at(
                 "effects.time_delay.delay",
-                0.0,
-                (60.0 * sc.dt).min(0.2),
-                false,
-                init,
-                Arc::new(move |p, v| {
-                    let d = p.effects.time_delay.get_or_insert(TimeDelay {
-                        enabled: true,
-                        delay: v,
-                    });
-                    d.enabled = true;
-                    d.delay = v;
-                }),
+                (0.0, (60.0 * sc.dt).min(0.2), false, init),
+                &seed,
             )]
         }
         EffectId::SensorTone => {
@@ -909,7 +842,7 @@ pub fn effect_params(
             let mut v = Vec::new();
             for (i, l) in lines.iter().enumerate() {
                 let (a, b) = (base.clone(), base.clone());
-                v.push(p(
+                v.push(FreeParam::new(
                     &format!("effects.sensor_tone.frequencies[{i}]"),
                     (l.frequency - df).max(0.1),
                     l.frequency + df,
@@ -938,7 +871,7 @@ pub fn effect_params(
                     t.amplitudes[i] = a_s.hypot(a_c);
                     t.phases[i] = a_c.atan2(a_s);
                 };
-                v.push(p(
+                v.push(FreeParam::new(
                     &format!("effects.sensor_tone.sine_amplitudes[{i}]"),
                     -4.0 * l.amplitude,
                     4.0 * l.amplitude,
@@ -949,7 +882,7 @@ pub fn effect_params(
                         set_sc(t, i, Some(x), None);
                     }),
                 ));
-                v.push(p(
+                v.push(FreeParam::new(
                     &format!("effects.sensor_tone.cosine_amplitudes[{i}]"),
                     -4.0 * l.amplitude,
                     4.0 * l.amplitude,
@@ -977,37 +910,18 @@ pub fn effect_params(
                     regulation_band: 0.0,
                     volume: 0.0,
                 });
-            let (a, b) = (cur.clone(), cur.clone());
+            let (r0, t0) = (cur.resistance, cur.time_constant);
+            let seed = seeded(nominal, |e| e.supply_pressure_drop = Some(cur));
             vec![
-                p(
+                at(
                     "effects.supply_pressure_drop.resistance",
-                    1e-3 * r_s,
-                    2.0 * r_s,
-                    true,
-                    cur.resistance,
-                    Arc::new(move |p, v| {
-                        let s = p
-                            .effects
-                            .supply_pressure_drop
-                            .get_or_insert_with(|| a.clone());
-                        s.enabled = true;
-                        s.resistance = v;
-                    }),
+                    (1e-3 * r_s, 2.0 * r_s, true, r0),
+                    &seed,
                 ),
-                p(
+                at(
                     "effects.supply_pressure_drop.time_constant",
-                    1e-3,
-                    1.0,
-                    true,
-                    cur.time_constant,
-                    Arc::new(move |p, v| {
-                        let s = p
-                            .effects
-                            .supply_pressure_drop
-                            .get_or_insert_with(|| b.clone());
-                        s.enabled = true;
-                        s.time_constant = v;
-                    }),
+                    (1e-3, 1.0, true, t0),
+                    &seed,
                 ),
             ]
         }
@@ -1115,4 +1029,78 @@ pub fn nelder_mead(
     simplex.sort_by(|a, b| a.1.total_cmp(&b.1));
     let (x, v) = simplex.swap_remove(0);
     (x, v, evals)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::Peak;
+
+    fn analysis() -> Analysis {
+        Analysis {
+            nrmse: vec![0.1],
+            noise: vec![0.0],
+            reversal_ratio: 1.0,
+            small_command_ratio: 1.0,
+            large_command_ratio: 1.0,
+            bias_share: None,
+            lag: 1e-3,
+            tones: vec![Peak {
+                channel: "force",
+                frequency: 225.0,
+                amplitude: 3.0,
+                prominence: 50.0,
+            }],
+            mode_frequency: 30.0,
+            mode_ratio: 2.0,
+            prior: Vec::new(),
+        }
+    }
+
+    /// Every free parameter named by a declared path writes exactly that parameter and
+    /// switches its effect on, from every shipped config, with the section present
+    /// (configured) and absent (copied from the fit's seed).
+    #[test]
+    fn every_setter_writes_its_declared_parameter() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        let mut checked = 0;
+        for entry in std::fs::read_dir(dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_none_or(|e| e != "toml") {
+                continue;
+            }
+            let nominal = ehactl_config::RigConfig::load(&path).unwrap().plant;
+            let sc = Scales {
+                force: 1e4,
+                flow: 1e-4,
+                pressure: 1e7,
+                mass: 10.0,
+                stiffness: 1e7,
+                dt: 2e-4,
+            };
+            for &e in EffectId::ALL.iter() {
+                for (variant, params) in effect_variants(e, &nominal, &sc, &analysis()) {
+                    for fp in params {
+                        let v = fp.from_unit(0.37);
+                        for start in [nominal.clone(), {
+                            let mut p = nominal.clone();
+                            p.effects = Default::default();
+                            p
+                        }] {
+                            let mut p = start;
+                            (fp.set)(&mut p, v);
+                            let what = format!("{} {e} {variant} {}", path.display(), fp.name);
+                            assert!(p.effects.is_enabled(e), "{what}: not switched on");
+                            if !fp.name.contains(['/', '[']) {
+                                assert!(PlantParams::knows(&fp.name), "{what}");
+                                assert_eq!(p.get_path(&fp.name), Some(v), "{what}");
+                                checked += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(checked > 200, "{checked} checks");
+    }
 }

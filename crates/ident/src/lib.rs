@@ -19,6 +19,7 @@ pub mod diagnose;
 pub mod fit;
 pub mod greybox;
 pub mod indep;
+pub mod plots;
 pub mod replay;
 pub mod report;
 pub mod residual;

@@ -1,5 +1,5 @@
-//! Report output: extended config (TOML runnable by `ehactl run`), trace CSVs for the plots
-//! (drawn by `scripts/diagnose_plots.py` with matplotlib) and the Markdown report.
+//! Report output: extended config (TOML runnable by `ehactl run`), trace CSVs, the SVG plots
+//! ([`crate::plots`]) and the Markdown report.
 
 use crate::data::Record;
 use crate::diagnose::Diagnosis;
@@ -8,9 +8,6 @@ use ehactl_config::RigConfig;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// The plot script, embedded so the binary works from any directory.
-pub const PLOT_SCRIPT: &str = include_str!("../../../scripts/diagnose_plots.py");
-
 /// Files written by [`write_report`].
 #[derive(Debug, Clone)]
 pub struct ReportFiles {
@@ -18,9 +15,9 @@ pub struct ReportFiles {
     pub extended_config: PathBuf,
     /// Markdown report.
     pub report: PathBuf,
-    /// PNG plots that were made.
+    /// SVG plots that were made.
     pub plots: Vec<PathBuf>,
-    /// Warnings (e.g. plots not made because python3/matplotlib is missing).
+    /// Warnings about the report (e.g. no traces to plot).
     pub warnings: Vec<String>,
 }
 
@@ -225,24 +222,18 @@ pub fn write_report(
     }
     let json = serde_json::to_string_pretty(d).map_err(|e| e.to_string())?;
     w("diagnosis.json", &json)?;
-    let script = w("diagnose_plots.py", PLOT_SCRIPT)?;
-    let mut plots = Vec::new();
-    match std::process::Command::new("python3").arg(&script).arg(dir).output() {
-        Ok(out) if out.status.success() => {
-            for l in String::from_utf8_lossy(&out.stdout).lines() {
-                let p = PathBuf::from(l.trim());
-                if p.extension().and_then(|e| e.to_str()) == Some("png") {
-                    plots.push(p);
-                }
-            }
+    let plots = match (&d.traces.nominal, &d.traces.extended) {
+        (Some(nom), Some(ext)) => {
+            let v = val
+                .zip(d.traces.validation.as_ref())
+                .map(|(v, (vn, ve))| (v, vn, ve));
+            crate::plots::draw(dir, rec, nom, ext, d.traces.split_index, v)?
         }
-        Ok(out) => warnings.push(format!(
-            "plots not made: `python3 {}` failed: {} (install matplotlib and numpy: pip install matplotlib numpy)",
-            script.display(),
-            String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("no message")
-        )),
-        Err(e) => warnings.push(format!("plots not made: cannot run python3: {e}")),
-    }
+        _ => {
+            warnings.push("plots not made: the diagnosis kept no replay traces".to_string());
+            Vec::new()
+        }
+    };
     let mut r = String::new();
     let _ = writeln!(r, "# ehactl diagnose: {}\n", rec.source);
     let _ = writeln!(r, "Nominal config: `{config_path}`. {}.\n", d.split);

@@ -27,6 +27,7 @@
 //! pressure update. Between the line's last segment and the poppet sits the valve body and
 //! cylinder port, a lumped volume `volume` (port 2 node, compressed with β₀).
 
+use ehactl_params_derive::Params;
 use serde::{Deserialize, Serialize};
 
 /// Which lines carry a CBV.
@@ -53,7 +54,7 @@ fn yes() -> bool {
 
 /// `counterbalance_valve`: pilot-assisted relief with free-flow check at the cylinder end of
 /// each line (needs `line_dynamics`). Same valve on every side it is fitted to.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct CounterbalanceValve {
     /// Effect switch.
@@ -61,34 +62,46 @@ pub struct CounterbalanceValve {
     pub enabled: bool,
     /// Lines fitted with a CBV (default both).
     #[serde(default)]
+    #[param(choices = crate::cbv::CbvSides::NAMES, desc = "lines fitted with a CBV at the cylinder end (default both)")]
     pub sides: CbvSides,
     /// Pilot ratio ψ (-): pilot area over relief seat area.
+    #[param(unit = "-", range = Positive, desc = "pilot ratio ψ: opens when p_load + ψ·p_pilot ≥ setting")]
     pub pilot_ratio: f64,
     /// Setting p_set (Pa): load pressure that cracks the relief without pilot.
+    #[param(unit = "Pa", range = Positive, desc = "relief setting p_set (cracking load pressure without pilot)")]
     pub setting: f64,
     /// Rise of p₁ + ψ·p₃ from cracking to full opening Δp_open (Pa).
+    #[param(unit = "Pa", range = Positive, desc = "rise of p_load + ψ·p_pilot from cracking to full opening")]
     pub opening_pressure: f64,
     /// Metering area of the fully open poppet A_max (m²).
+    #[param(unit = "m²", range = Positive, desc = "poppet metering area fully open")]
     pub area_max: f64,
     /// Discharge coefficient C_d of the poppet (-).
     #[serde(default = "default_cd")]
+    #[param(unit = "-", range = Within(0.01, 1.0), desc = "poppet discharge coefficient (default 0.7)")]
     pub discharge_coefficient: f64,
     /// Check-valve resistance R_UV (Pa·s²/m⁶), Δp = R_UV·Q² (002 eq. 18–19).
+    #[param(unit = "Pa·s²/m⁶", range = Positive, desc = "free-flow check R_UV, Δp = R_UV·Q² (002 eq. 18–19)")]
     pub check_resistance: f64,
     /// Check-valve cracking pressure p_crack (Pa), default 0.
     #[serde(default)]
+    #[param(unit = "Pa", range = NonNegative, desc = "check-valve cracking pressure (default 0)")]
     pub check_cracking: f64,
     /// Poppet time constant τ (s).
+    #[param(unit = "s", range = Positive, desc = "poppet first-order time constant")]
     pub time_constant: f64,
     /// Oil volume between the line end and the poppet (valve body, cylinder port) (m³).
+    #[param(unit = "m³", range = Positive, desc = "oil volume between line end and poppet")]
     pub volume: f64,
     /// Work-port-to-tank conductance of the directional valve (m³/(s·Pa)), default 0: the
     /// neutral A,B→T bleed ("motor spool") a CBV circuit needs so that the pilot pressure
     /// decays and the CBV locks the load at stop; the plant's spool edges close at null.
     #[serde(default)]
+    #[param(unit = "m³/(s·Pa)", range = NonNegative, desc = "directional valve work port → tank bleed (neutral A,B→T), default 0")]
     pub port_bleed: f64,
     /// Laminar transition pressure Δp_l of the orifice laws (Pa), default 0.05 MPa.
     #[serde(default = "default_lam")]
+    #[param(unit = "Pa", range = Positive, desc = "laminar transition of the CBV orifice laws (default 5e4)")]
     pub laminar_pressure: f64,
 }
 

@@ -84,8 +84,9 @@ pub struct LinearExact {
 }
 
 impl LinearExact {
-    /// Discretise for substep `h` (s) at c_A = `ca`, c_B = `cb` (Pa/m³).
-    pub fn new(k: LinearCoefficients, h: f64, ca: f64, cb: f64) -> Self {
+    /// Discretise for substep `h` (s) at c_A = `ca`, c_B = `cb` (Pa/m³); `None` when A·h is
+    /// not representable ([`expm_checked`]).
+    pub fn new(k: LinearCoefficients, h: f64, ca: f64, cb: f64) -> Option<Self> {
         let mut s = Self {
             n: if k.mount.is_some() { 6 } else { 4 },
             k,
@@ -98,8 +99,7 @@ impl LinearExact {
             cb,
             count: 0,
         };
-        s.discretise(ca, cb);
-        s
+        s.discretise(ca, cb).then_some(s)
     }
 
     /// Continuous-time A (6×6) and B (6×4) at the given c_A, c_B.
@@ -140,8 +140,9 @@ impl LinearExact {
         (a, b)
     }
 
-    /// Recompute Φ and Γ at c_A = `ca`, c_B = `cb`. Does not allocate.
-    pub fn discretise(&mut self, ca: f64, cb: f64) {
+    /// Recompute Φ and Γ at c_A = `ca`, c_B = `cb`. Does not allocate. Returns `false` (and
+    /// keeps the previous Φ, Γ) when A·h is not representable ([`expm_checked`]).
+    pub fn discretise(&mut self, ca: f64, cb: f64) -> bool {
         let (a, b) = self.continuous(ca, cb);
         let mut m = Aug::zeros();
         m.fixed_view_mut::<NS, NS>(0, 0).copy_from(&(a * self.h));
@@ -158,7 +159,9 @@ impl LinearExact {
                 mb[(i, j)] = m[(i, j)] * d[j] / d[i];
             }
         }
-        let e = mb.exp();
+        let Some(e) = expm_checked(&mb) else {
+            return false;
+        };
         for i in 0..NS {
             for j in 0..NS {
                 self.phi[i][j] = e[(i, j)] * d[i] / d[j];
@@ -180,6 +183,7 @@ impl LinearExact {
         self.ca = ca;
         self.cb = cb;
         self.count += 1;
+        true
     }
 
     /// Whether c_A, c_B have drifted beyond [`REDISCRETISE_TOL`] from Φ's values.
@@ -239,6 +243,32 @@ impl LinearExact {
         }
         z[..N].copy_from_slice(&out);
     }
+}
+
+/// Largest 1-norm of `M` (= A·h, after balancing) whose exponential the plant computes. Far
+/// above any physical substep (ω·h ≤ 10⁶ means a mode decays by e^(−10⁶) per substep) and far
+/// below where nalgebra's scaling-and-squaring breaks: its Padé-order selection takes
+/// ‖Mᵏ‖^(1/k) up to k = 10, which overflows to inf for ‖M‖ ≳ 10³⁰ and then asks for 2⁶⁴
+/// squarings (a hang, found by the config fuzzer with `damping_ratio = 1.6e53`).
+pub const EXPM_MAX_NORM: f64 = 1.0e12;
+
+/// e^M, or `None` when an entry of `M` is not finite or ‖M‖₁ > [`EXPM_MAX_NORM`].
+pub fn expm_checked<const N: usize>(m: &SMatrix<f64, N, N>) -> Option<SMatrix<f64, N, N>>
+where
+    nalgebra::Const<N>: nalgebra::DimMin<nalgebra::Const<N>, Output = nalgebra::Const<N>>,
+{
+    let mut norm: f64 = 0.0;
+    for j in 0..N {
+        let mut col = 0.0;
+        for i in 0..N {
+            if !m[(i, j)].is_finite() {
+                return None;
+            }
+            col += m[(i, j)].abs();
+        }
+        norm = norm.max(col);
+    }
+    (norm <= EXPM_MAX_NORM).then(|| m.exp())
 }
 
 /// Parlett–Reinsch balancing: powers of 2 `d` (written into `d`, length n) such that every

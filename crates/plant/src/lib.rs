@@ -15,8 +15,12 @@
 //! | [`excitation`] | constant, harmonic, impact train | 003 eq. 2, 17 |
 //! | [`sensors`] | load cell, pressures, position transducer, spool | 004, 003 |
 //!
-//! Parameters and their units are declared once in [`spec::PARAMS`].
+//! Each parameter is declared once, on its field in [`params`] (`#[param(unit, range, desc)]`);
+//! the registry [`spec::params`] and the path accessor [`spec::ParamTree`] are generated from it.
 #![deny(missing_docs)]
+
+// The `#[derive(Params)]` expansion names `::ehactl_plant::spec`, also inside this crate.
+extern crate self as ehactl_plant;
 
 pub mod cbv;
 pub mod effects;

@@ -476,11 +476,9 @@ impl Plant {
         } else {
             1
         };
-        let mut plant = Plant {
-            edges: EdgeLaw::new(params),
-            spool_model: SpoolModel::new(params, h),
-            spool_half: SpoolModel::new(params, 0.5 * h),
-            linear: linear_exact.then(|| {
+        SpoolModel::check(params, h)?;
+        let linear = if linear_exact {
+            let lin = {
                 LinearExact::new(
                     LinearCoefficients {
                         a_a: c.a_a,
@@ -499,7 +497,21 @@ impl Plant {
                     c.beta0 / (c.v_a0 + c.a_a * x0),
                     c.beta0 / (c.v_b0 + c.a_b * (c.stroke - x0)),
                 )
-            }),
+            };
+            Some(lin.ok_or_else(|| {
+                ConfigError::new(
+                    "mechanics.mass",
+                    format!("the chambers, mass and springs give a system matrix A·h (h = {h:e} s) beyond what the exact discretisation can represent (‖A·h‖₁ > {:e}); check the mass (kg), chamber volumes (m³), areas (m²), stiffnesses (N/m) and damping (N·s/m)", crate::exact::EXPM_MAX_NORM),
+                )
+            })?)
+        } else {
+            None
+        };
+        let mut plant = Plant {
+            edges: EdgeLaw::new(params),
+            spool_model: SpoolModel::new(params, h),
+            spool_half: SpoolModel::new(params, 0.5 * h),
+            linear,
             friction: e
                 .friction
                 .as_ref()
@@ -949,7 +961,9 @@ impl Plant {
         let f_mid = self.excitation.force(t + 0.5 * h);
         let lin = self.linear.as_mut().expect("linear_exact configured");
         if lin.stale(ca, cb) {
-            lin.discretise(ca, cb);
+            // `false` (A·h beyond what expm represents, only near zero volume with
+            // absurd parameters) keeps the previous, finite Φ.
+            let _ = lin.discretise(ca, cb);
         }
         let mut z = [s.p_a, s.p_b, s.x, s.v, s.x_load, s.v_load];
         // Valve flow at the step-mean pressures: Q = Q₀ + dQ/dp·(p̄(Q) − p₀), with p̄ linear

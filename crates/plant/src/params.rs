@@ -1,11 +1,12 @@
 //! Plant parameters as they appear in a rig config (TOML), in SI units.
 //!
 //! Each struct is one component; each field carries its unit in the doc comment and
-//! in the parameter registry ([`crate::spec::PARAMS`]), which is what error messages,
+//! in the parameter registry ([`crate::spec::params`], generated from the `#[param(...)]` declarations below), which is what error messages,
 //! `ehactl params` and the Python bindings read. Effects from the catalogue of
 //! `DESIGN.md` live under `[effects.<id>]` and are switched on by their presence
 //! (and `enabled = true`, the default).
 
+use ehactl_params_derive::Params;
 use serde::{Deserialize, Serialize};
 
 pub use crate::effects::validate_variants;
@@ -15,18 +16,22 @@ fn yes() -> bool {
 }
 
 /// Hydraulic fluid properties.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Fluid {
     /// Density ρ (kg/m³); 003: 900.
+    #[param(unit = "kg/m³", range = Positive, desc = "fluid density ρ")]
     pub density: f64,
     /// Effective bulk modulus β₀ at zero gauge pressure (Pa); 003: K = 1.8e9, 004: 1.75e9.
+    #[param(unit = "Pa", range = Positive, desc = "effective bulk modulus β₀ (003 K, 004 β_e)")]
     pub bulk_modulus: f64,
     /// Kinematic viscosity ν (m²/s), used by line resistance (001 eq. 6–12, 002 eq. 9–17).
     #[serde(default = "Fluid::default_viscosity")]
+    #[param(unit = "m²/s", range = Positive, desc = "kinematic viscosity ν (001 eq. 6–12)")]
     pub kinematic_viscosity: f64,
     /// Cavitation floor for chamber pressures (Pa, gauge); pressures never fall below it.
     #[serde(default = "Fluid::default_cavitation")]
+    #[param(unit = "Pa", range = Within(-1.0e5, 0.0), desc = "cavitation floor, gauge")]
     pub cavitation_pressure: f64,
 }
 
@@ -40,13 +45,15 @@ impl Fluid {
 }
 
 /// Hydraulic supply (gauge pressures).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Supply {
     /// Supply pressure p_s (Pa); 003: p₀ = 24 MPa.
+    #[param(unit = "Pa", range = Positive, desc = "supply pressure p_s (003 p₀)")]
     pub pressure: f64,
     /// Tank (return) pressure p_T (Pa).
     #[serde(default)]
+    #[param(unit = "Pa", range = NonNegative, desc = "tank pressure p_T")]
     pub tank_pressure: f64,
 }
 
@@ -63,39 +70,49 @@ pub enum FlowForm {
 }
 
 /// Four-edge proportional/servo valve (critical or underlapped centre).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Valve {
     /// Command that drives the spool to full opening (V); spool target = u / command_full_scale.
+    #[param(unit = "V", range = Positive, desc = "command for full spool opening")]
     pub command_full_scale: f64,
     /// Flow law of each metering edge.
     pub flow_form: FlowForm,
     /// Underlap per edge as a fraction of full spool travel (-); 003: z₀/z_n = 2.16/6.
     #[serde(default)]
+    #[param(unit = "-", range = Within(0.0, 1.0), desc = "underlap per edge, fraction of travel (003 z₀)")]
     pub underlap: f64,
     /// Discharge coefficient C_d (-) for `orifice`; 003: 0.56.
     #[serde(default)]
+    #[param(unit = "-", range = Within(0.01, 1.0), desc = "discharge coefficient C_d (003: 0.56)")]
     pub discharge_coefficient: Option<f64>,
     /// Metering area at full opening (m²) for `orifice`.
     #[serde(default)]
+    #[param(unit = "m²", range = Positive, desc = "metering area at full opening")]
     pub area_max: Option<f64>,
     /// Rated flow per edge at full opening (m³/s) for `kq`; 003: 35 L/min.
     #[serde(default)]
+    #[param(unit = "m³/s", range = Positive, desc = "rated edge flow q_vn at full opening (003 eq. 13)")]
     pub rated_flow: Option<f64>,
     /// Pressure drop per edge at which `rated_flow` is given (Pa) for `kq`; 003: 1 MPa.
     #[serde(default)]
+    #[param(unit = "Pa", range = Positive, desc = "edge pressure drop Δp_n of the rating (003 eq. 13)")]
     pub rated_pressure_drop: Option<f64>,
     /// Flow per edge at full opening and P_d = 1 MPa (m³/s) for `power_law`; 004 eq. 20: 1.4075e-4.
     #[serde(default)]
+    #[param(unit = "m³/s", range = Positive, desc = "edge flow at P_d = 1 MPa (004 eq. 20)")]
     pub flow_at_1mpa: Option<f64>,
     /// Exponent n of the power law (-) for `power_law`; 004 eq. 20: 0.4667.
     #[serde(default)]
+    #[param(unit = "-", range = Within(0.05, 1.0), desc = "power-law exponent n (004 eq. 20: 0.4667)")]
     pub exponent: Option<f64>,
     /// Pressure offset P_o added to each edge's Δp (Pa) for `power_law`; 004 eq. 22: 1.1157 MPa.
     #[serde(default)]
+    #[param(unit = "Pa", range = NonNegative, desc = "pressure offset P_o (004 eq. 22)")]
     pub pressure_offset: Option<f64>,
     /// Pressure drop below which each edge flow is regularised to laminar (Pa).
     #[serde(default = "Valve::default_laminar")]
+    #[param(unit = "Pa", range = Positive, desc = "laminar regularisation pressure of each edge")]
     pub laminar_pressure: f64,
 }
 
@@ -106,44 +123,56 @@ impl Valve {
 }
 
 /// Asymmetric double-acting cylinder (003 eq. 7–8, 004 eq. 9–10).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Cylinder {
     /// Piston area on the A (cap) side A₁ (m²).
+    #[param(unit = "m²", range = Positive, desc = "piston area A₁")]
     pub area_a: f64,
     /// Annulus area on the B (rod) side A₂ (m²).
+    #[param(unit = "m²", range = Positive, desc = "annulus area A₂")]
     pub area_b: f64,
     /// Dead volume of chamber A incl. hose to the valve V₁₀ (m³).
+    #[param(unit = "m³", range = Positive, desc = "dead volume V₁₀")]
     pub dead_volume_a: f64,
     /// Dead volume of chamber B V₂₀ (m³).
+    #[param(unit = "m³", range = Positive, desc = "dead volume V₂₀")]
     pub dead_volume_b: f64,
     /// Stroke h (m); position x ∈ [0, stroke].
+    #[param(unit = "m", range = Positive, desc = "stroke h")]
     pub stroke: f64,
     /// Initial piston position x₀ (m).
     #[serde(default)]
+    #[param(unit = "m", range = NonNegative, desc = "initial piston position")]
     pub initial_position: f64,
     /// Initial pressure in chamber A (Pa); default: 003 eq. 14 balance.
     #[serde(default)]
+    #[param(unit = "Pa", range = Finite, desc = "initial chamber A pressure")]
     pub initial_pressure_a: Option<f64>,
     /// Initial pressure in chamber B (Pa); default: 003 eq. 14 balance.
     #[serde(default)]
+    #[param(unit = "Pa", range = Finite, desc = "initial chamber B pressure")]
     pub initial_pressure_b: Option<f64>,
 }
 
 /// Rigid-body mechanics of the piston (and rigidly attached load).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Mechanics {
     /// Moving mass m (kg): piston + rod (+ load for a rigid connection); 004: 0.893.
+    #[param(unit = "kg", range = Positive, desc = "moving mass")]
     pub mass: f64,
     /// Viscous damping d_y (N·s/m); 003: 2500, 004: C = 10.587.
     #[serde(default)]
+    #[param(unit = "N·s/m", range = NonNegative, desc = "viscous damping d_y / C")]
     pub damping: f64,
     /// Stiffness of a spring to ground, e.g. load cell + frame K_L (N/m); 0 = none; 004: 4.83e8.
     #[serde(default)]
+    #[param(unit = "N/m", range = NonNegative, desc = "spring to ground K_L (004 load cell)")]
     pub load_stiffness: f64,
     /// Piston position at which the spring to ground is relaxed (m).
     #[serde(default)]
+    #[param(unit = "m", range = Finite, desc = "position where the ground spring is relaxed")]
     pub load_contact_position: f64,
     /// Hard end stops at x = 0 and x = stroke (inelastic).
     #[serde(default = "yes")]
@@ -166,7 +195,7 @@ pub enum ExcitationKind {
 }
 
 /// External force on the rod end (or on the load mass with a flexible mount), opposing +x.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct Excitation {
     /// Excitation kind.
@@ -174,21 +203,27 @@ pub struct Excitation {
     pub kind: ExcitationKind,
     /// Constant part F₀ (N); 003: 2500.
     #[serde(default)]
+    #[param(unit = "N", range = Finite, desc = "constant force F₀ (003 eq. 2)")]
     pub offset: f64,
     /// Amplitude F_A (N) of the harmonic or pulse height of the impact.
     #[serde(default)]
+    #[param(unit = "N", range = NonNegative, desc = "harmonic amplitude / pulse height F_A")]
     pub amplitude: f64,
     /// Frequency f_e (Hz) of the harmonic; 003: 21.8.
     #[serde(default)]
+    #[param(unit = "Hz", range = NonNegative, desc = "harmonic frequency f_e")]
     pub frequency: f64,
     /// Blows per minute of the impact train (1/min); 003 eq. 17: f_e = f_rb/60.
     #[serde(default)]
+    #[param(unit = "1/min", range = NonNegative, desc = "impact rate (003 eq. 17)")]
     pub blows_per_minute: f64,
     /// Duration of each impact pulse (s).
     #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "impact pulse duration")]
     pub pulse_duration: f64,
     /// Time at which the excitation starts (s).
     #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "excitation start")]
     pub start_time: f64,
 }
 
@@ -208,7 +243,7 @@ pub enum FrictionVariant {
 
 /// `friction`: Stribeck seal friction with stick (003 eq. 5, 004 eq. 28–34) or a load-side
 /// Coulomb force (variant `load_coulomb`).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Friction {
     /// Effect switch.
@@ -216,16 +251,22 @@ pub struct Friction {
     pub enabled: bool,
     /// Structural variant (`stribeck` or `load_coulomb`).
     #[serde(default)]
+    #[param(choices = &["stribeck", "load_coulomb"], desc = "stribeck: seal friction with stick (003 eq. 5, default); load_coulomb: F_C·tanh(v/v_s) \
+         without stick (MR damper / guide, Spencer 1997 without hysteresis)")]
     pub variant: FrictionVariant,
     /// Breakaway (static) friction F_s (N); 004: 44.
+    #[param(unit = "N", range = NonNegative, desc = "breakaway friction F_s (004: 44 N)")]
     pub static_force: f64,
     /// Coulomb friction F_C (N); 004: 39, 003: 500.
+    #[param(unit = "N", range = NonNegative, desc = "Coulomb friction F_C (004: 39 N)")]
     pub coulomb_force: f64,
     /// Stribeck velocity v_s (m/s): (F_s − F_C) decays as exp(−(|v|/v_s)²).
     #[serde(default = "Friction::default_vs")]
+    #[param(unit = "m/s", range = Positive, desc = "Stribeck velocity")]
     pub stribeck_velocity: f64,
     /// Additional viscous friction (N·s/m), on top of `mechanics.damping`.
     #[serde(default)]
+    #[param(unit = "N·s/m", range = NonNegative, desc = "extra viscous friction")]
     pub viscous: f64,
 }
 
@@ -251,7 +292,7 @@ pub enum DeadbandVariant {
 
 /// `valve_deadband`: spool overlap (dead zone) and zero offset (002: 42 %, 004: 0.0375 V), or
 /// an amplifier dead zone ahead of the spool (variant `amplifier`).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ValveDeadband {
     /// Effect switch.
@@ -259,15 +300,20 @@ pub struct ValveDeadband {
     pub enabled: bool,
     /// Structural variant (`overlap` or `amplifier`).
     #[serde(default)]
+    #[param(choices = &["overlap", "amplifier"], desc = "overlap: spool overlap (default); amplifier: dead zone of the amplifier ahead of the \
+         underlapped spool")]
     pub variant: DeadbandVariant,
     /// Amplifier dead zone as a fraction of the full-scale command (-), variant `amplifier`.
     #[serde(default)]
+    #[param(unit = "-", range = Within(0.0, 0.95), desc = "amplifier dead zone, fraction of the full-scale command (variant amplifier)")]
     pub deadzone: f64,
     /// Overlap per edge as a fraction of full spool travel (-).
     #[serde(default)]
+    #[param(unit = "-", range = Within(0.0, 0.95), desc = "overlap per edge, fraction of travel")]
     pub overlap: f64,
     /// Zero offset of the spool as a fraction of full travel (-), signed.
     #[serde(default)]
+    #[param(unit = "-", range = Within(-0.5, 0.5), desc = "spool zero offset, fraction of travel")]
     pub zero_offset: f64,
 }
 
@@ -285,7 +331,7 @@ pub enum SaturationVariant {
 }
 
 /// `valve_saturation`: spool travel limit and/or edge flow limit (002: 87 %).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ValveSaturation {
     /// Effect switch.
@@ -293,15 +339,20 @@ pub struct ValveSaturation {
     pub enabled: bool,
     /// Structural variant (`symmetric` or `asymmetric`).
     #[serde(default)]
+    #[param(choices = &["symmetric", "asymmetric"], desc = "symmetric: one spool travel limit (default); asymmetric: spool_limit for + and \
+         spool_limit_negative for − travel")]
     pub variant: SaturationVariant,
     /// Limit of negative spool travel as a fraction of full travel (-), variant `asymmetric`.
     #[serde(default = "ValveSaturation::one")]
+    #[param(unit = "-", range = Within(0.01, 1.0), desc = "negative spool travel limit, fraction (variant asymmetric)")]
     pub spool_limit_negative: f64,
     /// Maximum spool opening as a fraction of full travel (-), 0 < limit ≤ 1.
     #[serde(default = "ValveSaturation::one")]
+    #[param(unit = "-", range = Within(0.01, 1.0), desc = "spool travel limit, fraction")]
     pub spool_limit: f64,
     /// Maximum flow through any one edge (m³/s); 0 = unlimited.
     #[serde(default)]
+    #[param(unit = "m³/s", range = NonNegative, desc = "edge flow limit (0 = none)")]
     pub max_flow: f64,
 }
 
@@ -312,22 +363,26 @@ impl ValveSaturation {
 }
 
 /// `valve_dynamics`: spool dynamics, PT1 (003 eq. 1) or second order (004 eq. 1, 000).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ValveDynamics {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
     /// Order of the spool model: 1 (PT1) or 2.
+    #[param(unit = "-", range = Within(1.0, 2.0), desc = "spool model order")]
     pub order: u8,
     /// PT1 time constant T_z (s) for order 1; 003: 0.01.
     #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "PT1 time constant T_z (003)")]
     pub time_constant: f64,
     /// Natural frequency ω_nv (rad/s) for order 2; 004: 1507.9.
     #[serde(default)]
+    #[param(unit = "rad/s", range = Within(0.0, 1.0e6), desc = "spool ω_nv (004: 1507.9)")]
     pub natural_frequency: f64,
     /// Damping ratio ζ (-) for order 2; 004: 0.59.
     #[serde(default)]
+    #[param(unit = "-", range = NonNegative, desc = "spool damping ratio ζ (004: 0.59)")]
     pub damping_ratio: f64,
 }
 
@@ -345,7 +400,7 @@ pub enum LeakageVariant {
 }
 
 /// `internal_leakage` / `external_leakage`: laminar leakage (003 eq. 1 k_l, k_le; 004 C_in).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Leakage {
     /// Effect switch.
@@ -353,11 +408,15 @@ pub struct Leakage {
     pub enabled: bool,
     /// Structural variant (`equal` or, external leakage only, `per_chamber`).
     #[serde(default)]
+    #[param(choices = &["equal", "per_chamber"], desc = "equal: both chambers leak to tank with `coefficient` (default); per_chamber: A with \
+         `coefficient`, B with `coefficient_b`")]
     pub variant: LeakageVariant,
     /// Leakage coefficient (m³/(s·Pa)); chamber A's for `per_chamber`.
+    #[param(unit = "m³/(s·Pa)", range = NonNegative, desc = "leakage to tank k_le")]
     pub coefficient: f64,
     /// Chamber B's leakage coefficient to tank (m³/(s·Pa)), variant `per_chamber`.
     #[serde(default)]
+    #[param(unit = "m³/(s·Pa)", range = NonNegative, desc = "chamber B leakage to tank (variant per_chamber)")]
     pub coefficient_b: f64,
 }
 
@@ -377,7 +436,7 @@ pub enum BulkVariant {
 
 /// `bulk_modulus_pressure`: β(p) = β₀ + K_b·p, capped at `max` (002 eq. 35), or entrained air
 /// (variant `entrained_air`).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct BulkModulusPressure {
     /// Effect switch.
@@ -385,19 +444,25 @@ pub struct BulkModulusPressure {
     pub enabled: bool,
     /// Structural variant (`linear` or `entrained_air`).
     #[serde(default)]
+    #[param(choices = &["linear", "entrained_air"], desc = "linear: β₀ + K_b·p (002 eq. 35, default); entrained_air: Yu 1994 / Gholizadeh 2011 \
+         air–oil mixture")]
     pub variant: BulkVariant,
     /// Pressure slope K_b (-): dβ/dp, variant `linear`.
     #[serde(default)]
+    #[param(unit = "-", range = NonNegative, desc = "dβ/dp K_b (002 eq. 35)")]
     pub slope: f64,
     /// Volume fraction of undissolved air at atmospheric pressure α₀ (-), variant
     /// `entrained_air`; Gholizadeh 2011: 0.5–5 % typical.
     #[serde(default)]
+    #[param(unit = "-", range = Within(0.0, 0.5), desc = "undissolved air volume fraction at atmospheric pressure α₀ (variant entrained_air)")]
     pub air_fraction: f64,
     /// Polytropic index n of the air (-), variant `entrained_air`: 1 isothermal, 1.4 adiabatic.
     #[serde(default = "BulkModulusPressure::default_n")]
+    #[param(unit = "-", range = Within(1.0, 1.4), desc = "polytropic index of the air n: 1 isothermal … 1.4 adiabatic (variant entrained_air)")]
     pub polytropic_index: f64,
     /// Upper bound on β (Pa).
     #[serde(default = "BulkModulusPressure::default_max")]
+    #[param(unit = "Pa", range = Positive, desc = "upper bound on β")]
     pub max: f64,
 }
 
@@ -411,28 +476,35 @@ impl BulkModulusPressure {
 }
 
 /// `line_dynamics`: lumped R-L-C segments between valve ports and chambers (002 eq. 9–17).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct LineDynamics {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
     /// Line length per side (m).
+    #[param(unit = "m", range = Within(1.0e-3, 1.0e3), desc = "line length per side")]
     pub length: f64,
     /// Inner diameter (m).
+    #[param(unit = "m", range = Within(1.0e-4, 0.5), desc = "line inner diameter")]
     pub diameter: f64,
     /// Number of lumped segments per side (-).
+    #[param(unit = "-", range = Within(1.0, 200.0), desc = "lumped segments per side")]
     pub segments: u32,
     /// Effective bulk modulus of the line incl. hose wall compliance (Pa); default: fluid β₀.
     #[serde(default)]
+    #[param(unit = "Pa", range = Positive, desc = "line effective bulk modulus")]
     pub bulk_modulus: Option<f64>,
     /// Lumped oil volume at the valve-side node of each line (m³), default 0: valve port and
     /// manifold passages, or (001 eq. 14–15) a pumping chamber with its piezo-stack compliance
     /// as an equivalent volume a_p·Δ_gap + β·a_p²/k_p. Compressed with the fluid β₀.
     #[serde(default)]
+    #[param(unit = "m³", range = NonNegative, desc = "lumped volume at the valve-side node (default 0)")]
     pub port_volume: f64,
     /// Wall-friction model of the segments (default `steady`, Hagen–Poiseuille only).
     #[serde(default)]
+    #[param(choices = crate::params::LineFriction::NAMES, desc = "segment wall friction: steady Hagen–Poiseuille (default), unsteady (Zielke 1968 \
+         weighting function, 8 states per segment) or unsteady_trikha (Trikha 1975, 3 states)")]
     pub friction: LineFriction,
 }
 
@@ -478,7 +550,7 @@ pub enum MountVariant {
 
 /// `flexible_mount`: spring-damper (SDD) from rod to a load mass (003 eq. 1), or a compliant
 /// cylinder mount (variant `piston_side`).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct FlexibleMount {
     /// Effect switch.
@@ -486,23 +558,29 @@ pub struct FlexibleMount {
     pub enabled: bool,
     /// Structural variant (`load_side` or `piston_side`).
     #[serde(default)]
+    #[param(choices = &["load_side", "piston_side"], desc = "load_side: rod → spring-damper → load mass (003 SDD, default); piston_side: the \
+         cylinder body (mass load_mass) on a spring-damper to ground")]
     pub variant: MountVariant,
     /// Load mass m_L (kg); 003: 250. Variant `piston_side`: the cylinder body's mass.
+    #[param(unit = "kg", range = Positive, desc = "load mass m_L (003: 250)")]
     pub load_mass: f64,
     /// SDD stiffness k_m (N/m); 003 range 1e4–1e5.
+    #[param(unit = "N/m", range = Positive, desc = "SDD stiffness k_m")]
     pub stiffness: f64,
     /// SDD damping d_m (N·s/m); 003 range 1e4–2.5e4.
+    #[param(unit = "N·s/m", range = NonNegative, desc = "SDD damping d_m")]
     pub damping: f64,
 }
 
 /// `time_delay`: transport / communication delay on the valve command.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct TimeDelay {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
     /// Delay (s).
+    #[param(unit = "s", range = Within(0.0, 1.0), desc = "command delay")]
     pub delay: f64,
 }
 
@@ -521,7 +599,7 @@ pub enum SensorChannel {
 }
 
 /// `sensor_tone`: periodic disturbance on a sensor (004: 225 Hz and 420 Hz on the load cell).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SensorTone {
     /// Effect switch.
@@ -531,11 +609,14 @@ pub struct SensorTone {
     #[serde(default = "SensorTone::default_channel")]
     pub channel: SensorChannel,
     /// Tone frequencies (Hz).
+    #[param(unit = "Hz", range = Positive, desc = "tone frequencies (004: 225, 420)")]
     pub frequencies: Vec<f64>,
     /// Tone amplitudes in the channel's unit (N, m or Pa), one per frequency.
+    #[param(unit = "channel unit", range = NonNegative, desc = "tone amplitudes")]
     pub amplitudes: Vec<f64>,
     /// Tone phases φ (rad), one per frequency (empty = all 0): a·sin(2πft + φ).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[param(unit = "rad", range = Finite, desc = "tone phases φ in a·sin(2πft + φ), one per frequency (default 0)")]
     pub phases: Vec<f64>,
 }
 
@@ -562,7 +643,7 @@ pub enum SupplyVariant {
 
 /// `supply_pressure_drop`: supply sags with flow, p_s → p_s0 − R·Q_s with time constant τ (000),
 /// or a flow-limited pressure-compensated pump (variant `pump_limit`).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct SupplyPressureDrop {
     /// Effect switch.
@@ -570,88 +651,112 @@ pub struct SupplyPressureDrop {
     pub enabled: bool,
     /// Structural variant (`resistance` or `pump_limit`).
     #[serde(default)]
+    #[param(choices = &["resistance", "pump_limit"], desc = "resistance: p_s0 − R·Q_s with lag τ (000, default); pump_limit: pressure-compensated \
+         pump with flow limit Q_max into a volume")]
     pub variant: SupplyVariant,
     /// Flow resistance R (Pa·s/m³), variant `resistance`.
     #[serde(default)]
+    #[param(unit = "Pa·s/m³", range = NonNegative, desc = "supply flow resistance R")]
     pub resistance: f64,
     /// Time constant τ of the supply (accumulator / pump) (s), variant `resistance`.
     #[serde(default)]
+    #[param(unit = "s", range = Positive, desc = "supply time constant τ")]
     pub time_constant: f64,
     /// Pump flow limit Q_max (m³/s), variant `pump_limit`.
     #[serde(default)]
+    #[param(unit = "m³/s", range = Positive, desc = "pump flow limit Q_max (variant pump_limit)")]
     pub max_flow: f64,
     /// Compensator regulation band Δp_c (Pa), variant `pump_limit`.
     #[serde(default)]
+    #[param(unit = "Pa", range = Positive, desc = "compensator regulation band Δp_c below the setting (variant pump_limit)")]
     pub regulation_band: f64,
     /// Oil volume between pump and valve V (m³), variant `pump_limit`.
     #[serde(default)]
+    #[param(unit = "m³", range = Positive, desc = "oil volume between pump and valve (variant pump_limit)")]
     pub volume: f64,
 }
 
 /// The effect catalogue of DESIGN.md: every section is optional.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct Effects {
     /// `friction`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub friction: Option<Friction>,
     /// `valve_deadband`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub valve_deadband: Option<ValveDeadband>,
     /// `valve_saturation`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub valve_saturation: Option<ValveSaturation>,
     /// `valve_dynamics`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub valve_dynamics: Option<ValveDynamics>,
     /// `internal_leakage`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested, with(variant(choices = &["equal"], desc = "cross-piston leakage has one coefficient"), coefficient(desc = "cross-piston leakage k_l"), coefficient_b(desc = "not used (cross-piston leakage has one coefficient)")))]
     pub internal_leakage: Option<Leakage>,
     /// `external_leakage`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub external_leakage: Option<Leakage>,
     /// `bulk_modulus_pressure`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub bulk_modulus_pressure: Option<BulkModulusPressure>,
     /// `line_dynamics`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub line_dynamics: Option<LineDynamics>,
     /// `flexible_mount`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub flexible_mount: Option<FlexibleMount>,
     /// `time_delay`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub time_delay: Option<TimeDelay>,
     /// `sensor_tone`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub sensor_tone: Option<SensorTone>,
     /// `supply_pressure_drop`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub supply_pressure_drop: Option<SupplyPressureDrop>,
     /// `counterbalance_valve`: a circuit component (002 fig. 2), not a catalogue effect
     /// (see [`crate::cbv`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub counterbalance_valve: Option<crate::cbv::CounterbalanceValve>,
     /// `polynomial_force`: a force law on the rod as a sum of declared terms, the grey-box
     /// extension of `ehactl diagnose` (not a catalogue effect, see
     /// [`crate::effects::PolynomialForce`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub polynomial_force: Option<crate::effects::PolynomialForce>,
     /// `polynomial_flow`: a B→A flow law as a sum of declared spool terms, the flow-side
     /// grey-box extension (see [`crate::effects::PolynomialFlow`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub polynomial_flow: Option<crate::effects::PolynomialFlow>,
 }
 
 /// Load-cell model.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ForceSensor {
     /// Sensitivity g (V/N); 004: 0.5097e-3.
     #[serde(default = "ForceSensor::default_sens")]
+    #[param(unit = "V/N", range = Positive, desc = "load cell sensitivity (004: 0.5097 mV/N)")]
     pub sensitivity: f64,
     /// White noise standard deviation (N).
     #[serde(default)]
+    #[param(unit = "N", range = NonNegative, desc = "load cell noise σ")]
     pub noise: f64,
 }
 
@@ -671,71 +776,85 @@ impl Default for ForceSensor {
 }
 
 /// Chamber pressure transducers.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct PressureSensor {
     /// White noise standard deviation (Pa).
     #[serde(default)]
+    #[param(unit = "Pa", range = NonNegative, desc = "pressure noise σ")]
     pub noise: f64,
 }
 
 /// Magnetostrictive position transducer (003: CANopen TMI).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct PositionSensor {
     /// Resolution (quantisation step) (m); 0 = continuous.
     #[serde(default)]
+    #[param(unit = "m", range = NonNegative, desc = "position resolution")]
     pub resolution: f64,
     /// Measurement update period (s); 0 = every control cycle.
     #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "position update period")]
     pub update_period: f64,
     /// White noise standard deviation (m).
     #[serde(default)]
+    #[param(unit = "m", range = NonNegative, desc = "position noise σ")]
     pub noise: f64,
 }
 
 /// Spool position (LVDT) sensor.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct SpoolSensor {
     /// White noise standard deviation (fraction of full travel).
     #[serde(default)]
+    #[param(unit = "-", range = NonNegative, desc = "spool position noise σ")]
     pub noise: f64,
 }
 
 /// All sensors of the simulated rig.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct Sensors {
     /// Load cell.
     #[serde(default)]
+    #[param(nested)]
     pub force: ForceSensor,
     /// Chamber pressures.
     #[serde(default)]
+    #[param(nested)]
     pub pressure: PressureSensor,
     /// Position transducer.
     #[serde(default)]
+    #[param(nested)]
     pub position: PositionSensor,
     /// Spool position.
     #[serde(default)]
+    #[param(nested)]
     pub spool: SpoolSensor,
     /// Seed of the sensor noise generator.
     #[serde(default)]
+    #[param(unit = "-", range = NonNegative, desc = "noise seed")]
     pub seed: u64,
 }
 
 /// Numerical integration settings.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Integration {
     /// Fixed substeps per control period; 0 = automatic from `max_omega_h`.
     #[serde(default)]
+    #[param(unit = "-", range = Within(0.0, 100000.0), desc = "substeps per control period (0 = auto)")]
     pub substeps: u32,
     /// Largest ω·h (-) allowed for the fastest oscillatory mode when choosing substeps.
     #[serde(default = "Integration::default_omega_h")]
+    #[param(unit = "-", range = Within(0.01, 1.5), desc = "largest ω·h for automatic substeps")]
     pub max_omega_h: f64,
     /// Integration scheme of the substep (see [`crate::model`]).
     #[serde(default)]
+    #[param(choices = crate::params::IntegrationMethod::NAMES, desc = "substep scheme: exponential_euler (default) or linear_exact (chambers + mechanics \
+         discretised exactly; exponential_euler is used with lines, friction or polynomial effects)")]
     pub method: IntegrationMethod,
 }
 
@@ -774,30 +893,39 @@ impl Default for Integration {
 }
 
 /// Everything the plant needs.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct PlantParams {
     /// Fluid.
+    #[param(nested)]
     pub fluid: Fluid,
     /// Supply.
+    #[param(nested)]
     pub supply: Supply,
     /// Valve.
+    #[param(nested)]
     pub valve: Valve,
     /// Cylinder.
+    #[param(nested)]
     pub cylinder: Cylinder,
     /// Mechanics.
+    #[param(nested)]
     pub mechanics: Mechanics,
     /// External force.
     #[serde(default)]
+    #[param(nested)]
     pub excitation: Excitation,
     /// Optional effects.
     #[serde(default)]
+    #[param(nested)]
     pub effects: Effects,
     /// Sensors.
     #[serde(default)]
+    #[param(nested)]
     pub sensors: Sensors,
     /// Integration.
     #[serde(default)]
+    #[param(nested)]
     pub integration: Integration,
     /// Stated uncertainty of nominal parameters (`[uncertainty]`, dotted path → "15%" or an
     /// absolute number in the parameter's SI unit): the bounds within which `ehactl diagnose`
@@ -840,52 +968,21 @@ pub const UNCERTAIN_PARAMS: &[(&str, &str, bool)] = &[
 pub const DEFAULT_UNCERTAINTY: f64 = 0.15;
 
 impl PlantParams {
-    /// Value of an [`UNCERTAIN_PARAMS`] path (`None` for an unknown path or a flow-gain path
-    /// not used by this valve's `flow_form`).
+    /// Value of an [`UNCERTAIN_PARAMS`] path (`None` for another path or a flow-gain path
+    /// not used by this valve's `flow_form`), read through the declared-parameter accessor.
     pub fn nominal_value(&self, path: &str) -> Option<f64> {
-        Some(match path {
-            "valve.rated_flow" => self
-                .valve
-                .rated_flow
-                .filter(|_| self.valve.flow_form == FlowForm::Kq)?,
-            "valve.area_max" => self
-                .valve
-                .area_max
-                .filter(|_| self.valve.flow_form == FlowForm::Orifice)?,
-            "valve.flow_at_1mpa" => self
-                .valve
-                .flow_at_1mpa
-                .filter(|_| self.valve.flow_form == FlowForm::PowerLaw)?,
-            "fluid.bulk_modulus" => self.fluid.bulk_modulus,
-            "mechanics.mass" => self.mechanics.mass,
-            "mechanics.damping" => self.mechanics.damping,
-            "mechanics.load_stiffness" => self.mechanics.load_stiffness,
-            "valve.underlap" => self.valve.underlap,
-            "cylinder.dead_volume_a" => self.cylinder.dead_volume_a,
-            "cylinder.dead_volume_b" => self.cylinder.dead_volume_b,
-            "supply.pressure" => self.supply.pressure,
-            "valve.command_full_scale" => self.valve.command_full_scale,
-            _ => return None,
-        })
-    }
-
-    /// Write an [`UNCERTAIN_PARAMS`] path (unknown paths are ignored).
-    pub fn set_nominal_value(&mut self, path: &str, v: f64) {
-        match path {
-            "valve.rated_flow" => self.valve.rated_flow = Some(v),
-            "valve.area_max" => self.valve.area_max = Some(v),
-            "valve.flow_at_1mpa" => self.valve.flow_at_1mpa = Some(v),
-            "fluid.bulk_modulus" => self.fluid.bulk_modulus = v,
-            "mechanics.mass" => self.mechanics.mass = v,
-            "mechanics.damping" => self.mechanics.damping = v,
-            "mechanics.load_stiffness" => self.mechanics.load_stiffness = v,
-            "valve.underlap" => self.valve.underlap = v,
-            "cylinder.dead_volume_a" => self.cylinder.dead_volume_a = v,
-            "cylinder.dead_volume_b" => self.cylinder.dead_volume_b = v,
-            "supply.pressure" => self.supply.pressure = v,
-            "valve.command_full_scale" => self.valve.command_full_scale = v,
-            _ => {}
+        let form = match path {
+            "valve.rated_flow" => Some(FlowForm::Kq),
+            "valve.area_max" => Some(FlowForm::Orifice),
+            "valve.flow_at_1mpa" => Some(FlowForm::PowerLaw),
+            _ => None,
+        };
+        if form.is_some_and(|f| f != self.valve.flow_form)
+            || !UNCERTAIN_PARAMS.iter().any(|u| u.0 == path)
+        {
+            return None;
         }
+        crate::spec::ParamTree::get_path(self, path)
     }
 
     /// The refit range of every nominal parameter the diagnosis refits: (path, nominal value,

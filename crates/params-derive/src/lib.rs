@@ -1,0 +1,379 @@
+//! `#[derive(Params)]`: each plant parameter is declared once, on its struct field, with its
+//! unit, admissible range and description (the way a Hopsan component declares
+//! `addInputVariable("C_q", "Flow Coefficient", "-", 0.67, &mpCq)`). The derive implements
+//! `ehactl_plant::spec::ParamTree`, which gives
+//!
+//! * the registry entries (dotted path, unit, range, description, kind) that the loader's
+//!   error messages, `ehactl params`, validation and the Python bindings read, and
+//! * a path accessor (`get_path` / `set_path` / `set_path_or_insert`) so that code addressing
+//!   a parameter by its dotted path (the fit) never repeats the path beside a hand-written
+//!   setter.
+//!
+//! Field attributes:
+//!
+//! * `#[param(unit = "kg", range = Positive, desc = "moving mass")]`: a leaf. The kind
+//!   follows the type: `f64` and `Option<f64>` are floats, unsigned integers integers,
+//!   `Vec<f64>` float arrays; `choices = EXPR` (a `&'static [&'static str]`) makes a choice
+//!   (unit "-", range `Finite` unless given). `range` is a `spec::Range` variant.
+//! * `#[param(nested)]` on a field whose type derives `Params` (or `Option` of one): its
+//!   parameters under `<field>.`; `with(field(desc = "…", choices = …, unit = "…",
+//!   range = …), …)` overrides an inner field's declaration for this instance (e.g. the two
+//!   leakages share one struct but not their descriptions).
+//! * Fields without `#[param]` are not parameters (switches, structural enums without a
+//!   registry entry, tables).
+//!
+//! Written with syn/quote, the maintained way to write a derive; the path prefix is the field
+//! name (the plant structs use no `serde(rename)`; the derive refuses one so the two can't
+//! drift apart).
+
+use proc_macro::TokenStream;
+use proc_macro2::TokenStream as Ts;
+use quote::{quote, ToTokens};
+use syn::{parse_macro_input, Data, DeriveInput, Expr, Fields, LitStr, Type};
+
+/// Derive `ehactl_plant::spec::ParamTree` for a struct with named fields.
+#[proc_macro_derive(Params, attributes(param))]
+pub fn derive_params(input: TokenStream) -> TokenStream {
+    let input = parse_macro_input!(input as DeriveInput);
+    match expand(&input) {
+        Ok(ts) => ts.into(),
+        Err(e) => e.to_compile_error().into(),
+    }
+}
+
+/// What one `#[param(...)]` or `with(field(...))` says.
+#[derive(Default)]
+struct Decl {
+    unit: Option<LitStr>,
+    range: Option<Expr>,
+    desc: Option<LitStr>,
+    choices: Option<Expr>,
+}
+
+impl Decl {
+    fn parse_item(&mut self, meta: &syn::meta::ParseNestedMeta) -> syn::Result<bool> {
+        if meta.path.is_ident("unit") {
+            self.unit = Some(meta.value()?.parse()?);
+        } else if meta.path.is_ident("range") {
+            self.range = Some(meta.value()?.parse()?);
+        } else if meta.path.is_ident("desc") {
+            self.desc = Some(meta.value()?.parse()?);
+        } else if meta.path.is_ident("choices") {
+            self.choices = Some(meta.value()?.parse()?);
+        } else {
+            return Ok(false);
+        }
+        Ok(true)
+    }
+}
+
+enum Shape {
+    Float,
+    OptFloat,
+    Int,
+    FloatVec,
+    Other,
+}
+
+fn shape(ty: &Type) -> Shape {
+    let s = ty.to_token_stream().to_string().replace(' ', "");
+    match s.as_str() {
+        "f64" => Shape::Float,
+        "Option<f64>" => Shape::OptFloat,
+        "u8" | "u16" | "u32" | "u64" | "usize" => Shape::Int,
+        "Vec<f64>" => Shape::FloatVec,
+        _ => Shape::Other,
+    }
+}
+
+/// `Option<T>` → `Some(T)`.
+fn option_inner(ty: &Type) -> Option<&Type> {
+    let Type::Path(tp) = ty else { return None };
+    let seg = tp.path.segments.last()?;
+    if seg.ident != "Option" {
+        return None;
+    }
+    let syn::PathArguments::AngleBracketed(args) = &seg.arguments else {
+        return None;
+    };
+    match args.args.first()? {
+        syn::GenericArgument::Type(t) => Some(t),
+        _ => None,
+    }
+}
+
+fn range_tokens(r: &Expr) -> Ts {
+    quote! {{
+        #[allow(unused_imports)]
+        use ::ehactl_plant::spec::Range::*;
+        #r
+    }}
+}
+
+fn expand(input: &DeriveInput) -> syn::Result<Ts> {
+    let name = &input.ident;
+    let Data::Struct(ds) = &input.data else {
+        return Err(syn::Error::new_spanned(name, "Params: only structs"));
+    };
+    let Fields::Named(fields) = &ds.fields else {
+        return Err(syn::Error::new_spanned(name, "Params: only named fields"));
+    };
+    let sp = quote!(::ehactl_plant::spec);
+    let mut declare = Vec::new();
+    let mut get_arms = Vec::new();
+    let mut set_arms = Vec::new();
+    let mut nested_get = Vec::new();
+    let mut nested_set = Vec::new();
+    let mut vec_get = Vec::new();
+    let mut vec_set = Vec::new();
+    for f in &fields.named {
+        let ident = f.ident.as_ref().expect("named field");
+        let key = ident.to_string();
+        for a in &f.attrs {
+            if a.path().is_ident("serde") {
+                let mut renamed = false;
+                let _ = a.parse_nested_meta(|m| {
+                    if m.path.is_ident("rename") {
+                        renamed = true;
+                    }
+                    if m.input.peek(syn::Token![=]) {
+                        let _: Expr = m.value()?.parse()?;
+                    } else if m.input.peek(syn::token::Paren) {
+                        let c;
+                        syn::parenthesized!(c in m.input);
+                        let _: Ts = c.parse()?;
+                    }
+                    Ok(())
+                });
+                if renamed {
+                    return Err(syn::Error::new_spanned(
+                        a,
+                        "Params: serde(rename) is not supported (the path is the field name)",
+                    ));
+                }
+            }
+        }
+        let Some(attr) = f.attrs.iter().find(|a| a.path().is_ident("param")) else {
+            continue;
+        };
+        let mut decl = Decl::default();
+        let mut nested = false;
+        let mut with: Vec<(String, Decl)> = Vec::new();
+        attr.parse_nested_meta(|meta| {
+            if meta.path.is_ident("nested") {
+                nested = true;
+                return Ok(());
+            }
+            if meta.path.is_ident("with") {
+                return meta.parse_nested_meta(|inner| {
+                    let field = inner
+                        .path
+                        .get_ident()
+                        .ok_or_else(|| inner.error("expected a field name"))?
+                        .to_string();
+                    let mut d = Decl::default();
+                    inner.parse_nested_meta(|m| {
+                        if d.parse_item(&m)? {
+                            Ok(())
+                        } else {
+                            Err(m.error("expected unit, range, desc or choices"))
+                        }
+                    })?;
+                    with.push((field, d));
+                    Ok(())
+                });
+            }
+            if decl.parse_item(&meta)? {
+                Ok(())
+            } else {
+                Err(meta.error("expected unit, range, desc, choices, nested or with(...)"))
+            }
+        })?;
+        if nested {
+            let (inner, optional) = match option_inner(&f.ty) {
+                Some(t) => (t.clone(), true),
+                None => (f.ty.clone(), false),
+            };
+            let overrides = with.iter().map(|(field, d)| {
+                let opt_str = |x: &Option<LitStr>| match x {
+                    Some(s) => quote!(Some(#s)),
+                    None => quote!(None),
+                };
+                let unit = opt_str(&d.unit);
+                let desc = opt_str(&d.desc);
+                let range = match &d.range {
+                    Some(r) => {
+                        let r = range_tokens(r);
+                        quote!(Some(#r))
+                    }
+                    None => quote!(None),
+                };
+                let choices = match &d.choices {
+                    Some(c) => quote!(Some(#c)),
+                    None => quote!(None),
+                };
+                quote! {
+                    #sp::Override { field: #field, unit: #unit, range: #range,
+                                    desc: #desc, choices: #choices }
+                }
+            });
+            declare.push(quote! {
+                <#inner as #sp::ParamTree>::declare(
+                    &#sp::join(prefix, #key), &[#(#overrides),*], out);
+            });
+            let pfx = format!("{key}.");
+            if optional {
+                nested_get.push(quote! {
+                    if let Some(rest) = path.strip_prefix(#pfx) {
+                        return self.#ident.as_ref().and_then(|s| #sp::ParamTree::param_get(s, rest));
+                    }
+                });
+                nested_set.push(quote! {
+                    if let Some(rest) = path.strip_prefix(#pfx) {
+                        let tpl = tpl.and_then(|t| t.#ident.as_ref());
+                        if self.#ident.is_none() {
+                            match tpl {
+                                Some(t) => self.#ident = Some(t.clone()),
+                                None => {
+                                    // Unknown paths stay unknown even under an absent section.
+                                    return if <#inner as #sp::ParamTree>::knows(rest) {
+                                        Err(#sp::PathErrorKind::Absent)
+                                    } else {
+                                        Err(#sp::PathErrorKind::Unknown)
+                                    };
+                                }
+                            }
+                        }
+                        return match self.#ident.as_mut() {
+                            Some(s) => #sp::ParamTree::param_set(s, rest, v, tpl),
+                            None => Err(#sp::PathErrorKind::Absent),
+                        };
+                    }
+                });
+            } else {
+                nested_get.push(quote! {
+                    if let Some(rest) = path.strip_prefix(#pfx) {
+                        return #sp::ParamTree::param_get(&self.#ident, rest);
+                    }
+                });
+                nested_set.push(quote! {
+                    if let Some(rest) = path.strip_prefix(#pfx) {
+                        return #sp::ParamTree::param_set(&mut self.#ident, rest, v, tpl.map(|t| &t.#ident));
+                    }
+                });
+            }
+            continue;
+        }
+        let desc = decl
+            .desc
+            .ok_or_else(|| syn::Error::new_spanned(attr, "param: desc = \"…\" is required"))?;
+        let sh = shape(&f.ty);
+        let kind =
+            if let Some(c) = &decl.choices {
+                quote!(#sp::Kind::Choice(#c))
+            } else {
+                match sh {
+                    Shape::Float | Shape::OptFloat => quote!(#sp::Kind::Float),
+                    Shape::Int => quote!(#sp::Kind::Integer),
+                    Shape::FloatVec => quote!(#sp::Kind::FloatArray),
+                    Shape::Other => return Err(syn::Error::new_spanned(
+                        &f.ty,
+                        "param: type must be f64, Option<f64>, an unsigned integer or Vec<f64>, \
+                         or the field needs choices = …",
+                    )),
+                }
+            };
+        let unit = match (&decl.unit, &decl.choices) {
+            (Some(u), _) => quote!(#u),
+            (None, Some(_)) => quote!("-"),
+            (None, None) => {
+                return Err(syn::Error::new_spanned(
+                    attr,
+                    "param: unit = \"…\" is required",
+                ))
+            }
+        };
+        let range = match (&decl.range, &decl.choices) {
+            (Some(r), _) => range_tokens(r),
+            (None, Some(_)) => quote!(#sp::Range::Finite),
+            (None, None) => {
+                return Err(syn::Error::new_spanned(
+                    attr,
+                    "param: range = … is required",
+                ))
+            }
+        };
+        declare.push(quote! {
+            out.push((#sp::join(prefix, #key), #sp::Override::apply(
+                over, #key, #sp::Param::new("", #unit, #range, #desc, #kind))));
+        });
+        if decl.choices.is_some() {
+            get_arms.push(quote!(#key => None,));
+            set_arms.push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
+            continue;
+        }
+        match sh {
+            Shape::Float => {
+                get_arms.push(quote!(#key => Some(self.#ident),));
+                set_arms.push(quote!(#key => { self.#ident = v; Ok(()) }));
+            }
+            Shape::OptFloat => {
+                get_arms.push(quote!(#key => self.#ident,));
+                set_arms.push(quote!(#key => { self.#ident = Some(v); Ok(()) }));
+            }
+            Shape::Int | Shape::Other => {
+                get_arms.push(quote!(#key => None,));
+                set_arms.push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
+            }
+            Shape::FloatVec => {
+                get_arms.push(quote!(#key => None,));
+                set_arms.push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
+                let pfx = format!("{key}[");
+                vec_get.push(quote! {
+                    if let Some(i) = #sp::index_of(path, #pfx) {
+                        return self.#ident.get(i).copied();
+                    }
+                });
+                vec_set.push(quote! {
+                    if let Some(i) = #sp::index_of(path, #pfx) {
+                        return match self.#ident.get_mut(i) {
+                            Some(x) => { *x = v; Ok(()) }
+                            None => Err(#sp::PathErrorKind::Index),
+                        };
+                    }
+                });
+            }
+        }
+    }
+    let (ig, tg, wc) = input.generics.split_for_impl();
+    Ok(quote! {
+        impl #ig #sp::ParamTree for #name #tg #wc {
+            fn declare(
+                prefix: &str,
+                over: &[#sp::Override],
+                out: &mut ::std::vec::Vec<(::std::string::String, #sp::Param)>,
+            ) {
+                let _ = over;
+                #(#declare)*
+            }
+            fn param_get(&self, path: &str) -> Option<f64> {
+                #(#nested_get)*
+                #(#vec_get)*
+                match path {
+                    #(#get_arms)*
+                    _ => None,
+                }
+            }
+            fn param_set(&mut self, path: &str, v: f64, tpl: Option<&Self>)
+                -> Result<(), #sp::PathErrorKind> {
+                let _ = tpl;
+                #(#nested_set)*
+                #(#vec_set)*
+                match path {
+                    #(#set_arms)*
+                    _ => Err(#sp::PathErrorKind::Unknown),
+                }
+            }
+        }
+    })
+}
