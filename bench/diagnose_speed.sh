@@ -4,6 +4,8 @@
 # interleaved A/B, REPS times. Prints per run wall time, process CPU time (user+sys) and the
 # load average before the run; then the medians per configuration. Not a test.
 # Usage: bench/diagnose_speed.sh [REPS=3] [EFFECTS="friction valve_deadband line_dynamics"]
+# EFFECTS may name independent-generator cases, e.g. "indep:lugre"; SESSION=1 in the
+# environment runs with the options of `ehactl diagnose` (see the example's doc).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 REPS="${1:-3}"

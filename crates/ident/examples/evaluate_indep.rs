@@ -19,6 +19,15 @@ fn main() {
         .cloned()
         .unwrap_or("bench/results/diagnose_eval_indep.md".into());
     let duration: f64 = a.get(3).and_then(|s| s.parse().ok()).unwrap_or(1.5);
+    // `INTEGRATION_COST=4` runs the diagnosis with the replay cost cap of `ehactl diagnose`
+    // (`session::USER_INTEGRATION_COST`) instead of the library default 1×.
+    let opts = Options {
+        integration_max_cost: std::env::var("INTEGRATION_COST")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(Options::default().integration_max_cost),
+        ..Options::default()
+    };
     let text = std::fs::read_to_string(&list).expect("read case list");
     let cases = parse_cases(&text);
     let log_path = format!("{out}.cases");
@@ -72,7 +81,7 @@ fn main() {
             continue;
         }
         let t0 = std::time::Instant::now();
-        let d = match diagnose(&case.nominal, &case.record, None, &Options::default()) {
+        let d = match diagnose(&case.nominal, &case.record, None, &opts) {
             Ok(d) => d,
             Err(e) => {
                 let line = format!("seed {seed} kind {kind} expect {want} {want_var} -> ERROR {e}");

@@ -751,15 +751,27 @@ fn phase_variants(
     threads: usize,
     bar: &indicatif::ProgressBar,
 ) -> BTreeMap<EffectId, Vec<VariantFit>> {
+    // Longest job first (the fit's evaluation budget grows with the free parameters, and
+    // line and mount models replay more states), so that no worker is left with a long fit
+    // while the other idles at the end of the round. Results are keyed by job index, so the
+    // order of execution does not change them.
+    let weight = |j: &(EffectId, &'static str, Option<Hyp>)| {
+        let heavy = matches!(j.0, EffectId::LineDynamics | EffectId::FlexibleMount);
+        j.2.as_ref()
+            .map_or(0, |h| 2 * h.params.len() + usize::from(heavy))
+    };
+    let mut order: Vec<usize> = (0..jobs.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(weight(&jobs[i])));
     let next = AtomicUsize::new(0);
     let results: Mutex<Vec<(usize, VariantFit)>> = Mutex::new(Vec::new());
     std::thread::scope(|s| {
         for _ in 0..threads.min(jobs.len()).max(1) {
             s.spawn(|| loop {
-                let i = next.fetch_add(1, Ordering::SeqCst);
-                if i >= jobs.len() {
+                let k = next.fetch_add(1, Ordering::SeqCst);
+                if k >= jobs.len() {
                     break;
                 }
+                let i = order[k];
                 let (_, v, h) = &jobs[i];
                 let r = h.clone().map(|h| {
                     let (h, c) = ctx.fit(h, first_new, evals_per_param);
