@@ -86,6 +86,14 @@ fn points(x: &[f64], y: &[f64], max: usize) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// The values with every non-finite sample (a replay after a numerical failure) set to 0, so
+/// that one bad sample does not turn a whole spectrum into NaN.
+fn finite_or_zero(v: &[f64]) -> Vec<f64> {
+    v.iter()
+        .map(|x| if x.is_finite() { *x } else { 0.0 })
+        .collect()
+}
+
 fn label(kind: ChannelKind) -> String {
     format!("{} ({})", kind.column(), kind.unit())
 }
@@ -225,13 +233,8 @@ fn residuals(path: &Path, rec: &Record, nom: &Replay, ext: &Replay) -> PlotResul
             &[(&rn, NOMINAL, "nominal"), (&re, EXTENDED, "extended")],
             None,
         )?;
-        let finite = |v: &[f64]| {
-            v.iter()
-                .map(|x| if x.is_finite() { *x } else { 0.0 })
-                .collect::<Vec<_>>()
-        };
-        let (f, pn) = welch_segments(&finite(&rn), rec.dt, seg);
-        let (_, pe) = welch_segments(&finite(&re), rec.dt, seg);
+        let (f, pn) = welch_segments(&finite_or_zero(&rn), rec.dt, seg);
+        let (_, pe) = welch_segments(&finite_or_zero(&re), rec.dt, seg);
         let (f0, f1) = log_span(f[1..].iter());
         let (p0, p1) = log_span(pn[1..].iter().chain(&pe[1..]));
         let mut chart = ChartBuilder::on(&areas[2 * c + 1])
@@ -321,11 +324,6 @@ fn frf(path: &Path, rec: &Record, nom: &Replay, ext: &Replay) -> PlotResult<()> 
     let areas = root.split_evenly((2, cols));
     let seg = plot_segment(rec.len());
     for (c, ch) in rec.channels.iter().enumerate() {
-        let finite = |v: &[f64]| {
-            v.iter()
-                .map(|x| if x.is_finite() { *x } else { 0.0 })
-                .collect::<Vec<_>>()
-        };
         let curves: Vec<Curve> = [
             (&ch.values, MEASURED, "measured"),
             (&nom.y[c], NOMINAL, "nominal"),
@@ -333,7 +331,7 @@ fn frf(path: &Path, rec: &Record, nom: &Replay, ext: &Replay) -> PlotResult<()> 
         ]
         .into_iter()
         .map(|(y, colour, name)| {
-            let (f, h) = h1_estimate(&rec.u, &finite(y), rec.dt, seg);
+            let (f, h) = h1_estimate(&rec.u, &finite_or_zero(y), rec.dt, seg);
             (f, h, colour, name)
         })
         .collect();
