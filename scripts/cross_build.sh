@@ -6,7 +6,10 @@
 # driven by `cargo-zigbuild` (PyPI), so no system cross-gcc is needed. Binaries link
 # against glibc GLIBC (default 2.31 = Debian 11 / Ubuntu 20.04 or newer on the board).
 # Usage: scripts/cross_build.sh [TARGET ...]   (default: both targets)
-# Env: GLIBC=2.31, EHACTL_REQUIRE_CROSS=1 to fail (not skip) when the toolchain is missing.
+# Env: GLIBC=2.31, EHACTL_REQUIRE_CROSS=1 to fail (not skip) when the toolchain is missing,
+#      CROSS_PRUNE=1 to delete the target's intermediate build files (deps, build scripts,
+#      fingerprints; ≈ 0.5 GB per target) once the binary is checked — the binary stays at
+#      target/TARGET/release/ehactl (CI sets it: its disk is small; a rebuild then starts cold).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 GLIBC="${GLIBC:-2.31}"
@@ -46,4 +49,8 @@ want = {"aarch64": (0xB7, 2), "armv7": (0x28, 1)}[target.split("-")[0]]
 assert (machine, raw[4]) == want, f"{path}: e_machine {machine:#x}, class {raw[4]}, expected {want}"
 print(f"{path}: ELF {'64' if raw[4] == 2 else '32'}-bit, e_machine {machine:#x} ({target}) ok")
 PY
+  if [ "${CROSS_PRUNE:-0}" = 1 ]; then
+    rm -rf "target/$t/release/deps" "target/$t/release/build" "target/$t/release/.fingerprint" \
+      "target/$t/release/incremental" "target/$t/release/examples"
+  fi
 done
