@@ -1,7 +1,7 @@
 //! The `[canopen]` section: defaults, round trip through TOML, registry coverage, bus-load
 //! refusal with the worst-case bit-stuffing formula.
 
-use ehactl_canopen::config::{frame_bits, CanopenConfig, CANOPEN_PARAMS};
+use ehactl_canopen::config::{canopen_params, frame_bits, CanopenConfig};
 use ehactl_config::RigConfig;
 
 fn boom() -> String {
@@ -52,9 +52,9 @@ fn every_field_is_in_the_registry_with_a_unit() {
         .keys()
         .map(|k| format!("canopen.{k}"))
         .collect();
-    assert_eq!(keys.len(), CANOPEN_PARAMS.len());
+    assert_eq!(keys.len(), canopen_params().len());
     for k in &keys {
-        let p = CANOPEN_PARAMS
+        let p = canopen_params()
             .iter()
             .find(|p| p.path == k)
             .unwrap_or_else(|| panic!("{k} not in registry"));

@@ -13,41 +13,56 @@
 //! heartbeats, error frames / retransmissions and the devices' SYNC-to-TPDO processing
 //! need, and the loop closes over CAN only once per SYNC anyway.
 
-use ehactl_plant::spec::{ConfigError, Kind, Param, Range};
+use ehactl_params_derive::Params;
+use ehactl_plant::spec::{self, ConfigError, Param};
 use serde::{Deserialize, Serialize};
+use std::sync::LazyLock;
 
 /// `[canopen]` (all fields optional, defaults as in the ICD).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields, default)]
 pub struct CanopenConfig {
     /// Bit rate (bit/s).
+    #[param(unit = "bit/s", range = Within(10e3, 1e6), desc = "CAN bit rate (ICD default 1 Mbit/s)")]
     pub bitrate: u32,
     /// SYNC producer rate (Hz).
+    #[param(unit = "Hz", range = Within(1.0, 10e3), desc = "SYNC producer rate; CAN I/O rate, sample-and-hold to the control rate")]
     pub sync_rate_hz: f64,
     /// Heartbeat producer time written to each device's 0x1017 (ms).
+    #[param(unit = "ms", range = Within(1.0, 65535.0), desc = "heartbeat producer time written to 0x1017 of each device")]
     pub heartbeat_ms: u16,
     /// Heartbeat consumer timeout of the master (ms).
+    #[param(unit = "ms", range = Within(1.0, 65535.0), desc = "master's heartbeat consumer timeout (> heartbeat_ms)")]
     pub heartbeat_timeout_ms: u32,
     /// Time allowed for every device's boot-up (s).
+    #[param(unit = "s", range = Within(0.01, 600.0), desc = "time allowed for every device's boot-up")]
     pub boot_timeout_s: f64,
     /// SDO response timeout (ms).
+    #[param(unit = "ms", range = Within(1.0, 60000.0), desc = "SDO response timeout")]
     pub sdo_timeout_ms: u32,
     /// Node id of the CiA 406 position transducer.
+    #[param(unit = "-", range = Within(1.0, 127.0), desc = "node id of the CiA 406 position transducer (ICD 32 = 0x20)")]
     pub transducer_node_id: u8,
     /// Node id of the CiA 408 valve.
+    #[param(unit = "-", range = Within(1.0, 127.0), desc = "node id of the CiA 408 valve (ICD 48 = 0x30)")]
     pub valve_node_id: u8,
     /// Position step written to 0x6005:01 (nm).
+    #[param(unit = "nm", range = Within(1.0, 1e9), desc = "position step written to 0x6005:01")]
     pub position_step_nm: u32,
     /// Map the valve TPDO1 (status word + actual spool).
+    #[param(unit = "bool", range = Finite, desc = "map valve TPDO1 (status word + actual spool); true or false")]
     pub valve_status_pdo: bool,
     /// Node id of ehactl itself (the NMT master's heartbeat is 0x700 + this id).
+    #[param(unit = "-", range = Within(1.0, 127.0), desc = "node id of ehactl (its heartbeat COB-ID is 0x700 + id)")]
     pub master_node_id: u8,
     /// Heartbeat producer time of ehactl (ms): the control cycle sends 0x700 + master id
     /// [05] this often.
+    #[param(unit = "ms", range = Within(1.0, 65535.0), desc = "heartbeat producer time of ehactl (sent by the control cycle)")]
     pub master_heartbeat_ms: u16,
     /// Consumer time of ehactl's heartbeat written to 0x1016:01 of every device (ms): a
     /// device that hears no master heartbeat for this long enters its fault reaction
     /// (valve: FAULT_HOLD, see DEPLOY.md).
+    #[param(unit = "ms", range = Within(1.0, 65535.0), desc = "consumer time of ehactl's heartbeat written to 0x1016:01 of every device (> master_heartbeat_ms)")]
     pub device_heartbeat_timeout_ms: u16,
     /// EDS / DCF of the transducer (path, relative to the config file; `""` = the built-in
     /// EDS of the project's simulated transducer, configs/eds/ehactl_transducer_406.eds).
@@ -59,14 +74,18 @@ pub struct CanopenConfig {
     pub valve_eds: String,
     /// SYNC counter overflow value written to 0x1019 of every device that has it (0 = SYNC
     /// without counter, else 2..240: SYNC carries a counter 1..this value, CiA 301 7.5.2.22).
+    #[param(unit = "-", range = Within(0.0, 240.0), desc = "SYNC counter overflow value written to 0x1019 where the EDS has it (0 = no counter, else 2..240)")]
     pub sync_counter_overflow: u8,
     /// Synchronous window length written to 0x1007 of every device that has it (µs, 0 = off).
+    #[param(unit = "µs", range = Within(0.0, 4.0e9), desc = "synchronous window length written to 0x1007 where the EDS has it (0 = off; < SYNC period)")]
     pub sync_window_us: u32,
     /// PDO age limit (SYNC periods): a synchronous TPDO answering SYNC k that arrives after
     /// SYNC k + 1 is late (counted); one older than this many SYNC periods trips.
+    #[param(unit = "SYNC periods", range = Within(1.0, 1.0e6), desc = "a synchronous TPDO older than this many SYNC periods on arrival trips (later than the next SYNC: counted)")]
     pub max_pdo_age_syncs: u32,
     /// RPDO deadline written to the valve's RPDO1 event timer 0x1400:05 where its EDS has it
     /// (ms, 0 = off): a valve that gets no setpoint for this long reacts as to a master loss.
+    #[param(unit = "ms", range = Within(0.0, 65535.0), desc = "valve RPDO1 event timer 0x1400:05 (setpoint deadline) where the EDS has it (0 = off; > 2 SYNC periods)")]
     pub valve_rpdo_timeout_ms: u16,
 }
 
@@ -96,128 +115,12 @@ impl Default for CanopenConfig {
     }
 }
 
-/// Registry of the `[canopen]` parameters (for `ehactl params` and config checks).
-pub const CANOPEN_PARAMS: &[Param] = &[
-    Param::new(
-        "canopen.bitrate",
-        "bit/s",
-        Range::Within(10e3, 1e6),
-        "CAN bit rate (ICD default 1 Mbit/s)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.sync_rate_hz",
-        "Hz",
-        Range::Within(1.0, 10e3),
-        "SYNC producer rate; CAN I/O rate, sample-and-hold to the control rate",
-        Kind::Float,
-    ),
-    Param::new(
-        "canopen.heartbeat_ms",
-        "ms",
-        Range::Within(1.0, 65535.0),
-        "heartbeat producer time written to 0x1017 of each device",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.heartbeat_timeout_ms",
-        "ms",
-        Range::Within(1.0, 65535.0),
-        "master's heartbeat consumer timeout (> heartbeat_ms)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.boot_timeout_s",
-        "s",
-        Range::Within(0.01, 600.0),
-        "time allowed for every device's boot-up",
-        Kind::Float,
-    ),
-    Param::new(
-        "canopen.sdo_timeout_ms",
-        "ms",
-        Range::Within(1.0, 60000.0),
-        "SDO response timeout",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.transducer_node_id",
-        "-",
-        Range::Within(1.0, 127.0),
-        "node id of the CiA 406 position transducer (ICD 32 = 0x20)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.valve_node_id",
-        "-",
-        Range::Within(1.0, 127.0),
-        "node id of the CiA 408 valve (ICD 48 = 0x30)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.position_step_nm",
-        "nm",
-        Range::Within(1.0, 1e9),
-        "position step written to 0x6005:01",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.valve_status_pdo",
-        "bool",
-        Range::Finite,
-        "map valve TPDO1 (status word + actual spool); true or false",
-        Kind::Bool,
-    ),
-    Param::new(
-        "canopen.master_node_id",
-        "-",
-        Range::Within(1.0, 127.0),
-        "node id of ehactl (its heartbeat COB-ID is 0x700 + id)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.master_heartbeat_ms",
-        "ms",
-        Range::Within(1.0, 65535.0),
-        "heartbeat producer time of ehactl (sent by the control cycle)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.device_heartbeat_timeout_ms",
-        "ms",
-        Range::Within(1.0, 65535.0),
-        "consumer time of ehactl's heartbeat written to 0x1016:01 of every device (> master_heartbeat_ms)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.sync_counter_overflow",
-        "-",
-        Range::Within(0.0, 240.0),
-        "SYNC counter overflow value written to 0x1019 where the EDS has it (0 = no counter, else 2..240)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.sync_window_us",
-        "µs",
-        Range::Within(0.0, 4.0e9),
-        "synchronous window length written to 0x1007 where the EDS has it (0 = off; < SYNC period)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.max_pdo_age_syncs",
-        "SYNC periods",
-        Range::Within(1.0, 1.0e6),
-        "a synchronous TPDO older than this many SYNC periods on arrival trips (later than the next SYNC: counted)",
-        Kind::Integer,
-    ),
-    Param::new(
-        "canopen.valve_rpdo_timeout_ms",
-        "ms",
-        Range::Within(0.0, 65535.0),
-        "valve RPDO1 event timer 0x1400:05 (setpoint deadline) where the EDS has it (0 = off; > 2 SYNC periods)",
-        Kind::Integer,
-    ),
-];
+/// Registry of the `[canopen]` parameters (for `ehactl params` and config checks),
+/// generated from the `#[param(...)]` declarations on the fields of [`CanopenConfig`].
+pub fn canopen_params() -> &'static [Param] {
+    static TABLE: LazyLock<Vec<Param>> = LazyLock::new(|| spec::table::<CanopenConfig>("canopen"));
+    &TABLE
+}
 
 /// Largest bus load accepted (fraction).
 pub const MAX_BUS_LOAD: f64 = 0.80;

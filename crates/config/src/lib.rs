@@ -4,16 +4,18 @@
 //! supervisor, run, log, realtime and CANopen sections. Loading validates every field against the parameter
 //! registries and reports the first problem with its dotted path and expected unit.
 
-use ehactl_canopen::config::{CanopenConfig, CANOPEN_PARAMS};
+use ehactl_canopen::config::{canopen_params, CanopenConfig};
 use ehactl_control::pd::PdGains;
 use ehactl_control::pi::PiGains;
 use ehactl_control::setpoint::{SetpointConfig, SetpointKind, Sweep};
 use ehactl_control::supervisor::SupervisorConfig;
 use ehactl_hal::Timebase;
-use ehactl_plant::spec::{self, ConfigError, Param, Range};
+use ehactl_params_derive::Params;
+use ehactl_plant::spec::{self, ConfigError, Param};
 use ehactl_plant::PlantParams;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::sync::LazyLock;
 
 /// Controlled variable.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
@@ -28,46 +30,86 @@ pub enum ControlMode {
 }
 
 /// PI section `[control.pi]`.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
 pub struct PiConfig {
     /// K_P (V/V of scaled error).
+    #[param(
+        unit = "V/V",
+        range = Within(0.0, 1.0e3),
+        desc = "PI proportional gain K_P (004: 0.57)"
+    )]
     pub kp: f64,
     /// I = 1/T_i (1/s).
+    #[param(
+        unit = "1/s",
+        range = Within(0.0, 1.0e9),
+        desc = "PI integral rate I (004: 386.24)"
+    )]
     pub integral: f64,
     /// Error scale (V/N); 004: load-cell sensitivity 0.5097e-3.
+    #[param(
+        unit = "V/N",
+        range = Positive,
+        desc = "error scale, load-cell sensitivity (004: 0.5097e-3)"
+    )]
     pub error_scale: f64,
     /// Lower output limit (V).
     #[serde(default = "neg_ten")]
+    #[param(unit = "V", range = Finite, desc = "lower command limit")]
     pub u_min: f64,
     /// Upper output limit (V).
     #[serde(default = "ten")]
+    #[param(unit = "V", range = Finite, desc = "upper command limit")]
     pub u_max: f64,
     /// Back-calculation gain (1/s); 0 = clamping anti-windup.
     #[serde(default)]
+    #[param(
+        unit = "1/s",
+        range = Within(0.0, 1.0e9),
+        desc = "back-calculation anti-windup gain"
+    )]
     pub tracking: f64,
     /// Setpoint feed-forward (V/N).
     #[serde(default)]
+    #[param(unit = "V/N", range = Finite, desc = "setpoint feed-forward")]
     pub feedforward: f64,
 }
 
 /// PD section `[control.pd]`.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
 pub struct PdConfig {
     /// K_P (V/m).
+    #[param(
+        unit = "V/m",
+        range = Within(0.0, 1.0e7),
+        desc = "PD proportional gain K_P (003 eq. 32)"
+    )]
     pub kp: f64,
     /// T_D (s).
     #[serde(default)]
+    #[param(
+        unit = "s",
+        range = Within(0.0, 1.0e3),
+        desc = "derivative time T_D (003 eq. 32)"
+    )]
     pub td: f64,
     /// Derivative filter ratio N (-); 0 = unfiltered (003 eq. 32).
     #[serde(default)]
+    #[param(
+        unit = "-",
+        range = Within(0.0, 1.0e3),
+        desc = "derivative filter ratio N"
+    )]
     pub filter_n: f64,
     /// Output limit (V), symmetric.
     #[serde(default = "ten")]
+    #[param(unit = "V", range = Positive, desc = "command limit")]
     pub u_max: f64,
     /// Velocity feed-forward (V·s/m).
     #[serde(default)]
+    #[param(unit = "V·s/m", range = Finite, desc = "velocity feed-forward")]
     pub feedforward_velocity: f64,
 }
 
@@ -79,27 +121,35 @@ fn neg_ten() -> f64 {
 }
 
 /// `[control]`.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
 pub struct ControlConfig {
     /// Controlled variable.
     pub mode: ControlMode,
     /// PI gains (force mode).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub pi: Option<PiConfig>,
     /// PD gains (position mode).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(nested)]
     pub pd: Option<PdConfig>,
 }
 
 /// `[run]`.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
     /// Duration (s).
+    #[param(unit = "s", range = Within(1e-6, 1.0e6), desc = "run duration")]
     pub duration: f64,
     /// Control rate (Hz); 004: 5 kHz.
     #[serde(default = "RunConfig::default_rate")]
+    #[param(
+        unit = "Hz",
+        range = Within(1.0, 1.0e6),
+        desc = "control rate (004: 5000)"
+    )]
     pub control_rate_hz: f64,
 }
 
@@ -121,7 +171,7 @@ pub enum Compression {
 }
 
 /// `[log]`.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
 pub struct LogConfig {
     /// Chunk compression.
@@ -129,11 +179,21 @@ pub struct LogConfig {
     pub compression: Compression,
     /// Record queue capacity (records).
     #[serde(default = "LogConfig::default_queue")]
+    #[param(
+        unit = "records",
+        range = Within(16.0, 1.0e8),
+        desc = "logger queue capacity"
+    )]
     pub queue_capacity: u64,
     /// Longest span of records held in an open MCAP chunk before it is closed and flushed
     /// (s); with a simulated plant the loop also never runs more than this far ahead of the
     /// file. Bounds what a SIGKILL or power loss can lose (`ehactl recover` rebuilds the rest).
     #[serde(default = "LogConfig::default_chunk_interval")]
+    #[param(
+        unit = "s",
+        range = Within(1e-3, 10.0),
+        desc = "longest span of records in an open MCAP chunk (bounds the loss on SIGKILL)"
+    )]
     pub chunk_interval: f64,
 }
 
@@ -171,26 +231,46 @@ pub enum OverrunPolicyConfig {
 
 /// `[realtime]`: settings of the wall-clock executor (`ehactl run --realtime`). Each one
 /// that the OS refuses (no CAP_SYS_NICE, RLIMIT_MEMLOCK, …) is a warning, not a failure.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
 pub struct RealtimeConfig {
     /// SCHED_FIFO priority of the loop thread (1–99); 0 = keep the normal scheduler.
     #[serde(default = "RealtimeConfig::default_priority")]
+    #[param(
+        unit = "-",
+        range = Within(0.0, 99.0),
+        desc = "SCHED_FIFO priority of the loop with --realtime (0 = normal scheduler)"
+    )]
     pub priority: u32,
     /// CPU (0-based) to pin the loop thread to; -1 = no pinning.
     #[serde(default = "RealtimeConfig::default_cpu")]
+    #[param(
+        unit = "-",
+        range = Within(-1.0, 4095.0),
+        desc = "CPU to pin the loop to with --realtime (-1 = none)"
+    )]
     pub cpu: i64,
     /// Lock all memory (mlockall) so that no page fault lands in a cycle.
     #[serde(default = "RealtimeConfig::default_lock")]
     pub lock_memory: bool,
     /// Busy-wait tail before each deadline (s); 0 = sleep only. Must be below the period.
     #[serde(default = "RealtimeConfig::default_spin")]
+    #[param(
+        unit = "s",
+        range = Within(0.0, 1.0),
+        desc = "busy-wait tail before each deadline (< period)"
+    )]
     pub spin: f64,
     /// Overrun policy: "continue", "skip" or "trip".
     #[serde(default)]
     pub overrun_policy: OverrunPolicyConfig,
     /// Consecutive overruns that trip the run under `overrun_policy = "trip"` (cycles).
     #[serde(default = "RealtimeConfig::default_trip_after")]
+    #[param(
+        unit = "cycles",
+        range = Within(1.0, 1.0e9),
+        desc = "consecutive overruns that trip (overrun_policy = \"trip\"; also: continue | skip)"
+    )]
     pub trip_after: u32,
 }
 
@@ -260,208 +340,35 @@ pub struct RigConfig {
     pub realtime: RealtimeConfig,
 }
 
-use Range::*;
+/// Control, setpoint, supervisor, run, log and realtime parameters, generated from the
+/// `#[param(...)]` declarations on the fields of their sections (`#[derive(Params)]`), in
+/// the order of [`RIG_SECTIONS`] and then of the fields.
+pub fn control_params() -> &'static [Param] {
+    static TABLE: LazyLock<Vec<Param>> = LazyLock::new(|| {
+        let mut out = Vec::new();
+        for (key, declare) in RIG_SECTIONS {
+            out.extend(declare(key));
+        }
+        out
+    });
+    &TABLE
+}
 
-/// Control, setpoint, supervisor, run and log parameters.
-pub const CONTROL_PARAMS: &[Param] = &[
-    Param::float(
-        "control.pi.kp",
-        "V/V",
-        Within(0.0, 1.0e3),
-        "PI proportional gain K_P (004: 0.57)",
-    ),
-    Param::float(
-        "control.pi.integral",
-        "1/s",
-        Within(0.0, 1.0e9),
-        "PI integral rate I (004: 386.24)",
-    ),
-    Param::float(
-        "control.pi.error_scale",
-        "V/N",
-        Positive,
-        "error scale, load-cell sensitivity (004: 0.5097e-3)",
-    ),
-    Param::float("control.pi.u_min", "V", Finite, "lower command limit"),
-    Param::float("control.pi.u_max", "V", Finite, "upper command limit"),
-    Param::float(
-        "control.pi.tracking",
-        "1/s",
-        Within(0.0, 1.0e9),
-        "back-calculation anti-windup gain",
-    ),
-    Param::float(
-        "control.pi.feedforward",
-        "V/N",
-        Finite,
-        "setpoint feed-forward",
-    ),
-    Param::float(
-        "control.pd.kp",
-        "V/m",
-        Within(0.0, 1.0e7),
-        "PD proportional gain K_P (003 eq. 32)",
-    ),
-    Param::float(
-        "control.pd.td",
-        "s",
-        Within(0.0, 1.0e3),
-        "derivative time T_D (003 eq. 32)",
-    ),
-    Param::float(
-        "control.pd.filter_n",
-        "-",
-        Within(0.0, 1.0e3),
-        "derivative filter ratio N",
-    ),
-    Param::float("control.pd.u_max", "V", Positive, "command limit"),
-    Param::float(
-        "control.pd.feedforward_velocity",
-        "V·s/m",
-        Finite,
-        "velocity feed-forward",
-    ),
-    Param::float(
-        "setpoint.initial",
-        "N or m",
-        Finite,
-        "initial value / lower bound",
-    ),
-    Param::float(
-        "setpoint.final",
-        "N or m",
-        Finite,
-        "final value / upper bound",
-    ),
-    Param::float("setpoint.start", "s", NonNegative, "start time"),
-    Param::float(
-        "setpoint.duration",
-        "s",
-        NonNegative,
-        "ramp / sweep duration",
-    ),
-    Param::float("setpoint.offset", "N or m", Finite, "static part / offset"),
-    Param::float(
-        "setpoint.amplitude",
-        "N or m",
-        NonNegative,
-        "dynamic amplitude",
-    ),
-    Param::float("setpoint.f0", "Hz", Within(0.0, 1.0e6), "start frequency"),
-    Param::float("setpoint.f1", "Hz", Within(0.0, 1.0e6), "end frequency"),
-    Param::int(
-        "setpoint.steps",
-        "-",
-        NonNegative,
-        "frequencies of a stepped sweep",
-    ),
-    Param::float("setpoint.ramp_time", "s", NonNegative, "static ramp time"),
-    Param::float("setpoint.hold", "s", NonNegative, "random-step hold time"),
-    Param::int("setpoint.seed", "-", NonNegative, "random-step seed"),
-    Param::float(
-        "supervisor.max_pressure",
-        "Pa",
-        Positive,
-        "pressure trip limit",
-    ),
-    Param::float(
-        "supervisor.min_position",
-        "m",
-        Finite,
-        "lower position trip limit",
-    ),
-    Param::float(
-        "supervisor.max_position",
-        "m",
-        Finite,
-        "upper position trip limit",
-    ),
-    Param::float("supervisor.max_force", "N", Positive, "force trip limit"),
-    Param::float("supervisor.max_command", "V", Positive, "command clamp"),
-    Param::float(
-        "supervisor.safe_command",
-        "V",
-        Finite,
-        "command on trip / end",
-    ),
-    Param::float(
-        "supervisor.stale_timeout",
-        "s",
-        Positive,
-        "sensor staleness timeout",
-    ),
-    Param::float(
-        "supervisor.force_range",
-        "N",
-        Positive,
-        "plausible load-cell range",
-    ),
-    Param::float(
-        "supervisor.saturation_window",
-        "s",
-        Within(1e-4, 1e3),
-        "trip when the command sits at a limit for > max_saturation of this window (absent = off)",
-    ),
-    Param::float(
-        "supervisor.max_saturation",
-        "-",
-        Within(0.01, 0.999),
-        "share of the saturation window allowed at a limit",
-    ),
-    Param::float(
-        "supervisor.pressure_range",
-        "Pa",
-        Positive,
-        "plausible pressure range",
-    ),
-    Param::float("run.duration", "s", Within(1e-6, 1.0e6), "run duration"),
-    Param::float(
-        "run.control_rate_hz",
-        "Hz",
-        Within(1.0, 1.0e6),
-        "control rate (004: 5000)",
-    ),
-    Param::int(
-        "log.queue_capacity",
-        "records",
-        Within(16.0, 1.0e8),
-        "logger queue capacity",
-    ),
-    Param::float(
-        "log.chunk_interval",
-        "s",
-        Within(1e-3, 10.0),
-        "longest span of records in an open MCAP chunk (bounds the loss on SIGKILL)",
-    ),
-    Param::int(
-        "realtime.priority",
-        "-",
-        Within(0.0, 99.0),
-        "SCHED_FIFO priority of the loop with --realtime (0 = normal scheduler)",
-    ),
-    Param::int(
-        "realtime.cpu",
-        "-",
-        Within(-1.0, 4095.0),
-        "CPU to pin the loop to with --realtime (-1 = none)",
-    ),
-    Param::float(
-        "realtime.spin",
-        "s",
-        Within(0.0, 1.0),
-        "busy-wait tail before each deadline (< period)",
-    ),
-    Param::int(
-        "realtime.trip_after",
-        "cycles",
-        Within(1.0, 1.0e9),
-        "consecutive overruns that trip (overrun_policy = \"trip\"; also: continue | skip)",
-    ),
+/// Sections of the rig config (besides the plant and `[canopen]`) that declare parameters,
+/// with the function listing their registry entries under their key.
+type Declare = fn(&str) -> Vec<Param>;
+const RIG_SECTIONS: [(&str, Declare); 6] = [
+    ("control", spec::table::<ControlConfig>),
+    ("setpoint", spec::table::<SetpointConfig>),
+    ("supervisor", spec::table::<SupervisorConfig>),
+    ("run", spec::table::<RunConfig>),
+    ("log", spec::table::<LogConfig>),
+    ("realtime", spec::table::<RealtimeConfig>),
 ];
 
 /// All registries (plant, control/run, CANopen), for lookups.
 pub fn registries() -> [&'static [Param]; 3] {
-    [spec::params(), CONTROL_PARAMS, CANOPEN_PARAMS]
+    [spec::params(), control_params(), canopen_params()]
 }
 
 const RIG_KEYS: [&str; 8] = [
@@ -809,5 +716,132 @@ impl RigConfig {
     /// Keys of the top level that belong to the rig rather than the plant.
     pub fn rig_keys() -> &'static [&'static str] {
         &RIG_KEYS
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ehactl_plant::spec::{Kind, ParamTree, PathErrorKind, Range};
+
+    /// A value admitted by `r`, different for each `i`.
+    fn admitted(r: Range, i: usize) -> f64 {
+        let t = 0.3 + 0.4 * (i as f64 / 100.0);
+        match r {
+            Range::Within(lo, hi) => lo + t * (hi - lo),
+            Range::Finite => -1.5 * t,
+            Range::Positive | Range::NonNegative => 2.5 * t,
+        }
+    }
+
+    /// Every float entry of a section writes and reads back through the generated path
+    /// accessor and lands at its registry path in the section's TOML (so the registry path,
+    /// serde's key, e.g. `setpoint.final` for the field `final_value`, and the field agree);
+    /// every other entry is refused by the float accessor but present in the TOML.
+    fn round_trip<T: ParamTree + Serialize>(key: &str, s: &mut T) -> usize {
+        let entries = spec::table::<T>(key);
+        assert!(!entries.is_empty(), "{key}");
+        let mut floats = 0;
+        for (i, e) in entries.iter().enumerate() {
+            let rel = e.path.strip_prefix(key).unwrap().strip_prefix('.').unwrap();
+            if e.kind == Kind::Float {
+                let v = admitted(e.range, i);
+                s.set_path(rel, v).unwrap();
+                assert_eq!(s.get_path(rel), Some(v), "{}", e.path);
+                let tree = toml::Value::try_from(&*s).unwrap();
+                assert_eq!(
+                    spec::get(&tree, rel).and_then(|x| x.as_float()),
+                    Some(v),
+                    "{}",
+                    e.path
+                );
+                floats += 1;
+            } else {
+                assert_eq!(
+                    s.set_path(rel, 1.0).unwrap_err().kind,
+                    PathErrorKind::NotFloat,
+                    "{}",
+                    e.path
+                );
+                let tree = toml::Value::try_from(&*s).unwrap();
+                assert!(spec::get(&tree, rel).is_some(), "{} not serialised", e.path);
+            }
+        }
+        floats
+    }
+
+    #[test]
+    fn every_rig_section_path_round_trips() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/sahu2022_force.toml");
+        let mut cfg = RigConfig::load(&path).unwrap();
+        cfg.control.pd = Some(PdConfig {
+            kp: 1.0,
+            td: 0.0,
+            filter_n: 0.0,
+            u_max: 10.0,
+            feedforward_velocity: 0.0,
+        });
+        let n = round_trip("control", &mut cfg.control)
+            + round_trip("setpoint", &mut cfg.setpoint)
+            + round_trip("supervisor", &mut cfg.supervisor)
+            + round_trip("run", &mut cfg.run)
+            + round_trip("log", &mut cfg.log)
+            + round_trip("realtime", &mut cfg.realtime)
+            + round_trip("canopen", &mut cfg.canopen);
+        assert_eq!(n, 39, "float parameters outside the plant");
+        // The renamed field: registry path, accessor and serde key `final`.
+        cfg.setpoint.set_path("final", 12.5).unwrap();
+        assert_eq!(cfg.setpoint.final_value, 12.5);
+        // Absent optional values become Some; absent sections are refused.
+        assert_eq!(
+            cfg.supervisor.get_path("pressure_range"),
+            Some(admitted(Range::Positive, 10))
+        );
+        let mut c = cfg.control.clone();
+        c.pi = None;
+        assert_eq!(
+            c.set_path("pi.kp", 0.5).unwrap_err().kind,
+            PathErrorKind::Absent
+        );
+        assert_eq!(
+            c.set_path("pi.nope", 0.5).unwrap_err().kind,
+            PathErrorKind::Unknown
+        );
+    }
+
+    /// The registry is the one [`RigConfig::from_value`] checks: a value outside a derived
+    /// range is refused with the path and the declared unit, for each kind of field.
+    #[test]
+    fn derived_ranges_are_enforced_by_the_loader() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/sahu2022_force.toml");
+        let base = std::fs::read_to_string(path).unwrap();
+        for (add, field, unit) in [
+            ("[realtime]\ncpu = -2\n", "realtime.cpu", "-"),
+            ("[realtime]\npriority = 100\n", "realtime.priority", "-"),
+            (
+                "[log]\nqueue_capacity = 8\n",
+                "log.queue_capacity",
+                "records",
+            ),
+            (
+                "[canopen]\nvalve_status_pdo = 1\n",
+                "canopen.valve_status_pdo",
+                "true or false",
+            ),
+            (
+                "[canopen]\nvalve_node_id = 128\n",
+                "canopen.valve_node_id",
+                "-",
+            ),
+        ] {
+            let e = RigConfig::from_toml_str(&format!("{base}\n{add}")).unwrap_err();
+            assert_eq!(e.path, field, "{e}");
+            assert!(e.message.contains(unit), "{e}");
+        }
+        let e =
+            RigConfig::from_toml_str(&base.replace("max_pressure = 25.0e6", "max_pressure = -1.0"))
+                .unwrap_err();
+        assert_eq!(e.path, "supervisor.max_pressure");
+        assert!(e.message.contains("in Pa (pressure trip limit)"), "{e}");
     }
 }

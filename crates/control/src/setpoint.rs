@@ -2,6 +2,7 @@
 //! superposition (004: 785 N + ±196 N over 1–300 Hz, swept or stepped), random steps.
 //! Each returns the value and its time derivative; none allocates.
 
+use ehactl_params_derive::Params;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
@@ -62,49 +63,65 @@ pub enum Sweep {
 }
 
 /// Setpoint section of a rig config. Units are those of the controlled variable (N or m).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
 pub struct SetpointConfig {
     /// Generator kind.
     pub kind: SetpointKind,
     /// Start value (N or m) for step/ramp, lower bound for random steps.
     #[serde(default)]
+    #[param(unit = "N or m", range = Finite, desc = "initial value / lower bound")]
     pub initial: f64,
     /// Final value (N or m) for step/ramp, upper bound for random steps.
     #[serde(default, rename = "final")]
+    #[param(unit = "N or m", range = Finite, desc = "final value / upper bound")]
     pub final_value: f64,
     /// Start time (s).
     #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "start time")]
     pub start: f64,
     /// Ramp or sweep duration (s).
     #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "ramp / sweep duration")]
     pub duration: f64,
     /// Static part / offset (N or m).
     #[serde(default)]
+    #[param(unit = "N or m", range = Finite, desc = "static part / offset")]
     pub offset: f64,
     /// Dynamic amplitude (N or m).
     #[serde(default)]
+    #[param(unit = "N or m", range = NonNegative, desc = "dynamic amplitude")]
     pub amplitude: f64,
     /// Start (or sine) frequency (Hz).
     #[serde(default)]
+    #[param(unit = "Hz", range = Within(0.0, 1.0e6), desc = "start frequency")]
     pub f0: f64,
     /// End frequency (Hz).
     #[serde(default)]
+    #[param(unit = "Hz", range = Within(0.0, 1.0e6), desc = "end frequency")]
     pub f1: f64,
     /// Sweep law.
     #[serde(default)]
     pub sweep: Sweep,
     /// Number of frequencies of a stepped sweep (-).
     #[serde(default)]
+    #[param(
+        unit = "-",
+        range = NonNegative,
+        desc = "frequencies of a stepped sweep"
+    )]
     pub steps: u32,
     /// Ramp time of the static part (s).
     #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "static ramp time")]
     pub ramp_time: f64,
     /// Hold time of each random level (s).
     #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "random-step hold time")]
     pub hold: f64,
     /// Seed of the random levels (-).
     #[serde(default)]
+    #[param(unit = "-", range = NonNegative, desc = "random-step seed")]
     pub seed: u64,
 }
 

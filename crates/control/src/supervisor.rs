@@ -4,48 +4,68 @@
 
 use ehactl_hal::record::{Event, EventKind, Severity};
 use ehactl_hal::Measurements;
+use ehactl_params_derive::Params;
 use serde::{Deserialize, Serialize};
 
 /// Supervisor section of a rig config. Absent limits are not checked.
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
 pub struct SupervisorConfig {
     /// Trip when a chamber pressure exceeds this (Pa).
     #[serde(default)]
+    #[param(unit = "Pa", range = Positive, desc = "pressure trip limit")]
     pub max_pressure: Option<f64>,
     /// Trip below this position (m).
     #[serde(default)]
+    #[param(unit = "m", range = Finite, desc = "lower position trip limit")]
     pub min_position: Option<f64>,
     /// Trip above this position (m).
     #[serde(default)]
+    #[param(unit = "m", range = Finite, desc = "upper position trip limit")]
     pub max_position: Option<f64>,
     /// Trip when |force| exceeds this (N).
     #[serde(default)]
+    #[param(unit = "N", range = Positive, desc = "force trip limit")]
     pub max_force: Option<f64>,
     /// Largest |command| passed to the valve (V); larger commands are clamped and reported once.
     #[serde(default)]
+    #[param(unit = "V", range = Positive, desc = "command clamp")]
     pub max_command: Option<f64>,
     /// Command applied on a trip and at the end of the run (V).
     #[serde(default)]
+    #[param(unit = "V", range = Finite, desc = "command on trip / end")]
     pub safe_command: f64,
     /// A sensor whose sample time does not advance for this long is stale (s).
     #[serde(default = "SupervisorConfig::default_stale")]
+    #[param(unit = "s", range = Positive, desc = "sensor staleness timeout")]
     pub stale_timeout: f64,
     /// Plausible force range of the load cell (N): beyond it the reading is implausible.
     #[serde(default)]
+    #[param(unit = "N", range = Positive, desc = "plausible load-cell range")]
     pub force_range: Option<f64>,
-    /// Plausible pressure range (Pa): readings outside [−1e5, this] are implausible.
-    #[serde(default)]
-    pub pressure_range: Option<f64>,
     /// Saturation watch (s): when set, the run trips once the command has been at a limit
     /// (the law's own or `max_command`) for more than `max_saturation` of an exponentially
     /// weighted window of this length. Catches a loop stuck against a limit and bang-bang
     /// limit cycling (e.g. after an absurd live gain). Off when absent.
     #[serde(default)]
+    #[param(
+        unit = "s",
+        range = Within(1e-4, 1e3),
+        desc = "trip when the command sits at a limit for > max_saturation of this window (absent = off)"
+    )]
     pub saturation_window: Option<f64>,
     /// Share of the saturation window the command may spend at a limit (-).
     #[serde(default = "SupervisorConfig::default_max_saturation")]
+    #[param(
+        unit = "-",
+        range = Within(0.01, 0.999),
+        desc = "share of the saturation window allowed at a limit"
+    )]
     pub max_saturation: f64,
+    /// Plausible pressure range (Pa): readings outside [−1e5, this] are implausible.
+    #[serde(default)]
+    #[param(unit = "Pa", range = Positive, desc = "plausible pressure range")]
+    pub pressure_range: Option<f64>,
 }
 
 impl SupervisorConfig {

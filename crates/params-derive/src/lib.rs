@@ -12,9 +12,10 @@
 //! Field attributes:
 //!
 //! * `#[param(unit = "kg", range = Positive, desc = "moving mass")]`: a leaf. The kind
-//!   follows the type: `f64` and `Option<f64>` are floats, unsigned integers integers,
-//!   `Vec<f64>` float arrays; `choices = EXPR` (a `&'static [&'static str]`) makes a choice
-//!   (unit "-", range `Finite` unless given). `range` is a `spec::Range` variant.
+//!   follows the type: `f64` and `Option<f64>` are floats, integers (signed or not)
+//!   integers, `bool` booleans, `Vec<f64>` float arrays; `choices = EXPR` (a
+//!   `&'static [&'static str]`) makes a choice (unit "-", range `Finite` unless given).
+//!   `range` is a `spec::Range` variant.
 //! * `#[param(nested)]` on a field whose type derives `Params` (or `Option` of one): its
 //!   parameters under `<field>.`; `with(field(desc = "…", choices = …, unit = "…",
 //!   range = …), …)` overrides an inner field's declaration for this instance (e.g. the two
@@ -22,9 +23,10 @@
 //! * Fields without `#[param]` are not parameters (switches, structural enums without a
 //!   registry entry, tables).
 //!
-//! Written with syn/quote, the maintained way to write a derive; the path prefix is the field
-//! name (the plant structs use no `serde(rename)`; the derive refuses one so the two can't
-//! drift apart).
+//! Written with syn/quote, the maintained way to write a derive. The path key of a field is
+//! its serde name: the field name, or the string of its `#[serde(rename = "…")]` (read from
+//! the same attribute serde reads, so the two can't drift apart); forms the derive cannot
+//! follow (`rename(serialize = …)`, `rename_all`, `flatten`) are refused.
 
 use proc_macro::TokenStream;
 use proc_macro2::TokenStream as Ts;
@@ -71,6 +73,7 @@ enum Shape {
     Float,
     OptFloat,
     Int,
+    Bool,
     FloatVec,
     Other,
 }
@@ -80,7 +83,10 @@ fn shape(ty: &Type) -> Shape {
     match s.as_str() {
         "f64" => Shape::Float,
         "Option<f64>" => Shape::OptFloat,
-        "u8" | "u16" | "u32" | "u64" | "usize" => Shape::Int,
+        "u8" | "u16" | "u32" | "u64" | "usize" | "i8" | "i16" | "i32" | "i64" | "isize" => {
+            Shape::Int
+        }
+        "bool" => Shape::Bool,
         "Vec<f64>" => Shape::FloatVec,
         _ => Shape::Other,
     }
@@ -102,6 +108,18 @@ fn option_inner(ty: &Type) -> Option<&Type> {
     }
 }
 
+/// Step over the value of a serde item the derive does not read (`= …` or `(…)`).
+fn skip_value(m: &syn::meta::ParseNestedMeta) -> syn::Result<()> {
+    if m.input.peek(syn::Token![=]) {
+        let _: Expr = m.value()?.parse()?;
+    } else if m.input.peek(syn::token::Paren) {
+        let c;
+        syn::parenthesized!(c in m.input);
+        let _: Ts = c.parse()?;
+    }
+    Ok(())
+}
+
 fn range_tokens(r: &Expr) -> Ts {
     quote! {{
         #[allow(unused_imports)]
@@ -118,6 +136,23 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
     let Fields::Named(fields) = &ds.fields else {
         return Err(syn::Error::new_spanned(name, "Params: only named fields"));
     };
+    for a in &input.attrs {
+        if a.path().is_ident("serde") {
+            let mut bad = None;
+            let _ = a.parse_nested_meta(|m| {
+                if m.path.is_ident("rename_all") || m.path.is_ident("rename") {
+                    bad = Some("rename_all / rename on the struct");
+                }
+                skip_value(&m)
+            });
+            if let Some(what) = bad {
+                return Err(syn::Error::new_spanned(
+                    a,
+                    format!("Params: serde {what} is not supported (paths are field names)"),
+                ));
+            }
+        }
+    }
     let sp = quote!(::ehactl_plant::spec);
     let mut declare = Vec::new();
     let mut get_arms = Vec::new();
@@ -128,28 +163,29 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
     let mut vec_set = Vec::new();
     for f in &fields.named {
         let ident = f.ident.as_ref().expect("named field");
-        let key = ident.to_string();
+        let mut key = ident.to_string();
         for a in &f.attrs {
             if a.path().is_ident("serde") {
-                let mut renamed = false;
+                let mut rename: Option<LitStr> = None;
+                let mut unsupported = None;
                 let _ = a.parse_nested_meta(|m| {
-                    if m.path.is_ident("rename") {
-                        renamed = true;
+                    if m.path.is_ident("rename") && m.input.peek(syn::Token![=]) {
+                        rename = Some(m.value()?.parse()?);
+                        return Ok(());
                     }
-                    if m.input.peek(syn::Token![=]) {
-                        let _: Expr = m.value()?.parse()?;
-                    } else if m.input.peek(syn::token::Paren) {
-                        let c;
-                        syn::parenthesized!(c in m.input);
-                        let _: Ts = c.parse()?;
+                    if m.path.is_ident("rename") || m.path.is_ident("flatten") {
+                        unsupported = Some("rename(…) / flatten");
                     }
-                    Ok(())
+                    skip_value(&m)
                 });
-                if renamed {
+                if let Some(what) = unsupported {
                     return Err(syn::Error::new_spanned(
                         a,
-                        "Params: serde(rename) is not supported (the path is the field name)",
+                        format!("Params: serde {what} is not supported; use rename = \"…\""),
                     ));
+                }
+                if let Some(r) = rename {
+                    key = r.value();
                 }
             }
         }
@@ -268,21 +304,23 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
             .desc
             .ok_or_else(|| syn::Error::new_spanned(attr, "param: desc = \"…\" is required"))?;
         let sh = shape(&f.ty);
-        let kind =
-            if let Some(c) = &decl.choices {
-                quote!(#sp::Kind::Choice(#c))
-            } else {
-                match sh {
-                    Shape::Float | Shape::OptFloat => quote!(#sp::Kind::Float),
-                    Shape::Int => quote!(#sp::Kind::Integer),
-                    Shape::FloatVec => quote!(#sp::Kind::FloatArray),
-                    Shape::Other => return Err(syn::Error::new_spanned(
+        let kind = if let Some(c) = &decl.choices {
+            quote!(#sp::Kind::Choice(#c))
+        } else {
+            match sh {
+                Shape::Float | Shape::OptFloat => quote!(#sp::Kind::Float),
+                Shape::Int => quote!(#sp::Kind::Integer),
+                Shape::Bool => quote!(#sp::Kind::Bool),
+                Shape::FloatVec => quote!(#sp::Kind::FloatArray),
+                Shape::Other => {
+                    return Err(syn::Error::new_spanned(
                         &f.ty,
-                        "param: type must be f64, Option<f64>, an unsigned integer or Vec<f64>, \
+                        "param: type must be f64, Option<f64>, an integer, bool or Vec<f64>, \
                          or the field needs choices = …",
-                    )),
+                    ))
                 }
-            };
+            }
+        };
         let unit = match (&decl.unit, &decl.choices) {
             (Some(u), _) => quote!(#u),
             (None, Some(_)) => quote!("-"),
@@ -321,7 +359,7 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
                 get_arms.push(quote!(#key => self.#ident,));
                 set_arms.push(quote!(#key => { self.#ident = Some(v); Ok(()) }));
             }
-            Shape::Int | Shape::Other => {
+            Shape::Int | Shape::Bool | Shape::Other => {
                 get_arms.push(quote!(#key => None,));
                 set_arms.push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
             }

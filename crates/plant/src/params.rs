@@ -944,24 +944,35 @@ pub enum Uncertainty {
     Relative(String),
 }
 
-/// Nominal parameters whose uncertainty a config may state, with their SI unit, and whether
-/// the diagnosis refits them by default (±[`DEFAULT_UNCERTAINTY`]) when the config is silent:
-/// the valve's flow gain (the one of its `flow_form`), β₀, mass, damping and load stiffness
-/// (the last two when nonzero). The others are refit only when listed.
-pub const UNCERTAIN_PARAMS: &[(&str, &str, bool)] = &[
-    ("valve.rated_flow", "m³/s", true),
-    ("valve.area_max", "m²", true),
-    ("valve.flow_at_1mpa", "m³/s", true),
-    ("fluid.bulk_modulus", "Pa", true),
-    ("mechanics.mass", "kg", true),
-    ("mechanics.damping", "N·s/m", true),
-    ("mechanics.load_stiffness", "N/m", true),
-    ("valve.underlap", "-", false),
-    ("cylinder.dead_volume_a", "m³", false),
-    ("cylinder.dead_volume_b", "m³", false),
-    ("supply.pressure", "Pa", false),
-    ("valve.command_full_scale", "V", false),
+/// Nominal parameters whose uncertainty a config may state (registry paths, in the order
+/// the diagnosis refits them), and whether the diagnosis refits them by default
+/// (±[`DEFAULT_UNCERTAINTY`]) when the config is silent: the valve's flow gain (the one of
+/// its `flow_form`), β₀, mass, damping and load stiffness (the last two when nonzero). The
+/// others are refit only when listed. Units, ranges and meanings are the registry's
+/// ([`crate::spec::params`]); every path here is a float entry of it (tested).
+pub const UNCERTAIN_PARAMS: &[(&str, bool)] = &[
+    ("valve.rated_flow", true),
+    ("valve.area_max", true),
+    ("valve.flow_at_1mpa", true),
+    ("fluid.bulk_modulus", true),
+    ("mechanics.mass", true),
+    ("mechanics.damping", true),
+    ("mechanics.load_stiffness", true),
+    ("valve.underlap", false),
+    ("cylinder.dead_volume_a", false),
+    ("cylinder.dead_volume_b", false),
+    ("supply.pressure", false),
+    ("valve.command_full_scale", false),
 ];
+
+/// SI unit of a registry path ("-" for a path the registry does not know, which no
+/// [`UNCERTAIN_PARAMS`] entry is).
+fn registry_unit(path: &str) -> &'static str {
+    crate::spec::params()
+        .iter()
+        .find(|p| p.path == path)
+        .map_or("-", |p| p.unit)
+}
 
 /// Relative uncertainty assumed for a default-refit nominal parameter the config is silent
 /// about (-).
@@ -1014,10 +1025,11 @@ impl PlantParams {
             }
         }
         let mut out = Vec::new();
-        for &(path, unit, default) in UNCERTAIN_PARAMS {
+        for &(path, default) in UNCERTAIN_PARAMS {
             let Some(v) = self.nominal_value(path) else {
                 continue;
             };
+            let unit = registry_unit(path);
             let half = match self.uncertainty.get(path) {
                 None if default && v > 0.0 => DEFAULT_UNCERTAINTY * v,
                 None => continue,

@@ -120,18 +120,23 @@ impl Param {
 /// of [`PlantParams`] (`#[derive(Params)]`, crate `ehactl-params-derive`), in declaration
 /// order. Controller, setpoint, supervisor and run parameters are declared in `ehactl-config`.
 pub fn params() -> &'static [Param] {
-    static TABLE: LazyLock<Vec<Param>> = LazyLock::new(|| {
-        let mut out = Vec::new();
-        PlantParams::declare("", &[], &mut out);
-        out.into_iter()
-            .map(|(path, p)| Param {
-                // Built once per process: the registry lives as long as the program.
-                path: Box::leak(path.into_boxed_str()),
-                ..p
-            })
-            .collect()
-    });
+    static TABLE: LazyLock<Vec<Param>> = LazyLock::new(|| table::<PlantParams>(""));
     &TABLE
+}
+
+/// Registry entries of a `#[derive(Params)]` struct under `prefix` (e.g. `"canopen"`), in
+/// declaration order, with their full dotted paths. Each path string is leaked: call it once
+/// per process (from a `LazyLock`, as [`params`] does), so the registry lives as long as the
+/// program.
+pub fn table<T: ParamTree>(prefix: &str) -> Vec<Param> {
+    let mut out = Vec::new();
+    T::declare(prefix, &[], &mut out);
+    out.into_iter()
+        .map(|(path, p)| Param {
+            path: Box::leak(path.into_boxed_str()),
+            ..p
+        })
+        .collect()
 }
 
 /// Implemented by `#[derive(Params)]` (see the `ehactl-params-derive` crate): the registry
@@ -255,7 +260,7 @@ impl fmt::Display for PathError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let what = match self.kind {
             PathErrorKind::Unknown => "no such parameter; see `ehactl params`",
-            PathErrorKind::NotFloat => "not a float parameter (integer, choice or array)",
+            PathErrorKind::NotFloat => "not a float parameter (integer, boolean, choice or array)",
             PathErrorKind::Absent => "its effect section is absent from the config",
             PathErrorKind::Index => "array index out of range",
         };

@@ -200,3 +200,50 @@ fn absent_sections_and_unknown_paths_are_errors() {
     p.set_path("valve.rated_flow", 5e-4).unwrap();
     assert_eq!(p.valve.rated_flow, Some(5e-4));
 }
+
+/// `UNCERTAIN_PARAMS` names registry entries only: every path is a float parameter of the
+/// registry (which gives its unit in the refit error messages), with the unit the list
+/// carried by hand before (main fcc370f).
+#[test]
+fn uncertain_params_are_float_registry_entries_with_their_old_units() {
+    let before = [
+        ("valve.rated_flow", "m³/s"),
+        ("valve.area_max", "m²"),
+        ("valve.flow_at_1mpa", "m³/s"),
+        ("fluid.bulk_modulus", "Pa"),
+        ("mechanics.mass", "kg"),
+        ("mechanics.damping", "N·s/m"),
+        ("mechanics.load_stiffness", "N/m"),
+        ("valve.underlap", "-"),
+        ("cylinder.dead_volume_a", "m³"),
+        ("cylinder.dead_volume_b", "m³"),
+        ("supply.pressure", "Pa"),
+        ("valve.command_full_scale", "V"),
+    ];
+    let listed: Vec<&str> = ehactl_plant::params::UNCERTAIN_PARAMS
+        .iter()
+        .map(|u| u.0)
+        .collect();
+    assert_eq!(listed, before.map(|b| b.0));
+    for (path, unit) in before {
+        let p = spec::params()
+            .iter()
+            .find(|p| p.path == path)
+            .unwrap_or_else(|| panic!("{path} not in the registry"));
+        assert_eq!(p.kind, Kind::Float, "{path}");
+        assert_eq!(p.unit, unit, "{path}");
+    }
+}
+
+/// The refit error message takes its unit from the registry.
+#[test]
+fn refit_error_names_the_registry_unit() {
+    let mut p: PlantParams = toml::from_str(FULL).unwrap();
+    p.uncertainty.insert(
+        "mechanics.mass".into(),
+        ehactl_plant::params::Uncertainty::Absolute(9.0),
+    );
+    let e = p.refit_ranges().unwrap_err();
+    assert_eq!(e.path, "uncertainty.\"mechanics.mass\"");
+    assert!(e.message.contains("± 9 kg around the nominal 5 kg"), "{e}");
+}

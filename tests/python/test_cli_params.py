@@ -1,0 +1,35 @@
+"""`ehactl params` prints exactly the registry it printed before the tables moved onto the
+struct fields (`#[derive(Params)]`): every line of tests/fixtures/ehactl_params.txt, captured
+from the binary of main fcc370f (hand-written CONTROL_PARAMS / CANOPEN_PARAMS), in order."""
+import os
+import pathlib
+import subprocess
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+BIN = os.environ.get("EHACTL_BIN", str(REPO / "target" / "release" / "ehactl"))
+FIXTURE = REPO / "tests" / "fixtures" / "ehactl_params.txt"
+
+
+def test_params_output_is_unchanged():
+    r = subprocess.run([BIN, "params"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == ""
+    old = FIXTURE.read_text().splitlines()
+    new = r.stdout.splitlines()
+    assert len(old) > 170
+    for i, (o, n) in enumerate(zip(old, new)):
+        assert o == n, f"line {i + 1}:\n  was {o!r}\n  now {n!r}"
+    assert len(new) == len(old)
+
+
+def test_every_listed_path_is_checked_by_check_config(tmp_path):
+    """A listed control/run parameter set out of range is refused by check-config with its
+    path and unit (the list is what the loader checks, not a separate text)."""
+    base = (REPO / "configs" / "sahu2022_force.toml").read_text()
+    assert "control_rate_hz = 5000.0" in base
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(base.replace("control_rate_hz = 5000.0", "control_rate_hz = 0.5", 1))
+    r = subprocess.run([BIN, "check-config", str(cfg)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2, r
+    line = r.stderr.strip()
+    assert "run.control_rate_hz" in line and "Hz" in line and "out of range" in line, line
