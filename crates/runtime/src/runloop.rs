@@ -4,12 +4,12 @@
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
 use crate::live::LiveParams;
-use crate::realtime::TimingReport;
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_control::pd::Pd;
 use ehactl_control::pi::{ControlTerms, Pi};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::{FeedbackChannel, Supervisor};
+use ehactl_hal::pacer::Pacer;
 use ehactl_hal::record::{CycleRecord, CycleTiming, Event, EventKind, Severity};
 use ehactl_hal::{Hal, Measurements, Timebase};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -68,47 +68,6 @@ impl Controller {
                 ..Default::default()
             },
         }
-    }
-}
-
-/// Waits for the start of each cycle. The simulated loop does not wait; the wall-clock
-/// executor ([`crate::realtime::WallClockPacer`]) sleeps to absolute deadlines.
-pub trait Pacer {
-    /// Block until cycle `k` may start; returns false if the loop should stop (a stop
-    /// request, or a trip reported by [`Pacer::trip`]).
-    fn wait_for_cycle(&mut self, k: u64) -> bool;
-
-    /// Wall-clock timing of the cycle that just started (logged on `/timing`).
-    fn cycle_timing(&self) -> Option<CycleTiming> {
-        None
-    }
-
-    /// Next pending event of the pacer (set-up warnings, overruns); polled after each
-    /// wait until None. Must not allocate.
-    fn take_event(&mut self) -> Option<Event> {
-        None
-    }
-
-    /// The trip that made `wait_for_cycle` return false, if it was one (e.g. too many
-    /// consecutive overruns) rather than a stop request.
-    fn trip(&self) -> Option<Event> {
-        None
-    }
-
-    /// Timing statistics of the run (wall-clock pacers), read after the loop.
-    fn timing_report(&self) -> Option<TimingReport> {
-        None
-    }
-}
-
-/// Simulated time: every cycle starts at once.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct SimulatedTime;
-
-impl Pacer for SimulatedTime {
-    #[inline]
-    fn wait_for_cycle(&mut self, _k: u64) -> bool {
-        true
     }
 }
 
