@@ -201,6 +201,10 @@ fn spool_beyond_the_exponential_bound_is_a_config_error() {
         damping_ratio: 1e53,
     });
     let e = SpoolModel::new(&p, 1e-5).expect_err("refused");
-    assert!(e.to_string().contains("effects.valve_dynamics.damping_ratio"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("effects.valve_dynamics.damping_ratio"),
+        "{e}"
+    );
     assert!(Plant::configure(&p, 2e-4).is_err());
 }

@@ -106,6 +106,15 @@ pub enum HalError {
     },
 }
 
+impl HalError {
+    /// The state or device concerned (the event channel of a fault).
+    pub fn what(&self) -> &'static str {
+        match self {
+            HalError::Numerical { what, .. } | HalError::Device { what, .. } => what,
+        }
+    }
+}
+
 impl std::fmt::Display for HalError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
