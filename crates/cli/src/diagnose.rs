@@ -28,9 +28,9 @@ pub fn cmd_diagnose(
     let bar = fits_bar();
     let b = bar.clone();
     let progress = ProgressSink::new(move |p: &Progress| {
+        b.set_message(p.stage.clone());
         b.set_length(p.total);
         b.set_position(p.done);
-        b.set_message(p.stage.clone());
     });
     let run = session::run(
         &cfg,
