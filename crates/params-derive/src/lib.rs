@@ -1,5 +1,6 @@
-//! `#[derive(Params)]`: each plant parameter is declared once, on its struct field, with its
-//! unit, admissible range and description (the way a Hopsan component declares
+//! `#[derive(Params)]`: each config parameter (plant, control, setpoint, supervisor, run, log,
+//! realtime and CANopen sections) is declared once, on its struct field, with its unit,
+//! admissible range and description (the way a Hopsan component declares
 //! `addInputVariable("C_q", "Flow Coefficient", "-", 0.67, &mpCq)`). The derive implements
 //! `ehactl_plant::spec::ParamTree`, which gives
 //!
