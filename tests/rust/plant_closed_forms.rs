@@ -156,7 +156,7 @@ fn second_order_spool_matches_analytic_step() {
         damping_ratio: 0.59,
     });
     let h = 1e-5;
-    let m = SpoolModel::new(&p, h);
+    let m = SpoolModel::new(&p, h).expect("spool discretises");
     let (w, z) = (1507.9_f64, 0.59_f64);
     let wd = w * (1.0 - z * z).sqrt();
     let (mut s, mut sd) = (0.0, 0.0);
@@ -179,11 +179,32 @@ fn first_order_spool_matches_pt1() {
         damping_ratio: 0.0,
     });
     let h = 1e-4;
-    let m = SpoolModel::new(&p, h);
+    let m = SpoolModel::new(&p, h).expect("spool discretises");
     let (mut s, mut sd) = (0.0, 0.0);
     for k in 1..=300 {
         m.advance(&mut s, &mut sd, 0.5);
         let exact = 0.5 * (1.0 - (-(k as f64) * h / 0.01).exp());
         assert!((s - exact).abs() < 1e-12);
     }
+}
+
+#[test]
+fn spool_beyond_the_exponential_bound_is_a_config_error() {
+    // ζ = 1e53 at ω = 1507.9 rad/s: ‖A·h‖₁ ≈ 3e56·h, far beyond what `expm_checked` accepts
+    // (it hung nalgebra's exponential before, BENCHMARKS.md "Fuzzed parsers").
+    let mut p = blocked_cylinder(10.0, 0.0, 0.5);
+    p.effects.valve_dynamics = Some(ValveDynamics {
+        enabled: true,
+        order: 2,
+        time_constant: 0.0,
+        natural_frequency: 1507.9,
+        damping_ratio: 1e53,
+    });
+    let e = SpoolModel::new(&p, 1e-5).expect_err("refused");
+    assert!(
+        e.to_string()
+            .contains("effects.valve_dynamics.damping_ratio"),
+        "{e}"
+    );
+    assert!(Plant::configure(&p, 2e-4).is_err());
 }

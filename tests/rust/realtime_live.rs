@@ -4,12 +4,12 @@
 use ehactl_config::RigConfig;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_hal::logger::Overflow;
+use ehactl_hal::pacer::Pacer;
 use ehactl_hal::record::CycleRecord;
 use ehactl_hal::sim::SimHal;
 use ehactl_runtime::control_socket::{self, ControlServer};
 use ehactl_runtime::live::{self, LiveParams};
 use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
-use ehactl_runtime::runloop::Pacer;
 use ehactl_runtime::session::{build_plant, run_with_live, Backend, SessionOptions};
 use ehactl_tests::config;
 use std::path::Path;

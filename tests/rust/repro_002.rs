@@ -79,7 +79,9 @@ fn estimate(
     noise: f64,
     side: usize,
 ) -> Errors {
-    let mut est = MotionEstimator::new(&cfg.plant, run.dt, run.x0).with_line_terms(terms);
+    let mut est = MotionEstimator::new(&cfg.plant, run.dt, run.x0)
+        .expect("spool of the shipped config")
+        .with_line_terms(terms);
     let mut rng = NoiseRng::new(7);
     let (mut se, mut st, mut pk, mut mx) = (0.0, 0.0, 0.0f64, 0.0f64);
     let mut x_prev = run.x0;
@@ -181,7 +183,9 @@ fn motion_estimate_recovers_piston_velocity() {
 #[test]
 fn bulk_modulus_swing_over_the_run() {
     let (run, cfg) = simulate();
-    let law = MotionEstimator::new(&cfg.plant, run.dt, run.x0).bulk_modulus_law();
+    let law = MotionEstimator::new(&cfg.plant, run.dt, run.x0)
+        .expect("spool of the shipped config")
+        .bulk_modulus_law();
     // The estimator's eq. 35 law is the plant's.
     let plant = Plant::configure(&cfg.plant, run.dt).unwrap();
     for p in [0.0, 5e6, 1e7, 2e7] {
@@ -420,7 +424,7 @@ fn crane_cycle_with_counterbalance_valves() {
     // for raise and stop after lowering, eq. 32 otherwise. Resistive line (002's choice), no
     // noise. The estimator does not model the CBV (002 eq. 18–26 are not implemented).
     let dt = cfg.timebase().period();
-    let mut est = MotionEstimator::new(&cfg.plant, dt, x0);
+    let mut est = MotionEstimator::new(&cfg.plant, dt, x0).expect("spool of the shipped config");
     let pt = cfg.plant.supply.tank_pressure;
     let mut x_prev = x0;
     let mut per = [(0.0, 0.0, 0usize); 4];

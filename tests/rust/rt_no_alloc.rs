@@ -5,11 +5,11 @@
 //! allocate nothing. Its own test binary, because it installs its own #[global_allocator].
 
 use ehactl_hal::logger::Overflow;
+use ehactl_hal::pacer::{Pacer, TimingReport};
 use ehactl_hal::record::{CycleTiming, Event};
 use ehactl_hal::sim::SimHal;
 use ehactl_runtime::live::{self, LiveParams};
-use ehactl_runtime::realtime::{RtOptions, TimingReport, WallClockPacer};
-use ehactl_runtime::runloop::Pacer;
+use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
 use ehactl_runtime::session::{build_plant, run_with_live, Backend, SessionOptions};
 use ehactl_tests::config;
 use ehactl_tests::{allocations, CountingAlloc};

@@ -72,11 +72,12 @@ fn one(
 }
 
 /// Run `work` on a scoped thread with the GIL released; meanwhile forward
-/// `counter` to `progress(done, total)` and turn Ctrl-C into `stop`.
+/// `counter` to `progress(done, total)` (`total` may grow while `work` runs) and turn Ctrl-C
+/// into `stop`.
 pub(crate) fn detached<R: Send>(
     py: Python<'_>,
     progress: Option<Py<PyAny>>,
-    total: u64,
+    total: &AtomicU64,
     counter: &AtomicU64,
     stop: &AtomicBool,
     work: impl FnOnce() -> R + Send,
@@ -90,7 +91,7 @@ pub(crate) fn detached<R: Send>(
                 let _ = tx.send(());
                 r
             });
-            let mut last = u64::MAX;
+            let mut last = (u64::MAX, u64::MAX);
             let mut tick = |final_call: bool| {
                 Python::attach(|py| {
                     if py_err.is_none() {
@@ -101,9 +102,10 @@ pub(crate) fn detached<R: Send>(
                     }
                     if let (Some(cb), None) = (&progress, &py_err) {
                         let n = counter.load(Ordering::Relaxed);
-                        if n != last || final_call {
-                            last = n;
-                            if let Err(e) = cb.bind(py).call1((n, total)) {
+                        let m = total.load(Ordering::Relaxed);
+                        if (n, m) != last || final_call {
+                            last = (n, m);
+                            if let Err(e) = cb.bind(py).call1((n, m)) {
                                 stop.store(true, Ordering::Relaxed);
                                 py_err = Some(e);
                             }
@@ -164,9 +166,14 @@ pub fn run_one<'py>(
         .max(1.0) as u64;
     let counter = AtomicU64::new(0);
     let stop = AtomicBool::new(false);
-    let out = detached(py, progress, total, &counter, &stop, || {
-        one(&rc, duration, mcap, &idx, stuck, &stop, Some(&counter))
-    })?;
+    let out = detached(
+        py,
+        progress,
+        &AtomicU64::new(total),
+        &counter,
+        &stop,
+        || one(&rc, duration, mcap, &idx, stuck, &stop, Some(&counter)),
+    )?;
     let r = out.map_err(PyValueError::new_err)?;
     to_py(py, r)
 }
@@ -214,17 +221,24 @@ pub fn run_batch<'py>(
     let total = jobs.len() as u64;
     let counter = AtomicU64::new(0);
     let stop = AtomicBool::new(false);
-    let outs = detached(py, progress, total, &counter, &stop, || {
-        pool.install(|| {
-            jobs.into_par_iter()
-                .map(|(c, m)| {
-                    let r = one(&c, duration, m, &idx, stuck, &stop, None);
-                    counter.fetch_add(1, Ordering::Relaxed);
-                    r
-                })
-                .collect::<Vec<_>>()
-        })
-    })?;
+    let outs = detached(
+        py,
+        progress,
+        &AtomicU64::new(total),
+        &counter,
+        &stop,
+        || {
+            pool.install(|| {
+                jobs.into_par_iter()
+                    .map(|(c, m)| {
+                        let r = one(&c, duration, m, &idx, stuck, &stop, None);
+                        counter.fetch_add(1, Ordering::Relaxed);
+                        r
+                    })
+                    .collect::<Vec<_>>()
+            })
+        },
+    )?;
     let mut res = Vec::with_capacity(outs.len());
     for (i, o) in outs.into_iter().enumerate() {
         let r = o.map_err(|e| PyValueError::new_err(format!("run {i}: {e}")))?;

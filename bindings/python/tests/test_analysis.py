@@ -64,8 +64,15 @@ def test_diagnose_names_a_hidden_delay_like_the_cli(tmp_path):
     truth.write_text((CONFIGS / "diagnose_testrig.toml").read_text() + "\n[effects.time_delay]\ndelay = 0.005\n")
     mcap = tmp_path / "rig.mcap"
     ehactl.run(ehactl.Config.load(truth), mcap=mcap)
-    d = ehactl.diagnose(rig, mcap, out=tmp_path / "diag")
+    calls = []
+    d = ehactl.diagnose(rig, mcap, out=tmp_path / "diag", progress=lambda n, m: calls.append((n, m)))
     assert d["cause"] == "time_delay"
+    # Progress came through the callback (the library draws nothing): fits counted up to a
+    # total that covers the nominal refit and at least one fit per catalogue candidate.
+    assert calls, "no progress reported"
+    done = [n for n, _ in calls]
+    assert done == sorted(done) and calls[-1][0] == calls[-1][1]
+    assert calls[-1][1] >= 1 + len(d["candidates"])
     assert abs(d["extended_params"]["effects.time_delay.delay"] - 0.005) < 0.001
     assert d["gain"] >= 0.5 and len(d["candidates"]) == 12
     assert os.path.exists(d["extended_config"]) and os.path.exists(d["report"])

@@ -121,9 +121,12 @@ fn motion_table(path: &Path, root: &Path) -> Result<(), Box<dyn std::error::Erro
     let mut ctrl = Controller::from_config(&cfg);
     let sp = Setpoint::new(&cfg.setpoint);
     let x0 = plant.state().x;
-    let mut est = MotionEstimator::new(&cfg.plant, dt, x0);
-    let mut est_full = MotionEstimator::new(&cfg.plant, dt, x0).with_line_terms(LineTerms::Full);
-    let mut est_noisy = MotionEstimator::new(&cfg.plant, dt, x0);
+    let mut est = MotionEstimator::new(&cfg.plant, dt, x0).expect("spool of the shipped config");
+    let mut est_full = MotionEstimator::new(&cfg.plant, dt, x0)
+        .expect("spool of the shipped config")
+        .with_line_terms(LineTerms::Full);
+    let mut est_noisy =
+        MotionEstimator::new(&cfg.plant, dt, x0).expect("spool of the shipped config");
     let mut rng = NoiseRng::new(7);
     let noise = cfg.plant.sensors.pressure.noise;
     let n = (cfg.run.duration / dt).round() as usize;

@@ -30,7 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut ctrl = Controller::from_config(&cfg);
     let sp = Setpoint::new(&cfg.setpoint);
     let x0 = plant.state().x;
-    let mut est = MotionEstimator::new(&cfg.plant, dt, x0);
+    let mut est = MotionEstimator::new(&cfg.plant, dt, x0).expect("spool of the shipped config");
     let band = cfg
         .plant
         .effects

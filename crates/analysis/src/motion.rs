@@ -186,7 +186,8 @@ impl MotionEstimator {
     /// the piston known to be at rest at `x0` (m) at the first sample (002: a known end stop).
     /// The line is one R-L-C section over the whole `line_dynamics` length (002's "simple
     /// transmission line"); without lines the chamber pressure is the port pressure.
-    pub fn new(p: &PlantParams, dt: f64, x0: f64) -> Self {
+    /// `Err` names the field of a spool that cannot be discretised at `dt`.
+    pub fn new(p: &PlantParams, dt: f64, x0: f64) -> Result<Self, ehactl_plant::spec::ConfigError> {
         let beta = BulkModulusLaw::from_params(p);
         let line = p
             .effects
@@ -221,7 +222,7 @@ impl MotionEstimator {
             bleed: cbv.map_or(0.0, |c| c.port_bleed),
             dt,
             full_scale: p.valve.command_full_scale,
-            spool_model: SpoolModel::new(p, dt),
+            spool_model: SpoolModel::new(p, dt)?,
             edges: EdgeLaw::new(p),
             line,
             terms: LineTerms::Resistive,
@@ -237,7 +238,7 @@ impl MotionEstimator {
             started: false,
         };
         s.sides.iter_mut().for_each(|d| d.x = x0);
-        s
+        Ok(s)
     }
 
     /// Choose the line terms of the cylinder pressure model (default [`LineTerms::Resistive`], 002's choice).

@@ -1,7 +1,9 @@
 //! `ehactl diagnose`: name what the simulation gets wrong on measured data (see ehactl-ident).
 
 use ehactl_config::RigConfig;
+use ehactl_ident::progress::{Progress, ProgressSink};
 use ehactl_ident::session::{self, SessionError};
+use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -23,17 +25,26 @@ pub fn cmd_diagnose(
         Ok(c) => c,
         Err(e) => return bad(format!("{}: {e}", config.display())),
     };
-    let run = match session::run(
+    let bar = fits_bar();
+    let b = bar.clone();
+    let progress = ProgressSink::new(move |p: &Progress| {
+        b.set_message(p.stage.clone());
+        b.set_length(p.total);
+        b.set_position(p.done);
+    });
+    let run = session::run(
         &cfg,
         &config.display().to_string(),
         data_path,
         validate,
         out.as_deref(),
         session::RunChoices {
-            progress: true,
+            progress,
             sensor_offsets,
         },
-    ) {
+    );
+    bar.finish_and_clear();
+    let run = match run {
         Ok(r) => r,
         Err(SessionError::Input(e)) => return bad(e),
         Err(SessionError::Io(e)) => {
@@ -91,4 +102,17 @@ pub fn cmd_diagnose(
         }
     }
     ExitCode::SUCCESS
+}
+
+/// The bar of the diagnosis' model fits on stderr (hidden when stderr is not a terminal).
+fn fits_bar() -> ProgressBar {
+    let b = ProgressBar::new(1);
+    b.set_style(
+        ProgressStyle::with_template(
+            "{spinner} diagnose {msg} [{bar:30}] {pos}/{len} fits {elapsed_precise}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    b
 }

@@ -4,6 +4,8 @@
 //! one [`Hal`] trait with `read(time, period)` / `write(time, period)` called once per
 //! cycle. The controller never knows which backend it talks to. This crate holds:
 //! - [`Hal`] and its error type,
+//! - [`pacer::Pacer`], what starts each cycle (simulated time or a wall-clock executor), and
+//!   the timing report it hands back,
 //! - [`Timebase`], the one owner of the control period (built from `run.control_rate_hz`
 //!   and handed to the plant, the pacer and the backends),
 //! - [`sim::SimHal`], the in-process nonlinear plant advanced one control period per write,
@@ -12,6 +14,7 @@
 #![deny(missing_docs)]
 
 pub mod logger;
+pub mod pacer;
 pub mod record;
 pub mod recover;
 pub mod schemas;
@@ -101,6 +104,15 @@ pub enum HalError {
         /// Short description.
         what: &'static str,
     },
+}
+
+impl HalError {
+    /// The state or device concerned (the event channel of a fault).
+    pub fn what(&self) -> &'static str {
+        match self {
+            HalError::Numerical { what, .. } | HalError::Device { what, .. } => what,
+        }
+    }
 }
 
 impl std::fmt::Display for HalError {

@@ -174,6 +174,26 @@ pub struct Event {
 }
 
 impl Event {
+    /// An event that carries no value: value and limit NaN, no unit.
+    pub fn note(
+        t: f64,
+        cycle: u64,
+        severity: Severity,
+        kind: EventKind,
+        channel: &'static str,
+    ) -> Self {
+        Event {
+            t,
+            cycle,
+            severity,
+            kind,
+            channel,
+            value: f64::NAN,
+            limit: f64::NAN,
+            unit: "",
+        }
+    }
+
     /// One-line human description.
     pub fn describe(&self) -> String {
         let mut s = format!(

@@ -5,6 +5,7 @@ use crate::analysis::{analyse, Analysis};
 use crate::baseline::Baseline;
 use crate::data::Record;
 use crate::fit::{base_params, effect_variants, nelder_mead, FreeParam, Scales};
+use crate::progress::Tracker;
 use crate::replay::{
     apply_offsets, nrmse, offsets, overall, replay_params, replay_params_zeroed, replay_with, std,
     Drive, Replay,
@@ -29,8 +30,8 @@ pub const LATER_FLOOR_FACTOR: f64 = 1.5;
 pub struct Options {
     /// Fraction of the record held out for validation when no separate file is given (-).
     pub holdout: f64,
-    /// Show an indicatif progress bar on stderr.
-    pub progress: bool,
+    /// Where progress reports go (default: nowhere; the front ends draw the bar).
+    pub progress: crate::progress::ProgressSink,
     /// Worker threads for the candidate fits (0 = available cores).
     pub threads: usize,
     /// At most this many effects are accepted.
@@ -66,7 +67,7 @@ impl Default for Options {
     fn default() -> Self {
         Self {
             holdout: 0.3,
-            progress: false,
+            progress: crate::progress::ProgressSink::none(),
             threads: 0,
             max_effects: 3,
             effects: EffectId::ALL.to_vec(),
@@ -504,10 +505,9 @@ pub fn diagnose(
     opts: &Options,
 ) -> Result<Diagnosis, String> {
     let nom = phase_nominal(nominal, rec, val, opts)?;
-    let bar = progress_bar(opts);
+    let bar = Tracker::new(&opts.progress, 1, "refit nominal");
     let refit = phase_refit(&nom, nominal, opts, &bar);
     let search = phase_candidates(&nom, &refit, nominal, opts, &bar);
-    bar.finish_and_clear();
     let resid = phase_residual_test(&nom, &refit, &search);
     Ok(phase_report(
         nom, refit, search, resid, nominal, rec, val, opts,
@@ -644,23 +644,6 @@ fn phase_nominal<'a>(
     })
 }
 
-fn progress_bar(opts: &Options) -> indicatif::ProgressBar {
-    if opts.progress {
-        let b = indicatif::ProgressBar::new(1 + opts.effects.len() as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{spinner} diagnose {msg} [{bar:30}] {pos}/{len} fits {elapsed_precise}",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        );
-        b.set_message("refit nominal");
-        b
-    } else {
-        indicatif::ProgressBar::hidden()
-    }
-}
-
 /// What the refit phase hands on.
 struct RefitPhase {
     h0: Hyp,
@@ -679,7 +662,7 @@ fn phase_refit(
     nom: &NominalPhase<'_>,
     nominal: &PlantParams,
     opts: &Options,
-    bar: &indicatif::ProgressBar,
+    bar: &Tracker,
 ) -> RefitPhase {
     let ctx = &nom.ctx;
     let base = base_params(nominal);
@@ -690,7 +673,7 @@ fn phase_refit(
         params: base,
     };
     let (h0, c0_train) = ctx.fit(h0, usize::MAX, opts.evals_per_param);
-    bar.inc(1);
+    bar.inc();
     let (refit_err, refit_val_sim) = ctx.val_errors(&h0);
     // Noise floor from the refit model's held-out residual (signal content removed); the
     // PSD median over the upper half band ignores narrow lines and slow model error. The
@@ -749,7 +732,7 @@ fn phase_variants(
     first_new: usize,
     evals_per_param: usize,
     threads: usize,
-    bar: &indicatif::ProgressBar,
+    bar: &Tracker,
 ) -> BTreeMap<EffectId, Vec<VariantFit>> {
     // Longest job first (the fit's evaluation budget grows with the free parameters, and
     // line and mount models replay more states), so that no worker is left with a long fit
@@ -781,7 +764,7 @@ fn phase_variants(
                 if let Ok(mut out) = results.lock() {
                     out.push((i, (*v, r)));
                 }
-                bar.inc(1);
+                bar.inc();
             });
         }
     });
@@ -818,7 +801,7 @@ fn phase_candidates(
     rf: &RefitPhase,
     nominal: &PlantParams,
     opts: &Options,
-    bar: &indicatif::ProgressBar,
+    bar: &Tracker,
 ) -> SearchPhase {
     let ctx = &nom.ctx;
     let jn = rf.noise_floor * rf.noise_floor;
@@ -886,12 +869,7 @@ fn phase_candidates(
                 jobs.push((e, v, Some(h)));
             }
         }
-        if round == 0 {
-            bar.set_length(1 + jobs.len() as u64);
-        } else {
-            bar.inc_length(jobs.len() as u64);
-        }
-        bar.set_message(format!("round {}", round + 1));
+        bar.add_stage(jobs.len() as u64, format!("round {}", round + 1));
         let first_new = current.params.len();
         let fits = phase_variants(ctx, &jobs, first_new, opts.evals_per_param, threads, bar);
         let j_cur = cur_err.overall.powi(2);

@@ -9,7 +9,8 @@
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
 //! noise level), [`analysis`] (residual analysis, evidence), [`fit`] (free parameters, bounded
 //! Nelder–Mead), [`diagnose`] (the decision), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
-//! [`session`] (one complete diagnosis as the CLI and Python run it).
+//! [`session`] (one complete diagnosis as the CLI and Python run it), [`progress`] (progress
+//! reports through the caller's callback; the library draws nothing).
 #![deny(missing_docs)]
 
 pub mod analysis;
@@ -20,6 +21,7 @@ pub mod fit;
 pub mod greybox;
 pub mod indep;
 pub mod plots;
+pub mod progress;
 pub mod replay;
 pub mod report;
 pub mod residual;

@@ -44,12 +44,12 @@ pub struct DiagnoseRun {
     pub files: Option<report::ReportFiles>,
 }
 
-/// How a diagnosis runs (what the front ends let the user choose); the default shows no
-/// progress bar and trusts the sensors' zeros.
-#[derive(Debug, Clone, Copy, Default)]
+/// How a diagnosis runs (what the front ends let the user choose); the default reports no
+/// progress and trusts the sensors' zeros.
+#[derive(Debug, Clone, Default)]
 pub struct RunChoices {
-    /// Show an indicatif progress bar on stderr.
-    pub progress: bool,
+    /// Where the fits' progress goes ([`crate::progress`]; the front end draws it).
+    pub progress: crate::progress::ProgressSink,
     /// Estimate a constant offset per measured channel ([`Options::sensor_offsets`]).
     pub sensor_offsets: bool,
 }
@@ -80,8 +80,8 @@ pub fn run(
     };
     let rec = load(data_path)?;
     let val = validate.map(load).transpose()?;
-    // Long records take minutes; say so at once instead of going silent (the progress bar is
-    // hidden when stderr is not a terminal). Figure: 50 000 samples of the 5 kHz bench record
+    // Long records take minutes; say so at once instead of going silent (a front end's
+    // progress bar is hidden when stderr is not a terminal). Figure: 50 000 samples of the 5 kHz bench record
     // take ≈ 21 s on 2 idle cores (BENCHMARKS.md, bench/diagnose_bench.sh).
     let n_total = rec.t.len() + val.as_ref().map_or(0, |v| v.t.len());
     if n_total > 50_000 {

@@ -476,7 +476,9 @@ impl Plant {
         } else {
             1
         };
-        SpoolModel::check(params, h)?;
+        // The automatic substep rule may later take any h up to the control period: the
+        // spool must discretise there too (‖A·h‖₁ grows with h).
+        SpoolModel::new(params, control_dt)?;
         let linear = if linear_exact {
             let lin = {
                 LinearExact::new(
@@ -509,8 +511,8 @@ impl Plant {
         };
         let mut plant = Plant {
             edges: EdgeLaw::new(params),
-            spool_model: SpoolModel::new(params, h),
-            spool_half: SpoolModel::new(params, 0.5 * h),
+            spool_model: SpoolModel::new(params, h)?,
+            spool_half: SpoolModel::new(params, 0.5 * h)?,
             linear,
             friction: e
                 .friction
@@ -867,8 +869,14 @@ impl Plant {
     fn set_substeps(&mut self, n: u32) {
         self.substeps = n;
         self.h = self.control_dt / n as f64;
-        self.spool_model = SpoolModel::new(&self.params, self.h);
-        self.spool_half = SpoolModel::new(&self.params, 0.5 * self.h);
+        // h ≤ the control period, at which configure checked the spool: always Ok.
+        if let (Ok(m), Ok(half)) = (
+            SpoolModel::new(&self.params, self.h),
+            SpoolModel::new(&self.params, 0.5 * self.h),
+        ) {
+            self.spool_model = m;
+            self.spool_half = half;
+        }
         if let Some((la, lb)) = self.lines.as_mut() {
             la.prepare(self.h);
             lb.prepare(self.h);

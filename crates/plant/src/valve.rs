@@ -30,66 +30,46 @@ pub enum SpoolModel {
 }
 
 impl SpoolModel {
-    /// Build the discretisation for substep `h` (s).
-    pub fn new(params: &PlantParams, h: f64) -> Self {
-        match params.effects.valve_dynamics.as_ref().filter(|d| d.enabled) {
-            None => SpoolModel::Ideal,
-            Some(d) if d.order == 1 => {
-                if d.time_constant <= 0.0 {
-                    SpoolModel::Ideal
-                } else {
-                    SpoolModel::FirstOrder {
-                        decay: (-h / d.time_constant).exp(),
-                    }
+    /// Build the discretisation for substep `h` (s). `Err` names the field when the
+    /// second-order spool's ‖A·h‖₁ = h·max(ω², 1 + 2ζω) lies beyond
+    /// [`crate::exact::EXPM_MAX_NORM`] ([`crate::exact::expm_checked`] refuses it).
+    pub fn new(params: &PlantParams, h: f64) -> Result<Self, crate::spec::ConfigError> {
+        let d = match params.effects.valve_dynamics.as_ref().filter(|d| d.enabled) {
+            None => return Ok(SpoolModel::Ideal),
+            Some(d) => d,
+        };
+        if d.order == 1 {
+            return Ok(if d.time_constant <= 0.0 {
+                SpoolModel::Ideal
+            } else {
+                SpoolModel::FirstOrder {
+                    decay: (-h / d.time_constant).exp(),
                 }
-            }
-            Some(d) => {
-                let w = d.natural_frequency;
-                if w <= 0.0 {
-                    return SpoolModel::Ideal;
-                }
-                let z = d.damping_ratio;
-                let a = Matrix2::new(0.0, 1.0, -w * w, -2.0 * z * w);
-                let b = Vector2::new(0.0, w * w);
-                // Augmented-matrix exponential gives Φ and Γ together (Van Loan).
-                let mut m = nalgebra::Matrix3::<f64>::zeros();
-                m.fixed_view_mut::<2, 2>(0, 0).copy_from(&(a * h));
-                m.fixed_view_mut::<2, 1>(0, 2).copy_from(&(b * h));
-                match crate::exact::expm_checked(&m) {
-                    Some(e) => SpoolModel::SecondOrder {
-                        phi: e.fixed_view::<2, 2>(0, 0).into_owned(),
-                        gamma: e.fixed_view::<2, 1>(0, 2).into_owned(),
-                    },
-                    // Unreachable for a configured plant: `Plant::configure` refuses a spool
-                    // whose A·h exceeds the bound ([`SpoolModel::check`]).
-                    None => SpoolModel::Ideal,
-                }
-            }
+            });
         }
-    }
-
-    /// Whether the second-order spool can be discretised at substep `h` (s): ‖A·h‖₁ =
-    /// h·max(ω², 1 + 2ζω) within [`crate::exact::EXPM_MAX_NORM`]. `Err` names the field.
-    pub fn check(params: &PlantParams, h: f64) -> Result<(), crate::spec::ConfigError> {
-        if let Some(d) = params
-            .effects
-            .valve_dynamics
-            .as_ref()
-            .filter(|d| d.enabled && d.order == 2 && d.natural_frequency > 0.0)
-        {
-            let (w, z) = (d.natural_frequency, d.damping_ratio);
-            let norm = h * (w * w).max(1.0 + 2.0 * z * w);
-            if !(norm <= crate::exact::EXPM_MAX_NORM) {
-                return Err(crate::spec::ConfigError::new(
-                    "effects.valve_dynamics.damping_ratio",
-                    format!(
-                        "spool ω = {w:e} rad/s with ζ = {z:e} gives ‖A·h‖₁ = {norm:e} at h = {h:e} s, beyond {:e}; expected a spool damping ratio of order 0.1–10 and ω below 10⁶ rad/s",
-                        crate::exact::EXPM_MAX_NORM
-                    ),
-                ));
-            }
+        let (w, z) = (d.natural_frequency, d.damping_ratio);
+        if w <= 0.0 {
+            return Ok(SpoolModel::Ideal);
         }
-        Ok(())
+        let a = Matrix2::new(0.0, 1.0, -w * w, -2.0 * z * w);
+        let b = Vector2::new(0.0, w * w);
+        // Augmented-matrix exponential gives Φ and Γ together (Van Loan).
+        let mut m = nalgebra::Matrix3::<f64>::zeros();
+        m.fixed_view_mut::<2, 2>(0, 0).copy_from(&(a * h));
+        m.fixed_view_mut::<2, 1>(0, 2).copy_from(&(b * h));
+        match crate::exact::expm_checked(&m) {
+            Some(e) => Ok(SpoolModel::SecondOrder {
+                phi: e.fixed_view::<2, 2>(0, 0).into_owned(),
+                gamma: e.fixed_view::<2, 1>(0, 2).into_owned(),
+            }),
+            None => Err(crate::spec::ConfigError::new(
+                "effects.valve_dynamics.damping_ratio",
+                format!(
+                    "spool ω = {w:e} rad/s with ζ = {z:e} gives ‖A·h‖₁ beyond {:e} at h = {h:e} s; expected a spool damping ratio of order 0.1–10 and ω below 10⁶ rad/s",
+                    crate::exact::EXPM_MAX_NORM
+                ),
+            )),
+        }
     }
 
     /// Advance spool position `s` and velocity `sd` towards target `u` over one substep.

@@ -1,8 +1,8 @@
 //! # ehactl-runtime
 //!
 //! Everything that runs the control laws of `ehactl-control` against a [`ehactl_hal::Hal`]:
-//! - [`runloop`]: the fixed-step loop (read → supervise → control → write → log) and the
-//!   [`runloop::Pacer`] trait that starts each cycle,
+//! - [`runloop`]: the fixed-step loop (read → supervise → control → write → log), started
+//!   each cycle by an [`ehactl_hal::pacer::Pacer`] (the trait sits beside `Hal`),
 //! - [`realtime`]: the wall-clock pacer (absolute deadlines, SCHED_FIFO, jitter statistics),
 //! - [`live`]: gain / setpoint changes while running (handed over at a cycle boundary),
 //! - [`control_socket`]: the Unix socket that feeds [`live`] (`ehactl set`),

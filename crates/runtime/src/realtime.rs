@@ -16,10 +16,9 @@
 //! and lock-free; the first call (start-up) applies the real-time settings, so that threads
 //! spawned before it (the MCAP writer) keep the normal scheduler.
 
-use crate::runloop::Pacer;
+use ehactl_hal::pacer::{Pacer, Quantiles, RtApplied, TimingReport};
 use ehactl_hal::record::{CycleTiming, Event, EventKind, Severity};
 use ehactl_hal::Timebase;
-use serde::Serialize;
 
 /// What to do after a cycle overran its period.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -236,25 +235,6 @@ impl Histogram {
     }
 }
 
-/// Quantiles of one timing quantity (µs).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Quantiles {
-    /// Samples.
-    pub count: u64,
-    /// Minimum (µs).
-    pub min: f64,
-    /// Mean (µs).
-    pub mean: f64,
-    /// Median (µs).
-    pub p50: f64,
-    /// 99th percentile (µs).
-    pub p99: f64,
-    /// 99.9th percentile (µs).
-    pub p999: f64,
-    /// Maximum (µs).
-    pub max: f64,
-}
-
 /// Running timing statistics of a wall-clock run (constant memory).
 #[derive(Debug, Clone, Default)]
 pub struct TimingStats {
@@ -279,50 +259,6 @@ pub struct TimingStats {
     pub longest_overrun_streak: u64,
     /// Deadlines skipped by the `Skip` / `Trip` policies.
     pub skipped_deadlines: u64,
-}
-
-/// What real-time setting was applied at start-up.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
-pub struct RtApplied {
-    /// SCHED_FIFO priority in effect, if any.
-    pub sched_fifo_priority: Option<i32>,
-    /// CPU the loop thread is pinned to, if any.
-    pub cpu: Option<usize>,
-    /// Whether mlockall succeeded.
-    pub memory_locked: bool,
-    /// Settings that were requested but refused (one line each).
-    pub warnings: Vec<String>,
-}
-
-/// Timing report of a wall-clock run (the `--json` summary and the MCAP `/summary`).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct TimingReport {
-    /// Nominal period (µs).
-    pub period_nominal_us: f64,
-    /// Start lateness against the absolute deadline (µs).
-    pub jitter: Quantiles,
-    /// Start-to-start period (µs).
-    pub period: Quantiles,
-    /// Execution time per cycle (µs).
-    pub exec: Quantiles,
-    /// Overruns (cycles).
-    pub overruns: u64,
-    /// Overruns whose cycle's execution alone exceeded the period (cycles; see
-    /// [`TimingStats::overruns_exec`]).
-    pub overruns_exec: u64,
-    /// Overruns of cycles that fit in the period but started late (cycles; see
-    /// [`TimingStats::overruns_wakeup`]).
-    pub overruns_wakeup: u64,
-    /// Longest streak of consecutive overruns (cycles).
-    pub longest_overrun_streak: u64,
-    /// Deadlines skipped by the overrun policy.
-    pub skipped_deadlines: u64,
-    /// Overrun policy ("continue", "skip", "trip after N").
-    pub overrun_policy: String,
-    /// Busy-wait tail (µs).
-    pub spin_us: f64,
-    /// Real-time settings in effect.
-    pub rt: RtApplied,
 }
 
 /// Time source of a [`WallClockPacer`]: [`Monotonic`] (CLOCK_MONOTONIC) in every run; tests

@@ -4,12 +4,12 @@
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
 use crate::live::LiveParams;
-use crate::realtime::TimingReport;
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_control::pd::Pd;
 use ehactl_control::pi::{ControlTerms, Pi};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::{FeedbackChannel, Supervisor};
+use ehactl_hal::pacer::Pacer;
 use ehactl_hal::record::{CycleRecord, CycleTiming, Event, EventKind, Severity};
 use ehactl_hal::{Hal, Measurements, Timebase};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -71,47 +71,6 @@ impl Controller {
     }
 }
 
-/// Waits for the start of each cycle. The simulated loop does not wait; the wall-clock
-/// executor ([`crate::realtime::WallClockPacer`]) sleeps to absolute deadlines.
-pub trait Pacer {
-    /// Block until cycle `k` may start; returns false if the loop should stop (a stop
-    /// request, or a trip reported by [`Pacer::trip`]).
-    fn wait_for_cycle(&mut self, k: u64) -> bool;
-
-    /// Wall-clock timing of the cycle that just started (logged on `/timing`).
-    fn cycle_timing(&self) -> Option<CycleTiming> {
-        None
-    }
-
-    /// Next pending event of the pacer (set-up warnings, overruns); polled after each
-    /// wait until None. Must not allocate.
-    fn take_event(&mut self) -> Option<Event> {
-        None
-    }
-
-    /// The trip that made `wait_for_cycle` return false, if it was one (e.g. too many
-    /// consecutive overruns) rather than a stop request.
-    fn trip(&self) -> Option<Event> {
-        None
-    }
-
-    /// Timing statistics of the run (wall-clock pacers), read after the loop.
-    fn timing_report(&self) -> Option<TimingReport> {
-        None
-    }
-}
-
-/// Simulated time: every cycle starts at once.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct SimulatedTime;
-
-impl Pacer for SimulatedTime {
-    #[inline]
-    fn wait_for_cycle(&mut self, _k: u64) -> bool {
-        true
-    }
-}
-
 /// How a run ended and what it measured.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunOutcome {
@@ -149,6 +108,8 @@ pub struct LoopSettings<'a> {
 
 /// Run the loop. `record` receives every cycle's record (the logger push), `event`
 /// every event, `progress` the cycle count every 1 % (all called from the loop thread).
+/// Each cycle is [`Loop::admit`] (may it start?) then [`Loop::execute`] (the cycle itself);
+/// [`Loop::finish`] brings the valve to its safe command and reports how the run ended.
 #[allow(clippy::too_many_arguments)]
 pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     hal: &mut H,
@@ -161,102 +122,131 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     event: &mut dyn FnMut(Event),
     progress: &mut dyn FnMut(u64),
 ) -> RunOutcome {
-    let dt = settings.timebase.period();
     let n = settings.cycles;
     let step = (n / 100).max(1);
-    let mut errors = ErrorStats::default();
-    let mut trip = None;
-    let mut interrupted = false;
-    let mut k = 0u64;
-    // Front buffer of the live parameters (the back buffer is `settings.live`); cloning a
-    // setpoint copies plain numbers, it does not allocate.
-    let mut setpoint = setpoint_in.clone();
-    event(Event {
-        t: 0.0,
-        cycle: 0,
-        severity: Severity::Info,
-        kind: EventKind::Start,
-        channel: hal.name(),
-        value: f64::NAN,
-        limit: f64::NAN,
-        unit: "",
-    });
-    while k < n {
-        if settings.stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
-            interrupted = true;
+    event(Event::note(
+        0.0,
+        0,
+        Severity::Info,
+        EventKind::Start,
+        hal.name(),
+    ));
+    let mut lp = Loop {
+        hal,
+        controller,
+        supervisor,
+        pacer,
+        settings,
+        record,
+        event,
+        // Front buffer of the live parameters (the back buffer is `settings.live`); cloning
+        // a setpoint copies plain numbers, it does not allocate.
+        setpoint: setpoint_in.clone(),
+        dt: settings.timebase.period(),
+        k: 0,
+        errors: ErrorStats::default(),
+    };
+    let mut ending = None;
+    while lp.k < n {
+        if let Err(end) = lp.admit().and_then(|timing| lp.execute(timing)) {
+            ending = Some(end);
             break;
         }
-        if settings
+        if lp.k.is_multiple_of(step) {
+            progress(lp.k);
+        }
+    }
+    let outcome = lp.finish(ending);
+    progress(outcome.cycles);
+    outcome
+}
+
+/// Why the loop ended before its last cycle.
+enum Ending {
+    /// A trip: supervisor, backend fault, failed log or the pacer's overrun policy.
+    Trip(Event),
+    /// A stop request (signal), or the pacer stopped without a trip.
+    Interrupted,
+}
+
+/// The loop's parts and running state during one [`run_loop`].
+struct Loop<'a, 's, H: ?Sized, P: ?Sized> {
+    hal: &'a mut H,
+    controller: &'a mut Controller,
+    supervisor: &'a mut Supervisor,
+    pacer: &'a mut P,
+    settings: &'a LoopSettings<'s>,
+    record: &'a mut dyn FnMut(&CycleRecord),
+    event: &'a mut dyn FnMut(Event),
+    /// Front buffer of the live setpoint.
+    setpoint: Setpoint,
+    /// Nominal control period (s).
+    dt: f64,
+    /// The next cycle; also the count of cycles recorded.
+    k: u64,
+    errors: ErrorStats,
+}
+
+impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
+    /// Before cycle `k`: a stop request, a failed log, the pacer's wait (its events are
+    /// forwarded) and the live hand-over at the cycle boundary. Returns the pacer's timing of
+    /// the cycle that starts.
+    fn admit(&mut self) -> Result<Option<CycleTiming>, Ending> {
+        let (k, t) = (self.k, self.k as f64 * self.dt);
+        if self
+            .settings
+            .stop
+            .is_some_and(|s| s.load(Ordering::Relaxed))
+        {
+            return Err(Ending::Interrupted);
+        }
+        if self
+            .settings
             .log_failed
             .is_some_and(|f| f.load(Ordering::Relaxed))
         {
-            trip = Some(Event {
-                t: k as f64 * dt,
-                cycle: k,
-                severity: Severity::Trip,
-                kind: EventKind::LogFailed,
-                channel: "mcap",
-                value: f64::NAN,
-                limit: f64::NAN,
-                unit: "",
-            });
-            break;
+            let ev = Event::note(t, k, Severity::Trip, EventKind::LogFailed, "mcap");
+            return Err(Ending::Trip(ev));
         }
-        let go = pacer.wait_for_cycle(k);
-        while let Some(ev) = pacer.take_event() {
-            event(ev);
+        let go = self.pacer.wait_for_cycle(k);
+        while let Some(ev) = self.pacer.take_event() {
+            (self.event)(ev);
         }
         if !go {
-            match pacer.trip() {
-                Some(ev) => trip = Some(ev),
-                None => interrupted = true,
-            }
-            break;
+            return Err(self.pacer.trip().map_or(Ending::Interrupted, Ending::Trip));
         }
-        let t = k as f64 * dt;
         // Cycle boundary: take over a pending gain / setpoint change (wait-free).
-        if let Some(live) = settings.live {
-            live.apply_pending(k, t, controller, &mut setpoint, event);
+        if let Some(live) = self.settings.live {
+            live.apply_pending(k, t, self.controller, &mut self.setpoint, self.event);
         }
-        let timing = pacer.cycle_timing();
+        Ok(self.pacer.cycle_timing())
+    }
+
+    /// Cycle `k`: read → supervise → setpoint → control law → command limit → write →
+    /// record. A trip ends it early; the tripping cycle is recorded when its sensors were
+    /// read (with the safe command it applied) or its command was computed.
+    fn execute(&mut self, timing: Option<CycleTiming>) -> Result<(), Ending> {
+        let (k, dt) = (self.k, self.dt);
+        let t = k as f64 * dt;
         // The measured period handed to the backend (ros2_control's `period`): wall-clock
         // pacers measure it, simulated time has the nominal one.
         let period = timing
             .map(|c| c.period_us * 1e-6)
             .filter(|p| p.is_finite() && *p > 0.0)
             .unwrap_or(dt);
-        let hal_fault = |e: ehactl_hal::HalError| Event {
-            t,
-            cycle: k,
-            severity: Severity::Trip,
-            kind: EventKind::HalFault,
-            channel: match e {
-                ehactl_hal::HalError::Numerical { what, .. } => what,
-                ehactl_hal::HalError::Device { what, .. } => what,
-            },
-            value: f64::NAN,
-            limit: f64::NAN,
-            unit: "",
-        };
-        let meas = match hal.read(t, period) {
-            Ok(m) => m,
-            Err(e) => {
-                trip = Some(hal_fault(e));
-                break;
-            }
-        };
-        let (r, rdot) = setpoint.sample(t);
-        if let Some(ev) = supervisor.check_sensors(t, k, &meas) {
-            // The tripping cycle is logged too, with the safe command it applied.
-            let plant = hal.plant_state();
-            let safe = supervisor.safe_command();
-            let fb = controller.feedback(&meas);
-            let e = if matches!(controller, Controller::OpenLoop) {
+        let meas = self
+            .hal
+            .read(t, period)
+            .map_err(|e| Ending::Trip(hal_fault(t, k, e)))?;
+        let (r, rdot) = self.setpoint.sample(t);
+        let fb = self.controller.feedback(&meas);
+        if let Some(ev) = self.supervisor.check_sensors(t, k, &meas) {
+            let safe = self.supervisor.safe_command();
+            let e = if matches!(self.controller, Controller::OpenLoop) {
                 f64::NAN
             } else {
                 r - fb
             };
-            errors.add(e, t, settings.settle_time);
             let held = ControlTerms {
                 u: safe,
                 u_unsat: safe,
@@ -266,111 +256,90 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
                 d: f64::NAN,
                 ff: f64::NAN,
             };
-            record(&cycle_record(
-                k,
-                t,
-                (r, rdot),
-                fb,
-                &held,
-                safe,
-                meas,
-                plant,
-                timing,
-            ));
-            k += 1;
-            trip = Some(ev);
-            break;
+            let plant = self.hal.plant_state();
+            let rec = cycle_record(k, t, (r, rdot), fb, &held, safe, meas, plant, timing);
+            self.log(&rec, e);
+            return Err(Ending::Trip(ev));
         }
-        let terms = controller.step(r, rdot, &meas, dt);
-        let (u, ev) = supervisor.limit_command(t, k, terms.u);
+        let terms = self.controller.step(r, rdot, &meas, dt);
+        let (u, ev) = self.supervisor.limit_command(t, k, terms.u);
         if let Some(ev) = ev {
             if ev.severity == Severity::Trip {
-                trip = Some(ev);
-                break;
+                return Err(Ending::Trip(ev));
             }
-            event(ev);
+            (self.event)(ev);
         }
         let saturated = terms.u != terms.u_unsat || u != terms.u;
-        if let Some(ev) = supervisor.check_saturation(t, k, saturated, dt) {
-            trip = Some(ev);
-            break;
+        if let Some(ev) = self.supervisor.check_saturation(t, k, saturated, dt) {
+            return Err(Ending::Trip(ev));
         }
-        let plant = hal.plant_state();
-        let fb = controller.feedback(&meas);
+        let plant = self.hal.plant_state();
         let rec = cycle_record(k, t, (r, rdot), fb, &terms, u, meas, plant, timing);
-        if let Err(e) = hal.write(t, period, u) {
-            record(&rec);
-            trip = Some(hal_fault(e));
-            k += 1;
-            break;
+        if let Err(e) = self.hal.write(t, period, u) {
+            // Recorded, but its error is not counted: the command did not reach the valve.
+            self.log(&rec, f64::NAN);
+            return Err(Ending::Trip(hal_fault(t, k, e)));
         }
-        record(&rec);
-        errors.add(terms.error, t, settings.settle_time);
-        k += 1;
-        if k.is_multiple_of(step) {
-            progress(k);
+        self.log(&rec, terms.error);
+        Ok(())
+    }
+
+    /// Record the cycle, count its control error `e` (NaN: not counted), move to the next.
+    #[inline]
+    fn log(&mut self, rec: &CycleRecord, e: f64) {
+        (self.record)(rec);
+        self.errors.add(e, rec.t, self.settings.settle_time);
+        self.k += 1;
+    }
+
+    /// After the loop: the safe command to the valve, the end event (trip, signal or normal
+    /// end) and the safe-stop event, and the outcome.
+    fn finish(self, ending: Option<Ending>) -> RunOutcome {
+        let (k, end_t) = (self.k, self.k as f64 * self.dt);
+        let safe = self.supervisor.safe_command();
+        let safe_result = self.hal.safe_stop(safe);
+        let (trip, interrupted) = match ending {
+            Some(Ending::Trip(ev)) => (Some(ev), false),
+            Some(Ending::Interrupted) => (None, true),
+            None => (None, false),
+        };
+        (self.event)(match (trip, interrupted) {
+            (Some(ev), _) => ev,
+            (None, true) => Event::note(end_t, k, Severity::Trip, EventKind::Signal, "process"),
+            (None, false) => Event::note(end_t, k, Severity::Info, EventKind::End, "run"),
+        });
+        (self.event)(Event {
+            severity: if safe_result.is_ok() {
+                Severity::Info
+            } else {
+                Severity::Warning
+            },
+            value: safe,
+            unit: "V",
+            ..Event::note(
+                end_t,
+                k,
+                Severity::Info,
+                EventKind::SafeStop,
+                safe_result.as_ref().map_or_else(|e| e.what(), |()| "valve"),
+            )
+        });
+        let e = &self.errors;
+        RunOutcome {
+            cycles: k,
+            duration_s: end_t,
+            trip,
+            interrupted,
+            rms_error: rms(e.sum_sq, e.n),
+            max_abs_error: if e.n > 0 { e.max_abs } else { f64::NAN },
+            rms_error_settled: rms(e.sum_sq_settled, e.n_settled),
         }
     }
-    let safe = supervisor.safe_command();
-    let safe_result = hal.safe_stop(safe);
-    let end_t = k as f64 * dt;
-    if let Some(ev) = trip {
-        event(ev);
-    } else if interrupted {
-        event(Event {
-            t: end_t,
-            cycle: k,
-            severity: Severity::Trip,
-            kind: EventKind::Signal,
-            channel: "process",
-            value: f64::NAN,
-            limit: f64::NAN,
-            unit: "",
-        });
-    } else {
-        event(Event {
-            t: end_t,
-            cycle: k,
-            severity: Severity::Info,
-            kind: EventKind::End,
-            channel: "run",
-            value: f64::NAN,
-            limit: f64::NAN,
-            unit: "",
-        });
-    }
-    event(Event {
-        t: end_t,
-        cycle: k,
-        severity: if safe_result.is_ok() {
-            Severity::Info
-        } else {
-            Severity::Warning
-        },
-        kind: EventKind::SafeStop,
-        channel: match safe_result {
-            Ok(()) => "valve",
-            Err(ehactl_hal::HalError::Numerical { what, .. }) => what,
-            Err(ehactl_hal::HalError::Device { what, .. }) => what,
-        },
-        value: safe,
-        limit: f64::NAN,
-        unit: "V",
-    });
-    progress(k);
-    RunOutcome {
-        cycles: k,
-        duration_s: end_t,
-        trip,
-        interrupted,
-        rms_error: rms(errors.sum_sq, errors.n),
-        max_abs_error: if errors.n > 0 {
-            errors.max_abs
-        } else {
-            f64::NAN
-        },
-        rms_error_settled: rms(errors.sum_sq_settled, errors.n_settled),
-    }
+}
+
+/// The trip event of a backend fault in cycle `k` at `t` (s).
+fn hal_fault(t: f64, k: u64, e: ehactl_hal::HalError) -> Event {
+    Event::note(t, k, Severity::Trip, EventKind::HalFault, e.what())
 }
 
 /// Control-error statistics of a run (N or m), accumulated without allocation.

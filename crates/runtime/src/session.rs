@@ -3,12 +3,12 @@
 //! Shared by the CLI and the Python bindings so both run exactly the same code.
 
 use crate::live::LiveParams;
-use crate::realtime::TimingReport;
-use crate::runloop::{run_loop, Controller, LoopSettings, Pacer, RunOutcome, SimulatedTime};
+use crate::runloop::{run_loop, Controller, LoopSettings, RunOutcome};
 use ehactl_config::{Compression, ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
 use ehactl_hal::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
+use ehactl_hal::pacer::{Pacer, SimulatedTime, TimingReport};
 use ehactl_hal::record::CycleRecord;
 use ehactl_hal::sim::SimHal;
 use ehactl_hal::Hal;

@@ -110,7 +110,7 @@ def diagnose(
     validate: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
     *,
-    progress: bool = False,
+    progress: bool | Callable[[int, int], None] = False,
     sensor_offsets: bool = False,
 ) -> dict[str, Any]:
     """What the simulation of ``cfg`` gets wrong on measured data, like ``ehactl diagnose --json``.
@@ -125,8 +125,9 @@ def diagnose(
         data: measured record, CSV (``t, u`` and any of ``force, x, p_a, p_b, x_v, ref``; SI)
             or an MCAP written by ehactl.
         validate: separate held-out record; default the last 30 % of ``data``.
-        out: directory for ``extended.toml``, ``report.md`` and PNG plots.
-        progress: show the fits' progress bar on stderr.
+        out: directory for ``extended.toml``, ``report.md`` and SVG plots.
+        progress: True for a tqdm bar of the model fits, or a callable ``(done_fits,
+            total_fits)`` (called on this thread; the total grows with each search round).
         sensor_offsets: estimate a constant zero error per measured channel for every model
             (on the fitting part; applied to the held-out part); default False trusts the zeros.
 
@@ -145,9 +146,22 @@ def diagnose(
     _must_exist(data, "measured data file")
     if validate is not None:
         _must_exist(validate, "validation data file")
-    raw, notes = _ehactl.diagnose_json(c, os.fspath(data), None if validate is None else os.fspath(validate),
-                                       None if out is None else os.fspath(out), bool(progress),
-                                       bool(sensor_offsets))
+    cb = progress if callable(progress) else None
+    bar = None
+    if progress is True:
+        bar, bar_cb = _progress_bar(1, "diagnose", "fit")
+        if bar is not None:
+            def cb(done: int, total: int) -> None:
+                bar.total = total
+                bar_cb(done, total)
+    try:
+        raw, notes = _ehactl.diagnose_json(c, os.fspath(data),
+                                           None if validate is None else os.fspath(validate),
+                                           None if out is None else os.fspath(out), cb,
+                                           bool(sensor_offsets))
+    finally:
+        if bar is not None:
+            bar.close()
     r = json.loads(raw)
     for w in r.get("warnings") or []:
         warnings.warn(w, stacklevel=2)
@@ -196,7 +210,7 @@ def diagnose_many(
     if client is not None:
         raws = _dask.diagnose_batch(client, [(c.to_toml(), d, v, o) for c, d, v, o in norm], bool(sensor_offsets))
     else:
-        raws = [_ehactl.diagnose_json(c, d, v, o, False, bool(sensor_offsets)) for c, d, v, o in norm]
+        raws = [_ehactl.diagnose_json(c, d, v, o, None, bool(sensor_offsets)) for c, d, v, o in norm]
     rows = []
     for (c, d, _v, _o), (raw, _notes) in zip(norm, raws):
         row = {"data": d}

@@ -37,7 +37,7 @@ def _diagnose_one(version: str, toml: str, data: str, validate, out, sensor_offs
     """Worker side of :func:`diagnose_many`: one case, the JSON report and notes."""
     _check_version(version)
     cfg = _ehactl.Config.from_toml(toml)
-    raw, notes = _ehactl.diagnose_json(cfg, data, validate, out, False, sensor_offsets)
+    raw, notes = _ehactl.diagnose_json(cfg, data, validate, out, None, sensor_offsets)
     return raw, list(notes)
 
 

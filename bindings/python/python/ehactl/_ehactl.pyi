@@ -156,7 +156,7 @@ def diagnose_json(
     data: _Path,
     validate: _Path | None = None,
     out: _Path | None = None,
-    progress: bool = False,
+    progress: Callable[[int, int], None] | None = None,
     sensor_offsets: bool = False,
 ) -> tuple[str, list[str]]:
     """``ehactl diagnose --json`` of ``data`` against ``cfg`` and the replay notes (see ``ehactl.diagnose``)."""
