@@ -15,6 +15,30 @@ fn fixture() -> Vec<String> {
         .collect()
 }
 
+/// Entries added on purpose after the fixture: the switches of the rig sections, which the
+/// hand-written table left out (so `ehactl params` did not show them and the loader checked
+/// them only through serde). Their choices are the enums' serde names.
+const ADDED: [(&str, &str); 6] = [
+    (
+        "control.mode",
+        r#"-	Finite	Choice(["force", "position", "open_loop"])"#,
+    ),
+    (
+        "setpoint.kind",
+        r#"-	Finite	Choice(["step", "ramp", "sine", "chirp", "static_dynamic", "random_steps"])"#,
+    ),
+    (
+        "setpoint.sweep",
+        r#"-	Finite	Choice(["linear", "log", "stepped"])"#,
+    ),
+    ("log.compression", r#"-	Finite	Choice(["none", "lz4"])"#),
+    ("realtime.lock_memory", "bool\tFinite\tBool"),
+    (
+        "realtime.overrun_policy",
+        r#"-	Finite	Choice(["continue", "skip", "trip"])"#,
+    ),
+];
+
 fn rows() -> Vec<String> {
     ehactl_config::registries()
         .iter()
@@ -29,12 +53,50 @@ fn rows() -> Vec<String> {
 }
 
 #[test]
-fn registry_equals_the_hand_written_tables() {
+fn registry_equals_the_hand_written_tables_plus_the_switches() {
     let old = fixture();
-    let new = rows();
+    let all = rows();
+    let is_added = |r: &String| ADDED.iter().any(|(p, _)| r.split('\t').next() == Some(*p));
+    let new: Vec<&String> = all.iter().filter(|r| !is_added(r)).collect();
     assert!(old.len() > 170, "{} fixture rows", old.len());
     for (i, (o, n)) in old.iter().zip(&new).enumerate() {
-        assert_eq!(o, n, "row {i} differs");
+        assert_eq!(o, *n, "row {i} differs");
     }
     assert_eq!(old.len(), new.len(), "number of entries");
+    for (path, body) in ADDED {
+        let r = all
+            .iter()
+            .find(|r| r.split('\t').next() == Some(path))
+            .unwrap_or_else(|| panic!("{path} missing"));
+        assert!(r.starts_with(&format!("{path}\t{body}\t")), "{r}");
+    }
+    assert_eq!(all.len(), old.len() + ADDED.len());
+}
+
+/// The added switches are checked by the registry before serde: a wrong value names the
+/// path and lists the accepted names (from the enum itself).
+#[test]
+fn switch_values_are_checked_against_the_enum_names() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../configs/sahu2022_force.toml"
+    );
+    let base = std::fs::read_to_string(path).unwrap();
+    assert!(base.contains("sweep = \"log\""));
+    let e = ehactl_config::RigConfig::from_toml_str(
+        &base.replace("sweep = \"log\"", "sweep = \"logarithmic\""),
+    )
+    .unwrap_err();
+    assert_eq!(e.path, "setpoint.sweep");
+    assert!(
+        e.message
+            .contains(r#"expected one of "linear", "log", "stepped""#),
+        "{e}"
+    );
+    let e = ehactl_config::RigConfig::from_toml_str(&format!(
+        "{base}\n[realtime]\nlock_memory = \"yes\"\n"
+    ))
+    .unwrap_err();
+    assert_eq!(e.path, "realtime.lock_memory");
+    assert!(e.message.contains("expected true or false"), "{e}");
 }

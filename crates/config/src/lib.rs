@@ -125,6 +125,10 @@ fn neg_ten() -> f64 {
 #[serde(deny_unknown_fields)]
 pub struct ControlConfig {
     /// Controlled variable.
+    #[param(
+        choice,
+        desc = "controlled variable: force (PI on the load cell, 004), position (PD on the piston, 003) or open_loop (setpoint in V straight to the valve)"
+    )]
     pub mode: ControlMode,
     /// PI gains (force mode).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -176,6 +180,7 @@ pub enum Compression {
 pub struct LogConfig {
     /// Chunk compression.
     #[serde(default)]
+    #[param(choice, desc = "MCAP chunk compression: lz4 (default) or none")]
     pub compression: Compression,
     /// Record queue capacity (records).
     #[serde(default = "LogConfig::default_queue")]
@@ -252,6 +257,11 @@ pub struct RealtimeConfig {
     pub cpu: i64,
     /// Lock all memory (mlockall) so that no page fault lands in a cycle.
     #[serde(default = "RealtimeConfig::default_lock")]
+    #[param(
+        unit = "bool",
+        range = Finite,
+        desc = "lock all memory (mlockall) with --realtime so no page fault lands in a cycle; true (default) or false"
+    )]
     pub lock_memory: bool,
     /// Busy-wait tail before each deadline (s); 0 = sleep only. Must be below the period.
     #[serde(default = "RealtimeConfig::default_spin")]
@@ -263,6 +273,10 @@ pub struct RealtimeConfig {
     pub spin: f64,
     /// Overrun policy: "continue", "skip" or "trip".
     #[serde(default)]
+    #[param(
+        choice,
+        desc = "after an overrun with --realtime: continue (grid shifts), skip (default: keep the grid) or trip (after trip_after)"
+    )]
     pub overrun_policy: OverrunPolicyConfig,
     /// Consecutive overruns that trip the run under `overrun_policy = "trip"` (cycles).
     #[serde(default = "RealtimeConfig::default_trip_after")]

@@ -67,6 +67,10 @@ pub enum Sweep {
 #[serde(deny_unknown_fields)]
 pub struct SetpointConfig {
     /// Generator kind.
+    #[param(
+        choice,
+        desc = "generator: step, ramp, sine, chirp, static_dynamic (static + swept, 004) or random_steps"
+    )]
     pub kind: SetpointKind,
     /// Start value (N or m) for step/ramp, lower bound for random steps.
     #[serde(default)]
@@ -102,6 +106,10 @@ pub struct SetpointConfig {
     pub f1: f64,
     /// Sweep law.
     #[serde(default)]
+    #[param(
+        choice,
+        desc = "sweep law of chirp / static_dynamic: linear (default), log or stepped (`steps` frequencies)"
+    )]
     pub sweep: Sweep,
     /// Number of frequencies of a stepped sweep (-).
     #[serde(default)]

@@ -29,6 +29,7 @@ use crate::data::ChannelKind;
 use crate::diagnose::{Ctx, Errors, Hyp};
 use crate::fit::{FreeParam, Scales};
 use ehactl_plant::effects::{PolynomialFlow, PolynomialForce};
+use ehactl_plant::spec::{self, ParamTree};
 use ehactl_plant::PlantParams;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -82,50 +83,31 @@ pub struct GreyBox {
     pub selection: Vec<String>,
 }
 
-/// A library entry: section, field name, unit, physics and coefficient bound.
+/// A library entry: section, field name, physics and coefficient bound (the unit is the
+/// registry's, [`Lib::unit`]).
 struct Lib {
     /// `polynomial_force` or `polynomial_flow`.
     section: &'static str,
     field: &'static str,
-    unit: &'static str,
     physics: &'static str,
     bound: f64,
     /// Regressor for the least-squares start (force records): f(x, v) or None.
     feature: Option<fn(f64, f64, &PolynomialForce) -> f64>,
 }
 
-fn set_flow(f: &mut PolynomialFlow, field: &str, v: f64) {
-    match field {
-        "constant" => f.constant = v,
-        "spool" => f.spool = v,
-        "spool_abs" => f.spool_abs = v,
-        _ => {}
+impl Lib {
+    /// Dotted registry path, e.g. `effects.polynomial_force.viscous`.
+    fn path(&self) -> String {
+        format!("effects.{}.{}", self.section, self.field)
     }
-}
 
-fn set_field(f: &mut PolynomialForce, field: &str, v: f64) {
-    match field {
-        "constant" => f.constant = v,
-        "viscous" => f.viscous = v,
-        "coulomb" => f.coulomb = v,
-        "quadratic" => f.quadratic = v,
-        "stiffness" => f.stiffness = v,
-        "pressure" => f.pressure = v,
-        "pressure_coulomb" => f.pressure_coulomb = v,
-        _ => {}
-    }
-}
-
-fn get_field(f: &PolynomialForce, field: &str) -> f64 {
-    match field {
-        "constant" => f.constant,
-        "viscous" => f.viscous,
-        "coulomb" => f.coulomb,
-        "quadratic" => f.quadratic,
-        "stiffness" => f.stiffness,
-        "pressure" => f.pressure,
-        "pressure_coulomb" => f.pressure_coulomb,
-        _ => 0.0,
+    /// SI unit from the parameter registry (the field's `#[param(unit)]`).
+    fn unit(&self) -> &'static str {
+        let path = self.path();
+        spec::params()
+            .iter()
+            .find(|p| p.path == path)
+            .map_or("-", |p| p.unit)
     }
 }
 
@@ -188,7 +170,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "constant",
-            unit: "N",
             physics: "constant force (preload)",
             bound: 0.2 * fs,
             feature: Some(|_, _, _| 1.0),
@@ -196,7 +177,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "viscous",
-            unit: "N·s/m",
             physics: "viscous force ∝ v",
             bound: 0.3 * fs / vr,
             feature: Some(|_, v, _| v),
@@ -204,7 +184,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "coulomb",
-            unit: "N",
             physics: "Coulomb/yield force ∝ sign(v)",
             bound: 0.2 * fs,
             feature: Some(|_, v, f| (v / f.smoothing_velocity).tanh()),
@@ -212,7 +191,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "quadratic",
-            unit: "N·s²/m²",
             physics: "quadratic damping ∝ |v|·v",
             bound: 0.3 * fs / (vr * vr),
             feature: Some(|_, v, _| v.abs() * v),
@@ -220,7 +198,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "stiffness",
-            unit: "N/m",
             physics: "stiffness ∝ (x − x₀)",
             bound: 0.5 * scales.stiffness.max(fs / base_fit.cylinder.stroke),
             feature: Some(|x, _, f| x - f.origin),
@@ -228,7 +205,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "pressure",
-            unit: "m²",
             physics: "load-pressure force ∝ (p_a − p_b)",
             bound: 0.3 * area,
             feature: None,
@@ -236,7 +212,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "pressure_coulomb",
-            unit: "m²",
             physics: "pressure-dependent friction ∝ sign(v)·|p_a − p_b|",
             bound: 0.3 * area,
             feature: None,
@@ -244,7 +219,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_flow",
             field: "constant",
-            unit: "m³/s",
             physics: "valve null-bias flow (B→A)",
             bound: 0.2 * scales.flow,
             feature: None,
@@ -252,7 +226,6 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_flow",
             field: "spool",
-            unit: "m³/s",
             physics: "flow-gain error ∝ x_v",
             bound: 0.5 * scales.flow,
             feature: None,
@@ -260,12 +233,23 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_flow",
             field: "spool_abs",
-            unit: "m³/s",
             physics: "flow-gain direction asymmetry ∝ |x_v|",
             bound: 0.5 * scales.flow,
             feature: None,
         },
     ];
+    // Each term is a declared float parameter of its section: its unit and its accessor
+    // (`get_path` / `set_path` below) come from the `#[param]` declaration. Checked on every
+    // run, so a misspelt term fails loudly instead of being fitted as nothing.
+    for l in &lib {
+        let path = l.path();
+        assert!(
+            spec::params()
+                .iter()
+                .any(|p| p.path == path && p.kind == spec::Kind::Float),
+            "grey-box term {path} is not a declared float parameter"
+        );
+    }
     let mut start = prior;
     start.enabled = true;
     start.smoothing_velocity = vs;
@@ -294,15 +278,14 @@ pub(crate) fn extend(
     })();
     let prior_flow = base_fit.effects.polynomial_flow;
     let make_param = |l: &Lib, init: f64, widen: f64| -> FreeParam {
+        // Every library field is a declared float of its section (tested), so the
+        // accessor's `None` (0) is never taken.
         let p0 = if l.section == "polynomial_force" {
-            get_field(&prior, l.field)
+            prior.get_path(l.field)
         } else {
-            prior_flow.map_or(0.0, |f| match l.field {
-                "constant" => f.constant,
-                "spool" => f.spool,
-                _ => f.spool_abs,
-            })
-        };
+            prior_flow.and_then(|f| f.get_path(l.field))
+        }
+        .unwrap_or(0.0);
         let b = widen * l.bound.max(2.0 * p0.abs());
         let field = l.field;
         let st = start;
@@ -312,7 +295,8 @@ pub(crate) fn extend(
                 f.enabled = true;
                 f.smoothing_velocity = st.smoothing_velocity;
                 f.origin = st.origin;
-                set_field(f, field, v);
+                // Declared float (checked above): the write cannot fail.
+                let _ = f.set_path(field, v);
             })
         } else {
             Arc::new(move |p: &mut PlantParams, v| {
@@ -321,7 +305,8 @@ pub(crate) fn extend(
                     .polynomial_flow
                     .get_or_insert_with(PolynomialFlow::zero);
                 f.enabled = true;
-                set_flow(f, field, v);
+                // Declared float (checked above): the write cannot fail.
+                let _ = f.set_path(field, v);
             })
         };
         FreeParam {
@@ -444,7 +429,7 @@ pub(crate) fn extend(
             let (hw, cw) = frozen.fit(hw, last, evals_per_param);
             selection.push(format!(
                 "{}.{} ended on its bound ±{:.3e} {}: bound widened 4× and refit (fitting-part NRMSE {:.4} → {:.4})",
-                l.section, l.field, fp.hi, l.unit, cb.sqrt(), cw.sqrt()
+                l.section, l.field, fp.hi, l.unit(), cb.sqrt(), cw.sqrt()
             ));
             if cw < cb {
                 lb = log_cost(&channel_costs(&hw.build(&base_fit)));
@@ -475,9 +460,9 @@ pub(crate) fn extend(
         let value = *h.values.last().unwrap_or(&0.0);
         let bound = h.params.last().map_or(0.0, |p| p.hi);
         terms.push(Term {
-            path: format!("effects.{}.{}", l.section, l.field),
+            path: l.path(),
             value,
-            unit: l.unit.to_string(),
+            unit: l.unit().to_string(),
             physics: l.physics.to_string(),
             nrmse_train: cb.sqrt(),
             // Reported only: the held-out part never enters a choice.

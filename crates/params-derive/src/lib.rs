@@ -1,5 +1,6 @@
-//! `#[derive(Params)]`: each plant parameter is declared once, on its struct field, with its
-//! unit, admissible range and description (the way a Hopsan component declares
+//! `#[derive(Params)]`: each config parameter (plant, control, setpoint, supervisor, run, log,
+//! realtime and CANopen sections) is declared once, on its struct field, with its unit,
+//! admissible range and description (the way a Hopsan component declares
 //! `addInputVariable("C_q", "Flow Coefficient", "-", 0.67, &mpCq)`). The derive implements
 //! `ehactl_plant::spec::ParamTree`, which gives
 //!
@@ -14,8 +15,10 @@
 //! * `#[param(unit = "kg", range = Positive, desc = "moving mass")]`: a leaf. The kind
 //!   follows the type: `f64` and `Option<f64>` are floats, integers (signed or not)
 //!   integers, `bool` booleans, `Vec<f64>` float arrays; `choices = EXPR` (a
-//!   `&'static [&'static str]`) makes a choice (unit "-", range `Finite` unless given).
-//!   `range` is a `spec::Range` variant.
+//!   `&'static [&'static str]`) makes a choice (unit "-", range `Finite` unless given);
+//!   a bare `choice` does the same with the serialised variant names of the field's enum
+//!   type (`spec::variants`, read from its `Deserialize`, so they cannot drift from what the
+//!   loader accepts). `range` is a `spec::Range` variant.
 //! * `#[param(nested)]` on a field whose type derives `Params` (or `Option` of one): its
 //!   parameters under `<field>.`; `with(field(desc = "…", choices = …, unit = "…",
 //!   range = …), …)` overrides an inner field's declaration for this instance (e.g. the two
@@ -194,10 +197,15 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
         };
         let mut decl = Decl::default();
         let mut nested = false;
+        let mut choice = false;
         let mut with: Vec<(String, Decl)> = Vec::new();
         attr.parse_nested_meta(|meta| {
             if meta.path.is_ident("nested") {
                 nested = true;
+                return Ok(());
+            }
+            if meta.path.is_ident("choice") {
+                choice = true;
                 return Ok(());
             }
             if meta.path.is_ident("with") {
@@ -222,7 +230,7 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
             if decl.parse_item(&meta)? {
                 Ok(())
             } else {
-                Err(meta.error("expected unit, range, desc, choices, nested or with(...)"))
+                Err(meta.error("expected unit, range, desc, choices, choice, nested or with(...)"))
             }
         })?;
         if nested {
@@ -299,6 +307,16 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
                 });
             }
             continue;
+        }
+        if choice {
+            if decl.choices.is_some() {
+                return Err(syn::Error::new_spanned(
+                    attr,
+                    "param: choice (from the enum) and choices = … exclude each other",
+                ));
+            }
+            let ty = &f.ty;
+            decl.choices = Some(syn::parse_quote!(#sp::variants::<#ty>()));
         }
         let desc = decl
             .desc

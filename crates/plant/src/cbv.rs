@@ -62,7 +62,10 @@ pub struct CounterbalanceValve {
     pub enabled: bool,
     /// Lines fitted with a CBV (default both).
     #[serde(default)]
-    #[param(choices = crate::cbv::CbvSides::NAMES, desc = "lines fitted with a CBV at the cylinder end (default both)")]
+    #[param(
+        choice,
+        desc = "lines fitted with a CBV at the cylinder end (default both)"
+    )]
     pub sides: CbvSides,
     /// Pilot ratio ψ (-): pilot area over relief seat area.
     #[param(unit = "-", range = Positive, desc = "pilot ratio ψ: opens when p_load + ψ·p_pilot ≥ setting")]

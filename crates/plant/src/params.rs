@@ -251,8 +251,11 @@ pub struct Friction {
     pub enabled: bool,
     /// Structural variant (`stribeck` or `load_coulomb`).
     #[serde(default)]
-    #[param(choices = &["stribeck", "load_coulomb"], desc = "stribeck: seal friction with stick (003 eq. 5, default); load_coulomb: F_C·tanh(v/v_s) \
-         without stick (MR damper / guide, Spencer 1997 without hysteresis)")]
+    #[param(
+        choice,
+        desc = "stribeck: seal friction with stick (003 eq. 5, default); load_coulomb: F_C·tanh(v/v_s) \
+         without stick (MR damper / guide, Spencer 1997 without hysteresis)"
+    )]
     pub variant: FrictionVariant,
     /// Breakaway (static) friction F_s (N); 004: 44.
     #[param(unit = "N", range = NonNegative, desc = "breakaway friction F_s (004: 44 N)")]
@@ -300,8 +303,11 @@ pub struct ValveDeadband {
     pub enabled: bool,
     /// Structural variant (`overlap` or `amplifier`).
     #[serde(default)]
-    #[param(choices = &["overlap", "amplifier"], desc = "overlap: spool overlap (default); amplifier: dead zone of the amplifier ahead of the \
-         underlapped spool")]
+    #[param(
+        choice,
+        desc = "overlap: spool overlap (default); amplifier: dead zone of the amplifier ahead of the \
+         underlapped spool"
+    )]
     pub variant: DeadbandVariant,
     /// Amplifier dead zone as a fraction of the full-scale command (-), variant `amplifier`.
     #[serde(default)]
@@ -339,8 +345,11 @@ pub struct ValveSaturation {
     pub enabled: bool,
     /// Structural variant (`symmetric` or `asymmetric`).
     #[serde(default)]
-    #[param(choices = &["symmetric", "asymmetric"], desc = "symmetric: one spool travel limit (default); asymmetric: spool_limit for + and \
-         spool_limit_negative for − travel")]
+    #[param(
+        choice,
+        desc = "symmetric: one spool travel limit (default); asymmetric: spool_limit for + and \
+         spool_limit_negative for − travel"
+    )]
     pub variant: SaturationVariant,
     /// Limit of negative spool travel as a fraction of full travel (-), variant `asymmetric`.
     #[serde(default = "ValveSaturation::one")]
@@ -408,8 +417,11 @@ pub struct Leakage {
     pub enabled: bool,
     /// Structural variant (`equal` or, external leakage only, `per_chamber`).
     #[serde(default)]
-    #[param(choices = &["equal", "per_chamber"], desc = "equal: both chambers leak to tank with `coefficient` (default); per_chamber: A with \
-         `coefficient`, B with `coefficient_b`")]
+    #[param(
+        choice,
+        desc = "equal: both chambers leak to tank with `coefficient` (default); per_chamber: A with \
+         `coefficient`, B with `coefficient_b`"
+    )]
     pub variant: LeakageVariant,
     /// Leakage coefficient (m³/(s·Pa)); chamber A's for `per_chamber`.
     #[param(unit = "m³/(s·Pa)", range = NonNegative, desc = "leakage to tank k_le")]
@@ -444,8 +456,11 @@ pub struct BulkModulusPressure {
     pub enabled: bool,
     /// Structural variant (`linear` or `entrained_air`).
     #[serde(default)]
-    #[param(choices = &["linear", "entrained_air"], desc = "linear: β₀ + K_b·p (002 eq. 35, default); entrained_air: Yu 1994 / Gholizadeh 2011 \
-         air–oil mixture")]
+    #[param(
+        choice,
+        desc = "linear: β₀ + K_b·p (002 eq. 35, default); entrained_air: Yu 1994 / Gholizadeh 2011 \
+         air–oil mixture"
+    )]
     pub variant: BulkVariant,
     /// Pressure slope K_b (-): dβ/dp, variant `linear`.
     #[serde(default)]
@@ -503,8 +518,11 @@ pub struct LineDynamics {
     pub port_volume: f64,
     /// Wall-friction model of the segments (default `steady`, Hagen–Poiseuille only).
     #[serde(default)]
-    #[param(choices = crate::params::LineFriction::NAMES, desc = "segment wall friction: steady Hagen–Poiseuille (default), unsteady (Zielke 1968 \
-         weighting function, 8 states per segment) or unsteady_trikha (Trikha 1975, 3 states)")]
+    #[param(
+        choice,
+        desc = "segment wall friction: steady Hagen–Poiseuille (default), unsteady (Zielke 1968 \
+         weighting function, 8 states per segment) or unsteady_trikha (Trikha 1975, 3 states)"
+    )]
     pub friction: LineFriction,
 }
 
@@ -558,8 +576,11 @@ pub struct FlexibleMount {
     pub enabled: bool,
     /// Structural variant (`load_side` or `piston_side`).
     #[serde(default)]
-    #[param(choices = &["load_side", "piston_side"], desc = "load_side: rod → spring-damper → load mass (003 SDD, default); piston_side: the \
-         cylinder body (mass load_mass) on a spring-damper to ground")]
+    #[param(
+        choice,
+        desc = "load_side: rod → spring-damper → load mass (003 SDD, default); piston_side: the \
+         cylinder body (mass load_mass) on a spring-damper to ground"
+    )]
     pub variant: MountVariant,
     /// Load mass m_L (kg); 003: 250. Variant `piston_side`: the cylinder body's mass.
     #[param(unit = "kg", range = Positive, desc = "load mass m_L (003: 250)")]
@@ -651,8 +672,11 @@ pub struct SupplyPressureDrop {
     pub enabled: bool,
     /// Structural variant (`resistance` or `pump_limit`).
     #[serde(default)]
-    #[param(choices = &["resistance", "pump_limit"], desc = "resistance: p_s0 − R·Q_s with lag τ (000, default); pump_limit: pressure-compensated \
-         pump with flow limit Q_max into a volume")]
+    #[param(
+        choice,
+        desc = "resistance: p_s0 − R·Q_s with lag τ (000, default); pump_limit: pressure-compensated \
+         pump with flow limit Q_max into a volume"
+    )]
     pub variant: SupplyVariant,
     /// Flow resistance R (Pa·s/m³), variant `resistance`.
     #[serde(default)]
@@ -853,8 +877,11 @@ pub struct Integration {
     pub max_omega_h: f64,
     /// Integration scheme of the substep (see [`crate::model`]).
     #[serde(default)]
-    #[param(choices = crate::params::IntegrationMethod::NAMES, desc = "substep scheme: exponential_euler (default) or linear_exact (chambers + mechanics \
-         discretised exactly; exponential_euler is used with lines, friction or polynomial effects)")]
+    #[param(
+        choice,
+        desc = "substep scheme: exponential_euler (default) or linear_exact (chambers + mechanics \
+         discretised exactly; exponential_euler is used with lines, friction or polynomial effects)"
+    )]
     pub method: IntegrationMethod,
 }
 

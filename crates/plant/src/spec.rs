@@ -139,6 +139,40 @@ pub fn table<T: ParamTree>(prefix: &str) -> Vec<Param> {
         .collect()
 }
 
+/// The serialised names of the variants of a unit-variant enum `T` (as serde writes them,
+/// `rename_all` applied), in declaration order: the choices of a `#[param(choice)]` field,
+/// read from the enum's own `Deserialize` so that the list cannot drift from what the loader
+/// accepts. Serde's derive passes the list to `Deserializer::deserialize_enum`; a deserializer
+/// that only records it is the whole mechanism (serde offers no other public way to list
+/// variants). Empty for a type that does not deserialize as an enum.
+pub fn variants<T: serde::de::DeserializeOwned>() -> &'static [&'static str] {
+    use serde::de::{self, Visitor};
+    struct Capture(&'static [&'static str]);
+    impl<'de> de::Deserializer<'de> for &mut Capture {
+        type Error = de::value::Error;
+        fn deserialize_enum<V: Visitor<'de>>(
+            self,
+            _name: &'static str,
+            variants: &'static [&'static str],
+            _visitor: V,
+        ) -> Result<V::Value, Self::Error> {
+            self.0 = variants;
+            Err(de::Error::custom("variant names recorded"))
+        }
+        fn deserialize_any<V: Visitor<'de>>(self, _visitor: V) -> Result<V::Value, Self::Error> {
+            Err(de::Error::custom("not an enum"))
+        }
+        serde::forward_to_deserialize_any! {
+            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes
+            byte_buf option unit unit_struct newtype_struct seq tuple tuple_struct map struct
+            identifier ignored_any
+        }
+    }
+    let mut c = Capture(&[]);
+    let _ = T::deserialize(&mut c);
+    c.0
+}
+
 /// Implemented by `#[derive(Params)]` (see the `ehactl-params-derive` crate): the registry
 /// entries of a parameter struct and access to its float parameters by dotted path.
 pub trait ParamTree: Clone {

@@ -247,3 +247,18 @@ fn refit_error_names_the_registry_unit() {
     assert_eq!(e.path, "uncertainty.\"mechanics.mass\"");
     assert!(e.message.contains("± 9 kg around the nominal 5 kg"), "{e}");
 }
+
+/// `spec::variants` lists an enum's serialised names (serde's `rename_all` applied, as the
+/// loader accepts them) and nothing for other types.
+#[test]
+fn variants_are_the_serde_names() {
+    use ehactl_plant::params::IntegrationMethod;
+    let names = spec::variants::<IntegrationMethod>();
+    assert_eq!(names, ["exponential_euler", "linear_exact"]);
+    for n in names {
+        let v: IntegrationMethod = toml::Value::String(n.to_string()).try_into().unwrap();
+        assert_eq!(toml::Value::try_from(v).unwrap().as_str(), Some(*n));
+    }
+    assert!(spec::variants::<f64>().is_empty());
+    assert!(spec::variants::<PlantParams>().is_empty());
+}
