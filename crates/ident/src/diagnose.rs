@@ -787,6 +787,12 @@ struct SearchPhase {
     ambiguities: Vec<String>,
 }
 
+/// Effects that act on one measured channel only (not through the plant's dynamics): judged
+/// per channel as well as on the channel mean ([`phase_candidates`]).
+fn measurement_only(e: EffectId) -> bool {
+    matches!(e, EffectId::SensorTone)
+}
+
 /// Score of a model: ln(J) + κ·(free parameters), J = mean NRMSE².
 fn score(j: f64, p: usize) -> f64 {
     const KAPPA: f64 = 0.02;
@@ -925,18 +931,48 @@ fn phase_candidates(
             let excess_ratio = (j - jn).max(0.0) / (j_cur - jn).max(1e-300);
             // Later rounds need stronger evidence: the first effect already took the bulk.
             let (jr, er) = if round == 0 { (0.9, 0.75) } else { (0.8, 0.5) };
+            let on_mean = j < jr * j_cur && excess_ratio < er && sc < s_cur;
+            // A measurement effect (a tone on one sensor) acts on one channel only, not
+            // through the coupled dynamics, so the channel mean dilutes it: it also counts
+            // when, on a channel whose residual is above its floor, it explains the same share
+            // of that channel's excess and wins that channel's score without making the mean
+            // worse. Plant effects are judged on the mean (DIAGNOSIS.md "Acceptance").
+            let on_channel = measurement_only(e)
+                .then(|| {
+                    nom.val_rec
+                        .channels
+                        .iter()
+                        .zip(&rf.floor_ch)
+                        .find(|(c, f)| {
+                            let col = c.kind.column();
+                            let (Some(&now), Some(&new)) =
+                                (cur_err.channels.get(col), err.channels.get(col))
+                            else {
+                                return false;
+                            };
+                            let (jc, jc_cur, jf) = (new * new, now * now, *f * *f);
+                            now > FLOOR_FACTOR * *f
+                                && jc < jr * jc_cur
+                                && (jc - jf).max(0.0) / (jc_cur - jf).max(1e-300) < er
+                                && score(jc, h.params.len()) < score(jc_cur, current.params.len())
+                        })
+                        .map(|(c, _)| c.kind.column())
+                })
+                .flatten();
             let significant = !near_floor
-                && j < jr * j_cur
-                && excess_ratio < er
-                && sc < s_cur
-                && ctrain < cur_train;
+                && ctrain < cur_train
+                && (on_mean || (on_channel.is_some() && j <= j_cur));
             let verdict = format!(
                 "fit: held-out NRMSE {:.4} → {:.4} ({:+.1} %), {:.0} % of the error above the noise floor explained{}",
                 cur_err.overall,
                 err.overall,
                 100.0 * (err.overall / cur_err.overall - 1.0),
                 100.0 * (1.0 - excess_ratio.min(1.0)),
-                if significant { "" } else { " — not significant" }
+                match (significant, on_mean, on_channel) {
+                    (false, _, _) => " — not significant".to_string(),
+                    (true, false, Some(c)) => format!(" (significant on `{c}`: {:.4} → {:.4})", cur_err.channels.get(c).copied().unwrap_or(f64::NAN), err.channels.get(c).copied().unwrap_or(f64::NAN)),
+                    _ => String::new(),
+                }
             );
             if round == 0 || !candidates.contains_key(&e) {
                 let n_new = h.params.len() - first_new;

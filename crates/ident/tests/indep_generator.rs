@@ -68,24 +68,20 @@ fn clean_is_none() {
     check(7020, "clean");
 }
 
-/// Known miss of the evaluation (DIAGNOSIS.md "Evaluation on an independent generator"),
-/// documented here so that a change of the decision shows: seed 7039 hides a 100 Hz tone on
-/// the force channel and the diagnosis answers `none`. The residual analysis finds the line
-/// (frequency and amplitude of the generator's tone), but at the library's 1× replay cost the
-/// replay's own integration error is not brought below the floor and is added to it, the
-/// force channel's held-out residual stays below `LEVEL_SOFT` × that floor — counted as noise
-/// although Ljung–Box rejects whiteness — and the tone fit lowers the channel-averaged
-/// held-out error too little to be significant. If this test fails because the cause became
-/// `sensor_tone` (or `unexplained`), update DIAGNOSIS.md and turn it into a `check`.
+/// Formerly a known miss (answered `none`): seed 7039 hides a 100 Hz tone on the force channel
+/// only. The residual analysis finds the line, but the tone fit lowers the channel-averaged
+/// held-out error too little to pass the mean rule; the per-channel acceptance (an effect that
+/// explains a share of one channel's excess over its floor without making the mean worse) names
+/// it. The residual analysis' line must still match the generator's tone.
 #[test]
-fn tone_7039_known_miss_answered_none() {
+fn tone_on_one_channel_7039() {
+    check(7039, "tone");
     let case = make_case(7039, "tone", 1.5, 1e-3).expect("generated");
     let Some(ehactl_ident::indep::Hidden::Tone { f, a, .. }) = case.hidden.clone() else {
         panic!("seed 7039 is a tone case: {:?}", case.hidden)
     };
     let d =
         diagnose(&case.nominal, &case.record, None, &Options::default()).expect("diagnosis runs");
-    assert_eq!(d.cause, "none", "{}", d.summary);
     let line = d
         .analysis_refit
         .tones
@@ -101,16 +97,5 @@ fn tone_7039_known_miss_answered_none() {
         (line.amplitude / a - 1.0).abs() < 0.1,
         "line amplitude {} vs tone {a}",
         line.amplitude
-    );
-    assert!(!d.integration.met, "{:?}", d.integration);
-    let force = d
-        .residual_test
-        .channels
-        .iter()
-        .find(|c| c.channel == "force")
-        .expect("force channel tested");
-    assert!(
-        force.noise && !force.white && force.level <= ehactl_ident::residual::LEVEL_SOFT,
-        "{force:?}"
     );
 }
