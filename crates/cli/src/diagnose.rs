@@ -3,7 +3,6 @@
 use ehactl_config::RigConfig;
 use ehactl_ident::progress::{Progress, ProgressSink};
 use ehactl_ident::session::{self, SessionError};
-use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -25,7 +24,8 @@ pub fn cmd_diagnose(
         Ok(c) => c,
         Err(e) => return bad(format!("{}: {e}", config.display())),
     };
-    let bar = fits_bar();
+    let bar =
+        crate::styled_bar("{spinner} diagnose {msg} [{bar:30}] {pos}/{len} fits {elapsed_precise}");
     let b = bar.clone();
     let progress = ProgressSink::new(move |p: &Progress| {
         b.set_message(p.stage.clone());
@@ -102,17 +102,4 @@ pub fn cmd_diagnose(
         }
     }
     ExitCode::SUCCESS
-}
-
-/// The bar of the diagnosis' model fits on stderr (hidden when stderr is not a terminal).
-fn fits_bar() -> ProgressBar {
-    let b = ProgressBar::new(1);
-    b.set_style(
-        ProgressStyle::with_template(
-            "{spinner} diagnose {msg} [{bar:30}] {pos}/{len} fits {elapsed_precise}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    b
 }

@@ -150,15 +150,19 @@ pub(crate) fn config_error(e: impl std::fmt::Display) -> ExitCode {
 
 /// A progress bar on stderr (hidden when stderr is not a terminal).
 pub(crate) fn progress_bar(msg: String) -> ProgressBar {
+    let bar = styled_bar("{spinner} {msg} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}");
+    bar.set_message(msg);
+    bar
+}
+
+/// A bar on stderr drawn with the indicatif `template` (hidden when stderr is not a terminal).
+pub(crate) fn styled_bar(template: &str) -> ProgressBar {
     let bar = ProgressBar::new(1);
     bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} {msg} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
+        ProgressStyle::with_template(template)
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
     );
-    bar.set_message(msg);
     bar
 }
 
