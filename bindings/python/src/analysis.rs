@@ -64,37 +64,32 @@ pub fn sweep_json(
         periods,
         ..Default::default()
     };
-    let total = (plan.planned_duration(&rc) / rc.timebase().period())
-        .round()
-        .max(1.0) as u64;
+    let total = AtomicU64::new(
+        (plan.planned_duration(&rc) / rc.timebase().period())
+            .round()
+            .max(1.0) as u64,
+    );
     let counter = AtomicU64::new(0);
     let stop = AtomicBool::new(false);
-    let out = detached(
-        py,
-        progress,
-        &AtomicU64::new(total),
-        &counter,
-        &stop,
-        || {
-            let mut report = |k: u64, _n: u64| counter.store(k, Ordering::Relaxed);
-            sweep(
-                &rc,
-                SweepOptions {
-                    from_hz,
-                    to_hz,
-                    points,
-                    amplitude,
-                    open_loop,
-                    output,
-                    periods,
-                    mcap,
-                    stop: Some(&stop),
-                    progress: Some(&mut report),
-                    ..Default::default()
-                },
-            )
-        },
-    )?;
+    let out = detached(py, progress, &total, &counter, &stop, || {
+        let mut report = |k: u64, _n: u64| counter.store(k, Ordering::Relaxed);
+        sweep(
+            &rc,
+            SweepOptions {
+                from_hz,
+                to_hz,
+                points,
+                amplitude,
+                open_loop,
+                output,
+                periods,
+                mcap,
+                stop: Some(&stop),
+                progress: Some(&mut report),
+                ..Default::default()
+            },
+        )
+    })?;
     let r = out.map_err(to_py)?;
     serde_json::to_string(&r).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }

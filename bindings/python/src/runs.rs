@@ -161,19 +161,16 @@ pub fn run_one<'py>(
     check_duration(duration)?;
     let (idx, stuck) = columns::select(fields.as_deref()).map_err(PyValueError::new_err)?;
     let rc = cfg.cfg.clone();
-    let total = (duration.unwrap_or(rc.run.duration) / rc.timebase().period())
-        .round()
-        .max(1.0) as u64;
+    let total = AtomicU64::new(
+        (duration.unwrap_or(rc.run.duration) / rc.timebase().period())
+            .round()
+            .max(1.0) as u64,
+    );
     let counter = AtomicU64::new(0);
     let stop = AtomicBool::new(false);
-    let out = detached(
-        py,
-        progress,
-        &AtomicU64::new(total),
-        &counter,
-        &stop,
-        || one(&rc, duration, mcap, &idx, stuck, &stop, Some(&counter)),
-    )?;
+    let out = detached(py, progress, &total, &counter, &stop, || {
+        one(&rc, duration, mcap, &idx, stuck, &stop, Some(&counter))
+    })?;
     let r = out.map_err(PyValueError::new_err)?;
     to_py(py, r)
 }
@@ -218,27 +215,20 @@ pub fn run_batch<'py>(
         .enumerate()
         .map(|(i, c)| (c.cfg, mcap.as_ref().map(|m| m[i].clone())))
         .collect();
-    let total = jobs.len() as u64;
+    let total = AtomicU64::new(jobs.len() as u64);
     let counter = AtomicU64::new(0);
     let stop = AtomicBool::new(false);
-    let outs = detached(
-        py,
-        progress,
-        &AtomicU64::new(total),
-        &counter,
-        &stop,
-        || {
-            pool.install(|| {
-                jobs.into_par_iter()
-                    .map(|(c, m)| {
-                        let r = one(&c, duration, m, &idx, stuck, &stop, None);
-                        counter.fetch_add(1, Ordering::Relaxed);
-                        r
-                    })
-                    .collect::<Vec<_>>()
-            })
-        },
-    )?;
+    let outs = detached(py, progress, &total, &counter, &stop, || {
+        pool.install(|| {
+            jobs.into_par_iter()
+                .map(|(c, m)| {
+                    let r = one(&c, duration, m, &idx, stuck, &stop, None);
+                    counter.fetch_add(1, Ordering::Relaxed);
+                    r
+                })
+                .collect::<Vec<_>>()
+        })
+    })?;
     let mut res = Vec::with_capacity(outs.len());
     for (i, o) in outs.into_iter().enumerate() {
         let r = o.map_err(|e| PyValueError::new_err(format!("run {i}: {e}")))?;

@@ -879,7 +879,6 @@ fn phase_candidates(
         let first_new = current.params.len();
         let fits = phase_variants(ctx, &jobs, first_new, opts.evals_per_param, threads, bar);
         let j_cur = cur_err.overall.powi(2);
-        let s_cur = score(j_cur, current.params.len());
         let mut passing: Vec<(EffectId, f64, Hyp, f64, Errors)> = Vec::new();
         for (e, vfits) in fits {
             let prior = prior_of(e);
@@ -928,37 +927,42 @@ fn phase_candidates(
                 round0_variant.insert(e, variant);
             }
             let j = err.overall.powi(2);
-            let excess_ratio = (j - jn).max(0.0) / (j_cur - jn).max(1e-300);
             // Later rounds need stronger evidence: the first effect already took the bulk.
             let (jr, er) = if round == 0 { (0.9, 0.75) } else { (0.8, 0.5) };
-            let on_mean = j < jr * j_cur && excess_ratio < er && sc < s_cur;
+            // Share of the error above the floor `jf` that is left when J goes from `j_old` to
+            // `j_new`, and whether that is an improvement worth the effect's parameters.
+            let excess =
+                |j_new: f64, j_old: f64, jf: f64| (j_new - jf).max(0.0) / (j_old - jf).max(1e-300);
+            let explains = |j_new: f64, j_old: f64, jf: f64| {
+                j_new < jr * j_old
+                    && excess(j_new, j_old, jf) < er
+                    && score(j_new, h.params.len()) < score(j_old, current.params.len())
+            };
+            let excess_ratio = excess(j, j_cur, jn);
+            let on_mean = explains(j, j_cur, jn);
             // A measurement effect (a tone on one sensor) acts on one channel only, not
             // through the coupled dynamics, so the channel mean dilutes it: it also counts
-            // when, on a channel whose residual is above its floor, it explains the same share
-            // of that channel's excess and wins that channel's score without making the mean
-            // worse. Plant effects are judged on the mean (DIAGNOSIS.md "Acceptance").
-            let on_channel = measurement_only(e)
-                .then(|| {
-                    nom.val_rec
-                        .channels
-                        .iter()
-                        .zip(&rf.floor_ch)
-                        .find(|(c, f)| {
-                            let col = c.kind.column();
-                            let (Some(&now), Some(&new)) =
-                                (cur_err.channels.get(col), err.channels.get(col))
-                            else {
-                                return false;
-                            };
-                            let (jc, jc_cur, jf) = (new * new, now * now, *f * *f);
-                            now > FLOOR_FACTOR * *f
-                                && jc < jr * jc_cur
-                                && (jc - jf).max(0.0) / (jc_cur - jf).max(1e-300) < er
-                                && score(jc, h.params.len()) < score(jc_cur, current.params.len())
-                        })
-                        .map(|(c, _)| c.kind.column())
-                })
-                .flatten();
+            // when, on a channel whose residual is above its floor, it passes the same test
+            // on that channel's J without making the mean worse. Plant effects are judged on
+            // the mean (DIAGNOSIS.md "Acceptance per channel").
+            let on_channel = if measurement_only(e) {
+                nom.val_rec
+                    .channels
+                    .iter()
+                    .zip(&rf.floor_ch)
+                    .find(|(c, f)| {
+                        let col = c.kind.column();
+                        match (cur_err.channels.get(col), err.channels.get(col)) {
+                            (Some(&now), Some(&new)) => {
+                                now > FLOOR_FACTOR * *f && explains(new * new, now * now, *f * *f)
+                            }
+                            _ => false,
+                        }
+                    })
+                    .map(|(c, _)| c.kind.column())
+            } else {
+                None
+            };
             let significant = !near_floor
                 && ctrain < cur_train
                 && (on_mean || (on_channel.is_some() && j <= j_cur));

@@ -35,11 +35,6 @@ impl ProgressSink {
     pub fn none() -> Self {
         Self(None)
     }
-
-    /// Whether anyone listens.
-    pub fn is_some(&self) -> bool {
-        self.0.is_some()
-    }
 }
 
 impl fmt::Debug for ProgressSink {

@@ -81,8 +81,8 @@ pub fn run(
     let rec = load(data_path)?;
     let val = validate.map(load).transpose()?;
     // Long records take minutes; say so at once instead of going silent (a front end's
-    // progress bar is hidden when stderr is not a terminal). Figure: 50 000 samples of the 5 kHz bench record
-    // take ≈ 21 s on 2 idle cores (BENCHMARKS.md, bench/diagnose_bench.sh).
+    // progress bar is hidden when stderr is not a terminal). Figure: 50 000 samples of the
+    // 5 kHz bench record take ≈ 21 s on 2 idle cores (BENCHMARKS.md, bench/diagnose_bench.sh).
     let n_total = rec.t.len() + val.as_ref().map_or(0, |v| v.t.len());
     if n_total > 50_000 {
         eprintln!(
