@@ -94,6 +94,7 @@ def run(binary: Path, scenario: str, duration: float, tmp: Path) -> dict:
 
 
 def main() -> None:
+    global SPIN_S
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=20.0, help="s per scenario (default 20)")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated subset of " + ", ".join(SCENARIOS))
@@ -104,7 +105,6 @@ def main() -> None:
     a = ap.parse_args()
     if not (0.0 <= a.spin < 200e-6):
         raise SystemExit(f"--spin {a.spin}: expected a busy-wait tail in seconds, 0 ≤ spin < the 200 µs period")
-    global SPIN_S
     SPIN_S = a.spin
     chosen = [s.strip() for s in a.scenarios.split(",") if s.strip()]
     for s in chosen:
