@@ -899,7 +899,10 @@ mod tests {
         // The CPU-time histogram holds the 4 ms (quantiles are bucket upper edges,
         // ≤ 1/256 above the value).
         let cpu = s.exec_cpu.summary_us().max;
-        assert!((4_000.0..=4_000.0 * (1.0 + 1.0 / 256.0)).contains(&cpu), "{cpu}");
+        assert!(
+            (4_000.0..=4_000.0 * (1.0 + 1.0 / 256.0)).contains(&cpu),
+            "{cpu}"
+        );
         // Cycle 1 (on its grid point after the skip) works 11 ms of CPU: ours.
         p.clock().work(11 * MS);
         assert!(p.wait_for_cycle(2));
