@@ -411,10 +411,10 @@ fn crane_cycle_with_counterbalance_valves() {
         hi / 1e6,
         100.0 * swing
     );
-    // 002 fig. 19: ≈ 10 %. MISSED: 7.60 % here (K_b is calibrated to give 9.5 % over 0–20 MPa;
+    // 002 fig. 19: ≈ 10 %. MISSED: 7.30 % here (7.31 % at 368 and 736 substeps: converged) (K_b is calibrated to give 9.5 % over 0–20 MPa;
     // this cycle's chambers span −0.1…16 MPa with the assumed load and supply). Asserted at
     // the measured value (±0.2 points) and as a miss.
-    assert!((swing - 0.0760).abs() < 0.002, "β swing {swing}");
+    assert!((swing - 0.0730).abs() < 0.002, "β swing {swing}");
     assert!(
         swing < 0.095,
         "the 10 % of 002 is reached now: update REPRODUCTION.md ({swing})"
