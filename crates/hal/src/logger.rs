@@ -318,7 +318,9 @@ impl Shared {
     /// Wake the writer if it sleeps (one wake-up per sleep).
     #[inline]
     fn wake_writer(&self) {
-        if self.writer_waiting.load(Ordering::SeqCst) && self.writer_waiting.swap(false, Ordering::SeqCst) {
+        if self.writer_waiting.load(Ordering::SeqCst)
+            && self.writer_waiting.swap(false, Ordering::SeqCst)
+        {
             if let Some(t) = self.writer.get() {
                 t.unpark();
             }
@@ -698,15 +700,15 @@ fn writer_loop(
             let seq = rec.cycle as u32;
             rec.encode_control(&mut buf);
             w.write_message(ch_control, seq, ns, ns, &buf)
-.map_err(io_error)?;
+                .map_err(io_error)?;
             if rec.has_plant {
                 rec.encode_plant(&mut buf);
                 w.write_message(ch_plant, seq, ns, ns, &buf)
-.map_err(io_error)?;
+                    .map_err(io_error)?;
             }
             if rec.encode_timing(&mut buf) {
                 w.write_message(ch_timing, seq, ns, ns, &buf)
-.map_err(io_error)?;
+                    .map_err(io_error)?;
             }
             if let Some(tp) = sh.tap.get() {
                 tp.offer(TapMessage::Record(rec));
@@ -727,10 +729,22 @@ fn writer_loop(
         {
             idle = false;
             let ns = to_ns(ev.t);
-            w.write_message(ch_events, events as u32, ns, ns, ev.to_json().to_string().as_bytes())
-.map_err(io_error)?;
-            w.write_message(ch_log, events as u32, ns, ns, schemas::event_to_foxglove_log(&ev).to_string().as_bytes())
-.map_err(io_error)?;
+            w.write_message(
+                ch_events,
+                events as u32,
+                ns,
+                ns,
+                ev.to_json().to_string().as_bytes(),
+            )
+            .map_err(io_error)?;
+            w.write_message(
+                ch_log,
+                events as u32,
+                ns,
+                ns,
+                schemas::event_to_foxglove_log(&ev).to_string().as_bytes(),
+            )
+            .map_err(io_error)?;
             if let Some(tp) = sh.tap.get() {
                 tp.offer(TapMessage::Event(ev));
             }
@@ -767,8 +781,14 @@ fn writer_loop(
                     }
                 };
                 let ns = f.t_ns.max(0) as u64;
-                w.write_message(ch, frames_written as u32, ns, ns, f.to_json().to_string().as_bytes())
-.map_err(io_error)?;
+                w.write_message(
+                    ch,
+                    frames_written as u32,
+                    ns,
+                    ns,
+                    f.to_json().to_string().as_bytes(),
+                )
+                .map_err(io_error)?;
                 frames_written += 1;
                 chunk_start.get_or_insert(ns);
                 sh.frames_written.store(frames_written, Ordering::Relaxed);
@@ -789,8 +809,7 @@ fn writer_loop(
             // Sleep until there is work (see `Logger::push`) or `IDLE_WAIT` has passed.
             // Announce first, then check again, so that a wake-up in between is not missed.
             sh.writer_waiting.store(true, Ordering::SeqCst);
-            if sh.records.is_empty() && sh.events.is_empty() && !sh.closing.load(Ordering::SeqCst)
-            {
+            if sh.records.is_empty() && sh.events.is_empty() && !sh.closing.load(Ordering::SeqCst) {
                 std::thread::park_timeout(IDLE_WAIT);
             }
             sh.writer_waiting.store(false, Ordering::SeqCst);
@@ -801,8 +820,14 @@ fn writer_loop(
         if let Some(obj) = summary.as_object_mut() {
             obj.insert("records_written".into(), written.into());
         }
-        w.write_message(ch_summary, 0, last_ns, last_ns, summary.to_string().as_bytes())
-.map_err(io_error)?;
+        w.write_message(
+            ch_summary,
+            0,
+            last_ns,
+            last_ns,
+            summary.to_string().as_bytes(),
+        )
+        .map_err(io_error)?;
         if let Some(tp) = sh.tap.get() {
             tp.offer(TapMessage::Summary(summary.to_string()));
         }

@@ -554,7 +554,10 @@ const fn xxh32_short(input: &[u8], seed: u32) -> u32 {
     let mut i = 0;
     while i + 4 <= input.len() {
         let w = u32::from_le_bytes([input[i], input[i + 1], input[i + 2], input[i + 3]]);
-        h = h.wrapping_add(w.wrapping_mul(P3)).rotate_left(17).wrapping_mul(P4);
+        h = h
+            .wrapping_add(w.wrapping_mul(P3))
+            .rotate_left(17)
+            .wrapping_mul(P4);
         i += 4;
     }
     while i < input.len() {
@@ -670,7 +673,9 @@ mod tests {
     fn lz4_frames_decode_to_their_input() {
         let mut out = Vec::new();
         // Compressible, incompressible (stored raw), several blocks, one byte.
-        let text: Vec<u8> = (0..300_000u32).flat_map(|i| (i % 977).to_le_bytes()).collect();
+        let text: Vec<u8> = (0..300_000u32)
+            .flat_map(|i| (i % 977).to_le_bytes())
+            .collect();
         let cases = [
             text.clone(),
             noise(100_000, 1),
@@ -862,7 +867,13 @@ mod tests {
                 let mut t: Vec<_> = s
                     .channels
                     .values()
-                    .map(|c| (c.id, c.topic.clone(), c.schema.as_ref().unwrap().name.clone()))
+                    .map(|c| {
+                        (
+                            c.id,
+                            c.topic.clone(),
+                            c.schema.as_ref().unwrap().name.clone(),
+                        )
+                    })
                     .collect();
                 t.sort();
                 t
@@ -881,14 +892,20 @@ mod tests {
                 let mut n = 0;
                 for m in sa.stream_chunk(&a, ci).unwrap() {
                     let m = m.unwrap();
-                    assert!(m.log_time >= ci.message_start_time && m.log_time <= ci.message_end_time);
+                    assert!(
+                        m.log_time >= ci.message_start_time && m.log_time <= ci.message_end_time
+                    );
                     via_index.push((m.channel.topic.clone(), m.sequence, m.log_time));
                     n += 1;
                 }
                 assert_eq!(offsets.len(), n, "one index entry per message");
                 // Seeking decompresses the chunk up to the entry: a few entries per channel.
                 for (ch, entries) in &idx {
-                    for e in [&entries[0], &entries[entries.len() / 2], &entries[entries.len() - 1]] {
+                    for e in [
+                        &entries[0],
+                        &entries[entries.len() / 2],
+                        &entries[entries.len() - 1],
+                    ] {
                         let m = sa.seek_message(&a, ci, e).unwrap();
                         assert_eq!((m.channel.id, m.log_time), (ch.id, e.log_time));
                     }
@@ -925,9 +942,7 @@ mod tests {
         let ci = &sa.chunk_indexes[0];
         let mut bad = bytes.clone();
         bad[(ci.chunk_start_offset + ci.chunk_length - ci.compressed_size / 2) as usize] ^= 0x10;
-        assert!(mcap::MessageStream::new(&bad)
-            .unwrap()
-            .any(|m| m.is_err()));
+        assert!(mcap::MessageStream::new(&bad).unwrap().any(|m| m.is_err()));
     }
 
     #[test]
