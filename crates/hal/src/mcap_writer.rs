@@ -322,6 +322,22 @@ impl Writer {
         publish_time: u64,
         data: &[u8],
     ) -> io::Result<()> {
+        self.write_message_with(channel, sequence, log_time, publish_time, |b| {
+            b.extend_from_slice(data)
+        })
+    }
+
+    /// Append a message whose payload `encode` appends to the buffer it is handed (the
+    /// open chunk itself: the payload is serialised in place, not copied).
+    #[inline]
+    pub fn write_message_with(
+        &mut self,
+        channel: u16,
+        sequence: u32,
+        log_time: u64,
+        publish_time: u64,
+        encode: impl FnOnce(&mut Vec<u8>),
+    ) -> io::Result<()> {
         let ch = usize::from(channel);
         if ch == 0 || ch > usize::from(self.channel_count) {
             return Err(io::Error::new(
@@ -329,17 +345,19 @@ impl Writer {
                 format!("message on unknown channel id {channel}"),
             ));
         }
-        let offset = self.chunk.len() as u64;
+        let offset = self.chunk.len();
         let mut h = [0u8; 9 + MESSAGE_HEADER];
         h[0] = op::MESSAGE;
-        h[1..9].copy_from_slice(&((MESSAGE_HEADER + data.len()) as u64).to_le_bytes());
+        // h[1..9]: the record's length, written once the payload is in.
         h[9..11].copy_from_slice(&channel.to_le_bytes());
         h[11..15].copy_from_slice(&sequence.to_le_bytes());
         h[15..23].copy_from_slice(&log_time.to_le_bytes());
         h[23..31].copy_from_slice(&publish_time.to_le_bytes());
         self.chunk.extend_from_slice(&h);
-        self.chunk.extend_from_slice(data);
-        self.index[ch].push((log_time, offset));
+        encode(&mut self.chunk);
+        let len = (self.chunk.len() - offset - 9) as u64;
+        self.chunk[offset + 1..offset + 9].copy_from_slice(&len.to_le_bytes());
+        self.index[ch].push((log_time, offset as u64));
         self.messages[ch] += 1;
         let widen = |r: Option<(u64, u64)>| match r {
             None => (log_time, log_time),
