@@ -682,7 +682,6 @@ fn writer_loop(
     // killed process loses at most one chunk interval of what the writer had taken.
     let mut chunk_start: Option<u64> = None;
     let mut wall_flush = std::time::Instant::now();
-    let mut buf = Vec::with_capacity(256);
     let mut written = 0u64;
     let mut events = 0u64;
     let mut last_ns = 0u64;
@@ -698,17 +697,17 @@ fn writer_loop(
             let ns = to_ns(rec.t);
             last_ns = last_ns.max(ns);
             let seq = rec.cycle as u32;
-            rec.encode_control(&mut buf);
-            w.write_message(ch_control, seq, ns, ns, &buf)
+            w.write_message_with(ch_control, seq, ns, ns, |b| rec.append_control(b))
                 .map_err(io_error)?;
             if rec.has_plant {
-                rec.encode_plant(&mut buf);
-                w.write_message(ch_plant, seq, ns, ns, &buf)
+                w.write_message_with(ch_plant, seq, ns, ns, |b| rec.append_plant(b))
                     .map_err(io_error)?;
             }
-            if rec.encode_timing(&mut buf) {
-                w.write_message(ch_timing, seq, ns, ns, &buf)
-                    .map_err(io_error)?;
+            if rec.timing.is_some() {
+                w.write_message_with(ch_timing, seq, ns, ns, |b| {
+                    rec.append_timing(b);
+                })
+                .map_err(io_error)?;
             }
             if let Some(tp) = sh.tap.get() {
                 tp.offer(TapMessage::Record(rec));

@@ -11,7 +11,7 @@
 //! does: each message record is serialised straight into a reusable buffer (no CRC, no
 //! compressor per write); when the chunk closes, its CRC-32 is computed in one pass, the
 //! chunk is compressed in one call into one LZ4 frame (independent blocks of up to 4 MiB,
-//! no block or content checksum: the chunk CRC covers the records), and the Chunk record
+//! no block or content checksum: the chunk CRC covers the records; acceleration 2), and the Chunk record
 //! and its Message Index records go to the file in a few large writes.
 //!
 //! File layout (MCAP format specification, <https://mcap.dev/spec>, major version 0):
@@ -322,6 +322,22 @@ impl Writer {
         publish_time: u64,
         data: &[u8],
     ) -> io::Result<()> {
+        self.write_message_with(channel, sequence, log_time, publish_time, |b| {
+            b.extend_from_slice(data)
+        })
+    }
+
+    /// Append a message whose payload `encode` appends to the buffer it is handed (the
+    /// open chunk itself: the payload is serialised in place, not copied).
+    #[inline]
+    pub fn write_message_with(
+        &mut self,
+        channel: u16,
+        sequence: u32,
+        log_time: u64,
+        publish_time: u64,
+        encode: impl FnOnce(&mut Vec<u8>),
+    ) -> io::Result<()> {
         let ch = usize::from(channel);
         if ch == 0 || ch > usize::from(self.channel_count) {
             return Err(io::Error::new(
@@ -329,17 +345,19 @@ impl Writer {
                 format!("message on unknown channel id {channel}"),
             ));
         }
-        let offset = self.chunk.len() as u64;
+        let offset = self.chunk.len();
         let mut h = [0u8; 9 + MESSAGE_HEADER];
         h[0] = op::MESSAGE;
-        h[1..9].copy_from_slice(&((MESSAGE_HEADER + data.len()) as u64).to_le_bytes());
+        // h[1..9]: the record's length, written once the payload is in.
         h[9..11].copy_from_slice(&channel.to_le_bytes());
         h[11..15].copy_from_slice(&sequence.to_le_bytes());
         h[15..23].copy_from_slice(&log_time.to_le_bytes());
         h[23..31].copy_from_slice(&publish_time.to_le_bytes());
         self.chunk.extend_from_slice(&h);
-        self.chunk.extend_from_slice(data);
-        self.index[ch].push((log_time, offset));
+        encode(&mut self.chunk);
+        let len = (self.chunk.len() - offset - 9) as u64;
+        self.chunk[offset + 1..offset + 9].copy_from_slice(&len.to_le_bytes());
+        self.index[ch].push((log_time, offset as u64));
         self.messages[ch] += 1;
         let widen = |r: Option<(u64, u64)>| match r {
             None => (log_time, log_time),
@@ -541,6 +559,12 @@ const LZ4_BLOCK_MAX: usize = 4 << 20;
 const LZ4_HC: u8 = (xxh32_short(&[LZ4_FLG, LZ4_BD], 0) >> 8) as u8;
 /// High bit of a block size: the block is stored uncompressed.
 const LZ4_RAW_BLOCK: u32 = 0x8000_0000;
+/// LZ4 acceleration (1 = `LZ4_compress_default`; higher skips faster over bytes that find no
+/// match). On run-shaped records (`logger_throughput 100000 lz4`, 7 interleaved runs,
+/// 2026-11-26): 1 → 0.64 µs writer CPU per record at 248.0 B/record, 2 → 0.47 µs at
+/// 249.6 B (+0.6 %), 3 → 0.43 µs at 253.9 B, 6 → 0.43 µs at 280.7 B: 2 buys most of the
+/// speed for almost no size.
+const LZ4_ACCELERATION: i32 = 2;
 
 /// XXH32 of an input shorter than 16 bytes (no stripe loop), for the LZ4 header checksum.
 const fn xxh32_short(input: &[u8], seed: u32) -> u32 {
@@ -594,7 +618,8 @@ fn lz4_frame(src: &[u8], out: &mut Vec<u8>) -> io::Result<usize> {
     for piece in src.chunks(LZ4_BLOCK_MAX) {
         let bound = lz4::block::compress_bound(piece.len())?;
         let dst = &mut out[n + 4..n + 4 + bound];
-        let packed = lz4::block::compress_to_buffer(piece, None, false, dst)?;
+        let mode = Some(lz4::block::CompressionMode::FAST(LZ4_ACCELERATION));
+        let packed = lz4::block::compress_to_buffer(piece, mode, false, dst)?;
         let size = if packed < piece.len() {
             packed as u32
         } else {
