@@ -36,6 +36,8 @@ except ImportError as e:  # pragma: no cover
     raise SystemExit(f"{e}: install the Python bindings first: python3 -m pip install ./bindings/python")
 
 CONFIG = REPO / "configs" / "sahu2022_force.toml"
+# Busy-wait tail of the scenarios that spin (s); --spin changes it.
+SPIN_S = 20e-6
 SCENARIOS = ("idle", "idle_nospin", "other_core_busy", "same_core_busy")
 
 
@@ -49,7 +51,7 @@ def busy(cpu: int) -> subprocess.Popen:
 
 
 def run(binary: Path, scenario: str, duration: float, tmp: Path) -> dict:
-    spin = 0.0 if scenario == "idle_nospin" else 20e-6
+    spin = 0.0 if scenario == "idle_nospin" else SPIN_S
     cfg = tmp / f"{scenario}.toml"
     cfg.write_text(
         CONFIG.read_text()
@@ -92,13 +94,18 @@ def run(binary: Path, scenario: str, duration: float, tmp: Path) -> dict:
 
 
 def main() -> None:
+    global SPIN_S
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=20.0, help="s per scenario (default 20)")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated subset of " + ", ".join(SCENARIOS))
     ap.add_argument("--bin", type=Path, default=REPO / "target" / "release" / "ehactl")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     ap.add_argument("--note", default="", help="conditions to record (e.g. 'other builds running')")
+    ap.add_argument("--spin", type=float, default=SPIN_S, help="realtime.spin of the spinning scenarios (s, default 20e-6)")
     a = ap.parse_args()
+    if not (0.0 <= a.spin < 200e-6):
+        raise SystemExit(f"--spin {a.spin}: expected a busy-wait tail in seconds, 0 ≤ spin < the 200 µs period")
+    SPIN_S = a.spin
     chosen = [s.strip() for s in a.scenarios.split(",") if s.strip()]
     for s in chosen:
         if s not in SCENARIOS:
@@ -112,15 +119,16 @@ def main() -> None:
             results.append(run(a.bin, s, a.duration, Path(d)))
 
     print(f"load average at the end: {' / '.join(f'{x:.2f}' for x in os.getloadavg())} (1/5/15 min), {os.cpu_count()} CPUs")
-    hdr = ("| scenario | cycles | wake-up lateness (jitter) p50 / p99 / p99.9 / max (µs) | execution p50 / p99 / p99.9 / max (µs) "
-           "| period p50 / p99 / max (µs) | overruns = our execution + late start (longest streak) | log queue high water |")
+    hdr = ("| scenario | cycles | wake-up lateness (jitter) p50 / p99 / p99.9 / max (µs) | execution wall p50 / p99 / p99.9 / max (µs) "
+           "| execution CPU p50 / p99 / p99.9 / max (µs) | period p50 / p99 / max (µs) | overruns = our execution (CPU) + thread not running (longest streak) | log queue high water |")
     print(hdr)
-    print("|" + "---|" * 7)
+    print("|" + "---|" * 8)
     for r in results:
         s = r["summary"]
         print(
             f"| {r['scenario']} | {s['cycles']} | {s['jitter_p50_us']:.1f} / {s['jitter_p99_us']:.1f} / {s['jitter_p999_us']:.1f} / {s['jitter_max_us']:.1f} "
             f"| {s['exec_p50_us']:.1f} / {s['exec_p99_us']:.1f} / {s['exec_p999_us']:.1f} / {s['exec_max_us']:.1f} "
+            f"| {s['exec_cpu_p50_us']:.1f} / {s['exec_cpu_p99_us']:.1f} / {s['exec_cpu_p999_us']:.1f} / {s['exec_cpu_max_us']:.1f} "
             f"| {s['period_p50_us']:.1f} / {s['period_p99_us']:.1f} / {s['period_max_us']:.1f} "
             f"| {s['overruns']} = {s['overruns_exec']} + {s['overruns_wakeup']} ({s['longest_overrun_streak']}) | {s['log_queue_high_water']} |"
         )

@@ -19,8 +19,9 @@
 //    chunk CRC (and attachment CRCs); it does not check the DataEnd or summary CRCs either.
 //  - Zero-valued CRC fields mean "not computed" and make both readers skip the check, so
 //    this script reports them and counts a zero chunk/data/summary CRC as an error.
-//  - lz4js ignores the LZ4 frame's own content checksum, so a corrupted chunk is caught by
-//    the MCAP chunk CRC (or by the size check in the decompress handler below).
+//  - ehactl's LZ4 frames carry no content checksum (the MCAP chunk CRC covers the records;
+//    lz4js would ignore one anyway), so a corrupted chunk is caught by the MCAP chunk CRC
+//    (or by the size check in the decompress handler below).
 
 import { open, readFile } from "node:fs/promises";
 import { McapIndexedReader, McapStreamReader } from "@mcap/core";

@@ -224,8 +224,8 @@ def _chunk_offsets(path: Path):
 
 def test_corrupt_chunk_payload_is_rejected(tmp_path: Path) -> None:
     """Flip one byte in the middle of a chunk's compressed records: the CRC-validating
-    reader must raise. (The LZ4 frames carry their own content checksum, so the lz4
-    library may be what notices first; either way reading must fail.)"""
+    reader must raise. (The LZ4 frames carry no content checksum of their own: the MCAP
+    chunk CRC, or the LZ4 decoder on a broken sequence, is what notices.)"""
     good = tmp_path / "good.mcap"
     run_ehactl(FORCE_CONFIG, good, SHORT_DURATION)
     ci = _chunk_offsets(good)

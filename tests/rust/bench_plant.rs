@@ -21,6 +21,8 @@
 //!    (`CLOCK_THREAD_CPUTIME_ID`), both as × real time. On a shared machine the CPU-time
 //!    figure is the one to trust: it excludes time the thread was not running.
 //!
+//! `EHACTL_BENCH_SUBSTEPS=a,b,…`: also run the shipped method at these fixed substep counts
+//! (a convergence ladder).
 //! `EHACTL_BENCH_PROFILE=N`: only N runs of each selected rig as shipped (for `perf record`).
 //!
 //! Output: a markdown table on stdout and in `target/bench/plant_accuracy.md`; for
@@ -230,6 +232,20 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
                 shipped: false,
             });
         }
+    }
+    // Extra fixed counts of the shipped method, for convergence ladders:
+    // EHACTL_BENCH_SUBSTEPS=92,184,368.
+    let extra = std::env::var("EHACTL_BENCH_SUBSTEPS").unwrap_or_default();
+    for n in extra
+        .split(',')
+        .filter_map(|x| x.trim().parse::<u32>().ok())
+    {
+        push(Candidate {
+            method: ig.method,
+            substeps: n,
+            max_omega_h: None,
+            shipped: false,
+        });
     }
     let e = &cfg.plant.effects;
     // Line rigs (issue 16, short stiff lines): both line schemes at fixed substeps and the

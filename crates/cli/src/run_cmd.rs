@@ -391,7 +391,11 @@ fn print_text_summary(
             tm.exec.p50, tm.exec.p99, tm.exec.p999, tm.exec.max
         );
         println!(
-            "  overruns      {} = {} our execution > period + {} late start (thread not running); longest streak {}, {} deadlines skipped, policy {}",
+            "  exec CPU      p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (thread CPU time, preemptions excluded)",
+            tm.exec_cpu.p50, tm.exec_cpu.p99, tm.exec_cpu.p999, tm.exec_cpu.max
+        );
+        println!(
+            "  overruns      {} = {} our execution (CPU time) > period + {} thread not running (late start or preempted); longest streak {}, {} deadlines skipped, policy {}",
             tm.overruns,
             tm.overruns_exec,
             tm.overruns_wakeup,

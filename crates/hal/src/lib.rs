@@ -14,6 +14,7 @@
 #![deny(missing_docs)]
 
 pub mod logger;
+mod mcap_writer;
 pub mod pacer;
 pub mod record;
 pub mod recover;

@@ -1,17 +1,17 @@
 //! MCAP logger: the cycle pushes fixed-size [`CycleRecord`]s and [`Event`]s into bounded
 //! lock-free queues; a writer thread serialises them (CDR, ros2msg schemas) into an MCAP
-//! file with chunk and data CRCs. Overflow is never silent: with [`Overflow::Block`]
+//! file with chunk, data and summary CRCs (written by `crate::mcap_writer`, which says why
+//! it is not the `mcap` crate's writer). Overflow is never silent: with [`Overflow::Block`]
 //! (simulated time, nothing to miss) the producer waits for room; with [`Overflow::Drop`]
 //! (wall-clock runs) the record is dropped and counted. The file is finalised by
 //! [`Logger::finish`], and by `Drop` if a run unwinds.
 
+use crate::mcap_writer::{Compression, Writer};
 use crate::record::{control_schema, plant_schema, timing_schema, CycleRecord, Event};
 use crate::schemas;
 use crossbeam_queue::ArrayQueue;
-use mcap::records::{MessageHeader, Metadata};
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
@@ -301,9 +301,32 @@ struct Shared {
     producer_waiting: AtomicBool,
     /// Queue occupancy (records) at or below which a waiting producer is woken.
     resume_at: usize,
+    /// The writer thread, set when it starts.
+    writer: OnceLock<std::thread::Thread>,
+    /// Set while the writer, with nothing queued, sleeps (at most `IDLE_WAIT`).
+    writer_waiting: AtomicBool,
+    /// Under [`Overflow::Block`], a push that leaves this many records queued wakes a
+    /// sleeping writer (a batch, so that one wake-up serves many records).
+    wake_writer_at: usize,
 }
 
+/// Longest sleep of the writer when the queues are empty (the wall-clock runs' polling
+/// period; under [`Overflow::Block`] the producer wakes it earlier).
+const IDLE_WAIT: Duration = Duration::from_micros(200);
+
 impl Shared {
+    /// Wake the writer if it sleeps (one wake-up per sleep).
+    #[inline]
+    fn wake_writer(&self) {
+        if self.writer_waiting.load(Ordering::SeqCst)
+            && self.writer_waiting.swap(false, Ordering::SeqCst)
+        {
+            if let Some(t) = self.writer.get() {
+                t.unpark();
+            }
+        }
+    }
+
     /// Writer side: wake the producer if it waits for room and there is enough.
     #[inline]
     fn wake_producer(&self) {
@@ -314,6 +337,10 @@ impl Shared {
         }
     }
 }
+
+/// A chunk is closed once its records reach this many bytes (uncompressed), whatever
+/// time it spans (`LogOptions::chunk_interval` closes it earlier at 5 kHz: ≈ 170 kB).
+const CHUNK_LIMIT: usize = 1 << 20;
 
 /// Record queue capacity for `opts`: `queue_capacity` (at least 16), and under
 /// [`Overflow::Block`] no more than `max_lag` (see [`LogOptions::max_lag`]).
@@ -348,17 +375,18 @@ impl Logger {
         }
         let file = File::create(path).map_err(|e| err(format!("cannot create file: {e}")))?;
         let compression = match opts.compression {
-            LogCompression::None => None,
-            LogCompression::Lz4 => Some(mcap::Compression::Lz4),
+            LogCompression::None => Compression::None,
+            LogCompression::Lz4 => Compression::Lz4,
         };
-        let mut w = mcap::WriteOptions::new()
-            .compression(compression)
-            .profile("ros2")
-            .library(concat!("ehactl ", env!("CARGO_PKG_VERSION")))
-            .chunk_size(Some(1 << 20))
-            .create(BufWriter::with_capacity(1 << 20, file))
-            .map_err(|e| err(format!("cannot start MCAP: {e}")))?;
-        let me = |e: mcap::McapError| err(e.to_string());
+        let mut w = Writer::new(
+            file,
+            "ros2",
+            concat!("ehactl ", env!("CARGO_PKG_VERSION")),
+            compression,
+            CHUNK_LIMIT,
+        )
+        .map_err(|e| err(format!("cannot start MCAP: {e}")))?;
+        let me = |e: std::io::Error| err(e.to_string());
         let s_control = w
             .add_schema(
                 "ehactl_msgs/msg/ControlCycle",
@@ -428,22 +456,14 @@ impl Logger {
             "ehactl_version".to_string(),
             env!("CARGO_PKG_VERSION").to_string(),
         );
-        w.write_metadata(&Metadata {
-            name: "ehactl_run".into(),
-            metadata: md,
-        })
-        .map_err(me)?;
+        w.write_metadata("ehactl_run", &md).map_err(me)?;
+        // Header, schemas, channels and metadata reach the file now: from here on it is an
+        // MCAP file (for `ehactl recover` and the `--out` checks).
+        w.flush()
+            .map_err(|e| err(format!("cannot write the MCAP header: {e}")))?;
         let config_msg = serde_json::json!({"toml": meta.config_toml, "config": meta.config_json, "backend": meta.backend}).to_string();
-        w.write_to_known_channel(
-            &MessageHeader {
-                channel_id: ch_config,
-                sequence: 0,
-                log_time: 0,
-                publish_time: 0,
-            },
-            config_msg.as_bytes(),
-        )
-        .map_err(me)?;
+        w.write_message(ch_config, 0, 0, 0, config_msg.as_bytes())
+            .map_err(me)?;
         // Under Block the producer never holds more than `max_lag` records in the queue, so a
         // bigger queue would only be allocated (and its slots initialised: ≈ 22 MB and
         // ≈ 10 ms for 65 536 records) without ever being used: the queue is sized to what
@@ -466,6 +486,9 @@ impl Logger {
             producer: OnceLock::new(),
             producer_waiting: AtomicBool::new(false),
             resume_at: capacity / 2,
+            writer: OnceLock::new(),
+            writer_waiting: AtomicBool::new(false),
+            wake_writer_at: (capacity / 4).max(1),
         });
         let sh = shared.clone();
         let chunk_ns = (opts.chunk_interval.max(0.0) * 1e9) as u64;
@@ -514,6 +537,12 @@ impl Logger {
         let n = q.len();
         if n > self.shared.high_water.load(Ordering::Relaxed) {
             self.shared.high_water.store(n, Ordering::Relaxed);
+        }
+        // Simulated time: wake the writer once a batch is queued rather than leave it asleep
+        // for the rest of its idle wait (a wake-up is a system call, so not on every push,
+        // and never under Drop: a wall-clock cycle makes no system call for the log).
+        if self.overflow == Overflow::Block && n >= self.shared.wake_writer_at {
+            self.shared.wake_writer();
         }
     }
 
@@ -585,7 +614,8 @@ impl Logger {
         if let Ok(mut s) = self.shared.summary.lock() {
             *s = summary;
         }
-        self.shared.closing.store(true, Ordering::Release);
+        self.shared.closing.store(true, Ordering::SeqCst);
+        self.shared.wake_writer();
         let Some(t) = self.thread.take() else {
             return Err(LogError {
                 path: self.path.clone(),
@@ -622,44 +652,36 @@ impl Drop for Logger {
     }
 }
 
-/// An MCAP error with its cause (the mcap crate's own text hides the OS error, e.g.
-/// "No space left on device").
-fn mcap_error(e: mcap::McapError) -> String {
-    let mut msg = e.to_string();
-    let mut src = std::error::Error::source(&e);
-    while let Some(s) = src {
-        msg.push_str(": ");
-        msg.push_str(&s.to_string());
-        src = s.source();
-    }
-    msg
+/// An I/O error of the writer as text (the OS error, e.g. "No space left on device").
+fn io_error(e: std::io::Error) -> String {
+    e.to_string()
 }
 
 /// Close the open chunk and flush it to the file; the chunk clock starts again.
 fn close_chunk(
-    w: &mut mcap::Writer<BufWriter<File>>,
+    w: &mut Writer,
     chunk_start: &mut Option<u64>,
     wall_flush: &mut std::time::Instant,
 ) -> Result<(), String> {
-    w.flush().map_err(mcap_error)?;
+    w.flush().map_err(io_error)?;
     *chunk_start = None;
     *wall_flush = std::time::Instant::now();
     Ok(())
 }
 
 fn writer_loop(
-    mut w: mcap::Writer<BufWriter<File>>,
+    mut w: Writer,
     sh: Arc<Shared>,
     ch: [u16; 6],
     chunk_ns: u64,
 ) -> Result<(u64, u64), String> {
     let [ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log] = ch;
+    let _ = sh.writer.set(std::thread::current());
     // Record time (ns) of the first message in the open chunk; the chunk is closed and
     // flushed to the file once it spans `chunk_ns`, and whenever the queues run dry, so a
     // killed process loses at most one chunk interval of what the writer had taken.
     let mut chunk_start: Option<u64> = None;
     let mut wall_flush = std::time::Instant::now();
-    let mut buf = Vec::with_capacity(256);
     let mut written = 0u64;
     let mut events = 0u64;
     let mut last_ns = 0u64;
@@ -675,41 +697,17 @@ fn writer_loop(
             let ns = to_ns(rec.t);
             last_ns = last_ns.max(ns);
             let seq = rec.cycle as u32;
-            rec.encode_control(&mut buf);
-            w.write_to_known_channel(
-                &MessageHeader {
-                    channel_id: ch_control,
-                    sequence: seq,
-                    log_time: ns,
-                    publish_time: ns,
-                },
-                &buf,
-            )
-            .map_err(mcap_error)?;
+            w.write_message_with(ch_control, seq, ns, ns, |b| rec.append_control(b))
+                .map_err(io_error)?;
             if rec.has_plant {
-                rec.encode_plant(&mut buf);
-                w.write_to_known_channel(
-                    &MessageHeader {
-                        channel_id: ch_plant,
-                        sequence: seq,
-                        log_time: ns,
-                        publish_time: ns,
-                    },
-                    &buf,
-                )
-                .map_err(mcap_error)?;
+                w.write_message_with(ch_plant, seq, ns, ns, |b| rec.append_plant(b))
+                    .map_err(io_error)?;
             }
-            if rec.encode_timing(&mut buf) {
-                w.write_to_known_channel(
-                    &MessageHeader {
-                        channel_id: ch_timing,
-                        sequence: seq,
-                        log_time: ns,
-                        publish_time: ns,
-                    },
-                    &buf,
-                )
-                .map_err(mcap_error)?;
+            if rec.timing.is_some() {
+                w.write_message_with(ch_timing, seq, ns, ns, |b| {
+                    rec.append_timing(b);
+                })
+                .map_err(io_error)?;
             }
             if let Some(tp) = sh.tap.get() {
                 tp.offer(TapMessage::Record(rec));
@@ -730,26 +728,22 @@ fn writer_loop(
         {
             idle = false;
             let ns = to_ns(ev.t);
-            w.write_to_known_channel(
-                &MessageHeader {
-                    channel_id: ch_events,
-                    sequence: events as u32,
-                    log_time: ns,
-                    publish_time: ns,
-                },
+            w.write_message(
+                ch_events,
+                events as u32,
+                ns,
+                ns,
                 ev.to_json().to_string().as_bytes(),
             )
-            .map_err(mcap_error)?;
-            w.write_to_known_channel(
-                &MessageHeader {
-                    channel_id: ch_log,
-                    sequence: events as u32,
-                    log_time: ns,
-                    publish_time: ns,
-                },
+            .map_err(io_error)?;
+            w.write_message(
+                ch_log,
+                events as u32,
+                ns,
+                ns,
                 schemas::event_to_foxglove_log(&ev).to_string().as_bytes(),
             )
-            .map_err(mcap_error)?;
+            .map_err(io_error)?;
             if let Some(tp) = sh.tap.get() {
                 tp.offer(TapMessage::Event(ev));
             }
@@ -777,25 +771,23 @@ fn writer_loop(
                         .to_string();
                         let s = w
                             .add_schema("ehactl.CanFrame", "jsonschema", schema.as_bytes())
-                            .map_err(mcap_error)?;
+                            .map_err(io_error)?;
                         let c = w
                             .add_channel(s, "/can", "json", &BTreeMap::new())
-                            .map_err(mcap_error)?;
+                            .map_err(io_error)?;
                         ch_can = Some(c);
                         c
                     }
                 };
                 let ns = f.t_ns.max(0) as u64;
-                w.write_to_known_channel(
-                    &MessageHeader {
-                        channel_id: ch,
-                        sequence: frames_written as u32,
-                        log_time: ns,
-                        publish_time: ns,
-                    },
+                w.write_message(
+                    ch,
+                    frames_written as u32,
+                    ns,
+                    ns,
                     f.to_json().to_string().as_bytes(),
                 )
-                .map_err(mcap_error)?;
+                .map_err(io_error)?;
                 frames_written += 1;
                 chunk_start.get_or_insert(ns);
                 sh.frames_written.store(frames_written, Ordering::Relaxed);
@@ -813,7 +805,13 @@ fn writer_loop(
             if chunk_start.is_some() && wall_flush.elapsed().as_nanos() as u64 >= chunk_ns {
                 close_chunk(&mut w, &mut chunk_start, &mut wall_flush)?;
             }
-            std::thread::sleep(Duration::from_micros(200));
+            // Sleep until there is work (see `Logger::push`) or `IDLE_WAIT` has passed.
+            // Announce first, then check again, so that a wake-up in between is not missed.
+            sh.writer_waiting.store(true, Ordering::SeqCst);
+            if sh.records.is_empty() && sh.events.is_empty() && !sh.closing.load(Ordering::SeqCst) {
+                std::thread::park_timeout(IDLE_WAIT);
+            }
+            sh.writer_waiting.store(false, Ordering::SeqCst);
         }
     }
     let summary = sh.summary.lock().ok().and_then(|mut s| s.take());
@@ -821,16 +819,14 @@ fn writer_loop(
         if let Some(obj) = summary.as_object_mut() {
             obj.insert("records_written".into(), written.into());
         }
-        w.write_to_known_channel(
-            &MessageHeader {
-                channel_id: ch_summary,
-                sequence: 0,
-                log_time: last_ns,
-                publish_time: last_ns,
-            },
+        w.write_message(
+            ch_summary,
+            0,
+            last_ns,
+            last_ns,
             summary.to_string().as_bytes(),
         )
-        .map_err(mcap_error)?;
+        .map_err(io_error)?;
         if let Some(tp) = sh.tap.get() {
             tp.offer(TapMessage::Summary(summary.to_string()));
         }
@@ -838,7 +834,7 @@ fn writer_loop(
     if let Some(tp) = sh.tap.get() {
         tp.close();
     }
-    w.finish().map_err(mcap_error)?;
+    w.finish().map_err(io_error)?;
     Ok((written, events))
 }
 

@@ -88,14 +88,18 @@ pub struct TimingReport {
     pub jitter: Quantiles,
     /// Start-to-start period (µs).
     pub period: Quantiles,
-    /// Execution time per cycle (µs).
+    /// Execution time per cycle, wall clock: cycle start → next wait (µs).
     pub exec: Quantiles,
+    /// CPU time of the loop thread per cycle, cycle start → next wait (µs): the cycle's
+    /// own work, without the time the thread was preempted.
+    pub exec_cpu: Quantiles,
     /// Overruns (cycles).
     pub overruns: u64,
-    /// Overruns whose cycle's execution alone exceeded the period (cycles; see
+    /// Overruns whose cycle's own CPU time alone exceeded the period (cycles; see
     /// `ehactl_runtime::realtime::TimingStats::overruns_exec`).
     pub overruns_exec: u64,
-    /// Overruns of cycles that fit in the period but started late (cycles; see
+    /// Overruns of cycles whose work fit in the period but whose thread was not running
+    /// when needed: started late or preempted inside the cycle (cycles; see
     /// `ehactl_runtime::realtime::TimingStats::overruns_wakeup`).
     pub overruns_wakeup: u64,
     /// Longest streak of consecutive overruns (cycles).

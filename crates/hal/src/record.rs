@@ -366,6 +366,12 @@ impl CycleRecord {
     /// CDR encoding of `/control` into `buf` (cleared first).
     pub fn encode_control(&self, buf: &mut Vec<u8>) {
         buf.clear();
+        self.append_control(buf);
+    }
+
+    /// CDR encoding of `/control` appended to `buf` (the MCAP writer's chunk).
+    #[inline]
+    pub fn append_control(&self, buf: &mut Vec<u8>) {
         buf.extend_from_slice(&CDR_LE);
         buf.extend_from_slice(&self.cycle.to_le_bytes());
         for v in self.control_values() {
@@ -377,10 +383,17 @@ impl CycleRecord {
     /// timing. Layout: cycle u64, t and [`TIMING_FIELDS`] f64, skipped u32, overrun u8,
     /// overrun_exec u8 (every field naturally aligned, so no padding).
     pub fn encode_timing(&self, buf: &mut Vec<u8>) -> bool {
+        buf.clear();
+        self.append_timing(buf)
+    }
+
+    /// CDR encoding of `/timing` appended to `buf`; false (nothing appended) if the record
+    /// has no timing.
+    #[inline]
+    pub fn append_timing(&self, buf: &mut Vec<u8>) -> bool {
         let Some(tm) = self.timing else {
             return false;
         };
-        buf.clear();
         buf.extend_from_slice(&CDR_LE);
         buf.extend_from_slice(&self.cycle.to_le_bytes());
         for v in [
@@ -401,6 +414,12 @@ impl CycleRecord {
     /// CDR encoding of `/plant` into `buf` (cleared first).
     pub fn encode_plant(&self, buf: &mut Vec<u8>) {
         buf.clear();
+        self.append_plant(buf);
+    }
+
+    /// CDR encoding of `/plant` appended to `buf` (the MCAP writer's chunk).
+    #[inline]
+    pub fn append_plant(&self, buf: &mut Vec<u8>) {
         buf.extend_from_slice(&CDR_LE);
         for v in self.plant_values() {
             buf.extend_from_slice(&v.to_le_bytes());

@@ -1146,8 +1146,13 @@ impl Plant {
                 let qla = *la.q.last().unwrap_or(&0.0);
                 let qlb = *lb.q.last().unwrap_or(&0.0);
                 // Counterbalance valves between line end and chamber (crate::cbv): the node
-                // (port 2) in exponential Euler in its own pressure, the chamber takes the
-                // CBV flow with its derivative in its own linearisation.
+                // (port 2) in exponential Euler in its own pressure; the chamber takes the flow
+                // the node passed on over the substep (line inflow less the node's storage
+                // change), so line, node and chamber exchange exactly the same volume. The CBV
+                // flow at the start-of-step node pressure instead over-delivers whenever the
+                // check or the poppet opens within the step (node time constant C/G ≈ 1 µs
+                // against a 5–20 µs substep): a numerical chatter that needed 4× the substeps
+                // to converge (issue 16, BENCHMARKS.md).
                 let ends = [
                     (*la.p.last().unwrap_or(&s.p_a), qla, s.p_a),
                     (*lb.p.last().unwrap_or(&s.p_b), qlb, s.p_b),
@@ -1166,12 +1171,15 @@ impl Plant {
                         cb.advance_poppet(h, p_ch, pilot);
                         let (q, dq) = cb.flow(cb.s.p_node, p_ch);
                         let f = (q_line - q) / cb.c_node;
-                        let pn = cb.s.p_node + h * f * phi1(-dq / cb.c_node * h);
-                        cb.s.p_node = pn.max(c.p_cav);
-                        cb.s.q = q;
-                        into[i] = q;
-                        dinto[i] = dq;
-                        p_end[i] = cb.s.p_node;
+                        let lam = -dq / cb.c_node;
+                        let pn = (cb.s.p_node + h * f * phi1(lam * h)).max(c.p_cav);
+                        let q_out = q_line - cb.c_node * (pn - cb.s.p_node) / h;
+                        cb.s.p_node = pn;
+                        cb.s.q = q_out;
+                        into[i] = q_out;
+                        // ∂q_out/∂p_ch = −(C/h)·(1 − e^(λh)) (→ −dq for λh → 0).
+                        dinto[i] = -cb.c_node / h * (lam * h).exp_m1();
+                        p_end[i] = pn;
                     }
                 }
                 let fa = beta_a / va * (into[0] - c.a_a * s.v - q_in - c.k_ext * s.p_a);

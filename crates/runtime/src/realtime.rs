@@ -242,18 +242,22 @@ pub struct TimingStats {
     pub jitter: Histogram,
     /// Start-to-start period (ns).
     pub period: Histogram,
-    /// Execution time from cycle start to the next wait (ns).
+    /// Execution time from cycle start to the next wait, wall clock (ns): includes any time
+    /// the thread was preempted inside the cycle.
     pub exec: Histogram,
+    /// CPU time of the loop thread from cycle start to the next wait (ns,
+    /// `CLOCK_THREAD_CPUTIME_ID`): the cycle's own work, without the time it was not running.
+    pub exec_cpu: Histogram,
     /// Cycles that finished after the next deadline.
     pub overruns: u64,
-    /// Overruns caused by our own execution: the cycle's work (start to the next wait)
-    /// alone took longer than the period, so it would have overrun even if it had started
-    /// exactly on its deadline.
+    /// Overruns caused by our own execution: the cycle's work (its thread CPU time, start to
+    /// the next wait) alone took longer than the period, so it would have overrun even if it
+    /// had started exactly on its deadline and run without preemption.
     pub overruns_exec: u64,
-    /// Overruns caused by a late start: the work fit in the period, but the cycle started
-    /// so late (the thread was not running at its deadline; with `Continue` also a spill of
-    /// an earlier overrun) that it ended after the next deadline. `overruns_exec +
-    /// overruns_wakeup = overruns`.
+    /// Overruns of cycles whose work fit in the period but whose thread was not running
+    /// when needed: it started late (woken after its deadline; with `Continue` also a spill
+    /// of an earlier overrun) or was preempted inside the cycle (wall execution above the
+    /// period, CPU time within it). `overruns_exec + overruns_wakeup = overruns`.
     pub overruns_wakeup: u64,
     /// Longest run of consecutive overruns (cycles).
     pub longest_overrun_streak: u64,
@@ -269,6 +273,9 @@ pub trait Clock {
     fn now_ns(&self) -> u64;
     /// Sleep until the absolute time `t_ns` (ns, same clock as [`Clock::now_ns`]).
     fn sleep_until(&self, t_ns: u64);
+    /// CPU time consumed by the calling thread so far (ns): it advances only while the
+    /// thread runs, so a cycle's wall time minus its CPU time is the time it was preempted.
+    fn thread_cpu_ns(&self) -> u64;
 }
 
 /// CLOCK_MONOTONIC, slept on with `clock_nanosleep(TIMER_ABSTIME)`.
@@ -284,17 +291,27 @@ impl Clock for Monotonic {
     fn sleep_until(&self, t_ns: u64) {
         sleep_until(t_ns)
     }
+    #[inline]
+    fn thread_cpu_ns(&self) -> u64 {
+        clock_ns(libc::CLOCK_THREAD_CPUTIME_ID)
+    }
 }
 
 /// Current CLOCK_MONOTONIC time (ns).
 #[inline]
 pub fn monotonic_ns() -> u64 {
+    clock_ns(libc::CLOCK_MONOTONIC)
+}
+
+/// Current time of `clock` (ns): CLOCK_MONOTONIC or CLOCK_THREAD_CPUTIME_ID.
+#[inline]
+fn clock_ns(clock: libc::clockid_t) -> u64 {
     let mut ts = libc::timespec {
         tv_sec: 0,
         tv_nsec: 0,
     };
-    // SAFETY: ts is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
-    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    // SAFETY: ts is a valid, writable timespec; both clocks always exist on Linux.
+    unsafe { libc::clock_gettime(clock, &mut ts) };
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
@@ -339,6 +356,8 @@ pub struct WallClockPacer<C: Clock = Monotonic> {
     origin: u64,
     deadline: u64,
     last_start: u64,
+    /// Thread CPU time at the start of the current cycle (ns).
+    last_start_cpu: u64,
     streak: u64,
     stats: TimingStats,
     timing: CycleTiming,
@@ -381,6 +400,7 @@ impl<C: Clock> WallClockPacer<C> {
             origin: 0,
             deadline: 0,
             last_start: 0,
+            last_start_cpu: 0,
             streak: 0,
             stats: TimingStats::default(),
             timing: CycleTiming::default(),
@@ -419,6 +439,7 @@ impl<C: Clock> WallClockPacer<C> {
             jitter: self.stats.jitter.summary_us(),
             period: self.stats.period.summary_us(),
             exec: self.stats.exec.summary_us(),
+            exec_cpu: self.stats.exec_cpu.summary_us(),
             overruns: self.stats.overruns,
             overruns_exec: self.stats.overruns_exec,
             overruns_wakeup: self.stats.overruns_wakeup,
@@ -548,6 +569,7 @@ impl<C: Clock> Pacer for WallClockPacer<C> {
             let start = self.sleep_to(self.deadline);
             self.stats.jitter.record(start - self.deadline);
             self.last_start = start;
+            self.last_start_cpu = self.clock.thread_cpu_ns();
             self.timing = CycleTiming {
                 wall_t: (start - self.origin) as f64 * 1e-9,
                 lateness_us: (start - self.deadline) as f64 * 1e-3,
@@ -562,12 +584,18 @@ impl<C: Clock> Pacer for WallClockPacer<C> {
         let now = self.clock.now_ns();
         let exec = now - self.last_start;
         self.stats.exec.record(exec);
+        let exec_cpu = self
+            .clock
+            .thread_cpu_ns()
+            .saturating_sub(self.last_start_cpu);
+        self.stats.exec_cpu.record(exec_cpu);
         let nominal = self.deadline + self.period_ns;
         let mut deadline = nominal;
         let mut skipped = 0u64;
         let overrun = now > deadline;
-        // Whose fault: the work alone overran the period (ours), or it fit but started late.
-        let overrun_exec = overrun && exec > self.period_ns;
+        // Whose fault: the work alone (CPU time, preemptions inside the cycle excluded)
+        // overran the period (ours), or it fit but the thread was not running when needed.
+        let overrun_exec = overrun && exec_cpu > self.period_ns;
         if overrun {
             self.streak += 1;
             self.stats.overruns += 1;
@@ -652,6 +680,7 @@ impl<C: Clock> Pacer for WallClockPacer<C> {
         };
         self.deadline = deadline;
         self.last_start = start;
+        self.last_start_cpu = self.clock.thread_cpu_ns();
         true
     }
 
@@ -773,11 +802,18 @@ mod tests {
         /// A sleep returns this much after the requested time (ns): the thread was not
         /// running when its deadline came.
         late_by: std::cell::Cell<u64>,
+        /// Thread CPU time (ns): advanced by [`Scripted::work`] only.
+        cpu: std::cell::Cell<u64>,
     }
 
     impl Scripted {
-        /// The cycle's work takes `ns` of wall time.
+        /// The cycle's work takes `ns` of wall and CPU time.
         fn work(&self, ns: u64) {
+            self.now.set(self.now.get() + ns);
+            self.cpu.set(self.cpu.get() + ns);
+        }
+        /// The thread is preempted inside the cycle for `ns` (wall time passes, CPU not).
+        fn preempted(&self, ns: u64) {
             self.now.set(self.now.get() + ns);
         }
     }
@@ -789,6 +825,9 @@ mod tests {
         fn sleep_until(&self, t_ns: u64) {
             self.sleeps.set(self.sleeps.get() + 1);
             self.now.set(self.now.get().max(t_ns) + self.late_by.get());
+        }
+        fn thread_cpu_ns(&self) -> u64 {
+            self.cpu.get()
         }
     }
 
@@ -839,6 +878,36 @@ mod tests {
         );
         assert_eq!(s.period.count(), 5);
         assert!(p.take_event().is_none(), "one overrun, one event");
+    }
+
+    #[test]
+    fn a_preemption_inside_the_cycle_is_not_our_overrun() {
+        let mut p = scripted(RtOptions::default());
+        assert!(p.wait_for_cycle(0));
+        // Cycle 0 starts on time, works 3 ms, is preempted for 9 ms, works 1 ms more:
+        // 13 ms of wall time > 10 ms, but only 4 ms of its own CPU time.
+        p.clock().work(3 * MS);
+        p.clock().preempted(9 * MS);
+        p.clock().work(MS);
+        assert!(p.wait_for_cycle(1));
+        let s = p.stats();
+        assert_eq!((s.overruns, s.overruns_exec, s.overruns_wakeup), (1, 0, 1));
+        let tm = p.cycle_timing().unwrap();
+        assert!(tm.overrun && !tm.overrun_exec);
+        assert_eq!(tm.exec_prev_us, 13_000.0);
+        assert_eq!(s.exec.summary_us().max, 13_000.0);
+        // The CPU-time histogram holds the 4 ms (quantiles are bucket upper edges,
+        // ≤ 1/256 above the value).
+        let cpu = s.exec_cpu.summary_us().max;
+        assert!(
+            (4_000.0..=4_000.0 * (1.0 + 1.0 / 256.0)).contains(&cpu),
+            "{cpu}"
+        );
+        // Cycle 1 (on its grid point after the skip) works 11 ms of CPU: ours.
+        p.clock().work(11 * MS);
+        assert!(p.wait_for_cycle(2));
+        assert_eq!(p.stats().overruns_exec, 1);
+        assert!(p.cycle_timing().unwrap().overrun_exec);
     }
 
     #[test]

@@ -133,6 +133,7 @@ impl Session {
                 ("jitter", &tm.jitter),
                 ("period", &tm.period),
                 ("exec", &tm.exec),
+                ("exec_cpu", &tm.exec_cpu),
             ] {
                 put(obj, &format!("{name}_p50_us"), q.p50);
                 put(obj, &format!("{name}_p99_us"), q.p99);
