@@ -242,6 +242,8 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
     {
         push(Candidate {
             method: ig.method,
+            line: ig.line_method,
+            line_moh: ig.max_omega_h_line,
             substeps: n,
             max_omega_h: None,
             shipped: false,
