@@ -873,6 +873,28 @@ mod tests {
             assert_eq!(seen.len(), msgs.len());
             assert_eq!(seen, stream(&b), "{compression:?}");
 
+            // Every record of the file, summary section included, as the crate's linear
+            // reader walks it (the Python bindings' `read_mcap` does this for the header
+            // and metadata).
+            let mut kinds = BTreeMap::new();
+            for r in mcap::read::LinearReader::new(&a).unwrap() {
+                let name = match r.unwrap() {
+                    mcap::records::Record::Header(h) => {
+                        assert_eq!((h.profile.as_str(), h.library.as_str()), ("ros2", "test"));
+                        "header"
+                    }
+                    mcap::records::Record::Metadata(_) => "metadata",
+                    mcap::records::Record::DataEnd(_) => "data end",
+                    mcap::records::Record::Footer(_) => "footer",
+                    mcap::records::Record::Statistics(_) => "statistics",
+                    _ => "other",
+                };
+                *kinds.entry(name).or_insert(0) += 1;
+            }
+            for k in ["header", "metadata", "data end", "footer", "statistics"] {
+                assert_eq!(kinds.get(k), Some(&1), "{k}: {kinds:?}");
+            }
+
             // The summary (footer, summary offsets) as the crate reads it.
             let sa = mcap::Summary::read(&a).unwrap().expect("a summary");
             let sb = mcap::Summary::read(&b).unwrap().unwrap();
