@@ -277,6 +277,27 @@ impl Line {
         2.0 / (self.l * self.c).sqrt()
     }
 
+    /// [`Line::advance_flows`] with `T` convolution terms per segment (`T` = `self.terms()`).
+    #[inline]
+    fn advance_flows_terms<const T: usize>(&mut self, h: f64, p_end: f64) {
+        let n = self.p.len();
+        let half_r = 0.5 * self.r;
+        let den = self.l + h * self.r + h * half_r * self.gain_sum;
+        let mut decay = [0.0; T];
+        decay.copy_from_slice(&self.decay[..T]);
+        let mut gain = [0.0; T];
+        gain.copy_from_slice(&self.gain[..T]);
+        for (j, ys) in self.y.chunks_exact_mut(T).take(n).enumerate() {
+            let down = if j + 1 < n { self.p[j + 1] } else { p_end };
+            let history: f64 = ys.iter().zip(&decay).map(|(y, e)| e * y).sum();
+            let dq = h * (self.p[j] - down - self.r * self.q[j] - half_r * history) / den;
+            self.q[j] += dq;
+            for ((y, e), g) in ys.iter_mut().zip(&decay).zip(&gain) {
+                *y = e * *y + g * dq;
+            }
+        }
+    }
+
     /// Lowest wave mode of the line on its own, the half-wave π/T (rad/s), T = N·√(LC) the
     /// wave delay of the chain (s) (1/√(LC) per segment of the distributed line: T = ℓ/c).
     /// It is the first mode of a line closed at both ends, the second of a line closed at one
@@ -308,6 +329,14 @@ impl Line {
                 self.q[j] = (self.q[j] + k * (self.p[j] - down)) / den;
             }
             return;
+        }
+        // The two term counts of the shipped models with the count known at compile time
+        // (unrolled, same arithmetic in the same order as the general loop below).
+        if terms == UNSTEADY_TERMS {
+            return self.advance_flows_terms::<UNSTEADY_TERMS>(h, p_end);
+        }
+        if terms == 3 {
+            return self.advance_flows_terms::<3>(h, p_end);
         }
         let half_r = 0.5 * self.r;
         let den = self.l + h * self.r + h * half_r * self.gain_sum;
@@ -572,6 +601,44 @@ mod tests {
                 "{segments}: end {p_end} vs {}",
                 x[n]
             );
+        }
+    }
+
+    /// The unrolled flow update (8 and 3 terms) is the general one, bit for bit: the same
+    /// formula written out here, 2000 substeps with moving node pressures.
+    #[test]
+    fn unrolled_flow_update_equals_the_general_loop_bitwise() {
+        for friction in [LineFriction::Unsteady, LineFriction::UnsteadyTrikha] {
+            let mut l = sirohi_line(2e-6, friction);
+            let h = 9e-6;
+            l.prepare(h);
+            let mut r = l.clone();
+            let t = r.terms();
+            let den = r.l + h * r.r + h * 0.5 * r.r * r.gain_sum;
+            for step in 0..2000 {
+                let drive = 1e5 * (step as f64 * 0.01).sin();
+                for (j, (a, b)) in l.p.iter_mut().zip(r.p.iter_mut()).enumerate() {
+                    *a = drive * (j as f64 * 0.3).cos();
+                    *b = *a;
+                }
+                l.advance_flows(h, 0.0);
+                let n = r.p.len();
+                for j in 0..n {
+                    let down = if j + 1 < n { r.p[j + 1] } else { 0.0 };
+                    let mut hist = 0.0;
+                    for i in 0..t {
+                        hist += r.decay[i] * r.y[j * t + i];
+                    }
+                    let dq = h * (r.p[j] - down - r.r * r.q[j] - 0.5 * r.r * hist) / den;
+                    r.q[j] += dq;
+                    for i in 0..t {
+                        r.y[j * t + i] = r.decay[i] * r.y[j * t + i] + r.gain[i] * dq;
+                    }
+                }
+            }
+            assert_eq!(l.q, r.q, "{friction:?}");
+            assert_eq!(l.y, r.y, "{friction:?}");
+            assert!(l.q.iter().any(|q| q.abs() > 0.0));
         }
     }
 
