@@ -1,7 +1,8 @@
 """`ehactl params` prints exactly the registry it printed before the tables moved onto the
 struct fields (`#[derive(Params)]`): every line of tests/fixtures/ehactl_params.txt, captured
 from the binary of main fcc370f (hand-written CONTROL_PARAMS / CANOPEN_PARAMS), in order,
-plus the six switches of the rig sections that the hand-written table left out."""
+plus the six switches of the rig sections that the hand-written table left out and the
+parameters added since (ADDED)."""
 import os
 import pathlib
 import subprocess
@@ -11,9 +12,10 @@ BIN = os.environ.get("EHACTL_BIN", str(REPO / "target" / "release" / "ehactl"))
 FIXTURE = REPO / "tests" / "fixtures" / "ehactl_params.txt"
 
 
-# Lines added on purpose after the fixture: the rig sections' switches, which the
-# hand-written table left out (tests/rust/param_registry.rs checks their entries).
-ADDED = ("control.mode", "setpoint.kind", "setpoint.sweep", "log.compression",
+# Lines added on purpose after the fixture: parameters added since (issue 16: the line
+# scheme and its segment-mode margin) and the rig sections' switches, which the hand-written table left out
+# (tests/rust/param_registry.rs checks their entries). In output order.
+ADDED = ("integration.max_omega_h_line", "integration.line_method", "control.mode", "setpoint.kind", "setpoint.sweep", "log.compression",
          "realtime.lock_memory", "realtime.overrun_policy")
 
 

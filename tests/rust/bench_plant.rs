@@ -32,7 +32,7 @@
 
 use ehactl_config::ControlMode;
 use ehactl_config::RigConfig;
-use ehactl_plant::params::IntegrationMethod;
+use ehactl_plant::params::{IntegrationMethod, LineMethod};
 use ehactl_runtime::session::{build_plant, run_sim, Session, SessionOptions};
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -80,6 +80,10 @@ fn load_avg() -> String {
 #[derive(Clone, Copy, PartialEq, Debug)]
 struct Candidate {
     method: IntegrationMethod,
+    /// Line scheme (rigs with `line_dynamics` only).
+    line: LineMethod,
+    /// `max_omega_h_line` (symplectic line scheme's segment-mode margin; None = max_omega_h).
+    line_moh: Option<f64>,
     /// 0 = automatic.
     substeps: u32,
     max_omega_h: Option<f64>,
@@ -94,8 +98,29 @@ fn method_name(m: IntegrationMethod) -> &'static str {
 }
 
 fn with(cfg: &RigConfig, method: IntegrationMethod, substeps: u32, moh: Option<f64>) -> RigConfig {
+    let ig = &cfg.plant.integration;
+    with_line(
+        cfg,
+        method,
+        ig.line_method,
+        ig.max_omega_h_line,
+        substeps,
+        moh,
+    )
+}
+
+fn with_line(
+    cfg: &RigConfig,
+    method: IntegrationMethod,
+    line: LineMethod,
+    line_moh: Option<f64>,
+    substeps: u32,
+    moh: Option<f64>,
+) -> RigConfig {
     let mut c = cfg.clone();
     c.plant.integration.method = method;
+    c.plant.integration.line_method = line;
+    c.plant.integration.max_omega_h_line = line_moh;
     c.plant.integration.substeps = substeps;
     if let Some(m) = moh {
         c.plant.integration.max_omega_h = m;
@@ -166,14 +191,18 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
     let ee = IntegrationMethod::ExponentialEuler;
     let le = IntegrationMethod::LinearExact;
     let ig = &cfg.plant.integration;
+    let sy = LineMethod::Symplectic;
+    let im = LineMethod::Implicit;
     let mut v = vec![Candidate {
         method: ig.method,
+        line: ig.line_method,
+        line_moh: ig.max_omega_h_line,
         substeps: ig.substeps,
         max_omega_h: None,
         shipped: true,
     }];
     let mut push = |c: Candidate| {
-        let probe = with(cfg, c.method, c.substeps, c.max_omega_h);
+        let probe = with_line(cfg, c.method, c.line, c.line_moh, c.substeps, c.max_omega_h);
         let same = probe.plant.integration == *ig;
         if !same && build_plant(&probe).is_ok() && !v.contains(&c) {
             v.push(c);
@@ -181,6 +210,8 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
     };
     push(Candidate {
         method: ee,
+        line: sy,
+        line_moh: None,
         substeps: 0,
         max_omega_h: Some(0.25),
         shipped: false,
@@ -188,10 +219,14 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
     // Before issue 16 the automatic count was fixed at the smallest chamber volumes
     // (stroke ends) for the whole run: that is `substeps` = the worst-case count.
     if ig.method == ee {
-        let worst = build_plant(cfg).map(|p| p.substeps()).unwrap_or(0);
+        let worst = build_plant(&with_line(cfg, ee, sy, None, 0, None))
+            .map(|p| p.substeps())
+            .unwrap_or(0);
         if worst > 0 {
             push(Candidate {
                 method: ee,
+                line: sy,
+                line_moh: None,
                 substeps: worst,
                 max_omega_h: None,
                 shipped: false,
@@ -207,18 +242,65 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
     {
         push(Candidate {
             method: ig.method,
+            line: ig.line_method,
+            line_moh: ig.max_omega_h_line,
             substeps: n,
             max_omega_h: None,
             shipped: false,
         });
     }
     let e = &cfg.plant.effects;
+    // Line rigs (issue 16, short stiff lines): both line schemes at fixed substeps and the
+    // implicit scheme's automatic rule.
+    if e.line_dynamics.as_ref().is_some_and(|l| l.enabled) {
+        push(Candidate {
+            method: ee,
+            line: im,
+            line_moh: None,
+            substeps: 0,
+            max_omega_h: Some(0.25),
+            shipped: false,
+        });
+        for m in [1.0, 1.5] {
+            push(Candidate {
+                method: ee,
+                line: sy,
+                line_moh: Some(m),
+                substeps: 0,
+                max_omega_h: Some(0.25),
+                shipped: false,
+            });
+        }
+        for (line, n) in [
+            (sy, 16),
+            (sy, 24),
+            (sy, 32),
+            (sy, 64),
+            (im, 4),
+            (im, 8),
+            (im, 12),
+            (im, 16),
+            (im, 24),
+            (im, 32),
+        ] {
+            push(Candidate {
+                method: ee,
+                line,
+                line_moh: None,
+                substeps: n,
+                max_omega_h: None,
+                shipped: false,
+            });
+        }
+    }
     let linear_ok = !e.line_dynamics.as_ref().is_some_and(|l| l.enabled)
         && !e.friction.as_ref().is_some_and(|f| f.enabled);
     if linear_ok {
         for n in [1, 2, 4, 8] {
             push(Candidate {
                 method: le,
+                line: sy,
+                line_moh: None,
                 substeps: n,
                 max_omega_h: None,
                 shipped: false,
@@ -295,7 +377,7 @@ fn main() {
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "load average at start: {}; reps {reps}, reference = exponential_euler at {ref_mult} × auto(ω·h ≤ 0.25)\n",
+        "load average at start: {}; reps {reps}, reference = exponential_euler (lines symplectic) at {ref_mult} × auto(ω·h ≤ 0.25)\n",
         load_avg()
     );
     let _ = writeln!(
@@ -313,8 +395,18 @@ fn main() {
             cfg.run.duration.min(3.0)
         };
         // Mean substeps per period of the default rule (ω·h ≤ 0.25, re-chosen per period).
+        // The reference integrates lines with the `symplectic` scheme (the one whose
+        // accuracy rule includes every segment mode), whatever the rig ships.
+        let sy = LineMethod::Symplectic;
         let auto = {
-            let c = with(&cfg, IntegrationMethod::ExponentialEuler, 0, Some(0.25));
+            let c = with_line(
+                &cfg,
+                IntegrationMethod::ExponentialEuler,
+                sy,
+                None,
+                0,
+                Some(0.25),
+            );
             let (s, _) = run(&c, duration, true);
             let mut plant = build_plant(&c).expect("plant");
             for r in &s.records {
@@ -322,7 +414,16 @@ fn main() {
             }
             (plant.substeps_taken() as f64 / s.records.len() as f64).ceil() as u32
         };
-        let ref_cfg = |n: u32| with(&cfg, IntegrationMethod::ExponentialEuler, n, Some(0.25));
+        let ref_cfg = |n: u32| {
+            with_line(
+                &cfg,
+                IntegrationMethod::ExponentialEuler,
+                sy,
+                None,
+                n,
+                Some(0.25),
+            )
+        };
         let (r_fine, _) = run(&ref_cfg(auto * ref_mult), duration, true);
         let (r_half, _) = run(&ref_cfg(auto * ref_mult / 2), duration, true);
         let (y_ref, pa_ref) = output(&cfg, &r_fine);
@@ -331,7 +432,16 @@ fn main() {
         let cands = candidates(&cfg);
         let cfgs: Vec<RigConfig> = cands
             .iter()
-            .map(|c| with(&cfg, c.method, c.substeps, c.max_omega_h))
+            .map(|c| {
+                with_line(
+                    &cfg,
+                    c.method,
+                    c.line,
+                    c.line_moh,
+                    c.substeps,
+                    c.max_omega_h,
+                )
+            })
             .collect();
         let mut acc = Vec::new();
         for c in &cfgs {
@@ -361,12 +471,24 @@ fn main() {
         }
         for (i, c) in cands.iter().enumerate() {
             let line = format!(
-                "| {rig} | {duration} | {}{}{} | {:.1} | {:.4} % | {:.4} % | {:.1e} % | {:.0}× | {:.0}× | {} |\n",
+                "| {rig} | {duration} | {}{}{}{}{} | {:.1} | {:.4} % | {:.4} % | {:.1e} % | {:.0}× | {:.0}× | {} |\n",
                 method_name(c.method),
+                if cfg.plant.effects.line_dynamics.as_ref().is_some_and(|l| l.enabled) {
+                    match c.line {
+                        LineMethod::Symplectic => " + lines symplectic",
+                        LineMethod::Implicit => " + lines implicit",
+                    }
+                } else {
+                    ""
+                },
                 match (c.substeps, c.max_omega_h) {
                     (0, Some(m)) => format!(" auto ω·h ≤ {m}"),
                     (0, None) => " auto".to_string(),
                     (n, _) => format!(" fixed {n}"),
+                },
+                match (c.substeps, c.line_moh) {
+                    (0, Some(m)) => format!(", segment modes ω·h ≤ {m}"),
+                    _ => String::new(),
                 },
                 if c.shipped { " (shipped)" } else { "" },
                 acc[i].2,

@@ -17,8 +17,17 @@ fn fixture() -> Vec<String> {
 
 /// Entries added on purpose after the fixture: the switches of the rig sections, which the
 /// hand-written table left out (so `ehactl params` did not show them and the loader checked
-/// them only through serde). Their choices are the enums' serde names.
-const ADDED: [(&str, &str); 6] = [
+/// them only through serde), and parameters added since (issue 16: the line scheme and its segment-mode margin).
+/// Their choices are the enums' serde names.
+const ADDED: [(&str, &str); 8] = [
+    (
+        "integration.max_omega_h_line",
+        "-\tWithin(0.01, 1.9)\tFloat",
+    ),
+    (
+        "integration.line_method",
+        r#"-	Finite	Choice(["symplectic", "implicit"])"#,
+    ),
     (
         "control.mode",
         r#"-	Finite	Choice(["force", "position", "open_loop"])"#,

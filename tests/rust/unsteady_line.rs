@@ -142,6 +142,25 @@ fn unsteady_segment_impedance_matches_the_bessel_line() {
     }
 }
 
+/// Issue 16: the implicit line scheme steps without allocating either, also across the
+/// automatic substep changes (its factors are re-computed in place, `Line::prepare`).
+#[test]
+fn implicit_line_scheme_steps_without_allocating() {
+    let mut cfg = RigConfig::from_toml_str(&circuit_text()).expect("config");
+    cfg.plant.integration.line_method = ehactl_plant::params::LineMethod::Implicit;
+    let mut plant = Plant::configure(&cfg.plant, cfg.timebase().period()).expect("plant");
+    plant.step(1.0).unwrap();
+    let before = allocations();
+    for k in 0..2000 {
+        let u = 10.0 * (k as f64 * 0.05).sin();
+        plant.step(u).unwrap();
+    }
+    assert_eq!(allocations() - before, 0, "allocations in 2000 plant steps");
+    assert!(plant.linear_state().iter().all(|v| v.is_finite()));
+    // The automatic rule re-chose the substeps (fewer than the stroke-end maximum).
+    assert!(plant.substeps_taken() < 2001 * plant.substeps() as u64 / 2);
+}
+
 #[test]
 fn unsteady_line_steps_without_allocating_and_stays_finite() {
     let cfg = RigConfig::from_toml_str(&circuit_text()).expect("config");
@@ -210,3 +229,113 @@ fn stiff_convolution_terms_do_not_limit_the_substep() {
         );
     }
 }
+
+/// Piston position and chamber-A pressure every control period of `cfg` run open loop as
+/// configured for `duration` s with the given line scheme and substeps (0 = automatic), and
+/// the mean substeps per period taken.
+fn line_run(
+    cfg: &RigConfig,
+    line: ehactl_plant::params::LineMethod,
+    substeps: u32,
+    duration: f64,
+) -> (Vec<f64>, Vec<f64>, f64) {
+    use ehactl_runtime::session::{run_sim, SessionOptions};
+    let mut c = cfg.clone();
+    c.plant.integration.line_method = line;
+    c.plant.integration.substeps = substeps;
+    let s = run_sim(
+        &c,
+        SessionOptions {
+            duration: Some(duration),
+            capture: true,
+            ..Default::default()
+        },
+    )
+    .expect("run");
+    assert!(s.outcome.trip.is_none(), "tripped");
+    // Substeps taken: replay the commands (deterministic plant, same trajectory).
+    let mut plant = Plant::configure(&c.plant, c.timebase().period()).expect("plant");
+    for r in &s.records {
+        plant.step(r.command).expect("replay");
+    }
+    (
+        s.records.iter().map(|r| r.plant.x).collect(),
+        s.records.iter().map(|r| r.plant.p_a).collect(),
+        plant.substeps_taken() as f64 / s.records.len() as f64,
+    )
+}
+
+/// RMS(f − r) / (max r − min r).
+fn nrmse(f: &[f64], r: &[f64]) -> f64 {
+    let ss: f64 = f.iter().zip(r).map(|(a, b)| (a - b) * (a - b)).sum();
+    let (lo, hi) = r
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    (ss / r.len() as f64).sqrt() / (hi - lo)
+}
+
+/// Issue 16, both seed-001 rigs against the `symplectic` line scheme converged at 1024
+/// substeps per period (segment mode ω·h = 0.031) — every run integrates the same lumped ODE:
+/// 1. as shipped (`max_omega_h_line = 1.5`: the segment modes at a stability margin, the
+///    wave and chamber modes at ω·h ≤ 0.25): 22 substeps instead of 127, within the NRMSE
+///    bounds below (BENCHMARKS.md measures 0.02–0.04 % position, 0.09–0.12 % p_A over the
+///    whole runs);
+/// 2. `line_method = "implicit"` at its automatic substeps (no segment mode in the rule):
+///    13 substeps, within the position bound (p_A: see below), and converging as its step shrinks (4× the substeps,
+///    ≥ 3× smaller error: the chain is second order, the chamber–piston pair and the valve
+///    node first order).
+#[test]
+fn shipped_and_implicit_line_schemes_follow_the_converged_run() {
+    use ehactl_plant::params::LineMethod;
+    for rig in ["sirohi2003_lines.toml", "sirohi2003_circuit.toml"] {
+        let cfg = ehactl_tests::config(rig);
+        assert_eq!(cfg.plant.integration.max_omega_h_line, Some(1.5), "{rig}");
+        let d = 0.3;
+        let mut fine = cfg.clone();
+        fine.plant.integration.max_omega_h_line = None;
+        let (x_ref, pa_ref, _) = line_run(&fine, LineMethod::Symplectic, 1024, d);
+        let (_, _, n_old) = line_run(&fine, LineMethod::Symplectic, 0, d);
+        let (xs, pas, n_sym) = line_run(&cfg, LineMethod::Symplectic, 0, d);
+        let (x, pa, n_imp) = line_run(&cfg, LineMethod::Implicit, 0, d);
+        let (x4, pa4, _) = line_run(&cfg, LineMethod::Implicit, 4 * n_imp.ceil() as u32, d);
+        let (es, epas) = (nrmse(&xs, &x_ref), nrmse(&pas, &pa_ref));
+        let (ex, epa) = (nrmse(&x, &x_ref), nrmse(&pa, &pa_ref));
+        let (ex4, epa4) = (nrmse(&x4, &x_ref), nrmse(&pa4, &pa_ref));
+        println!(
+            "{rig}: before {n_old:.1} substeps; shipped {n_sym:.1}: NRMSE x {:.2e} %, p_A {:.2e} %; implicit {n_imp:.1}: {:.2e} % / {:.2e} %, at 4× the substeps {:.2e} % / {:.2e} %",
+            100.0 * es,
+            100.0 * epas,
+            100.0 * ex,
+            100.0 * epa,
+            100.0 * ex4,
+            100.0 * epa4
+        );
+        assert!(
+            n_old > 120.0 && n_sym <= 22.0 && n_imp <= 13.0,
+            "{n_old} {n_sym} {n_imp}"
+        );
+        assert!(
+            es < TOL_X && epas < TOL_PA,
+            "{rig} shipped: {es:e} {epas:e}"
+        );
+        // The circuit's p_A moves little in the first 0.3 s (the 50–60 Hz start of the chirp):
+        // there the implicit chain's numerical modes, damped 1 + (ω·h/2)² times more slowly
+        // than the ODE's, show as 2.8 % (0.24 % over the whole 1 s run, BENCHMARKS.md).
+        assert!(
+            ex < TOL_X && epa < 4.0 * TOL_PA,
+            "{rig} implicit: {ex:e} {epa:e}"
+        );
+        assert!(
+            ex4 < ex / 3.0 && epa4 < epa / 3.0,
+            "{rig}: {ex4:e} {epa4:e}"
+        );
+    }
+}
+
+/// NRMSE bounds (fraction of the reference's range) against the converged run: piston
+/// position, chamber-A pressure (measured over these 0.3 s: shipped 0.021 % / 0.13 % on
+/// the lines rig, 0.016 % / 0.48 % on the circuit).
+const TOL_X: f64 = 5e-4;
+const TOL_PA: f64 = 1e-2;

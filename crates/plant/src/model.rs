@@ -14,6 +14,10 @@
 //!
 //! Steps 2→3 form a symplectic Euler pair for the hydraulic spring, stable for ω·h < 2;
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
+//! With `integration.line_method = "implicit"` step 2 for a rig with lines is one
+//! trapezoidal solve of each chain from the valve-side node to the chamber
+//! ([`Line::advance_implicit`]); no segment mode enters the rule then, only the line's
+//! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see [`fastest_mode`]).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
 use crate::effects::validate_variants;
@@ -100,6 +104,10 @@ struct Consts {
     /// The mount is the cylinder body's (`flexible_mount` variant `piston_side`).
     body_mount: bool,
     delay: f64,
+    /// `max_omega_h / max_omega_h_line` (-): the line segment modes of the symplectic line
+    /// scheme enter the substep rule scaled by it (a stability margin instead of the
+    /// accuracy rule, see [`fastest_mode`]).
+    line_scale: f64,
 }
 
 /// The simulated actuator.
@@ -120,6 +128,8 @@ pub struct Plant {
     excitation: ExcitationModel,
     sensors: SensorModel,
     lines: Option<(Line, Line)>,
+    /// Lines integrated by [`Line::advance_implicit`] (`integration.line_method = "implicit"`).
+    implicit_lines: bool,
     /// Counterbalance valves at the cylinder ends of lines A and B ([`crate::cbv`]).
     cbv: [Option<Cbv>; 2],
     /// Work port → tank bleed of the directional valve (m³/(s·Pa)), with the CBVs.
@@ -386,6 +396,11 @@ impl Plant {
                 .as_ref()
                 .filter(|d| d.enabled)
                 .map_or(0.0, |d| d.delay),
+            line_scale: params.integration.max_omega_h
+                / params
+                    .integration
+                    .max_omega_h_line
+                    .unwrap_or(params.integration.max_omega_h),
         };
         let lines = e.line_dynamics.as_ref().filter(|l| l.enabled).map(|l| {
             (
@@ -399,8 +414,24 @@ impl Plant {
                 .filter(|c| c.sides == side || c.sides == CbvSides::Both)
                 .map(|c| Cbv::new(c, params.fluid.density, params.fluid.bulk_modulus))
         });
+        let implicit_lines = lines.is_some()
+            && params.integration.line_method == crate::params::LineMethod::Implicit;
+        if implicit_lines && cbv.iter().any(|c| c.is_some()) {
+            return Err(ConfigError::new(
+                "integration.line_method",
+                "\"implicit\" solves each line from the valve port to the chamber; with \
+                 effects.counterbalance_valve between line end and chamber use \"symplectic\"",
+            ));
+        }
         // Fastest oscillatory mode over the whole stroke (rad/s): the smallest chamber volumes.
-        let mut omega_max = fastest_mode(&c, lines.as_ref().map(|l| &l.0), &cbv, c.v_a0, c.v_b0);
+        let mut omega_max = fastest_mode(
+            &c,
+            lines.as_ref().map(|l| &l.0),
+            implicit_lines,
+            &cbv,
+            c.v_a0,
+            c.v_b0,
+        );
         if let (true, Some((ml, km, dm))) = (c.body_mount, c.mount) {
             // A compliant cylinder body sees its mount and the oil column.
             let k_oil = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0);
@@ -524,6 +555,7 @@ impl Plant {
             excitation: ExcitationModel::new(&params.excitation),
             sensors: SensorModel::new(&params.sensors, e.sensor_tone.as_ref()),
             lines,
+            implicit_lines,
             cbv,
             port_bleed: cbv_cfg.map_or(0.0, |c| c.port_bleed),
             control_dt,
@@ -858,7 +890,14 @@ impl Plant {
         let x_hi = (s.x + reach).clamp(0.0, c.stroke);
         let va = c.v_a0 + c.a_a * x_lo;
         let vb = c.v_b0 + c.a_b * (c.stroke - x_hi);
-        let w = fastest_mode(c, self.lines.as_ref().map(|l| &l.0), &self.cbv, va, vb);
+        let w = fastest_mode(
+            c,
+            self.lines.as_ref().map(|l| &l.0),
+            self.implicit_lines,
+            &self.cbv,
+            va,
+            vb,
+        );
         let n = ((self.control_dt * w / max_omega_h).ceil() as u32).clamp(1, self.substeps_max);
         if n > self.substeps || 4 * n <= 3 * self.substeps {
             self.set_substeps(n);
@@ -1054,6 +1093,33 @@ impl Plant {
                 s.p_a = (s.p_a + h * fa * phi1(la * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lb * h)).max(c.p_cav);
             }
+            Some((la, lb)) if self.implicit_lines => {
+                // Whole chains valve node → chamber, trapezoidal (crate::line); no CBVs here
+                // (configure refuses them), the port bleed is theirs too, so 0.
+                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, la.p[0]);
+                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, lb.p[0]);
+                s.q_a = qa;
+                s.q_b = qb;
+                q_sa = qsa;
+                q_sb = qsb;
+                let end_a = crate::line::EndNode {
+                    p: s.p_a,
+                    cap: va / beta_a,
+                    flow: -c.a_a * s.v - q_in - c.k_ext * s.p_a,
+                    dflow: -c.k_in - c.k_ext,
+                };
+                let end_b = crate::line::EndNode {
+                    p: s.p_b,
+                    cap: vb / beta_b,
+                    flow: c.a_b * s.v + q_in - c.k_ext_b * s.p_b,
+                    dflow: -c.k_in - c.k_ext_b,
+                };
+                s.p_a = la.advance_implicit(h, qa, dqa, end_a).max(c.p_cav);
+                s.p_b = lb.advance_implicit(h, qb, dqb, end_b).max(c.p_cav);
+                for p in la.p.iter_mut().chain(lb.p.iter_mut()) {
+                    *p = p.max(c.p_cav);
+                }
+            }
             Some((la, lb)) => {
                 // Valve-side nodes, exponential Euler in their own pressure.
                 let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, la.p[0]);
@@ -1223,8 +1289,20 @@ impl Plant {
 
 /// Fastest oscillatory mode (rad/s) of the `exponential_euler` scheme with chamber volumes
 /// `va`, `vb` (m³): hydraulic spring + load spring on the piston mass, mount, line segments,
-/// line end against the chamber or a CBV body.
-fn fastest_mode(c: &Consts, line: Option<&Line>, cbv: &[Option<Cbv>; 2], va: f64, vb: f64) -> f64 {
+/// line end against the chamber or a CBV body. The segment mode and the line end against the
+/// chamber enter scaled by `max_omega_h / max_omega_h_line` (`Consts::line_scale`), so the
+/// rule ω·h ≤ `max_omega_h` on the result holds them to ω·h ≤ `max_omega_h_line`. With `implicit_line` (the trapezoidal chain
+/// of [`Line::advance_implicit`], stable at any step) the segment modes and the line end
+/// against the chamber are no stability limit and the lumping's high modes are numerical,
+/// not physical: the line contributes its half-wave mode π/T ([`Line::omega_wave`]) only.
+fn fastest_mode(
+    c: &Consts,
+    line: Option<&Line>,
+    implicit_line: bool,
+    cbv: &[Option<Cbv>; 2],
+    va: f64,
+    vb: f64,
+) -> f64 {
     let mut k_total = c.beta_max * (c.a_a * c.a_a / va + c.a_b * c.a_b / vb) + c.k_load;
     let mut omega_max: f64 = 0.0;
     if let Some((ml, km, dm)) = c.mount {
@@ -1233,11 +1311,18 @@ fn fastest_mode(c: &Consts, line: Option<&Line>, cbv: &[Option<Cbv>; 2], va: f64
         omega_max = omega_max.max(dm / c.mass);
     }
     omega_max = omega_max.max((k_total / c.mass).sqrt());
-    if let Some(la) = line {
-        omega_max = omega_max.max(la.omega_max());
+    if let Some(la) = line.filter(|_| implicit_line) {
+        omega_max = omega_max.max(la.omega_wave());
+    } else if let Some(la) = line {
+        omega_max = omega_max.max(c.line_scale * la.omega_max());
+        if c.line_scale < 1.0 {
+            // Segment modes held to a stability margin only: the line's own wave modes keep
+            // the accuracy rule.
+            omega_max = omega_max.max(la.omega_wave());
+        }
         // Line node coupled to the chamber through the last segment.
         let c_min = la.c.min(va.min(vb) / c.beta_max);
-        omega_max = omega_max.max(2.0 / (la.l * c_min).sqrt());
+        omega_max = omega_max.max(c.line_scale * 2.0 / (la.l * c_min).sqrt());
         // Last segment against a CBV body volume.
         for cb in cbv.iter().flatten() {
             omega_max = omega_max.max(2.0 / (la.l * cb.c_node.min(la.c)).sqrt());

@@ -875,6 +875,13 @@ pub struct Integration {
     #[serde(default = "Integration::default_omega_h")]
     #[param(unit = "-", range = Within(0.01, 1.5), desc = "largest ω·h for automatic substeps")]
     pub max_omega_h: f64,
+    /// Largest ω·h (-) for the line segment modes of the `symplectic` line scheme (the
+    /// segment mode 2/√(LC) and the last segment against the chamber): a *stability* margin
+    /// (the scheme is stable for ω·h < 2, without amplitude error; these modes are the
+    /// lumping's numerical modes, far above the line's physical ones); default: `max_omega_h`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[param(unit = "-", range = Within(0.01, 1.9), desc = "largest ω·h for the line segment modes (symplectic line scheme; default max_omega_h)")]
+    pub max_omega_h_line: Option<f64>,
     /// Integration scheme of the substep (see [`crate::model`]).
     #[serde(default)]
     #[param(
@@ -883,6 +890,34 @@ pub struct Integration {
          discretised exactly; exponential_euler is used with lines, friction or polynomial effects)"
     )]
     pub method: IntegrationMethod,
+    /// Integration of the `line_dynamics` segment chains (see [`crate::line`]).
+    #[serde(default)]
+    #[param(
+        choice,
+        desc = "line segment scheme: symplectic (default; the segment mode 2/√(LC) enters the \
+         ω·h rule) or implicit (trapezoidal chain solved per substep; only the line's wave \
+         mode and the chambers set the substep; not with counterbalance_valve)"
+    )]
+    pub line_method: LineMethod,
+}
+
+/// Integration of the lumped line segments ([`crate::line`] explains both).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LineMethod {
+    /// Nodes from the old flows, flows from the new pressures (symplectic Euler, R
+    /// implicit): stable for ω·h < 2, so the highest segment mode 2/√(LC) sets the substep.
+    #[default]
+    Symplectic,
+    /// Trapezoidal rule on the whole chain (valve node, segments, chamber) as one
+    /// tridiagonal system per substep: unconditionally stable, energy-conserving without
+    /// friction; the substep resolves the line's half-wave mode π/T instead of 2/√(LC).
+    Implicit,
+}
+
+impl LineMethod {
+    /// Config spellings.
+    pub const NAMES: &'static [&'static str] = &["symplectic", "implicit"];
 }
 
 /// Integration scheme of one substep ([`crate::model`] explains both).
@@ -914,7 +949,9 @@ impl Default for Integration {
         Self {
             substeps: 0,
             max_omega_h: Self::default_omega_h(),
+            max_omega_h_line: None,
             method: IntegrationMethod::default(),
+            line_method: LineMethod::default(),
         }
     }
 }

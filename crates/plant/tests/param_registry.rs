@@ -28,6 +28,10 @@ fn row(p: &spec::Param) -> [String; 5] {
     ]
 }
 
+/// Entries added on purpose after the fixture (issue 16: the line scheme and the segment
+/// modes' stability margin); tests/rust/param_registry.rs checks their rows.
+const ADDED: [&str; 2] = ["integration.max_omega_h_line", "integration.line_method"];
+
 #[test]
 fn generated_registry_equals_the_hand_written_table() {
     let old = fixture();
@@ -38,9 +42,13 @@ fn generated_registry_equals_the_hand_written_table() {
         assert_eq!(n, Some(r), "entry {} differs or is missing", r[0]);
     }
     for n in &new {
-        assert!(old.iter().any(|r| r[0] == n[0]), "new entry {}", n[0]);
+        assert!(
+            old.iter().any(|r| r[0] == n[0]) || ADDED.contains(&n[0].as_str()),
+            "new entry {}",
+            n[0]
+        );
     }
-    assert_eq!(old.len(), new.len(), "duplicate paths");
+    assert_eq!(old.len() + ADDED.len(), new.len(), "duplicate paths");
 }
 
 /// Every effect section, each with its required fields.
