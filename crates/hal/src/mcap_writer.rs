@@ -639,10 +639,26 @@ mod tests {
     use std::io::Read;
     use std::path::Path;
 
-    fn tmp(name: &str) -> std::path::PathBuf {
-        let dir = std::env::temp_dir().join(format!("ehactl_mcapw_{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        dir.join(name)
+    /// A directory of one test's own, removed when the test ends (passed or not).
+    struct TmpDir(std::path::PathBuf);
+
+    impl TmpDir {
+        fn new(test: &str) -> TmpDir {
+            let dir =
+                std::env::temp_dir().join(format!("ehactl_mcapw_{}_{test}", std::process::id()));
+            std::fs::create_dir_all(&dir).unwrap();
+            TmpDir(dir)
+        }
+
+        fn path(&self, name: &str) -> std::path::PathBuf {
+            self.0.join(name)
+        }
+    }
+
+    impl Drop for TmpDir {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
     }
 
     /// Pseudo-random bytes (an LCG), so LZ4 has something that does not compress.
@@ -863,9 +879,10 @@ mod tests {
     #[test]
     fn files_read_back_like_the_mcap_crate_writers_own() {
         let msgs = messages();
+        let dir = TmpDir::new("crate_writer");
         for compression in [Compression::Lz4, Compression::None] {
-            let a = tmp(&format!("ours_{compression:?}.mcap"));
-            let b = tmp(&format!("ref_{compression:?}.mcap"));
+            let a = dir.path(&format!("ours_{compression:?}.mcap"));
+            let b = dir.path(&format!("ref_{compression:?}.mcap"));
             ours(&a, compression, &msgs);
             reference(&b, compression, &msgs);
             let (a, b) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
@@ -969,7 +986,8 @@ mod tests {
     #[test]
     fn crcs_are_checked_by_the_reader_and_match_the_bytes() {
         let msgs: Vec<Msg> = messages().into_iter().take(3000).collect();
-        let a = tmp("crc.mcap");
+        let dir = TmpDir::new("crc");
+        let a = dir.path("crc.mcap");
         ours(&a, Compression::Lz4, &msgs);
         let bytes = std::fs::read(&a).unwrap();
         // Footer: summary start, summary offset start, summary CRC; then the magic.
@@ -995,7 +1013,8 @@ mod tests {
     #[test]
     fn a_file_cut_after_a_flush_is_recoverable() {
         let msgs: Vec<Msg> = messages().into_iter().take(2500).collect();
-        let a = tmp("cut.mcap");
+        let dir = TmpDir::new("cut");
+        let a = dir.path("cut.mcap");
         let file = File::create(&a).unwrap();
         let mut w = Writer::new(file, "ros2", "test", Compression::Lz4, 1 << 20).unwrap();
         let s = w.add_schema("S", "jsonschema", b"{}").unwrap();
@@ -1008,8 +1027,7 @@ mod tests {
             w.write_message(c, m.seq, m.t, m.t, b"{}").unwrap();
         }
         drop(w); // killed: the open chunk, the summary and the footer never reach the file
-        let out = tmp("cut_recovered.mcap");
-        let _ = std::fs::remove_file(&out);
+        let out = dir.path("cut_recovered.mcap");
         let rep = crate::recover::recover(&a, &out).unwrap();
         assert_eq!(rep.count("/x"), 2000);
         assert!(!rep.was_complete);
