@@ -1171,14 +1171,15 @@ impl Plant {
                         cb.advance_poppet(h, p_ch, pilot);
                         let (q, dq) = cb.flow(cb.s.p_node, p_ch);
                         let f = (q_line - q) / cb.c_node;
-                        let lam = -dq / cb.c_node;
-                        let pn = (cb.s.p_node + h * f * phi1(lam * h)).max(c.p_cav);
+                        let w = phi1(-dq / cb.c_node * h);
+                        let pn = (cb.s.p_node + h * f * w).max(c.p_cav);
                         let q_out = q_line - cb.c_node * (pn - cb.s.p_node) / h;
                         cb.s.p_node = pn;
                         cb.s.q = q_out;
                         into[i] = q_out;
-                        // ∂q_out/∂p_ch = −(C/h)·(1 − e^(λh)) (→ −dq for λh → 0).
-                        dinto[i] = -cb.c_node / h * (lam * h).exp_m1();
+                        // ∂q_out/∂p_ch = −(C/h)·(1 − e^(λh)) = −dq·φ₁(λh), λ = −dq/C
+                        // (→ −dq for λh → 0).
+                        dinto[i] = dq * w;
                         p_end[i] = pn;
                     }
                 }
