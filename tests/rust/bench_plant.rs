@@ -90,6 +90,20 @@ struct Candidate {
     shipped: bool,
 }
 
+impl Candidate {
+    /// `cfg` with this candidate's integration settings.
+    fn config(&self, cfg: &RigConfig) -> RigConfig {
+        with_line(
+            cfg,
+            self.method,
+            self.line,
+            self.line_moh,
+            self.substeps,
+            self.max_omega_h,
+        )
+    }
+}
+
 fn method_name(m: IntegrationMethod) -> &'static str {
     match m {
         IntegrationMethod::ExponentialEuler => "exponential_euler",
@@ -202,7 +216,7 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
         shipped: true,
     }];
     let mut push = |c: Candidate| {
-        let probe = with_line(cfg, c.method, c.line, c.line_moh, c.substeps, c.max_omega_h);
+        let probe = c.config(cfg);
         let same = probe.plant.integration == *ig;
         if !same && build_plant(&probe).is_ok() && !v.contains(&c) {
             v.push(c);
@@ -430,19 +444,7 @@ fn main() {
         let (y_half, _) = output(&cfg, &r_half);
         let ref_err = nrmse(&y_half, &y_ref);
         let cands = candidates(&cfg);
-        let cfgs: Vec<RigConfig> = cands
-            .iter()
-            .map(|c| {
-                with_line(
-                    &cfg,
-                    c.method,
-                    c.line,
-                    c.line_moh,
-                    c.substeps,
-                    c.max_omega_h,
-                )
-            })
-            .collect();
+        let cfgs: Vec<RigConfig> = cands.iter().map(|c| c.config(&cfg)).collect();
         let mut acc = Vec::new();
         for c in &cfgs {
             let (s, _) = run(c, duration, true);

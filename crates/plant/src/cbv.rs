@@ -43,11 +43,6 @@ pub enum CbvSides {
     B,
 }
 
-impl CbvSides {
-    /// Config spellings.
-    pub const NAMES: &'static [&'static str] = &["both", "a", "b"];
-}
-
 fn yes() -> bool {
     true
 }

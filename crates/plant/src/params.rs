@@ -915,11 +915,6 @@ pub enum LineMethod {
     Implicit,
 }
 
-impl LineMethod {
-    /// Config spellings.
-    pub const NAMES: &'static [&'static str] = &["symplectic", "implicit"];
-}
-
 /// Integration scheme of one substep ([`crate::model`] explains both).
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
 #[serde(rename_all = "snake_case")]
@@ -931,11 +926,6 @@ pub enum IntegrationMethod {
     /// valve flow at the mid-step spool position; rigs with lines, friction or the polynomial
     /// grey-box effects run `exponential_euler` instead.
     LinearExact,
-}
-
-impl IntegrationMethod {
-    /// Config spellings.
-    pub const NAMES: &'static [&'static str] = &["exponential_euler", "linear_exact"];
 }
 
 impl Integration {
