@@ -114,8 +114,10 @@ pub struct Candidate {
 /// Full result of a diagnosis.
 #[derive(Debug, Clone, Serialize)]
 pub struct Diagnosis {
-    /// Top effect id, `none` (the nominal model explains the data within the noise) or
-    /// `unexplained` (the residual is not noise and no catalogue effect explains it).
+    /// Top effect id, `none` (the nominal model explains the data within the noise), the
+    /// grey-box law in physical terms when no catalogue effect explains the data but the law
+    /// does (its first term with value and unit, e.g. `load-side yield force 576 N (…)`), or
+    /// `unexplained` (the residual is not noise and nothing explains it).
     pub cause: String,
     /// Accepted effect ids in order of acceptance.
     pub causes: Vec<String>,
@@ -254,6 +256,31 @@ impl Ctx<'_> {
             drive: self.drive,
             offsets: self.offsets,
         }
+    }
+    /// The fitting part cut in two for a transfer check: fit on its first `frac`, predict the
+    /// rest (on a chirp or a sweep, other content). `None` when a segment would be shorter than
+    /// 200 samples.
+    pub(crate) fn transfer_split(&self, frac: f64) -> Option<Ctx<'_>> {
+        let na = (self.n_fit as f64 * frac).round() as usize;
+        if na < 200 || self.n_fit.saturating_sub(na) < 200 {
+            return None;
+        }
+        Some(Ctx {
+            fit_rec: self.fit_rec,
+            fit_base: self.fit_base.clone(),
+            n_fit: na,
+            val_rec: self.fit_rec,
+            val_base: self.fit_base.clone(),
+            val_range: na..self.n_fit,
+            sd_fit: self
+                .fit_rec
+                .channels
+                .iter()
+                .map(|c| std(&c.values[..na]).max(1e-300))
+                .collect(),
+            drive: self.drive,
+            offsets: self.offsets,
+        })
     }
     /// Base parameters of the fit record.
     pub(crate) fn fit_base_params(&self) -> &PlantParams {
@@ -506,8 +533,21 @@ pub fn diagnose(
 ) -> Result<Diagnosis, String> {
     let nom = phase_nominal(nominal, rec, val, opts)?;
     let bar = Tracker::new(&opts.progress, 1, "refit nominal");
-    let refit = phase_refit(&nom, nominal, opts, &bar);
-    let search = phase_candidates(&nom, &refit, nominal, opts, &bar);
+    // The model as configured reproduces the data within the noise: nothing to refit or add
+    // (a refit could only fit the noise).
+    let explained = nom.integration.configured_step_explains;
+    let refit = phase_refit(&nom, nominal, opts, &bar, !explained);
+    let search = if explained {
+        SearchPhase {
+            current: refit.h0.clone(),
+            cur_train: refit.c0_train,
+            accepted: vec![],
+            candidates: BTreeMap::new(),
+            ambiguities: vec![],
+        }
+    } else {
+        phase_candidates(&nom, &refit, nominal, opts, &bar)
+    };
     let resid = phase_residual_test(&nom, &refit, &search);
     Ok(phase_report(
         nom, refit, search, resid, nominal, rec, val, opts,
@@ -583,6 +623,33 @@ fn phase_nominal<'a>(
     );
     let mut val_base = replay_params(nominal, val_rec);
     val_base.integration = fit_base.integration.clone();
+    let (fit_base, val_base, integration, drive, split) = match configured_step_explains(
+        nominal,
+        rec,
+        val_rec,
+        val_range.clone(),
+        opts.drive,
+    ) {
+        Some((f, v, d)) => {
+            let split = match (opts.drive, d) {
+                    (Drive::PositionPd(_), Drive::Recorded) => format!(
+                        "{split}; the open-loop replay of the recorded command `u` reproduces the data at the config's own step, so it is used instead (the rig's loop acted on measured, noisy positions the closed-loop replay does not have)"
+                    ),
+                    _ => split,
+                };
+            (
+                f,
+                v,
+                crate::replay::IntegrationCheck {
+                    configured_step_explains: true,
+                    ..integration
+                },
+                d,
+                split,
+            )
+        }
+        None => (fit_base, val_base, integration, opts.drive, split),
+    };
     let sd_fit: Vec<f64> = rec
         .channels
         .iter()
@@ -601,7 +668,7 @@ fn phase_nominal<'a>(
         val_base,
         val_range: val_range.clone(),
         sd_fit,
-        drive: opts.drive,
+        drive,
         offsets: opts.sensor_offsets,
     };
     let nom_sim = ctx
@@ -644,6 +711,66 @@ fn phase_nominal<'a>(
     })
 }
 
+/// The nominal model replayed at the config's own integration (no refinement: substeps as
+/// `ehactl run` takes them, automatic where the config says so): when its held-out residual
+/// is noise on every channel (the level-and-whiteness test of the final answer, against the
+/// noise floor of that residual), returns the fit and validation parameters to keep. A
+/// record of the config's own run is reproduced this way up to its sensor noise; a replay at
+/// a finer step differs from it by the run's integration error (first-order scheme: position
+/// and rod force lead the converged solution by about one substep), which the diagnosis
+/// would otherwise report as a model discrepancy.
+fn configured_step_explains(
+    nominal: &PlantParams,
+    rec: &Record,
+    val_rec: &Record,
+    val_range: std::ops::Range<usize>,
+    drive: Drive,
+) -> Option<(PlantParams, PlantParams, Drive)> {
+    let fit = replay_params(nominal, rec);
+    let val = replay_params(nominal, val_rec);
+    // The configured drive first; for a closed-loop replay also the recorded command, which
+    // carries what the rig's loop did with its noisy measurements.
+    let mut drives = vec![drive];
+    if matches!(drive, Drive::PositionPd(_)) {
+        drives.push(Drive::Recorded);
+    }
+    drives
+        .into_iter()
+        .find(|d| reproduces(&val, val_rec, val_range.clone(), *d))
+        .map(|d| (fit, val, d))
+}
+
+/// Whether the replay of `val_rec` with `p` and `drive` leaves a held-out residual that is
+/// noise on every channel (see [`configured_step_explains`]).
+fn reproduces(
+    p: &PlantParams,
+    val_rec: &Record,
+    val_range: std::ops::Range<usize>,
+    drive: Drive,
+) -> bool {
+    let Ok(sim) = replay_with(p, val_rec, val_rec.len(), drive) else {
+        return false;
+    };
+    if sim.failed {
+        return false;
+    }
+    let floor: Vec<f64> = val_rec
+        .channels
+        .iter()
+        .zip(&sim.y)
+        .map(|(c, yh)| {
+            let y = &c.values[val_range.clone()];
+            let e: Vec<f64> = y
+                .iter()
+                .zip(&yh[val_range.clone()])
+                .map(|(a, b)| a - b)
+                .collect();
+            crate::replay::noise_level(&e).min(crate::replay::noise_level(y)) / std(y).max(1e-300)
+        })
+        .collect();
+    crate::residual::test("nominal", val_rec, &sim, val_range, &floor).noise
+}
+
 /// What the refit phase hands on.
 struct RefitPhase {
     h0: Hyp,
@@ -663,6 +790,7 @@ fn phase_refit(
     nominal: &PlantParams,
     opts: &Options,
     bar: &Tracker,
+    refit: bool,
 ) -> RefitPhase {
     let ctx = &nom.ctx;
     let base = base_params(nominal);
@@ -672,7 +800,12 @@ fn phase_refit(
         values: base.iter().map(|p| p.init).collect(),
         params: base,
     };
-    let (h0, c0_train) = ctx.fit(h0, usize::MAX, opts.evals_per_param);
+    let (h0, c0_train) = if refit {
+        ctx.fit(h0, usize::MAX, opts.evals_per_param)
+    } else {
+        let e = errors(ctx.fit_rec, &nom.nom_sim, 0..nom.n_fit);
+        (h0, e.overall * e.overall)
+    };
     bar.inc();
     let (refit_err, refit_val_sim) = ctx.val_errors(&h0);
     // Noise floor from the refit model's held-out residual (signal content removed); the
@@ -691,7 +824,7 @@ fn phase_refit(
             let e: Vec<f64> = y.iter().zip(&yh[vr.clone()]).map(|(a, b)| a - b).collect();
             let f = crate::replay::noise_level(&e).min(crate::replay::noise_level(y))
                 / std(y).max(1e-300);
-            let ig = if nom.integration.met {
+            let ig = if nom.integration.met || nom.integration.configured_step_explains {
                 0.0
             } else {
                 2.0 * nom
@@ -1191,6 +1324,18 @@ fn phase_report(
     } else {
         None
     };
+    // A grey-box law that carries the gain (its held-out error below the catalogue model's) is
+    // the cause, named in physical terms, not `unexplained`.
+    let cause = match greybox.as_ref() {
+        Some(g)
+            if g.accepted
+                && cause == "unexplained"
+                && g.nrmse_validation.overall < ext_err.overall =>
+        {
+            g.cause().unwrap_or(cause)
+        }
+        _ => cause,
+    };
     let (extended, ext_fit_sim, ext_val_sim) = if greybox.as_ref().is_some_and(|g| g.accepted) {
         (
             final_hyp.build(nominal),
@@ -1219,6 +1364,12 @@ fn phase_report(
         rf.noise_floor,
         &ambiguities,
     );
+    if nom.integration.configured_step_explains {
+        summary = format!(
+            "The nominal model as configured, replayed at the config's own integration step, reproduces the held-out data within the noise (held-out NRMSE {:.4}, estimated noise floor {:.4}); nothing was refitted or added. The answer is `none`.",
+            nom.nom_err.overall, rf.noise_floor
+        );
+    }
     if let Some(sig) = &residual_test.signature {
         let lv: Vec<String> = residual_test
             .channels
@@ -1327,6 +1478,14 @@ fn integration_warning(ig: &crate::replay::IntegrationCheck) -> Option<String> {
         .map(|(k, e)| (k, e / ig.floor.get(k).copied().unwrap_or(0.0).max(1e-12)))
         .max_by(|a, b| a.1.total_cmp(&b.1))?;
     let need = (ig.substeps as f64 * worst.1 / ig.ratio_limit * 1.2).ceil();
+    if ig.configured_step_explains {
+        // First order: the error at the config's step is the chosen step's × the step ratio.
+        let at_config = worst.1 * ig.substeps as f64 / ig.config_substeps.max(1) as f64;
+        return Some(format!(
+            "the nominal model at the config's own integration ({} substeps per sample) reproduces these data within the noise, so they were replayed at that step (as `ehactl run` steps it); its integration error there, ≈ {at_config:.1}× the noise floor on `{}`, would count against data of the physical rig: set [plant.integration] substeps = {need:.0} for a replay accurate to the noise (≈ {:.0}× the run time)",
+            ig.config_substeps, worst.0, need / ig.config_substeps.max(1) as f64
+        ));
+    }
     Some(format!(
         "replay integration error on `{}` is {:.2}× its noise floor with {} substeps (required ≤ {}; the cost limit {}× the config's {} substeps was reached): it is counted as noise (added to the floor), so small effects may go undetected; set [plant.integration] substeps = {need:.0} in the config for an accurate replay (≈ {:.0}× the run time)",
         worst.0, worst.1, ig.substeps, ig.ratio_limit, ig.max_cost, ig.config_substeps, need / ig.config_substeps.max(1) as f64

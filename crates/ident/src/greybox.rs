@@ -49,16 +49,40 @@ pub struct Term {
     pub value: f64,
     /// Unit of the coefficient.
     pub unit: String,
+    /// What the term is (e.g. `load-side yield force`).
+    pub name: String,
     /// The term in physical words.
     pub physics: String,
     /// Fitting-part overall NRMSE after this term was added (-).
     pub nrmse_train: f64,
+    /// Overall NRMSE on the predicted segment of the fitting part (the transfer check) after
+    /// this term was added, the terms fitted on the segment before it (-); `None` when the
+    /// fitting part was too short to split.
+    pub nrmse_transfer: Option<f64>,
     /// Held-out overall NRMSE after this term was added (-): reported, never used to choose.
     pub nrmse_validation: f64,
     /// Bound of the coefficient (±, SI) after any widening.
     pub bound: f64,
     /// Whether the final coefficient sits on its bound (a proxy, not a finding).
     pub at_bound: bool,
+}
+
+/// Fraction of the fitting part on which the terms are fitted for the transfer check; the
+/// rest is predicted (-).
+pub const TRANSFER_SPLIT: f64 = 0.6;
+
+/// The transfer check of the grey-box law: fitted on one segment of the fitting part,
+/// predicting the next.
+#[derive(Debug, Clone, Serialize)]
+pub struct Transfer {
+    /// Samples the terms were fitted on (indices into the fitting record).
+    pub fit_samples: std::ops::Range<usize>,
+    /// Samples they had to predict.
+    pub predicted_samples: std::ops::Range<usize>,
+    /// Overall NRMSE on the predicted samples of the catalogue model alone (-).
+    pub nrmse_before: f64,
+    /// Overall NRMSE on the predicted samples with the chosen terms (-).
+    pub nrmse_after: f64,
 }
 
 /// Result of the grey-box extension.
@@ -79,8 +103,28 @@ pub struct GreyBox {
     /// Whether at least one term was selected (the extended config then carries
     /// `[effects.polynomial_force]`).
     pub accepted: bool,
+    /// The transfer check the terms were chosen by (`None`: fitting part too short to split).
+    pub transfer: Option<Transfer>,
     /// Selection log: each round's best candidate and its fitting-part cost.
     pub selection: Vec<String>,
+}
+
+impl GreyBox {
+    /// The cause in physical terms when the law carries the gain: its first term (the largest
+    /// gain) with value and unit, e.g. `load-side yield force 576 N (yield force F_y·tanh(v/v_y) …)`,
+    /// and the further terms by name.
+    pub fn cause(&self) -> Option<String> {
+        let (first, rest) = self.terms.split_first()?;
+        let mut c = format!(
+            "{} {:.4} {} ({})",
+            first.name, first.value, first.unit, first.physics
+        );
+        if !rest.is_empty() {
+            let more: Vec<&str> = rest.iter().map(|t| t.name.as_str()).collect();
+            c = format!("{c}, with {}", more.join(", "));
+        }
+        Some(c)
+    }
 }
 
 /// A library entry: section, field name, physics and coefficient bound (the unit is the
@@ -89,6 +133,8 @@ struct Lib {
     /// `polynomial_force` or `polynomial_flow`.
     section: &'static str,
     field: &'static str,
+    /// What the term is, in words a user of the rig reads as a cause.
+    name: &'static str,
     physics: &'static str,
     bound: f64,
     /// Regressor for the least-squares start (force records): f(x, v) or None.
@@ -170,6 +216,7 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "constant",
+            name: "load-side constant force",
             physics: "constant force (preload)",
             bound: 0.2 * fs,
             feature: Some(|_, _, _| 1.0),
@@ -177,6 +224,7 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "viscous",
+            name: "load-side viscous damping",
             physics: "viscous force ∝ v",
             bound: 0.3 * fs / vr,
             feature: Some(|_, v, _| v),
@@ -184,13 +232,15 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "coulomb",
-            physics: "Coulomb/yield force ∝ sign(v)",
+            name: "load-side yield force",
+            physics: "yield force F_y·tanh(v/v_y) (Bingham with a fitted pre-yield velocity v_y; bounded at any speed)",
             bound: 0.2 * fs,
             feature: Some(|_, v, f| (v / f.smoothing_velocity).tanh()),
         },
         Lib {
             section: "polynomial_force",
             field: "quadratic",
+            name: "load-side quadratic damping",
             physics: "quadratic damping ∝ |v|·v",
             bound: 0.3 * fs / (vr * vr),
             feature: Some(|_, v, _| v.abs() * v),
@@ -198,6 +248,7 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "stiffness",
+            name: "load-side stiffness",
             physics: "stiffness ∝ (x − x₀)",
             bound: 0.5 * scales.stiffness.max(fs / base_fit.cylinder.stroke),
             feature: Some(|x, _, f| x - f.origin),
@@ -205,6 +256,7 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "pressure",
+            name: "load-pressure force",
             physics: "load-pressure force ∝ (p_a − p_b)",
             bound: 0.3 * area,
             feature: None,
@@ -212,6 +264,7 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_force",
             field: "pressure_coulomb",
+            name: "pressure-dependent friction",
             physics: "pressure-dependent friction ∝ sign(v)·|p_a − p_b|",
             bound: 0.3 * area,
             feature: None,
@@ -219,6 +272,7 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_flow",
             field: "constant",
+            name: "valve null-bias flow",
             physics: "valve null-bias flow (B→A)",
             bound: 0.2 * scales.flow,
             feature: None,
@@ -226,6 +280,7 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_flow",
             field: "spool",
+            name: "valve flow-gain error",
             physics: "flow-gain error ∝ x_v",
             bound: 0.5 * scales.flow,
             feature: None,
@@ -233,6 +288,7 @@ pub(crate) fn extend(
         Lib {
             section: "polynomial_flow",
             field: "spool_abs",
+            name: "valve flow-gain asymmetry",
             physics: "flow-gain direction asymmetry ∝ |x_v|",
             bound: 0.5 * scales.flow,
             feature: None,
@@ -291,10 +347,11 @@ pub(crate) fn extend(
         let st = start;
         let set: crate::fit::Setter = if l.section == "polynomial_force" {
             Arc::new(move |p: &mut PlantParams, v| {
+                // Inserted with the start's smoothing velocity and origin; an existing section
+                // keeps its own (a pre-yield velocity fitted with the yield term must survive
+                // the terms selected after it).
                 let f = p.effects.polynomial_force.get_or_insert(st);
                 f.enabled = true;
-                f.smoothing_velocity = st.smoothing_velocity;
-                f.origin = st.origin;
                 // Declared float (checked above): the write cannot fail.
                 let _ = f.set_path(field, v);
             })
@@ -324,6 +381,26 @@ pub(crate) fn extend(
         .iter()
         .map(|c| crate::replay::std(&c.values[..n_fit]).max(1e-300))
         .collect();
+    let channel_costs_on = |c: &Ctx, n_fit: usize, sd: &[f64], p: &PlantParams| -> Vec<f64> {
+        match c.fit_replay(p) {
+            Ok(s) if !s.failed => rec
+                .channels
+                .iter()
+                .zip(&s.y)
+                .zip(sd)
+                .map(|((c, y), sd)| {
+                    c.values[..n_fit]
+                        .iter()
+                        .zip(y)
+                        .map(|(a, b)| (a - b) * (a - b))
+                        .sum::<f64>()
+                        / n_fit as f64
+                        / (sd * sd)
+                })
+                .collect(),
+            _ => vec![1e6; rec.channels.len()],
+        }
+    };
     let channel_costs = |p: &PlantParams| -> Vec<f64> {
         match frozen.fit_replay(p) {
             Ok(s) if !s.failed => rec
@@ -366,27 +443,91 @@ pub(crate) fn extend(
             0.0
         }
     };
+    // Transfer check, the measure of an extension's gain: terms are chosen on the first
+    // TRANSFER_SPLIT of the fitting part and judged by how they predict the rest, which a chirp
+    // or a sweep fills with other content (another band, other velocities). A term that only
+    // fits (a viscous coefficient fitted at low speed that extrapolates to forces the rig never
+    // saw, say) does not pass; the chosen law is then refit jointly on the whole fitting part.
+    // The held-out part still never enters a choice.
+    let split = frozen.transfer_split(TRANSFER_SPLIT);
+    let sel: &Ctx = split.as_ref().unwrap_or(&frozen);
+    let n_sel = sel.n_fit();
+    let sd_sel: Vec<f64> = rec
+        .channels
+        .iter()
+        .map(|c| crate::replay::std(&c.values[..n_sel]).max(1e-300))
+        .collect();
+    let sel_cost = |p: &PlantParams| -> f64 {
+        let jc = channel_costs_on(sel, n_sel, &sd_sel, p);
+        jc.iter().sum::<f64>() / jc.len().max(1) as f64
+    };
+    // Judged cost: mean ln NRMSE² over channels on the predicted segment (or, without a
+    // split, on the fitting part).
+    let judge = |hh: &Hyp| -> (f64, f64) {
+        match &split {
+            Some(t) => {
+                let (e, _) = t.val_errors(hh);
+                let jc: Vec<f64> = e.channels.values().map(|x| x * x).collect();
+                (log_cost(&jc), e.overall)
+            }
+            None => {
+                let jc = channel_costs(&hh.build(&base_fit));
+                let j = jc.iter().sum::<f64>() / jc.len().max(1) as f64;
+                (log_cost(&jc), j.sqrt())
+            }
+        }
+    };
     let mut h = Hyp {
         effects: vec![],
         variants: vec![],
         params: vec![],
         values: vec![],
     };
-    let mut j_cur = cur_train;
-    let mut l_cur = log_cost(&channel_costs(&base_fit));
+    let mut j_cur = if split.is_some() {
+        sel_cost(&base_fit)
+    } else {
+        cur_train
+    };
+    let (mut l_cur, transfer_before) = judge(&h);
     let mut terms: Vec<Term> = Vec::new();
     let mut selection = Vec::new();
+    if let Some(t) = &split {
+        selection.push(format!(
+            "terms chosen on samples 0..{} of the fitting part and judged on how they predict samples {}..{} (transfer check); the chosen law refit on the whole fitting part",
+            t.n_fit(),
+            t.n_fit(),
+            frozen.n_fit()
+        ));
+    }
     let mut used: Vec<(&'static str, &'static str)> = Vec::new();
     let mut resid = force_resid
         .as_ref()
         .map(|r| r.0.clone())
         .unwrap_or_default();
+    // The yield term's pre-yield velocity v_y (m/s), fitted in log space with its force when the
+    // base has no force law of its own (else the base's smoothing velocity is kept).
+    let yield_velocity = |init: f64| -> FreeParam {
+        let (lo, hi) = (0.005 * vr, 0.5 * vr);
+        FreeParam {
+            name: "effects.polynomial_force.smoothing_velocity".to_string(),
+            lo,
+            hi,
+            log: true,
+            init: init.clamp(lo, hi),
+            set: Arc::new(|p: &mut PlantParams, v| {
+                if let Some(f) = p.effects.polynomial_force.as_mut() {
+                    f.smoothing_velocity = v;
+                }
+            }),
+        }
+    };
+    let fit_velocity = base_fit.effects.polynomial_force.is_none();
     for _round in 0..MAX_TERMS {
         let cands: Vec<&Lib> = lib
             .iter()
             .filter(|l| !used.contains(&(l.section, l.field)))
             .collect();
-        let results: Vec<(usize, Hyp, f64, f64)> = cands
+        let results: Vec<(usize, Hyp, f64, f64, f64)> = cands
             .par_iter()
             .enumerate()
             .map(|(i, l)| {
@@ -395,12 +536,17 @@ pub(crate) fn extend(
                 hh.values.push(fp.init);
                 hh.params.push(fp);
                 let first_new = hh.params.len() - 1;
-                let (hh, c) = frozen.fit(hh, first_new, evals_per_param);
-                let lc = log_cost(&channel_costs(&hh.build(&base_fit)));
-                (i, hh, c, lc)
+                if l.field == "coulomb" && fit_velocity {
+                    let fv = yield_velocity(vs);
+                    hh.values.push(fv.init);
+                    hh.params.push(fv);
+                }
+                let (hh, c) = sel.fit(hh, first_new, evals_per_param);
+                let (lc, e) = judge(&hh);
+                (i, hh, c, lc, e)
             })
             .collect();
-        let Some((i, mut hb, mut cb, mut lb)) = results
+        let Some((i, mut hb, mut cb, mut lb, mut eb)) = results
             .into_iter()
             .filter(|r| r.2 <= j_cur)
             .min_by(|a, b| a.3.total_cmp(&b.3))
@@ -409,44 +555,43 @@ pub(crate) fn extend(
         };
         let l = cands[i];
         // A coefficient that ends on its bound says the bound, not the data, stopped it: widen
-        // the bound (4×, at most twice) and refit, on the fitting part only.
+        // the bound (4×, at most twice) and refit, on the fitting segment only.
         let mut widen = 1.0;
         for _ in 0..2 {
-            let (Some(fp), Some(&v)) = (hb.params.last(), hb.values.last()) else {
+            let path = l.path();
+            let Some(k) = hb.params.iter().rposition(|p| p.name == path) else {
                 break;
             };
+            let (fp, v) = (hb.params[k].clone(), hb.values[k]);
             if v.abs() < 0.98 * fp.hi {
                 break;
             }
             widen *= 4.0;
             let mut hw = hb.clone();
-            let np = make_param(l, 0.0, widen);
-            if let (Some(p), Some(x)) = (hw.params.last_mut(), hw.values.last_mut()) {
-                *p = np;
-                *x = v;
-            }
-            let last = hw.params.len() - 1;
-            let (hw, cw) = frozen.fit(hw, last, evals_per_param);
+            hw.params[k] = make_param(l, 0.0, widen);
+            hw.values[k] = v;
+            let (hw, cw) = sel.fit(hw, k, evals_per_param);
             selection.push(format!(
-                "{}.{} ended on its bound ±{:.3e} {}: bound widened 4× and refit (fitting-part NRMSE {:.4} → {:.4})",
+                "{}.{} ended on its bound ±{:.3e} {}: bound widened 4× and refit (fitting NRMSE {:.4} → {:.4})",
                 l.section, l.field, fp.hi, l.unit(), cb.sqrt(), cw.sqrt()
             ));
             if cw < cb {
-                lb = log_cost(&channel_costs(&hw.build(&base_fit)));
+                (lb, eb) = judge(&hw);
                 hb = hw;
                 cb = cw;
             }
         }
-        // Geometric-mean reduction of the per-channel fitting-part cost.
+        // Geometric-mean reduction of the per-channel cost on the judged segment.
         let gain = 1.0 - (lb - l_cur).exp();
         selection.push(format!(
-            "round {}: best {}.{} ({}): fitting-part NRMSE {:.4} → {:.4}, geometric mean of the per-channel J {:+.1} %{}",
+            "round {}: best {}.{} ({}): fitting NRMSE {:.4} → {:.4}, {} geometric mean of the per-channel J {:+.1} %{}",
             terms.len() + 1,
             l.section,
             l.field,
             l.physics,
             j_cur.sqrt(),
             cb.sqrt(),
+            if split.is_some() { "predicted segment:" } else { "fitting part:" },
             -100.0 * gain,
             if gain >= MIN_REL_GAIN { "" } else { " — not a 5 % fall, stop" }
         ));
@@ -457,14 +602,21 @@ pub(crate) fn extend(
         h = hb;
         j_cur = cb;
         l_cur = lb;
-        let value = *h.values.last().unwrap_or(&0.0);
-        let bound = h.params.last().map_or(0.0, |p| p.hi);
+        let k = h
+            .params
+            .iter()
+            .rposition(|p| p.name == l.path())
+            .unwrap_or(0);
+        let value = h.values.get(k).copied().unwrap_or(0.0);
+        let bound = h.params.get(k).map_or(0.0, |p| p.hi);
         terms.push(Term {
             path: l.path(),
             value,
             unit: l.unit().to_string(),
+            name: l.name.to_string(),
             physics: l.physics.to_string(),
             nrmse_train: cb.sqrt(),
+            nrmse_transfer: split.as_ref().map(|_| eb),
             // Reported only: the held-out part never enters a choice.
             nrmse_validation: frozen.val_errors(&h).0.overall,
             bound,
@@ -488,11 +640,45 @@ pub(crate) fn extend(
             }
         }
     }
+    let transfer = split.as_ref().map(|t| Transfer {
+        fit_samples: 0..t.n_fit(),
+        predicted_samples: t.n_fit()..frozen.n_fit(),
+        nrmse_before: transfer_before,
+        nrmse_after: terms
+            .last()
+            .and_then(|x| x.nrmse_transfer)
+            .unwrap_or(transfer_before),
+    });
+    // The chosen law refit jointly on the whole fitting part (starts: the segment's values).
+    if split.is_some() && !h.params.is_empty() {
+        let n = h.params.len();
+        let (hf, cf) = frozen.fit(h.clone(), n, evals_per_param);
+        if cf.is_finite() {
+            h = hf;
+            j_cur = cf;
+        }
+        for t in terms.iter_mut() {
+            if let Some(k) = h.params.iter().position(|p| p.name == t.path) {
+                t.value = h.values[k];
+            }
+        }
+    }
     // Final values of every selected term (the last joint fit moved the earlier ones too).
     for t in terms.iter_mut() {
         if let Some(k) = h.params.iter().position(|p| p.name == t.path) {
             t.value = h.values[k];
             t.at_bound = t.value.abs() >= 0.98 * h.params[k].hi;
+        }
+    }
+    // The yield term's fitted pre-yield velocity, in its words.
+    if let Some(k) = h
+        .params
+        .iter()
+        .position(|p| p.name == "effects.polynomial_force.smoothing_velocity")
+    {
+        let vy = h.values[k];
+        for t in terms.iter_mut().filter(|t| t.path.ends_with(".coulomb")) {
+            t.physics = format!("{}, v_y = {vy:.3e} m/s", t.physics);
         }
     }
     let accepted = !terms.is_empty();
@@ -531,6 +717,7 @@ pub(crate) fn extend(
         nrmse_validation: val,
         ratio_to_baseline: ratio,
         accepted,
+        transfer,
         selection,
     };
     if !accepted {

@@ -18,7 +18,8 @@ pub struct Replay {
 }
 
 /// Parameters as used for replay: sensor noise off (the data carry their own), initial
-/// position and pressures from the first samples of the record (median of up to 10).
+/// position and pressures from the first samples of the record (the first sample; the median
+/// of up to 10 on a sensor the config declares noisy).
 pub fn replay_params(nominal: &PlantParams, rec: &Record) -> PlantParams {
     replay_params_zeroed(nominal, rec, &[])
 }
@@ -40,20 +41,31 @@ pub fn replay_params_zeroed(nominal: &PlantParams, rec: &Record, b: &[f64]) -> P
     p.sensors.pressure.noise = 0.0;
     p.sensors.position.noise = 0.0;
     p.sensors.spool.noise = 0.0;
-    let head = |v: &[f64]| {
+    // Initial value of a channel: its first sample, the measurement of the state at t = 0
+    // (sample 0 is taken before the first command, as `ehactl run` logs it); the median of up
+    // to 10 first samples only where the config declares the sensor noisy (σ > 0), since the
+    // median of a moving start (a step, a transient) sets the replay off the rig's state.
+    let head = |v: &[f64], noisy: bool| {
+        if !noisy {
+            return v[0];
+        }
         let mut h: Vec<f64> = v[..v.len().min(10)].to_vec();
         h.sort_by(f64::total_cmp);
         h[h.len() / 2]
     };
+    let (x_noisy, p_noisy) = (
+        nominal.sensors.position.noise > 0.0,
+        nominal.sensors.pressure.noise > 0.0,
+    );
     if let Some(x) = rec.channel(ChannelKind::Position) {
         p.cylinder.initial_position =
-            (head(x) - offset(ChannelKind::Position)).clamp(0.0, p.cylinder.stroke);
+            (head(x, x_noisy) - offset(ChannelKind::Position)).clamp(0.0, p.cylinder.stroke);
     }
     if let Some(pa) = rec.channel(ChannelKind::PressureA) {
-        p.cylinder.initial_pressure_a = Some(head(pa) - offset(ChannelKind::PressureA));
+        p.cylinder.initial_pressure_a = Some(head(pa, p_noisy) - offset(ChannelKind::PressureA));
     }
     if let Some(pb) = rec.channel(ChannelKind::PressureB) {
-        p.cylinder.initial_pressure_b = Some(head(pb) - offset(ChannelKind::PressureB));
+        p.cylinder.initial_pressure_b = Some(head(pb, p_noisy) - offset(ChannelKind::PressureB));
     }
     p
 }
@@ -255,6 +267,13 @@ pub struct IntegrationCheck {
     /// Whether the requirement was met within that cost. When not, the remaining error is
     /// added to the noise floor of the diagnosis (it is never blamed on an effect).
     pub met: bool,
+    /// Whether the nominal model at the config's own integration (its substeps, automatic
+    /// where the config says so, exactly as `ehactl run` steps it) already reproduces the
+    /// held-out data within the noise. Then the replay keeps that integration: the data are
+    /// explained by the model as configured, numerics included (a log of `ehactl run` carries
+    /// the config's integration error, so a finer replay would differ from it by that error,
+    /// about one substep of lead on position and rod force with the first-order scheme).
+    pub configured_step_explains: bool,
 }
 
 /// The integration error must stay below this fraction of the noise floor (-): added in
@@ -366,6 +385,7 @@ pub fn choose_integration(
         ratio_limit: INTEGRATION_RATIO,
         max_cost,
         met,
+        configured_step_explains: false,
     };
     (p, check)
 }

@@ -109,12 +109,6 @@ pub fn run(
             )));
         }
     }
-    let mut warnings: Vec<String> = rec
-        .warnings
-        .iter()
-        .chain(val.iter().flat_map(|v| v.warnings.iter()))
-        .cloned()
-        .collect();
     let mut notes = Vec::new();
     // Closed-loop position records (a `ref` column and a PD position loop in the config) are
     // replayed through the same controller: an integrating plant would drift open loop.
@@ -149,6 +143,8 @@ pub fn run(
         ..Options::default()
     };
     let d = diagnose(&cfg.plant, &rec, val.as_ref(), &opts).map_err(SessionError::Input)?;
+    // The diagnosis's own list: the records' warnings and its findings (replay accuracy).
+    let mut warnings = d.warnings.clone();
     let files = match out {
         Some(dir) => {
             let f = report::write_report(dir, cfg, config_label, &rec, val.as_ref(), &d)
