@@ -81,6 +81,7 @@ struct Counters {
     dropped: AtomicU64,
 }
 
+#[derive(Debug)]
 struct Unit {
     bytes: Vec<u8>,
     /// A `Message Data` message: may be dropped, and is counted.
