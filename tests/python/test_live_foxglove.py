@@ -284,3 +284,31 @@ def test_live_on_a_non_loopback_address_warns(tmp_path: Path) -> None:
         cwd=REPO, capture_output=True, text=True, timeout=60,
     )
     assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+
+
+def test_subprotocol_negotiation_through_the_front(tmp_path: Path) -> None:
+    """The SDK's names pass through (v1.1 preferred, as the SDK does), the published name is
+    answered as asked, an unknown one is refused with the SDK's HTTP 400 and counted."""
+    from websockets.exceptions import InvalidStatus
+
+    proc, url = start_live(tmp_path / "neg.mcap")
+    try:
+        for offered, answered in (
+            (["foxglove.sdk.v1", "foxglove.sdk.v1.1"], "foxglove.sdk.v1.1"),
+            (["foxglove.websocket.v1"], "foxglove.websocket.v1"),
+            (["foxglove.websocket.v1", "foxglove.sdk.v1"], "foxglove.sdk.v1"),
+        ):
+            with websockets_sync.connect(url, subprotocols=offered, open_timeout=10) as ws:
+                assert ws.subprotocol == answered, (offered, ws.subprotocol)
+                first = json.loads(ws.recv(timeout=5))
+                assert first["op"] == "serverInfo"
+        with pytest.raises(InvalidStatus) as e:
+            websockets_sync.connect(url, subprotocols=["bogus.v9"], open_timeout=10)
+        assert e.value.response.status_code == 400
+    finally:
+        stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    live = parse_json_stdout(stdout)["live"]
+    assert live["connections_refused"] == 1
+    assert [c["subprotocol"] for c in live["clients"]] == [
+        "foxglove.sdk.v1.1", "foxglove.websocket.v1", "foxglove.sdk.v1"]

@@ -408,14 +408,17 @@ fn accept_loop(
             },
         });
         lock(conns).push(conn.clone());
-        let (a, r) = (active.clone(), rejected.clone());
+        let (a, r, list) = (active.clone(), rejected.clone(), conns.clone());
         let spawned = spawn_counted(active, format!("live-conn-{peer}"), move || {
             // On success the writer thread delivers what is queued and ends by itself.
             // On failure the client got its HTTP answer (or went away): counted, not logged
-            // (a port scanner must not flood stderr).
+            // (a port scanner must not flood stderr), and forgotten unless it had upgraded.
             if serve(client, &conn, upstream, &a).is_err() {
                 r.fetch_add(1, Ordering::Relaxed);
                 conn.kill();
+                if lock(&conn.counters.subprotocol).is_empty() {
+                    lock(&list).retain(|c| !Arc::ptr_eq(c, &conn));
+                }
             }
         });
         if spawned.is_err() {
