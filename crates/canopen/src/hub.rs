@@ -536,8 +536,16 @@ mod tests {
         assert_eq!(lines.len() as u64, QUOTED_COMPLAINTS);
         assert!(lines[0].contains("junk 0"));
         assert!(lines[4].contains("counted"), "{}", lines[4]);
+        // once the interval has passed, the next one brings a line with the counts
+        c.last_line -= super::COMPLAINT_INTERVAL;
+        let line = c.add("1 (peer)", "junk last").unwrap();
+        assert!(
+            line.contains("9996 more malformed messages") && line.contains("(10001 in all)"),
+            "{line}"
+        );
+        assert!(c.add("1 (peer)", "junk").is_none());
         let end = c.at_disconnect().unwrap();
-        assert!(end.starts_with("10000 malformed messages"), "{end}");
+        assert!(end.starts_with("10002 malformed messages"), "{end}");
         assert!(Complaints::default().at_disconnect().is_none());
     }
 }
