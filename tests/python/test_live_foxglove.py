@@ -239,7 +239,7 @@ class SlowClient:
 def test_slow_clients_dropped_messages_are_counted_per_client(tmp_path: Path) -> None:
     out = tmp_path / "slow.mcap"
     proc = subprocess.Popen(
-        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", "3",
+        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", "4",
          "--out", str(out), "--json", "--live", "127.0.0.1:0"],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
@@ -250,7 +250,7 @@ def test_slow_clients_dropped_messages_are_counted_per_client(tmp_path: Path) ->
         assert line, proc.communicate()
         m = re.search(r"on (ws://\S+)", line)
         url = m.group(1) if m else None
-    # 20 clients that never read (both subprotocol names) and one that reads everything
+    # 20 clients that never read, half of them with each subprotocol name
     slow = [SlowClient(url, "foxglove.sdk.v1" if i % 2 else "foxglove.websocket.v1") for i in range(20)]
     stdout, stderr = proc.communicate(timeout=60)
     received = {c.port: c.drain() for c in slow}
@@ -259,7 +259,8 @@ def test_slow_clients_dropped_messages_are_counted_per_client(tmp_path: Path) ->
     by_port = {int(c["peer"].rsplit(":", 1)[1]): c for c in live["clients"]}
     for c in slow:
         st = by_port[c.port]
-        # each missed thousands of the ~45 000 messages published in 3 s at 5 kHz
+        # each missed thousands of the ~60 000 messages published in 4 s at 5 kHz (4 s leaves
+        # time for 20 handshakes on a loaded machine)
         assert st["messages_dropped"] > 1000, st
         # "sent" is what reached the client: exactly what it can read once it reads
         assert st["messages_sent"] == received[c.port], (st, received[c.port])
