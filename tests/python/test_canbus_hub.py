@@ -1,5 +1,7 @@
 """`ehactl canbus hub` against the real python-can `socketcand` interface as peers."""
 import json
+import random
+import re
 import socket
 import threading
 import time
@@ -257,6 +259,11 @@ def test_garbage_flood_is_summarised_per_client_not_logged_line_by_line():
             # the bus still works for the others, and all the junk has been read
             m = b.recv(timeout=30)
             assert m is not None and m.arbitration_id == 0x123 and bytes(m.data) == b"\xab"
+            # a second client sends 2 MB of random bytes before its handshake
+            noise = socket.create_connection(("127.0.0.1", port))
+            assert noise.recv(64) == b"< hi >"
+            noise.sendall(random.Random(1).randbytes(2_000_000) + b"< echo >")
+            noise.close()
         finally:
             raw.close()
             b.shutdown()
@@ -271,8 +278,11 @@ def test_garbage_flood_is_summarised_per_client_not_logged_line_by_line():
     # the first ones are quoted, then a count: at the disconnect, the total for that client
     assert "unsupported command `< bogus >`" in err
     summary = [l for l in lines if "malformed" in l and "disconnected" in l]
-    assert len(summary) == 1, lines
-    assert f"{bogus} malformed" in summary[0], summary
+    assert len(summary) == 2, lines
+    flood = [l for l in summary if f"; {bogus} malformed messages in all" in l]
+    assert len(flood) == 1, summary
+    other = next(l for l in summary if l is not flood[0])
+    assert re.search(r"; [1-9]\d* malformed messages in all", other), summary
 
 
 def test_hub_on_a_non_loopback_address_warns():
