@@ -1,5 +1,7 @@
 """`ehactl canbus hub` against the real python-can `socketcand` interface as peers."""
 import json
+import random
+import re
 import socket
 import threading
 import time
@@ -232,3 +234,72 @@ def test_bus_overload_is_refused_by_check_config(tmp_path):
     # + heartbeats of the two devices and of ehactl itself (master_heartbeat_ms), 20 ms each
     load = (per_sync * 3000.0 + 3 * bits(1) / 0.020) / 1e6
     assert "canopen.sync_rate_hz" in line and f"bus load {load * 100:.1f} % exceeds 80 %" in line, line
+
+
+# --- Log flood and exposure ---------------------------------------------------------------
+
+
+def test_garbage_flood_is_summarised_per_client_not_logged_line_by_line():
+    """A client sending megabytes of junk gets a few lines and a count, not a line per message."""
+    bogus = 400_000  # `< bogus >` messages: 3.6 MB, each one malformed (unsupported in rawmode)
+    with hub() as (proc, port):
+        # stderr read all along, so that a flood shows as lines rather than a blocked hub
+        chunks: list[str] = []
+        reader = threading.Thread(target=lambda: chunks.extend(iter(proc.stderr.readline, "")), daemon=True)
+        reader.start()
+        b = bus(port)
+        raw = socket.create_connection(("127.0.0.1", port))
+        try:
+            assert raw.recv(64) == b"< hi >"
+            raw.sendall(b"< open can0 >")
+            assert raw.recv(64) == b"< ok >"
+            raw.sendall(b"< rawmode >")
+            assert raw.recv(64) == b"< ok >"
+            raw.sendall(b"< bogus >" * bogus + b"< send 123 1 AB >")
+            # the bus still works for the others, and all the junk has been read
+            m = b.recv(timeout=30)
+            assert m is not None and m.arbitration_id == 0x123 and bytes(m.data) == b"\xab"
+            # a second client sends 2 MB of random bytes before its handshake
+            noise = socket.create_connection(("127.0.0.1", port))
+            assert noise.recv(64) == b"< hi >"
+            noise.sendall(random.Random(1).randbytes(2_000_000) + b"< echo >")
+            noise.close()
+        finally:
+            raw.close()
+            b.shutdown()
+        time.sleep(0.5)  # the hub notices the disconnect
+        proc.terminate()
+        reader.join(timeout=10)
+        err = "".join(chunks)
+    lines = err.splitlines()
+    assert len(lines) < 50, (len(lines), len(err), lines[:60])
+    assert len(err) < 10_000, len(err)
+    assert "panicked" not in err
+    # the first ones are quoted, then a count: at the disconnect, the total for that client
+    assert "unsupported command `< bogus >`" in err
+    summary = [l for l in lines if "malformed" in l and "disconnected" in l]
+    assert len(summary) == 2, lines
+    flood = [l for l in summary if f"; {bogus} malformed messages in all" in l]
+    assert len(flood) == 1, summary
+    other = next(l for l in summary if l is not flood[0])
+    assert re.search(r"; [1-9]\d* malformed messages in all", other), summary
+
+
+def test_hub_on_a_non_loopback_address_warns():
+    proc = subprocess.Popen([BIN, "canbus", "hub", "--listen", "0.0.0.0:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("listening on 0.0.0.0:"), line
+        time.sleep(0.3)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=5)
+    err = proc.stderr.read()
+    warn = [l for l in err.splitlines() if "warning" in l]
+    assert len(warn) == 1, err
+    assert "not a loopback address" in warn[0] and "CAN bus" in warn[0] and "network" in warn[0], warn
+    with hub() as (proc, _port):
+        time.sleep(0.3)
+        proc.terminate()
+        assert "warning" not in proc.stderr.read()

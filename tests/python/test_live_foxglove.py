@@ -153,3 +153,163 @@ def test_live_bad_address_is_one_line_error(tmp_path: Path) -> None:
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "--live localhost" in lines[0] and "HOST:PORT" in lines[0], r.stderr
     assert not (tmp_path / "x.mcap").exists()
+
+
+# --- Slow clients and exposure -------------------------------------------------------------
+
+import os  # noqa: E402
+import socket  # noqa: E402
+import base64  # noqa: E402
+
+
+def _read_frames(buf: bytearray) -> list[tuple[int, bytes]]:
+    """Complete server frames (unmasked, RFC 6455 §5.2) taken off the front of `buf`."""
+    out = []
+    while len(buf) >= 2:
+        n, hdr = buf[1] & 0x7F, 2
+        if n == 126:
+            if len(buf) < 4:
+                break
+            n, hdr = struct.unpack_from(">H", buf, 2)[0], 4
+        elif n == 127:
+            if len(buf) < 10:
+                break
+            n, hdr = struct.unpack_from(">Q", buf, 2)[0], 10
+        if len(buf) < hdr + n:
+            break
+        out.append((buf[0] & 0x0F, bytes(buf[hdr:hdr + n])))
+        del buf[:hdr + n]
+    return out
+
+
+def _masked_text(text: str) -> bytes:
+    payload = text.encode()
+    key = os.urandom(4)
+    n = len(payload)
+    head = bytes([0x81]) + (bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n))
+    return head + key + bytes(b ^ key[i % 4] for i, b in enumerate(payload))
+
+
+class SlowClient:
+    """Upgrades, subscribes to every channel, then never reads (tiny receive buffer)."""
+
+    def __init__(self, url: str, subprotocol: str) -> None:
+        host, port = url.removeprefix("ws://").rsplit(":", 1)
+        s = socket.socket()
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        s.settimeout(10)
+        s.connect((host, int(port)))
+        key = base64.b64encode(os.urandom(16)).decode()
+        s.sendall((f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                   f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+                   f"Sec-WebSocket-Protocol: {subprotocol}\r\n\r\n").encode())
+        buf = bytearray()
+        while b"\r\n\r\n" not in buf:
+            buf += s.recv(4096)
+        head, _, rest = bytes(buf).partition(b"\r\n\r\n")
+        assert head.startswith(b"HTTP/1.1 101"), head
+        assert f"sec-websocket-protocol: {subprotocol}".lower() in head.decode().lower(), head
+        buf = bytearray(rest)
+        channels: list[int] = []
+        while not channels:
+            for op, payload in _read_frames(buf):
+                if op == 1 and json.loads(payload)["op"] == "advertise":
+                    channels = [c["id"] for c in json.loads(payload)["channels"]]
+            if not channels:
+                buf += s.recv(65536)
+        s.sendall(_masked_text(json.dumps({"op": "subscribe", "subscriptions": [
+            {"id": i + 1, "channelId": c} for i, c in enumerate(channels)]})))
+        self.sock = s
+        self.port = s.getsockname()[1]
+        self.buf = buf  # frames after the advertise, read with it
+
+    def drain(self) -> int:
+        """Read what reached this client until the server closes or resets the connection;
+        returns the complete `Message Data` frames (opcode 0x01) among them."""
+        self.sock.settimeout(5)
+        try:
+            while d := self.sock.recv(1 << 20):
+                self.buf += d
+        except OSError:  # reset: the server cut the client off
+            pass
+        self.sock.close()
+        return sum(1 for op, p in _read_frames(self.buf) if op == 2 and p[:1] == b"\x01")
+
+
+def test_slow_clients_dropped_messages_are_counted_per_client(tmp_path: Path) -> None:
+    out = tmp_path / "slow.mcap"
+    proc = subprocess.Popen(
+        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", "4",
+         "--out", str(out), "--json", "--live", "127.0.0.1:0"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    assert proc.stderr is not None
+    url = None
+    while url is None:
+        line = proc.stderr.readline()
+        assert line, proc.communicate()
+        m = re.search(r"on (ws://\S+)", line)
+        url = m.group(1) if m else None
+    # 20 clients that never read, half of them with each subprotocol name
+    slow = [SlowClient(url, "foxglove.sdk.v1" if i % 2 else "foxglove.websocket.v1") for i in range(20)]
+    stdout, stderr = proc.communicate(timeout=60)
+    received = {c.port: c.drain() for c in slow}
+    assert proc.returncode == 0, stderr
+    live = parse_json_stdout(stdout)["live"]
+    by_port = {int(c["peer"].rsplit(":", 1)[1]): c for c in live["clients"]}
+    for c in slow:
+        st = by_port[c.port]
+        # each missed thousands of the ~60 000 messages published in 4 s at 5 kHz (4 s leaves
+        # time for 20 handshakes on a loaded machine)
+        assert st["messages_dropped"] > 1000, st
+        # "sent" is what reached the client: exactly what it can read once it reads
+        assert st["messages_sent"] == received[c.port], (st, received[c.port])
+    assert live["client_messages_dropped"] == sum(c["messages_dropped"] for c in live["clients"])
+    assert live["client_messages_dropped"] > 20 * 1000
+
+
+def test_live_on_a_non_loopback_address_warns(tmp_path: Path) -> None:
+    r = subprocess.run(
+        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--duration", "0.05", "--out", str(tmp_path / "x.mcap"),
+         "--live", "0.0.0.0:0"],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    warn = [l for l in r.stderr.splitlines() if "warning" in l]
+    assert len(warn) == 1, r.stderr
+    assert "--live 0.0.0.0:" in warn[0] and "not a loopback address" in warn[0] and "network" in warn[0], warn
+    # loopback: no warning
+    r = subprocess.run(
+        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--duration", "0.05", "--out", str(tmp_path / "y.mcap"),
+         "--live", "127.0.0.1:0"],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+
+
+def test_subprotocol_negotiation_through_the_front(tmp_path: Path) -> None:
+    """The SDK's names pass through (v1.1 preferred, as the SDK does), the published name is
+    answered as asked, an unknown one is refused with the SDK's HTTP 400 and counted."""
+    from websockets.exceptions import InvalidStatus
+
+    proc, url = start_live(tmp_path / "neg.mcap")
+    try:
+        for offered, answered in (
+            (["foxglove.sdk.v1", "foxglove.sdk.v1.1"], "foxglove.sdk.v1.1"),
+            (["foxglove.websocket.v1"], "foxglove.websocket.v1"),
+            (["foxglove.websocket.v1", "foxglove.sdk.v1"], "foxglove.sdk.v1"),
+        ):
+            with websockets_sync.connect(url, subprotocols=offered, open_timeout=10) as ws:
+                assert ws.subprotocol == answered, (offered, ws.subprotocol)
+                first = json.loads(ws.recv(timeout=5))
+                assert first["op"] == "serverInfo"
+        with pytest.raises(InvalidStatus) as e:
+            websockets_sync.connect(url, subprotocols=["bogus.v9"], open_timeout=10)
+        assert e.value.response.status_code == 400
+    finally:
+        stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    live = parse_json_stdout(stdout)["live"]
+    assert live["connections_refused"] == 1
+    assert [c["subprotocol"] for c in live["clients"]] == [
+        "foxglove.sdk.v1.1", "foxglove.websocket.v1", "foxglove.sdk.v1"]

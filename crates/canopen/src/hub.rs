@@ -18,6 +18,12 @@
 //! `clients_dropped` counts it, one line on stderr), so a stalled client never delays the
 //! others. Text a client sent is quoted in the hub's log lines only sanitised (printable
 //! ASCII, at most 80 characters, see [`sanitize`]).
+//!
+//! Log volume: malformed input is reported per client without flooding stderr (a client
+//! sending megabytes of junk must not fill the disk through the journal or stall the hub on a
+//! full stderr pipe): the first [`QUOTED_COMPLAINTS`] messages are quoted, then one line per
+//! [`COMPLAINT_INTERVAL`] with the count, and the total on the disconnect line (see
+//! [`Complaints`]).
 
 use crate::frame::CanFrame;
 use crate::socketcand::{format_frame, parse_send, words, Framer};
@@ -26,7 +32,7 @@ use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// Counters of a running hub.
 #[derive(Debug, Default)]
@@ -39,6 +45,83 @@ pub struct HubStats {
     pub malformed: AtomicU64,
     /// Clients dropped because their queue was full (they did not read).
     pub clients_dropped: AtomicU64,
+}
+
+/// Malformed messages of one client quoted in full on stderr; the rest are counted.
+pub const QUOTED_COMPLAINTS: u64 = 5;
+/// At most one summary line per client per interval for its further malformed messages.
+pub const COMPLAINT_INTERVAL: Duration = Duration::from_secs(10);
+
+/// One client's malformed input as reported on stderr: rate-limited and summarised.
+#[derive(Debug)]
+pub struct Complaints {
+    /// Malformed messages from this client so far.
+    pub total: u64,
+    /// Counted since the last line that mentioned them.
+    unreported: u64,
+    last_line: Instant,
+    latest: String,
+}
+
+impl Default for Complaints {
+    fn default() -> Self {
+        Complaints {
+            total: 0,
+            unreported: 0,
+            last_line: Instant::now(),
+            latest: String::new(),
+        }
+    }
+}
+
+impl Complaints {
+    /// Count one malformed message; returns the line to print, if any (the first
+    /// [`QUOTED_COMPLAINTS`] in full, then at most one count per [`COMPLAINT_INTERVAL`]).
+    pub fn add(&mut self, who: &str, what: &str) -> Option<String> {
+        self.total += 1;
+        if self.total < QUOTED_COMPLAINTS {
+            self.last_line = Instant::now();
+            return Some(format!("hub: client {who}: {}", sanitize(what)));
+        }
+        if self.total == QUOTED_COMPLAINTS {
+            self.last_line = Instant::now();
+            return Some(format!(
+                "hub: client {who}: {} (further malformed messages from this client are counted: one line per {} s, the total when it disconnects)",
+                sanitize(what),
+                COMPLAINT_INTERVAL.as_secs()
+            ));
+        }
+        self.unreported += 1;
+        if self.latest.is_empty() || self.unreported == 1 {
+            self.latest = sanitize(what);
+        }
+        let dt = self.last_line.elapsed();
+        if dt < COMPLAINT_INTERVAL {
+            return None;
+        }
+        let line = format!(
+            "hub: client {who}: {} more malformed messages in the last {:.0} s ({} in all); e.g. {}",
+            self.unreported,
+            dt.as_secs_f64(),
+            self.total,
+            self.latest
+        );
+        self.unreported = 0;
+        self.latest.clear();
+        self.last_line = Instant::now();
+        Some(line)
+    }
+
+    /// What to append to the disconnect line: the total, if there was any malformed input.
+    pub fn at_disconnect(&self) -> Option<String> {
+        (self.total > 0).then(|| {
+            format!(
+                "{} malformed messages in all ({} not shown one by one)",
+                self.total,
+                self.total.saturating_sub(QUOTED_COMPLAINTS)
+            )
+        })
+    }
 }
 
 /// Frames queued per client before it counts as not reading and is dropped: 2048 frames
@@ -139,11 +222,19 @@ impl Hub {
     /// Accept clients forever (one thread per client).
     pub fn serve(self) -> std::io::Result<()> {
         let mut next_id = 0u64;
+        // Accept failures (out of descriptors…) repeat as fast as the loop turns: one line
+        // per interval with the count, and a pause so the loop does not spin.
+        let (mut failed, mut failed_line) = (0u64, None::<Instant>);
         for conn in self.listener.incoming() {
             let stream = match conn {
                 Ok(s) => s,
                 Err(e) => {
-                    eprintln!("hub: accept failed: {e}");
+                    failed += 1;
+                    if failed_line.is_none_or(|t| t.elapsed() >= COMPLAINT_INTERVAL) {
+                        eprintln!("hub: accept failed: {e} ({failed} failures so far)");
+                        failed_line = Some(Instant::now());
+                    }
+                    std::thread::sleep(Duration::from_millis(10));
                     continue;
                 }
             };
@@ -159,12 +250,28 @@ impl Hub {
                     let peer = stream
                         .peer_addr()
                         .map_or_else(|_| "?".to_string(), |a| a.to_string());
-                    let why = client_loop(id, stream, &reg, &stats, quiet, &peer, delay);
+                    let mut complaints = Complaints::default();
+                    let why = client_loop(
+                        id,
+                        stream,
+                        &reg,
+                        &stats,
+                        quiet,
+                        &peer,
+                        delay,
+                        &mut complaints,
+                    );
                     if let Ok(mut r) = reg.lock() {
                         r.clients.retain(|c| c.id != id);
                     }
-                    if !quiet {
-                        eprintln!("hub: client {id} ({peer}) disconnected: {why}");
+                    match complaints.at_disconnect() {
+                        Some(total) => {
+                            eprintln!("hub: client {id} ({peer}) disconnected: {why}; {total}")
+                        }
+                        None if !quiet => {
+                            eprintln!("hub: client {id} ({peer}) disconnected: {why}")
+                        }
+                        None => {}
                     }
                 });
         }
@@ -268,6 +375,7 @@ enum State {
     Raw(String),
 }
 
+#[allow(clippy::too_many_arguments)]
 fn client_loop(
     id: u64,
     mut stream: TcpStream,
@@ -276,6 +384,7 @@ fn client_loop(
     quiet: bool,
     peer: &str,
     join_delay: Duration,
+    complaints: &mut Complaints,
 ) -> String {
     let _ = stream.set_nodelay(true);
     // Only this client's writer thread waits on a client that stops reading; its queue fills
@@ -287,9 +396,12 @@ fn client_loop(
     let mut state = State::Greeted;
     let mut framer = Framer::new();
     let mut buf = [0u8; 4096];
-    let complain = |what: &str| {
+    let who = format!("{id} ({peer})");
+    let mut complain = |what: &str| {
         stats.malformed.fetch_add(1, Ordering::Relaxed);
-        eprintln!("hub: client {id} ({peer}): {}", sanitize(what));
+        if let Some(line) = complaints.add(&who, what) {
+            eprintln!("{line}");
+        }
     };
     loop {
         let n = match stream.read(&mut buf) {
@@ -407,5 +519,33 @@ fn client_loop(
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Complaints, QUOTED_COMPLAINTS};
+
+    #[test]
+    fn complaints_are_quoted_then_counted() {
+        let mut c = Complaints::default();
+        let lines: Vec<String> = (0..10_000)
+            .filter_map(|i| c.add("1 (peer)", &format!("junk {i}")))
+            .collect();
+        // within one interval: only the first ones, the last of them announcing the counting
+        assert_eq!(lines.len() as u64, QUOTED_COMPLAINTS);
+        assert!(lines[0].contains("junk 0"));
+        assert!(lines[4].contains("counted"), "{}", lines[4]);
+        // once the interval has passed, the next one brings a line with the counts
+        c.last_line -= super::COMPLAINT_INTERVAL;
+        let line = c.add("1 (peer)", "junk last").unwrap();
+        assert!(
+            line.contains("9996 more malformed messages") && line.contains("(10001 in all)"),
+            "{line}"
+        );
+        assert!(c.add("1 (peer)", "junk").is_none());
+        let end = c.at_disconnect().unwrap();
+        assert!(end.starts_with("10002 malformed messages"), "{end}");
+        assert!(Complaints::default().at_disconnect().is_none());
     }
 }

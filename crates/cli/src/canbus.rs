@@ -55,6 +55,13 @@ pub fn run(cmd: CanbusCommand) -> ExitCode {
                     return ExitCode::from(1);
                 }
             };
+            if let Some(w) = crate::live::exposure_warning(
+                "canbus hub --listen",
+                addr,
+                "this CAN bus (read every frame, and send frames that reach the valve)",
+            ) {
+                eprintln!("{w}");
+            }
             let mut out = std::io::stdout().lock();
             let _ = writeln!(out, "listening on {addr}");
             let _ = out.flush();

@@ -1,13 +1,18 @@
 //! `ehactl run --live [ADDR]`: the running loop served to Foxglove over the Foxglove WebSocket
-//! protocol (subprotocol `foxglove.sdk.v1`, the SDK's name for `foxglove.websocket.v1`) by Foxglove's own SDK (the `foxglove`
-//! crate's `WebSocketServer`), with the channels, schemas and message bytes of the MCAP log.
+//! protocol by Foxglove's own SDK (the `foxglove` crate's `WebSocketServer`), with the
+//! channels, schemas and message bytes of the MCAP log. Clients connect to a front
+//! ([`crate::live_front`]) on ADDR that accepts the published subprotocol name
+//! `foxglove.websocket.v1` as well as the SDK's `foxglove.sdk.v1`/`v1.1`, hands each connection
+//! to the SDK server on an internal loopback port and counts per client what it delivers and
+//! drops.
 //!
 //! Data path: the cycle pushes records to the MCAP logger's lock-free queue as always; the
 //! logger's writer thread offers each message it writes to a bounded [`LogTap`] (dropped and
 //! counted when full); this module's thread takes them from the tap and publishes them. So
-//! neither the cycle nor the log ever waits for a viewer. The SDK then queues per client and
-//! drops the oldest messages for a slow client.
+//! neither the cycle nor the log ever waits for a viewer. The front then queues per client and
+//! drops (and counts) the oldest messages for a slow client.
 
+use crate::live_front::{ClientStats, Front};
 use ehactl_hal::logger::{LogTap, TapMessage};
 use ehactl_hal::record::{control_schema, plant_schema, timing_schema};
 use ehactl_hal::schemas;
@@ -24,14 +29,25 @@ pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 const TAP_CAPACITY: usize = 8192;
 
 /// What the live view did.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct LiveStats {
     /// Messages handed to the server (all channels).
     pub published: u64,
-    /// Messages dropped before the server because the tap was full.
+    /// Messages dropped before the server because the tap was full (no client got them).
     pub dropped: u64,
     /// Clients connected when the run ended.
     pub clients: usize,
+    /// Every client that connected (completed the WebSocket upgrade): what it got and missed.
+    pub per_client: Vec<ClientStats>,
+    /// Connections refused (bad upgrade request, no subprotocol the server speaks) or failed.
+    pub refused: u64,
+}
+
+impl LiveStats {
+    /// Messages subscribed clients missed, summed over clients.
+    pub fn client_dropped(&self) -> u64 {
+        self.per_client.iter().map(|c| c.messages_dropped).sum()
+    }
 }
 
 /// A running live view.
@@ -40,6 +56,7 @@ pub struct LiveView {
     _ctx: Arc<Context>,
     tap: Arc<LogTap>,
     server: Option<foxglove::WebSocketServerHandle>,
+    front: Option<Front>,
     thread: Option<JoinHandle<()>>,
     published: Arc<AtomicU64>,
     abort: Arc<AtomicBool>,
@@ -72,6 +89,16 @@ fn channel(
 
 fn json_schema(name: &str, schema: serde_json::Value) -> Schema {
     Schema::new(name, "jsonschema", schema.to_string().into_bytes())
+}
+
+/// A warning when `addr` (bound) is not a loopback address: `what` is then reachable from the
+/// network, without authentication or encryption.
+pub fn exposure_warning(flag: &str, addr: std::net::SocketAddr, what: &str) -> Option<String> {
+    (!addr.ip().is_loopback()).then(|| {
+        format!(
+            "ehactl: warning: {flag} {addr} is not a loopback address: {what} is reachable from the network by anyone who can reach this machine (no authentication, no encryption); bind 127.0.0.1 and use an SSH tunnel to reach it from elsewhere"
+        )
+    })
 }
 
 /// Parse `HOST:PORT` (port 0 = any free port).
@@ -156,15 +183,37 @@ impl LiveView {
                 json_schema(schemas::SUMMARY_SCHEMA_NAME, schemas::summary_schema()),
             )?,
         };
+        // The user's address is the front's; the SDK server listens on loopback only.
+        let listener = std::net::TcpListener::bind((host.as_str(), port))
+            .map_err(|e| format!("--live {addr}: cannot listen ({e}); expected a free HOST:PORT such as {DEFAULT_ADDR} (port 0 = any free port)"))?;
+        let bound = listener
+            .local_addr()
+            .map_err(|e| format!("--live {addr}: {e}"))?;
+        if let Some(w) = exposure_warning(
+            "--live",
+            bound,
+            "the rig's live data (every logged channel, the config included)",
+        ) {
+            eprintln!("{w}");
+        }
         let server = WebSocketServer::new()
             .name(concat!("ehactl ", env!("CARGO_PKG_VERSION")))
             .context(&ctx)
-            .bind(host.clone(), port)
+            .bind("127.0.0.1", 0)
             .start_blocking()
             .map_err(|e| {
                 format!("--live {addr}: cannot start the Foxglove WebSocket server: {e}")
             })?;
-        let url = format!("ws://{}:{}", host, server.port());
+        let front = Front::start(
+            listener,
+            std::net::SocketAddr::from(([127, 0, 0, 1], server.port())),
+        )
+        .map_err(|e| format!("--live {addr}: cannot start the live view's listener: {e}"))?;
+        let url = if host.contains(':') {
+            format!("ws://[{}]:{}", host, bound.port())
+        } else {
+            format!("ws://{}:{}", host, bound.port())
+        };
         let tap = Arc::new(LogTap::new(TAP_CAPACITY));
         let published = Arc::new(AtomicU64::new(0));
         let abort = Arc::new(AtomicBool::new(false));
@@ -179,6 +228,7 @@ impl LiveView {
             _ctx: ctx,
             tap,
             server: Some(server),
+            front: Some(front),
             thread: Some(thread),
             published,
             abort,
@@ -209,10 +259,18 @@ impl LiveView {
         if let Some(s) = self.server.take() {
             s.stop().wait_blocking();
         }
+        // The SDK closed its side of every connection: the front delivers what it still
+        // holds for clients that read (up to `linger`) and cuts off the others.
+        let (per_client, refused) = self
+            .front
+            .take()
+            .map_or((Vec::new(), 0), |f| f.finish(linger));
         LiveStats {
             published: self.published.load(Ordering::Relaxed),
             dropped: self.tap.dropped(),
             clients,
+            per_client,
+            refused,
         }
     }
 }

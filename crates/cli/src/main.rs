@@ -12,6 +12,7 @@ mod canbus;
 use canbus::HalKind;
 mod diagnose;
 mod live;
+mod live_front;
 mod run_cmd;
 
 use clap::{Parser, Subcommand};

@@ -305,6 +305,14 @@ fn report(
             "messages_published": st.published,
             "messages_dropped": st.dropped,
             "clients_at_end": st.clients,
+            "client_messages_dropped": st.client_dropped(),
+            "connections_refused": st.refused,
+            "clients": st.per_client.iter().map(|c| serde_json::json!({
+                "peer": c.peer.to_string(),
+                "subprotocol": c.subprotocol,
+                "messages_sent": c.messages_sent,
+                "messages_dropped": c.messages_dropped,
+            })).collect::<Vec<_>>(),
         });
     }
     if args.json {
@@ -372,8 +380,25 @@ fn print_text_summary(
     }
     if let Some((url, st)) = live_stats {
         println!(
-            "  live          {url}: {} messages published, {} dropped (viewer too slow), {} client(s) at the end",
+            "  live          {url}: {} messages published, {} dropped before the server, {} client(s) at the end",
             st.published, st.dropped, st.clients
+        );
+        let slow: Vec<_> = st
+            .per_client
+            .iter()
+            .filter(|c| c.messages_dropped > 0)
+            .collect();
+        println!(
+            "  live clients  {} connected, {} missed messages (too slow to read): {} messages dropped in all{}",
+            st.per_client.len(),
+            slow.len(),
+            st.client_dropped(),
+            slow.iter()
+                .max_by_key(|c| c.messages_dropped)
+                .map_or(String::new(), |c| format!(
+                    "; worst {} got {} and missed {}",
+                    c.peer, c.messages_sent, c.messages_dropped
+                ))
         );
     }
     canbus::print_summary(summary);

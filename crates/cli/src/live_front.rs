@@ -1,0 +1,908 @@
+//! The front of the live view: the socket the user's Foxglove clients connect to, in front of
+//! the Foxglove SDK's WebSocket server (which listens on an internal loopback port).
+//!
+//! Why a front at all (both written by hand because neither the SDK nor a maintained crate
+//! offers them):
+//!
+//! 1. **Subprotocol name.** The Foxglove WebSocket protocol is published as
+//!    `foxglove.websocket.v1` (<https://github.com/foxglove/ws-protocol/blob/main/docs/spec.md>),
+//!    and Foxglove's own client library `@foxglove/ws-protocol` (`FoxgloveClient`, used by the
+//!    open-source viewers and ROS tooling) offers only that name. The SDK server of the
+//!    `foxglove` crate we use (0.30) negotiates only `foxglove.sdk.v1` / `foxglove.sdk.v1.1`
+//!    (its `websocket/handshake.rs`: exact match, else HTTP 400) and has no option to accept
+//!    another name. `foxglove.sdk.v1` carries the same messages as `foxglove.websocket.v1`
+//!    (inline schemas in `advertise`; `v1.1` uses a schema table the older clients do not
+//!    know), so the front reads the client's HTTP upgrade request, offers `foxglove.sdk.v1`
+//!    to the SDK in place of `foxglove.websocket.v1`, and answers the client with the name it
+//!    asked for. The `Sec-WebSocket-Accept` key does not depend on the subprotocol, so the
+//!    rest of the handshake passes through unchanged. Clients offering an SDK name pass
+//!    through untouched.
+//! 2. **Per-client accounting.** The SDK drops the oldest queued messages of a client that
+//!    does not keep up and only says so in a throttled `tracing` line, with no count. Here
+//!    each client's server-to-client byte stream is read as WebSocket frames (RFC 6455 §5.2)
+//!    into a bounded per-client queue, which is where the dropping now happens, counted:
+//!    only `Message Data` frames (binary, first payload byte 0x01, spec "Message Data") are
+//!    ever dropped, oldest first; text (JSON control messages such as `advertise`), other
+//!    binary messages and WebSocket control frames are always delivered, and a client whose
+//!    undelivered backlog exceeds [`MAX_QUEUED_BYTES`] anyway is disconnected (as the SDK
+//!    does when its control queue overflows). The thread that reads from the SDK only moves
+//!    bytes into memory, so the SDK's own queue for the connection stays near empty.
+//!    A message counts as sent once the client's TCP has acknowledged it: what still sits in
+//!    the kernel's send buffer when the connection is cut (Linux `SIOCOUTQ`) counts as
+//!    dropped, and that buffer is capped ([`SEND_BUFFER`]) so a client that stops reading
+//!    reaches the counted queue soon.
+//!
+//! Client-to-server bytes (masked frames: subscribe, unsubscribe…) are copied unchanged.
+//! Every client costs three threads of normal priority (handshake + reading the SDK, copying
+//! the client's bytes, writing to the client), none of which touch the control loop: the
+//! loop never waits for the live view (see `live.rs`).
+
+use std::collections::VecDeque;
+use std::io::{Read, Write};
+use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// The subprotocol name of the published protocol spec (what `FoxgloveClient` offers).
+pub const WS_PROTOCOL_V1: &str = "foxglove.websocket.v1";
+/// The SDK's name for the same protocol with inline schemas.
+pub const SDK_V1: &str = "foxglove.sdk.v1";
+/// The SDK's newer variant (schema table); passed through when a client offers it.
+pub const SDK_V1_1: &str = "foxglove.sdk.v1.1";
+
+/// `Message Data` frames queued per client before the oldest is dropped: 0.27 s of a 5 kHz
+/// run publishing /control, /plant and /timing (15 000 messages/s).
+pub const MAX_QUEUED_MESSAGES: usize = 4096;
+/// Undelivered bytes per client (all kinds) beyond which the client is disconnected.
+pub const MAX_QUEUED_BYTES: usize = 64 << 20;
+/// `SO_SNDBUF` of a client's socket (bytes; Linux doubles it): 1 MiB holds 0.4 s of the
+/// 2.3 MB/s a 5 kHz run publishes, so a client on a slow link is not starved, while a client
+/// that stops reading leaves at most that much outside the counted queue.
+const SEND_BUFFER: usize = 1 << 20;
+/// Written bytes remembered per client to tell which messages the client's TCP has not
+/// acknowledged (more than the doubled [`SEND_BUFFER`]).
+const WRITTEN_WINDOW: u64 = 4 << 20;
+/// Longest HTTP request or response head accepted (bytes).
+const MAX_HEAD: usize = 16 << 10;
+/// Time a client (or the SDK) has to complete the HTTP upgrade.
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+/// Largest WebSocket frame passed on (bytes); the SDK's messages are far smaller.
+const MAX_FRAME: u64 = 256 << 20;
+
+/// What one client got.
+#[derive(Debug, Clone)]
+pub struct ClientStats {
+    /// The client's address as the front saw it.
+    pub peer: SocketAddr,
+    /// Subprotocol answered to the client (empty if the upgrade failed).
+    pub subprotocol: String,
+    /// `Message Data` messages written completely to the client's socket.
+    pub messages_sent: u64,
+    /// `Message Data` messages the client did not get: dropped because its queue was full,
+    /// or still queued (or partly written) when it or the run ended.
+    pub messages_dropped: u64,
+}
+
+struct Counters {
+    peer: SocketAddr,
+    subprotocol: Mutex<String>,
+    sent: AtomicU64,
+    dropped: AtomicU64,
+    written: Mutex<Written>,
+}
+
+/// Bytes written to the client's socket, and where the recent `Message Data` ones end.
+#[derive(Default)]
+struct Written {
+    bytes: u64,
+    data_ends: VecDeque<u64>,
+}
+
+impl Written {
+    /// `len` more bytes written (part of a message, or all of it).
+    fn bytes(&mut self, len: usize) {
+        self.bytes += len as u64;
+    }
+
+    /// The message written last is complete.
+    fn end(&mut self, data: bool) {
+        if data {
+            self.data_ends.push_back(self.bytes);
+        }
+        while self
+            .data_ends
+            .front()
+            .is_some_and(|&e| self.bytes - e > WRITTEN_WINDOW)
+        {
+            self.data_ends.pop_front();
+        }
+    }
+
+    /// `Message Data` messages not completely acknowledged when `unacked` bytes are.
+    fn unacknowledged(&self, unacked: u64) -> u64 {
+        let acked = self.bytes.saturating_sub(unacked);
+        self.data_ends
+            .iter()
+            .rev()
+            .take_while(|&&e| e > acked)
+            .count() as u64
+    }
+}
+
+/// Bytes written to `s` that the peer has not acknowledged (Linux `SIOCOUTQ`; 0 elsewhere).
+fn unacknowledged_bytes(s: &TcpStream) -> u64 {
+    #[cfg(target_os = "linux")]
+    {
+        let mut n: libc::c_int = 0;
+        // SAFETY: `s` owns an open socket; TIOCOUTQ (= SIOCOUTQ) writes one c_int.
+        let r = unsafe {
+            libc::ioctl(
+                std::os::fd::AsRawFd::as_raw_fd(s),
+                libc::TIOCOUTQ,
+                &mut n as *mut libc::c_int,
+            )
+        };
+        if r == 0 {
+            return n.max(0) as u64;
+        }
+    }
+    let _ = s;
+    0
+}
+
+#[derive(Debug)]
+struct Unit {
+    bytes: Vec<u8>,
+    /// A `Message Data` message: may be dropped, and is counted.
+    data: bool,
+}
+
+#[derive(Default)]
+struct QueueState {
+    units: VecDeque<Unit>,
+    data_units: usize,
+    bytes: usize,
+    /// No more units will come (the SDK closed its side).
+    closed: bool,
+    /// The client is gone or was cut off: nothing more is written.
+    dead: bool,
+}
+
+struct Queue {
+    state: Mutex<QueueState>,
+    ready: Condvar,
+}
+
+/// One connection: the client's socket, the SDK-side socket, the counters.
+struct Conn {
+    counters: Arc<Counters>,
+    client: TcpStream,
+    upstream: Mutex<Option<TcpStream>>,
+    queue: Queue,
+}
+
+impl Conn {
+    /// Cut the connection off (both sockets), count what was still queued as dropped.
+    fn kill(&self) {
+        // Linger 0: when the last descriptor closes, the connection is reset and what the
+        // client's TCP has not acknowledged is discarded, not delivered later by the kernel
+        // (so counting it as dropped, in `Front::finish`, is true).
+        set_linger_zero(&self.client);
+        let _ = self.client.shutdown(Shutdown::Both);
+        if let Ok(u) = self.upstream.lock() {
+            if let Some(u) = u.as_ref() {
+                let _ = u.shutdown(Shutdown::Both);
+            }
+        }
+        let mut q = lock(&self.queue.state);
+        q.dead = true;
+        let n = q.data_units as u64;
+        q.units.clear();
+        q.data_units = 0;
+        q.bytes = 0;
+        self.counters.dropped.fetch_add(n, Ordering::Relaxed);
+        self.queue.ready.notify_all();
+    }
+
+    /// Queue one unit for the client (dropping the oldest `Message Data` if full).
+    fn push(&self, unit: Unit) {
+        let mut q = lock(&self.queue.state);
+        if q.dead {
+            if unit.data {
+                self.counters.dropped.fetch_add(1, Ordering::Relaxed);
+            }
+            return;
+        }
+        if unit.data && q.data_units >= MAX_QUEUED_MESSAGES {
+            if let Some(i) = q.units.iter().position(|u| u.data) {
+                if let Some(old) = q.units.remove(i) {
+                    q.bytes -= old.bytes.len();
+                    q.data_units -= 1;
+                    self.counters.dropped.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+        q.bytes += unit.bytes.len();
+        q.data_units += usize::from(unit.data);
+        q.units.push_back(unit);
+        let over = q.bytes > MAX_QUEUED_BYTES;
+        drop(q);
+        self.queue.ready.notify_one();
+        if over {
+            self.kill();
+        }
+    }
+
+    fn close_queue(&self) {
+        lock(&self.queue.state).closed = true;
+        self.queue.ready.notify_all();
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// The running front.
+pub struct Front {
+    stop: Arc<AtomicBool>,
+    accept: Option<JoinHandle<()>>,
+    conns: Arc<Mutex<Vec<Arc<Conn>>>>,
+    /// Connection threads still running.
+    active: Arc<AtomicUsize>,
+    /// Clients whose upgrade failed (bad request, refused by the SDK).
+    rejected: Arc<AtomicU64>,
+}
+
+impl Front {
+    /// Listen on `listener` (already bound to the user's address) and relay every client to
+    /// the SDK server at `upstream` (loopback).
+    pub fn start(listener: TcpListener, upstream: SocketAddr) -> std::io::Result<Front> {
+        // Non-blocking accept, polled, so that `finish` can stop the thread without a
+        // connection to itself.
+        listener.set_nonblocking(true)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let conns: Arc<Mutex<Vec<Arc<Conn>>>> = Arc::default();
+        let active = Arc::new(AtomicUsize::new(0));
+        let rejected = Arc::new(AtomicU64::new(0));
+        let accept = {
+            let (stop, conns, active, rejected) = (
+                stop.clone(),
+                conns.clone(),
+                active.clone(),
+                rejected.clone(),
+            );
+            std::thread::Builder::new()
+                .name("ehactl-live-front".into())
+                .spawn(move || {
+                    accept_loop(&listener, upstream, &stop, &conns, &active, &rejected)
+                })?
+        };
+        Ok(Front {
+            stop,
+            accept: Some(accept),
+            conns,
+            active,
+            rejected,
+        })
+    }
+
+    /// Stop accepting; give the connections `grace` to deliver what they hold (the SDK
+    /// server must have been stopped, which closes their SDK side), then cut off the rest.
+    /// Returns every client that completed the upgrade, in connection order, and the
+    /// number of connections refused.
+    pub fn finish(mut self, grace: Duration) -> (Vec<ClientStats>, u64) {
+        self.stop.store(true, Ordering::Release);
+        if let Some(t) = self.accept.take() {
+            let _ = t.join();
+        }
+        let t0 = Instant::now();
+        while self.active.load(Ordering::Acquire) > 0 && t0.elapsed() < grace {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let conns = lock(&self.conns).clone();
+        for c in &conns {
+            c.kill();
+        }
+        // The writers see their sockets shut down at once; wait for their final counts.
+        let t0 = Instant::now();
+        while self.active.load(Ordering::Acquire) > 0 && t0.elapsed() < Duration::from_secs(2) {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        // Written but never acknowledged by the client: not delivered. Every socket has been
+        // shut down, so a non-empty send queue ends with the FIN (one sequence number).
+        for c in &conns {
+            let unacked = unacknowledged_bytes(&c.client).saturating_sub(1);
+            let n = lock(&c.counters.written).unacknowledged(unacked);
+            if n > 0 {
+                c.counters.sent.fetch_sub(n, Ordering::Relaxed);
+                c.counters.dropped.fetch_add(n, Ordering::Relaxed);
+            }
+        }
+        let stats = conns
+            .iter()
+            .filter(|c| !lock(&c.counters.subprotocol).is_empty())
+            .map(|c| ClientStats {
+                peer: c.counters.peer,
+                subprotocol: lock(&c.counters.subprotocol).clone(),
+                messages_sent: c.counters.sent.load(Ordering::Relaxed),
+                messages_dropped: c.counters.dropped.load(Ordering::Relaxed),
+            })
+            .collect();
+        (stats, self.rejected.load(Ordering::Relaxed))
+    }
+}
+
+/// Decrements the active-thread count when a connection thread ends (also on panic).
+struct ActiveGuard(Arc<AtomicUsize>);
+
+impl Drop for ActiveGuard {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+fn spawn_counted(
+    active: &Arc<AtomicUsize>,
+    name: String,
+    f: impl FnOnce() + Send + 'static,
+) -> std::io::Result<()> {
+    active.fetch_add(1, Ordering::AcqRel);
+    let guard = ActiveGuard(active.clone());
+    std::thread::Builder::new()
+        .name(name)
+        .spawn(move || {
+            let _g = guard;
+            f();
+        })
+        .map(|_| ())
+}
+
+fn accept_loop(
+    listener: &TcpListener,
+    upstream: SocketAddr,
+    stop: &AtomicBool,
+    conns: &Arc<Mutex<Vec<Arc<Conn>>>>,
+    active: &Arc<AtomicUsize>,
+    rejected: &Arc<AtomicU64>,
+) {
+    let mut reported = false;
+    while !stop.load(Ordering::Acquire) {
+        let (client, peer) = match listener.accept() {
+            Ok(c) => c,
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(10));
+                continue;
+            }
+            Err(e) => {
+                // Out of descriptors and the like: say it once, keep serving.
+                if !reported {
+                    eprintln!("ehactl: --live: accepting a client failed: {e}");
+                    reported = true;
+                }
+                std::thread::sleep(Duration::from_millis(50));
+                continue;
+            }
+        };
+        let _ = client.set_nonblocking(false);
+        let _ = client.set_nodelay(true);
+        set_send_buffer(&client, SEND_BUFFER);
+        let Ok(client2) = client.try_clone() else {
+            continue;
+        };
+        let conn = Arc::new(Conn {
+            counters: Arc::new(Counters {
+                peer,
+                subprotocol: Mutex::new(String::new()),
+                sent: AtomicU64::new(0),
+                dropped: AtomicU64::new(0),
+                written: Mutex::new(Written::default()),
+            }),
+            client: client2,
+            upstream: Mutex::new(None),
+            queue: Queue {
+                state: Mutex::new(QueueState::default()),
+                ready: Condvar::new(),
+            },
+        });
+        lock(conns).push(conn.clone());
+        let (a, r, list) = (active.clone(), rejected.clone(), conns.clone());
+        let spawned = spawn_counted(active, format!("live-conn-{peer}"), move || {
+            // On success the writer thread delivers what is queued and ends by itself.
+            // On failure the client got its HTTP answer (or went away): counted, not logged
+            // (a port scanner must not flood stderr), and forgotten unless it had upgraded.
+            if serve(client, &conn, upstream, &a).is_err() {
+                r.fetch_add(1, Ordering::Relaxed);
+                conn.kill();
+                if lock(&conn.counters.subprotocol).is_empty() {
+                    lock(&list).retain(|c| !Arc::ptr_eq(c, &conn));
+                }
+            }
+        });
+        if spawned.is_err() {
+            rejected.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+fn set_send_buffer(s: &TcpStream, bytes: usize) {
+    let v = libc::c_int::try_from(bytes).unwrap_or(libc::c_int::MAX);
+    // SAFETY: `s` owns an open socket; SO_SNDBUF takes one c_int. A failure only leaves the
+    // kernel's default (auto-tuned) buffer.
+    unsafe {
+        libc::setsockopt(
+            std::os::fd::AsRawFd::as_raw_fd(s),
+            libc::SOL_SOCKET,
+            libc::SO_SNDBUF,
+            (&v as *const libc::c_int).cast(),
+            std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+        );
+    }
+}
+
+fn set_linger_zero(s: &TcpStream) {
+    let v = libc::linger {
+        l_onoff: 1,
+        l_linger: 0,
+    };
+    // SAFETY: `s` owns an open socket; SO_LINGER takes one `struct linger`.
+    unsafe {
+        libc::setsockopt(
+            std::os::fd::AsRawFd::as_raw_fd(s),
+            libc::SOL_SOCKET,
+            libc::SO_LINGER,
+            (&v as *const libc::linger).cast(),
+            std::mem::size_of::<libc::linger>() as libc::socklen_t,
+        );
+    }
+}
+
+/// Read an HTTP head (up to the blank line); returns (head, bytes read after it).
+fn read_head(s: &mut TcpStream) -> std::io::Result<(Vec<u8>, Vec<u8>)> {
+    let mut buf = Vec::with_capacity(1024);
+    let mut chunk = [0u8; 2048];
+    loop {
+        if let Some(i) = buf.windows(4).position(|w| w == b"\r\n\r\n") {
+            let rest = buf.split_off(i + 4);
+            return Ok((buf, rest));
+        }
+        if buf.len() > MAX_HEAD {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("HTTP head longer than {MAX_HEAD} bytes"),
+            ));
+        }
+        let n = s.read(&mut chunk)?;
+        if n == 0 {
+            return Err(std::io::ErrorKind::UnexpectedEof.into());
+        }
+        buf.extend_from_slice(&chunk[..n]);
+    }
+}
+
+fn bad_request(client: &mut TcpStream, why: &str) -> std::io::Error {
+    let body = format!("{why}\n");
+    let _ = write!(
+        client,
+        "HTTP/1.1 400 Bad Request\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    std::io::Error::new(std::io::ErrorKind::InvalidData, why.to_string())
+}
+
+/// The request to send to the SDK and the subprotocol name to answer the client with
+/// instead of the SDK's (`None`: pass the SDK's answer through).
+fn rewrite_request(head: &[u8]) -> Result<(Vec<u8>, Option<&'static str>), String> {
+    let mut headers = [httparse::EMPTY_HEADER; 64];
+    let mut req = httparse::Request::new(&mut headers);
+    match req.parse(head) {
+        Ok(httparse::Status::Complete(_)) => {}
+        Ok(httparse::Status::Partial) => return Err("incomplete HTTP request".into()),
+        Err(e) => return Err(format!("malformed HTTP request: {e}")),
+    }
+    let offered: Vec<String> = req
+        .headers
+        .iter()
+        .filter(|h| h.name.eq_ignore_ascii_case("sec-websocket-protocol"))
+        .flat_map(|h| {
+            String::from_utf8_lossy(h.value)
+                .split(',')
+                .map(|p| p.trim().to_string())
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let has = |p: &str| offered.iter().any(|o| o == p);
+    let rename = !has(SDK_V1) && !has(SDK_V1_1) && has(WS_PROTOCOL_V1);
+    let mut out = Vec::with_capacity(head.len());
+    let _ = write!(
+        out,
+        "{} {} HTTP/1.1\r\n",
+        req.method.unwrap_or("GET"),
+        req.path.unwrap_or("/")
+    );
+    for h in req.headers.iter() {
+        let name = h.name;
+        if name.eq_ignore_ascii_case("sec-websocket-protocol") && rename {
+            continue;
+        }
+        // No extension (permessage-deflate): the accounting reads plain frames.
+        if name.eq_ignore_ascii_case("sec-websocket-extensions") {
+            continue;
+        }
+        out.extend_from_slice(name.as_bytes());
+        out.extend_from_slice(b": ");
+        out.extend_from_slice(h.value);
+        out.extend_from_slice(b"\r\n");
+    }
+    if rename {
+        let _ = write!(out, "Sec-WebSocket-Protocol: {SDK_V1}\r\n");
+    }
+    out.extend_from_slice(b"\r\n");
+    Ok((out, rename.then_some(WS_PROTOCOL_V1)))
+}
+
+/// The SDK's response for the client: status, the response head with the subprotocol
+/// renamed if asked, and the subprotocol the client ends up with.
+fn rewrite_response(head: &[u8], rename: Option<&str>) -> Result<(u16, Vec<u8>, String), String> {
+    let mut headers = [httparse::EMPTY_HEADER; 64];
+    let mut res = httparse::Response::new(&mut headers);
+    match res.parse(head) {
+        Ok(httparse::Status::Complete(_)) => {}
+        Ok(httparse::Status::Partial) => return Err("incomplete HTTP response".into()),
+        Err(e) => return Err(format!("malformed HTTP response: {e}")),
+    }
+    let code = res.code.unwrap_or(0);
+    let mut out = Vec::with_capacity(head.len());
+    let _ = write!(out, "HTTP/1.1 {code} {}\r\n", res.reason.unwrap_or(""));
+    let mut proto = String::new();
+    for h in res.headers.iter() {
+        let mut value = h.value.to_vec();
+        if h.name.eq_ignore_ascii_case("sec-websocket-protocol") {
+            if let Some(r) = rename {
+                value = r.as_bytes().to_vec();
+            }
+            proto = String::from_utf8_lossy(&value).into_owned();
+        }
+        out.extend_from_slice(h.name.as_bytes());
+        out.extend_from_slice(b": ");
+        out.extend_from_slice(&value);
+        out.extend_from_slice(b"\r\n");
+    }
+    out.extend_from_slice(b"\r\n");
+    Ok((code, out, proto))
+}
+
+/// One connection: upgrade, then relay until either side ends.
+fn serve(
+    mut client: TcpStream,
+    conn: &Arc<Conn>,
+    upstream_addr: SocketAddr,
+    active: &Arc<AtomicUsize>,
+) -> std::io::Result<()> {
+    client.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
+    client.set_write_timeout(Some(HANDSHAKE_TIMEOUT))?;
+    let (head, early) = match read_head(&mut client) {
+        Ok(h) => h,
+        Err(e) => {
+            return Err(bad_request(
+                &mut client,
+                &format!("bad HTTP upgrade request: {e}"),
+            ))
+        }
+    };
+    let (request, rename) = match rewrite_request(&head) {
+        Ok(r) => r,
+        Err(e) => return Err(bad_request(&mut client, &e)),
+    };
+    let mut up = TcpStream::connect_timeout(&upstream_addr, HANDSHAKE_TIMEOUT)?;
+    up.set_nodelay(true)?;
+    up.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
+    *lock(&conn.upstream) = Some(up.try_clone()?);
+    up.write_all(&request)?;
+    up.write_all(&early)?;
+    let (rhead, mut rest) = read_head(&mut up)?;
+    let (code, response, proto) = match rewrite_response(&rhead, rename) {
+        Ok(r) => r,
+        Err(e) => return Err(bad_request(&mut client, &e)),
+    };
+    client.write_all(&response)?;
+    if code != 101 {
+        // The SDK's refusal (e.g. 400: no subprotocol it knows): pass its body on.
+        client.write_all(&rest)?;
+        let mut body = Vec::new();
+        let _ = (&mut up).take(MAX_HEAD as u64).read_to_end(&mut body);
+        let _ = client.write_all(&body);
+        return Err(std::io::Error::other(format!(
+            "upgrade refused: HTTP {code}"
+        )));
+    }
+    *lock(&conn.counters.subprotocol) = proto;
+    client.set_read_timeout(None)?;
+    client.set_write_timeout(None)?;
+    up.set_read_timeout(None)?;
+
+    // Client → SDK: bytes copied unchanged.
+    {
+        let (mut from, mut to, c) = (client.try_clone()?, up.try_clone()?, conn.clone());
+        spawn_counted(active, "live-up".into(), move || {
+            let mut buf = [0u8; 8192];
+            loop {
+                match from.read(&mut buf) {
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                    Ok(0) | Err(_) => break,
+                    Ok(n) => {
+                        if to.write_all(&buf[..n]).is_err() {
+                            break;
+                        }
+                    }
+                }
+            }
+            // The client left: close the SDK side too (the SDK then drops the client).
+            c.kill();
+        })?;
+    }
+    // Queue → client.
+    {
+        let (mut to, c) = (client.try_clone()?, conn.clone());
+        spawn_counted(active, "live-down".into(), move || write_loop(&mut to, &c))?;
+    }
+    // SDK → queue (this thread).
+    let mut frames = FrameSplitter::default();
+    frames.push(&rest);
+    rest.clear();
+    let mut buf = vec![0u8; 64 << 10];
+    loop {
+        loop {
+            match frames.next_unit() {
+                Ok(Some(u)) => conn.push(u),
+                Ok(None) => break,
+                Err(e) => {
+                    conn.kill();
+                    return Err(std::io::Error::new(std::io::ErrorKind::InvalidData, e));
+                }
+            }
+        }
+        match up.read(&mut buf) {
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Ok(0) | Err(_) => break,
+            Ok(n) => frames.push(&buf[..n]),
+        }
+    }
+    conn.close_queue();
+    Ok(())
+}
+
+fn write_loop(to: &mut TcpStream, conn: &Conn) {
+    loop {
+        let unit = {
+            let mut q = lock(&conn.queue.state);
+            loop {
+                if q.dead {
+                    return;
+                }
+                if let Some(u) = q.units.pop_front() {
+                    q.bytes -= u.bytes.len();
+                    q.data_units -= usize::from(u.data);
+                    break u;
+                }
+                if q.closed {
+                    drop(q);
+                    // Everything the SDK sent (its close frame last) is delivered.
+                    let _ = to.shutdown(Shutdown::Write);
+                    return;
+                }
+                q = conn.queue.ready.wait(q).unwrap_or_else(|p| p.into_inner());
+            }
+        };
+        // Not `write_all`: the bytes of a message cut off half-way count too (to tell later
+        // which complete messages the client acknowledged).
+        let mut b = &unit.bytes[..];
+        while !b.is_empty() {
+            match to.write(b) {
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Ok(0) | Err(_) => {
+                    if unit.data {
+                        conn.counters.dropped.fetch_add(1, Ordering::Relaxed);
+                    }
+                    conn.kill();
+                    return;
+                }
+                Ok(n) => {
+                    lock(&conn.counters.written).bytes(n);
+                    b = &b[n..];
+                }
+            }
+        }
+        lock(&conn.counters.written).end(unit.data);
+        if unit.data {
+            conn.counters.sent.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Splits the server-to-client byte stream into whole WebSocket messages (RFC 6455 §5.2):
+/// a data message with its continuation frames, or one control frame.
+#[derive(Default)]
+struct FrameSplitter {
+    buf: Vec<u8>,
+    start: usize,
+    /// Frames of a fragmented message so far, and whether it is `Message Data`.
+    partial: Option<(Vec<u8>, bool)>,
+}
+
+impl FrameSplitter {
+    fn push(&mut self, b: &[u8]) {
+        if self.start > 0 && self.start == self.buf.len() {
+            self.buf.clear();
+            self.start = 0;
+        } else if self.start > (1 << 20) {
+            self.buf.drain(..self.start);
+            self.start = 0;
+        }
+        self.buf.extend_from_slice(b);
+    }
+
+    fn next_unit(&mut self) -> Result<Option<Unit>, String> {
+        loop {
+            let b = &self.buf[self.start..];
+            if b.len() < 2 {
+                return Ok(None);
+            }
+            let (fin, rsv, opcode) = (b[0] & 0x80 != 0, b[0] & 0x70, b[0] & 0x0F);
+            let masked = b[1] & 0x80 != 0;
+            let (len, mut hdr) = match b[1] & 0x7F {
+                126 if b.len() >= 4 => (u64::from(u16::from_be_bytes([b[2], b[3]])), 4),
+                127 if b.len() >= 10 => {
+                    let mut l = [0u8; 8];
+                    l.copy_from_slice(&b[2..10]);
+                    (u64::from_be_bytes(l), 10)
+                }
+                126 | 127 => return Ok(None),
+                n => (u64::from(n), 2),
+            };
+            if len > MAX_FRAME {
+                return Err(format!(
+                    "WebSocket frame of {len} bytes from the SDK (at most {MAX_FRAME})"
+                ));
+            }
+            if masked {
+                hdr += 4;
+            }
+            let total = hdr + len as usize;
+            if b.len() < total {
+                return Ok(None);
+            }
+            let frame = &b[..total];
+            // Server frames are not masked (RFC 6455 §5.1); a masked one is never dropped.
+            let first = (!masked && len > 0).then(|| frame[hdr]);
+            let is_data = |op: u8| op == 2 && rsv == 0 && first == Some(0x01);
+            self.start += total;
+            match opcode {
+                // Control frames (close, ping, pong): alone, may sit inside a fragmented
+                // message.
+                8..=15 => {
+                    return Ok(Some(Unit {
+                        bytes: frame.to_vec(),
+                        data: false,
+                    }))
+                }
+                0 => {
+                    let Some((mut acc, data)) = self.partial.take() else {
+                        return Err("WebSocket continuation frame without a message".into());
+                    };
+                    acc.extend_from_slice(frame);
+                    if fin {
+                        return Ok(Some(Unit { bytes: acc, data }));
+                    }
+                    self.partial = Some((acc, data));
+                }
+                _ if fin => {
+                    return Ok(Some(Unit {
+                        bytes: frame.to_vec(),
+                        data: is_data(opcode),
+                    }))
+                }
+                _ => self.partial = Some((frame.to_vec(), is_data(opcode))),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(fin: bool, opcode: u8, payload: &[u8]) -> Vec<u8> {
+        let mut f = vec![(u8::from(fin) << 7) | opcode];
+        match payload.len() {
+            n if n < 126 => f.push(n as u8),
+            n if n < 65536 => {
+                f.push(126);
+                f.extend_from_slice(&(n as u16).to_be_bytes());
+            }
+            n => {
+                f.push(127);
+                f.extend_from_slice(&(n as u64).to_be_bytes());
+            }
+        }
+        f.extend_from_slice(payload);
+        f
+    }
+
+    #[test]
+    fn splits_messages_and_classifies_message_data() {
+        let data = [1u8, 0, 0, 0, 0, 9, 9, 9];
+        let big = vec![1u8; 70_000];
+        let mut s = FrameSplitter::default();
+        let mut stream = Vec::new();
+        stream.extend(frame(true, 1, br#"{"op":"advertise"}"#));
+        stream.extend(frame(true, 2, &data));
+        stream.extend(frame(true, 2, &[2, 0, 0]));
+        stream.extend(frame(false, 2, &data[..3]));
+        stream.extend(frame(true, 9, b"ping"));
+        stream.extend(frame(true, 0, &data[3..]));
+        stream.extend(frame(true, 2, &big));
+        // byte by byte: nothing is emitted before a message is complete
+        let mut units = Vec::new();
+        for b in &stream {
+            s.push(std::slice::from_ref(b));
+            while let Some(u) = s.next_unit().unwrap() {
+                units.push(u);
+            }
+        }
+        let kinds: Vec<bool> = units.iter().map(|u| u.data).collect();
+        assert_eq!(kinds, [false, true, false, false, true, true]);
+        assert_eq!(
+            units.iter().map(|u| u.bytes.len()).sum::<usize>(),
+            stream.len()
+        );
+        assert!(FrameSplitter::default().next_unit().unwrap().is_none());
+        let mut bad = FrameSplitter::default();
+        bad.push(&frame(true, 0, b"x"));
+        assert!(bad.next_unit().unwrap_err().contains("continuation"));
+    }
+
+    #[test]
+    fn unacknowledged_messages() {
+        let mut w = Written::default();
+        w.bytes(100); // advertise
+        w.end(false);
+        for _ in 0..10 {
+            w.bytes(20);
+            w.bytes(30);
+            w.end(true);
+        }
+        assert_eq!(w.unacknowledged(0), 0);
+        assert_eq!(w.unacknowledged(50), 1);
+        assert_eq!(w.unacknowledged(51), 2);
+        assert_eq!(w.unacknowledged(10_000), 10);
+    }
+
+    #[test]
+    fn renames_the_published_subprotocol_only() {
+        let req = b"GET / HTTP/1.1\r\nHost: x\r\nSec-WebSocket-Protocol: foxglove.websocket.v1\r\nSec-WebSocket-Extensions: permessage-deflate\r\n\r\n";
+        let (out, rename) = rewrite_request(req).unwrap();
+        let out = String::from_utf8(out).unwrap();
+        assert_eq!(rename, Some(WS_PROTOCOL_V1));
+        assert!(
+            out.contains("Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n"),
+            "{out}"
+        );
+        assert!(
+            !out.contains("websocket.v1") && !out.contains("deflate"),
+            "{out}"
+        );
+        let sdk = b"GET / HTTP/1.1\r\nSec-WebSocket-Protocol: foxglove.websocket.v1, foxglove.sdk.v1\r\n\r\n";
+        assert_eq!(rewrite_request(sdk).unwrap().1, None);
+        let res =
+            b"HTTP/1.1 101 Switching Protocols\r\nsec-websocket-protocol: foxglove.sdk.v1\r\n\r\n";
+        let (code, out, proto) = rewrite_response(res, Some(WS_PROTOCOL_V1)).unwrap();
+        assert_eq!((code, proto.as_str()), (101, WS_PROTOCOL_V1));
+        assert!(String::from_utf8(out)
+            .unwrap()
+            .contains("foxglove.websocket.v1"));
+        assert!(rewrite_request(b"\x00garbage\r\n\r\n").is_err());
+    }
+}
