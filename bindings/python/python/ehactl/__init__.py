@@ -23,6 +23,8 @@ optional dependency).
 
 from __future__ import annotations
 
+from types import ModuleType
+
 from ._ehactl import (  # noqa: F401  (re-exported)
     Config,
     NumericalError,
@@ -54,7 +56,7 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> ModuleType:
     # Lazy submodules: `ehactl.plot` imports matplotlib only when used.
     if name in ("tune", "metrics", "plot"):
         import importlib
