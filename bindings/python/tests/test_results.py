@@ -125,9 +125,13 @@ def test_results_pickle(analysis):
     # Results travel through Dask and multiprocessing.
     b = pickle.loads(pickle.dumps(analysis))
     assert b.to_dict() == analysis.to_dict()
+    assert not b.loop_response.f_hz.flags.writeable  # still immutable after the round trip
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        b.rig = "x"  # type: ignore[misc]
     r = ehactl.run(ehactl.Config.load(FORCE), duration=0.01)
     r2 = pickle.loads(pickle.dumps(r))
     np.testing.assert_array_equal(r2.force, r.force)
+    assert not r2.force.flags.writeable
     assert r2.summary.to_dict() == r.summary.to_dict()
 
 

@@ -24,7 +24,7 @@ import numpy.typing as npt
 from . import _ehactl
 from ._ehactl import Config
 from ._runs import ConfigLike, _as_config, run_many
-from .results import FloatArray, FrozenMap, _thaw
+from .results import FloatArray, FrozenMap, _setstate_frozen, _thaw
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -85,6 +85,9 @@ class FrequencyResponse:
         object.__setattr__(self, "gains", FrozenMap({str(k): float(v) for k, v in self.gains.items()}))
         if not isinstance(self.details, FrozenMap):
             object.__setattr__(self, "details", FrozenMap(dict(self.details)))
+
+    def __setstate__(self, state: Mapping[str, Any]) -> None:
+        _setstate_frozen(self, state)  # arrays read-only again after unpickling
 
     @property
     def loop(self) -> ComplexArray:

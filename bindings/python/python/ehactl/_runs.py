@@ -8,9 +8,10 @@ import json
 import os
 from pathlib import Path
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Literal, Mapping, NoReturn, Sequence, Union, overload
+from typing import TYPE_CHECKING, Any, Callable, Generic, Iterable, Literal, Mapping, NoReturn, Sequence, TypeVar, Union, overload
 
 import numpy as np
+import numpy.typing as npt
 
 from . import _ehactl
 from ._ehactl import Config
@@ -18,7 +19,7 @@ if TYPE_CHECKING:
     import pandas as pd
     from tqdm import tqdm
 
-from .results import FloatArray, FrozenMap, RunSummary, _fmt
+from .results import FrozenMap, RunSummary, _fmt, _setstate_frozen
 
 ConfigLike = Union[Config, str, "os.PathLike[str]"]
 
@@ -73,7 +74,10 @@ def _prepare(cfg: ConfigLike, setpoint: Any, overrides: Mapping[str, Any] | None
     return c
 
 
-class _Column:
+_DT = TypeVar("_DT", bound=np.generic)
+
+
+class _Column(Generic[_DT]):
     """Descriptor of one run column: ``res.force`` is ``res.columns["force"]`` (read-only
     NumPy array); a column left out with ``fields=`` raises AttributeError naming those
     that are there."""
@@ -84,14 +88,15 @@ class _Column:
         self.name = name
 
     @overload
-    def __get__(self, obj: None, owner: type) -> _Column: ...
+    def __get__(self, obj: None, owner: type) -> _Column[_DT]: ...
     @overload
-    def __get__(self, obj: RunResult, owner: type) -> FloatArray: ...
-    def __get__(self, obj: RunResult | None, owner: type) -> _Column | FloatArray:
+    def __get__(self, obj: RunResult, owner: type) -> npt.NDArray[_DT]: ...
+    def __get__(self, obj: RunResult | None, owner: type) -> _Column[_DT] | npt.NDArray[_DT]:
         if obj is None:
             return self
         try:
-            return obj.columns[self.name]
+            col: npt.NDArray[_DT] = obj.columns[self.name]
+            return col
         except KeyError:
             raise AttributeError(
                 f"RunResult has no column {self.name!r} (not among fields=); available: {', '.join(obj.columns)}"
@@ -125,41 +130,41 @@ class RunResult:
     #: The config that ran (overrides applied).
     config: Config
 
-    t = _Column("t")
-    setpoint = _Column("setpoint")
-    setpoint_rate = _Column("setpoint_rate")
-    feedback = _Column("feedback")
-    error = _Column("error")
-    u = _Column("u")
-    command = _Column("u")
-    command_unsat = _Column("command_unsat")
-    p_term = _Column("p_term")
-    i_term = _Column("i_term")
-    d_term = _Column("d_term")
-    ff_term = _Column("ff_term")
-    force = _Column("force")
-    position = _Column("position")
-    p_a = _Column("p_a")
-    p_b = _Column("p_b")
-    spool = _Column("spool")
-    plant_command = _Column("plant_command")
-    valve_command = _Column("plant_command")
-    plant_spool = _Column("plant_spool")
-    spool_velocity = _Column("spool_velocity")
-    plant_p_a = _Column("plant_p_a")
-    plant_p_b = _Column("plant_p_b")
-    p_s = _Column("p_s")
-    x = _Column("x")
-    v = _Column("v")
-    x_load = _Column("x_load")
-    v_load = _Column("v_load")
-    q_a = _Column("q_a")
-    q_b = _Column("q_b")
-    friction = _Column("friction")
-    external = _Column("external")
-    rod_force = _Column("rod_force")
-    stuck = _Column("stuck")
-    cycle = _Column("cycle")
+    t = _Column[np.float64]("t")
+    setpoint = _Column[np.float64]("setpoint")
+    setpoint_rate = _Column[np.float64]("setpoint_rate")
+    feedback = _Column[np.float64]("feedback")
+    error = _Column[np.float64]("error")
+    u = _Column[np.float64]("u")
+    command = _Column[np.float64]("u")
+    command_unsat = _Column[np.float64]("command_unsat")
+    p_term = _Column[np.float64]("p_term")
+    i_term = _Column[np.float64]("i_term")
+    d_term = _Column[np.float64]("d_term")
+    ff_term = _Column[np.float64]("ff_term")
+    force = _Column[np.float64]("force")
+    position = _Column[np.float64]("position")
+    p_a = _Column[np.float64]("p_a")
+    p_b = _Column[np.float64]("p_b")
+    spool = _Column[np.float64]("spool")
+    plant_command = _Column[np.float64]("plant_command")
+    valve_command = _Column[np.float64]("plant_command")
+    plant_spool = _Column[np.float64]("plant_spool")
+    spool_velocity = _Column[np.float64]("spool_velocity")
+    plant_p_a = _Column[np.float64]("plant_p_a")
+    plant_p_b = _Column[np.float64]("plant_p_b")
+    p_s = _Column[np.float64]("p_s")
+    x = _Column[np.float64]("x")
+    v = _Column[np.float64]("v")
+    x_load = _Column[np.float64]("x_load")
+    v_load = _Column[np.float64]("v_load")
+    q_a = _Column[np.float64]("q_a")
+    q_b = _Column[np.float64]("q_b")
+    friction = _Column[np.float64]("friction")
+    external = _Column[np.float64]("external")
+    rod_force = _Column[np.float64]("rod_force")
+    stuck = _Column[np.bool_]("stuck")
+    cycle = _Column[np.uint64]("cycle")
 
     @classmethod
     def from_raw(cls, columns: Mapping[str, np.ndarray], summary_json: str, config: Config) -> RunResult:
@@ -174,9 +179,18 @@ class RunResult:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.columns[_ALIASES.get(name, name)]
 
+    def __setstate__(self, state: Mapping[str, Any]) -> None:
+        _setstate_frozen(self, state)  # arrays read-only again after unpickling
+
     def keys(self) -> list[str]:
         """Column names."""
         return list(self.columns)
+
+    def __dir__(self) -> list[str]:
+        # Tab completion offers the columns this run has (and their aliases), not all of them.
+        have = set(self.columns) | {a for a, c in _ALIASES.items() if c in self.columns}
+        cls = type(self)
+        return sorted(n for n in object.__dir__(self) if not isinstance(cls.__dict__.get(n), _Column) or n in have)
 
     def __len__(self) -> int:
         if "cycle" in self.columns:

@@ -124,6 +124,23 @@ def _thaw(v: Any) -> Any:
     return v
 
 
+def _readonly(v: Any) -> Any:
+    """Arrays (also inside a FrozenMap) made read-only again, e.g. after unpickling."""
+    if isinstance(v, np.ndarray):
+        v.setflags(write=False)
+    elif isinstance(v, FrozenMap):
+        for x in v.values():
+            _readonly(x)
+    return v
+
+
+def _setstate_frozen(obj: object, state: Mapping[str, Any]) -> None:
+    """``__setstate__`` of the frozen result classes: pickle restores arrays writeable; make
+    them read-only again (and bypass the frozen ``__setattr__``)."""
+    for k, v in state.items():
+        object.__setattr__(obj, k, _readonly(v))
+
+
 def _f(v: Any) -> float:
     """JSON number (or null for a non-finite value) → float (NaN for null)."""
     return math.nan if v is None else float(v)
@@ -174,9 +191,16 @@ class _DictCompat:
             stacklevel=3,
         )
 
+    def __setstate__(self, state: Mapping[str, Any]) -> None:
+        _setstate_frozen(self, state)
+
     def __getitem__(self, key: str) -> Any:
         self._warn(f"[{key!r}]")
         return self._legacy()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        self._warn(" iteration")
+        return iter(self._legacy())
 
     def get(self, key: str, default: Any = None) -> Any:
         """Deprecated: ``getattr(res, key, default)`` or ``res.to_dict().get(key)``."""
