@@ -251,7 +251,7 @@ def test_diagnose_to_dict_is_the_cli_json(delay_record):
         d.extended_params["x"] = 1.0  # type: ignore[index]
     rep = repr(d)
     assert rep.startswith("DiagnosisResult(cause='time_delay'") and "12 candidates" in rep and len(rep) < 300
-    pd = pytest.importorskip("pandas")
+    pytest.importorskip("pandas")
     df = d.to_pandas()
     assert len(df) == len(d.candidates) == 12
     assert df.loc[df["effect"] == "time_delay", "accepted"].item()
@@ -284,7 +284,7 @@ def test_frequency_response_is_frozen_and_keyword_built(force_cfg):
     r = repr(fr)
     assert r.startswith("FrequencyResponse(linear, 20 points") and "phase_margin_deg=" in r
     json.dumps(fr.to_dict(), allow_nan=False)
-    pd = pytest.importorskip("pandas")
+    pytest.importorskip("pandas")
     df = fr.to_pandas()
     assert df.index.name == "f_hz" and len(df) == 20
     np.testing.assert_allclose(df["loop"].to_numpy(), fr.loop)

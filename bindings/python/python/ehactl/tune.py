@@ -574,7 +574,7 @@ def optimize(
         return np.log([g["control.pd.kp"], g["control.pd.td"]])
 
     side = max(4, int(round(math.sqrt(population))))
-    g0 = np.array(np.meshgrid(*[np.linspace(l, h, side) for l, h in zip(lo, hi)])).reshape(len(names), -1).T
+    g0 = np.array(np.meshgrid(*[np.linspace(a, b, side) for a, b in zip(lo, hi)])).reshape(len(names), -1).T
     extra = [qrow({**{p: float(base[p]) for p in gain_paths(base)}, **g}) for g in start]
     z = np.clip(np.vstack([g0, q0[None, :], *[e[None, :] for e in extra]]), lo, hi)
     mu: FloatArray | None = None
@@ -632,7 +632,7 @@ def optimize(
     assert best is not None
     if not math.isfinite(best[0]):
         raise RuntimeError("optimize: every candidate tripped or failed; check bounds and the step test")
-    at_bound = [n for n, v, l, h in zip(names, qrow(best[2]), lo, hi) if min(v - l, h - v) < 1e-3 * (h - l)]
+    at_bound = [n for n, v, a, b in zip(names, qrow(best[2]), lo, hi) if min(v - a, b - v) < 1e-3 * (b - a)]
     details = {
         "objective": objective if isinstance(objective, str) else getattr(objective, "__name__", "callable"),
         "cost": best[0],
