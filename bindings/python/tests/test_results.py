@@ -219,10 +219,10 @@ def test_run_columns_are_typed_attributes():
     assert r.force.dtype == np.float64 and r.force.shape == (50,)
     np.testing.assert_array_equal(r.command, r.u)
     np.testing.assert_array_equal(r["force"], r.force)
-    with pytest.raises(AttributeError, match="no column 'x'.*available: t, force, u"):
+    with pytest.raises(AttributeError, match="no column 'x'.*available: cycle, t, force, u"):
         r.x
     d = r.to_dict()
-    assert set(d["columns"]) == {"t", "force", "u"} and d["summary"]["cycles"] == 50
+    assert set(d["columns"]) == {"cycle", "t", "force", "u"} and d["summary"]["cycles"] == 50
     json.dumps(d, allow_nan=False)
 
 

@@ -8,9 +8,9 @@ NumPy arrays for sampled responses, a ``repr`` that summarises a few key figures
 conversions:
 
 * ``to_dict()`` — the JSON object of the matching CLI command (``ehactl analyze --json``,
-  ``ehactl sweep --json``, ``ehactl diagnose --json``, the run summary), with the same keys and
-  values: ``json.dumps(res.to_dict())`` is what the CLI prints (non-finite numbers as
-  ``null``, as the CLI writes them). ``from_dict()`` builds the object back from that JSON.
+  ``ehactl sweep --json``, ``ehactl diagnose --json``, the run summary of ``ehactl run
+  --json``) with the same keys and values (non-finite numbers as ``None``, which the CLI
+  writes as ``null``); ``from_dict()`` builds the object back from that JSON.
 * ``to_pandas()`` — the tabular part as a ``pandas.DataFrame`` (pandas is imported only then;
   without it an ImportError says how to install it).
 
@@ -22,9 +22,11 @@ refuses new attributes.) Construct them with keywords; the fields are in SI unit
 as in the CLI's JSON.
 
 Compatibility: earlier releases returned plain dicts. ``res["phase_margin_deg"]``,
-``res.get(...)``, ``res.keys()`` and ``key in res`` still work on these objects and return
-what the dict held (e.g. NumPy arrays under ``sweep(...)["f_hz"]``), but emit a
-``DeprecationWarning``: item access is removed in the next release; use the attributes.
+``res.get(...)``, ``res.keys()``, ``key in res`` and iteration still work on these objects
+and return what the dict held (e.g. NumPy arrays under ``sweep(...)["f_hz"]``, the replay
+``notes`` under ``diagnose(...)["notes"]``), but emit a ``DeprecationWarning``: dict-style
+access is removed in the next release; use the attributes. (``RunResult["force"]``, item
+access to a run's columns, is not deprecated.)
 """
 
 from __future__ import annotations
