@@ -56,16 +56,11 @@ def test_sweep_bad_arguments_raise_value_errors(force_cfg):
         ehactl.sweep(force_cfg, 5.0, 100.0, points=1)
 
 
-def test_diagnose_names_a_hidden_delay_like_the_cli(tmp_path):
+def test_diagnose_names_a_hidden_delay_like_the_cli(delay_diagnosis, tmp_path):
     """A run of the test rig with a hidden 5 ms command delay, logged to MCAP from Python,
     diagnosed against the nominal rig from Python: the same session as `ehactl diagnose`."""
+    mcap, _out, d, calls = delay_diagnosis
     rig = ehactl.Config.load(CONFIGS / "diagnose_testrig.toml")
-    truth = tmp_path / "truth.toml"
-    truth.write_text((CONFIGS / "diagnose_testrig.toml").read_text() + "\n[effects.time_delay]\ndelay = 0.005\n")
-    mcap = tmp_path / "rig.mcap"
-    ehactl.run(ehactl.Config.load(truth), mcap=mcap)
-    calls = []
-    d = ehactl.diagnose(rig, mcap, out=tmp_path / "diag", progress=lambda n, m: calls.append((n, m)))
     assert d.cause == "time_delay"
     # Progress came through the callback (the library draws nothing): fits counted up to a
     # total that covers the nominal refit and at least one fit per catalogue candidate.

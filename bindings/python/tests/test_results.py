@@ -226,25 +226,19 @@ def test_run_columns_are_typed_attributes():
     json.dumps(d, allow_nan=False)
 
 
-@pytest.fixture(scope="module")
-def delay_record(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("diag")
-    truth = tmp / "truth.toml"
-    truth.write_text((CONFIGS / "diagnose_testrig.toml").read_text() + "\n[effects.time_delay]\ndelay = 0.005\n")
-    mcap = tmp / "rig.mcap"
-    ehactl.run(ehactl.Config.load(truth), mcap=mcap)
-    return mcap
-
-
-def test_diagnose_to_dict_is_the_cli_json(delay_record):
-    d = ehactl.diagnose(CONFIGS / "diagnose_testrig.toml", delay_record)
-    cli = cli_json("diagnose", "--config", str(CONFIGS / "diagnose_testrig.toml"), "--data", str(delay_record))
+def test_diagnose_to_dict_is_the_cli_json(delay_diagnosis, tmp_path):
+    mcap, out, d, _calls = delay_diagnosis
+    cli = cli_json("diagnose", "--config", str(CONFIGS / "diagnose_testrig.toml"), "--data", str(mcap),
+                   "--out", str(tmp_path / "cli"))
     assert isinstance(d, DiagnosisResult) and d.cause == "time_delay" and d.causes == ("time_delay",)
     assert isinstance(d.nrmse_extended, NrmseErrors) and d.nrmse_extended.overall < d.nrmse_nominal.overall
     assert all(isinstance(c, DiagnosisCandidate) for c in d.candidates)
     best = next(c for c in d.candidates if c.effect == "time_delay")
     assert best.accepted and abs(best.params["effects.time_delay.delay"] - 0.005) < 0.001
-    assert_same_json(d.to_dict(), cli)
+    # Same JSON but for the report files, written to each caller's own directory.
+    assert_same_json(d.to_dict(), cli, skip={".extended_config", ".report", ".plots"})
+    assert d.report == str(out / "report.md") and cli["report"] == str(tmp_path / "cli" / "report.md")
+    assert d.plots is not None and [os.path.basename(p) for p in d.plots] == [os.path.basename(p) for p in cli["plots"]]
     assert DiagnosisResult.from_dict(cli).to_dict() == cli
     assert isinstance(d.residual_test, FrozenMap)
     with pytest.raises(TypeError):
