@@ -56,24 +56,26 @@ class FrequencyResponse:
     or from the linearised plant (:func:`linear_response`). Construct with keywords.
 
     Immutable (frozen dataclass, read-only arrays); :meth:`with_gains` returns a new one.
+
+    Attributes:
+        f: Frequency (Hz).
+        plant: Plant response P = Y/U (N/V or m/V), complex.
+        controller: Controller response C (V/N or V/m), complex.
+        closed: Closed loop T = Y/R (measured directly, or L/(1 + L) for a model), complex.
+        unit: Unit of the controlled variable y: "N" or "m".
+        gains: Gains the controller response was computed for (dotted path → value).
+        purity: |Y| share at the test frequency vs the RMS of the periodic window (1 = pure
+            sinusoid, lower = nonlinear or noisy) (-).
+        details: How it was obtained: ``source`` ("measured" or "linear") and its parameters.
     """
 
-    #: Frequency (Hz).
     f: FloatArray
-    #: Plant response P = Y/U (N/V or m/V), complex.
     plant: ComplexArray
-    #: Controller response C (V/N or V/m), complex.
     controller: ComplexArray
-    #: Closed loop T = Y/R (measured directly, or L/(1 + L) for a model), complex.
     closed: ComplexArray
-    #: Unit of the controlled variable y: "N" or "m".
     unit: str
-    #: Gains the controller response was computed for (dotted path → value).
     gains: Mapping[str, float]
-    #: |Y| share at the test frequency vs the RMS of the periodic window (1 = pure sinusoid,
-    #: lower = nonlinear or noisy) (-).
     purity: FloatArray
-    #: How it was obtained: ``source`` ("measured" or "linear") and its parameters.
     details: Mapping[str, Any] = field(default_factory=lambda: FrozenMap({}))
 
     def __post_init__(self) -> None:

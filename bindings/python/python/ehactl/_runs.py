@@ -121,13 +121,15 @@ class RunResult:
 
     Immutable: a frozen dataclass whose ``columns`` mapping and arrays are read-only
     (copy an array to change it: ``res.force.copy()``).
+
+    Attributes:
+        columns: Column name → NumPy array, one entry per control cycle (read-only).
+        summary: Run summary (errors, trip, duration …).
+        config: The config that ran (overrides applied).
     """
 
-    #: Column name → NumPy array, one entry per control cycle (read-only).
     columns: Mapping[str, np.ndarray]
-    #: Run summary (errors, trip, duration …).
     summary: RunSummary
-    #: The config that ran (overrides applied).
     config: Config
 
     t = _Column[np.float64]("t")

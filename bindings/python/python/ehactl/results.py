@@ -225,19 +225,22 @@ class _DictCompat:
 
 @dataclass(frozen=True, eq=False)
 class Margins(_DictCompat):
-    """Stability margins and bandwidths of a loop (``None`` where no crossing exists)."""
+    """Stability margins and bandwidths of a loop (``None`` where no crossing exists).
 
-    #: Gain crossover |L| = 1 (Hz).
+    Attributes:
+        gain_crossover_hz: Gain crossover |L| = 1 (Hz).
+        phase_margin_deg: Phase margin 180° + ∠L at the gain crossover (deg).
+        phase_crossover_hz: Phase crossover ∠L = −180° (Hz).
+        gain_margin_db: Gain margin −20·log₁₀|L| at the phase crossover (dB).
+        closed_loop_bandwidth_hz: −3 dB bandwidth of the closed loop relative to its low-frequency gain (Hz).
+        closed_loop_peak_db: Peak of |T| (dB).
+    """
+
     gain_crossover_hz: Optional[float]
-    #: Phase margin 180° + ∠L at the gain crossover (deg).
     phase_margin_deg: Optional[float]
-    #: Phase crossover ∠L = −180° (Hz).
     phase_crossover_hz: Optional[float]
-    #: Gain margin −20·log₁₀|L| at the phase crossover (dB).
     gain_margin_db: Optional[float]
-    #: −3 dB bandwidth of the closed loop relative to its low-frequency gain (Hz).
     closed_loop_bandwidth_hz: Optional[float]
-    #: Peak of |T| (dB).
     closed_loop_peak_db: float
 
     _KEYS = ("gain_crossover_hz", "phase_margin_deg", "phase_crossover_hz", "gain_margin_db",
@@ -267,24 +270,27 @@ class Margins(_DictCompat):
 
 @dataclass(frozen=True, eq=False)
 class OperatingPoint(_DictCompat):
-    """The operating point the loop was linearised at (noise-free loop run to rest)."""
+    """The operating point the loop was linearised at (noise-free loop run to rest).
 
-    #: Setpoint (N in force mode, m in position mode, V open loop).
+    Attributes:
+        reference: Setpoint (N in force mode, m in position mode, V open loop).
+        feedback: Fed-back measurement at rest (same unit as ``reference``).
+        command_V: Valve command at rest (V).
+        position_m: Piston position (m).
+        p_a_Pa, p_b_Pa: Chamber pressures (Pa).
+        rod_force_N: Rod force (N).
+        settled: Whether the loop came to rest within the search time.
+        search_time_s: Simulated time the search took (s).
+    """
+
     reference: float
-    #: Fed-back measurement at rest (same unit as ``reference``).
     feedback: float
-    #: Valve command at rest (V).
     command_V: float
-    #: Piston position (m).
     position_m: float
-    #: Chamber pressures (Pa).
     p_a_Pa: float
     p_b_Pa: float
-    #: Rod force (N).
     rod_force_N: float
-    #: Whether the loop came to rest within the search time.
     settled: bool
-    #: Simulated time the search took (s).
     search_time_s: float
 
     _FLOATS = ("reference", "feedback", "command_V", "position_m", "p_a_Pa", "p_b_Pa", "rod_force_N",
@@ -308,11 +314,14 @@ class OperatingPoint(_DictCompat):
 
 @dataclass(frozen=True, eq=False)
 class Pole(_DictCompat):
-    """A pole of the continuous linear plant model."""
+    """A pole of the continuous linear plant model.
 
-    #: Natural frequency |λ|/2π (Hz).
+    Attributes:
+        frequency_hz: Natural frequency |λ|/2π (Hz).
+        damping_ratio: Damping ratio −Re λ/|λ| (-).
+    """
+
     frequency_hz: float
-    #: Damping ratio −Re λ/|λ| (-).
     damping_ratio: float
 
     def to_dict(self) -> dict[str, Any]:
@@ -325,25 +334,28 @@ class Pole(_DictCompat):
 @dataclass(frozen=True, eq=False)
 class SddRatios(_DictCompat):
     """Frequency ratios and relative damping of an actuator on a spring–damper-mounted load
-    (Dindorf et al. 2022, eq. 23–29)."""
+    (Dindorf et al. 2022, eq. 23–29).
 
-    #: Actuator (hydraulic) stiffness k_y at the position (N/m).
+    Attributes:
+        k_y: Actuator (hydraulic) stiffness k_y at the position (N/m).
+        f_y_hz: f_y = √(k_y/m_y)/2π (Hz).
+        f_m_hz: f_m = √(k_m/m_L)/2π (Hz).
+        f_e_hz: Excitation frequency (Hz), if periodic.
+        fr_ym: f_y/f_m (-).
+        fr_em: f_e/f_m (-), if periodic.
+        xi_y: ξ_y = d_y/(2√(k_y·m_y)) (-).
+        xi_m: ξ_m = d_m/(2√(k_m·m_L)) (-).
+        rd_my: ξ_m/ξ_y (-).
+    """
+
     k_y: float
-    #: f_y = √(k_y/m_y)/2π (Hz).
     f_y_hz: float
-    #: f_m = √(k_m/m_L)/2π (Hz).
     f_m_hz: float
-    #: Excitation frequency (Hz), if periodic.
     f_e_hz: Optional[float]
-    #: f_y/f_m (-).
     fr_ym: float
-    #: f_e/f_m (-), if periodic.
     fr_em: Optional[float]
-    #: ξ_y = d_y/(2√(k_y·m_y)) (-).
     xi_y: float
-    #: ξ_m = d_m/(2√(k_m·m_L)) (-).
     xi_m: float
-    #: ξ_m/ξ_y (-).
     rd_my: float
 
     _ORDER = ("k_y", "f_y_hz", "f_m_hz", "f_e_hz", "fr_ym", "fr_em", "xi_y", "xi_m", "rd_my")
@@ -364,17 +376,20 @@ class SddRatios(_DictCompat):
 @dataclass(frozen=True, eq=False)
 class LoopResponse(_DictCompat):
     """Frequency response of the sampled loop on a log grid: loop gain L and closed loop
-    T = L/(1 + L). Arrays of equal length (empty in open loop)."""
+    T = L/(1 + L). Arrays of equal length (empty in open loop).
 
-    #: Frequency (Hz).
+    Attributes:
+        f_hz: Frequency (Hz).
+        loop_mag_db: |L| (dB).
+        loop_phase_deg: ∠L (deg, wrapped to (−360°, 0°]).
+        closed_mag_db: |T| (dB).
+        closed_phase_deg: ∠T (deg, wrapped to (−360°, 0°]).
+    """
+
     f_hz: FloatArray
-    #: |L| (dB).
     loop_mag_db: FloatArray
-    #: ∠L (deg, wrapped to (−360°, 0°]).
     loop_phase_deg: FloatArray
-    #: |T| (dB).
     closed_mag_db: FloatArray
-    #: ∠T (deg, wrapped to (−360°, 0°]).
     closed_phase_deg: FloatArray
 
     _KEYS = ("f_hz", "loop_mag_db", "loop_phase_deg", "closed_mag_db", "closed_phase_deg")
@@ -417,44 +432,51 @@ class AnalysisResult(_DictCompat):
     rate, discrete control law; ``sampled_loop`` True); ``continuous`` holds the
     continuous-time loop's (ideal PI/PD, no sampling), as the papers compute them. A margin
     is ``None`` where its crossing does not exist (e.g. no phase crossover: no gain margin).
+
+    Attributes:
+        rig: Rig name.
+        sampled_loop: True when a control law is configured and the margins are the sampled loop's.
+        loop_model: The loop model in words.
+        control_rate_hz: Control rate (Hz).
+        delay_s: Command delay included as e^(−jωτ) (s).
+        hydraulic_natural_frequency_hz: √(K_h/m)/2π at the operating position (Hz).
+        min_natural_frequency_over_stroke_hz: Lowest hydraulic natural frequency over the stroke (Hz) …
+        min_natural_frequency_position_m: … and where it is (m).
+        open_loop_bandwidth_hz: −3 dB bandwidth of the plant (command → output) when it has a static gain (Hz).
+        gain_crossover_hz: Sampled loop: gain crossover |L| = 1 (Hz).
+        phase_margin_deg: Sampled loop: phase margin at the gain crossover (deg).
+        phase_crossover_hz: Sampled loop: phase crossover ∠L = −180° (Hz).
+        gain_margin_db: Sampled loop: gain margin at the phase crossover (dB).
+        closed_loop_bandwidth_hz: Sampled loop: closed-loop −3 dB bandwidth (Hz).
+        closed_loop_peak_db: Sampled loop: peak of |T| (dB).
+        continuous: Margins of the continuous-time loop.
+        operating_point: Operating point of the linearisation.
+        poles: Slowest poles of the continuous plant model.
+        loop_response: Sampled-loop frequency response (``res.loop_response.f_hz`` …).
+        fr_ym, fr_em, rd_my: Dindorf et al. 2022 ratios f_y/f_m, f_e/f_m, ξ_m/ξ_y (-) with a
+            flexibly mounted load; None otherwise (``fr_em`` also without a periodic excitation).
+        sdd: All Dindorf et al. 2022 quantities (:class:`SddRatios`), or None.
     """
 
-    #: Rig name.
     rig: str
-    #: True when a control law is configured and the margins are the sampled loop's.
     sampled_loop: bool
-    #: The loop model in words.
     loop_model: str
-    #: Control rate (Hz).
     control_rate_hz: float
-    #: Command delay included as e^(−jωτ) (s).
     delay_s: float
-    #: √(K_h/m)/2π at the operating position (Hz).
     hydraulic_natural_frequency_hz: float
-    #: Lowest hydraulic natural frequency over the stroke (Hz) …
     min_natural_frequency_over_stroke_hz: float
-    #: … and where it is (m).
     min_natural_frequency_position_m: float
-    #: −3 dB bandwidth of the plant (command → output) when it has a static gain (Hz).
     open_loop_bandwidth_hz: Optional[float]
-    #: Sampled loop: gain crossover (Hz), phase margin (deg), phase crossover (Hz), gain
-    #: margin (dB), closed-loop −3 dB bandwidth (Hz) and peak (dB).
     gain_crossover_hz: Optional[float]
     phase_margin_deg: Optional[float]
     phase_crossover_hz: Optional[float]
     gain_margin_db: Optional[float]
     closed_loop_bandwidth_hz: Optional[float]
     closed_loop_peak_db: Optional[float]
-    #: Margins of the continuous-time loop.
     continuous: Optional[Margins]
-    #: Operating point of the linearisation.
     operating_point: OperatingPoint
-    #: Slowest poles of the continuous plant model.
     poles: Tuple[Pole, ...]
-    #: Sampled-loop frequency response (``res.loop_response.f_hz`` …).
     loop_response: LoopResponse
-    #: Dindorf et al. 2022 ratios f_y/f_m, f_e/f_m, ξ_m/ξ_y (-) and their details, with a
-    #: flexibly mounted load; None otherwise.
     fr_ym: Optional[float]
     fr_em: Optional[float]
     rd_my: Optional[float]
@@ -564,19 +586,22 @@ class AnalysisResult(_DictCompat):
 
 @dataclass(frozen=True, eq=False)
 class SweepResponse(_DictCompat):
-    """Measured frequency response H = output/input, one entry per frequency."""
+    """Measured frequency response H = output/input, one entry per frequency.
 
-    #: Frequency (Hz).
+    Attributes:
+        f_hz: Frequency (Hz).
+        mag_db: 20·log₁₀|H| (dB of output unit per input unit).
+        phase_deg: ∠H (deg), unwrapped along the sweep.
+        coherence: Magnitude coherence γ² over the 4 fit blocks (-).
+        gain: |H| (output unit per input unit).
+        distortion: RMS of the output's sine-fit residual over the fitted amplitude (-).
+    """
+
     f_hz: FloatArray
-    #: 20·log₁₀|H| (dB of output unit per input unit).
     mag_db: FloatArray
-    #: ∠H (deg), unwrapped along the sweep.
     phase_deg: FloatArray
-    #: Magnitude coherence γ² over the 4 fit blocks (-).
     coherence: FloatArray
-    #: |H| (output unit per input unit).
     gain: FloatArray
-    #: RMS of the output's sine-fit residual over the fitted amplitude (-).
     distortion: FloatArray
 
     _KEYS = ("f_hz", "mag_db", "phase_deg", "coherence", "gain", "distortion")
@@ -608,31 +633,35 @@ class SweepResponse(_DictCompat):
 @dataclass(frozen=True, eq=False)
 class SweepResult(_DictCompat):
     """Stepped-sine frequency response of the nonlinear plant: ``ehactl sweep --json`` as
-    an object; the measured points are ``res.frf`` (``res.frf.f_hz``, ``res.frf.mag_db`` …)."""
+    an object; the measured points are ``res.frf`` (``res.frf.f_hz``, ``res.frf.mag_db`` …).
 
-    #: ``"closed_loop"`` (setpoint → output) or ``"open_loop"`` (valve command → output).
+    Attributes:
+        mode: ``"closed_loop"`` (setpoint → output) or ``"open_loop"`` (valve command → output).
+        input: Input signal and its unit.
+        output: Output channel and its unit.
+        offset: Static value the sine rides on (input units).
+        amplitude: Sine amplitude (input units).
+        dwell_s: Dwell per frequency (s).
+        frf: The measured frequency response.
+        bandwidth_hz: −3 dB bandwidth relative to the lowest frequency's gain (Hz), None if not reached.
+        duration_s: Simulated time (s).
+        complete: False when the run was cut short (signal or trip); ``frf`` then covers what was
+            measured.
+        trip: Trip reason, if the supervisor stopped the sweep.
+        mcap: MCAP log path.
+    """
+
     mode: str
-    #: Input signal and its unit.
     input: str
-    #: Output channel and its unit.
     output: str
-    #: Static value the sine rides on (input units).
     offset: float
-    #: Sine amplitude (input units).
     amplitude: float
-    #: Dwell per frequency (s).
     dwell_s: float
-    #: The measured frequency response.
     frf: SweepResponse
-    #: −3 dB bandwidth relative to the lowest frequency's gain (Hz), None if not reached.
     bandwidth_hz: Optional[float]
-    #: Simulated time (s).
     duration_s: float
-    #: False when the run was cut short (signal or trip); ``frf`` then covers what was measured.
     complete: bool
-    #: Trip reason, if the supervisor stopped the sweep.
     trip: Optional[str]
-    #: MCAP log path.
     mcap: Optional[str]
 
     @classmethod
@@ -679,11 +708,14 @@ class SweepResult(_DictCompat):
 
 @dataclass(frozen=True, eq=False)
 class NrmseErrors(_DictCompat):
-    """Held-out error of one model: NRMSE (rms error / std of the measured channel, -)."""
+    """Held-out error of one model: NRMSE (rms error / std of the measured channel, -).
 
-    #: NRMSE per measured channel (-).
+    Attributes:
+        channels: NRMSE per measured channel (-).
+        overall: Root mean square over the channels (-).
+    """
+
     channels: Mapping[str, float]
-    #: Root mean square over the channels (-).
     overall: float
 
     @classmethod
@@ -701,24 +733,27 @@ class NrmseErrors(_DictCompat):
 
 @dataclass(frozen=True, eq=False)
 class DiagnosisCandidate(_DictCompat):
-    """One catalogue effect tested against the refit nominal model."""
+    """One catalogue effect tested against the refit nominal model.
 
-    #: Effect id.
+    Attributes:
+        effect: Effect id.
+        variant: Structural variant that fitted best (``-`` for effects with one form).
+        params: Fitted parameters (dotted config path → value in the path's SI unit;
+            ``<path>/nominal`` marks factors on nominal values).
+        nrmse_train: Overall NRMSE on the fitting data (-).
+        nrmse_validation: Overall NRMSE on the held-out data (-).
+        score: ln(J_validation) + 0.02·(free parameters), lower is better (-).
+        accepted: Whether the effect was accepted into the extended model.
+        evidence: What the residual analysis and the fit say, in one line.
+    """
+
     effect: str
-    #: Structural variant that fitted best (``-`` for effects with one form).
     variant: str
-    #: Fitted parameters (dotted config path → value in the path's SI unit;
-    #: ``<path>/nominal`` marks factors on nominal values).
     params: Mapping[str, float]
-    #: Overall NRMSE on the fitting data (-).
     nrmse_train: float
-    #: Overall NRMSE on the held-out data (-).
     nrmse_validation: float
-    #: ln(J_validation) + 0.02·(free parameters), lower is better (-).
     score: float
-    #: Whether the effect was accepted into the extended model.
     accepted: bool
-    #: What the residual analysis and the fit say, in one line.
     evidence: str
 
     @classmethod
@@ -745,53 +780,58 @@ class DiagnosisResult(_DictCompat):
 
     The deeper sections (``baseline``, ``residual_test``, ``integration``, ``greybox``,
     ``analysis``, ``analysis_refit``) are read-only mappings in the JSON's form.
+
+    Attributes:
+        cause: Top effect id, ``"none"`` (the nominal model explains the data within the noise) or
+            ``"unexplained"``.
+        causes: Accepted effect ids in order of acceptance.
+        variants: Structural variant of each accepted effect.
+        nrmse_nominal, nrmse_refit, nrmse_extended, nrmse_baseline: held-out NRMSE of
+            the nominal model, the refit nominal model (nominal parameters within their
+            stated uncertainty), the extended model and the ARX baseline.
+        gain: 1 − overall extended / overall nominal NRMSE (-).
+        noise_floor: Estimated noise floor of the overall held-out NRMSE (-).
+        candidates: Every catalogue effect tested.
+        extended_params: Parameters of the extended model (dotted path → SI value).
+        refit_at_bounds, extended_at_bounds: Nominal parameters the refit / the extended model left on a bound of their
+            uncertainty.
+        sensor_offsets: Sensor offsets per channel (N, m or Pa); empty unless ``sensor_offsets=True``.
+        ambiguities: Effect pairs the data cannot separate, with the experiment that would.
+        warnings: Warnings from loading and checking the data (also issued as Python warnings).
+        split, summary: How the data were split; plain-words conclusion.
+        extended_config, report, plots: Written files (None when no ``out`` directory was given).
+        baseline, residual_test, integration, greybox, analysis, analysis_refit: sections
+            kept in the JSON's form (read-only mappings; ``greybox`` None when it did not run).
+        notes: Replay notes of the Python call (not part of the CLI's JSON).
     """
 
-    #: Top effect id, ``"none"`` (the nominal model explains the data within the noise) or
-    #: ``"unexplained"``.
     cause: str
-    #: Accepted effect ids in order of acceptance.
     causes: Tuple[str, ...]
-    #: Structural variant of each accepted effect.
     variants: Mapping[str, str]
-    #: Held-out NRMSE of the nominal model, the refit nominal model (nominal parameters
-    #: within their stated uncertainty), the extended model and the ARX baseline.
     nrmse_nominal: NrmseErrors
     nrmse_refit: NrmseErrors
     nrmse_extended: NrmseErrors
     nrmse_baseline: NrmseErrors
-    #: 1 − overall extended / overall nominal NRMSE (-).
     gain: float
-    #: Estimated noise floor of the overall held-out NRMSE (-).
     noise_floor: float
-    #: Every catalogue effect tested.
     candidates: Tuple[DiagnosisCandidate, ...]
-    #: Parameters of the extended model (dotted path → SI value).
     extended_params: Mapping[str, float]
-    #: Nominal parameters the refit / the extended model left on a bound of their uncertainty.
     refit_at_bounds: Tuple[str, ...]
     extended_at_bounds: Tuple[str, ...]
-    #: Sensor offsets per channel (N, m or Pa); empty unless ``sensor_offsets=True``.
     sensor_offsets: Mapping[str, float]
-    #: Effect pairs the data cannot separate, with the experiment that would.
     ambiguities: Tuple[str, ...]
-    #: Warnings from loading and checking the data (also issued as Python warnings).
     warnings: Tuple[str, ...]
-    #: How the data were split; plain-words conclusion.
     split: str
     summary: str
-    #: Written files (None when no ``out`` directory was given).
     extended_config: Optional[str]
     report: Optional[str]
     plots: Optional[Tuple[str, ...]]
-    #: JSON sections kept in their JSON form (read-only).
     baseline: Mapping[str, Any]
     residual_test: Mapping[str, Any]
     integration: Mapping[str, Any]
     greybox: Optional[Mapping[str, Any]]
     analysis: Mapping[str, Any]
     analysis_refit: Mapping[str, Any]
-    #: Replay notes of the Python call (not part of the CLI's JSON).
     notes: Tuple[str, ...] = ()
 
     # JSON key order of `ehactl diagnose --json` (serde field order, then the files).
@@ -875,39 +915,44 @@ class DiagnosisResult(_DictCompat):
 
 @dataclass(frozen=True, eq=False)
 class RunSummary(_DictCompat):
-    """Summary of one closed-loop run (the ``summary`` JSON of ``ehactl run``)."""
+    """Summary of one closed-loop run (the ``summary`` JSON of ``ehactl run``).
 
-    #: Control cycles run.
+    Attributes:
+        cycles: Control cycles run.
+        control_rate_hz: Control rate (Hz).
+        duration_s: Simulated duration (s).
+        rms_error, rms_error_settled, max_abs_error: RMS setpoint error over the run and after settling, largest |error|
+            (``error_unit``); None when not finite.
+        error_unit: Unit of the errors: "N" (force), "m" (position) or "V" (open loop).
+        mcap: MCAP log path, if one was written.
+        trip, trip_kind: The supervisor's one-line trip reason and its kind, if the run tripped.
+        interrupted: Whether the run was interrupted (Ctrl-C).
+        sim_speed_x_realtime, wall_time_s: Simulated time over wall time (-); wall time (s).
+        substeps, log_decimation: Plant integration substeps per control cycle; one logged cycle in
+            ``log_decimation``.
+        log: Log statistics (records written / dropped, queue high water …) when an MCAP was
+            written.
+        realtime: Whether the run was paced in real time (never from Python).
+        extra: Any further keys of the summary JSON (real-time timing, backend report), read-only.
+    """
+
     cycles: int
-    #: Control rate (Hz).
     control_rate_hz: float
-    #: Simulated duration (s).
     duration_s: float
-    #: RMS setpoint error over the run and after settling, largest |error| (``error_unit``);
-    #: None when not finite.
     rms_error: Optional[float]
     rms_error_settled: Optional[float]
     max_abs_error: Optional[float]
-    #: Unit of the errors: "N" (force), "m" (position) or "V" (open loop).
     error_unit: str
-    #: MCAP log path, if one was written.
     mcap: Optional[str]
-    #: The supervisor's one-line trip reason and its kind, if the run tripped.
     trip: Optional[str]
     trip_kind: Optional[str]
-    #: Whether the run was interrupted (Ctrl-C).
     interrupted: bool
-    #: Simulated time over wall time (-); wall time (s).
     sim_speed_x_realtime: float
     wall_time_s: float
-    #: Plant integration substeps per control cycle; one logged cycle in ``log_decimation``.
     substeps: int
     log_decimation: int
-    #: Log statistics (records written / dropped, queue high water …) when an MCAP was written.
     log: Optional[Mapping[str, Any]]
-    #: Whether the run was paced in real time (never from Python).
     realtime: bool
-    #: Any further keys of the summary JSON (real-time timing, backend report), read-only.
     extra: Mapping[str, Any]
 
     _ORDER = ("cycles", "control_rate_hz", "duration_s", "rms_error", "rms_error_settled", "max_abs_error",
