@@ -46,7 +46,7 @@ def main() -> None:
         res = [ehactl.run(c, duration=args.duration) for c in cfgs]
         dt = time.perf_counter() - t0
         assert all(r.ok for r in res)
-        loop_rust_s.append(sum(r.summary["wall_time_s"] for r in res))
+        loop_rust_s.append(sum(r.summary.wall_time_s for r in res))
         return dt
 
     t_many()  # warm-up (page faults, thread pool)

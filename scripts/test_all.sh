@@ -39,5 +39,7 @@ EHACTL_BIN="$PWD/target/release/ehactl" EHACTL_REQUIRE_BINDINGS=1 python3 -m pyt
 echo "== Python bindings (pyo3 + maturin): build, install, test"
 python3 -m pip install --quiet -r bindings/python/requirements-test.txt
 python3 -m pip install --quiet ./bindings/python
+echo "== Python bindings: type check (mypy --strict, config in bindings/python/pyproject.toml)"
+(cd bindings/python && python3 -m mypy)
 EHACTL_BIN="$PWD/target/release/ehactl" bash -c 'cd bindings/python && python3 -m pytest tests -q'
 disk

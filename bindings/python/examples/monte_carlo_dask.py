@@ -51,12 +51,12 @@ def margins_chunk(tomls: list[str]) -> list[dict]:
 
     out = []
     for t in tomls:
-        d = eh.analyze(eh.Config.from_toml(t))  # top-level keys: the sampled (ZOH) loop
+        a = eh.analyze(eh.Config.from_toml(t))  # top-level margins: the sampled (ZOH) loop
         out.append({
-            "phase_margin_deg": d.get("phase_margin_deg"),
-            "gain_margin_db": d.get("gain_margin_db"),
-            "gain_crossover_hz": d.get("gain_crossover_hz"),
-            "closed_loop_bandwidth_hz": d.get("closed_loop_bandwidth_hz"),
+            "phase_margin_deg": a.phase_margin_deg,
+            "gain_margin_db": a.gain_margin_db,
+            "gain_crossover_hz": a.gain_crossover_hz,
+            "closed_loop_bandwidth_hz": a.closed_loop_bandwidth_hz,
         })
     return out
 

@@ -107,8 +107,8 @@ def test_python_config_runs_identically_in_the_cli(force_cfg, tmp_path):
     js = json.loads(cli.stdout)
     res = ehactl.run(force_cfg, duration=0.2)
     assert js["cycles"] == len(res)
-    assert js["rms_error"] == pytest.approx(res.summary["rms_error"], rel=1e-12)
-    assert js["max_abs_error"] == pytest.approx(res.summary["max_abs_error"], rel=1e-12)
+    assert js["rms_error"] == pytest.approx(res.summary.rms_error, rel=1e-12)
+    assert js["max_abs_error"] == pytest.approx(res.summary.max_abs_error, rel=1e-12)
 
 
 def test_version_matches_the_rust_crates():

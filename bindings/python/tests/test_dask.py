@@ -37,9 +37,9 @@ def test_cluster_batch_equals_local_rayon(client, force_cfg):
         assert a.config["control.pi.integral"] == b.config["control.pi.integral"]
         for col in ("force", "u", "x", "p_a"):
             np.testing.assert_array_equal(a[col], b[col])
-        assert a.summary["rms_error"] == b.summary["rms_error"]
+        assert a.summary.rms_error == b.summary.rms_error
     # different gains, different runs: the comparison is not between identical runs
-    assert local[0].summary["rms_error"] != local[-1].summary["rms_error"]
+    assert local[0].summary.rms_error != local[-1].summary.rms_error
     # both workers took part
     assert len(client.scheduler_info()["workers"]) == 2
 

@@ -23,7 +23,7 @@ def test_run_columns(force_cfg):
     # error column is setpoint − measured feedback (the force sensor)
     np.testing.assert_allclose(r.error, r.setpoint - r.force, atol=1e-9)
     assert r.unit == "N" and r.units["p_a"] == "Pa" and r.units["x"] == "m"
-    assert r.summary["cycles"] == n
+    assert r.summary.cycles == n
     # PI terms add up to the unsaturated command (004: u = K_P·g·e + integral)
     np.testing.assert_allclose(r.p_term + r.i_term + r.ff_term, r.command_unsat, rtol=1e-12, atol=1e-12)
 

@@ -14,14 +14,23 @@ and the real-time loop use. Units are SI throughout: s, N, m, Pa, V, m³/s.
 ``ehactl.analyze(cfg)``, ``ehactl.sweep(cfg, ...)`` and ``ehactl.diagnose(cfg, data)`` mirror
 ``ehactl analyze`` / ``ehactl sweep`` / ``ehactl diagnose`` (margins and bandwidths of the
 linearised sampled loop; stepped-sine frequency response of the nonlinear plant; model
-discrepancy on measured data).
+discrepancy on measured data). They return immutable result objects (:mod:`ehactl.results`)
+with the CLI's JSON fields as attributes, units in the names and docstrings, ``to_dict()``
+(the CLI's JSON) and ``to_pandas()``:
 
-Submodules: :mod:`ehactl.tune` (critical-gain, model-based and optimisation tuning),
+    a = ehactl.analyze(cfg)
+    a.phase_margin_deg, a.gain_crossover_hz       # deg, Hz (sampled loop)
+    sw = ehactl.sweep(cfg, 5.0, 300.0, points=12)
+    sw.frf.f_hz, sw.frf.mag_db, sw.bandwidth_hz   # NumPy arrays (Hz, dB), Hz
+
+Submodules: :mod:`ehactl.results` (the result classes), :mod:`ehactl.tune` (critical-gain, model-based and optimisation tuning),
 :mod:`ehactl.metrics` (step / tracking metrics), :mod:`ehactl.plot` (matplotlib figures,
 optional dependency).
 """
 
 from __future__ import annotations
+
+from types import ModuleType
 
 from ._ehactl import (  # noqa: F401  (re-exported)
     Config,
@@ -31,12 +40,18 @@ from ._ehactl import (  # noqa: F401  (re-exported)
 )
 from ._analysis import analyze, diagnose, diagnose_many, sweep
 from ._runs import RunResult, param_grid, params, read_mcap, results_frame, run, run_many
+from . import results
+from .results import AnalysisResult, DiagnosisResult, RunSummary, SweepResult
 
 __all__ = [
+    "AnalysisResult",
     "Config",
+    "DiagnosisResult",
     "NumericalError",
     "Plant",
     "RunResult",
+    "RunSummary",
+    "SweepResult",
     "__version__",
     "analyze",
     "diagnose",
@@ -51,10 +66,11 @@ __all__ = [
     "tune",
     "metrics",
     "plot",
+    "results",
 ]
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> ModuleType:
     # Lazy submodules: `ehactl.plot` imports matplotlib only when used.
     if name in ("tune", "metrics", "plot"):
         import importlib

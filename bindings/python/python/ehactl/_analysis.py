@@ -1,33 +1,39 @@
 """``ehactl.analyze``, ``ehactl.sweep`` and ``ehactl.diagnose``: the CLI's ``ehactl analyze`` /
-``ehactl sweep`` / ``ehactl diagnose`` from Python (same compiled code, same JSON, arrays as NumPy)."""
+``ehactl sweep`` / ``ehactl diagnose`` from Python (same compiled code, same JSON), returned as
+the typed, immutable result objects of :mod:`ehactl.results` (``to_dict()`` gives the JSON)."""
 
 from __future__ import annotations
 
 import json
 import os
 import warnings
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
-import numpy as np
 
 from . import _ehactl
+
+if TYPE_CHECKING:
+    import pandas as pd
 from ._runs import ConfigLike, _as_config, _must_exist, _progress_bar
+from .results import AnalysisResult, DiagnosisResult, SweepResult
 
 
-def analyze(cfg: ConfigLike, *, params: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def analyze(cfg: ConfigLike, *, params: Mapping[str, Any] | None = None) -> AnalysisResult:
     """Linearise ``cfg`` around its operating point, like ``ehactl analyze --json``.
 
     The noise-free loop is run to rest at the setpoint's static value, the plant's step map
     is differentiated over one control period with the command held (so the loop includes
     the zero-order hold, ``sampled_loop`` is True), and margins are computed for the sampled
-    loop (top-level keys) and the continuous loop (``continuous``).
+    loop (top-level attributes) and the continuous loop (``continuous``).
 
-    Returns a dict with, where they apply: ``hydraulic_natural_frequency_hz``,
-    ``min_natural_frequency_over_stroke_hz``, ``open_loop_bandwidth_hz``,
-    ``gain_crossover_hz``, ``phase_margin_deg``, ``phase_crossover_hz``, ``gain_margin_db``,
-    ``closed_loop_bandwidth_hz`` (Hz, deg, dB), seed 003's ``fr_ym``/``fr_em``/``rd_my``, the
-    operating point, the slowest ``poles`` and ``loop_response`` as NumPy arrays
-    (``f_hz``, ``loop_mag_db``, ``loop_phase_deg``, ``closed_mag_db``, ``closed_phase_deg``).
+    Returns an :class:`ehactl.results.AnalysisResult`: ``phase_margin_deg`` (deg) at
+    ``gain_crossover_hz``, ``gain_margin_db`` (dB) at ``phase_crossover_hz``,
+    ``closed_loop_bandwidth_hz``, ``open_loop_bandwidth_hz``,
+    ``hydraulic_natural_frequency_hz`` (Hz; None where a crossing does not exist), the
+    ``operating_point``, the slowest ``poles``, ``loop_response`` (NumPy arrays ``f_hz``,
+    ``loop_mag_db``, ``loop_phase_deg``, ``closed_mag_db``, ``closed_phase_deg``) and, with a
+    flexibly mounted load, Dindorf et al.'s ``fr_ym``/``fr_em``/``rd_my``.
+    ``res.to_dict()`` is the ``ehactl analyze --json`` object.
 
     Args:
         cfg: ``Config`` or path of a TOML config.
@@ -36,12 +42,7 @@ def analyze(cfg: ConfigLike, *, params: Mapping[str, Any] | None = None) -> dict
     c = _as_config(cfg)
     if params:
         c = c.with_values(dict(params))
-    out = json.loads(_ehactl.analyze_json(c))
-    lr = out.get("loop_response") or []
-    out["loop_response"] = {k: np.array([p[k] for p in lr], dtype=float)
-                            for k in ("f_hz", "loop_mag_db", "loop_phase_deg", "closed_mag_db",
-                                      "closed_phase_deg")}
-    return out
+    return AnalysisResult.from_dict(json.loads(_ehactl.analyze_json(c)))
 
 
 def sweep(
@@ -54,10 +55,10 @@ def sweep(
     open_loop: bool = False,
     output: str | None = None,
     periods: float = 6.0,
-    mcap: str | os.PathLike | None = None,
+    mcap: str | os.PathLike[str] | None = None,
     params: Mapping[str, Any] | None = None,
     progress: bool | Callable[[int, int], None] = False,
-) -> dict[str, Any]:
+) -> SweepResult:
     """Frequency response of the nonlinear plant by a stepped sine, like ``ehactl sweep``.
 
     Closed loop: setpoint = operating value + ``amplitude``·sin (N or m); open loop
@@ -76,10 +77,11 @@ def sweep(
         progress: True for a tqdm bar, or a callable ``(done_cycles, total_cycles)``.
 
     Returns:
-        dict with ``f_hz``, ``mag_db``, ``phase_deg``, ``coherence``, ``gain``,
-        ``distortion`` (NumPy arrays), ``bandwidth_hz`` (−3 dB, Hz or None), ``mode``,
-        ``input``, ``output``, ``offset``, ``amplitude``, ``dwell_s``, ``complete``, ``trip``,
-        ``mcap``.
+        :class:`ehactl.results.SweepResult`: ``frf`` (NumPy arrays ``f_hz`` (Hz),
+        ``mag_db`` (dB), ``phase_deg`` (deg), ``coherence``, ``gain``, ``distortion``),
+        ``bandwidth_hz`` (−3 dB, Hz or None), ``mode``, ``input``, ``output``, ``offset``,
+        ``amplitude``, ``dwell_s`` (s), ``complete``, ``trip``, ``mcap``;
+        ``res.to_dict()`` is the ``ehactl sweep --json`` object.
     """
     c = _as_config(cfg)
     if params:
@@ -97,22 +99,18 @@ def sweep(
     finally:
         if bar is not None:
             bar.close()
-    r = json.loads(raw)
-    pts = r.pop("points")
-    for k in ("f_hz", "mag_db", "phase_deg", "coherence", "gain", "distortion"):
-        r[k] = np.array([p[k] for p in pts], dtype=float)
-    return r
+    return SweepResult.from_dict(json.loads(raw))
 
 
 def diagnose(
     cfg: ConfigLike,
-    data: str | os.PathLike,
-    validate: str | os.PathLike | None = None,
-    out: str | os.PathLike | None = None,
+    data: str | os.PathLike[str],
+    validate: str | os.PathLike[str] | None = None,
+    out: str | os.PathLike[str] | None = None,
     *,
     progress: bool | Callable[[int, int], None] = False,
     sensor_offsets: bool = False,
-) -> dict[str, Any]:
+) -> DiagnosisResult:
     """What the simulation of ``cfg`` gets wrong on measured data, like ``ehactl diagnose --json``.
 
     Replays the measured valve command (or, for closed-loop position records with ``ref``,
@@ -132,10 +130,13 @@ def diagnose(
             (on the fitting part; applied to the held-out part); default False trusts the zeros.
 
     Returns:
-        dict with ``cause``, ``causes``, ``nrmse_nominal``, ``nrmse_extended`` (held-out, per
-        channel and ``overall``), ``gain``, ``candidates`` (effect, params, nrmse_train,
-        nrmse_validation, score, accepted, evidence), ``sensor_offsets`` (channel → offset in
-        N, m or Pa), ``extended_config``, ``report``, ``plots``, ``warnings``. Data warnings are also issued as Python warnings.
+        :class:`ehactl.results.DiagnosisResult`: ``cause``, ``causes``, ``nrmse_nominal``,
+        ``nrmse_extended`` (held-out, ``.channels`` and ``.overall``), ``gain``,
+        ``candidates`` (``effect``, ``params``, ``nrmse_train``, ``nrmse_validation``,
+        ``score``, ``accepted``, ``evidence``), ``sensor_offsets`` (channel → offset in N, m
+        or Pa), ``extended_config``, ``report``, ``plots``, ``warnings``, ``notes``;
+        ``res.to_dict()`` is the ``ehactl diagnose --json`` object, ``res.to_pandas()`` the
+        candidates table. Data warnings are also issued as Python warnings.
 
     Raises:
         FileNotFoundError: ``cfg`` (a path), ``data`` or ``validate`` does not exist.
@@ -146,14 +147,17 @@ def diagnose(
     _must_exist(data, "measured data file")
     if validate is not None:
         _must_exist(validate, "validation data file")
-    cb = progress if callable(progress) else None
+    cb: Callable[[int, int], None] | None = progress if callable(progress) else None
     bar = None
     if progress is True:
         bar, bar_cb = _progress_bar(1, "diagnose", "fit")
-        if bar is not None:
-            def cb(done: int, total: int) -> None:
+        if bar is not None and bar_cb is not None:
+            # The total of fits grows with each search round: follow it on the bar.
+            def bar_follows(done: int, total: int, bar: Any = bar, move: Callable[[int, int], None] = bar_cb) -> None:
                 bar.total = total
-                bar_cb(done, total)
+                move(done, total)
+
+            cb = bar_follows
     try:
         raw, notes = _ehactl.diagnose_json(c, os.fspath(data),
                                            None if validate is None else os.fspath(validate),
@@ -162,19 +166,18 @@ def diagnose(
     finally:
         if bar is not None:
             bar.close()
-    r = json.loads(raw)
-    for w in r.get("warnings") or []:
+    r = DiagnosisResult.from_dict(json.loads(raw), notes=list(notes))
+    for w in r.warnings:
         warnings.warn(w, stacklevel=2)
-    r["notes"] = list(notes)
     return r
 
 
 def diagnose_many(
-    cases: Sequence[Mapping[str, Any] | tuple],
+    cases: Sequence[Mapping[str, Any] | tuple[Any, ...]],
     *,
     client: Any = None,
     sensor_offsets: bool = False,
-):
+) -> pd.DataFrame:
     """Diagnose a fleet of records (e.g. one log per rig) and tabulate the causes.
 
     Args:
@@ -195,13 +198,13 @@ def diagnose_many(
 
     from . import _dask
 
-    norm = []
-    for c in cases:
-        if isinstance(c, Mapping):
-            cfg, data, val, out = c["config"], c["data"], c.get("validate"), c.get("out")
+    norm: list[tuple[_ehactl.Config, str, str | None, str | None]] = []
+    for case in cases:
+        if isinstance(case, Mapping):
+            cfg, data, val, out = case["config"], case["data"], case.get("validate"), case.get("out")
         else:
-            c = tuple(c) + (None,) * (4 - len(c))
-            cfg, data, val, out = c[:4]
+            padded = tuple(case) + (None,) * (4 - len(case))
+            cfg, data, val, out = padded[:4]
         _must_exist(data, "measured data file")
         if val is not None:
             _must_exist(val, "validation data file")
@@ -212,8 +215,8 @@ def diagnose_many(
     else:
         raws = [_ehactl.diagnose_json(c, d, v, o, None, bool(sensor_offsets)) for c, d, v, o in norm]
     rows = []
-    for (c, d, _v, _o), (raw, _notes) in zip(norm, raws):
-        row = {"data": d}
+    for (_c, d, _v, _o), (raw, _notes) in zip(norm, raws):
+        row: dict[str, Any] = {"data": d}
         row.update(_dask.diagnose_row(json.loads(raw)))
         rows.append(row)
     return pd.DataFrame(rows)

@@ -11,9 +11,9 @@ worker with another version is refused by the task's version check.
 
 from __future__ import annotations
 
-import json
-import os
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
+
+import numpy as np
 
 from . import _ehactl
 
@@ -26,14 +26,22 @@ def _check_version(version: str) -> None:
         )
 
 
-def _run_chunk(version: str, tomls: Sequence[str], duration, mcaps, fields):
+def _run_chunk(
+    version: str,
+    tomls: Sequence[str],
+    duration: float | None,
+    mcaps: Sequence[str] | None,
+    fields: Sequence[str] | None,
+) -> list[tuple[dict[str, np.ndarray], str]]:
     """Worker side of :func:`run_many`: one chunk, sequentially (one rayon thread)."""
     _check_version(version)
     cfgs = [_ehactl.Config.from_toml(t) for t in tomls]
     return _ehactl.run_batch(cfgs, duration, mcaps, fields, 1, None)
 
 
-def _diagnose_one(version: str, toml: str, data: str, validate, out, sensor_offsets: bool):
+def _diagnose_one(
+    version: str, toml: str, data: str, validate: str | None, out: str | None, sensor_offsets: bool
+) -> tuple[str, list[str]]:
     """Worker side of :func:`diagnose_many`: one case, the JSON report and notes."""
     _check_version(version)
     cfg = _ehactl.Config.from_toml(toml)
@@ -41,7 +49,7 @@ def _diagnose_one(version: str, toml: str, data: str, validate, out, sensor_offs
     return raw, list(notes)
 
 
-def _client(client: Any):
+def _client(client: Any) -> Any:
     """Accept a ``dask.distributed.Client`` (anything with ``submit`` and ``gather``)."""
     if not (hasattr(client, "submit") and hasattr(client, "gather")):
         raise TypeError(
@@ -65,7 +73,15 @@ def chunks(n: int, client: Any, chunk_size: int | None) -> list[range]:
     return [range(i, min(n, i + chunk_size)) for i in range(0, n, chunk_size)]
 
 
-def run_batch(client: Any, configs, duration, mcaps, fields, chunk_size, progress_cb):
+def run_batch(
+    client: Any,
+    configs: Sequence[_ehactl.Config],
+    duration: float | None,
+    mcaps: Sequence[str] | None,
+    fields: Sequence[str] | None,
+    chunk_size: int | None,
+    progress_cb: Callable[[int, int], None] | None,
+) -> list[tuple[dict[str, np.ndarray], str]]:
     """``_ehactl.run_batch`` on the cluster: same inputs, same outputs, input order."""
     from dask.distributed import as_completed
 
@@ -88,7 +104,7 @@ def run_batch(client: Any, configs, duration, mcaps, fields, chunk_size, progres
     index = {f.key: k for k, f in enumerate(futs)}
     out: list[Any] = [None] * len(tomls)
     done = 0
-    for fut in as_completed(futs):
+    for fut in as_completed(futs):  # type: ignore[no-untyped-call]  # dask ships no annotation for it
         k = index[fut.key]
         res = fut.result()
         for i, o in zip(parts[k], res):
@@ -99,14 +115,17 @@ def run_batch(client: Any, configs, duration, mcaps, fields, chunk_size, progres
     return out
 
 
-def diagnose_batch(client: Any, cases, sensor_offsets: bool):
+def diagnose_batch(
+    client: Any, cases: Sequence[tuple[str, str, str | None, str | None]], sensor_offsets: bool
+) -> list[tuple[str, list[str]]]:
     """Diagnose every (config TOML, data, validate, out) case on the cluster; input order."""
     client = _client(client)
     futs = [
         client.submit(_diagnose_one, _ehactl.__version__, t, d, v, o, sensor_offsets, pure=False)
         for (t, d, v, o) in cases
     ]
-    return client.gather(futs)
+    out: list[tuple[str, list[str]]] = client.gather(futs)
+    return out
 
 
 def summary_row(summary: dict[str, Any]) -> dict[str, Any]:
@@ -139,10 +158,3 @@ def diagnose_row(r: dict[str, Any]) -> dict[str, Any]:
         "report": r.get("report"),
     }
 
-
-def loads(raw: str) -> dict[str, Any]:
-    return json.loads(raw)
-
-
-def fspath_or_none(p) -> str | None:
-    return None if p is None else os.fspath(p)

@@ -14,14 +14,24 @@ configured derivative filter) is known in closed form, so the loop is L = C·P.
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 from . import _ehactl
 from ._ehactl import Config
 from ._runs import ConfigLike, _as_config, run_many
+from .results import FloatArray, FrozenMap, _setstate_frozen, _thaw
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from .tune import StepTest, TrackingTest, TuneResult
+
+ComplexArray = npt.NDArray[np.complex128]
 
 
 def controller_response(cfg: Config, f_hz: np.ndarray, gains: dict[str, float] | None = None) -> np.ndarray:
@@ -40,35 +50,58 @@ def _fourier(t: np.ndarray, x: np.ndarray, f: float) -> complex:
     return complex(2.0 / len(x) * np.sum(x * np.exp(-1j * 2 * np.pi * f * t)))
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class FrequencyResponse:
-    """Measured loop frequency response.
+    """Loop frequency response, measured on the nonlinear plant (:func:`frequency_response`)
+    or from the linearised plant (:func:`linear_response`). Construct with keywords.
 
-    ``f`` (Hz); ``plant`` P = Y/U (N/V or m/V); ``controller`` C (V/N or V/m);
-    ``loop`` L = C·P; ``closed`` T = Y/R measured directly (the tracking response);
-    ``coherence_like``: |Y| share at the test frequency vs the RMS of the periodic window
-    (1 = pure sinusoid, lower = nonlinear or noisy); ``unit`` of y.
+    Immutable (frozen dataclass, read-only arrays); :meth:`with_gains` returns a new one.
+
+    Attributes:
+        f: Frequency (Hz).
+        plant: Plant response P = Y/U (N/V or m/V), complex.
+        controller: Controller response C (V/N or V/m), complex.
+        closed: Closed loop T = Y/R (measured directly, or L/(1 + L) for a model), complex.
+        unit: Unit of the controlled variable y: "N" or "m".
+        gains: Gains the controller response was computed for (dotted path → value).
+        purity: |Y| share at the test frequency vs the RMS of the periodic window (1 = pure
+            sinusoid, lower = nonlinear or noisy) (-).
+        details: How it was obtained: ``source`` ("measured" or "linear") and its parameters.
     """
 
-    f: np.ndarray
-    plant: np.ndarray
-    controller: np.ndarray
-    closed: np.ndarray
+    f: FloatArray
+    plant: ComplexArray
+    controller: ComplexArray
+    closed: ComplexArray
     unit: str
-    gains: dict[str, float]
-    purity: np.ndarray
-    details: dict[str, Any] = field(default_factory=dict)
+    gains: Mapping[str, float]
+    purity: FloatArray
+    details: Mapping[str, Any] = field(default_factory=lambda: FrozenMap({}))
+
+    def __post_init__(self) -> None:
+        # Read-only copies: the object is shared by with_gains() results and tuning details.
+        for name in ("f", "plant", "controller", "closed", "purity"):
+            a = np.array(getattr(self, name))
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "gains", FrozenMap({str(k): float(v) for k, v in self.gains.items()}))
+        if not isinstance(self.details, FrozenMap):
+            object.__setattr__(self, "details", FrozenMap(dict(self.details)))
+
+    def __setstate__(self, state: Mapping[str, Any]) -> None:
+        _setstate_frozen(self, state)  # arrays read-only again after unpickling
 
     @property
-    def loop(self) -> np.ndarray:
+    def loop(self) -> ComplexArray:
+        """Loop gain L = C·P (-), complex."""
         return self.controller * self.plant
 
-    def with_gains(self, cfg: ConfigLike, gains: dict[str, float]) -> "FrequencyResponse":
+    def with_gains(self, cfg: ConfigLike, gains: Mapping[str, float]) -> FrequencyResponse:
         """Same plant response, loop recomputed for other gains (closed = L/(1+L))."""
         c = _as_config(cfg)
-        C = controller_response(c, self.f, gains)
+        C = controller_response(c, self.f, dict(gains))
         L = C * self.plant
-        return FrequencyResponse(self.f, self.plant, C, L / (1 + L), self.unit, dict(gains), self.purity, dict(self.details))
+        return dataclasses.replace(self, controller=C, closed=L / (1 + L), gains=dict(gains))
 
     def margins(self) -> dict[str, float]:
         """Loop margins from L on the measured grid (log-f interpolation):
@@ -78,6 +111,37 @@ class FrequencyResponse:
         ``bandwidth_hz`` where |L/(1+L)| first drops below −3 dB and its peak
         ``peak_closed_db``."""
         return loop_margins(self.f, self.loop)
+
+    def to_pandas(self) -> pd.DataFrame:
+        """``pandas.DataFrame`` indexed by ``f_hz`` with complex columns ``plant``,
+        ``controller``, ``loop``, ``closed`` and ``purity``."""
+        try:
+            import pandas as pd
+        except ImportError as e:
+            raise ImportError("FrequencyResponse.to_pandas() needs pandas: pip install pandas") from e
+        return pd.DataFrame(
+            {"plant": np.array(self.plant), "controller": np.array(self.controller), "loop": self.loop,
+             "closed": np.array(self.closed), "purity": np.array(self.purity)},
+            index=pd.Index(np.array(self.f), name="f_hz"),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible: ``f_hz``, complex responses as ``{"re": [...], "im": [...]}``,
+        ``purity``, ``unit``, ``gains`` and ``details`` (non-finite numbers as None)."""
+
+        def cplx(z: ComplexArray) -> dict[str, Any]:
+            return {"re": _thaw(z.real), "im": _thaw(z.imag)}
+
+        return {"f_hz": _thaw(self.f), "plant": cplx(self.plant), "controller": cplx(self.controller),
+                "closed": cplx(self.closed), "purity": _thaw(self.purity), "unit": self.unit,
+                "gains": _thaw(self.gains), "details": _thaw(self.details)}
+
+    def __repr__(self) -> str:
+        m = self.margins()
+        src = self.details.get("source", "?")
+        return (f"FrequencyResponse({src}, {len(self.f)} points {self.f[0]:.4g}–{self.f[-1]:.4g} Hz, "
+                f"phase_margin_deg={m['phase_margin_deg']:.4g} at {m['crossover_hz']:.4g} Hz, "
+                f"gain_margin_db={m['gain_margin_db']:.4g}, unit={self.unit!r})")
 
 
 def loop_margins(f: np.ndarray, L: np.ndarray) -> dict[str, float]:
@@ -138,8 +202,9 @@ def frequency_response(
     if f_hz is None:
         f0 = 2.0 if base.mode == "force" else 0.5
         f1 = min(0.3 * fs, 1500.0 if base.mode == "force" else 200.0)
-        f_hz = np.geomspace(f0, f1, 24)
-    f = np.asarray(f_hz, dtype=float)
+        f = np.geomspace(f0, f1, 24)
+    else:
+        f = np.asarray(f_hz, dtype=float)
     if np.any(f <= 0) or np.any(f >= fs / 2):
         raise ValueError(f"frequency_response: frequencies must be in (0, {fs / 2}) Hz (Nyquist)")
     if settle is None:
@@ -189,7 +254,8 @@ def frequency_response(
     g = {p: float(base[p]) for p in gain_paths(base)}
     C = controller_response(base, f)
     return FrequencyResponse(
-        f, P, C, T, unit, g, purity, {"source": "measured", "offset": offset, "amplitude": amp, "settle_s": settle, "trips": trips}
+        f=f, plant=P, controller=C, closed=T, unit=unit, gains=g, purity=purity,
+        details={"source": "measured", "offset": offset, "amplitude": amp, "settle_s": settle, "trips": trips},
     )
 
 
@@ -210,8 +276,9 @@ def linear_response(
         base = base.with_values(gains)
     fs = 1.0 / base.control_dt
     if f_hz is None:
-        f_hz = np.geomspace(1.0 if base.mode == "force" else 0.1, 0.95 * fs / 2, 200)
-    f = np.asarray(f_hz, dtype=float)
+        f = np.geomspace(1.0 if base.mode == "force" else 0.1, 0.95 * fs / 2, 200)
+    else:
+        f = np.asarray(f_hz, dtype=float)
     re, im, info = _ehactl.linear_plant_response(base, [float(x) for x in f], max_time)
     P = np.asarray(re) + 1j * np.asarray(im)
     from .tune import gain_paths
@@ -220,7 +287,8 @@ def linear_response(
     C = controller_response(base, f)
     L = C * P
     details = {"source": "linear", **info}
-    return FrequencyResponse(f, P, C, L / (1 + L), "N" if base.mode == "force" else "m", g, np.ones(len(f)), details)
+    return FrequencyResponse(f=f, plant=P, controller=C, closed=L / (1 + L), unit="N" if base.mode == "force" else "m",
+                             gains=g, purity=np.ones(len(f)), details=details)
 
 
 def _interp_P(fr: FrequencyResponse, fc: float) -> complex:
@@ -283,11 +351,11 @@ def model_based(
     max_peak_db: float = 3.0,
     source: str = "linear",
     fr: FrequencyResponse | None = None,
-    test=None,
+    test: StepTest | TrackingTest | None = None,
     threads: int | None = None,
     client: Any = None,
     progress: bool = False,
-):
+) -> TuneResult:
     """Model-based tuning: PI (force) or PD (position) gains that give ``phase_margin_deg``
     at a gain crossover on the loop model L = C·P.
 
@@ -323,7 +391,8 @@ def model_based(
     if np.count_nonzero(ok) < 4:
         raise RuntimeError("model_based: fewer than 4 usable points in the frequency response")
     fmin, fmax = float(fr.f[ok].min()), float(fr.f[ok].max())
-    candidates = []
+    candidates: list[dict[str, Any]] = []
+    gains: dict[str, float] | None
     if crossover_hz is not None:
         if not (fmin <= crossover_hz <= fmax):
             raise ValueError(f"crossover_hz = {crossover_hz} Hz is outside the measured range {fmin:.3g}–{fmax:.3g} Hz")
@@ -354,14 +423,14 @@ def model_based(
         if bandwidth_hz is None:
             kp_path, second = paths
 
-            def strength(c):
+            def strength(c: dict[str, Any]) -> float:
                 g = c["gains"]
-                return g[kp_path] * g[second] if base.mode == "force" else g[kp_path]
+                return float(g[kp_path] * g[second] if base.mode == "force" else g[kp_path])
 
             pick = max(adm, key=strength)
         else:
             pick = min(adm, key=lambda c: abs(math.log(c["predicted"]["bandwidth_hz"] / bandwidth_hz)))
-        chosen, gains = pick["crossover_hz"], pick["gains"]
+        chosen, gains = float(pick["crossover_hz"]), dict(pick["gains"])
     predicted = fr.with_gains(base, gains).margins()
     test = test or StepTest.default(base)
     details = {

@@ -7,14 +7,21 @@ import itertools
 import json
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Sequence, Union
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Callable, Generic, Iterable, Literal, Mapping, NoReturn, Sequence, TypeVar, Union, overload
 
 import numpy as np
+import numpy.typing as npt
 
 from . import _ehactl
 from ._ehactl import Config
+if TYPE_CHECKING:
+    import pandas as pd
+    from tqdm import tqdm
 
-ConfigLike = Union[Config, str, os.PathLike]
+from .results import FrozenMap, RunSummary, _fmt, _setstate_frozen
+
+ConfigLike = Union[Config, str, "os.PathLike[str]"]
 
 #: (name, unit) of every float column of a run result, in order.
 FIELDS: tuple[tuple[str, str], ...] = tuple(_ehactl.record_fields())
@@ -25,7 +32,7 @@ _ALIASES = {"command": "u", "valve_command": "plant_command"}
 _MODE_COLUMNS = {"setpoint": "{u}", "feedback": "{u}", "error": "{u}", "setpoint_rate": "{u}/s"}
 
 
-def _must_exist(path: str | os.PathLike, what: str) -> None:
+def _must_exist(path: str | os.PathLike[str], what: str) -> None:
     """Raise FileNotFoundError (errno ENOENT, with the path) if ``path`` does not exist."""
     if not os.path.exists(path):
         raise FileNotFoundError(errno.ENOENT, f"{what} not found", os.fspath(path))
@@ -67,53 +74,130 @@ def _prepare(cfg: ConfigLike, setpoint: Any, overrides: Mapping[str, Any] | None
     return c
 
 
-class RunResult:
-    """One closed-loop run: every cycle's record as NumPy arrays plus the run summary.
+_DT = TypeVar("_DT", bound=np.generic)
 
-    Columns (attribute or item access): ``t`` (s), ``setpoint``/``feedback``/``error``
-    (N in force mode, m in position mode), ``u`` (valve command after limits, V; alias
-    ``command``), ``command_unsat``, ``p_term``, ``i_term``, ``d_term``, ``ff_term`` (V),
-    sensor readings ``force`` (N), ``position`` (m), ``p_a``, ``p_b`` (Pa), ``spool``
-    (fraction of travel), and the ground-truth plant states ``x``, ``x_load`` (m), ``v``,
-    ``v_load`` (m/s), ``plant_p_a``, ``plant_p_b``, ``p_s`` (Pa), ``plant_spool`` (-),
-    ``spool_velocity`` (1/s), ``q_a``, ``q_b`` (m³/s), ``friction``, ``external``,
-    ``rod_force`` (N), ``plant_command`` (V, after any delay), ``stuck`` (bool), ``cycle``.
-    ``units`` maps every column to its unit; ``unit`` is ``units["error"]``, the unit of
-    setpoint / feedback / error in this run's control mode. ``dir(res)`` lists the columns.
-    """
 
-    __slots__ = ("columns", "summary", "config")
+class _Column(Generic[_DT]):
+    """Descriptor of one run column: ``res.force`` is ``res.columns["force"]`` (read-only
+    NumPy array); a column left out with ``fields=`` raises AttributeError naming those
+    that are there."""
 
-    def __init__(self, columns: dict[str, np.ndarray], summary: dict[str, Any], config: Config):
-        self.columns = columns
-        self.summary = summary
-        self.config = config
+    __slots__ = ("name",)
 
-    def __getattr__(self, name: str) -> np.ndarray:
-        cols = object.__getattribute__(self, "columns")
-        name = _ALIASES.get(name, name)
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    @overload
+    def __get__(self, obj: None, owner: type) -> _Column[_DT]: ...
+    @overload
+    def __get__(self, obj: RunResult, owner: type) -> npt.NDArray[_DT]: ...
+    def __get__(self, obj: RunResult | None, owner: type) -> _Column[_DT] | npt.NDArray[_DT]:
+        if obj is None:
+            return self
         try:
-            return cols[name]
+            col: npt.NDArray[_DT] = obj.columns[self.name]
+            return col
         except KeyError:
             raise AttributeError(
-                f"RunResult has no column {name!r}; available: {', '.join(cols)}"
+                f"RunResult has no column {self.name!r} (not among fields=); available: {', '.join(obj.columns)}"
             ) from None
+
+
+@dataclass(frozen=True, eq=False)
+class RunResult:
+    """One closed-loop run: every cycle's record as read-only NumPy arrays plus the run summary.
+
+    Columns (attribute or item access): ``t`` (s), ``setpoint``/``feedback``/``error``
+    (N in force mode, m in position mode), ``setpoint_rate`` (N/s or m/s), ``u`` (valve
+    command after limits, V; alias ``command``), ``command_unsat``, ``p_term``, ``i_term``,
+    ``d_term``, ``ff_term`` (V), sensor readings ``force`` (N), ``position`` (m), ``p_a``,
+    ``p_b`` (Pa), ``spool`` (fraction of travel), and the ground-truth plant states ``x``,
+    ``x_load`` (m), ``v``, ``v_load`` (m/s), ``plant_p_a``, ``plant_p_b``, ``p_s`` (Pa),
+    ``plant_spool`` (-), ``spool_velocity`` (1/s), ``q_a``, ``q_b`` (m³/s), ``friction``,
+    ``external``, ``rod_force`` (N), ``plant_command`` (V, after any delay), ``stuck``
+    (bool), ``cycle``. ``units`` maps every column to its unit; ``unit`` is
+    ``units["error"]``, the unit of setpoint / feedback / error in this run's control mode.
+    ``summary`` is a :class:`ehactl.results.RunSummary` (``res.summary.rms_error`` …).
+
+    Immutable: a frozen dataclass whose ``columns`` mapping and arrays are read-only
+    (copy an array to change it: ``res.force.copy()``).
+
+    Attributes:
+        columns: Column name → NumPy array, one entry per control cycle (read-only).
+        summary: Run summary (errors, trip, duration …).
+        config: The config that ran (overrides applied).
+    """
+
+    columns: Mapping[str, np.ndarray]
+    summary: RunSummary
+    config: Config
+
+    t = _Column[np.float64]("t")
+    setpoint = _Column[np.float64]("setpoint")
+    setpoint_rate = _Column[np.float64]("setpoint_rate")
+    feedback = _Column[np.float64]("feedback")
+    error = _Column[np.float64]("error")
+    u = _Column[np.float64]("u")
+    command = _Column[np.float64]("u")
+    command_unsat = _Column[np.float64]("command_unsat")
+    p_term = _Column[np.float64]("p_term")
+    i_term = _Column[np.float64]("i_term")
+    d_term = _Column[np.float64]("d_term")
+    ff_term = _Column[np.float64]("ff_term")
+    force = _Column[np.float64]("force")
+    position = _Column[np.float64]("position")
+    p_a = _Column[np.float64]("p_a")
+    p_b = _Column[np.float64]("p_b")
+    spool = _Column[np.float64]("spool")
+    plant_command = _Column[np.float64]("plant_command")
+    valve_command = _Column[np.float64]("plant_command")
+    plant_spool = _Column[np.float64]("plant_spool")
+    spool_velocity = _Column[np.float64]("spool_velocity")
+    plant_p_a = _Column[np.float64]("plant_p_a")
+    plant_p_b = _Column[np.float64]("plant_p_b")
+    p_s = _Column[np.float64]("p_s")
+    x = _Column[np.float64]("x")
+    v = _Column[np.float64]("v")
+    x_load = _Column[np.float64]("x_load")
+    v_load = _Column[np.float64]("v_load")
+    q_a = _Column[np.float64]("q_a")
+    q_b = _Column[np.float64]("q_b")
+    friction = _Column[np.float64]("friction")
+    external = _Column[np.float64]("external")
+    rod_force = _Column[np.float64]("rod_force")
+    stuck = _Column[np.bool_]("stuck")
+    cycle = _Column[np.uint64]("cycle")
+
+    @classmethod
+    def from_raw(cls, columns: Mapping[str, np.ndarray], summary_json: str, config: Config) -> RunResult:
+        """From the compiled core's (columns, summary JSON): arrays made read-only."""
+        cols: dict[str, np.ndarray] = {}
+        for k, a in columns.items():
+            arr = np.asarray(a)
+            arr.setflags(write=False)
+            cols[str(k)] = arr
+        return cls(columns=FrozenMap(cols), summary=RunSummary.from_dict(json.loads(summary_json)), config=config)
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.columns[_ALIASES.get(name, name)]
 
-    def __dir__(self) -> list[str]:
-        # Columns and their aliases, for tab completion.
-        cols = object.__getattribute__(self, "columns")
-        aliases = [a for a, c in _ALIASES.items() if c in cols]
-        return sorted(set(super().__dir__()) | set(cols) | set(aliases))
+    def __setstate__(self, state: Mapping[str, Any]) -> None:
+        _setstate_frozen(self, state)  # arrays read-only again after unpickling
 
     def keys(self) -> list[str]:
         """Column names."""
         return list(self.columns)
 
+    def __dir__(self) -> list[str]:
+        # Tab completion offers the columns this run has (and their aliases), not all of them.
+        have = set(self.columns) | {a for a, c in _ALIASES.items() if c in self.columns}
+        cls = type(self)
+        return sorted(n for n in object.__dir__(self) if not isinstance(cls.__dict__.get(n), _Column) or n in have)
+
     def __len__(self) -> int:
-        return len(self.columns["cycle"])
+        if "cycle" in self.columns:
+            return len(self.columns["cycle"])
+        return len(next(iter(self.columns.values()))) if self.columns else 0
 
     @property
     def units(self) -> dict[str, str]:
@@ -132,41 +216,49 @@ class RunResult:
     def unit(self) -> str:
         """Unit of setpoint / feedback / error (= ``units["error"]``): "N" (force mode),
         "m" (position) or "V" (open loop)."""
-        return self.summary.get("error_unit", "")
+        return self.summary.error_unit
 
     @property
     def trip(self) -> str | None:
         """None, or the supervisor's one-line reason if the run tripped."""
-        return self.summary.get("trip")
+        return self.summary.trip
 
     @property
     def ok(self) -> bool:
         """True when the run completed its duration without trip or interruption."""
-        return self.trip is None and not self.summary.get("interrupted", False)
+        return self.trip is None and not self.summary.interrupted
 
     @property
     def dt(self) -> float:
         """Control period (s)."""
-        return 1.0 / float(self.summary["control_rate_hz"])
+        return 1.0 / self.summary.control_rate_hz
 
-    def to_pandas(self):
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible: ``{"columns": {name: list}, "summary": <summary JSON>}``."""
+        return {"columns": {k: np.asarray(v).tolist() for k, v in self.columns.items()},
+                "summary": self.summary.to_dict()}
+
+    def to_pandas(self) -> Any:
         """All columns as a ``pandas.DataFrame`` indexed by ``t`` (s). Needs pandas."""
         try:
             import pandas as pd
         except ImportError as e:  # pragma: no cover - depends on the environment
             raise ImportError("RunResult.to_pandas() needs pandas: pip install pandas") from e
-        df = pd.DataFrame({k: v for k, v in self.columns.items()})
-        return df.set_index("t", drop=False).rename_axis("time_s")
+        df = pd.DataFrame({k: np.array(v) for k, v in self.columns.items()})
+        if "t" in df:
+            df = df.set_index("t", drop=False).rename_axis("time_s")
+        return df
 
     def __repr__(self) -> str:
         s = self.summary
         return (
-            f"RunResult({len(self)} cycles, {s.get('duration_s', 0):.4g} s, "
-            f"rms_error={s.get('rms_error')} {self.unit}, trip={self.trip!r})"
+            f"RunResult({len(self)} cycles, {s.duration_s:.4g} s, "
+            f"rms_error={_fmt(s.rms_error)} {self.unit}, trip={self.trip!r})"
         )
 
 
-def _progress_bar(total: int, desc: str, unit: str):
+def _progress_bar(total: int, desc: str, unit: str) -> tuple[tqdm[NoReturn] | None, Callable[[int, int], None] | None]:
+    """A tqdm bar and the progress callback that moves it; (None, None) without tqdm."""
     try:
         from tqdm.auto import tqdm
     except ImportError:  # pragma: no cover - tqdm is optional
@@ -185,7 +277,7 @@ def run(
     cfg: ConfigLike,
     duration: float | None = None,
     setpoint: Any = None,
-    mcap: str | os.PathLike | None = None,
+    mcap: str | os.PathLike[str] | None = None,
     *,
     params: Mapping[str, Any] | None = None,
     fields: Sequence[str] | None = None,
@@ -221,7 +313,7 @@ def run(
     finally:
         if bar is not None:
             bar.close()
-    return RunResult(cols, json.loads(summary), c)
+    return RunResult.from_raw(cols, summary, c)
 
 
 def param_grid(base: ConfigLike, grid: Mapping[str, Iterable[Any]]) -> list[Config]:
@@ -235,6 +327,7 @@ def param_grid(base: ConfigLike, grid: Mapping[str, Iterable[Any]]) -> list[Conf
     return [b.with_values(dict(zip(keys, combo))) for combo in itertools.product(*values)]
 
 
+@overload
 def run_many(
     cfgs: Iterable[ConfigLike] | Mapping[str, Iterable[Any]],
     duration: float | None = None,
@@ -244,12 +337,75 @@ def run_many(
     params: Mapping[str, Any] | None = None,
     fields: Sequence[str] | None = None,
     threads: int | None = None,
-    mcap_dir: str | os.PathLike | None = None,
+    mcap_dir: str | os.PathLike[str] | None = None,
+    progress: bool | Callable[[int, int], None] = False,
+    client: None = None,
+    chunk_size: int | None = None,
+    frame: Literal[False] | None = None,
+) -> list[RunResult]: ...
+@overload
+def run_many(
+    cfgs: Iterable[ConfigLike] | Mapping[str, Iterable[Any]],
+    duration: float | None = None,
+    setpoint: Any = None,
+    *,
+    base: ConfigLike | None = None,
+    params: Mapping[str, Any] | None = None,
+    fields: Sequence[str] | None = None,
+    threads: int | None = None,
+    mcap_dir: str | os.PathLike[str] | None = None,
+    progress: bool | Callable[[int, int], None] = False,
+    client: Any = None,
+    chunk_size: int | None = None,
+    frame: Literal[False],
+) -> list[RunResult]: ...
+@overload
+def run_many(
+    cfgs: Iterable[ConfigLike] | Mapping[str, Iterable[Any]],
+    duration: float | None = None,
+    setpoint: Any = None,
+    *,
+    base: ConfigLike | None = None,
+    params: Mapping[str, Any] | None = None,
+    fields: Sequence[str] | None = None,
+    threads: int | None = None,
+    mcap_dir: str | os.PathLike[str] | None = None,
+    progress: bool | Callable[[int, int], None] = False,
+    client: Any = None,
+    chunk_size: int | None = None,
+    frame: Literal[True],
+) -> pd.DataFrame: ...
+@overload
+def run_many(
+    cfgs: Iterable[ConfigLike] | Mapping[str, Iterable[Any]],
+    duration: float | None = None,
+    setpoint: Any = None,
+    *,
+    base: ConfigLike | None = None,
+    params: Mapping[str, Any] | None = None,
+    fields: Sequence[str] | None = None,
+    threads: int | None = None,
+    mcap_dir: str | os.PathLike[str] | None = None,
     progress: bool | Callable[[int, int], None] = False,
     client: Any = None,
     chunk_size: int | None = None,
     frame: bool | None = None,
-):
+) -> list[RunResult] | pd.DataFrame: ...
+def run_many(
+    cfgs: Iterable[ConfigLike] | Mapping[str, Iterable[Any]],
+    duration: float | None = None,
+    setpoint: Any = None,
+    *,
+    base: ConfigLike | None = None,
+    params: Mapping[str, Any] | None = None,
+    fields: Sequence[str] | None = None,
+    threads: int | None = None,
+    mcap_dir: str | os.PathLike[str] | None = None,
+    progress: bool | Callable[[int, int], None] = False,
+    client: Any = None,
+    chunk_size: int | None = None,
+    frame: bool | None = None,
+) -> list[RunResult] | pd.DataFrame:
     """Run many closed loops in parallel on all cores (rayon), GIL released — or on a Dask
     cluster with ``client=``.
 
@@ -305,7 +461,7 @@ def run_many(
     finally:
         if bar is not None:
             bar.close()
-    results = [RunResult(cols, json.loads(s), c) for (cols, s), c in zip(outs, configs)]
+    results = [RunResult.from_raw(cols, s, c) for (cols, s), c in zip(outs, configs)]
     if frame is None:
         frame = client is not None
     if not frame:
@@ -313,7 +469,7 @@ def run_many(
     return results_frame(results, grid_rows)
 
 
-def results_frame(results: Sequence[RunResult], params: Sequence[Mapping[str, Any]] | None = None):
+def results_frame(results: Sequence[RunResult], params: Sequence[Mapping[str, Any]] | None = None) -> pd.DataFrame:
     """One ``pandas.DataFrame`` row per run: ``params`` (e.g. the grid point) or the config
     name, then the scalar summary fields (see :func:`run_many`'s ``frame``)."""
     try:
@@ -325,7 +481,7 @@ def results_frame(results: Sequence[RunResult], params: Sequence[Mapping[str, An
     rows = []
     for i, r in enumerate(results):
         row: dict[str, Any] = dict(params[i]) if params is not None else {"config": r.config.name}
-        row.update(summary_row(r.summary))
+        row.update(summary_row(r.summary.to_dict()))
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -338,7 +494,7 @@ def params() -> list[dict[str, str]]:
     ]
 
 
-def read_mcap(path: str | os.PathLike) -> dict[str, Any]:
+def read_mcap(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read any ehactl MCAP log (Rust ``mcap`` reader, chunk CRCs checked).
 
     Returns a dict with one entry per channel: CDR channels (``control``, ``plant``) as

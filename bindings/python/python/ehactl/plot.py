@@ -12,20 +12,30 @@ Every function returns the ``matplotlib.figure.Figure`` and saves it when ``path
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+import os
+from typing import TYPE_CHECKING, Any, Sequence, Union
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
-def _plt():
+_PathLike = Union[str, "os.PathLike[str]", None]
+
+
+def _two_axes(figsize: tuple[float, float], ratios: Sequence[float] | None = None) -> tuple[Figure, Axes, Axes]:
+    """A figure with two stacked axes sharing x; matplotlib imported only now."""
     try:
         import matplotlib.pyplot as plt  # headless: matplotlib falls back to Agg itself
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise ImportError("ehactl.plot needs matplotlib: pip install matplotlib") from e
-    return plt
+    kw: dict[str, Any] = {} if ratios is None else {"gridspec_kw": {"height_ratios": list(ratios)}}
+    fig, axes = plt.subplots(2, 1, sharex=True, figsize=figsize, **kw)
+    return fig, axes[0], axes[1]
 
 
-def _save(fig, path) -> None:
+def _save(fig: Figure, path: _PathLike) -> None:
     if path is not None:
         fig.savefig(path, dpi=120, bbox_inches="tight")
 
@@ -36,8 +46,8 @@ def bode(
     which: str = "loop",
     title: str | None = None,
     margins: bool = True,
-    path=None,
-):
+    path: _PathLike = None,
+) -> Figure:
     """Bode plot of one or several responses.
 
     ``responses``: a :class:`ehactl.tune.FrequencyResponse` (plots ``which`` = ``"loop"``
@@ -45,13 +55,12 @@ def bode(
     them, or ``(f_hz, complex_array)`` tuples. For loop responses the gain crossover, phase
     margin and gain margin are marked (``margins=True``).
     """
-    plt = _plt()
     from ._freq import FrequencyResponse, loop_margins
 
     items = responses if isinstance(responses, (list, tuple)) and not (
         len(responses) == 2 and isinstance(responses[0], np.ndarray)
     ) else [responses]
-    fig, (ax_m, ax_p) = plt.subplots(2, 1, sharex=True, figsize=(7.5, 6.0))
+    fig, ax_m, ax_p = _two_axes((7.5, 6.0))
     unit = ""
     for i, it in enumerate(items):
         if isinstance(it, FrequencyResponse):
@@ -108,14 +117,13 @@ def step(
     signal: str | None = None,
     title: str | None = None,
     t_range: tuple[float, float] | None = None,
-    path=None,
-):
+    path: _PathLike = None,
+) -> Figure:
     """Step responses: the controlled variable (ground truth ``rod_force`` in force mode,
     ``x`` in position mode, or ``signal``) with the setpoint, and the valve command (V), of
     one or several :class:`ehactl.RunResult`."""
-    plt = _plt()
     items = results if isinstance(results, (list, tuple)) else [results]
-    fig, (ax_y, ax_u) = plt.subplots(2, 1, sharex=True, figsize=(7.5, 6.0), gridspec_kw={"height_ratios": [2, 1]})
+    fig, ax_y, ax_u = _two_axes((7.5, 6.0), (2, 1))
     unit = ""
     for i, r in enumerate(items):
         sig = signal or ("rod_force" if r.unit == "N" else "x")
@@ -139,14 +147,19 @@ def step(
     return fig
 
 
-def tracking(result: Any, signal: str | None = None, title: str | None = None, t_range=None, path=None):
+def tracking(
+    result: Any,
+    signal: str | None = None,
+    title: str | None = None,
+    t_range: tuple[float, float] | None = None,
+    path: _PathLike = None,
+) -> Figure:
     """Setpoint, feedback and error of one run over time."""
-    plt = _plt()
     r = result
     sig = signal or "feedback"
     t = r.t
     m = np.ones_like(t, dtype=bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
-    fig, (ax_y, ax_e) = plt.subplots(2, 1, sharex=True, figsize=(7.5, 5.5), gridspec_kw={"height_ratios": [2, 1]})
+    fig, ax_y, ax_e = _two_axes((7.5, 5.5), (2, 1))
     ax_y.plot(t[m], r.setpoint[m], "k--", lw=1, label="setpoint")
     ax_y.plot(t[m], r[sig][m], lw=0.8, label=sig)
     ax_e.plot(t[m], (r.setpoint - r[sig])[m], lw=0.8)

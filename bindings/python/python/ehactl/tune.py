@@ -28,6 +28,7 @@ Every function that runs batches (:func:`evaluate`, :func:`critical_gain`,
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -36,6 +37,7 @@ import numpy as np
 from . import metrics as _m
 from ._ehactl import Config
 from ._runs import ConfigLike, RunResult, _as_config, run_many
+from .results import FloatArray
 
 __all__ = [
     "StepTest",
@@ -226,10 +228,10 @@ class TuneResult:
     baseline_gains: dict[str, float]
     baseline: dict[str, float]
     config: Config
-    test: StepTest
+    test: StepTest | TrackingTest
     details: dict[str, Any] = field(default_factory=dict)
 
-    def write_config(self, path) -> None:
+    def write_config(self, path: str | os.PathLike[str]) -> None:
         """Save the tuned config as TOML (loads with ``ehactl run`` and ``Config.load``)."""
         self.config.save(path)
 
@@ -255,7 +257,16 @@ class TuneResult:
         return f"TuneResult({self.method}: {g}; {key} {self.baseline.get(key, math.nan):.4g} → {self.metrics.get(key, math.nan):.4g})"
 
 
-def _finish(method: str, base: Config, gains: dict[str, float], test, details: dict, threads, constraint_test=None, client=None) -> TuneResult:
+def _finish(
+    method: str,
+    base: Config,
+    gains: dict[str, float],
+    test: StepTest | TrackingTest,
+    details: dict[str, Any],
+    threads: int | None,
+    constraint_test: StepTest | None = None,
+    client: Any = None,
+) -> TuneResult:
     paths = gain_paths(base)
     base_gains = {p: float(base[p]) for p in paths}
     tuned = base.with_values(gains)
@@ -426,7 +437,7 @@ def critical_gain(
 
 
 def _cost(
-    m: dict[str, float], objective, max_overshoot_pct: float, max_saturation: float, limits: dict[str, float] | None = None
+    m: dict[str, float], objective: str | Callable[[dict[str, float]], float], max_overshoot_pct: float, max_saturation: float, limits: dict[str, float] | None = None
 ) -> tuple[float, bool]:
     if m.get("tripped", 0.0):
         return math.inf, False
@@ -445,7 +456,16 @@ def _cost(
     return obj * (1.0 + 10.0 * v), v == 0.0
 
 
-def _search_space(base: Config, bounds: dict[str, tuple[float, float]] | None):
+def _search_space(
+    base: Config, bounds: dict[str, tuple[float, float]] | None
+) -> tuple[
+    tuple[str, str],
+    dict[str, tuple[float, float]],
+    FloatArray,
+    FloatArray,
+    FloatArray,
+    Callable[[FloatArray], dict[str, float]],
+]:
     """Search variables, their log bounds and the map back to config gains.
 
     Force mode searches K_P (V/V) and K_I = K_P·I (1/s): the integral action the loop
@@ -457,14 +477,14 @@ def _search_space(base: Config, bounds: dict[str, tuple[float, float]] | None):
         names = ("control.pi.kp", "ki")
         q0 = np.array([x0["control.pi.kp"], x0["control.pi.kp"] * x0["control.pi.integral"]])
 
-        def to_gains(q):
+        def to_gains(q: FloatArray) -> dict[str, float]:
             return {"control.pi.kp": float(q[0]), "control.pi.integral": float(q[1] / q[0])}
 
     else:
         names = ("control.pd.kp", "control.pd.td")
         q0 = np.array([x0["control.pd.kp"], x0["control.pd.td"]])
 
-        def to_gains(q):
+        def to_gains(q: FloatArray) -> dict[str, float]:
             return {"control.pd.kp": float(q[0]), "control.pd.td": float(q[1])}
 
     b = dict(bounds or {})
@@ -536,7 +556,7 @@ def optimize(
     history: list[dict[str, Any]] = []
     best: tuple[float, bool, dict[str, float], dict[str, float]] | None = None
 
-    def run_gen(z: np.ndarray) -> list[tuple[float, bool, dict, dict]]:
+    def run_gen(z: FloatArray) -> list[tuple[float, bool, dict[str, float], dict[str, float]]]:
         gains = [to_gains(np.exp(row)) for row in z]
         ms = evaluate(base, gains, test, threads, client=client)
         if constraint_test is not None:
@@ -554,10 +574,11 @@ def optimize(
         return np.log([g["control.pd.kp"], g["control.pd.td"]])
 
     side = max(4, int(round(math.sqrt(population))))
-    g0 = np.array(np.meshgrid(*[np.linspace(l, h, side) for l, h in zip(lo, hi)])).reshape(len(names), -1).T
+    g0 = np.array(np.meshgrid(*[np.linspace(a, b, side) for a, b in zip(lo, hi)])).reshape(len(names), -1).T
     extra = [qrow({**{p: float(base[p]) for p in gain_paths(base)}, **g}) for g in start]
     z = np.clip(np.vstack([g0, q0[None, :], *[e[None, :] for e in extra]]), lo, hi)
-    mu = sd = None
+    mu: FloatArray | None = None
+    sd: FloatArray | None = None
     bar = None
     if progress:
         try:
@@ -571,13 +592,14 @@ def optimize(
         for r in res:
             if best is None or (r[1], -r[0]) > (best[1], -best[0]):
                 best = r
+        assert best is not None  # a generation has at least one candidate
         ranked = sorted(res + [best], key=lambda r: r[0])  # penalised cost
         n_el = max(2, int(round(elite_fraction * len(res))))
         el_rows = [qrow(r[2]) for r in ranked[:n_el] if math.isfinite(r[0])]
         el = np.array(el_rows) if el_rows else q0[None, :]
         new_mu = el.mean(axis=0)
         new_sd = np.maximum(el.std(axis=0), 0.02 * (hi - lo))
-        if mu is None:
+        if mu is None or sd is None:
             mu, sd = new_mu, new_sd
         else:
             mu = 0.7 * new_mu + 0.3 * mu
@@ -610,7 +632,7 @@ def optimize(
     assert best is not None
     if not math.isfinite(best[0]):
         raise RuntimeError("optimize: every candidate tripped or failed; check bounds and the step test")
-    at_bound = [n for n, v, l, h in zip(names, qrow(best[2]), lo, hi) if min(v - l, h - v) < 1e-3 * (h - l)]
+    at_bound = [n for n, v, a, b in zip(names, qrow(best[2]), lo, hi) if min(v - a, b - v) < 1e-3 * (b - a)]
     details = {
         "objective": objective if isinstance(objective, str) else getattr(objective, "__name__", "callable"),
         "cost": best[0],

@@ -18,7 +18,7 @@ import time
 import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Callable, Dict, List, Optional, Sequence
 
 import can
 from can.interfaces.socketcand import SocketCanDaemonBus
@@ -28,9 +28,9 @@ from .node import OPERATIONAL, PRE_OPERATIONAL
 from .transducer import Transducer
 from .valve import EMCY_DEVICE_HARDWARE, ValveObe
 
-try:  # Python ≥ 3.11
+if sys.version_info >= (3, 11):
     import tomllib
-except ModuleNotFoundError:  # pragma: no cover - older interpreters
+else:  # pragma: no cover - older interpreters
     import tomli as tomllib
 
 #: EDS files shipped in the repository (configs/eds) and, for installed wheels, next to us.
@@ -249,7 +249,8 @@ class _CountingListener(can.Listener):
 
     def __init__(self, counts: Dict[int, int]):
         self.counts = counts
-        self.after = None
+        #: called with the frame's time (s) after each frame is counted
+        self.after: Optional[Callable[[float], None]] = None
 
     def on_message_received(self, msg) -> None:
         self.counts[msg.arbitration_id] = self.counts.get(msg.arbitration_id, 0) + 1
@@ -288,7 +289,7 @@ class EventLog:
 class SimRig:
     """Transducer + valve OBE on one bus, sharing one plant (``ehactl.Plant``)."""
 
-    def __init__(self, bus_url: str, config_path: str, faults: List[Fault] = (),
+    def __init__(self, bus_url: str, config_path: str, faults: Sequence[Fault] = (),
                  events_path: Optional[str] = None, eds_dir: Optional[str] = None,
                  quiet: bool = False):
         import ehactl  # the compiled bindings (plant)

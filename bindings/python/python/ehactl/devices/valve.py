@@ -182,7 +182,7 @@ class ValveObe(SimNode):
         self.full_scale_v = full_scale_v  # valve command (V) at 100 % spool
         self.dsm = ValveDsm(self._on_change)
         self.actual_spool = 0.0  # measured spool position, fraction of travel
-        self._reaction_since = None  # monotonic time FAULT_REACTION was entered
+        self._reaction_since: float | None = None  # monotonic time FAULT_REACTION was entered
 
     @property
     def state(self) -> ValveState:
