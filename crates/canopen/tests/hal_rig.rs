@@ -72,6 +72,9 @@ struct Knobs {
     /// Both nodes answer 0x1006 / 0x1007 / 0x1019 with "object does not exist" (0x06020000)
     /// although the EDS lists them.
     no_sync_objects: AtomicBool,
+    /// Node id (0 = none) that answers 0x1016 with "object does not exist" (0x06020000): a
+    /// device without a heartbeat consumer, optional in CiA 301.
+    no_heartbeat_consumer: AtomicU32,
     stop: AtomicBool,
     /// Every frame the rig received (id, data), for sequence checks.
     seen: Mutex<Vec<(u32, Vec<u8>)>>,
@@ -118,6 +121,10 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
         nodes[1]
             .od
             .insert((0x1018, 2), 0x198u32.to_le_bytes().to_vec());
+        // heartbeat consumer 0x1016 with one entry (sub 0 = highest sub-index, CiA 301)
+        for n in nodes.iter_mut() {
+            n.od.insert((0x1016, 0), vec![1]);
+        }
         let mut syncs_op = 0u32;
         // CiA 408 status codes RMHD (Moog B99224-DV018 fig. 19).
         const INIT: u16 = 0b1000;
@@ -276,6 +283,12 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                     };
                     if knobs.no_sync_objects.load(Ordering::Relaxed)
                         && matches!(index, 0x1006 | 0x1007 | 0x1019)
+                    {
+                        send(&mut bus, silent, reply(0x80, &0x0602_0000u32.to_le_bytes()));
+                        continue;
+                    }
+                    if index == 0x1016
+                        && u32::from(node) == knobs.no_heartbeat_consumer.load(Ordering::Relaxed)
                     {
                         send(&mut bus, silent, reply(0x80, &0x0602_0000u32.to_le_bytes()));
                         continue;
@@ -1169,6 +1182,65 @@ fn optional_sync_objects_a_device_lacks_are_skipped_a_needed_counter_is_not() {
                 let m = e.to_string();
                 assert!(
                     m.contains("0x1019") && m.contains("object does not exist"),
+                    "{m}"
+                );
+            }
+        }
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
+}
+
+#[test]
+fn a_sensor_without_a_heartbeat_consumer_starts_a_valve_without_one_does_not() {
+    // 0x1016 is optional in CiA 301 and often missing on sensors. The built-in EDS lists it;
+    // the device answers "object does not exist": the transducer starts without it (reported
+    // in startup_skipped, its consumer is never written), the valve — which moves the load
+    // and must react to the loss of ehactl — is refused.
+    for (node, ok) in [(TR, true), (VA, false)] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs
+            .no_heartbeat_consumer
+            .store(u32::from(node), Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        match CanopenHal::connect(settings(port, test_bus())) {
+            Ok(mut hal) => {
+                assert!(ok, "node {node} without 0x1016 was accepted");
+                let rep = hal.report().unwrap();
+                let skipped = rep["startup_skipped"].to_string();
+                assert!(
+                    skipped.contains(&format!("node {TR} 0x1016:01"))
+                        && skipped.contains("0x06020000"),
+                    "{skipped}"
+                );
+                assert!(!skipped.contains(&format!("node {VA} ")), "{skipped}");
+                let (pos, _, err, _) = drive(&mut hal, 0.2, 0.0, &mut |_| {});
+                assert!(err.is_none() && pos.is_finite(), "{err:?}");
+                let _ = hal.safe_stop(0.0);
+                let seen = knobs.seen.lock().unwrap().clone();
+                // the transducer was asked for 0x1016:00 (upload) and never written 0x1016;
+                // the valve's consumer was written: node 1, 100 ms
+                let sdo = |n: u8| {
+                    seen.iter()
+                        .filter(move |(id, d)| *id == 0x600 + u32::from(n) && d[1..3] == [0x16, 0x10])
+                        .map(|(_, d)| d.clone())
+                        .collect::<Vec<_>>()
+                };
+                assert!(sdo(TR).iter().any(|d| d[0] == 0x40 && d[3] == 0), "{:?}", sdo(TR));
+                assert!(sdo(TR).iter().all(|d| d[0] & 0xE0 != 0x20), "{:?}", sdo(TR));
+                assert!(
+                    sdo(VA)
+                        .iter()
+                        .any(|d| d[0] & 0xE0 == 0x20 && d[3] == 1 && d[4..8] == 0x0001_0064u32.to_le_bytes()),
+                    "{:?}",
+                    sdo(VA)
+                );
+            }
+            Err(e) => {
+                assert!(!ok, "{e}");
+                let m = e.to_string();
+                assert!(
+                    m.contains("valve") && m.contains("0x1016") && m.contains("object does not exist"),
                     "{m}"
                 );
             }
