@@ -118,19 +118,51 @@ pub fn check_args(
         )),
         (HalKind::Canopen, Some(b)) => {
             let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
-            CanopenHal::check_settings(&CanopenSettings {
-                bus: url,
-                canopen: cfg.canopen.clone(),
-                command_full_scale: cfg.plant.valve.command_full_scale,
-                control_rate_hz: cfg.timebase().rate_hz(),
-                safe_command: cfg.supervisor.safe_command,
-                verbose: false,
-                config_dir: config_dir(config),
-            })
-            .map(|_plan| ())
-            .map_err(|e| arg_err(e.to_string()))
+            CanopenHal::check_settings(&settings(cfg, config, url, false))
+                .map(|_plan| ())
+                .map_err(|e| arg_err(e.to_string()))
         }
     }
+}
+
+/// The backend settings of `cfg` (file `config`) on bus `url`.
+fn settings(cfg: &RigConfig, config: &Path, url: BusUrl, verbose: bool) -> CanopenSettings {
+    CanopenSettings {
+        bus: url,
+        canopen: cfg.canopen.clone(),
+        command_full_scale: cfg.plant.valve.command_full_scale,
+        control_rate_hz: cfg.timebase().rate_hz(),
+        safe_command: cfg.supervisor.safe_command,
+        verbose,
+        config_dir: config_dir(config),
+    }
+}
+
+/// `ehactl check-config`'s part of the CAN checks: a config that names its devices' EDS /
+/// DCF files (`canopen.transducer_eds`, `canopen.valve_eds`) is meant for `--hal canopen`,
+/// so the files are loaded and every check that `run --hal canopen` makes before it opens
+/// the bus is made (the same function, [`CanopenHal::check_settings`]: the settings, both
+/// files, the start-up plan). `Ok(None)` when no file is named (the sim backend needs
+/// none); `Ok(Some(text))` describes the plan; `Err` is the one-line refusal.
+pub fn check_config(cfg: &RigConfig, config: &Path) -> Result<Option<String>, String> {
+    let c = &cfg.canopen;
+    if c.transducer_eds.is_empty() && c.valve_eds.is_empty() {
+        return Ok(None);
+    }
+    // Never opened: the checks before the bus need no bus, only a valid address.
+    let url = BusUrl::SocketCan {
+        iface: "can0".into(),
+    };
+    let plan = CanopenHal::check_settings(&settings(cfg, config, url, false))
+        .map_err(|e| e.to_string())?;
+    let [t, v] = &plan.devices;
+    Ok(Some(format!(
+        "canopen: transducer {} ({} start-up steps), valve {} ({} start-up steps)",
+        t.eds.source,
+        t.steps.len(),
+        v.eds.source,
+        v.steps.len()
+    )))
 }
 
 /// Exit code of a run stopped by SIGINT / SIGTERM (also during start-up).
@@ -164,15 +196,7 @@ pub fn connect(
         )),
         (HalKind::Canopen, Some(b)) => {
             let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
-            let settings = CanopenSettings {
-                bus: url,
-                canopen: cfg.canopen.clone(),
-                command_full_scale: cfg.plant.valve.command_full_scale,
-                control_rate_hz: cfg.timebase().rate_hz(),
-                safe_command: cfg.supervisor.safe_command,
-                verbose: !json,
-                config_dir: config_dir(config),
-            };
+            let settings = settings(cfg, config, url, !json);
             match CanopenHal::connect_until(settings, Some(stop.clone())) {
                 Ok(h) => Ok(Some(h)),
                 Err(f) => {
