@@ -933,6 +933,25 @@ impl<'a> Bringup<'a> {
     fn valve_to_hold(&mut self, why: &str) -> String {
         self.bus.honour_stop = false;
         let va = self.ids[1];
+        // A stop request cuts an SDO transfer short: the valve's answer to it may still be
+        // on its way and would be taken for the answer to the HOLD write. Wait for it (at
+        // most 100 ms or one SDO timeout).
+        let end = Instant::now() + self.sdo_t.min(Duration::from_millis(100));
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            match self.bus.recv_timeout(left) {
+                Ok(Some(f)) => {
+                    self.st.observe(&f, Direction::Rx);
+                    if !f.extended && f.id == u32::from(sdo::SDO_TX_BASE + u16::from(va)) {
+                        break;
+                    }
+                }
+                _ => break,
+            }
+        }
         let sp = self.send(CanFrame::std(
             RPDO1_BASE + u16::from(va),
             0i16.to_le_bytes(),

@@ -75,6 +75,10 @@ struct Knobs {
     /// Node id (0 = none) that answers 0x1016 with "object does not exist" (0x06020000): a
     /// device without a heartbeat consumer, optional in CiA 301.
     no_heartbeat_consumer: AtomicU32,
+    /// The master's stop request (SIGINT / SIGTERM), set by the rig when it receives an SDO
+    /// download to `stop_on_write` (index << 16 | value's first two bytes).
+    master_stop: Arc<AtomicBool>,
+    stop_on_write: AtomicU32,
     stop: AtomicBool,
     /// Every frame the rig received (id, data), for sequence checks.
     seen: Mutex<Vec<(u32, Vec<u8>)>>,
@@ -312,6 +316,10 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         }
                         let n = 4 - usize::from((cs >> 2) & 3);
                         let v = f.data[4..4 + n].to_vec();
+                        let key = u32::from(index) << 16 | u32::from(f.data[4]) | u32::from(f.data[5]) << 8;
+                        if key == knobs.stop_on_write.load(Ordering::Relaxed) {
+                            knobs.master_stop.store(true, Ordering::Relaxed);
+                        }
                         if node == VA && index == 0x6040 {
                             let cw = u16::from_le_bytes([v[0], v[1]]);
                             let rising_r = cw & 0x08 != 0 && prev_cw & 0x08 == 0;
@@ -1244,6 +1252,61 @@ fn a_sensor_without_a_heartbeat_consumer_starts_a_valve_without_one_does_not() {
                     "{m}"
                 );
             }
+        }
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
+}
+
+#[test]
+fn a_stop_request_ends_every_start_up_phase_and_returns_an_enabled_valve_to_hold() {
+    // The rig sets the master's stop flag (as SIGTERM does) when it receives: the transducer's
+    // heartbeat producer time (SDO configuration), the valve's control word ACTIVE (valve
+    // state machine). Each time the start-up ends with `Stopped` well within one SDO timeout
+    // (500 ms); once the valve was being enabled its last control word is HOLD.
+    for (key, valve_enabled) in [
+        (0x1017_0000 | 50u32, false),
+        (0x6040_0000 | u32::from(cia408::CW_ACTIVE_STATE), true),
+    ] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs.stop_on_write.store(key, Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        let stop = knobs.master_stop.clone();
+        let watcher = {
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let t0 = Instant::now();
+                while !stop.load(Ordering::Relaxed) && t0.elapsed() < Duration::from_secs(20) {
+                    std::thread::sleep(Duration::from_micros(200));
+                }
+                Instant::now()
+            })
+        };
+        let r = CanopenHal::connect_until(settings(port, test_bus()), Some(stop.clone()));
+        let returned = Instant::now();
+        let stopped_at = watcher.join().unwrap();
+        let f = r.err().expect("start-up went on after the stop request");
+        let latency = returned.saturating_duration_since(stopped_at);
+        assert!(latency < Duration::from_millis(500), "{latency:?}");
+        match &f.error {
+            StartupError::Stopped { valve, .. } => {
+                assert_eq!(valve.is_some(), valve_enabled, "{}", f.error);
+                if valve_enabled {
+                    assert!(valve.as_deref().unwrap().contains("HOLD (0x0003) sent"), "{}", f.error);
+                }
+            }
+            e => panic!("expected Stopped, got {e}"),
+        }
+        let seen = knobs.seen.lock().unwrap().clone();
+        let cws: Vec<u16> = seen
+            .iter()
+            .filter(|(id, d)| *id == 0x600 + u32::from(VA) && d[0] & 0xE0 == 0x20 && d[1..3] == [0x40, 0x60])
+            .map(|(_, d)| u16::from_le_bytes([d[4], d[5]]))
+            .collect();
+        if valve_enabled {
+            assert_eq!(cws.last(), Some(&cia408::CW_HOLD_STATE), "{cws:?}");
+        } else {
+            assert!(cws.is_empty(), "{cws:?}");
         }
         knobs.stop.store(true, Ordering::Relaxed);
         rig_thread.join().unwrap();
