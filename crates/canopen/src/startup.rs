@@ -473,10 +473,22 @@ impl Plan {
                     )));
                 }
                 (Dev::Valve, true) => {
-                    p.push(0x1016, 1, consumer.to_le_bytes().to_vec(), StepKind::Ensure, what)?;
+                    p.push(
+                        0x1016,
+                        1,
+                        consumer.to_le_bytes().to_vec(),
+                        StepKind::Ensure,
+                        what,
+                    )?;
                 }
                 (Dev::Transducer, true) => {
-                    p.push(0x1016, 1, consumer.to_le_bytes().to_vec(), StepKind::Ensure, what)?;
+                    p.push(
+                        0x1016,
+                        1,
+                        consumer.to_le_bytes().to_vec(),
+                        StepKind::Ensure,
+                        what,
+                    )?;
                     p.if_device_has();
                 }
                 (Dev::Transducer, false) => {
@@ -699,7 +711,11 @@ pub(crate) struct StartBus {
 
 impl StartBus {
     fn stop_requested(&self) -> bool {
-        self.honour_stop && self.stop.as_ref().is_some_and(|s| s.load(Ordering::Relaxed))
+        self.honour_stop
+            && self
+                .stop
+                .as_ref()
+                .is_some_and(|s| s.load(Ordering::Relaxed))
     }
 
     fn check_stop(&self) -> Result<(), BusError> {
@@ -1617,7 +1633,7 @@ mod tests {
             .unwrap();
         assert!(c.if_device_has && c.access == Access::Rw, "{c:?}");
         assert_eq!(c.value, 0x0001_0064u32.to_le_bytes()); // node 1, 100 ms
-        // with 0x1016 in the files: the valve's is mandatory, the transducer's if present
+                                                           // with 0x1016 in the files: the valve's is mandatory, the transducer's if present
         let p = Plan::new(&settings(CanopenConfig::default())).unwrap();
         let has = |d: &DevicePlan| {
             d.steps

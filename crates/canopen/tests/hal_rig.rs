@@ -316,7 +316,9 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         }
                         let n = 4 - usize::from((cs >> 2) & 3);
                         let v = f.data[4..4 + n].to_vec();
-                        let key = u32::from(index) << 16 | u32::from(f.data[4]) | u32::from(f.data[5]) << 8;
+                        let key = u32::from(index) << 16
+                            | u32::from(f.data[4])
+                            | u32::from(f.data[5]) << 8;
                         if key == knobs.stop_on_write.load(Ordering::Relaxed) {
                             knobs.master_stop.store(true, Ordering::Relaxed);
                         }
@@ -1230,16 +1232,22 @@ fn a_sensor_without_a_heartbeat_consumer_starts_a_valve_without_one_does_not() {
                 // the valve's consumer was written: node 1, 100 ms
                 let sdo = |n: u8| {
                     seen.iter()
-                        .filter(move |(id, d)| *id == 0x600 + u32::from(n) && d[1..3] == [0x16, 0x10])
+                        .filter(move |(id, d)| {
+                            *id == 0x600 + u32::from(n) && d[1..3] == [0x16, 0x10]
+                        })
                         .map(|(_, d)| d.clone())
                         .collect::<Vec<_>>()
                 };
-                assert!(sdo(TR).iter().any(|d| d[0] == 0x40 && d[3] == 0), "{:?}", sdo(TR));
+                assert!(
+                    sdo(TR).iter().any(|d| d[0] == 0x40 && d[3] == 0),
+                    "{:?}",
+                    sdo(TR)
+                );
                 assert!(sdo(TR).iter().all(|d| d[0] & 0xE0 != 0x20), "{:?}", sdo(TR));
                 assert!(
-                    sdo(VA)
-                        .iter()
-                        .any(|d| d[0] & 0xE0 == 0x20 && d[3] == 1 && d[4..8] == 0x0001_0064u32.to_le_bytes()),
+                    sdo(VA).iter().any(|d| d[0] & 0xE0 == 0x20
+                        && d[3] == 1
+                        && d[4..8] == 0x0001_0064u32.to_le_bytes()),
                     "{:?}",
                     sdo(VA)
                 );
@@ -1248,7 +1256,9 @@ fn a_sensor_without_a_heartbeat_consumer_starts_a_valve_without_one_does_not() {
                 assert!(!ok, "{e}");
                 let m = e.to_string();
                 assert!(
-                    m.contains("valve") && m.contains("0x1016") && m.contains("object does not exist"),
+                    m.contains("valve")
+                        && m.contains("0x1016")
+                        && m.contains("object does not exist"),
                     "{m}"
                 );
             }
@@ -1285,14 +1295,18 @@ fn a_stop_request_ends_every_start_up_phase_and_returns_an_enabled_valve_to_hold
         let r = CanopenHal::connect_until(settings(port, test_bus()), Some(stop.clone()));
         let returned = Instant::now();
         let stopped_at = watcher.join().unwrap();
-        let f = r.err().expect("start-up went on after the stop request");
+        let f = r.expect_err("start-up went on after the stop request");
         let latency = returned.saturating_duration_since(stopped_at);
         assert!(latency < Duration::from_millis(500), "{latency:?}");
         match &f.error {
             StartupError::Stopped { valve, .. } => {
                 assert_eq!(valve.is_some(), valve_enabled, "{}", f.error);
                 if valve_enabled {
-                    assert!(valve.as_deref().unwrap().contains("HOLD (0x0003) sent"), "{}", f.error);
+                    assert!(
+                        valve.as_deref().unwrap().contains("HOLD (0x0003) sent"),
+                        "{}",
+                        f.error
+                    );
                 }
             }
             e => panic!("expected Stopped, got {e}"),
@@ -1300,7 +1314,9 @@ fn a_stop_request_ends_every_start_up_phase_and_returns_an_enabled_valve_to_hold
         let seen = knobs.seen.lock().unwrap().clone();
         let cws: Vec<u16> = seen
             .iter()
-            .filter(|(id, d)| *id == 0x600 + u32::from(VA) && d[0] & 0xE0 == 0x20 && d[1..3] == [0x40, 0x60])
+            .filter(|(id, d)| {
+                *id == 0x600 + u32::from(VA) && d[0] & 0xE0 == 0x20 && d[1..3] == [0x40, 0x60]
+            })
             .map(|(_, d)| u16::from_le_bytes([d[4], d[5]]))
             .collect();
         if valve_enabled {

@@ -133,7 +133,9 @@ mod tests {
         assert_eq!(read_bounded_string(&f, 5, "test").unwrap(), "hello");
         let e = read_bounded(&f, 4, "test").unwrap_err().to_string();
         assert!(e.contains("limit") && e.contains("a.txt"), "{e}");
-        let e = read_bounded(Path::new("/dev/zero"), MIB, "test").unwrap_err().to_string();
+        let e = read_bounded(Path::new("/dev/zero"), MIB, "test")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("character device"), "{e}");
         let e = read_bounded(&dir, MIB, "test").unwrap_err().to_string();
         assert!(e.contains("directory"), "{e}");
@@ -144,10 +146,15 @@ mod tests {
         assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
         let e = read_bounded(&fifo, MIB, "test").unwrap_err().to_string();
         assert!(e.contains("FIFO"), "{e}");
-        let e = read_bounded(&dir.join("missing"), MIB, "test").unwrap_err().to_string();
+        let e = read_bounded(&dir.join("missing"), MIB, "test")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("missing") && e.contains("cannot read"), "{e}");
         std::fs::write(&f, [0xFF, 0xFE]).unwrap();
-        assert!(read_bounded_string(&f, MIB, "test").unwrap_err().reason.contains("UTF-8"));
+        assert!(read_bounded_string(&f, MIB, "test")
+            .unwrap_err()
+            .reason
+            .contains("UTF-8"));
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -410,12 +410,9 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
 pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
     let source = path.display().to_string();
     // The whole log is held in memory: a regular file of at most 4 GiB.
-    let bytes = ehactl_hal::input::read_bounded(
-        path,
-        ehactl_hal::input::DATA_MAX_BYTES,
-        "data (MCAP log)",
-    )
-    .map_err(|e| DataError(e.to_string()))?;
+    let bytes =
+        ehactl_hal::input::read_bounded(path, ehactl_hal::input::DATA_MAX_BYTES, "data (MCAP log)")
+            .map_err(|e| DataError(e.to_string()))?;
     parse_mcap(&source, &bytes)
 }
 
