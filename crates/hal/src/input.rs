@@ -11,16 +11,20 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-/// One MiB (bytes), the unit of the limits in messages.
-pub const MIB: u64 = 1 << 20;
-/// Largest config file (TOML) read (bytes): the shipped configs are a few kB.
-pub const CONFIG_MAX_BYTES: u64 = 16 * MIB;
-/// Largest EDS / DCF file read (bytes): vendor files are at most a few MB.
-pub const EDS_MAX_BYTES: u64 = 64 * MIB;
-/// Largest `diagnose --data` / `--validate` file (CSV or MCAP log) read (bytes): 4 GiB,
-/// hours of a 5 kHz log (an ehactl MCAP log of every cycle is ≈ 0.6 MB per second; a CSV
-/// of 8 columns at 5 kHz ≈ 0.5 MB per second). Both readers hold the whole file in memory.
-pub const DATA_MAX_BYTES: u64 = 4096 * MIB;
+/// One MB (10⁶ bytes), the unit of the limits in messages.
+pub const MB: u64 = 1_000_000;
+/// Largest config file (TOML) read (bytes): the shipped configs are at most 6 kB.
+pub const CONFIG_MAX_BYTES: u64 = 16 * MB;
+/// Largest EDS / DCF file read (bytes): the shipped EDS files are 10 kB; a device with
+/// thousands of objects stays far below the limit (≈ 150 bytes of text per object).
+pub const EDS_MAX_BYTES: u64 = 64 * MB;
+/// Largest `diagnose --data` / `--validate` file (CSV or MCAP log) read (bytes): 10 000 MB,
+/// hours of logs. An ehactl MCAP log of every cycle takes 1.15 MB per second at 5 kHz
+/// (`ehactl run configs/sahu2022_force.toml --duration 10`: 11.5 MB) and 0.23 MB per second
+/// at 1 kHz (`configs/diagnose_testrig.toml`: 2.3 MB), so 2.4 h at 5 kHz, 12 h at 1 kHz; a
+/// CSV of 8 columns of ≈ 12 characters at 5 kHz takes about 0.5 MB per second. Both readers
+/// hold the whole file in memory (the MCAP reader validates its chunks on the whole file).
+pub const DATA_MAX_BYTES: u64 = 10_000 * MB;
 
 /// What kind of file system object `m` is, for messages.
 fn kind(m: &std::fs::Metadata) -> &'static str {
@@ -74,8 +78,8 @@ fn check_meta(m: &std::fs::Metadata, max_bytes: u64, what: &str) -> Result<(), S
 fn too_large(len: u64, max_bytes: u64, what: &str) -> String {
     format!(
         "{:.1} MB is larger than the {} MB limit for a {what} file; expected a smaller file",
-        len as f64 / MIB as f64,
-        max_bytes / MIB
+        len as f64 / MB as f64,
+        max_bytes / MB
     )
 }
 
@@ -133,25 +137,25 @@ mod tests {
         assert_eq!(read_bounded_string(&f, 5, "test").unwrap(), "hello");
         let e = read_bounded(&f, 4, "test").unwrap_err().to_string();
         assert!(e.contains("limit") && e.contains("a.txt"), "{e}");
-        let e = read_bounded(Path::new("/dev/zero"), MIB, "test")
+        let e = read_bounded(Path::new("/dev/zero"), MB, "test")
             .unwrap_err()
             .to_string();
         assert!(e.contains("character device"), "{e}");
-        let e = read_bounded(&dir, MIB, "test").unwrap_err().to_string();
+        let e = read_bounded(&dir, MB, "test").unwrap_err().to_string();
         assert!(e.contains("directory"), "{e}");
         // A FIFO without a writer: refused at once (opening it would block).
         let fifo = dir.join("p");
         let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
         // SAFETY: mkfifo with a valid NUL-terminated path.
         assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
-        let e = read_bounded(&fifo, MIB, "test").unwrap_err().to_string();
+        let e = read_bounded(&fifo, MB, "test").unwrap_err().to_string();
         assert!(e.contains("FIFO"), "{e}");
-        let e = read_bounded(&dir.join("missing"), MIB, "test")
+        let e = read_bounded(&dir.join("missing"), MB, "test")
             .unwrap_err()
             .to_string();
         assert!(e.contains("missing") && e.contains("cannot read"), "{e}");
         std::fs::write(&f, [0xFF, 0xFE]).unwrap();
-        assert!(read_bounded_string(&f, MIB, "test")
+        assert!(read_bounded_string(&f, MB, "test")
             .unwrap_err()
             .reason
             .contains("UTF-8"));
