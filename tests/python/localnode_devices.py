@@ -20,9 +20,14 @@ reset communication (the master answers with an SDO probe), no PDO gating other 
 state check below, no heartbeat consumer (0x1016 is stored, not acted upon: this device does
 not detect master loss; see DEPLOY.md for what a real valve does).
 
+A transducer of another make can be built from its own EDS (``--transducer-eds PATH``), e.g.
+one without the optional heartbeat consumer 0x1016 (``eds_without``), as many CiA 406 sensors
+have: LocalNode then answers an SDO access to 0x1016 with abort 0x06020000 (object does not
+exist).
+
 Usage (from the repository root):
     python3 tests/python/localnode_devices.py --port PORT --config configs/dindorf2022_boom.toml
-        [--events PATH] [--fault emcy@T]
+        [--events PATH] [--fault emcy@T] [--transducer-eds PATH]
 Prints ``localnode devices ready`` on stdout once both nodes are on the bus; SIGTERM ends it
 with a JSON summary on stdout."""
 
@@ -42,6 +47,36 @@ import canopen
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 EDS = REPO / "configs" / "eds"
+
+def eds_without(path, index):
+    """The text of the EDS at `path` without object `index` (its sections and its line in the
+    [MandatoryObjects] / [OptionalObjects] list, renumbered), as the file of a device that
+    does not have the object."""
+    out, skip, lists = [], False, {}
+    section = None
+    for line in pathlib.Path(path).read_text().splitlines():
+        s = line.strip()
+        if s.startswith("["):
+            section = s[1:-1]
+            skip = section.upper().split("SUB")[0] == f"{index:04X}"
+            if section in ("MandatoryObjects", "OptionalObjects"):
+                lists[section] = []
+        if skip:
+            continue
+        if section in lists and "=" in s and not s.startswith("SupportedObjects"):
+            if int(s.split("=", 1)[1], 16) != index:
+                lists[section].append(s.split("=", 1)[1])
+            continue
+        out.append(line)
+    text = "\n".join(out) + "\n"
+    for sec, objs in lists.items():
+        body = "".join(f"{k}={v}\n" for k, v in enumerate(objs, 1))
+        head = f"[{sec}]\n"
+        start = text.index(head)
+        end = text.index("\n", text.index("SupportedObjects=", start)) + 1
+        text = text[:start] + head + f"SupportedObjects={len(objs)}\n" + body + text[end:]
+    return text
+
 
 # ---------------------------------------------------------------- CiA 408 device state machine
 D, H, M, R = 0x1, 0x2, 0x4, 0x8
@@ -102,7 +137,7 @@ class Dsm:
 
 # ---------------------------------------------------------------- the device program
 class Rig:
-    def __init__(self, port, config, tr_id, va_id, faults, events):
+    def __init__(self, port, config, tr_id, va_id, faults, events, tr_eds=None):
         import ehactl
 
         cfg = ehactl.Config.load(config)
@@ -114,7 +149,7 @@ class Rig:
         self.faults = faults
         self.net = canopen.Network()
         self.net.connect(interface="socketcand", host="127.0.0.1", port=port, channel="can0")
-        self.tr = canopen.LocalNode(tr_id, str(EDS / "ehactl_transducer_406.eds"))
+        self.tr = canopen.LocalNode(tr_id, str(tr_eds or EDS / "ehactl_transducer_406.eds"))
         self.va = canopen.LocalNode(va_id, str(EDS / "ehactl_valve_408.eds"))
         for n in (self.tr, self.va):
             self.net.add_node(n)
@@ -264,6 +299,7 @@ def main():
     ap.add_argument("--transducer-id", type=int, default=32)
     ap.add_argument("--valve-id", type=int, default=48)
     ap.add_argument("--events")
+    ap.add_argument("--transducer-eds", help="the transducer's EDS (default: the shipped one)")
     ap.add_argument("--fault", action="append", default=[],
                     help="emcy@T: valve fault (EMCY 0x5000, FAULT_REACTION) at SYNC T·1000")
     a = ap.parse_args()
@@ -273,7 +309,8 @@ def main():
         if kind != "emcy":
             ap.error(f"--fault {f}: only emcy@T is supported")
         faults.append({"at": float(at or 0)})
-    rig = Rig(a.port, a.config, a.transducer_id, a.valve_id, faults, a.events)
+    rig = Rig(a.port, a.config, a.transducer_id, a.valve_id, faults, a.events,
+              a.transducer_eds)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())

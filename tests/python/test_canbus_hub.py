@@ -303,3 +303,47 @@ def test_hub_on_a_non_loopback_address_warns():
         time.sleep(0.3)
         proc.terminate()
         assert "warning" not in proc.stderr.read()
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_a_signal_during_startup_stops_it_at_once_exit_130(tmp_path, sig):
+    """A hub and no devices, `canopen.boot_timeout_s = 20`: SIGTERM / SIGINT 0.7 s into the
+    start-up (waiting for boot-ups, probing by SDO) ends ehactl with exit 130 within a few
+    seconds — not at the boot timeout with exit 4 (`systemctl stop` must not wait it out).
+    The attempt is still logged: the frames on /can and the summary (interrupted, no trip)."""
+    import signal
+
+    cfg = tmp_path / "boom.toml"
+    cfg.write_text(BOOM.read_text() + "\n[canopen]\nboot_timeout_s = 20.0\n")
+    out = tmp_path / "x.mcap"
+    with hub() as (_, port):
+        t_spawn = time.monotonic()
+        p = subprocess.Popen([BIN, "run", str(cfg), "--json", "--out", str(out), "--hal",
+                              "canopen", "--bus", f"socketcand://127.0.0.1:{port}/can0"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(0.7)
+        assert p.poll() is None, p.communicate()
+        t0 = time.monotonic()
+        p.send_signal(getattr(signal, sig))
+        try:
+            stdout, stderr = p.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            stdout, stderr = p.communicate()
+            raise AssertionError(f"{sig} during start-up ignored for 10 s: {stderr}")
+        t_end = time.monotonic()
+        latency = t_end - t0
+    assert p.returncode == 130, (p.returncode, stderr)
+    assert latency < 3.0, latency
+    assert "panicked" not in stderr
+    assert "start-up stopped by signal" in stderr, stderr
+    summary = json.loads(stdout.strip().splitlines()[-1])
+    assert summary["interrupted"] is True and summary["trip"] is None, summary
+    assert summary["exit_code"] == 130 and summary["cycles"] == 0
+    # the start-up ran from (after) the spawn to (before) the exit, and past the signal
+    assert t0 - t_spawn - 0.3 <= summary["startup_s"] < t_end - t_spawn, (summary, t0 - t_spawn)
+    run = read_run(out)
+    assert run["summary"] == summary
+    frames = read_can(out)
+    # NMT reset communication of both nodes went out before the signal
+    assert [f["data"] for f in frames if f["id"] == 0][:2] == ["8220", "8230"], frames[:5]

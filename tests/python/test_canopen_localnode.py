@@ -184,3 +184,48 @@ def test_localnode_valve_fault_trips_within_two_sync_periods(tmp_path):
     states = [e["state"] for e in dev.events("valve", "state")]
     assert states[-2:] == ["FAULT_REACTION", "FAULT_HOLD"], states
     assert dsum["valve_state"] == "FAULT_HOLD" and dsum["spool"] == 0.0, dsum
+
+
+@pytest.mark.parametrize("master_eds", ["built-in", "device's own"])
+def test_a_localnode_transducer_without_0x1016_starts_and_is_reported(tmp_path, master_eds):
+    """A CiA 406 transducer built on LocalNode from an EDS WITHOUT the heartbeat consumer
+    0x1016 (optional in CiA 301, often omitted on sensors): ehactl asks the device (SDO read of
+    0x1016:00 → abort 0x06020000, object does not exist), starts without it, lists it in
+    `startup_skipped` and runs the 3 s loop to completion; the valve's consumer is still
+    configured. With the built-in EDS (which lists 0x1016: it describes another device) and
+    with the device's own EDS as canopen.transducer_eds."""
+    from localnode_devices import EDS, eds_without
+
+    eds = tmp_path / "transducer_no_1016.eds"
+    eds.write_text(eds_without(EDS / "ehactl_transducer_406.eds", 0x1016))
+    assert "[1016" not in eds.read_text()
+    cfg = CAN_BOOM
+    if master_eds == "device's own":
+        cfg = tmp_path / "boom_own_eds.toml"
+        cfg.write_text(CAN_BOOM.read_text() + f'transducer_eds = "{eds}"\n')
+    with hub() as (_, port), localnode_devices(port, tmp_path, "--transducer-eds",
+                                               str(eds)) as dev:
+        out = tmp_path / "no1016.mcap"
+        p = subprocess.run([BIN, "run", str(cfg), "--hal", "canopen", "--bus", bus_url(port),
+                            "--json", "--duration", "3", "--out", str(out)],
+                           capture_output=True, text=True, timeout=90, cwd=str(REPO))
+        time.sleep(0.1)
+        dsum = dev.stop()
+    lines = [ln for ln in p.stdout.splitlines() if ln.strip()]
+    summary = json.loads(lines[-1]) if lines else None
+    assert p.returncode == 0, why(summary, p.stderr)
+    assert summary["trip"] is None and summary["cycles"] > 0
+    skipped = summary["startup_skipped"]
+    assert any(s.startswith(f"node {TR} 0x1016:01") and "0x06020000" in s for s in skipped), skipped
+    assert not any(s.startswith(f"node {VA} ") and "0x1016" in s for s in skipped), skipped
+    frames = read_can(out)
+    tx = [(f["id"], f["data"].upper()) for f in frames if f["dir"] == "tx"]
+    rx = [(f["id"], f["data"].upper()) for f in frames if f["dir"] == "rx"]
+    # the transducer was asked for 0x1016:00 and answered "object does not exist" (LocalNode's
+    # own SDO server); it was never written 0x1016
+    assert (0x600 + TR, "4016100000000000") in tx
+    assert (0x580 + TR, "8016100000000206") in rx
+    assert not [d for i, d in tx if i == 0x600 + TR and d[2:6] == "1610" and d[:2] != "40"]
+    # the valve's consumer of ehactl's heartbeat: node 1, 250 ms (0x1016:01 = 0x000100FA)
+    assert (0x600 + VA, "23161001FA000100") in tx, [d for i, d in tx if i == 0x600 + VA]
+    assert dsum["valve_state"] == "HOLD" and dsum["spool"] == 0.0, dsum

@@ -19,6 +19,8 @@ pub enum BusErrorKind {
     Io,
     /// Not available on this platform / build.
     Unsupported,
+    /// A wait was cut short by a stop request (SIGINT / SIGTERM during start-up).
+    Interrupted,
 }
 
 /// A transport error with a one-line message naming what was wrong and what was expected.

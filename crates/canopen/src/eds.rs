@@ -254,10 +254,15 @@ impl Eds {
         Ok(eds)
     }
 
-    /// Read and parse a file.
+    /// Read and parse a file: a regular file of at most
+    /// [`ehactl_hal::input::EDS_MAX_BYTES`] (a FIFO or /dev/zero is refused, never read).
     pub fn load(path: &Path) -> Result<Eds, String> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("{}: cannot read the EDS / DCF file: {e}", path.display()))?;
+        let text = ehactl_hal::input::read_bounded_string(
+            path,
+            ehactl_hal::input::EDS_MAX_BYTES,
+            "EDS / DCF",
+        )
+        .map_err(|e| e.to_string())?;
         Eds::parse(&text, &path.display().to_string())
     }
 

@@ -220,12 +220,23 @@ impl CanopenHal {
     /// [`CanopenHal::connect`], and on failure also every frame of the attempt (for the
     /// log: a failed start-up is recorded like a trip, see [`StartupFailure`]).
     pub fn connect_logged(s: CanopenSettings) -> Result<CanopenHal, StartupFailure> {
+        Self::connect_until(s, None)
+    }
+
+    /// [`CanopenHal::connect_logged`] that ends early when `stop` is set (SIGINT / SIGTERM):
+    /// every blocking phase of the start-up checks it at least once per master heartbeat
+    /// period and ends with [`StartupError::Stopped`] (the valve back to HOLD if it was being
+    /// enabled).
+    pub fn connect_until(
+        s: CanopenSettings,
+        stop: Option<Arc<AtomicBool>>,
+    ) -> Result<CanopenHal, StartupFailure> {
         let t_start = Instant::now();
         let mut st = Startup::new(
             [s.canopen.transducer_node_id, s.canopen.valve_node_id],
             s.verbose,
         );
-        Self::bring_up(s, t_start, &mut st).map_err(|error| {
+        Self::bring_up(s, t_start, &mut st, stop).map_err(|error| {
             let failed_at = Instant::now();
             st.merge();
             StartupFailure {
@@ -296,6 +307,7 @@ impl CanopenHal {
         s: CanopenSettings,
         t_start: Instant,
         st: &mut Startup,
+        stop: Option<Arc<AtomicBool>>,
     ) -> Result<CanopenHal, StartupError> {
         let plan = Self::check_settings(&s)?;
         let c = s.canopen.clone();
@@ -303,7 +315,7 @@ impl CanopenHal {
             HEARTBEAT_BASE + u16::from(c.master_node_id),
             [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
         );
-        let mut b = Bringup::open(&s, plan, st, master_hb)?;
+        let mut b = Bringup::open(&s, plan, st, master_hb, stop)?;
         b.configure()?;
         let Activated { mut meas } = b.activate()?;
         if s.verbose {

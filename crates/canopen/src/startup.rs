@@ -16,7 +16,7 @@
 //! Every frame of the attempt is kept ([`Startup`]) for the log, and ehactl's heartbeat runs
 //! from the first frame on ([`StartBus`]).
 
-use crate::bus::{self, BusError, CanBus};
+use crate::bus::{self, BusError, BusErrorKind, CanBus};
 use crate::cia406;
 use crate::cia408::{self, ValveState};
 use crate::eds::{Access, Eds, BUILTIN_TRANSDUCER_EDS, BUILTIN_VALVE_EDS};
@@ -32,6 +32,7 @@ use crate::sdo::{self, SdoClient, SdoError};
 use crate::sync;
 use ehactl_hal::logger::CanFrameRecord;
 use ehactl_hal::Measurements;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -90,6 +91,13 @@ pub enum StartupError {
     /// A device did not do what the master asked (wrong profile or identity, state not
     /// reached, read-only object with another value).
     Device(String),
+    /// A stop was requested (SIGINT / SIGTERM) during start-up; what was done with the valve.
+    Stopped {
+        /// The start-up step that was cut short.
+        during: String,
+        /// What happened to the valve (`None`: it was never commanded out of its state).
+        valve: Option<String>,
+    },
 }
 
 /// A failed start-up with what was on the bus meanwhile.
@@ -132,6 +140,13 @@ impl std::fmt::Display for StartupError {
                 write!(f, "CANopen start-up: {step}: {error}")
             }
             StartupError::Device(m) => write!(f, "CANopen start-up: {m}"),
+            StartupError::Stopped { during, valve } => {
+                write!(f, "CANopen start-up stopped by signal (SIGINT / SIGTERM) during {during}")?;
+                match valve {
+                    Some(v) => write!(f, "; {v}"),
+                    None => write!(f, "; the valve was not enabled"),
+                }
+            }
         }
     }
 }
@@ -176,6 +191,11 @@ pub struct Step {
     /// off): a device that answers "object does not exist" (0x06020000 / 0x06090011) although
     /// its file lists it is used without it, and the step is reported as skipped.
     pub optional: bool,
+    /// Used where the device has it: before the step, `index:00` is read from the device;
+    /// "object does not exist" (0x06020000 / 0x06090011) skips the step (reported), whatever
+    /// the file says. The heartbeat consumer 0x1016 of a sensor (optional in CiA 301): a
+    /// sensor need not react to the loss of ehactl, the valve does.
+    pub if_device_has: bool,
 }
 
 /// What ehactl does to one device at start-up, decided from its EDS / DCF before the bus
@@ -256,8 +276,17 @@ impl DevicePlan {
             kind,
             what: what.into(),
             optional: false,
+            if_device_has: false,
         });
         Ok(())
+    }
+
+    /// Mark the last planned step as used only where the device has it (see
+    /// [`Step::if_device_has`]).
+    fn if_device_has(&mut self) {
+        if let Some(s) = self.steps.last_mut() {
+            s.if_device_has = true;
+        }
     }
 
     /// Mark the last planned step optional (see [`Step::optional`]).
@@ -429,22 +458,53 @@ impl Plan {
                 StepKind::Ensure,
                 format!("setting the {name} heartbeat producer time"),
             )?;
-            if p.eds.get(0x1016, 1).is_none() {
-                return Err(settings_err(format!(
-                    "{} ({}): the {name} has no heartbeat consumer 0x1016:01, so it cannot detect a dead ehactl (canopen.device_heartbeat_timeout_ms); ehactl refuses to drive it",
-                    p.eds.source,
-                    p.dev.config_key()
-                )));
-            }
+            // The valve moves the load: it must detect a dead ehactl (its fault reaction), so
+            // its consumer is mandatory. A sensor's is used where the device has it, decided
+            // from what the device answers (an EDS may describe another make or revision).
             let consumer =
                 (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
-            p.push(
-                0x1016,
-                1,
-                consumer.to_le_bytes().to_vec(),
-                StepKind::Ensure,
-                format!("setting the {name} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)"),
-            )?;
+            let what = format!("setting the {name} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)");
+            match (p.dev, p.eds.get(0x1016, 1).is_some()) {
+                (Dev::Valve, false) => {
+                    return Err(settings_err(format!(
+                        "{} ({}): the {name} has no heartbeat consumer 0x1016:01, so it cannot detect a dead ehactl (canopen.device_heartbeat_timeout_ms) and stop the load; ehactl refuses to drive it",
+                        p.eds.source,
+                        p.dev.config_key()
+                    )));
+                }
+                (Dev::Valve, true) => {
+                    p.push(
+                        0x1016,
+                        1,
+                        consumer.to_le_bytes().to_vec(),
+                        StepKind::Ensure,
+                        what,
+                    )?;
+                }
+                (Dev::Transducer, true) => {
+                    p.push(
+                        0x1016,
+                        1,
+                        consumer.to_le_bytes().to_vec(),
+                        StepKind::Ensure,
+                        what,
+                    )?;
+                    p.if_device_has();
+                }
+                (Dev::Transducer, false) => {
+                    // Not in the file: still asked, as CiA 301 defines it (UNSIGNED32, rw).
+                    p.steps.push(Step {
+                        index: 0x1016,
+                        sub: 1,
+                        value: consumer.to_le_bytes().to_vec(),
+                        access: Access::Rw,
+                        kind: StepKind::Ensure,
+                        what,
+                        optional: false,
+                        if_device_has: true,
+                    });
+                }
+            }
             // 3. SYNC objects where the file has them (CiA 301 7.5.2.6/7/22): 0x1019 may only
             //    change while 0x1006 = 0, so the period is cleared first.
             if p.eds.get(0x1006, 0).is_some_and(|o| o.access.writable()) {
@@ -639,9 +699,35 @@ pub(crate) struct StartBus {
     period: Duration,
     next: Instant,
     sent: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
+    /// Stop request (SIGINT / SIGTERM): every wait for a frame checks it at least every
+    /// `period` (the master heartbeat period, 20 ms by default) and returns
+    /// [`BusErrorKind::Interrupted`], so that every blocking phase of the start-up (boot-up
+    /// wait, SDO transfers, NMT and valve state waits, priming) ends within one heartbeat
+    /// period of the request, well inside one SDO timeout.
+    stop: Option<Arc<AtomicBool>>,
+    /// Cleared to bring the valve to its safe state after a stop.
+    pub(crate) honour_stop: bool,
 }
 
 impl StartBus {
+    fn stop_requested(&self) -> bool {
+        self.honour_stop
+            && self
+                .stop
+                .as_ref()
+                .is_some_and(|s| s.load(Ordering::Relaxed))
+    }
+
+    fn check_stop(&self) -> Result<(), BusError> {
+        if self.stop_requested() {
+            return Err(BusError::new(
+                BusErrorKind::Interrupted,
+                "stopped by signal (SIGINT / SIGTERM)",
+            ));
+        }
+        Ok(())
+    }
+
     fn beat_if_due(&mut self) -> Result<(), BusError> {
         let now = Instant::now();
         if now >= self.next {
@@ -663,12 +749,14 @@ impl CanBus for StartBus {
         self.inner.send(frame)
     }
     fn try_recv(&mut self) -> Result<Option<CanFrame>, BusError> {
+        self.check_stop()?;
         self.beat_if_due()?;
         self.inner.try_recv()
     }
     fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<CanFrame>, BusError> {
         let end = Instant::now() + timeout;
         loop {
+            self.check_stop()?;
             self.beat_if_due()?;
             let now = Instant::now();
             if now >= end {
@@ -794,6 +882,8 @@ pub(crate) struct Bringup<'a> {
     pub(crate) names: [Option<String>; 2],
     /// Optional steps the devices did not support ("node N 0x1006:00 (what)").
     pub(crate) skipped: Vec<String>,
+    /// The step in progress (for [`StartupError::Stopped`]).
+    phase: &'static str,
 }
 
 /// What the activate step hands to the run: the first measurements.
@@ -808,6 +898,7 @@ impl<'a> Bringup<'a> {
         plan: Plan,
         st: &'a mut Startup,
         master_hb: CanFrame,
+        stop: Option<Arc<AtomicBool>>,
     ) -> Result<Bringup<'a>, StartupError> {
         let c = &s.canopen;
         let bus = Box::new(StartBus {
@@ -816,6 +907,8 @@ impl<'a> Bringup<'a> {
             period: Duration::from_millis(u64::from(c.master_heartbeat_ms)),
             next: Instant::now(),
             sent: st.heartbeats.clone(),
+            stop,
+            honour_stop: true,
         });
         Ok(Bringup {
             s,
@@ -826,7 +919,74 @@ impl<'a> Bringup<'a> {
             ids: [c.transducer_node_id, c.valve_node_id],
             names: [None, None],
             skipped: Vec::new(),
+            phase: "the bus connection",
         })
+    }
+
+    /// A stop was requested (SIGINT / SIGTERM).
+    fn stop_requested(&self) -> bool {
+        self.bus
+            .stop
+            .as_ref()
+            .is_some_and(|s| s.load(Ordering::Relaxed))
+    }
+
+    /// `e`, or [`StartupError::Stopped`] if a stop was requested meanwhile (the error is then
+    /// its consequence: an interrupted wait).
+    fn or_stopped(&self, e: StartupError, valve: Option<String>) -> StartupError {
+        if self.stop_requested() {
+            StartupError::Stopped {
+                during: self.phase.to_string(),
+                valve,
+            }
+        } else {
+            e
+        }
+    }
+
+    /// Valve back to HOLD with setpoint 0 (best effort, also after a stop request); returns
+    /// what was done.
+    fn valve_to_hold(&mut self, why: &str) -> String {
+        self.bus.honour_stop = false;
+        let va = self.ids[1];
+        // A stop request cuts an SDO transfer short: the valve's answer to it may still be
+        // on its way and would be taken for the answer to the HOLD write. Wait for it (at
+        // most 100 ms or one SDO timeout).
+        let end = Instant::now() + self.sdo_t.min(Duration::from_millis(100));
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            match self.bus.recv_timeout(left) {
+                Ok(Some(f)) => {
+                    self.st.observe(&f, Direction::Rx);
+                    if !f.extended && f.id == u32::from(sdo::SDO_TX_BASE + u16::from(va)) {
+                        break;
+                    }
+                }
+                _ => break,
+            }
+        }
+        let sp = self.send(CanFrame::std(
+            RPDO1_BASE + u16::from(va),
+            0i16.to_le_bytes(),
+        ));
+        let r = self.write(
+            va,
+            cia408::CONTROL_WORD,
+            0,
+            &cia408::CW_HOLD_STATE.to_le_bytes(),
+            why,
+        );
+        self.bus.honour_stop = true;
+        match (sp, r) {
+            (Ok(()), Ok(())) => format!(
+                "valve setpoint 0 and control word HOLD (0x{:04X}) sent",
+                cia408::CW_HOLD_STATE
+            ),
+            (Err(e), _) | (_, Err(e)) => format!("valve HOLD could not be commanded: {e}"),
+        }
     }
 
     fn send(&mut self, f: CanFrame) -> Result<(), StartupError> {
@@ -879,7 +1039,13 @@ impl<'a> Bringup<'a> {
 
     /// configure: boot, pre-operational, identity, planned objects.
     pub(crate) fn configure(&mut self) -> Result<(), StartupError> {
+        self.configure_steps().map_err(|e| self.or_stopped(e, None))
+    }
+
+    fn configure_steps(&mut self) -> Result<(), StartupError> {
+        self.phase = "the wait for the boot-ups (canopen.boot_timeout_s)";
         self.boot()?;
+        self.phase = "the SDO configuration";
         for n in self.ids {
             self.send(nmt::command(NmtCommand::EnterPreOperational, n))?;
         }
@@ -895,27 +1061,26 @@ impl<'a> Bringup<'a> {
         Ok(())
     }
 
-    /// activate: NMT start, valve to ACTIVE, priming SYNC.
+    /// activate: NMT start, valve to ACTIVE, priming SYNC. A failure or a stop request once
+    /// the valve is being enabled returns it to HOLD with setpoint 0 (best effort).
     pub(crate) fn activate(&mut self) -> Result<Activated, StartupError> {
-        self.start_nodes()?;
-        self.enable_valve()?;
+        self.phase = "NMT start";
+        self.start_nodes().map_err(|e| self.or_stopped(e, None))?;
+        self.phase = "the valve state machine (DISABLED → HOLD → ACTIVE)";
+        if let Err(e) = self.enable_valve() {
+            if self.stop_requested() {
+                let v = self.valve_to_hold("returning the valve to HOLD after a stop request");
+                return Err(self.or_stopped(e, Some(v)));
+            }
+            return Err(e);
+        }
+        self.phase = "the priming SYNC";
         let meas = match self.prime() {
             Ok(m) => m,
             Err(e) => {
                 // The valve is ACTIVE here: back to HOLD with setpoint 0 (best effort).
-                let va = self.ids[1];
-                let _ = self.send(CanFrame::std(
-                    RPDO1_BASE + u16::from(va),
-                    0i16.to_le_bytes(),
-                ));
-                let _ = self.write(
-                    va,
-                    cia408::CONTROL_WORD,
-                    0,
-                    &cia408::CW_HOLD_STATE.to_le_bytes(),
-                    "returning the valve to HOLD after a failed start-up",
-                );
-                return Err(e);
+                let v = self.valve_to_hold("returning the valve to HOLD after a failed start-up");
+                return Err(self.or_stopped(e, Some(v)));
             }
         };
         Ok(Activated { meas })
@@ -935,6 +1100,7 @@ impl<'a> Bringup<'a> {
         let boot_deadline = Instant::now() + Duration::from_secs_f64(c.boot_timeout_s);
         let mut next_probe = Instant::now() + BOOT_PROBE_EVERY;
         while !self.st.booted.iter().all(|b| *b) {
+            self.bus.check_stop()?;
             let now = Instant::now();
             let last = now >= boot_deadline;
             if last || now >= next_probe {
@@ -1043,7 +1209,41 @@ impl<'a> Bringup<'a> {
         let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].dev);
         let steps = self.plan.devices[i].steps.clone();
         for step in &steps {
+            self.bus.check_stop()?;
             let (index, sub, want) = (step.index, step.sub, &step.value);
+            if step.if_device_has {
+                match self.sdo_read(n, index, 0) {
+                    Ok(_) => {}
+                    Err(SdoError::Abort {
+                        code: code @ (0x0602_0000 | 0x0609_0011),
+                        ..
+                    }) => {
+                        if self.s.verbose {
+                            eprintln!(
+                                "canopen: {} (node {n}) has no 0x{index:04X} (abort 0x{code:08X}); used without it ({})",
+                                dev.name(),
+                                step.what
+                            );
+                        }
+                        self.skipped.push(format!(
+                            "node {n} 0x{index:04X}:{sub:02X} ({}): the {} has no 0x{index:04X} (SDO read of 0x{index:04X}:00: abort 0x{code:08X}, object does not exist)",
+                            step.what,
+                            dev.name()
+                        ));
+                        continue;
+                    }
+                    Err(error) => {
+                        return Err(StartupError::Sdo {
+                            step: format!(
+                                "{} (read 0x{index:04X}:00 on node {n} = 0x{n:02X}: does the {} have it?)",
+                                step.what,
+                                dev.name()
+                            ),
+                            error,
+                        })
+                    }
+                }
+            }
             if step.kind == StepKind::Ensure {
                 let have = self.sdo_read(n, index, sub);
                 match have {
@@ -1113,6 +1313,16 @@ impl<'a> Bringup<'a> {
                         dev.name(),
                         step.access.as_str(),
                         want
+                    )));
+                }
+                Err(SdoError::Abort {
+                    code: code @ (0x0602_0000 | 0x0609_0011),
+                    ..
+                }) if index == 0x1016 && dev == Dev::Valve => {
+                    return Err(StartupError::Device(format!(
+                        "{}: the valve (node {n}) has no heartbeat consumer 0x1016:{sub:02X} (abort 0x{code:08X}, object does not exist) although {} lists it; it could not detect a dead ehactl and stop the load: ehactl refuses to drive it",
+                        step.what,
+                        self.plan.devices[i].eds.source
                     )));
                 }
                 Err(error) => {
@@ -1407,7 +1617,32 @@ mod tests {
             valve_eds: w("v.eds", no_1016),
             ..Default::default()
         });
-        assert!(e.contains("0x1016:01"), "{e}");
+        assert!(e.contains("0x1016:01") && e.contains("refuses"), "{e}");
+        // a sensor without one is planned: used where the device has it (asked at start-up)
+        let no_1016 = BUILTIN_TRANSDUCER_EDS.replace("[1016sub1]", "[1016subX]");
+        let mut s = settings(CanopenConfig {
+            transducer_eds: w("t_no1016.eds", no_1016),
+            ..Default::default()
+        });
+        s.config_dir = Some(dir.clone());
+        let p = Plan::new(&s).unwrap();
+        let c = p.devices[0]
+            .steps
+            .iter()
+            .find(|x| (x.index, x.sub) == (0x1016, 1))
+            .unwrap();
+        assert!(c.if_device_has && c.access == Access::Rw, "{c:?}");
+        assert_eq!(c.value, 0x0001_0064u32.to_le_bytes()); // node 1, 100 ms
+                                                           // with 0x1016 in the files: the valve's is mandatory, the transducer's if present
+        let p = Plan::new(&settings(CanopenConfig::default())).unwrap();
+        let has = |d: &DevicePlan| {
+            d.steps
+                .iter()
+                .find(|x| (x.index, x.sub) == (0x1016, 1))
+                .unwrap()
+                .if_device_has
+        };
+        assert!(has(&p.devices[0]) && !has(&p.devices[1]));
         // position not PDO-mappable
         let e = run(CanopenConfig {
             transducer_eds: w(

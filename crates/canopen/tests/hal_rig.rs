@@ -72,6 +72,13 @@ struct Knobs {
     /// Both nodes answer 0x1006 / 0x1007 / 0x1019 with "object does not exist" (0x06020000)
     /// although the EDS lists them.
     no_sync_objects: AtomicBool,
+    /// Node id (0 = none) that answers 0x1016 with "object does not exist" (0x06020000): a
+    /// device without a heartbeat consumer, optional in CiA 301.
+    no_heartbeat_consumer: AtomicU32,
+    /// The master's stop request (SIGINT / SIGTERM), set by the rig when it receives an SDO
+    /// download to `stop_on_write` (index << 16 | value's first two bytes).
+    master_stop: Arc<AtomicBool>,
+    stop_on_write: AtomicU32,
     stop: AtomicBool,
     /// Every frame the rig received (id, data), for sequence checks.
     seen: Mutex<Vec<(u32, Vec<u8>)>>,
@@ -118,6 +125,10 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
         nodes[1]
             .od
             .insert((0x1018, 2), 0x198u32.to_le_bytes().to_vec());
+        // heartbeat consumer 0x1016 with one entry (sub 0 = highest sub-index, CiA 301)
+        for n in nodes.iter_mut() {
+            n.od.insert((0x1016, 0), vec![1]);
+        }
         let mut syncs_op = 0u32;
         // CiA 408 status codes RMHD (Moog B99224-DV018 fig. 19).
         const INIT: u16 = 0b1000;
@@ -280,6 +291,12 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         send(&mut bus, silent, reply(0x80, &0x0602_0000u32.to_le_bytes()));
                         continue;
                     }
+                    if index == 0x1016
+                        && u32::from(node) == knobs.no_heartbeat_consumer.load(Ordering::Relaxed)
+                    {
+                        send(&mut bus, silent, reply(0x80, &0x0602_0000u32.to_le_bytes()));
+                        continue;
+                    }
                     let ro_step = knobs.position_step_ro.load(Ordering::Relaxed);
                     if ro_step != 0 && node == TR && index == 0x6005 {
                         if cs == 0x40 {
@@ -299,6 +316,12 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
                         }
                         let n = 4 - usize::from((cs >> 2) & 3);
                         let v = f.data[4..4 + n].to_vec();
+                        let key = u32::from(index) << 16
+                            | u32::from(f.data[4])
+                            | u32::from(f.data[5]) << 8;
+                        if key == knobs.stop_on_write.load(Ordering::Relaxed) {
+                            knobs.master_stop.store(true, Ordering::Relaxed);
+                        }
                         if node == VA && index == 0x6040 {
                             let cw = u16::from_le_bytes([v[0], v[1]]);
                             let rising_r = cw & 0x08 != 0 && prev_cw & 0x08 == 0;
@@ -1172,6 +1195,134 @@ fn optional_sync_objects_a_device_lacks_are_skipped_a_needed_counter_is_not() {
                     "{m}"
                 );
             }
+        }
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
+}
+
+#[test]
+fn a_sensor_without_a_heartbeat_consumer_starts_a_valve_without_one_does_not() {
+    // 0x1016 is optional in CiA 301 and often missing on sensors. The built-in EDS lists it;
+    // the device answers "object does not exist": the transducer starts without it (reported
+    // in startup_skipped, its consumer is never written), the valve — which moves the load
+    // and must react to the loss of ehactl — is refused.
+    for (node, ok) in [(TR, true), (VA, false)] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs
+            .no_heartbeat_consumer
+            .store(u32::from(node), Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        match CanopenHal::connect(settings(port, test_bus())) {
+            Ok(mut hal) => {
+                assert!(ok, "node {node} without 0x1016 was accepted");
+                let rep = hal.report().unwrap();
+                let skipped = rep["startup_skipped"].to_string();
+                assert!(
+                    skipped.contains(&format!("node {TR} 0x1016:01"))
+                        && skipped.contains("0x06020000"),
+                    "{skipped}"
+                );
+                assert!(!skipped.contains(&format!("node {VA} ")), "{skipped}");
+                let (pos, _, err, _) = drive(&mut hal, 0.2, 0.0, &mut |_| {});
+                assert!(err.is_none() && pos.is_finite(), "{err:?}");
+                let _ = hal.safe_stop(0.0);
+                let seen = knobs.seen.lock().unwrap().clone();
+                // the transducer was asked for 0x1016:00 (upload) and never written 0x1016;
+                // the valve's consumer was written: node 1, 100 ms
+                let sdo = |n: u8| {
+                    seen.iter()
+                        .filter(move |(id, d)| {
+                            *id == 0x600 + u32::from(n) && d[1..3] == [0x16, 0x10]
+                        })
+                        .map(|(_, d)| d.clone())
+                        .collect::<Vec<_>>()
+                };
+                assert!(
+                    sdo(TR).iter().any(|d| d[0] == 0x40 && d[3] == 0),
+                    "{:?}",
+                    sdo(TR)
+                );
+                assert!(sdo(TR).iter().all(|d| d[0] & 0xE0 != 0x20), "{:?}", sdo(TR));
+                assert!(
+                    sdo(VA).iter().any(|d| d[0] & 0xE0 == 0x20
+                        && d[3] == 1
+                        && d[4..8] == 0x0001_0064u32.to_le_bytes()),
+                    "{:?}",
+                    sdo(VA)
+                );
+            }
+            Err(e) => {
+                assert!(!ok, "{e}");
+                let m = e.to_string();
+                assert!(
+                    m.contains("valve")
+                        && m.contains("0x1016")
+                        && m.contains("object does not exist"),
+                    "{m}"
+                );
+            }
+        }
+        knobs.stop.store(true, Ordering::Relaxed);
+        rig_thread.join().unwrap();
+    }
+}
+
+#[test]
+fn a_stop_request_ends_every_start_up_phase_and_returns_an_enabled_valve_to_hold() {
+    // The rig sets the master's stop flag (as SIGTERM does) when it receives: the transducer's
+    // heartbeat producer time (SDO configuration), the valve's control word ACTIVE (valve
+    // state machine). Each time the start-up ends with `Stopped` well within one SDO timeout
+    // (500 ms); once the valve was being enabled its last control word is HOLD.
+    for (key, valve_enabled) in [
+        (0x1017_0000 | 50u32, false),
+        (0x6040_0000 | u32::from(cia408::CW_ACTIVE_STATE), true),
+    ] {
+        let (port, knobs, _one_at_a_time) = start();
+        knobs.stop_on_write.store(key, Ordering::Relaxed);
+        let rig_thread = rig(port, knobs.clone());
+        let stop = knobs.master_stop.clone();
+        let watcher = {
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let t0 = Instant::now();
+                while !stop.load(Ordering::Relaxed) && t0.elapsed() < Duration::from_secs(20) {
+                    std::thread::sleep(Duration::from_micros(200));
+                }
+                Instant::now()
+            })
+        };
+        let r = CanopenHal::connect_until(settings(port, test_bus()), Some(stop.clone()));
+        let returned = Instant::now();
+        let stopped_at = watcher.join().unwrap();
+        let f = r.expect_err("start-up went on after the stop request");
+        let latency = returned.saturating_duration_since(stopped_at);
+        assert!(latency < Duration::from_millis(500), "{latency:?}");
+        match &f.error {
+            StartupError::Stopped { valve, .. } => {
+                assert_eq!(valve.is_some(), valve_enabled, "{}", f.error);
+                if valve_enabled {
+                    assert!(
+                        valve.as_deref().unwrap().contains("HOLD (0x0003) sent"),
+                        "{}",
+                        f.error
+                    );
+                }
+            }
+            e => panic!("expected Stopped, got {e}"),
+        }
+        let seen = knobs.seen.lock().unwrap().clone();
+        let cws: Vec<u16> = seen
+            .iter()
+            .filter(|(id, d)| {
+                *id == 0x600 + u32::from(VA) && d[0] & 0xE0 == 0x20 && d[1..3] == [0x40, 0x60]
+            })
+            .map(|(_, d)| u16::from_le_bytes([d[4], d[5]]))
+            .collect();
+        if valve_enabled {
+            assert_eq!(cws.last(), Some(&cia408::CW_HOLD_STATE), "{cws:?}");
+        } else {
+            assert!(cws.is_empty(), "{cws:?}");
         }
         knobs.stop.store(true, Ordering::Relaxed);
         rig_thread.join().unwrap();

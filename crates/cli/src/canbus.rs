@@ -11,6 +11,7 @@ use ehactl_runtime::session::open_log;
 use std::io::Write;
 use std::path::Path;
 use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 /// `ehactl canbus` subcommands.
@@ -124,30 +125,68 @@ pub fn check_args(
         )),
         (HalKind::Canopen, Some(b)) => {
             let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
-            CanopenHal::check_settings(&CanopenSettings {
-                bus: url,
-                canopen: cfg.canopen.clone(),
-                command_full_scale: cfg.plant.valve.command_full_scale,
-                control_rate_hz: cfg.timebase().rate_hz(),
-                safe_command: cfg.supervisor.safe_command,
-                verbose: false,
-                config_dir: config_dir(config),
-            })
-            .map(|_plan| ())
-            .map_err(|e| arg_err(e.to_string()))
+            CanopenHal::check_settings(&settings(cfg, config, url, false))
+                .map(|_plan| ())
+                .map_err(|e| arg_err(e.to_string()))
         }
     }
 }
 
+/// The backend settings of `cfg` (file `config`) on bus `url`.
+fn settings(cfg: &RigConfig, config: &Path, url: BusUrl, verbose: bool) -> CanopenSettings {
+    CanopenSettings {
+        bus: url,
+        canopen: cfg.canopen.clone(),
+        command_full_scale: cfg.plant.valve.command_full_scale,
+        control_rate_hz: cfg.timebase().rate_hz(),
+        safe_command: cfg.supervisor.safe_command,
+        verbose,
+        config_dir: config_dir(config),
+    }
+}
+
+/// `ehactl check-config`'s part of the CAN checks: a config that names its devices' EDS /
+/// DCF files (`canopen.transducer_eds`, `canopen.valve_eds`) is meant for `--hal canopen`,
+/// so the files are loaded and every check that `run --hal canopen` makes before it opens
+/// the bus is made (the same function, [`CanopenHal::check_settings`]: the settings, both
+/// files, the start-up plan). `Ok(None)` when no file is named (the sim backend needs
+/// none); `Ok(Some(text))` describes the plan; `Err` is the one-line refusal.
+pub fn check_config(cfg: &RigConfig, config: &Path) -> Result<Option<String>, String> {
+    let c = &cfg.canopen;
+    if c.transducer_eds.is_empty() && c.valve_eds.is_empty() {
+        return Ok(None);
+    }
+    // Never opened: the checks before the bus need no bus, only a valid address.
+    let url = BusUrl::SocketCan {
+        iface: "can0".into(),
+    };
+    let plan = CanopenHal::check_settings(&settings(cfg, config, url, false))
+        .map_err(|e| e.to_string())?;
+    let [t, v] = &plan.devices;
+    Ok(Some(format!(
+        "canopen: transducer {} ({} start-up steps), valve {} ({} start-up steps)",
+        t.eds.source,
+        t.steps.len(),
+        v.eds.source,
+        v.steps.len()
+    )))
+}
+
+/// Exit code of a run stopped by SIGINT / SIGTERM (also during start-up).
+pub const EXIT_STOPPED: u8 = 130;
+
 /// Bring the CAN rig up for `--hal canopen`; `Ok(None)` for the sim backend. A failed
 /// start-up (exit code 4) is still logged to `out`: the frames of the attempt on `/can`, a
-/// trip on `/events` and the reason in `/summary` (printed on stdout with `json`).
+/// trip on `/events` and the reason in `/summary` (printed on stdout with `json`). `stop`
+/// (SIGINT / SIGTERM) ends the start-up within one master heartbeat period: exit 130, the
+/// attempt logged the same way, as interrupted (no trip).
 pub fn connect(
     cfg: &RigConfig,
     config: &Path,
     (hal, bus): (HalKind, Option<&str>),
     out: &Path,
     json: bool,
+    stop: &Arc<AtomicBool>,
 ) -> Result<Option<CanopenHal>, ExitCode> {
     let arg_err = |m: String| {
         eprintln!("ehactl: {m}");
@@ -164,22 +203,19 @@ pub fn connect(
         )),
         (HalKind::Canopen, Some(b)) => {
             let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
-            let settings = CanopenSettings {
-                bus: url,
-                canopen: cfg.canopen.clone(),
-                command_full_scale: cfg.plant.valve.command_full_scale,
-                control_rate_hz: cfg.timebase().rate_hz(),
-                safe_command: cfg.supervisor.safe_command,
-                verbose: !json,
-                config_dir: config_dir(config),
-            };
-            match CanopenHal::connect_logged(settings) {
+            let settings = settings(cfg, config, url, !json);
+            match CanopenHal::connect_until(settings, Some(stop.clone())) {
                 Ok(h) => Ok(Some(h)),
                 Err(f) => {
                     eprintln!("ehactl: {}", f.error);
                     if let StartupError::Settings(_) = f.error {
                         return Err(ExitCode::from(2));
                     }
+                    let code = if matches!(f.error, StartupError::Stopped { .. }) {
+                        EXIT_STOPPED
+                    } else {
+                        EXIT_STARTUP
+                    };
                     match log_failed_startup(cfg, b, out, &f) {
                         Ok(summary) => {
                             eprintln!("ehactl: start-up attempt logged to {}", out.display());
@@ -189,7 +225,7 @@ pub fn connect(
                         }
                         Err(e) => eprintln!("ehactl: {e}"),
                     }
-                    Err(ExitCode::from(EXIT_STARTUP))
+                    Err(ExitCode::from(code))
                 }
             }
         }
@@ -198,7 +234,9 @@ pub fn connect(
 
 /// Write the MCAP of a failed start-up: `/config`, `/can` (every frame of the attempt, times
 /// ≤ 0 up to the failure), one `hal_fault` trip on `/events`, and `/summary` with the reason
-/// (`trip`, `trip_kind` = `startup`); returns the summary.
+/// (`trip`, `trip_kind` = `startup`); returns the summary. A start-up stopped by a signal is
+/// logged as interrupted instead: an info `signal` event, `trip` null, `interrupted` true,
+/// the reason in `startup_stopped`, `exit_code` 130.
 fn log_failed_startup(
     cfg: &RigConfig,
     bus: &str,
@@ -211,11 +249,20 @@ fn log_failed_startup(
         frames.push(*r);
     }
     logger.attach_frames(frames);
+    let stopped = matches!(f.error, StartupError::Stopped { .. });
     logger.event(Event {
         t: 0.0,
         cycle: 0,
-        severity: Severity::Trip,
-        kind: EventKind::HalFault,
+        severity: if stopped {
+            Severity::Info
+        } else {
+            Severity::Trip
+        },
+        kind: if stopped {
+            EventKind::Signal
+        } else {
+            EventKind::HalFault
+        },
         channel: "canopen start-up",
         value: f.elapsed_s,
         limit: f.error.time_limit_s().unwrap_or(f64::NAN),
@@ -227,11 +274,13 @@ fn log_failed_startup(
         "bus": bus,
         "cycles": 0,
         "duration_s": 0.0,
-        "trip": reason,
-        "trip_kind": "startup",
+        "trip": if stopped { serde_json::Value::Null } else { reason.clone().into() },
+        "trip_kind": if stopped { serde_json::Value::Null } else { "startup".into() },
+        "interrupted": stopped,
+        "startup_stopped": if stopped { reason.into() } else { serde_json::Value::Null },
         "startup_s": f.elapsed_s,
         "can_startup_frames": f.frames.len(),
-        "exit_code": EXIT_STARTUP,
+        "exit_code": if stopped { EXIT_STOPPED } else { EXIT_STARTUP },
         "mcap": out.display().to_string(),
     });
     let stats = logger.finish(summary.clone()).map_err(|e| e.to_string())?;

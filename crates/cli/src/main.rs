@@ -385,8 +385,17 @@ fn main() -> ExitCode {
                 Ok(c) => c,
                 Err(code) => return code,
             };
+            // The EDS / DCF files named in [canopen] are loaded and checked as `run --hal
+            // canopen` does before it opens the bus (DEPLOY.md: check-config is the go/no-go).
+            let can = match canbus::check_config(&cfg, &config) {
+                Ok(c) => c,
+                Err(e) => return config_error(format!("{}: {e}", config.display())),
+            };
             match ehactl_runtime::session::build_plant(&cfg) {
                 Ok(plant) => {
+                    if let Some(c) = can {
+                        println!("{}: {c}", config.display());
+                    }
                     println!(
                         "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
                         config.display(),

@@ -145,13 +145,16 @@ impl Services {
         };
         let stop = stop_flag();
         // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s);
-        // a signal meanwhile ends the run at its first cycle, through the safe stop.
+        // a signal meanwhile ends the start-up within one master heartbeat period (exit 130,
+        // the valve back to HOLD if it was being enabled); a signal after it ends the run at
+        // its first cycle, through the safe stop.
         let can_hal = canbus::connect(
             cfg,
             args.config,
             (args.hal, args.bus.as_deref()),
             out,
             args.json,
+            &stop,
         )?;
         let live_view = match args.live.map(live::LiveView::start).transpose() {
             Ok(v) => v,

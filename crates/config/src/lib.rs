@@ -424,12 +424,13 @@ fn section<T: serde::de::DeserializeOwned>(
 impl RigConfig {
     /// Load and validate a config file.
     pub fn load(path: &Path) -> Result<RigConfig, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| {
-            ConfigError::new(
-                path.display().to_string(),
-                format!("cannot read config file: {e}"),
-            )
-        })?;
+        // A regular file of at most 16 MB (a FIFO or /dev/zero is refused, never read).
+        let text = ehactl_hal::input::read_bounded_string(
+            path,
+            ehactl_hal::input::CONFIG_MAX_BYTES,
+            "config",
+        )
+        .map_err(|e| ConfigError::new(path.display().to_string(), e.reason))?;
         Self::from_toml_str(&text)
     }
 

@@ -9,10 +9,12 @@
 //! - [`Timebase`], the one owner of the control period (built from `run.control_rate_hz`
 //!   and handed to the plant, the pacer and the backends),
 //! - [`sim::SimHal`], the in-process nonlinear plant advanced one control period per write,
-//! - [`record`], the fixed-size per-cycle records and events, and
-//! - [`logger`], the MCAP writer fed through a bounded lock-free queue from another thread.
+//! - [`record`], the fixed-size per-cycle records and events,
+//! - [`logger`], the MCAP writer fed through a bounded lock-free queue from another thread, and
+//! - [`input`], bounded reads of the user's input files (regular files of a capped size).
 #![deny(missing_docs)]
 
+pub mod input;
 pub mod logger;
 mod mcap_writer;
 pub mod pacer;

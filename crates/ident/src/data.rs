@@ -228,8 +228,13 @@ pub fn load(path: &Path) -> Result<Record, DataError> {
     if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
         load_mcap(path)
     } else {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| DataError(format!("{}: cannot read data file: {e}", path.display())))?;
+        // A regular file of at most 10 000 MB (a FIFO or /dev/zero is refused, never read).
+        let text = ehactl_hal::input::read_bounded_string(
+            path,
+            ehactl_hal::input::DATA_MAX_BYTES,
+            "data (CSV)",
+        )
+        .map_err(|e| DataError(e.to_string()))?;
         parse_csv(&path.display().to_string(), &text)
     }
 }
@@ -404,8 +409,10 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
 /// Read the `/control` channel of an ehactl MCAP log (ROS 2 CDR, see `ehactl_hal::record`).
 pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
     let source = path.display().to_string();
-    let bytes = std::fs::read(path)
-        .map_err(|e| DataError(format!("{source}: cannot read MCAP file: {e}")))?;
+    // The whole log is held in memory: a regular file of at most 10 000 MB.
+    let bytes =
+        ehactl_hal::input::read_bounded(path, ehactl_hal::input::DATA_MAX_BYTES, "data (MCAP log)")
+            .map_err(|e| DataError(e.to_string()))?;
     parse_mcap(&source, &bytes)
 }
 
