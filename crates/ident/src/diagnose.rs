@@ -25,6 +25,12 @@ pub const FLOOR_FACTOR: f64 = 1.2;
 /// effect soak up the small remainder of an imperfect lumped fit on a low-noise channel.
 pub const LATER_FLOOR_FACTOR: f64 = 1.5;
 
+/// Smallest noise floor of a channel (NRMSE units, -): a noise-free channel (a simulated log,
+/// a spool signal) replayed by the same model still differs by rounding (≈ 1e-15 of its std in
+/// a different order of operations); differences below this are numerically insignificant,
+/// not a discrepancy.
+pub const NUMERICAL_FLOOR: f64 = 1e-9;
+
 /// Settings of a diagnosis.
 #[derive(Debug, Clone)]
 pub struct Options {
@@ -765,7 +771,8 @@ fn reproduces(
                 .zip(&yh[val_range.clone()])
                 .map(|(a, b)| a - b)
                 .collect();
-            crate::replay::noise_level(&e).min(crate::replay::noise_level(y)) / std(y).max(1e-300)
+            (crate::replay::noise_level(&e).min(crate::replay::noise_level(y)) / std(y).max(1e-300))
+                .max(NUMERICAL_FLOOR)
         })
         .collect();
     crate::residual::test("nominal", val_rec, &sim, val_range, &floor).noise
@@ -834,7 +841,7 @@ fn phase_refit(
                     .copied()
                     .unwrap_or(0.0)
             };
-            f.hypot(ig)
+            f.hypot(ig).max(NUMERICAL_FLOOR)
         })
         .collect();
     let noise_floor = overall(&floor_ch);
