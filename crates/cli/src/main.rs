@@ -255,7 +255,12 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
                         "stopped_early": rep.stopped_early,
                         "chunks": rep.chunks,
                         "bad_chunks": rep.bad_chunks,
+                        "chunks_indexed": rep.chunks_indexed,
+                        "skipped_bytes": rep.skipped_bytes,
                         "messages": rep.messages,
+                        "messages_total": rep.total_messages(),
+                        "messages_without_channel": rep.messages_without_channel,
+                        "problems": rep.problems,
                         "last_time_s": rep.last_time_s,
                     })
                 );
@@ -263,22 +268,40 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
                 println!("ehactl recover {} → {}", input.display(), output.display());
                 println!(
                     "  input         {}",
-                    if rep.was_complete {
-                        "complete (had its footer)"
-                    } else if rep.stopped_early {
-                        "cut off: read up to the first incomplete record"
-                    } else {
-                        "no footer"
+                    match (rep.was_complete, rep.stopped_early) {
+                        (true, _) => "complete (had its footer and chunk index)",
+                        (false, true) => "cut off: no footer, the last record incomplete",
+                        (false, false) => "no footer",
                     }
                 );
                 println!(
-                    "  chunks        {} kept, {} dropped (bad CRC or contents)",
-                    rep.chunks, rep.bad_chunks
+                    "  chunks        {} kept, {} dropped (bad size, compression, CRC or contents){}",
+                    rep.chunks,
+                    rep.bad_chunks,
+                    rep.chunks_indexed
+                        .map_or(String::new(), |n| format!("; the chunk index lists {n}"))
                 );
+                if rep.skipped_bytes > 0 {
+                    println!(
+                        "  skipped       {} bytes that are not readable records",
+                        rep.skipped_bytes
+                    );
+                }
+                println!("  messages      {} kept", rep.total_messages());
                 for (topic, n) in &rep.messages {
                     println!("  {topic:<13} {n} messages");
                 }
+                if rep.messages_without_channel > 0 {
+                    println!(
+                        "  not copied    {} messages whose channel record was lost",
+                        rep.messages_without_channel
+                    );
+                }
                 println!("  last message  t = {:.4} s", rep.last_time_s);
+            }
+            // What was lost, and where, goes to stderr even with --json.
+            for p in &rep.problems {
+                eprintln!("ehactl: recover: {p}");
             }
             ExitCode::SUCCESS
         }
