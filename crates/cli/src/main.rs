@@ -122,9 +122,18 @@ enum Command {
         /// Separate validation record (default: the last 30 % of --data is held out).
         #[arg(long)]
         validate: Option<PathBuf>,
-        /// Output directory for extended.toml, report.md and plots.
+        /// Output directory for extended.toml, report.md and plots: new, empty, or written by
+        /// an earlier diagnosis (never over an input).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Write into an --out directory that holds other files (same-named ones are replaced;
+        /// the inputs never are).
+        #[arg(long)]
+        force: bool,
+        /// Diagnose an ehactl MCAP log although the config it was logged with differs from
+        /// --config in the rig's fixed quantities (geometry, supply, valve, control mode).
+        #[arg(long)]
+        allow_config_mismatch: bool,
         /// Print exactly one JSON object on stdout.
         #[arg(long)]
         json: bool,
@@ -178,11 +187,7 @@ pub(crate) fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
 /// (always), a directory, or an existing file that is not an MCAP log (unless `force`). An
 /// earlier MCAP log at the path is replaced, as a re-run is expected to do.
 pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(), ExitCode> {
-    let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    };
-    if same(out, config) {
+    if same_file(out, config) {
         return Err(config_error(format!(
             "--out {}: is the config being run; choose another file for the MCAP log",
             out.display()
@@ -205,7 +210,24 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
             out.display()
         )));
     }
+    if is_mcap && ehactl_hal::logger::is_locked(out) {
+        eprintln!(
+            "ehactl: --out {}: is being written by another running ehactl (it holds the file's lock); choose another --out",
+            out.display()
+        );
+        return Err(ExitCode::from(1));
+    }
     Ok(())
+}
+
+/// Whether `a` and `b` are the same file: same device and inode, whatever the names (a hard
+/// link, a symbolic link, `./x` and `x`). False when either does not exist.
+pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
+        _ => false,
+    }
 }
 
 /// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written.
@@ -369,6 +391,11 @@ fn main() -> ExitCode {
         // SAFETY: restoring a default signal disposition before any thread is started.
         unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     }
+    // A file-size limit (`ulimit -f`, RLIMIT_FSIZE) must not kill the process with SIGXFSZ
+    // (no message, and on `run` no safe command to the valve): ignored, a write past the
+    // limit fails with EFBIG and is handled as any other write error (a log failure on `run`).
+    // SAFETY: setting a signal disposition before any thread is started.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
     match cli.command {
         Command::Run {
             config,
@@ -442,13 +469,19 @@ fn main() -> ExitCode {
             out,
             json,
             sensor_offsets,
+            force,
+            allow_config_mismatch,
         } => diagnose::cmd_diagnose(
             &config,
             &data,
             validate.as_deref(),
             out,
             json,
-            sensor_offsets,
+            diagnose::Switches {
+                sensor_offsets,
+                force,
+                allow_config_mismatch,
+            },
         ),
         Command::Params => {
             for table in registries() {

@@ -464,7 +464,10 @@ fn walk(data: &[u8], limit: usize, found: &mut Found, problems: &mut Vec<String>
                 }
             ));
             if data[pos] == OP_CHUNK {
-                found.bad.entry(pos).or_insert_with(|| "corrupt length or header".into());
+                found
+                    .bad
+                    .entry(pos)
+                    .or_insert_with(|| "corrupt length or header".into());
             }
         }
         skipped += (stop - pos) as u64;
@@ -513,10 +516,9 @@ pub fn recover_bytes(data: &[u8], output: &Path) -> Result<RecoverReport, String
             match chunk_framed(&data[..limit], off) {
                 Some((end, _)) => found.chunk(data, off, end),
                 None if !found.chunks.contains_key(&off) => {
-                    found
-                        .bad
-                        .entry(off)
-                        .or_insert_with(|| "no chunk with consistent framing where the chunk index points".into());
+                    found.bad.entry(off).or_insert_with(|| {
+                        "no chunk with consistent framing where the chunk index points".into()
+                    });
                 }
                 None => {}
             }
@@ -549,8 +551,8 @@ pub fn recover_bytes(data: &[u8], output: &Path) -> Result<RecoverReport, String
             .map_or("out".into(), |n| n.to_string_lossy()),
         std::process::id()
     ));
-    let result = write_recovered(&tmp, schemas, channels, &metadata, messages, &mut rep)
-        .and_then(|()| {
+    let result =
+        write_recovered(&tmp, schemas, channels, &metadata, messages, &mut rep).and_then(|()| {
             std::fs::hard_link(&tmp, output)
                 .map_err(|e| format!("{}: cannot create: {e}", output.display()))
         });
