@@ -413,15 +413,14 @@ fn walk(data: &[u8], limit: usize, found: &mut Found, problems: &mut Vec<String>
         let framed = frame_at(&data[..limit], pos);
         match framed {
             Ok((OP_DATA_END | OP_FOOTER, _)) => break,
-            Ok((OP_CHUNK, end)) => {
-                // A consistent chunk with an unknown compression is read (and reported by
-                // name); only resynchronisation insists on a known one.
-                if chunk_framed(&data[..limit], pos).is_some() {
-                    found.chunk(data, pos, end);
-                    pos = end;
-                    continue;
-                }
+            // A consistent chunk with an unknown compression is read (and reported by
+            // name); only resynchronisation insists on a known one.
+            Ok((OP_CHUNK, end)) if chunk_framed(&data[..limit], pos).is_some() => {
+                found.chunk(data, pos, end);
+                pos = end;
+                continue;
             }
+            Ok((OP_CHUNK, _)) => {}
             Ok((op, end)) if op != 0 => {
                 // 0x01–0x0F are the specification's records; 0x80–0xFF are private records
                 // a reader skips. Anything else, or a body that does not parse, is corrupt.
