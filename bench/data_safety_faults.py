@@ -68,13 +68,14 @@ def corrupt_rows(runs: int) -> None:
                 r = subprocess.run([BIN, "recover", str(bad), str(fixed), "--json"], capture_output=True, text=True)
                 assert r.returncode == 0, r.stderr
                 rep = json.loads(r.stdout)
-                assert _count_messages(fixed) == rep["messages_total"]
+                total = sum(rep["messages"].values())
+                assert _count_messages(fixed) == total
                 kept_c += rep["chunks"]
-                kept_m += rep["messages_total"]
+                kept_m += total
                 intact_c += len(cis) - 1
                 intact_m += sum(per) - per[k % len(cis)]
             print(f"| corrupt chunk: {kind} ({'uncompressed' if base is plain else 'lz4'}, chunk 0…{runs - 1}) | recover | {runs} | 0×{runs} | "
-                  f"chunks kept {kept_c} of {intact_c} intact, messages {kept_m} of {intact_m} | yes | — |")
+                  f"chunks kept {kept_c} of {intact_c} intact, messages {kept_m} of {intact_m} | — | — |")
 
 
 def concurrent_rows(runs: int) -> None:
@@ -91,9 +92,12 @@ def concurrent_rows(runs: int) -> None:
             refused += r.returncode == 1 and str(out) in r.stderr
             so, _ = first.communicate()
             cycles = json.loads(so)["cycles"]
-            intact += first.returncode == 0 and _count_messages(out) > 0 and cycles > 0
+            try:
+                intact += first.returncode == 0 and _count_messages(out) > 0 and cycles > 0
+            except Exception:  # the official reader refuses the file
+                pass
     print(f"| concurrent writers (second run 0.3 s into a 1.5 s real-time run, same --out) | realtime | {runs} | "
-          f"second: 1×{refused}; first: 0×{intact} | first log whole (official reader, CRCs) {intact} of {runs} | yes | — |")
+          f"second run refused with exit 1: {refused} of {runs} | first run's log whole (exit 0, official reader, CRCs): {intact} of {runs} | — | — |")
 
 
 def full_disk_rows(runs: int) -> None:
@@ -119,6 +123,8 @@ def full_disk_rows(runs: int) -> None:
             codes.append(r.returncode)
             for n in os.listdir(out) if out.exists() else []:
                 text = (out / n).read_bytes()
+                if n == ".ehactl-diagnose":
+                    continue
                 if ".tmp-" in n or (n.endswith(".json") and not _json_ok(text)) or (n.endswith(".csv") and not text.endswith(b"\n")):
                     half += 1
             subprocess.run(["rm", "-rf", str(out), str(filler)])
@@ -128,9 +134,12 @@ def full_disk_rows(runs: int) -> None:
         for _ in range(runs):
             r = subprocess.run([BIN, "run", str(FORCE), "--duration", "600", "--out", str(mnt / "r.mcap"), "--json"],
                                capture_output=True, text=True)
-            ok += r.returncode == 1 and "No space left" in json.loads(r.stdout or "{}").get("error", "")
+            try:
+                ok += r.returncode == 1 and "No space left" in json.loads(r.stdout or "{}").get("error", "")
+            except ValueError:
+                pass
             (mnt / "r.mcap").unlink(missing_ok=True)
-        print(f"| full disk during run --json (tmpfs 256 KiB) | sim | {runs} | 1×{ok} | one JSON object with the error on stdout: {ok} of {runs} | — | — |")
+        print(f"| full disk during run --json (tmpfs 256 KiB) | sim | {runs} | exit 1 with the JSON error object: {ok} of {runs} | what reached the disk is recoverable (see disk full above) | — | — |")
     finally:
         subprocess.run(["umount", "-l", str(mnt)])
 
