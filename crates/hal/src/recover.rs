@@ -705,7 +705,7 @@ mod tests {
         let data = std::fs::read(&out).unwrap();
         let n = mcap::MessageStream::new(&data)
             .unwrap()
-            .map(|m| m.unwrap())
+            .inspect(|m| assert!(m.is_ok(), "{m:?}"))
             .count() as u64;
         assert_eq!(n, rep.total_messages());
         let _ = std::fs::remove_file(&out);
