@@ -297,6 +297,8 @@ pub struct LogError {
     pub path: PathBuf,
     /// What failed.
     pub message: String,
+    /// The log could not be created (nothing was run, nothing to recover).
+    pub at_create: bool,
 }
 
 impl std::fmt::Display for LogError {
@@ -395,6 +397,7 @@ impl Logger {
         let err = |m: String| LogError {
             path: path.to_path_buf(),
             message: m,
+            at_create: true,
         };
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir)
@@ -661,15 +664,18 @@ impl Logger {
             return Err(LogError {
                 path: self.path.clone(),
                 message: "already finished".into(),
+                at_create: false,
             });
         };
         let res = t.join().map_err(|_| LogError {
             path: self.path.clone(),
             message: "writer thread panicked".into(),
+            at_create: false,
         })?;
         let (written, events) = res.map_err(|m| LogError {
             path: self.path.clone(),
             message: m,
+            at_create: false,
         })?;
         Ok(LogStats {
             path: self.path.clone(),
