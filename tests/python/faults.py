@@ -113,7 +113,9 @@ def run_with_fault(tmp: Path, fault: str, mode: str, after_s: float, config: Pat
     summary = None
     for line in stdout.splitlines():
         if line.strip().startswith("{"):
-            summary = json.loads(line)
+            obj = json.loads(line)
+            # A failed run (full disk) prints its `error` object instead of the summary.
+            summary = obj if "cycles" in obj else None
     n_back, contiguous, recovered = _readable(out, tmp) if out.exists() else (0, True, False)
     if summary is not None:
         cycles = int(summary["cycles"])

@@ -54,6 +54,7 @@ pub fn diagnose_json(
             session::RunChoices {
                 progress: sink,
                 sensor_offsets,
+                ..Default::default()
             },
         )
     })?;

@@ -6,15 +6,25 @@ use ehactl_ident::session::{self, SessionError};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-/// Run the diagnosis of `data_path` against the nominal `config`; exit 0 ok, 2 bad config
-/// or data, 1 other failure (I/O).
+/// The on/off options of `ehactl diagnose`.
+pub struct Switches {
+    /// `--sensor-offsets`.
+    pub sensor_offsets: bool,
+    /// `--force`: write into an --out directory holding other files.
+    pub force: bool,
+    /// `--allow-config-mismatch`.
+    pub allow_config_mismatch: bool,
+}
+
+/// Run the diagnosis of `data_path` against the nominal `config`; exit 0 ok, 2 bad config,
+/// data or --out directory, 1 other failure (I/O).
 pub fn cmd_diagnose(
     config: &Path,
     data_path: &Path,
     validate: Option<&Path>,
     out: Option<PathBuf>,
     json: bool,
-    sensor_offsets: bool,
+    sw: Switches,
 ) -> ExitCode {
     let bad = |msg: String| {
         eprintln!("ehactl: {msg}");
@@ -40,7 +50,10 @@ pub fn cmd_diagnose(
         out.as_deref(),
         session::RunChoices {
             progress,
-            sensor_offsets,
+            sensor_offsets: sw.sensor_offsets,
+            config_path: Some(config.to_path_buf()),
+            force: sw.force,
+            allow_config_mismatch: sw.allow_config_mismatch,
         },
     );
     bar.finish_and_clear();

@@ -123,9 +123,18 @@ enum Command {
         /// Separate validation record (default: the last 30 % of --data is held out).
         #[arg(long)]
         validate: Option<PathBuf>,
-        /// Output directory for extended.toml, report.md and plots.
+        /// Output directory for extended.toml, report.md and plots: new, empty, or written by
+        /// an earlier diagnosis (never over an input).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Write into an --out directory that holds other files (same-named ones are replaced;
+        /// the inputs never are).
+        #[arg(long)]
+        force: bool,
+        /// Diagnose an ehactl MCAP log although the config it was logged with differs from
+        /// --config in the rig's fixed quantities (geometry, supply, valve, control mode).
+        #[arg(long)]
+        allow_config_mismatch: bool,
         /// Print exactly one JSON object on stdout.
         #[arg(long)]
         json: bool,
@@ -179,11 +188,7 @@ pub(crate) fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
 /// (always), a directory, or an existing file that is not an MCAP log (unless `force`). An
 /// earlier MCAP log at the path is replaced, as a re-run is expected to do.
 pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(), ExitCode> {
-    let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    };
-    if same(out, config) {
+    if same_file(out, config) {
         return Err(config_error(format!(
             "--out {}: is the config being run; choose another file for the MCAP log",
             out.display()
@@ -206,7 +211,24 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
             out.display()
         )));
     }
+    if is_mcap && ehactl_hal::logger::is_locked(out) {
+        eprintln!(
+            "ehactl: --out {}: is being written by another running ehactl (it holds the file's lock); choose another --out",
+            out.display()
+        );
+        return Err(ExitCode::from(1));
+    }
     Ok(())
+}
+
+/// Whether `a` and `b` are the same file: same device and inode, whatever the names (a hard
+/// link, a symbolic link, `./x` and `x`). False when either does not exist.
+pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
+        _ => false,
+    }
 }
 
 /// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written.
@@ -256,7 +278,12 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
                         "stopped_early": rep.stopped_early,
                         "chunks": rep.chunks,
                         "bad_chunks": rep.bad_chunks,
+                        "chunks_indexed": rep.chunks_indexed,
+                        "skipped_bytes": rep.skipped_bytes,
                         "messages": rep.messages,
+                        "messages_total": rep.total_messages(),
+                        "messages_without_channel": rep.messages_without_channel,
+                        "problems": rep.problems,
                         "last_time_s": rep.last_time_s,
                     })
                 );
@@ -264,22 +291,40 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
                 println!("ehactl recover {} → {}", input.display(), output.display());
                 println!(
                     "  input         {}",
-                    if rep.was_complete {
-                        "complete (had its footer)"
-                    } else if rep.stopped_early {
-                        "cut off: read up to the first incomplete record"
-                    } else {
-                        "no footer"
+                    match (rep.was_complete, rep.stopped_early) {
+                        (true, _) => "complete (had its footer and chunk index)",
+                        (false, true) => "cut off: no footer, the last record incomplete",
+                        (false, false) => "no footer",
                     }
                 );
                 println!(
-                    "  chunks        {} kept, {} dropped (bad CRC or contents)",
-                    rep.chunks, rep.bad_chunks
+                    "  chunks        {} kept, {} dropped (bad size, compression, CRC or contents){}",
+                    rep.chunks,
+                    rep.bad_chunks,
+                    rep.chunks_indexed
+                        .map_or(String::new(), |n| format!("; the chunk index lists {n}"))
                 );
+                if rep.skipped_bytes > 0 {
+                    println!(
+                        "  skipped       {} bytes that are not readable records",
+                        rep.skipped_bytes
+                    );
+                }
+                println!("  messages      {} kept", rep.total_messages());
                 for (topic, n) in &rep.messages {
                     println!("  {topic:<13} {n} messages");
                 }
+                if rep.messages_without_channel > 0 {
+                    println!(
+                        "  not copied    {} messages whose channel record was lost",
+                        rep.messages_without_channel
+                    );
+                }
                 println!("  last message  t = {:.4} s", rep.last_time_s);
+            }
+            // What was lost, and where, goes to stderr even with --json.
+            for p in &rep.problems {
+                eprintln!("ehactl: recover: {p}");
             }
             ExitCode::SUCCESS
         }
@@ -347,6 +392,11 @@ fn main() -> ExitCode {
         // SAFETY: restoring a default signal disposition before any thread is started.
         unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     }
+    // A file-size limit (`ulimit -f`, RLIMIT_FSIZE) must not kill the process with SIGXFSZ
+    // (no message, and on `run` no safe command to the valve): ignored, a write past the
+    // limit fails with EFBIG and is handled as any other write error (a log failure on `run`).
+    // SAFETY: setting a signal disposition before any thread is started.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
     match cli.command {
         Command::Run {
             config,
@@ -429,13 +479,19 @@ fn main() -> ExitCode {
             out,
             json,
             sensor_offsets,
+            force,
+            allow_config_mismatch,
         } => diagnose::cmd_diagnose(
             &config,
             &data,
             validate.as_deref(),
             out,
             json,
-            sensor_offsets,
+            diagnose::Switches {
+                sensor_offsets,
+                force,
+                allow_config_mismatch,
+            },
         ),
         Command::Params => {
             for table in registries() {

@@ -74,10 +74,28 @@ pub fn cmd_run(args: RunArgs<'_>) -> ExitCode {
             return config_error(format!("{}: {e}", args.config.display()))
         }
         Err(SessionError::Log(e)) => {
-            eprintln!(
-                "ehactl: {e}; the run was stopped (valve to safe command); what reached the file can be rebuilt with `ehactl recover {} NEW.mcap`",
-                e.path.display()
-            );
+            let msg = if e.at_create {
+                // The loop never started: nothing to stop, nothing to recover.
+                format!("{e}; nothing was run")
+            } else {
+                format!(
+                    "{e}; the run was stopped (valve to safe command); what reached the file can be rebuilt with `ehactl recover {} NEW.mcap`",
+                    e.path.display()
+                )
+            };
+            eprintln!("ehactl: {msg}");
+            if args.json {
+                // `--json` promises one object on stdout, failures included. Not println!: a
+                // full disk must not turn into a panic on a closed stdout.
+                use std::io::Write;
+                let obj = serde_json::json!({
+                    "error": msg,
+                    "error_kind": "log",
+                    "mcap": e.path.display().to_string(),
+                    "exit_code": 1,
+                });
+                let _ = writeln!(std::io::stdout(), "{obj}");
+            }
             return ExitCode::from(1);
         }
     };

@@ -263,6 +263,33 @@ impl FrameLog {
     }
 }
 
+/// Take the exclusive advisory lock (flock(2)) of the open log file without waiting.
+fn lock_exclusive(file: &File) -> Result<(), String> {
+    use std::os::fd::AsRawFd;
+    // SAFETY: flock on a file descriptor this `File` owns for the duration of the call.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+        return Ok(());
+    }
+    let e = std::io::Error::last_os_error();
+    Err(if e.kind() == std::io::ErrorKind::WouldBlock {
+        "is being written by another running ehactl (it holds the file's lock); choose another --out".to_string()
+    } else {
+        format!("cannot lock the file: {e}")
+    })
+}
+
+/// Whether another process holds the lock of the log file at `path` (a run writing it).
+/// False when the file cannot be opened.
+pub fn is_locked(path: &Path) -> bool {
+    use std::os::fd::AsRawFd;
+    let Ok(f) = File::open(path) else {
+        return false;
+    };
+    // SAFETY: flock on a descriptor owned by `f`; the probe lock is dropped with `f`.
+    let r = unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    r != 0 && std::io::Error::last_os_error().kind() == std::io::ErrorKind::WouldBlock
+}
+
 /// Logger failure (file or MCAP error), with the path.
 #[derive(Debug)]
 pub struct LogError {
@@ -270,6 +297,8 @@ pub struct LogError {
     pub path: PathBuf,
     /// What failed.
     pub message: String,
+    /// The log could not be created (nothing was run, nothing to recover).
+    pub at_create: bool,
 }
 
 impl std::fmt::Display for LogError {
@@ -368,12 +397,27 @@ impl Logger {
         let err = |m: String| LogError {
             path: path.to_path_buf(),
             message: m,
+            at_create: true,
         };
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir)
                 .map_err(|e| err(format!("cannot create directory: {e}")))?;
         }
-        let file = File::create(path).map_err(|e| err(format!("cannot create file: {e}")))?;
+        // Opened without truncation and locked first: a second run to the same path is
+        // refused before it can truncate the first run's log. The lock is advisory (flock)
+        // and held by the open file until the writer drops it; a killed run's lock goes with
+        // its process and its log stays where it was, for `ehactl recover`. (Writing to a
+        // temporary name renamed at the end would leave a killed run's log under a name the
+        // user does not know, and the previous log in its place.)
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(path)
+            .map_err(|e| err(format!("cannot create file: {e}")))?;
+        lock_exclusive(&file).map_err(err)?;
+        file.set_len(0)
+            .map_err(|e| err(format!("cannot truncate file: {e}")))?;
         let compression = match opts.compression {
             LogCompression::None => Compression::None,
             LogCompression::Lz4 => Compression::Lz4,
@@ -620,15 +664,18 @@ impl Logger {
             return Err(LogError {
                 path: self.path.clone(),
                 message: "already finished".into(),
+                at_create: false,
             });
         };
         let res = t.join().map_err(|_| LogError {
             path: self.path.clone(),
             message: "writer thread panicked".into(),
+            at_create: false,
         })?;
         let (written, events) = res.map_err(|m| LogError {
             path: self.path.clone(),
             message: m,
+            at_create: false,
         })?;
         Ok(LogStats {
             path: self.path.clone(),

@@ -1,15 +1,22 @@
 //! `ehactl recover`: rebuild a valid, indexed MCAP file from a log whose writer was killed
-//! (SIGKILL, power loss, full disk) before it wrote the summary section and footer.
+//! (SIGKILL, power loss, full disk) before it wrote the summary section and footer, or whose
+//! bytes were damaged on the way (a bad sector, a flipped bit, a copy cut short).
 //!
-//! The damaged file is read record by record from the start; every schema, channel,
-//! metadata record and every message of every *complete* chunk whose CRC checks out is
+//! The damaged file is walked record by record with the MCAP framing (opcode, `u64` length,
+//! body; MCAP specification <https://mcap.dev/spec>, "Records"). Every schema, channel and
+//! metadata record and every message of every chunk that checks out (sizes consistent,
+//! decompresses to its claimed size, CRC, every inner record well framed and parsed) is
 //! copied, in order, into a new file written by the `mcap` crate (chunk CRCs, message and
-//! chunk indexes, statistics, summary, footer). Reading stops at the first record that is
-//! cut off or corrupt: a chunk is taken whole or not at all. The official readers do not
-//! do this themselves (they refuse a file without a footer or with a truncated record),
-//! hence this module.
+//! chunk indexes, statistics, summary, footer). A bad chunk is skipped and counted, whole: a
+//! chunk is taken whole or not at all. When a chunk's own length cannot be trusted, reading
+//! resumes at the next chunk: from the chunk index of the summary section when the file has
+//! one (a complete file), otherwise at the next byte offset where a chunk record's framing is
+//! self-consistent (its length equals its header fields plus its stored records). Chunks
+//! may be uncompressed, `lz4` or `zstd`, the compressions the specification names; any
+//! other is reported as unreadable, by name. The official readers do none of this (they
+//! refuse a file without a footer, or stop at the first bad record), hence this module.
 
-use mcap::read::{ChunkReader, LinearReader, Options};
+use mcap::read::parse_record;
 use mcap::records::{MessageHeader, Metadata, Record};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -21,13 +28,24 @@ use std::path::Path;
 pub struct RecoverReport {
     /// Messages copied, per topic.
     pub messages: BTreeMap<String, u64>,
-    /// Complete chunks copied.
+    /// Chunks copied (every message of each).
     pub chunks: u64,
-    /// Chunks dropped because their CRC or contents were bad.
+    /// Chunks dropped because their sizes, compression, CRC or contents were bad (each
+    /// reason in `problems`).
     pub bad_chunks: u64,
-    /// Reading stopped at a cut-off or corrupt record before the end of the file.
+    /// Chunks listed by the chunk index of the summary section, when the file has a
+    /// readable one (a complete file); `None` for a cut-off file.
+    pub chunks_indexed: Option<u64>,
+    /// Bytes of the data section that could not be read as records (corrupt framing),
+    /// skipped to find the next chunk.
+    pub skipped_bytes: u64,
+    /// Messages from intact chunks whose channel record was lost (not decodable, not copied).
+    pub messages_without_channel: u64,
+    /// What was dropped or skipped and why, with byte offsets, in file order.
+    pub problems: Vec<String>,
+    /// The file ends inside a record (cut off).
     pub stopped_early: bool,
-    /// The input already had a valid footer (nothing was lost).
+    /// The input already had a valid footer.
     pub was_complete: bool,
     /// Log time of the last recovered message (s).
     pub last_time_s: f64,
@@ -37,6 +55,11 @@ impl RecoverReport {
     /// Messages copied on `topic`.
     pub fn count(&self, topic: &str) -> u64 {
         self.messages.get(topic).copied().unwrap_or(0)
+    }
+
+    /// Messages copied, all topics.
+    pub fn total_messages(&self) -> u64 {
+        self.messages.values().sum()
     }
 }
 
@@ -53,37 +76,164 @@ struct Channel {
     metadata: BTreeMap<String, String>,
 }
 
-/// Largest decompression ratio accepted for an LZ4 / Zstd chunk (LZ4's format limit is
-/// ≈ 255:1). A chunk header claiming more is corrupt.
-const MAX_CHUNK_RATIO: u64 = 256;
+/// Largest decompression ratio accepted for an LZ4 chunk (LZ4's format limit is ≈ 255:1).
+/// A chunk header claiming more is corrupt.
+const MAX_LZ4_RATIO: u64 = 256;
+
+/// Largest decompression ratio accepted for a Zstandard chunk. The format itself allows far
+/// more (a run of zeros), but an MCAP chunk of messages does not reach it; the bound keeps
+/// a corrupt size field from reserving gigabytes before decompression proves it wrong.
+const MAX_ZSTD_RATIO: u64 = 4096;
 
 /// Whether a chunk's claimed uncompressed size is possible for its stored size. The `mcap`
 /// crate (0.24) allocates the claimed size before decompressing, so a corrupt header would
 /// abort the process with an allocation failure (found by tests/rust/fuzz_parsers.rs):
-/// every chunk is checked here first.
+/// every chunk is checked here first. An unknown compression is not plausible.
 pub fn chunk_size_plausible(compression: &str, uncompressed: u64, stored: u64) -> bool {
     match compression {
         "" => uncompressed == stored,
-        _ => uncompressed <= stored.saturating_mul(MAX_CHUNK_RATIO).saturating_add(4096),
+        "lz4" => uncompressed <= stored.saturating_mul(MAX_LZ4_RATIO).saturating_add(4096),
+        "zstd" => uncompressed <= stored.saturating_mul(MAX_ZSTD_RATIO).saturating_add(4096),
+        _ => false,
     }
 }
 
-/// Walk the top-level records of an MCAP file (opcode, length, body) without decompressing
-/// anything. Returns the length of the well-formed prefix (magic plus whole records whose
-/// lengths fit in the file and whose chunk headers pass [`chunk_size_plausible`]) and, if
-/// the walk stopped early, why. The `mcap` crate (0.24) reserves a record's claimed length
-/// before checking it against the data, so a corrupt length field would abort the process
-/// with an allocation failure (found by tests/rust/fuzz_parsers.rs): only this prefix may be
-/// handed to it.
+fn u64_at(b: &[u8], at: usize) -> Option<u64> {
+    b.get(at..at.checked_add(8)?)
+        .map(|s| u64::from_le_bytes(s.try_into().unwrap()))
+}
+
+fn u32_at(b: &[u8], at: usize) -> Option<u32> {
+    b.get(at..at.checked_add(4)?)
+        .map(|s| u32::from_le_bytes(s.try_into().unwrap()))
+}
+
+/// Opcode of a Chunk record (MCAP spec, "Chunk (op=0x06)").
+const OP_CHUNK: u8 = 0x06;
+const OP_FOOTER: u8 = 0x02;
+const OP_DATA_END: u8 = 0x0F;
+
+/// The fields of a Chunk record's body, checked for consistency: the body is exactly its
+/// header (start and end time, uncompressed size, CRC, compression string, stored size) and
+/// the stored records.
+struct ChunkHeader<'a> {
+    uncompressed: u64,
+    crc: u32,
+    compression: &'a str,
+    records: &'a [u8],
+}
+
+fn chunk_header(body: &[u8]) -> Result<ChunkHeader<'_>, String> {
+    let bad = || "chunk header cut off or inconsistent".to_string();
+    let uncompressed = u64_at(body, 16).ok_or_else(bad)?;
+    let crc = u32_at(body, 24).ok_or_else(bad)?;
+    let clen = u32_at(body, 28).ok_or_else(bad)? as usize;
+    let cend = 32usize.checked_add(clen).ok_or_else(bad)?;
+    let compression = body
+        .get(32..cend)
+        .and_then(|c| std::str::from_utf8(c).ok())
+        .ok_or_else(bad)?;
+    let stored = u64_at(body, cend).ok_or_else(bad)?;
+    let rec_start = cend + 8;
+    if usize::try_from(stored).ok() != Some(body.len() - rec_start.min(body.len()))
+        || rec_start > body.len()
+    {
+        return Err(format!(
+            "chunk length {} disagrees with its header ({} stored bytes after a {rec_start}-byte header)",
+            body.len(),
+            stored
+        ));
+    }
+    Ok(ChunkHeader {
+        uncompressed,
+        crc,
+        compression,
+        records: &body[rec_start..],
+    })
+}
+
+/// Decompress a chunk body (bounded by its plausible claimed size), check its CRC when it
+/// has one, and walk its records: every record length must fit and every record must parse.
+/// Returns the records.
+fn read_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, String> {
+    use std::io::Read;
+    let h = chunk_header(body)?;
+    let stored = h.records.len() as u64;
+    let (u, c) = (h.uncompressed, h.compression);
+    match c {
+        "" | "lz4" | "zstd" => {}
+        other => {
+            return Err(format!(
+                "compression `{other}` is not one the MCAP specification names (none, lz4, zstd); ehactl recover cannot read it"
+            ))
+        }
+    }
+    if !chunk_size_plausible(c, u, stored) {
+        return Err(format!(
+            "claims {u} bytes uncompressed from {stored} bytes of `{}`",
+            if c.is_empty() { "none" } else { c }
+        ));
+    }
+    let bounded = |r: &mut dyn Read, what: &str| -> Result<Vec<u8>, String> {
+        let mut out = Vec::with_capacity(u as usize);
+        r.take(u + 1)
+            .read_to_end(&mut out)
+            .map_err(|e| format!("{what}: {e}"))?;
+        Ok(out)
+    };
+    let owned;
+    let plain: &[u8] = match c {
+        "lz4" => {
+            let mut dec = lz4::Decoder::new(h.records).map_err(|e| format!("lz4: {e}"))?;
+            owned = bounded(&mut dec, "lz4")?;
+            &owned
+        }
+        "zstd" => {
+            let mut dec =
+                zstd::stream::read::Decoder::new(h.records).map_err(|e| format!("zstd: {e}"))?;
+            owned = bounded(&mut dec, "zstd")?;
+            &owned
+        }
+        _ => h.records,
+    };
+    if plain.len() as u64 != u {
+        return Err(format!(
+            "decompresses to {} bytes, its header says {u}",
+            plain.len()
+        ));
+    }
+    if h.crc != 0 && crc32fast::hash(plain) != h.crc {
+        return Err("CRC mismatch".into());
+    }
+    let mut out = Vec::new();
+    let mut p = 0usize;
+    while p < plain.len() {
+        let op = plain[p];
+        let len = u64_at(plain, p + 1)
+            .ok_or_else(|| format!("inner record at byte {p}: header cut off"))?;
+        let end = usize::try_from(len)
+            .ok()
+            .and_then(|l| (p + 9).checked_add(l))
+            .filter(|&e| e <= plain.len())
+            .ok_or_else(|| {
+                format!("inner record at byte {p} claims {len} bytes, beyond the chunk")
+            })?;
+        let rec = parse_record(op, &plain[p + 9..end])
+            .map_err(|e| format!("inner record at byte {p} (opcode {op:#04x}): {e}"))?;
+        out.push(rec.into_owned());
+        p = end;
+    }
+    Ok(out)
+}
+
+/// Walk the top-level records of an MCAP file (opcode, length, body) without parsing
+/// message contents. Returns the length of the well-formed prefix (magic plus whole records
+/// whose lengths fit in the file and whose chunks check out: sizes, decompression, CRC,
+/// inner framing) and, if the walk stopped early, why. The `mcap` crate (0.24) reserves a
+/// record's claimed length before checking it against the data, so a corrupt length field
+/// would abort the process with an allocation failure (found by tests/rust/fuzz_parsers.rs):
+/// only this prefix may be handed to it.
 pub fn readable_prefix(data: &[u8]) -> (usize, Option<String>) {
-    let u64_at = |b: &[u8], at: usize| -> Option<u64> {
-        b.get(at..at + 8)
-            .map(|s| u64::from_le_bytes(s.try_into().unwrap()))
-    };
-    let u32_at = |b: &[u8], at: usize| -> Option<u32> {
-        b.get(at..at + 4)
-            .map(|s| u32::from_le_bytes(s.try_into().unwrap()))
-    };
     if data.len() < 8 || &data[..8] != mcap::MAGIC {
         return (0, Some("does not start with the MCAP magic bytes".into()));
     }
@@ -92,155 +242,237 @@ pub fn readable_prefix(data: &[u8]) -> (usize, Option<String>) {
         if pos == data.len() {
             return (pos, None);
         }
-        if pos + 9 > data.len() {
-            return (
-                pos,
-                Some(format!("cut off at byte {pos} (a record header)")),
-            );
-        }
-        let op = data[pos];
-        let len = u64_at(data, pos + 1).unwrap_or(u64::MAX);
-        let body_start = pos + 9;
-        let Some(body_end) = usize::try_from(len)
-            .ok()
-            .and_then(|l| body_start.checked_add(l))
-            .filter(|&e| e <= data.len())
-        else {
-            return (
-                pos,
-                Some(format!(
-                    "record at byte {pos} claims {len} bytes; only {} remain (cut off or corrupt)",
-                    data.len() - body_start
-                )),
-            );
+        let (op, body_end) = match frame_at(data, pos) {
+            Ok(v) => v,
+            Err(why) => return (pos, Some(why)),
         };
-        if op == 0x06 {
-            let b = &data[body_start..body_end];
-            let parsed = (|| {
-                let uncompressed = u64_at(b, 16)?;
-                let clen = u32_at(b, 28)? as usize;
-                let compression =
-                    std::str::from_utf8(b.get(32..32usize.checked_add(clen)?)?).ok()?;
-                let stored = u64_at(b, 32 + clen)?;
-                (stored <= (b.len() - 40 - clen) as u64).then_some(())?;
-                Some((uncompressed, compression.to_string(), stored))
-            })();
-            match parsed {
-                Some((u, c, st)) if chunk_size_plausible(&c, u, st) => {
-                    if let Err(why) = chunk_contents_valid(b, u, &c, st) {
-                        return (pos, Some(format!("corrupt chunk at byte {pos}: {why}")));
-                    }
-                }
-                Some((u, c, st)) => {
-                    return (
-                        pos,
-                        Some(format!(
-                            "corrupt chunk at byte {pos}: claims {u} bytes uncompressed from {st} bytes of `{c}`"
-                        )),
-                    )
-                }
-                None => return (pos, Some(format!("corrupt chunk header at byte {pos}"))),
+        if op == OP_CHUNK {
+            if let Err(why) = read_chunk(&data[pos + 9..body_end]) {
+                return (pos, Some(format!("corrupt chunk at byte {pos}: {why}")));
             }
         }
         pos = body_end;
-        if op == 0x02 {
+        if op == OP_FOOTER {
             // Footer: the magic follows.
             return (data.len().min(pos + 8), None);
         }
     }
 }
 
-/// Decompress a chunk body (bounded by its plausible claimed size), check its CRC when it
-/// has one, and walk its records: every record length must fit. Only then may the `mcap`
-/// crate parse it (see [`readable_prefix`]).
-fn chunk_contents_valid(
-    body: &[u8],
-    uncompressed: u64,
-    compression: &str,
-    stored: u64,
-) -> Result<(), String> {
-    use std::io::Read;
-    let crc = u32::from_le_bytes(body[24..28].try_into().unwrap());
-    let start = body.len() - stored as usize;
-    let raw = &body[start..];
-    let owned;
-    let plain: &[u8] = match compression {
-        "" => raw,
-        "lz4" => {
-            let mut out = Vec::with_capacity(uncompressed as usize);
-            let dec = lz4::Decoder::new(raw).map_err(|e| format!("lz4: {e}"))?;
-            dec.take(uncompressed + 1)
-                .read_to_end(&mut out)
-                .map_err(|e| format!("lz4: {e}"))?;
-            owned = out;
-            &owned
-        }
-        other => return Err(format!("unsupported chunk compression `{other}`")),
-    };
-    if plain.len() as u64 != uncompressed {
-        return Err(format!(
-            "decompresses to {} bytes, header says {uncompressed}",
-            plain.len()
-        ));
+/// Opcode and end of the record at `pos`, if its header and claimed length fit in `data`.
+fn frame_at(data: &[u8], pos: usize) -> Result<(u8, usize), String> {
+    if pos + 9 > data.len() {
+        return Err(format!("cut off at byte {pos} (a record header)"));
     }
-    if crc != 0 && crc32fast::hash(plain) != crc {
-        return Err("CRC mismatch".into());
-    }
-    let mut p = 0usize;
-    while p < plain.len() {
-        let len = plain
-            .get(p + 1..p + 9)
-            .map(|s| u64::from_le_bytes(s.try_into().unwrap()))
-            .ok_or("record header cut off")?;
-        let end = usize::try_from(len)
-            .ok()
-            .and_then(|l| (p + 9).checked_add(l))
-            .filter(|&e| e <= plain.len())
-            .ok_or("record length beyond the chunk")?;
-        p = end;
-    }
-    Ok(())
+    let len = u64_at(data, pos + 1).unwrap_or(u64::MAX);
+    usize::try_from(len)
+        .ok()
+        .and_then(|l| (pos + 9).checked_add(l))
+        .filter(|&e| e <= data.len())
+        .map(|e| (data[pos], e))
+        .ok_or_else(|| {
+            format!(
+                "record at byte {pos} claims {len} bytes; only {} remain (cut off or corrupt)",
+                data.len() - pos - 9
+            )
+        })
 }
 
-/// What was read so far: schemas and channels by id, metadata and messages in file order.
+/// Whether a Chunk record with self-consistent framing starts at `pos` (its length fits in
+/// the file and equals its header plus its stored bytes, with a compression name the
+/// specification knows): where reading resumes after corrupt bytes.
+fn chunk_frame_at(data: &[u8], pos: usize) -> Option<usize> {
+    chunk_framed(data, pos)
+        .filter(|&(_, known)| known)
+        .map(|(end, _)| end)
+}
+
+/// End of the Chunk record at `pos` if its framing is self-consistent, and whether its
+/// compression is one the specification names.
+fn chunk_framed(data: &[u8], pos: usize) -> Option<(usize, bool)> {
+    if data.get(pos) != Some(&OP_CHUNK) {
+        return None;
+    }
+    let (_, end) = frame_at(data, pos).ok()?;
+    let h = chunk_header(&data[pos + 9..end]).ok()?;
+    Some((end, matches!(h.compression, "" | "lz4" | "zstd")))
+}
+
+/// The summary section of a complete file: where it starts, and its chunk index offsets,
+/// schemas and channels. `None` when the footer or the summary cannot be read.
+struct Summary {
+    start: usize,
+    chunk_offsets: Vec<usize>,
+    records: Vec<Record<'static>>,
+}
+
+fn read_summary(data: &[u8]) -> Option<Summary> {
+    let n = data.len();
+    if n < 8 + 9 + 20 + 8 || &data[n - 8..] != mcap::MAGIC {
+        return None;
+    }
+    let fpos = n - 8 - 29;
+    if data[fpos] != OP_FOOTER || u64_at(data, fpos + 1)? != 20 {
+        return None;
+    }
+    let start = usize::try_from(u64_at(data, fpos + 9)?).ok()?;
+    if start < 8 || start > fpos {
+        return None;
+    }
+    let mut recs = Vec::new();
+    let mut offsets = Vec::new();
+    let mut p = start;
+    while p < fpos {
+        let (op, end) = frame_at(data, p).ok()?;
+        if end > fpos {
+            return None;
+        }
+        match parse_record(op, &data[p + 9..end]).ok()? {
+            Record::ChunkIndex(ci) => offsets.push(usize::try_from(ci.chunk_start_offset).ok()?),
+            r @ (Record::Schema { .. } | Record::Channel(_)) => recs.push(r.into_owned()),
+            _ => {}
+        }
+        p = end;
+    }
+    Some(Summary {
+        start,
+        chunk_offsets: offsets,
+        records: recs,
+    })
+}
+
+/// What was read so far: schemas and channels by id, metadata and, per chunk offset, the
+/// messages of each intact chunk.
 #[derive(Default)]
 struct Found {
     schemas: HashMap<u16, Schema>,
     channels: HashMap<u16, Channel>,
     metadata: Vec<Metadata>,
-    messages: Vec<(MessageHeader, Vec<u8>)>,
+    chunks: BTreeMap<usize, Vec<(MessageHeader, Vec<u8>)>>,
+    /// Chunk offsets found bad.
+    bad: BTreeMap<usize, String>,
 }
 
 impl Found {
-    /// Keep one record, top-level or from inside a chunk.
-    fn take(&mut self, rec: Record<'_>) {
+    /// Keep one record, top-level or from inside the chunk at `chunk`.
+    fn take(&mut self, rec: Record<'_>, chunk: usize) {
         match rec {
             Record::Schema { header, data } => {
-                self.schemas.insert(
-                    header.id,
-                    Schema {
-                        name: header.name,
-                        encoding: header.encoding,
-                        data: data.into_owned(),
-                    },
-                );
+                self.schemas.entry(header.id).or_insert(Schema {
+                    name: header.name,
+                    encoding: header.encoding,
+                    data: data.into_owned(),
+                });
             }
             Record::Channel(c) => {
-                self.channels.insert(
-                    c.id,
-                    Channel {
-                        schema_id: c.schema_id,
-                        topic: c.topic,
-                        encoding: c.message_encoding,
-                        metadata: c.metadata,
-                    },
-                );
+                self.channels.entry(c.id).or_insert(Channel {
+                    schema_id: c.schema_id,
+                    topic: c.topic,
+                    encoding: c.message_encoding,
+                    metadata: c.metadata,
+                });
             }
-            Record::Message { header, data } => self.messages.push((header, data.into_owned())),
+            Record::Message { header, data } => self
+                .chunks
+                .entry(chunk)
+                .or_default()
+                .push((header, data.into_owned())),
             Record::Metadata(m) => self.metadata.push(m),
             _ => {}
         }
     }
+
+    /// Read the chunk record whose body is `data[pos + 9..end]`: keep it or mark it bad.
+    fn chunk(&mut self, data: &[u8], pos: usize, end: usize) {
+        if self.chunks.contains_key(&pos) || self.bad.contains_key(&pos) {
+            return;
+        }
+        match read_chunk(&data[pos + 9..end]) {
+            Ok(records) => {
+                self.chunks.entry(pos).or_default();
+                for r in records {
+                    self.take(r, pos);
+                }
+            }
+            Err(why) => {
+                self.bad.insert(pos, why);
+            }
+        }
+    }
+}
+
+/// Walk the data section from the leading magic to `limit` (the summary's start, or the end
+/// of the file), keeping what is intact; after bytes that cannot be framed, resume at the
+/// next chunk (see the module doc). Returns the bytes skipped and whether the file ends
+/// inside a record.
+fn walk(data: &[u8], limit: usize, found: &mut Found, problems: &mut Vec<String>) -> (u64, bool) {
+    let mut pos = 8usize;
+    let mut skipped = 0u64;
+    let mut cut_off = false;
+    while pos < limit {
+        let framed = frame_at(&data[..limit], pos);
+        match framed {
+            Ok((OP_DATA_END | OP_FOOTER, _)) => break,
+            // A consistent chunk with an unknown compression is read (and reported by
+            // name); only resynchronisation insists on a known one.
+            Ok((OP_CHUNK, end)) if chunk_framed(&data[..limit], pos).is_some() => {
+                found.chunk(data, pos, end);
+                pos = end;
+                continue;
+            }
+            Ok((OP_CHUNK, _)) => {}
+            Ok((op, end)) if op != 0 => {
+                // 0x01–0x0F are the specification's records; 0x80–0xFF are private records
+                // a reader skips. Anything else, or a body that does not parse, is corrupt.
+                let known = (0x01..=0x0F).contains(&op) || op >= 0x80;
+                let parsed = if op >= 0x80 {
+                    Some(None)
+                } else if known {
+                    parse_record(op, &data[pos + 9..end]).ok().map(Some)
+                } else {
+                    None
+                };
+                if let Some(r) = parsed {
+                    if let Some(r) = r {
+                        found.take(r, pos);
+                    }
+                    pos = end;
+                    continue;
+                }
+            }
+            _ => {}
+        }
+        // Corrupt framing at `pos` (or the file ends inside this record): resume at the next
+        // chunk whose framing is consistent.
+        let next = (pos + 1..limit).find(|&p| chunk_frame_at(&data[..limit], p).is_some());
+        let stop = next.unwrap_or(limit);
+        if next.is_none() && framed.is_err() && limit == data.len() {
+            cut_off = true;
+            problems.push(format!(
+                "the file ends inside the record at byte {pos} ({} bytes not read)",
+                limit - pos
+            ));
+        } else {
+            problems.push(format!(
+                "bytes {pos}..{stop} ({} bytes) are not readable records{}",
+                stop - pos,
+                if data[pos] == OP_CHUNK {
+                    " (a chunk whose length or header is corrupt)"
+                } else {
+                    ""
+                }
+            ));
+            if data[pos] == OP_CHUNK {
+                found
+                    .bad
+                    .entry(pos)
+                    .or_insert_with(|| "corrupt length or header".into());
+            }
+        }
+        skipped += (stop - pos) as u64;
+        pos = stop;
+    }
+    (skipped, cut_off)
 }
 
 /// Whether the file at `path` starts with the MCAP magic bytes (an MCAP log, complete or not).
@@ -257,56 +489,86 @@ pub fn is_mcap_file(path: &Path) -> bool {
 pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
     let data =
         std::fs::read(input).map_err(|e| format!("{}: cannot read: {e}", input.display()))?;
-    let (end, problem) = readable_prefix(&data);
-    if end == 0 {
-        return Err(format!(
-            "{}: not an MCAP file (it does not start with the MCAP magic bytes)",
-            input.display()
-        ));
+    recover_bytes(&data, output).map_err(|e| format!("{}: {e}", input.display()))
+}
+
+/// [`recover`] on bytes already read.
+pub fn recover_bytes(data: &[u8], output: &Path) -> Result<RecoverReport, String> {
+    if data.len() < 8 || &data[..8] != mcap::MAGIC {
+        return Err("not an MCAP file (it does not start with the MCAP magic bytes)".into());
     }
+    let summary = read_summary(data);
     let mut rep = RecoverReport {
-        was_complete: data.len() >= 16 && &data[data.len() - 8..] == mcap::MAGIC,
-        stopped_early: problem.is_some(),
+        was_complete: summary.is_some(),
+        chunks_indexed: summary.as_ref().map(|s| s.chunk_offsets.len() as u64),
         ..Default::default()
     };
     let mut found = Found::default();
-    let reader = LinearReader::new_with_options(&data[..end], Options::IgnoreEndMagic.into())
-        .map_err(|e| format!("{}: {e}", input.display()))?;
-    for rec in reader {
-        let rec = match rec {
-            Ok(r) => r,
-            Err(_) => {
-                rep.stopped_early = true;
-                break;
-            }
-        };
-        match rec {
-            Record::Chunk { header, data } => {
-                // Sizes, contents and CRC were checked by `readable_prefix`; the chunk is still
-                // taken whole or not at all.
-                let inner: Option<Vec<Record<'_>>> = ChunkReader::new(header, &data)
-                    .ok()
-                    .and_then(|cr| cr.collect::<Result<Vec<_>, _>>().ok());
-                match inner {
-                    Some(records) => {
-                        rep.chunks += 1;
-                        records.into_iter().for_each(|r| found.take(r));
-                    }
-                    None => rep.bad_chunks += 1,
+    let limit = summary.as_ref().map_or(data.len(), |s| s.start);
+    let (skipped, cut_off) = walk(data, limit, &mut found, &mut rep.problems);
+    rep.skipped_bytes = skipped;
+    rep.stopped_early = cut_off;
+    if let Some(s) = summary {
+        // Chunks the walk could not reach (behind corrupt bytes it skipped) are read where
+        // the chunk index says they start; the summary repeats every schema and channel.
+        for &off in &s.chunk_offsets {
+            match chunk_framed(&data[..limit], off) {
+                Some((end, _)) => found.chunk(data, off, end),
+                None if !found.chunks.contains_key(&off) => {
+                    found.bad.entry(off).or_insert_with(|| {
+                        "no chunk with consistent framing where the chunk index points".into()
+                    });
                 }
+                None => {}
             }
-            // The summary section of a complete file repeats what we already have.
-            Record::DataEnd(_) | Record::Footer(_) => break,
-            other => found.take(other),
+        }
+        for r in s.records {
+            found.take(r, usize::MAX);
         }
     }
+    for (off, why) in &found.bad {
+        rep.problems
+            .push(format!("chunk at byte {off} dropped: {why}"));
+    }
+    rep.bad_chunks = found.bad.len() as u64;
+    rep.chunks = found.chunks.len() as u64;
     let Found {
         schemas,
         channels,
         metadata,
-        messages,
+        chunks,
+        ..
     } = found;
+    let messages = chunks.into_values().flatten();
 
+    // Written under a temporary name in the same directory and linked to `output` only when
+    // complete (a link never replaces an existing file): a failure leaves no half file.
+    let tmp = output.with_file_name(format!(
+        ".{}.recover-{}.tmp",
+        output
+            .file_name()
+            .map_or("out".into(), |n| n.to_string_lossy()),
+        std::process::id()
+    ));
+    let result =
+        write_recovered(&tmp, schemas, channels, &metadata, messages, &mut rep).and_then(|()| {
+            std::fs::hard_link(&tmp, output)
+                .map_err(|e| format!("{}: cannot create: {e}", output.display()))
+        });
+    let _ = std::fs::remove_file(&tmp);
+    result.map(|()| rep)
+}
+
+/// Write the kept records to a new MCAP file at `path` (which must not exist).
+fn write_recovered(
+    path: &Path,
+    schemas: HashMap<u16, Schema>,
+    channels: HashMap<u16, Channel>,
+    metadata: &[Metadata],
+    messages: impl Iterator<Item = (MessageHeader, Vec<u8>)>,
+    rep: &mut RecoverReport,
+) -> Result<(), String> {
+    let output = path;
     let file = File::create_new(output)
         .map_err(|e| format!("{}: cannot create: {e}", output.display()))?;
     let mut w = mcap::WriteOptions::new()
@@ -322,16 +584,18 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
     let me = |e: mcap::McapError| format!("{}: {e}", output.display());
     let mut schema_map: HashMap<u16, u16> = HashMap::new();
     let mut channel_map: HashMap<u16, u16> = HashMap::new();
-    for m in &metadata {
+    for m in metadata {
         w.write_metadata(m).map_err(me)?;
     }
     let mut last_ns = 0u64;
-    for (h, payload) in &messages {
+    for (h, payload) in messages {
         let new_ch = match channel_map.get(&h.channel_id) {
             Some(&c) => c,
             None => {
                 let Some(ch) = channels.get(&h.channel_id) else {
-                    continue; // a message whose channel record was lost cannot be decoded
+                    // A message whose channel record was lost cannot be decoded: counted.
+                    rep.messages_without_channel += 1;
+                    continue;
                 };
                 let sid = if ch.schema_id == 0 {
                     0
@@ -340,6 +604,7 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
                         Some(&s) => s,
                         None => {
                             let Some(s) = schemas.get(&ch.schema_id) else {
+                                rep.messages_without_channel += 1;
                                 continue;
                             };
                             let id = w.add_schema(&s.name, &s.encoding, &s.data).map_err(me)?;
@@ -358,9 +623,9 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
         w.write_to_known_channel(
             &MessageHeader {
                 channel_id: new_ch,
-                ..*h
+                ..h
             },
-            payload,
+            &payload,
         )
         .map_err(me)?;
         last_ns = last_ns.max(h.log_time);
@@ -368,6 +633,108 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
         *rep.messages.entry(topic.clone()).or_default() += 1;
     }
     w.finish().map_err(me)?;
+    w.into_inner()
+        .into_inner()
+        .map_err(|e| e.into_error())
+        .and_then(|f| f.sync_all())
+        .map_err(|e| format!("{}: cannot write: {e}", output.display()))?;
     rep.last_time_s = last_ns as f64 * 1e-9;
-    Ok(rep)
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mcap_writer::{Compression, Writer};
+
+    /// A log of `chunks` chunks of 100 messages each (hand-written writer, LZ4), complete
+    /// or cut after the data section's last chunk; returns its bytes.
+    fn log(chunks: u64, complete: bool) -> Vec<u8> {
+        let dir = std::env::temp_dir().join(format!("ehactl-recover-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join(format!("log-{chunks}-{complete}.mcap"));
+        let mut w = Writer::new(
+            File::create(&p).unwrap(),
+            "ros2",
+            "test",
+            Compression::Lz4,
+            1 << 20,
+        )
+        .unwrap();
+        let s = w.add_schema("S", "jsonschema", b"{}").unwrap();
+        let c = w.add_channel(s, "/x", "json", &BTreeMap::new()).unwrap();
+        for k in 0..chunks * 100 {
+            w.write_message(c, k as u32, k, k, format!("{{\"k\":{k}}}").as_bytes())
+                .unwrap();
+            if k % 100 == 99 {
+                w.flush().unwrap();
+            }
+        }
+        if complete {
+            w.finish().unwrap();
+        } else {
+            drop(w);
+        }
+        let b = std::fs::read(&p).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        b
+    }
+
+    /// Offsets of the chunk records, found by walking the framing.
+    fn chunk_offsets(b: &[u8]) -> Vec<usize> {
+        let mut out = Vec::new();
+        let mut p = 8;
+        while p + 9 <= b.len() {
+            let (op, end) = frame_at(b, p).unwrap();
+            if op == OP_CHUNK {
+                out.push(p);
+            }
+            if op == OP_DATA_END {
+                break;
+            }
+            p = end;
+        }
+        out
+    }
+
+    fn recover_to_tmp(b: &[u8], name: &str) -> RecoverReport {
+        let out =
+            std::env::temp_dir().join(format!("ehactl-rec-{name}-{}.mcap", std::process::id()));
+        let _ = std::fs::remove_file(&out);
+        let rep = recover_bytes(b, &out).unwrap();
+        let data = std::fs::read(&out).unwrap();
+        let n = mcap::MessageStream::new(&data)
+            .unwrap()
+            .inspect(|m| assert!(m.is_ok(), "{m:?}"))
+            .count() as u64;
+        assert_eq!(n, rep.total_messages());
+        let _ = std::fs::remove_file(&out);
+        rep
+    }
+
+    #[test]
+    fn a_flipped_byte_drops_one_chunk_and_keeps_the_rest() {
+        let good = log(6, true);
+        let offs = chunk_offsets(&good);
+        assert_eq!(offs.len(), 6);
+        let mut bad = good.clone();
+        bad[offs[1] + 120] ^= 0x40; // inside chunk 1's compressed records
+        let rep = recover_to_tmp(&bad, "flip");
+        assert_eq!((rep.chunks, rep.bad_chunks), (5, 1), "{:?}", rep.problems);
+        assert_eq!(rep.count("/x"), 500);
+        assert_eq!(rep.chunks_indexed, Some(6));
+    }
+
+    #[test]
+    fn a_bad_chunk_length_in_a_cut_off_file_resyncs_on_the_next_chunk() {
+        let good = log(6, false);
+        let offs = chunk_offsets(&good);
+        let mut bad = good.clone();
+        let len = u64_at(&bad, offs[2] + 1).unwrap();
+        bad[offs[2] + 1..offs[2] + 9].copy_from_slice(&(len + 333).to_le_bytes());
+        let rep = recover_to_tmp(&bad, "len");
+        assert_eq!((rep.chunks, rep.bad_chunks), (5, 1), "{:?}", rep.problems);
+        assert_eq!(rep.count("/x"), 500);
+        assert!(rep.skipped_bytes > 0 && rep.chunks_indexed.is_none());
+    }
 }

@@ -95,6 +95,9 @@ pub struct Record {
     pub dt: f64,
     /// Non-fatal findings (printed and written to the report).
     pub warnings: Vec<String>,
+    /// The config the record was logged with (the `config` of an ehactl MCAP log's
+    /// `/config` message, as `RigConfig::to_json`); `None` for CSV.
+    pub logged_config: Option<serde_json::Value>,
 }
 
 /// A data file that cannot be used; the message names file, row/column and expectation.
@@ -145,6 +148,7 @@ impl Record {
             reference: self.reference.as_ref().map(|r| r[range.clone()].to_vec()),
             dt: self.dt,
             warnings: Vec::new(),
+            logged_config: self.logged_config.clone(),
         }
     }
 
@@ -219,6 +223,7 @@ impl Record {
             reference,
             dt,
             warnings: Vec::new(),
+            logged_config: None,
         })
     }
 }
@@ -322,6 +327,19 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
         .ok_or_else(|| DataError(format!("{source}: empty file; expected a CSV header row")))?;
     let header_line = line_of(&header);
     let names: Vec<String> = header.iter().map(|s| s.to_string()).collect();
+    let known = ["t", "u", "force", "x", "p_a", "p_b", "x_v", "ref"];
+    // A column used by diagnose must be named once: which of two `p_a` is the measurement?
+    for (j, n) in names.iter().enumerate() {
+        if let Some(k) = names[..j].iter().position(|m| m == n) {
+            if known.contains(&n.as_str()) {
+                return Err(DataError(format!(
+                    "{source}: column `{n}` appears twice in header line {header_line} (columns {} and {}); each of t, u, force, x, p_a, p_b, x_v, ref may appear once",
+                    k + 1,
+                    j + 1
+                )));
+            }
+        }
+    }
     let col = |n: &str| names.iter().position(|h| h == n);
     let need = |n: &str, what: &str| {
         col(n).ok_or_else(|| {
@@ -334,7 +352,6 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
     };
     let it = need("t", "time in s")?;
     let iu = need("u", "valve command in V")?;
-    let known = ["t", "u", "force", "x", "p_a", "p_b", "x_v", "ref"];
     let mut warnings = Vec::new();
     let unknown: Vec<&String> = names
         .iter()
@@ -428,8 +445,16 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
     let stream = mcap::MessageStream::new(bytes)
         .map_err(|e| DataError(format!("{source}: not a readable MCAP file: {e}")))?;
     let mut rows: Vec<CycleRecord> = Vec::new();
+    let mut logged_config = None;
     for m in stream {
         let m = m.map_err(|e| DataError(format!("{source}: corrupt MCAP record: {e}")))?;
+        if m.channel.topic == "/config" {
+            // {"toml": …, "config": RigConfig::to_json(), "backend": …} (ehactl_hal::logger)
+            logged_config = serde_json::from_slice::<serde_json::Value>(&m.data)
+                .ok()
+                .and_then(|v| v.get("config").cloned());
+            continue;
+        }
         if m.channel.topic != "/control" {
             continue;
         }
@@ -481,6 +506,7 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
         0,
     )?;
     rec.warnings.extend(warnings);
+    rec.logged_config = logged_config;
     Ok(rec)
 }
 

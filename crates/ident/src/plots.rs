@@ -428,35 +428,27 @@ fn frf(path: &Path, rec: &Record, nom: &Replay, ext: &Replay) -> PlotResult<()> 
     root.present().map_err(err(path))
 }
 
-/// Draw the report's plots into `dir`: returns the files written. `split` is the first
-/// held-out sample of `rec`; `val` the validation record with its nominal and extended
-/// replays. A plot that cannot be drawn is an error naming the file (nothing is skipped
-/// silently).
+/// Draw the report's plots into `out` (each written atomically, [`crate::outdir`]): returns
+/// the files written. `split` is the first held-out sample of `rec`; `val` the validation
+/// record with its nominal and extended replays. A plot that cannot be drawn is an error
+/// naming the file (nothing is skipped silently).
 pub fn draw(
-    dir: &Path,
+    out: &mut crate::outdir::OutDir,
     rec: &Record,
     nom: &Replay,
     ext: &Replay,
     split: usize,
     val: Option<(&Record, &Replay, &Replay)>,
 ) -> Result<Vec<PathBuf>, String> {
-    let mut made = Vec::new();
-    let p = dir.join("traces.svg");
-    traces(&p, rec, nom, ext, Some(split))?;
-    made.push(p);
-    let p = dir.join("residual.svg");
-    residuals(&p, rec, nom, ext)?;
-    made.push(p);
-    let p = dir.join("residual_state.svg");
-    residual_state(&p, rec, nom)?;
-    made.push(p);
-    let p = dir.join("frf.svg");
-    frf(&p, rec, nom, ext)?;
-    made.push(p);
+    let made = vec![
+        out.write_with("traces.svg", |p| traces(p, rec, nom, ext, Some(split)))?,
+        out.write_with("residual.svg", |p| residuals(p, rec, nom, ext))?,
+        out.write_with("residual_state.svg", |p| residual_state(p, rec, nom))?,
+        out.write_with("frf.svg", |p| frf(p, rec, nom, ext))?,
+    ];
+    let mut made = made;
     if let Some((v, vn, ve)) = val {
-        let p = dir.join("validation.svg");
-        traces(&p, v, vn, ve, None)?;
-        made.push(p);
+        made.push(out.write_with("validation.svg", |p| traces(p, v, vn, ve, None))?);
     }
     Ok(made)
 }

@@ -199,13 +199,10 @@ pub fn write_report(
     val: Option<&Record>,
     d: &Diagnosis,
 ) -> Result<ReportFiles, String> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| format!("{}: cannot create output directory: {e}", dir.display()))?;
-    let w = |name: &str, text: &str| -> Result<PathBuf, String> {
-        let p = dir.join(name);
-        std::fs::write(&p, text).map_err(|e| format!("{}: cannot write: {e}", p.display()))?;
-        Ok(p)
-    };
+    // Every file atomically, listed in the directory's manifest (`crate::outdir`); the
+    // caller checked the directory with `outdir::check` before the diagnosis.
+    let mut out = crate::outdir::OutDir::create(dir)?;
+    let mut w = |name: &str, text: &str| out.write(name, text.as_bytes());
     let extended_config = w(
         "extended.toml",
         &extended_config_text(nominal, d, &rec.source),
@@ -227,7 +224,7 @@ pub fn write_report(
             let v = val
                 .zip(d.traces.validation.as_ref())
                 .map(|(v, (vn, ve))| (v, vn, ve));
-            crate::plots::draw(dir, rec, nom, ext, d.traces.split_index, v)?
+            crate::plots::draw(&mut out, rec, nom, ext, d.traces.split_index, v)?
         }
         _ => {
             warnings.push("plots not made: the diagnosis kept no replay traces".to_string());
@@ -429,7 +426,7 @@ pub fn write_report(
             let _ = writeln!(r, "![{name}]({name})\n");
         }
     }
-    let report = w("report.md", &r)?;
+    let report = out.write("report.md", r.as_bytes())?;
     Ok(ReportFiles {
         extended_config,
         report,

@@ -52,6 +52,101 @@ pub struct RunChoices {
     pub progress: crate::progress::ProgressSink,
     /// Estimate a constant offset per measured channel ([`Options::sensor_offsets`]).
     pub sensor_offsets: bool,
+    /// The file the config was read from, if any: never written over by the report.
+    pub config_path: Option<PathBuf>,
+    /// Write into an output directory that holds files diagnose did not write (same-named
+    /// ones are replaced; inputs never are).
+    pub force: bool,
+    /// Diagnose an ehactl MCAP log against a config that differs from the one it was logged
+    /// with in what the diagnosis takes as known ([`config_mismatch`]).
+    pub allow_config_mismatch: bool,
+}
+
+/// Config fields the diagnosis estimates, or takes from the data, rather than trusts: a
+/// log's config may differ from `--config` in these (that is what a diagnosis is for). Every
+/// effect (`effects.*`) is in this set too.
+const ESTIMATED: &[&str] = &[
+    "fluid.bulk_modulus",
+    "valve.rated_flow",
+    "valve.area_max",
+    "valve.flow_at_1mpa",
+    "mechanics.mass",
+    "mechanics.damping",
+    "mechanics.load_stiffness",
+    "cylinder.initial_position",
+    "cylinder.initial_pressure_a",
+    "cylinder.initial_pressure_b",
+];
+
+/// Sections of the config that describe the rig's hydraulics and mechanics.
+const RIG_SECTIONS: &[&str] = &["fluid", "supply", "valve", "cylinder", "mechanics"];
+
+/// Fields in which the config an MCAP record was logged with (`logged`, the `config` of its
+/// `/config` message) differs from `cfg` among what the diagnosis takes as known: the rig's
+/// fluid, supply, valve, cylinder and mechanics except [`ESTIMATED`], and `control.mode`.
+/// Each as "path: logged A, --config B (unit)". A log of another rig (another geometry,
+/// supply pressure, valve) replayed through this one gives a confident wrong answer.
+pub fn config_mismatch(cfg: &RigConfig, logged: &Value) -> Vec<String> {
+    let mine = cfg.to_json();
+    let mut out = Vec::new();
+    let unit = |path: &str| {
+        ehactl_plant::spec::find(&[ehactl_plant::spec::params()], path)
+            .map_or("", |p| p.unit)
+            .to_string()
+    };
+    let show = |v: Option<&Value>| match v {
+        Some(Value::String(s)) => format!("`{s}`"),
+        Some(v) => v.to_string(),
+        None => String::new(),
+    };
+    let mut compare = |path: String, a: Option<&Value>, b: Option<&Value>| {
+        // A field only one side has (a log of another ehactl version, an optional field
+        // left unset) is not a difference that can be judged.
+        if a.is_none_or(Value::is_null) || b.is_none_or(Value::is_null) {
+            return;
+        }
+        let same = match (a.and_then(Value::as_f64), b.and_then(Value::as_f64)) {
+            (Some(x), Some(y)) => x == y || (x - y).abs() <= 1e-12 * x.abs().max(y.abs()),
+            _ => a == b,
+        };
+        if !same {
+            let u = unit(&path);
+            out.push(format!(
+                "{path}: logged {}, --config {}{}",
+                show(a),
+                show(b),
+                if u.is_empty() || u == "-" {
+                    String::new()
+                } else {
+                    format!(" {u}")
+                }
+            ));
+        }
+    };
+    for sec in RIG_SECTIONS {
+        let (a, b) = (logged.get(sec), mine.get(sec));
+        let mut keys: Vec<&String> = a
+            .and_then(Value::as_object)
+            .into_iter()
+            .chain(b.and_then(Value::as_object))
+            .flat_map(|m| m.keys())
+            .collect();
+        keys.sort();
+        keys.dedup();
+        for k in keys {
+            let path = format!("{sec}.{k}");
+            if ESTIMATED.contains(&path.as_str()) {
+                continue;
+            }
+            compare(path, a.and_then(|m| m.get(k)), b.and_then(|m| m.get(k)));
+        }
+    }
+    compare(
+        "control.mode".into(),
+        logged.get("control").and_then(|c| c.get("mode")),
+        mine.get("control").and_then(|c| c.get("mode")),
+    );
+    out
 }
 
 /// Largest replay cost factor the integration choice may spend for `ehactl diagnose` and the
@@ -78,8 +173,47 @@ pub fn run(
         r.warnings.extend(w);
         Ok(r)
     };
+    if let Some(v) = validate.filter(|v| crate::outdir::same_file(v, data_path)) {
+        return Err(SessionError::Input(format!(
+            "--validate {}: is the same file as --data {}; the held-out record must be another recording (or leave --validate out to hold out the last 30 % of --data)",
+            v.display(),
+            data_path.display()
+        )));
+    }
+    if let Some(dir) = out {
+        let mut inputs = vec![("--data file", data_path)];
+        inputs.extend(validate.map(|v| ("--validate file", v)));
+        inputs.extend(
+            choices
+                .config_path
+                .as_deref()
+                .map(|c| ("--config being run", c)),
+        );
+        crate::outdir::check(dir, &inputs, choices.force).map_err(SessionError::Input)?;
+    }
     let rec = load(data_path)?;
     let val = validate.map(load).transpose()?;
+    let mut mismatch = Vec::new();
+    for r in std::iter::once(&rec).chain(val.as_ref()) {
+        let Some(logged) = &r.logged_config else {
+            continue;
+        };
+        let diff = config_mismatch(cfg, logged);
+        if diff.is_empty() {
+            continue;
+        }
+        let what = format!(
+            "{}: logged with a config that differs from --config {config_label} in what the diagnosis takes as known (another rig, or the config changed since): {}",
+            r.source,
+            diff.join("; ")
+        );
+        if !choices.allow_config_mismatch {
+            return Err(SessionError::Input(format!(
+                "{what}; diagnose it against the config it was logged with, or add --allow-config-mismatch if the rig really is the one --config describes"
+            )));
+        }
+        mismatch.push(format!("{what} (accepted by --allow-config-mismatch)"));
+    }
     // Long records take minutes; say so at once instead of going silent (a front end's
     // progress bar is hidden when stderr is not a terminal). Figure: 50 000 samples of the
     // 5 kHz bench record take ≈ 21 s on 2 idle cores (BENCHMARKS.md, bench/diagnose_bench.sh).
@@ -144,7 +278,7 @@ pub fn run(
     };
     let d = diagnose(&cfg.plant, &rec, val.as_ref(), &opts).map_err(SessionError::Input)?;
     // The diagnosis's own list: the records' warnings and its findings (replay accuracy).
-    let mut warnings = d.warnings.clone();
+    let mut warnings: Vec<String> = d.warnings.iter().chain(&mismatch).cloned().collect();
     let files = match out {
         Some(dir) => {
             let f = report::write_report(dir, cfg, config_label, &rec, val.as_ref(), &d)
@@ -171,4 +305,34 @@ pub fn run(
         notes,
         files,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_log_of_another_rig_differs_and_a_hidden_effect_does_not() {
+        let rig = crate::synth::testrig();
+        let other =
+            RigConfig::from_toml_str(include_str!("../../../configs/sahu2022_force.toml")).unwrap();
+        let d = config_mismatch(&rig, &other.to_json());
+        assert!(
+            d.iter()
+                .any(|m| m.starts_with("cylinder.area_a: logged") && m.ends_with(" m²")),
+            "{d:?}"
+        );
+        assert!(d.iter().any(|m| m.starts_with("control.mode")), "{d:?}");
+        // The truth of a diagnosis test: the same rig with a hidden effect and other
+        // estimated quantities.
+        let truth = RigConfig::from_toml_str(&format!(
+            "{}\n[effects.time_delay]\ndelay = 0.005\n",
+            crate::synth::TESTRIG_TOML.replace("bulk_modulus = 1.4e9", "bulk_modulus = 1.2e9")
+        ))
+        .unwrap();
+        assert_eq!(
+            config_mismatch(&rig, &truth.to_json()),
+            Vec::<String>::new()
+        );
+    }
 }

@@ -1,0 +1,268 @@
+//! The output directory of `ehactl diagnose --out DIR`: what may be written there, and how.
+//!
+//! - Never over an input: a file the diagnosis would write that is the data, the validation
+//!   record or the config being run (same device and inode: hard links and symbolic links
+//!   included) is refused, `--force` or not.
+//! - Only into a directory that is new, empty, or holds nothing but what an earlier diagnosis
+//!   wrote there (listed in its manifest, [`MANIFEST`]); anything else is the user's, and the
+//!   directory is refused unless `--force` (then same-named files are replaced, others left).
+//! - Every file atomically: written under a temporary name in the same directory, flushed to
+//!   the disk (fsync), then renamed over the final name; a failure (full disk, size limit)
+//!   leaves the previous file or none, never half a file.
+
+use std::collections::BTreeSet;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Manifest of the files `ehactl diagnose` wrote into a directory, one name a line.
+pub const MANIFEST: &str = ".ehactl-diagnose";
+
+/// Every file `ehactl diagnose` may write into its output directory.
+pub const OUTPUTS: &[&str] = &[
+    "extended.toml",
+    "traces.csv",
+    "validation_traces.csv",
+    "diagnosis.json",
+    "traces.svg",
+    "residual.svg",
+    "residual_state.svg",
+    "frf.svg",
+    "validation.svg",
+    "report.md",
+];
+
+/// Whether `a` and `b` are the same file (same device and inode, whatever the names).
+/// False when either does not exist.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
+        _ => false,
+    }
+}
+
+/// Temporary name of `name` while it is written (hidden, per process).
+fn temp_name(name: &str) -> String {
+    format!(".{name}.tmp-{}", std::process::id())
+}
+
+/// Whether `entry` is a temporary file left by a diagnosis that was killed while writing.
+fn is_temp(entry: &str) -> bool {
+    OUTPUTS
+        .iter()
+        .chain(std::iter::once(&MANIFEST))
+        .any(|n| entry.starts_with(&format!(".{n}.tmp-")))
+}
+
+/// The names listed in the manifest of `dir` (only names diagnose writes count).
+fn manifest(dir: &Path) -> BTreeSet<String> {
+    std::fs::read_to_string(dir.join(MANIFEST))
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| OUTPUTS.contains(l))
+        .map(str::to_string)
+        .collect()
+}
+
+/// Check `dir` before anything is computed: refuse (with the reason) an output that would be
+/// one of `inputs` (label, path), a path that is not a directory, and a directory holding
+/// files diagnose did not write (unless `force`).
+pub fn check(dir: &Path, inputs: &[(&str, &Path)], force: bool) -> Result<(), String> {
+    for name in OUTPUTS.iter().chain(std::iter::once(&MANIFEST)) {
+        let p = dir.join(name);
+        for (label, input) in inputs {
+            if same_file(&p, input) {
+                return Err(format!(
+                    "--out {}: {} is the {label} ({}); diagnose never writes over its inputs: choose another --out directory",
+                    dir.display(),
+                    p.display(),
+                    input.display()
+                ));
+            }
+        }
+    }
+    let meta = match std::fs::metadata(dir) {
+        Ok(m) => m,
+        Err(_) => return Ok(()), // created when the report is written
+    };
+    if !meta.is_dir() {
+        return Err(format!(
+            "--out {}: exists and is not a directory; expected a directory for the report",
+            dir.display()
+        ));
+    }
+    if force {
+        return Ok(());
+    }
+    let ours = manifest(dir);
+    let entries = std::fs::read_dir(dir)
+        .map_err(|e| format!("--out {}: cannot read the directory: {e}", dir.display()))?;
+    let mut foreign: Vec<String> = entries
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n != MANIFEST && !ours.contains(n) && !is_temp(n))
+        .collect();
+    foreign.sort();
+    if !foreign.is_empty() {
+        let n = foreign.len();
+        foreign.truncate(5);
+        return Err(format!(
+            "--out {}: holds {n} file(s) ehactl diagnose did not write ({}{}); it writes only into a new or empty directory or one it wrote before: choose another --out, or add --force to write beside them (files named like its outputs are then replaced)",
+            dir.display(),
+            foreign.join(", "),
+            if n > 5 { ", …" } else { "" }
+        ));
+    }
+    Ok(())
+}
+
+/// The output directory while the report is written: every file goes through
+/// [`OutDir::write`] or [`OutDir::write_with`] (atomic), after its name is in the manifest.
+pub struct OutDir {
+    dir: PathBuf,
+    listed: BTreeSet<String>,
+}
+
+impl OutDir {
+    /// Create `dir` if needed (checked beforehand with [`check`]).
+    pub fn create(dir: &Path) -> Result<OutDir, String> {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| format!("{}: cannot create output directory: {e}", dir.display()))?;
+        Ok(OutDir {
+            dir: dir.to_path_buf(),
+            listed: manifest(dir),
+        })
+    }
+
+    /// Final path of `name`.
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    /// Write `text` to `name` atomically.
+    pub fn write(&mut self, name: &str, text: &[u8]) -> Result<PathBuf, String> {
+        self.write_with(name, |tmp| {
+            std::fs::write(tmp, text).map_err(|e| format!("cannot write: {e}"))
+        })
+    }
+
+    /// Let `make` write the file at the temporary path it is given, then flush it to the disk
+    /// and rename it to `name`. On failure the temporary file is removed and the error names
+    /// the final path.
+    pub fn write_with(
+        &mut self,
+        name: &str,
+        make: impl FnOnce(&Path) -> Result<(), String>,
+    ) -> Result<PathBuf, String> {
+        debug_assert!(OUTPUTS.contains(&name), "{name} is not listed in OUTPUTS");
+        if self.listed.insert(name.to_string()) {
+            let list: String = self.listed.iter().map(|n| format!("{n}\n")).collect();
+            self.commit(MANIFEST, |tmp| {
+                std::fs::write(tmp, list).map_err(|e| format!("cannot write: {e}"))
+            })?;
+        }
+        self.commit(name, make)
+    }
+
+    fn commit(
+        &self,
+        name: &str,
+        make: impl FnOnce(&Path) -> Result<(), String>,
+    ) -> Result<PathBuf, String> {
+        let tmp = self.dir.join(temp_name(name));
+        let fin = self.dir.join(name);
+        let tmp_s = tmp.display().to_string();
+        let fail = |e: String| {
+            let _ = std::fs::remove_file(&tmp);
+            // Messages name the file the user asked for, not the temporary one.
+            let e = e.replace(&tmp_s, &fin.display().to_string());
+            if e.contains(&fin.display().to_string()) {
+                e
+            } else {
+                format!("{}: {e}", fin.display())
+            }
+        };
+        make(&tmp).map_err(fail)?;
+        std::fs::File::options()
+            .write(true)
+            .open(&tmp)
+            .and_then(|mut f| f.flush().and_then(|()| f.sync_all()))
+            .map_err(|e| fail(format!("cannot write: {e}")))?;
+        std::fs::rename(&tmp, &fin).map_err(|e| fail(format!("cannot rename into place: {e}")))?;
+        // The rename itself reaches the disk with the directory.
+        if let Ok(d) = std::fs::File::open(&self.dir) {
+            let _ = d.sync_all();
+        }
+        Ok(fin)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("ehactl-outdir-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn a_directory_of_the_users_is_refused_unless_forced() {
+        let d = tmp("user");
+        std::fs::write(d.join("report.md"), "mine").unwrap();
+        let e = check(&d, &[], false).unwrap_err();
+        assert!(e.contains("report.md") && e.contains("--force"), "{e}");
+        assert!(check(&d, &[], true).is_ok());
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn what_diagnose_wrote_may_be_replaced_but_never_an_input() {
+        let d = tmp("ours");
+        let mut o = OutDir::create(&d).unwrap();
+        o.write("report.md", b"one").unwrap();
+        o.write("extended.toml", b"x = 1").unwrap();
+        assert!(check(&d, &[], false).is_ok());
+        let cfg = d.join("extended.toml");
+        let e = check(&d, &[("--config", &cfg)], true).unwrap_err();
+        assert!(
+            e.contains("--config") && e.contains("never writes over"),
+            "{e}"
+        );
+        // A hard link elsewhere is the same file.
+        let link = std::env::temp_dir().join(format!("ehactl-outdir-link-{}", std::process::id()));
+        let _ = std::fs::remove_file(&link);
+        std::fs::hard_link(d.join("report.md"), &link).unwrap();
+        assert!(check(&d, &[("--data", &link)], true).is_err());
+        let _ = std::fs::remove_file(&link);
+        // No temporary file is left behind.
+        let names: Vec<String> = std::fs::read_dir(&d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(names.iter().all(|n| !n.contains(".tmp-")), "{names:?}");
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn a_failed_write_leaves_the_previous_file_and_no_temporary() {
+        let d = tmp("fail");
+        let mut o = OutDir::create(&d).unwrap();
+        o.write("diagnosis.json", b"{\"ok\": 1}").unwrap();
+        let e = o
+            .write_with("diagnosis.json", |p| {
+                std::fs::write(p, b"{\"half").unwrap();
+                Err("disk full".into())
+            })
+            .unwrap_err();
+        assert!(e.contains("diagnosis.json") && !e.contains(".tmp-"), "{e}");
+        assert_eq!(
+            std::fs::read(d.join("diagnosis.json")).unwrap(),
+            b"{\"ok\": 1}"
+        );
+        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 2); // the file and the manifest
+        let _ = std::fs::remove_dir_all(&d);
+    }
+}
