@@ -96,7 +96,9 @@ pub fn replay_with(
         }
         Drive::Recorded => None,
     };
+    let t_start = std::time::Instant::now();
     let mut plant = Plant::configure(params, rec.dt).map_err(|e| e.to_string())?;
+    let t_configured = std::time::Instant::now();
     let n = n.min(rec.len());
     let kinds: Vec<ChannelKind> = rec.channels.iter().map(|c| c.kind).collect();
     let mut y: Vec<Vec<f64>> = kinds.iter().map(|_| Vec::with_capacity(n)).collect();
@@ -123,6 +125,7 @@ pub fn replay_with(
             }
         }
     }
+    STATS.add(n, &plant, t_configured - t_start, t_configured.elapsed());
     let offsets = vec![0.0; y.len()];
     Ok(Replay {
         y,
@@ -130,6 +133,69 @@ pub fn replay_with(
         failed,
         offsets,
     })
+}
+
+/// Cumulative counters of every replay in this process ([`replay_stats`]): what a diagnosis
+/// spends its time on (BENCHMARKS.md "Diagnosis speed"). Relaxed atomics, one update per
+/// replay (a replay takes milliseconds), so counting costs nothing measurable.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReplayStats {
+    /// Replays run.
+    pub replays: u64,
+    /// Samples replayed (sum of `n` over replays).
+    pub samples: u64,
+    /// Plant substeps taken (sum of [`Plant::substeps_taken`]).
+    pub substeps: u64,
+    /// `linear_exact` transitions computed (sum of [`Plant::discretisations`]).
+    pub discretisations: u64,
+    /// Time in [`Plant::configure`] (ns, summed over threads).
+    pub configure_ns: u64,
+    /// Time in the replay loops (ns, summed over threads).
+    pub run_ns: u64,
+}
+
+struct AtomicStats([std::sync::atomic::AtomicU64; 6]);
+
+impl AtomicStats {
+    fn add(
+        &self,
+        n: usize,
+        plant: &Plant,
+        configure: std::time::Duration,
+        run: std::time::Duration,
+    ) {
+        use std::sync::atomic::Ordering::Relaxed;
+        let v = [
+            1,
+            n as u64,
+            plant.substeps_taken(),
+            plant.discretisations(),
+            configure.as_nanos() as u64,
+            run.as_nanos() as u64,
+        ];
+        for (a, v) in self.0.iter().zip(v) {
+            a.fetch_add(v, Relaxed);
+        }
+    }
+}
+
+#[allow(clippy::declare_interior_mutable_const)]
+const ZERO: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+static STATS: AtomicStats = AtomicStats([ZERO; 6]);
+
+/// The replay counters of this process so far (differences between two calls measure a
+/// stage).
+pub fn replay_stats() -> ReplayStats {
+    use std::sync::atomic::Ordering::Relaxed;
+    let v: Vec<u64> = STATS.0.iter().map(|a| a.load(Relaxed)).collect();
+    ReplayStats {
+        replays: v[0],
+        samples: v[1],
+        substeps: v[2],
+        discretisations: v[3],
+        configure_ns: v[4],
+        run_ns: v[5],
+    }
 }
 
 /// Sensor offsets: per channel, the mean of measured − model over `range` (channel's SI
