@@ -78,8 +78,7 @@ fn main() {
         let next_start = snaps.get(i + 1).map(|n| n.1);
         let stop = ends
             .iter()
-            .filter(|e| next_start.is_none_or(|t| e.0 < t))
-            .last()
+            .rfind(|e| next_start.is_none_or(|t| e.0 < t))
             .copied()
             .unwrap_or(end);
         row(&s.0, s, stop);
