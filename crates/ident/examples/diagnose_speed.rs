@@ -47,6 +47,7 @@ fn main() {
     };
     if std::env::var("SESSION").is_ok_and(|v| v == "1") {
         opts.integration_max_cost = ehactl_ident::session::USER_INTEGRATION_COST;
+        opts.integration_min_cost = ehactl_ident::session::USER_INTEGRATION_MIN_COST;
         opts.greybox = true;
     }
     let case_len = record.len();

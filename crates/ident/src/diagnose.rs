@@ -63,6 +63,11 @@ pub struct Options {
     /// reported and added to the noise floor, so it is never blamed on an effect. Default
     /// [`crate::replay::DEFAULT_INTEGRATION_COST`].
     pub integration_max_cost: f64,
+    /// Smallest replay cost factor the integration choice may take when the config's
+    /// substeps are more accurate than required (≥ 0.5; 1 = never fewer than the config's,
+    /// the library default: the evaluations' figures rest on it), see
+    /// [`crate::replay::choose_integration_between`].
+    pub integration_min_cost: f64,
     /// Run the grey-box extension ([`crate::greybox`]) when the catalogue is exhausted (the
     /// held-out residual of the catalogue model is not noise). Off in the library default
     /// (the synthetic suites measure the catalogue); on in `ehactl diagnose` and Python.
@@ -82,6 +87,7 @@ impl Default for Options {
             max_fit_samples: 12_000,
             sensor_offsets: false,
             integration_max_cost: crate::replay::DEFAULT_INTEGRATION_COST,
+            integration_min_cost: 1.0,
             greybox: false,
         }
     }
@@ -620,11 +626,12 @@ fn phase_nominal<'a>(
         }
     );
     let n_cost = n_fit.min(opts.max_fit_samples.max(100));
-    let (fit_base, integration) = crate::replay::choose_integration(
+    let (fit_base, integration) = crate::replay::choose_integration_between(
         &replay_params(nominal, rec),
         rec,
         n_cost,
         opts.drive,
+        opts.integration_min_cost,
         opts.integration_max_cost,
     );
     let mut val_base = replay_params(nominal, val_rec);

@@ -108,7 +108,9 @@ pub fn replay_with(
         }
         Drive::Recorded => None,
     };
+    let t_start = std::time::Instant::now();
     let mut plant = Plant::configure(params, rec.dt).map_err(|e| e.to_string())?;
+    let t_configured = std::time::Instant::now();
     let n = n.min(rec.len());
     let kinds: Vec<ChannelKind> = rec.channels.iter().map(|c| c.kind).collect();
     let mut y: Vec<Vec<f64>> = kinds.iter().map(|_| Vec::with_capacity(n)).collect();
@@ -135,6 +137,7 @@ pub fn replay_with(
             }
         }
     }
+    STATS.add(n, &plant, t_configured - t_start, t_configured.elapsed());
     let offsets = vec![0.0; y.len()];
     Ok(Replay {
         y,
@@ -142,6 +145,69 @@ pub fn replay_with(
         failed,
         offsets,
     })
+}
+
+/// Cumulative counters of every replay in this process ([`replay_stats`]): what a diagnosis
+/// spends its time on (BENCHMARKS.md "Diagnosis speed"). Relaxed atomics, one update per
+/// replay (a replay takes milliseconds), so counting costs nothing measurable.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReplayStats {
+    /// Replays run.
+    pub replays: u64,
+    /// Samples replayed (sum of `n` over replays).
+    pub samples: u64,
+    /// Plant substeps taken (sum of [`Plant::substeps_taken`]).
+    pub substeps: u64,
+    /// `linear_exact` transitions computed (sum of [`Plant::discretisations`]).
+    pub discretisations: u64,
+    /// Time in [`Plant::configure`] (ns, summed over threads).
+    pub configure_ns: u64,
+    /// Time in the replay loops (ns, summed over threads).
+    pub run_ns: u64,
+}
+
+struct AtomicStats([std::sync::atomic::AtomicU64; 6]);
+
+impl AtomicStats {
+    fn add(
+        &self,
+        n: usize,
+        plant: &Plant,
+        configure: std::time::Duration,
+        run: std::time::Duration,
+    ) {
+        use std::sync::atomic::Ordering::Relaxed;
+        let v = [
+            1,
+            n as u64,
+            plant.substeps_taken(),
+            plant.discretisations(),
+            configure.as_nanos() as u64,
+            run.as_nanos() as u64,
+        ];
+        for (a, v) in self.0.iter().zip(v) {
+            a.fetch_add(v, Relaxed);
+        }
+    }
+}
+
+#[allow(clippy::declare_interior_mutable_const)]
+const ZERO: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+static STATS: AtomicStats = AtomicStats([ZERO; 6]);
+
+/// The replay counters of this process so far (differences between two calls measure a
+/// stage).
+pub fn replay_stats() -> ReplayStats {
+    use std::sync::atomic::Ordering::Relaxed;
+    let v: Vec<u64> = STATS.0.iter().map(|a| a.load(Relaxed)).collect();
+    ReplayStats {
+        replays: v[0],
+        samples: v[1],
+        substeps: v[2],
+        discretisations: v[3],
+        configure_ns: v[4],
+        run_ns: v[5],
+    }
 }
 
 /// Sensor offsets: per channel, the mean of measured − model over `range` (channel's SI
@@ -298,6 +364,22 @@ pub fn choose_integration(
     drive: Drive,
     max_cost: f64,
 ) -> (PlantParams, IntegrationCheck) {
+    choose_integration_between(p, rec, n, drive, 1.0, max_cost)
+}
+
+/// [`choose_integration`] that may also take fewer substeps than the config's N, down to
+/// `min_cost` × N (at least half of N; 1 = never fewer), where N leaves less than half the
+/// allowed error: the fewest that leave at most half of it by their own step-halving check
+/// (first order: error ∝ step). `ehactl diagnose` uses
+/// [`crate::session::USER_INTEGRATION_MIN_COST`].
+pub fn choose_integration_between(
+    p: &PlantParams,
+    rec: &Record,
+    n: usize,
+    drive: Drive,
+    min_cost: f64,
+    max_cost: f64,
+) -> (PlantParams, IntegrationCheck) {
     let n = n.min(rec.len());
     let mut p = p.clone();
     let sd: Vec<f64> = rec
@@ -330,9 +412,10 @@ pub fn choose_integration(
         a.integration.substeps = ns;
         let mut b = p.clone();
         b.integration.substeps = 2 * ns;
-        match (
-            replay_with(&a, rec, n, drive),
-            replay_with(&b, rec, n, drive),
+        // The two replays are independent: one per core.
+        match rayon::join(
+            || replay_with(&a, rec, n, drive),
+            || replay_with(&b, rec, n, drive),
         ) {
             (Ok(a), Ok(b)) => {
                 a.y.iter()
@@ -373,6 +456,24 @@ pub fn choose_integration(
         let next = ((ns as f64 * r * 1.2).ceil() as u32).clamp(ns + 1, cap);
         ns = next;
         err = step_halving(&p, ns);
+    }
+    // Cheaper when the config's substeps are far more accurate than required: the fewest
+    // that leave at most half the allowed error (first order: error ∝ step), but no fewer
+    // than half the config's (ω·h at most twice the config's rule, e.g. 0.5 for the default
+    // 0.25: the explicit mechanics stay well inside their stability limit ω·h < 2 when the
+    // fit moves the parameters, a mount stiffness up to 10× its start included), checked by
+    // step halving like any other choice and kept only when it holds.
+    let floor_ns = ((n0 as f64 * min_cost.clamp(0.5, 1.0)).ceil() as u32).max(1);
+    if ns == n0 && floor_ns < n0 {
+        let r = worst(&err);
+        let fewer = ((n0 as f64 * r / 0.5).ceil() as u32).max(floor_ns);
+        if r.is_finite() && fewer < n0 {
+            let e = step_halving(&p, fewer);
+            if worst(&e) <= 0.5 {
+                ns = fewer;
+                err = e;
+            }
+        }
     }
     let met = worst(&err) <= 1.0;
     p.integration.substeps = ns;

@@ -155,6 +155,13 @@ pub fn config_mismatch(cfg: &RigConfig, logged: &Value) -> Vec<String> {
 /// counted as noise.
 pub const USER_INTEGRATION_COST: f64 = 4.0;
 
+/// Smallest replay cost factor of the integration choice for `ehactl diagnose` and the Python
+/// bindings ([`Options::integration_min_cost`]): where the config's substeps leave less than
+/// half the allowed integration error, down to half of them (the MTS records: 10 → 5
+/// substeps per sample, error still ≤ 0.3 × the noise floor by step halving; BENCHMARKS.md
+/// "Diagnosis speed").
+pub const USER_INTEGRATION_MIN_COST: f64 = 0.5;
+
 /// Diagnose `data_path` (CSV or ehactl MCAP) against the nominal `cfg` (labelled
 /// `config_label` in the report), holding out `validate` or the last 30 %; write the report to
 /// `out` when given.
@@ -272,6 +279,7 @@ pub fn run(
         drive,
         // Replay accuracy is checked and reported (DIAGNOSIS.md "Replay accuracy").
         integration_max_cost: USER_INTEGRATION_COST,
+        integration_min_cost: USER_INTEGRATION_MIN_COST,
         // Grey-box extension when the catalogue is exhausted (DIAGNOSIS.md "Grey-box").
         greybox: true,
         ..Options::default()

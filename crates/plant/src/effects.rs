@@ -401,8 +401,14 @@ impl PolynomialForce {
     #[inline]
     pub fn force(&self, x: f64, v: f64, p_a: f64, p_b: f64) -> (f64, f64) {
         let vs = self.smoothing_velocity.max(1e-12);
-        let th = (v / vs).tanh();
-        let dth = (1.0 - th * th) / vs;
+        // The smoothed sign only where a sign term is present (the replay's inner loop: a
+        // `tanh` per substep is a measurable share of a viscous-only law's cost).
+        let (th, dth) = if self.coulomb != 0.0 || self.pressure_coulomb != 0.0 {
+            let th = (v / vs).tanh();
+            (th, (1.0 - th * th) / vs)
+        } else {
+            (0.0, 0.0)
+        };
         let dp = p_a - p_b;
         let f = self.constant
             + self.viscous * v

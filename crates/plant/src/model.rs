@@ -943,6 +943,7 @@ impl Plant {
             let uc = self.delayed_command(t);
             self.advance_substep(t, uc);
         }
+        self.update_rod_force();
         self.cycle += 1;
         // Time from the cycle count, so it does not drift by summed rounding.
         self.state.t = self.cycle as f64 * self.control_dt;
@@ -1049,11 +1050,6 @@ impl Plant {
                 s.v = s.v.min(0.0);
             }
         }
-        s.rod_force = c.k_load * (s.x - c.x_contact)
-            + match c.mount {
-                Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
-                None => f_ext,
-            };
         self.state = s;
     }
 
@@ -1275,6 +1271,17 @@ impl Plant {
                 s.v = s.v.min(0.0);
             }
         }
+        self.state = s;
+    }
+
+    /// Rod force (N) at the current state, as the load cell sees it: load spring, mount (or
+    /// the external force on a rigid rod) and the grey-box force law. Only the sensors read
+    /// it, so [`Plant::step`] computes it once per control period, after the last substep,
+    /// not in every substep (the same value: it depends on the state alone).
+    fn update_rod_force(&mut self) {
+        let c = &self.c;
+        let s = &mut self.state;
+        let f_ext = s.external;
         s.rod_force = if c.body_mount {
             c.k_load * (s.x + s.x_load - c.x_contact) + f_ext
         } else {
@@ -1284,7 +1291,6 @@ impl Plant {
                     None => f_ext,
                 }
         } + self.poly.map_or(0.0, |f| f.force(s.x, s.v, s.p_a, s.p_b).0);
-        self.state = s;
     }
 }
 
