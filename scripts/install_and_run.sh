@@ -5,7 +5,7 @@
 #   2. the Python package `ehactl` with the extras a user needs (pandas, matplotlib, tqdm,
 #      Dask distributed; python-can and canopen for the simulated CAN devices) —
 #      `pip install "./bindings/python[all,devices]"`, a pyo3 extension built by maturin;
-#   3. a closed-loop run of the default config (seed 004 force loop) against the simulated
+#   3. a closed-loop run of the default config (Sahu 2022 force loop) against the simulated
 #      plant, logged to out/sahu2022_force.mcap. Extra arguments go to `ehactl run`.
 set -euo pipefail
 cd "$(dirname "$0")/.."

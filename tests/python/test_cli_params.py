@@ -12,7 +12,7 @@ BIN = os.environ.get("EHACTL_BIN", str(REPO / "target" / "release" / "ehactl"))
 FIXTURE = REPO / "tests" / "fixtures" / "ehactl_params.txt"
 
 
-# Lines added on purpose after the fixture: parameters added since (issue 16: the line
+# Lines added on purpose after the fixture: parameters added since (2026-11-26: the line
 # scheme and its segment-mode margin) and the rig sections' switches, which the hand-written table left out
 # (tests/rust/param_registry.rs checks their entries). In output order.
 ADDED = ("integration.max_omega_h_line", "integration.line_method", "control.mode", "setpoint.kind", "setpoint.sweep", "log.compression",

@@ -1,4 +1,4 @@
-"""A newcomer's rough edges (issue 13): text output without float noise, open-loop runs
+"""A newcomer's rough edges: text output without float noise, open-loop runs
 without a NaN error, the control mode spelled as in the config, sweeps logged decimated under
 mode-specific default names, exit code 1 documented. Logs are read with the official
 ``mcap`` reader."""
