@@ -46,7 +46,9 @@ def mts(tmp_path_factory):
 def law(d):
     """Damper law of the diagnosed model: nominal section plus the grey-box terms."""
     ext = d["extended_params"]
-    g = lambda k, v0: ext.get(f"effects.polynomial_force.{k}", v0)
+    def g(k, v0):
+        return ext.get(f"effects.polynomial_force.{k}", v0)
+
     return {"viscous": g("viscous", 2900.0), "coulomb": g("coulomb", 0.0)}
 
 

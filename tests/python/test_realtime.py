@@ -101,7 +101,6 @@ def assert_timing_consistent(run: dict, js: dict, n: int) -> None:
     assert int(tm["overrun_exec"].sum()) == js["overruns_exec"]
     assert not np.any(tm["overrun_exec"] & ~tm["overrun"]), "overrun_exec without an overrun"
     period_us = 1e6 / RATE_HZ
-    over = tm["overrun"]
     # Ours = the cycle's own CPU time exceeded the period; CPU time never exceeds the wall
     # execution time (1 µs for the two clocks being read a few ns apart), so every cycle
     # flagged ours also ran longer than the period on the wall clock.

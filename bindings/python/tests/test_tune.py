@@ -121,7 +121,7 @@ def test_critical_gain_agrees_with_the_frequency_response(force_cfg, force_fr):
     assert res.gains["control.pi.integral"] == pytest.approx(1.2 / res.details["T_pcr"])
 
 
-def test_model_based_reproduces_paper_gains(force_cfg, force_fr, tmp_path):
+def test_model_based_on_the_measured_loop_reproduces_paper_gains(force_cfg, force_fr, tmp_path):
     """004 §6.1 tuned K_P 0.57, I 386.24 for PM 60° at the widest bandwidth; our
     model-based design on the measured loop must come out near that, and the re-measured
     loop with the new gains must show the designed phase margin."""
