@@ -86,7 +86,8 @@ echo "== cross-build for aarch64 and armv7 (DEPLOY.md; Zig and cargo-zigbuild in
 CROSS_PRUNE=1 scripts/cross_build.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
 disk
 echo "== Python test dependencies and lint (into $VENV)"
-"$PY" -m pip install --quiet -r tests/python/requirements.txt
+# both lists now: tests/python also runs the docs' Python snippets (pandas, Dask, tqdm)
+"$PY" -m pip install --quiet -r tests/python/requirements.txt -r bindings/python/requirements-test.txt
 "$PY" -m ruff check
 if command -v npm >/dev/null; then
   (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; })
@@ -97,12 +98,10 @@ else
   echo "== cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
   scripts/qemu_run.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
 fi
-echo "== Python bindings for the simulated CANopen devices (python -m ehactl.devices)"
+echo "== Python bindings (pyo3 + maturin) with the simulated CANopen devices (python -m ehactl.devices): build, install into $VENV"
 "$PY" -m pip install --quiet "./bindings/python[devices]"
 echo "== Python tests"
 EHACTL_BIN="$PWD/target/release/ehactl" EHACTL_REQUIRE_BINDINGS=1 "$PY" -m pytest tests/python -q
-echo "== Python bindings (pyo3 + maturin): build, install, test"
-"$PY" -m pip install --quiet -r bindings/python/requirements-test.txt
-"$PY" -m pip install --quiet ./bindings/python
+echo "== Python bindings (pyo3 + maturin): tests"
 EHACTL_BIN="$PWD/target/release/ehactl" PY="$PY" bash -c 'cd bindings/python && "$PY" -m pytest tests -q'
 disk
