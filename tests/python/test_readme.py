@@ -67,7 +67,16 @@ def test_readme_shell_command(cmd):
     if argv[1:2] == ["diagnose"]:
         # the README prepares the reader for this answer on the real MR-damper record
         assert "unexplained" in r.stdout, r.stdout[-3000:]
-        assert (REPO / "out" / "diag" / "report.md").exists()
+        # and for these figures of the run (README.md, "Diagnosis" in the tour)
+        readme = " ".join((REPO / "README.md").read_text().split())
+        ext = float(re.search(r"extended (\d\.\d+)", r.stdout).group(1))
+        arx = float(re.search(r"ARX baseline held-out NRMSE (\d\.\d+)", r.stdout).group(1))
+        floor = float(re.search(r"`force` ([\d.]+)× floor", r.stdout).group(1))
+        report = (REPO / "out" / "diag" / "report.md").read_text().split("## Grey-box extension", 1)[1]
+        grey = float(re.search(r"\| \*\*overall\*\* \| \*\*[\d.]+\*\* \| \*\*([\d.]+)\*\* \|", report).group(1))
+        for phrase in (f"≈ {floor:.0f}× the noise floor", f"(held-out NRMSE {ext:.2f})",
+                       f"ARX model ({arx:.2f})", f"viscous + yield force on the rod, {grey:.2f}"):
+            assert phrase in readme, f"README.md should say: {phrase}"
 
 
 def run_python(code: str, tmp_path: Path) -> subprocess.CompletedProcess:
