@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Benchmark (issue 6): 200 closed-loop runs of 1 s of configs/sahu2022_force.toml through
+"""Benchmark (BENCHMARKS.md): 200 closed-loop runs of 1 s of configs/sahu2022_force.toml through
 the Python bindings — ehactl.run_many (rayon, all cores) vs a Python loop calling
 ehactl.run one by one. Every run returns all 33 result columns as NumPy arrays.
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmark of `ehactl diagnose` (issue 4): 10 s of 5 kHz data (50 000 samples, 4 channels)
+# Benchmark of `ehactl diagnose` : 10 s of 5 kHz data (50 000 samples, 4 channels)
 # with a hidden effect, every catalogue candidate fitted (2 worker threads), wall time of the
 # whole command measured RUNS times; prints each time and the median.
 # Usage: bench/diagnose_bench.sh [RUNS=3] [EFFECT=friction]

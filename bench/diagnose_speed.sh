@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Speed of `ehactl diagnose` (issue 17 item 8): a 4 s record at 2 kHz, 12 candidates, one
+# Speed of `ehactl diagnose` (BENCHMARKS.md): a 4 s record at 2 kHz, 12 candidates, one
 # hidden effect per case; each case run with 1 worker thread (A) and with all cores (B),
 # interleaved A/B, REPS times. Prints per run wall time, process CPU time (user+sys) and the
 # load average before the run; then the medians per configuration. Not a test.

@@ -1,5 +1,5 @@
-"""Fault-injection table for BENCHMARKS.md (issue 11): each fault injected RUNS times at a
-random moment into `ehactl run` of the seed 004 rig, in simulated and in wall-clock time.
+"""Fault-injection table for BENCHMARKS.md: each fault injected RUNS times at a
+random moment into `ehactl run` of the Sahu 2022 rig, in simulated and in wall-clock time.
 
     python3 bench/fault_injection.py [RUNS] [--seed N]
 

@@ -56,7 +56,7 @@ def main():
     hub_err = []
     threading.Thread(target=lambda: hub_err.extend(hub.stderr), daemon=True).start()
     rx, tx, bulk = rawmode(port), rawmode(port), rawmode(port)
-    stalled = [rawmode(port) for _ in range(a.stalled)]
+    _stalled = [rawmode(port) for _ in range(a.stalled)]  # kept referenced: their sockets stay open, unread
     time.sleep(0.5)  # past the join delays
     lat, stop = [], threading.Event()
 
@@ -120,7 +120,9 @@ def main():
     if not lat:
         print(f"stalled={a.stalled}: no probe received ({sent} sent)")
         return 1
-    p = lambda q: lat[min(len(lat) - 1, int(q * len(lat)))] * 1e3
+    def p(q: float) -> float:
+        return lat[min(len(lat) - 1, int(q * len(lat)))] * 1e3
+
     print(f"stalled={a.stalled} seconds={a.seconds:g} probes sent={sent} received={len(lat)} "
           f"p50={p(0.50):.3f} ms p99={p(0.99):.3f} ms max={lat[-1] * 1e3:.3f} ms "
           f"mean={statistics.mean(lat) * 1e3:.3f} ms; hub dropped {len(dropped)} client(s)")

@@ -1,4 +1,4 @@
-"""Wall-clock jitter benchmark (issue 7): `ehactl run --realtime` with the sim backend paced
+"""Wall-clock jitter benchmark (BENCHMARKS.md): `ehactl run --realtime` with the sim backend paced
 in real time at 5 kHz for 20 s per scenario, the control loop pinned to CPU 0:
 
   idle            nothing else started by this script

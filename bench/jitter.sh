@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Wall-clock jitter benchmark (issue 7): 20 s at 5 kHz per scenario with the sim backend
+# Wall-clock jitter benchmark (BENCHMARKS.md): 20 s at 5 kHz per scenario with the sim backend
 # paced in real time (idle, idle without busy-wait tail, other core loaded, same core loaded).
 # Prints a markdown table; writes bench/results/jitter.json and bench/results/jitter.png.
 # Extra arguments go to bench/jitter.py (e.g. --duration 5 --scenarios idle --note "...").

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Plain-Python fixed-step loop of ehactl's `linear_exact` scheme on sahu2022_force (issue 16).
+"""Plain-Python fixed-step loop of ehactl's `linear_exact` scheme on sahu2022_force.
 
 The "what a user would write" baseline next to ``bench/scipy_baseline.py``: the same plant,
 PI and setpoint as ``bench/scipy_baseline.py`` (noise and tones off), integrated with the SAME

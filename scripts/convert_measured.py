@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Convert the measured records in tests/data/measured/ to the CSV format of DESIGN.md
+"""Convert the measured records in tests/data/measured/ to the CSV format of docs/design.md
 (t, u, outputs in SI) for `ehactl diagnose`. Every scaling below is an ASSUMPTION (the
 sources give no units); it is repeated in the rig configs under configs/.
 
@@ -24,7 +24,9 @@ UTFSM MTS press (0A.txt/1A.txt, 1 kHz, CHANNEL0 x_m ×10 mm, CHANNEL1 F ×9806.6
       velocity, r = 0.70 at 0 A, 0.80 at 1 A), which is the plant's rod-force convention.
   Segment 5–15 s of each file (0.4–2 Hz sweep part, 2 mm amplitude) decimated to 500 Hz
   (every second sample, as in the earlier conversion, so x and ref are unchanged).
-Usage for the MTS part: python3 scripts/convert_measured.py ../shared/data/measured/utfsm-mts-servohydraulic-mrdamper
+Usage for the MTS part: python3 scripts/convert_measured.py MTS_DIR
+  (MTS_DIR: a directory holding 0A.txt and 1A.txt from Cap6_ModeloActuador/Preprocesamiento/Datos/
+  of https://github.com/DanielMaurelE/vRTHS_AMBC_MRdamper, commit d412cae0)
 Source files: 0A.txt sha256 7ac3fd85ba301805323fc8f20a967ff3e989babcbcd9719b9bf5aa9d734168d1,
               1A.txt sha256 5c25dcda73680c3c793157edfc2c37411a7c5e264ce1b4c28fe227bf5f03ce1a.
 """

@@ -3,7 +3,8 @@
 #   aarch64-unknown-linux-gnu      64-bit ARM (Raspberry Pi 4/5 64-bit OS, i.MX8, Jetson)
 #   armv7-unknown-linux-gnueabihf  32-bit ARM with hard float (BeagleBone, Pi 32-bit OS)
 # The Rust std for each target comes from rustup; the linker is Zig (PyPI `ziglang`)
-# driven by `cargo-zigbuild` (PyPI), so no system cross-gcc is needed. Binaries link
+# driven by `cargo-zigbuild` (PyPI), so no system cross-gcc is needed; both go into the active
+# virtual environment, else into .venv-test/ (created if missing), never the user's Python. Binaries link
 # against glibc GLIBC (default 2.31 = Debian 11 / Ubuntu 20.04 or newer on the board).
 # Usage: scripts/cross_build.sh [TARGET ...]   (default: both targets)
 # Env: GLIBC=2.31, EHACTL_REQUIRE_CROSS=1 to fail (not skip) when the toolchain is missing,
@@ -29,7 +30,15 @@ command -v rustup >/dev/null || skip "rustup not found: the target std libraries
 for t in "${targets[@]}"; do
   rustup target add "$t" >/dev/null 2>&1 || skip "rustup target add $t failed (no access to static.rust-lang.org?)"
 done
+if [ -z "${VIRTUAL_ENV:-}" ]; then
+  # Not inside a virtual environment: use the test suite's (.venv-test, as scripts/test_all.sh)
+  # so that Zig and cargo-zigbuild never go into the user's own Python.
+  venv="${EHACTL_TEST_VENV:-$PWD/.venv-test}"
+  [ -x "$venv/bin/python" ] || python3 -m venv "$venv" || skip "python3 -m venv $venv failed (Debian: python3-venv)"
+  export VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH"
+fi
 if ! command -v cargo-zigbuild >/dev/null || ! python3 -m ziglang version >/dev/null 2>&1; then
+  echo "== installing Zig (PyPI ziglang) and cargo-zigbuild into $VIRTUAL_ENV: the cross linker"
   python3 -m pip install --quiet ziglang cargo-zigbuild || skip "pip install ziglang cargo-zigbuild failed"
 fi
 command -v cargo-zigbuild >/dev/null || skip "cargo-zigbuild not on PATH after pip install"

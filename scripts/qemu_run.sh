@@ -4,7 +4,7 @@
 #   aarch64-unknown-linux-gnu      qemu-aarch64 -L /usr/aarch64-linux-gnu   (libc6-arm64-cross)
 #   armv7-unknown-linux-gnueabihf  qemu-arm     -L /usr/arm-linux-gnueabihf (libc6-armhf-cross)
 # QEMU and the target's glibc come from Debian's packages (qemu-user, libc6-*-cross,
-# libgcc-s1-*-cross), installed with apt-get if missing; no binfmt registration is needed
+# libgcc-s1-*-cross), installed with apt-get if missing (EHACTL_NO_APT=1: skip instead); no binfmt registration is needed
 # because qemu is called directly.
 # The check: the shipped rig config (configs/sahu2022_force.toml, simulated time, its full
 # 3.05 s) run natively (target/release/ehactl) and emulated; the summaries must agree
@@ -50,10 +50,11 @@ for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
 if [ ${#missing[@]} -gt 0 ]; then
+  [ "${EHACTL_NO_APT:-0}" != 1 ] || skip "missing ${missing[*]} and EHACTL_NO_APT=1"
   command -v apt-get >/dev/null || skip "apt-get not found to install ${missing[*]}"
   sudo=""
   [ "$(id -u)" = 0 ] || sudo="sudo -n"
-  echo "== installing ${missing[*]} (apt-get)"
+  echo "== installing ${missing[*]} (apt-get): QEMU and the ARM C libraries the emulated binaries load"
   { $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq \
       --no-install-recommends "${missing[@]}" >/dev/null; } || skip "apt-get install ${missing[*]} failed"
 fi

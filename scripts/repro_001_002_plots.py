@@ -1,8 +1,12 @@
 #!/usr/bin/env python3
-"""PNG plots of the seed-001/002 reproductions (REPRODUCTION.md, seeds 001 and 002).
+"""PNG plots of the Sirohi 2003 and Cristofori 2015 reproductions (REPRODUCTION.md, Sirohi 2003 and Cristofori 2015).
 
 Usage (from the repo root):
-    python3 scripts/repro_001_002_plots.py [--data docs/repro/data] [--out docs/repro] [--regen]
+    python3 scripts/repro_001_002_plots.py [--data DIR] [--out DIR | --docs] [--regen]
+
+Reads the tracked CSVs in docs/repro/data and writes the PNGs to out/repro/ by default; --docs
+refreshes the tracked PNGs (and, with --regen, CSVs) in docs/repro/ instead; --regen alone
+writes fresh CSVs to out/repro/data.
 
 The CSVs come from the Rust example
     cargo run --release -p ehactl-analysis --example repro_001_002_csv -- docs/repro/data
@@ -103,10 +107,15 @@ def plot_motion(d, out):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default=str(ROOT / "docs/repro/data"))
-    ap.add_argument("--out", default=str(ROOT / "docs/repro"))
+    ap.add_argument("--data", default=None, help="CSV directory (default docs/repro/data; out/repro/data with --regen)")
+    ap.add_argument("--out", default=str(ROOT / "out/repro"), help="PNG directory (default out/repro)")
+    ap.add_argument("--docs", action="store_true", help="refresh the tracked files in docs/repro/ instead")
     ap.add_argument("--regen", action="store_true", help="rerun the Rust example first")
     a = ap.parse_args()
+    if a.docs:
+        a.out = str(ROOT / "docs/repro")
+    if a.data is None:
+        a.data = str(ROOT / "docs/repro/data") if a.docs or not a.regen else str(pathlib.Path(a.out) / "data")
     data, out = pathlib.Path(a.data), pathlib.Path(a.out)
     if a.regen or not all((data / f).exists() for f in FILES):
         cmd = ["cargo", "run", "--release", "-p", "ehactl-analysis", "--example",

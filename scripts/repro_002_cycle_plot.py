@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Figure of the seed-002 crane cycle with counterbalance valves (REPRODUCTION.md, "Seed 002 —
+"""Figure of the Cristofori 2015 crane cycle with counterbalance valves (REPRODUCTION.md, "Cristofori 2015 —
 crane cycle with counterbalance valves"): docs/repro/002_cycle.png from
 docs/repro/data/002_cycle.csv, which `cargo run --release -p ehactl-analysis --example
 repro_002_cycle_csv -- docs/repro/data` writes (run here if the CSV is absent or --regen).
@@ -9,7 +9,11 @@ valve-port pressures of both sides (the CBVs' effect); CBV poppet openings; the 
 both chambers relative to beta(100 bar) (002 eq. 35-36, fig. 19); true piston velocity and the
 port-pressure estimate of 002 eq. 31/32 switched as 002 does.
 
-Usage: python3 scripts/repro_002_cycle_plot.py [--regen] [--out docs/repro]
+Usage: python3 scripts/repro_002_cycle_plot.py [--regen] [--out DIR | --docs]
+
+Reads the tracked docs/repro/data/002_cycle.csv and writes the PNG to out/repro/ by default;
+--docs refreshes the tracked files in docs/repro/ instead; --regen alone writes a fresh CSV
+to out/repro/data.
 """
 import argparse
 import csv
@@ -44,9 +48,12 @@ def shade(ax, t, ph):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--regen", action="store_true", help="rerun the Rust example first")
-    ap.add_argument("--out", type=pathlib.Path, default=ROOT / "docs" / "repro")
+    ap.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "repro", help="output directory (default out/repro)")
+    ap.add_argument("--docs", action="store_true", help="refresh the tracked files in docs/repro/ instead")
     a = ap.parse_args()
-    data = a.out / "data"
+    if a.docs:
+        a.out = ROOT / "docs" / "repro"
+    data = a.out / "data" if (a.docs or a.regen) else ROOT / "docs" / "repro" / "data"
     csv_path = data / "002_cycle.csv"
     if a.regen or not csv_path.exists():
         subprocess.run(["cargo", "run", "--release", "-p", "ehactl-analysis", "--example",
@@ -66,7 +73,7 @@ def main():
         if len(idx) and k in (0, 1, 2):
             ax[0].text(t[idx[len(idx) // 2]], 10.5, name, ha="center", fontsize=8)
     ax[0].set_ylim(-10, 12)
-    ax[0].set_title("seed 002 crane cycle, configs/cristofori2015_crane_cycle.toml (100 kN, CBVs on both lines)")
+    ax[0].set_title("Cristofori 2015 crane cycle, configs/cristofori2015_crane_cycle.toml (100 kN, CBVs on both lines)")
     ax[1].plot(t, d["p_chamber_a_pa"] / 1e6, "C3", label="chamber A (piston side)")
     ax[1].plot(t, d["p_port_a_pa"] / 1e6, "C3--", label="valve port A")
     ax[1].plot(t, d["p_chamber_b_pa"] / 1e6, "C0", label="chamber B (rod side)")
@@ -92,6 +99,7 @@ def main():
     for x in ax:
         x.grid(alpha=0.3)
     fig.tight_layout()
+    a.out.mkdir(parents=True, exist_ok=True)
     out = a.out / "002_cycle.png"
     fig.savefig(out, dpi=110)
     print(f"wrote {out}")

@@ -1,20 +1,20 @@
 #!/usr/bin/env python3
-"""Derived numbers quoted in REPRODUCTION.md that no ehactl command prints (issue 14).
+"""Derived numbers quoted in REPRODUCTION.md that no ehactl command prints.
 
 Each sub-command recomputes its figures from the seed papers' printed values alone, without
 the ehactl binary, so they are an independent check of what the docs say:
 
-  eq17   seed 004 eq. 17 with Table 1 (converged values) in the paper's continuous PI loop
+  eq17   Sahu 2022 eq. 17 with Table 1 (converged values) in the paper's continuous PI loop
          (K_P 0.57, I 386.24, load-cell gain 0.5097 mV/N): gain and phase crossovers, margins,
          closed-loop -3 dB bandwidth; Merritt's soft-load quantities (omega_h, delta_h, the
          slow pole) that show why eq. 17 does not describe Table 1's stiff load.
   refit  the K_Ct / K_Qv refit: the exact blocked-actuator model (chamber compliance V_t/4beta,
          mass M, damping C, load-cell spring K_L, Table 1's valve) fitted to eq. 17's
          valve-to-force response over 1-300 Hz; largest remaining error in dB and degrees.
-  eq20   seed 004 eq. 20 (valve flow curve of fig. 5) at the 785 N operating point against the
+  eq20   Sahu 2022 eq. 20 (valve flow curve of fig. 5) at the 785 N operating point against the
          refit K_Qv and Table 1's K_Qv (assumes fig. 5 is at full 10 V opening and P_d is the
          drop per metering edge: neither is stated).
-  woods  seed 001 eq. 12: Woods' approximation of the Bessel ratio against the exact
+  woods  Sirohi 2003 eq. 12: Woods' approximation of the Bessel ratio against the exact
          B_r = 2 J1(k)/(k J0(k)) (mpmath, independent of ehactl's continued fraction) at
          001's tube (1/8 in x 0.028 in, 2 cSt) and 350 Hz, i.e. omega/omega_v ~ 105.
 
@@ -28,7 +28,7 @@ import sys
 
 import numpy as np
 
-# Seed 004 Table 1 (converged values) and section 6.1.
+# Sahu 2022 Table 1 (converged values) and section 6.1.
 M, A_P, V_T, BETA = 0.893, 2.364e-4, 2.364e-6, 1.75e9
 K_QV, K_L, C_V, K_CT = 3.33e-3, 4.83e8, 10.587, 1.51e-10
 W_NV, ZETA = 1507.9, 0.59
@@ -89,7 +89,7 @@ def cmd_eq17():
         "free_mass_pole_Ap2_over_KCt_M_rad_s": A_P**2 / (K_CT * M),
         "static_gain_N_per_V": K_QV * A_P / K_CT,
     }
-    print("seed 004 eq. 17 with Table 1, continuous PI loop (K_P 0.57, I 386.24, 0.5097 mV/N):")
+    print("Sahu 2022 eq. 17 with Table 1, continuous PI loop (K_P 0.57, I 386.24, 0.5097 mV/N):")
     print(f"  gain crossover {gc:.1f} Hz, phase margin {pm:.1f} deg")
     print(f"  phase crossover {pc:.1f} Hz, gain margin {gm:.2f} dB")
     print(f"  closed-loop -3 dB bandwidth {bw:.0f} Hz")
@@ -160,7 +160,7 @@ def cmd_refit():
         "dominant_pole_rad_s": kct / (V_T / (4 * BETA) + A_P**2 / K_L),
         "table1_literal_max_error_db": float(max(abs(db_lit))),
     }
-    print("seed 004: exact blocked-actuator model fitted to eq. 17 (Table 1) over 1-300 Hz:")
+    print("Sahu 2022: exact blocked-actuator model fitted to eq. 17 (Table 1) over 1-300 Hz:")
     print(f"  K_Qv = {kqv:.4g} m^3/s/V, K_Ct = {kct:.4g} m^3/(s Pa)")
     print(f"  largest error {out['max_abs_error_db']:.3f} dB, {out['max_abs_error_deg']:.3f} deg")
     print(f"  static gain K_Qv A_p/K_Ct = {out['static_gain_N_per_V']:.1f} N/V; dominant pole "
@@ -177,7 +177,7 @@ def cmd_eq20(kqv_refit=4.129e-6):
     out = {"load_pressure_Pa": p_l, "edge_drop_Pa": p_d, "flow_m3_s": q,
            "K_Qv_curve_m3_s_V": kqv_curve, "curve_over_refit": kqv_curve / kqv_refit,
            "table1_over_curve": K_QV / kqv_curve}
-    print(f"seed 004 eq. 20 at 785 N: p_L {p_l / 1e6:.2f} MPa, {p_d / 1e6:.2f} MPa per edge, Q {q:.3e} m^3/s")
+    print(f"Sahu 2022 eq. 20 at 785 N: p_L {p_l / 1e6:.2f} MPa, {p_d / 1e6:.2f} MPa per edge, Q {q:.3e} m^3/s")
     print(f"  K_Qv from the curve (10 V) {kqv_curve:.3e} m^3/s/V: {out['curve_over_refit']:.1f} x the refit's "
           f"{kqv_refit:.3e}; Table 1's {K_QV:.2e} is {out['table1_over_curve']:.0f} x the curve's")
     return out
@@ -202,7 +202,7 @@ def cmd_woods():
            "factor_exact": [float(fe.real), float(fe.imag)],
            "factor_woods": [float(fw.real), float(fw.imag)],
            "real_part_rel_diff": re, "imag_part_rel_diff": im}
-    print(f"seed 001 eq. 12 at 350 Hz, 2 cSt, ID {d * 1e3:.3f} mm: omega/omega_v = {w / wv:.1f}")
+    print(f"Sirohi 2003 eq. 12 at 350 Hz, 2 cSt, ID {d * 1e3:.3f} mm: omega/omega_v = {w / wv:.1f}")
     print(f"  (1 - B_r)^-1/2 exact (mpmath Bessel) {complex(fe):.6f}, Woods {complex(fw):.6f}")
     print(f"  real (inertance) part differs by {100 * re:.4f} %, imaginary (loss) part by {100 * im:.2f} %")
     return out

@@ -1,14 +1,17 @@
 #!/usr/bin/env python3
-"""Figures of REPRODUCTION.md (issue 3), regenerated from the ehactl binary.
+"""Figures of REPRODUCTION.md, regenerated from the ehactl binary.
 
-- docs/repro/004_closed_loop_bode.png: seed 004's force loop (K_P 0.57, I 386.24, 5 kHz):
+- docs/repro/004_closed_loop_bode.png: Sahu 2022's force loop (K_P 0.57, I 386.24, 5 kHz):
   the nonlinear plant measured by `ehactl sweep` (785 N + 196 N stepped sine), the sampled
   linearisation of `ehactl analyze`, and the paper's eq. 17 evaluated with Table 1.
 - docs/repro/004_open_loop_bode.png: valve command -> force, open loop (`ehactl sweep --open-loop`).
-- docs/repro/003_rigid_vs_flexible.png: seed 003 figures 13-16 redone: PD positioning to 0.6 m
+- docs/repro/003_rigid_vs_flexible.png: Dindorf 2022 figures 13-16 redone: PD positioning to 0.6 m
   under the 21.8 Hz force, rigid (255 kg on the rod) vs flexible (SDD to the 250 kg load).
 
-Usage: python scripts/repro_plots.py [--ehactl target/release/ehactl] [--out docs/repro]
+Usage: python3 scripts/repro_plots.py [--ehactl target/release/ehactl] [--out DIR | --docs]
+
+Writes to out/repro/ by default; --docs refreshes the tracked figures in docs/repro/ (the names
+above) that REPRODUCTION.md and the README show.
 """
 import argparse
 import json
@@ -36,7 +39,7 @@ def ehactl_json(exe, *args):
 
 
 def eq17_closed_loop(f):
-    """Seed 004 eq. 17 with Table 1's converged values, ideal PI on load-cell volts."""
+    """Sahu 2022 eq. 17 with Table 1's converged values, ideal PI on load-cell volts."""
     M, A, Vt, beta = 0.893, 2.364e-4, 2.364e-6, 1.75e9
     KQv, KL, C, KCt = 3.33e-3, 4.83e8, 10.587, 1.51e-10
     wnv, z, g, kp, ki = 1507.9, 0.59, 0.5097e-3, 0.57, 386.24
@@ -60,8 +63,11 @@ def main():
     built = ROOT / "target" / "release" / "ehactl"
     # the workspace build, else the installed binary (scripts/install_and_run.sh)
     ap.add_argument("--ehactl", default=str(built) if built.exists() else (shutil.which("ehactl") or str(built)))
-    ap.add_argument("--out", type=pathlib.Path, default=ROOT / "docs" / "repro")
+    ap.add_argument("--out", type=pathlib.Path, default=ROOT / "out" / "repro", help="output directory (default out/repro)")
+    ap.add_argument("--docs", action="store_true", help="refresh the tracked figures in docs/repro/ instead")
     a = ap.parse_args()
+    if a.docs:
+        a.out = ROOT / "docs" / "repro"
     a.out.mkdir(parents=True, exist_ok=True)
     exe = a.ehactl
     cfg = str(ROOT / "configs" / "sahu2022_force.toml")
@@ -85,8 +91,8 @@ def main():
          label="ehactl sweep: nonlinear plant, 785 N ± 196 N", color="C3", marker="o", ls="none", ms=4)
     am.axhline(-3, color="k", lw=0.5, ls=":")
     bw = sw.get("bandwidth_hz")
-    am.set_title(f"Seed 004 force loop, K_P 0.57, I 386.24 s⁻¹: closed loop F/F_ref "
-                 f"(sweep −3 dB at {bw:.0f} Hz)" if bw else "Seed 004 closed loop")
+    am.set_title(f"Sahu 2022 force loop, K_P 0.57, I 386.24 s⁻¹: closed loop F/F_ref "
+                 f"(sweep −3 dB at {bw:.0f} Hz)" if bw else "Sahu 2022 closed loop")
     am.set_ylabel("|T| [dB]")
     apz.set_ylabel("∠T [°]")
     apz.set_xlabel("frequency [Hz]")
@@ -108,7 +114,7 @@ def main():
     fo = np.array([p["f_hz"] for p in swo["points"]])
     bode(am, apz, fo, [p["mag_db"] for p in swo["points"]], [p["phase_deg"] for p in swo["points"]],
          label="ehactl sweep --open-loop (nonlinear plant)", color="C3", marker="o", ls="none", ms=4)
-    am.set_title(f"Seed 004 open loop, valve command → force (−3 dB at {swo['bandwidth_hz']:.0f} Hz)")
+    am.set_title(f"Sahu 2022 open loop, valve command → force (−3 dB at {swo['bandwidth_hz']:.0f} Hz)")
     am.set_ylabel("|F/u| [dB N/V]")
     apz.set_ylabel("phase [°]")
     apz.set_xlabel("frequency [Hz]")
@@ -144,7 +150,7 @@ def main():
         for r in ax[:, col]:
             r.grid(True, lw=0.3)
     ax[0, 0].legend(fontsize=8)
-    ax[0, 0].set_title("Seed 003: PD to y_set = 0.6 m, F₀ 2500 N + 1000 N at 21.8 Hz")
+    ax[0, 0].set_title("Dindorf 2022: PD to y_set = 0.6 m, F₀ 2500 N + 1000 N at 21.8 Hz")
     ax[0, 1].set_title("zoom 2.5–2.7 s (steady vibration)")
     fig.tight_layout()
     fig.savefig(a.out / "003_rigid_vs_flexible.png", dpi=120)

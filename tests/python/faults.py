@@ -1,4 +1,4 @@
-"""Fault injection against the `ehactl run` process (issue 11), shared by
+"""Fault injection against the `ehactl run` process, shared by
 tests/python/test_reliability.py (a few runs per fault) and bench/fault_injection.py (the
 table in BENCHMARKS.md).
 

@@ -2,7 +2,7 @@
 it is: its own SDO server, its own NMT slave and heartbeat producer (python-can periodic
 task), its own PDO maps (``node.tpdo`` / ``node.rpdo`` read from the object dictionary after
 the master has mapped them) and its EMCY producer, loaded from the shipped EDS files
-(configs/eds). Written for issue 15 independently of ``ehactl.devices`` (which replaces NMT,
+(configs/eds). Written independently of ``ehactl.devices`` (which replaces NMT,
 heartbeat and PDO handling of LocalNode with its own): the only code on top is what a device
 program must add to LocalNode, namely
 

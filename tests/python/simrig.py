@@ -164,7 +164,7 @@ def trip_safe_setpoint(frames, rpdo_cob):
     on `rpdo_cob` (the safe stop queues it behind every control setpoint, then stops the I/O
     threads), which must carry setpoint 0. Not "the first RPDO 0 after the fault": the
     control command crosses zero during a run (the boom step's at ≈ 0.57 s), and such a
-    setpoint taken for the trip's made a heartbeat-loss trip look 90 ms early (issue 15)."""
+    setpoint taken for the trip's made a heartbeat-loss trip look 90 ms early."""
     rp = [f for f in frames if f["dir"] == "tx" and f["id"] == rpdo_cob]
     assert rp, f"no RPDO 0x{rpdo_cob:03X} on the bus"
     assert rp[-1]["data"] == "0000", f"last RPDO 0x{rpdo_cob:03X} is {rp[-1]}, not setpoint 0"

@@ -22,7 +22,7 @@ def run(*args):
 def test_analyze_json_has_the_issue_keys_and_says_the_loop_is_sampled():
     p = run("analyze", SAHU, "--json")
     assert p.returncode == 0, p.stderr
-    lines = [l for l in p.stdout.splitlines() if l.strip()]
+    lines = [ln for ln in p.stdout.splitlines() if ln.strip()]
     assert len(lines) == 1, "exactly one JSON object"
     a = json.loads(lines[0])
     for k in ("hydraulic_natural_frequency_hz", "min_natural_frequency_over_stroke_hz",

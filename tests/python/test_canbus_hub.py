@@ -3,13 +3,14 @@ import json
 import random
 import re
 import socket
+import subprocess
 import threading
 import time
 
 import can
 import pytest
 
-from canhub import hub
+from canhub import BIN, REPO, hub
 from ehactl_mcap import read_can, read_run
 
 
@@ -113,11 +114,6 @@ def test_malformed_input_is_reported_and_does_not_break_the_bus():
 
 # --- `ehactl run --hal canopen`: argument and start-up errors (the end-to-end runs with the
 # --- simulated devices live with the devices' tests).
-import pathlib
-import subprocess
-
-from canhub import BIN, REPO
-
 BOOM = REPO / "configs" / "dindorf2022_boom.toml"
 
 
@@ -126,7 +122,7 @@ def run_cli(*args):
 
 
 def one_line(stderr):
-    lines = [l for l in stderr.splitlines() if l.strip()]
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
     assert len(lines) == 1, stderr
     assert "panicked" not in stderr
     return lines[0]
@@ -158,7 +154,7 @@ def startup_failure(r, out):
     no cycle records. Returns (reason line, summary, /can frames)."""
     assert r.returncode == 4, r
     assert "panicked" not in r.stderr
-    lines = [l for l in r.stderr.splitlines() if l.strip()]
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 2 and lines[1] == f"ehactl: start-up attempt logged to {out}", r.stderr
     run = read_run(out)
     summary = json.loads(r.stdout.strip().splitlines()[-1])
@@ -228,7 +224,9 @@ def test_bus_overload_is_refused_by_check_config(tmp_path):
     line = one_line(r.stderr)
     # Worst-case frame length 8N + 47 + floor((34 + 8N - 1)/4) bits: SYNC, position (4),
     # setpoint (2), valve status (4) per SYNC, plus two 1-byte heartbeats every 20 ms.
-    bits = lambda n: 8 * n + 47 + (34 + 8 * n - 1) // 4
+    def bits(n: int) -> int:
+        return 8 * n + 47 + (34 + 8 * n - 1) // 4
+
     per_sync = sum(bits(n) for n in (0, 4, 2, 4))
     assert per_sync == 320
     # + heartbeats of the two devices and of ehactl itself (master_heartbeat_ms), 20 ms each

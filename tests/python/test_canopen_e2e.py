@@ -1,4 +1,4 @@
-"""End to end over CAN (issue 5): `ehactl canbus hub`, the simulated devices
+"""End to end over CAN: `ehactl canbus hub`, the simulated devices
 (`python -m ehactl.devices`) and `ehactl run --hal canopen` closing the dindorf2022_boom
 position loop over socketcand; then one test per fault of the issue."""
 import json
@@ -138,7 +138,7 @@ def sim_final_position(duration, tmp_path):
 
 def test_boom_position_step_closes_over_can(tmp_path):
     """Hub + simulated devices + `ehactl run --hal canopen`: the piston reaches y_set = 0.6 m
-    (seed 003) and every CAN frame is in the MCAP log next to the cycle records."""
+    (Dindorf 2022) and every CAN frame is in the MCAP log next to the cycle records."""
     duration = 1.5
     with hub() as (_, port), devices(port, tmp_path) as dev:
         out = tmp_path / "can.mcap"
@@ -146,7 +146,7 @@ def test_boom_position_step_closes_over_can(tmp_path):
         assert rc == 0, why(summary, err)
         dsum = finish(dev)
     assert summary["trip"] is None
-    # PDO age check (issue 15): late TPDOs are counted, none reached the trip limit
+    # PDO age check: late TPDOs are counted, none reached the trip limit
     for d in ("transducer", "valve"):
         assert 0 <= summary["pdo_late"][d] <= summary["syncs_sent"], summary["pdo_late"]
         assert summary["pdo_max_age_syncs"][d] <= MAX_PDO_AGE_SYNCS
@@ -263,7 +263,7 @@ def test_runtime_fault_trips_with_safe_command(spec, reason, tmp_path):
                   if e["kind"] == "can_bus" and "consumer timeout" in e["channel"]]
         assert len(silent) == 1 and HB_TIMEOUT_S < silent[0] <= after_last, (silent, after_last)
     else:
-        # Issue 15: "an injected valve fault trips ehactl within 2 SYNC periods", counted in
+        # Requirement: "an injected valve fault trips ehactl within 2 SYNC periods", counted in
         # SYNCs on the /can log (one clock) from the valve's frame that reports the fault
         # (EMCY 0x0B0, or the first valve TPDO 0x1B0 with a status word other than ACTIVE
         # 0x000F) to the safe setpoint RPDO of the trip. Counting SYNCs, not wall ms, keeps

@@ -1,4 +1,4 @@
-"""Issue 15: devices built on the `canopen` package's own `LocalNode` (its SDO server, NMT
+"""Devices built on the `canopen` package's own `LocalNode` (its SDO server, NMT
 slave, heartbeat producer, PDO maps and EMCY producer, loaded from the shipped EDS files, with
 a small CiA 408 state machine on top: tests/python/localnode_devices.py, written apart from
 ehactl.devices) run a closed loop with `ehactl run --hal canopen` over the hub.
@@ -14,7 +14,6 @@ import tempfile
 import time
 
 import numpy as np
-import pytest
 
 from canhub import BIN, hub
 from ehactl_mcap import read_can, read_run

@@ -32,7 +32,7 @@ def test_bad_config_exits_2_with_one_message(tmp_path, old, new, expect):
         r = run(*cmd)
         assert r.returncode == 2, r
         assert r.stdout == ""
-        lines = [l for l in r.stderr.splitlines() if l.strip()]
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1, r.stderr
         for word in expect:
             assert word in lines[0], lines[0]

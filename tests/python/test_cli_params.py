@@ -12,7 +12,7 @@ BIN = os.environ.get("EHACTL_BIN", str(REPO / "target" / "release" / "ehactl"))
 FIXTURE = REPO / "tests" / "fixtures" / "ehactl_params.txt"
 
 
-# Lines added on purpose after the fixture: parameters added since (issue 16: the line
+# Lines added on purpose after the fixture: parameters added since (2026-11-26: the line
 # scheme and its segment-mode margin) and the rig sections' switches, which the hand-written table left out
 # (tests/rust/param_registry.rs checks their entries). In output order.
 ADDED = ("integration.max_omega_h_line", "integration.line_method", "control.mode", "setpoint.kind", "setpoint.sweep", "log.compression",
@@ -25,9 +25,9 @@ def test_params_output_is_unchanged_but_for_the_added_switches():
     assert r.stderr == ""
     old = FIXTURE.read_text().splitlines()
     lines = r.stdout.splitlines()
-    added = [l for l in lines if l.split(" ", 1)[0] in ADDED]
-    assert [l.split(" ", 1)[0] for l in added] == list(ADDED)
-    new = [l for l in lines if l.split(" ", 1)[0] not in ADDED]
+    added = [ln for ln in lines if ln.split(" ", 1)[0] in ADDED]
+    assert [ln.split(" ", 1)[0] for ln in added] == list(ADDED)
+    new = [ln for ln in lines if ln.split(" ", 1)[0] not in ADDED]
     assert len(old) > 170
     for i, (o, n) in enumerate(zip(old, new)):
         assert o == n, f"line {i + 1}:\n  was {o!r}\n  now {n!r}"

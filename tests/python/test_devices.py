@@ -286,7 +286,7 @@ def test_valve_state_machine_setpoint_only_in_active(rig):
     # HOLD (1011; INIT → DISABLED → HOLD by one control word): the hold setpoint 0x6314 acts
     va.sdo[0x6040].raw = 0x0003
     assert step(20, 8192) == (0x000B, 0)
-    # ACTIVE (1111): 8192 = 50 % → spool follows the first-order valve (T_z = 10 ms, seed 003)
+    # ACTIVE (1111): 8192 = 50 % → spool follows the first-order valve (T_z = 10 ms, Dindorf 2022)
     va.sdo[0x6040].raw = 0x0007
     n = 30
     status, actual = step(n, 8192)

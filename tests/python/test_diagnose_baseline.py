@@ -88,7 +88,7 @@ def test_arx_baseline_sjoberg_matches_numpy():
     est = np.genfromtxt(SJ / "estimation.csv", delimiter=",", names=True)
     val = np.genfromtxt(SJ / "validation.csv", delimiter=",", names=True)
     e = check(d, est["u"], est["p_a"], val["u"], val["p_a"], slice(0, None))
-    # A linear ARX on this split lands near 0.6 (issue 17 measured ARX(2,2,1): 0.635).
+    # A linear ARX on this split lands near 0.6 (ARX(2,2,1) measured 0.635).
     assert 0.5 < e < 0.7, e
 
 
@@ -100,7 +100,7 @@ def test_arx_baseline_mts_matches_numpy():
     n_fit = int(round(0.7 * n))
     e = check(d, rec["ref"][:n_fit], rec["x"][:n_fit], rec["ref"], rec["x"], slice(n_fit, None), "x")
     assert e < 0.05, e
-    # The load-cell force (kept since issue 17b): a linear ARX from `ref` cannot follow the
+    # The load-cell force (kept since 2026-11-23): a linear ARX from `ref` cannot follow the
     # MR damper's yield force, so it explains little of it.
     ef = check(d, rec["ref"][:n_fit], rec["force"][:n_fit], rec["ref"], rec["force"], slice(n_fit, None), "force")
     assert 0.5 < ef < 1.0, ef

@@ -71,7 +71,7 @@ def write_csv(path, rows, header="t,u,x,p_a,p_b"):
 def one_line_error(r, *words):
     assert r.returncode == 2, r
     assert r.stdout == ""
-    lines = [l for l in r.stderr.splitlines() if l.strip()]
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1, r.stderr
     for w in words:
         assert w in lines[0], lines[0]

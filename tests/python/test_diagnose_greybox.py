@@ -1,4 +1,4 @@
-"""Grey-box extension of `ehactl diagnose` on real data (issue 17, items 5, 6 and the real-data
+"""Grey-box extension of `ehactl diagnose` on real data (DIAGNOSIS.md "Grey-box extension" and the real-data
 "Done when" point): the UTFSM MTS press with an MR damper at 0 A and 1 A (the converted records
 keep the load-cell force), and the Sjöberg actuator (estimation half fitted, validation half
 held out).
@@ -46,7 +46,9 @@ def mts(tmp_path_factory):
 def law(d):
     """Damper law of the diagnosed model: nominal section plus the grey-box terms."""
     ext = d["extended_params"]
-    g = lambda k, v0: ext.get(f"effects.polynomial_force.{k}", v0)
+    def g(k, v0):
+        return ext.get(f"effects.polynomial_force.{k}", v0)
+
     return {"viscous": g("viscous", 2900.0), "coulomb": g("coulomb", 0.0)}
 
 
@@ -95,7 +97,7 @@ def test_mr_damper_current_gives_consistent_diagnoses(mts):
 def test_mts_ratios_to_arx_baseline(mts):
     for rec, (d, _) in mts.items():
         g = d["greybox"]
-        # Issue 17 target: extended ≤ 0.8 × the ARX baseline (overall held-out NRMSE). Met.
+        # Target: extended ≤ 0.8 × the ARX baseline (overall held-out NRMSE). Met.
         assert g["ratio_to_baseline"] <= 0.8, (rec, g["ratio_to_baseline"])
         assert g["ratio_to_baseline"] == pytest.approx(
             g["nrmse_validation"]["overall"] / d["nrmse_baseline"]["overall"], rel=1e-9)
@@ -120,7 +122,7 @@ def test_sjoberg_greybox_ratio(tmp_path):
                  "--data", str(SJ / "estimation.csv"), "--validate", str(SJ / "validation.csv"))
     g = d["greybox"]
     assert g is not None and g["accepted"], g
-    # Issue 17 target ≤ 0.8 × ARX: met, 0.743 (NRMSE 0.4612 vs 0.6208). Best reported
+    # Target ≤ 0.8 × ARX: met, 0.743 (NRMSE 0.4612 vs 0.6208). Best reported
     # black-box result on this split: NRMSE ≈ 0.28 (far better than ehactl).
     assert g["ratio_to_baseline"] <= 0.8, g["ratio_to_baseline"]
     assert g["nrmse_validation"]["overall"] == pytest.approx(0.4612, abs=0.002)

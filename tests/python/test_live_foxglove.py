@@ -137,7 +137,7 @@ def test_live_view_streams_the_log_channels(tmp_path: Path) -> None:
     assert "end" in kinds, kinds
     logs = [json.loads(p) for _, p in received["/log"]]
     assert len(logs) == len(received["/events"])
-    assert all(l["level"] in (2, 3, 4) and l["name"].startswith("ehactl/") for l in logs)
+    assert all(m["level"] in (2, 3, 4) and m["name"].startswith("ehactl/") for m in logs)
     assert received["/summary"], "no /summary at the end of the run"
     summ = json.loads(received["/summary"][-1][1])
     assert summ["cycles"] == js["cycles"]

@@ -1,4 +1,4 @@
-"""A newcomer's rough edges (issue 13): text output without float noise, open-loop runs
+"""A newcomer's rough edges: text output without float noise, open-loop runs
 without a NaN error, the control mode spelled as in the config, sweeps logged decimated under
 mode-specific default names, exit code 1 documented. Logs are read with the official
 ``mcap`` reader."""
@@ -85,3 +85,52 @@ def test_exit_code_1_is_documented_and_used(tmp_path):
     readme = (REPO / "README.md").read_text()
     codes = readme[readme.index("Exit codes:"):][:600]
     assert re.search(r"\b1 [a-z]", codes), codes
+
+
+def test_missing_config_names_its_path_once(tmp_path):
+    missing = tmp_path / "nope.toml"
+    for cmd in (["run", str(missing)], ["check-config", str(missing)], ["analyze", str(missing)],
+                ["diagnose", "--config", str(missing), "--data", str(REPO / "tests" / "data" / "measured" / "utfsm_mts" / "1A_5to15s.csv")]):
+        r = ehactl(*cmd)
+        assert r.returncode == 2, (cmd, r.stderr)
+        assert "cannot read config file" in r.stderr, r.stderr
+        assert r.stderr.count(str(missing)) == 1, r.stderr
+
+
+def test_check_config_lists_grey_box_terms(tmp_path):
+    # a diagnose output: catalogue effects plus the grey-box force and flow laws
+    cfg = REPO / "docs" / "diagnosis" / "utfsm_mts_1A" / "extended.toml"
+    text = cfg.read_text()
+    assert "[effects.polynomial_force]" in text and "[effects.polynomial_flow]" in text
+    r = ehactl("check-config", str(cfg))
+    assert r.returncode == 0, r.stderr
+    assert "polynomial_force" in r.stdout and "polynomial_flow" in r.stdout, r.stdout
+    off = tmp_path / "off.toml"
+    head, flow = text.split("[effects.polynomial_flow]\n", 1)
+    assert re.match(r"(?s)(?:(?!\n\[).)*\nenabled = true\n", "\n" + flow), flow[:200]
+    off.write_text(head + "[effects.polynomial_flow]\n" + flow.replace("enabled = true\n", "enabled = false\n", 1))
+    r = ehactl("check-config", str(off))
+    assert r.returncode == 0, r.stderr
+    assert "polynomial_force" in r.stdout and "polynomial_flow" not in r.stdout, r.stdout
+
+
+def test_analyze_text_formats_the_operating_point_with_units():
+    r = ehactl("analyze", str(FORCE_CONFIG))
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if "operating point" in ln)
+    assert "{" not in line and '"' not in line, line
+    assert not NOISE.search(line), line
+    for unit in (" N,", " V,", " MPa,"):
+        assert unit in line, line
+    assert re.search(r"position -?[\d.]+(e-?\d+)? (m|mm|µm)\b", line), line
+
+
+def test_realtime_overrun_line_reads_as_a_sentence(tmp_path):
+    r = ehactl("run", str(FORCE_CONFIG), "--realtime", "--duration", "0.05", "--out", str(tmp_path / "rt.mcap"))
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if ln.strip().startswith("overruns"))
+    m = re.search(r"overruns\s+(\d+) of (\d+) cycles: (\d+) ours \(CPU time over the period\), (\d+) thread not running "
+                  r"\(late start or preempted\); longest streak (\d+), (\d+) deadlines skipped, policy \w+", line)
+    assert m, line
+    total, cycles, ours, not_running = (int(m.group(i)) for i in range(1, 5))
+    assert total == ours + not_running and cycles > 0, line

@@ -96,12 +96,11 @@ def assert_timing_consistent(run: dict, js: dict, n: int) -> None:
     exact_p50 = float(np.quantile(tm["period_us"][1:], 0.5, method="inverted_cdf"))
     assert exact_p50 - 1e-6 <= js["period_p50_us"] <= exact_p50 * (1 + 1 / 256) + 1e-3
     assert js["longest_overrun_streak"] <= js["overruns"]
-    # The overrun split (issue 16): our execution vs a late start, per cycle and in total.
+    # The overrun split (DEPLOY.md §8): our execution vs a late start, per cycle and in total.
     assert js["overruns_exec"] + js["overruns_wakeup"] == js["overruns"]
     assert int(tm["overrun_exec"].sum()) == js["overruns_exec"]
     assert not np.any(tm["overrun_exec"] & ~tm["overrun"]), "overrun_exec without an overrun"
     period_us = 1e6 / RATE_HZ
-    over = tm["overrun"]
     # Ours = the cycle's own CPU time exceeded the period; CPU time never exceeds the wall
     # execution time (1 µs for the two clocks being read a few ns apart), so every cycle
     # flagged ours also ran longer than the period on the wall clock.

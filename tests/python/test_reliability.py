@@ -1,4 +1,4 @@
-"""Issue 11: the run path loses no file of the user's, no log, and bounds what a client or a
+"""The run path loses no file of the user's, no log, and bounds what a client or a
 fault can do. Every test here failed before the fix it covers (see the issue's defects 1–7).
 Logs are read back with the official `mcap` reader, CRCs validated."""
 

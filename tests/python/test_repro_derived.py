@@ -1,4 +1,4 @@
-"""The derived numbers REPRODUCTION.md quotes from scripts/repro_derived.py (issue 14).
+"""The derived numbers REPRODUCTION.md quotes from scripts/repro_derived.py.
 
 The script recomputes them from the seed papers' printed values alone; this test pins them to
 the precision the document prints, so the text and the script cannot drift apart.

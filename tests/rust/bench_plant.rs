@@ -1,5 +1,5 @@
 //! Accuracy against cost of the plant integration, per shipped rig (BENCHMARKS.md, section
-//! "Plant integration: accuracy against cost per rig", issue 16).
+//! "Plant integration: accuracy against cost per rig", in docs/benchmarks-archive.md).
 //!
 //! Run with `cargo bench -p ehactl-tests --bench plant_accuracy` (all rigs) or
 //! `cargo bench -p ehactl-tests --bench plant_accuracy -- sahu2022_force ideko_machine_tool`.
@@ -230,7 +230,7 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
         max_omega_h: Some(0.25),
         shipped: false,
     });
-    // Before issue 16 the automatic count was fixed at the smallest chamber volumes
+    // Before 2026-11-26 the automatic count was fixed at the smallest chamber volumes
     // (stroke ends) for the whole run: that is `substeps` = the worst-case count.
     if ig.method == ee {
         let worst = build_plant(&with_line(cfg, ee, sy, None, 0, None))
@@ -264,7 +264,7 @@ fn candidates(cfg: &RigConfig) -> Vec<Candidate> {
         });
     }
     let e = &cfg.plant.effects;
-    // Line rigs (issue 16, short stiff lines): both line schemes at fixed substeps and the
+    // Line rigs (short stiff lines): both line schemes at fixed substeps and the
     // implicit scheme's automatic rule.
     if e.line_dynamics.as_ref().is_some_and(|l| l.enabled) {
         push(Candidate {

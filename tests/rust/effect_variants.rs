@@ -1,4 +1,4 @@
-//! Structural effect variants of the plant (issue 17) against closed forms written here from
+//! Structural effect variants of the plant against closed forms written here from
 //! their sources, not from the plant code: the entrained-air bulk modulus of Yu et al. (1994)
 //! as given by Gholizadeh et al. (2011), the pressure-compensated pump's droop and flow-limit
 //! collapse, the amplifier dead zone, asymmetric spool limits, the tone phase, the static

@@ -1,4 +1,4 @@
-//! Fuzz targets for every parser that takes outside input (issue 11): config TOML, data CSV,
+//! Fuzz targets for every parser that takes outside input: config TOML, data CSV,
 //! MCAP input (diagnose and `ehactl recover`), control-socket requests, socketcand lines and
 //! CAN frames / SDO responses into the master. Property-based (proptest): random bytes and
 //! structured mutations of valid inputs; the property is "a clear error or a valid result,
@@ -248,7 +248,7 @@ proptest! {
     }
 }
 
-/// A real ehactl log (0.2 s of the seed 004 rig) for the MCAP target, made once.
+/// A real ehactl log (0.2 s of the Sahu 2022 rig) for the MCAP target, made once.
 fn sample_log() -> &'static Vec<u8> {
     static L: OnceLock<Vec<u8>> = OnceLock::new();
     L.get_or_init(|| {

@@ -63,7 +63,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 p.mechanics.load_stiffness = k_load;
                 p.mechanics.load_contact_position = pos * stroke;
             }
-            // The structural variants of issue 17 on the odd segment counts.
+            // The structural effect variants on the odd segment counts.
             let alt = nseg % 2 == 1;
             p.effects.friction = fric.then_some(Friction {
                 enabled: true,
@@ -191,7 +191,7 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 ..Default::default()
             };
             p.sensors.force.noise = 1.0;
-            // Both line schemes (issue 16), decorrelated from the friction model.
+            // Both line schemes, decorrelated from the friction model.
             p.integration.line_method = if nseg % 3 == 0 {
                 LineMethod::Implicit
             } else {

@@ -17,7 +17,7 @@ fn fixture() -> Vec<String> {
 
 /// Entries added on purpose after the fixture: the switches of the rig sections, which the
 /// hand-written table left out (so `ehactl params` did not show them and the loader checked
-/// them only through serde), and parameters added since (issue 16: the line scheme and its segment-mode margin).
+/// them only through serde), and parameters added since (2026-11-26: the line scheme and its segment-mode margin).
 /// Their choices are the enums' serde names.
 const ADDED: [(&str, &str); 8] = [
     (

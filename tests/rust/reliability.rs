@@ -1,4 +1,4 @@
-//! Issue 11 defects, each reproduced as it was found: config values that passed
+//! Run-path defects found by review and fuzzing, each reproduced as it was found: config values that passed
 //! validation and then tripped (or crawled) at run time, live `set` values that were
 //! accepted although absurd, and a loop that ran bang-bang at ±10 V without a trip.
 
@@ -67,7 +67,7 @@ fn a_line_of_absurd_diameter_is_refused_not_run_at_100000_substeps() {
 
 #[test]
 fn substeps_beyond_the_cap_name_the_reason() {
-    // A plausible-looking but extremely stiff rig: 1e-12 m³ dead volumes on seed 001's lines.
+    // A plausible-looking but extremely stiff rig: 1e-12 m³ dead volumes on Sirohi 2003's lines.
     let t = text("sirohi2003_lines.toml");
     let t = t
         .lines()

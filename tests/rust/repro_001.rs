@@ -1,9 +1,9 @@
-//! Seed 001 (Sirohi & Chopra) reproduction: the transfer-matrix model of the piezohydraulic
+//! Sirohi 2003 (Sirohi & Chopra) reproduction: the transfer-matrix model of the piezohydraulic
 //! circuit (eq. 1–22, dissipative lines eq. 6–12) against the paper's trends, and the plant's
 //! lumped R-L-C line (002 eq. 9–17) against the transfer matrix as the segments grow.
 //!
 //! Run: `cargo test --release -p ehactl-tests --test repro_001 -- --nocapture` (prints the
-//! figures quoted in REPRODUCTION.md, "Seed 001").
+//! figures quoted in REPRODUCTION.md, "Sirohi 2003").
 
 use ehactl_analysis::linear::{self, Output};
 use ehactl_analysis::oppoint;

@@ -1,4 +1,4 @@
-//! Seed 002 (Cristofori & Vacca) reproduction: piston motion estimated from the pressures at
+//! Cristofori 2015 (Cristofori & Vacca) reproduction: piston motion estimated from the pressures at
 //! the valve ports (eq. 1–36) on a simulation of configs/cristofori2015_crane.toml, whose
 //! lines make the port pressures differ from the chamber pressures; and the swing of the
 //! pressure-dependent bulk modulus (eq. 35–36) over the run.
@@ -224,7 +224,7 @@ fn bulk_modulus_swing_over_the_run() {
     // span the working range. The config's K_b gives that over tank-to-supply (±1 %) ...
     assert!((swing_range - 0.10).abs() < 0.01, "{swing_range}");
     // ... while this lift at constant load only spans a few MPa (reported, see
-    // REPRODUCTION.md, seed 002): the swing over the run must be the law applied to its range.
+    // REPRODUCTION.md, Cristofori 2015): the swing over the run must be the law applied to its range.
     assert!(swing > 0.0 && swing < swing_range, "{swing}");
 }
 
@@ -494,7 +494,7 @@ fn crane_cycle_with_counterbalance_valves() {
 
 /// The cycle at the substeps the automatic rule picks is converged: within 0.05 % (rod
 /// position) and 0.5 % (chamber pressures) NRMSE of the same cycle at 8× those substeps. Before
-/// the CBV node handed the chamber the volume it actually passed on (issue 16), the automatic
+/// the CBV node handed the chamber the volume it actually passed on, the automatic
 /// 46 substeps chattered numerically in the raise (position 10 % NRMSE, p_A 66 %).
 #[test]
 fn crane_cycle_is_converged_at_the_automatic_step() {

@@ -1,4 +1,4 @@
-//! The seed papers' published numbers (issue 3, tolerances issue 14). Each test prints the
+//! The seed papers' published numbers (REPRODUCTION.md). Each test prints the
 //! figures it measured; REPRODUCTION.md tabulates them with their status (reproduced,
 //! calibrated, missed, or no paper number).
 //!
@@ -52,7 +52,7 @@ fn seed004_margins_of_the_sampled_loop() {
         "sampled {pm}° vs continuous {pm_c}° (ωT/2 {zoh}°)"
     );
     // |L| = 1 crossover, paper 99.63 Hz: MISSED. ehactl 93.4 Hz continuous (−6.3 %), 95.9 Hz
-    // sampled (issue 16: the sampled figures are now those of the converged plant map; the
+    // sampled (since 2026-11-26 the sampled figures are now those of the converged plant map; the
     // 8-substep exponential-Euler map gave 96.07 Hz, 58.05°, 227.3 Hz, 8.84 dB, 209.2 Hz); the plant's slow pole sits 9 % below eq. 17's 66 Hz. Asserted at the measured
     // values (grid resolution 0.3 %) and as a miss of more than 5 %.
     assert!(

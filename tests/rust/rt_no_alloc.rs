@@ -122,7 +122,7 @@ fn no_allocation_per_cycle_after_start_up() {
 }
 
 /// The counterbalance-valve plant (crates/plant/src/cbv.rs) steps without allocating:
-/// raising then lowering through both CBVs of the seed-002 cycle config.
+/// raising then lowering through both CBVs of the Cristofori 2015 cycle config.
 #[test]
 fn counterbalance_valve_plant_step_does_not_allocate() {
     let cfg = config("cristofori2015_crane_cycle.toml");

@@ -1,6 +1,6 @@
 //! Unsteady (frequency-dependent) laminar friction of the plant's lumped line
 //! (`effects.line_dynamics.friction = "unsteady"`, Zielke 1968 weighting function, see
-//! crates/plant/src/line.rs) against the exact Bessel-function line impedance of seed 001
+//! crates/plant/src/line.rs) against the exact Bessel-function line impedance of Sirohi 2003
 //! eq. 6–8 (crates/analysis/src/tline.rs, `Friction::Bessel`).
 //!
 //! One segment of a long tube (1 m, 1.75 mm bore: 001's tube) is driven in the time domain by
@@ -142,7 +142,7 @@ fn unsteady_segment_impedance_matches_the_bessel_line() {
     }
 }
 
-/// Issue 16: the implicit line scheme steps without allocating either, also across the
+/// The implicit line scheme steps without allocating either, also across the
 /// automatic substep changes (its factors are re-computed in place, `Line::prepare`).
 #[test]
 fn implicit_line_scheme_steps_without_allocating() {
@@ -276,7 +276,7 @@ fn nrmse(f: &[f64], r: &[f64]) -> f64 {
     (ss / r.len() as f64).sqrt() / (hi - lo)
 }
 
-/// Issue 16, both seed-001 rigs against the `symplectic` line scheme converged at 1024
+/// Both Sirohi 2003 rigs against the `symplectic` line scheme converged at 1024
 /// substeps per period (segment mode ω·h = 0.031) — every run integrates the same lumped ODE:
 /// 1. as shipped (`max_omega_h_line = 1.5`: the segment modes at a stability margin, the
 ///    wave and chamber modes at ω·h ≤ 0.25): 22 substeps instead of 127, within the NRMSE

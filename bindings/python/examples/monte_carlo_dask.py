@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Monte Carlo robustness of a tuned loop on a Dask cluster: how the phase / gain margins and
-the tracking error of the seed 004 force loop spread over the rig's parameter uncertainty.
+the tracking error of the Sahu 2022 force loop spread over the rig's parameter uncertainty.
 
     python3 bindings/python/examples/monte_carlo_dask.py [--samples 200] [--workers 2]
     python3 bindings/python/examples/monte_carlo_dask.py --scheduler tcp://HOST:8786
@@ -8,7 +8,7 @@ the tracking error of the seed 004 force loop spread over the rig's parameter un
 1. Tune the PI loop of configs/sahu2022_force.toml for a 60° phase margin on the linearised
    loop (``tune.model_based``) — the design the controller would ship with.
 2. Draw ``--samples`` rigs around the nominal config, each parameter uniform within its
-   uncertainty (table UNCERTAINTY below: tighter for seed 004 Table 1 values, wider for the
+   uncertainty (table UNCERTAINTY below: tighter for Sahu 2022 Table 1 values, wider for the
    values the config marks "assumed" or that drift in service), seeded.
 3. For every rig, on the cluster: the linearised loop's margins and bandwidth
    (``ehactl.analyze``, one Dask task per chunk of rigs), and the RMS force error of the

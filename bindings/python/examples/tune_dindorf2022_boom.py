@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Tune the seed 003 boom PD position loop (configs/dindorf2022_boom.toml) and compare the
+"""Tune the Dindorf 2022 boom PD position loop (configs/dindorf2022_boom.toml) and compare the
 positioning and vibration under the 21.8 Hz excitation force with the config's gains.
 
     python3 bindings/python/examples/tune_dindorf2022_boom.py [--out out/tune_dindorf2022]
@@ -45,10 +45,10 @@ def main() -> None:
     for k, r in rows.items():
         print(f"{k:44s} {r['control.pd.kp']:8.1f} {r['control.pd.td'] * 1e3:7.3f} " + " ".join(f"{r[m]:14.4g}" for m in KEYS))
     runs = ehactl.run_many([cfg] + [r.config for r in res.values()])
-    plot.step(runs, labels=["config gains"] + list(res), title="Seed 003 boom: 0 → 0.6 m under the 21.8 Hz force (piston x)",
+    plot.step(runs, labels=["config gains"] + list(res), title="Dindorf 2022 boom: 0 → 0.6 m under the 21.8 Hz force (piston x)",
               path=out / "step.png")
     plot.step(runs, labels=["config gains"] + list(res), t_range=(1.5, 3.0),
-              title="Seed 003 boom: steady state under the 21.8 Hz force", path=out / "steady.png")
+              title="Dindorf 2022 boom: steady state under the 21.8 Hz force", path=out / "steady.png")
     for i, r in enumerate(res.values()):
         r.write_config(out / f"tuned_{i}_{r.method}.toml")
     (out / "summary.json").write_text(json.dumps({"K_Pcr": b.details["K_Pcr"], "T_pcr": b.details["T_pcr"], "rows": rows}, indent=2, default=float))

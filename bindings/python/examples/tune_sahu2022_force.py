@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Tune the seed 004 force loop (configs/sahu2022_force.toml) end to end and save figures.
+"""Tune the Sahu 2022 force loop (configs/sahu2022_force.toml) end to end and save figures.
 
     python3 bindings/python/examples/tune_sahu2022_force.py [--out out/tune_sahu2022]
 
@@ -123,16 +123,16 @@ def main() -> None:
         setpoint=test.setpoint(),
     )
     plot.step(step_runs, labels=names[:2] + ["(c) ITAE optimisation", "(a) model-based"], t_range=(0.0, 0.05),
-              title="Seed 004 force loop: 0 → 785 N step (true rod force)", path=out / "step.png")
+              title="Sahu 2022 force loop: 0 → 785 N step (true rod force)", path=out / "step.png")
     plot.bode([frs[0], frs[1], frs[names.index("(c) ITAE optimisation")], frs[2]],
               labels=["K_P 0.57", "K_P 0.4", "(c) ITAE", "(a) model-based"], which="loop",
-              title="Seed 004 loop L = C·P (P measured on the nonlinear plant)", path=out / "bode_loop.png")
-    plot.bode(fr, which="plant", title="Seed 004 plant P = F/u (stepped sine, nonlinear plant)", path=out / "bode_plant.png")
+              title="Sahu 2022 loop L = C·P (P measured on the nonlinear plant)", path=out / "bode_loop.png")
+    plot.bode(fr, which="plant", title="Sahu 2022 plant P = F/u (stepped sine, nonlinear plant)", path=out / "bode_plant.png")
     sweep_best = names.index("(c) sweep RMS optimisation, step OS ≤ 5 %")
     plot.tracking(sweep[sweep_best], signal="rod_force",
                   title="(c) sweep-tuned gains on the 785 N ± 196 N, 1–300 Hz sweep", path=out / "sweep_tuned.png")
     plot.bode([frs[0], frs[1], frs[sweep_best]], labels=["K_P 0.57", "K_P 0.4", "(c) sweep-tuned"], which="closed",
-              title="Seed 004 closed loop F/F_ref (from the measured plant)", path=out / "bode_closed.png")
+              title="Sahu 2022 closed loop F/F_ref (from the measured plant)", path=out / "bode_closed.png")
     plot.tracking(sweep[0], signal="rod_force", title="K_P 0.57 on the 785 N ± 196 N, 1–300 Hz sweep",
                   path=out / "sweep_paper.png")
 

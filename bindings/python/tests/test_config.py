@@ -10,7 +10,6 @@ import subprocess
 import pytest
 
 import ehactl
-from conftest import CONFIGS
 
 
 def test_get_matches_the_file(force_cfg):

@@ -42,7 +42,7 @@ def test_step_advances_n_periods_and_matches_the_closed_loop_records(force_cfg):
     p = ehactl.Plant(cfg)
     for k in (0, 1, 7, 50, 299):
         while round(p.t / p.control_dt) < k:
-            m = p.measure()  # the loop samples the sensors once per cycle
+            p.measure()  # the loop samples the sensors once per cycle
             p.step(1.0)
         s = p.state()
         assert s["t"] == pytest.approx(res.t[k], abs=1e-12)

@@ -104,7 +104,7 @@ def test_run_many_releases_the_gil(force_cfg):
     th.start()
     time.sleep(0.02)
     # The batch must last long enough to see the other thread run; the simulation's speed
-    # changes with the integrator (issue 16 made the seed-004 rig ~4x faster), so the batch is
+    # changes with the integrator (the 2026-11-26 integration rework made the Sahu 2022 rig ~4x faster), so the batch is
     # doubled until it lasts at least 0.2 s instead of assuming a speed.
     n = 30
     while True:

@@ -1,4 +1,4 @@
-"""ehactl.tune on the seed rigs: the demonstrations issue 6 asks for, cross-checked."""
+"""ehactl.tune on the seed rigs: the three tuning methods demonstrated and cross-checked."""
 
 from __future__ import annotations
 
@@ -121,7 +121,7 @@ def test_critical_gain_agrees_with_the_frequency_response(force_cfg, force_fr):
     assert res.gains["control.pi.integral"] == pytest.approx(1.2 / res.details["T_pcr"])
 
 
-def test_model_based_reproduces_paper_gains(force_cfg, force_fr, tmp_path):
+def test_model_based_on_the_measured_loop_reproduces_paper_gains(force_cfg, force_fr, tmp_path):
     """004 §6.1 tuned K_P 0.57, I 386.24 for PM 60° at the widest bandwidth; our
     model-based design on the measured loop must come out near that, and the re-measured
     loop with the new gains must show the designed phase margin."""
@@ -140,7 +140,7 @@ def test_model_based_reproduces_paper_gains(force_cfg, force_fr, tmp_path):
 
 
 def test_boom_pd_critical_gain_positions_with_less_vibration(boom_cfg):
-    """Seed 003: PD tuned by the critical-gain method positions the piston at 0.6 m with
+    """Dindorf 2022: PD tuned by the critical-gain method positions the piston at 0.6 m with
     less vibration under the 21.8 Hz force than the config's starting gains."""
     res = tune.critical_gain(boom_cfg, "zn")
     b, t = res.baseline, res.metrics

@@ -1,4 +1,4 @@
-//! Writes the data behind the seed-001/002 reproduction plots as CSV (SI units):
+//! Writes the data behind the Sirohi 2003 and Cristofori 2015 reproduction plots as CSV (SI units):
 //!
 //! - `001_tube_lengths.csv`: transfer-matrix output displacement and pumping-chamber pressure
 //!   per stack volt for tubes of 0, 4.5 and 11.5 in at 2 cSt (001 fig. 8);

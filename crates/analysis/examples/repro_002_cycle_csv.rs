@@ -1,4 +1,4 @@
-//! Writes the seed-002 crane cycle with counterbalance valves as CSV (SI units):
+//! Writes the Cristofori 2015 crane cycle with counterbalance valves as CSV (SI units):
 //! `configs/cristofori2015_crane_cycle.toml` run open loop (raise / stop / lower / stop),
 //! chamber, port and CBV-node pressures, CBV openings, supply pressure, β(p) of both chambers
 //! (002 eq. 35–36), the true piston velocity and the port-pressure estimate of 002 eq. 31/32

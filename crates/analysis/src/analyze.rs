@@ -57,7 +57,7 @@ pub struct Analysis {
     pub continuous: Option<Margins>,
     /// Command delay included as e^(−jωτ) (s).
     pub delay_s: f64,
-    /// Seed 003 SDD ratios, with a flexible mount.
+    /// Dindorf 2022 SDD ratios, with a flexible mount.
     pub sdd: Option<SddRatios>,
     /// Slowest poles of the continuous plant model.
     pub poles: Vec<Pole>,

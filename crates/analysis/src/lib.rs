@@ -10,7 +10,7 @@
 //! - [`loopshape`]: controller transfer functions, loop frequency response, margins.
 //! - [`analyze`]: the `ehactl analyze` result.
 //! - [`sweep`]: the `ehactl sweep` stepped-sine estimator on the nonlinear plant.
-//! - [`sdd`]: seed 003's frequency and damping ratios of a spring-damper connection.
+//! - [`sdd`]: Dindorf 2022's frequency and damping ratios of a spring-damper connection.
 #![deny(missing_docs)]
 
 pub mod analyze;

@@ -1,4 +1,4 @@
-//! Actuator motion estimated from pressures measured at the valve ports (seed 002).
+//! Actuator motion estimated from pressures measured at the valve ports (Cristofori 2015).
 //!
 //! Cristofori & Vacca estimate the piston motion of a crane boom without a position sensor:
 //! 1. flow model (002 eq. 1–8): the workport flows Q_W from the solenoid command through the

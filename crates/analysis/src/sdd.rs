@@ -1,4 +1,4 @@
-//! Seed 003 eq. 23–29: natural frequencies, frequency ratios and relative damping of an
+//! Dindorf 2022 eq. 23–29: natural frequencies, frequency ratios and relative damping of an
 //! actuator connected to a load mass through a spring–damper (SDD).
 
 use ehactl_plant::params::{ExcitationKind, PlantParams};

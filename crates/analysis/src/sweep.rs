@@ -103,7 +103,7 @@ pub struct SweepOptions<'a> {
 }
 
 /// Default log decimation of a sweep: one cycle in 5 (1 kHz at a 5 kHz control rate) keeps a
-/// 30-point sweep of the seed 004 rig near 40 MB instead of ~190 MB.
+/// 30-point sweep of the Sahu 2022 rig near 40 MB instead of ~190 MB.
 pub const DEFAULT_LOG_EVERY: u64 = 5;
 
 impl Default for SweepOptions<'_> {

@@ -1,6 +1,6 @@
-//! Frequency-domain fluid transmission lines and the seed-001 piezohydraulic circuit.
+//! Frequency-domain fluid transmission lines and the Sirohi 2003 piezohydraulic circuit.
 //!
-//! Seed 001 (Sirohi & Chopra) treats every fluid passage as a distributed line with the
+//! Sirohi 2003 (Sirohi & Chopra) treats every fluid passage as a distributed line with the
 //! four-pole transfer matrix of eq. 1–2 between the pressure P (Pa) and the volume flow Q (m³/s)
 //! at its ends, {P₂, Q₂} = T·{P₁, Q₁}, with the propagation operator Γ and the characteristic
 //! impedance Z_c of the inviscid case (eq. 3–5) or of the dissipative viscous model (eq. 6–12,
@@ -45,7 +45,7 @@ impl Fluid {
         (self.bulk_modulus / self.density).sqrt()
     }
 
-    /// Seed 001's MIL-H-5606 fluid: ρ 859 kg/m³ (Table 1 prints "859 g/cc", evidently
+    /// Sirohi 2003's MIL-H-5606 fluid: ρ 859 kg/m³ (Table 1 prints "859 g/cc", evidently
     /// 0.859 g/cc), β_ref 260 000 psi, and the given kinematic viscosity ν (m²/s); Table 1 gives
     /// 15 cSt, the experiments used a 2 cSt fluid.
     pub fn sirohi2003(kinematic_viscosity: f64) -> Self {
@@ -254,7 +254,7 @@ impl PiezoPump {
             + fluid.bulk_modulus * self.piston_area * self.piston_area / self.stiffness
     }
 
-    /// Seed 001's pump. From Table 1 and the text: 1 in piston, 0.050 in chamber height, two
+    /// Sirohi 2003's pump. From Table 1 and the text: 1 in piston, 0.050 in chamber height, two
     /// P-804.10 stacks in series, each 1133 lb blocked force and ≈ 0.5 mil free stroke at
     /// 0–100 V, so k_p = ½·F_b/x_f ≈ 1.98e8 N/m and c_v = F_b/100 V ≈ 50.4 N/V.
     /// Assumed (001 silent): m_p = 0.035 kg (25 g steel piston, 1 in × ¼ in, plus a third of
@@ -323,7 +323,7 @@ pub struct OutputCylinder {
 }
 
 impl OutputCylinder {
-    /// Seed 001's output cylinder: double rod, 7/16 in bore, 3/16 in shaft, 2 in stroke, at
+    /// Sirohi 2003's output cylinder: double rod, 7/16 in bore, 3/16 in shaft, 2 in stroke, at
     /// mid-stroke (each chamber 1 in long, treated as a line of the annular area with the
     /// annulus' hydraulic diameter bore − shaft). Assumed (001 silent): m_o = 0.030 kg
     /// (steel piston 7/16 × 3/8 in plus a 6 in long 3/16 in shaft), b_o = 0 (seal friction is
@@ -390,7 +390,7 @@ impl Response {
 pub const SIROHI_TUBE_ID: f64 = (0.125 - 2.0 * 0.028) * INCH;
 
 impl Circuit {
-    /// Seed 001's device with a tube of `tube_length` (m; 001: 0, 4.5, 11.5 in) of
+    /// Sirohi 2003's device with a tube of `tube_length` (m; 001: 0, 4.5, 11.5 in) of
     /// 1/8 in × 0.028 in wall tubing, fluid viscosity ν (m²/s), the dissipative line model of
     /// eq. 6–12 and an ideal accumulator (001 gives neither its size nor the return-side
     /// passages; with R_in = ∞ they only matter through C_acc, taken ≫ the lines').

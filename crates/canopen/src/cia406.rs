@@ -1,4 +1,4 @@
-//! CiA 406 style linear position transducer (seed 003 used a magnetostrictive transducer
+//! CiA 406 style linear position transducer (Dindorf 2022 used a magnetostrictive transducer
 //! with CANopen): objects and the position / speed scaling.
 
 use crate::pdo::MapEntry;

@@ -1,4 +1,4 @@
-//! CiA 408 proportional valve with on-board electronics (seed 003: Rexroth 4WRSE): the
+//! CiA 408 proportional valve with on-board electronics (Dindorf 2022: Rexroth 4WRSE): the
 //! device state machine as published (control word / status word bits D, H, M, R), device
 //! and control mode, hold setpoint, spool setpoint scaling (±16384 = ±100 % spool).
 

@@ -1,5 +1,5 @@
 //! [`CanopenHal`]: the `Hal` of a CAN rig with a CiA 406 position transducer and a CiA 408
-//! valve (seed 003's boom: magnetostrictive transducer + 4WRSE OBE).
+//! valve (Dindorf 2022's boom: magnetostrictive transducer + 4WRSE OBE).
 //!
 //! Threads and queues:
 //! - start-up ([`CanopenHal::connect`], [`crate::startup`]) runs before the loop and may

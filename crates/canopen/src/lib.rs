@@ -1,6 +1,6 @@
 //! # ehactl-canopen
 //!
-//! The CANopen hardware backend of ehactl (issue 5):
+//! The CANopen hardware backend of ehactl (docs/canopen.md):
 //! - [`frame`]: fixed-size [`CanFrame`] (no heap, `Copy`),
 //! - [`bus`]: the [`CanBus`] transport trait and bus addresses, with the implementations
 //!   [`socketcand`] (rawmode over TCP, pure std) and [`socketcan_bus`] (Linux SocketCAN,

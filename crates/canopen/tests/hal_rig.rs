@@ -1,5 +1,5 @@
 //! `CanopenHal` against a scripted CANopen rig on the in-process hub: the exact start-up
-//! sequence, closed data path (RPDO → SYNC → TPDO), and every fault of issue 5 detected
+//! sequence, closed data path (RPDO → SYNC → TPDO), and every bus fault (heartbeat loss, EMCY, valve leaving ACTIVE, reboot, lost connection) detected
 //! within one heartbeat timeout plus two SYNC periods.
 //!
 //! The scripted rig is a minimal CiA 301 slave pair written for this test (expedited SDO
@@ -1113,7 +1113,7 @@ fn an_object_read_only_in_the_eds_is_read_and_checked_never_written() {
 
 #[test]
 fn late_tpdos_are_counted_and_too_old_ones_trip() {
-    // The transducer's TPDOs arrive `lag` SYNC periods late (PDO age check of issue 15). Below
+    // The transducer's TPDOs arrive `lag` SYNC periods late (the PDO age check). Below
     // canopen.max_pdo_age_syncs they are counted, above it the loop trips.
     // (A rig thread descheduled on a loaded machine makes any TPDO a few SYNCs late too:
     // the no-trip case keeps a wide limit and checks ages from below only.)

@@ -63,6 +63,40 @@ fn fmt_opt(v: Option<f64>, unit: &str) -> String {
     v.map_or("—".into(), |v| format!("{v:.2} {unit}"))
 }
 
+/// The operating point of `ehactl analyze` in words with units (the `--json` output keeps the
+/// raw numbers): reference and feedback in the control mode's unit, command, piston position,
+/// chamber pressures, rod force, and whether and when the loop came to rest.
+fn operating_point_text(op: &serde_json::Value, mode: ehactl_config::ControlMode) -> String {
+    use crate::sig;
+    use ehactl_config::ControlMode;
+    let num = |k: &str| op[k].as_f64().unwrap_or(f64::NAN);
+    let unit = match mode {
+        ControlMode::Force => "N",
+        ControlMode::Position => "m",
+        ControlMode::OpenLoop => "V",
+    };
+    let x = num("position_m");
+    let position = if x.abs() < 1e-3 {
+        format!("{} µm", sig(x * 1e6, 4))
+    } else {
+        format!("{} m", sig(x, 4))
+    };
+    let rest = if op["settled"].as_bool().unwrap_or(false) {
+        format!("at rest after {} s", sig(num("search_time_s"), 3))
+    } else {
+        format!("NOT at rest after {} s", sig(num("search_time_s"), 3))
+    };
+    format!(
+        "reference {r} {unit}, feedback {f} {unit}, command {u} V, position {position}, p_A {pa} MPa, p_B {pb} MPa, rod force {fr} N ({rest})",
+        r = sig(num("reference"), 5),
+        f = sig(num("feedback"), 5),
+        u = sig(num("command_V"), 4),
+        pa = sig(num("p_a_Pa") * 1e-6, 4),
+        pb = sig(num("p_b_Pa") * 1e-6, 4),
+        fr = sig(num("rod_force_N"), 5),
+    )
+}
+
 /// `ehactl analyze CONFIG [--json]`.
 pub fn analyze(config: &Path, json: bool) -> ExitCode {
     let cfg = match load(config) {
@@ -78,7 +112,10 @@ pub fn analyze(config: &Path, json: bool) -> ExitCode {
         return ExitCode::SUCCESS;
     }
     println!("ehactl analyze {} ({})", config.display(), a.rig);
-    println!("  operating point       {}", a.operating_point);
+    println!(
+        "  operating point       {}",
+        operating_point_text(&a.operating_point, cfg.control.mode)
+    );
     println!(
         "  hydraulic ω_h         {:.2} Hz at the operating position; lowest over stroke {:.2} Hz at {:.3} m",
         a.hydraulic_natural_frequency_hz,

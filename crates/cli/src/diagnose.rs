@@ -32,7 +32,7 @@ pub fn cmd_diagnose(
     };
     let cfg = match RigConfig::load(config) {
         Ok(c) => c,
-        Err(e) => return bad(format!("{}: {e}", config.display())),
+        Err(e) => return bad(crate::config_load_message(config, &e)),
     };
     let bar =
         crate::styled_bar("{spinner} diagnose {msg} [{bar:30}] {pos}/{len} fits {elapsed_precise}");

@@ -371,7 +371,17 @@ pub(crate) fn stop_flag() -> Arc<AtomicBool> {
 }
 
 pub(crate) fn load(path: &Path) -> Result<RigConfig, ExitCode> {
-    RigConfig::load(path).map_err(|e| config_error(format!("{}: {e}", path.display())))
+    RigConfig::load(path).map_err(|e| config_error(config_load_message(path, &e)))
+}
+
+/// One line for a config that failed to load: the file, then the field and the problem. A
+/// file that cannot be read is its own "field", so it is named once, not twice.
+pub(crate) fn config_load_message(path: &Path, e: &ehactl_plant::spec::ConfigError) -> String {
+    if e.path == path.display().to_string() {
+        format!("{}: {}", path.display(), e.message)
+    } else {
+        format!("{}: {e}", path.display())
+    }
 }
 
 fn main() -> ExitCode {
@@ -446,8 +456,28 @@ fn main() -> ExitCode {
                     if let Some(c) = can {
                         println!("{}: {c}", config.display());
                     }
+                    // Besides the catalogue effects: the grey-box laws `ehactl diagnose` writes
+                    // and circuit components, which are not catalogue effects but change the model.
+                    let fx = &cfg.plant.effects;
+                    let mut other: Vec<&str> = Vec::new();
+                    if fx.polynomial_force.as_ref().is_some_and(|e| e.enabled) {
+                        other.push("polynomial_force");
+                    }
+                    if fx.polynomial_flow.as_ref().is_some_and(|e| e.enabled) {
+                        other.push("polynomial_flow");
+                    }
+                    let grey_box = if other.is_empty() {
+                        String::new()
+                    } else {
+                        format!(", grey-box terms: [{}]", other.join(", "))
+                    };
+                    let cbv = if fx.counterbalance_valve.is_some() {
+                        ", counterbalance valves"
+                    } else {
+                        ""
+                    };
                     println!(
-                        "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]",
+                        "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]{grey_box}{cbv}",
                         config.display(),
                         serde_json::to_value(cfg.control.mode)
                             .ok()

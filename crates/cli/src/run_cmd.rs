@@ -441,8 +441,9 @@ fn print_text_summary(
             tm.exec_cpu.p50, tm.exec_cpu.p99, tm.exec_cpu.p999, tm.exec_cpu.max
         );
         println!(
-            "  overruns      {} = {} our execution (CPU time) > period + {} thread not running (late start or preempted); longest streak {}, {} deadlines skipped, policy {}",
+            "  overruns      {} of {} cycles: {} ours (CPU time over the period), {} thread not running (late start or preempted); longest streak {}, {} deadlines skipped, policy {}",
             tm.overruns,
+            summary["cycles"].as_u64().unwrap_or(0),
             tm.overruns_exec,
             tm.overruns_wakeup,
             tm.longest_overrun_streak,

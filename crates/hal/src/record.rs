@@ -295,7 +295,7 @@ pub fn plant_schema() -> String {
 }
 
 /// Field names of the `/timing` message after `cycle` and `t` (all float64), in order;
-/// then `uint32 skipped`, `bool overrun` and `bool overrun_exec` (appended in issue 16;
+/// then `uint32 skipped`, `bool overrun` and `bool overrun_exec` (appended 2026-11-26;
 /// readers of the older layout, which ends at `overrun`, still read a prefix).
 pub const TIMING_FIELDS: [&str; 4] = ["wall_t", "lateness_us", "period_us", "exec_prev_us"];
 
@@ -628,7 +628,7 @@ impl CycleRecord {
     }
 
     /// Decode a `/timing` message written by [`CycleRecord::encode_timing`]. Messages of
-    /// logs written before issue 16 end at `overrun` (one byte shorter, their schema has
+    /// logs written before 2026-11-26 end at `overrun` (one byte shorter, their schema has
     /// no `overrun_exec`); they decode with `overrun_exec` false.
     pub fn decode_timing(data: &[u8]) -> Result<TimingMessage, DecodeError> {
         let old = 8 + 8 * (1 + TIMING_FIELDS.len()) + 4 + 1;
@@ -1001,7 +1001,7 @@ mod decode_tests {
                             bits([rt.wall_t, rt.lateness_us, rt.period_us, rt.exec_prev_us]));
             prop_assert_eq!((tm.timing.skipped, tm.timing.overrun, tm.timing.overrun_exec),
                             (skipped, overrun, overrun_exec));
-            // A message of the layout before issue 16 (no trailing `overrun_exec`) still
+            // A message of the older layout (no trailing `overrun_exec`) still
             // decodes, with the flag false.
             let mut old = buf.clone();
             old.pop();
@@ -1080,7 +1080,7 @@ mod decode_tests {
 
         r.encode_timing(&mut buf);
         assert_eq!(buf.len(), 4 + 8 + 5 * 8 + 4 + 1 + 1);
-        // One byte short is the pre-issue-16 layout (decodes); two short is an error.
+        // One byte short is the older layout without `overrun_exec` (decodes); two short is an error.
         assert!(CycleRecord::decode_timing(&buf[..buf.len() - 1]).is_ok());
         assert!(CycleRecord::decode_timing(&buf[..buf.len() - 2]).is_err());
         let mut long = buf.clone();

@@ -1,6 +1,6 @@
 //! Residual analysis: where in time, frequency and state space the error of a replay
 //! concentrates. Produces evidence strings and a prior ranking of catalogue effects
-//! (the reasoning of seed 001 §5 done by machine: error at velocity reversal → friction,
+//! (the reasoning of Sirohi 2003 §5 done by machine: error at velocity reversal → friction,
 //! error near zero command → dead band, a narrow residual line → sensor tone, a broad
 //! residual peak → an unmodelled mode, constant lag → delay or spool dynamics).
 

@@ -1,4 +1,4 @@
-//! Measured records: the CSV format of DESIGN.md and ehactl's own MCAP logs.
+//! Measured records: the CSV format of docs/design.md and ehactl's own MCAP logs.
 //!
 //! CSV: header row, SI units; `t` (s) and `u` (valve command, V) required; any of `force` (N),
 //! `x` (piston position, m), `p_a`, `p_b` (chamber pressures, Pa), `x_v` (spool, fraction of
@@ -359,7 +359,7 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
         .collect();
     if !unknown.is_empty() {
         warnings.push(format!(
-            "{source}: columns not used by diagnose (not in DESIGN.md's format): {}",
+            "{source}: columns not used by diagnose (not in the documented format, docs/design.md): {}",
             unknown
                 .iter()
                 .map(|s| s.as_str())

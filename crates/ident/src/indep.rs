@@ -1,5 +1,5 @@
 //! A second hidden-effect generator, written from the physics independently of
-//! `crates/plant` (issue 17, "Done when" 1): its own rig, its own equations for every effect
+//! `crates/plant`, so that the evaluation does not grade the diagnosis on its own model: its own rig, its own equations for every effect
 //! and variant, its own fixed-step classical Runge–Kutta (RK4) integrator, its own noise
 //! generator and excitation. It shares no code with the plant: only the nominal config it
 //! hands to the diagnosis is a [`PlantParams`] (written from the generator's nominal values).

@@ -3,7 +3,7 @@
 //! Model-discrepancy diagnosis (`ehactl diagnose`): given a record measured on a rig and the
 //! nominal config of that rig, replay the measured valve command through the plant, find where
 //! the residual concentrates (time, frequency, state space), fit every effect of the catalogue
-//! of DESIGN.md (with the nominal parameters refit within ±15 %), score each on held-out data
+//! of docs/design.md (with the nominal parameters refit within ±15 %), score each on held-out data
 //! with a parameter penalty and accept effects greedily while the gain is significant.
 //!
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,

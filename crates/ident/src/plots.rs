@@ -6,7 +6,7 @@
 //! - `residual.svg`: nominal and extended residual per channel over time and their Welch
 //!   PSD ([`crate::analysis::welch_segments`]).
 //! - `residual_state.svg`: nominal residual against model velocity, command, p_A and x
-//!   (the dependence the catalogue's effects leave, DESIGN.md).
+//!   (the dependence the catalogue's effects leave, docs/design.md).
 //! - `frf.svg`: H1 frequency response u → each channel of data, nominal and extended
 //!   ([`crate::analysis::h1_estimate`]).
 //! - `validation.svg`: the validation file's traces when one was given.

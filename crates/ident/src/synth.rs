@@ -311,7 +311,7 @@ pub fn add_sensor_offsets(rec: &mut Record, offsets: &[(ChannelKind, f64)]) {
     }
 }
 
-/// Write a record as CSV in DESIGN.md's format.
+/// Write a record as CSV in the format of docs/design.md ("Measured-data format").
 pub fn to_csv(rec: &Record) -> String {
     let mut s = String::from("t,u");
     for c in &rec.channels {

@@ -1,4 +1,4 @@
-//! Issue 11, defect 7: data that diagnose cannot use gets a one-line error (exit 2 in the
+//! Data that diagnose cannot use gets a one-line error (exit 2 in the
 //! CLI) and doubtful units a warning — never a panic or a NaN result. Expected unit names
 //! come from the conversion factors (1 bar = 1e5 Pa, 1 psi = 6894.757 Pa, 1 MPa = 1e6 Pa).
 

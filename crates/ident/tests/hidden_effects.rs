@@ -1,4 +1,4 @@
-//! Acceptance tests of issue 4: records made by the plant with a hidden effect (seeded draw of
+//! Acceptance tests of `ehactl diagnose`: records made by the plant with a hidden effect (seeded draw of
 //! its parameters from a realistic range, sensor noise, nominal config lacking the effect and
 //! with ±10 % errors in valve gain, β₀, mass, damping and spring rate). `diagnose` must name the
 //! hidden effect and cut the held-out NRMSE by at least 50 %; with nothing hidden it must say
@@ -85,7 +85,7 @@ fn two_effects_internal_leakage_and_tone() {
     check(3001, &[EffectId::InternalLeakage, EffectId::SensorTone]);
 }
 
-/// Issue 4 asks for robustness to sensor offsets (`Options::sensor_offsets`, CLI
+/// Robustness to sensor offsets (`Options::sensor_offsets`, CLI
 /// `--sensor-offsets`). Constant zero errors on every channel
 /// (`synth::realistic_offsets`: +2 / −1.5 bar, 5 % of the force's std, +0.5 mm) must not
 /// change the decision or the held-out errors, and the offsets the diagnosis estimates must

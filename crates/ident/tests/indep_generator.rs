@@ -1,4 +1,4 @@
-//! CI subset of the independent-generator evaluation (issue 17, DIAGNOSIS.md "Evaluation on an
+//! CI subset of the independent-generator evaluation (docs/diagnosis-archive.md "Evaluation on an
 //! independent generator"): records made by `ehactl_ident::indep` (its own RK4 and equations,
 //! no plant code). The cases are chosen by a rule fixed in advance, not by their results: for
 //! each of the five effects that the issue's independent simulator saw answered `none`, the

@@ -2,8 +2,8 @@
 //!
 //! Run with `cargo bench -p ehactl-plant --bench line_friction`.
 //!
-//! Rigs: the plant of configs/cristofori2015_crane.toml (seed 002 crane, 2.5 m hoses with 8
-//! segments, 1 kHz control rate) and of configs/sirohi2003_circuit.toml (seed 001 pump →
+//! Rigs: the plant of configs/cristofori2015_crane.toml (Cristofori 2015 crane, 2.5 m hoses with 8
+//! segments, 1 kHz control rate) and of configs/sirohi2003_circuit.toml (Sirohi 2003 pump →
 //! 11.5 in tube → output cylinder, 5 kHz; a stiff reproduction circuit, not a real-time rig)
 //! with `segments` ∈ {4, 16, 64}; `friction` ∈ {steady, unsteady (8 convolution states per
 //! segment), unsteady_trikha (3)}. For each case: the automatic substep count, and the median

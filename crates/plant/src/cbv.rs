@@ -1,7 +1,7 @@
-//! Counterbalance valves (CBVs) at the cylinder ends of the lines (seed 002 fig. 2; the crane
+//! Counterbalance valves (CBVs) at the cylinder ends of the lines (Cristofori 2015 fig. 2; the crane
 //! of 002 fig. 9 has one per line, items 8, 9, 15, 16).
 //!
-//! Seed 002 models the CBV only inside its estimator and with one parameter: the free-flow
+//! Cristofori 2015 models the CBV only inside its estimator and with one parameter: the free-flow
 //! check ("unidirectional valve integrated in the CBV") as Δp = R_UV·Q² (002 eq. 18–19);
 //! the pilot-operated side is not modelled but bypassed by the chamber pressure build-up
 //! (002 eq. 20–24). 002 names the pilot ratio ("low pilot ratios are used to pressurize the

@@ -1,4 +1,4 @@
-//! The effect catalogue of DESIGN.md: stable ids shared by configs, diagnosis and tests.
+//! The effect catalogue (docs/design.md): stable ids shared by configs, diagnosis and tests.
 
 use crate::params::Effects;
 use ehactl_params_derive::Params;
@@ -252,7 +252,7 @@ pub fn body_mount_step(
     a
 }
 
-/// Cross-field checks of the effect variants (issue 17): each variant's own parameters must
+/// Cross-field checks of the effect variants: each variant's own parameters must
 /// be given and admissible.
 pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::spec::ConfigError> {
     use crate::params::*;

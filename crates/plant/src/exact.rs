@@ -14,13 +14,13 @@
 //! Γ = ∫₀ʰ e^(Aτ)dτ·B, taken together from the exponential of the augmented matrix
 //! [[A h, B h, 0], [0, 0, 0], [I h, 0, 0]] (Van Loan 1978), whose last block row also gives
 //! the step means of the pressures (∫₀ʰ z dτ / h), used to evaluate the valve flow at the
-//! pressures it actually sees during the step (the 3.9 kHz load-cell mode of seed 004 swings
+//! pressures it actually sees during the step (the 3.9 kHz load-cell mode of Sahu 2022 swings
 //! the chamber pressures within one 200 µs step). The hydraulic spring, the load-cell spring, the
 //! leakage and the mount are then exact for any h: no ω·h limit. What is not exact is what
 //! enters through w: the valve flow (evaluated at the mid-step spool position, with its own
 //! pressure derivative taken trapezoidally, see [`crate::model`]) and c_A, c_B, which are
 //! re-discretised whenever either has drifted by more than [`REDISCRETISE_TOL`] (relative)
-//! from the value Φ was computed with — on rigs whose volumes hardly change (seed 004: the
+//! from the value Φ was computed with — on rigs whose volumes hardly change (Sahu 2022: the
 //! piston moves ≈ 2 µm) that is never after start-up.
 //!
 //! Hand-written because no maintained Rust crate offers a ZOH discretisation; the matrix

@@ -2,7 +2,7 @@
 //!
 //! The nonlinear electro-hydraulic actuator plant of ehactl, in SI units. Every physical
 //! effect is a separately switchable component named by its id in the effect catalogue of
-//! `DESIGN.md` ([`EffectId`]) and documented with the seed equation it implements:
+//! `docs/design.md` ([`EffectId`]) and documented with the seed equation it implements:
 //!
 //! | module | physics | seed |
 //! |---|---|---|

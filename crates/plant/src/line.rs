@@ -11,7 +11,7 @@
 //!   old flows, flows from the new pressures with R implicit. Stable for ω·h < 2 and without
 //!   amplitude error, but the chain's highest mode 2/√(LC) (the lumping's numerical Nyquist
 //!   mode: 1.58·10⁵ rad/s for 001's 18 mm segments) enters the ω·h ≤ `max_omega_h` rule, so a
-//!   short stiff line sets the substep (127 per 200 µs on seed 001).
+//!   short stiff line sets the substep (127 per 200 µs on Sirohi 2003).
 //! - `implicit` ([`Line::advance_implicit`]): the whole chain — valve-side node, segment
 //!   flows and the chamber as the end node — advanced by the trapezoidal rule (θ = ½,
 //!   Crank–Nicolson) as one symmetric tridiagonal system per substep, solved by the Thomas
@@ -26,10 +26,10 @@
 //!   implicitly (backward Euler in that linear term, as the exponential-Euler node update
 //!   does), so the stiff flow–pressure terms stay monotone.
 //!
-//! Which one to use, by measurement (BENCHMARKS.md, "Short stiff lines", seed 001's 16
+//! Which one to use, by measurement (BENCHMARKS.md, "Short stiff lines", Sirohi 2003's 16
 //! segments of 18 mm): at equal substeps both are about as accurate — the first-order
 //! chamber–piston and valve-node coupling, not the line, sets the error — and the implicit
-//! solve costs about twice as much per substep. So the seed-001 configs ship `symplectic` with
+//! solve costs about twice as much per substep. So the Sirohi 2003 configs ship `symplectic` with
 //! `integration.max_omega_h_line = 1.5`: the segment modes held to a stability margin
 //! (ω·h ≤ 1.5 < 2; they are the lumping's numerical modes), the wave and chamber modes to the
 //! accuracy rule: 22 substeps per 200 µs instead of 127. `implicit` pays off below ≈ 16
@@ -458,7 +458,7 @@ fn solve_interior(inv_pivot: &[f64], upper: &[f64], off: f64, b: &mut [f64]) {
 mod tests {
     use super::*;
 
-    /// Seed 001's tube (11.5 in × 1.753 mm, 16 segments) in 001's fluid; `nu` = 0 makes the
+    /// Sirohi 2003's tube (11.5 in × 1.753 mm, 16 segments) in 001's fluid; `nu` = 0 makes the
     /// segments frictionless (R = 0).
     fn sirohi_line(nu: f64, friction: LineFriction) -> Line {
         let cfg = LineDynamics {

@@ -4,7 +4,7 @@
 //! [`Plant::initialize`] sets the initial state, [`Plant::step`] advances one control period
 //! in fixed substeps without allocating.
 //!
-//! Integration scheme per substep h (stiff-safe, see DESIGN.md "Numerics"):
+//! Integration scheme per substep h (stiff-safe, see docs/design.md "Numerics"):
 //! 1. spool: exact zero-order-hold discretisation of its linear dynamics;
 //! 2. pressures: exponential Euler on each chamber / line node, linearised in its own
 //!    pressure, so the stiff leakage and valve flow–pressure terms (004: V/(β·K_Ct) ≈ 5 µs)
@@ -463,7 +463,7 @@ impl Plant {
             && !e.friction.as_ref().is_some_and(|f| f.enabled)
             && !e.polynomial_force.is_some_and(|f| f.enabled)
             && !e.polynomial_flow.is_some_and(|f| f.enabled)
-            // Issue-17 variants are integrated by the exponential-Euler substep only.
+            // The structural effect variants are integrated by the exponential-Euler substep only.
             && !c.body_mount
             && c.air.is_none()
             && c.k_ext_b == c.k_ext
@@ -1148,7 +1148,7 @@ impl Plant {
                 // flow at the start-of-step node pressure instead over-delivers whenever the
                 // check or the poppet opens within the step (node time constant C/G ≈ 1 µs
                 // against a 5–20 µs substep): a numerical chatter that needed 4× the substeps
-                // to converge (issue 16, BENCHMARKS.md).
+                // to converge (docs/benchmarks-archive.md, "Short stiff lines").
                 let ends = [
                     (*la.p.last().unwrap_or(&s.p_a), qla, s.p_a),
                     (*lb.p.last().unwrap_or(&s.p_b), qlb, s.p_b),

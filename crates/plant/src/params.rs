@@ -3,7 +3,7 @@
 //! Each struct is one component; each field carries its unit in the doc comment and
 //! in the parameter registry ([`crate::spec::params`], generated from the `#[param(...)]` declarations below), which is what error messages,
 //! `ehactl params` and the Python bindings read. Effects from the catalogue of
-//! `DESIGN.md` live under `[effects.<id>]` and are switched on by their presence
+//! `docs/design.md` live under `[effects.<id>]` and are switched on by their presence
 //! (and `enabled = true`, the default).
 
 use ehactl_params_derive::Params;
@@ -700,7 +700,7 @@ pub struct SupplyPressureDrop {
     pub volume: f64,
 }
 
-/// The effect catalogue of DESIGN.md: every section is optional.
+/// The effect catalogue (docs/design.md): every section is optional.
 #[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 #[serde(deny_unknown_fields)]
 pub struct Effects {

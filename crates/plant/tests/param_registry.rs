@@ -28,8 +28,8 @@ fn row(p: &spec::Param) -> [String; 5] {
     ]
 }
 
-/// Entries added on purpose after the fixture (issue 16: the line scheme and the segment
-/// modes' stability margin); tests/rust/param_registry.rs checks their rows.
+/// Entries added on purpose after the fixture (the line scheme and the segment
+/// modes' stability margin, added 2026-11-26); tests/rust/param_registry.rs checks their rows.
 const ADDED: [&str; 2] = ["integration.max_omega_h_line", "integration.line_method"];
 
 #[test]

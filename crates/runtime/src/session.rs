@@ -142,7 +142,7 @@ impl Session {
             }
             put(obj, "period_min_us", tm.period.min);
             obj.insert("overruns".into(), json!(tm.overruns));
-            // The split of `overruns` (issue 16): our execution vs a late start.
+            // The split of `overruns`: our execution vs a late start (DEPLOY.md §8).
             obj.insert("overruns_exec".into(), json!(tm.overruns_exec));
             obj.insert("overruns_wakeup".into(), json!(tm.overruns_wakeup));
             obj.insert(

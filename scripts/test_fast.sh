@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# The quick test tier for the edit-test loop (the full suite, what CI runs, is
+# scripts/test_all.sh). Runs: rustfmt and clippy (warnings as errors), the Rust unit and
+# integration tests except the long diagnosis catalogue (crates/ident/tests/hidden_effects.rs
+# and indep_generator.rs), ruff, and the Python tests that need neither a CAN bus, the
+# diagnosis catalogue nor the compiled Python bindings. No cross-builds, no QEMU, no apt-get.
+# Python tools go into .venv-test/ (EHACTL_TEST_VENV=DIR to choose another), as in test_all.sh.
+# Extra arguments go to every `cargo test`, e.g. `scripts/test_fast.sh -- --test-threads 1`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+t0=$(date +%s)
+
+VENV="${EHACTL_TEST_VENV:-$PWD/.venv-test}"
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "== creating $VENV (python3 -m venv; Debian needs python3-venv)"
+  python3 -m venv "$VENV"
+fi
+PY="$VENV/bin/python"
+export VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH"
+# Install the test requirements only when one is missing (a re-run needs no network).
+if ! "$PY" -c 'import mcap, pytest, can, canopen, jsonschema, websockets, mpmath, lz4, matplotlib' 2>/dev/null \
+    || ! "$PY" -m ruff --version >/dev/null 2>&1; then
+  echo "== Python test requirements into $VENV"
+  "$PY" -m pip install --quiet -r tests/python/requirements.txt
+fi
+
+echo "== formatting and lints"
+cargo fmt --all --check
+cargo clippy --release --workspace --all-targets -- -D warnings
+"$PY" -m ruff check
+
+echo "== Rust tests (without the diagnosis catalogue)"
+export PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}"
+cargo test --release --workspace --exclude ehactl-ident "$@"
+# ehactl-ident's unit tests and its two quick integration tests. Selected with --workspace (the
+# other crates' unit tests run again, a few seconds) so that Cargo resolves the same features
+# as above: `-p ehactl-ident` would build every dependency a second time after each change.
+cargo test --release --workspace --lib --test data_errors --test data_units "$@"
+
+echo "== Python tests (no CAN, no diagnosis catalogue, no bindings)"
+cargo build --release -p ehactl-cli
+# Skipped here, run by test_all.sh: CAN end to end (hub, devices, LocalNode), diagnosis on
+# generated and real records, the README's examples and the documented tuning figures (need
+# the bindings), fault injection.
+EHACTL_BIN="$PWD/target/release/ehactl" "$PY" -m pytest tests/python -q \
+  --ignore=tests/python/test_canbus_hub.py --ignore=tests/python/test_canopen_e2e.py \
+  --ignore=tests/python/test_canopen_localnode.py --ignore=tests/python/test_devices.py \
+  --ignore=tests/python/test_diagnose_baseline.py --ignore=tests/python/test_diagnose_cli.py \
+  --ignore=tests/python/test_diagnose_greybox.py --ignore=tests/python/test_readme.py \
+  --ignore=tests/python/test_doc_figures.py \
+  --ignore=tests/python/test_reliability.py
+echo "== fast tier passed in $(( $(date +%s) - t0 )) s"

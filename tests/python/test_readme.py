@@ -1,0 +1,108 @@
+"""The README is true when followed line by line: every shell command of its ```sh blocks and
+every ```python block (and those of docs/python.md, where the Python reference moved) runs
+from the repository root as written and exits 0, and the warnings they print are the ones
+the text explains.
+
+Not run here, with the reason: the two commands that install (scripts/install_and_run.sh,
+which is what put the package this test imports in place) and run this suite
+(scripts/test_all.sh, which contains this test). Python blocks need the bindings: skipped
+without them unless EHACTL_REQUIRE_BINDINGS is set (scripts/test_all.sh sets it)."""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from simrig import require_bindings
+from test_mcap_roundtrip import ehactl_bin
+
+REPO = Path(__file__).resolve().parents[2]
+NOT_RUN = {
+    "bash scripts/install_and_run.sh": "installs ehactl (how the bindings under test got here)",
+    "bash scripts/test_all.sh": "the suite this test is part of",
+}
+
+
+def blocks(path: Path, lang: str) -> list[str]:
+    return re.findall(rf"^```{lang}\n(.*?)^```", path.read_text(), re.S | re.M)
+
+
+def shell_commands(path: Path) -> list[str]:
+    cmds = []
+    for b in blocks(path, "sh"):
+        for line in b.splitlines():
+            cmd = re.sub(r"\s+#.*$", "", line).strip()
+            if cmd:
+                cmds.append(cmd)
+    return cmds
+
+
+README_SH = shell_commands(REPO / "README.md")
+
+
+def test_the_readme_has_what_this_test_runs():
+    assert set(NOT_RUN) <= set(README_SH), README_SH
+    assert any(c.startswith("ehactl diagnose") for c in README_SH)
+    assert len(blocks(REPO / "README.md", "python")) == 1
+
+
+@pytest.mark.parametrize("cmd", [c for c in README_SH if c not in NOT_RUN])
+def test_readme_shell_command(cmd):
+    argv = shlex.split(cmd)
+    if argv[0] == "ehactl":
+        argv[0] = str(ehactl_bin())
+    elif argv[0] == "python3":
+        argv[0] = sys.executable
+    else:
+        pytest.fail(f"README command this test does not know how to run: {cmd}")
+    r = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, f"{cmd}\n{r.stderr[-3000:]}"
+    assert "panicked" not in r.stderr
+    if argv[1:2] == ["diagnose"]:
+        # the README prepares the reader for this answer on the real MR-damper record
+        assert "unexplained" in r.stdout, r.stdout[-3000:]
+        # and for these figures of the run (README.md, "Diagnosis" in the tour)
+        readme = " ".join((REPO / "README.md").read_text().split())
+        ext = float(re.search(r"extended (\d\.\d+)", r.stdout).group(1))
+        arx = float(re.search(r"ARX baseline held-out NRMSE (\d\.\d+)", r.stdout).group(1))
+        floor = float(re.search(r"`force` ([\d.]+)× floor", r.stdout).group(1))
+        report = (REPO / "out" / "diag" / "report.md").read_text().split("## Grey-box extension", 1)[1]
+        grey = float(re.search(r"\| \*\*overall\*\* \| \*\*[\d.]+\*\* \| \*\*([\d.]+)\*\* \|", report).group(1))
+        for phrase in (f"≈ {floor:.0f}× the noise floor", f"(held-out NRMSE {ext:.2f})",
+                       f"ARX model ({arx:.2f})", f"viscous + yield force on the rod, {grey:.2f}"):
+            assert phrase in readme, f"README.md should say: {phrase}"
+
+
+def run_python(code: str, tmp_path: Path) -> subprocess.CompletedProcess:
+    require_bindings()
+    script = tmp_path / "snippet.py"
+    script.write_text(code)
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    r = subprocess.run([sys.executable, str(script)], cwd=REPO, capture_output=True, text=True,
+                       timeout=1800, env=env)
+    assert r.returncode == 0, f"{code}\n---\n{r.stderr[-3000:]}"
+    return r
+
+
+def test_readme_python_block(tmp_path):
+    (code,) = blocks(REPO / "README.md", "python")
+    r = run_python(code, tmp_path)
+    assert "warn" not in r.stderr.lower(), r.stderr  # nothing the README would have to explain
+    out = r.stdout.splitlines()
+    assert out[0].startswith("N "), r.stdout  # res.unit and the largest force error
+
+
+@pytest.mark.parametrize("i", range(len(blocks(REPO / "docs" / "python.md", "python"))))
+def test_python_doc_block(i, tmp_path):
+    code = blocks(REPO / "docs" / "python.md", "python")[i]
+    r = run_python(code, tmp_path)
+    # The only warning these print is the one docs/python.md explains next to the call.
+    for line in r.stderr.splitlines():
+        if "warn" in line.lower():
+            assert "replayed open loop" in line, r.stderr
