@@ -31,6 +31,18 @@ pub const LATER_FLOOR_FACTOR: f64 = 1.5;
 /// not a discrepancy.
 pub const NUMERICAL_FLOOR: f64 = 1e-9;
 
+/// Smallest noise floor of channel `kind` with measured values `y` (NRMSE units, -): the
+/// quantisation noise of a position transducer with a declared resolution q (uniform error,
+/// rms q/√12: a replay that differs by rounding flips samples across a step at rest, where the
+/// PSD estimate of the floor sees no noise at all), and never below [`NUMERICAL_FLOOR`].
+fn quantisation_floor(kind: crate::data::ChannelKind, p: &PlantParams, y: &[f64]) -> f64 {
+    let q = match kind {
+        crate::data::ChannelKind::Position => p.sensors.position.resolution,
+        _ => 0.0,
+    };
+    (q / 12f64.sqrt() / std(y).max(1e-300)).max(NUMERICAL_FLOOR)
+}
+
 /// Settings of a diagnosis.
 #[derive(Debug, Clone)]
 pub struct Options {
@@ -779,7 +791,7 @@ fn reproduces(
                 .map(|(a, b)| a - b)
                 .collect();
             (crate::replay::noise_level(&e).min(crate::replay::noise_level(y)) / std(y).max(1e-300))
-                .max(NUMERICAL_FLOOR)
+                .max(quantisation_floor(c.kind, p, y))
         })
         .collect();
     crate::residual::test("nominal", val_rec, &sim, val_range, &floor).noise
@@ -848,7 +860,7 @@ fn phase_refit(
                     .copied()
                     .unwrap_or(0.0)
             };
-            f.hypot(ig).max(NUMERICAL_FLOOR)
+            f.hypot(ig).max(quantisation_floor(c.kind, nominal, y))
         })
         .collect();
     let noise_floor = overall(&floor_ch);
