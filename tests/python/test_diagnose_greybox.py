@@ -4,9 +4,9 @@ keep the load-cell force), and the Sjöberg actuator (estimation half fitted, va
 held out).
 
 What is checked against something we did not write:
-- the physics of the MR damper: a higher coil current raises the yield (Coulomb) force and the
-  viscous coefficient (Spencer et al., J. Eng. Mech. 123(3):230–238, 1997, Fig. 4/eq. 12–13;
-  Stanway et al. 1987 Bingham model): the diagnoses of the two records must differ that way;
+- the physics of the MR damper: a higher coil current raises the yield force (Spencer et al.,
+  J. Eng. Mech. 123(3):230–238, 1997, Fig. 4/eq. 12–13; Stanway et al. 1987 Bingham model):
+  the diagnoses of the two records must differ that way and name the same cause;
 - an independent estimate of the damper law from the data alone: numpy least squares of the
   measured force on [v, sign(v), 1] with v the central difference of the measured position;
 - the extended config is runnable by `ehactl run`.
@@ -81,9 +81,22 @@ def test_mr_damper_current_gives_consistent_diagnoses(mts):
         paths = [t["path"] for t in g["terms"]]
         # The yield force of the damper is the first thing both records ask for.
         assert "effects.polynomial_force.coulomb" in paths, (rec, paths)
-    # Higher current: higher yield force and higher viscous coefficient (Spencer 1997).
+    # Higher current: higher yield force (Spencer 1997). The viscous term of the Bingham model
+    # is not asked for: fitted on the slow part of the chirp it did not predict the faster part
+    # (the transfer check), and a viscous coefficient fitted at ≤ 30 mm/s extrapolated to
+    # forces the rig never saw.
     assert l1["coulomb"] > 2.0 * l0["coulomb"] > 0.0, (l0, l1)
-    assert l1["viscous"] > 2.0 * l0["viscous"], (l0, l1)
+    for rec, (d, _) in mts.items():
+        g = d["greybox"]
+        # Named as the cause, in physical terms, with value and unit: consistent across currents.
+        assert d["cause"].startswith("load-side yield force "), (rec, d["cause"])
+        assert " N ∝ tanh(v/v_y), v_y = " in d["cause"], d["cause"]
+        assert d["causes"] == [], d["causes"]  # no catalogue effect
+        # The terms were chosen by how they predict the part of the fitting data they were not
+        # fitted on, and they do predict it better.
+        t = g["transfer"]
+        assert t["nrmse_after"] < 0.7 * t["nrmse_before"], (rec, t)
+        assert 0.0 < g["yield_velocity"] < 0.5, g["yield_velocity"]
     # Independent equation-error estimate from the data: the yield force rises with the
     # current too, and the yield forces agree within a factor of 2 (the estimators differ:
     # output error of the closed loop vs differentiated data). The data alone do not pin the
@@ -102,7 +115,8 @@ def test_mts_ratios_to_arx_baseline(mts):
         assert g["ratio_to_baseline"] == pytest.approx(
             g["nrmse_validation"]["overall"] / d["nrmse_baseline"]["overall"], rel=1e-9)
         # Per channel the force is where the physics wins; the position stays behind the ARX
-        # model (0 A: 0.058 vs 0.020, 1 A: 0.036 vs 0.025): asserted as found.
+        # model (0 A: 0.070 vs 0.020, 1 A: 0.038 vs 0.025, a documented miss: the valve and the
+        # MTS loop are assumed, not identified): asserted as found.
         assert g["nrmse_validation"]["channels"]["force"] < 0.6 * d["nrmse_baseline"]["channels"]["force"]
         assert g["nrmse_validation"]["channels"]["x"] > d["nrmse_baseline"]["channels"]["x"]
 
@@ -121,11 +135,16 @@ def test_sjoberg_greybox_ratio(tmp_path):
     d = diagnose(tmp_path, "--config", str(REPO / "configs" / "sjoberg1995_actuator.toml"),
                  "--data", str(SJ / "estimation.csv"), "--validate", str(SJ / "validation.csv"))
     g = d["greybox"]
-    assert g is not None and g["accepted"], g
-    # Target ≤ 0.8 × ARX: met, 0.743 (NRMSE 0.4612 vs 0.6208). Best reported
-    # black-box result on this split: NRMSE ≈ 0.28 (far better than ehactl).
-    assert g["ratio_to_baseline"] <= 0.8, g["ratio_to_baseline"]
-    assert g["nrmse_validation"]["overall"] == pytest.approx(0.4612, abs=0.002)
-    # Every selected term is named in physical words with its unit.
-    for t in g["terms"]:
-        assert t["unit"] and t["physics"] and t["path"].startswith("effects.polynomial_"), t
+    assert g is not None, d["summary"]
+    # A documented miss. The grey-box terms are chosen by how they predict the last 40 % of the
+    # estimation record when fitted on its first 60 %: on this record no term does (each made
+    # that segment worse), so none is accepted, and the extended model stays the catalogue's
+    # (valve saturation), level with the ARX baseline instead of the ≤ 0.8 target. Terms chosen
+    # by the fitting-part cost alone reached 0.46 on the validation record, but that choice
+    # did not transfer to data other than the validation record on the MTS rig.
+    assert not g["accepted"], g["terms"]
+    t = g["transfer"]
+    assert t["nrmse_after"] == t["nrmse_before"], t
+    ratio = d["nrmse_extended"]["overall"] / d["nrmse_baseline"]["overall"]
+    assert ratio == pytest.approx(1.006, abs=0.01), ratio
+    assert d["cause"] == "valve_saturation", d["cause"]

@@ -51,6 +51,9 @@ fn main() {
     let choices = ehactl_ident::session::RunChoices {
         progress: sink,
         sensor_offsets: false,
+        config_path: Some(std::path::PathBuf::from(&a[1])),
+        force: false,
+        allow_config_mismatch: false,
     };
     let val = a.get(3).map(std::path::PathBuf::from);
     let r = ehactl_ident::session::run(

@@ -1410,7 +1410,13 @@ fn phase_report(
                 )
             })
             .collect();
-        summary = if accepted.is_empty() {
+        summary = if accepted.is_empty() && cause != "unexplained" {
+            let g = greybox.as_ref().map_or(0.0, |g| g.nrmse_validation.overall);
+            format!(
+                "No catalogue effect explains the discrepancy (after refitting the nominal parameters within their uncertainty the held-out NRMSE is {:.4}, noise floor {:.4}; the catalogue model's held-out residual is not noise: {}. Signature: {}). The grey-box law does: the cause is {cause}; with it the held-out NRMSE is {g:.4} (ARX baseline {:.4}).",
+                rf.refit_err.overall, rf.noise_floor, lv.join("; "), sig.text, nom.nrmse_baseline.overall
+            )
+        } else if accepted.is_empty() {
             format!(
                 "The answer is `unexplained`, not `none`: no catalogue effect explains the discrepancy (after refitting the nominal parameters within their uncertainty the held-out NRMSE is {:.4}, noise floor {:.4}), and the held-out residual is not noise ({}). Signature: {}.",
                 rf.refit_err.overall, rf.noise_floor, lv.join("; "), sig.text

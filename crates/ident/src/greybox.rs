@@ -105,8 +105,20 @@ pub struct GreyBox {
     pub accepted: bool,
     /// The transfer check the terms were chosen by (`None`: fitting part too short to split).
     pub transfer: Option<Transfer>,
+    /// Fitted pre-yield velocity v_y of the yield term (m/s), when it was fitted.
+    pub yield_velocity: Option<f64>,
     /// Selection log: each round's best candidate and its fitting-part cost.
     pub selection: Vec<String>,
+}
+
+/// `v` with 4 significant digits (plain notation from 1e-3 to 1e6, else scientific).
+fn sig4(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 || !(1e-3..1e6).contains(&a) {
+        return format!("{v:.3e}");
+    }
+    let decimals = (3 - a.log10().floor() as i32).max(0) as usize;
+    format!("{v:.decimals$}")
 }
 
 impl GreyBox {
@@ -115,10 +127,13 @@ impl GreyBox {
     /// and the further terms by name.
     pub fn cause(&self) -> Option<String> {
         let (first, rest) = self.terms.split_first()?;
-        let mut c = format!(
-            "{} {:.4} {} ({})",
-            first.name, first.value, first.unit, first.physics
-        );
+        let mut c = format!("{} {} {}", first.name, sig4(first.value), first.unit);
+        if let Some(vy) = self
+            .yield_velocity
+            .filter(|_| first.path.ends_with(".coulomb"))
+        {
+            c = format!("{c} ∝ tanh(v/v_y), v_y = {} m/s", sig4(vy));
+        }
         if !rest.is_empty() {
             let more: Vec<&str> = rest.iter().map(|t| t.name.as_str()).collect();
             c = format!("{c}, with {}", more.join(", "));
@@ -233,7 +248,7 @@ pub(crate) fn extend(
             section: "polynomial_force",
             field: "coulomb",
             name: "load-side yield force",
-            physics: "yield force F_y·tanh(v/v_y) (Bingham with a fitted pre-yield velocity v_y; bounded at any speed)",
+            physics: "yield force F_y·tanh(v/v_y): Bingham with a fitted pre-yield velocity v_y, bounded at any speed",
             bound: 0.2 * fs,
             feature: Some(|_, v, f| (v / f.smoothing_velocity).tanh()),
         },
@@ -504,8 +519,8 @@ pub(crate) fn extend(
         .as_ref()
         .map(|r| r.0.clone())
         .unwrap_or_default();
-    // The yield term's pre-yield velocity v_y (m/s), fitted in log space with its force when the
-    // base has no force law of its own (else the base's smoothing velocity is kept).
+    // The yield term's pre-yield velocity v_y (m/s), fitted in log space with its force (from
+    // the base's smoothing velocity when the config has a force law: an assumption there).
     let yield_velocity = |init: f64| -> FreeParam {
         let (lo, hi) = (0.005 * vr, 0.5 * vr);
         FreeParam {
@@ -521,7 +536,6 @@ pub(crate) fn extend(
             }),
         }
     };
-    let fit_velocity = base_fit.effects.polynomial_force.is_none();
     for _round in 0..MAX_TERMS {
         let cands: Vec<&Lib> = lib
             .iter()
@@ -536,7 +550,7 @@ pub(crate) fn extend(
                 hh.values.push(fp.init);
                 hh.params.push(fp);
                 let first_new = hh.params.len() - 1;
-                if l.field == "coulomb" && fit_velocity {
+                if l.field == "coulomb" {
                     let fv = yield_velocity(vs);
                     hh.values.push(fv.init);
                     hh.params.push(fv);
@@ -670,17 +684,12 @@ pub(crate) fn extend(
             t.at_bound = t.value.abs() >= 0.98 * h.params[k].hi;
         }
     }
-    // The yield term's fitted pre-yield velocity, in its words.
-    if let Some(k) = h
+    // The yield term's fitted pre-yield velocity.
+    let yield_velocity = h
         .params
         .iter()
         .position(|p| p.name == "effects.polynomial_force.smoothing_velocity")
-    {
-        let vy = h.values[k];
-        for t in terms.iter_mut().filter(|t| t.path.ends_with(".coulomb")) {
-            t.physics = format!("{}, v_y = {vy:.3e} m/s", t.physics);
-        }
-    }
+        .map(|k| h.values[k]);
     let accepted = !terms.is_empty();
     let (val, _) = frozen.val_errors(&h);
     let structure = if accepted {
@@ -718,6 +727,7 @@ pub(crate) fn extend(
         ratio_to_baseline: ratio,
         accepted,
         transfer,
+        yield_velocity,
         selection,
     };
     if !accepted {
