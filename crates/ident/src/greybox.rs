@@ -416,26 +416,7 @@ pub(crate) fn extend(
             _ => vec![1e6; rec.channels.len()],
         }
     };
-    let channel_costs = |p: &PlantParams| -> Vec<f64> {
-        match frozen.fit_replay(p) {
-            Ok(s) if !s.failed => rec
-                .channels
-                .iter()
-                .zip(&s.y)
-                .zip(&sd)
-                .map(|((c, y), sd)| {
-                    c.values[..n_fit]
-                        .iter()
-                        .zip(y)
-                        .map(|(a, b)| (a - b) * (a - b))
-                        .sum::<f64>()
-                        / n_fit as f64
-                        / (sd * sd)
-                })
-                .collect(),
-            _ => vec![1e6; rec.channels.len()],
-        }
-    };
+    let channel_costs = |p: &PlantParams| channel_costs_on(&frozen, n_fit, &sd, p);
     // Selection criterion: mean over channels of ln J_c (the negative log-likelihood of
     // Gaussian errors with an unknown variance per channel, up to constants), so a term that
     // fixes a small channel counts as much as one that fixes a large one.
