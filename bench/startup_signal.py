@@ -7,7 +7,6 @@ canopen` with `canopen.boot_timeout_s = 20` (so the start-up waits for boot-ups 
 SDO), SIGTERM or SIGINT at a random moment 0.3-2 s after launch; prints exit code and the time
 from the signal to the exit, then the median / max per signal. Run from the repository root."""
 import json
-import os
 import pathlib
 import random
 import signal

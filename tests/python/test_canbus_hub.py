@@ -275,11 +275,11 @@ def test_garbage_flood_is_summarised_per_client_not_logged_line_by_line():
     assert "panicked" not in err
     # the first ones are quoted, then a count: at the disconnect, the total for that client
     assert "unsupported command `< bogus >`" in err
-    summary = [l for l in lines if "malformed" in l and "disconnected" in l]
+    summary = [ln for ln in lines if "malformed" in ln and "disconnected" in ln]
     assert len(summary) == 2, lines
-    flood = [l for l in summary if f"; {bogus} malformed messages in all" in l]
+    flood = [ln for ln in summary if f"; {bogus} malformed messages in all" in ln]
     assert len(flood) == 1, summary
-    other = next(l for l in summary if l is not flood[0])
+    other = next(ln for ln in summary if ln is not flood[0])
     assert re.search(r"; [1-9]\d* malformed messages in all", other), summary
 
 
@@ -294,7 +294,7 @@ def test_hub_on_a_non_loopback_address_warns():
         proc.terminate()
         proc.wait(timeout=5)
     err = proc.stderr.read()
-    warn = [l for l in err.splitlines() if "warning" in l]
+    warn = [ln for ln in err.splitlines() if "warning" in ln]
     assert len(warn) == 1, err
     assert "not a loopback address" in warn[0] and "CAN bus" in warn[0] and "network" in warn[0], warn
     with hub() as (proc, _port):

@@ -14,6 +14,7 @@ import tempfile
 import time
 
 import numpy as np
+import pytest
 
 from canhub import BIN, hub
 from ehactl_mcap import read_can, read_run

@@ -275,7 +275,7 @@ def test_live_on_a_non_loopback_address_warns(tmp_path: Path) -> None:
         cwd=REPO, capture_output=True, text=True, timeout=60,
     )
     assert r.returncode == 0, r.stderr
-    warn = [l for l in r.stderr.splitlines() if "warning" in l]
+    warn = [ln for ln in r.stderr.splitlines() if "warning" in ln]
     assert len(warn) == 1, r.stderr
     assert "--live 0.0.0.0:" in warn[0] and "not a loopback address" in warn[0] and "network" in warn[0], warn
     # loopback: no warning
