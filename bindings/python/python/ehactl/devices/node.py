@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from typing import Callable, Dict, List, Optional, Tuple
 
 import canopen
-from canopen.objectdictionary import ODVariable
-from canopen.sdo import SdoAbortedError
+from canopen.objectdictionary import ODArray, ODRecord, ODVariable
+from canopen.sdo.exceptions import SdoAbortedError
 
 # NMT states as sent in the heartbeat (CiA 301 7.2.8.3.2.1).
 INITIALISING = 0x00
@@ -417,7 +417,8 @@ class SimNode:
         cfg.cob_id = cob & 0x7FF
         cfg.valid = not (cob & COB_INVALID)
         cfg.trans_type = self.value(comm, 2)
-        if 5 in self.od[comm]:
+        entry = self.od[comm]
+        if isinstance(entry, (ODRecord, ODArray)) and 5 in entry:
             cfg.event_timer_ms = self.value(comm, 5)
         mapping = comm + 0x200
         for k in range(1, self.value(mapping, 0) + 1):

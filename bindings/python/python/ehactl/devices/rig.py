@@ -224,9 +224,11 @@ class RigNetwork(canopen.Network):
         self.frames_sent: Dict[int, int] = {}      # COB-ID -> frames sent by this process
         self.frames_received: Dict[int, int] = {}  # COB-ID -> frames received
         self.dispatching = _DispatchStart()
-        self.listeners.insert(0, self.dispatching)
+        # canopen types `listeners` by its own listener class; python-can's Notifier takes
+        # any can.Listener (it calls on_message_received), which these two are.
+        self.listeners.insert(0, self.dispatching)  # type: ignore[arg-type]
         self.counting = _CountingListener(self.frames_received)
-        self.listeners.append(self.counting)
+        self.listeners.append(self.counting)  # type: ignore[arg-type]
 
     def rx_idle(self) -> bool:
         """Every received frame has been handled (nothing queued, none being dispatched)."""

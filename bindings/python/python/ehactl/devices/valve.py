@@ -39,7 +39,7 @@ from __future__ import annotations
 import enum
 import time
 
-from canopen.sdo import SdoAbortedError
+from canopen.sdo.exceptions import SdoAbortedError
 
 from .node import ABORT_VALUE_RANGE, EMCY_RPDO_TIMEOUT, OPERATIONAL, SimNode
 
