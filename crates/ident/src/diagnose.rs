@@ -306,6 +306,10 @@ impl Ctx<'_> {
             offsets: self.offsets,
         })
     }
+    /// Std of each channel over the samples in the fit cost (normalises the per-channel cost).
+    pub(crate) fn sd_fit(&self) -> &[f64] {
+        &self.sd_fit
+    }
     /// Base parameters of the fit record.
     pub(crate) fn fit_base_params(&self) -> &PlantParams {
         &self.fit_base
@@ -785,12 +789,7 @@ fn reproduces(
         .zip(&sim.y)
         .map(|(c, yh)| {
             let y = &c.values[val_range.clone()];
-            let e: Vec<f64> = y
-                .iter()
-                .zip(&yh[val_range.clone()])
-                .map(|(a, b)| a - b)
-                .collect();
-            (crate::replay::noise_level(&e).min(crate::replay::noise_level(y)) / std(y).max(1e-300))
+            crate::replay::residual_floor(y, &yh[val_range.clone()])
                 .max(quantisation_floor(c.kind, p, y))
         })
         .collect();
@@ -847,9 +846,7 @@ fn phase_refit(
         .zip(&refit_val_sim.y)
         .map(|(c, yh)| {
             let y = &c.values[vr.clone()];
-            let e: Vec<f64> = y.iter().zip(&yh[vr.clone()]).map(|(a, b)| a - b).collect();
-            let f = crate::replay::noise_level(&e).min(crate::replay::noise_level(y))
-                / std(y).max(1e-300);
+            let f = crate::replay::residual_floor(y, &yh[vr.clone()]);
             let ig = if nom.integration.met || nom.integration.configured_step_explains {
                 0.0
             } else {
@@ -1379,23 +1376,24 @@ fn phase_report(
     });
     let refit_at_bounds = at_bounds(&rf.h0);
     let extended_at_bounds = at_bounds(&current);
-    let mut summary = summary_text(
-        &accepted,
-        &cands,
-        &rf.analysis_refit,
-        &nom.nom_err,
-        &rf.refit_err,
-        &ext_err,
-        gain,
-        rf.noise_floor,
-        &ambiguities,
-    );
-    if nom.integration.configured_step_explains {
-        summary = format!(
+    let mut summary = if nom.integration.configured_step_explains {
+        format!(
             "The nominal model as configured, replayed at the config's own integration step, reproduces the held-out data within the noise (held-out NRMSE {:.4}, estimated noise floor {:.4}); nothing was refitted or added. The answer is `none`.",
             nom.nom_err.overall, rf.noise_floor
-        );
-    }
+        )
+    } else {
+        summary_text(
+            &accepted,
+            &cands,
+            &rf.analysis_refit,
+            &nom.nom_err,
+            &rf.refit_err,
+            &ext_err,
+            gain,
+            rf.noise_floor,
+            &ambiguities,
+        )
+    };
     if let Some(sig) = &residual_test.signature {
         let lv: Vec<String> = residual_test
             .channels

@@ -390,13 +390,10 @@ pub(crate) fn extend(
             set,
         }
     };
-    // Per-channel fitting-part cost (NRMSE² per channel) of parameters `p`.
-    let sd: Vec<f64> = rec
-        .channels
-        .iter()
-        .map(|c| crate::replay::std(&c.values[..n_fit]).max(1e-300))
-        .collect();
-    let channel_costs_on = |c: &Ctx, n_fit: usize, sd: &[f64], p: &PlantParams| -> Vec<f64> {
+    // Per-channel cost (NRMSE² per channel) of parameters `p` on the samples of context `c`'s
+    // fit cost, normalised by its own stds.
+    let channel_costs_on = |c: &Ctx, p: &PlantParams| -> Vec<f64> {
+        let (n_fit, sd) = (c.n_fit(), c.sd_fit());
         match c.fit_replay(p) {
             Ok(s) if !s.failed => rec
                 .channels
@@ -416,7 +413,7 @@ pub(crate) fn extend(
             _ => vec![1e6; rec.channels.len()],
         }
     };
-    let channel_costs = |p: &PlantParams| channel_costs_on(&frozen, n_fit, &sd, p);
+    let channel_costs = |p: &PlantParams| channel_costs_on(&frozen, p);
     // Selection criterion: mean over channels of ln J_c (the negative log-likelihood of
     // Gaussian errors with an unknown variance per channel, up to constants), so a term that
     // fixes a small channel counts as much as one that fixes a large one.
@@ -447,14 +444,8 @@ pub(crate) fn extend(
     // The held-out part still never enters a choice.
     let split = frozen.transfer_split(TRANSFER_SPLIT);
     let sel: &Ctx = split.as_ref().unwrap_or(&frozen);
-    let n_sel = sel.n_fit();
-    let sd_sel: Vec<f64> = rec
-        .channels
-        .iter()
-        .map(|c| crate::replay::std(&c.values[..n_sel]).max(1e-300))
-        .collect();
     let sel_cost = |p: &PlantParams| -> f64 {
-        let jc = channel_costs_on(sel, n_sel, &sd_sel, p);
+        let jc = channel_costs_on(sel, p);
         jc.iter().sum::<f64>() / jc.len().max(1) as f64
     };
     // Judged cost: mean ln NRMSE² over channels on the predicted segment (or, without a
@@ -651,11 +642,6 @@ pub(crate) fn extend(
         if cf.is_finite() {
             h = hf;
             j_cur = cf;
-        }
-        for t in terms.iter_mut() {
-            if let Some(k) = h.params.iter().position(|p| p.name == t.path) {
-                t.value = h.values[k];
-            }
         }
     }
     // Final values of every selected term (the last joint fit moved the earlier ones too).

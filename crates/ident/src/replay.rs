@@ -309,6 +309,14 @@ pub fn noise_level(y: &[f64]) -> f64 {
     (band[band.len() / 2] / 0.9 * 0.5).sqrt()
 }
 
+/// Noise floor of one channel in NRMSE units (-): the white-noise level of the residual
+/// `y − yh` (or of `y` itself, if lower: a residual with model error in the upper band must
+/// not raise the floor above the data's own noise) over the std of `y`.
+pub fn residual_floor(y: &[f64], yh: &[f64]) -> f64 {
+    let e: Vec<f64> = y.iter().zip(yh).map(|(a, b)| a - b).collect();
+    noise_level(&e).min(noise_level(y)) / std(y).max(1e-300)
+}
+
 /// Replay accuracy: how the substeps were chosen and the integration error they leave.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct IntegrationCheck {
@@ -398,11 +406,7 @@ pub fn choose_integration_between(
             .channels
             .iter()
             .zip(&sim.y)
-            .zip(&sd)
-            .map(|((c, yh), s)| {
-                let e: Vec<f64> = c.values[..n].iter().zip(yh).map(|(a, b)| a - b).collect();
-                noise_level(&e).min(noise_level(&c.values[..n])) / s
-            })
+            .map(|(c, yh)| residual_floor(&c.values[..n], yh))
             .collect(),
         Err(_) => vec![0.0; sd.len()],
     };
