@@ -472,7 +472,7 @@ impl Plan {
                         p.dev.config_key()
                     )));
                 }
-                (Dev::Valve, true) => {
+                (dev, true) => {
                     p.push(
                         0x1016,
                         1,
@@ -480,16 +480,9 @@ impl Plan {
                         StepKind::Ensure,
                         what,
                     )?;
-                }
-                (Dev::Transducer, true) => {
-                    p.push(
-                        0x1016,
-                        1,
-                        consumer.to_le_bytes().to_vec(),
-                        StepKind::Ensure,
-                        what,
-                    )?;
-                    p.if_device_has();
+                    if dev == Dev::Transducer {
+                        p.if_device_has();
+                    }
                 }
                 (Dev::Transducer, false) => {
                     // Not in the file: still asked, as CiA 301 defines it (UNSIGNED32, rw).
