@@ -53,23 +53,26 @@ def sjoberg():
         write(ROOT / "sjoberg" / f"{name}.csv", {"t": t[sl] - t[sl][0], "u": u[sl], "p_a": pa[sl]})
 
 
+def mts_columns(src, t0=5.0, t1=15.0):
+    """Columns (t, u, x, ref, force; SI) of the t0–t1 s segment of a raw MTS file, decimated
+    to 500 Hz, with the scalings and assumptions of the module doc."""
+    d = np.genfromtxt(src, delimiter=",", skip_header=7, usecols=(2, 3, 4))
+    xm = d[:, 0] * 10e-3
+    f = d[:, 1] * 9806.65
+    xr = d[:, 2] * 10e-3
+    f = f - f[:4000].mean()  # load-cell zero at rest (see the module doc)
+    sl = slice(int(round(t0 * 1000)), int(round(t1 * 1000)), 2)
+    t = np.arange(len(xm))[sl] * 1e-3
+    return {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl], "force": f[sl]}
+
+
 def mts(name, src_dir):
     """The raw DAQ files (4 MB each) are not in the repo; pass their directory."""
     src = pathlib.Path(src_dir) / f"{name}.txt"
     if not src.exists():
         print(f"skip MTS {name}: {src} not found", file=sys.stderr)
         return
-    d = np.genfromtxt(src, delimiter=",", skip_header=7, usecols=(2, 3, 4))
-    xm = d[:, 0] * 10e-3
-    f = d[:, 1] * 9806.65
-    xr = d[:, 2] * 10e-3
-    f = f - f[:4000].mean()  # load-cell zero at rest (see the module doc)
-    sl = slice(5000, 15000, 2)
-    t = np.arange(len(xm))[sl] * 1e-3
-    write(
-        ROOT / "utfsm_mts" / f"{name}_5to15s.csv",
-        {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl], "force": f[sl]},
-    )
+    write(ROOT / "utfsm_mts" / f"{name}_5to15s.csv", mts_columns(src))
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ import subprocess
 import sys
 import time
 
-import numpy as np
+from convert_measured import mts_columns, write  # same directory: the same conversion
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 BIN = os.environ.get("EHACTL_BIN", "ehactl")
@@ -31,15 +31,7 @@ SEGMENTS = {"low": (5.0, 15.0), "high": (15.0, 25.0)}
 
 
 def segment(src: pathlib.Path, t0: float, t1: float, dst: pathlib.Path) -> None:
-    d = np.genfromtxt(src, delimiter=",", skip_header=7, usecols=(2, 3, 4))
-    xm = d[:, 0] * 10e-3
-    f = d[:, 1] * 9806.65
-    xr = d[:, 2] * 10e-3
-    f = f - f[:4000].mean()
-    sl = slice(int(t0 * 1000), int(t1 * 1000), 2)
-    t = np.arange(len(xm))[sl] * 1e-3
-    cols = {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl], "force": f[sl]}
-    np.savetxt(dst, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="", fmt="%.9g")
+    write(dst, mts_columns(src, t0, t1))
 
 
 def diagnose(fit: pathlib.Path, val: pathlib.Path) -> dict:
