@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Iterator, List, Mapping, Optional, Sequence, Tuple, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Iterator, List, Mapping, Optional, Sequence, Tuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -373,8 +373,47 @@ class SddRatios(_DictCompat):
         return f"SddRatios(fr_ym={self.fr_ym:.4g}, fr_em={_fmt(self.fr_em)}, rd_my={self.rd_my:.4g})"
 
 
+class _FrequencyColumns(_DictCompat):
+    """A table over frequency held as equal-length arrays, one per name in ``_KEYS`` (the
+    first is the frequency in Hz): the shared behaviour of :class:`LoopResponse` and
+    :class:`SweepResponse`."""
+
+    __slots__ = ()
+    _KEYS: ClassVar[Tuple[str, ...]] = ()
+
+    @classmethod
+    def from_points(cls: type[C], points: Sequence[Mapping[str, Any]]) -> C:
+        """From the JSON's list of per-frequency objects."""
+        return cls(**{k: _arr([p.get(k) for p in points]) for k in cls._KEYS})
+
+    def to_points(self) -> list[dict[str, Any]]:
+        cols = [getattr(self, k) for k in self._KEYS]
+        return [{k: _thaw(float(c[i])) for k, c in zip(self._KEYS, cols)} for i in range(len(self))]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Column form: ``{name: list}``."""
+        return {k: _thaw(getattr(self, k)) for k in self._KEYS}
+
+    def __len__(self) -> int:
+        return len(getattr(self, self._KEYS[0]))
+
+    def to_pandas(self) -> pd.DataFrame:
+        """``pandas.DataFrame`` with one row per frequency, the columns above."""
+        return _dataframe({k: np.array(getattr(self, k)) for k in self._KEYS})
+
+    def __repr__(self) -> str:
+        name = type(self).__name__
+        if len(self) == 0:
+            return f"{name}(0 points)"
+        f = getattr(self, self._KEYS[0])
+        return f"{name}({len(self)} points, {f[0]:.4g}–{f[-1]:.4g} Hz)"
+
+
+C = TypeVar("C", bound=_FrequencyColumns)
+
+
 @dataclass(frozen=True, eq=False)
-class LoopResponse(_DictCompat):
+class LoopResponse(_FrequencyColumns):
     """Frequency response of the sampled loop on a log grid: loop gain L and closed loop
     T = L/(1 + L). Arrays of equal length (empty in open loop).
 
@@ -394,34 +433,8 @@ class LoopResponse(_DictCompat):
 
     _KEYS = ("f_hz", "loop_mag_db", "loop_phase_deg", "closed_mag_db", "closed_phase_deg")
 
-    @classmethod
-    def from_points(cls, points: Sequence[Mapping[str, Any]]) -> LoopResponse:
-        """From the JSON's list of per-frequency objects."""
-        return cls(**{k: _arr([p.get(k) for p in points]) for k in cls._KEYS})
-
-    def to_points(self) -> list[dict[str, Any]]:
-        """The JSON's list of per-frequency objects."""
-        cols = [getattr(self, k) for k in self._KEYS]
-        return [{k: _thaw(float(c[i])) for k, c in zip(self._KEYS, cols)} for i in range(len(self))]
-
-    def to_dict(self) -> dict[str, Any]:
-        """Column form: ``{name: list}``."""
-        return {k: _thaw(getattr(self, k)) for k in self._KEYS}
-
     def _legacy(self) -> dict[str, Any]:
         return {k: getattr(self, k) for k in self._KEYS}
-
-    def __len__(self) -> int:
-        return len(self.f_hz)
-
-    def to_pandas(self) -> pd.DataFrame:
-        """``pandas.DataFrame`` with one row per frequency, the columns above."""
-        return _dataframe({k: np.array(getattr(self, k)) for k in self._KEYS})
-
-    def __repr__(self) -> str:
-        if len(self) == 0:
-            return "LoopResponse(0 points)"
-        return f"LoopResponse({len(self)} points, {self.f_hz[0]:.4g}–{self.f_hz[-1]:.4g} Hz)"
 
 
 @dataclass(frozen=True, eq=False)
@@ -585,7 +598,7 @@ class AnalysisResult(_DictCompat):
 
 
 @dataclass(frozen=True, eq=False)
-class SweepResponse(_DictCompat):
+class SweepResponse(_FrequencyColumns):
     """Measured frequency response H = output/input, one entry per frequency.
 
     Attributes:
@@ -605,29 +618,6 @@ class SweepResponse(_DictCompat):
     distortion: FloatArray
 
     _KEYS = ("f_hz", "mag_db", "phase_deg", "coherence", "gain", "distortion")
-
-    @classmethod
-    def from_points(cls, points: Sequence[Mapping[str, Any]]) -> SweepResponse:
-        return cls(**{k: _arr([p.get(k) for p in points]) for k in cls._KEYS})
-
-    def to_points(self) -> list[dict[str, Any]]:
-        cols = [getattr(self, k) for k in self._KEYS]
-        return [{k: _thaw(float(c[i])) for k, c in zip(self._KEYS, cols)} for i in range(len(self))]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {k: _thaw(getattr(self, k)) for k in self._KEYS}
-
-    def __len__(self) -> int:
-        return len(self.f_hz)
-
-    def to_pandas(self) -> pd.DataFrame:
-        """``pandas.DataFrame``, one row per frequency."""
-        return _dataframe({k: np.array(getattr(self, k)) for k in self._KEYS})
-
-    def __repr__(self) -> str:
-        if len(self) == 0:
-            return "SweepResponse(0 points)"
-        return f"SweepResponse({len(self)} points, {self.f_hz[0]:.4g}–{self.f_hz[-1]:.4g} Hz)"
 
 
 @dataclass(frozen=True, eq=False)
