@@ -88,16 +88,23 @@ def test_handshake_stays_clean_while_traffic_flows():
             a.shutdown()
 
 
+def rawmode_client(port: int) -> socket.socket:
+    """A socketcand client on `port` past its handshake, in raw mode (socketcand protocol:
+    `< hi >`, `< open can0 >`, `< rawmode >`)."""
+    raw = socket.create_connection(("127.0.0.1", port))
+    assert raw.recv(64) == b"< hi >"
+    raw.sendall(b"< open can0 >")
+    assert raw.recv(64) == b"< ok >"
+    raw.sendall(b"< rawmode >")
+    assert raw.recv(64) == b"< ok >"
+    return raw
+
+
 def test_malformed_input_is_reported_and_does_not_break_the_bus():
     with hub() as (proc, port):
         b = bus(port)
-        raw = socket.create_connection(("127.0.0.1", port))
+        raw = rawmode_client(port)
         try:
-            assert raw.recv(64) == b"< hi >"
-            raw.sendall(b"< open can0 >")
-            assert raw.recv(64) == b"< ok >"
-            raw.sendall(b"< rawmode >")
-            assert raw.recv(64) == b"< ok >"
             raw.sendall(b"< send 800 0 >< send 123 9 >< send 123 2 01 >garbage< bogus >< send 123 1 AB >")
             m = b.recv(timeout=2)
             assert m is not None and m.arbitration_id == 0x123 and bytes(m.data) == b"\xab"
@@ -246,13 +253,8 @@ def test_garbage_flood_is_summarised_per_client_not_logged_line_by_line():
         reader = threading.Thread(target=lambda: chunks.extend(iter(proc.stderr.readline, "")), daemon=True)
         reader.start()
         b = bus(port)
-        raw = socket.create_connection(("127.0.0.1", port))
+        raw = rawmode_client(port)
         try:
-            assert raw.recv(64) == b"< hi >"
-            raw.sendall(b"< open can0 >")
-            assert raw.recv(64) == b"< ok >"
-            raw.sendall(b"< rawmode >")
-            assert raw.recv(64) == b"< ok >"
             raw.sendall(b"< bogus >" * bogus + b"< send 123 1 AB >")
             # the bus still works for the others, and all the junk has been read
             m = b.recv(timeout=30)
