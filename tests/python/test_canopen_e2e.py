@@ -1,6 +1,6 @@
 """End to end over CAN: `ehactl canbus hub`, the simulated devices
 (`python -m ehactl.devices`) and `ehactl run --hal canopen` closing the dindorf2022_boom
-position loop over socketcand; then one test per fault of the issue."""
+position loop over socketcand; then one test per fault found in review."""
 import json
 import subprocess
 import time
@@ -27,7 +27,7 @@ def _canopen_hal_missing():
     except OSError as e:
         return f"ehactl binary not runnable: {e}"
     if "--hal" not in p.stdout or "--bus" not in p.stdout:
-        return ("`ehactl run --hal canopen --bus URL` (CANopen master of branch issue-canopen) "
+        return ("`ehactl run --hal canopen --bus URL` (the CANopen master) "
                 "is not in this build")
     return None
 

@@ -1,5 +1,5 @@
 """The run path loses no file of the user's, no log, and bounds what a client or a
-fault can do. Every test here failed before the fix it covers (see the issue's defects 1–7).
+fault can do. Every test here failed before the fix it covers (defects 1–7 as found in review).
 Logs are read back with the official `mcap` reader, CRCs validated."""
 
 from __future__ import annotations

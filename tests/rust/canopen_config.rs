@@ -85,7 +85,7 @@ fn bus_load_limit_follows_the_formula() {
 
 #[test]
 fn safe_command_outside_the_valve_range_is_refused() {
-    // The case: -1e9 V passed check-config and saturated to a fully open spool.
+    // Found in review: -1e9 V passed check-config and saturated to a fully open spool.
     for v in ["-1e9", "10.5", "-10.000001"] {
         let text = boom().replace("safe_command = 0.0 ", &format!("safe_command = {v} "));
         let e = RigConfig::from_toml_str(&text).unwrap_err();

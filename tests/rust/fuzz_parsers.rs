@@ -97,7 +97,7 @@ proptest! {
         let _ = RigConfig::from_toml_str(&text);
     }
 
-    /// One field of a shipped config replaced by a hostile value (the 690-mutant
+    /// One field of a shipped config replaced by a hostile value (the review's 690-mutant
     /// probe as a property): an error naming a field, or a config that builds and runs.
     #[test]
     fn config_toml_field_mutants(which in 0usize..64, line in 0usize..400, value in hostile_value()) {

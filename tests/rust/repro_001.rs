@@ -275,7 +275,7 @@ fn lumped_line_converges_to_the_transfer_matrix() {
             100.0 * model_gap
         );
         if tube == 4.5 {
-            // The bar holds for the 4.5 in tube (001 fig. 9's case) at every count.
+            // The 2 % bar holds for the 4.5 in tube (001 fig. 9's case) at every count.
             assert_eq!(n_paper_2, Some(1), "{f_plant:?}");
         } else {
             // ... and not for the 11.5 in tube: the friction-model gap exceeds 2 % (reported).
@@ -286,7 +286,7 @@ fn lumped_line_converges_to_the_transfer_matrix() {
 
 #[test]
 fn unsteady_lumped_line_converges_to_the_transfer_matrix() {
-    // The bar: the plant's lumped line converges to 001's transfer-matrix first
+    // The 2 % bar: the plant's lumped line converges to 001's transfer-matrix first
     // resonance within 2 % as the segments grow, here with frequency-dependent friction.
     let segments = [1u32, 2, 4, 8, 16, 32];
     for tube in [4.5, 11.5] {

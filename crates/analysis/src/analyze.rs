@@ -197,7 +197,7 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
 }
 
 impl Analysis {
-    /// The `ehactl analyze --json` object: the flat keys (those that apply) plus the
+    /// The `ehactl analyze --json` object: the flat keys (those that apply) plus the
     /// details.
     pub fn to_json(&self) -> Value {
         let mut o = json!({

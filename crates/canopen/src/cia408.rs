@@ -228,7 +228,7 @@ mod tests {
             assert_eq!(st.status_bits(), code);
             assert_eq!(st.is_fault(), code & SW_READY == 0);
         }
-        // The case: a conforming valve in HOLD (0x000B) is HOLD, not a fault; a
+        // A conforming valve in HOLD (0x000B) is HOLD, not a fault; a
         // FAULT_HOLD (0x0003) is no HOLD and a FAULT_REACTION (0x0007) is no ACTIVE.
         assert_eq!(ValveState::from_status(0x000B), ValveState::Hold);
         assert!(ValveState::from_status(0x0003).is_fault());
