@@ -212,6 +212,8 @@ fn load_coulomb_friction_terminal_velocity() {
         coulomb_force: 400.0,
         stribeck_velocity: 0.01,
         viscous: 0.0,
+        bristle_stiffness: 0.0,
+        bristle_damping: 0.0,
     });
     let mut plant = Plant::configure(&p, 1e-3).unwrap();
     for _ in 0..300 {

@@ -76,6 +76,8 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 coulomb_force: 150.0,
                 stribeck_velocity: 0.01,
                 viscous: 10.0,
+                bristle_stiffness: 0.0,
+                bristle_damping: 0.0,
             });
             p.effects.valve_deadband = dband.then_some(ValveDeadband {
                 enabled: true,
@@ -141,6 +143,9 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 segments: nseg,
                 bulk_modulus: Some(1.2e9),
                 port_volume: 0.0,
+                variant: Default::default(),
+                wall_compliance: 0.0,
+                resistance: 0.0,
                 // Both wall-friction models (the unsteady one adds convolution states).
                 friction: if nseg % 2 == 0 {
                     LineFriction::Unsteady

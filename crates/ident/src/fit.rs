@@ -245,6 +245,8 @@ pub fn effect_variants(
                         coulomb_force: c0,
                         stribeck_velocity: 0.005,
                         viscous: 0.0,
+                        bristle_stiffness: 0.0,
+                        bristle_damping: 0.0,
                     })
                 });
                 let variant = |p: &mut PlantParams| {
@@ -543,6 +545,8 @@ pub fn effect_params(
                     coulomb_force: 0.0,
                     stribeck_velocity: 0.01,
                     viscous: 0.0,
+                    bristle_stiffness: 0.0,
+                    bristle_damping: 0.0,
                 });
             });
             let c0 = ef
@@ -739,6 +743,9 @@ pub fn effect_params(
                 segments: 2,
                 bulk_modulus: None,
                 port_volume: 0.0,
+                variant: Default::default(),
+                wall_compliance: 0.0,
+                resistance: 0.0,
                 friction: Default::default(),
             });
             let (l0, d0) = (cur.length, cur.diameter);

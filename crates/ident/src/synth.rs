@@ -90,6 +90,8 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
                 static_force: fc * rng.range(1.1, 1.6),
                 stribeck_velocity: rng.log_range(0.005, 0.02),
                 viscous: 0.0,
+                bristle_stiffness: 0.0,
+                bristle_damping: 0.0,
             });
         }
         EffectId::ValveDeadband => {
@@ -153,6 +155,9 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
                 segments: 3,
                 bulk_modulus: None,
                 port_volume: 0.0,
+                variant: Default::default(),
+                wall_compliance: 0.0,
+                resistance: 0.0,
                 friction: Default::default(),
             })
         }
