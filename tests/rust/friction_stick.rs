@@ -115,7 +115,7 @@ fn harmonic_force_gives_stick_slip_without_chatter() {
 
 #[test]
 fn projection_is_exact_at_the_breakaway_boundary() {
-    let fm = FrictionModel::new(&Friction {
+    let mut fm = FrictionModel::new(&Friction {
         variant: Default::default(),
         enabled: true,
         static_force: 44.0,
