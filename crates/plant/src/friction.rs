@@ -11,9 +11,11 @@
 //! F = σ₀·z + σ₁·ż with the Stribeck curve above as g(v). Over a substep h it is taken
 //! backward Euler in z and in the new velocity, with the rate a = σ₀·|v|/g(v) frozen at the
 //! old velocity: z' = (z + h·v')/(1 + a·h), so F is affine in v' and the mechanics solve
-//! stays one division (no iteration). Unconditionally stable for any σ₀, σ₁ and h; z stays
-//! within g/σ₀ (the fixed point of the update for constant v), so F is bounded by
-//! F_s + σ₁·|ż|. The pre-sliding spring √(σ₀/m) enters the substep rule
+//! stays one division (no iteration). Unconditionally stable for any σ₀, σ₁ and h; at a
+//! constant velocity z relaxes monotonically to g(v)·sign(v)/σ₀ (the update's fixed point,
+//! the steady-state LuGre force g(v)), so z stays of the order of F_s/σ₀ (only the step in
+//! which sliding starts from rest, a = 0, can overshoot by h·v). The pre-sliding spring
+//! √(σ₀/m) enters the substep rule
 //! (`crate::model`, `fastest_mode`), so its oscillation is resolved, not only damped.
 
 use crate::params::Friction;
