@@ -6,9 +6,9 @@ use crate::data::Record;
 use ehactl_plant::params::Effects;
 use ehactl_plant::params::{
     BulkModulusPressure, BulkVariant, DeadbandVariant, FlexibleMount, Friction, FrictionVariant,
-    Leakage, LeakageVariant, LineDynamics, LineVariant, MountVariant, SaturationVariant, SensorChannel,
-    SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband, ValveDynamics,
-    ValveSaturation,
+    Leakage, LeakageVariant, LineDynamics, LineVariant, MountVariant, SaturationVariant,
+    SensorChannel, SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband,
+    ValveDynamics, ValveSaturation,
 };
 use ehactl_plant::spec::ParamTree;
 use ehactl_plant::{EffectId, PlantParams};

@@ -647,7 +647,14 @@ impl<'a> Model<'a> {
                 ends[side] = y[iq + ns - 1];
             }
             (ends[0], ends[1])
-        } else if let Some(Hidden::Hose { len, d, t, e, r: rh }) = self.h {
+        } else if let Some(Hidden::Hose {
+            len,
+            d,
+            t,
+            e,
+            r: rh,
+        }) = self.h
+        {
             // Each hose a lumped volume at the valve port, laminar resistance to the chamber.
             let vol = PI / 4.0 * d * d * len;
             let mut into = [0.0; 2];

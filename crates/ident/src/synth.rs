@@ -215,8 +215,10 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
 
 /// Structural variants the evaluation hides besides each effect's default one
 /// ([`make_case_variant`]; DIAGNOSIS.md "Effect variants").
-pub const VARIANT_CASES: [(EffectId, &str); 2] =
-    [(EffectId::Friction, "lugre"), (EffectId::LineDynamics, "hose")];
+pub const VARIANT_CASES: [(EffectId, &str); 2] = [
+    (EffectId::Friction, "lugre"),
+    (EffectId::LineDynamics, "hose"),
+];
 
 /// Switch effect `e` on in `p` in its structural variant `variant` (one of [`VARIANT_CASES`],
 /// else its default as [`hide`]) with parameters drawn from a realistic range.

@@ -702,7 +702,12 @@ mod tests {
         // β_eff = 1/(1/1.5e9 + 1e-9) = 0.6 GPa.
         assert!((l.c - area * 1.0 / 0.6e9).abs() < 1e-12 * l.c);
         let r_hp = 128.0 * 860.0 * 32e-6 * 1.0 / (std::f64::consts::PI * 1e-8);
-        assert!((l.r - (r_hp + 1e9)).abs() < 1e-9 * l.r, "{} vs {}", l.r, r_hp + 1e9);
+        assert!(
+            (l.r - (r_hp + 1e9)).abs() < 1e-9 * l.r,
+            "{} vs {}",
+            l.r,
+            r_hp + 1e9
+        );
         assert!((l.l - 860.0 / area).abs() < 1e-9 * l.l);
         // The same numbers on a pipe are the fluid's.
         cfg.variant = crate::params::LineVariant::Pipe;
