@@ -22,8 +22,14 @@ fn fixture() -> Vec<String> {
 /// variant `hose`, whose new choice the fixture's `effects.friction.variant` row carries).
 /// Their choices are the enums' serde names.
 const ADDED: [(&str, &str); 13] = [
-    ("effects.friction.bristle_stiffness", "N/m\tNonNegative\tFloat"),
-    ("effects.friction.bristle_damping", "N·s/m\tNonNegative\tFloat"),
+    (
+        "effects.friction.bristle_stiffness",
+        "N/m\tNonNegative\tFloat",
+    ),
+    (
+        "effects.friction.bristle_damping",
+        "N·s/m\tNonNegative\tFloat",
+    ),
     (
         "effects.line_dynamics.variant",
         r#"-	Finite	Choice(["pipe", "hose"])"#,
