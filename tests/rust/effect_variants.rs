@@ -212,6 +212,8 @@ fn load_coulomb_friction_terminal_velocity() {
         coulomb_force: 400.0,
         stribeck_velocity: 0.01,
         viscous: 0.0,
+        bristle_stiffness: 0.0,
+        bristle_damping: 0.0,
     });
     let mut plant = Plant::configure(&p, 1e-3).unwrap();
     for _ in 0..300 {
@@ -311,4 +313,42 @@ mod uncertainty {
             assert!(!e.contains('\n'), "one line: {e}");
         }
     }
+}
+
+/// A `lugre` friction without its bristle spring, and a `hose` fitting resistance with the
+/// unsteady wall friction, are refused by the plant naming the parameter and the unit.
+#[test]
+fn lugre_without_bristles_and_hose_resistance_with_unsteady_friction_are_refused() {
+    let mut p = blocked_cylinder(10.0, 100.0, 0.05);
+    p.effects.friction = Some(Friction {
+        enabled: true,
+        variant: FrictionVariant::Lugre,
+        static_force: 120.0,
+        coulomb_force: 100.0,
+        stribeck_velocity: 0.01,
+        viscous: 0.0,
+        bristle_stiffness: 0.0,
+        bristle_damping: 0.0,
+    });
+    let e = Plant::configure(&p, 1e-3).unwrap_err();
+    assert_eq!(e.path, "effects.friction", "{e}");
+    assert!(e.message.contains("bristle_stiffness > 0 N/m"), "{e}");
+    p.effects.friction.as_mut().unwrap().bristle_stiffness = 1e7;
+    assert!(Plant::configure(&p, 1e-3).is_ok());
+    p.effects.line_dynamics = Some(LineDynamics {
+        enabled: true,
+        variant: LineVariant::Hose,
+        length: 2.0,
+        diameter: 0.01,
+        segments: 2,
+        bulk_modulus: None,
+        port_volume: 0.0,
+        friction: LineFriction::Unsteady,
+        wall_compliance: 1e-9,
+        resistance: 1e9,
+    });
+    let e = Plant::configure(&p, 1e-3).unwrap_err();
+    assert_eq!(e.path, "effects.line_dynamics.resistance", "{e}");
+    p.effects.line_dynamics.as_mut().unwrap().friction = LineFriction::Steady;
+    assert!(Plant::configure(&p, 1e-3).is_ok());
 }

@@ -19,6 +19,8 @@ fn soft_with_friction(force: f64, kind: ExcitationKind, freq: f64) -> PlantParam
         coulomb_force: 500.0,
         stribeck_velocity: 0.01,
         viscous: 0.0,
+        bristle_stiffness: 0.0,
+        bristle_damping: 0.0,
     });
     p.excitation.kind = kind;
     p.excitation.amplitude = force;
@@ -113,13 +115,15 @@ fn harmonic_force_gives_stick_slip_without_chatter() {
 
 #[test]
 fn projection_is_exact_at_the_breakaway_boundary() {
-    let fm = FrictionModel::new(&Friction {
+    let mut fm = FrictionModel::new(&Friction {
         variant: Default::default(),
         enabled: true,
         static_force: 44.0,
         coulomb_force: 39.0,
         stribeck_velocity: 0.001,
         viscous: 0.0,
+        bristle_stiffness: 0.0,
+        bristle_damping: 0.0,
     });
     let (m, h) = (0.893, 1e-5);
     // Net force just below / above F_s from rest.

@@ -63,19 +63,21 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 p.mechanics.load_stiffness = k_load;
                 p.mechanics.load_contact_position = pos * stroke;
             }
-            // The structural effect variants on the odd segment counts.
+            // The structural effect variants on the odd segment counts (friction: by nseg mod 3).
             let alt = nseg % 2 == 1;
             p.effects.friction = fric.then_some(Friction {
                 enabled: true,
-                variant: if alt {
-                    FrictionVariant::LoadCoulomb
-                } else {
-                    FrictionVariant::Stribeck
+                variant: match nseg % 3 {
+                    0 => FrictionVariant::Stribeck,
+                    1 => FrictionVariant::LoadCoulomb,
+                    _ => FrictionVariant::Lugre,
                 },
                 static_force: 200.0,
                 coulomb_force: 150.0,
                 stribeck_velocity: 0.01,
                 viscous: 10.0,
+                bristle_stiffness: 1e7,
+                bristle_damping: 2e4,
             });
             p.effects.valve_deadband = dband.then_some(ValveDeadband {
                 enabled: true,
@@ -141,6 +143,14 @@ fn arb_params() -> impl Strategy<Value = (PlantParams, Vec<f64>)> {
                 segments: nseg,
                 bulk_modulus: Some(1.2e9),
                 port_volume: 0.0,
+                // A compliant hose with a fitting resistance on the steady (odd) counts.
+                variant: if alt {
+                    LineVariant::Hose
+                } else {
+                    LineVariant::Pipe
+                },
+                wall_compliance: 1e-9,
+                resistance: 1e9,
                 // Both wall-friction models (the unsteady one adds convolution states).
                 friction: if nseg % 2 == 0 {
                     LineFriction::Unsteady

@@ -17,9 +17,31 @@ fn fixture() -> Vec<String> {
 
 /// Entries added on purpose after the fixture: the switches of the rig sections, which the
 /// hand-written table left out (so `ehactl params` did not show them and the loader checked
-/// them only through serde), and parameters added since (2026-11-26: the line scheme and its segment-mode margin).
+/// them only through serde), and parameters added since (2026-11-26: the line scheme and its
+/// segment-mode margin; 2026-11-27: the friction variant `lugre` and the line_dynamics
+/// variant `hose`, whose new choice the fixture's `effects.friction.variant` row carries).
 /// Their choices are the enums' serde names.
-const ADDED: [(&str, &str); 8] = [
+const ADDED: [(&str, &str); 13] = [
+    (
+        "effects.friction.bristle_stiffness",
+        "N/m\tNonNegative\tFloat",
+    ),
+    (
+        "effects.friction.bristle_damping",
+        "N·s/m\tNonNegative\tFloat",
+    ),
+    (
+        "effects.line_dynamics.variant",
+        r#"-	Finite	Choice(["pipe", "hose"])"#,
+    ),
+    (
+        "effects.line_dynamics.wall_compliance",
+        "1/Pa\tNonNegative\tFloat",
+    ),
+    (
+        "effects.line_dynamics.resistance",
+        "Pa·s/m³\tNonNegative\tFloat",
+    ),
     (
         "integration.max_omega_h_line",
         "-\tWithin(0.01, 1.9)\tFloat",

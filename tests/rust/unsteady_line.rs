@@ -52,6 +52,9 @@ fn simulated_impedance(friction: LineFriction, nu: f64, f_hz: f64, h: f64) -> C6
         segments: 1,
         bulk_modulus: None,
         port_volume: 0.0,
+        variant: Default::default(),
+        wall_compliance: 0.0,
+        resistance: 0.0,
         friction,
     };
     let fl = fluid(nu);

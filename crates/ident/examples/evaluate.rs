@@ -1,10 +1,13 @@
 //! Slow evaluation of `diagnose` over seeded hidden-effect cases (not part of CI):
-//! `cargo run --release -p ehactl-ident --example evaluate -- [per_effect] [clean] [pairs] [first_seed] [OUT.md]`.
+//! `cargo run --release -p ehactl-ident --example evaluate -- [per_effect] [clean] [pairs] [first_seed] [OUT.md] [per_variant]`.
+//! After the single-effect, clean and two-effect cases come `per_variant` (default
+//! `per_effect`) cases of each structural variant in `synth::VARIANT_CASES` (LuGre friction, a
+//! compliant hose), counted with their effect and scored also on the variant named.
 //! Writes a Markdown section (confusion matrix, rates, gains) to OUT.md (default
 //! bench/results/diagnose_eval.md) and one line per case to stdout. With `OFFSETS=1` in the
 //! environment every record also gets `synth::realistic_offsets` (sensor zero errors); with
 //! `SENSOR_OFFSETS=1` the diagnosis estimates them (`Options::sensor_offsets`).
-use ehactl_ident::synth::make_case;
+use ehactl_ident::synth::{make_case, make_case_variant, VARIANT_CASES};
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
 use std::collections::BTreeMap;
@@ -18,6 +21,7 @@ fn main() {
         .get(5)
         .cloned()
         .unwrap_or_else(|| "bench/results/diagnose_eval.md".into());
+    let per_variant = arg(6, per_effect);
     let with_offsets = std::env::var("OFFSETS").is_ok_and(|v| v == "1");
     let estimate_offsets = std::env::var("SENSOR_OFFSETS").is_ok_and(|v| v == "1");
     let mut cases: Vec<Vec<EffectId>> = Vec::new();
@@ -38,6 +42,16 @@ fn main() {
         }
         cases.push(vec![EffectId::ALL[i], EffectId::ALL[j]]);
     }
+    // Variant cases last, so that the seeds of the cases above do not move.
+    let n_plain = cases.len();
+    let mut variant_of: Vec<Option<&str>> = vec![None; n_plain];
+    for _ in 0..per_variant {
+        for (e, v) in VARIANT_CASES {
+            cases.push(vec![e]);
+            variant_of.push(Some(v));
+        }
+    }
+    let (mut variant_ok, mut n_variant) = (0, 0);
     let bar = indicatif::ProgressBar::new(cases.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
@@ -57,7 +71,10 @@ fn main() {
     let mut times = Vec::new();
     for (i, hidden) in cases.iter().enumerate() {
         let seed = first + i as u64;
-        let mut case = make_case(seed, hidden, 2.0);
+        let mut case = match variant_of[i] {
+            Some(v) => make_case_variant(seed, hidden[0], v, 2.0),
+            None => make_case(seed, hidden, 2.0),
+        };
         if with_offsets {
             let b = ehactl_ident::synth::realistic_offsets(&case.record);
             ehactl_ident::synth::add_sensor_offsets(&mut case.record, &b);
@@ -81,7 +98,16 @@ fn main() {
         } else {
             hn.join("+")
         };
-        let line = format!("seed {seed} hidden {label} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { d.cause.clone() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
+        let shown = match variant_of[i] {
+            Some(v) => {
+                n_variant += 1;
+                let named = d.variants.get(hn[0]).map(String::as_str);
+                variant_ok += (named == Some(v)) as usize;
+                format!("{label} ({v}, named {})", named.unwrap_or("-"))
+            }
+            None => label.clone(),
+        };
+        let line = format!("seed {seed} hidden {shown} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { d.cause.clone() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
         bar.suspend(|| eprintln!("{line}"));
         let _ = writeln!(lines, "{line}");
         if hidden.is_empty() {
@@ -116,7 +142,7 @@ fn main() {
     times.sort_by(f64::total_cmp);
     let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
     let mut s = String::new();
-    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}{}.\n", cases.len(), first + cases.len() as u64 - 1, if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if estimate_offsets { "; diagnosed with `--sensor-offsets`" } else { "" });
+    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects, {per_variant} per structural variant of `synth::VARIANT_CASES`), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}{}.\n", cases.len(), first + cases.len() as u64 - 1, if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if estimate_offsets { "; diagnosed with `--sensor-offsets`" } else { "" });
     let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
     let _ = writeln!(s, "| top cause is a hidden effect (cases with hidden effects) | {top_ok}/{n_hidden} = {:.1} % | ≥ 90 % |", pct(top_ok, n_hidden));
     let _ = writeln!(
@@ -129,6 +155,13 @@ fn main() {
         "| both hidden effects named (two-effect cases) | {pair_both}/{n_pair} = {:.1} % | — |",
         pct(pair_both, n_pair)
     );
+    if n_variant > 0 {
+        let _ = writeln!(
+            s,
+            "| variant named (cases of `synth::VARIANT_CASES`) | {variant_ok}/{n_variant} = {:.1} % | — |",
+            pct(variant_ok, n_variant)
+        );
+    }
     let _ = writeln!(s, "| false `none` | {false_none}/{n_hidden} | 0 |");
     let _ = writeln!(s, "| `unexplained` (hidden-effect cases / clean cases) | {unexplained_hidden}/{n_hidden} / {unexplained_clean}/{n_clean} | — |");
     let _ = writeln!(

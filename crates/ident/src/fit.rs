@@ -6,9 +6,9 @@ use crate::data::Record;
 use ehactl_plant::params::Effects;
 use ehactl_plant::params::{
     BulkModulusPressure, BulkVariant, DeadbandVariant, FlexibleMount, Friction, FrictionVariant,
-    Leakage, LeakageVariant, LineDynamics, MountVariant, SaturationVariant, SensorChannel,
-    SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband, ValveDynamics,
-    ValveSaturation,
+    Leakage, LeakageVariant, LineDynamics, LineVariant, MountVariant, SaturationVariant,
+    SensorChannel, SensorTone, SupplyPressureDrop, SupplyVariant, TimeDelay, ValveDeadband,
+    ValveDynamics, ValveSaturation,
 };
 use ehactl_plant::spec::ParamTree;
 use ehactl_plant::{EffectId, PlantParams};
@@ -229,8 +229,11 @@ pub fn effect_variants(
     match e {
         EffectId::Friction => {
             let cur = ef.friction.as_ref().map(|f| f.variant);
-            if cur != Some(FrictionVariant::LoadCoulomb) {
+            if cur.is_none() || cur == Some(FrictionVariant::Stribeck) {
                 out.push(("stribeck", first));
+            }
+            if cur.is_none() || cur == Some(FrictionVariant::Lugre) {
+                out.push(("lugre", lugre_params(nominal, sc)));
             }
             if cur.is_none() || cur == Some(FrictionVariant::LoadCoulomb) {
                 let c0 = ef
@@ -245,6 +248,8 @@ pub fn effect_variants(
                         coulomb_force: c0,
                         stribeck_velocity: 0.005,
                         viscous: 0.0,
+                        bristle_stiffness: 0.0,
+                        bristle_damping: 0.0,
                     })
                 });
                 let variant = |p: &mut PlantParams| {
@@ -516,9 +521,165 @@ pub fn effect_variants(
                 ));
             }
         }
+        EffectId::LineDynamics => {
+            let cur = ef.line_dynamics.as_ref().map(|l| l.variant);
+            if cur.is_none() || cur == Some(LineVariant::Pipe) {
+                out.push(("pipe", first));
+            }
+            if cur.is_none() || cur == Some(LineVariant::Hose) {
+                out.push(("hose", hose_params(nominal, sc)));
+            }
+        }
         _ => out.push(("-", first)),
     }
     out
+}
+
+/// Free parameters of `friction` variant `lugre` (pre-sliding bristles, Canudas de Wit et al.
+/// 1995): Coulomb level, breakaway ratio F_s/F_C, Stribeck velocity, bristle stiffness σ₀
+/// (bounded by the rig's hydraulic stiffness: 10⁻³…10×) and bristle damping as a ratio ζ of
+/// the critical 2·√(σ₀·m) of the moving mass.
+fn lugre_params(nominal: &PlantParams, sc: &Scales) -> Vec<FreeParam> {
+    let f0 = nominal.effects.friction.clone();
+    let c0 = f0
+        .as_ref()
+        .map_or(0.005 * sc.force, |f| f.coulomb_force.max(1e-3 * sc.force));
+    let r0 = f0.as_ref().map_or(1.2, |f| {
+        (f.static_force / f.coulomb_force.max(1e-9)).clamp(1.0, 2.5)
+    });
+    let vs0 = f0.as_ref().map_or(0.01, |f| f.stribeck_velocity);
+    let s0 = f0
+        .as_ref()
+        .filter(|f| f.bristle_stiffness > 0.0)
+        .map_or(0.3 * sc.stiffness, |f| f.bristle_stiffness);
+    let z0 = f0
+        .as_ref()
+        .filter(|f| f.bristle_stiffness > 0.0)
+        .map_or(0.2, |f| {
+            f.bristle_damping / (2.0 * (f.bristle_stiffness * nominal.mechanics.mass).sqrt())
+        });
+    let seed = seeded(nominal, |e| {
+        e.friction = Some(Friction {
+            enabled: true,
+            variant: FrictionVariant::Lugre,
+            static_force: r0 * c0,
+            coulomb_force: c0,
+            stribeck_velocity: vs0,
+            viscous: f0.as_ref().map_or(0.0, |f| f.viscous),
+            bristle_stiffness: s0,
+            bristle_damping: 0.0,
+        })
+    });
+    let variant = |p: &mut PlantParams| {
+        if let Some(f) = p.effects.friction.as_mut() {
+            f.variant = FrictionVariant::Lugre;
+        }
+    };
+    vec![
+        // The Coulomb level moves the breakaway force with it (ratio set by the next).
+        FreeParam::at_then(
+            "effects.friction.coulomb_force",
+            (1e-4 * sc.force, 0.1 * sc.force, true, c0),
+            &seed,
+            move |p| {
+                variant(p);
+                if let Some(f) = p.effects.friction.as_mut() {
+                    f.static_force = f.coulomb_force;
+                }
+            },
+        ),
+        // A ratio, not a declared parameter: the value written is scaled to F_s = ratio·F_C.
+        FreeParam::new(
+            "effects.friction.static_force/coulomb_force",
+            1.0,
+            2.5,
+            false,
+            r0,
+            write("effects.friction.static_force", &seed, move |p| {
+                variant(p);
+                if let Some(f) = p.effects.friction.as_mut() {
+                    f.static_force *= f.coulomb_force;
+                }
+            }),
+        ),
+        FreeParam::at_then(
+            "effects.friction.stribeck_velocity",
+            (1e-3, 0.1, true, vs0),
+            &seed,
+            variant,
+        ),
+        FreeParam::at_then(
+            "effects.friction.bristle_stiffness",
+            (1e-3 * sc.stiffness, 10.0 * sc.stiffness, true, s0),
+            &seed,
+            variant,
+        ),
+        // A damping ratio, not a declared parameter: the value written is scaled to
+        // σ₁ = ζ·2√(σ₀·m) with the (refit) moving mass.
+        FreeParam::new(
+            "effects.friction.bristle_damping/critical",
+            0.01,
+            2.0,
+            true,
+            z0.clamp(0.01, 2.0),
+            write("effects.friction.bristle_damping", &seed, move |p| {
+                variant(p);
+                let m = p.mechanics.mass;
+                if let Some(f) = p.effects.friction.as_mut() {
+                    f.bristle_damping *= 2.0 * (f.bristle_stiffness * m).sqrt();
+                }
+            }),
+        ),
+    ]
+}
+
+/// Free parameters of `line_dynamics` variant `hose`: hose length per side (its volume at the
+/// seed's bore), wall compliance (1/β_eff − 1/β, from 10⁻¹¹ 1/Pa, a steel-braided hose, to
+/// 3·10⁻⁸ 1/Pa, β_eff ≈ 30 MPa) and the fittings' laminar resistance (bounded by the rig's
+/// p_s/Q scale). Two segments: the hose's first wave mode stays represented.
+fn hose_params(nominal: &PlantParams, sc: &Scales) -> Vec<FreeParam> {
+    let r_s = sc.pressure / sc.flow;
+    let cur = nominal.effects.line_dynamics.clone();
+    let base = cur.clone().unwrap_or(LineDynamics {
+        enabled: true,
+        variant: LineVariant::Hose,
+        length: 2.0,
+        diameter: 10e-3,
+        segments: 2,
+        bulk_modulus: None,
+        port_volume: 0.0,
+        friction: Default::default(),
+        wall_compliance: 1e-9,
+        resistance: 0.01 * r_s,
+    });
+    let (l0, w0) = (base.length, base.wall_compliance.max(1e-11));
+    let res0 = base.resistance.max(1e-4 * r_s);
+    let seed = seeded(nominal, |e| e.line_dynamics = Some(base));
+    let variant = |p: &mut PlantParams| {
+        if let Some(l) = p.effects.line_dynamics.as_mut() {
+            l.variant = LineVariant::Hose;
+        }
+    };
+    vec![
+        FreeParam::at_then(
+            "effects.line_dynamics.length",
+            (0.1, 15.0, true, l0),
+            &seed,
+            variant,
+        ),
+        FreeParam::at_then(
+            "effects.line_dynamics.wall_compliance",
+            (1e-11, 3e-8, true, w0),
+            &seed,
+            variant,
+        ),
+        FreeParam::at_then(
+            "effects.line_dynamics.resistance",
+            (1e-4 * r_s, 0.3 * r_s, true, res0),
+            &seed,
+            variant,
+        ),
+    ]
 }
 
 /// Free parameters of effect `e` in its first (or configured) variant (bounds from the rig
@@ -543,6 +704,8 @@ pub fn effect_params(
                     coulomb_force: 0.0,
                     stribeck_velocity: 0.01,
                     viscous: 0.0,
+                    bristle_stiffness: 0.0,
+                    bristle_damping: 0.0,
                 });
             });
             let c0 = ef
@@ -739,6 +902,9 @@ pub fn effect_params(
                 segments: 2,
                 bulk_modulus: None,
                 port_volume: 0.0,
+                variant: Default::default(),
+                wall_compliance: 0.0,
+                resistance: 0.0,
                 friction: Default::default(),
             });
             let (l0, d0) = (cur.length, cur.diameter);

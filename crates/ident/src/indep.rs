@@ -9,7 +9,11 @@
 //! of the plant's Stribeck + stick projection; a soft (tanh) spool saturation instead of a
 //! hard limit; the entrained-air bulk modulus of Yu, Chen & Lu (1994) / Gholizadeh et al.
 //! (2011); a pressure-compensated pump with a flow limit; a compliant cylinder mount; a sensor
-//! tone with arbitrary phase; an arctan load-side Coulomb force (MR damper / guide).
+//! tone with arbitrary phase; an arctan load-side Coulomb force (MR damper / guide); Dahl's
+//! (1968) friction with the friction force itself as the state (the plant integrates a
+//! LuGre bristle deflection); a compliant hose as one lumped volume at the valve port with the
+//! thin-wall bulk modulus and a laminar resistance to the chamber, no inertance (the plant
+//! uses its R-L-C segment chain).
 //!
 //! The cases of the evaluation are listed with their seeds in `bench/indep_cases.txt`
 //! (committed before any result was seen).
@@ -152,6 +156,22 @@ pub enum Hidden {
     },
     /// Load-side Coulomb force without stick: F = F_C·(2/π)·atan(v/v_ε) (MR damper, guide).
     LoadCoulomb { fc: f64, veps: f64 },
+    /// Dahl's friction (Dahl 1968, "A solid friction model", Aerospace Corp.
+    /// TOR-0158(3107-18)-1; exponent i = 1): the force F is the state,
+    /// dF/dx = σ₀·(1 − F·sign(ẋ)/F_C), i.e. Ḟ = σ₀·(v − |v|·F/F_C).
+    Dahl { fc: f64, s0: f64 },
+    /// Compliant hose per side between valve port and chamber: bore `d`, length `len`, wall
+    /// thickness `t`, effective wall modulus `e` (thin wall: 1/β_eff = 1/β + d/(t·e), Merritt
+    /// 1967 "Hydraulic Control Systems" eq. 2-46), its oil in one lumped volume at the valve
+    /// port; a laminar resistance `r` (Hagen–Poiseuille of the hose plus the fittings) to the
+    /// chamber, no inertance.
+    Hose {
+        len: f64,
+        d: f64,
+        t: f64,
+        e: f64,
+        r: f64,
+    },
     /// Spool overlap `ov` (reduces the underlap) and zero offset (fractions of travel).
     Overlap { ov: f64, offset: f64 },
     /// Dead zone of width `d` (fraction of full scale) in the amplifier ahead of the
@@ -207,7 +227,7 @@ pub fn pump_flow(qmax: f64, band: f64, p_set: f64, ps: f64) -> f64 {
 /// Catalogue id and plant variant name a hidden effect should be diagnosed as.
 pub fn expected(h: &Hidden) -> (&'static str, &'static str) {
     match h {
-        Hidden::LuGre { .. } => ("friction", "stribeck"),
+        Hidden::LuGre { .. } | Hidden::Dahl { .. } => ("friction", "lugre"),
         Hidden::LoadCoulomb { .. } => ("friction", "load_coulomb"),
         Hidden::Overlap { .. } => ("valve_deadband", "overlap"),
         Hidden::AmpDeadzone { .. } => ("valve_deadband", "amplifier"),
@@ -219,7 +239,8 @@ pub fn expected(h: &Hidden) -> (&'static str, &'static str) {
         Hidden::ExternalLeakA { .. } => ("external_leakage", "per_chamber"),
         Hidden::EntrainedAir { .. } => ("bulk_modulus_pressure", "entrained_air"),
         Hidden::LinearBeta { .. } => ("bulk_modulus_pressure", "linear"),
-        Hidden::Lines { .. } => ("line_dynamics", "-"),
+        Hidden::Lines { .. } => ("line_dynamics", "pipe"),
+        Hidden::Hose { .. } => ("line_dynamics", "hose"),
         Hidden::LoadMount { .. } => ("flexible_mount", "load_side"),
         Hidden::BodyMount { .. } => ("flexible_mount", "piston_side"),
         Hidden::Delay { .. } => ("time_delay", "-"),
@@ -230,7 +251,7 @@ pub fn expected(h: &Hidden) -> (&'static str, &'static str) {
 }
 
 /// Generator variant names, in the order of `bench/indep_cases.txt`.
-pub const KINDS: [&str; 20] = [
+pub const KINDS: [&str; 22] = [
     "lugre",
     "load_coulomb",
     "overlap",
@@ -251,6 +272,8 @@ pub const KINDS: [&str; 20] = [
     "tone",
     "supply_resistance",
     "pump_limit",
+    "dahl",
+    "hose",
 ];
 
 /// Draw the parameters of generator variant `kind` (or `pump_limit`) for `rig`.
@@ -269,6 +292,29 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
                 vs: g.log_range(0.004, 0.02),
                 s0,
                 s1: 0.3 * (s0 * rig.m).sqrt(),
+            }
+        }
+        // Pre-sliding range F_C/σ₀ of 20–80 µm (seal pre-sliding displacements of hydraulic
+        // cylinders are tens of µm, e.g. Yanada & Sekikawa 2008, Tribology International 41).
+        "dahl" => {
+            let fc = g.range(200.0, 500.0);
+            Hidden::Dahl {
+                fc,
+                s0: fc / g.log_range(20e-6, 80e-6),
+            }
+        }
+        // A 1.5–4 m hose of 8–13 mm bore; wall 2.5–4 mm of an effective (braid + rubber)
+        // modulus of 2–6 GPa: β_eff ≈ 0.3–0.8 GPa of a 1.5 GPa oil; fittings 0.5–2·10⁹ Pa·s/m³
+        // (0.5–2 bar at 0.1 L/s) on top of the hose's own laminar resistance.
+        "hose" => {
+            let (len, d) = (g.range(1.5, 4.0), g.range(8e-3, 13e-3));
+            let r_hp = 128.0 * rig.nu * rig.rho * len / (PI * d.powi(4));
+            Hidden::Hose {
+                len,
+                d,
+                t: g.range(2.5e-3, 4e-3),
+                e: g.range(2e9, 6e9),
+                r: r_hp + g.range(0.5e9, 2e9),
             }
         }
         "load_coulomb" => Hidden::LoadCoulomb {
@@ -387,6 +433,8 @@ struct Model<'a> {
     i_ps: usize,
     i_mount: usize,
     i_line: usize,
+    /// Hose volume pressures A, B (variant `Hose`).
+    i_hose: usize,
     n: usize,
     /// Line constants per segment (R, L, C).
     line: (f64, f64, f64, usize),
@@ -406,7 +454,7 @@ impl<'a> Model<'a> {
             _ => usize::MAX,
         };
         let i_z = match h {
-            Some(Hidden::LuGre { .. }) => take(1),
+            Some(Hidden::LuGre { .. }) | Some(Hidden::Dahl { .. }) => take(1),
             _ => usize::MAX,
         };
         let i_ps = match h {
@@ -415,6 +463,10 @@ impl<'a> Model<'a> {
         };
         let i_mount = match h {
             Some(Hidden::LoadMount { .. }) | Some(Hidden::BodyMount { .. }) => take(2),
+            _ => usize::MAX,
+        };
+        let i_hose = match h {
+            Some(Hidden::Hose { .. }) => take(2),
             _ => usize::MAX,
         };
         let mut line = (0.0, 0.0, 0.0, 0);
@@ -444,6 +496,7 @@ impl<'a> Model<'a> {
             i_ps,
             i_mount,
             i_line,
+            i_hose,
             n,
             line,
         }
@@ -522,6 +575,10 @@ impl<'a> Model<'a> {
                 (s0 * z + s1 * zd, zd)
             }
             Some(Hidden::LoadCoulomb { fc, veps }) => (fc * 2.0 / PI * (v / veps).atan(), 0.0),
+            Some(Hidden::Dahl { fc, s0 }) => {
+                let f = y[self.i_z];
+                (f, s0 * (v - v.abs() * f / fc))
+            }
             _ => (0.0, 0.0),
         }
     }
@@ -554,6 +611,8 @@ impl<'a> Model<'a> {
         let (port_a, port_b) = if self.i_line != usize::MAX {
             let ns = self.line.3;
             (y[self.i_line], y[self.i_line + 2 * ns])
+        } else if self.i_hose != usize::MAX {
+            (y[self.i_hose], y[self.i_hose + 1])
         } else {
             (pa, pb)
         };
@@ -588,6 +647,28 @@ impl<'a> Model<'a> {
                 ends[side] = y[iq + ns - 1];
             }
             (ends[0], ends[1])
+        } else if let Some(Hidden::Hose {
+            len,
+            d,
+            t,
+            e,
+            r: rh,
+        }) = self.h
+        {
+            // Each hose a lumped volume at the valve port, laminar resistance to the chamber.
+            let vol = PI / 4.0 * d * d * len;
+            let mut into = [0.0; 2];
+            for (side, (q_valve, p_ch)) in [(qa, pa), (qb, pb)].into_iter().enumerate() {
+                let i = self.i_hose + side;
+                let ph = y[i];
+                let beta_eff = 1.0 / (1.0 / self.beta(ph) + d / (t * e));
+                into[side] = (ph - p_ch) / rh;
+                dy[i] = beta_eff / vol * (q_valve - into[side]);
+                if ph <= P_CAV && dy[i] < 0.0 {
+                    dy[i] = 0.0;
+                }
+            }
+            (into[0], into[1])
         } else {
             (qa, qb)
         };
@@ -803,6 +884,10 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
             y[model.i_line + 2 * ns + j] = y[3];
         }
     }
+    if model.i_hose != usize::MAX {
+        y[model.i_hose] = y[2];
+        y[model.i_hose + 1] = y[3];
+    }
     if model.i_mount != usize::MAX {
         if let Some(Hidden::LoadMount { .. }) = hidden {
             y[model.i_mount] = y[0];
@@ -835,6 +920,10 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         }
         y[2] = y[2].max(P_CAV);
         y[3] = y[3].max(P_CAV);
+        if model.i_hose != usize::MAX {
+            y[model.i_hose] = y[model.i_hose].max(P_CAV);
+            y[model.i_hose + 1] = y[model.i_hose + 1].max(P_CAV);
+        }
         if model.i_line != usize::MAX {
             // Node pressures of side A at i_line.., of side B at i_line + 2·nseg...
             let ns = model.line.3;

@@ -90,6 +90,8 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
                 static_force: fc * rng.range(1.1, 1.6),
                 stribeck_velocity: rng.log_range(0.005, 0.02),
                 viscous: 0.0,
+                bristle_stiffness: 0.0,
+                bristle_damping: 0.0,
             });
         }
         EffectId::ValveDeadband => {
@@ -153,6 +155,9 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
                 segments: 3,
                 bulk_modulus: None,
                 port_volume: 0.0,
+                variant: Default::default(),
+                wall_compliance: 0.0,
+                resistance: 0.0,
                 friction: Default::default(),
             })
         }
@@ -208,6 +213,55 @@ pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
     }
 }
 
+/// Structural variants the evaluation hides besides each effect's default one
+/// ([`make_case_variant`]; DIAGNOSIS.md "Effect variants").
+pub const VARIANT_CASES: [(EffectId, &str); 2] = [
+    (EffectId::Friction, "lugre"),
+    (EffectId::LineDynamics, "hose"),
+];
+
+/// Switch effect `e` on in `p` in its structural variant `variant` (one of [`VARIANT_CASES`],
+/// else its default as [`hide`]) with parameters drawn from a realistic range.
+pub fn hide_variant(e: EffectId, variant: &str, p: &mut PlantParams, rng: &mut Rng) {
+    let mass = p.mechanics.mass;
+    match (e, variant) {
+        // Seal friction with pre-sliding bristles (Canudas de Wit et al. 1995): pre-sliding
+        // range F_C/σ₀ of 20–80 µm (tens of µm on hydraulic cylinder seals, e.g. Yanada &
+        // Sekikawa 2008, Tribology International 41), bristle damping 10–50 % of critical.
+        (EffectId::Friction, "lugre") => {
+            let fc = rng.range(150.0, 400.0);
+            let s0 = fc / rng.log_range(20e-6, 80e-6);
+            p.effects.friction = Some(Friction {
+                enabled: true,
+                variant: FrictionVariant::Lugre,
+                coulomb_force: fc,
+                static_force: fc * rng.range(1.1, 1.6),
+                stribeck_velocity: rng.log_range(0.005, 0.02),
+                viscous: 0.0,
+                bristle_stiffness: s0,
+                bristle_damping: rng.range(0.1, 0.5) * 2.0 * (s0 * mass).sqrt(),
+            });
+        }
+        // A 1.5–4 m hose of 8–13 mm bore, wall compliance 0.6–2.5·10⁻⁹ 1/Pa (β_eff ≈
+        // 0.3–0.8 GPa), fittings 0.5–2·10⁹ Pa·s/m³; three segments (the fit uses two).
+        (EffectId::LineDynamics, "hose") => {
+            p.effects.line_dynamics = Some(LineDynamics {
+                enabled: true,
+                variant: LineVariant::Hose,
+                length: rng.range(1.5, 4.0),
+                diameter: rng.range(8e-3, 13e-3),
+                segments: 3,
+                bulk_modulus: None,
+                port_volume: 0.0,
+                friction: Default::default(),
+                wall_compliance: rng.log_range(0.6e-9, 2.5e-9),
+                resistance: rng.range(0.5e9, 2e9),
+            });
+        }
+        _ => hide(e, p, rng),
+    }
+}
+
 /// One generated case.
 #[derive(Debug, Clone)]
 pub struct Case {
@@ -230,13 +284,26 @@ pub fn make_case(seed: u64, hidden: &[EffectId], duration: f64) -> Case {
 
 /// Generate a case at sample period `dt` (s).
 pub fn make_case_at(seed: u64, hidden: &[EffectId], duration: f64, dt: f64) -> Case {
+    let hidden: Vec<(EffectId, &str)> = hidden.iter().map(|&e| (e, "")).collect();
+    make_case_variants(seed, &hidden, duration, dt)
+}
+
+/// Generate a case at 1 kHz with effect `e` hidden in structural variant `variant`
+/// ([`hide_variant`]).
+pub fn make_case_variant(seed: u64, e: EffectId, variant: &str, duration: f64) -> Case {
+    make_case_variants(seed, &[(e, variant)], duration, 1e-3)
+}
+
+fn make_case_variants(seed: u64, hidden: &[(EffectId, &str)], duration: f64, dt: f64) -> Case {
     let mut rng = Rng::new(seed);
     let rig = testrig();
     let mut truth = rig.plant.clone();
     truth.sensors.seed = seed;
-    for &e in hidden {
-        hide(e, &mut truth, &mut rng);
+    for &(e, variant) in hidden {
+        hide_variant(e, variant, &mut truth, &mut rng);
     }
+    let hidden: Vec<EffectId> = hidden.iter().map(|h| h.0).collect();
+    let hidden = &hidden[..];
     let mut nominal = rig.clone();
     nominal.run.control_rate_hz = 1.0 / dt;
     {

@@ -65,6 +65,39 @@ hidden!(finds_time_delay, EffectId::TimeDelay);
 hidden!(finds_sensor_tone, EffectId::SensorTone);
 hidden!(finds_supply_pressure_drop, EffectId::SupplyPressureDrop);
 
+/// The structural variants of `synth::VARIANT_CASES` (seed 1100 + catalogue index): named
+/// by id, the variant reported, and the held-out NRMSE halved.
+fn check_variant(e: EffectId, variant: &str) {
+    let i = EffectId::ALL.iter().position(|x| *x == e).unwrap() as u64;
+    let seed = 1100 + i;
+    let case = synth::make_case_variant(seed, e, variant, 2.0);
+    let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default())
+        .expect("diagnosis runs");
+    let report = format!(
+        "seed {seed}, hidden {e} ({variant}): causes {:?}, variants {:?}, held-out NRMSE {:.4} → {:.4} (gain {:.1} %), floor {:.4}\n{}",
+        d.causes, d.variants, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.gain * 100.0, d.noise_floor, d.summary
+    );
+    eprintln!("{report}");
+    assert!(d.causes.iter().any(|c| c == e.as_str()), "{report}");
+    assert_eq!(d.cause, e.as_str(), "{report}");
+    assert_eq!(
+        d.variants.get(e.as_str()).map(String::as_str),
+        Some(variant),
+        "{report}"
+    );
+    assert!(d.gain >= 0.5, "{report}");
+}
+
+#[test]
+fn finds_friction_lugre() {
+    check_variant(EffectId::Friction, "lugre");
+}
+
+#[test]
+fn finds_line_dynamics_hose() {
+    check_variant(EffectId::LineDynamics, "hose");
+}
+
 #[test]
 fn clean_data_gives_none() {
     check(2000, &[]);

@@ -29,6 +29,10 @@ fn check_with(seed: u64, kind: &str, variant_must_match: bool) {
         d.cause, d.causes, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor, d.summary
     );
     assert_eq!(d.cause, want, "{report}");
+    if want != "none" {
+        assert!(d.causes.iter().any(|c| c == want), "{report}");
+    }
+    eprintln!("{report}");
     if want_var != "-" && variant_must_match {
         assert_eq!(got_var, want_var, "{report}");
     }
@@ -61,6 +65,21 @@ fn amplifier_dead_zone() {
 #[test]
 fn tone_with_phase() {
     check(7017, "tone");
+}
+
+/// Pre-sliding friction written as Dahl (1968) with the force as the state; the first `dahl`
+/// seed of `bench/indep_cases.txt`. Must be named `friction`, variant `lugre`.
+#[test]
+fn dahl_presliding_friction() {
+    check(7108, "dahl");
+}
+
+/// A compliant hose (lumped volume with the thin-wall bulk modulus, laminar resistance to the
+/// chamber); the first `hose` seed of `bench/indep_cases.txt`. Must be named `line_dynamics`,
+/// variant `hose`.
+#[test]
+fn compliant_hose() {
+    check(7109, "hose");
 }
 
 #[test]

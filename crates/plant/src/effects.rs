@@ -297,6 +297,30 @@ pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::sp
             _ => {}
         }
     }
+    if let Some(f) = e.friction.as_ref() {
+        if f.variant == FrictionVariant::Lugre
+            && !(f.bristle_stiffness > 0.0 && f.coulomb_force > 0.0)
+        {
+            return Err(ConfigError::new(
+                "effects.friction",
+                format!(
+                    "variant = \"lugre\" needs bristle_stiffness > 0 N/m and coulomb_force > 0 N; got {} N/m, {} N",
+                    f.bristle_stiffness, f.coulomb_force
+                ),
+            ));
+        }
+    }
+    if let Some(l) = e.line_dynamics.as_ref() {
+        if l.variant == LineVariant::Hose
+            && l.resistance > 0.0
+            && l.friction != LineFriction::Steady
+        {
+            return Err(ConfigError::new(
+                "effects.line_dynamics.resistance",
+                "a fitting resistance (variant = \"hose\") is laminar and steady; with it use friction = \"steady\" (the unsteady wall-friction terms scale with the wall resistance only)",
+            ));
+        }
+    }
     if let Some(t) = e.sensor_tone.as_ref() {
         if !t.phases.is_empty() && t.phases.len() != t.frequencies.len() {
             return Err(ConfigError::new(

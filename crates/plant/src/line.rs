@@ -1,5 +1,10 @@
 //! Lumped R-L-C line between a valve port and a chamber (002 eq. 9–17).
 //!
+//! Variant `hose` (a compliant hose): the segment capacitance uses the effective bulk modulus
+//! 1/β_eff = 1/β + `wall_compliance` (wall and oil compliances in series; thin wall
+//! D/(t·E), Merritt 1967, "Hydraulic Control Systems", eq. 2-46) and each segment's resistance
+//! gets `resistance`/N (hose ends and fittings, laminar) on top of Hagen–Poiseuille's.
+//!
 //! N segments, each a capacitance C = A·ℓ/β at its upstream node, an inductance
 //! L = ρ·ℓ/A and a laminar resistance R = 128·μ·ℓ/(π·d⁴) (Hagen–Poiseuille) in series to the
 //! next node; the last segment discharges into the chamber. Node 0 (the valve port) also
@@ -193,7 +198,16 @@ impl Line {
         let n = cfg.segments.max(1) as usize;
         let seg = cfg.length / n as f64;
         let area = std::f64::consts::PI * cfg.diameter * cfg.diameter / 4.0;
-        let beta = cfg.bulk_modulus.unwrap_or(fluid.bulk_modulus);
+        let mut beta = cfg.bulk_modulus.unwrap_or(fluid.bulk_modulus);
+        // Variant `hose`: the wall's compliance in series with the oil's (Merritt 1967
+        // eq. 2-46), the fittings' resistance spread evenly over the segments.
+        let hose = cfg.variant == crate::params::LineVariant::Hose;
+        let r_fit = if hose {
+            beta = 1.0 / (1.0 / beta + cfg.wall_compliance.max(0.0));
+            cfg.resistance.max(0.0) / n as f64
+        } else {
+            0.0
+        };
         let mu = fluid.density * fluid.kinematic_viscosity;
         let c = area * seg / beta;
         let (m, nn, residual) = weighting_terms(cfg.friction);
@@ -210,7 +224,7 @@ impl Line {
             c,
             c0: c + cfg.port_volume.max(0.0) / fluid.bulk_modulus,
             l: fluid.density * seg / area * (1.0 + 4.0 * residual),
-            r: 128.0 * mu * seg / (std::f64::consts::PI * cfg.diameter.powi(4)),
+            r: 128.0 * mu * seg / (std::f64::consts::PI * cfg.diameter.powi(4)) + r_fit,
             decay: vec![1.0; terms],
             gain: m.clone(),
             gain_sum: m.iter().sum(),
@@ -468,6 +482,9 @@ mod tests {
             segments: 16,
             bulk_modulus: None,
             port_volume: 0.0,
+            variant: Default::default(),
+            wall_compliance: 0.0,
+            resistance: 0.0,
             friction,
         };
         let fluid = Fluid {
@@ -498,6 +515,9 @@ mod tests {
                 segments,
                 bulk_modulus: None,
                 port_volume: 3e-6,
+                variant: Default::default(),
+                wall_compliance: 0.0,
+                resistance: 0.0,
                 friction,
             };
             let fluid = Fluid {
@@ -652,6 +672,48 @@ mod tests {
                 .sum();
         let flows: f64 = l.q.iter().map(|q| l.l * q * q).sum();
         0.5 * (nodes + flows + cap_end * p_end * p_end)
+    }
+
+    /// Variant `hose`: capacitance from 1/β_eff = 1/β + wall compliance (Merritt 1967
+    /// eq. 2-46), resistance Hagen–Poiseuille plus the fitting resistance spread over the
+    /// segments; inertance unchanged. Hand figures for a 3 m × 10 mm hose in 3 segments.
+    #[test]
+    fn hose_capacitance_and_resistance_by_hand() {
+        let fluid = Fluid {
+            density: 860.0,
+            bulk_modulus: 1.5e9,
+            kinematic_viscosity: 32e-6,
+            cavitation_pressure: -1e5,
+        };
+        let mut cfg = LineDynamics {
+            enabled: true,
+            variant: crate::params::LineVariant::Hose,
+            length: 3.0,
+            diameter: 0.01,
+            segments: 3,
+            bulk_modulus: None,
+            port_volume: 0.0,
+            friction: LineFriction::Steady,
+            wall_compliance: 1e-9,
+            resistance: 3e9,
+        };
+        let l = Line::new(&cfg, &fluid, 0.0);
+        let area = std::f64::consts::PI * 0.25e-4;
+        // β_eff = 1/(1/1.5e9 + 1e-9) = 0.6 GPa.
+        assert!((l.c - area * 1.0 / 0.6e9).abs() < 1e-12 * l.c);
+        let r_hp = 128.0 * 860.0 * 32e-6 * 1.0 / (std::f64::consts::PI * 1e-8);
+        assert!(
+            (l.r - (r_hp + 1e9)).abs() < 1e-9 * l.r,
+            "{} vs {}",
+            l.r,
+            r_hp + 1e9
+        );
+        assert!((l.l - 860.0 / area).abs() < 1e-9 * l.l);
+        // The same numbers on a pipe are the fluid's.
+        cfg.variant = crate::params::LineVariant::Pipe;
+        let p = Line::new(&cfg, &fluid, 0.0);
+        assert!((p.c - area / 1.5e9).abs() < 1e-12 * p.c);
+        assert!((p.r - r_hp).abs() < 1e-9 * p.r);
     }
 
     #[test]

@@ -92,6 +92,9 @@ struct Consts {
     mass: f64,
     damping: f64,
     k_load: f64,
+    /// Pre-sliding spring σ₀ (N/m) of `friction` variant `lugre`, 0 otherwise: only the
+    /// substep rule reads it ([`fastest_mode`]).
+    k_bristle: f64,
     x_contact: f64,
     end_stops: bool,
     full_scale: f64,
@@ -370,6 +373,11 @@ impl Plant {
                     .filter(|f| f.enabled)
                     .map_or(0.0, |f| f.viscous),
             k_load: params.mechanics.load_stiffness,
+            k_bristle: e
+                .friction
+                .as_ref()
+                .filter(|f| f.enabled && f.variant == crate::params::FrictionVariant::Lugre)
+                .map_or(0.0, |f| f.bristle_stiffness),
             x_contact: params.mechanics.load_contact_position,
             end_stops: params.mechanics.end_stops,
             full_scale: params.valve.command_full_scale,
@@ -613,6 +621,9 @@ impl Plant {
             rod_force: f_load0,
             stuck: self.friction.is_some(),
         };
+        if let Some(f) = self.friction.as_mut() {
+            f.reset();
+        }
         if let Some((la, lb)) = self.lines.as_mut() {
             la.p.iter_mut().for_each(|p| *p = p_a);
             la.q.iter_mut().for_each(|q| *q = 0.0);
@@ -1244,7 +1255,7 @@ impl Plant {
         let d_mount = if c.body_mount { 0.0 } else { d_mount };
         let m_eff = c.mass + h * (c.damping + d_mount + df_poly);
         let v_free = (c.mass * s.v + h * f_other) / m_eff;
-        let (v_new, f_fric, stuck) = match &self.friction {
+        let (v_new, f_fric, stuck) = match self.friction.as_mut() {
             Some(fm) => fm.project(s.v, v_free, m_eff, h),
             None => (v_free, 0.0, false),
         };
@@ -1310,7 +1321,8 @@ fn fastest_mode(
     va: f64,
     vb: f64,
 ) -> f64 {
-    let mut k_total = c.beta_max * (c.a_a * c.a_a / va + c.a_b * c.a_b / vb) + c.k_load;
+    let mut k_total =
+        c.beta_max * (c.a_a * c.a_a / va + c.a_b * c.a_b / vb) + c.k_load + c.k_bristle;
     let mut omega_max: f64 = 0.0;
     if let Some((ml, km, dm)) = c.mount {
         k_total += km;

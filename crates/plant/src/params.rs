@@ -239,22 +239,32 @@ pub enum FrictionVariant {
     /// MR-damper and guide models, e.g. Spencer et al. 1997 without the Bouc–Wen hysteresis);
     /// `stribeck_velocity` is the smoothing velocity v_s, `static_force` is not used.
     LoadCoulomb,
+    /// Seal friction with pre-sliding (bristle) dynamics, the LuGre model (Canudas de Wit,
+    /// Olsson, Åström & Lischinsky 1995, "A new model for control of systems with friction",
+    /// IEEE TAC 40(3):419–425, eq. 1–3): ż = v − σ₀·|v|·z/g(v), F = σ₀·z + σ₁·ż (+ `viscous`·v),
+    /// g(v) = F_C + (F_s − F_C)·e^(−(v/v_s)²). Before breakaway the seal is a spring of
+    /// stiffness σ₀ (`bristle_stiffness`, pre-sliding displacement ≈ F_C/σ₀) damped by σ₁
+    /// (`bristle_damping`); with `static_force` = `coulomb_force` and σ₁ = 0 it is Dahl's
+    /// (1968, "A solid friction model", Aerospace Corp. TOR-0158(3107-18)-1) model with
+    /// exponent 1, dF/dx = σ₀·(1 − F·sign(v)/F_C). See [`crate::friction`].
+    Lugre,
 }
 
-/// `friction`: Stribeck seal friction with stick (003 eq. 5, 004 eq. 28–34) or a load-side
-/// Coulomb force (variant `load_coulomb`).
+/// `friction`: Stribeck seal friction with stick (003 eq. 5, 004 eq. 28–34), a load-side
+/// Coulomb force (variant `load_coulomb`) or LuGre / Dahl pre-sliding friction (variant `lugre`).
 #[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Friction {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
-    /// Structural variant (`stribeck` or `load_coulomb`).
+    /// Structural variant (`stribeck`, `load_coulomb` or `lugre`).
     #[serde(default)]
     #[param(
         choice,
         desc = "stribeck: seal friction with stick (003 eq. 5, default); load_coulomb: F_C·tanh(v/v_s) \
-         without stick (MR damper / guide, Spencer 1997 without hysteresis)"
+         without stick (MR damper / guide, Spencer 1997 without hysteresis); lugre: pre-sliding \
+         bristle dynamics (Canudas de Wit 1995; Dahl 1968 with F_s = F_C, σ₁ = 0)"
     )]
     pub variant: FrictionVariant,
     /// Breakaway (static) friction F_s (N); 004: 44.
@@ -271,6 +281,14 @@ pub struct Friction {
     #[serde(default)]
     #[param(unit = "N·s/m", range = NonNegative, desc = "extra viscous friction")]
     pub viscous: f64,
+    /// Bristle (pre-sliding) stiffness σ₀ (N/m), variant `lugre`; Canudas de Wit 1995 eq. 2.
+    #[serde(default)]
+    #[param(unit = "N/m", range = NonNegative, desc = "bristle stiffness σ₀ of the pre-sliding spring (variant lugre)")]
+    pub bristle_stiffness: f64,
+    /// Bristle damping σ₁ (N·s/m), variant `lugre`; Canudas de Wit 1995 eq. 2.
+    #[serde(default)]
+    #[param(unit = "N·s/m", range = NonNegative, desc = "bristle damping σ₁ (variant lugre; 0 with F_s = F_C is Dahl 1968)")]
+    pub bristle_damping: f64,
 }
 
 impl Friction {
@@ -490,13 +508,37 @@ impl BulkModulusPressure {
     }
 }
 
-/// `line_dynamics`: lumped R-L-C segments between valve ports and chambers (002 eq. 9–17).
+/// Structural variant of `line_dynamics`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LineVariant {
+    /// Rigid pipe: segment capacitance A·ℓ/β with β the fluid's (or `bulk_modulus`),
+    /// Hagen–Poiseuille resistance (002 eq. 9–17).
+    #[default]
+    Pipe,
+    /// Compliant hose: the wall adds its compliance to the oil's, 1/β_eff = 1/β + `wall_compliance`
+    /// (thin wall: D/(t·E), Merritt 1967, "Hydraulic Control Systems", §2.7 eq. 2-46; or a
+    /// hose maker's volumetric expansion ΔV/(V·Δp)), and the hose ends / fittings add a
+    /// laminar `resistance` between valve and chamber on top of the Hagen–Poiseuille one.
+    Hose,
+}
+
+/// `line_dynamics`: lumped R-L-C segments between valve ports and chambers (002 eq. 9–17),
+/// rigid pipes or compliant hoses (variant `hose`).
 #[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct LineDynamics {
     /// Effect switch.
     #[serde(default = "yes")]
     pub enabled: bool,
+    /// Structural variant (`pipe` or `hose`).
+    #[serde(default)]
+    #[param(
+        choice,
+        desc = "pipe: rigid line (002 eq. 9–17, default); hose: wall compliance added to the oil's \
+         and a lumped fitting resistance"
+    )]
+    pub variant: LineVariant,
     /// Line length per side (m).
     #[param(unit = "m", range = Within(1.0e-3, 1.0e3), desc = "line length per side")]
     pub length: f64,
@@ -524,6 +566,16 @@ pub struct LineDynamics {
          weighting function, 8 states per segment) or unsteady_trikha (Trikha 1975, 3 states)"
     )]
     pub friction: LineFriction,
+    /// Wall compliance of a hose (1/Pa), variant `hose`: 1/β_eff = 1/β + this. Thin wall
+    /// D/(t·E) (Merritt 1967 eq. 2-46); 1·10⁻⁹ 1/Pa makes β_eff ≈ 0.6 GPa of a 1.5 GPa oil.
+    #[serde(default)]
+    #[param(unit = "1/Pa", range = NonNegative, desc = "hose wall compliance ΔV/(V·Δp), e.g. D/(t·E) thin wall (variant hose)")]
+    pub wall_compliance: f64,
+    /// Laminar resistance of the hose ends and fittings per side (Pa·s/m³), variant `hose`,
+    /// added to the segments' Hagen–Poiseuille resistance (spread evenly over them).
+    #[serde(default)]
+    #[param(unit = "Pa·s/m³", range = NonNegative, desc = "laminar fitting resistance per side, added to the Hagen–Poiseuille one (variant hose)")]
+    pub resistance: f64,
 }
 
 /// Wall friction of a `line_dynamics` segment (laminar flow).

@@ -29,8 +29,18 @@ fn row(p: &spec::Param) -> [String; 5] {
 }
 
 /// Entries added on purpose after the fixture (the line scheme and the segment
-/// modes' stability margin, added 2026-11-26); tests/rust/param_registry.rs checks their rows.
-const ADDED: [&str; 2] = ["integration.max_omega_h_line", "integration.line_method"];
+/// modes' stability margin, added 2026-11-26; the friction variant `lugre` and the
+/// line_dynamics variant `hose`, 2026-11-27, whose new choice the fixture's
+/// `effects.friction.variant` row carries); tests/rust/param_registry.rs checks their rows.
+const ADDED: [&str; 7] = [
+    "integration.max_omega_h_line",
+    "integration.line_method",
+    "effects.friction.bristle_stiffness",
+    "effects.friction.bristle_damping",
+    "effects.line_dynamics.variant",
+    "effects.line_dynamics.wall_compliance",
+    "effects.line_dynamics.resistance",
+];
 
 #[test]
 fn generated_registry_equals_the_hand_written_table() {
