@@ -6,8 +6,9 @@
 //! `can_latency --bus socketcand://127.0.0.1:PORT/can0 [--n 2000] [--node 64] [--samples]`
 //! (`--samples` adds the raw round trips in µs).
 
-use ehactl_canopen::bus::{open, BusUrl};
+use ehactl_canopen::bus::BusUrl;
 use ehactl_canopen::sdo::{transfer, SdoClient};
+use ehactl_canopen::transport::open;
 use ehactl_canopen::CanFrame;
 use std::time::{Duration, Instant};
 

@@ -48,16 +48,16 @@
 //! Safe stop: RPDO setpoint for the safe command (0) + SYNC, then the I/O threads are
 //! stopped and the valve control word is set to HOLD (D=1, H=1, A=0) by SDO.
 
-use crate::bus::{BusError, BusErrorKind, BusUrl, CanBus};
+use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
 use crate::cia408::{self, ValveState};
-use crate::config::CanopenConfig;
 use crate::emcy::{Emcy, EMCY_BASE};
 use crate::frame::{CanFrame, Direction};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::nmt::{NmtState, HEARTBEAT_BASE};
 use crate::pdo::{self, RPDO1_BASE, TPDO1_BASE};
 use crate::sdo::{self, SdoClient, SDO_TX_BASE};
+pub use crate::settings::CanopenSettings;
 use crate::startup::{Activated, Bringup, Dev, Plan, Startup};
 pub use crate::startup::{StartupError, StartupFailure};
 use crate::sync::{self, SyncProducer};
@@ -65,32 +65,10 @@ use crossbeam_queue::ArrayQueue;
 use ehactl_hal::logger::{CanFrameRecord, FrameLog};
 use ehactl_hal::record::{Event, EventKind, Severity};
 use ehactl_hal::{Hal, HalError, Measurements};
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-
-/// Everything the backend needs besides the bus.
-#[derive(Debug, Clone)]
-pub struct CanopenSettings {
-    /// Bus address.
-    pub bus: BusUrl,
-    /// `[canopen]` section.
-    pub canopen: CanopenConfig,
-    /// Valve command for 100 % spool (V), `plant.valve.command_full_scale`.
-    pub command_full_scale: f64,
-    /// Control rate (Hz), `run.control_rate_hz`.
-    pub control_rate_hz: f64,
-    /// Command of the safe stop (V), `supervisor.safe_command`: must be closed centre
-    /// (spool setpoint 0) on a CAN valve, checked before the bus is opened.
-    pub safe_command: f64,
-    /// Print start-up progress on stderr.
-    pub verbose: bool,
-    /// Directory of the config file: relative `canopen.transducer_eds` / `valve_eds` paths
-    /// are taken from here (None: the current directory).
-    pub config_dir: Option<PathBuf>,
-}
 
 /// State shared by the cycle and the I/O threads (atomics only, plus one error text that
 /// the I/O threads set once and that is read outside the cycle).

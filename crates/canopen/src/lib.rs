@@ -4,7 +4,7 @@
 //! - [`frame`]: fixed-size [`CanFrame`] (no heap, `Copy`),
 //! - [`bus`]: the [`CanBus`] transport trait and bus addresses, with the implementations
 //!   [`socketcand`] (rawmode over TCP, pure std) and [`socketcan_bus`] (Linux SocketCAN,
-//!   cargo feature `socketcan`),
+//!   cargo feature `socketcan`), opened by address with [`transport::open`],
 //! - [`hub`]: the socketcand-compatible relay behind `ehactl canbus hub`,
 //! - the CANopen master split by CiA 301 service: [`nmt`], [`sync`], [`sdo`], [`pdo`],
 //!   [`heartbeat`], [`emcy`]; every process function takes the elapsed time as an argument
@@ -12,6 +12,7 @@
 //! - the device profiles [`cia406`] (position transducer) and [`cia408`] (valve with OBE),
 //! - [`config`]: the `[canopen]` config section and the bus-load check,
 //! - [`eds`]: EDS / DCF files (CiA 306) that drive the start-up,
+//! - [`settings`]: [`settings::CanopenSettings`], what start-up and backend are given,
 //! - [`startup`]: the start-up in phases (configure: boot, identity, EDS-driven SDO
 //!   configuration; activate: NMT start, valve state machine, priming),
 //! - [`hal`]: [`hal::CanopenHal`], the `Hal` implementation: I/O threads own the bus, the
@@ -31,10 +32,12 @@ pub mod hub;
 pub mod nmt;
 pub mod pdo;
 pub mod sdo;
+pub mod settings;
 pub mod socketcan_bus;
 pub mod socketcand;
 pub mod startup;
 pub mod sync;
+pub mod transport;
 
 pub use bus::{BusError, BusErrorKind, BusUrl, CanBus};
 pub use config::CanopenConfig;

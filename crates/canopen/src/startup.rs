@@ -16,20 +16,21 @@
 //! Every frame of the attempt is kept ([`Startup`]) for the log, and ehactl's heartbeat runs
 //! from the first frame on ([`StartBus`]).
 
-use crate::bus::{self, BusError, BusErrorKind, CanBus};
+use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
 use crate::cia408::{self, ValveState};
 use crate::eds::{Access, Eds, BUILTIN_TRANSDUCER_EDS, BUILTIN_VALVE_EDS};
 use crate::emcy::{Emcy, EMCY_BASE};
 use crate::frame::{CanFrame, Direction};
-use crate::hal::CanopenSettings;
 use crate::nmt::{self, NmtCommand, NmtState, HEARTBEAT_BASE};
 use crate::pdo::{
     self, MapEntry, PdoMap, COB_ID_INVALID, RPDO1_BASE, RPDO1_COMM, RPDO1_MAP, TPDO1_BASE,
     TPDO1_COMM, TPDO1_MAP,
 };
 use crate::sdo::{self, SdoClient, SdoError};
+use crate::settings::CanopenSettings;
 use crate::sync;
+use crate::transport;
 use ehactl_hal::logger::CanFrameRecord;
 use ehactl_hal::Measurements;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -895,7 +896,7 @@ impl<'a> Bringup<'a> {
     ) -> Result<Bringup<'a>, StartupError> {
         let c = &s.canopen;
         let bus = Box::new(StartBus {
-            inner: bus::open(&s.bus, Duration::from_secs(3))?,
+            inner: transport::open(&s.bus, Duration::from_secs(3))?,
             hb: master_hb,
             period: Duration::from_millis(u64::from(c.master_heartbeat_ms)),
             next: Instant::now(),
