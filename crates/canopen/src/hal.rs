@@ -51,6 +51,7 @@
 use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
 use crate::cia408::{self, ValveState};
+use crate::clock::{Clock, MonotonicClock};
 use crate::emcy::{Emcy, EMCY_BASE};
 use crate::frame::{CanFrame, Direction};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
@@ -61,6 +62,7 @@ pub use crate::settings::CanopenSettings;
 use crate::startup::{Activated, Bringup, Dev, Plan, Startup};
 pub use crate::startup::{StartupError, StartupFailure};
 use crate::sync::{self, SyncProducer};
+use crate::transport;
 use crossbeam_queue::ArrayQueue;
 use ehactl_hal::logger::{CanFrameRecord, FrameLog};
 use ehactl_hal::record::{Event, EventKind, Severity};
@@ -68,7 +70,7 @@ use ehactl_hal::{Hal, HalError, Measurements};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// State shared by the cycle and the I/O threads (atomics only, plus one error text that
 /// the I/O threads set once and that is read outside the cycle).
@@ -79,8 +81,11 @@ struct IoShared {
     cycle_started: AtomicBool,
     failed: AtomicBool,
     error: Mutex<Option<String>>,
-    epoch: Instant,
-    /// ns since `epoch` of loop time 0.
+    /// The caller's clock (see [`crate::clock`]) and its reading at the start of the
+    /// start-up (ns): every stamp below is counted from there.
+    clock: Arc<dyn Clock>,
+    epoch_ns: u64,
+    /// ns since `epoch_ns` of loop time 0.
     zero_ns: AtomicI64,
     rx_frames: AtomicU64,
     tx_frames: AtomicU64,
@@ -89,17 +94,24 @@ struct IoShared {
 }
 
 impl IoShared {
-    /// Time of the /can log (ns since loop time 0).
+    /// The present time on the caller's clock (ns).
     #[inline]
-    fn stamp(&self, at: Instant) -> i64 {
+    fn now(&self) -> u64 {
+        self.clock.now_ns()
+    }
+
+    /// Time of the /can log (ns since loop time 0) of clock reading `at` (ns).
+    #[inline]
+    fn stamp(&self, at: u64) -> i64 {
         self.mono(at) - self.zero_ns.load(Ordering::Relaxed)
     }
 
-    /// ns since `epoch` (monotonic; unlike `stamp` it does not move when the first cycle
-    /// sets loop time 0): the clock of the receive stamps the heartbeat consumers use.
+    /// ns since `epoch_ns` of clock reading `at` (monotonic; unlike `stamp` it does not move
+    /// when the first cycle sets loop time 0): the clock of the receive stamps the heartbeat
+    /// consumers use.
     #[inline]
-    fn mono(&self, at: Instant) -> i64 {
-        at.saturating_duration_since(self.epoch).as_nanos() as i64
+    fn mono(&self, at: u64) -> i64 {
+        at.saturating_sub(self.epoch_ns).min(i64::MAX as u64) as i64
     }
 
     fn fail(&self, msg: String) {
@@ -143,7 +155,8 @@ pub struct CanopenHal {
     tx_thread: Option<JoinHandle<Box<dyn CanBus>>>,
     tx_waker: Option<std::thread::Thread>,
     bus_after_stop: Option<Box<dyn CanBus>>,
-    startup_frames: Vec<(Instant, CanFrame, bool)>,
+    /// Start-up frames with their clock reading (ns), handed to the log in the first cycle.
+    startup_frames: Vec<(u64, CanFrame, bool)>,
     started: bool,
     last_write_t: Option<f64>,
     sync: SyncProducer,
@@ -209,13 +222,27 @@ impl CanopenHal {
         s: CanopenSettings,
         stop: Option<Arc<AtomicBool>>,
     ) -> Result<CanopenHal, StartupFailure> {
-        let t_start = Instant::now();
+        Self::connect_with(s, None, stop, Arc::new(MonotonicClock::new()))
+    }
+
+    /// [`CanopenHal::connect_until`] on `bus` (`None`: the bus at `s.bus` is opened once the
+    /// settings are checked) with the caller's `clock`: every timeout of the start-up, ehactl's
+    /// heartbeat, the frames' times and the heartbeat consumers' receive stamps come from it
+    /// (see [`crate::clock`]; a [`crate::clock::ManualClock`] makes them simulated time).
+    pub fn connect_with(
+        s: CanopenSettings,
+        bus: Option<Box<dyn CanBus>>,
+        stop: Option<Arc<AtomicBool>>,
+        clock: Arc<dyn Clock>,
+    ) -> Result<CanopenHal, StartupFailure> {
+        let t_start = clock.now_ns();
         let mut st = Startup::new(
             [s.canopen.transducer_node_id, s.canopen.valve_node_id],
             s.verbose,
+            clock,
         );
-        Self::bring_up(s, t_start, &mut st, stop).map_err(|error| {
-            let failed_at = Instant::now();
+        Self::bring_up(s, bus, t_start, &mut st, stop).map_err(|error| {
+            let failed_at = st.clock.now_ns();
             st.merge();
             StartupFailure {
                 error,
@@ -223,11 +250,11 @@ impl CanopenHal {
                     .frames
                     .iter()
                     .map(|(at, f, tx)| {
-                        let before = failed_at.saturating_duration_since(*at).as_nanos();
-                        record(f, -(before.min(i64::MAX as u128) as i64), *tx)
+                        let before = failed_at.saturating_sub(*at);
+                        record(f, -(before.min(i64::MAX as u64) as i64), *tx)
                     })
                     .collect(),
-                elapsed_s: failed_at.duration_since(t_start).as_secs_f64(),
+                elapsed_s: failed_at.saturating_sub(t_start) as f64 * 1e-9,
             }
         })
     }
@@ -281,25 +308,31 @@ impl CanopenHal {
     }
 
     /// configure then activate (see [`crate::startup`]), then the I/O threads.
+    /// `t_start`: clock reading at the start (ns).
     fn bring_up(
         s: CanopenSettings,
-        t_start: Instant,
+        bus: Option<Box<dyn CanBus>>,
+        t_start: u64,
         st: &mut Startup,
         stop: Option<Arc<AtomicBool>>,
     ) -> Result<CanopenHal, StartupError> {
         let plan = Self::check_settings(&s)?;
+        let bus = match bus {
+            Some(b) => b,
+            None => transport::open(&s.bus, Duration::from_secs(3))?,
+        };
         let c = s.canopen.clone();
         let master_hb = CanFrame::std(
             HEARTBEAT_BASE + u16::from(c.master_node_id),
             [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
         );
-        let mut b = Bringup::open(&s, plan, st, master_hb, stop)?;
+        let mut b = Bringup::open(&s, bus, plan, st, master_hb, stop)?;
         b.configure()?;
         let Activated { mut meas } = b.activate()?;
         if s.verbose {
             eprintln!(
                 "canopen: start-up done in {:.2} s; first position {:.6} m",
-                t_start.elapsed().as_secs_f64(),
+                b.now().saturating_sub(t_start) as f64 * 1e-9,
                 meas.position
             );
         }
@@ -316,7 +349,7 @@ impl CanopenHal {
     fn spawn_io(
         s: CanopenSettings,
         bus: Box<dyn CanBus>,
-        t_start: Instant,
+        t_start: u64,
         st: &mut Startup,
         master_hb: CanFrame,
         meas: Measurements,
@@ -332,8 +365,9 @@ impl CanopenHal {
             cycle_started: AtomicBool::new(false),
             failed: AtomicBool::new(false),
             error: Mutex::new(None),
-            epoch: t_start,
-            zero_ns: AtomicI64::new(t_start.elapsed().as_nanos() as i64),
+            clock: st.clock.clone(),
+            epoch_ns: t_start,
+            zero_ns: AtomicI64::new(st.clock.now_ns().saturating_sub(t_start) as i64),
             rx_frames: AtomicU64::new(0),
             tx_frames: AtomicU64::new(0),
             rx_overflow: AtomicU64::new(0),
@@ -373,10 +407,11 @@ impl CanopenHal {
         ];
         // the devices were OPERATIONAL with heartbeats at the end of start-up: the windows
         // start now (the receive clock), the devices' next heartbeats come through the RX queue
-        let armed_at = shared.mono(Instant::now());
+        let armed_at = shared.mono(shared.now());
         for h in hb.iter_mut() {
             h.on_heartbeat(NmtState::Operational, armed_at);
         }
+        let startup_s = shared.now().saturating_sub(t_start) as f64 * 1e-9;
         Ok(CanopenHal {
             // the start-up's priming SYNC was SYNC 1 (for the SYNC counter)
             sync: SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1),
@@ -414,7 +449,7 @@ impl CanopenHal {
             emcy_count: 0,
             last_emcy: None,
             safe_stop_result: None,
-            startup_s: t_start.elapsed().as_secs_f64(),
+            startup_s,
             names,
             skipped: Vec::new(),
             s,
@@ -688,7 +723,7 @@ impl CanopenHal {
     }
 
     fn log_now(&self, f: &CanFrame, dir: Direction) {
-        let t = self.shared.stamp(Instant::now());
+        let t = self.shared.stamp(self.shared.now());
         self.frame_log.push(record(f, t, dir == Direction::Tx));
     }
 
@@ -712,7 +747,7 @@ fn rx_loop(
     while !sh.stop.load(Ordering::Acquire) {
         match bus.recv_timeout(Duration::from_millis(20)) {
             Ok(Some(f)) => {
-                let rx_ns = sh.mono(Instant::now());
+                let rx_ns = sh.mono(sh.now());
                 log.push(record(
                     &f,
                     rx_ns - sh.zero_ns.load(Ordering::Relaxed),
@@ -729,7 +764,7 @@ fn rx_loop(
                 if n <= MAX_WARNINGS {
                     eprintln!("ehactl: canopen: malformed bus message ignored: {e}");
                     log.push_event(Event {
-                        t: sh.stamp(Instant::now()) as f64 * 1e-9,
+                        t: sh.stamp(sh.now()) as f64 * 1e-9,
                         cycle: 0,
                         severity: Severity::Warning,
                         kind: EventKind::CanBus,
@@ -758,26 +793,27 @@ fn tx_loop(
     master_hb_period: Duration,
     keepalive: CanFrame,
 ) -> Box<dyn CanBus> {
-    let mut next_hb = Instant::now();
+    let period_ns = u64::try_from(master_hb_period.as_nanos()).unwrap_or(u64::MAX);
+    let mut next_hb = sh.now();
     loop {
         // Until the first cycle runs (the run loop still sets up), ehactl's heartbeat and the
         // valve's setpoint RPDO (0, as primed) come from here, so that the devices' consumers
         // (0x1016) and the valve's RPDO deadline (0x1400:05) do not fire in the hand-over.
-        if !sh.cycle_started.load(Ordering::Acquire) && Instant::now() >= next_hb {
-            next_hb = Instant::now() + master_hb_period;
+        if !sh.cycle_started.load(Ordering::Acquire) && sh.now() >= next_hb {
+            next_hb = sh.now().saturating_add(period_ns);
             for f in [&master_hb, &keepalive] {
                 if let Err(e) = bus.send(f) {
                     sh.fail(e.message);
                     return bus;
                 }
-                log.push(record(f, sh.stamp(Instant::now()), true));
+                log.push(record(f, sh.stamp(sh.now()), true));
                 sh.tx_frames.fetch_add(1, Ordering::Relaxed);
             }
         }
         while let Some(f) = q.pop() {
             match bus.send(&f) {
                 Ok(()) => {
-                    log.push(record(&f, sh.stamp(Instant::now()), true));
+                    log.push(record(&f, sh.stamp(sh.now()), true));
                     sh.tx_frames.fetch_add(1, Ordering::Relaxed);
                 }
                 Err(e) => {
@@ -805,11 +841,10 @@ impl Hal for CanopenHal {
         if !self.started {
             self.started = true;
             self.shared.cycle_started.store(true, Ordering::Release);
-            let now = Instant::now();
-            let zero = now.saturating_duration_since(self.shared.epoch).as_nanos() as i64;
+            let zero = self.shared.mono(self.shared.now());
             self.shared.zero_ns.store(zero, Ordering::Relaxed);
             for (at, f, tx) in self.startup_frames.drain(..) {
-                let tn = at.saturating_duration_since(self.shared.epoch).as_nanos() as i64 - zero;
+                let tn = self.shared.mono(at) - zero;
                 self.frame_log.push(record(&f, tn, tx));
             }
         }
@@ -818,7 +853,7 @@ impl Hal for CanopenHal {
         // clock — not loop time, which lags the wall clock when the pacer skips deadlines
         // (a consumer counting loop time trips late by the skipped time). `now` is taken
         // before the queue is drained, so every frame taken in below was received before it.
-        let now_ns = self.shared.mono(Instant::now());
+        let now_ns = self.shared.mono(self.shared.now());
         if let Some(e) = self.fault {
             return Err(e);
         }
@@ -923,7 +958,7 @@ impl Hal for CanopenHal {
             if let Some(w) = &self.tx_waker {
                 w.unpark();
             }
-            std::thread::sleep(Duration::from_secs_f64(
+            self.shared.clock.sleep(Duration::from_secs_f64(
                 (2.0 / self.s.canopen.sync_rate_hz).min(0.05),
             ));
         }
@@ -937,7 +972,9 @@ impl Hal for CanopenHal {
                 );
                 let req = cl.download(cia408::CONTROL_WORD, 0, &cia408::CW_HOLD_STATE.to_le_bytes());
                 let mut frames: Vec<(CanFrame, Direction)> = Vec::new();
-                let r = sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| frames.push((*f, d)));
+                let r = sdo::transfer(&mut *bus, &mut cl, req, &*self.shared.clock, &mut |f, d| {
+                    frames.push((*f, d))
+                });
                 for (f, d) in &frames {
                     self.log_now(f, *d);
                 }

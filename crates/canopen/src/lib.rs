@@ -13,6 +13,7 @@
 //! - [`config`]: the `[canopen]` config section and the bus-load check,
 //! - [`eds`]: EDS / DCF files (CiA 306) that drive the start-up,
 //! - [`settings`]: [`settings::CanopenSettings`], what start-up and backend are given,
+//! - [`clock`]: the caller's time source ([`clock::Clock`]) of start-up and backend,
 //! - [`startup`]: the start-up in phases (configure: boot, identity, EDS-driven SDO
 //!   configuration; activate: NMT start, valve state machine, priming),
 //! - [`hal`]: [`hal::CanopenHal`], the `Hal` implementation: I/O threads own the bus, the
@@ -22,6 +23,7 @@
 pub mod bus;
 pub mod cia406;
 pub mod cia408;
+pub mod clock;
 pub mod config;
 pub mod eds;
 pub mod emcy;
