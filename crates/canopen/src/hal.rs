@@ -1055,3 +1055,98 @@ impl Drop for CanopenHal {
 pub fn sdo_response_id(node: u8) -> u16 {
     SDO_TX_BASE + u16::from(node)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::BusUrl;
+    use crate::clock::ManualClock;
+    use crate::config::CanopenConfig;
+    use crate::simbus::SimBus;
+
+    const MS: u64 = 1_000_000;
+
+    /// The heartbeat consumers of the run on simulated time: the window of each device runs
+    /// from the reception of its last heartbeat (the RX thread's stamp on the caller's clock),
+    /// checked against the present time on that clock when the cycle reads — not against loop
+    /// time, which here does not move at all. With `heartbeat_timeout_ms` = 60 a device is
+    /// lost exactly when more than 60 ms have passed: not at 60 ms, at 60 ms + 1 ns.
+    #[test]
+    fn a_lost_heartbeat_trips_at_the_exact_simulated_time() {
+        let clock = Arc::new(ManualClock::at(7_000 * MS));
+        let bus = SimBus::new(clock.clone(), false);
+        let rx = bus.rx.clone();
+        let c = CanopenConfig::default();
+        assert_eq!(c.heartbeat_timeout_ms, 60);
+        let (tr, va) = (c.transducer_node_id, c.valve_node_id);
+        let s = CanopenSettings {
+            bus: BusUrl::parse("socketcand://127.0.0.1:1/can0").unwrap(),
+            canopen: c,
+            command_full_scale: 10.0,
+            control_rate_hz: 5000.0,
+            safe_command: 0.0,
+            verbose: false,
+            config_dir: None,
+        };
+        let t_start = clock.now_ns();
+        let mut st = Startup::new([tr, va], false, clock.clone());
+        clock.advance(Duration::from_secs(2)); // the start-up took 2 s
+        let meas = Measurements {
+            t: 0.0,
+            force: f64::NAN,
+            position: 0.1,
+            p_a: f64::NAN,
+            p_b: f64::NAN,
+            spool: 0.0,
+        };
+        let master_hb = CanFrame::std(HEARTBEAT_BASE + 1, [0x05]);
+        let mut hal = CanopenHal::spawn_io(
+            s,
+            Box::new(bus),
+            t_start,
+            &mut st,
+            master_hb,
+            meas,
+            [None, None],
+        )
+        .unwrap();
+        assert_eq!(hal.startup_seconds(), 2.0);
+        // armed at 9.000 s; the valve's heartbeat arrives at 9.030 s
+        clock.set(9_030 * MS);
+        rx.lock()
+            .unwrap()
+            .push_back(CanFrame::std(HEARTBEAT_BASE + u16::from(va), [0x05]));
+        let waited = std::time::Instant::now();
+        while hal.shared.rx_frames.load(Ordering::Acquire) < 1 {
+            assert!(waited.elapsed() < Duration::from_secs(10), "RX thread idle");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // 9.060 s: the transducer has been silent for exactly 60 ms — not lost yet
+        clock.set(9_060 * MS);
+        hal.read(0.0, 2e-4)
+            .expect("60 ms of silence is within the consumer time");
+        // 1 ns later it is lost; the valve (heard at 9.030 s, taken in only at 9.060 s) is not
+        clock.set(9_060 * MS + 1);
+        match hal.read(0.0, 2e-4) {
+            Err(HalError::Device { code, what }) => {
+                assert_eq!(code, u32::from(tr));
+                assert_eq!(what, "transducer heartbeat lost (consumer timeout)");
+            }
+            r => panic!("expected the transducer's heartbeat loss, got {r:?}"),
+        }
+        let ev = std::iter::from_fn(|| hal.frame_log.pop_event())
+            .find(|e| e.channel == "transducer heartbeat lost (consumer timeout)")
+            .expect("the trip is logged");
+        assert_eq!((ev.value, ev.unit), (60_000_001.0 * 1e-9, "s")); // silent_ns in s
+                                                                     // the valve's window ran from its reception at 9.030 s (2.030 s after the start):
+                                                                     // lost after 9.090 s, not 60 ms after the cycle took its heartbeat in (9.120 s)
+        let at = |ms: u64, extra: u64| ((ms - 7_000) * MS + extra) as i64;
+        assert_eq!(hal.hb[1].clone().process(at(9_090, 0)), None);
+        assert_eq!(
+            hal.hb[1].clone().process(at(9_090, 1)),
+            Some(HeartbeatEvent::Timeout {
+                silent_ns: 60 * MS + 1
+            })
+        );
+    }
+}

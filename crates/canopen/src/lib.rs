@@ -35,6 +35,8 @@ pub mod nmt;
 pub mod pdo;
 pub mod sdo;
 pub mod settings;
+#[cfg(test)]
+mod simbus;
 pub mod socketcan_bus;
 pub mod socketcand;
 pub mod startup;
