@@ -1066,6 +1066,18 @@ mod tests {
 
     const MS: u64 = 1_000_000;
 
+    fn settings(c: CanopenConfig) -> CanopenSettings {
+        CanopenSettings {
+            bus: BusUrl::parse("socketcand://127.0.0.1:1/can0").unwrap(),
+            canopen: c,
+            command_full_scale: 10.0,
+            control_rate_hz: 5000.0,
+            safe_command: 0.0,
+            verbose: false,
+            config_dir: None,
+        }
+    }
+
     /// The heartbeat consumers of the run on simulated time: the window of each device runs
     /// from the reception of its last heartbeat (the RX thread's stamp on the caller's clock),
     /// checked against the present time on that clock when the cycle reads — not against loop
@@ -1079,15 +1091,7 @@ mod tests {
         let c = CanopenConfig::default();
         assert_eq!(c.heartbeat_timeout_ms, 60);
         let (tr, va) = (c.transducer_node_id, c.valve_node_id);
-        let s = CanopenSettings {
-            bus: BusUrl::parse("socketcand://127.0.0.1:1/can0").unwrap(),
-            canopen: c,
-            command_full_scale: 10.0,
-            control_rate_hz: 5000.0,
-            safe_command: 0.0,
-            verbose: false,
-            config_dir: None,
-        };
+        let s = settings(c);
         let t_start = clock.now_ns();
         let mut st = Startup::new([tr, va], false, clock.clone());
         clock.advance(Duration::from_secs(2)); // the start-up took 2 s
@@ -1148,5 +1152,79 @@ mod tests {
                 silent_ns: 60 * MS + 1
             })
         );
+    }
+
+    /// The boot-up wait on simulated time: two devices that never answer. The probes, their
+    /// SDO timeouts, ehactl's heartbeat and the final NoBoot fall on exact instants of the
+    /// caller's clock: probes every BOOT_PROBE_EVERY (250 ms) after the last round ended, each
+    /// unanswered probe aborted after min(sdo timeout, 250 ms), a last round at
+    /// boot_timeout_s with the full SDO timeout; the heartbeat every master_heartbeat_ms.
+    #[test]
+    fn a_silent_rig_fails_the_boot_up_at_an_exact_simulated_time() {
+        const MS: i64 = 1_000_000;
+        let clock = Arc::new(ManualClock::at(42_000 * MS as u64));
+        let bus = SimBus::new(clock.clone(), true);
+        let sent = bus.sent.clone();
+        let c = CanopenConfig {
+            boot_timeout_s: 1.0,
+            sdo_timeout_ms: 100,
+            ..Default::default()
+        };
+        let (tr, va, master) = (c.transducer_node_id, c.valve_node_id, c.master_node_id);
+        // on simulated time a wait that lets no time pass would spin for ever: bounded here
+        let (done, result) = std::sync::mpsc::channel();
+        let s = settings(c);
+        let sim = clock.clone();
+        std::thread::spawn(move || {
+            let r = CanopenHal::connect_with(s, Some(Box::new(bus)), None, sim).map(|_| ());
+            let _ = done.send(r);
+        });
+        let f = result
+            .recv_timeout(std::time::Duration::from_secs(60))
+            .expect("the start-up on simulated time did not end (a wait that lets no time pass?)")
+            .unwrap_err();
+        match &f.error {
+            StartupError::NoBoot {
+                device, timeout_s, ..
+            } => assert_eq!((*device, *timeout_s), ("transducer", 1.0)),
+            e => panic!("expected NoBoot, got {e}"),
+        }
+        // rounds at 250 ms (transducer 250..350, valve 350..450), at 450 + 250 = 700 (700..800,
+        // 800..900) and the last at 1000 ms with the full SDO timeout: 1000..1100.
+        assert_eq!(f.elapsed_s, 1.1);
+        assert_eq!(clock.now_ns(), 42_000 * MS as u64 + 1_100 * MS as u64);
+        // the failure's frames are timed relative to the failure (at 1100 ms)
+        let at = |id: u16, first: u8| -> Vec<i64> {
+            f.frames
+                .iter()
+                .filter(|r| r.id == u32::from(id) && r.data[0] == first && r.tx)
+                .map(|r| r.t_ns / MS + 1_100)
+                .collect()
+        };
+        let (sdo_tr, sdo_va) = (0x600 + u16::from(tr), 0x600 + u16::from(va));
+        assert_eq!(at(sdo_tr, 0x40), [250, 700, 1000], "transducer probes (ms)");
+        assert_eq!(at(sdo_tr, 0x80), [350, 800, 1100], "transducer aborts (ms)");
+        assert_eq!(at(sdo_va, 0x40), [350, 800], "valve probes (ms)");
+        assert_eq!(at(sdo_va, 0x80), [450, 900], "valve aborts (ms)");
+        // ehactl's heartbeat every 20 ms from the first frame to the failure, none missed
+        let hb = at(0x700 + u16::from(master), 0x05);
+        assert_eq!(hb, (0..=55).map(|k| 20 * k).collect::<Vec<_>>());
+        // the log's frames are those the bus saw, at the same instants (frames of one
+        // instant may be listed in another order: the log merges the heartbeats by time)
+        let mut bus_saw: Vec<(i64, u32, [u8; 8])> = sent
+            .lock()
+            .unwrap()
+            .iter()
+            .map(|(t, fr)| (*t as i64 - 43_100 * MS, fr.id, fr.data))
+            .collect();
+        let mut logged: Vec<(i64, u32, [u8; 8])> = f
+            .frames
+            .iter()
+            .filter(|r| r.tx)
+            .map(|r| (r.t_ns, r.id, r.data))
+            .collect();
+        bus_saw.sort();
+        logged.sort();
+        assert_eq!(bus_saw, logged);
     }
 }
