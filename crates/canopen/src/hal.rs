@@ -27,7 +27,9 @@
 //! - the cycle (`read` / `write`) never touches the bus: `read` drains the RX queue
 //!   (TPDO decode, PDO age, heartbeat consumer, EMCY consumer, valve status) with the loop
 //!   time as injected time base — except the heartbeat consumers, which time from each
-//!   heartbeat's receive stamp against the monotonic clock (CiA 301 §7.2.8.3.2.2); `write` converts the command to the spool setpoint and, when the
+//!   heartbeat's receive stamp against the present time of the caller's clock
+//!   ([`crate::clock`]; the monotonic clock in a run) (CiA 301 §7.2.8.3.2.2); `write`
+//!   converts the command to the spool setpoint and, when the
 //!   SYNC producer is due, queues RPDO1 (setpoint) then SYNC. Between SYNCs the control law
 //!   runs on held samples (sample-and-hold): CAN I/O at `sync_rate_hz`, control at
 //!   `run.control_rate_hz`.
