@@ -6,8 +6,10 @@
 //! `can_latency --bus socketcand://127.0.0.1:PORT/can0 [--n 2000] [--node 64] [--samples]`
 //! (`--samples` adds the raw round trips in µs).
 
-use ehactl_canopen::bus::{open, BusUrl};
+use ehactl_canopen::bus::BusUrl;
+use ehactl_canopen::clock::MonotonicClock;
 use ehactl_canopen::sdo::{transfer, SdoClient};
+use ehactl_canopen::transport::open;
 use ehactl_canopen::CanFrame;
 use std::time::{Duration, Instant};
 
@@ -74,11 +76,12 @@ fn main() {
         }
     }
     let mut sdo = Vec::with_capacity(n);
+    let clock = MonotonicClock::new();
     for i in 0..n + 50 {
         let mut c = SdoClient::new(node, Duration::from_millis(500));
         let req = c.upload(0x1000, 0);
         let t0 = Instant::now();
-        transfer(&mut *b, &mut c, req, &mut |_, _| {}).expect("SDO upload");
+        transfer(&mut *b, &mut c, req, &clock, &mut |_, _| {}).expect("SDO upload");
         if i >= 50 {
             sdo.push(t0.elapsed().as_secs_f64() * 1e6);
         }

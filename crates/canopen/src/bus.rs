@@ -159,20 +159,6 @@ impl std::fmt::Display for BusUrl {
     }
 }
 
-/// Open the bus at `url`; `timeout` bounds the connection and handshake.
-pub fn open(url: &BusUrl, timeout: Duration) -> Result<Box<dyn CanBus>, BusError> {
-    match url {
-        BusUrl::Socketcand {
-            host,
-            port,
-            channel,
-        } => Ok(Box::new(crate::socketcand::SocketcandBus::connect(
-            host, *port, channel, timeout,
-        )?)),
-        BusUrl::SocketCan { iface } => crate::socketcan_bus::open(iface),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -27,7 +27,9 @@
 //! - the cycle (`read` / `write`) never touches the bus: `read` drains the RX queue
 //!   (TPDO decode, PDO age, heartbeat consumer, EMCY consumer, valve status) with the loop
 //!   time as injected time base — except the heartbeat consumers, which time from each
-//!   heartbeat's receive stamp against the monotonic clock (CiA 301 §7.2.8.3.2.2); `write` converts the command to the spool setpoint and, when the
+//!   heartbeat's receive stamp against the present time of the caller's clock
+//!   ([`crate::clock`]; the monotonic clock in a run) (CiA 301 §7.2.8.3.2.2); `write`
+//!   converts the command to the spool setpoint and, when the
 //!   SYNC producer is due, queues RPDO1 (setpoint) then SYNC. Between SYNCs the control law
 //!   runs on held samples (sample-and-hold): CAN I/O at `sync_rate_hz`, control at
 //!   `run.control_rate_hz`.
@@ -48,49 +50,29 @@
 //! Safe stop: RPDO setpoint for the safe command (0) + SYNC, then the I/O threads are
 //! stopped and the valve control word is set to HOLD (D=1, H=1, A=0) by SDO.
 
-use crate::bus::{BusError, BusErrorKind, BusUrl, CanBus};
+use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
 use crate::cia408::{self, ValveState};
-use crate::config::CanopenConfig;
+use crate::clock::{Clock, MonotonicClock};
 use crate::emcy::{Emcy, EMCY_BASE};
 use crate::frame::{CanFrame, Direction};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::nmt::{NmtState, HEARTBEAT_BASE};
 use crate::pdo::{self, RPDO1_BASE, TPDO1_BASE};
 use crate::sdo::{self, SdoClient, SDO_TX_BASE};
+pub use crate::settings::CanopenSettings;
 use crate::startup::{Activated, Bringup, Dev, Plan, Startup};
 pub use crate::startup::{StartupError, StartupFailure};
 use crate::sync::{self, SyncProducer};
+use crate::transport;
 use crossbeam_queue::ArrayQueue;
 use ehactl_hal::logger::{CanFrameRecord, FrameLog};
 use ehactl_hal::record::{Event, EventKind, Severity};
 use ehactl_hal::{Hal, HalError, Measurements};
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
-
-/// Everything the backend needs besides the bus.
-#[derive(Debug, Clone)]
-pub struct CanopenSettings {
-    /// Bus address.
-    pub bus: BusUrl,
-    /// `[canopen]` section.
-    pub canopen: CanopenConfig,
-    /// Valve command for 100 % spool (V), `plant.valve.command_full_scale`.
-    pub command_full_scale: f64,
-    /// Control rate (Hz), `run.control_rate_hz`.
-    pub control_rate_hz: f64,
-    /// Command of the safe stop (V), `supervisor.safe_command`: must be closed centre
-    /// (spool setpoint 0) on a CAN valve, checked before the bus is opened.
-    pub safe_command: f64,
-    /// Print start-up progress on stderr.
-    pub verbose: bool,
-    /// Directory of the config file: relative `canopen.transducer_eds` / `valve_eds` paths
-    /// are taken from here (None: the current directory).
-    pub config_dir: Option<PathBuf>,
-}
+use std::time::Duration;
 
 /// State shared by the cycle and the I/O threads (atomics only, plus one error text that
 /// the I/O threads set once and that is read outside the cycle).
@@ -101,8 +83,11 @@ struct IoShared {
     cycle_started: AtomicBool,
     failed: AtomicBool,
     error: Mutex<Option<String>>,
-    epoch: Instant,
-    /// ns since `epoch` of loop time 0.
+    /// The caller's clock (see [`crate::clock`]) and its reading at the start of the
+    /// start-up (ns): every stamp below is counted from there.
+    clock: Arc<dyn Clock>,
+    epoch_ns: u64,
+    /// ns since `epoch_ns` of loop time 0.
     zero_ns: AtomicI64,
     rx_frames: AtomicU64,
     tx_frames: AtomicU64,
@@ -111,17 +96,24 @@ struct IoShared {
 }
 
 impl IoShared {
-    /// Time of the /can log (ns since loop time 0).
+    /// The present time on the caller's clock (ns).
     #[inline]
-    fn stamp(&self, at: Instant) -> i64 {
+    fn now(&self) -> u64 {
+        self.clock.now_ns()
+    }
+
+    /// Time of the /can log (ns since loop time 0) of clock reading `at` (ns).
+    #[inline]
+    fn stamp(&self, at: u64) -> i64 {
         self.mono(at) - self.zero_ns.load(Ordering::Relaxed)
     }
 
-    /// ns since `epoch` (monotonic; unlike `stamp` it does not move when the first cycle
-    /// sets loop time 0): the clock of the receive stamps the heartbeat consumers use.
+    /// ns since `epoch_ns` of clock reading `at` (monotonic; unlike `stamp` it does not move
+    /// when the first cycle sets loop time 0): the clock of the receive stamps the heartbeat
+    /// consumers use.
     #[inline]
-    fn mono(&self, at: Instant) -> i64 {
-        at.saturating_duration_since(self.epoch).as_nanos() as i64
+    fn mono(&self, at: u64) -> i64 {
+        at.saturating_sub(self.epoch_ns).min(i64::MAX as u64) as i64
     }
 
     fn fail(&self, msg: String) {
@@ -165,7 +157,8 @@ pub struct CanopenHal {
     tx_thread: Option<JoinHandle<Box<dyn CanBus>>>,
     tx_waker: Option<std::thread::Thread>,
     bus_after_stop: Option<Box<dyn CanBus>>,
-    startup_frames: Vec<(Instant, CanFrame, bool)>,
+    /// Start-up frames with their clock reading (ns), handed to the log in the first cycle.
+    startup_frames: Vec<(u64, CanFrame, bool)>,
     started: bool,
     last_write_t: Option<f64>,
     sync: SyncProducer,
@@ -231,13 +224,27 @@ impl CanopenHal {
         s: CanopenSettings,
         stop: Option<Arc<AtomicBool>>,
     ) -> Result<CanopenHal, StartupFailure> {
-        let t_start = Instant::now();
+        Self::connect_with(s, None, stop, Arc::new(MonotonicClock::new()))
+    }
+
+    /// [`CanopenHal::connect_until`] on `bus` (`None`: the bus at `s.bus` is opened once the
+    /// settings are checked) with the caller's `clock`: every timeout of the start-up, ehactl's
+    /// heartbeat, the frames' times and the heartbeat consumers' receive stamps come from it
+    /// (see [`crate::clock`]; a [`crate::clock::ManualClock`] makes them simulated time).
+    pub fn connect_with(
+        s: CanopenSettings,
+        bus: Option<Box<dyn CanBus>>,
+        stop: Option<Arc<AtomicBool>>,
+        clock: Arc<dyn Clock>,
+    ) -> Result<CanopenHal, StartupFailure> {
+        let t_start = clock.now_ns();
         let mut st = Startup::new(
             [s.canopen.transducer_node_id, s.canopen.valve_node_id],
             s.verbose,
+            clock,
         );
-        Self::bring_up(s, t_start, &mut st, stop).map_err(|error| {
-            let failed_at = Instant::now();
+        Self::bring_up(s, bus, t_start, &mut st, stop).map_err(|error| {
+            let failed_at = st.clock.now_ns();
             st.merge();
             StartupFailure {
                 error,
@@ -245,11 +252,11 @@ impl CanopenHal {
                     .frames
                     .iter()
                     .map(|(at, f, tx)| {
-                        let before = failed_at.saturating_duration_since(*at).as_nanos();
-                        record(f, -(before.min(i64::MAX as u128) as i64), *tx)
+                        let before = failed_at.saturating_sub(*at);
+                        record(f, -(before.min(i64::MAX as u64) as i64), *tx)
                     })
                     .collect(),
-                elapsed_s: failed_at.duration_since(t_start).as_secs_f64(),
+                elapsed_s: failed_at.saturating_sub(t_start) as f64 * 1e-9,
             }
         })
     }
@@ -303,25 +310,31 @@ impl CanopenHal {
     }
 
     /// configure then activate (see [`crate::startup`]), then the I/O threads.
+    /// `t_start`: clock reading at the start (ns).
     fn bring_up(
         s: CanopenSettings,
-        t_start: Instant,
+        bus: Option<Box<dyn CanBus>>,
+        t_start: u64,
         st: &mut Startup,
         stop: Option<Arc<AtomicBool>>,
     ) -> Result<CanopenHal, StartupError> {
         let plan = Self::check_settings(&s)?;
+        let bus = match bus {
+            Some(b) => b,
+            None => transport::open(&s.bus, Duration::from_secs(3))?,
+        };
         let c = s.canopen.clone();
         let master_hb = CanFrame::std(
             HEARTBEAT_BASE + u16::from(c.master_node_id),
             [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
         );
-        let mut b = Bringup::open(&s, plan, st, master_hb, stop)?;
+        let mut b = Bringup::open(&s, bus, plan, st, master_hb, stop)?;
         b.configure()?;
         let Activated { mut meas } = b.activate()?;
         if s.verbose {
             eprintln!(
                 "canopen: start-up done in {:.2} s; first position {:.6} m",
-                t_start.elapsed().as_secs_f64(),
+                b.now().saturating_sub(t_start) as f64 * 1e-9,
                 meas.position
             );
         }
@@ -338,7 +351,7 @@ impl CanopenHal {
     fn spawn_io(
         s: CanopenSettings,
         bus: Box<dyn CanBus>,
-        t_start: Instant,
+        t_start: u64,
         st: &mut Startup,
         master_hb: CanFrame,
         meas: Measurements,
@@ -354,8 +367,9 @@ impl CanopenHal {
             cycle_started: AtomicBool::new(false),
             failed: AtomicBool::new(false),
             error: Mutex::new(None),
-            epoch: t_start,
-            zero_ns: AtomicI64::new(t_start.elapsed().as_nanos() as i64),
+            clock: st.clock.clone(),
+            epoch_ns: t_start,
+            zero_ns: AtomicI64::new(st.clock.now_ns().saturating_sub(t_start) as i64),
             rx_frames: AtomicU64::new(0),
             tx_frames: AtomicU64::new(0),
             rx_overflow: AtomicU64::new(0),
@@ -395,10 +409,11 @@ impl CanopenHal {
         ];
         // the devices were OPERATIONAL with heartbeats at the end of start-up: the windows
         // start now (the receive clock), the devices' next heartbeats come through the RX queue
-        let armed_at = shared.mono(Instant::now());
+        let armed_at = shared.mono(shared.now());
         for h in hb.iter_mut() {
             h.on_heartbeat(NmtState::Operational, armed_at);
         }
+        let startup_s = shared.now().saturating_sub(t_start) as f64 * 1e-9;
         Ok(CanopenHal {
             // the start-up's priming SYNC was SYNC 1 (for the SYNC counter)
             sync: SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1),
@@ -436,7 +451,7 @@ impl CanopenHal {
             emcy_count: 0,
             last_emcy: None,
             safe_stop_result: None,
-            startup_s: t_start.elapsed().as_secs_f64(),
+            startup_s,
             names,
             skipped: Vec::new(),
             s,
@@ -710,7 +725,7 @@ impl CanopenHal {
     }
 
     fn log_now(&self, f: &CanFrame, dir: Direction) {
-        let t = self.shared.stamp(Instant::now());
+        let t = self.shared.stamp(self.shared.now());
         self.frame_log.push(record(f, t, dir == Direction::Tx));
     }
 
@@ -734,7 +749,7 @@ fn rx_loop(
     while !sh.stop.load(Ordering::Acquire) {
         match bus.recv_timeout(Duration::from_millis(20)) {
             Ok(Some(f)) => {
-                let rx_ns = sh.mono(Instant::now());
+                let rx_ns = sh.mono(sh.now());
                 log.push(record(
                     &f,
                     rx_ns - sh.zero_ns.load(Ordering::Relaxed),
@@ -751,7 +766,7 @@ fn rx_loop(
                 if n <= MAX_WARNINGS {
                     eprintln!("ehactl: canopen: malformed bus message ignored: {e}");
                     log.push_event(Event {
-                        t: sh.stamp(Instant::now()) as f64 * 1e-9,
+                        t: sh.stamp(sh.now()) as f64 * 1e-9,
                         cycle: 0,
                         severity: Severity::Warning,
                         kind: EventKind::CanBus,
@@ -780,26 +795,27 @@ fn tx_loop(
     master_hb_period: Duration,
     keepalive: CanFrame,
 ) -> Box<dyn CanBus> {
-    let mut next_hb = Instant::now();
+    let period_ns = u64::try_from(master_hb_period.as_nanos()).unwrap_or(u64::MAX);
+    let mut next_hb = sh.now();
     loop {
         // Until the first cycle runs (the run loop still sets up), ehactl's heartbeat and the
         // valve's setpoint RPDO (0, as primed) come from here, so that the devices' consumers
         // (0x1016) and the valve's RPDO deadline (0x1400:05) do not fire in the hand-over.
-        if !sh.cycle_started.load(Ordering::Acquire) && Instant::now() >= next_hb {
-            next_hb = Instant::now() + master_hb_period;
+        if !sh.cycle_started.load(Ordering::Acquire) && sh.now() >= next_hb {
+            next_hb = sh.now().saturating_add(period_ns);
             for f in [&master_hb, &keepalive] {
                 if let Err(e) = bus.send(f) {
                     sh.fail(e.message);
                     return bus;
                 }
-                log.push(record(f, sh.stamp(Instant::now()), true));
+                log.push(record(f, sh.stamp(sh.now()), true));
                 sh.tx_frames.fetch_add(1, Ordering::Relaxed);
             }
         }
         while let Some(f) = q.pop() {
             match bus.send(&f) {
                 Ok(()) => {
-                    log.push(record(&f, sh.stamp(Instant::now()), true));
+                    log.push(record(&f, sh.stamp(sh.now()), true));
                     sh.tx_frames.fetch_add(1, Ordering::Relaxed);
                 }
                 Err(e) => {
@@ -827,11 +843,10 @@ impl Hal for CanopenHal {
         if !self.started {
             self.started = true;
             self.shared.cycle_started.store(true, Ordering::Release);
-            let now = Instant::now();
-            let zero = now.saturating_duration_since(self.shared.epoch).as_nanos() as i64;
+            let zero = self.shared.mono(self.shared.now());
             self.shared.zero_ns.store(zero, Ordering::Relaxed);
             for (at, f, tx) in self.startup_frames.drain(..) {
-                let tn = at.saturating_duration_since(self.shared.epoch).as_nanos() as i64 - zero;
+                let tn = self.shared.mono(at) - zero;
                 self.frame_log.push(record(&f, tn, tx));
             }
         }
@@ -840,7 +855,7 @@ impl Hal for CanopenHal {
         // clock — not loop time, which lags the wall clock when the pacer skips deadlines
         // (a consumer counting loop time trips late by the skipped time). `now` is taken
         // before the queue is drained, so every frame taken in below was received before it.
-        let now_ns = self.shared.mono(Instant::now());
+        let now_ns = self.shared.mono(self.shared.now());
         if let Some(e) = self.fault {
             return Err(e);
         }
@@ -945,7 +960,7 @@ impl Hal for CanopenHal {
             if let Some(w) = &self.tx_waker {
                 w.unpark();
             }
-            std::thread::sleep(Duration::from_secs_f64(
+            self.shared.clock.sleep(Duration::from_secs_f64(
                 (2.0 / self.s.canopen.sync_rate_hz).min(0.05),
             ));
         }
@@ -959,7 +974,9 @@ impl Hal for CanopenHal {
                 );
                 let req = cl.download(cia408::CONTROL_WORD, 0, &cia408::CW_HOLD_STATE.to_le_bytes());
                 let mut frames: Vec<(CanFrame, Direction)> = Vec::new();
-                let r = sdo::transfer(&mut *bus, &mut cl, req, &mut |f, d| frames.push((*f, d)));
+                let r = sdo::transfer(&mut *bus, &mut cl, req, &*self.shared.clock, &mut |f, d| {
+                    frames.push((*f, d))
+                });
                 for (f, d) in &frames {
                     self.log_now(f, *d);
                 }
@@ -1039,4 +1056,177 @@ impl Drop for CanopenHal {
 /// SDO response COB-ID of `node` (for tools and tests).
 pub fn sdo_response_id(node: u8) -> u16 {
     SDO_TX_BASE + u16::from(node)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::BusUrl;
+    use crate::clock::ManualClock;
+    use crate::config::CanopenConfig;
+    use crate::simbus::SimBus;
+
+    const MS: u64 = 1_000_000;
+
+    fn settings(c: CanopenConfig) -> CanopenSettings {
+        CanopenSettings {
+            bus: BusUrl::parse("socketcand://127.0.0.1:1/can0").unwrap(),
+            canopen: c,
+            command_full_scale: 10.0,
+            control_rate_hz: 5000.0,
+            safe_command: 0.0,
+            verbose: false,
+            config_dir: None,
+        }
+    }
+
+    /// The heartbeat consumers of the run on simulated time: the window of each device runs
+    /// from the reception of its last heartbeat (the RX thread's stamp on the caller's clock),
+    /// checked against the present time on that clock when the cycle reads — not against loop
+    /// time, which here does not move at all. With `heartbeat_timeout_ms` = 60 a device is
+    /// lost exactly when more than 60 ms have passed: not at 60 ms, at 60 ms + 1 ns.
+    #[test]
+    fn a_lost_heartbeat_trips_at_the_exact_simulated_time() {
+        let clock = Arc::new(ManualClock::at(7_000 * MS));
+        let bus = SimBus::new(clock.clone(), false);
+        let rx = bus.rx.clone();
+        let c = CanopenConfig::default();
+        assert_eq!(c.heartbeat_timeout_ms, 60);
+        let (tr, va) = (c.transducer_node_id, c.valve_node_id);
+        let s = settings(c);
+        let t_start = clock.now_ns();
+        let mut st = Startup::new([tr, va], false, clock.clone());
+        clock.advance(Duration::from_secs(2)); // the start-up took 2 s
+        let meas = Measurements {
+            t: 0.0,
+            force: f64::NAN,
+            position: 0.1,
+            p_a: f64::NAN,
+            p_b: f64::NAN,
+            spool: 0.0,
+        };
+        let master_hb = CanFrame::std(HEARTBEAT_BASE + 1, [0x05]);
+        let mut hal = CanopenHal::spawn_io(
+            s,
+            Box::new(bus),
+            t_start,
+            &mut st,
+            master_hb,
+            meas,
+            [None, None],
+        )
+        .unwrap();
+        assert_eq!(hal.startup_seconds(), 2.0);
+        // armed at 9.000 s; the valve's heartbeat arrives at 9.030 s
+        clock.set(9_030 * MS);
+        rx.lock()
+            .unwrap()
+            .push_back(CanFrame::std(HEARTBEAT_BASE + u16::from(va), [0x05]));
+        let waited = std::time::Instant::now();
+        while hal.shared.rx_frames.load(Ordering::Acquire) < 1 {
+            assert!(waited.elapsed() < Duration::from_secs(10), "RX thread idle");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // 9.060 s: the transducer has been silent for exactly 60 ms — not lost yet
+        clock.set(9_060 * MS);
+        hal.read(0.0, 2e-4)
+            .expect("60 ms of silence is within the consumer time");
+        // 1 ns later it is lost; the valve (heard at 9.030 s, taken in only at 9.060 s) is not
+        clock.set(9_060 * MS + 1);
+        match hal.read(0.0, 2e-4) {
+            Err(HalError::Device { code, what }) => {
+                assert_eq!(code, u32::from(tr));
+                assert_eq!(what, "transducer heartbeat lost (consumer timeout)");
+            }
+            r => panic!("expected the transducer's heartbeat loss, got {r:?}"),
+        }
+        let ev = std::iter::from_fn(|| hal.frame_log.pop_event())
+            .find(|e| e.channel == "transducer heartbeat lost (consumer timeout)")
+            .expect("the trip is logged");
+        assert_eq!((ev.value, ev.unit), (60_000_001.0 * 1e-9, "s")); // silent_ns in s
+                                                                     // the valve's window ran from its reception at 9.030 s (2.030 s after the start):
+                                                                     // lost after 9.090 s, not 60 ms after the cycle took its heartbeat in (9.120 s)
+        let at = |ms: u64, extra: u64| ((ms - 7_000) * MS + extra) as i64;
+        assert_eq!(hal.hb[1].clone().process(at(9_090, 0)), None);
+        assert_eq!(
+            hal.hb[1].clone().process(at(9_090, 1)),
+            Some(HeartbeatEvent::Timeout {
+                silent_ns: 60 * MS + 1
+            })
+        );
+    }
+
+    /// The boot-up wait on simulated time: two devices that never answer. The probes, their
+    /// SDO timeouts, ehactl's heartbeat and the final NoBoot fall on exact instants of the
+    /// caller's clock: probes every BOOT_PROBE_EVERY (250 ms) after the last round ended, each
+    /// unanswered probe aborted after min(sdo timeout, 250 ms), a last round at
+    /// boot_timeout_s with the full SDO timeout; the heartbeat every master_heartbeat_ms.
+    #[test]
+    fn a_silent_rig_fails_the_boot_up_at_an_exact_simulated_time() {
+        const MS: i64 = 1_000_000;
+        let clock = Arc::new(ManualClock::at(42_000 * MS as u64));
+        let bus = SimBus::new(clock.clone(), true);
+        let sent = bus.sent.clone();
+        let c = CanopenConfig {
+            boot_timeout_s: 1.0,
+            sdo_timeout_ms: 100,
+            ..Default::default()
+        };
+        let (tr, va, master) = (c.transducer_node_id, c.valve_node_id, c.master_node_id);
+        // on simulated time a wait that lets no time pass would spin for ever: bounded here
+        let (done, result) = std::sync::mpsc::channel();
+        let s = settings(c);
+        let sim = clock.clone();
+        std::thread::spawn(move || {
+            let r = CanopenHal::connect_with(s, Some(Box::new(bus)), None, sim).map(|_| ());
+            let _ = done.send(r);
+        });
+        let f = result
+            .recv_timeout(std::time::Duration::from_secs(60))
+            .expect("the start-up on simulated time did not end (a wait that lets no time pass?)")
+            .unwrap_err();
+        match &f.error {
+            StartupError::NoBoot {
+                device, timeout_s, ..
+            } => assert_eq!((*device, *timeout_s), ("transducer", 1.0)),
+            e => panic!("expected NoBoot, got {e}"),
+        }
+        // rounds at 250 ms (transducer 250..350, valve 350..450), at 450 + 250 = 700 (700..800,
+        // 800..900) and the last at 1000 ms with the full SDO timeout: 1000..1100.
+        assert_eq!(f.elapsed_s, 1.1);
+        assert_eq!(clock.now_ns(), 42_000 * MS as u64 + 1_100 * MS as u64);
+        // the failure's frames are timed relative to the failure (at 1100 ms)
+        let at = |id: u16, first: u8| -> Vec<i64> {
+            f.frames
+                .iter()
+                .filter(|r| r.id == u32::from(id) && r.data[0] == first && r.tx)
+                .map(|r| r.t_ns / MS + 1_100)
+                .collect()
+        };
+        let (sdo_tr, sdo_va) = (0x600 + u16::from(tr), 0x600 + u16::from(va));
+        assert_eq!(at(sdo_tr, 0x40), [250, 700, 1000], "transducer probes (ms)");
+        assert_eq!(at(sdo_tr, 0x80), [350, 800, 1100], "transducer aborts (ms)");
+        assert_eq!(at(sdo_va, 0x40), [350, 800], "valve probes (ms)");
+        assert_eq!(at(sdo_va, 0x80), [450, 900], "valve aborts (ms)");
+        // ehactl's heartbeat every 20 ms from the first frame to the failure, none missed
+        let hb = at(0x700 + u16::from(master), 0x05);
+        assert_eq!(hb, (0..=55).map(|k| 20 * k).collect::<Vec<_>>());
+        // the log's frames are those the bus saw, at the same instants (frames of one
+        // instant may be listed in another order: the log merges the heartbeats by time)
+        let mut bus_saw: Vec<(i64, u32, [u8; 8])> = sent
+            .lock()
+            .unwrap()
+            .iter()
+            .map(|(t, fr)| (*t as i64 - 43_100 * MS, fr.id, fr.data))
+            .collect();
+        let mut logged: Vec<(i64, u32, [u8; 8])> = f
+            .frames
+            .iter()
+            .filter(|r| r.tx)
+            .map(|r| (r.t_ns, r.id, r.data))
+            .collect();
+        bus_saw.sort();
+        logged.sort();
+        assert_eq!(bus_saw, logged);
+    }
 }

@@ -4,7 +4,7 @@
 //! - [`frame`]: fixed-size [`CanFrame`] (no heap, `Copy`),
 //! - [`bus`]: the [`CanBus`] transport trait and bus addresses, with the implementations
 //!   [`socketcand`] (rawmode over TCP, pure std) and [`socketcan_bus`] (Linux SocketCAN,
-//!   cargo feature `socketcan`),
+//!   cargo feature `socketcan`), opened by address with [`transport::open`],
 //! - [`hub`]: the socketcand-compatible relay behind `ehactl canbus hub`,
 //! - the CANopen master split by CiA 301 service: [`nmt`], [`sync`], [`sdo`], [`pdo`],
 //!   [`heartbeat`], [`emcy`]; every process function takes the elapsed time as an argument
@@ -12,6 +12,8 @@
 //! - the device profiles [`cia406`] (position transducer) and [`cia408`] (valve with OBE),
 //! - [`config`]: the `[canopen]` config section and the bus-load check,
 //! - [`eds`]: EDS / DCF files (CiA 306) that drive the start-up,
+//! - [`settings`]: [`settings::CanopenSettings`], what start-up and backend are given,
+//! - [`clock`]: the caller's time source ([`clock::Clock`]) of start-up and backend,
 //! - [`startup`]: the start-up in phases (configure: boot, identity, EDS-driven SDO
 //!   configuration; activate: NMT start, valve state machine, priming),
 //! - [`hal`]: [`hal::CanopenHal`], the `Hal` implementation: I/O threads own the bus, the
@@ -21,6 +23,7 @@
 pub mod bus;
 pub mod cia406;
 pub mod cia408;
+pub mod clock;
 pub mod config;
 pub mod eds;
 pub mod emcy;
@@ -31,10 +34,14 @@ pub mod hub;
 pub mod nmt;
 pub mod pdo;
 pub mod sdo;
+pub mod settings;
+#[cfg(test)]
+mod simbus;
 pub mod socketcan_bus;
 pub mod socketcand;
 pub mod startup;
 pub mod sync;
+pub mod transport;
 
 pub use bus::{BusError, BusErrorKind, BusUrl, CanBus};
 pub use config::CanopenConfig;

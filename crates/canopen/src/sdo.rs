@@ -4,8 +4,9 @@
 //! [`transfer`] drives it on a [`CanBus`] outside the control cycle.
 
 use crate::bus::{BusError, CanBus};
+use crate::clock::Clock;
 use crate::frame::CanFrame;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// COB-ID base of server → client SDO (+ node id).
 pub const SDO_TX_BASE: u16 = 0x580;
@@ -434,23 +435,25 @@ impl SdoClient {
     }
 }
 
-/// Run one transfer to completion on `bus` (outside the cycle). Frames that are not for
-/// this transfer go to `other` (boot-ups, heartbeats, EMCY arriving meanwhile).
+/// Run one transfer to completion on `bus` (outside the cycle), its timeout counted on
+/// `clock`. Frames that are not for this transfer go to `other` (boot-ups, heartbeats, EMCY
+/// arriving meanwhile).
 pub fn transfer(
     bus: &mut dyn CanBus,
     client: &mut SdoClient,
     first: CanFrame,
+    clock: &dyn Clock,
     other: &mut dyn FnMut(&CanFrame, Direction),
 ) -> Result<(), SdoError> {
     bus.send(&first).map_err(SdoError::Bus)?;
     other(&first, Direction::Tx);
-    let mut last = Instant::now();
+    let mut last = clock.now_ns();
     loop {
         let f = bus
             .recv_timeout(Duration::from_millis(5))
             .map_err(SdoError::Bus)?;
-        let now = Instant::now();
-        let elapsed = now.duration_since(last).as_nanos() as u64;
+        let now = clock.now_ns();
+        let elapsed = now.saturating_sub(last);
         last = now;
         let step = match f {
             Some(f) => {

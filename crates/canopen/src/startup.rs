@@ -14,27 +14,29 @@
 //!   ([`Bringup::prime`]; a failure returns the valve to HOLD).
 //!
 //! Every frame of the attempt is kept ([`Startup`]) for the log, and ehactl's heartbeat runs
-//! from the first frame on ([`StartBus`]).
+//! from the first frame on ([`StartBus`]). Every wait and timeout is counted on the caller's
+//! [`Clock`] (ns); the bus waits at most until the next deadline.
 
-use crate::bus::{self, BusError, BusErrorKind, CanBus};
+use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
 use crate::cia408::{self, ValveState};
+use crate::clock::Clock;
 use crate::eds::{Access, Eds, BUILTIN_TRANSDUCER_EDS, BUILTIN_VALVE_EDS};
 use crate::emcy::{Emcy, EMCY_BASE};
 use crate::frame::{CanFrame, Direction};
-use crate::hal::CanopenSettings;
 use crate::nmt::{self, NmtCommand, NmtState, HEARTBEAT_BASE};
 use crate::pdo::{
     self, MapEntry, PdoMap, COB_ID_INVALID, RPDO1_BASE, RPDO1_COMM, RPDO1_MAP, TPDO1_BASE,
     TPDO1_COMM, TPDO1_MAP,
 };
 use crate::sdo::{self, SdoClient, SdoError};
+use crate::settings::CanopenSettings;
 use crate::sync;
 use ehactl_hal::logger::CanFrameRecord;
 use ehactl_hal::Measurements;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// While waiting for boot-ups, nodes not heard from are probed by SDO this often (and once
 /// more at `boot_timeout_s`).
@@ -689,9 +691,11 @@ impl Plan {
 pub(crate) struct StartBus {
     pub(crate) inner: Box<dyn CanBus>,
     hb: CanFrame,
-    period: Duration,
-    next: Instant,
-    sent: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
+    /// Master heartbeat period and the time the next one is due (ns, `clock`).
+    period_ns: u64,
+    next_ns: u64,
+    clock: Arc<dyn Clock>,
+    sent: Arc<Mutex<Vec<(u64, CanFrame)>>>,
     /// Stop request (SIGINT / SIGTERM): every wait for a frame checks it at least every
     /// `period` (the master heartbeat period, 20 ms by default) and returns
     /// [`BusErrorKind::Interrupted`], so that every blocking phase of the start-up (boot-up
@@ -722,15 +726,15 @@ impl StartBus {
     }
 
     fn beat_if_due(&mut self) -> Result<(), BusError> {
-        let now = Instant::now();
-        if now >= self.next {
+        let now = self.clock.now_ns();
+        if now >= self.next_ns {
             self.inner.send(&self.hb)?;
             if let Ok(mut v) = self.sent.lock() {
                 v.push((now, self.hb));
             }
-            self.next += self.period;
-            if self.next < now {
-                self.next = now + self.period;
+            self.next_ns += self.period_ns;
+            if self.next_ns < now {
+                self.next_ns = now + self.period_ns;
             }
         }
         Ok(())
@@ -747,15 +751,15 @@ impl CanBus for StartBus {
         self.inner.try_recv()
     }
     fn recv_timeout(&mut self, timeout: Duration) -> Result<Option<CanFrame>, BusError> {
-        let end = Instant::now() + timeout;
+        let end = self.clock.now_ns().saturating_add(ns(timeout));
         loop {
             self.check_stop()?;
             self.beat_if_due()?;
-            let now = Instant::now();
+            let now = self.clock.now_ns();
             if now >= end {
                 return Ok(None);
             }
-            let wait = end.min(self.next).saturating_duration_since(now);
+            let wait = Duration::from_nanos(end.min(self.next_ns).saturating_sub(now));
             if let Some(f) = self.inner.recv_timeout(wait)? {
                 return Ok(Some(f));
             }
@@ -771,9 +775,12 @@ impl CanBus for StartBus {
 
 /// Start-up bookkeeping: every frame (for the log) and what the devices reported.
 pub(crate) struct Startup {
-    pub(crate) frames: Vec<(Instant, CanFrame, bool)>,
+    /// Every frame with its time (ns, `clock`) and direction (true: sent).
+    pub(crate) frames: Vec<(u64, CanFrame, bool)>,
     /// Master heartbeats sent by [`StartBus`] (merged into `frames` by [`Startup::merge`]).
-    pub(crate) heartbeats: Arc<Mutex<Vec<(Instant, CanFrame)>>>,
+    pub(crate) heartbeats: Arc<Mutex<Vec<(u64, CanFrame)>>>,
+    /// The caller's clock: every wait and timeout of the start-up, every frame's time.
+    pub(crate) clock: Arc<dyn Clock>,
     ids: [u8; 2],
     booted: [bool; 2],
     state: [Option<NmtState>; 2],
@@ -782,10 +789,11 @@ pub(crate) struct Startup {
 }
 
 impl Startup {
-    pub(crate) fn new(ids: [u8; 2], verbose: bool) -> Startup {
+    pub(crate) fn new(ids: [u8; 2], verbose: bool, clock: Arc<dyn Clock>) -> Startup {
         Startup {
             frames: Vec::with_capacity(512),
             heartbeats: Arc::new(Mutex::new(Vec::new())),
+            clock,
             ids,
             booted: [false; 2],
             state: [None; 2],
@@ -809,7 +817,8 @@ impl Startup {
     }
 
     fn observe(&mut self, f: &CanFrame, dir: Direction) {
-        self.frames.push((Instant::now(), *f, dir == Direction::Tx));
+        self.frames
+            .push((self.clock.now_ns(), *f, dir == Direction::Tx));
         if dir == Direction::Tx {
             return;
         }
@@ -885,9 +894,10 @@ pub(crate) struct Activated {
 }
 
 impl<'a> Bringup<'a> {
-    /// Open the bus (ehactl's heartbeat starts with it).
+    /// Start on the opened `bus` (ehactl's heartbeat starts with it).
     pub(crate) fn open(
         s: &'a CanopenSettings,
+        bus: Box<dyn CanBus>,
         plan: Plan,
         st: &'a mut Startup,
         master_hb: CanFrame,
@@ -895,10 +905,11 @@ impl<'a> Bringup<'a> {
     ) -> Result<Bringup<'a>, StartupError> {
         let c = &s.canopen;
         let bus = Box::new(StartBus {
-            inner: bus::open(&s.bus, Duration::from_secs(3))?,
+            inner: bus,
             hb: master_hb,
-            period: Duration::from_millis(u64::from(c.master_heartbeat_ms)),
-            next: Instant::now(),
+            period_ns: u64::from(c.master_heartbeat_ms) * 1_000_000,
+            next_ns: st.clock.now_ns(),
+            clock: st.clock.clone(),
             sent: st.heartbeats.clone(),
             stop,
             honour_stop: true,
@@ -914,6 +925,16 @@ impl<'a> Bringup<'a> {
             skipped: Vec::new(),
             phase: "the bus connection",
         })
+    }
+
+    /// The present time (ns, the caller's clock).
+    pub(crate) fn now(&self) -> u64 {
+        self.st.clock.now_ns()
+    }
+
+    /// Time left until `deadline` (ns, the caller's clock); zero once it has passed.
+    fn left_until(&self, deadline: u64) -> Duration {
+        Duration::from_nanos(deadline.saturating_sub(self.now()))
     }
 
     /// A stop was requested (SIGINT / SIGTERM).
@@ -945,9 +966,9 @@ impl<'a> Bringup<'a> {
         // A stop request cuts an SDO transfer short: the valve's answer to it may still be
         // on its way and would be taken for the answer to the HOLD write. Wait for it (at
         // most 100 ms or one SDO timeout).
-        let end = Instant::now() + self.sdo_t.min(Duration::from_millis(100));
+        let end = self.now() + ns(self.sdo_t.min(Duration::from_millis(100)));
         loop {
-            let left = end.saturating_duration_since(Instant::now());
+            let left = self.left_until(end);
             if left.is_zero() {
                 break;
             }
@@ -991,16 +1012,22 @@ impl<'a> Bringup<'a> {
     fn sdo_read(&mut self, node: u8, index: u16, sub: u8) -> Result<Vec<u8>, SdoError> {
         let mut cl = SdoClient::new(node, self.sdo_t);
         let req = cl.upload(index, sub);
+        let clock = self.st.clock.clone();
         let st = &mut *self.st;
-        sdo::transfer(&mut *self.bus, &mut cl, req, &mut |f, d| st.observe(f, d))?;
+        sdo::transfer(&mut *self.bus, &mut cl, req, &*clock, &mut |f, d| {
+            st.observe(f, d)
+        })?;
         Ok(cl.data().to_vec())
     }
 
     fn sdo_write(&mut self, node: u8, index: u16, sub: u8, bytes: &[u8]) -> Result<(), SdoError> {
         let mut cl = SdoClient::new(node, self.sdo_t);
         let req = cl.download(index, sub, bytes);
+        let clock = self.st.clock.clone();
         let st = &mut *self.st;
-        sdo::transfer(&mut *self.bus, &mut cl, req, &mut |f, d| st.observe(f, d))
+        sdo::transfer(&mut *self.bus, &mut cl, req, &*clock, &mut |f, d| {
+            st.observe(f, d)
+        })
     }
 
     fn read(&mut self, node: u8, index: u16, sub: u8, step: &str) -> Result<Vec<u8>, StartupError> {
@@ -1090,11 +1117,11 @@ impl<'a> Bringup<'a> {
         for n in self.ids {
             self.send(nmt::command(NmtCommand::ResetCommunication, n))?;
         }
-        let boot_deadline = Instant::now() + Duration::from_secs_f64(c.boot_timeout_s);
-        let mut next_probe = Instant::now() + BOOT_PROBE_EVERY;
+        let boot_deadline = self.now() + ns(Duration::from_secs_f64(c.boot_timeout_s));
+        let mut next_probe = self.now() + ns(BOOT_PROBE_EVERY);
         while !self.st.booted.iter().all(|b| *b) {
             self.bus.check_stop()?;
-            let now = Instant::now();
+            let now = self.now();
             let last = now >= boot_deadline;
             if last || now >= next_probe {
                 for i in 0..2 {
@@ -1108,10 +1135,12 @@ impl<'a> Bringup<'a> {
                     };
                     let mut cl = SdoClient::new(self.ids[i], wait);
                     let req = cl.upload(0x1000, 0);
+                    let clock = self.st.clock.clone();
                     let st = &mut *self.st;
-                    let ok =
-                        sdo::transfer(&mut *self.bus, &mut cl, req, &mut |f, d| st.observe(f, d))
-                            .is_ok();
+                    let ok = sdo::transfer(&mut *self.bus, &mut cl, req, &*clock, &mut |f, d| {
+                        st.observe(f, d)
+                    })
+                    .is_ok();
                     if ok {
                         if self.s.verbose {
                             eprintln!(
@@ -1128,10 +1157,10 @@ impl<'a> Bringup<'a> {
                         });
                     }
                 }
-                next_probe = Instant::now() + BOOT_PROBE_EVERY;
+                next_probe = self.now() + ns(BOOT_PROBE_EVERY);
                 continue;
             }
-            let left = boot_deadline.min(next_probe).saturating_duration_since(now);
+            let left = Duration::from_nanos(boot_deadline.min(next_probe).saturating_sub(now));
             if let Some(f) = self.bus.recv_timeout(left.min(Duration::from_millis(50)))? {
                 self.st.observe(&f, Direction::Rx);
             }
@@ -1346,14 +1375,14 @@ impl<'a> Bringup<'a> {
         let op_wait = Duration::from_millis(
             (3 * u64::from(c.heartbeat_timeout_ms)).max(u64::from(c.sdo_timeout_ms)),
         );
-        let deadline = Instant::now() + op_wait;
+        let deadline = self.now() + ns(op_wait);
         while !self
             .st
             .state
             .iter()
             .all(|x| *x == Some(NmtState::Operational))
         {
-            let left = deadline.saturating_duration_since(Instant::now());
+            let left = self.left_until(deadline);
             if left.is_zero() {
                 let i = self
                     .st
@@ -1398,7 +1427,7 @@ impl<'a> Bringup<'a> {
             &cw.to_le_bytes(),
             &format!("commanding the valve to {}", want.as_str()),
         )?;
-        let deadline = Instant::now() + self.sdo_t;
+        let deadline = self.now() + ns(self.sdo_t);
         loop {
             let sw = self.status()?;
             let got = ValveState::from_status(sw);
@@ -1408,14 +1437,14 @@ impl<'a> Bringup<'a> {
                 }
                 return Ok(());
             }
-            if Instant::now() >= deadline {
+            if self.now() >= deadline {
                 return Err(StartupError::Device(format!(
                     "valve (node {va}) did not enter {} after control word 0x{cw:04X}: status word 0x{sw:04X} ({})",
                     want.as_str(),
                     got.as_str()
                 )));
             }
-            std::thread::sleep(Duration::from_millis(10));
+            self.st.clock.sleep(Duration::from_millis(10));
         }
     }
 
@@ -1427,10 +1456,9 @@ impl<'a> Bringup<'a> {
     pub(crate) fn enable_valve(&mut self) -> Result<(), StartupError> {
         let va = self.ids[1];
         let mut sw = self.status()?;
-        let deadline = Instant::now() + self.sdo_t;
-        while ValveState::from_status(sw) == ValveState::FaultReaction && Instant::now() < deadline
-        {
-            std::thread::sleep(Duration::from_millis(5));
+        let deadline = self.now() + ns(self.sdo_t);
+        while ValveState::from_status(sw) == ValveState::FaultReaction && self.now() < deadline {
+            self.st.clock.sleep(Duration::from_millis(5));
             sw = self.status()?;
         }
         let fault = ValveState::from_status(sw);
@@ -1493,9 +1521,9 @@ impl<'a> Bringup<'a> {
             0i16.to_le_bytes(),
         ))?;
         self.send(sync::frame_with_counter(c.sync_counter_overflow, 1))?;
-        let deadline = Instant::now() + self.sdo_t;
+        let deadline = self.now() + ns(self.sdo_t);
         while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
-            let left = deadline.saturating_duration_since(Instant::now());
+            let left = self.left_until(deadline);
             if left.is_zero() {
                 return Err(StartupError::Device(format!(
                     "no {} TPDO1 within {} ms after the first SYNC; are the PDOs mapped and the devices OPERATIONAL?",
@@ -1525,6 +1553,11 @@ impl<'a> Bringup<'a> {
         }
         Ok(meas)
     }
+}
+
+/// `d` in ns (saturating; every duration here is a few seconds at most).
+fn ns(d: Duration) -> u64 {
+    d.as_nanos().min(u128::from(u64::MAX)) as u64
 }
 
 fn le4(d: &[u8]) -> [u8; 4] {

@@ -91,7 +91,7 @@ fn nobody_listening_is_a_clear_open_error() {
 
 #[test]
 fn socketcan_without_af_can_is_an_error_not_a_panic() {
-    let e = ehactl_canopen::bus::open(
+    let e = ehactl_canopen::transport::open(
         &ehactl_canopen::BusUrl::parse("socketcan://can0").unwrap(),
         Duration::from_secs(1),
     )

@@ -3,6 +3,8 @@
 //! Everything that runs the control laws of `ehactl-control` against a [`ehactl_hal::Hal`]:
 //! - [`runloop`]: the fixed-step loop (read → supervise → control → write → log), started
 //!   each cycle by an [`ehactl_hal::pacer::Pacer`] (the trait sits beside `Hal`),
+//! - [`controller`]: the configured control law ([`controller::Controller`]), stepped by the
+//!   loop, its gains replaced by [`live`],
 //! - [`realtime`]: the wall-clock pacer (absolute deadlines, SCHED_FIFO, jitter statistics),
 //! - [`live`]: gain / setpoint changes while running (handed over at a cycle boundary),
 //! - [`control_socket`]: the Unix socket that feeds [`live`] (`ehactl set`),
@@ -13,6 +15,7 @@
 #![deny(missing_docs)]
 
 pub mod control_socket;
+pub mod controller;
 pub mod live;
 pub mod realtime;
 pub mod runloop;

@@ -17,7 +17,7 @@
 //! (sharing `&LiveParams` with the control socket) does not have. The queue hands over
 //! every change exactly once through a shared reference, with no `unsafe` here.
 
-use crate::runloop::Controller;
+use crate::controller::Controller;
 use crossbeam_queue::ArrayQueue;
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;

@@ -3,73 +3,15 @@
 //! (the sim backend, as fast as the CPU allows) and against a wall clock: only the
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
+pub use crate::controller::Controller;
 use crate::live::LiveParams;
-use ehactl_config::{ControlMode, RigConfig};
-use ehactl_control::pd::Pd;
-use ehactl_control::pi::{ControlTerms, Pi};
+use ehactl_control::pi::ControlTerms;
 use ehactl_control::setpoint::Setpoint;
-use ehactl_control::supervisor::{FeedbackChannel, Supervisor};
+use ehactl_control::supervisor::Supervisor;
 use ehactl_hal::pacer::Pacer;
 use ehactl_hal::record::{CycleRecord, CycleTiming, Event, EventKind, Severity};
 use ehactl_hal::{Hal, Measurements, Timebase};
 use std::sync::atomic::{AtomicBool, Ordering};
-
-/// The configured control law.
-#[derive(Debug, Clone)]
-pub enum Controller {
-    /// PI on force (N), error scaled to load-cell volts.
-    Force(Pi),
-    /// PD on position (m).
-    Position(Pd),
-    /// Setpoint passed straight to the valve (V).
-    OpenLoop,
-}
-
-impl Controller {
-    /// From a validated config.
-    pub fn from_config(cfg: &RigConfig) -> Controller {
-        match cfg.control.mode {
-            ControlMode::Force => Controller::Force(Pi::new(cfg.pi_gains().expect("validated"))),
-            ControlMode::Position => {
-                Controller::Position(Pd::new(cfg.pd_gains().expect("validated")))
-            }
-            ControlMode::OpenLoop => Controller::OpenLoop,
-        }
-    }
-
-    /// Feedback channel the law closes on.
-    pub fn feedback_channel(&self) -> FeedbackChannel {
-        match self {
-            Controller::Position(_) => FeedbackChannel::Position,
-            _ => FeedbackChannel::Force,
-        }
-    }
-
-    /// The measured value the law feeds back.
-    #[inline]
-    pub fn feedback(&self, m: &Measurements) -> f64 {
-        match self {
-            Controller::Position(_) => m.position,
-            _ => m.force,
-        }
-    }
-
-    /// One step. Pure: no I/O, no allocation.
-    #[inline]
-    pub fn step(&mut self, setpoint: f64, rate: f64, m: &Measurements, dt: f64) -> ControlTerms {
-        match self {
-            Controller::Force(pi) => pi.step(setpoint, m.force, dt),
-            Controller::Position(pd) => pd.step(setpoint, rate, m.position, dt),
-            Controller::OpenLoop => ControlTerms {
-                u: setpoint,
-                u_unsat: setpoint,
-                error: f64::NAN,
-                ff: setpoint,
-                ..Default::default()
-            },
-        }
-    }
-}
 
 /// How a run ended and what it measured.
 #[derive(Debug, Clone, PartialEq)]

@@ -2,8 +2,9 @@
 //! setpoint, run the loop in simulated time, log every cycle to MCAP and summarise.
 //! Shared by the CLI and the Python bindings so both run exactly the same code.
 
+use crate::controller::Controller;
 use crate::live::LiveParams;
-use crate::runloop::{run_loop, Controller, LoopSettings, RunOutcome};
+use crate::runloop::{run_loop, LoopSettings, RunOutcome};
 use ehactl_config::{Compression, ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;

@@ -24,12 +24,11 @@ import numpy.typing as npt
 from . import _ehactl
 from ._ehactl import Config
 from ._runs import ConfigLike, _as_config, run_many
+from ._tunebase import StepTest, TrackingTest, TuneResult, _finish, _identification_base, gain_paths
 from .results import FloatArray, FrozenMap, _setstate_frozen, _thaw
 
 if TYPE_CHECKING:
     import pandas as pd
-
-    from .tune import StepTest, TrackingTest, TuneResult
 
 ComplexArray = npt.NDArray[np.complex128]
 
@@ -155,7 +154,6 @@ def loop_margins(f: np.ndarray, L: np.ndarray) -> dict[str, float]:
 
 
 def _identification_config(cfg: Config, amplitude: float | None, settle: float, f0: float) -> tuple[Config, float, float]:
-    from .tune import _identification_base
 
     c = _identification_base(cfg)
     edits: dict[str, Any] = {}
@@ -249,7 +247,6 @@ def frequency_response(
         yd = y - y.mean()
         purity[i] = min(1.0, abs(Y) / math.sqrt(2) / max(float(np.sqrt(np.mean(yd**2))), 1e-300))
     unit = "N" if base.mode == "force" else "m"
-    from .tune import gain_paths
 
     g = {p: float(base[p]) for p in gain_paths(base)}
     C = controller_response(base, f)
@@ -281,7 +278,6 @@ def linear_response(
         f = np.asarray(f_hz, dtype=float)
     re, im, info = _ehactl.linear_plant_response(base, [float(x) for x in f], max_time)
     P = np.asarray(re) + 1j * np.asarray(im)
-    from .tune import gain_paths
 
     g = {p: float(base[p]) for p in gain_paths(base)}
     C = controller_response(base, f)
@@ -376,7 +372,6 @@ def model_based(
     Returns a :class:`ehactl.tune.TuneResult`; ``details`` holds the predicted margins,
     the candidate designs and the loop model.
     """
-    from .tune import StepTest, _finish, gain_paths
 
     base = _as_config(cfg)
     paths = gain_paths(base)
