@@ -19,9 +19,6 @@
 //! the registry [`spec::params`] and the path accessor [`spec::ParamTree`] are generated from it.
 #![deny(missing_docs)]
 
-// The `#[derive(Params)]` expansion names `::ehactl_plant::spec`, also inside this crate.
-extern crate self as ehactl_plant;
-
 pub mod cbv;
 pub mod effects;
 pub mod exact;

@@ -1,0 +1,454 @@
+//! Parameter registry: every numeric config field with its unit, meaning and admissible range.
+//!
+//! Hopsan-style: a component declares its parameters (name, unit, description) once, on the
+//! struct field that stores it (`#[param(...)]`, `#[derive(Params)]`); the loader, the error
+//! messages, `ehactl params`, the Python bindings and the fit's path accessor all read what the
+//! derive generates from that one declaration ([`table`], [`ParamTree`]). The plant's own table is
+//! `ehactl_plant::spec::params`; the rig sections' are assembled by `ehactl-config`.
+
+use std::fmt;
+
+/// Admissible range of a parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Range {
+    /// Any finite value.
+    Finite,
+    /// Finite and > 0.
+    Positive,
+    /// Finite and ≥ 0.
+    NonNegative,
+    /// Finite and within [lo, hi].
+    Within(f64, f64),
+}
+
+impl Range {
+    /// Whether `v` is admissible.
+    pub fn admits(self, v: f64) -> bool {
+        if !v.is_finite() {
+            return false;
+        }
+        match self {
+            Range::Finite => true,
+            Range::Positive => v > 0.0,
+            Range::NonNegative => v >= 0.0,
+            Range::Within(lo, hi) => v >= lo && v <= hi,
+        }
+    }
+
+    /// Human description of the range.
+    pub fn describe(self) -> String {
+        match self {
+            Range::Finite => "a finite number".into(),
+            Range::Positive => "a finite number > 0".into(),
+            Range::NonNegative => "a finite number ≥ 0".into(),
+            Range::Within(lo, hi) => format!("a finite number in [{lo}, {hi}]"),
+        }
+    }
+}
+
+/// Kind of value a parameter holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// Floating point number.
+    Float,
+    /// Non-negative integer.
+    Integer,
+    /// Array of floats.
+    FloatArray,
+    /// Boolean (`true` / `false`).
+    Bool,
+    /// One of the listed strings.
+    Choice(&'static [&'static str]),
+}
+
+/// One declared parameter.
+#[derive(Debug, Clone, Copy)]
+pub struct Param {
+    /// Dotted config path, e.g. `valve.command_full_scale`.
+    pub path: &'static str,
+    /// SI unit ("-" for dimensionless).
+    pub unit: &'static str,
+    /// Meaning and seed source.
+    pub description: &'static str,
+    /// Admissible range.
+    pub range: Range,
+    /// Value kind.
+    pub kind: Kind,
+}
+
+impl Param {
+    /// A registry entry; const so that every crate can build its parameter table statically.
+    pub const fn new(
+        path: &'static str,
+        unit: &'static str,
+        range: Range,
+        description: &'static str,
+        kind: Kind,
+    ) -> Param {
+        Param {
+            path,
+            unit,
+            description,
+            range,
+            kind,
+        }
+    }
+
+    /// A floating-point entry.
+    pub const fn float(
+        path: &'static str,
+        unit: &'static str,
+        range: Range,
+        description: &'static str,
+    ) -> Param {
+        Param::new(path, unit, range, description, Kind::Float)
+    }
+
+    /// An integer entry.
+    pub const fn int(
+        path: &'static str,
+        unit: &'static str,
+        range: Range,
+        description: &'static str,
+    ) -> Param {
+        Param::new(path, unit, range, description, Kind::Integer)
+    }
+}
+
+/// Registry entries of a `#[derive(Params)]` struct under `prefix` (e.g. `"canopen"`), in
+/// declaration order, with their full dotted paths. Each path string is leaked: call it once
+/// per process (from a `LazyLock`, as `ehactl_plant::spec::params` does), so the registry lives as long as the
+/// program.
+pub fn table<T: ParamTree>(prefix: &str) -> Vec<Param> {
+    let mut out = Vec::new();
+    T::declare(prefix, &[], &mut out);
+    out.into_iter()
+        .map(|(path, p)| Param {
+            path: Box::leak(path.into_boxed_str()),
+            ..p
+        })
+        .collect()
+}
+
+/// The serialised names of the variants of a unit-variant enum `T` (as serde writes them,
+/// `rename_all` applied), in declaration order: the choices of a `#[param(choice)]` field,
+/// read from the enum's own `Deserialize` so that the list cannot drift from what the loader
+/// accepts. Serde's derive passes the list to `Deserializer::deserialize_enum`; a deserializer
+/// that only records it is the whole mechanism (serde offers no other public way to list
+/// variants). Empty for a type that does not deserialize as an enum.
+pub fn variants<T: serde::de::DeserializeOwned>() -> &'static [&'static str] {
+    use serde::de::{self, Visitor};
+    struct Capture(&'static [&'static str]);
+    impl<'de> de::Deserializer<'de> for &mut Capture {
+        type Error = de::value::Error;
+        fn deserialize_enum<V: Visitor<'de>>(
+            self,
+            _name: &'static str,
+            variants: &'static [&'static str],
+            _visitor: V,
+        ) -> Result<V::Value, Self::Error> {
+            self.0 = variants;
+            Err(de::Error::custom("variant names recorded"))
+        }
+        fn deserialize_any<V: Visitor<'de>>(self, _visitor: V) -> Result<V::Value, Self::Error> {
+            Err(de::Error::custom("not an enum"))
+        }
+        serde::forward_to_deserialize_any! {
+            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes
+            byte_buf option unit unit_struct newtype_struct seq tuple tuple_struct map struct
+            identifier ignored_any
+        }
+    }
+    let mut c = Capture(&[]);
+    let _ = T::deserialize(&mut c);
+    c.0
+}
+
+/// Implemented by `#[derive(Params)]` (see the `ehactl-params-derive` crate): the registry
+/// entries of a parameter struct and access to its float parameters by dotted path.
+pub trait ParamTree: Clone {
+    /// Append `(dotted path, entry)` for every declared field under `prefix`, with
+    /// per-instance `over`rides applied (the entry's own `path` is left empty).
+    fn declare(prefix: &str, over: &[Override], out: &mut Vec<(String, Param)>);
+    /// Value of a float parameter at `path` (relative to this struct); `None` for an unknown
+    /// path, an absent optional section or value, or a non-float parameter.
+    fn param_get(&self, path: &str) -> Option<f64>;
+    /// Write a float parameter; an absent optional section on the way is cloned from `tpl`
+    /// when it has one, else the write fails with [`PathErrorKind::Absent`].
+    fn param_set(&mut self, path: &str, v: f64, tpl: Option<&Self>) -> Result<(), PathErrorKind>;
+
+    /// Whether `path` (relative, `name[i]` for array elements) is a declared parameter.
+    fn knows(path: &str) -> bool {
+        let base = path.split_once('[').map_or(path, |(b, _)| b);
+        let mut out = Vec::new();
+        Self::declare("", &[], &mut out);
+        out.iter().any(|(p, _)| p == base)
+    }
+    /// Value of the float parameter at dotted `path` (`name[i]` for an array element).
+    fn get_path(&self, path: &str) -> Option<f64> {
+        self.param_get(path)
+    }
+    /// Write the float parameter at dotted `path`. Setting a parameter of an effect whose
+    /// section is absent is an error ([`PathErrorKind::Absent`]): which start values the
+    /// other parameters of a new section get is the caller's decision, see
+    /// [`ParamTree::set_path_or_insert`].
+    fn set_path(&mut self, path: &str, v: f64) -> Result<(), PathError> {
+        self.param_set(path, v, None).map_err(|kind| PathError {
+            path: path.to_string(),
+            kind,
+        })
+    }
+    /// As [`ParamTree::set_path`], but an absent optional section on the path is first
+    /// copied from `template`.
+    fn set_path_or_insert(&mut self, path: &str, v: f64, template: &Self) -> Result<(), PathError> {
+        self.param_set(path, v, Some(template))
+            .map_err(|kind| PathError {
+                path: path.to_string(),
+                kind,
+            })
+    }
+}
+
+/// Per-instance change of a nested struct's declaration (`#[param(nested, with(...))]`).
+#[derive(Debug, Clone, Copy)]
+pub struct Override {
+    /// Field name inside the nested struct.
+    pub field: &'static str,
+    /// Replacement unit.
+    pub unit: Option<&'static str>,
+    /// Replacement range.
+    pub range: Option<Range>,
+    /// Replacement description.
+    pub desc: Option<&'static str>,
+    /// Replacement choices (makes the entry a [`Kind::Choice`]).
+    pub choices: Option<&'static [&'static str]>,
+}
+
+impl Override {
+    /// `p` with the override for `field` in `over` applied.
+    pub fn apply(over: &[Override], field: &str, mut p: Param) -> Param {
+        for o in over.iter().filter(|o| o.field == field) {
+            if let Some(u) = o.unit {
+                p.unit = u;
+            }
+            if let Some(r) = o.range {
+                p.range = r;
+            }
+            if let Some(d) = o.desc {
+                p.description = d;
+            }
+            if let Some(c) = o.choices {
+                p.kind = Kind::Choice(c);
+            }
+        }
+        p
+    }
+}
+
+/// `prefix.key` (or `key` at the root).
+pub fn join(prefix: &str, key: &str) -> String {
+    if prefix.is_empty() {
+        key.to_string()
+    } else {
+        format!("{prefix}.{key}")
+    }
+}
+
+/// `i` of `<head>i]` (array element paths such as `frequencies[1]`).
+pub fn index_of(path: &str, head: &str) -> Option<usize> {
+    path.strip_prefix(head)?.strip_suffix(']')?.parse().ok()
+}
+
+/// Why a path access failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PathErrorKind {
+    /// No parameter is declared at this path.
+    Unknown,
+    /// The parameter is not a float (integer, choice or whole array).
+    NotFloat,
+    /// The optional (effect) section holding the parameter is absent.
+    Absent,
+    /// Array index out of range.
+    Index,
+}
+
+/// A failed path access, naming the path.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PathError {
+    /// Dotted path as given.
+    pub path: String,
+    /// What went wrong.
+    pub kind: PathErrorKind,
+}
+
+impl fmt::Display for PathError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let what = match self.kind {
+            PathErrorKind::Unknown => "no such parameter; see `ehactl params`",
+            PathErrorKind::NotFloat => "not a float parameter (integer, boolean, choice or array)",
+            PathErrorKind::Absent => "its effect section is absent from the config",
+            PathErrorKind::Index => "array index out of range",
+        };
+        write!(f, "parameter `{}`: {what}", self.path)
+    }
+}
+
+impl std::error::Error for PathError {}
+
+/// A configuration error that names the field, what is wrong and what was expected.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigError {
+    /// Dotted path of the offending field (or section).
+    pub path: String,
+    /// What is wrong, with the expected unit where one applies.
+    pub message: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "config error at `{}`: {}", self.path, self.message)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+impl ConfigError {
+    /// Build an error for `path`.
+    pub fn new(path: impl Into<String>, message: impl Into<String>) -> Self {
+        Self {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Look a parameter up by dotted path in the given tables.
+pub fn find<'a>(tables: &[&'a [Param]], path: &str) -> Option<&'a Param> {
+    tables
+        .iter()
+        .flat_map(|t| t.iter())
+        .find(|p| p.path == path)
+}
+
+/// "expected … in UNIT (description)" for a known path, or a generic phrase.
+pub fn expectation(tables: &[&[Param]], path: &str) -> String {
+    match find(tables, path) {
+        Some(p) => format!(
+            "expected {} in {} ({})",
+            p.range.describe(),
+            p.unit,
+            p.description
+        ),
+        None => "see `ehactl params` for the expected fields and units".into(),
+    }
+}
+
+/// Get the value at a dotted path in a TOML tree.
+pub fn get<'a>(root: &'a toml::Value, path: &str) -> Option<&'a toml::Value> {
+    let mut cur = root;
+    for key in path.split('.') {
+        cur = cur.as_table()?.get(key)?;
+    }
+    Some(cur)
+}
+
+/// Get a mutable value at a dotted path.
+pub fn get_mut<'a>(root: &'a mut toml::Value, path: &str) -> Option<&'a mut toml::Value> {
+    let mut cur = root;
+    for key in path.split('.') {
+        cur = cur.as_table_mut()?.get_mut(key)?;
+    }
+    Some(cur)
+}
+
+/// Normalise integers to floats for float parameters (TOML `5000` for a float field),
+/// then check every declared parameter that is present: type, finiteness and range.
+pub fn check_tree(root: &mut toml::Value, tables: &[&[Param]]) -> Result<(), ConfigError> {
+    for param in tables.iter().flat_map(|t| t.iter()) {
+        let Some(v) = get_mut(root, param.path) else {
+            continue;
+        };
+        let bad = |what: String| {
+            ConfigError::new(
+                param.path,
+                format!("{what}; {}", expectation(tables, param.path)),
+            )
+        };
+        match param.kind {
+            Kind::Float | Kind::Integer => {
+                let x = match v {
+                    toml::Value::Float(f) => *f,
+                    toml::Value::Integer(i) => *i as f64,
+                    other => {
+                        return Err(bad(format!(
+                            "wrong type: got {} `{}`",
+                            other.type_str(),
+                            other
+                        )))
+                    }
+                };
+                if param.kind == Kind::Float {
+                    *v = toml::Value::Float(x);
+                } else if x.fract() != 0.0 {
+                    return Err(bad(format!("got {x}, not an integer")));
+                }
+                if !param.range.admits(x) {
+                    let what = if x.is_finite() {
+                        format!("value {x} is out of range")
+                    } else {
+                        format!("value {x} is not finite")
+                    };
+                    return Err(bad(what));
+                }
+            }
+            Kind::Bool => {
+                if !v.is_bool() {
+                    return Err(ConfigError::new(
+                        param.path,
+                        format!(
+                            "wrong type: got {} `{}`; expected true or false ({})",
+                            v.type_str(),
+                            v,
+                            param.description
+                        ),
+                    ));
+                }
+            }
+            Kind::Choice(choices) => {
+                if !v.as_str().is_some_and(|x| choices.contains(&x)) {
+                    let list = choices
+                        .iter()
+                        .map(|c| format!("\"{c}\""))
+                        .collect::<Vec<_>>()
+                        .join(", ");
+                    return Err(ConfigError::new(
+                        param.path,
+                        format!("got `{v}`; expected one of {list} ({})", param.description),
+                    ));
+                }
+            }
+            Kind::FloatArray => {
+                let Some(items) = v.as_array_mut() else {
+                    return Err(bad(format!("wrong type: got {}", v.type_str())));
+                };
+                for (i, item) in items.iter_mut().enumerate() {
+                    let x = match item {
+                        toml::Value::Float(f) => *f,
+                        toml::Value::Integer(n) => *n as f64,
+                        other => {
+                            return Err(bad(format!(
+                                "element {i} has wrong type {}",
+                                other.type_str()
+                            )))
+                        }
+                    };
+                    *item = toml::Value::Float(x);
+                    if !param.range.admits(x) {
+                        return Err(bad(format!("element {i} = {x} is out of range")));
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
