@@ -23,7 +23,7 @@ pub mod recover;
 pub mod schemas;
 pub mod sim;
 
-pub use ehactl_plant::{Measurements, PlantState};
+pub use ehactl_types::{Measurements, PlantState};
 
 /// The control period, owned in one place. Built once from the config's
 /// `run.control_rate_hz` and handed to the plant (its discretisation step), the pacer (its

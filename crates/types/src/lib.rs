@@ -4,9 +4,17 @@
 //! physics:
 //! - [`spec`], the parameter registry types that `#[derive(Params)]` (crate
 //!   `ehactl-params-derive`) generates code against: [`spec::Param`], [`spec::ParamTree`],
-//!   ranges, path access, TOML checks and [`spec::ConfigError`].
+//!   ranges, path access, TOML checks and [`spec::ConfigError`],
+//! - [`Measurements`], one sample of every sensor (what `Hal::read` returns),
+//! - [`PlantState`], the simulated plant's complete state (logged every cycle),
+//! - [`event`], the fixed-size events of the supervisor, the pacer and the backends.
 #![deny(missing_docs)]
 
+pub mod event;
+pub mod measurements;
+pub mod plant_state;
 pub mod spec;
 
+pub use measurements::Measurements;
+pub use plant_state::PlantState;
 pub use spec::ConfigError;
