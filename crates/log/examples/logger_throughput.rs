@@ -10,8 +10,8 @@
 //! Records are synthetic but shaped like a simulated run's (smooth signals whose low
 //! mantissa bits carry noise, so LZ4 finds as little to compress as in a real log).
 
-use ehactl_hal::logger::{LogCompression, LogOptions, Logger, Overflow, RunMetadata};
-use ehactl_hal::record::CycleRecord;
+use ehactl_log::logger::{LogCompression, LogOptions, Logger, Overflow, RunMetadata};
+use ehactl_log::record::CycleRecord;
 use std::time::Instant;
 
 /// User + system CPU time (s) of the whole process (`libc::RUSAGE_SELF`: both threads) or

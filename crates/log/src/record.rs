@@ -2,7 +2,7 @@
 //! the cycle by the logger thread), with their ROS 2 message schemas and CDR encoding so
 //! Foxglove plots every field directly.
 
-use crate::{Measurements, PlantState};
+use ehactl_types::{Measurements, PlantState};
 
 /// Everything that happened in one control cycle.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
