@@ -7,9 +7,16 @@
 //!   ranges, path access, TOML checks and [`spec::ConfigError`],
 //! - [`Measurements`], one sample of every sensor (what `Hal::read` returns),
 //! - [`PlantState`], the simulated plant's complete state (logged every cycle),
-//! - [`event`], the fixed-size events of the supervisor, the pacer and the backends.
+//! - [`event`], the fixed-size events of the supervisor, the pacer and the backends,
+//! - [`canopen`], the `[canopen]` section of the rig config, read by `ehactl-config` and
+//!   used by the CANopen backend (`ehactl-canopen`), so that the config does not compile
+//!   the CANopen master.
 #![deny(missing_docs)]
 
+// The `#[derive(Params)]` expansion names `::ehactl_types::spec`, also inside this crate.
+extern crate self as ehactl_types;
+
+pub mod canopen;
 pub mod event;
 pub mod measurements;
 pub mod plant_state;
