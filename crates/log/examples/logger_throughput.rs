@@ -3,7 +3,7 @@
 //! does), the writer thread encodes and writes them; the time from the first push to the
 //! end of `finish` (file closed) over N is what the writer costs per record.
 //!
-//! Usage: `cargo run --release -p ehactl-hal --example logger_throughput -- [N] [lz4|none] [OUT]`
+//! Usage: `cargo run --release -p ehactl-log --example logger_throughput -- [N] [lz4|none] [OUT]`
 //! (defaults 200000, lz4, $TMPDIR/ehactl_logger_throughput.mcap). Prints one JSON object;
 //! `writer_cpu_us_per_record` is the process's CPU time minus this (producer) thread's, per
 //! record: what the writer thread costs.

@@ -1,6 +1,6 @@
 //! Events: fixed-size, `Copy` reports of what happened in a cycle (limits, trips, faults,
 //! run start and end), raised by the supervisor, the pacer and the backends and written by
-//! the logger (crates/hal/src/record.rs encodes them, crates/hal/src/schemas.rs names their
+//! the logger (crates/log/src/record.rs encodes them, crates/log/src/schemas.rs names their
 //! channel).
 
 /// What an event reports.
