@@ -1,13 +1,9 @@
-//! The plant's parameter registry. The registry types (`Param`, `Range`, `ParamTree`, the
-//! TOML checks, `ConfigError`) live in `ehactl-types` (crates/types/src/spec.rs) so that the
-//! control laws and the backends declare parameters without compiling the plant; they are
-//! re-exported here, so `ehactl_plant::spec::X` keeps naming them. This module adds what
-//! knows the plant: its table ([`params`]) and serde errors naming the effect catalogue
-//! ([`from_serde`]).
-
-pub use ehactl_types::spec::*;
+//! What of the parameter registry knows the plant: its table ([`params`]) and serde errors
+//! naming the effect catalogue ([`from_serde`]). Read through [`crate::spec`], which adds
+//! the registry types of `ehactl-types` (crates/types/src/spec.rs).
 
 use crate::params::PlantParams;
+use ehactl_types::spec::{expectation, table, ConfigError, Param};
 use std::sync::LazyLock;
 
 /// The plant's parameters, generated once from the `#[param(...)]` declarations on the fields
