@@ -1,11 +1,11 @@
 """Read an ehactl MCAP log back into numpy arrays — the tests' own reader, independent of
-the Rust decoder (``ehactl_hal::record``) and of the Python bindings.
+the Rust decoder (``ehactl_log::record``) and of the Python bindings.
 
 Uses the official ``mcap`` package (``mcap.reader.make_reader``) with chunk CRC
 validation on, and decodes the ROS 2 CDR payloads of every CDR channel with numpy from
 the ``ros2msg`` schema the log publishes for it (a small generic decoder: a numpy
 structured dtype built from the schema's primitive fields with CDR alignment, so no byte
-offset is written here). The field *names* the schemas document (crates/hal/src/record.rs) are listed
+offset is written here). The field *names* the schemas document (crates/log/src/record.rs) are listed
 below and checked against the published schemas; the byte layout itself is pinned by
 ``test_mcap_roundtrip.py`` and cross-checked there with the official ``mcap_ros2`` decoder.
 
@@ -43,7 +43,7 @@ CONTROL_SCHEMA = "ehactl_msgs/msg/ControlCycle"
 PLANT_SCHEMA = "ehactl_msgs/msg/PlantState"
 TIMING_SCHEMA = "ehactl_msgs/msg/CycleTiming"  # wall-clock runs only (`ehactl run --realtime`)
 
-# Documented field names of each message, in order (the ros2msg schemas in crates/hal/src/record.rs).
+# Documented field names of each message, in order (the ros2msg schemas in crates/log/src/record.rs).
 CONTROL_FIELDS: tuple[str, ...] = (
     "cycle",
     "t",

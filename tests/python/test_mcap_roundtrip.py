@@ -41,7 +41,7 @@ SIGNAL_RUN_DURATION = 600.0  # s simulated (several seconds of wall time)
 SIGNAL_MIN_WALL = 0.3  # s of wall time the process must have run before the signal
 SIGNAL_MIN_BYTES = 256 * 1024  # and this much MCAP must be on disk
 
-# The byte layout of one message (the ros2msg schemas of crates/hal/src/record.rs): CDR little-endian header, then
+# The byte layout of one message (the ros2msg schemas of crates/log/src/record.rs): CDR little-endian header, then
 # /control: uint64 cycle + 16 float64; /plant: 16 float64 + bool. The reader derives its
 # layout from the schema in the file; these pins keep the format itself from drifting.
 CONTROL_STRUCT = struct.Struct("<4sQ16d")

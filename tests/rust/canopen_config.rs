@@ -1,8 +1,8 @@
 //! The `[canopen]` section: defaults, round trip through TOML, registry coverage, bus-load
 //! refusal with the worst-case bit-stuffing formula.
 
-use ehactl_canopen::config::{canopen_params, frame_bits, CanopenConfig};
 use ehactl_config::RigConfig;
+use ehactl_types::canopen::{canopen_params, frame_bits, CanopenConfig};
 
 fn boom() -> String {
     let p =

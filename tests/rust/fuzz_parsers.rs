@@ -160,7 +160,7 @@ proptest! {
         let input = dir.join("in.mcap");
         let output = dir.join("out.mcap");
         std::fs::write(&input, &bytes).unwrap();
-        if ehactl_hal::recover::recover(&input, &output).is_ok() {
+        if ehactl_log::recover::recover(&input, &output).is_ok() {
             let data = std::fs::read(&output).unwrap();
             for m in mcap::MessageStream::new(&data).expect("recovered file opens") {
                 m.expect("recovered message reads");

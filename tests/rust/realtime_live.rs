@@ -3,10 +3,10 @@
 
 use ehactl_config::RigConfig;
 use ehactl_control::setpoint::Setpoint;
-use ehactl_hal::logger::Overflow;
 use ehactl_hal::pacer::Pacer;
-use ehactl_hal::record::CycleRecord;
 use ehactl_hal::sim::SimHal;
+use ehactl_log::logger::Overflow;
+use ehactl_log::record::CycleRecord;
 use ehactl_runtime::control_socket::{self, ControlServer};
 use ehactl_runtime::live::{self, LiveParams};
 use ehactl_runtime::realtime::{RtOptions, WallClockPacer};

@@ -3,7 +3,7 @@
 //! (`x`, `v`, `rod_force`, …) except where they would clash with a sensor or controller
 //! column, which get a `plant_` prefix (`plant_p_a`, `plant_spool`, `plant_command`).
 
-use ehactl_hal::record::CycleRecord;
+use ehactl_log::record::CycleRecord;
 
 /// Column accessor.
 pub(crate) type Getter = fn(&CycleRecord) -> f64;

@@ -1,7 +1,7 @@
 //! Python bindings of ehactl (`ehactl._ehactl`, wrapped by the pure-Python package
 //! `ehactl`). Everything physical runs in the same compiled crates as the CLI:
 //! `ehactl-plant` (plant), `ehactl-analysis` (linearisation), `ehactl-control` (PI/PD, setpoints, supervisor), `ehactl-config`, `ehactl-runtime` (loop,
-//! `session::run_sim`) and `ehactl-hal` (records, MCAP logger). The GIL is released while
+//! `session::run_sim`) and `ehactl-log` (records, MCAP logger). The GIL is released while
 //! Rust simulates; batches run in parallel on a rayon pool.
 #![deny(missing_docs)]
 

@@ -1,10 +1,10 @@
 //! Read any ehactl MCAP log into columns with the `mcap` crate (chunk CRCs checked).
 //! CDR channels are decoded from their own `ros2msg` schema text by the log format's one
-//! decoder, `ehactl_hal::record::FlatSchema` (primitive fields only, CDR alignment relative
+//! decoder, `ehactl_log::record::FlatSchema` (primitive fields only, CDR alignment relative
 //! to the 4-byte encapsulation header), so a log whose messages gain fields still reads;
 //! JSON channels are returned as text for Python to parse.
 
-use ehactl_hal::record::{FlatSchema, Prim, Value};
+use ehactl_log::record::{FlatSchema, Prim, Value};
 use numpy::IntoPyArray;
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;

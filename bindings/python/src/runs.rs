@@ -6,7 +6,7 @@
 use crate::columns::{self, ColumnSink, Columns, COLUMNS, STUCK};
 use crate::config::Config;
 use ehactl_config::RigConfig;
-use ehactl_hal::record::CycleRecord;
+use ehactl_log::record::CycleRecord;
 use ehactl_runtime::session::{run_sim, SessionOptions};
 use numpy::IntoPyArray;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};

@@ -1,4 +1,4 @@
-"""ehactl.read_mcap (the Rust decoder of ehactl-hal) against the official Python readers:
+"""ehactl.read_mcap (the Rust decoder of ehactl-log) against the official Python readers:
 `mcap` for the container and `mcap_ros2` for the CDR payloads (decoded from the ros2msg
 schema the log publishes), so nothing here shares code or layout knowledge with ehactl."""
 

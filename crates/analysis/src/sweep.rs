@@ -14,7 +14,7 @@ use crate::oppoint::{self, operating_reference};
 use crate::AnalysisError;
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_control::setpoint::{Setpoint, SetpointKind, Sweep};
-use ehactl_hal::record::CycleRecord;
+use ehactl_log::record::CycleRecord;
 use ehactl_runtime::session::{run_sim, Session, SessionOptions};
 use nalgebra::{Complex, Matrix3, Vector3};
 use serde::Serialize;

@@ -32,8 +32,8 @@ use crate::pdo::{
 use crate::sdo::{self, SdoClient, SdoError};
 use crate::settings::CanopenSettings;
 use crate::sync;
-use ehactl_hal::logger::CanFrameRecord;
 use ehactl_hal::Measurements;
+use ehactl_log::logger::CanFrameRecord;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

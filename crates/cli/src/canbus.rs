@@ -5,8 +5,8 @@ use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError, StartupFail
 use ehactl_canopen::hub::Hub;
 use ehactl_canopen::BusUrl;
 use ehactl_config::RigConfig;
-use ehactl_hal::logger::{FrameLog, Overflow};
-use ehactl_hal::record::{Event, EventKind, Severity};
+use ehactl_log::logger::{FrameLog, Overflow};
+use ehactl_log::record::{Event, EventKind, Severity};
 use ehactl_runtime::session::open_log;
 use std::io::Write;
 use std::path::Path;

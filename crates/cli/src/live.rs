@@ -13,9 +13,9 @@
 //! drops (and counts) the oldest messages for a slow client.
 
 use crate::live_front::{ClientStats, Front};
-use ehactl_hal::logger::{LogTap, TapMessage};
-use ehactl_hal::record::{control_schema, plant_schema, timing_schema};
-use ehactl_hal::schemas;
+use ehactl_log::logger::{LogTap, TapMessage};
+use ehactl_log::record::{control_schema, plant_schema, timing_schema};
+use ehactl_log::schemas;
 use foxglove::{Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;

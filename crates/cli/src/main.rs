@@ -204,14 +204,14 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
             out.display()
         )));
     }
-    let is_mcap = meta.is_file() && ehactl_hal::recover::is_mcap_file(out);
+    let is_mcap = meta.is_file() && ehactl_log::recover::is_mcap_file(out);
     if !is_mcap && !force {
         return Err(config_error(format!(
             "--out {}: exists and is not an MCAP log; refusing to overwrite it (choose another path or add --force)",
             out.display()
         )));
     }
-    if is_mcap && ehactl_hal::logger::is_locked(out) {
+    if is_mcap && ehactl_log::logger::is_locked(out) {
         eprintln!(
             "ehactl: --out {}: is being written by another running ehactl (it holds the file's lock); choose another --out",
             out.display()
@@ -266,7 +266,7 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
             output.display()
         ));
     }
-    match ehactl_hal::recover::recover(input, output) {
+    match ehactl_log::recover::recover(input, output) {
         Ok(rep) => {
             if json {
                 println!(

@@ -9,9 +9,9 @@ use crate::{
     sig, stop_flag,
 };
 use ehactl_config::{ControlMode, RigConfig};
-use ehactl_hal::logger::{LogTap, Overflow};
 use ehactl_hal::sim::SimHal;
 use ehactl_hal::Hal;
+use ehactl_log::logger::{LogTap, Overflow};
 use ehactl_runtime::control_socket::{ControlServer, StartError};
 use ehactl_runtime::live::LiveParams;
 use ehactl_runtime::realtime::{RtOptions, WallClockPacer};

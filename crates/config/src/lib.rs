@@ -4,7 +4,6 @@
 //! supervisor, run, log, realtime and CANopen sections. Loading validates every field against the parameter
 //! registries and reports the first problem with its dotted path and expected unit.
 
-use ehactl_canopen::config::{canopen_params, CanopenConfig};
 use ehactl_control::pd::PdGains;
 use ehactl_control::pi::PiGains;
 use ehactl_control::setpoint::{SetpointConfig, SetpointKind, Sweep};
@@ -13,6 +12,7 @@ use ehactl_hal::Timebase;
 use ehactl_params_derive::Params;
 use ehactl_plant::spec::{self, ConfigError, Param};
 use ehactl_plant::PlantParams;
+use ehactl_types::canopen::{canopen_params, CanopenConfig};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::LazyLock;

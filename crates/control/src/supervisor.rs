@@ -2,9 +2,9 @@
 //! out of range, stale). On a trip the loop puts the valve to `safe_command`, logs the
 //! event and ends the run with the reason. Checks are allocation-free.
 
-use ehactl_hal::record::{Event, EventKind, Severity};
-use ehactl_hal::Measurements;
 use ehactl_params_derive::Params;
+use ehactl_types::event::{Event, EventKind, Severity};
+use ehactl_types::Measurements;
 use serde::{Deserialize, Serialize};
 
 /// Supervisor section of a rig config. Absent limits are not checked.

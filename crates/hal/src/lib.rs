@@ -9,21 +9,21 @@
 //! - [`Timebase`], the one owner of the control period (built from `run.control_rate_hz`
 //!   and handed to the plant, the pacer and the backends),
 //! - [`sim::SimHal`], the in-process nonlinear plant advanced one control period per write,
-//! - [`record`], the fixed-size per-cycle records and events,
-//! - [`logger`], the MCAP writer fed through a bounded lock-free queue from another thread, and
 //! - [`input`], bounded reads of the user's input files (regular files of a capped size).
+//!
+//! The cycle records, the MCAP logger, the JSON schemas and log recovery are in `ehactl-log`
+//! (crates/log); the measurement, plant-state and event types in `ehactl-types`.
 #![deny(missing_docs)]
 
 pub mod input;
-pub mod logger;
-mod mcap_writer;
 pub mod pacer;
-pub mod record;
-pub mod recover;
-pub mod schemas;
 pub mod sim;
 
-pub use ehactl_plant::{Measurements, PlantState};
+// Compatibility paths, to be removed: these modules moved to `ehactl-log` (crates/log).
+#[doc(hidden)]
+pub use ehactl_log::{logger, record, recover, schemas};
+
+pub use ehactl_types::{Measurements, PlantState};
 
 /// The control period, owned in one place. Built once from the config's
 /// `run.control_rate_hz` and handed to the plant (its discretisation step), the pacer (its
@@ -159,7 +159,7 @@ pub trait Hal {
 
     /// Raw bus frames to log (CAN backends): the session attaches this queue to the MCAP
     /// logger, which writes every frame to the `/can` channel.
-    fn frame_log(&self) -> Option<std::sync::Arc<logger::FrameLog>> {
+    fn frame_log(&self) -> Option<std::sync::Arc<ehactl_log::logger::FrameLog>> {
         None
     }
 

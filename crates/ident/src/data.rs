@@ -435,7 +435,7 @@ pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
 
 /// [`load_mcap`] on bytes already read (`source` names them in errors).
 pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
-    use ehactl_hal::record::CycleRecord;
+    use ehactl_log::record::CycleRecord;
     let source = source.to_string();
     if let (_, Some(problem)) = ehactl_hal::recover::readable_prefix(bytes) {
         return Err(DataError(format!(
@@ -751,7 +751,7 @@ mod tests {
     /// a message cut short is a clear error naming the file.
     #[test]
     fn mcap_control_channel() {
-        use ehactl_hal::record::{control_schema, CycleRecord};
+        use ehactl_log::record::{control_schema, CycleRecord};
         let write = |cut: bool| {
             let mut w = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
             let sid = w

@@ -2,7 +2,7 @@
 //! realtime and CANopen sections) is declared once, on its struct field, with its unit,
 //! admissible range and description (the way a Hopsan component declares
 //! `addInputVariable("C_q", "Flow Coefficient", "-", 0.67, &mpCq)`). The derive implements
-//! `ehactl_plant::spec::ParamTree`, which gives
+//! `ehactl_types::spec::ParamTree`, which gives
 //!
 //! * the registry entries (dotted path, unit, range, description, kind) that the loader's
 //!   error messages, `ehactl params`, validation and the Python bindings read, and
@@ -36,7 +36,7 @@ use proc_macro2::TokenStream as Ts;
 use quote::{quote, ToTokens};
 use syn::{parse_macro_input, Data, DeriveInput, Expr, Fields, LitStr, Type};
 
-/// Derive `ehactl_plant::spec::ParamTree` for a struct with named fields.
+/// Derive `ehactl_types::spec::ParamTree` for a struct with named fields.
 #[proc_macro_derive(Params, attributes(param))]
 pub fn derive_params(input: TokenStream) -> TokenStream {
     let input = parse_macro_input!(input as DeriveInput);
@@ -126,7 +126,7 @@ fn skip_value(m: &syn::meta::ParseNestedMeta) -> syn::Result<()> {
 fn range_tokens(r: &Expr) -> Ts {
     quote! {{
         #[allow(unused_imports)]
-        use ::ehactl_plant::spec::Range::*;
+        use ::ehactl_types::spec::Range::*;
         #r
     }}
 }
@@ -156,7 +156,7 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
             }
         }
     }
-    let sp = quote!(::ehactl_plant::spec);
+    let sp = quote!(::ehactl_types::spec);
     let mut declare = Vec::new();
     let mut get_arms = Vec::new();
     let mut set_arms = Vec::new();

@@ -19,9 +19,6 @@
 //! the registry [`spec::params`] and the path accessor [`spec::ParamTree`] are generated from it.
 #![deny(missing_docs)]
 
-// The `#[derive(Params)]` expansion names `::ehactl_plant::spec`, also inside this crate.
-extern crate self as ehactl_plant;
-
 pub mod cbv;
 pub mod effects;
 pub mod exact;
@@ -30,10 +27,19 @@ pub mod friction;
 pub mod line;
 pub mod model;
 pub mod params;
+mod registry;
 pub mod rng;
 pub mod sensors;
-pub mod spec;
 pub mod valve;
+
+/// The parameter registry: the registry types (`Param`, `Range`, `ParamTree`, the TOML
+/// checks, `ConfigError`), which live in `ehactl-types` (crates/types/src/spec.rs) so that
+/// the control laws and the backends declare parameters without compiling the plant, and
+/// the plant's own table ([`spec::params`]) and serde error mapping ([`spec::from_serde`]).
+pub mod spec {
+    pub use crate::registry::{from_serde, params};
+    pub use ehactl_types::spec::*;
+}
 
 pub use effects::EffectId;
 pub use model::{NumericalFailure, Plant, PlantState};

@@ -5,35 +5,7 @@ use crate::params::{SensorChannel, SensorTone, Sensors};
 use crate::rng::NoiseRng;
 use std::f64::consts::TAU;
 
-/// One sample of every sensor, in SI units. A channel a backend lacks is NaN.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Measurements {
-    /// Sample time (s).
-    pub t: f64,
-    /// Rod / load-cell force (N).
-    pub force: f64,
-    /// Piston position (m).
-    pub position: f64,
-    /// Chamber A pressure (Pa).
-    pub p_a: f64,
-    /// Chamber B pressure (Pa).
-    pub p_b: f64,
-    /// Spool position (fraction of full travel).
-    pub spool: f64,
-}
-
-impl Default for Measurements {
-    fn default() -> Self {
-        Self {
-            t: 0.0,
-            force: f64::NAN,
-            position: f64::NAN,
-            p_a: f64::NAN,
-            p_b: f64::NAN,
-            spool: f64::NAN,
-        }
-    }
-}
+pub use ehactl_types::Measurements;
 
 /// True (noise-free) values the sensors look at.
 #[derive(Debug, Clone, Copy)]

@@ -21,7 +21,7 @@ use crate::controller::Controller;
 use crossbeam_queue::ArrayQueue;
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
-use ehactl_hal::record::{Event, EventKind, Severity};
+use ehactl_log::record::{Event, EventKind, Severity};
 use ehactl_plant::spec::Param;
 use ehactl_plant::ConfigError;
 use std::sync::atomic::{AtomicU64, Ordering};

@@ -17,8 +17,8 @@
 //! spawned before it (the MCAP writer) keep the normal scheduler.
 
 use ehactl_hal::pacer::{Pacer, Quantiles, RtApplied, TimingReport};
-use ehactl_hal::record::{CycleTiming, Event, EventKind, Severity};
 use ehactl_hal::Timebase;
+use ehactl_log::record::{CycleTiming, Event, EventKind, Severity};
 
 /// What to do after a cycle overran its period.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -9,8 +9,8 @@ use ehactl_control::pi::ControlTerms;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
 use ehactl_hal::pacer::Pacer;
-use ehactl_hal::record::{CycleRecord, CycleTiming, Event, EventKind, Severity};
 use ehactl_hal::{Hal, Measurements, Timebase};
+use ehactl_log::record::{CycleRecord, CycleTiming, Event, EventKind, Severity};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 /// How a run ended and what it measured.

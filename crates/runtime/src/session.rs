@@ -8,11 +8,11 @@ use crate::runloop::{run_loop, LoopSettings, RunOutcome};
 use ehactl_config::{Compression, ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
-use ehactl_hal::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
 use ehactl_hal::pacer::{Pacer, SimulatedTime, TimingReport};
-use ehactl_hal::record::CycleRecord;
 use ehactl_hal::sim::SimHal;
 use ehactl_hal::Hal;
+use ehactl_log::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
+use ehactl_log::record::CycleRecord;
 use ehactl_plant::{ConfigError, Plant};
 use serde_json::json;
 use std::path::PathBuf;
@@ -38,7 +38,7 @@ pub struct SessionOptions<'a> {
     /// first and the last cycle are always logged. Observers and captures see every cycle.
     pub log_every: u64,
     /// Also hand everything logged to this tap (live view, `ehactl run --live`).
-    pub tap: Option<std::sync::Arc<ehactl_hal::logger::LogTap>>,
+    pub tap: Option<std::sync::Arc<ehactl_log::logger::LogTap>>,
 }
 
 /// Result of a run.
@@ -72,7 +72,7 @@ pub enum SessionError {
     /// Bad config.
     Config(ConfigError),
     /// Log file problem.
-    Log(ehactl_hal::logger::LogError),
+    Log(ehactl_log::logger::LogError),
 }
 
 impl std::fmt::Display for SessionError {
@@ -225,7 +225,7 @@ pub fn open_log(
     path: &std::path::Path,
     backend: &str,
     overflow: Overflow,
-) -> Result<Logger, ehactl_hal::logger::LogError> {
+) -> Result<Logger, ehactl_log::logger::LogError> {
     Logger::create(
         path,
         LogOptions {

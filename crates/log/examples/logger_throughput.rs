@@ -3,15 +3,15 @@
 //! does), the writer thread encodes and writes them; the time from the first push to the
 //! end of `finish` (file closed) over N is what the writer costs per record.
 //!
-//! Usage: `cargo run --release -p ehactl-hal --example logger_throughput -- [N] [lz4|none] [OUT]`
+//! Usage: `cargo run --release -p ehactl-log --example logger_throughput -- [N] [lz4|none] [OUT]`
 //! (defaults 200000, lz4, $TMPDIR/ehactl_logger_throughput.mcap). Prints one JSON object;
 //! `writer_cpu_us_per_record` is the process's CPU time minus this (producer) thread's, per
 //! record: what the writer thread costs.
 //! Records are synthetic but shaped like a simulated run's (smooth signals whose low
 //! mantissa bits carry noise, so LZ4 finds as little to compress as in a real log).
 
-use ehactl_hal::logger::{LogCompression, LogOptions, Logger, Overflow, RunMetadata};
-use ehactl_hal::record::CycleRecord;
+use ehactl_log::logger::{LogCompression, LogOptions, Logger, Overflow, RunMetadata};
+use ehactl_log::record::CycleRecord;
 use std::time::Instant;
 
 /// User + system CPU time (s) of the whole process (`libc::RUSAGE_SELF`: both threads) or

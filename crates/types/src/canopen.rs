@@ -13,8 +13,8 @@
 //! heartbeats, error frames / retransmissions and the devices' SYNC-to-TPDO processing
 //! need, and the loop closes over CAN only once per SYNC anyway.
 
+use crate::spec::{self, ConfigError, Param};
 use ehactl_params_derive::Params;
-use ehactl_plant::spec::{self, ConfigError, Param};
 use serde::{Deserialize, Serialize};
 use std::sync::LazyLock;
 

@@ -1,0 +1,17 @@
+//! # ehactl-log
+//!
+//! The run log of ehactl, beside the hardware abstraction (`ehactl-hal`) that produces what
+//! it records:
+//! - [`record`], the fixed-size per-cycle records and their CDR encoding and decoding (the
+//!   events themselves are `ehactl_types::event`, re-exported here),
+//! - [`logger`], the MCAP writer fed through a bounded lock-free queue from another thread
+//!   (the MCAP records are written by a private hand-written writer, `mcap_writer.rs`),
+//! - [`schemas`], the JSON schemas of the JSON channels, and
+//! - [`recover`], rebuilding a valid MCAP file from a damaged or cut-off log.
+#![deny(missing_docs)]
+
+pub mod logger;
+mod mcap_writer;
+pub mod record;
+pub mod recover;
+pub mod schemas;

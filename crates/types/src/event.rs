@@ -1,0 +1,171 @@
+//! Events: fixed-size, `Copy` reports of what happened in a cycle (limits, trips, faults,
+//! run start and end), raised by the supervisor, the pacer and the backends and written by
+//! the logger (crates/log/src/record.rs encodes them, crates/log/src/schemas.rs names their
+//! channel).
+
+/// What an event reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EventKind {
+    /// Run started.
+    Start,
+    /// Pressure limit exceeded.
+    PressureLimit,
+    /// Position limit exceeded.
+    PositionLimit,
+    /// Force limit exceeded.
+    ForceLimit,
+    /// Command limit exceeded (controller output clamped by the supervisor).
+    CommandLimit,
+    /// A sensor read NaN.
+    SensorNan,
+    /// A sensor read outside its plausible range.
+    SensorRange,
+    /// A sensor stopped updating.
+    SensorStale,
+    /// The backend failed.
+    HalFault,
+    /// Stop requested by a signal (SIGINT / SIGTERM).
+    Signal,
+    /// Run completed its duration.
+    End,
+    /// A cycle finished after the next deadline (wall-clock pacer).
+    Overrun,
+    /// Real-time set-up (SCHED_FIFO, mlockall, CPU affinity) could not be applied.
+    RtSetup,
+    /// A live parameter change took effect at a cycle boundary.
+    ParamChange,
+    /// The valve was given its safe command at the end of the run.
+    SafeStop,
+    /// Something on the CAN bus worth recording (malformed or unexpected frame, EMCY, device
+    /// state); the backend decides whether it also trips (then a `hal_fault` follows).
+    CanBus,
+    /// The MCAP writer failed (disk full, I/O error): the run stops at once.
+    LogFailed,
+    /// The command sat at a limit for too much of the supervisor's saturation window.
+    Saturation,
+}
+
+impl EventKind {
+    /// Stable name used in logs and summaries.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            EventKind::Start => "start",
+            EventKind::PressureLimit => "pressure_limit",
+            EventKind::PositionLimit => "position_limit",
+            EventKind::ForceLimit => "force_limit",
+            EventKind::CommandLimit => "command_limit",
+            EventKind::SensorNan => "sensor_nan",
+            EventKind::SensorRange => "sensor_range",
+            EventKind::SensorStale => "sensor_stale",
+            EventKind::HalFault => "hal_fault",
+            EventKind::Signal => "signal",
+            EventKind::End => "end",
+            EventKind::Overrun => "overrun",
+            EventKind::RtSetup => "rt_setup",
+            EventKind::ParamChange => "param_change",
+            EventKind::SafeStop => "safe_stop",
+            EventKind::CanBus => "can_bus",
+            EventKind::LogFailed => "log_failed",
+            EventKind::Saturation => "saturation",
+        }
+    }
+}
+
+/// Severity of an event.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Severity {
+    /// Informational.
+    Info,
+    /// Warning, run continues.
+    Warning,
+    /// Trip: the valve went to its safe command and the run ended.
+    Trip,
+}
+
+impl Severity {
+    /// Name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Severity::Info => "info",
+            Severity::Warning => "warning",
+            Severity::Trip => "trip",
+        }
+    }
+}
+
+/// A fixed-size event; its text is produced by the logger thread, not in the cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Event {
+    /// Time (s).
+    pub t: f64,
+    /// Cycle index.
+    pub cycle: u64,
+    /// Severity.
+    pub severity: Severity,
+    /// Kind.
+    pub kind: EventKind,
+    /// Channel or quantity concerned (static text).
+    pub channel: &'static str,
+    /// Observed value (SI).
+    pub value: f64,
+    /// Limit that was crossed (SI), NaN if none.
+    pub limit: f64,
+    /// Unit of value and limit.
+    pub unit: &'static str,
+}
+
+impl Event {
+    /// An event that carries no value: value and limit NaN, no unit.
+    pub fn note(
+        t: f64,
+        cycle: u64,
+        severity: Severity,
+        kind: EventKind,
+        channel: &'static str,
+    ) -> Self {
+        Event {
+            t,
+            cycle,
+            severity,
+            kind,
+            channel,
+            value: f64::NAN,
+            limit: f64::NAN,
+            unit: "",
+        }
+    }
+
+    /// One-line human description.
+    pub fn describe(&self) -> String {
+        let mut s = format!(
+            "{} {} on {} at t = {:.6} s (cycle {})",
+            self.severity.as_str(),
+            self.kind.as_str(),
+            self.channel,
+            self.t,
+            self.cycle
+        );
+        if self.value.is_finite() || self.value.is_nan() && self.kind == EventKind::SensorNan {
+            s.push_str(&format!(": value {} {}", self.value, self.unit));
+        }
+        if self.limit.is_finite() {
+            s.push_str(&format!(", limit {} {}", self.limit, self.unit));
+        }
+        s
+    }
+
+    /// JSON form for the `/events` channel.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "t": self.t,
+            "cycle": self.cycle,
+            "severity": self.severity.as_str(),
+            "kind": self.kind.as_str(),
+            "channel": self.channel,
+            "value": if self.value.is_finite() { serde_json::json!(self.value) } else { serde_json::Value::Null },
+            "limit": if self.limit.is_finite() { serde_json::json!(self.limit) } else { serde_json::Value::Null },
+            "unit": self.unit,
+            "text": self.describe(),
+        })
+    }
+}

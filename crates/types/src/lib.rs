@@ -1,0 +1,27 @@
+//! # ehactl-types
+//!
+//! What the plant, the control laws, the logger and the backends share, with no I/O and no
+//! physics:
+//! - [`spec`], the parameter registry types that `#[derive(Params)]` (crate
+//!   `ehactl-params-derive`) generates code against: [`spec::Param`], [`spec::ParamTree`],
+//!   ranges, path access, TOML checks and [`spec::ConfigError`],
+//! - [`Measurements`], one sample of every sensor (what `Hal::read` returns),
+//! - [`PlantState`], the simulated plant's complete state (logged every cycle),
+//! - [`event`], the fixed-size events of the supervisor, the pacer and the backends,
+//! - [`canopen`], the `[canopen]` section of the rig config, read by `ehactl-config` and
+//!   used by the CANopen backend (`ehactl-canopen`), so that the config does not compile
+//!   the CANopen master.
+#![deny(missing_docs)]
+
+// The `#[derive(Params)]` expansion names `::ehactl_types::spec`, also inside this crate.
+extern crate self as ehactl_types;
+
+pub mod canopen;
+pub mod event;
+pub mod measurements;
+pub mod plant_state;
+pub mod spec;
+
+pub use measurements::Measurements;
+pub use plant_state::PlantState;
+pub use spec::ConfigError;

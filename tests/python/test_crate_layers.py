@@ -1,0 +1,61 @@
+"""The crate layers of ARCHITECTURE.md, read from the dependency graph cargo itself resolves
+(`cargo metadata`, normal dependencies only, transitively): the control laws compile no
+hardware, plant or logging crate; the config, the diagnosis and the analysis do not compile
+the CANopen master; the logger does not compile the plant or the Hal.
+
+EHACTL_ROOT selects another checkout (default: this repository).
+"""
+import json
+import os
+import pathlib
+import subprocess
+
+import pytest
+
+ROOT = pathlib.Path(os.environ.get("EHACTL_ROOT", pathlib.Path(__file__).resolve().parents[2]))
+
+
+@pytest.fixture(scope="module")
+def deps():
+    out = subprocess.run(
+        ["cargo", "metadata", "--format-version", "1", "--offline"],
+        cwd=ROOT, capture_output=True, text=True, check=True,
+    ).stdout
+    meta = json.loads(out)
+    name = {p["id"]: p["name"] for p in meta["packages"]}
+    graph = {}
+    for node in meta["resolve"]["nodes"]:
+        normal = {name[d["pkg"]] for d in node["deps"]
+                  if any(k["kind"] is None for k in d["dep_kinds"])}
+        graph.setdefault(name[node["id"]], set()).update(normal)
+    return graph
+
+
+def closure(graph, crate):
+    """Every crate `crate` compiles (normal dependencies, transitively)."""
+    seen, todo = set(), [crate]
+    while todo:
+        for d in graph[todo.pop()]:
+            if d not in seen:
+                seen.add(d)
+                todo.append(d)
+    return seen
+
+
+def test_control_laws_compile_no_io_and_no_plant(deps):
+    got = closure(deps, "ehactl-control")
+    assert not got & {"ehactl-hal", "ehactl-plant", "ehactl-log", "ehactl-canopen",
+                      "mcap", "lz4", "zstd", "nalgebra"}, sorted(got)
+    assert "ehactl-types" in got
+
+
+@pytest.mark.parametrize("crate", ["ehactl-config", "ehactl-ident", "ehactl-analysis"])
+def test_config_readers_do_not_compile_the_canopen_master(deps, crate):
+    got = closure(deps, crate)
+    assert "ehactl-canopen" not in got and "rust-ini" not in got, sorted(got)
+
+
+def test_logger_compiles_neither_plant_nor_hal(deps):
+    got = closure(deps, "ehactl-log")
+    assert not got & {"ehactl-hal", "ehactl-plant", "nalgebra"}, sorted(got)
+    assert "mcap" in got
