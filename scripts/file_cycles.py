@@ -3,7 +3,8 @@
 
 Rust: inside each crate under crates/ and bindings/python/src, an edge A -> B for every
 `crate::B` path (also in `use crate::{B, ...}` groups) and every `super::B` in A outside
-comments; `super::*` of a file's own `mod tests` is the file itself and makes no edge.
+comments; a `#[cfg(test)]` module is left out (test scaffolding: a unit test may use a
+sibling to build its input, as Cargo's graph leaves dev-dependencies out of a crate's).
 Python: inside the `ehactl` package (bindings/python/python/ehactl), an edge for every
 relative or absolute import of a sibling module, also inside functions (a lazy import is
 still a circle) but not under `if TYPE_CHECKING:` (no import at run time).
@@ -32,6 +33,27 @@ def _strip_comments(text: str) -> str:
     """Drop `//` comment lines and block comments (doc links are no imports)."""
     text = re.sub(r"/\*.*?\*/", "", text, flags=re.S)
     return "\n".join(ln for ln in text.splitlines() if not ln.lstrip().startswith("//"))
+
+
+def _strip_test_modules(text: str) -> str:
+    """Drop every `#[cfg(test)] mod NAME { ... }` block (brace-matched)."""
+    out, pos = [], 0
+    for m in re.finditer(r"#\[cfg\(test\)\]\s*(?:pub(?:\([a-z]+\))?\s+)?mod\s+\w+\s*\{", text):
+        if m.start() < pos:
+            continue
+        depth, i = 0, m.end() - 1
+        while i < len(text):
+            if text[i] == "{":
+                depth += 1
+            elif text[i] == "}":
+                depth -= 1
+                if depth == 0:
+                    break
+            i += 1
+        out.append(text[pos:m.start()])
+        pos = i + 1
+    out.append(text[pos:])
+    return "".join(out)
 
 
 def _group_names(text: str, start: int) -> list[str]:
@@ -69,7 +91,7 @@ def rust_graph(src: Path) -> Graph:
     graph: Graph = {str(rel): set() for rel in files.values()}
     for p, rel in files.items():
         me = module_of(rel)
-        text = _strip_comments(p.read_text(encoding="utf-8"))
+        text = _strip_test_modules(_strip_comments(p.read_text(encoding="utf-8")))
         for m in re.finditer(r"\b(crate|super)::", text):
             base: tuple[str, ...] = () if m.group(1) == "crate" else me[:-1]
             rest = text[m.end():]

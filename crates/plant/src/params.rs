@@ -9,8 +9,6 @@
 use ehactl_params_derive::Params;
 use serde::{Deserialize, Serialize};
 
-pub use crate::effects::validate_variants;
-
 fn yes() -> bool {
     true
 }
@@ -811,15 +809,15 @@ pub struct Effects {
     pub counterbalance_valve: Option<crate::cbv::CounterbalanceValve>,
     /// `polynomial_force`: a force law on the rod as a sum of declared terms, the grey-box
     /// extension of `ehactl diagnose` (not a catalogue effect, see
-    /// [`crate::effects::PolynomialForce`]).
+    /// [`PolynomialForce`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[param(nested)]
-    pub polynomial_force: Option<crate::effects::PolynomialForce>,
+    pub polynomial_force: Option<PolynomialForce>,
     /// `polynomial_flow`: a B→A flow law as a sum of declared spool terms, the flow-side
-    /// grey-box extension (see [`crate::effects::PolynomialFlow`]).
+    /// grey-box extension (see [`PolynomialFlow`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[param(nested)]
-    pub polynomial_flow: Option<crate::effects::PolynomialFlow>,
+    pub polynomial_flow: Option<PolynomialFlow>,
 }
 
 /// Load-cell model.
@@ -1187,4 +1185,92 @@ impl PlantParams {
         }
         Ok(out)
     }
+}
+
+/// `polynomial_force`: a force on the rod between piston and ground, written as a short
+/// sum of declared terms on physical states. It is what `ehactl diagnose` writes when it
+/// extends a model beyond the catalogue (grey-box extension, DIAGNOSIS.md), and it can also
+/// state a known load law in a nominal config (e.g. the Bingham model of an MR damper,
+/// Stanway et al. 1987: F = c₀·v + F_y·sign(v) + F₀, with F₀ the accumulator preload):
+///
+/// F = F₀ + c_v·v + F_c·tanh(v/v_s) + c_q·|v|·v + k·(x − x₀) + A_p·(p_a − p_b)
+///     + A_c·tanh(v/v_s)·|p_a − p_b|
+///
+/// F opposes +x on the piston and is carried by the rod, so a load cell sees it (it is added
+/// to the rod force). All coefficients default to 0 (term absent). The sign is smoothed by
+/// tanh with `smoothing_velocity` so that the velocity update can treat the term implicitly.
+#[derive(Params, Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PolynomialForce {
+    /// Effect switch.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Constant force F₀ (N), e.g. the gas preload of a damper's accumulator.
+    #[serde(default)]
+    #[param(unit = "N", range = Finite, desc = "constant rod force F₀ (opposing +x), e.g. a damper's gas preload")]
+    pub constant: f64,
+    /// Viscous coefficient c_v (N·s/m) of the term c_v·v.
+    #[serde(default)]
+    #[param(unit = "N·s/m", range = Finite, desc = "viscous rod force coefficient c_v of c_v·v")]
+    pub viscous: f64,
+    /// Coulomb / yield force F_c (N) of the term F_c·tanh(v/v_s).
+    #[serde(default)]
+    #[param(unit = "N", range = Finite, desc = "Coulomb / yield force F_c of F_c·sign(v) (Bingham model)")]
+    pub coulomb: f64,
+    /// Quadratic (turbulent) damping c_q (N·s²/m²) of the term c_q·|v|·v.
+    #[serde(default)]
+    #[param(unit = "N·s²/m²", range = Finite, desc = "quadratic damping c_q of c_q·|v|·v")]
+    pub quadratic: f64,
+    /// Stiffness k (N/m) of the term k·(x − x₀).
+    #[serde(default)]
+    #[param(unit = "N/m", range = Finite, desc = "stiffness k of k·(x − origin)")]
+    pub stiffness: f64,
+    /// Position x₀ (m) at which the stiffness term is zero.
+    #[serde(default)]
+    #[param(unit = "m", range = Finite, desc = "position at which the stiffness term is zero")]
+    pub origin: f64,
+    /// Area A_p (m²) of the term A_p·(p_a − p_b): a load-pressure force not in the nominal
+    /// areas (area error, pressure-loaded seal).
+    #[serde(default)]
+    #[param(unit = "m²", range = Finite, desc = "area A_p of the load-pressure force A_p·(p_a − p_b)")]
+    pub pressure: f64,
+    /// Area A_c (m²) of the term A_c·tanh(v/v_s)·|p_a − p_b|: seal friction growing with
+    /// the load pressure (Coulomb force ∝ |Δp|).
+    #[serde(default)]
+    #[param(unit = "m²", range = Finite, desc = "area A_c of the pressure-dependent friction A_c·sign(v)·|p_a − p_b|")]
+    pub pressure_coulomb: f64,
+    /// Smoothing velocity v_s (m/s) of the sign terms.
+    #[serde(default = "PolynomialForce::default_vs")]
+    #[param(unit = "m/s", range = Positive, desc = "smoothing velocity v_s of sign(v) ≈ tanh(v/v_s)")]
+    pub smoothing_velocity: f64,
+}
+
+/// `polynomial_flow`: a flow from port B to port A (into chamber A, out of chamber B, m³/s)
+/// as a short sum of declared terms on the spool position x_v (fraction of travel), the
+/// flow-side counterpart of [`PolynomialForce`] for the grey-box extension of
+/// `ehactl diagnose`:
+///
+/// Q = q₀ + q_s·x_v + q_a·|x_v|
+///
+/// q₀ is a null-bias flow (a spool or torque-motor offset, or a bias in the drive
+/// electronics: ISO 10770-1 "null bias"), q_s a flow-gain error, q_a a direction asymmetry of
+/// the flow gain (different metering edges for A and B). All default to 0 (term absent).
+#[derive(Params, Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PolynomialFlow {
+    /// Effect switch.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Null-bias flow q₀ (m³/s) from B to A.
+    #[serde(default)]
+    #[param(unit = "m³/s", range = Finite, desc = "null-bias flow q₀ from port B to port A")]
+    pub constant: f64,
+    /// Flow-gain error q_s (m³/s per unit spool travel) of the term q_s·x_v.
+    #[serde(default)]
+    #[param(unit = "m³/s", range = Finite, desc = "flow-gain error q_s of q_s·x_v (x_v: spool, fraction of travel)")]
+    pub spool: f64,
+    /// Direction asymmetry q_a (m³/s per unit spool travel) of the term q_a·|x_v|.
+    #[serde(default)]
+    #[param(unit = "m³/s", range = Finite, desc = "direction asymmetry q_a of q_a·|x_v|")]
+    pub spool_abs: f64,
 }
