@@ -7,7 +7,7 @@
 //! with a parameter penalty and accept effects greedily while the gain is significant.
 //!
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
-//! noise level), [`analysis`] (residual analysis, evidence), [`fit`] (free parameters, bounded
+//! noise level), [`spectrum`] (Welch PSD, H1 frequency response), [`analysis`] (residual analysis, evidence), [`fit`] (free parameters, bounded
 //! Nelder–Mead), [`diagnose`] (the decision), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
 //! [`session`] (one complete diagnosis as the CLI and Python run it), [`progress`] (progress
 //! reports through the caller's callback; the library draws nothing).
@@ -27,6 +27,7 @@ pub mod replay;
 pub mod report;
 pub mod residual;
 pub mod session;
+pub mod spectrum;
 pub mod synth;
 
 pub use data::{load, ChannelKind, DataError, Record};

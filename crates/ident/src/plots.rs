@@ -4,16 +4,16 @@
 //! - `traces.svg`: command and each channel, measured vs nominal vs extended; held-out part
 //!   shaded.
 //! - `residual.svg`: nominal and extended residual per channel over time and their Welch
-//!   PSD ([`crate::analysis::welch_segments`]).
+//!   PSD ([`crate::spectrum::welch_segments`]).
 //! - `residual_state.svg`: nominal residual against model velocity, command, p_A and x
 //!   (the dependence the catalogue's effects leave, docs/design.md).
 //! - `frf.svg`: H1 frequency response u → each channel of data, nominal and extended
-//!   ([`crate::analysis::h1_estimate`]).
+//!   ([`crate::spectrum::h1_estimate`]).
 //! - `validation.svg`: the validation file's traces when one was given.
 
-use crate::analysis::{h1_estimate, welch_segments};
 use crate::data::{ChannelKind, Record};
 use crate::replay::Replay;
+use crate::spectrum::{h1_estimate, welch_segments};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};

@@ -293,7 +293,7 @@ pub fn noise_level(y: &[f64]) -> f64 {
         return 0.0;
     }
     // dt = 1: the PSD per cycle/sample; variance = PSD·(1/2) for white noise.
-    let (f, psd) = crate::analysis::welch(y, 1.0);
+    let (f, psd) = crate::spectrum::welch(y, 1.0);
     let mut band: Vec<f64> = f
         .iter()
         .zip(&psd)

@@ -5,9 +5,9 @@
 //! behind the command. `diagnose` answers `none` only when the residual is noise, and
 //! `unexplained` (with this signature) when it is not and no catalogue effect explains it.
 
-use crate::analysis::welch;
 use crate::data::{ChannelKind, Record};
 use crate::replay::{std, Replay};
+use crate::spectrum::welch;
 use serde::Serialize;
 
 /// Lags in the Ljung–Box statistic.
