@@ -636,10 +636,7 @@ fn phase_nominal<'a>(
     };
     let split = format!(
         "{split}; {}",
-        match opts.drive {
-            Drive::Recorded => "open-loop replay of the recorded valve command `u`".to_string(),
-            Drive::PositionPd(g) => format!("closed-loop replay: the rig's PD position loop (k_p = {} V/m, T_D = {} s) on the recorded `ref`", g.kp, g.td),
-        }
+        opts.drive.describe()
     );
     let n_cost = n_fit.min(opts.max_fit_samples.max(100));
     let (fit_base, integration) = crate::replay::choose_integration_between(
@@ -661,8 +658,8 @@ fn phase_nominal<'a>(
     ) {
         Some((f, v, d)) => {
             let split = match (opts.drive, d) {
-                    (Drive::PositionPd(_), Drive::Recorded) => format!(
-                        "{split}; the open-loop replay of the recorded command `u` reproduces the data at the config's own step, so it is used instead (the rig's loop acted on measured, noisy positions the closed-loop replay does not have)"
+                    (a, Drive::Recorded) if a.closed_loop() => format!(
+                        "{split}; the open-loop replay of the recorded command `u` reproduces the data at the config's own step, so it is used instead (the rig's loop acted on measured, noisy signals the closed-loop replay does not have)"
                     ),
                     _ => split,
                 };
@@ -708,12 +705,12 @@ fn phase_nominal<'a>(
     // Black-box baseline on the same split (input: the recorded command, or the setpoint
     // when the rig's own loop is replayed).
     let (input, input_name) = match (opts.drive, &rec.reference) {
-        (Drive::PositionPd(_), Some(r)) => (r.clone(), "ref"),
+        (d, Some(r)) if d.closed_loop() => (r.clone(), "ref"),
         _ => (rec.u.clone(), "u"),
     };
     let baseline = crate::baseline::fit(rec, &input, n_fit, input_name);
     let val_input = match (opts.drive, &val_rec.reference) {
-        (Drive::PositionPd(_), Some(r)) => r.clone(),
+        (d, Some(r)) if d.closed_loop() => r.clone(),
         _ => val_rec.u.clone(),
     };
     let nrmse_baseline = {
@@ -760,7 +757,7 @@ fn configured_step_explains(
     // The configured drive first; for a closed-loop replay also the recorded command, which
     // carries what the rig's loop did with its noisy measurements.
     let mut drives = vec![drive];
-    if matches!(drive, Drive::PositionPd(_)) {
+    if drive.closed_loop() {
         drives.push(Drive::Recorded);
     }
     drives
