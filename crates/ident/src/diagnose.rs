@@ -634,10 +634,7 @@ fn phase_nominal<'a>(
             (nf, rec, nf..n, format!("first {nf} samples ({:.3} s) for fitting, last {} ({:.3} s) held out; the held-out part is replayed continuously from the start", nf as f64 * rec.dt, n - nf, (n - nf) as f64 * rec.dt))
         }
     };
-    let split = format!(
-        "{split}; {}",
-        opts.drive.describe()
-    );
+    let split = format!("{split}; {}", opts.drive.describe());
     let n_cost = n_fit.min(opts.max_fit_samples.max(100));
     let (fit_base, integration) = crate::replay::choose_integration_between(
         &replay_params(nominal, rec),
