@@ -84,8 +84,14 @@ fn main() {
         }
         let t0 = std::time::Instant::now();
         // The rig's own loop for closed-loop (`pi_`) cases, as `ehactl diagnose` chooses it.
+        // `OPEN_LOOP=1`: the recorded command instead (the diagnosis before `Drive::ForcePi`).
+        let open_loop = std::env::var("OPEN_LOOP").is_ok_and(|v| v == "1");
         let opts = Options {
-            drive: case.drive,
+            drive: if open_loop {
+                ehactl_ident::replay::Drive::Recorded
+            } else {
+                case.drive
+            },
             ..opts.clone()
         };
         let d = match diagnose(&case.nominal, &case.record, None, &opts) {
