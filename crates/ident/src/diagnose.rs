@@ -790,6 +790,36 @@ fn reproduces(
     crate::residual::test("nominal", val_rec, &sim, val_range, &floor).noise
 }
 
+/// Noise floor per channel (NRMSE units) from the held-out residual of the model replayed in
+/// `sim`: its white-noise level (the PSD median over the upper half band, which ignores narrow
+/// lines and slow model error), the replay's own integration error that the chosen substeps
+/// leave (step halving: ≈ 2 × the N-vs-2N difference for a first-order scheme) in quadrature,
+/// so that it can be blamed neither on an effect nor on `unexplained`, and never below the
+/// quantisation floor.
+fn channel_floors(nom: &NominalPhase<'_>, nominal: &PlantParams, sim: &Replay) -> Vec<f64> {
+    let vr = nom.val_range.clone();
+    nom.val_rec
+        .channels
+        .iter()
+        .zip(&sim.y)
+        .map(|(c, yh)| {
+            let y = &c.values[vr.clone()];
+            let f = crate::replay::residual_floor(y, &yh[vr.clone()]);
+            let ig = if nom.integration.met || nom.integration.configured_step_explains {
+                0.0
+            } else {
+                2.0 * nom
+                    .integration
+                    .error
+                    .get(c.kind.column())
+                    .copied()
+                    .unwrap_or(0.0)
+            };
+            f.hypot(ig).max(quantisation_floor(c.kind, nominal, y))
+        })
+        .collect()
+}
+
 /// What the refit phase hands on.
 struct RefitPhase {
     h0: Hyp,
@@ -832,28 +862,7 @@ fn phase_refit(
     // replay's own integration error that the chosen substeps leave (step halving:
     // ≈ 2 × the N-vs-2N difference for a first-order scheme) is added in quadrature, so that
     // it can be blamed neither on an effect nor on `unexplained`.
-    let vr = nom.val_range.clone();
-    let floor_ch: Vec<f64> = nom
-        .val_rec
-        .channels
-        .iter()
-        .zip(&refit_val_sim.y)
-        .map(|(c, yh)| {
-            let y = &c.values[vr.clone()];
-            let f = crate::replay::residual_floor(y, &yh[vr.clone()]);
-            let ig = if nom.integration.met || nom.integration.configured_step_explains {
-                0.0
-            } else {
-                2.0 * nom
-                    .integration
-                    .error
-                    .get(c.kind.column())
-                    .copied()
-                    .unwrap_or(0.0)
-            };
-            f.hypot(ig).max(quantisation_floor(c.kind, nominal, y))
-        })
-        .collect();
+    let floor_ch = channel_floors(nom, nominal, &refit_val_sim);
     let noise_floor = overall(&floor_ch);
     // Residual analysis of the refit model: what is left once parameter errors are absorbed.
     // Its findings are the evidence and the start values of the effect fits.
@@ -960,10 +969,19 @@ fn phase_candidates(
     bar: &Tracker,
 ) -> SearchPhase {
     let ctx = &nom.ctx;
-    let jn = rf.noise_floor * rf.noise_floor;
+    // The noise floor the search judges against: first from the refit nominal model's
+    // held-out residual, then lowered after each accepted effect to the floor of the extended
+    // model's residual where that is lower. A model far off the data (a leak, a dead band
+    // hidden) leaves model error in the upper half band, which the first estimate counts as
+    // noise; the residual that remains after the first effect shows the noise with less of it,
+    // and a second effect is judged against that (model error only adds to the upper band, so
+    // the lower of the two estimates is the better one).
+    let mut floor_ch = rf.floor_ch.clone();
+    let mut noise_floor = rf.noise_floor;
+    let mut jn = noise_floor * noise_floor;
     // Within the noise only when every channel is (a small tone on one channel is not noise).
-    let within_noise = |e: &Errors| {
-        nom.val_rec.channels.iter().zip(&rf.floor_ch).all(|(c, f)| {
+    let within_noise = |e: &Errors, floor_ch: &[f64]| {
+        nom.val_rec.channels.iter().zip(floor_ch).all(|(c, f)| {
             e.channels
                 .get(c.kind.column())
                 .is_some_and(|v| *v < FLOOR_FACTOR * f)
@@ -1005,8 +1023,8 @@ fn phase_candidates(
         }
         // Nothing left to explain: the current model is within the noise (round 0 still
         // fits every candidate so that the report lists them all).
-        let near_floor = within_noise(&cur_err)
-            || (round > 0 && cur_err.overall < LATER_FLOOR_FACTOR * rf.noise_floor);
+        let near_floor = within_noise(&cur_err, &floor_ch)
+            || (round > 0 && cur_err.overall < LATER_FLOOR_FACTOR * noise_floor);
         if round > 0 && near_floor {
             break;
         }
@@ -1096,7 +1114,7 @@ fn phase_candidates(
                 nom.val_rec
                     .channels
                     .iter()
-                    .zip(&rf.floor_ch)
+                    .zip(&floor_ch)
                     .find(|(c, f)| {
                         let col = c.kind.column();
                         match (cur_err.channels.get(col), err.channels.get(col)) {
@@ -1200,6 +1218,12 @@ fn phase_candidates(
             c.accepted = true;
         }
         accepted.push(e);
+        let (_, sim) = ctx.val_errors(&h);
+        for (f, g) in floor_ch.iter_mut().zip(channel_floors(nom, nominal, &sim)) {
+            *f = f.min(g);
+        }
+        noise_floor = overall(&floor_ch);
+        jn = noise_floor * noise_floor;
         current = h;
         cur_err = err;
         cur_train = ctrain;

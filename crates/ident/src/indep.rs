@@ -939,10 +939,8 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
             y[model.i_line + 2 * ns + j] = y[3];
         }
     }
-    if model.i_mount != usize::MAX {
-        if all.iter().any(|h| matches!(h, Hidden::LoadMount { .. })) {
-            y[model.i_mount] = y[0];
-        }
+    if model.i_mount != usize::MAX && all.iter().any(|h| matches!(h, Hidden::LoadMount { .. })) {
+        y[model.i_mount] = y[0];
     }
     let substeps = 20;
     let h = dt / substeps as f64;
