@@ -59,6 +59,8 @@ fn main() {
             }
         };
         let (want, want_var) = case.hidden.as_ref().map_or(("none", "-"), expected);
+        // A case with two or three effects: every one must be among the accepted causes.
+        let want_all: Vec<&str> = case.all_hidden().iter().map(|h| expected(h).0).collect();
         if std::env::var("GEN_ONLY").is_ok_and(|v| v == "1") {
             let sd: Vec<String> = case
                 .record
@@ -81,6 +83,17 @@ fn main() {
             continue;
         }
         let t0 = std::time::Instant::now();
+        // The rig's own loop for closed-loop (`pi_`) cases, as `ehactl diagnose` chooses it.
+        // `OPEN_LOOP=1`: the recorded command instead (the diagnosis before `Drive::ForcePi`).
+        let open_loop = std::env::var("OPEN_LOOP").is_ok_and(|v| v == "1");
+        let opts = Options {
+            drive: if open_loop {
+                ehactl_ident::replay::Drive::Recorded
+            } else {
+                case.drive
+            },
+            ..opts.clone()
+        };
         let d = match diagnose(&case.nominal, &case.record, None, &opts) {
             Ok(d) => d,
             Err(e) => {
@@ -136,7 +149,7 @@ fn main() {
             .fold(0.0, f64::max);
         let above = ratio > ehactl_ident::residual::LEVEL_SOFT;
         let line = format!(
-            "seed {seed} kind {kind} expect {want} {want_var} -> {} {variant} causes {} gain {:.3} nominal {:.4} refit {:.4} extended {:.4} floor {:.4} refit_over_true_noise {ratio:.1} refit_above_noise {above} time {dt:.1}",
+            "seed {seed} kind {kind} expect {want} {want_var} -> {} {variant} causes {} gain {:.3} nominal {:.4} refit {:.4} extended {:.4} floor {:.4} refit_over_true_noise {ratio:.1} refit_above_noise {above} time {dt:.1}{}",
             d.cause,
             if d.causes.is_empty() { "-".to_string() } else { d.causes.join("+") },
             d.gain,
@@ -144,6 +157,15 @@ fn main() {
             d.nrmse_refit.overall,
             d.nrmse_extended.overall,
             d.noise_floor,
+            if want_all.len() > 1 {
+                format!(
+                    " expect_all {} all_named {}",
+                    want_all.join("+"),
+                    want_all.iter().all(|w| d.causes.iter().any(|c| c == w))
+                )
+            } else {
+                String::new()
+            },
         );
         eprintln!("{line}");
         let _ = writeln!(log, "{line}");
@@ -172,6 +194,7 @@ fn field<'a>(l: &'a str, key: &str) -> Option<&'a str> {
 fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> String {
     let (mut n_h, mut top, mut var_ok, mut var_n, mut none_h, mut unexpl_h) = (0, 0, 0, 0, 0, 0);
     let (mut false_none_above, mut n_c, mut none_c, mut unexpl_c, mut failed) = (0, 0, 0, 0, 0);
+    let (mut n_multi, mut all_named) = (0, 0);
     let mut gains = Vec::new();
     let mut times = Vec::new();
     let mut per_kind: BTreeMap<String, (usize, usize)> = BTreeMap::new();
@@ -205,6 +228,10 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
             continue;
         }
         n_h += 1;
+        if let Some(a) = field(l, "all_named") {
+            n_multi += 1;
+            all_named += (a == "true") as usize;
+        }
         let ok = got == want;
         top += ok as usize;
         e.0 += ok as usize;
@@ -243,6 +270,12 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
         s,
         "| clean cases: `none` / `unexplained` | {none_c}/{n_c} / {unexpl_c}/{n_c} | — |"
     );
+    if n_multi > 0 {
+        let _ = writeln!(
+            s,
+            "| cases with two or three hidden effects: every one named | {all_named}/{n_multi} | — |"
+        );
+    }
     if !gains.is_empty() {
         let _ = writeln!(
             s,

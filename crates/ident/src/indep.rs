@@ -425,7 +425,8 @@ pub const P_CAV: f64 = -0.95e5;
 /// Right-hand side, state layout and outputs of the generator's rig with one hidden effect.
 struct Model<'a> {
     r: &'a Rig,
-    h: Option<&'a Hidden>,
+    /// The hidden effects (at most one per site of the model: see [`make_case`]).
+    hs: &'a [Hidden],
     kv: f64,
     /// Index of extra states.
     i_spool: usize,
@@ -441,36 +442,43 @@ struct Model<'a> {
 }
 
 impl<'a> Model<'a> {
-    fn new(r: &'a Rig, h: Option<&'a Hidden>) -> Self {
+    fn new(r: &'a Rig, hs: &'a [Hidden]) -> Self {
+        let find = |f: fn(&Hidden) -> bool| hs.iter().find(|h| f(h));
         let mut n = 4; // x, v, p_a, p_b
         let mut take = |k: usize| {
             let i = n;
             n += k;
             i
         };
-        let i_spool = match h {
+        let i_spool = match find(|h| matches!(h, Hidden::Spool1 { .. } | Hidden::Spool2 { .. })) {
             Some(Hidden::Spool1 { .. }) => take(1),
             Some(Hidden::Spool2 { .. }) => take(2),
             _ => usize::MAX,
         };
-        let i_z = match h {
+        let i_z = match find(|h| matches!(h, Hidden::LuGre { .. } | Hidden::Dahl { .. })) {
             Some(Hidden::LuGre { .. }) | Some(Hidden::Dahl { .. }) => take(1),
             _ => usize::MAX,
         };
-        let i_ps = match h {
+        let i_ps = match find(|h| {
+            matches!(
+                h,
+                Hidden::SupplyResistance { .. } | Hidden::PumpLimit { .. }
+            )
+        }) {
             Some(Hidden::SupplyResistance { .. }) | Some(Hidden::PumpLimit { .. }) => take(1),
             _ => usize::MAX,
         };
-        let i_mount = match h {
-            Some(Hidden::LoadMount { .. }) | Some(Hidden::BodyMount { .. }) => take(2),
-            _ => usize::MAX,
-        };
-        let i_hose = match h {
+        let i_mount =
+            match find(|h| matches!(h, Hidden::LoadMount { .. } | Hidden::BodyMount { .. })) {
+                Some(Hidden::LoadMount { .. }) | Some(Hidden::BodyMount { .. }) => take(2),
+                _ => usize::MAX,
+            };
+        let i_hose = match find(|h| matches!(h, Hidden::Hose { .. })) {
             Some(Hidden::Hose { .. }) => take(2),
             _ => usize::MAX,
         };
         let mut line = (0.0, 0.0, 0.0, 0);
-        let i_line = match h {
+        let i_line = match find(|h| matches!(h, Hidden::Lines { .. })) {
             Some(Hidden::Lines { len, d, nseg }) => {
                 let a = PI / 4.0 * d * d;
                 let ls = len / *nseg as f64;
@@ -489,7 +497,7 @@ impl<'a> Model<'a> {
         };
         Model {
             r,
-            h,
+            hs,
             kv: r.q_rated / r.dp_rated.sqrt(),
             i_spool,
             i_z,
@@ -502,9 +510,14 @@ impl<'a> Model<'a> {
         }
     }
 
+    /// The hidden effect among `hs` that `f` selects (the site's kinds), if any.
+    fn find(&self, f: impl Fn(&Hidden) -> bool) -> Option<&'a Hidden> {
+        self.hs.iter().find(|h| f(h))
+    }
+
     /// Bulk modulus at gauge pressure p (Pa).
     fn beta(&self, p: f64) -> f64 {
-        match self.h {
+        match self.find(|h| matches!(h, Hidden::EntrainedAir { .. } | Hidden::LinearBeta { .. })) {
             Some(Hidden::EntrainedAir { alpha0, n }) => {
                 // Yu et al. (1994) / Gholizadeh et al. (2011) eq. for an air–oil mixture with
                 // the air compressed polytropically from atmospheric p₀ (absolute pressures):
@@ -534,7 +547,7 @@ impl<'a> Model<'a> {
     /// Spool position from the command (before spool dynamics) and the state.
     fn spool_target(&self, u: f64) -> f64 {
         let c = u / self.r.full_scale;
-        match self.h {
+        match self.find(|h| matches!(h, Hidden::AmpDeadzone { .. })) {
             Some(Hidden::AmpDeadzone { d, offset }) => {
                 let c = c + offset;
                 c.signum() * (c.abs() - d).max(0.0)
@@ -547,7 +560,14 @@ impl<'a> Model<'a> {
     /// Valve flows into ports A and B and from supply (m³/s) at spool `s`.
     fn valve(&self, s: f64, ps: f64, pa: f64, pb: f64) -> (f64, f64, f64) {
         let (mut s, mut lap) = (s, self.r.underlap);
-        match self.h {
+        match self.find(|h| {
+            matches!(
+                h,
+                Hidden::Overlap { .. }
+                    | Hidden::SoftSaturation { .. }
+                    | Hidden::AsymSaturation { .. }
+            )
+        }) {
             Some(Hidden::Overlap { ov, offset }) => {
                 s -= offset;
                 lap -= ov;
@@ -567,7 +587,12 @@ impl<'a> Model<'a> {
     }
 
     fn friction(&self, y: &[f64], v: f64) -> (f64, f64) {
-        match self.h {
+        match self.find(|h| {
+            matches!(
+                h,
+                Hidden::LuGre { .. } | Hidden::Dahl { .. } | Hidden::LoadCoulomb { .. }
+            )
+        }) {
             Some(Hidden::LuGre { fc, fs, vs, s0, s1 }) => {
                 let z = y[self.i_z];
                 let g = fc + (fs - fc) * (-(v / vs).powi(2)).exp();
@@ -589,7 +614,7 @@ impl<'a> Model<'a> {
         let (x, v, pa, pb) = (y[0], y[1], y[2], y[3]);
         // Spool.
         let target = self.spool_target(u);
-        let s = match self.h {
+        let s = match self.find(|h| matches!(h, Hidden::Spool1 { .. } | Hidden::Spool2 { .. })) {
             Some(Hidden::Spool1 { tau }) => {
                 dy[self.i_spool] = (target - y[self.i_spool]) / tau;
                 y[self.i_spool]
@@ -618,7 +643,12 @@ impl<'a> Model<'a> {
         };
         let (qa, qb, qs) = self.valve(s, ps, port_a, port_b);
         if self.i_ps != usize::MAX {
-            dy[self.i_ps] = match self.h {
+            dy[self.i_ps] = match self.find(|h| {
+                matches!(
+                    h,
+                    Hidden::SupplyResistance { .. } | Hidden::PumpLimit { .. }
+                )
+            }) {
                 Some(Hidden::SupplyResistance { r: rs, tau }) => (r.ps - rs * qs - ps) / tau,
                 Some(Hidden::PumpLimit { qmax, band, vol }) => {
                     r.beta / vol * (pump_flow(*qmax, *band, r.ps, ps) - qs)
@@ -653,7 +683,7 @@ impl<'a> Model<'a> {
             t,
             e,
             r: rh,
-        }) = self.h
+        }) = self.find(|h| matches!(h, Hidden::Hose { .. }))
         {
             // Each hose a lumped volume at the valve port, laminar resistance to the chamber.
             let vol = PI / 4.0 * d * d * len;
@@ -672,7 +702,14 @@ impl<'a> Model<'a> {
         } else {
             (qa, qb)
         };
-        let (k_in, k_ea, k_eb) = match self.h {
+        let (k_in, k_ea, k_eb) = match self.find(|h| {
+            matches!(
+                h,
+                Hidden::InternalLeak { .. }
+                    | Hidden::ExternalLeakBoth { .. }
+                    | Hidden::ExternalLeakA { .. }
+            )
+        }) {
             Some(Hidden::InternalLeak { k }) => (*k, 0.0, 0.0),
             Some(Hidden::ExternalLeakBoth { k }) => (0.0, *k, *k),
             Some(Hidden::ExternalLeakA { k }) => (0.0, *k, 0.0),
@@ -703,7 +740,7 @@ impl<'a> Model<'a> {
             dy[self.i_z] = zd;
         }
         dy[0] = v;
-        match self.h {
+        match self.find(|h| matches!(h, Hidden::LoadMount { .. } | Hidden::BodyMount { .. })) {
             Some(Hidden::LoadMount { ml, k, d }) => {
                 let (xl, vl) = (y[self.i_mount], y[self.i_mount + 1]);
                 let f_m = k * (x - xl) + d * (v - vl);
@@ -731,7 +768,7 @@ impl<'a> Model<'a> {
     /// Rod force seen by the load cell (N).
     fn rod_force(&self, y: &[f64]) -> f64 {
         let r = self.r;
-        match self.h {
+        match self.find(|h| matches!(h, Hidden::LoadMount { .. } | Hidden::BodyMount { .. })) {
             Some(Hidden::LoadMount { k, d, .. }) => {
                 r.k * (y[0] - 0.5 * r.stroke)
                     + k * (y[0] - y[self.i_mount])
@@ -778,13 +815,83 @@ pub struct Case {
     pub seed: u64,
     /// Generator variant name (`clean` for none).
     pub kind: String,
-    /// The hidden effect.
+    /// The hidden effect (the first of a pair).
     pub hidden: Option<Hidden>,
+    /// Further hidden effects of a case with two or three at once (`a+b` kinds).
+    pub more: Vec<Hidden>,
     /// Nominal config for the diagnosis (no effect, ±10 % parameter errors).
     pub nominal: PlantParams,
     /// The record.
     pub record: Record,
+    /// How the diagnosis must replay it: the recorded command, or for a `pi_` case the
+    /// rig's PI force loop on the recorded force setpoint `ref` (the gains the rig ran with).
+    pub drive: crate::replay::Drive,
 }
+
+impl Case {
+    /// Every hidden effect, first to last.
+    pub fn all_hidden(&self) -> Vec<&Hidden> {
+        self.hidden.iter().chain(&self.more).collect()
+    }
+}
+
+/// The part of the generator's model a hidden effect changes; two effects of one case must
+/// change different parts (the model holds one effect per part).
+pub fn site(h: &Hidden) -> &'static str {
+    match h {
+        Hidden::LuGre { .. } | Hidden::Dahl { .. } | Hidden::LoadCoulomb { .. } => "friction",
+        Hidden::Overlap { .. } | Hidden::SoftSaturation { .. } | Hidden::AsymSaturation { .. } => {
+            "valve"
+        }
+        Hidden::AmpDeadzone { .. } => "amplifier",
+        Hidden::Spool1 { .. } | Hidden::Spool2 { .. } => "spool",
+        Hidden::InternalLeak { .. }
+        | Hidden::ExternalLeakBoth { .. }
+        | Hidden::ExternalLeakA { .. } => "leakage",
+        Hidden::EntrainedAir { .. } | Hidden::LinearBeta { .. } => "bulk modulus",
+        Hidden::Lines { .. } | Hidden::Hose { .. } => "lines",
+        Hidden::LoadMount { .. } | Hidden::BodyMount { .. } => "mount",
+        Hidden::Delay { .. } => "delay",
+        Hidden::Tone { .. } => "tone",
+        Hidden::SupplyResistance { .. } | Hidden::PumpLimit { .. } => "supply",
+    }
+}
+
+/// The force rig of the `pi_` cases: the generator's rig pressing on a stiff load (a load
+/// cell and frame of 2e7 N/m, relaxed at mid stroke) through a nearly critically lapped valve
+/// (underlap 0.5 % of travel), under PI force control ([`force_pi_gains`]). From the valve
+/// command the force is then close to an integrator (the valve's flow integrated by the load
+/// stiffness, little pressure feedback from a tight centre), the case where an open-loop
+/// replay from `u` drifts. Assumed values of a plausible force bench, not a paper's rig.
+pub fn force_rig() -> Rig {
+    Rig {
+        k: 2.0e7,
+        underlap: 0.005,
+        ..Rig::default()
+    }
+}
+
+/// PI force controller of the `pi_` cases, on load-cell volts at 1 mV/N. Tuned on the
+/// quasi-static loop of [`force_rig`]: force rate ≈ k_eff·K_v·u with k_eff ≈ 1.4e7 N/m (load
+/// stiffness in series with the oil's) and K_v ≈ 0.0135 m/s per V, so K_P = 0.34 V/V would put
+/// the crossover near 10 Hz, well below the rig's 190 Hz mode; K_P = 0.2 V/V (crossover near
+/// 6 Hz) is used because ±10 % parameter errors made the replay of the 0.34 loop oscillate
+/// (chosen by trial, not derived); I = 20 1/s puts the PI zero at 3 Hz. Clamping anti-windup at ±10 V (the valve's full scale).
+pub fn force_pi_gains() -> ehactl_control::pi::PiGains {
+    ehactl_control::pi::PiGains {
+        kp: 0.2,
+        integral: 20.0,
+        error_scale: 1e-3,
+        u_min: -10.0,
+        u_max: 10.0,
+        tracking: 0.0,
+        feedforward: 0.0,
+    }
+}
+
+/// Force setpoint scale of the `pi_` cases (N per V of [`command`]'s excitation): levels up to
+/// ±4.8 kN, the multisine ≈ ±1.5 kN on top, within the 17.6 kN the supply pushes on A.
+pub const FORCE_REF_SCALE: f64 = 600.0;
 
 /// Nominal plant config of `rig` with nominal errors (factors) on valve flow, β, damping,
 /// mass and spring rate, as the TOML a user would write.
@@ -853,22 +960,57 @@ noise = {np:e}
 
 /// Generate case `seed` with generator variant `kind` (`clean` for none): `duration` s at
 /// sample period `dt`, RK4 with `dt/substeps` steps, 0.3 s of settling at zero command first.
+///
+/// `kind` may name two or three effects at once (`a+b`, drawn in that order; each must change
+/// a different part of the model, [`site`]), and may start with `pi_` (`pi_clean`,
+/// `pi_internal_leak+delay`): the [`force_rig`] under closed-loop PI force control
+/// ([`force_pi_gains`], the same `ehactl_control::pi::Pi` an ehactl-controlled rig runs, acting
+/// on the noisy measured force) tracking a force setpoint of [`FORCE_REF_SCALE`] × the
+/// excitation; the record then has the setpoint as `ref` and the controller's output as `u`.
 pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, String> {
-    let rig = Rig::default();
-    let mut g = Pcg::new(seed);
-    let hidden = if kind == "clean" {
-        None
-    } else {
-        Some(
-            draw(kind, &rig, &mut g)
-                .ok_or_else(|| format!("unknown generator variant `{kind}`"))?,
-        )
+    let (closed, effects) = match kind.strip_prefix("pi_") {
+        Some(rest) => (true, rest),
+        None => (false, kind),
     };
+    let rig = if closed { force_rig() } else { Rig::default() };
+    let mut g = Pcg::new(seed);
+    let mut all: Vec<Hidden> = Vec::new();
+    if effects != "clean" {
+        for name in effects.split('+') {
+            let h = draw(name, &rig, &mut g)
+                .ok_or_else(|| format!("unknown generator variant `{name}` in `{kind}`"))?;
+            if let Some(o) = all.iter().find(|o| site(o) == site(&h)) {
+                return Err(format!(
+                    "`{kind}`: {o:?} and {h:?} change the same part of the model ({})",
+                    site(&h)
+                ));
+            }
+            all.push(h);
+        }
+    }
+    let hidden = all.first().cloned();
+    let more: Vec<Hidden> = all.iter().skip(1).cloned().collect();
     let f = [0; 5].map(|_| g.range(0.9, 1.1));
     let nominal = nominal_config(&rig, f, dt);
     let n = (duration / dt).round() as usize;
-    let u = command(&mut g, dt, n);
-    let model = Model::new(&rig, hidden.as_ref());
+    let excitation = command(&mut g, dt, n);
+    // Open loop: the excitation is the valve command. Closed loop: it is the force setpoint
+    // and the command is the PI's output, filled in sample by sample below.
+    let (mut u, reference) = if closed {
+        (
+            Vec::with_capacity(n),
+            Some(
+                excitation
+                    .iter()
+                    .map(|e| FORCE_REF_SCALE * e)
+                    .collect::<Vec<f64>>(),
+            ),
+        )
+    } else {
+        (excitation, None)
+    };
+    let mut pi = ehactl_control::pi::Pi::new(force_pi_gains());
+    let model = Model::new(&rig, &all);
     let mut y = vec![0.0; model.n];
     y[0] = 0.5 * rig.stroke;
     // Start at the open-centre equilibrium estimate, then settle.
@@ -888,17 +1030,18 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         y[model.i_hose] = y[2];
         y[model.i_hose + 1] = y[3];
     }
-    if model.i_mount != usize::MAX {
-        if let Some(Hidden::LoadMount { .. }) = hidden {
-            y[model.i_mount] = y[0];
-        }
+    if model.i_mount != usize::MAX && all.iter().any(|h| matches!(h, Hidden::LoadMount { .. })) {
+        y[model.i_mount] = y[0];
     }
     let substeps = 20;
     let h = dt / substeps as f64;
-    let delay = match hidden {
-        Some(Hidden::Delay { tau }) => tau,
-        _ => 0.0,
-    };
+    let delay = all
+        .iter()
+        .find_map(|h| match h {
+            Hidden::Delay { tau } => Some(*tau),
+            _ => None,
+        })
+        .unwrap_or(0.0);
     let mut k = [(); 4].map(|_| vec![0.0; model.n]);
     let mut tmp = vec![0.0; model.n];
     let mut step = |y: &mut Vec<f64>, uc: f64| {
@@ -938,10 +1081,13 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
     for _ in 0..settle {
         step(&mut y, 0.0);
     }
-    let (tone_ch, tone) = match hidden {
-        Some(Hidden::Tone { ch, f, a, phase }) => (ch, Some((f, a, phase))),
-        _ => (usize::MAX, None),
-    };
+    let (tone_ch, tone) = all
+        .iter()
+        .find_map(|h| match h {
+            Hidden::Tone { ch, f, a, phase } => Some((*ch, Some((*f, *a, *phase)))),
+            _ => None,
+        })
+        .unwrap_or((usize::MAX, None));
     let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
     let mut t = Vec::with_capacity(n);
     for kk in 0..n {
@@ -965,6 +1111,12 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         cols[1].push(y[0] + rig.noise.1 * g.normal() + tone_at(1));
         cols[2].push(y[2] + rig.noise.2 * g.normal() + tone_at(2));
         cols[3].push(y[3] + rig.noise.2 * g.normal());
+        if let Some(r) = &reference {
+            // Read, compute, write (the order of `ehactl run`): the PI acts on this sample's
+            // measured force.
+            let force = cols[0][kk];
+            u.push(pi.step(r[kk], force, dt).u);
+        }
         for sub in 0..substeps {
             let ts = tk + sub as f64 * h;
             // Zero-order hold on the sample grid, delayed by `delay`.
@@ -996,7 +1148,7 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         t,
         u,
         channels,
-        None,
+        reference,
         0,
     )
     .map_err(|e| e.to_string())?;
@@ -1004,8 +1156,17 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         seed,
         kind: kind.to_string(),
         hidden,
+        more,
         nominal,
         record,
+        drive: if closed {
+            crate::replay::Drive::ForcePi {
+                gains: force_pi_gains(),
+                max_command: f64::INFINITY,
+            }
+        } else {
+            crate::replay::Drive::Recorded
+        },
     })
 }
 

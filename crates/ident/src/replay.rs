@@ -80,6 +80,47 @@ pub enum Drive {
     /// the recorded setpoint `ref` (m) and the model's own position, for integrating plants
     /// whose open-loop replay would drift.
     PositionPd(ehactl_control::pd::PdGains),
+    /// Closed loop: the rig's PI force controller (the config's `[control.pi]`, the same
+    /// `ehactl_control::pi::Pi` that `ehactl run` steps, anti-windup and output limits
+    /// included) acting on the recorded force setpoint `ref` (N) and the model's own measured
+    /// force, followed by the supervisor's command limit `max_command` (V, `f64::INFINITY`
+    /// when the config sets none), as in `ehactl run`'s cycle. A force rig pressing on a stiff
+    /// load is near-integrating from the valve command: an open-loop replay from `u` amplifies
+    /// every model error into a drift.
+    ForcePi {
+        /// The config's PI gains and limits.
+        gains: ehactl_control::pi::PiGains,
+        /// `supervisor.max_command` (V), `f64::INFINITY` when unset.
+        max_command: f64,
+    },
+}
+
+/// The controller a closed-loop [`Drive`] steps during a replay.
+enum Loop {
+    Pd(ehactl_control::pd::Pd),
+    Pi(ehactl_control::pi::Pi, f64),
+}
+
+impl Drive {
+    /// Whether the replay closes the rig's loop on the recorded setpoint `ref`.
+    pub fn closed_loop(&self) -> bool {
+        !matches!(self, Drive::Recorded)
+    }
+
+    /// One line for the report: how the valve command is produced.
+    pub fn describe(&self) -> String {
+        match self {
+            Drive::Recorded => "open-loop replay of the recorded valve command `u`".to_string(),
+            Drive::PositionPd(g) => format!(
+                "closed-loop replay: the rig's PD position loop (k_p = {} V/m, T_D = {} s) on the recorded `ref`",
+                g.kp, g.td
+            ),
+            Drive::ForcePi { gains: g, .. } => format!(
+                "closed-loop replay: the rig's PI force loop (K_P = {} V/V, I = {} 1/s, error scale {} V/N, output {}…{} V) on the recorded force setpoint `ref`",
+                g.kp, g.integral, g.error_scale, g.u_min, g.u_max
+            ),
+        }
+    }
 }
 
 /// Replay the first `n` samples of `rec` through a plant with `params` at the record's
@@ -96,15 +137,16 @@ pub fn replay_with(
     n: usize,
     drive: Drive,
 ) -> Result<Replay, String> {
-    let mut pd = match drive {
-        Drive::PositionPd(g) => {
-            if rec.reference.is_none() {
-                return Err(format!(
-                    "{}: closed-loop replay needs a `ref` column",
-                    rec.source
-                ));
-            }
-            Some(ehactl_control::pd::Pd::new(g))
+    if drive.closed_loop() && rec.reference.is_none() {
+        return Err(format!(
+            "{}: closed-loop replay needs a `ref` column",
+            rec.source
+        ));
+    }
+    let mut ctl = match drive {
+        Drive::PositionPd(g) => Some(Loop::Pd(ehactl_control::pd::Pd::new(g))),
+        Drive::ForcePi { gains, max_command } => {
+            Some(Loop::Pi(ehactl_control::pi::Pi::new(gains), max_command))
         }
         Drive::Recorded => None,
     };
@@ -122,8 +164,17 @@ pub fn replay_with(
             y[c].push(kind.pick(&m));
         }
         v.push(plant.state().v);
-        let u = match (&mut pd, &rec.reference) {
-            (Some(pd), Some(r)) => pd.step(r[k], 0.0, m.position, rec.dt).u,
+        let u = match (&mut ctl, &rec.reference) {
+            (Some(Loop::Pd(pd)), Some(r)) => pd.step(r[k], 0.0, m.position, rec.dt).u,
+            // `ehactl run`: PI on the measured force, then the supervisor's command limit.
+            (Some(Loop::Pi(pi, lim)), Some(r)) => {
+                let u = pi.step(r[k], m.force, rec.dt).u;
+                if u.abs() > *lim {
+                    u.clamp(-*lim, *lim)
+                } else {
+                    u
+                }
+            }
             _ => rec.u[k],
         };
         if !failed && plant.step(u).is_err() {

@@ -251,21 +251,29 @@ pub fn run(
         }
     }
     let mut notes = Vec::new();
-    // Closed-loop position records (a `ref` column and a PD position loop in the config) are
-    // replayed through the same controller: an integrating plant would drift open loop.
-    let drive = match (&cfg.control.mode, cfg.pd_gains(), &rec.reference) {
-        (ControlMode::Position, Some(g), Some(_)) => {
+    // Closed-loop records (a `ref` column and the config's PD position or PI force loop) are
+    // replayed through the same controller: an integrating plant (a piston under position
+    // control, a force rig pressing on a stiff load) would drift open loop.
+    let drive = match (&cfg.control.mode, &rec.reference) {
+        (ControlMode::Position, Some(_)) if cfg.pd_gains().is_some() => {
             notes.push("closed-loop replay: the config's PD position controller acts on the recorded `ref`; the recorded `u` is not used".to_string());
-            Drive::PositionPd(g)
+            Drive::PositionPd(cfg.pd_gains().expect("checked"))
+        }
+        (ControlMode::Force, Some(_)) if cfg.pi_gains().is_some() => {
+            notes.push("closed-loop replay: the config's PI force controller acts on the recorded force setpoint `ref` (N) and the model's force; the recorded `u` is not used".to_string());
+            Drive::ForcePi {
+                gains: cfg.pi_gains().expect("checked"),
+                max_command: cfg.supervisor.max_command.unwrap_or(f64::INFINITY),
+            }
         }
         _ => {
             if rec.reference.is_some() {
-                notes.push("open-loop replay with the recorded valve command `u` (the config has no PD position loop to replay `ref` through)".to_string());
+                notes.push("open-loop replay with the recorded valve command `u` (the config has no PD position or PI force loop to replay `ref` through)".to_string());
             }
             Drive::Recorded
         }
     };
-    if let (Drive::PositionPd(_), Some(v)) = (&drive, &val) {
+    if let (true, Some(v)) = (drive.closed_loop(), &val) {
         if v.reference.is_none() {
             return Err(SessionError::Input(format!(
                 "{}: closed-loop replay needs a `ref` column in the validation file too",

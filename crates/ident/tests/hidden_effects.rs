@@ -118,6 +118,16 @@ fn two_effects_internal_leakage_and_tone() {
     check(3001, &[EffectId::InternalLeakage, EffectId::SensorTone]);
 }
 
+/// A pair the evaluation missed (case seed 5098 of `examples/evaluate.rs`, taken from its
+/// list of misses, not fixed in advance): a load-side mount hidden with valve dynamics. The
+/// mount's variant used to be chosen in round 0, with the valve dynamics still unexplained,
+/// where `piston_side` won; on top of `valve_dynamics` that variant explained 6 % of what was
+/// left and only `valve_dynamics` was named. Later rounds now refit every variant.
+#[test]
+fn two_effects_mount_and_valve_dynamics() {
+    check(5098, &[EffectId::FlexibleMount, EffectId::ValveDynamics]);
+}
+
 /// Robustness to sensor offsets (`Options::sensor_offsets`, CLI
 /// `--sensor-offsets`). Constant zero errors on every channel
 /// (`synth::realistic_offsets`: +2 / −1.5 bar, 5 % of the force's std, +0.5 mm) must not
