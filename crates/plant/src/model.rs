@@ -245,10 +245,12 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
     }
     if let Some(d) = p.effects.valve_dynamics.as_ref() {
         match d.order {
-            1 if d.time_constant <= 0.0 => {
+            // 0 is the ideal spool (the limit of the PT1 as T_z → 0, `SpoolModel::Ideal`): the
+            // nominal value of a valve bandwidth the diagnosis refits from 0 up.
+            1 if !(d.time_constant >= 0.0) => {
                 return Err(ConfigError::new(
                     "effects.valve_dynamics.time_constant",
-                    "must be > 0 s for order = 1",
+                    "must be ≥ 0 s for order = 1 (0: the spool follows the command at once)",
                 ))
             }
             2 if d.natural_frequency <= 0.0 || d.damping_ratio <= 0.0 => {
