@@ -30,6 +30,7 @@ pub const LOOP_PATHS: &[&str] = &[
     "effects.valve_dynamics.natural_frequency",
     "effects.time_delay.delay",
     "effects.valve_deadband.zero_offset",
+    "effects.valve_deadband.overlap",
 ];
 
 /// The valve flow gains (one per flow form): with a proportional loop, the loop gain.
@@ -74,6 +75,8 @@ pub struct IdentifiedLoop {
     pub valve_corner_frequency: Option<f64>,
     /// Identified transport delay of the valve command (s), when refit.
     pub delay: Option<f64>,
+    /// Identified dead band (overlap) per edge of the valve (fraction of travel, -), when refit.
+    pub dead_band: Option<f64>,
     /// Identified null offset of the valve (fraction of travel, -), when refit.
     pub null_offset: Option<f64>,
     /// Steady-state position error x − ref (m) the null offset causes in the proportional
@@ -242,6 +245,9 @@ pub(crate) fn identify<'a>(
     if let Some(d) = delay {
         parts.push(format!("transport delay {:.2} ms", d * 1e3));
     }
+    if let Some(o) = get("effects.valve_deadband.overlap") {
+        parts.push(format!("valve dead band {:.2} % of travel per edge", o * 100.0));
+    }
     if let (Some(z), Some(e)) = (null_offset, position_offset) {
         parts.push(format!(
             "valve null offset {:.2} % of travel (steady position error x − ref = {:.1} µm)",
@@ -267,6 +273,7 @@ pub(crate) fn identify<'a>(
         valve_natural_frequency: wn,
         valve_corner_frequency: corner,
         delay,
+        dead_band: get("effects.valve_deadband.overlap"),
         null_offset,
         position_offset,
         params: lp,

@@ -1005,9 +1005,9 @@ pub enum Uncertainty {
 /// others are refit only when listed. Units, ranges and meanings are the registry's
 /// ([`crate::spec::params`]); every path here is a float entry of it (tested).
 ///
-/// The last four are the loop's assumptions when the rig's controller and valve electronics
-/// are not recorded (the valve's bandwidth, the loop's transport delay and the valve's null
-/// offset; with a proportional loop its gain is the valve flow gain's, which is already
+/// The last five are the loop's assumptions when the rig's controller and valve electronics
+/// are not recorded (the valve's bandwidth, the loop's transport delay, the valve's null
+/// offset and null dead band; with a proportional loop its gain is the valve flow gain's, which is already
 /// here): an effect section the config carries with its assumed nominal value, refit within
 /// the stated range like any other nominal parameter (DIAGNOSIS.md "Assumed loop").
 pub const UNCERTAIN_PARAMS: &[(&str, bool)] = &[
@@ -1027,6 +1027,7 @@ pub const UNCERTAIN_PARAMS: &[(&str, bool)] = &[
     ("effects.valve_dynamics.natural_frequency", false),
     ("effects.time_delay.delay", false),
     ("effects.valve_deadband.zero_offset", false),
+    ("effects.valve_deadband.overlap", false),
 ];
 
 /// [`UNCERTAIN_PARAMS`] whose refit range may reach the lower end of their registry range
@@ -1037,6 +1038,7 @@ const MAY_REACH_RANGE_END: &[&str] = &[
     "effects.valve_dynamics.time_constant",
     "effects.time_delay.delay",
     "effects.valve_deadband.zero_offset",
+    "effects.valve_deadband.overlap",
 ];
 
 /// Admissible range of a registry path (`Finite` for a path the registry does not know,
@@ -1104,7 +1106,7 @@ impl PlantParams {
                 let d = self.effects.time_delay.as_ref()?;
                 (!d.enabled).then(|| section("time_delay"))
             }
-            "effects.valve_deadband.zero_offset" => {
+            "effects.valve_deadband.zero_offset" | "effects.valve_deadband.overlap" => {
                 let d = self.effects.valve_deadband.as_ref()?;
                 (!d.enabled).then(|| section("valve_deadband"))
             }
