@@ -30,6 +30,10 @@ fn main() {
             delay: d,
         });
         let sim = replay_with(&q, &rec, n, Drive::PositionPd(g)).expect("replay");
-        println!("{:.1} ms  x NRMSE {:.6}", d * 1e3, nrmse(&rec, &sim, 0..n)[c]);
+        println!(
+            "{:.1} ms  x NRMSE {:.6}",
+            d * 1e3,
+            nrmse(&rec, &sim, 0..n)[c]
+        );
     }
 }

@@ -190,7 +190,9 @@ pub(crate) fn identify<'a>(
         .zip(&h.values)
         .map(|(p, v)| {
             let path = path_of(&p.name);
-            let scale = nominal.nominal_value(path).filter(|_| p.name.ends_with("/nominal"));
+            let scale = nominal
+                .nominal_value(path)
+                .filter(|_| p.name.ends_with("/nominal"));
             let (nom, val, lo, hi) = match scale {
                 Some(s) => (s, s * v, s * p.lo, s * p.hi),
                 None => (p.init, *v, p.lo, p.hi),
@@ -218,12 +220,18 @@ pub(crate) fn identify<'a>(
     let null_offset = get("effects.valve_deadband.zero_offset");
     // Spool offset (overlap variant): no flow at u/u_fs = z₀, so e = ref − x = z₀·u_fs/k_p;
     // amplifier offset: no flow at u/u_fs = −z₀.
-    let sign = match loop_nominal.effects.valve_deadband.as_ref().map(|d| d.variant) {
+    let sign = match loop_nominal
+        .effects
+        .valve_deadband
+        .as_ref()
+        .map(|d| d.variant)
+    {
         Some(DeadbandVariant::Amplifier) => 1.0,
         _ => -1.0,
     };
-    let position_offset = null_offset
-        .map(|z| sign * z * loop_nominal.valve.command_full_scale / gains.kp.max(f64::MIN_POSITIVE));
+    let position_offset = null_offset.map(|z| {
+        sign * z * loop_nominal.valve.command_full_scale / gains.kp.max(f64::MIN_POSITIVE)
+    });
     let kv0 = velocity_gain(nominal, gains.kp);
     let kv = velocity_gain(&loop_nominal, gains.kp);
     let mut parts = vec![format!(
@@ -246,7 +254,10 @@ pub(crate) fn identify<'a>(
         parts.push(format!("transport delay {:.2} ms", d * 1e3));
     }
     if let Some(o) = get("effects.valve_deadband.overlap") {
-        parts.push(format!("valve dead band {:.2} % of travel per edge", o * 100.0));
+        parts.push(format!(
+            "valve dead band {:.2} % of travel per edge",
+            o * 100.0
+        ));
     }
     if let (Some(z), Some(e)) = (null_offset, position_offset) {
         parts.push(format!(
@@ -255,7 +266,11 @@ pub(crate) fn identify<'a>(
             e * 1e6
         ));
     }
-    let bounds: Vec<&str> = lp.iter().filter(|q| q.at_bound).map(|q| q.path.as_str()).collect();
+    let bounds: Vec<&str> = lp
+        .iter()
+        .filter(|q| q.at_bound)
+        .map(|q| q.path.as_str())
+        .collect();
     let text = format!(
         "Identified loop (the controller is an assumption; fitted on the position channel from `ref`): {}; position NRMSE on the fitting part {before:.4} → {after:.4}{}.",
         parts.join(", "),

@@ -1085,11 +1085,17 @@ impl PlantParams {
     /// constant is the bandwidth of order 1, a natural frequency that of order 2), or why the
     /// section it names is switched off; `None` when it fits.
     fn spool_order_mismatch(&self, path: &str) -> Option<String> {
-        let section = |s: &str| format!("[effects.{s}] has enabled = false; a switched-off effect is not refit (remove the switch or the uncertainty)");
+        let section = |s: &str| {
+            format!("[effects.{s}] has enabled = false; a switched-off effect is not refit (remove the switch or the uncertainty)")
+        };
         match path {
             "effects.valve_dynamics.time_constant" | "effects.valve_dynamics.natural_frequency" => {
                 let d = self.effects.valve_dynamics.as_ref()?;
-                let want = if path.ends_with("time_constant") { 1 } else { 2 };
+                let want = if path.ends_with("time_constant") {
+                    1
+                } else {
+                    2
+                };
                 if !d.enabled {
                     Some(section("valve_dynamics"))
                 } else if d.order != want {
