@@ -624,7 +624,21 @@ pub fn diagnose(
         phase_candidates(&nom, &refit, nominal, opts, &bar)
     };
     let resid = phase_residual_test(&nom, &refit, &search);
-    let mut d = phase_report(nom, refit, search, resid, nominal, rec, val, opts);
+    let loop_h = identified_loop.as_ref().map(|l| &l.1);
+    let (mut d, reidentified) =
+        phase_report(nom, refit, search, resid, nominal, rec, val, opts, loop_h);
+    let identified_loop = match (reidentified, identified_loop, opts.drive) {
+        (Some((h, before, after)), Some(_), Drive::PositionPd(g)) => Some(crate::loopid::describe(
+            config_nominal,
+            &h.build(config_nominal),
+            g.kp,
+            &h,
+            before,
+            after,
+            true,
+        )),
+        (_, l, _) => l.map(|l| l.0),
+    };
     // The extended config states the config's own uncertainty (the loop's was spent here).
     d.extended.uncertainty = config_nominal.uncertainty.clone();
     if let Some(l) = &identified_loop {
@@ -1355,7 +1369,8 @@ fn phase_report(
     rec: &Record,
     val: Option<&Record>,
     opts: &Options,
-) -> Diagnosis {
+    loop_h: Option<&Hyp>,
+) -> (Diagnosis, Option<(Hyp, f64, f64)>) {
     let ctx = &nom.ctx;
     let SearchPhase {
         current,
@@ -1412,6 +1427,20 @@ fn phase_report(
         }
         _ => cause,
     };
+    // An identified loop is identified again with an accepted grey-box law in place (the
+    // law's load slows the valve's flow), and the combined model scored afresh.
+    let mut greybox = greybox;
+    let mut reidentified = None;
+    if let (Some(lh), Some(g)) = (loop_h, greybox.as_mut().filter(|g| g.accepted)) {
+        if let Some((h, before, after)) =
+            crate::loopid::reidentify(ctx, &final_hyp, lh, opts.evals_per_param)
+        {
+            final_hyp.params.extend(h.params.iter().cloned());
+            final_hyp.values.extend(h.values.iter().copied());
+            g.nrmse_validation = ctx.val_errors(&final_hyp).0;
+            reidentified = Some((h, before, after));
+        }
+    }
     let (extended, ext_fit_sim, ext_val_sim) = if greybox.as_ref().is_some_and(|g| g.accepted) {
         (
             final_hyp.build(nominal),
@@ -1503,50 +1532,53 @@ fn phase_report(
         .zip(&current.variants)
         .map(|(e, v)| (e.as_str().to_string(), v.to_string()))
         .collect();
-    Diagnosis {
-        cause,
-        causes: accepted.iter().map(|e| e.as_str().to_string()).collect(),
-        variants,
-        nrmse_nominal: nom.nom_err,
-        nrmse_refit: rf.refit_err,
-        nrmse_extended: ext_err,
-        nrmse_baseline: nom.nrmse_baseline,
-        baseline: nom.baseline,
-        residual_test,
-        integration: nom.integration,
-        greybox,
-        gain,
-        noise_floor: rf.noise_floor,
-        candidates: cands,
-        extended_params: final_hyp
-            .params
-            .iter()
-            .zip(&final_hyp.values)
-            .map(|(p, v)| (p.name.clone(), *v))
-            .collect(),
-        identified_loop: None,
-        refit_at_bounds,
-        extended_at_bounds,
-        sensor_offsets,
-        ambiguities,
-        warnings: rec
-            .warnings
-            .iter()
-            .chain(if val.is_some() {
-                nom.val_rec.warnings.iter()
-            } else {
-                [].iter()
-            })
-            .cloned()
-            .chain(int_warning)
-            .collect(),
-        analysis: nom.analysis,
-        analysis_refit: rf.analysis_refit,
-        split: nom.split,
-        summary,
-        extended,
-        traces,
-    }
+    (
+        Diagnosis {
+            cause,
+            causes: accepted.iter().map(|e| e.as_str().to_string()).collect(),
+            variants,
+            nrmse_nominal: nom.nom_err,
+            nrmse_refit: rf.refit_err,
+            nrmse_extended: ext_err,
+            nrmse_baseline: nom.nrmse_baseline,
+            baseline: nom.baseline,
+            residual_test,
+            integration: nom.integration,
+            greybox,
+            gain,
+            noise_floor: rf.noise_floor,
+            candidates: cands,
+            extended_params: final_hyp
+                .params
+                .iter()
+                .zip(&final_hyp.values)
+                .map(|(p, v)| (p.name.clone(), *v))
+                .collect(),
+            identified_loop: None,
+            refit_at_bounds,
+            extended_at_bounds,
+            sensor_offsets,
+            ambiguities,
+            warnings: rec
+                .warnings
+                .iter()
+                .chain(if val.is_some() {
+                    nom.val_rec.warnings.iter()
+                } else {
+                    [].iter()
+                })
+                .cloned()
+                .chain(int_warning)
+                .collect(),
+            analysis: nom.analysis,
+            analysis_refit: rf.analysis_refit,
+            split: nom.split,
+            summary,
+            extended,
+            traces,
+        },
+        reidentified,
+    )
 }
 
 /// A warning when the replay's integration error could not be brought well below the noise
