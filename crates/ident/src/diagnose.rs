@@ -1438,6 +1438,7 @@ fn phase_report(
             final_hyp.params.extend(h.params.iter().cloned());
             final_hyp.values.extend(h.values.iter().copied());
             g.nrmse_validation = ctx.val_errors(&final_hyp).0;
+            g.ratio_to_baseline = g.nrmse_validation.overall / nom.nrmse_baseline.overall;
             reidentified = Some((h, before, after));
         }
     }
