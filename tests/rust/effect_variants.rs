@@ -292,6 +292,58 @@ mod uncertainty {
         );
     }
 
+    /// The loop's assumptions (valve bandwidth, delay, null offset and dead band) are refit
+    /// from 0 (or across 0 for the signed null offset) within the registry's range; a
+    /// bandwidth key of the other spool order or a switched-off section is refused.
+    #[test]
+    fn loop_keys_reach_their_range_end_and_wrong_ones_are_refused() {
+        let sections = "[effects.time_delay]\ndelay = 0.002\n[effects.valve_dynamics]\norder = 1\ntime_constant = 0.0\n[effects.valve_deadband]\noverlap = 0.0\nzero_offset = 0.01\n";
+        let text = format!(
+            "{}\n{sections}\n[uncertainty]\n\"effects.time_delay.delay\" = 0.02\n\"effects.valve_dynamics.time_constant\" = 0.02\n\"effects.valve_deadband.zero_offset\" = 0.05\n\"effects.valve_deadband.overlap\" = 0.05\n",
+            ehactl_ident::synth::TESTRIG_TOML
+        );
+        let p = ehactl_config::RigConfig::from_toml_str(&text)
+            .unwrap()
+            .plant;
+        assert_eq!(
+            range(&p, "effects.time_delay.delay"),
+            Some((0.002, 0.0, 0.022))
+        );
+        assert_eq!(
+            range(&p, "effects.valve_dynamics.time_constant"),
+            Some((0.0, 0.0, 0.02))
+        );
+        let (z, lo, hi) = range(&p, "effects.valve_deadband.zero_offset").unwrap();
+        assert!((z - 0.01).abs() < 1e-15 && (lo + 0.04).abs() < 1e-12 && (hi - 0.06).abs() < 1e-12);
+        assert_eq!(
+            range(&p, "effects.valve_deadband.overlap"),
+            Some((0.0, 0.0, 0.05))
+        );
+        for (sections, key, needle) in [
+            (
+                "[effects.valve_dynamics]\norder = 2\nnatural_frequency = 600.0\ndamping_ratio = 0.7\n",
+                "effects.valve_dynamics.time_constant",
+                "its bandwidth is effects.valve_dynamics.natural_frequency",
+            ),
+            (
+                "[effects.time_delay]\nenabled = false\ndelay = 0.0\n",
+                "effects.time_delay.delay",
+                "enabled = false",
+            ),
+        ] {
+            let text = format!(
+                "{}\n{sections}\n[uncertainty]\n\"{key}\" = 0.01\n",
+                ehactl_ident::synth::TESTRIG_TOML
+            );
+            let e = ehactl_config::RigConfig::from_toml_str(&text)
+                .map(|_| ())
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(needle) && e.contains(key), "{key}: {e}");
+            assert!(!e.contains('\n'), "one line: {e}");
+        }
+    }
+
     #[test]
     fn bad_uncertainty_is_refused_with_the_key_named() {
         for (table, needle) in [
@@ -307,6 +359,11 @@ mod uncertainty {
             ("\"mechanics.mass\" = \"150%\"", "expected a percentage"),
             ("\"mechanics.mass\" = 40.0", "reaches 0"),
             ("\"mechanics.mass\" = -1.0", "≥ 0"),
+            // A loop key needs its effect section with the assumed nominal value.
+            (
+                "\"effects.time_delay.delay\" = 0.01",
+                "no [effects.time_delay] section",
+            ),
         ] {
             let e = with(table).expect_err(table);
             assert!(e.contains(needle), "{table}: {e}");
@@ -351,4 +408,37 @@ fn lugre_without_bristles_and_hose_resistance_with_unsteady_friction_are_refused
     assert_eq!(e.path, "effects.line_dynamics.resistance", "{e}");
     p.effects.line_dynamics.as_mut().unwrap().friction = LineFriction::Steady;
     assert!(Plant::configure(&p, 1e-3).is_ok());
+}
+
+/// A transport delay between two substep boundaries delays the command by that fraction of a
+/// substep (the valve sees the mean of the delayed command over each substep): the travel
+/// after a step command falls steadily as the delay grows by quarter substeps. With the
+/// command taken at the substep's start it stepped once per substep and stood still between
+/// (a delay fit on a closed-loop record could not resolve it below a substep).
+#[test]
+fn a_delay_between_substeps_is_a_fractional_delay() {
+    let mut p = ehactl_ident::synth::testrig().plant;
+    p.integration.substeps = 4;
+    let dt = 1e-3;
+    let h = dt / 4.0;
+    let travel = |delay: f64| {
+        let mut q = p.clone();
+        q.effects.time_delay = Some(TimeDelay {
+            enabled: true,
+            delay,
+        });
+        let mut plant = Plant::configure(&q, dt).unwrap();
+        let x0 = plant.state().x;
+        for _ in 0..5 {
+            plant.step(3.0).unwrap();
+        }
+        plant.state().x - x0
+    };
+    let x: Vec<f64> = (0..=8).map(|j| travel(2e-3 + j as f64 * h / 4.0)).collect();
+    let steps: Vec<f64> = x.windows(2).map(|w| w[0] - w[1]).collect();
+    assert!(steps.iter().all(|s| *s > 0.0), "travel {x:?}");
+    let (lo, hi) = steps
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(a, b), s| (a.min(*s), b.max(*s)));
+    assert!(hi < 3.0 * lo, "uneven steps {steps:?}");
 }

@@ -178,6 +178,10 @@ pub struct Diagnosis {
     pub candidates: Vec<Candidate>,
     /// Parameters of the extended model (dotted path → value).
     pub extended_params: BTreeMap<String, f64>,
+    /// The rig's loop identified on the position channel when the config marks it as an
+    /// assumption (loop keys in `[uncertainty]` on a closed-loop replay, [`crate::loopid`]);
+    /// `None` otherwise. Part of every model from the refit on.
+    pub identified_loop: Option<crate::loopid::IdentifiedLoop>,
     /// Nominal parameters that the refit (no effect) left on a bound of their stated
     /// uncertainty (`[uncertainty]` in the config, default ±15 %): evidence of a missing effect.
     pub refit_at_bounds: Vec<String>,
@@ -252,6 +256,7 @@ fn with_values(base: &PlantParams, params: &[FreeParam], values: &[f64]) -> Plan
     p
 }
 
+#[derive(Clone)]
 pub(crate) struct Ctx<'a> {
     fit_rec: &'a Record,
     fit_base: PlantParams,
@@ -263,6 +268,28 @@ pub(crate) struct Ctx<'a> {
     drive: Drive,
     /// Profile out a constant sensor offset per channel (see `Options::sensor_offsets`).
     offsets: bool,
+    /// The fit cost takes this channel only (record channel index); `None`: the mean over
+    /// every channel. The assumed loop is identified on its own output ([`crate::loopid`]).
+    cost_channel: Option<usize>,
+}
+
+impl<'a> Ctx<'a> {
+    /// The same set-up with the fit cost on record channel `c` only.
+    pub(crate) fn on_channel(&self, c: usize) -> Ctx<'a> {
+        Ctx {
+            cost_channel: Some(c),
+            ..self.clone()
+        }
+    }
+    /// The same set-up with hypothesis `h` written into the base parameters for good (the
+    /// identified loop: every later model starts from it).
+    pub(crate) fn with_base(self, h: &Hyp) -> Ctx<'a> {
+        Ctx {
+            fit_base: h.build(&self.fit_base),
+            val_base: h.build(&self.val_base),
+            ..self
+        }
+    }
 }
 
 impl Ctx<'_> {
@@ -279,6 +306,7 @@ impl Ctx<'_> {
             sd_fit: self.sd_fit.clone(),
             drive: self.drive,
             offsets: self.offsets,
+            cost_channel: self.cost_channel,
         }
     }
     /// The fitting part cut in two for a transfer check: fit on its first `frac`, predict the
@@ -304,7 +332,12 @@ impl Ctx<'_> {
                 .collect(),
             drive: self.drive,
             offsets: self.offsets,
+            cost_channel: self.cost_channel,
         })
+    }
+    /// Drive of the replays.
+    pub(crate) fn drive(&self) -> Drive {
+        self.drive
     }
     /// Std of each channel over the samples in the fit cost (normalises the per-channel cost).
     pub(crate) fn sd_fit(&self) -> &[f64] {
@@ -399,7 +432,12 @@ impl Ctx<'_> {
                     apply_offsets(&mut sim, &b);
                 }
                 let mut j = 0.0;
+                let mut used = 0;
                 for (c, (ch, yh)) in self.fit_rec.channels.iter().zip(&sim.y).enumerate() {
+                    if self.cost_channel.is_some_and(|k| k != c) {
+                        continue;
+                    }
+                    used += 1;
                     let e: f64 = ch.values[..self.n_fit]
                         .iter()
                         .zip(yh)
@@ -408,7 +446,7 @@ impl Ctx<'_> {
                         / self.n_fit as f64;
                     j += e / (self.sd_fit[c] * self.sd_fit[c]).max(1e-300);
                 }
-                let j = j / self.fit_rec.channels.len() as f64;
+                let j = j / used.max(1) as f64;
                 if sim.failed {
                     j + 1e3
                 } else {
@@ -559,11 +597,20 @@ pub fn diagnose(
     val: Option<&Record>,
     opts: &Options,
 ) -> Result<Diagnosis, String> {
-    let nom = phase_nominal(nominal, rec, val, opts)?;
+    let mut nom = phase_nominal(nominal, rec, val, opts)?;
     let bar = Tracker::new(&opts.progress, 1, "refit nominal");
+    // An assumed loop is identified first, on its own output, and kept by every later model.
+    let explained = nom.integration.configured_step_explains;
+    let config_nominal = nominal;
+    let (ctx, loop_nominal, identified_loop) = if explained {
+        (nom.ctx.clone(), nominal.clone(), None)
+    } else {
+        crate::loopid::identify(nom.ctx.clone(), nominal, opts.evals_per_param)
+    };
+    nom.ctx = ctx;
+    let nominal = &loop_nominal;
     // The model as configured reproduces the data within the noise: nothing to refit or add
     // (a refit could only fit the noise).
-    let explained = nom.integration.configured_step_explains;
     let refit = phase_refit(&nom, nominal, opts, &bar, !explained);
     let search = if explained {
         SearchPhase {
@@ -577,9 +624,28 @@ pub fn diagnose(
         phase_candidates(&nom, &refit, nominal, opts, &bar)
     };
     let resid = phase_residual_test(&nom, &refit, &search);
-    Ok(phase_report(
-        nom, refit, search, resid, nominal, rec, val, opts,
-    ))
+    let loop_h = identified_loop.as_ref().map(|l| &l.1);
+    let (mut d, reidentified) =
+        phase_report(nom, refit, search, resid, nominal, rec, val, opts, loop_h);
+    let identified_loop = match (reidentified, identified_loop, opts.drive) {
+        (Some((h, before, after)), Some(_), Drive::PositionPd(g)) => Some(crate::loopid::describe(
+            config_nominal,
+            &h.build(config_nominal),
+            g.kp,
+            &h,
+            before,
+            after,
+            true,
+        )),
+        (_, l, _) => l.map(|l| l.0),
+    };
+    // The extended config states the config's own uncertainty (the loop's was spent here).
+    d.extended.uncertainty = config_nominal.uncertainty.clone();
+    if let Some(l) = &identified_loop {
+        d.summary = format!("{} {}", d.summary, l.text);
+    }
+    d.identified_loop = identified_loop;
+    Ok(d)
 }
 
 /// What the nominal phase hands on.
@@ -693,6 +759,7 @@ fn phase_nominal<'a>(
         sd_fit,
         drive,
         offsets: opts.sensor_offsets,
+        cost_channel: None,
     };
     let nom_sim = ctx
         .fit_replay(&ctx.fit_base)
@@ -1317,7 +1384,8 @@ fn phase_report(
     rec: &Record,
     val: Option<&Record>,
     opts: &Options,
-) -> Diagnosis {
+    loop_h: Option<&Hyp>,
+) -> (Diagnosis, Option<(Hyp, f64, f64)>) {
     let ctx = &nom.ctx;
     let SearchPhase {
         current,
@@ -1374,6 +1442,21 @@ fn phase_report(
         }
         _ => cause,
     };
+    // An identified loop is identified again with an accepted grey-box law in place (the
+    // law's load slows the valve's flow), and the combined model scored afresh.
+    let mut greybox = greybox;
+    let mut reidentified = None;
+    if let (Some(lh), Some(g)) = (loop_h, greybox.as_mut().filter(|g| g.accepted)) {
+        if let Some((h, before, after)) =
+            crate::loopid::reidentify(ctx, &final_hyp, lh, opts.evals_per_param)
+        {
+            final_hyp.params.extend(h.params.iter().cloned());
+            final_hyp.values.extend(h.values.iter().copied());
+            g.nrmse_validation = ctx.val_errors(&final_hyp).0;
+            g.ratio_to_baseline = g.nrmse_validation.overall / nom.nrmse_baseline.overall;
+            reidentified = Some((h, before, after));
+        }
+    }
     let (extended, ext_fit_sim, ext_val_sim) = if greybox.as_ref().is_some_and(|g| g.accepted) {
         (
             final_hyp.build(nominal),
@@ -1465,49 +1548,53 @@ fn phase_report(
         .zip(&current.variants)
         .map(|(e, v)| (e.as_str().to_string(), v.to_string()))
         .collect();
-    Diagnosis {
-        cause,
-        causes: accepted.iter().map(|e| e.as_str().to_string()).collect(),
-        variants,
-        nrmse_nominal: nom.nom_err,
-        nrmse_refit: rf.refit_err,
-        nrmse_extended: ext_err,
-        nrmse_baseline: nom.nrmse_baseline,
-        baseline: nom.baseline,
-        residual_test,
-        integration: nom.integration,
-        greybox,
-        gain,
-        noise_floor: rf.noise_floor,
-        candidates: cands,
-        extended_params: final_hyp
-            .params
-            .iter()
-            .zip(&final_hyp.values)
-            .map(|(p, v)| (p.name.clone(), *v))
-            .collect(),
-        refit_at_bounds,
-        extended_at_bounds,
-        sensor_offsets,
-        ambiguities,
-        warnings: rec
-            .warnings
-            .iter()
-            .chain(if val.is_some() {
-                nom.val_rec.warnings.iter()
-            } else {
-                [].iter()
-            })
-            .cloned()
-            .chain(int_warning)
-            .collect(),
-        analysis: nom.analysis,
-        analysis_refit: rf.analysis_refit,
-        split: nom.split,
-        summary,
-        extended,
-        traces,
-    }
+    (
+        Diagnosis {
+            cause,
+            causes: accepted.iter().map(|e| e.as_str().to_string()).collect(),
+            variants,
+            nrmse_nominal: nom.nom_err,
+            nrmse_refit: rf.refit_err,
+            nrmse_extended: ext_err,
+            nrmse_baseline: nom.nrmse_baseline,
+            baseline: nom.baseline,
+            residual_test,
+            integration: nom.integration,
+            greybox,
+            gain,
+            noise_floor: rf.noise_floor,
+            candidates: cands,
+            extended_params: final_hyp
+                .params
+                .iter()
+                .zip(&final_hyp.values)
+                .map(|(p, v)| (p.name.clone(), *v))
+                .collect(),
+            identified_loop: None,
+            refit_at_bounds,
+            extended_at_bounds,
+            sensor_offsets,
+            ambiguities,
+            warnings: rec
+                .warnings
+                .iter()
+                .chain(if val.is_some() {
+                    nom.val_rec.warnings.iter()
+                } else {
+                    [].iter()
+                })
+                .cloned()
+                .chain(int_warning)
+                .collect(),
+            analysis: nom.analysis,
+            analysis_refit: rf.analysis_refit,
+            split: nom.split,
+            summary,
+            extended,
+            traces,
+        },
+        reidentified,
+    )
 }
 
 /// A warning when the replay's integration error could not be brought well below the noise

@@ -20,6 +20,7 @@ pub mod diagnose;
 pub mod fit;
 pub mod greybox;
 pub mod indep;
+pub mod loopid;
 pub mod outdir;
 pub mod plots;
 pub mod progress;

@@ -211,10 +211,12 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
     }
     if let Some(d) = p.effects.valve_dynamics.as_ref() {
         match d.order {
-            1 if d.time_constant <= 0.0 => {
+            // 0 is the ideal spool (the limit of the PT1 as T_z → 0, `SpoolModel::Ideal`): the
+            // nominal value of a valve bandwidth the diagnosis refits from 0 up.
+            1 if !(d.time_constant >= 0.0) => {
                 return Err(ConfigError::new(
                     "effects.valve_dynamics.time_constant",
-                    "must be > 0 s for order = 1",
+                    "must be ≥ 0 s for order = 1 (0: the spool follows the command at once)",
                 ))
             }
             2 if d.natural_frequency <= 0.0 || d.damping_ratio <= 0.0 => {
@@ -833,23 +835,44 @@ impl Plant {
         self.sensors.sample(&tv)
     }
 
-    /// Command seen by the valve at substep time `t` given the delay line.
+    /// Command seen by the valve over the substep [t, t + h] given the delay line: the mean
+    /// of the delayed zero-order-hold command over the substep. The delayed command switches
+    /// at k·T + delay, which falls inside a substep unless the delay is a multiple of h; the
+    /// mean weights the two commands by their share of the substep, so the response is
+    /// continuous in the delay (a fractional delay) instead of stepping with the substep:
+    /// with the command taken at the substep's start, the position error of the MTS loop
+    /// stepped by 2.6e-5 NRMSE per 0.4 ms substep (examples/loop_delay_scan), flat between,
+    /// which a delay fit cannot resolve below a substep.
     #[inline]
     fn delayed_command(&self, t: f64) -> f64 {
         if self.c.delay <= 0.0 {
             return self.delay_buf[0];
         }
+        let at = |k: u64| -> f64 {
+            let k = k.min(self.cycle);
+            let len = self.delay_buf.len() as u64;
+            if self.cycle - k >= len {
+                return 0.0;
+            }
+            self.delay_buf[(k % len) as usize]
+        };
         let td = t - self.c.delay;
-        if td < 0.0 {
+        let h = self.h;
+        if td + h <= 0.0 {
             return 0.0;
+        }
+        if td < 0.0 {
+            // The first command arrives within this substep (nothing before it).
+            return at(0) * (td + h) / h;
         }
         let k = (td / self.control_dt + 1e-9).floor() as u64;
-        let k = k.min(self.cycle);
-        let len = self.delay_buf.len() as u64;
-        if self.cycle - k >= len {
-            return 0.0;
+        // Switch to command k + 1 at (k + 1)·T + delay, if within the substep (h ≤ T: at most
+        // one switch).
+        let ts = (k + 1) as f64 * self.control_dt - td;
+        if ts >= h * (1.0 - 1e-9) || k + 1 > self.cycle {
+            return at(k);
         }
-        self.delay_buf[(k % len) as usize]
+        (at(k) * ts + at(k + 1) * (h - ts)) / h
     }
 
     /// Automatic substeps for the coming period: ω·h ≤ max ω·h at the smallest chamber

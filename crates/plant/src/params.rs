@@ -1054,6 +1054,12 @@ pub enum Uncertainty {
 /// its `flow_form`), β₀, mass, damping and load stiffness (the last two when nonzero). The
 /// others are refit only when listed. Units, ranges and meanings are the registry's
 /// ([`crate::spec::params`]); every path here is a float entry of it (tested).
+///
+/// The last five are the loop's assumptions when the rig's controller and valve electronics
+/// are not recorded (the valve's bandwidth, the loop's transport delay, the valve's null
+/// offset and null dead band; with a proportional loop its gain is the valve flow gain's, which is already
+/// here): an effect section the config carries with its assumed nominal value, refit within
+/// the stated range like any other nominal parameter (DIAGNOSIS.md "Assumed loop").
 pub const UNCERTAIN_PARAMS: &[(&str, bool)] = &[
     ("valve.rated_flow", true),
     ("valve.area_max", true),
@@ -1067,7 +1073,32 @@ pub const UNCERTAIN_PARAMS: &[(&str, bool)] = &[
     ("cylinder.dead_volume_b", false),
     ("supply.pressure", false),
     ("valve.command_full_scale", false),
+    ("effects.valve_dynamics.time_constant", false),
+    ("effects.valve_dynamics.natural_frequency", false),
+    ("effects.time_delay.delay", false),
+    ("effects.valve_deadband.zero_offset", false),
+    ("effects.valve_deadband.overlap", false),
 ];
+
+/// [`UNCERTAIN_PARAMS`] whose refit range may reach the lower end of their registry range
+/// (0 for an underlap, a time constant or a delay; a signed null offset may change sign):
+/// the range is clamped there instead of refused. Every other one must stay > 0.
+const MAY_REACH_RANGE_END: &[&str] = &[
+    "valve.underlap",
+    "effects.valve_dynamics.time_constant",
+    "effects.time_delay.delay",
+    "effects.valve_deadband.zero_offset",
+    "effects.valve_deadband.overlap",
+];
+
+/// Admissible range of a registry path (`Finite` for a path the registry does not know,
+/// which no [`UNCERTAIN_PARAMS`] entry is).
+fn registry_range(path: &str) -> crate::spec::Range {
+    crate::spec::params()
+        .iter()
+        .find(|p| p.path == path)
+        .map_or(crate::spec::Range::Finite, |p| p.range)
+}
 
 /// SI unit of a registry path ("-" for a path the registry does not know, which no
 /// [`UNCERTAIN_PARAMS`] entry is).
@@ -1100,6 +1131,45 @@ impl PlantParams {
         crate::spec::ParamTree::get_path(self, path)
     }
 
+    /// Why an `[uncertainty]` key on the spool model does not fit the configured one (a time
+    /// constant is the bandwidth of order 1, a natural frequency that of order 2), or why the
+    /// section it names is switched off; `None` when it fits.
+    fn spool_order_mismatch(&self, path: &str) -> Option<String> {
+        let section = |s: &str| {
+            format!("[effects.{s}] has enabled = false; a switched-off effect is not refit (remove the switch or the uncertainty)")
+        };
+        match path {
+            "effects.valve_dynamics.time_constant" | "effects.valve_dynamics.natural_frequency" => {
+                let d = self.effects.valve_dynamics.as_ref()?;
+                let want = if path.ends_with("time_constant") {
+                    1
+                } else {
+                    2
+                };
+                if !d.enabled {
+                    Some(section("valve_dynamics"))
+                } else if d.order != want {
+                    Some(format!(
+                        "the spool model is order {}; its bandwidth is {} (order 1: time_constant in s, order 2: natural_frequency in rad/s)",
+                        d.order,
+                        if d.order == 1 { "effects.valve_dynamics.time_constant" } else { "effects.valve_dynamics.natural_frequency" }
+                    ))
+                } else {
+                    None
+                }
+            }
+            "effects.time_delay.delay" => {
+                let d = self.effects.time_delay.as_ref()?;
+                (!d.enabled).then(|| section("time_delay"))
+            }
+            "effects.valve_deadband.zero_offset" | "effects.valve_deadband.overlap" => {
+                let d = self.effects.valve_deadband.as_ref()?;
+                (!d.enabled).then(|| section("valve_deadband"))
+            }
+            _ => None,
+        }
+    }
+
     /// The refit range of every nominal parameter the diagnosis refits: (path, nominal value,
     /// lower bound, upper bound) in SI units, from `[uncertainty]` and the defaults; a stated
     /// uncertainty of 0 keeps the parameter fixed. Errors name the `[uncertainty]` key.
@@ -1118,6 +1188,19 @@ impl PlantParams {
                             UNCERTAIN_PARAMS.iter().map(|u| u.0).collect::<Vec<_>>().join(", ")
                         ),
                     ))
+                }
+                Some(_) if self.nominal_value(k).is_none() && k.starts_with("effects.") => {
+                    let section = k.rsplit_once('.').map_or(k.as_str(), |s| s.0);
+                    return Err(ConfigError::new(
+                        key(k),
+                        format!("the config has no [{section}] section; add it with the assumed nominal value (e.g. 0 for a delay or a null offset) to state how uncertain that value is"),
+                    ));
+                }
+                Some(_) if self.spool_order_mismatch(k).is_some() => {
+                    return Err(ConfigError::new(
+                        key(k),
+                        self.spool_order_mismatch(k).unwrap_or_default(),
+                    ));
                 }
                 Some(_) if self.nominal_value(k).is_none() => {
                     return Err(ConfigError::new(
@@ -1170,17 +1253,25 @@ impl PlantParams {
             if half == 0.0 {
                 continue;
             }
-            // Physical parameters stay > 0 (the underlap may reach 0).
-            let lo = v - half;
-            if path == "valve.underlap" {
-                out.push((path, v, lo.max(0.0), v + half));
+            // Physical parameters stay > 0 (an underlap, a delay or a time constant may reach
+            // 0, a null offset may change sign: clamped to the registry's range).
+            let (lo, hi) = (v - half, v + half);
+            if MAY_REACH_RANGE_END.contains(&path) {
+                let (r_lo, r_hi) = match registry_range(path) {
+                    crate::spec::Range::Within(a, b) => (a, b),
+                    crate::spec::Range::NonNegative | crate::spec::Range::Positive => {
+                        (0.0, f64::INFINITY)
+                    }
+                    crate::spec::Range::Finite => (f64::NEG_INFINITY, f64::INFINITY),
+                };
+                out.push((path, v, lo.max(r_lo), hi.min(r_hi)));
             } else if lo <= 0.0 {
                 return Err(ConfigError::new(
                     key(path),
                     format!("± {half} {unit} around the nominal {v} {unit} reaches 0 or below; expected less than the nominal value"),
                 ));
             } else {
-                out.push((path, v, lo, v + half));
+                out.push((path, v, lo, hi));
             }
         }
         Ok(out)

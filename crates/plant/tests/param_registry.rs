@@ -237,6 +237,12 @@ fn uncertain_params_are_float_registry_entries_with_their_old_units() {
         ("cylinder.dead_volume_b", "m³"),
         ("supply.pressure", "Pa"),
         ("valve.command_full_scale", "V"),
+        // The loop's assumptions (valve bandwidth, transport delay, null offset, dead band).
+        ("effects.valve_dynamics.time_constant", "s"),
+        ("effects.valve_dynamics.natural_frequency", "rad/s"),
+        ("effects.time_delay.delay", "s"),
+        ("effects.valve_deadband.zero_offset", "-"),
+        ("effects.valve_deadband.overlap", "-"),
     ];
     let listed: Vec<&str> = ehactl_plant::params::UNCERTAIN_PARAMS
         .iter()
