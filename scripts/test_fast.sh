@@ -26,12 +26,7 @@ if ! "$PY" -c 'import mcap, pytest, can, canopen, jsonschema, websockets, mpmath
 fi
 
 echo "== file-level import circles (scripts/file_cycles.py)"
-# The circles still allowed are known and left to their crates' owners; the script reports an
-# allowance whose circle is gone, so that it can be removed.
-"$PY" scripts/file_cycles.py \
-  --allow mcap_writer.rs,recover.rs \
-  --allow analysis.rs,replay.rs --allow diagnose.rs,greybox.rs \
-  --allow effects.rs,params.rs,spec.rs
+"$PY" scripts/file_cycles.py
 
 echo "== formatting and lints"
 cargo fmt --all --check

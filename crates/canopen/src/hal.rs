@@ -1063,8 +1063,8 @@ mod tests {
     use super::*;
     use crate::bus::BusUrl;
     use crate::clock::ManualClock;
-    use crate::config::CanopenConfig;
     use crate::simbus::SimBus;
+    use ehactl_types::canopen::CanopenConfig;
 
     const MS: u64 = 1_000_000;
 

@@ -10,7 +10,8 @@
 //!   [`heartbeat`], [`emcy`]; every process function takes the elapsed time as an argument
 //!   (CANopenNode style), so time is injected and the protocol is testable frame by frame,
 //! - the device profiles [`cia406`] (position transducer) and [`cia408`] (valve with OBE),
-//! - [`config`]: the `[canopen]` config section and the bus-load check (from `ehactl-types`),
+//! - the `[canopen]` config section and the bus-load check: `ehactl_types::canopen` (read by the
+//!   config without the CANopen master),
 //! - [`eds`]: EDS / DCF files (CiA 306) that drive the start-up,
 //! - [`settings`]: [`settings::CanopenSettings`], what start-up and backend are given,
 //! - [`clock`]: the caller's time source ([`clock::Clock`]) of start-up and backend,
@@ -24,12 +25,6 @@ pub mod bus;
 pub mod cia406;
 pub mod cia408;
 pub mod clock;
-/// The `[canopen]` section of the rig config. Compatibility path, to be removed: the
-/// section moved to `ehactl_types::canopen` (crates/types/src/canopen.rs) so that
-/// `ehactl-config` reads it without depending on the CANopen master.
-pub mod config {
-    pub use ehactl_types::canopen::*;
-}
 pub mod eds;
 pub mod emcy;
 pub mod frame;
@@ -49,5 +44,5 @@ pub mod sync;
 pub mod transport;
 
 pub use bus::{BusError, BusErrorKind, BusUrl, CanBus};
-pub use config::CanopenConfig;
+pub use ehactl_types::canopen::CanopenConfig;
 pub use frame::{CanFrame, Direction};

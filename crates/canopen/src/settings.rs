@@ -2,7 +2,7 @@
 //! start-up ([`crate::startup`]) and the run-time backend ([`crate::hal`]).
 
 use crate::bus::BusUrl;
-use crate::config::CanopenConfig;
+use ehactl_types::canopen::CanopenConfig;
 use std::path::PathBuf;
 
 /// Everything the backend needs besides the bus.

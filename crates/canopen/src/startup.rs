@@ -1570,7 +1570,7 @@ fn le4(d: &[u8]) -> [u8; 4] {
 mod tests {
     use super::*;
     use crate::bus::BusUrl;
-    use crate::config::CanopenConfig;
+    use ehactl_types::canopen::CanopenConfig;
 
     fn settings(c: CanopenConfig) -> CanopenSettings {
         CanopenSettings {

@@ -19,10 +19,6 @@ pub mod input;
 pub mod pacer;
 pub mod sim;
 
-// Compatibility paths, to be removed: these modules moved to `ehactl-log` (crates/log).
-#[doc(hidden)]
-pub use ehactl_log::{logger, record, recover, schemas};
-
 pub use ehactl_types::{Measurements, PlantState};
 
 /// The control period, owned in one place. Built once from the config's

@@ -423,7 +423,7 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
     Ok(rec)
 }
 
-/// Read the `/control` channel of an ehactl MCAP log (ROS 2 CDR, see `ehactl_hal::record`).
+/// Read the `/control` channel of an ehactl MCAP log (ROS 2 CDR, see `ehactl_log::record`).
 pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
     let source = path.display().to_string();
     // The whole log is held in memory: a regular file of at most 10 000 MB.
@@ -437,7 +437,7 @@ pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
 pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
     use ehactl_log::record::CycleRecord;
     let source = source.to_string();
-    if let (_, Some(problem)) = ehactl_hal::recover::readable_prefix(bytes) {
+    if let (_, Some(problem)) = ehactl_log::recover::readable_prefix(bytes) {
         return Err(DataError(format!(
             "{source}: not a readable MCAP file: {problem} (a log cut off by a killed run can be rebuilt with `ehactl recover`)"
         )));
@@ -449,7 +449,7 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
     for m in stream {
         let m = m.map_err(|e| DataError(format!("{source}: corrupt MCAP record: {e}")))?;
         if m.channel.topic == "/config" {
-            // {"toml": …, "config": RigConfig::to_json(), "backend": …} (ehactl_hal::logger)
+            // {"toml": …, "config": RigConfig::to_json(), "backend": …} (ehactl_log::logger)
             logged_config = serde_json::from_slice::<serde_json::Value>(&m.data)
                 .ok()
                 .and_then(|v| v.get("config").cloned());

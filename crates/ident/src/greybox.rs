@@ -25,8 +25,8 @@
 //! When the record has a force channel, each term starts from the least-squares coefficient of
 //! the force residual on that term (the equation-error estimate), computed on the fitting part.
 
+use crate::ctx::{Ctx, Errors, Hyp};
 use crate::data::ChannelKind;
-use crate::diagnose::{Ctx, Errors, Hyp};
 use crate::fit::{FreeParam, Scales};
 use ehactl_plant::effects::{PolynomialFlow, PolynomialForce};
 use ehactl_plant::spec::{self, ParamTree};

@@ -8,13 +8,14 @@
 //!
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
 //! noise level), [`spectrum`] (Welch PSD, H1 frequency response), [`analysis`] (residual analysis, evidence), [`fit`] (free parameters, bounded
-//! Nelder–Mead), [`diagnose`] (the decision), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
+//! Nelder–Mead), [`ctx`] (the replay context and the hypotheses fitted in it), [`diagnose`] (the decision), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
 //! [`session`] (one complete diagnosis as the CLI and Python run it), [`progress`] (progress
 //! reports through the caller's callback; the library draws nothing).
 #![deny(missing_docs)]
 
 pub mod analysis;
 pub mod baseline;
+pub mod ctx;
 pub mod data;
 pub mod diagnose;
 pub mod fit;

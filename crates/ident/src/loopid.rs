@@ -15,8 +15,8 @@
 //! for a linear black box). The identified loop is then part of every later model (the refit
 //! of the other nominal parameters, the effects, the grey-box law), which no longer move it.
 
+use crate::ctx::{Ctx, Hyp};
 use crate::data::ChannelKind;
-use crate::diagnose::{Ctx, Hyp};
 use crate::fit::base_params;
 use crate::replay::{nrmse, Drive};
 use ehactl_plant::params::{DeadbandVariant, Uncertainty};
