@@ -477,9 +477,9 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
         (ChannelKind::PressureB, |r| r.meas.p_b),
         (ChannelKind::Spool, |r| r.meas.spool),
     ];
-    let mut warnings = vec![format!(
-        "{source}: closed-loop record read from MCAP; replayed open loop with the recorded valve command"
-    )];
+    // How the record is replayed (the recorded `u`, or the config's PD / PI loop on `ref`) is
+    // the session's choice and stated in its notes, not here.
+    let mut warnings = Vec::new();
     let mut channels = Vec::new();
     for (k, f) in outs {
         let v = col(f);
