@@ -98,17 +98,19 @@ def test_missing_config_names_its_path_once(tmp_path):
 
 
 def test_check_config_lists_grey_box_terms(tmp_path):
-    # a diagnose output: catalogue effects plus the grey-box force and flow laws
+    # a diagnose output (catalogue effects, the identified loop and a grey-box force law) with a
+    # grey-box flow law added as a user would write it
     cfg = REPO / "docs" / "diagnosis" / "utfsm_mts_1A" / "extended.toml"
     text = cfg.read_text()
-    assert "[effects.polynomial_force]" in text and "[effects.polynomial_flow]" in text
-    r = ehactl("check-config", str(cfg))
+    assert "[effects.polynomial_force]" in text and "[effects.polynomial_flow]" not in text
+    flow = "\n[effects.polynomial_flow]\nconstant = 1.0e-7   # m³/s, null-bias flow B → A\n"
+    on = tmp_path / "on.toml"
+    on.write_text(text + flow)
+    r = ehactl("check-config", str(on))
     assert r.returncode == 0, r.stderr
     assert "polynomial_force" in r.stdout and "polynomial_flow" in r.stdout, r.stdout
     off = tmp_path / "off.toml"
-    head, flow = text.split("[effects.polynomial_flow]\n", 1)
-    assert re.match(r"(?s)(?:(?!\n\[).)*\nenabled = true\n", "\n" + flow), flow[:200]
-    off.write_text(head + "[effects.polynomial_flow]\n" + flow.replace("enabled = true\n", "enabled = false\n", 1))
+    off.write_text(text + flow + "enabled = false\n")
     r = ehactl("check-config", str(off))
     assert r.returncode == 0, r.stderr
     assert "polynomial_force" in r.stdout and "polynomial_flow" not in r.stdout, r.stdout
