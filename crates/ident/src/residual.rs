@@ -22,8 +22,8 @@ pub const LEVEL_HARD: f64 = 10.0;
 /// Below this level the residual counts as noise whatever its colour (-). Calibrated on the
 /// test bench's clean records: the refit nominal model leaves a position residual of 3.3× and
 /// 4.3× the floor (seeds 2000, 2001), coloured and proportional to velocity (r ≈ 0.9), that is
-/// not a hidden effect; 6 leaves that margin. The independent rig left 10–40× in its
-/// false `none` cases.
+/// not a hidden effect; 6 leaves that margin. An outside independent simulator's rig left 10–40×
+/// in its false `none` cases.
 pub const LEVEL_SOFT: f64 = 6.0;
 
 /// Test result of one channel.

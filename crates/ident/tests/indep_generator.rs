@@ -1,8 +1,8 @@
 //! CI subset of the independent-generator evaluation (docs/diagnosis-archive.md "Evaluation on an
 //! independent generator"): records made by `ehactl_ident::indep` (its own RK4 and equations,
 //! no plant code). The cases are chosen by a rule fixed in advance, not by their results: for
-//! each of the five effects that the issue's independent simulator saw answered `none`, the
-//! first seed in `bench/indep_cases.txt` of the variant the issue names (entrained air,
+//! each of the five effects that an outside independent simulator saw answered `none`, the
+//! first seed in `bench/indep_cases.txt` of the variant that check named (entrained air,
 //! piston-side compliance, pump flow limit, amplifier dead zone, tone with arbitrary phase),
 //! and the first clean seed. The diagnosis must name the effect (never `none`), and its
 //! variant; the clean case must be `none`.
