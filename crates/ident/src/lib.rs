@@ -18,6 +18,7 @@ pub mod baseline;
 pub mod ctx;
 pub mod data;
 pub mod diagnose;
+pub mod effects;
 pub mod fit;
 pub mod freeparam;
 pub mod greybox;
