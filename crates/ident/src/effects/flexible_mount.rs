@@ -6,7 +6,7 @@
 //! (10⁻³…10× the hydraulic stiffness), damping ratio 0.1 of the critical 2·√(k·m).
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, write, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::{FlexibleMount, MountVariant};
@@ -17,6 +17,10 @@ use std::sync::Arc;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        an.mode_prior()
+    }
+
     fn params(&self, nominal: &PlantParams, sc: &Scales, an: &Analysis) -> Option<Vec<FreeParam>> {
         let ef = &nominal.effects;
         let at = FreeParam::at;

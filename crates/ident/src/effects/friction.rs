@@ -8,7 +8,7 @@
 //! bristle damping ζ = 0.2 of the critical 2·√(σ₀·m).
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, write, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::{Friction, FrictionVariant};
@@ -18,6 +18,14 @@ use ehactl_plant::PlantParams;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        let reversal_ratio = an.reversal_ratio;
+        (
+            reversal_ratio,
+            format!("residual RMS within 10 ms of velocity reversals is {reversal_ratio:.2}× the overall RMS"),
+        )
+    }
+
     fn params(&self, nominal: &PlantParams, sc: &Scales, _an: &Analysis) -> Option<Vec<FreeParam>> {
         let ef = &nominal.effects;
         let at = FreeParam::at;

@@ -6,7 +6,7 @@
 //! Seed: k_l = 1 % of the rig's Q/p_s (bounds 10⁻⁵…1×).
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::{Leakage, LeakageVariant};
@@ -16,6 +16,10 @@ use ehactl_plant::{EffectId, PlantParams};
 pub struct Internal;
 
 impl EffectFit for Internal {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        leakage_prior(an)
+    }
+
     fn params(&self, nominal: &PlantParams, sc: &Scales, _an: &Analysis) -> Option<Vec<FreeParam>> {
         Some(leakage_params(EffectId::InternalLeakage, nominal, sc))
     }
@@ -35,6 +39,10 @@ impl EffectFit for Internal {
 pub struct External;
 
 impl EffectFit for External {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        leakage_prior(an)
+    }
+
     fn params(&self, nominal: &PlantParams, sc: &Scales, _an: &Analysis) -> Option<Vec<FreeParam>> {
         Some(leakage_params(EffectId::ExternalLeakage, nominal, sc))
     }
@@ -133,4 +141,19 @@ fn leakage_params(e: EffectId, nominal: &PlantParams, sc: &Scales) -> Vec<FreePa
         ("effects.external_leakage.coefficient", s)
     };
     vec![at(name, (1e-5 * kc, 1.0 * kc, true, init), &seed)]
+}
+
+/// Evidence of a leakage: a level shift of the pressure residuals (1 + its share of their RMS).
+fn leakage_prior(an: &Analysis) -> (f64, String) {
+    let bias_share = an.bias_share;
+    (
+        1.0 + bias_share.unwrap_or(0.0),
+        match bias_share {
+            Some(b) => format!(
+                "mean pressure residual is {:.0} % of its RMS (a level shift)",
+                b * 100.0
+            ),
+            None => "no pressure measured: judged by the fits alone".into(),
+        },
+    )
 }

@@ -6,7 +6,7 @@
 //! bore with wall compliance 10⁻⁹ 1/Pa and fittings 1 % of p_s/Q.
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::{LineDynamics, LineVariant};
@@ -16,6 +16,10 @@ use ehactl_plant::PlantParams;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        an.mode_prior()
+    }
+
     fn params(
         &self,
         nominal: &PlantParams,

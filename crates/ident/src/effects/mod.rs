@@ -1,6 +1,7 @@
 //! The diagnosis side of each catalogue effect, one module per effect: its free parameters
 //! with seeds and bounds ([`EffectFit::params`]), its structural variants
-//! ([`EffectFit::variants`], DIAGNOSIS.md "Effect variants") and how the synthetic generator
+//! ([`EffectFit::variants`], DIAGNOSIS.md "Effect variants"), its evidence score from the
+//! residual analysis ([`EffectFit::prior`]) and how the synthetic generator
 //! hides it in a record ([`EffectFit::hide`], [`EffectFit::hide_variant`]). [`of`] is the one
 //! table keyed by [`EffectId`]; `crate::fit::effect_params` / `effect_variants` and
 //! `crate::synth::hide` / `hide_variant` look the effect up there.
@@ -10,7 +11,7 @@
 //! The plant side (the parameter section in crates/plant/src/params.rs, the model's
 //! contribution in crates/plant/src/model.rs and crates/plant/src/effects.rs) is not here.
 
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::{EffectId, PlantParams};
@@ -47,6 +48,11 @@ pub trait EffectFit: Sync {
         let _ = (nominal, sc);
         vec![("-", first)]
     }
+
+    /// Prior score of the effect (higher = more suspicious) and its evidence, from the residual
+    /// analysis `an` of a record sampled at period `dt` (s); shared rules are methods of
+    /// [`Analysis`] (`crate::evidence`).
+    fn prior(&self, an: &Analysis, dt: f64) -> (f64, String);
 
     /// Switch the effect on in `p` with parameters drawn from a realistic range for the test
     /// bench (`crate::synth`).

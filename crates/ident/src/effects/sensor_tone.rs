@@ -6,7 +6,7 @@
 //! the line's amplitude. Not testable on a record whose residuals show no line.
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::{SensorChannel, SensorTone};
@@ -17,6 +17,19 @@ use std::sync::Arc;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        match an.tones.first() {
+            Some(p) => (
+                1.0 + p.prominence.log10(),
+                format!(
+                    "narrow residual line at {:.1} Hz on `{}` ({:.3e} amplitude, {:.0}× the neighbouring PSD)",
+                    p.frequency, p.channel, p.amplitude, p.prominence
+                ),
+            ),
+            None => (0.5, "no narrow line in the residual spectra".to_string()),
+        }
+    }
+
     fn params(&self, _nominal: &PlantParams, sc: &Scales, an: &Analysis) -> Option<Vec<FreeParam>> {
         let top = an.tones.first()?;
         let ch = match top.channel {

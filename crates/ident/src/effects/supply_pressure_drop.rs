@@ -6,7 +6,7 @@
 //! (0.2…4×), regulation band 5 % of p_s, accumulator volume 0.5 l.
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::{SupplyPressureDrop, SupplyVariant};
@@ -16,6 +16,10 @@ use ehactl_plant::PlantParams;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        an.large_command_prior()
+    }
+
     fn params(&self, nominal: &PlantParams, sc: &Scales, _an: &Analysis) -> Option<Vec<FreeParam>> {
         let ef = &nominal.effects;
         let at = FreeParam::at;

@@ -4,7 +4,7 @@
 //! Seed: the lag the residual analysis finds (at least one sample; bounds 0…min(60·Δt, 0.2 s)).
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::TimeDelay;
@@ -14,6 +14,10 @@ use ehactl_plant::PlantParams;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, dt: f64) -> (f64, String) {
+        an.lag_prior(dt)
+    }
+
     fn params(&self, nominal: &PlantParams, sc: &Scales, an: &Analysis) -> Option<Vec<FreeParam>> {
         let ef = &nominal.effects;
         let at = FreeParam::at;

@@ -5,7 +5,7 @@
 //! Seeds: overlap / dead zone 2 % of the spool stroke (bounds 0…30 %), zero offset 0 (±5 %).
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::{DeadbandVariant, ValveDeadband};
@@ -15,6 +15,14 @@ use ehactl_plant::PlantParams;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        let small_command_ratio = an.small_command_ratio;
+        (
+            small_command_ratio,
+            format!("residual RMS where |u| < 5 % of its maximum is {small_command_ratio:.2}× the overall RMS"),
+        )
+    }
+
     fn params(
         &self,
         nominal: &PlantParams,

@@ -5,7 +5,7 @@
 //! order at ω_v = 2π·min(0.1/Δt, 200 Hz) (bounds 2π·1 Hz…2π·min(0.5/Δt, 3 kHz)), ζ_v = 0.7 (0.2…2).
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::ValveDynamics;
@@ -15,6 +15,10 @@ use ehactl_plant::PlantParams;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, dt: f64) -> (f64, String) {
+        an.lag_prior(dt)
+    }
+
     fn params(&self, nominal: &PlantParams, sc: &Scales, _an: &Analysis) -> Option<Vec<FreeParam>> {
         let ef = &nominal.effects;
         let at = FreeParam::at;

@@ -4,7 +4,7 @@
 //! Seeds: spool limit 0.9 of the stroke (bounds 0.05…1).
 
 use super::EffectFit;
-use crate::analysis::Analysis;
+use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use crate::rng::Rng;
 use ehactl_plant::params::{SaturationVariant, ValveSaturation};
@@ -14,6 +14,10 @@ use ehactl_plant::PlantParams;
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
+        an.large_command_prior()
+    }
+
     fn params(
         &self,
         nominal: &PlantParams,
