@@ -1,5 +1,6 @@
-//! Free parameters of the nominal model and of every catalogue effect, and a bounded
-//! Nelder–Mead minimiser working in normalised (optionally logarithmic) coordinates.
+//! Free parameters of the nominal model and of every catalogue effect (looked up in the
+//! effect's module, [`crate::effects`]), and a bounded Nelder–Mead minimiser working in
+//! normalised (optionally logarithmic) coordinates.
 
 use crate::analysis::Analysis;
 use crate::effects;
