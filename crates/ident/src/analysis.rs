@@ -3,54 +3,16 @@
 //! (the reasoning of Sirohi 2003 §5 done by machine: error at velocity reversal → friction,
 //! error near zero command → dead band, a narrow residual line → sensor tone, a broad
 //! residual peak → an unmodelled mode, constant lag → delay or spool dynamics).
+//! Each effect's rule lives in its module ([`crate::effects`], `EffectFit::prior`); the
+//! findings are [`Analysis`] (`crate::evidence`).
 
 use crate::data::{ChannelKind, Record};
+use crate::effects;
 use crate::replay::{std, Replay};
 use crate::spectrum::welch;
 use ehactl_plant::EffectId;
 
-/// A narrow line in a residual spectrum.
-#[derive(Debug, Clone, Copy, serde::Serialize)]
-pub struct Peak {
-    /// Channel (CSV column name).
-    pub channel: &'static str,
-    /// Frequency (Hz).
-    pub frequency: f64,
-    /// Amplitude of the equivalent sine (channel unit).
-    pub amplitude: f64,
-    /// Peak PSD over the median PSD of its neighbourhood (-).
-    pub prominence: f64,
-}
-
-/// Findings of the residual analysis of one replay.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct Analysis {
-    /// Residual RMS over the record's RMS deviation, per channel (-).
-    pub nrmse: Vec<f64>,
-    /// Estimated sensor noise per channel (channel unit).
-    pub noise: Vec<f64>,
-    /// RMS residual within ±10 ms of velocity reversals over overall RMS (-).
-    pub reversal_ratio: f64,
-    /// RMS residual where |u| < 5 % of max |u| over overall RMS (-).
-    pub small_command_ratio: f64,
-    /// RMS residual where |u| > 70 % of max |u| over overall RMS (-).
-    pub large_command_ratio: f64,
-    /// |mean residual| / RMS residual, averaged over pressure channels (-): a level shift;
-    /// None when the data has no pressure channel.
-    pub bias_share: Option<f64>,
-    /// Lag of the measured signal behind the model by cross-correlation (s), median over channels.
-    pub lag: f64,
-    /// Narrow residual lines (tones), strongest first.
-    pub tones: Vec<Peak>,
-    /// Frequency (Hz) where the residual-to-signal PSD ratio is largest below Nyquist/2
-    /// (tones excluded): an unmodelled or shifted mode.
-    pub mode_frequency: f64,
-    /// That ratio (-).
-    pub mode_ratio: f64,
-    /// Prior score per effect (higher = more suspicious) and its evidence, catalogue order.
-    #[serde(skip)]
-    pub prior: Vec<(EffectId, f64, String)>,
-}
+pub use crate::evidence::{Analysis, Peak};
 
 fn rms(v: impl Iterator<Item = f64>) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);
@@ -286,56 +248,8 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
             .collect();
         crate::replay::overall(&v)
     };
-    let mut prior = Vec::new();
-    for e in EffectId::ALL {
-        let (score, ev) = match e {
-            EffectId::Friction => (
-                reversal_ratio,
-                format!("residual RMS within 10 ms of velocity reversals is {reversal_ratio:.2}× the overall RMS"),
-            ),
-            EffectId::ValveDeadband => (
-                small_command_ratio,
-                format!("residual RMS where |u| < 5 % of its maximum is {small_command_ratio:.2}× the overall RMS"),
-            ),
-            EffectId::ValveSaturation | EffectId::SupplyPressureDrop => (
-                large_command_ratio,
-                format!("residual RMS where |u| > 70 % of its maximum is {large_command_ratio:.2}× the overall RMS"),
-            ),
-            EffectId::ValveDynamics | EffectId::TimeDelay => (
-                1.0 + (lag / rec.dt).abs() / 2.0,
-                format!(
-                    "measured outputs lag the model by {:.2} ms (cross-correlation, median over channels)",
-                    lag * 1e3
-                ),
-            ),
-            EffectId::InternalLeakage | EffectId::ExternalLeakage => (
-                1.0 + bias_share.unwrap_or(0.0),
-                match bias_share {
-                    Some(b) => format!("mean pressure residual is {:.0} % of its RMS (a level shift)", b * 100.0),
-                    None => "no pressure measured: judged by the fits alone".into(),
-                },
-            ),
-            EffectId::SensorTone => match tones.first() {
-                Some(p) => (
-                    1.0 + p.prominence.log10(),
-                    format!(
-                        "narrow residual line at {:.1} Hz on `{}` ({:.3e} amplitude, {:.0}× the neighbouring PSD)",
-                        p.frequency, p.channel, p.amplitude, p.prominence
-                    ),
-                ),
-                None => (0.5, "no narrow line in the residual spectra".to_string()),
-            },
-            EffectId::FlexibleMount | EffectId::LineDynamics | EffectId::BulkModulusPressure => (
-                1.0 + mode_ratio,
-                format!(
-                    "residual-to-signal spectrum ratio peaks near {mode_frequency:.1} Hz (a shifted or unmodelled mode)"
-                ),
-            ),
-        };
-        prior.push((e, score, ev));
-    }
     let _ = (nr, noise_share);
-    Analysis {
+    let mut an = Analysis {
         nrmse,
         noise,
         reversal_ratio,
@@ -346,6 +260,15 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
         tones,
         mode_frequency,
         mode_ratio,
-        prior,
-    }
+        prior: Vec::new(),
+    };
+    // Each effect's evidence rule lives in its module (`crate::effects`).
+    an.prior = EffectId::ALL
+        .iter()
+        .map(|&e| {
+            let (score, ev) = effects::of(e).prior(&an, rec.dt);
+            (e, score, ev)
+        })
+        .collect();
+    an
 }

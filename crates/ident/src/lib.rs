@@ -7,8 +7,8 @@
 //! with a parameter penalty and accept effects greedily while the gain is significant.
 //!
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
-//! noise level), [`spectrum`] (Welch PSD, H1 frequency response), [`analysis`] (residual analysis, evidence), [`fit`] (free parameters, bounded
-//! Nelder–Mead), [`ctx`] (the replay context and the hypotheses fitted in it), [`diagnose`] (the decision), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
+//! noise level), [`spectrum`] (Welch PSD, H1 frequency response), [`analysis`] (residual analysis), [`evidence`] (its findings and shared evidence rules), [`fit`] (nominal refit, bounded
+//! Nelder–Mead), [`freeparam`] (a fit's free parameters and rig scales), [`effects`] (one module per catalogue effect: its fit parameters, variants, evidence score and synthetic hiding), [`rng`] (the synthetic cases' generator), [`ctx`] (the replay context and the hypotheses fitted in it), [`diagnose`] (the decision), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
 //! [`session`] (one complete diagnosis as the CLI and Python run it), [`progress`] (progress
 //! reports through the caller's callback; the library draws nothing).
 #![deny(missing_docs)]
@@ -18,7 +18,10 @@ pub mod baseline;
 pub mod ctx;
 pub mod data;
 pub mod diagnose;
+pub mod effects;
+pub mod evidence;
 pub mod fit;
+pub mod freeparam;
 pub mod greybox;
 pub mod indep;
 pub mod loopid;
@@ -28,6 +31,7 @@ pub mod progress;
 pub mod replay;
 pub mod report;
 pub mod residual;
+pub mod rng;
 pub mod session;
 pub mod spectrum;
 pub mod synth;

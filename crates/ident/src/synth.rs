@@ -6,8 +6,8 @@
 //! and spring rate.
 
 use crate::data::{Channel, ChannelKind, Record};
+use crate::effects;
 use ehactl_config::RigConfig;
-use ehactl_plant::params::*;
 use ehactl_plant::{EffectId, Plant, PlantParams};
 
 /// The diagnosis test bench config (embedded copy of `configs/diagnose_testrig.toml`).
@@ -18,32 +18,7 @@ pub fn testrig() -> RigConfig {
     RigConfig::from_toml_str(TESTRIG_TOML).expect("configs/diagnose_testrig.toml is valid")
 }
 
-/// Small deterministic generator (SplitMix64).
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
-
-impl Rng {
-    /// Seeded.
-    pub fn new(seed: u64) -> Self {
-        Self(seed ^ 0x9E37_79B9_7F4A_7C15)
-    }
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    /// Uniform in [a, b).
-    pub fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.uniform()
-    }
-    /// Log-uniform in [a, b).
-    pub fn log_range(&mut self, a: f64, b: f64) -> f64 {
-        (a.ln() + (b.ln() - a.ln()) * self.uniform()).exp()
-    }
-}
+pub use crate::rng::Rng;
 
 /// Valve command (V): random steps (levels in ±9 V, a third of them small, holds of
 /// 60–180 ms, so velocity reverses often and the command dwells near zero and near its limits)
@@ -79,138 +54,7 @@ pub fn excitation(seed: u64, dt: f64, n: usize) -> Vec<f64> {
 
 /// Switch effect `e` on in `p` with parameters drawn from a realistic range for the test bench.
 pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
-    let ef = &mut p.effects;
-    match e {
-        EffectId::Friction => {
-            let fc = rng.range(150.0, 400.0);
-            ef.friction = Some(Friction {
-                enabled: true,
-                variant: Default::default(),
-                coulomb_force: fc,
-                static_force: fc * rng.range(1.1, 1.6),
-                stribeck_velocity: rng.log_range(0.005, 0.02),
-                viscous: 0.0,
-                bristle_stiffness: 0.0,
-                bristle_damping: 0.0,
-            });
-        }
-        EffectId::ValveDeadband => {
-            ef.valve_deadband = Some(ValveDeadband {
-                enabled: true,
-                variant: Default::default(),
-                deadzone: 0.0,
-                overlap: rng.range(0.05, 0.12),
-                zero_offset: rng.range(-0.01, 0.01),
-            });
-        }
-        EffectId::ValveSaturation => {
-            ef.valve_saturation = Some(ValveSaturation {
-                enabled: true,
-                variant: Default::default(),
-                spool_limit_negative: 1.0,
-                spool_limit: rng.range(0.45, 0.7),
-                max_flow: 0.0,
-            });
-        }
-        EffectId::ValveDynamics => {
-            ef.valve_dynamics = Some(ValveDynamics {
-                enabled: true,
-                order: 2,
-                time_constant: 0.0,
-                natural_frequency: std::f64::consts::TAU * rng.range(15.0, 45.0),
-                damping_ratio: rng.range(0.5, 0.9),
-            });
-        }
-        EffectId::InternalLeakage => {
-            ef.internal_leakage = Some(Leakage {
-                enabled: true,
-                variant: Default::default(),
-                coefficient_b: 0.0,
-                coefficient: rng.log_range(2e-12, 8e-12),
-            })
-        }
-        EffectId::ExternalLeakage => {
-            ef.external_leakage = Some(Leakage {
-                enabled: true,
-                variant: Default::default(),
-                coefficient_b: 0.0,
-                coefficient: rng.log_range(2e-12, 8e-12),
-            })
-        }
-        EffectId::BulkModulusPressure => {
-            ef.bulk_modulus_pressure = Some(BulkModulusPressure {
-                enabled: true,
-                variant: Default::default(),
-                air_fraction: 0.0,
-                polytropic_index: 1.4,
-                slope: rng.range(80.0, 200.0),
-                max: 2.2e9,
-            })
-        }
-        EffectId::LineDynamics => {
-            ef.line_dynamics = Some(LineDynamics {
-                enabled: true,
-                length: rng.range(1.5, 4.0),
-                diameter: rng.range(6e-3, 10e-3),
-                segments: 3,
-                bulk_modulus: None,
-                port_volume: 0.0,
-                variant: Default::default(),
-                wall_compliance: 0.0,
-                resistance: 0.0,
-                friction: Default::default(),
-            })
-        }
-        EffectId::FlexibleMount => {
-            let m = rng.range(10.0, 40.0);
-            let k = rng.log_range(2e6, 8e6);
-            ef.flexible_mount = Some(FlexibleMount {
-                enabled: true,
-                variant: Default::default(),
-                load_mass: m,
-                stiffness: k,
-                damping: rng.range(0.05, 0.2) * 2.0 * (k * m).sqrt(),
-            });
-        }
-        EffectId::TimeDelay => {
-            ef.time_delay = Some(TimeDelay {
-                enabled: true,
-                delay: rng.range(0.003, 0.010),
-            })
-        }
-        EffectId::SensorTone => {
-            let force = rng.uniform() < 0.5;
-            let f = rng.range(80.0, 300.0);
-            ef.sensor_tone = Some(if force {
-                SensorTone {
-                    enabled: true,
-                    channel: SensorChannel::Force,
-                    phases: vec![],
-                    frequencies: vec![f],
-                    amplitudes: vec![rng.range(20.0, 40.0)],
-                }
-            } else {
-                SensorTone {
-                    enabled: true,
-                    channel: SensorChannel::PressureA,
-                    phases: vec![],
-                    frequencies: vec![f],
-                    amplitudes: vec![rng.range(8e4, 1.6e5)],
-                }
-            });
-        }
-        EffectId::SupplyPressureDrop => {
-            ef.supply_pressure_drop = Some(SupplyPressureDrop {
-                enabled: true,
-                variant: Default::default(),
-                max_flow: 0.0,
-                regulation_band: 0.0,
-                volume: 0.0,
-                resistance: rng.range(1.0e10, 2.5e10),
-                time_constant: rng.log_range(0.01, 0.05),
-            })
-        }
-    }
+    effects::of(e).hide(p, rng)
 }
 
 /// Structural variants the evaluation hides besides each effect's default one
@@ -223,43 +67,7 @@ pub const VARIANT_CASES: [(EffectId, &str); 2] = [
 /// Switch effect `e` on in `p` in its structural variant `variant` (one of [`VARIANT_CASES`],
 /// else its default as [`hide`]) with parameters drawn from a realistic range.
 pub fn hide_variant(e: EffectId, variant: &str, p: &mut PlantParams, rng: &mut Rng) {
-    let mass = p.mechanics.mass;
-    match (e, variant) {
-        // Seal friction with pre-sliding bristles (Canudas de Wit et al. 1995): pre-sliding
-        // range F_C/σ₀ of 20–80 µm (tens of µm on hydraulic cylinder seals, e.g. Yanada &
-        // Sekikawa 2008, Tribology International 41), bristle damping 10–50 % of critical.
-        (EffectId::Friction, "lugre") => {
-            let fc = rng.range(150.0, 400.0);
-            let s0 = fc / rng.log_range(20e-6, 80e-6);
-            p.effects.friction = Some(Friction {
-                enabled: true,
-                variant: FrictionVariant::Lugre,
-                coulomb_force: fc,
-                static_force: fc * rng.range(1.1, 1.6),
-                stribeck_velocity: rng.log_range(0.005, 0.02),
-                viscous: 0.0,
-                bristle_stiffness: s0,
-                bristle_damping: rng.range(0.1, 0.5) * 2.0 * (s0 * mass).sqrt(),
-            });
-        }
-        // A 1.5–4 m hose of 8–13 mm bore, wall compliance 0.6–2.5·10⁻⁹ 1/Pa (β_eff ≈
-        // 0.3–0.8 GPa), fittings 0.5–2·10⁹ Pa·s/m³; three segments (the fit uses two).
-        (EffectId::LineDynamics, "hose") => {
-            p.effects.line_dynamics = Some(LineDynamics {
-                enabled: true,
-                variant: LineVariant::Hose,
-                length: rng.range(1.5, 4.0),
-                diameter: rng.range(8e-3, 13e-3),
-                segments: 3,
-                bulk_modulus: None,
-                port_volume: 0.0,
-                friction: Default::default(),
-                wall_compliance: rng.log_range(0.6e-9, 2.5e-9),
-                resistance: rng.range(0.5e9, 2e9),
-            });
-        }
-        _ => hide(e, p, rng),
-    }
+    effects::of(e).hide_variant(variant, p, rng)
 }
 
 /// One generated case.
