@@ -688,16 +688,13 @@ fn phase_candidates(
     bar: &Tracker,
 ) -> SearchPhase {
     let ctx = &nom.ctx;
-    // The noise floor the search judges against: first from the refit nominal model's
-    // held-out residual, then lowered after each accepted effect to the floor of the extended
-    // model's residual where that is lower. A model far off the data (a leak, a dead band
-    // hidden) leaves model error in the upper half band, which the first estimate counts as
-    // noise; the residual that remains after the first effect shows the noise with less of it,
-    // and a second effect is judged against that (model error only adds to the upper band, so
-    // the lower of the two estimates is the better one).
-    let mut floor_ch = rf.floor_ch.clone();
-    let mut noise_floor = rf.noise_floor;
-    let mut jn = noise_floor * noise_floor;
+    // The noise floor the search judges against: from the refit nominal model's held-out
+    // residual, for every round. (Lowering it after each accepted effect to the floor of the
+    // extended model's residual was tried: it accepted a spurious `sensor_tone` beside a
+    // hidden 5 ms delay on a 2 s test-bench log, so it is not done.)
+    let floor_ch = rf.floor_ch.clone();
+    let noise_floor = rf.noise_floor;
+    let jn = noise_floor * noise_floor;
     // Within the noise only when every channel is (a small tone on one channel is not noise).
     let within_noise = |e: &Errors, floor_ch: &[f64]| {
         nom.val_rec.channels.iter().zip(floor_ch).all(|(c, f)| {
@@ -937,12 +934,6 @@ fn phase_candidates(
             c.accepted = true;
         }
         accepted.push(e);
-        let (_, sim) = ctx.val_errors(&h);
-        for (f, g) in floor_ch.iter_mut().zip(channel_floors(nom, nominal, &sim)) {
-            *f = f.min(g);
-        }
-        noise_floor = overall(&floor_ch);
-        jn = noise_floor * noise_floor;
         current = h;
         cur_err = err;
         cur_train = ctrain;
