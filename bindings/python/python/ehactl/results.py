@@ -790,6 +790,8 @@ class DiagnosisResult(_DictCompat):
         warnings: Warnings from loading and checking the data (also issued as Python warnings).
         split, summary: How the data were split; plain-words conclusion.
         extended_config, report, plots: Written files (None when no ``out`` directory was given).
+        identified_loop: the assumed loop identified on the position channel (None when the
+            config does not mark its loop as an assumption).
         baseline, residual_test, integration, greybox, analysis, analysis_refit: sections
             kept in the JSON's form (read-only mappings; ``greybox`` None when it did not run).
         notes: Replay notes of the Python call (not part of the CLI's JSON).
@@ -822,12 +824,13 @@ class DiagnosisResult(_DictCompat):
     greybox: Optional[Mapping[str, Any]]
     analysis: Mapping[str, Any]
     analysis_refit: Mapping[str, Any]
+    identified_loop: Optional[Mapping[str, Any]] = None
     notes: Tuple[str, ...] = ()
 
     # JSON key order of `ehactl diagnose --json` (serde field order, then the files).
     _ORDER = ("cause", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
               "nrmse_baseline", "baseline", "residual_test", "integration", "greybox", "gain",
-              "noise_floor", "candidates", "extended_params", "refit_at_bounds", "extended_at_bounds",
+              "noise_floor", "candidates", "extended_params", "identified_loop", "refit_at_bounds", "extended_at_bounds",
               "sensor_offsets", "ambiguities", "warnings", "analysis", "analysis_refit", "split",
               "summary", "extended_config", "report", "plots")
 
@@ -861,6 +864,7 @@ class DiagnosisResult(_DictCompat):
             baseline=_freeze(d.get("baseline") or {}), residual_test=_freeze(d.get("residual_test") or {}),
             integration=_freeze(d.get("integration") or {}), greybox=None if gb is None else _freeze(gb),
             analysis=_freeze(d.get("analysis") or {}), analysis_refit=_freeze(d.get("analysis_refit") or {}),
+            identified_loop=None if d.get("identified_loop") is None else _freeze(d["identified_loop"]),
             notes=tuple(str(n) for n in notes),
         )
 
