@@ -692,11 +692,11 @@ fn phase_candidates(
     // residual, for every round. (Lowering it after each accepted effect to the floor of the
     // extended model's residual was tried: it accepted a spurious `sensor_tone` beside a
     // hidden 5 ms delay on a 2 s test-bench log, so it is not done.)
-    let floor_ch = rf.floor_ch.clone();
+    let floor_ch = &rf.floor_ch;
     let noise_floor = rf.noise_floor;
     let jn = noise_floor * noise_floor;
     // Within the noise only when every channel is (a small tone on one channel is not noise).
-    let within_noise = |e: &Errors, floor_ch: &[f64]| {
+    let within_noise = |e: &Errors| {
         nom.val_rec.channels.iter().zip(floor_ch).all(|(c, f)| {
             e.channels
                 .get(c.kind.column())
@@ -739,7 +739,7 @@ fn phase_candidates(
         }
         // Nothing left to explain: the current model is within the noise (round 0 still
         // fits every candidate so that the report lists them all).
-        let near_floor = within_noise(&cur_err, &floor_ch)
+        let near_floor = within_noise(&cur_err)
             || (round > 0 && cur_err.overall < LATER_FLOOR_FACTOR * noise_floor);
         if round > 0 && near_floor {
             break;
@@ -830,7 +830,7 @@ fn phase_candidates(
                 nom.val_rec
                     .channels
                     .iter()
-                    .zip(&floor_ch)
+                    .zip(floor_ch)
                     .find(|(c, f)| {
                         let col = c.kind.column();
                         match (cur_err.channels.get(col), err.channels.get(col)) {
