@@ -9,6 +9,8 @@ What is checked against something we did not write:
   the diagnoses of the two records must differ that way and name the same cause;
 - an independent estimate of the damper law from the data alone: numpy least squares of the
   measured force on [v, sign(v), 1] with v the central difference of the measured position;
+  the same estimator applied to the diagnosed model's force (traces.csv) must find the same
+  yield force, whatever terms the law was written in;
 - the same for the MTS loop, whose controller and valve are assumptions: numpy least squares of
   the velocity on the tracking error gives its gain and the null offset's position error;
 - the extended config is runnable by `ehactl run`.
@@ -45,17 +47,9 @@ def mts(tmp_path_factory):
     return out
 
 
-def law(d):
-    """Damper law of the diagnosed model: nominal section plus the grey-box terms."""
-    ext = d["extended_params"]
-    def g(k, v0):
-        return ext.get(f"effects.polynomial_force.{k}", v0)
-
-    return {"viscous": g("viscous", 2900.0), "coulomb": g("coulomb", 0.0)}
-
-
-def numpy_damper(rec):
-    """Equation-error estimate F ≈ c·v + F_c·tanh(v/v_s) + F₀ on the fitting part (70 %)."""
+def numpy_damper(rec, force=None):
+    """Equation-error estimate F ≈ c·v + F_c·tanh(v/v_s) + F₀ on the fitting part (70 %) of the
+    measured force, or of `force` (a model's force on the same samples)."""
     f = np.genfromtxt(MTS / f"{rec}_5to15s.csv", delimiter=",", names=True)
     n = int(round(0.7 * len(f)))
     dt = f["t"][1] - f["t"][0]
@@ -64,7 +58,8 @@ def numpy_damper(rec):
     xs = np.convolve(f["x"], np.ones(9) / 9, "same")
     v = np.gradient(xs, dt)[:n]
     a = np.column_stack([v, np.tanh(v / 1e-3), np.ones(n)])  # v_s as in the config: 1 mm/s
-    c, *_ = np.linalg.lstsq(a, f["force"][:n], rcond=None)
+    y = f["force"] if force is None else force
+    c, *_ = np.linalg.lstsq(a, y[:n], rcond=None)
     return c
 
 
@@ -76,37 +71,41 @@ def test_force_channel_is_used(mts):
 
 
 def test_mr_damper_current_gives_consistent_diagnoses(mts):
-    l0, l1 = law(mts["0A"][0]), law(mts["1A"][0])
-    for rec, (d, _) in mts.items():
+    yields = {}
+    for rec, (d, out) in mts.items():
         g = d["greybox"]
         assert g is not None and g["accepted"], (rec, g)
         paths = [t["path"] for t in g["terms"]]
-        # The yield force of the damper is the first thing both records ask for.
-        assert "effects.polynomial_force.coulomb" in paths, (rec, paths)
-    # Higher current: higher yield force (Spencer 1997). The viscous term of the Bingham model
-    # is not asked for: fitted on the slow part of the chirp it did not predict the faster part
-    # (the transfer check), and a viscous coefficient fitted at ≤ 30 mm/s extrapolated to
-    # forces the rig never saw.
-    assert l1["coulomb"] > 2.0 * l0["coulomb"] > 0.0, (l0, l1)
-    for rec, (d, _) in mts.items():
-        g = d["greybox"]
+        # The yield force of the damper is the first thing both records ask for, as a Dahl
+        # (pre-yield) or a rate-only yield term. A viscous term of the Bingham model is not
+        # asked for: fitted on the slow part of the chirp it did not predict the faster part
+        # (the transfer check).
+        assert paths[0] in ("effects.polynomial_force.coulomb", "effects.polynomial_force.dahl"), (rec, paths)
         # Named as the cause, in physical terms, with value and unit: consistent across currents.
         assert d["cause"].startswith("load-side yield force "), (rec, d["cause"])
-        assert " N ∝ tanh(v/v_y), v_y = " in d["cause"], d["cause"]
+        total = float(d["cause"].split()[3])
+        assert total == pytest.approx(g["yield_force"], rel=1e-3), (d["cause"], g["yield_force"])
         assert d["causes"] == [], d["causes"]  # no catalogue effect
         # The terms were chosen by how they predict the part of the fitting data they were not
         # fitted on, and they do predict it better.
         t = g["transfer"]
         assert t["nrmse_after"] < 0.7 * t["nrmse_before"], (rec, t)
-        assert 0.0 < g["yield_velocity"] < 0.5, g["yield_velocity"]
-    # Independent equation-error estimate from the data: the yield force rises with the
-    # current too, and the yield forces agree within a factor of 2 (the estimators differ:
-    # output error of the closed loop vs differentiated data). The data alone do not pin the
-    # viscous part in this 0.4–2 Hz segment (numpy gives ≈ 0 for both, see DIAGNOSIS.md).
-    n0, n1 = numpy_damper("0A"), numpy_damper("1A")
-    assert n1[1] > 2.0 * n0[1] > 0.0, (n0, n1)
-    for ours, theirs in ((l0["coulomb"], n0[1]), (l1["coulomb"], n1[1])):
-        assert 0.5 < ours / theirs < 2.0, (ours, theirs)
+        if g["yield_velocity"] is not None:
+            assert 0.0 < g["yield_velocity"] < 0.5, g["yield_velocity"]
+        if g["dahl_travel"] is not None:
+            # Pre-yield travel: a fraction of the ≈ ±2 mm stroke of the chirp.
+            assert 1e-6 < g["dahl_travel"] < 2e-3, g["dahl_travel"]
+        # The same independent estimator on the measured force and on the diagnosed model's
+        # force: the law carries the damper's yield force, whatever its terms.
+        tr = np.genfromtxt(out / "traces.csv", delimiter=",", names=True)
+        meas, model = numpy_damper(rec, tr["meas_force"]), numpy_damper(rec, tr["ext_force"])
+        assert meas[1] == pytest.approx(numpy_damper(rec)[1], rel=1e-6)  # same samples
+        assert model[1] == pytest.approx(meas[1], rel=0.1), (rec, model, meas)
+        yields[rec] = (g["yield_force"], model[1], meas[1])
+    # Higher current: higher yield force (Spencer 1997), in the data, in the model's force, and
+    # in the law's reported yield force.
+    for k in range(3):
+        assert yields["1A"][k] > 2.0 * yields["0A"][k] > 0.0, yields
 
 
 def test_mts_ratios_to_arx_baseline(mts):
@@ -121,16 +120,14 @@ def test_mts_ratios_to_arx_baseline(mts):
     # The position, the loop's output: with the assumed loop identified (DIAGNOSIS.md "Assumed
     # loop") the refit model (no law) beats the ARX model on both records (0.0185 vs 0.0199,
     # 0.0198 vs 0.0247; before, with the loop assumed: 0.070 and 0.078). The final model with
-    # the yield force beats it at 0 A (0.0181) and is level at 1 A (0.0258 vs 0.0247, a miss
-    # by 4 %: asserted as found, within 10 %).
+    # the yield law beats it on both (0.0184 vs 0.0199 at 0 A; 0.0227 vs 0.0247 at 1 A, where
+    # the rate-only yield law alone gave 0.0258: the Dahl pre-yield state carries the force's
+    # lag behind the velocity reversal, DIAGNOSIS.md "Why the law costs the 1 A position").
     for rec, (d, _) in mts.items():
         arx = d["nrmse_baseline"]["channels"]["x"]
         assert d["nrmse_refit"]["channels"]["x"] < arx, (rec, d["nrmse_refit"], arx)
-    x0 = mts["0A"][0]["greybox"]["nrmse_validation"]["channels"]["x"]
-    assert x0 < mts["0A"][0]["nrmse_baseline"]["channels"]["x"], x0
-    d1 = mts["1A"][0]
-    x1, arx1 = d1["greybox"]["nrmse_validation"]["channels"]["x"], d1["nrmse_baseline"]["channels"]["x"]
-    assert arx1 < x1 < 1.1 * arx1, (x1, arx1)
+        x = d["greybox"]["nrmse_validation"]["channels"]["x"]
+        assert x < arx, (rec, x, arx)
 
 
 def numpy_loop(rec):

@@ -19,9 +19,10 @@ fn fixture() -> Vec<String> {
 /// hand-written table left out (so `ehactl params` did not show them and the loader checked
 /// them only through serde), and parameters added since (2026-11-26: the line scheme and its
 /// segment-mode margin; 2026-11-27: the friction variant `lugre` and the line_dynamics
-/// variant `hose`, whose new choice the fixture's `effects.friction.variant` row carries).
+/// variant `hose`, whose new choice the fixture's `effects.friction.variant` row carries;
+/// the Dahl term of the grey-box force law).
 /// Their choices are the enums' serde names.
-const ADDED: [(&str, &str); 13] = [
+const ADDED: [(&str, &str); 15] = [
     (
         "effects.friction.bristle_stiffness",
         "N/m\tNonNegative\tFloat",
@@ -42,6 +43,8 @@ const ADDED: [(&str, &str); 13] = [
         "effects.line_dynamics.resistance",
         "Pa·s/m³\tNonNegative\tFloat",
     ),
+    ("effects.polynomial_force.dahl", "N\tNonNegative\tFloat"),
+    ("effects.polynomial_force.dahl_travel", "m\tPositive\tFloat"),
     (
         "integration.max_omega_h_line",
         "-\tWithin(0.01, 1.9)\tFloat",

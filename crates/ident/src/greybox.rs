@@ -5,7 +5,8 @@
 //! Library: the terms of `[effects.polynomial_force]` ([`ehactl_plant::effects::PolynomialForce`],
 //! a force on the rod): constant F₀, viscous c_v·v, Coulomb/yield F_c·sign(v), quadratic
 //! c_q·|v|·v, stiffness k·(x − x₀), load-pressure A_p·(p_a − p_b) and pressure-dependent
-//! friction A_c·sign(v)·|p_a − p_b|; and of `[effects.polynomial_flow]`
+//! friction A_c·sign(v)·|p_a − p_b|, and Dahl's pre-yield hysteresis F_d·z with
+//! dz/dt = (v − |v|·z)/δ (Dahl 1968; for MR dampers Ikhouane & Dyke 2007); and of `[effects.polynomial_flow]`
 //! ([`ehactl_plant::effects::PolynomialFlow`], a flow from port B to port A): null bias q₀,
 //! flow-gain error q_s·x_v and direction asymmetry q_a·|x_v|. Because every term is a field of
 //! the plant config, the extended config stays runnable by `ehactl run` and the Python bindings.
@@ -107,6 +108,12 @@ pub struct GreyBox {
     pub transfer: Option<Transfer>,
     /// Fitted pre-yield velocity v_y of the yield term (m/s), when it was fitted.
     pub yield_velocity: Option<f64>,
+    /// Fitted pre-yield travel δ of the Dahl term (m), when it was fitted.
+    pub dahl_travel: Option<f64>,
+    /// Yield force the law reaches in steady sliding (N): the sum of the selected yield
+    /// terms, Dahl F_d and rate-only F_y; `None` without one. Per record, so that records
+    /// differing in one factor (an MR damper's current) show its trend.
+    pub yield_force: Option<f64>,
     /// Selection log: each round's best candidate and its fitting-part cost.
     pub selection: Vec<String>,
 }
@@ -123,17 +130,52 @@ fn sig4(v: f64) -> String {
 
 impl GreyBox {
     /// The cause in physical terms when the law carries the gain: its first term (the largest
-    /// gain) with value and unit, e.g. `load-side yield force 576 N (yield force F_y·tanh(v/v_y) …)`,
-    /// and the further terms by name.
+    /// gain) with value and unit, and the further terms by name. When the first term is a
+    /// yield term, the cause is the total yield force of the yield terms (Dahl and/or the
+    /// rate-only yield) with each part, e.g. `load-side yield force 1273 N (Dahl 427.2 N over a
+    /// pre-yield travel δ = 6.022e-4 m + 845.2 N ∝ tanh(v/v_y), v_y = … m/s)`.
     pub fn cause(&self) -> Option<String> {
-        let (first, rest) = self.terms.split_first()?;
-        let mut c = format!("{} {} {}", first.name, sig4(first.value), first.unit);
-        if let Some(vy) = self
-            .yield_velocity
-            .filter(|_| first.path.ends_with(".coulomb"))
-        {
-            c = format!("{c} ∝ tanh(v/v_y), v_y = {} m/s", sig4(vy));
-        }
+        let first = self.terms.first()?;
+        let is_yield = |t: &Term| t.path.ends_with(".coulomb") || t.path.ends_with(".dahl");
+        let (mut c, rest): (String, Vec<&Term>) = if is_yield(first) {
+            let parts: Vec<String> = self
+                .terms
+                .iter()
+                .filter(|t| is_yield(t))
+                .map(|t| {
+                    if t.path.ends_with(".dahl") {
+                        match self.dahl_travel {
+                            Some(d) => format!(
+                                "Dahl {} N over a pre-yield travel δ = {} m",
+                                sig4(t.value),
+                                sig4(d)
+                            ),
+                            None => format!("Dahl {} N", sig4(t.value)),
+                        }
+                    } else {
+                        match self.yield_velocity {
+                            Some(vy) => {
+                                format!("{} N ∝ tanh(v/v_y), v_y = {} m/s", sig4(t.value), sig4(vy))
+                            }
+                            None => format!("{} N ∝ sign(v)", sig4(t.value)),
+                        }
+                    }
+                })
+                .collect();
+            (
+                format!(
+                    "load-side yield force {} N ({})",
+                    sig4(self.yield_force.unwrap_or(first.value)),
+                    parts.join(" + ")
+                ),
+                self.terms.iter().filter(|t| !is_yield(t)).collect(),
+            )
+        } else {
+            (
+                format!("{} {} {}", first.name, sig4(first.value), first.unit),
+                self.terms.iter().skip(1).collect(),
+            )
+        };
         if !rest.is_empty() {
             let more: Vec<&str> = rest.iter().map(|t| t.name.as_str()).collect();
             c = format!("{c}, with {}", more.join(", "));
@@ -172,11 +214,32 @@ impl Lib {
     }
 }
 
-/// Robust velocity scale of a trace: the 99th percentile of |v| (m/s).
-fn v_scale(v: &[f64]) -> f64 {
+/// Dahl state z (-) of velocity samples `v` (m/s) at period `dt` (s) and pre-yield travel
+/// `delta` (m), from z = 0, exact for a velocity held over each sample:
+/// z ← sign(v) + (z − sign(v))·exp(−|v|·dt/δ). The regressor of the Dahl term's start.
+fn dahl_trace(v: &[f64], dt: f64, delta: f64) -> Vec<f64> {
+    let mut z = 0.0_f64;
+    v.iter()
+        .map(|&v| {
+            let out = z;
+            let zi = if v > 0.0 {
+                1.0
+            } else if v < 0.0 {
+                -1.0
+            } else {
+                z
+            };
+            z = zi + (z - zi) * (-v.abs() * dt / delta).exp();
+            out
+        })
+        .collect()
+}
+
+/// Robust scale of a trace: the 99th percentile of |v − c| (units of `v`).
+fn robust_scale(v: &[f64], c: f64) -> f64 {
     let mut a: Vec<f64> = v
         .iter()
-        .map(|x| x.abs())
+        .map(|x| (x - c).abs())
         .filter(|x| x.is_finite())
         .collect();
     if a.is_empty() {
@@ -184,6 +247,11 @@ fn v_scale(v: &[f64]) -> f64 {
     }
     a.sort_by(f64::total_cmp);
     a[((a.len() - 1) as f64 * 0.99) as usize]
+}
+
+/// Robust velocity scale of a trace: the 99th percentile of |v| (m/s).
+fn v_scale(v: &[f64]) -> f64 {
+    robust_scale(v, 0.0)
 }
 
 /// Run the grey-box extension on top of hypothesis `current` (whose fitting-part cost is
@@ -251,6 +319,15 @@ pub(crate) fn extend(
             physics: "yield force F_y·tanh(v/v_y): Bingham with a fitted pre-yield velocity v_y, bounded at any speed",
             bound: 0.2 * fs,
             feature: Some(|_, v, f| (v / f.smoothing_velocity).tanh()),
+        },
+        Lib {
+            section: "polynomial_force",
+            field: "dahl",
+            name: "load-side Dahl yield force",
+            physics: "yield force F_d·z with pre-yield hysteresis, dz/dt = (v − |v|·z)/δ (Dahl): builds up over a fitted travel δ after each reversal, bounded at any speed",
+            bound: 0.2 * fs,
+            // Regressor from the state trace (`dahl_start` below), not per sample.
+            feature: None,
         },
         Lib {
             section: "polynomial_force",
@@ -381,12 +458,14 @@ pub(crate) fn extend(
                 let _ = f.set_path(field, v);
             })
         };
+        // The Dahl force is a magnitude (F_d ≥ 0, the state carries the sign).
+        let lo = if field == "dahl" { 0.0 } else { -b };
         FreeParam {
             name: format!("effects.{}.{field}", l.section),
-            lo: -b,
+            lo,
             hi: b,
             log: false,
-            init: (p0 + init).clamp(-b, b),
+            init: (p0 + init).clamp(lo, b),
             set,
         }
     };
@@ -508,6 +587,60 @@ pub(crate) fn extend(
             }),
         }
     };
+    // Position scale (m): the 99th percentile of |x − x₀| on the fitting part, for the Dahl
+    // term's pre-yield travel.
+    let xr = rec
+        .channel(ChannelKind::Position)
+        .map(|x| robust_scale(&x[..n_fit], origin))
+        .filter(|a| *a > 0.0)
+        .unwrap_or(0.01 * base_fit.cylinder.stroke);
+    // The Dahl term's pre-yield travel δ (m), fitted in log space with its force.
+    let dahl_travel = |init: f64| -> FreeParam {
+        let (lo, hi) = (0.002 * xr, 0.5 * xr);
+        FreeParam {
+            name: "effects.polynomial_force.dahl_travel".to_string(),
+            lo,
+            hi,
+            log: true,
+            init: init.clamp(lo, hi),
+            set: Arc::new(|p: &mut PlantParams, v| {
+                if let Some(f) = p.effects.polynomial_force.as_mut() {
+                    f.dahl_travel = v;
+                }
+            }),
+        }
+    };
+    // Start of the Dahl term (force F_d, travel δ): least squares of the force residual on
+    // the Dahl state of the frozen model's velocity, over a log grid of δ (the equation-error
+    // estimate of scripts/mts_force_law_check.py); without a force channel, F_d = 0 and δ at
+    // 5 % of the position scale.
+    let dahl_start = |resid: &[f64]| -> (f64, f64) {
+        let Some((_, _, v)) = force_resid.as_ref() else {
+            return (0.0, 0.05 * xr);
+        };
+        let mut best = (f64::INFINITY, 0.0, 0.05 * xr);
+        for k in 0..16 {
+            let delta = 0.002 * xr * (250.0_f64).powf(k as f64 / 15.0);
+            let z = dahl_trace(v, rec.dt, delta);
+            let (num, den) = z
+                .iter()
+                .zip(resid)
+                .fold((0.0, 0.0), |(n, d), (z, r)| (n + z * r, d + z * z));
+            if den <= 0.0 {
+                continue;
+            }
+            let c = (num / den).max(0.0);
+            let sse: f64 = z
+                .iter()
+                .zip(resid)
+                .map(|(z, r)| (r - c * z) * (r - c * z))
+                .sum();
+            if sse < best.0 {
+                best = (sse, c, delta);
+            }
+        }
+        (best.1, best.2)
+    };
     for _round in 0..MAX_TERMS {
         let cands: Vec<&Lib> = lib
             .iter()
@@ -518,12 +651,21 @@ pub(crate) fn extend(
             .enumerate()
             .map(|(i, l)| {
                 let mut hh = h.clone();
-                let fp = make_param(l, ls_start(l, &resid), 1.0);
+                let (init, partner) = match l.field {
+                    "coulomb" if l.section == "polynomial_force" => {
+                        (ls_start(l, &resid), Some(yield_velocity(vs)))
+                    }
+                    "dahl" => {
+                        let (fd, delta) = dahl_start(&resid);
+                        (fd, Some(dahl_travel(delta)))
+                    }
+                    _ => (ls_start(l, &resid), None),
+                };
+                let fp = make_param(l, init, 1.0);
                 hh.values.push(fp.init);
                 hh.params.push(fp);
                 let first_new = hh.params.len() - 1;
-                if l.field == "coulomb" {
-                    let fv = yield_velocity(vs);
+                if let Some(fv) = partner {
                     hh.values.push(fv.init);
                     hh.params.push(fv);
                 }
@@ -657,7 +799,19 @@ pub(crate) fn extend(
         .iter()
         .position(|p| p.name == "effects.polynomial_force.smoothing_velocity")
         .map(|k| h.values[k]);
+    // The Dahl term's fitted pre-yield travel.
+    let dahl_travel = h
+        .params
+        .iter()
+        .position(|p| p.name == "effects.polynomial_force.dahl_travel")
+        .map(|k| h.values[k]);
     let accepted = !terms.is_empty();
+    let yield_terms: Vec<f64> = terms
+        .iter()
+        .filter(|t| t.path.ends_with(".coulomb") || t.path.ends_with(".dahl"))
+        .map(|t| t.value)
+        .collect();
+    let yield_force = (!yield_terms.is_empty()).then(|| yield_terms.iter().sum());
     let (val, _) = frozen.val_errors(&h);
     let structure = if accepted {
         let p = h.build(&base_fit);
@@ -695,6 +849,8 @@ pub(crate) fn extend(
         accepted,
         transfer,
         yield_velocity,
+        dahl_travel,
+        yield_force,
         selection,
     };
     if !accepted {

@@ -340,6 +340,10 @@ impl PolynomialForce {
         1e-3
     }
 
+    pub(crate) fn default_dahl_travel() -> f64 {
+        1e-4
+    }
+
     /// A section with every term zero (the neutral element the diagnosis starts from).
     pub fn zero() -> Self {
         Self {
@@ -352,8 +356,35 @@ impl PolynomialForce {
             origin: 0.0,
             pressure: 0.0,
             pressure_coulomb: 0.0,
+            dahl: 0.0,
+            dahl_travel: Self::default_dahl_travel(),
             smoothing_velocity: Self::default_vs(),
         }
+    }
+
+    /// One substep `h` (s) of the Dahl state `z` (-), backward Euler about the velocity at
+    /// the start of the step `v_old` (m/s): z' = (z + h·v'/δ)/(1 + h·|v_old|/δ), which stays
+    /// in [−1, 1] at any step. Returns (f₀, d) with the force F_d·z' = f₀ + d·v' (N, N·s/m)
+    /// for the implicit velocity update; (0, 0) without the term.
+    #[inline]
+    pub fn dahl_implicit(&self, z: f64, v_old: f64, h: f64) -> (f64, f64) {
+        if self.dahl == 0.0 {
+            return (0.0, 0.0);
+        }
+        let delta = self.dahl_travel.max(1e-12);
+        let den = 1.0 + h * v_old.abs() / delta;
+        (self.dahl * z / den, self.dahl * h / (delta * den))
+    }
+
+    /// The Dahl state after the substep of [`Self::dahl_implicit`], given the new velocity
+    /// `v_new` (m/s).
+    #[inline]
+    pub fn dahl_advance(&self, z: f64, v_old: f64, v_new: f64, h: f64) -> f64 {
+        if self.dahl == 0.0 {
+            return 0.0;
+        }
+        let delta = self.dahl_travel.max(1e-12);
+        ((z + h * v_new / delta) / (1.0 + h * v_old.abs() / delta)).clamp(-1.0, 1.0)
     }
 
     /// Force F (N, opposing +x) at position `x` (m), velocity `v` (m/s) and chamber
@@ -428,6 +459,13 @@ impl PolynomialForce {
             format!(
                 "pressure-dependent friction {:.4e} m² · sign(v)·|p_a − p_b|",
                 self.pressure_coulomb
+            ),
+        );
+        t(
+            self.dahl,
+            format!(
+                "Dahl yield force {:.4e} N · z, dz/dt = (v − |v|·z)/δ, pre-yield travel δ = {:.3e} m",
+                self.dahl, self.dahl_travel
             ),
         );
         s
@@ -539,6 +577,96 @@ mod tests {
             "Δp {dp} vs {}",
             f / area
         );
+    }
+
+    /// The Dahl term on the rig of the test above, pushed by the null-bias flow alone: while
+    /// v ≥ 0, dz/dx = (1 − z)/δ, so the load cell reads c_v·v + F_d·(1 − e^(−Δx/δ)) with Δx the
+    /// travel from rest (Dahl 1968, exponent 1), and F_d + c_v·q₀/A once Δx ≫ δ.
+    #[test]
+    fn dahl_force_builds_up_over_the_pre_yield_travel() {
+        let area = 7.0e-4;
+        let (q0, cv, fd, delta): (f64, f64, f64, f64) = (3.5e-6, 2.0e4, 300.0, 5e-4);
+        let toml = format!(
+            r#"
+            [fluid]
+            density = 870.0
+            bulk_modulus = 1.4e9
+            [supply]
+            pressure = 21.0e6
+            [valve]
+            command_full_scale = 10.0
+            flow_form = "kq"
+            rated_flow = 5.4e-5
+            rated_pressure_drop = 1.0e6
+            [cylinder]
+            area_a = {area}
+            area_b = {area}
+            dead_volume_a = 1.0e-4
+            dead_volume_b = 1.0e-4
+            stroke = 0.1
+            initial_position = 0.02
+            [mechanics]
+            mass = 10.0
+            end_stops = false
+            [effects.polynomial_force]
+            viscous = {cv}
+            dahl = {fd}
+            dahl_travel = {delta}
+            [effects.polynomial_flow]
+            constant = {q0}
+            "#
+        );
+        let p: PlantParams = toml::from_str(&toml).unwrap();
+        let mut plant = Plant::configure(&p, 1e-3).unwrap();
+        let x0 = plant.state().x;
+        let mut worst: f64 = 0.0;
+        for _ in 0..2000 {
+            plant.step(0.0).unwrap();
+            let s = *plant.state();
+            assert!(s.v >= 0.0, "the null-bias flow never reverses the piston");
+            let want = cv * s.v + fd * (1.0 - (-(s.x - x0) / delta).exp());
+            worst = worst.max((s.rod_force - want).abs());
+        }
+        // Backward Euler in z: the error per substep is O((h·v/δ)²) ≈ 1e-4 of F_d here.
+        assert!(
+            worst < 5e-3 * fd,
+            "rod force vs the Dahl closed form: worst {worst} N"
+        );
+        let s = *plant.state();
+        assert!(
+            s.x - x0 > 10.0 * delta,
+            "the test must pass the pre-yield travel"
+        );
+        let f = cv * q0 / area + fd * (1.0 - (-(s.x - x0) / delta).exp());
+        assert!(
+            (s.rod_force - f).abs() < 1e-4 * f,
+            "F {} vs {f}",
+            s.rod_force
+        );
+    }
+
+    /// The Dahl state stays in [−1, 1] at any step and reverses to −1 + 2·e^(−Δx/δ).
+    #[test]
+    fn dahl_state_is_bounded_and_reverses() {
+        let f = PolynomialForce {
+            dahl: 100.0,
+            dahl_travel: 1e-4,
+            ..PolynomialForce::zero()
+        };
+        let mut z = 0.0;
+        for v in [1e3, -1e3, 1e-3, -5.0] {
+            z = f.dahl_advance(z, v, v, 1.0);
+            assert!(z.abs() <= 1.0, "z {z} at v {v}");
+        }
+        // From z = 1, travel back by 3δ in small steps.
+        let (v, h): (f64, f64) = (-1e-3, 1e-4); // h·|v|/δ = 1e-3
+        let mut z = 1.0;
+        let n = (3e-4 / (-v * h)).round() as usize;
+        for _ in 0..n {
+            z = f.dahl_advance(z, v, v, h);
+        }
+        let want = -1.0 + 2.0 * (-3.0_f64).exp();
+        assert!((z - want).abs() < 1e-3, "z {z} vs {want}");
     }
 
     /// Every term of the force law against its formula, and ∂F/∂v against a central

@@ -89,6 +89,9 @@ pub struct Plant {
     friction: Option<FrictionModel>,
     /// `polynomial_force` on the rod ([`crate::effects::PolynomialForce`]).
     poly: Option<crate::effects::PolynomialForce>,
+    /// Dahl state z (-, in [−1, 1]) of the `polynomial_force` Dahl term
+    /// ([`crate::effects::PolynomialForce::dahl_implicit`]); 0 without it.
+    dahl_z: f64,
     /// `polynomial_flow` B→A ([`crate::effects::PolynomialFlow`]).
     poly_flow: Option<crate::effects::PolynomialFlow>,
     excitation: ExcitationModel,
@@ -524,6 +527,7 @@ impl Plant {
                 .filter(|f| f.enabled)
                 .map(FrictionModel::new),
             poly: e.polynomial_force.filter(|f| f.enabled),
+            dahl_z: 0.0,
             poly_flow: e.polynomial_flow.filter(|f| f.enabled),
             excitation: ExcitationModel::new(&params.excitation),
             sensors: SensorModel::new(&params.sensors, e.sensor_tone.as_ref()),
@@ -589,6 +593,7 @@ impl Plant {
         if let Some(f) = self.friction.as_mut() {
             f.reset();
         }
+        self.dahl_z = 0.0;
         if let Some((la, lb)) = self.lines.as_mut() {
             la.p.iter_mut().for_each(|p| *p = p_a);
             la.q.iter_mut().for_each(|q| *q = 0.0);
@@ -818,7 +823,9 @@ impl Plant {
                 Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
                 None => s.external,
             }
-            + self.poly.map_or(0.0, |f| f.force(s.x, s.v, s.p_a, s.p_b).0);
+            + self.poly.map_or(0.0, |f| {
+                f.force(s.x, s.v, s.p_a, s.p_b).0 + f.dahl * self.dahl_z
+            });
     }
 
     /// Sample the sensors at the current state.
@@ -1223,6 +1230,13 @@ impl Plant {
             .poly
             .map_or((0.0, 0.0), |f| f.force(s.x, s.v, s.p_a, s.p_b));
         let df_poly = df_poly.max(0.0); // a falling branch stays explicit
+                                        // Dahl pre-yield state, backward Euler: F_d·z' = f₀ + d·v' = (f₀ + d·v) + d·(v' − v),
+                                        // folded into the linearisation about v so that the velocity update stays one division.
+        let (f_dahl0, d_dahl) = self
+            .poly
+            .map_or((0.0, 0.0), |f| f.dahl_implicit(self.dahl_z, s.v, h));
+        let (f_poly, df_poly) = (f_poly + f_dahl0 + d_dahl * s.v, df_poly + d_dahl);
+        let v_old = s.v;
         let mut f_other = f_hyd - f_spring - f_mount - f_on_piston_ext - f_poly + df_poly * s.v;
         if c.body_mount {
             // Compliant cylinder mount: the body takes the reaction of the oil, seal and
@@ -1245,6 +1259,9 @@ impl Plant {
             Some(fm) => fm.project(s.v, v_free, m_eff, h),
             None => (v_free, 0.0, false),
         };
+        if let Some(f) = self.poly.as_ref() {
+            self.dahl_z = f.dahl_advance(self.dahl_z, v_old, v_new, h);
+        }
         s.v = v_new;
         s.friction = f_fric;
         s.stuck = stuck;
@@ -1287,7 +1304,9 @@ impl Plant {
                     Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
                     None => f_ext,
                 }
-        } + self.poly.map_or(0.0, |f| f.force(s.x, s.v, s.p_a, s.p_b).0);
+        } + self.poly.map_or(0.0, |f| {
+            f.force(s.x, s.v, s.p_a, s.p_b).0 + f.dahl * self.dahl_z
+        });
     }
 }
 

@@ -1285,7 +1285,13 @@ impl PlantParams {
 /// Stanway et al. 1987: F = c₀·v + F_y·sign(v) + F₀, with F₀ the accumulator preload):
 ///
 /// F = F₀ + c_v·v + F_c·tanh(v/v_s) + c_q·|v|·v + k·(x − x₀) + A_p·(p_a − p_b)
-///     + A_c·tanh(v/v_s)·|p_a − p_b|
+///     + A_c·tanh(v/v_s)·|p_a − p_b| + F_d·z,   dz/dt = (v − |v|·z)/δ
+///
+/// The last term is Dahl's solid-friction model with exponent 1 (Dahl, "A solid friction
+/// model", Aerospace Corp. TOR-0158(3107-18)-1, 1968), used for MR dampers with a viscous
+/// term by Ikhouane & Dyke (Smart Mater. Struct. 16(3):605–616, 2007): a yield force F_d that
+/// builds up over a pre-yield travel δ after each reversal (pre-yield stiffness F_d/δ) instead
+/// of following the sign of the velocity at once; z ∈ [−1, 1] is a state of the plant.
 ///
 /// F opposes +x on the piston and is carried by the rod, so a load cell sees it (it is added
 /// to the rod force). All coefficients default to 0 (term absent). The sign is smoothed by
@@ -1330,6 +1336,16 @@ pub struct PolynomialForce {
     #[serde(default)]
     #[param(unit = "m²", range = Finite, desc = "area A_c of the pressure-dependent friction A_c·sign(v)·|p_a − p_b|")]
     pub pressure_coulomb: f64,
+    /// Dahl force F_d (N) of the term F_d·z: the yield force reached after the pre-yield
+    /// travel (≥ 0).
+    #[serde(default)]
+    #[param(unit = "N", range = NonNegative, desc = "Dahl yield force F_d of F_d·z, dz/dt = (v − |v|·z)/δ (pre-yield hysteresis)")]
+    pub dahl: f64,
+    /// Pre-yield travel δ (m) of the Dahl term: the travel after a reversal over which the
+    /// force builds up (1 − 1/e of F_d after δ); the pre-yield stiffness is F_d/δ.
+    #[serde(default = "PolynomialForce::default_dahl_travel")]
+    #[param(unit = "m", range = Positive, desc = "pre-yield travel δ of the Dahl term (pre-yield stiffness F_d/δ)")]
+    pub dahl_travel: f64,
     /// Smoothing velocity v_s (m/s) of the sign terms.
     #[serde(default = "PolynomialForce::default_vs")]
     #[param(unit = "m/s", range = Positive, desc = "smoothing velocity v_s of sign(v) ≈ tanh(v/v_s)")]
