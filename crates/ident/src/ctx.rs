@@ -263,6 +263,7 @@ impl Ctx<'_> {
         let failed = || Replay {
             y: vec![vec![0.0; n]; self.val_rec.channels.len()],
             v: vec![0.0; n],
+            dp: vec![0.0; n],
             failed: true,
             offsets: vec![0.0; self.val_rec.channels.len()],
         };

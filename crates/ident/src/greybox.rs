@@ -111,9 +111,15 @@ pub struct GreyBox {
     /// Fitted pre-yield travel δ of the Dahl term (m), when it was fitted.
     pub dahl_travel: Option<f64>,
     /// Yield force the law reaches in steady sliding (N): the sum of the selected yield
-    /// terms, Dahl F_d and rate-only F_y; `None` without one. Per record, so that records
-    /// differing in one factor (an MR damper's current) show its trend.
+    /// terms, Dahl F_d, rate-only F_y and the pressure-dependent friction at the median load
+    /// pressure while sliding ([`Self::median_load_pressure`]); `None` without one. Per
+    /// record, so that records differing in one factor (an MR damper's current) show its
+    /// trend whichever of the terms carries it.
     pub yield_force: Option<f64>,
+    /// Median |p_a − p_b| (Pa) of the extended model on the fitting part while sliding
+    /// (|v| above 10 % of the velocity scale), at which the pressure-dependent friction
+    /// enters `yield_force`; `None` without that term.
+    pub median_load_pressure: Option<f64>,
     /// Selection log: each round's best candidate and its fitting-part cost.
     pub selection: Vec<String>,
 }
@@ -136,14 +142,27 @@ impl GreyBox {
     /// pre-yield travel δ = 6.022e-4 m + 845.2 N ∝ tanh(v/v_y), v_y = … m/s)`.
     pub fn cause(&self) -> Option<String> {
         let first = self.terms.first()?;
-        let is_yield = |t: &Term| t.path.ends_with(".coulomb") || t.path.ends_with(".dahl");
+        let is_yield = |t: &Term| {
+            t.path.ends_with(".coulomb")
+                || t.path.ends_with(".dahl")
+                || t.path.ends_with(".pressure_coulomb")
+        };
         let (mut c, rest): (String, Vec<&Term>) = if is_yield(first) {
             let parts: Vec<String> = self
                 .terms
                 .iter()
                 .filter(|t| is_yield(t))
                 .map(|t| {
-                    if t.path.ends_with(".dahl") {
+                    if t.path.ends_with(".pressure_coulomb") {
+                        match self.median_load_pressure {
+                            Some(dp) => format!(
+                                "{} N pressure-dependent at the median |p_a − p_b| = {} Pa",
+                                sig4(t.value * dp),
+                                sig4(dp)
+                            ),
+                            None => format!("pressure-dependent {} m²", sig4(t.value)),
+                        }
+                    } else if t.path.ends_with(".dahl") {
                         match self.dahl_travel {
                             Some(d) => format!(
                                 "Dahl {} N over a pre-yield travel δ = {} m",
@@ -806,10 +825,38 @@ pub(crate) fn extend(
         .position(|p| p.name == "effects.polynomial_force.dahl_travel")
         .map(|k| h.values[k]);
     let accepted = !terms.is_empty();
+    // The pressure-dependent friction at the extended model's median load pressure while
+    // sliding, so that the yield force is comparable whichever term carries it.
+    let median_load_pressure = terms
+        .iter()
+        .any(|t| t.path.ends_with(".pressure_coulomb"))
+        .then(|| frozen.fit_replay(&h.build(&base_fit)).ok())
+        .flatten()
+        .and_then(|s| {
+            let mut a: Vec<f64> = s.dp[..n_fit.min(s.dp.len())]
+                .iter()
+                .zip(&s.v)
+                .filter(|(_, v)| v.abs() > 0.1 * vr)
+                .map(|(dp, _)| dp.abs())
+                .filter(|x| x.is_finite())
+                .collect();
+            if a.is_empty() {
+                return None;
+            }
+            a.sort_by(f64::total_cmp);
+            Some(a[a.len() / 2])
+        });
     let yield_terms: Vec<f64> = terms
         .iter()
-        .filter(|t| t.path.ends_with(".coulomb") || t.path.ends_with(".dahl"))
-        .map(|t| t.value)
+        .filter_map(|t| {
+            if t.path.ends_with(".coulomb") || t.path.ends_with(".dahl") {
+                Some(t.value)
+            } else if t.path.ends_with(".pressure_coulomb") {
+                median_load_pressure.map(|dp| t.value * dp)
+            } else {
+                None
+            }
+        })
         .collect();
     let yield_force = (!yield_terms.is_empty()).then(|| yield_terms.iter().sum());
     let (val, _) = frozen.val_errors(&h);
@@ -851,6 +898,7 @@ pub(crate) fn extend(
         yield_velocity,
         dahl_travel,
         yield_force,
+        median_load_pressure,
         selection,
     };
     if !accepted {

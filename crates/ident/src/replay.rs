@@ -10,6 +10,8 @@ pub struct Replay {
     pub y: Vec<Vec<f64>>,
     /// Piston velocity of the model (m/s), for residual analysis.
     pub v: Vec<f64>,
+    /// Load pressure p_a − p_b of the model (Pa), for the grey-box law's report.
+    pub dp: Vec<f64>,
     /// Whether the integration failed (outputs after failure are held).
     pub failed: bool,
     /// Sensor offsets already added to `y`, per channel in the channel's SI unit (zero
@@ -157,6 +159,7 @@ pub fn replay_with(
     let kinds: Vec<ChannelKind> = rec.channels.iter().map(|c| c.kind).collect();
     let mut y: Vec<Vec<f64>> = kinds.iter().map(|_| Vec::with_capacity(n)).collect();
     let mut v = Vec::with_capacity(n);
+    let mut dp = Vec::with_capacity(n);
     let mut failed = false;
     for k in 0..n {
         let m = plant.measure();
@@ -164,6 +167,7 @@ pub fn replay_with(
             y[c].push(kind.pick(&m));
         }
         v.push(plant.state().v);
+        dp.push(plant.state().p_a - plant.state().p_b);
         let u = match (&mut ctl, &rec.reference) {
             (Some(Loop::Pd(pd)), Some(r)) => pd.step(r[k], 0.0, m.position, rec.dt).u,
             // `ehactl run`: PI on the measured force, then the supervisor's command limit.
@@ -193,6 +197,7 @@ pub fn replay_with(
     Ok(Replay {
         y,
         v,
+        dp,
         failed,
         offsets,
     })
