@@ -14,7 +14,11 @@ Prints
 2. data only, whole record: which signal the pressure follows — the first difference of x (a
    velocity, if x is a position) or x itself — and the ratio of the speeds per direction, at
    small openings and where they level off;
-3. if a diagnose output directory is given (`--out DIR` of
+3. data only: a Hammerstein model fitted on the estimation half — the one-sided input map of
+   point 1 (knees and the positive side's slope ratio scanned) followed by a linear ARX(2,3,1)
+   with a constant, chosen by the free-run error on the estimation half — its pole pair
+   (frequency, damping ratio) and its held-out NRMSE, against the plain linear ARX;
+4. if a diagnose output directory is given (`--out DIR` of
    `ehactl diagnose --config configs/sjoberg1995_actuator.toml
    --data tests/data/measured/sjoberg/estimation.csv
    --validate tests/data/measured/sjoberg/validation.csv`): the held-out error of the
@@ -99,6 +103,62 @@ def data_only():
     print("      at small openings (no load); a hypothesis only: x and the cylinder are undocumented")
 
 
+def arx_fit(u, y, na, nb, nk):
+    """Least squares ARX with a constant (Ljung 1999, eq. 4.7)."""
+    lag = max(na, nk + nb - 1)
+    phi = np.array([[-y[k - 1 - i] for i in range(na)] + [u[k - nk - j] for j in range(nb)] + [1.0]
+                    for k in range(lag, len(u))])
+    th, *_ = np.linalg.lstsq(phi, y[lag:], rcond=None)
+    return th[:na], th[na:na + nb], th[-1]
+
+
+def arx_sim(a, b, c, u, y0, nk):
+    """Free run from the first measured samples."""
+    na, nb = len(a), len(b)
+    lag = max(na, nk + nb - 1)
+    y = list(y0[:lag])
+    for k in range(lag, len(u)):
+        y.append(c - sum(a[i] * y[k - 1 - i] for i in range(na)) + sum(b[j] * u[max(k - nk - j, 0)] for j in range(nb)))
+    return np.array(y)
+
+
+def nrmse(y, yh):
+    return float(np.sqrt(np.mean((y - yh) ** 2)) / y.std())
+
+
+def hammerstein():
+    d = np.genfromtxt(SJ / "actuator.csv", delimiter=",", names=True)
+    u, p = d["u"], d["p"]
+    ue, pe, uv, pv = u[:512], p[:512], u[512:], p[512:]
+    na, nb, nk = 2, 3, 1
+
+    def inmap(s, kn, kp, sp):
+        return np.where(s < 0, np.maximum(s, -kn), sp * np.minimum(s, kp))
+
+    best = None
+    for kn in np.arange(0.3, 1.5, 0.05):
+        for kp in (0.6, 0.8, 1.0, 1.2, 1.5):
+            for sp in (1.0, 1.5, 2.0, 2.5):
+                w = inmap(ue, kn, kp, sp)
+                a, b, c = arx_fit(w, pe, na, nb, nk)
+                if np.max(np.abs(np.roots(np.r_[1.0, a]))) >= 1.0:
+                    continue
+                e = nrmse(pe, arx_sim(a, b, c, w, pe, nk))
+                if best is None or e < best[0]:
+                    best = (e, kn, kp, sp, a, b, c)
+    e, kn, kp, sp, a, b, c = best
+    z = np.roots(np.r_[1.0, a])
+    s = np.log(z[np.argmax(z.imag)]) / DT
+    held = nrmse(pv, arx_sim(a, b, c, inmap(uv, kn, kp, sp), pv, nk))
+    al, bl, cl = arx_fit(ue, pe, na, nb, nk)
+    lin = nrmse(pv, arx_sim(al, bl, cl, uv, pv, nk))
+    print("3. Hammerstein model (one-sided input map, then ARX(2,3,1)), fitted on the estimation half:")
+    print(f"   input map: knee {kn:.2f} for u < 0, {kp:.2f} for u > 0, positive slope {sp:.1f}× the negative;"
+          f" pole pair {abs(s) / (2 * np.pi):.2f} Hz, ζ = {-s.real / abs(s):.2f}")
+    print(f"   NRMSE estimation (free run) {e:.3f}, held out {held:.3f}; the same ARX on u alone: held out {lin:.3f}")
+    print("   -> a one-sided static map and one lightly damped mode explain most of the pressure")
+
+
 def band_shares(r, y):
     f = np.fft.rfftfreq(len(r), DT)
     rp = np.abs(np.fft.rfft(r - r.mean())) ** 2
@@ -111,7 +171,7 @@ def band_shares(r, y):
 
 
 def traces(out):
-    print(f"3. Final model of {out} (the `ext_p_a` traces: catalogue effects plus any accepted grey-box terms):")
+    print(f"4. Final model of {out} (the `ext_p_a` traces: catalogue effects plus any accepted grey-box terms):")
     for fname, part in (("traces.csv", "estimation half"), ("validation_traces.csv", "validation half (held out)")):
         t = np.genfromtxt(out / fname, delimiter=",", names=True)
         y = 5.0 - t["meas_p_a"] / 1e6
@@ -131,13 +191,13 @@ def traces(out):
         if part.startswith("estimation"):
             v = t["v_model"]
             xm = np.cumsum(v) * DT
-            print(f"      the model's pressure follows its position (r = {np.corrcoef(yh, xm)[0, 1]:+.2f}), "
-                  f"not its velocity (r = {np.corrcoef(yh, v)[0, 1]:+.2f}): the config's arm is a spring load "
-                  f"behind an open-centre valve")
+            print(f"      corr(model pressure, model position) = {np.corrcoef(yh, xm)[0, 1]:+.2f}, "
+                  f"corr(model pressure, model velocity) = {np.corrcoef(yh, v)[0, 1]:+.2f}")
 
 
 def main():
     data_only()
+    hammerstein()
     if len(sys.argv) > 1:
         traces(pathlib.Path(sys.argv[1]))
 

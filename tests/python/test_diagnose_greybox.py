@@ -233,9 +233,11 @@ def test_sjoberg_extended_beats_arx(tmp_path):
     """The catalogue's model must predict the held-out pressure at least as well as a linear
     ARX from the opening. The record's pressure response is one-sided: it levels off for
     negative openings beyond ≈ 0.6 units of u but keeps growing for positive ones (numpy knee
-    estimate below). A symmetric spool limit cannot follow that (held-out 0.625 against the
-    ARX's 0.621); the asymmetric variant can, once its limits start inside the travel the
-    command reaches (a limit above it never clips the command and the fit did not move it)."""
+    estimate below). The `asymmetric` spool limit follows that once its limits start inside the
+    travel the command reaches: started at 0.9 of the travel (this record reaches 16 % and
+    18 %) a limit never clips the command, the cost is flat, the fit did not move it, and the
+    diagnosis named no catalogue effect (or, with the earlier config, the symmetric limit, 0.625
+    against the ARX's 0.621)."""
     d = diagnose(tmp_path, "--config", str(REPO / "configs" / "sjoberg1995_actuator.toml"),
                  "--data", str(SJ / "estimation.csv"), "--validate", str(SJ / "validation.csv"))
     est = np.genfromtxt(SJ / "estimation.csv", delimiter=",", names=True)
@@ -243,7 +245,7 @@ def test_sjoberg_extended_beats_arx(tmp_path):
     arx = numpy_arx_heldout(est["u"], est["p_a"], val["u"], val["p_a"])
     assert d["nrmse_baseline"]["channels"]["p_a"] == pytest.approx(arx, rel=1e-5)
     ext = d["nrmse_extended"]["channels"]["p_a"]
-    # Achieved 0.552 against the ARX's 0.621 (ratio 0.889).
+    # Achieved 0.458 against the ARX's 0.621 (ratio 0.74).
     assert ext < arx, (ext, arx)
     assert d["cause"] == "valve_saturation", d["cause"]
     sat = [c for c in d["candidates"] if c["effect"] == "valve_saturation"][0]
@@ -254,7 +256,7 @@ def test_sjoberg_extended_beats_arx(tmp_path):
     lim_pos = 8.0 * sat["params"]["effects.valve_saturation.spool_limit"]
     assert k_neg < k_pos, (k_neg, k_pos)  # numpy: 0.67 and 0.94
     assert lim_neg < lim_pos, (lim_neg, lim_pos)
-    assert abs(lim_neg - k_neg) < 0.25, (lim_neg, k_neg)  # fitted 0.52
+    assert abs(lim_neg - k_neg) < 0.25, (lim_neg, k_neg)  # fitted 0.57
 
 
 def test_sjoberg_greybox_ratio(tmp_path):
@@ -263,9 +265,7 @@ def test_sjoberg_greybox_ratio(tmp_path):
     g = d["greybox"]
     assert g is not None, d["summary"]
     # The grey-box terms are chosen by how they predict the last 40 % of the estimation record
-    # when fitted on its first 60 %; they may only add to the catalogue's model, which is
-    # already below the ARX baseline (test above). Achieved: a Coulomb force on its widened
-    # bound (32 kN, a proxy: more than supply pressure × piston area), held-out 0.511, ratio
-    # 0.82 (target ≤ 0.8: missed).
+    # when fitted on its first 60 %; on this record none does, so the final model is the
+    # catalogue's (test above): held-out 0.458, ratio 0.74 (target ≤ 0.8).
     ratio = g["nrmse_validation"]["overall"] / d["nrmse_baseline"]["overall"]
-    assert ratio < 1.0, ratio
+    assert ratio <= 0.8, ratio
