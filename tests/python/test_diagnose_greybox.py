@@ -185,20 +185,84 @@ def test_extended_config_runs(mts):
         assert r.returncode == 0, r.stderr
 
 
+def numpy_arx_heldout(u_fit, y_fit, u_val, y_val):
+    """Held-out free-run NRMSE of the ARX chosen by Akaike's criterion on the fitting part,
+    computed with the independent numpy implementation of test_diagnose_baseline.py."""
+    from test_diagnose_baseline import lstsq_arx, nrmse, simulate
+
+    n, best = len(u_fit), None
+    for na in range(1, 5):
+        for nb in range(1, 5):
+            for nk in range(1, 5):
+                a, b, c = lstsq_arx(u_fit, y_fit, na, nb, nk, n)
+                e = nrmse(y_fit, simulate(a, b, c, u_fit, y_fit, nk))
+                aic = n * np.log(e * e) + 2 * (na + nb + 1)
+                if best is None or aic < best[0]:
+                    best = (aic, a, b, c, nk)
+    _, a, b, c, nk = best
+    return nrmse(y_val, simulate(a, b, c, u_val, y_val, nk))
+
+
+def numpy_pressure_knees(u, p_a):
+    """Where the quasi-static pressure stops following the opening, per direction (units of
+    u): least squares of the 22-sample (one ringing period) moving average of p on
+    [min(max(u, −k₋), 0), max(min(u, k₊), 0), 1], each knee scanned on a 0.01 grid."""
+    w = np.ones(22) / 22
+    ps = np.convolve(p_a, w, "same")[11:-11]
+    us = np.convolve(u, w, "same")[11:-11]
+    def knee(side):
+        best = None
+        for k in np.arange(0.1, 1.5, 0.01):
+            if side < 0:
+                cols = [np.minimum(np.maximum(us, -k), 0), np.maximum(us, 0)]
+            else:
+                cols = [np.maximum(np.minimum(us, k), 0), np.minimum(us, 0)]
+            a = np.column_stack(cols + [np.ones_like(us)])
+            c, *_ = np.linalg.lstsq(a, ps, rcond=None)
+            s = float(np.sum((a @ c - ps) ** 2))
+            if best is None or s < best[0]:
+                best = (s, k)
+        return best[1]
+    return knee(-1), knee(+1)
+
+
+def test_sjoberg_extended_beats_arx(tmp_path):
+    """The catalogue's model must predict the held-out pressure at least as well as a linear
+    ARX from the opening. The record's pressure response is one-sided: it levels off for
+    negative openings beyond ≈ 0.6 units of u but keeps growing for positive ones (numpy knee
+    estimate below). The `asymmetric` spool limit follows that once its limits start inside the
+    travel the command reaches: started at 0.9 of the travel (this record reaches 16 % and
+    18 %) a limit never clips the command, the cost is flat, the fit did not move it, and the
+    diagnosis named no catalogue effect (or, with the earlier config, the symmetric limit, 0.625
+    against the ARX's 0.621)."""
+    d = diagnose(tmp_path, "--config", str(REPO / "configs" / "sjoberg1995_actuator.toml"),
+                 "--data", str(SJ / "estimation.csv"), "--validate", str(SJ / "validation.csv"))
+    est = np.genfromtxt(SJ / "estimation.csv", delimiter=",", names=True)
+    val = np.genfromtxt(SJ / "validation.csv", delimiter=",", names=True)
+    arx = numpy_arx_heldout(est["u"], est["p_a"], val["u"], val["p_a"])
+    assert d["nrmse_baseline"]["channels"]["p_a"] == pytest.approx(arx, rel=1e-5)
+    ext = d["nrmse_extended"]["channels"]["p_a"]
+    # Achieved 0.458 against the ARX's 0.621 (ratio 0.74).
+    assert ext < arx, (ext, arx)
+    assert d["cause"] == "valve_saturation", d["cause"]
+    sat = [c for c in d["candidates"] if c["effect"] == "valve_saturation"][0]
+    assert sat["variant"] == "asymmetric", sat
+    # The fitted limits against the data's own knees (config: full travel = 8 units of u).
+    k_neg, k_pos = numpy_pressure_knees(est["u"], 5.0 - est["p_a"] / 1e6)
+    lim_neg = 8.0 * sat["params"]["effects.valve_saturation.spool_limit_negative"]
+    lim_pos = 8.0 * sat["params"]["effects.valve_saturation.spool_limit"]
+    assert k_neg < k_pos, (k_neg, k_pos)  # numpy: 0.67 and 0.94
+    assert lim_neg < lim_pos, (lim_neg, lim_pos)
+    assert abs(lim_neg - k_neg) < 0.25, (lim_neg, k_neg)  # fitted 0.57
+
+
 def test_sjoberg_greybox_ratio(tmp_path):
     d = diagnose(tmp_path, "--config", str(REPO / "configs" / "sjoberg1995_actuator.toml"),
                  "--data", str(SJ / "estimation.csv"), "--validate", str(SJ / "validation.csv"))
     g = d["greybox"]
     assert g is not None, d["summary"]
-    # A documented miss. The grey-box terms are chosen by how they predict the last 40 % of the
-    # estimation record when fitted on its first 60 %: on this record no term does (each made
-    # that segment worse), so none is accepted, and the extended model stays the catalogue's
-    # (valve saturation), level with the ARX baseline instead of the ≤ 0.8 target. Terms chosen
-    # by the fitting-part cost alone reached 0.46 on the validation record, but that choice
-    # did not transfer to data other than the validation record on the MTS rig.
-    assert not g["accepted"], g["terms"]
-    t = g["transfer"]
-    assert t["nrmse_after"] == t["nrmse_before"], t
-    ratio = d["nrmse_extended"]["overall"] / d["nrmse_baseline"]["overall"]
-    assert ratio == pytest.approx(1.006, abs=0.01), ratio
-    assert d["cause"] == "valve_saturation", d["cause"]
+    # The grey-box terms are chosen by how they predict the last 40 % of the estimation record
+    # when fitted on its first 60 %; on this record none does, so the final model is the
+    # catalogue's (test above): held-out 0.458, ratio 0.74 (target ≤ 0.8).
+    ratio = g["nrmse_validation"]["overall"] / d["nrmse_baseline"]["overall"]
+    assert ratio <= 0.8, ratio

@@ -228,6 +228,7 @@ mod tests {
                 mass: 10.0,
                 stiffness: 1e7,
                 dt: 2e-4,
+                spool_reach: [1.0, 1.0],
             };
             for &e in EffectId::ALL.iter() {
                 for (variant, params) in effect_variants(e, &nominal, &sc, &analysis()) {

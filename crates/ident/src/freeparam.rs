@@ -147,6 +147,10 @@ pub struct Scales {
     pub stiffness: f64,
     /// Sample period (s).
     pub dt: f64,
+    /// Largest spool target the record's valve command reaches, as a fraction of full travel
+    /// (|u| / `valve.command_full_scale`), in the positive and the negative direction (-).
+    /// A travel limit above it never clips the recorded command: the fit cost is flat there.
+    pub spool_reach: [f64; 2],
 }
 
 impl Scales {
@@ -159,6 +163,14 @@ impl Scales {
             .map(|pl| pl.hydraulic_stiffness(p.cylinder.initial_position))
             .unwrap_or(1e7)
             + p.mechanics.load_stiffness;
+        let fs = p.valve.command_full_scale;
+        let reach = |sign: f64| {
+            rec.u
+                .iter()
+                .map(|u| sign * u / fs)
+                .filter(|s| s.is_finite())
+                .fold(0.0, f64::max)
+        };
         Self {
             force: ps * p.cylinder.area_a,
             flow,
@@ -166,6 +178,7 @@ impl Scales {
             mass: p.mechanics.mass,
             stiffness,
             dt: rec.dt,
+            spool_reach: [reach(1.0), reach(-1.0)],
         }
     }
 }
