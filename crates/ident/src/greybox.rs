@@ -454,6 +454,13 @@ pub(crate) fn extend(
         }
         .unwrap_or(0.0);
         let b = widen * l.bound.max(2.0 * p0.abs());
+        // A rod force beyond what the actuator can push (supply pressure × cap area) is a
+        // stand-in, not a load: force coefficients are never widened past it.
+        let b = if l.unit() == "N" {
+            b.min(fs.max(l.bound))
+        } else {
+            b
+        };
         let field = l.field;
         let st = start;
         let set: crate::fit::Setter = if l.section == "polynomial_force" {
@@ -714,8 +721,16 @@ pub(crate) fn extend(
                 break;
             }
             widen *= 4.0;
+            let wider = make_param(l, 0.0, widen);
+            if wider.hi <= fp.hi * (1.0 + 1e-9) {
+                selection.push(format!(
+                    "{}.{} ended on its bound ±{:.3e} {}: not widened (the actuator's force scale, supply pressure × cap area)",
+                    l.section, l.field, fp.hi, l.unit()
+                ));
+                break;
+            }
             let mut hw = hb.clone();
-            hw.params[k] = make_param(l, 0.0, widen);
+            hw.params[k] = wider;
             hw.values[k] = v;
             let (hw, cw) = sel.fit(hw, k, evals_per_param);
             selection.push(format!(
@@ -728,10 +743,16 @@ pub(crate) fn extend(
                 cb = cw;
             }
         }
-        // Geometric-mean reduction of the per-channel cost on the judged segment.
+        // Geometric-mean reduction of the per-channel cost on the judged segment (a replay
+        // that failed or diverged scores the failure cost: said so, not as a huge number).
         let gain = 1.0 - (lb - l_cur).exp();
+        let gain_text = if gain.is_finite() && gain > -10.0 {
+            format!("{:+.1} %", -100.0 * gain)
+        } else {
+            "replay failed or diverged".to_string()
+        };
         selection.push(format!(
-            "round {}: best {}.{} ({}): fitting NRMSE {:.4} → {:.4}, {} geometric mean of the per-channel J {:+.1} %{}",
+            "round {}: best {}.{} ({}): fitting NRMSE {:.4} → {:.4}, {} geometric mean of the per-channel J {}{}",
             terms.len() + 1,
             l.section,
             l.field,
@@ -739,7 +760,7 @@ pub(crate) fn extend(
             j_cur.sqrt(),
             cb.sqrt(),
             if split.is_some() { "predicted segment:" } else { "fitting part:" },
-            -100.0 * gain,
+            gain_text,
             if gain >= MIN_REL_GAIN { "" } else { " — not a 5 % fall, stop" }
         ));
         if gain < MIN_REL_GAIN {
