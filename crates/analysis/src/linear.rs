@@ -204,3 +204,76 @@ impl LinearModel {
         self.a.complex_eigenvalues().iter().copied().collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ehactl_plant::PlantParams;
+
+    /// A closed critical-centre valve on a double-ended cylinder at mid-stroke, mass m: the
+    /// piston mode is ω² = k/m with the oil column k_h = β·A²·(1/V_a + 1/V_b) (Merritt 1967,
+    /// eq. 5-53 with zero flow-pressure coefficient). A Dahl term F_d·z on the rod adds its
+    /// pre-yield stiffness F_d/δ at rest (dz/dx = 1/δ at z = 0, Dahl 1968), so the
+    /// linearisation must carry the state z: ω² = (k_h + F_d/δ)/m.
+    #[test]
+    fn dahl_pre_yield_stiffness_enters_the_piston_mode() {
+        let (area, v0, beta, m): (f64, f64, f64, f64) = (7.0e-4, 1.0e-4, 1.4e9, 10.0);
+        let (fd, delta) = (800.0, 1e-4);
+        let mode = |dahl: f64| -> f64 {
+            let toml = format!(
+                r#"
+                [fluid]
+                density = 870.0
+                bulk_modulus = {beta}
+                [supply]
+                pressure = 21.0e6
+                [valve]
+                command_full_scale = 10.0
+                flow_form = "kq"
+                rated_flow = 5.4e-5
+                rated_pressure_drop = 1.0e6
+                [cylinder]
+                area_a = {area}
+                area_b = {area}
+                dead_volume_a = {v0}
+                dead_volume_b = {v0}
+                stroke = 0.1
+                initial_position = 0.05
+                [mechanics]
+                mass = {m}
+                end_stops = false
+                [effects.polynomial_force]
+                dahl = {dahl}
+                dahl_travel = {delta}
+                "#
+            );
+            let p: PlantParams = toml::from_str(&toml).unwrap();
+            let mut plant = Plant::configure(&p, 1e-3).unwrap();
+            plant.initialize();
+            let op = OperatingPoint {
+                plant,
+                u0: 0.0,
+                reference: 0.0,
+                feedback: 0.0,
+                settled: true,
+                time_s: 0.0,
+            };
+            let lm = continuous(&op, 1e-7).unwrap();
+            lm.eigenvalues()
+                .iter()
+                .map(|e| e.norm())
+                .fold(0.0, f64::max)
+        };
+        let v = v0 + area * 0.05;
+        let kh = beta * area * area * 2.0 / v;
+        let without = mode(0.0);
+        let with = mode(fd);
+        let want0 = (kh / m).sqrt();
+        let want = ((kh + fd / delta) / m).sqrt();
+        assert!((without / want0 - 1.0).abs() < 0.01, "{without} vs {want0}");
+        assert!(
+            (with / want - 1.0).abs() < 0.01,
+            "{with} vs {want} (k_h/m alone: {want0})"
+        );
+    }
+}

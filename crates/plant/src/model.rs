@@ -694,7 +694,9 @@ impl Plant {
     /// spool (if the spool has dynamics), spool velocity (2nd order), p_a, p_b, p_s (with
     /// supply sag), x, v, x_load and v_load (with a flexible mount), then the line node
     /// pressures, segment flows and (unsteady friction) convolution states
-    /// `line_a.q[j].y[i]` (m³/s) of line A and line B. Used for linearisation.
+    /// `line_a.q[j].y[i]` (m³/s) of line A and line B, the counterbalance valves' node pressure
+    /// and opening, and the Dahl state `dahl_z` (-) of a `polynomial_force` with a Dahl term.
+    /// Used for linearisation.
     pub fn linear_state_names(&self) -> Vec<String> {
         let mut n = Vec::new();
         let order = self.spool_order();
@@ -726,7 +728,15 @@ impl Plant {
                 n.push(format!("cbv_{tag}.opening"));
             }
         }
+        if self.has_dahl() {
+            n.push("dahl_z".into());
+        }
         n
+    }
+
+    /// Whether the rod force law has a Dahl term (its state z is then a continuous state).
+    fn has_dahl(&self) -> bool {
+        self.poly.is_some_and(|f| f.dahl != 0.0)
     }
 
     fn spool_order(&self) -> u8 {
@@ -767,6 +777,9 @@ impl Plant {
         }
         for cb in self.cbv.iter().flatten() {
             v.extend([cb.s.p_node, cb.s.opening]);
+        }
+        if self.has_dahl() {
+            v.push(self.dahl_z);
         }
         v
     }
@@ -816,6 +829,9 @@ impl Plant {
         for cb in self.cbv.iter_mut().flatten() {
             cb.s.p_node = next();
             cb.s.opening = next();
+        }
+        if self.poly.is_some_and(|f| f.dahl != 0.0) {
+            self.dahl_z = next();
         }
         let c = &self.c;
         s.rod_force = c.k_load * (s.x - c.x_contact)
