@@ -31,8 +31,9 @@ fn row(p: &spec::Param) -> [String; 5] {
 /// Entries added on purpose after the fixture (the line scheme and the segment
 /// modes' stability margin, added 2026-11-26; the friction variant `lugre` and the
 /// line_dynamics variant `hose`, 2026-11-27, whose new choice the fixture's
-/// `effects.friction.variant` row carries); tests/rust/param_registry.rs checks their rows.
-const ADDED: [&str; 7] = [
+/// `effects.friction.variant` row carries; the Dahl term of the grey-box force law);
+/// tests/rust/param_registry.rs checks their rows.
+const ADDED: [&str; 9] = [
     "integration.max_omega_h_line",
     "integration.line_method",
     "effects.friction.bristle_stiffness",
@@ -40,6 +41,8 @@ const ADDED: [&str; 7] = [
     "effects.line_dynamics.variant",
     "effects.line_dynamics.wall_compliance",
     "effects.line_dynamics.resistance",
+    "effects.polynomial_force.dahl",
+    "effects.polynomial_force.dahl_travel",
 ];
 
 #[test]
