@@ -1,0 +1,19 @@
+//! `time_delay`: transport / communication delay on the valve command: the config section
+//! [`TimeDelay`] (`[effects.time_delay]`). The delay line is the plant's command buffer
+//! (crates/plant/src/model.rs).
+
+use super::switch::yes;
+use ehactl_params_derive::Params;
+use serde::{Deserialize, Serialize};
+
+/// `time_delay`: transport / communication delay on the valve command.
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TimeDelay {
+    /// Effect switch.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Delay (s).
+    #[param(unit = "s", range = Within(0.0, 1.0), desc = "command delay")]
+    pub delay: f64,
+}

@@ -1,0 +1,32 @@
+//! `valve_dynamics`: spool dynamics, PT1 ż = (u − z)/T_z (003 eq. 1) or second order
+//! ẍ = ω²(u − x) − 2ζω ẋ (004 eq. 1, 000): the config section [`ValveDynamics`]
+//! (`[effects.valve_dynamics]`). Its exact discretisation is `SpoolModel`
+//! (crates/plant/src/valve.rs), which reads the whole plant configuration.
+
+use super::switch::yes;
+use ehactl_params_derive::Params;
+use serde::{Deserialize, Serialize};
+
+/// `valve_dynamics`: spool dynamics, PT1 (003 eq. 1) or second order (004 eq. 1, 000).
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ValveDynamics {
+    /// Effect switch.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Order of the spool model: 1 (PT1) or 2.
+    #[param(unit = "-", range = Within(1.0, 2.0), desc = "spool model order")]
+    pub order: u8,
+    /// PT1 time constant T_z (s) for order 1; 003: 0.01.
+    #[serde(default)]
+    #[param(unit = "s", range = NonNegative, desc = "PT1 time constant T_z (003)")]
+    pub time_constant: f64,
+    /// Natural frequency ω_nv (rad/s) for order 2; 004: 1507.9.
+    #[serde(default)]
+    #[param(unit = "rad/s", range = Within(0.0, 1.0e6), desc = "spool ω_nv (004: 1507.9)")]
+    pub natural_frequency: f64,
+    /// Damping ratio ζ (-) for order 2; 004: 0.59.
+    #[serde(default)]
+    #[param(unit = "-", range = NonNegative, desc = "spool damping ratio ζ (004: 0.59)")]
+    pub damping_ratio: f64,
+}
