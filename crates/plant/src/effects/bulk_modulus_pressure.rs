@@ -93,3 +93,20 @@ pub fn entrained_air_bulk_modulus(beta0: f64, alpha0: f64, n: f64, p: f64) -> f6
     let air = alpha0 * (P0 / pa).powf(1.0 / n);
     ((1.0 - alpha0) + air) / ((1.0 - alpha0) / beta0 + air / (n * pa))
 }
+
+/// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
+/// present and enabled) for the chambers' β(p), given the fluid's β₀ (Pa): the slope K_b (-),
+/// the cap β_max (Pa) and, for variant `entrained_air`, the air (α₀ (-), n (-)). Without the
+/// effect: 0, β₀ and none, i.e. β = β₀.
+pub(crate) fn chamber_constants(
+    s: Option<&BulkModulusPressure>,
+    beta0: f64,
+) -> (f64, f64, Option<(f64, f64)>) {
+    let bmp = s.filter(|b| b.enabled);
+    (
+        bmp.map_or(0.0, |b| b.slope),
+        bmp.map_or(beta0, |b| b.max.max(beta0)),
+        bmp.filter(|b| b.variant == BulkVariant::EntrainedAir)
+            .map(|b| (b.air_fraction, b.polytropic_index)),
+    )
+}

@@ -68,3 +68,15 @@ pub fn body_mount_step(
     *xb += h * v_new;
     a
 }
+
+/// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
+/// present and enabled): the mount (load mass, or the body's for `piston_side` (kg),
+/// stiffness (N/m), damping (N·s/m)) and whether it is the cylinder body's (variant
+/// `piston_side`).
+pub(crate) fn configure(s: Option<&FlexibleMount>) -> (Option<(f64, f64, f64)>, bool) {
+    let mount = s.filter(|m| m.enabled);
+    (
+        mount.map(|m| (m.load_mass, m.stiffness, m.damping)),
+        mount.is_some_and(|m| m.variant == MountVariant::PistonSide),
+    )
+}

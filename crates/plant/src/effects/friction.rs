@@ -213,6 +213,20 @@ impl FrictionModel {
     }
 }
 
+/// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
+/// present and enabled): the friction law with its stick state, the extra viscous friction
+/// (N·s/m) added to `mechanics.damping`, and the bristle stiffness σ₀ (N/m) of variant `lugre`
+/// that the substep rule resolves (0 otherwise).
+pub(crate) fn configure(s: Option<&Friction>) -> (Option<FrictionModel>, f64, f64) {
+    let f = s.filter(|f| f.enabled);
+    (
+        f.map(FrictionModel::new),
+        f.map_or(0.0, |f| f.viscous),
+        f.filter(|f| f.variant == FrictionVariant::Lugre)
+            .map_or(0.0, |f| f.bristle_stiffness),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

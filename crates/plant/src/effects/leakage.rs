@@ -58,3 +58,24 @@ impl Leakage {
         Ok(())
     }
 }
+
+/// Leakage coefficients (m³/(s·Pa)) the chamber balances use (`Plant::configure`,
+/// crates/plant/src/model.rs): cross-piston k_in from `internal`, chamber A's and chamber B's
+/// to tank from `external` (B's is A's unless variant `per_chamber`); 0 for a section that is
+/// absent or switched off.
+pub(crate) fn coefficients(
+    internal: Option<&Leakage>,
+    external: Option<&Leakage>,
+) -> (f64, f64, f64) {
+    let ext = external.filter(|l| l.enabled);
+    (
+        internal
+            .filter(|l| l.enabled)
+            .map_or(0.0, |l| l.coefficient),
+        ext.map_or(0.0, |l| l.coefficient),
+        ext.map_or(0.0, |l| match l.variant {
+            LeakageVariant::Equal => l.coefficient,
+            LeakageVariant::PerChamber => l.coefficient_b,
+        }),
+    )
+}

@@ -170,3 +170,21 @@ impl SupplyModel {
         }
     }
 }
+
+/// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
+/// present and enabled), with the nominal supply pressure `ps0` (Pa) and the fluid's β₀ (Pa):
+/// the equivalent droop (Pa·s/m³; 0 without the effect, and the supply pressure is no state),
+/// the time constant τ (s) of variant `resistance` (floored at 1 ns; 1 s without the effect)
+/// and the substep model.
+pub(crate) fn configure(
+    s: Option<&SupplyPressureDrop>,
+    ps0: f64,
+    beta0: f64,
+) -> (f64, f64, Option<SupplyModel>) {
+    let sdrop = s.filter(|s| s.enabled);
+    (
+        sdrop.map_or(0.0, |s| SupplyModel::new(s, ps0, beta0).droop()),
+        sdrop.map_or(1.0, |s| s.time_constant.max(1e-9)),
+        sdrop.map(|s| SupplyModel::new(s, ps0, beta0)),
+    )
+}

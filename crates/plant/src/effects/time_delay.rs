@@ -17,3 +17,9 @@ pub struct TimeDelay {
     #[param(unit = "s", range = Within(0.0, 1.0), desc = "command delay")]
     pub delay: f64,
 }
+
+/// The command delay (s) of the section `s`, 0 when it is absent or switched off
+/// (`Plant::configure`, crates/plant/src/model.rs).
+pub(crate) fn delay(s: Option<&TimeDelay>) -> f64 {
+    s.filter(|d| d.enabled).map_or(0.0, |d| d.delay)
+}

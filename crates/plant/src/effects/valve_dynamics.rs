@@ -30,3 +30,15 @@ pub struct ValveDynamics {
     #[param(unit = "-", range = NonNegative, desc = "spool damping ratio ζ (004: 0.59)")]
     pub damping_ratio: f64,
 }
+
+/// The spool's bandwidth (rad/s) that sets the substep of `integration.method =
+/// "linear_exact"`, where the spool is the fastest part integrated explicitly
+/// (`Plant::configure`, crates/plant/src/model.rs): 1/T_z (order 1 with T_z > 0), ω_nv
+/// (order 2), 0 for an ideal spool (section absent or switched off, or T_z = 0).
+pub(crate) fn bandwidth(s: Option<&ValveDynamics>) -> f64 {
+    match s.filter(|d| d.enabled) {
+        Some(d) if d.order == 1 && d.time_constant > 0.0 => 1.0 / d.time_constant,
+        Some(d) if d.order == 2 => d.natural_frequency,
+        _ => 0.0,
+    }
+}
