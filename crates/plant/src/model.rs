@@ -199,61 +199,17 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
         ));
     }
     if let Some(f) = p.effects.friction.as_ref() {
-        if f.static_force < f.coulomb_force {
-            return Err(ConfigError::new(
-                "effects.friction.static_force",
-                format!(
-                    "static (breakaway) force {} N must be ≥ coulomb_force {} N",
-                    f.static_force, f.coulomb_force
-                ),
-            ));
-        }
+        f.validate_forces()?;
     }
     if let Some(d) = p.effects.valve_dynamics.as_ref() {
-        match d.order {
-            // 0 is the ideal spool (the limit of the PT1 as T_z → 0, `SpoolModel::Ideal`): the
-            // nominal value of a valve bandwidth the diagnosis refits from 0 up.
-            1 if !(d.time_constant >= 0.0) => {
-                return Err(ConfigError::new(
-                    "effects.valve_dynamics.time_constant",
-                    "must be ≥ 0 s for order = 1 (0: the spool follows the command at once)",
-                ))
-            }
-            2 if d.natural_frequency <= 0.0 || d.damping_ratio <= 0.0 => {
-                return Err(ConfigError::new(
-                    "effects.valve_dynamics.natural_frequency",
-                    "natural_frequency (rad/s) and damping_ratio (-) must be > 0 for order = 2",
-                ))
-            }
-            1 | 2 => {}
-            o => {
-                return Err(ConfigError::new(
-                    "effects.valve_dynamics.order",
-                    format!("order {o} is not supported; expected 1 or 2"),
-                ))
-            }
-        }
+        d.validate_order()?;
     }
     if let Some(t) = p.effects.sensor_tone.as_ref() {
-        if t.frequencies.len() != t.amplitudes.len() {
-            return Err(ConfigError::new(
-                "effects.sensor_tone.amplitudes",
-                format!(
-                    "{} amplitudes for {} frequencies; expected one amplitude per frequency",
-                    t.amplitudes.len(),
-                    t.frequencies.len()
-                ),
-            ));
-        }
+        t.validate_amplitudes()?;
     }
     validate_variants(p)?;
     if let Some(d) = p.effects.time_delay.as_ref() {
-        if d.delay > 1.0 {
-            return Err(ConfigError::new(
-                "effects.time_delay.delay",
-                "must be ≤ 1 s",
-            ));
-        }
+        d.validate_delay()?;
     }
     if let Some(cb) = p
         .effects

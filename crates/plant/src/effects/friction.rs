@@ -99,6 +99,22 @@ impl Friction {
 }
 
 impl Friction {
+    /// Check of the forces: the breakaway force F_s is at least the Coulomb force F_C (N).
+    pub(crate) fn validate_forces(&self) -> Result<(), ConfigError> {
+        if self.static_force < self.coulomb_force {
+            return Err(ConfigError::new(
+                "effects.friction.static_force",
+                format!(
+                    "static (breakaway) force {} N must be ≥ coulomb_force {} N",
+                    self.static_force, self.coulomb_force
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Friction {
     /// Cross-field check of the variant: `lugre` needs its bristle stiffness and a Coulomb force.
     pub(crate) fn validate_variant(&self) -> Result<(), ConfigError> {
         if self.variant == FrictionVariant::Lugre

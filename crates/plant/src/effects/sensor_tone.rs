@@ -52,6 +52,23 @@ impl SensorTone {
 }
 
 impl SensorTone {
+    /// Check: one amplitude per frequency.
+    pub(crate) fn validate_amplitudes(&self) -> Result<(), ConfigError> {
+        if self.frequencies.len() != self.amplitudes.len() {
+            return Err(ConfigError::new(
+                "effects.sensor_tone.amplitudes",
+                format!(
+                    "{} amplitudes for {} frequencies; expected one amplitude per frequency",
+                    self.amplitudes.len(),
+                    self.frequencies.len()
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl SensorTone {
     /// Cross-field check: one phase per frequency, or none.
     pub(crate) fn validate_variant(&self) -> Result<(), ConfigError> {
         if !self.phases.is_empty() && self.phases.len() != self.frequencies.len() {

@@ -3,6 +3,7 @@
 //! (crates/plant/src/model.rs).
 
 use super::switch::yes;
+use crate::spec::ConfigError;
 use ehactl_params_derive::Params;
 use serde::{Deserialize, Serialize};
 
@@ -16,6 +17,19 @@ pub struct TimeDelay {
     /// Delay (s).
     #[param(unit = "s", range = Within(0.0, 1.0), desc = "command delay")]
     pub delay: f64,
+}
+
+impl TimeDelay {
+    /// Check: the delay is at most 1 s.
+    pub(crate) fn validate_delay(&self) -> Result<(), ConfigError> {
+        if self.delay > 1.0 {
+            return Err(ConfigError::new(
+                "effects.time_delay.delay",
+                "must be ≤ 1 s",
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The command delay (s) of the section `s`, 0 when it is absent or switched off

@@ -4,6 +4,7 @@
 //! (crates/plant/src/valve.rs), which reads the whole plant configuration.
 
 use super::switch::yes;
+use crate::spec::ConfigError;
 use ehactl_params_derive::Params;
 use serde::{Deserialize, Serialize};
 
@@ -29,6 +30,37 @@ pub struct ValveDynamics {
     #[serde(default)]
     #[param(unit = "-", range = NonNegative, desc = "spool damping ratio ζ (004: 0.59)")]
     pub damping_ratio: f64,
+}
+
+impl ValveDynamics {
+    /// Check of the order and its bandwidth: order 1 with T_z ≥ 0 s (0: ideal spool), order 2 with
+    /// ω_nv > 0 rad/s and ζ > 0.
+    pub(crate) fn validate_order(&self) -> Result<(), ConfigError> {
+        match self.order {
+            // 0 is the ideal spool (the limit of the PT1 as T_z → 0, `SpoolModel::Ideal`): the
+            // nominal value of a valve bandwidth the diagnosis refits from 0 up.
+            1 if !(self.time_constant >= 0.0) => {
+                return Err(ConfigError::new(
+                    "effects.valve_dynamics.time_constant",
+                    "must be ≥ 0 s for order = 1 (0: the spool follows the command at once)",
+                ))
+            }
+            2 if self.natural_frequency <= 0.0 || self.damping_ratio <= 0.0 => {
+                return Err(ConfigError::new(
+                    "effects.valve_dynamics.natural_frequency",
+                    "natural_frequency (rad/s) and damping_ratio (-) must be > 0 for order = 2",
+                ))
+            }
+            1 | 2 => {}
+            o => {
+                return Err(ConfigError::new(
+                    "effects.valve_dynamics.order",
+                    format!("order {o} is not supported; expected 1 or 2"),
+                ))
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The spool's bandwidth (rad/s) that sets the substep of `integration.method =
