@@ -47,7 +47,7 @@ pub enum FrictionVariant {
     /// stiffness σ₀ (`bristle_stiffness`, pre-sliding displacement ≈ F_C/σ₀) damped by σ₁
     /// (`bristle_damping`); with `static_force` = `coulomb_force` and σ₁ = 0 it is Dahl's
     /// (1968, "A solid friction model", Aerospace Corp. TOR-0158(3107-18)-1) model with
-    /// exponent 1, dF/dx = σ₀·(1 − F·sign(v)/F_C). See [`crate::friction`].
+    /// exponent 1, dF/dx = σ₀·(1 − F·sign(v)/F_C). See [`FrictionModel`].
     Lugre,
 }
 

@@ -4,12 +4,14 @@
 //! with the `#[param]` declarations, defaults and cross-field checks, and its physics where it
 //! is that effect's alone.
 //!
-//! Adding an effect on the plant side: its module here (section struct, checks, physics), its
-//! `EffectId` variant with the lines in [`EffectId::ALL`], [`EffectId::as_str`] and the
-//! [`Effects`] switch matches below (exhaustive: a new id does not build without them), its
-//! `Option` field in [`Effects`] (crates/plant/src/params.rs) and, if it has cross-field
-//! checks, its call in [`validate_variants`]. What it adds to the state equations is in
-//! [`crate::model`] (`Plant::configure`, `Plant::advance_substep`).
+//! Adding an effect on the plant side: its module here (section struct, checks, physics, the
+//! constants `Plant::configure` derives from the section), its `EffectId` variant with the
+//! lines in [`EffectId::ALL`], [`EffectId::as_str`] and the [`Effects`] switch matches below
+//! (exhaustive: a new id does not build without them), its `Option` field in [`Effects`] and
+//! its re-export line (crates/plant/src/params.rs), the call of its checks in
+//! [`validate_variants`] (or `model::validate`), and in [`crate::model`] the call of its
+//! derived constants in `Plant::configure` and its terms in the substep
+//! (`Plant::advance_substep`, the inner loop, kept in one place).
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
 //! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
