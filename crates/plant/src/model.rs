@@ -567,10 +567,13 @@ impl Plant {
     /// Effective bulk modulus at gauge pressure `p` (Pa): β₀ + K_b·p, capped (002 eq. 35).
     #[inline]
     pub fn bulk_modulus(&self, p: f64) -> f64 {
-        if let Some((alpha0, n)) = self.c.air {
-            return crate::effects::entrained_air_bulk_modulus(self.c.beta0, alpha0, n, p);
-        }
-        (self.c.beta0 + self.c.beta_slope * p.max(0.0)).min(self.c.beta_max)
+        effects::bulk_modulus_pressure::bulk_modulus(
+            self.c.beta0,
+            self.c.beta_slope,
+            self.c.beta_max,
+            self.c.air,
+            p,
+        )
     }
 
     /// Chamber volumes (m³) at piston position `x` (003 eq. 7–8).

@@ -94,6 +94,24 @@ pub fn entrained_air_bulk_modulus(beta0: f64, alpha0: f64, n: f64, p: f64) -> f6
     ((1.0 - alpha0) + air) / ((1.0 - alpha0) / beta0 + air / (n * pa))
 }
 
+/// β(p) (Pa) at gauge pressure `p` (Pa) from the constants of [`chamber_constants`]: with
+/// `air` (α₀, n) the entrained-air law ([`entrained_air_bulk_modulus`]), else
+/// β₀ + K_b·max(p, 0) capped at β_max (002 eq. 35); without the effect (K_b = 0, β_max = β₀)
+/// β₀.
+#[inline]
+pub(crate) fn bulk_modulus(
+    beta0: f64,
+    slope: f64,
+    max: f64,
+    air: Option<(f64, f64)>,
+    p: f64,
+) -> f64 {
+    if let Some((alpha0, n)) = air {
+        return entrained_air_bulk_modulus(beta0, alpha0, n, p);
+    }
+    (beta0 + slope * p.max(0.0)).min(max)
+}
+
 /// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
 /// present and enabled) for the chambers' β(p), given the fluid's β₀ (Pa): the slope K_b (-),
 /// the cap β_max (Pa) and, for variant `entrained_air`, the air (α₀ (-), n (-)). Without the
