@@ -9,7 +9,7 @@
 //! | [`valve`] | spool dynamics (PT1 / 2nd order), four metering edges, lap, saturation, K_C(P_d) | 003 eq. 9–13, 004 eq. 1, 20–23 |
 //! | [`model`] | chambers over stroke, β(p), leakage, cavitation, mechanics, end stops, supply | 002 eq. 35, 003 eq. 1, 7–8, 14–15 |
 //! | [`exact`] | exact discretisation of chambers + mechanics (`linear_exact`) | Van Loan 1978 |
-//! | [`friction`] | static/Coulomb/Stribeck with true stick | 003 eq. 5, 004 eq. 28–34 |
+//! | [`effects`] | the effect catalogue ([`EffectId`]), one module per effect: its config section and its own physics, e.g. [`effects::friction`] (static/Coulomb/Stribeck with true stick, LuGre), [`effects::supply_pressure_drop`] | the effect's seed, in its module docs |
 //! | [`line`] | lumped R-L-C lines | 002 eq. 9–17 |
 //! | [`cbv`] | counterbalance valves: pilot-assisted relief + free-flow check | 002 eq. 18–19, fig. 2 |
 //! | [`excitation`] | constant, harmonic, impact train | 003 eq. 2, 17 |
@@ -23,7 +23,6 @@ pub mod cbv;
 pub mod effects;
 pub mod exact;
 pub mod excitation;
-pub mod friction;
 pub mod line;
 pub mod model;
 pub mod params;
@@ -31,6 +30,10 @@ mod registry;
 pub mod rng;
 pub mod sensors;
 pub mod valve;
+
+/// `friction`'s law with the stick state, under its historical path (now in
+/// [`effects::friction`]).
+pub use effects::friction;
 
 /// The parameter registry: the registry types (`Param`, `Range`, `ParamTree`, the TOML
 /// checks, `ConfigError`), which live in `ehactl-types` (crates/types/src/spec.rs) so that

@@ -20,10 +20,10 @@
 //! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see [`fastest_mode`]).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
-use crate::effects::validate_variants;
+use crate::effects::friction::FrictionModel;
+use crate::effects::{self, validate_variants};
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
-use crate::friction::FrictionModel;
 use crate::line::Line;
 use crate::params::PlantParams;
 use crate::sensors::{Measurements, SensorModel, TrueValues};
@@ -202,61 +202,17 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
         ));
     }
     if let Some(f) = p.effects.friction.as_ref() {
-        if f.static_force < f.coulomb_force {
-            return Err(ConfigError::new(
-                "effects.friction.static_force",
-                format!(
-                    "static (breakaway) force {} N must be ≥ coulomb_force {} N",
-                    f.static_force, f.coulomb_force
-                ),
-            ));
-        }
+        f.validate_forces()?;
     }
     if let Some(d) = p.effects.valve_dynamics.as_ref() {
-        match d.order {
-            // 0 is the ideal spool (the limit of the PT1 as T_z → 0, `SpoolModel::Ideal`): the
-            // nominal value of a valve bandwidth the diagnosis refits from 0 up.
-            1 if !(d.time_constant >= 0.0) => {
-                return Err(ConfigError::new(
-                    "effects.valve_dynamics.time_constant",
-                    "must be ≥ 0 s for order = 1 (0: the spool follows the command at once)",
-                ))
-            }
-            2 if d.natural_frequency <= 0.0 || d.damping_ratio <= 0.0 => {
-                return Err(ConfigError::new(
-                    "effects.valve_dynamics.natural_frequency",
-                    "natural_frequency (rad/s) and damping_ratio (-) must be > 0 for order = 2",
-                ))
-            }
-            1 | 2 => {}
-            o => {
-                return Err(ConfigError::new(
-                    "effects.valve_dynamics.order",
-                    format!("order {o} is not supported; expected 1 or 2"),
-                ))
-            }
-        }
+        d.validate_order()?;
     }
     if let Some(t) = p.effects.sensor_tone.as_ref() {
-        if t.frequencies.len() != t.amplitudes.len() {
-            return Err(ConfigError::new(
-                "effects.sensor_tone.amplitudes",
-                format!(
-                    "{} amplitudes for {} frequencies; expected one amplitude per frequency",
-                    t.amplitudes.len(),
-                    t.frequencies.len()
-                ),
-            ));
-        }
+        t.validate_amplitudes()?;
     }
     validate_variants(p)?;
     if let Some(d) = p.effects.time_delay.as_ref() {
-        if d.delay > 1.0 {
-            return Err(ConfigError::new(
-                "effects.time_delay.delay",
-                "must be ≤ 1 s",
-            ));
-        }
+        d.validate_delay()?;
     }
     if let Some(cb) = p
         .effects
@@ -296,9 +252,23 @@ impl Plant {
             ));
         }
         let e = &params.effects;
-        let bmp = e.bulk_modulus_pressure.as_ref().filter(|b| b.enabled);
-        let sdrop = e.supply_pressure_drop.as_ref().filter(|s| s.enabled);
-        let mount = e.flexible_mount.as_ref().filter(|m| m.enabled);
+        // Each effect's constants, derived in its module (crates/plant/src/effects/).
+        let (beta_slope, beta_max, air) = effects::bulk_modulus_pressure::chamber_constants(
+            e.bulk_modulus_pressure.as_ref(),
+            params.fluid.bulk_modulus,
+        );
+        let (k_in, k_ext, k_ext_b) = effects::leakage::coefficients(
+            e.internal_leakage.as_ref(),
+            e.external_leakage.as_ref(),
+        );
+        let (friction, friction_viscous, k_bristle) =
+            effects::friction::configure(e.friction.as_ref());
+        let (supply_r, supply_tau, supply) = effects::supply_pressure_drop::configure(
+            e.supply_pressure_drop.as_ref(),
+            params.supply.pressure,
+            params.fluid.bulk_modulus,
+        );
+        let (mount, body_mount) = effects::flexible_mount::configure(e.flexible_mount.as_ref());
         let c = Consts {
             a_a: params.cylinder.area_a,
             a_b: params.cylinder.area_b,
@@ -306,72 +276,28 @@ impl Plant {
             v_b0: params.cylinder.dead_volume_b,
             stroke: params.cylinder.stroke,
             beta0: params.fluid.bulk_modulus,
-            beta_slope: bmp.map_or(0.0, |b| b.slope),
-            beta_max: bmp.map_or(params.fluid.bulk_modulus, |b| {
-                b.max.max(params.fluid.bulk_modulus)
-            }),
+            beta_slope,
+            beta_max,
             p_cav: params.fluid.cavitation_pressure,
             ps0: params.supply.pressure,
             pt: params.supply.tank_pressure,
-            k_in: e
-                .internal_leakage
-                .as_ref()
-                .filter(|l| l.enabled)
-                .map_or(0.0, |l| l.coefficient),
-            k_ext: e
-                .external_leakage
-                .as_ref()
-                .filter(|l| l.enabled)
-                .map_or(0.0, |l| l.coefficient),
-            k_ext_b: e
-                .external_leakage
-                .as_ref()
-                .filter(|l| l.enabled)
-                .map_or(0.0, |l| match l.variant {
-                    crate::params::LeakageVariant::Equal => l.coefficient,
-                    crate::params::LeakageVariant::PerChamber => l.coefficient_b,
-                }),
-            air: bmp
-                .filter(|b| b.variant == crate::params::BulkVariant::EntrainedAir)
-                .map(|b| (b.air_fraction, b.polytropic_index)),
+            k_in,
+            k_ext,
+            k_ext_b,
+            air,
             mass: params.mechanics.mass,
-            damping: params.mechanics.damping
-                + e.friction
-                    .as_ref()
-                    .filter(|f| f.enabled)
-                    .map_or(0.0, |f| f.viscous),
+            damping: params.mechanics.damping + friction_viscous,
             k_load: params.mechanics.load_stiffness,
-            k_bristle: e
-                .friction
-                .as_ref()
-                .filter(|f| f.enabled && f.variant == crate::params::FrictionVariant::Lugre)
-                .map_or(0.0, |f| f.bristle_stiffness),
+            k_bristle,
             x_contact: params.mechanics.load_contact_position,
             end_stops: params.mechanics.end_stops,
             full_scale: params.valve.command_full_scale,
-            supply_r: sdrop.map_or(0.0, |s| {
-                crate::effects::SupplyModel::new(
-                    s,
-                    params.supply.pressure,
-                    params.fluid.bulk_modulus,
-                )
-                .droop()
-            }),
-            supply_tau: sdrop.map_or(1.0, |s| s.time_constant.max(1e-9)),
-            supply: sdrop.map(|s| {
-                crate::effects::SupplyModel::new(
-                    s,
-                    params.supply.pressure,
-                    params.fluid.bulk_modulus,
-                )
-            }),
-            mount: mount.map(|m| (m.load_mass, m.stiffness, m.damping)),
-            body_mount: mount.is_some_and(|m| m.variant == crate::params::MountVariant::PistonSide),
-            delay: e
-                .time_delay
-                .as_ref()
-                .filter(|d| d.enabled)
-                .map_or(0.0, |d| d.delay),
+            supply_r,
+            supply_tau,
+            supply,
+            mount,
+            body_mount,
+            delay: effects::time_delay::delay(e.time_delay.as_ref()),
             line_scale: params.integration.max_omega_h
                 / params
                     .integration
@@ -448,12 +374,8 @@ impl Plant {
             // Hydraulic spring, load spring and mount are exact: the step is limited only by
             // what enters explicitly, the spool (its mid-step position sets the valve flow)
             // and the supply sag.
-            omega_max = match e.valve_dynamics.as_ref().filter(|d| d.enabled) {
-                Some(d) if d.order == 1 && d.time_constant > 0.0 => 1.0 / d.time_constant,
-                Some(d) if d.order == 2 => d.natural_frequency,
-                _ => 0.0,
-            };
-            if sdrop.is_some() {
+            omega_max = effects::valve_dynamics::bandwidth(e.valve_dynamics.as_ref());
+            if c.supply.is_some() {
                 omega_max = omega_max.max(1.0 / c.supply_tau);
             }
         }
@@ -521,11 +443,7 @@ impl Plant {
             spool_model: SpoolModel::new(params, h)?,
             spool_half: SpoolModel::new(params, 0.5 * h)?,
             linear,
-            friction: e
-                .friction
-                .as_ref()
-                .filter(|f| f.enabled)
-                .map(FrictionModel::new),
+            friction,
             poly: e.polynomial_force.filter(|f| f.enabled),
             dahl_z: 0.0,
             poly_flow: e.polynomial_flow.filter(|f| f.enabled),
@@ -654,10 +572,13 @@ impl Plant {
     /// Effective bulk modulus at gauge pressure `p` (Pa): β₀ + K_b·p, capped (002 eq. 35).
     #[inline]
     pub fn bulk_modulus(&self, p: f64) -> f64 {
-        if let Some((alpha0, n)) = self.c.air {
-            return crate::effects::entrained_air_bulk_modulus(self.c.beta0, alpha0, n, p);
-        }
-        (self.c.beta0 + self.c.beta_slope * p.max(0.0)).min(self.c.beta_max)
+        effects::bulk_modulus_pressure::bulk_modulus(
+            self.c.beta0,
+            self.c.beta_slope,
+            self.c.beta_max,
+            self.c.air,
+            p,
+        )
     }
 
     /// Chamber volumes (m³) at piston position `x` (003 eq. 7–8).

@@ -1,9 +1,9 @@
 //! Sensor models: load cell (sensitivity, noise, tones as in 004 at 225/420 Hz), chamber
 //! pressures, magnetostrictive position transducer (resolution, update period), spool.
 
+use crate::effects::sensor_tone::Tone;
 use crate::params::{SensorChannel, SensorTone, Sensors};
 use crate::rng::NoiseRng;
-use std::f64::consts::TAU;
 
 pub use ehactl_types::Measurements;
 
@@ -22,67 +22,6 @@ pub struct TrueValues {
     pub p_b: f64,
     /// Spool (fraction).
     pub spool: f64,
-}
-
-/// One tone A·sin(2π f t) evaluated by rotation: when consecutive sample times are equally
-/// spaced (the control grid), (sin, cos) advance by one complex multiplication instead of a
-/// `sin` call; any other spacing, and every [`Tone::RESYNC`]-th sample, recomputes them
-/// exactly, so the rounding drift stays below 1e-13 of the amplitude.
-#[derive(Debug, Clone)]
-struct Tone {
-    w: f64,
-    /// Phase φ (rad): amp·sin(w·t + φ).
-    ph: f64,
-    amp: f64,
-    s: f64,
-    c: f64,
-    t_last: f64,
-    dt: f64,
-    rot: (f64, f64),
-    since_sync: u32,
-}
-
-impl Tone {
-    const RESYNC: u32 = 1024;
-
-    fn new(freq: f64, amp: f64, ph: f64) -> Self {
-        Self {
-            w: TAU * freq,
-            ph,
-            amp,
-            s: 0.0,
-            c: 1.0,
-            t_last: f64::NAN,
-            dt: f64::NAN,
-            rot: (0.0, 1.0),
-            since_sync: 0,
-        }
-    }
-
-    #[inline]
-    fn value(&mut self, t: f64) -> f64 {
-        let dt = t - self.t_last;
-        if dt == self.dt || (dt - self.dt).abs() <= 1e-12 * self.dt.abs() {
-            if self.since_sync < Self::RESYNC {
-                let (sd, cd) = self.rot;
-                let s = self.s * cd + self.c * sd;
-                self.c = self.c * cd - self.s * sd;
-                self.s = s;
-                self.since_sync += 1;
-                self.t_last = t;
-                return self.amp * self.s;
-            }
-        } else if dt.is_finite() && dt > 0.0 {
-            self.dt = dt;
-            self.rot = (self.w * dt).sin_cos();
-        }
-        let (s, c) = (self.w * t + self.ph).sin_cos();
-        self.s = s;
-        self.c = c;
-        self.since_sync = 0;
-        self.t_last = t;
-        self.amp * s
-    }
 }
 
 /// Noise channels, in the order of their generator streams.

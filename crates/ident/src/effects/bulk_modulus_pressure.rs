@@ -1,6 +1,6 @@
 //! `bulk_modulus_pressure`: pressure-dependent bulk modulus β(p) = β₀ + K_b·p capped at `max`, or
 //! entrained air (variant `entrained_air`). Model and sources: `BulkModulusPressure` in
-//! crates/plant/src/params.rs.
+//! crates/plant/src/effects/bulk_modulus_pressure.rs.
 //!
 //! Seeds: slope K_b = 5 (bounds 0…400), cap max(2.2 GPa, 1.6·β₀); air fraction 0.5 % (10⁻⁵…0.1,
 //! polytropic index 1.4).

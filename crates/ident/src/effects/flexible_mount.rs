@@ -1,6 +1,6 @@
 //! `flexible_mount`: spring-damper from the rod to a load mass, or a compliant cylinder mount
 //! (variant `piston_side`, same parameters). Model and sources: `FlexibleMount` in
-//! crates/plant/src/params.rs.
+//! crates/plant/src/effects/flexible_mount.rs.
 //!
 //! Seeds: load mass = moving mass (0.02…20×), stiffness k = m·ω² at the residual's mode frequency
 //! (10⁻³…10× the hydraulic stiffness), damping ratio 0.1 of the critical 2·√(k·m).

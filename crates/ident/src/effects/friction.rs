@@ -1,7 +1,7 @@
 //! `friction`: Stribeck seal friction with stick, a load-side Coulomb force (variant
 //! `load_coulomb`) or LuGre pre-sliding friction (variant `lugre`; Canudas de Wit, Olsson, Åström
 //! and Lischinsky 1995, IEEE Trans. Automatic Control 40(3)). Model and sources: `Friction` in
-//! crates/plant/src/params.rs.
+//! crates/plant/src/effects/friction.rs.
 //!
 //! Seeds: Coulomb level 0.5 % of the rig force scale p_s·A_A (bounds 10⁻⁴…0.1×), breakaway ratio
 //! F_s/F_C 1.2, Stribeck velocity 10 mm/s; LuGre bristle stiffness 0.3× the hydraulic stiffness,

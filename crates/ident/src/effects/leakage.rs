@@ -1,6 +1,6 @@
 //! `internal_leakage` (cross-piston) / `external_leakage` (per chamber to tank): laminar
 //! leakage Q = k_l·Δp; external leakage equal or per chamber (variant `per_chamber`). Model
-//! and sources: `Leakage` in crates/plant/src/params.rs. One module for both: one section type
+//! and sources: `Leakage` in crates/plant/src/effects/leakage.rs. One module for both: one section type
 //! and one seed rule.
 //!
 //! Seed: k_l = 1 % of the rig's Q/p_s (bounds 10⁻⁵…1×).

@@ -1,6 +1,6 @@
 //! `line_dynamics`: lumped R-L-C segments between the valve ports and the chambers, rigid pipes or
 //! compliant hoses (variant `hose`). Model and sources: `LineDynamics` in
-//! crates/plant/src/params.rs.
+//! crates/plant/src/effects/line_dynamics.rs.
 //!
 //! Seeds: a 1 m pipe of 8 mm bore, two segments (bounds 0.1…15 m, 2…30 mm); a hose 2 m of 10 mm
 //! bore with wall compliance 10⁻⁹ 1/Pa and fittings 1 % of p_s/Q.

@@ -8,8 +8,10 @@
 //!
 //! Adding an effect on the diagnosis side: one module here implementing [`EffectFit`] and its
 //! line in [`of`] (the match is exhaustive, so a new [`EffectId`] does not build without it).
-//! The plant side (the parameter section in crates/plant/src/params.rs, the model's
-//! contribution in crates/plant/src/model.rs and crates/plant/src/effects.rs) is not here.
+//! The plant side is the module of the same name in crates/plant/src/effects/ (the effect's
+//! config section, checks, own physics and derived constants; its registration in that
+//! directory's mod.rs) and the effect's terms in the state equations, in
+//! crates/plant/src/model.rs.
 
 use crate::evidence::Analysis;
 use crate::freeparam::{FreeParam, Scales};

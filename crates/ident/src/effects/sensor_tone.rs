@@ -1,5 +1,5 @@
 //! `sensor_tone`: periodic disturbance a·sin(ωt + φ) on one sensor. Model: `SensorTone` in
-//! crates/plant/src/params.rs.
+//! crates/plant/src/effects/sensor_tone.rs.
 //!
 //! Seeds: the (at most two) strongest lines of the residual spectra on the channel of the strongest
 //! one (`crate::analysis`), frequency within ±0.02 Welch bin, sine and cosine amplitudes within ±4×

@@ -1,6 +1,6 @@
 //! `supply_pressure_drop`: supply pressure sagging with flow, p_s → p_s0 − R·Q_s with time constant
 //! τ, or a flow-limited pressure-compensated pump (variant `pump_limit`). Model and sources:
-//! `SupplyPressureDrop` in crates/plant/src/params.rs.
+//! `SupplyPressureDrop` in crates/plant/src/effects/supply_pressure_drop.rs.
 //!
 //! Seeds: R = 5 % of the rig's p_s/Q (10⁻³…2×), τ = 20 ms (1 ms…1 s); pump flow = the edge flow Q
 //! (0.2…4×), regulation band 5 % of p_s, accumulator volume 0.5 l.

@@ -1,5 +1,5 @@
 //! `time_delay`: transport / communication delay on the valve command. Model: `TimeDelay` in
-//! crates/plant/src/params.rs.
+//! crates/plant/src/effects/time_delay.rs.
 //!
 //! Seed: the lag the residual analysis finds (at least one sample; bounds 0…min(60·Δt, 0.2 s)).
 

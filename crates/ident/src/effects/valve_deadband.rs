@@ -1,6 +1,6 @@
 //! `valve_deadband`: spool overlap (dead zone) and zero offset, or an amplifier dead zone ahead of
 //! an underlapped spool (variant `amplifier`). Model and sources: `ValveDeadband` in
-//! crates/plant/src/params.rs.
+//! crates/plant/src/effects/valve_deadband.rs.
 //!
 //! Seeds: overlap / dead zone 2 % of the spool stroke (bounds 0…30 %), zero offset 0 (±5 %).
 

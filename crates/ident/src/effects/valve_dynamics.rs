@@ -1,5 +1,5 @@
 //! `valve_dynamics`: spool dynamics, first order (time constant) or second order (natural frequency
-//! ω_v, damping ratio ζ_v). Model and sources: `ValveDynamics` in crates/plant/src/params.rs.
+//! ω_v, damping ratio ζ_v). Model and sources: `ValveDynamics` in crates/plant/src/effects/valve_dynamics.rs.
 //!
 //! Seeds: a configured first-order valve refits its time constant (0.1 ms…0.3 s); otherwise second
 //! order at ω_v = 2π·min(0.1/Δt, 200 Hz) (bounds 2π·1 Hz…2π·min(0.5/Δt, 3 kHz)), ζ_v = 0.7 (0.2…2).

@@ -1,5 +1,5 @@
 //! `valve_saturation`: spool travel limit, symmetric or per direction (variant `asymmetric`). Model
-//! and sources: `ValveSaturation` in crates/plant/src/params.rs.
+//! and sources: `ValveSaturation` in crates/plant/src/effects/valve_saturation.rs.
 //!
 //! Seeds: spool limit 0.9 of the stroke (bounds 0.05…1); the per-direction limits of the
 //! `asymmetric` variant at 0.9 of the travel the record's command reaches in that direction

@@ -1,7 +1,40 @@
-//! The effect catalogue (docs/design.md): stable ids shared by configs, diagnosis and tests.
+//! The effect catalogue (docs/design.md): stable ids shared by configs, diagnosis and tests
+//! ([`EffectId`]), and the plant side of each catalogue effect, one module per effect (named
+//! as the diagnosis side's, crates/ident/src/effects/): its config section `[effects.<id>]`
+//! with the `#[param]` declarations, defaults and cross-field checks, and its physics where it
+//! is that effect's alone.
+//!
+//! Adding an effect on the plant side: its module here (section struct, checks, physics, the
+//! constants `Plant::configure` derives from the section), its `EffectId` variant with the
+//! lines in [`EffectId::ALL`], [`EffectId::as_str`] and the [`Effects`] switch matches below
+//! (exhaustive: a new id does not build without them), its `Option` field in [`Effects`] and
+//! its re-export line (crates/plant/src/params.rs), the call of its checks in
+//! [`validate_variants`] (or `model::validate`), and in [`crate::model`] the call of its
+//! derived constants in `Plant::configure` and its terms in the substep
+//! (`Plant::advance_substep`, the inner loop, kept in one place).
+//!
+//! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
+//! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
 
 use crate::params::Effects;
 pub use crate::params::{PolynomialFlow, PolynomialForce};
+
+pub mod bulk_modulus_pressure;
+pub mod flexible_mount;
+pub mod friction;
+pub mod leakage;
+pub mod line_dynamics;
+pub mod sensor_tone;
+pub mod supply_pressure_drop;
+mod switch;
+pub mod time_delay;
+pub mod valve_deadband;
+pub mod valve_dynamics;
+pub mod valve_saturation;
+
+pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
+pub use flexible_mount::body_mount_step;
+pub use supply_pressure_drop::SupplyModel;
 
 /// One effect of the catalogue.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -136,201 +169,28 @@ impl Effects {
     }
 }
 
-/// Bulk modulus of an oil with entrained air (Pa) at gauge pressure `p` (Pa): liquid β₀,
-/// air volume fraction α₀ at atmospheric pressure, polytropic index n (the "Yu" model of
-/// Gholizadeh, Burton & Schoenau 2011, Int. J. Fluid Power 12(3), eq. 20; Yu, Chen & Lu 1994):
-/// β = [(1−α₀) + α₀(P₀/P)^(1/n)] / [(1−α₀)/β₀ + α₀(P₀/P)^(1/n)/(n·P)], P = p + P₀ absolute,
-/// floored at 0.2·P₀ (cavitation: the formula is not meant below that).
-#[inline]
-pub fn entrained_air_bulk_modulus(beta0: f64, alpha0: f64, n: f64, p: f64) -> f64 {
-    const P0: f64 = 101_325.0;
-    let pa = (p + P0).max(0.2 * P0);
-    let air = alpha0 * (P0 / pa).powf(1.0 / n);
-    ((1.0 - alpha0) + air) / ((1.0 - alpha0) / beta0 + air / (n * pa))
-}
-
-/// Supply model of `supply_pressure_drop` (Pa, m³/s): one substep of the supply pressure.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum SupplyModel {
-    /// p_s → p_s0 − R·Q_s with time constant τ (000), exact for Q_s held over the substep.
-    Resistance {
-        /// Setting p_s0 (Pa).
-        ps0: f64,
-        /// R (Pa·s/m³).
-        r: f64,
-        /// τ (s).
-        tau: f64,
-    },
-    /// Flow-limited pressure-compensated pump into a volume (see
-    /// [`crate::params::SupplyVariant::PumpLimit`]).
-    PumpLimit {
-        /// Setting p_s0 (Pa).
-        ps0: f64,
-        /// Q_max (m³/s).
-        qmax: f64,
-        /// Regulation band Δp_c (Pa).
-        band: f64,
-        /// Capacitance V/β₀ (m³/Pa).
-        cap: f64,
-    },
-}
-
-impl SupplyModel {
-    /// From the effect section and the nominal supply pressure / fluid β₀.
-    pub fn new(s: &crate::params::SupplyPressureDrop, ps0: f64, beta0: f64) -> Self {
-        match s.variant {
-            crate::params::SupplyVariant::Resistance => SupplyModel::Resistance {
-                ps0,
-                r: s.resistance,
-                tau: s.time_constant,
-            },
-            crate::params::SupplyVariant::PumpLimit => SupplyModel::PumpLimit {
-                ps0,
-                qmax: s.max_flow,
-                band: s.regulation_band,
-                cap: s.volume / beta0,
-            },
-        }
-    }
-
-    /// Equivalent droop resistance (Pa·s/m³): R, or Δp_c/Q_max of the pump's compensator.
-    pub fn droop(&self) -> f64 {
-        match *self {
-            SupplyModel::Resistance { r, .. } => r,
-            SupplyModel::PumpLimit { qmax, band, .. } => band / qmax.max(1e-300),
-        }
-    }
-
-    /// Advance the supply pressure `ps` (Pa) over substep `h` (s) with the valve drawing
-    /// `qs` (m³/s) from it; never below the tank pressure `pt`. The pump's compensator band is
-    /// linear in p_s and integrated exactly (exponential), the flow-limited part explicitly.
-    #[inline]
-    pub fn advance(&self, ps: f64, qs: f64, pt: f64, h: f64) -> f64 {
-        match *self {
-            SupplyModel::Resistance { ps0, r, tau } => {
-                let target = (ps0 - r * qs).max(pt);
-                ps + (target - ps) * (1.0 - (-h / tau).exp())
-            }
-            SupplyModel::PumpLimit {
-                ps0,
-                qmax,
-                band,
-                cap,
-            } => {
-                let p_full = ps0 - band;
-                let next = if ps > p_full {
-                    // Within the band: C·ṗ = Q_max·(p_s0 − p)/Δp_c − q_s, exact.
-                    let target = ps0 - band * qs / qmax;
-                    let tau = band * cap / qmax;
-                    target + (ps - target) * (-h / tau).exp()
-                } else {
-                    ps + h * (qmax - qs) / cap
-                };
-                next.clamp(pt, ps0)
-            }
-        }
-    }
-}
-
-/// One substep of a compliant cylinder mount (`flexible_mount`, variant `piston_side`):
-/// advances the body displacement `xb` (m) and velocity `vb` (m/s) with the reaction
-/// `f_rel` (N) of the forces the oil and seals put on the piston (implicit in the mount's
-/// damping), and returns the body's acceleration (m/s²) over the substep.
-#[inline]
-pub fn body_mount_step(
-    xb: &mut f64,
-    vb: &mut f64,
-    f_rel: f64,
-    (mb, km, dm): (f64, f64, f64),
-    h: f64,
-) -> f64 {
-    let v_new = (mb * *vb + h * (-f_rel - km * *xb)) / (mb + h * dm);
-    let a = (v_new - *vb) / h;
-    *vb = v_new;
-    *xb += h * v_new;
-    a
-}
-
 /// Cross-field checks of the effect variants: each variant's own parameters must
 /// be given and admissible.
 pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::spec::ConfigError> {
-    use crate::params::*;
-    use crate::spec::ConfigError;
     p.refit_ranges()?;
     let e = &p.effects;
     if let Some(l) = e.internal_leakage.as_ref() {
-        if l.variant != LeakageVariant::Equal {
-            return Err(ConfigError::new(
-                "effects.internal_leakage.variant",
-                "cross-piston leakage has one coefficient; expected \"equal\" (per-chamber leakage to tank is external_leakage.variant = \"per_chamber\")",
-            ));
-        }
+        l.validate_internal_variant()?;
     }
     if let Some(b) = e.bulk_modulus_pressure.as_ref() {
-        if b.variant == BulkVariant::EntrainedAir && !(b.air_fraction > 0.0) {
-            return Err(ConfigError::new(
-                "effects.bulk_modulus_pressure.air_fraction",
-                "must be > 0 (volume fraction of air at atmospheric pressure, -) for variant = \"entrained_air\"",
-            ));
-        }
+        b.validate_variant()?;
     }
     if let Some(s) = e.supply_pressure_drop.as_ref() {
-        match s.variant {
-            SupplyVariant::Resistance if !(s.time_constant > 0.0) => {
-                return Err(ConfigError::new(
-                    "effects.supply_pressure_drop.time_constant",
-                    "must be > 0 s for variant = \"resistance\"",
-                ))
-            }
-            SupplyVariant::PumpLimit
-                if !(s.max_flow > 0.0 && s.regulation_band > 0.0 && s.volume > 0.0) =>
-            {
-                return Err(ConfigError::new(
-                    "effects.supply_pressure_drop",
-                    format!(
-                        "variant = \"pump_limit\" needs max_flow > 0 m³/s, regulation_band > 0 Pa and volume > 0 m³; got {} m³/s, {} Pa, {} m³",
-                        s.max_flow, s.regulation_band, s.volume
-                    ),
-                ))
-            }
-            _ => {}
-        }
+        s.validate_variant()?;
     }
     if let Some(f) = e.friction.as_ref() {
-        if f.variant == FrictionVariant::Lugre
-            && !(f.bristle_stiffness > 0.0 && f.coulomb_force > 0.0)
-        {
-            return Err(ConfigError::new(
-                "effects.friction",
-                format!(
-                    "variant = \"lugre\" needs bristle_stiffness > 0 N/m and coulomb_force > 0 N; got {} N/m, {} N",
-                    f.bristle_stiffness, f.coulomb_force
-                ),
-            ));
-        }
+        f.validate_variant()?;
     }
     if let Some(l) = e.line_dynamics.as_ref() {
-        if l.variant == LineVariant::Hose
-            && l.resistance > 0.0
-            && l.friction != LineFriction::Steady
-        {
-            return Err(ConfigError::new(
-                "effects.line_dynamics.resistance",
-                "a fitting resistance (variant = \"hose\") is laminar and steady; with it use friction = \"steady\" (the unsteady wall-friction terms scale with the wall resistance only)",
-            ));
-        }
+        l.validate_variant()?;
     }
     if let Some(t) = e.sensor_tone.as_ref() {
-        if !t.phases.is_empty() && t.phases.len() != t.frequencies.len() {
-            return Err(ConfigError::new(
-                "effects.sensor_tone.phases",
-                format!(
-                    "{} phases for {} frequencies; expected one phase (rad) per frequency or none",
-                    t.phases.len(),
-                    t.frequencies.len()
-                ),
-            ));
-        }
+        t.validate_variant()?;
     }
     Ok(())
 }

@@ -1,3 +1,8 @@
+//! `friction`: Stribeck seal friction with stick (003 eq. 5, 004 eq. 28–34), a load-side
+//! Coulomb force (variant `load_coulomb`) or LuGre / Dahl pre-sliding friction (variant
+//! `lugre`): the config section [`Friction`] (`[effects.friction]`) and its law with the stick
+//! state, [`FrictionModel`].
+//!
 //! Seal friction with a true stick phase (003 eq. 5, 004 eq. 28–34).
 //!
 //! Slip: F_f = (F_C + (F_s − F_C)·e^(−(|v|/v_s)²))·sign(v) (Stribeck; 003 eq. 5 writes the
@@ -18,7 +23,114 @@
 //! √(σ₀/m) enters the substep rule
 //! (`crate::model`, `fastest_mode`), so its oscillation is resolved, not only damped.
 
-use crate::params::Friction;
+use super::switch::yes;
+use crate::spec::ConfigError;
+use ehactl_params_derive::Params;
+use serde::{Deserialize, Serialize};
+
+/// Structural variant of `friction`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FrictionVariant {
+    /// Seal friction on the piston: Stribeck curve with a true stick phase (003 eq. 5,
+    /// 004 eq. 28–34).
+    #[default]
+    Stribeck,
+    /// Load-side Coulomb force without stick, F = F_C·tanh(v/v_s) (the smooth Coulomb term of
+    /// MR-damper and guide models, e.g. Spencer et al. 1997 without the Bouc–Wen hysteresis);
+    /// `stribeck_velocity` is the smoothing velocity v_s, `static_force` is not used.
+    LoadCoulomb,
+    /// Seal friction with pre-sliding (bristle) dynamics, the LuGre model (Canudas de Wit,
+    /// Olsson, Åström & Lischinsky 1995, "A new model for control of systems with friction",
+    /// IEEE TAC 40(3):419–425, eq. 1–3): ż = v − σ₀·|v|·z/g(v), F = σ₀·z + σ₁·ż (+ `viscous`·v),
+    /// g(v) = F_C + (F_s − F_C)·e^(−(v/v_s)²). Before breakaway the seal is a spring of
+    /// stiffness σ₀ (`bristle_stiffness`, pre-sliding displacement ≈ F_C/σ₀) damped by σ₁
+    /// (`bristle_damping`); with `static_force` = `coulomb_force` and σ₁ = 0 it is Dahl's
+    /// (1968, "A solid friction model", Aerospace Corp. TOR-0158(3107-18)-1) model with
+    /// exponent 1, dF/dx = σ₀·(1 − F·sign(v)/F_C). See [`FrictionModel`].
+    Lugre,
+}
+
+/// `friction`: Stribeck seal friction with stick (003 eq. 5, 004 eq. 28–34), a load-side
+/// Coulomb force (variant `load_coulomb`) or LuGre / Dahl pre-sliding friction (variant `lugre`).
+#[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Friction {
+    /// Effect switch.
+    #[serde(default = "yes")]
+    pub enabled: bool,
+    /// Structural variant (`stribeck`, `load_coulomb` or `lugre`).
+    #[serde(default)]
+    #[param(
+        choice,
+        desc = "stribeck: seal friction with stick (003 eq. 5, default); load_coulomb: F_C·tanh(v/v_s) \
+         without stick (MR damper / guide, Spencer 1997 without hysteresis); lugre: pre-sliding \
+         bristle dynamics (Canudas de Wit 1995; Dahl 1968 with F_s = F_C, σ₁ = 0)"
+    )]
+    pub variant: FrictionVariant,
+    /// Breakaway (static) friction F_s (N); 004: 44.
+    #[param(unit = "N", range = NonNegative, desc = "breakaway friction F_s (004: 44 N)")]
+    pub static_force: f64,
+    /// Coulomb friction F_C (N); 004: 39, 003: 500.
+    #[param(unit = "N", range = NonNegative, desc = "Coulomb friction F_C (004: 39 N)")]
+    pub coulomb_force: f64,
+    /// Stribeck velocity v_s (m/s): (F_s − F_C) decays as exp(−(|v|/v_s)²).
+    #[serde(default = "Friction::default_vs")]
+    #[param(unit = "m/s", range = Positive, desc = "Stribeck velocity")]
+    pub stribeck_velocity: f64,
+    /// Additional viscous friction (N·s/m), on top of `mechanics.damping`.
+    #[serde(default)]
+    #[param(unit = "N·s/m", range = NonNegative, desc = "extra viscous friction")]
+    pub viscous: f64,
+    /// Bristle (pre-sliding) stiffness σ₀ (N/m), variant `lugre`; Canudas de Wit 1995 eq. 2.
+    #[serde(default)]
+    #[param(unit = "N/m", range = NonNegative, desc = "bristle stiffness σ₀ of the pre-sliding spring (variant lugre)")]
+    pub bristle_stiffness: f64,
+    /// Bristle damping σ₁ (N·s/m), variant `lugre`; Canudas de Wit 1995 eq. 2.
+    #[serde(default)]
+    #[param(unit = "N·s/m", range = NonNegative, desc = "bristle damping σ₁ (variant lugre; 0 with F_s = F_C is Dahl 1968)")]
+    pub bristle_damping: f64,
+}
+
+impl Friction {
+    fn default_vs() -> f64 {
+        0.01
+    }
+}
+
+impl Friction {
+    /// Check of the forces: the breakaway force F_s is at least the Coulomb force F_C (N).
+    pub(crate) fn validate_forces(&self) -> Result<(), ConfigError> {
+        if self.static_force < self.coulomb_force {
+            return Err(ConfigError::new(
+                "effects.friction.static_force",
+                format!(
+                    "static (breakaway) force {} N must be ≥ coulomb_force {} N",
+                    self.static_force, self.coulomb_force
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Friction {
+    /// Cross-field check of the variant: `lugre` needs its bristle stiffness and a Coulomb force.
+    pub(crate) fn validate_variant(&self) -> Result<(), ConfigError> {
+        if self.variant == FrictionVariant::Lugre
+            && !(self.bristle_stiffness > 0.0 && self.coulomb_force > 0.0)
+        {
+            return Err(ConfigError::new(
+                "effects.friction",
+                format!(
+                    "variant = \"lugre\" needs bristle_stiffness > 0 N/m and coulomb_force > 0 N; got {} N/m, {} N",
+                    self.bristle_stiffness, self.coulomb_force
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
 
 /// Friction law with stick state.
 #[derive(Debug, Clone)]
@@ -41,8 +153,8 @@ impl FrictionModel {
             fs: p.static_force.max(p.coulomb_force),
             fc: p.coulomb_force,
             vs: p.stribeck_velocity,
-            smooth: p.variant == crate::params::FrictionVariant::LoadCoulomb,
-            lugre: (p.variant == crate::params::FrictionVariant::Lugre)
+            smooth: p.variant == FrictionVariant::LoadCoulomb,
+            lugre: (p.variant == FrictionVariant::Lugre)
                 .then_some((p.bristle_stiffness, p.bristle_damping)),
             z: 0.0,
         }
@@ -117,10 +229,23 @@ impl FrictionModel {
     }
 }
 
+/// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
+/// present and enabled): the friction law with its stick state, the extra viscous friction
+/// (N·s/m) added to `mechanics.damping`, and the bristle stiffness σ₀ (N/m) of variant `lugre`
+/// that the substep rule resolves (0 otherwise).
+pub(crate) fn configure(s: Option<&Friction>) -> (Option<FrictionModel>, f64, f64) {
+    let f = s.filter(|f| f.enabled);
+    (
+        f.map(FrictionModel::new),
+        f.map_or(0.0, |f| f.viscous),
+        f.filter(|f| f.variant == FrictionVariant::Lugre)
+            .map_or(0.0, |f| f.bristle_stiffness),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::params::FrictionVariant;
 
     fn lugre(fs: f64, fc: f64, vs: f64, s0: f64, s1: f64) -> FrictionModel {
         FrictionModel::new(&Friction {
