@@ -61,8 +61,7 @@ fn main() {
             .zip(&yb.y)
             .zip(sd.iter().zip(&floor))
             .map(|((a, b), (s, f))| {
-                let e = (a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>()
-                    / n as f64)
+                let e = (a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>() / n as f64)
                     .sqrt()
                     / s;
                 format!("{e:.2e} ({:.2})", e / (INTEGRATION_RATIO * f).max(1e-6))
@@ -95,7 +94,10 @@ fn main() {
                 };
                 let tot = rms(&mut e.iter().copied());
                 let rest = rms(&mut e.iter().zip(&d).map(|(x, y)| x - tau * y));
-                out.push(format!("err {tot:.2e} lead {:.2}h rest {rest:.2e}", -tau / h));
+                out.push(format!(
+                    "err {tot:.2e} lead {:.2}h rest {rest:.2e}",
+                    -tau / h
+                ));
             }
             println!("vs 640, N {ns:3}: {}", out.join(" | "));
         }
