@@ -284,11 +284,14 @@ fn seed003_rigid_versus_flexible_connection() {
     // assumed PD gains and F_A, asserted as regression values (±5 %: stick-slip sensitive), so
     // the figures REPRODUCTION.md quotes cannot drift unnoticed. Not an agreement with 003.
     for (what, v, expect) in [
-        ("rigid piston (µm)", rigid.1 * 1e6, 60.58),
-        ("flexible piston (µm)", flex.1 * 1e6, 2.26),
-        ("flexible load (µm)", flex.2 * 1e6, 248.53),
-        ("rigid p_L (bar)", rigid.3 / 1e5, 3.128),
-        ("flexible p_L (bar)", flex.3 / 1e5, 0.019),
+        ("rigid piston (µm)", rigid.1 * 1e6, 60.53),
+        ("flexible piston (µm)", flex.1 * 1e6, 2.23),
+        ("flexible load (µm)", flex.2 * 1e6, 248.43),
+        ("rigid p_L (bar)", rigid.3 / 1e5, 3.120),
+        // 0.0203 since the drift–kick substep (0.019 before): the converged value at 64
+        // substeps is 0.0210 with either ordering, so the config's 4 substeps now sit 3 %
+        // from it instead of 10 % (BENCHMARKS.md "Diagnosis speed: drift before kick").
+        ("flexible p_L (bar)", flex.3 / 1e5, 0.0203),
     ] {
         assert!(within(v, expect, 0.05), "{what}: {v} vs {expect}");
     }

@@ -458,9 +458,8 @@ fn phase_nominal<'a>(
 /// is noise on every channel (the level-and-whiteness test of the final answer, against the
 /// noise floor of that residual), returns the fit and validation parameters to keep. A
 /// record of the config's own run is reproduced this way up to its sensor noise; a replay at
-/// a finer step differs from it by the run's integration error (first-order scheme: position
-/// and rod force lead the converged solution by about one substep), which the diagnosis
-/// would otherwise report as a model discrepancy.
+/// a finer step differs from it by the run's integration error, which the diagnosis would
+/// otherwise report as a model discrepancy.
 fn configured_step_explains(
     nominal: &PlantParams,
     rec: &Record,

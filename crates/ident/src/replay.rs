@@ -401,8 +401,7 @@ pub struct IntegrationCheck {
     /// where the config says so, exactly as `ehactl run` steps it) already reproduces the
     /// held-out data within the noise. Then the replay keeps that integration: the data are
     /// explained by the model as configured, numerics included (a log of `ehactl run` carries
-    /// the config's integration error, so a finer replay would differ from it by that error,
-    /// about one substep of lead on position and rod force with the first-order scheme).
+    /// the config's integration error, so a finer replay would differ from it by that error).
     pub configured_step_explains: bool,
 }
 

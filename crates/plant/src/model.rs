@@ -9,10 +9,15 @@
 //! 2. pressures: exponential Euler on each chamber / line node, linearised in its own
 //!    pressure, so the stiff leakage and valve flow–pressure terms (004: V/(β·K_Ct) ≈ 5 µs)
 //!    are unconditionally stable and monotone;
-//! 3. line flows with implicit resistance, then piston and load velocities with implicit
-//!    self-damping and friction as a velocity projection (true stick), then positions.
+//! 3. line flows with implicit resistance; piston and load positions drift with the
+//!    velocities that drove the pressures, then the velocities take the forces at the new
+//!    positions and pressures, with implicit self-damping and friction as a velocity
+//!    projection (true stick).
 //!
-//! Steps 2→3 form a symplectic Euler pair for the hydraulic spring, stable for ω·h < 2;
+//! Steps 2→3 form a symplectic Euler (drift–kick) pair for the hydraulic spring, the load
+//! spring and the mount, stable for ω·h < 2, with position, rod force and pressures at one
+//! time level (a kick before the position drift put them one substep ahead of the
+//! pressures);
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
 //! With `integration.line_method = "implicit"` step 2 for a rig with lines is one
 //! trapezoidal solve of each chain from the valve-side node to the chamber
@@ -1149,6 +1154,16 @@ impl Plant {
             s.p_s = sm.advance(s.p_s, q_sa + q_sb, c.pt, h);
         }
         // 3. Mechanics.
+        // Positions drift with the velocities that drove the pressures above, then the
+        // velocities take the forces at the new positions (drift–kick): piston, load and
+        // pressures stay at one time level. Drifting after the kick put the position (and
+        // the rod force) one substep ahead of the pressures, a first-order lead that was
+        // 95 % of the test bench's replay error (BENCHMARKS.md "Diagnosis speed: drift
+        // before kick").
+        s.x += h * s.v;
+        if c.mount.is_some() && !c.body_mount {
+            s.x_load += h * s.v_load;
+        }
         let f_ext = self.excitation.force(t + h);
         s.external = f_ext;
         let f_hyd = s.p_a * c.a_a - s.p_b * c.a_b;
@@ -1202,13 +1217,11 @@ impl Plant {
         s.v = v_new;
         s.friction = f_fric;
         s.stuck = stuck;
-        s.x += h * s.v;
         if c.body_mount {
             // Body already advanced above.
         } else if let Some((ml, km, dm)) = c.mount {
             let f = km * (s.x - s.x_load) + dm * s.v - f_ext;
             s.v_load = (ml * s.v_load + h * f) / (ml + h * dm);
-            s.x_load += h * s.v_load;
         } else {
             s.x_load = s.x;
             s.v_load = s.v;
