@@ -217,7 +217,10 @@ fn sustained_saturation_trips_when_watched_and_only_then() {
 }
 
 /// A live gain change that drives the loop into saturation trips it (the probe's 38 s of
-/// bang-bang at ±10 V).
+/// bang-bang at ±10 V). The change is published before the run starts and taken by the loop
+/// through the live slot at its first cycle boundary: published from a thread during the run,
+/// it raced the simulation (2 s of plant time take a few milliseconds) and, under load, came
+/// after the run had ended.
 #[test]
 fn a_live_change_into_saturation_is_caught() {
     let t = with(
@@ -227,18 +230,24 @@ fn a_live_change_into_saturation_is_caught() {
     );
     let cfg = RigConfig::from_toml_str(&t).unwrap();
     let live = Arc::new(LiveParams::new());
-    let writer = {
-        let (live, mut cfg) = (live.clone(), cfg.clone());
-        std::thread::spawn(move || {
-            let u = live::prepare(&mut cfg, &[("control.pi.kp", 34.2)]).unwrap();
-            live.publish(u, Duration::from_secs(5)).unwrap();
-        })
+    let seq = {
+        let mut cfg = cfg.clone();
+        let u = live::prepare(&mut cfg, &[("control.pi.kp", 34.2)]).unwrap();
+        live.publish(u, Duration::from_secs(5)).unwrap()
     };
     let s = run_sim_live(&cfg, opts(2.0), Some(&live)).unwrap();
-    writer.join().unwrap();
+    let applied = live
+        .wait_applied(seq, Duration::ZERO)
+        .expect("the loop applied the live change");
     let trip = s
         .outcome
         .trip
         .expect("saturation trip after the live change");
     assert_eq!(trip.kind.as_str(), "saturation");
+    let period = cfg.timebase().period();
+    assert!(
+        trip.t >= applied as f64 * period,
+        "tripped at {} s, before the change took effect at cycle {applied}",
+        trip.t
+    );
 }
