@@ -21,8 +21,8 @@ pub fn operating_reference(sp: &SetpointConfig) -> f64 {
 /// The plant parameters used for linearisation: sensor noise, quantisation and tones off,
 /// Coulomb/static friction off (its viscous part moved into the mechanical damping: a
 /// linear model cannot hold a stick–slip switch), the command delay off (applied as
-/// e^(−jωτ) in the frequency response instead), and the external force frozen at its
-/// static part F₀ (003 eq. 2 without the harmonic).
+/// e^(−jωτ) in the frequency response instead), the external force frozen at its
+/// static part F₀ (003 eq. 2 without the harmonic), and no `[uncertainty]` (never refit).
 pub fn linearisation_params(p: &PlantParams) -> PlantParams {
     let mut q = p.clone();
     q.sensors.force.noise = 0.0;
@@ -43,6 +43,9 @@ pub fn linearisation_params(p: &PlantParams) -> PlantParams {
     if let Some(d) = q.effects.time_delay.as_mut() {
         d.enabled = false;
     }
+    // The linearised copy is never refit: the diagnosis's refit bounds would only make the
+    // effects switched off above invalid.
+    q.uncertainty.clear();
     if q.excitation.kind != ExcitationKind::None {
         q.excitation.kind = ExcitationKind::Constant;
         q.excitation.amplitude = 0.0;
@@ -126,4 +129,30 @@ pub fn find(cfg: &RigConfig, max_time: f64) -> Result<OperatingPoint, AnalysisEr
         settled,
         time_s: k as f64 * dt,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `[uncertainty]` bounds the diagnosis refit of the config's effects; the linearised copy
+    /// switches some of them off (time delay, friction, sensor tone) and is never refit, so
+    /// its bounds must not make the copy invalid. `configs/utfsm_mts_mrdamper.toml` declares
+    /// the delay's uncertainty (its loop is identified by `ehactl diagnose`); `ehactl analyze`
+    /// refused it with "a switched-off effect is not refit".
+    #[test]
+    fn the_operating_point_of_a_config_with_uncertain_effects_is_found() {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../configs/utfsm_mts_mrdamper.toml"
+        );
+        let text = std::fs::read_to_string(path).unwrap();
+        let cfg = RigConfig::from_toml_str(&text).unwrap();
+        assert!(cfg
+            .plant
+            .uncertainty
+            .contains_key("effects.time_delay.delay"));
+        let op = find(&cfg, 2.0).expect("operating point of the MTS config");
+        assert!(op.settled, "{op:?}");
+    }
 }
