@@ -598,20 +598,13 @@ pub(crate) fn extend(
         .unwrap_or_default();
     // The yield term's pre-yield velocity v_y (m/s), fitted in log space with its force (from
     // the base's smoothing velocity when the config has a force law: an assumption there).
-    let yield_velocity = |init: f64| -> FreeParam {
-        let (lo, hi) = (0.005 * vr, 0.5 * vr);
-        FreeParam {
-            name: "effects.polynomial_force.smoothing_velocity".to_string(),
-            lo,
-            hi,
-            log: true,
-            init: init.clamp(lo, hi),
-            set: Arc::new(|p: &mut PlantParams, v| {
-                if let Some(f) = p.effects.polynomial_force.as_mut() {
-                    f.smoothing_velocity = v;
-                }
-            }),
-        }
+    // (Written after its force term, which inserts the section.)
+    let yield_velocity = |init: f64| {
+        FreeParam::at(
+            "effects.polynomial_force.smoothing_velocity",
+            (0.005 * vr, 0.5 * vr, true, init),
+            &base_fit,
+        )
     };
     // Position scale (m): the 99th percentile of |x − x₀| on the fitting part, for the Dahl
     // term's pre-yield travel.
@@ -620,21 +613,14 @@ pub(crate) fn extend(
         .map(|x| robust_scale(&x[..n_fit], origin))
         .filter(|a| *a > 0.0)
         .unwrap_or(0.01 * base_fit.cylinder.stroke);
-    // The Dahl term's pre-yield travel δ (m), fitted in log space with its force.
-    let dahl_travel = |init: f64| -> FreeParam {
-        let (lo, hi) = (0.002 * xr, 0.5 * xr);
-        FreeParam {
-            name: "effects.polynomial_force.dahl_travel".to_string(),
-            lo,
-            hi,
-            log: true,
-            init: init.clamp(lo, hi),
-            set: Arc::new(|p: &mut PlantParams, v| {
-                if let Some(f) = p.effects.polynomial_force.as_mut() {
-                    f.dahl_travel = v;
-                }
-            }),
-        }
+    // The Dahl term's pre-yield travel δ (m), fitted in log space with its force (written
+    // after it, as the yield velocity).
+    let dahl_travel = |init: f64| {
+        FreeParam::at(
+            "effects.polynomial_force.dahl_travel",
+            (0.002 * xr, 0.5 * xr, true, init),
+            &base_fit,
+        )
     };
     // Start of the Dahl term (force F_d, travel δ): least squares of the force residual on
     // the Dahl state of the frozen model's velocity, over a log grid of δ (the equation-error
