@@ -717,6 +717,7 @@ impl Plant {
         let mut it = v.iter().copied();
         let mut next = || it.next().unwrap_or(0.0);
         let order = self.spool_order();
+        let dahl = self.has_dahl();
         let s = &mut self.state;
         if order >= 1 {
             s.spool = next();
@@ -756,7 +757,7 @@ impl Plant {
             cb.s.p_node = next();
             cb.s.opening = next();
         }
-        if self.poly.is_some_and(|f| f.dahl != 0.0) {
+        if dahl {
             self.dahl_z = next();
         }
         let c = &self.c;
@@ -765,9 +766,9 @@ impl Plant {
                 Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
                 None => s.external,
             }
-            + self.poly.map_or(0.0, |f| {
-                f.force(s.x, s.v, s.p_a, s.p_b).0 + f.dahl * self.dahl_z
-            });
+            + self
+                .poly
+                .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
     }
 
     /// Sample the sensors at the current state.
@@ -1254,9 +1255,9 @@ impl Plant {
                     Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
                     None => f_ext,
                 }
-        } + self.poly.map_or(0.0, |f| {
-            f.force(s.x, s.v, s.p_a, s.p_b).0 + f.dahl * self.dahl_z
-        });
+        } + self
+            .poly
+            .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
     }
 }
 

@@ -222,6 +222,13 @@ impl PolynomialForce {
         }
     }
 
+    /// Force (N, opposing +x, carried by the rod) of the whole law at Dahl state `z` (-): the
+    /// stateless terms of [`Self::force`] plus F_d·z; what the load cell sees of it.
+    #[inline]
+    pub fn rod_force(&self, x: f64, v: f64, p_a: f64, p_b: f64, z: f64) -> f64 {
+        self.force(x, v, p_a, p_b).0 + self.dahl * z
+    }
+
     /// One substep `h` (s) of the Dahl state `z` (-), backward Euler about the velocity at
     /// the start of the step `v_old` (m/s): z' = (z + h·v'/δ)/(1 + h·|v_old|/δ), which stays
     /// in [−1, 1] at any step. Returns (f₀, d) with the force F_d·z' = f₀ + d·v' (N, N·s/m)
@@ -374,14 +381,11 @@ mod tests {
     use crate::params::PlantParams;
     use crate::Plant;
 
-    /// A closed critical-centre valve, a double-ended cylinder, no leakage: the only flow is
-    /// the null bias q₀, so in steady state (dp/dt = 0 in both chambers) the piston moves at
-    /// v = q₀/A (continuity), the chambers hold p_a − p_b = F/A (force balance on the
-    /// massive piston, a = 0) and the load cell reads F = c_v·v + F_c·tanh(v/v_s) + F₀.
-    #[test]
-    fn null_bias_flow_against_a_damper_closed_form() {
-        let area = 7.0e-4;
-        let (q0, cv, fc, f0, vs): (f64, f64, f64, f64, f64) = (3.5e-6, 2.0e4, 150.0, -40.0, 1e-3);
+    /// The rig of the two tests below: a closed critical-centre valve (no opening at zero
+    /// command), a double-ended cylinder of area `area` (m²) with 0.1 L dead volumes, 10 kg,
+    /// no end stops, a null-bias flow `q0` (m³/s, B→A) and the `[effects.polynomial_force]`
+    /// lines `force_law`.
+    fn null_bias_rig(area: f64, q0: f64, force_law: &str) -> PlantParams {
         let toml = format!(
             r#"
             [fluid]
@@ -405,15 +409,27 @@ mod tests {
             mass = 10.0
             end_stops = false
             [effects.polynomial_force]
-            viscous = {cv}
-            coulomb = {fc}
-            constant = {f0}
-            smoothing_velocity = {vs}
+            {force_law}
             [effects.polynomial_flow]
             constant = {q0}
             "#
         );
-        let p: PlantParams = toml::from_str(&toml).unwrap();
+        toml::from_str(&toml).unwrap()
+    }
+
+    /// A closed critical-centre valve, a double-ended cylinder, no leakage: the only flow is
+    /// the null bias q₀, so in steady state (dp/dt = 0 in both chambers) the piston moves at
+    /// v = q₀/A (continuity), the chambers hold p_a − p_b = F/A (force balance on the
+    /// massive piston, a = 0) and the load cell reads F = c_v·v + F_c·tanh(v/v_s) + F₀.
+    #[test]
+    fn null_bias_flow_against_a_damper_closed_form() {
+        let area = 7.0e-4;
+        let (q0, cv, fc, f0, vs): (f64, f64, f64, f64, f64) = (3.5e-6, 2.0e4, 150.0, -40.0, 1e-3);
+        let p = null_bias_rig(
+            area,
+            q0,
+            &format!("viscous = {cv}\ncoulomb = {fc}\nconstant = {f0}\nsmoothing_velocity = {vs}"),
+        );
         let mut plant = Plant::configure(&p, 1e-3).unwrap();
         for _ in 0..2000 {
             plant.step(0.0).unwrap();
@@ -446,37 +462,11 @@ mod tests {
     fn dahl_force_builds_up_over_the_pre_yield_travel() {
         let area = 7.0e-4;
         let (q0, cv, fd, delta): (f64, f64, f64, f64) = (3.5e-6, 2.0e4, 300.0, 5e-4);
-        let toml = format!(
-            r#"
-            [fluid]
-            density = 870.0
-            bulk_modulus = 1.4e9
-            [supply]
-            pressure = 21.0e6
-            [valve]
-            command_full_scale = 10.0
-            flow_form = "kq"
-            rated_flow = 5.4e-5
-            rated_pressure_drop = 1.0e6
-            [cylinder]
-            area_a = {area}
-            area_b = {area}
-            dead_volume_a = 1.0e-4
-            dead_volume_b = 1.0e-4
-            stroke = 0.1
-            initial_position = 0.02
-            [mechanics]
-            mass = 10.0
-            end_stops = false
-            [effects.polynomial_force]
-            viscous = {cv}
-            dahl = {fd}
-            dahl_travel = {delta}
-            [effects.polynomial_flow]
-            constant = {q0}
-            "#
+        let p = null_bias_rig(
+            area,
+            q0,
+            &format!("viscous = {cv}\ndahl = {fd}\ndahl_travel = {delta}"),
         );
-        let p: PlantParams = toml::from_str(&toml).unwrap();
         let mut plant = Plant::configure(&p, 1e-3).unwrap();
         let x0 = plant.state().x;
         let mut worst: f64 = 0.0;
