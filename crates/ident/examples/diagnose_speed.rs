@@ -6,7 +6,8 @@
 //! Library options by default; `SESSION=1` uses those of `ehactl diagnose` (replay cost cap
 //! `session::USER_INTEGRATION_COST`, grey-box extension on).
 //! Usage: `diagnose_speed SEED EFFECT THREADS`; prints one line: wall time (s), process
-//! CPU time (user + sys, s, from /proc/self/stat), CPU/wall, cause.
+//! CPU time (user + sys, s, from /proc/self/stat), CPU/wall, cause, the integration choice
+//! (substeps per sample against the config's) and the replays run.
 //! Driven by `bench/diagnose_speed.sh` (interleaved runs, load average); not a test.
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
@@ -50,16 +51,40 @@ fn main() {
         opts.integration_min_cost = ehactl_ident::session::USER_INTEGRATION_MIN_COST;
         opts.greybox = true;
     }
+    if std::env::var("STAGES").is_ok_and(|v| v == "1") {
+        // Per-stage replay counters on stderr (as `diagnose_profile`, for generated cases).
+        let last = std::sync::Mutex::new(String::new());
+        let t0 = std::time::Instant::now();
+        opts.progress = ehactl_ident::progress::ProgressSink::new(move |p| {
+            let mut l = last.lock().unwrap();
+            if *l != p.stage {
+                let s = ehactl_ident::replay::replay_stats();
+                eprintln!(
+                    "{:.2} s: {} (replays so far {}, substeps/sample {:.2})",
+                    t0.elapsed().as_secs_f64(),
+                    p.stage,
+                    s.replays,
+                    s.substeps as f64 / s.samples.max(1) as f64
+                );
+                *l = p.stage.clone();
+            }
+        });
+    }
     let case_len = record.len();
     let (c0, t0) = (cpu_s(), std::time::Instant::now());
     let d = diagnose(&nominal, &record, None, &opts).expect("diagnosis runs");
     let wall = t0.elapsed().as_secs_f64();
     let cpu = cpu_s() - c0;
+    let stats = ehactl_ident::replay::replay_stats();
     println!(
-        "seed {seed} hidden {} threads {threads}: wall {wall:.2} s, cpu {cpu:.2} s, cpu/wall {:.2}, cause {} (samples {})",
+        "seed {seed} hidden {} threads {threads}: wall {wall:.2} s, cpu {cpu:.2} s, cpu/wall {:.2}, cause {} (samples {}, substeps {} of the config's {}, {} replays at {:.2} substeps per sample)",
         a[2],
         cpu / wall,
         d.cause,
-        case_len
+        case_len,
+        d.integration.substeps,
+        d.integration.config_substeps,
+        stats.replays,
+        stats.substeps as f64 / stats.samples.max(1) as f64
     );
 }

@@ -7,7 +7,8 @@
 use crate::data::Record;
 use crate::fit::{nelder_mead, FreeParam};
 use crate::replay::{
-    apply_offsets, nrmse, offsets, overall, replay_params_zeroed, replay_with, std, Drive, Replay,
+    apply_offsets, nrmse, offsets, overall, replay_guarded, replay_params_zeroed, std, Drive,
+    Replay,
 };
 use ehactl_plant::{EffectId, PlantParams};
 use serde::Serialize;
@@ -70,6 +71,9 @@ pub(crate) struct Ctx<'a> {
     /// The fit cost takes this channel only (record channel index); `None`: the mean over
     /// every channel. The assumed loop is identified on its own output ([`crate::loopid`]).
     pub(crate) cost_channel: Option<usize>,
+    /// Most substeps per sample a replay's stability guard may take
+    /// ([`crate::replay::replay_guarded`]): the config's own count (0 = no guard).
+    pub(crate) max_substeps: u32,
 }
 
 impl<'a> Ctx<'a> {
@@ -106,6 +110,7 @@ impl Ctx<'_> {
             drive: self.drive,
             offsets: self.offsets,
             cost_channel: self.cost_channel,
+            max_substeps: self.max_substeps,
         }
     }
     /// The fitting part cut in two for a transfer check: fit on its first `frac`, predict the
@@ -132,6 +137,7 @@ impl Ctx<'_> {
             drive: self.drive,
             offsets: self.offsets,
             cost_channel: self.cost_channel,
+            max_substeps: self.max_substeps,
         })
     }
     /// Drive of the replays.
@@ -164,7 +170,9 @@ impl Ctx<'_> {
     /// Aitken's extrapolation per channel on the last two steps give the limit.
     fn offsets_fixed_point(&self, p: &PlantParams, rec: &Record, n_off: usize) -> Vec<f64> {
         let pass = |b: &[f64]| -> Option<Vec<f64>> {
-            let sim = replay_with(&replay_params_zeroed(p, rec, b), rec, n_off, self.drive).ok()?;
+            let sim = self
+                .replay(&replay_params_zeroed(p, rec, b), rec, n_off)
+                .ok()?;
             (!sim.failed).then(|| offsets(rec, &sim, 0..n_off))
         };
         let zero = vec![0.0; rec.channels.len()];
@@ -186,6 +194,12 @@ impl Ctx<'_> {
             .collect()
     }
 
+    /// Replay the first `n` samples of `rec` with `p` and this context's drive and stability
+    /// guard.
+    fn replay(&self, p: &PlantParams, rec: &Record, n: usize) -> Result<Replay, String> {
+        replay_guarded(p, rec, n, self.drive, self.max_substeps)
+    }
+
     /// Replay the first `n` samples of `rec` with `p`; when `offsets` is on, from the initial
     /// state less this model's sensor offsets ([`Ctx::offsets_fixed_point`] on `0..n_off`),
     /// with the offsets (mean residual on `0..n_off`) added to its outputs.
@@ -197,10 +211,10 @@ impl Ctx<'_> {
         n_off: usize,
     ) -> Result<Replay, String> {
         if !self.offsets {
-            return replay_with(p, rec, n, self.drive);
+            return self.replay(p, rec, n);
         }
         let b = self.offsets_fixed_point(p, rec, n_off);
-        let mut sim = replay_with(&replay_params_zeroed(p, rec, &b), rec, n, self.drive)?;
+        let mut sim = self.replay(&replay_params_zeroed(p, rec, &b), rec, n)?;
         let b = offsets(rec, &sim, 0..n_off);
         apply_offsets(&mut sim, &b);
         Ok(sim)
@@ -224,7 +238,7 @@ impl Ctx<'_> {
         } else {
             p
         };
-        match replay_with(start, self.fit_rec, self.n_fit, self.drive) {
+        match self.replay(start, self.fit_rec, self.n_fit) {
             Ok(mut sim) => {
                 if self.offsets {
                     let b = offsets(self.fit_rec, &sim, 0..self.n_fit);
@@ -273,17 +287,16 @@ impl Ctx<'_> {
         } else if self.offsets {
             // A separate record taken with the same sensors: the fit record's offsets.
             self.fit_replay(&h.build(&self.fit_base)).and_then(|f| {
-                let mut sim = replay_with(
+                let mut sim = self.replay(
                     &replay_params_zeroed(&p, self.val_rec, &f.offsets),
                     self.val_rec,
                     n,
-                    self.drive,
                 )?;
                 apply_offsets(&mut sim, &f.offsets);
                 Ok(sim)
             })
         } else {
-            replay_with(&p, self.val_rec, n, self.drive)
+            self.replay(&p, self.val_rec, n)
         };
         let sim = sim.unwrap_or_else(|_| failed());
         (errors(self.val_rec, &sim, self.val_range.clone()), sim)

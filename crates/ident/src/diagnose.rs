@@ -75,8 +75,9 @@ pub struct Options {
     /// [`crate::replay::DEFAULT_INTEGRATION_COST`].
     pub integration_max_cost: f64,
     /// Smallest replay cost factor the integration choice may take when the config's
-    /// substeps are more accurate than required (≥ 0.5; 1 = never fewer than the config's,
-    /// the library default: the evaluations' figures rest on it), see
+    /// substeps are more accurate than required (0 = down to the stability guard
+    /// [`crate::replay::REPLAY_MAX_OMEGA_H`]; 1 = never fewer than the config's, the library
+    /// default: the evaluations' figures rest on it), see
     /// [`crate::replay::choose_integration_between`].
     pub integration_min_cost: f64,
     /// Run the grey-box extension ([`crate::greybox`]) when the catalogue is exhausted (the
@@ -412,6 +413,7 @@ fn phase_nominal<'a>(
         drive,
         offsets: opts.sensor_offsets,
         cost_channel: None,
+        max_substeps: integration.config_substeps.max(integration.substeps),
     };
     let nom_sim = ctx
         .fit_replay(&ctx.fit_base)

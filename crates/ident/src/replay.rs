@@ -139,6 +139,21 @@ pub fn replay_with(
     n: usize,
     drive: Drive,
 ) -> Result<Replay, String> {
+    replay_guarded(params, rec, n, drive, 0)
+}
+
+/// [`replay_with`] whose fixed substeps are raised, up to `max_substeps`, where the
+/// parameters step the fastest mode beyond ω·h = [`REPLAY_MAX_OMEGA_H`]
+/// ([`configure_stable`]): how a diagnosis replays its candidates after the integration
+/// choice took fewer substeps than the config's (`max_substeps`: the config's count, so a
+/// candidate never costs more than the config's own step; 0 = no guard).
+pub fn replay_guarded(
+    params: &PlantParams,
+    rec: &Record,
+    n: usize,
+    drive: Drive,
+    max_substeps: u32,
+) -> Result<Replay, String> {
     if drive.closed_loop() && rec.reference.is_none() {
         return Err(format!(
             "{}: closed-loop replay needs a `ref` column",
@@ -153,7 +168,7 @@ pub fn replay_with(
         Drive::Recorded => None,
     };
     let t_start = std::time::Instant::now();
-    let mut plant = Plant::configure(params, rec.dt).map_err(|e| e.to_string())?;
+    let mut plant = configure_stable(params, rec.dt, max_substeps)?;
     let t_configured = std::time::Instant::now();
     let n = n.min(rec.len());
     let kinds: Vec<ChannelKind> = rec.channels.iter().map(|c| c.kind).collect();
@@ -201,6 +216,43 @@ pub fn replay_with(
         failed,
         offsets,
     })
+}
+
+/// Largest ω·h a replay steps its fastest mode at (-): half the stability limit ω·h < 2 of
+/// the plant's explicit (symplectic Euler) mechanics ([`Plant::fastest_mode`]). A replay with
+/// fixed substeps whose parameters put the fastest mode above it (a fit that stiffens a mount
+/// or the oil column after the integration choice took fewer substeps than the config's)
+/// takes, for that replay alone, the substeps that bring it back to this value, at most the
+/// config's own ([`replay_guarded`]).
+pub const REPLAY_MAX_OMEGA_H: f64 = 1.0;
+
+/// Fewest fixed substeps per period of `dt` (s) that hold `plant`'s fastest mode to
+/// ω·h ≤ [`REPLAY_MAX_OMEGA_H`], capped at [`ehactl_plant::model::MAX_SUBSTEPS`].
+fn stable_substeps(plant: &Plant, dt: f64) -> u32 {
+    let n = (dt * plant.fastest_mode() / REPLAY_MAX_OMEGA_H).ceil();
+    if n.is_finite() {
+        (n.max(1.0) as u32).min(ehactl_plant::model::MAX_SUBSTEPS)
+    } else {
+        ehactl_plant::model::MAX_SUBSTEPS
+    }
+}
+
+/// [`Plant::configure`] for a replay at period `dt` (s): fixed substeps are raised for this
+/// replay towards [`stable_substeps`], at most to `max_substeps`, where the parameters would
+/// step the fastest mode beyond [`REPLAY_MAX_OMEGA_H`] (automatic substeps hold their own,
+/// tighter, rule).
+pub fn configure_stable(params: &PlantParams, dt: f64, max_substeps: u32) -> Result<Plant, String> {
+    let plant = Plant::configure(params, dt).map_err(|e| e.to_string())?;
+    if params.integration.substeps == 0 || max_substeps <= plant.substeps() {
+        return Ok(plant);
+    }
+    let n = stable_substeps(&plant, dt).min(max_substeps);
+    if n <= plant.substeps() {
+        return Ok(plant);
+    }
+    let mut p = params.clone();
+    p.integration.substeps = n;
+    Plant::configure(&p, dt).map_err(|e| e.to_string())
 }
 
 /// Cumulative counters of every replay in this process ([`replay_stats`]): what a diagnosis
@@ -431,10 +483,10 @@ pub fn choose_integration(
 }
 
 /// [`choose_integration`] that may also take fewer substeps than the config's N, down to
-/// `min_cost` × N (at least half of N; 1 = never fewer), where N leaves less than half the
-/// allowed error: the fewest that leave at most half of it by their own step-halving check
-/// (first order: error ∝ step). `ehactl diagnose` uses
-/// [`crate::session::USER_INTEGRATION_MIN_COST`].
+/// `min_cost` × N (0 = no such floor; 1 = never fewer) and never below the stability guard
+/// ω·h ≤ [`REPLAY_MAX_OMEGA_H`], where N leaves less than half the allowed error: the fewest
+/// that leave at most half of it by their own step-halving check (first order: error ∝
+/// step). `ehactl diagnose` uses [`crate::session::USER_INTEGRATION_MIN_COST`].
 pub fn choose_integration_between(
     p: &PlantParams,
     rec: &Record,
@@ -466,6 +518,9 @@ pub fn choose_integration_between(
         Err(_) => vec![0.0; sd.len()],
     };
     let substeps_of = |p: &PlantParams| Plant::configure(p, rec.dt).map_or(1, |pl| pl.substeps());
+    // Fewest substeps the replays may take at all (ω·h ≤ REPLAY_MAX_OMEGA_H at the nominal
+    // parameters; each replay guards its own parameters the same way, `configure_stable`).
+    let stable_ns = Plant::configure(&p, rec.dt).map_or(1, |pl| stable_substeps(&pl, rec.dt));
     let step_halving = |p: &PlantParams, ns: u32| -> Vec<f64> {
         let mut a = p.clone();
         a.integration.substeps = ns;
@@ -517,20 +572,28 @@ pub fn choose_integration_between(
         err = step_halving(&p, ns);
     }
     // Cheaper when the config's substeps are far more accurate than required: the fewest
-    // that leave at most half the allowed error (first order: error ∝ step), but no fewer
-    // than half the config's (ω·h at most twice the config's rule, e.g. 0.5 for the default
-    // 0.25: the explicit mechanics stay well inside their stability limit ω·h < 2 when the
-    // fit moves the parameters, a mount stiffness up to 10× its start included), checked by
-    // step halving like any other choice and kept only when it holds.
-    let floor_ns = ((n0 as f64 * min_cost.clamp(0.5, 1.0)).ceil() as u32).max(1);
+    // that leave at most half the allowed error (first order: error ∝ step), no fewer than
+    // `min_cost` × the config's and than the nominal stability guard (ω·h ≤
+    // REPLAY_MAX_OMEGA_H; a fit that moves a mode faster gets more substeps in its own
+    // replays, up to the config's, `replay_guarded`), checked by step halving like any other
+    // choice and kept only when it holds.
+    let floor_ns = ((n0 as f64 * min_cost.clamp(0.0, 1.0)).ceil() as u32)
+        .max(stable_ns)
+        .max(1);
+    // A prediction that misses (the error is not yet first order at so few substeps) is
+    // followed by the next counts up (each check is two replays of the fit cost's samples,
+    // against the thousands of a diagnosis).
     if ns == n0 && floor_ns < n0 {
         let r = worst(&err);
         let fewer = ((n0 as f64 * r / 0.5).ceil() as u32).max(floor_ns);
-        if r.is_finite() && fewer < n0 {
-            let e = step_halving(&p, fewer);
-            if worst(&e) <= 0.5 {
-                ns = fewer;
-                err = e;
+        if r.is_finite() {
+            for k in (fewer..n0).take(4) {
+                let e = step_halving(&p, k);
+                if worst(&e) <= 0.5 {
+                    ns = k;
+                    err = e;
+                    break;
+                }
             }
         }
     }

@@ -156,11 +156,12 @@ pub fn config_mismatch(cfg: &RigConfig, logged: &Value) -> Vec<String> {
 pub const USER_INTEGRATION_COST: f64 = 4.0;
 
 /// Smallest replay cost factor of the integration choice for `ehactl diagnose` and the Python
-/// bindings ([`Options::integration_min_cost`]): where the config's substeps leave less than
-/// half the allowed integration error, down to half of them (the MTS records: 10 → 5
-/// substeps per sample, error still ≤ 0.3 × the noise floor by step halving; BENCHMARKS.md
-/// "Diagnosis speed").
-pub const USER_INTEGRATION_MIN_COST: f64 = 0.5;
+/// bindings ([`Options::integration_min_cost`]): none. Where the config's substeps leave less
+/// than half the allowed integration error, the choice takes the fewest that leave at most
+/// half of it by step halving, bounded below only by the stability guard ω·h ≤
+/// [`crate::replay::REPLAY_MAX_OMEGA_H`] (the MTS records: 10 → 3 substeps per sample;
+/// BENCHMARKS.md "Diagnosis speed").
+pub const USER_INTEGRATION_MIN_COST: f64 = 0.0;
 
 /// Diagnose `data_path` (CSV or ehactl MCAP) against the nominal `cfg` (labelled
 /// `config_label` in the report), holding out `validate` or the last 30 %; write the report to

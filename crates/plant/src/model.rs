@@ -118,6 +118,9 @@ pub struct Plant {
     adaptive: Option<f64>,
     /// Substeps taken since the start (for cost figures).
     substeps_taken: u64,
+    /// Fastest mode the substep must resolve (rad/s), at the smallest chamber volumes: the
+    /// one the substep rule holds to ω·h ≤ `max_omega_h` ([`Plant::fastest_mode`]).
+    omega_max: f64,
     h: f64,
     state: PlantState,
     cycle: u64,
@@ -464,6 +467,7 @@ impl Plant {
             adaptive: (params.integration.substeps == 0 && !linear_exact)
                 .then_some(params.integration.max_omega_h),
             substeps_taken: 0,
+            omega_max,
             h,
             state: PlantState::default(),
             cycle: 0,
@@ -562,6 +566,15 @@ impl Plant {
     #[allow(clippy::misnamed_getters)] // `substeps` is the per-period count in use; this is its maximum
     pub fn substeps(&self) -> u32 {
         self.substeps_max
+    }
+
+    /// Fastest mode the substep must resolve (rad/s), at the smallest chamber volumes (stroke
+    /// ends): with `exponential_euler` the hydraulic spring √(β·A²/(V·m)) with the load
+    /// spring, the mount, line segments and LuGre bristles, whose explicit (symplectic) step
+    /// is stable for ω·h < 2; with `linear_exact` what still enters explicitly (spool, supply
+    /// sag). ω·h with [`Plant::substep_length`] is the step's stability and accuracy measure.
+    pub fn fastest_mode(&self) -> f64 {
+        self.omega_max
     }
 
     /// Substep length (s).
