@@ -49,19 +49,27 @@ fn best_lag(y: &[f64], yh: &[f64], max_lag: usize) -> i64 {
 /// Frequency (Hz) and amplitude of the sine in `e` (sample k at time (k0 + k)·dt) nearest to
 /// `f0`, by a fine scan of |DFT| over f0 ± 1.5·df.
 fn refine_line(e: &[f64], dt: f64, k0: usize, f0: f64, df: f64) -> (f64, f64) {
+    use rayon::prelude::*;
     let n = e.len() as f64;
-    let mut best = (f0, 0.0);
     let steps = 600;
-    for i in 0..=steps {
-        let f = f0 - 1.5 * df + 3.0 * df * i as f64 / steps as f64;
-        let w = std::f64::consts::TAU * f * dt;
-        let (mut c, mut s) = (0.0, 0.0);
-        for (k, v) in e.iter().enumerate() {
-            let ph = w * (k0 + k) as f64;
-            c += v * ph.cos();
-            s += v * ph.sin();
-        }
-        let a = 2.0 * (c * c + s * s).sqrt() / n;
+    // The scan's frequencies are independent: evaluated on every core, the maximum then taken
+    // in scan order (the first of equal amplitudes, as a sequential scan would).
+    let amp: Vec<(f64, f64)> = (0..=steps)
+        .into_par_iter()
+        .map(|i| {
+            let f = f0 - 1.5 * df + 3.0 * df * i as f64 / steps as f64;
+            let w = std::f64::consts::TAU * f * dt;
+            let (mut c, mut s) = (0.0, 0.0);
+            for (k, v) in e.iter().enumerate() {
+                let ph = w * (k0 + k) as f64;
+                c += v * ph.cos();
+                s += v * ph.sin();
+            }
+            (f, 2.0 * (c * c + s * s).sqrt() / n)
+        })
+        .collect();
+    let mut best = (f0, 0.0);
+    for (f, a) in amp {
         if a > best.1 {
             best = (f, a);
         }
@@ -94,15 +102,17 @@ pub fn analyse(rec: &Record, sim: &Replay, range: std::ops::Range<usize>) -> Ana
         .map(|c| crate::replay::noise_level(&c.values[r.clone()]))
         .collect();
     // Normalised residual energy per sample (sum over channels of (e/σ_y)²).
+    let sd: Vec<f64> = rec
+        .channels
+        .iter()
+        .map(|c| std(&c.values[r.clone()]).max(1e-300))
+        .collect();
     let w: Vec<f64> = (0..n)
         .map(|k| {
-            rec.channels
+            resid
                 .iter()
-                .zip(&resid)
-                .map(|(c, e)| {
-                    let sd = std(&c.values[r.clone()]).max(1e-300);
-                    (e[k] / sd).powi(2)
-                })
+                .zip(&sd)
+                .map(|(e, sd)| (e[k] / sd).powi(2))
                 .sum::<f64>()
         })
         .collect();
