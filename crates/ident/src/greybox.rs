@@ -8,7 +8,9 @@
 //! friction A_c·sign(v)·|p_a − p_b|, and Dahl's pre-yield hysteresis F_d·z with
 //! dz/dt = (v − |v|·z)/δ (Dahl 1968; for MR dampers Ikhouane & Dyke 2007); and of `[effects.polynomial_flow]`
 //! ([`ehactl_plant::effects::PolynomialFlow`], a flow from port B to port A): null bias q₀,
-//! flow-gain error q_s·x_v and direction asymmetry q_a·|x_v|. Because every term is a field of
+//! flow-gain error q_s·x_v and direction asymmetry q_a·|x_v|. The damping coefficients (viscous,
+//! quadratic) and the Dahl force are bounded at ≥ 0: a load-side damping dissipates energy.
+//! Because every term is a field of
 //! the plant config, the extended config stays runnable by `ehactl run` and the Python bindings.
 //!
 //! Selection: forward stepwise sparse regression in output error (the free-run simulation
@@ -484,8 +486,17 @@ pub(crate) fn extend(
                 let _ = f.set_path(field, v);
             })
         };
-        // The Dahl force is a magnitude (F_d ≥ 0, the state carries the sign).
-        let lo = if field == "dahl" { 0.0 } else { -b };
+        // The Dahl force is a magnitude (F_d ≥ 0, the state carries the sign). A load-side
+        // damping dissipates: its total coefficient is ≥ 0 (a negative quadratic damping fitted
+        // at the speeds of one record injects energy at higher ones: the 0 A low-band law of
+        // the MTS transfer check diverged on the high band with c_q < 0).
+        let dissipative =
+            l.section == "polynomial_force" && matches!(field, "viscous" | "quadratic");
+        let lo = if field == "dahl" || dissipative {
+            0.0
+        } else {
+            -b
+        };
         FreeParam {
             name: format!("effects.{}.{field}", l.section),
             lo,
