@@ -7,8 +7,8 @@
 use crate::data::Record;
 use crate::fit::{nelder_mead, FreeParam};
 use crate::replay::{
-    apply_offsets, nrmse, offsets, overall, replay_guarded, replay_params_zeroed, std, Drive,
-    Replay,
+    apply_offsets, nrmse, offsets, overall, replay_cost, replay_guarded, replay_params_zeroed, std,
+    Drive, Replay,
 };
 use ehactl_plant::{EffectId, PlantParams};
 use serde::Serialize;
@@ -229,8 +229,29 @@ impl Ctx<'_> {
     /// fitting part. With offsets, `reference` holds the offsets solved at this fit's
     /// reference point ([`Ctx::offsets_fixed_point`]): the replay starts from the initial
     /// state they imply (the same for every evaluation, so the cost has no memory) and its own offsets
-    /// are profiled out of the outputs in closed form. One replay per evaluation.
-    fn cost_fit(&self, p: &PlantParams, reference: &std::cell::RefCell<Vec<f64>>) -> f64 {
+    /// are profiled out of the outputs in closed form. One replay per evaluation. Without
+    /// offsets the replay stops once the cost cannot fall below `bound` and returns a value
+    /// ≥ `bound` ([`crate::replay::replay_cost`]; the offsets are a mean over the whole
+    /// fitting part, so with them every replay runs to the end).
+    fn cost_fit(
+        &self,
+        p: &PlantParams,
+        reference: &std::cell::RefCell<Vec<f64>>,
+        bound: f64,
+    ) -> f64 {
+        if !self.offsets {
+            return replay_cost(
+                p,
+                self.fit_rec,
+                self.n_fit,
+                self.drive,
+                self.max_substeps,
+                &self.sd_fit,
+                self.cost_channel,
+                bound,
+            )
+            .unwrap_or(1e6);
+        }
         let zeroed;
         let start = if self.offsets {
             zeroed = replay_params_zeroed(p, self.fit_rec, &reference.borrow());
@@ -312,7 +333,7 @@ impl Ctx<'_> {
                 .collect()
         };
         let reference = std::cell::RefCell::new(Vec::new());
-        let cost = |vals: &[f64]| self.cost_fit(&at(vals), &reference);
+        let cost = |vals: &[f64], bound: f64| self.cost_fit(&at(vals), &reference, bound);
         // With offsets: solve the initial state they imply at `vals` (the reference of the
         // memoryless cost). Done at the start, per coarse grid point (the points are far
         // apart: each starts from its own converged offsets, not from the previous point's)
@@ -327,12 +348,13 @@ impl Ctx<'_> {
         // Coarse grid over the first new parameter (the effect's magnitude) before the simplex.
         if first_new < h.params.len() {
             let fp = h.params[first_new].clone();
-            let mut best = (cost(&h.values), h.values[first_new]);
+            let mut best = (cost(&h.values, f64::INFINITY), h.values[first_new]);
             for s in [0.1, 0.3, 0.5, 0.7, 0.9] {
                 let mut v = h.values.clone();
                 v[first_new] = fp.from_unit(s);
                 settle(&v);
-                let c = cost(&v);
+                // Kept only if below the best so far.
+                let c = cost(&v, best.0);
                 if c < best.0 {
                     best = (c, v[first_new]);
                 }
@@ -346,7 +368,7 @@ impl Ctx<'_> {
             .zip(&h.values)
             .map(|(p, v)| p.to_unit(*v))
             .collect();
-        let mut fu = |u: &[f64]| cost(&from_units(u));
+        let mut fu = |u: &[f64], bound: f64| cost(&from_units(u), bound);
         let budget = 60 + evals_per_param * u0.len();
         let (u1, _, _) = nelder_mead(&mut fu, &u0, 0.15, budget * 2 / 3, 1e-6);
         settle(&from_units(&u1));

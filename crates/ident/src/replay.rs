@@ -154,6 +154,100 @@ pub fn replay_guarded(
     drive: Drive,
     max_substeps: u32,
 ) -> Result<Replay, String> {
+    let n = n.min(rec.len());
+    let mut y: Vec<Vec<f64>> = rec.channels.iter().map(|_| Vec::with_capacity(n)).collect();
+    let mut v = Vec::with_capacity(n);
+    let mut dp = Vec::with_capacity(n);
+    let failed = run(params, rec, n, drive, max_substeps, |_, out, vk, dpk| {
+        for (yc, o) in y.iter_mut().zip(out) {
+            yc.push(*o);
+        }
+        v.push(vk);
+        dp.push(dpk);
+        true
+    })?;
+    let offsets = vec![0.0; y.len()];
+    Ok(Replay {
+        y,
+        v,
+        dp,
+        failed,
+        offsets,
+    })
+}
+
+/// The fit cost of a replay of the first `n` samples, computed as the replay runs: the mean
+/// over the used channels (all, or `channel` only) of Σ(measured − model)²/n / `sd`², plus
+/// 10³ when the integration failed — exactly the value the same sums over a
+/// [`replay_guarded`] give. The replay stops as soon as that cost can no longer fall below
+/// `bound` (each channel's sum only grows), and then returns a value ≥ `bound`: a
+/// Nelder–Mead step that only needs to know whether a point is better than its worst vertex
+/// does not pay for the rest of a record it already lost on
+/// ([`crate::fit::nelder_mead`]; `f64::INFINITY`: the whole record).
+#[allow(clippy::too_many_arguments)]
+pub fn replay_cost(
+    params: &PlantParams,
+    rec: &Record,
+    n: usize,
+    drive: Drive,
+    max_substeps: u32,
+    sd: &[f64],
+    channel: Option<usize>,
+    bound: f64,
+) -> Result<f64, String> {
+    let n = n.min(rec.len());
+    let mut sums = vec![0.0; rec.channels.len()];
+    // The cost of the sums so far; the same operations in the same order as a cost taken
+    // after the replay, so a monotone lower bound of it and, at the end, equal to it.
+    let cost = |sums: &[f64], failed: bool| -> f64 {
+        let mut j = 0.0;
+        let mut used = 0;
+        for (c, s) in sums.iter().enumerate() {
+            if channel.is_some_and(|k| k != c) {
+                continue;
+            }
+            used += 1;
+            j += s / n as f64 / (sd[c] * sd[c]).max(1e-300);
+        }
+        let j = j / used.max(1) as f64;
+        if failed {
+            j + 1e3
+        } else {
+            j
+        }
+    };
+    let mut lost = None;
+    let failed = run(params, rec, n, drive, max_substeps, |k, out, _, _| {
+        for ((s, o), ch) in sums.iter_mut().zip(out).zip(&rec.channels) {
+            let e = ch.values[k] - o;
+            *s += e * e;
+        }
+        // Checked every 32 samples: the cost of the check stays below 1 % of the replay's.
+        if k % 32 == 31 && bound.is_finite() {
+            let j = cost(&sums, false);
+            if j >= bound {
+                lost = Some(j);
+                return false;
+            }
+        }
+        true
+    })?;
+    Ok(lost.unwrap_or_else(|| cost(&sums, failed)))
+}
+
+/// The replay loop: for each sample k < `n` the record channels' measured outputs (taken
+/// before command u_k is applied, the order of `ehactl run`'s loop: read, compute, write; set
+/// to 0 where non-finite once the integration failed), the model's velocity (m/s) and load
+/// pressure p_a − p_b (Pa) go to `sample`, which returns `false` to stop. Returns whether the
+/// integration failed (the state is then held).
+fn run(
+    params: &PlantParams,
+    rec: &Record,
+    n: usize,
+    drive: Drive,
+    max_substeps: u32,
+    mut sample: impl FnMut(usize, &[f64], f64, f64) -> bool,
+) -> Result<bool, String> {
     if drive.closed_loop() && rec.reference.is_none() {
         return Err(format!(
             "{}: closed-loop replay needs a `ref` column",
@@ -172,17 +266,15 @@ pub fn replay_guarded(
     let t_configured = std::time::Instant::now();
     let n = n.min(rec.len());
     let kinds: Vec<ChannelKind> = rec.channels.iter().map(|c| c.kind).collect();
-    let mut y: Vec<Vec<f64>> = kinds.iter().map(|_| Vec::with_capacity(n)).collect();
-    let mut v = Vec::with_capacity(n);
-    let mut dp = Vec::with_capacity(n);
+    let mut out = vec![0.0; kinds.len()];
     let mut failed = false;
+    let mut samples = 0;
     for k in 0..n {
         let m = plant.measure();
-        for (c, kind) in kinds.iter().enumerate() {
-            y[c].push(kind.pick(&m));
+        for (o, kind) in out.iter_mut().zip(&kinds) {
+            *o = kind.pick(&m);
         }
-        v.push(plant.state().v);
-        dp.push(plant.state().p_a - plant.state().p_b);
+        let (v, dp) = (plant.state().v, plant.state().p_a - plant.state().p_b);
         let u = match (&mut ctl, &rec.reference) {
             (Some(Loop::Pd(pd)), Some(r)) => pd.step(r[k], 0.0, m.position, rec.dt).u,
             // `ehactl run`: PI on the measured force, then the supervisor's command limit.
@@ -201,21 +293,24 @@ pub fn replay_guarded(
         }
         if failed {
             // Keep the last good outputs; the fit sees a large error, never a NaN.
-            for yc in y.iter_mut() {
-                let last = yc[k];
-                yc[k] = if last.is_finite() { last } else { 0.0 };
+            for o in out.iter_mut() {
+                if !o.is_finite() {
+                    *o = 0.0;
+                }
             }
         }
+        samples = k + 1;
+        if !sample(k, &out, v, dp) {
+            break;
+        }
     }
-    STATS.add(n, &plant, t_configured - t_start, t_configured.elapsed());
-    let offsets = vec![0.0; y.len()];
-    Ok(Replay {
-        y,
-        v,
-        dp,
-        failed,
-        offsets,
-    })
+    STATS.add(
+        samples,
+        &plant,
+        t_configured - t_start,
+        t_configured.elapsed(),
+    );
+    Ok(failed)
 }
 
 /// Largest ω·h a replay steps its fastest mode at (-): half the stability limit ω·h < 2 of

@@ -106,3 +106,62 @@ fn a_replay_within_the_guard_is_untouched() {
     let auto = rig(0, 1e8);
     assert_eq!(outputs(&auto, Some(100)), outputs(&auto, None));
 }
+
+/// The fit cost computed while replaying (`replay_cost`) is the textbook cost of the whole
+/// replay, mean over channels of Σ(y − ŷ)²/n / σ², to the last bit; given a bound below it,
+/// it stops early with a value between the bound and the full cost.
+#[test]
+fn the_running_cost_is_the_replays_cost_and_stops_at_its_bound() {
+    use ehactl_ident::replay::{replay_cost, replay_params};
+    let case = make_case_at(12, &[], 1.0, 1e-3);
+    let rec = &case.record;
+    let p = replay_params(&case.nominal.plant, rec);
+    let n = rec.len();
+    let sd: Vec<f64> = rec
+        .channels
+        .iter()
+        .map(|c| {
+            let m = c.values.iter().sum::<f64>() / n as f64;
+            (c.values.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / n as f64)
+                .sqrt()
+                .max(1e-300)
+        })
+        .collect();
+    let sim = replay_with(&p, rec, n, Drive::Recorded).expect("replay runs");
+    let mut j = 0.0;
+    for (c, (ch, y)) in rec.channels.iter().zip(&sim.y).enumerate() {
+        let e: f64 = ch
+            .values
+            .iter()
+            .zip(y)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>();
+        j += e / n as f64 / (sd[c] * sd[c]).max(1e-300);
+    }
+    let j = j / rec.channels.len() as f64;
+    assert!(j > 0.0 && j.is_finite(), "cost {j}");
+    let full = replay_cost(&p, rec, n, Drive::Recorded, 0, &sd, None, f64::INFINITY).unwrap();
+    assert_eq!(
+        full.to_bits(),
+        j.to_bits(),
+        "running {full} vs after the replay {j}"
+    );
+    // One channel only: the same sum for that channel.
+    let one = replay_cost(&p, rec, n, Drive::Recorded, 0, &sd, Some(0), f64::INFINITY).unwrap();
+    let e0: f64 = rec.channels[0]
+        .values
+        .iter()
+        .zip(&sim.y[0])
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum::<f64>();
+    assert_eq!(
+        one.to_bits(),
+        (e0 / n as f64 / (sd[0] * sd[0]).max(1e-300)).to_bits()
+    );
+    let bound = 0.3 * j;
+    let early = replay_cost(&p, rec, n, Drive::Recorded, 0, &sd, None, bound).unwrap();
+    assert!(
+        early >= bound && early < j,
+        "bound {bound}, early {early}, full {j}"
+    );
+}
