@@ -7,8 +7,8 @@
 use crate::data::Record;
 use crate::fit::{nelder_mead, FreeParam};
 use crate::replay::{
-    apply_offsets, nrmse, offsets, overall, replay_cost, replay_guarded, replay_params_zeroed, std,
-    Drive, Replay,
+    apply_offsets, fit_cost, nrmse, offsets, overall, replay_cost, replay_guarded,
+    replay_params_zeroed, std, Drive, Replay,
 };
 use ehactl_plant::{EffectId, PlantParams};
 use serde::Serialize;
@@ -252,40 +252,31 @@ impl Ctx<'_> {
             )
             .unwrap_or(1e6);
         }
-        let zeroed;
-        let start = if self.offsets {
-            zeroed = replay_params_zeroed(p, self.fit_rec, &reference.borrow());
-            &zeroed
-        } else {
-            p
-        };
-        match self.replay(start, self.fit_rec, self.n_fit) {
+        let start = replay_params_zeroed(p, self.fit_rec, &reference.borrow());
+        match self.replay(&start, self.fit_rec, self.n_fit) {
             Ok(mut sim) => {
-                if self.offsets {
-                    let b = offsets(self.fit_rec, &sim, 0..self.n_fit);
-                    apply_offsets(&mut sim, &b);
-                }
-                let mut j = 0.0;
-                let mut used = 0;
-                for (c, (ch, yh)) in self.fit_rec.channels.iter().zip(&sim.y).enumerate() {
-                    if self.cost_channel.is_some_and(|k| k != c) {
-                        continue;
-                    }
-                    used += 1;
-                    let e: f64 = ch.values[..self.n_fit]
-                        .iter()
-                        .zip(yh)
-                        .map(|(a, b)| (a - b) * (a - b))
-                        .sum::<f64>()
-                        / self.n_fit as f64;
-                    j += e / (self.sd_fit[c] * self.sd_fit[c]).max(1e-300);
-                }
-                let j = j / used.max(1) as f64;
-                if sim.failed {
-                    j + 1e3
-                } else {
-                    j
-                }
+                let b = offsets(self.fit_rec, &sim, 0..self.n_fit);
+                apply_offsets(&mut sim, &b);
+                let sums: Vec<f64> = self
+                    .fit_rec
+                    .channels
+                    .iter()
+                    .zip(&sim.y)
+                    .map(|(ch, yh)| {
+                        ch.values[..self.n_fit]
+                            .iter()
+                            .zip(yh)
+                            .map(|(a, b)| (a - b) * (a - b))
+                            .sum::<f64>()
+                    })
+                    .collect();
+                fit_cost(
+                    &sums,
+                    self.n_fit,
+                    &self.sd_fit,
+                    self.cost_channel,
+                    sim.failed,
+                )
             }
             Err(_) => 1e6,
         }

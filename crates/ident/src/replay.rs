@@ -197,25 +197,9 @@ pub fn replay_cost(
 ) -> Result<f64, String> {
     let n = n.min(rec.len());
     let mut sums = vec![0.0; rec.channels.len()];
-    // The cost of the sums so far; the same operations in the same order as a cost taken
-    // after the replay, so a monotone lower bound of it and, at the end, equal to it.
-    let cost = |sums: &[f64], failed: bool| -> f64 {
-        let mut j = 0.0;
-        let mut used = 0;
-        for (c, s) in sums.iter().enumerate() {
-            if channel.is_some_and(|k| k != c) {
-                continue;
-            }
-            used += 1;
-            j += s / n as f64 / (sd[c] * sd[c]).max(1e-300);
-        }
-        let j = j / used.max(1) as f64;
-        if failed {
-            j + 1e3
-        } else {
-            j
-        }
-    };
+    // The cost of the sums so far: a monotone lower bound of the whole replay's and, at the
+    // end, equal to it.
+    let cost = |sums: &[f64], failed: bool| fit_cost(sums, n, sd, channel, failed);
     let mut lost = None;
     let failed = run(params, rec, n, drive, max_substeps, |k, out, _, _| {
         for ((s, o), ch) in sums.iter_mut().zip(out).zip(&rec.channels) {
@@ -233,6 +217,34 @@ pub fn replay_cost(
         true
     })?;
     Ok(lost.unwrap_or_else(|| cost(&sums, failed)))
+}
+
+/// The fit cost from the per-channel sums of squared residuals `sums` over `n` samples: the
+/// mean over the used channels (all, or `channel` only) of sum/n / `sd`², plus 10³ when the
+/// integration `failed` (the one definition [`replay_cost`] and a fit with sensor offsets
+/// share).
+pub(crate) fn fit_cost(
+    sums: &[f64],
+    n: usize,
+    sd: &[f64],
+    channel: Option<usize>,
+    failed: bool,
+) -> f64 {
+    let mut j = 0.0;
+    let mut used = 0;
+    for (c, s) in sums.iter().enumerate() {
+        if channel.is_some_and(|k| k != c) {
+            continue;
+        }
+        used += 1;
+        j += s / n as f64 / (sd[c] * sd[c]).max(1e-300);
+    }
+    let j = j / used.max(1) as f64;
+    if failed {
+        j + 1e3
+    } else {
+        j
+    }
 }
 
 /// The replay loop: for each sample k < `n` the record channels' measured outputs (taken
@@ -612,10 +624,11 @@ pub fn choose_integration_between(
             .collect(),
         Err(_) => vec![0.0; sd.len()],
     };
-    let substeps_of = |p: &PlantParams| Plant::configure(p, rec.dt).map_or(1, |pl| pl.substeps());
     // Fewest substeps the replays may take at all (ω·h ≤ REPLAY_MAX_OMEGA_H at the nominal
     // parameters; each replay guards its own parameters the same way, `configure_stable`).
-    let stable_ns = Plant::configure(&p, rec.dt).map_or(1, |pl| stable_substeps(&pl, rec.dt));
+    // The config's substeps per sample and the fewest the guard allows (one configuration).
+    let (n0, stable_ns) = Plant::configure(&p, rec.dt)
+        .map_or((1, 1), |pl| (pl.substeps(), stable_substeps(&pl, rec.dt)));
     let step_halving = |p: &PlantParams, ns: u32| -> Vec<f64> {
         let mut a = p.clone();
         a.integration.substeps = ns;
@@ -652,7 +665,6 @@ pub fn choose_integration_between(
             .map(|(e, f)| e / (INTEGRATION_RATIO * f).max(1e-6))
             .fold(0.0, f64::max)
     };
-    let n0 = substeps_of(&p);
     let cap = ((n0 as f64 * max_cost.max(1.0)).floor() as u32)
         .clamp(n0, ehactl_plant::model::MAX_SUBSTEPS);
     let mut ns = n0;
