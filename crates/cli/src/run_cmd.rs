@@ -440,6 +440,12 @@ fn print_text_summary(
             "  exec CPU      p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (thread CPU time, preemptions excluded)",
             tm.exec_cpu.p50, tm.exec_cpu.p99, tm.exec_cpu.p999, tm.exec_cpu.max
         );
+        if tm.exec_cpu_clamped > 0 {
+            println!(
+                "                {} cycles read more CPU time than wall time (core clocks out of step) and count as their wall time",
+                tm.exec_cpu_clamped
+            );
+        }
         println!(
             "  overruns      {} of {} cycles: {} ours (CPU time over the period), {} thread not running (late start or preempted); longest streak {}, {} deadlines skipped, policy {}",
             tm.overruns,

@@ -93,6 +93,9 @@ pub struct TimingReport {
     /// CPU time of the loop thread per cycle, cycle start → next wait (µs): the cycle's
     /// own work, without the time the thread was preempted.
     pub exec_cpu: Quantiles,
+    /// Cycles whose CPU-time reading exceeded their wall execution time and was taken as
+    /// the wall time (cycles; see `ehactl_runtime::realtime::TimingStats::exec_cpu_clamped`).
+    pub exec_cpu_clamped: u64,
     /// Overruns (cycles).
     pub overruns: u64,
     /// Overruns whose cycle's own CPU time alone exceeded the period (cycles; see

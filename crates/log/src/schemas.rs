@@ -76,6 +76,7 @@ pub fn summary_schema() -> Value {
             "jitter_p99_us": nullable_num("wall-clock runs: 99th percentile of the wake-up lateness, cycle start − its deadline (µs); also _p50_us, _p999_us, _max_us"),
             "exec_p99_us": nullable_num("wall-clock runs: 99th percentile of the execution time, wall clock, cycle start → next wait (µs); also _p50_us, _p999_us, _max_us"),
             "exec_cpu_p99_us": nullable_num("wall-clock runs: 99th percentile of the loop thread's CPU time per cycle, cycle start → next wait, preemptions excluded (µs); also _p50_us, _p999_us, _max_us"),
+            "exec_cpu_clamped": int("wall-clock runs: cycles whose thread CPU time read above their wall execution time (scheduler clocks of the cores not synchronised) and was taken as the wall time"),
             "overruns": int("wall-clock runs: cycles that ended after the next deadline"),
             "overruns_exec": int("wall-clock runs: overruns whose cycle's own CPU time alone exceeded the period (our cycle took too long)"),
             "overruns_wakeup": int("wall-clock runs: overruns of cycles whose work fit in the period but whose thread was not running when needed (started late or preempted inside the cycle)"),

@@ -248,6 +248,14 @@ pub struct TimingStats {
     /// CPU time of the loop thread from cycle start to the next wait (ns,
     /// `CLOCK_THREAD_CPUTIME_ID`): the cycle's own work, without the time it was not running.
     pub exec_cpu: Histogram,
+    /// Cycles whose CPU-time reading exceeded their wall execution time. A thread cannot run
+    /// longer than the wall time that passed, but Linux's per-thread CPU clock comes from the
+    /// scheduler clock of the core the thread last ran on: on machines whose cores' scheduler
+    /// clocks are not synchronised (VMs without a stable TSC; `sched_clock` in the kernel's
+    /// `kernel/sched/clock.c`) it runs ahead of CLOCK_MONOTONIC across a migration. Such a
+    /// cycle's CPU time is taken as its wall time (an upper bound); a count well above zero
+    /// says the CPU/wall split of that run is uncertain by up to the skew.
+    pub exec_cpu_clamped: u64,
     /// Cycles that finished after the next deadline.
     pub overruns: u64,
     /// Overruns caused by our own execution: the cycle's work (its thread CPU time, start to
@@ -440,6 +448,7 @@ impl<C: Clock> WallClockPacer<C> {
             period: self.stats.period.summary_us(),
             exec: self.stats.exec.summary_us(),
             exec_cpu: self.stats.exec_cpu.summary_us(),
+            exec_cpu_clamped: self.stats.exec_cpu_clamped,
             overruns: self.stats.overruns,
             overruns_exec: self.stats.overruns_exec,
             overruns_wakeup: self.stats.overruns_wakeup,
@@ -584,10 +593,17 @@ impl<C: Clock> Pacer for WallClockPacer<C> {
         let now = self.clock.now_ns();
         let exec = now - self.last_start;
         self.stats.exec.record(exec);
-        let exec_cpu = self
+        let exec_cpu_read = self
             .clock
             .thread_cpu_ns()
             .saturating_sub(self.last_start_cpu);
+        // CPU time ≤ wall time; a reading above it is clock skew (`exec_cpu_clamped`).
+        let exec_cpu = if exec_cpu_read > exec {
+            self.stats.exec_cpu_clamped += 1;
+            exec
+        } else {
+            exec_cpu_read
+        };
         self.stats.exec_cpu.record(exec_cpu);
         let nominal = self.deadline + self.period_ns;
         let mut deadline = nominal;
@@ -816,6 +832,11 @@ mod tests {
         fn preempted(&self, ns: u64) {
             self.now.set(self.now.get() + ns);
         }
+        /// The CPU clock jumps `ns` ahead of the wall clock: a migration to a core whose
+        /// scheduler clock is ahead.
+        fn cpu_clock_skew(&self, ns: u64) {
+            self.cpu.set(self.cpu.get() + ns);
+        }
     }
 
     impl Clock for Scripted {
@@ -908,6 +929,32 @@ mod tests {
         assert!(p.wait_for_cycle(2));
         assert_eq!(p.stats().overruns_exec, 1);
         assert!(p.cycle_timing().unwrap().overrun_exec);
+    }
+
+    #[test]
+    fn a_cpu_clock_ahead_of_the_wall_clock_is_clamped_and_counted() {
+        let mut p = scripted(RtOptions::default());
+        assert!(p.wait_for_cycle(0));
+        // Cycle 0 works 2 ms and migrates to a core whose scheduler clock is 18 ms ahead:
+        // its CPU time reads 20 ms for 2 ms of wall time.
+        p.clock().work(2 * MS);
+        p.clock().cpu_clock_skew(18 * MS);
+        assert!(p.wait_for_cycle(1));
+        let s = p.stats();
+        assert_eq!(s.exec_cpu_clamped, 1);
+        // Taken as its wall time, so it is neither an overrun nor ours.
+        assert_eq!((s.overruns, s.overruns_exec), (0, 0));
+        let (cpu, wall) = (s.exec_cpu.summary_us().max, s.exec.summary_us().max);
+        assert_eq!(cpu, wall);
+        assert!(
+            (2_000.0..=2_000.0 * (1.0 + 1.0 / 256.0)).contains(&cpu),
+            "{cpu}"
+        );
+        // A cycle whose CPU reading is within its wall time is not counted.
+        p.clock().work(3 * MS);
+        assert!(p.wait_for_cycle(2));
+        assert_eq!(p.stats().exec_cpu_clamped, 1);
+        assert_eq!(p.timing_report().exec_cpu_clamped, 1);
     }
 
     #[test]

@@ -142,6 +142,7 @@ impl Session {
                 put(obj, &format!("{name}_max_us"), q.max);
             }
             put(obj, "period_min_us", tm.period.min);
+            obj.insert("exec_cpu_clamped".into(), json!(tm.exec_cpu_clamped));
             obj.insert("overruns".into(), json!(tm.overruns));
             // The split of `overruns`: our execution vs a late start (DEPLOY.md §8).
             obj.insert("overruns_exec".into(), json!(tm.overruns_exec));
