@@ -773,15 +773,7 @@ impl Plant {
         if dahl {
             self.dahl_z = next();
         }
-        let c = &self.c;
-        s.rod_force = c.k_load * (s.x - c.x_contact)
-            + match c.mount {
-                Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
-                None => s.external,
-            }
-            + self
-                .poly
-                .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
+        self.update_rod_force();
     }
 
     /// Sample the sensors at the current state.

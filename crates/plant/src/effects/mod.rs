@@ -455,6 +455,42 @@ mod tests {
         );
     }
 
+    /// Linearisation writes the state back with [`Plant::set_linear_state`]; the rod force
+    /// it then reports is the load cell's at that state for every mount variant. With the
+    /// cylinder body on a compliant mount (`piston_side`) the load spring sees the absolute
+    /// piston position x + x_body and the rod passes the external force on, not the mount's
+    /// spring-damper force (which acts on the body).
+    #[test]
+    fn writing_the_state_back_keeps_the_rod_force_of_every_mount() {
+        for variant in ["load_side", "piston_side"] {
+            let mut p = null_bias_rig(7.0e-4, 3.5e-6, "viscous = 2.0e4");
+            p.mechanics.load_stiffness = 2.0e5;
+            p.mechanics.load_contact_position = 0.01;
+            let mount = format!(
+                "variant = \"{variant}\"\nload_mass = 50.0\nstiffness = 3.0e5\ndamping = 2.0e3"
+            );
+            p.effects.flexible_mount = Some(toml::from_str(&mount).unwrap());
+            let mut plant = Plant::configure(&p, 1e-3).unwrap();
+            for _ in 0..200 {
+                plant.step(1.0).unwrap();
+            }
+            let before = *plant.state();
+            assert!(before.x_load.abs() > 1e-7, "{variant}: the mount moved");
+            plant.set_linear_state(&plant.linear_state());
+            let after = *plant.state();
+            assert_eq!(after.rod_force, before.rod_force, "{variant}");
+            // The piston-side reading, written out: k·(x + x_body − x_c) + F_ext.
+            if variant == "piston_side" {
+                let f = 2.0e5 * (after.x + after.x_load - 0.01) + after.external + 2.0e4 * after.v;
+                assert!(
+                    (after.rod_force - f).abs() <= 1e-9 * f.abs(),
+                    "{} vs {f}",
+                    after.rod_force
+                );
+            }
+        }
+    }
+
     /// The Dahl term on the rig of the test above, pushed by the null-bias flow alone: while
     /// v ≥ 0, dz/dx = (1 − z)/δ, so the load cell reads c_v·v + F_d·(1 − e^(−Δx/δ)) with Δx the
     /// travel from rest (Dahl 1968, exponent 1), and F_d + c_v·q₀/A once Δx ≫ δ.
