@@ -128,28 +128,30 @@ fn main() {
         let rig = ehactl_ident::indep::Rig::default();
         let n = case.record.len();
         let split = ((1.0 - Options::default().holdout) * n as f64).round() as usize;
-        let ratio = case
-            .record
-            .channels
-            .iter()
-            .map(|c| {
-                let sigma = match c.kind {
-                    ehactl_ident::ChannelKind::Force => rig.noise.0,
-                    ehactl_ident::ChannelKind::Position => rig.noise.1,
-                    _ => rig.noise.2,
-                };
-                let floor = sigma / ehactl_ident::replay::std(&c.values[split..]);
-                d.nrmse_refit
-                    .channels
-                    .get(c.kind.column())
-                    .copied()
-                    .unwrap_or(0.0)
-                    / floor
-            })
-            .fold(0.0, f64::max);
+        let over_true_noise = |e: &ehactl_ident::diagnose::Errors| {
+            case.record
+                .channels
+                .iter()
+                .map(|c| {
+                    let sigma = match c.kind {
+                        ehactl_ident::ChannelKind::Force => rig.noise.0,
+                        ehactl_ident::ChannelKind::Position => rig.noise.1,
+                        _ => rig.noise.2,
+                    };
+                    let floor = sigma / ehactl_ident::replay::std(&c.values[split..]);
+                    e.channels.get(c.kind.column()).copied().unwrap_or(0.0) / floor
+                })
+                .fold(0.0, f64::max)
+        };
+        let ratio = over_true_noise(&d.nrmse_refit);
+        // The same for the final model, the one a `none` stands on: the refit, or a better
+        // nominal-only model that a candidate's fit found (the effect carrying none of its
+        // gain, `MIN_EFFECT_SHARE`).
+        let ratio_final = over_true_noise(&d.nrmse_extended);
+        let above_final = ratio_final > ehactl_ident::residual::LEVEL_SOFT;
         let above = ratio > ehactl_ident::residual::LEVEL_SOFT;
         let line = format!(
-            "seed {seed} kind {kind} expect {want} {want_var} -> {} {variant} causes {} gain {:.3} nominal {:.4} refit {:.4} extended {:.4} floor {:.4} refit_over_true_noise {ratio:.1} refit_above_noise {above} time {dt:.1}{}",
+            "seed {seed} kind {kind} expect {want} {want_var} -> {} {variant} causes {} gain {:.3} nominal {:.4} refit {:.4} extended {:.4} floor {:.4} refit_over_true_noise {ratio:.1} refit_above_noise {above} final_over_true_noise {ratio_final:.1} final_above_noise {above_final} time {dt:.1}{}",
             d.cause,
             if d.causes.is_empty() { "-".to_string() } else { d.causes.join("+") },
             d.gain,
@@ -194,7 +196,7 @@ fn field<'a>(l: &'a str, key: &str) -> Option<&'a str> {
 fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> String {
     let (mut n_h, mut top, mut var_ok, mut var_n, mut none_h, mut unexpl_h) = (0, 0, 0, 0, 0, 0);
     let (mut false_none_above, mut n_c, mut none_c, mut unexpl_c, mut failed) = (0, 0, 0, 0, 0);
-    let (mut n_multi, mut all_named) = (0, 0);
+    let (mut n_multi, mut all_named, mut false_none_final, mut extra) = (0, 0, 0, 0);
     let mut gains = Vec::new();
     let mut times = Vec::new();
     let mut per_kind: BTreeMap<String, (usize, usize)> = BTreeMap::new();
@@ -244,6 +246,17 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
         if got == "none" && field(l, "refit_above_noise") == Some("true") {
             false_none_above += 1;
         }
+        if got == "none" && field(l, "final_above_noise") == Some("true") {
+            false_none_final += 1;
+        }
+        // A cause named beside the hidden effect(s) that the generator did not hide.
+        let hidden_all = field(l, "expect_all").unwrap_or(&want).to_string();
+        let hidden: Vec<&str> = hidden_all.split('+').collect();
+        if field(l, "causes")
+            .is_some_and(|c| c != "-" && c.split('+').any(|x| !hidden.contains(&x)))
+        {
+            extra += 1;
+        }
         if let Some(g) = field(l, "gain").and_then(|v| v.parse::<f64>().ok()) {
             gains.push(g);
         }
@@ -260,7 +273,11 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
         pct(top, n_h)
     );
     let _ = writeln!(s, "| variant named = generator's structure (correct id, variant-bearing effects) | {var_ok}/{var_n} = {:.1} % | — |", pct(var_ok, var_n));
-    let _ = writeln!(s, "| `none` on hidden-effect cases (all / refit residual above noise) | {none_h}/{n_h} / {false_none_above} | 0 above noise |");
+    let _ = writeln!(s, "| `none` on hidden-effect cases (all / refit residual above noise / final model's residual above noise) | {none_h}/{n_h} / {false_none_above} / {false_none_final} | 0 above noise |");
+    let _ = writeln!(
+        s,
+        "| hidden-effect cases with a cause named that was not hidden | {extra}/{n_h} | — |"
+    );
     let _ = writeln!(
         s,
         "| `unexplained` on hidden-effect cases | {unexpl_h}/{n_h} = {:.1} % | — |",

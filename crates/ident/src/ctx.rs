@@ -314,6 +314,18 @@ impl Ctx<'_> {
         (errors(self.val_rec, &sim, self.val_range.clone()), sim)
     }
 
+    /// Fit cost of hypothesis `h` as [`Ctx::fit`] reports it for its result (with offsets,
+    /// from the initial state its own offsets imply).
+    pub(crate) fn train_cost(&self, h: &Hyp) -> f64 {
+        let p = h.build(&self.fit_base);
+        let reference = std::cell::RefCell::new(if self.offsets {
+            self.offsets_fixed_point(&p, self.fit_rec, self.n_fit)
+        } else {
+            Vec::new()
+        });
+        self.cost_fit(&p, &reference, f64::INFINITY)
+    }
+
     pub(crate) fn fit(&self, mut h: Hyp, first_new: usize, evals_per_param: usize) -> (Hyp, f64) {
         let at = |vals: &[f64]| with_values(&self.fit_base, &h.params, vals);
         let from_units = |u: &[f64]| -> Vec<f64> {
