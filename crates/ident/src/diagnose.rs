@@ -1028,7 +1028,9 @@ fn phase_candidates(
         let mut rebased_now = false;
         while let Some((e, _, h, _, err)) = passing.first() {
             let sh = effect_share(ctx, h, first_new, *e, &cur_err, err);
-            if sh.share >= MIN_EFFECT_SHARE {
+            // (A share that is not a number keeps the effect: never move onto a model whose
+            // replay could not be scored.)
+            if !(sh.share < MIN_EFFECT_SHARE && sh.err.overall.is_finite()) {
                 break;
             }
             let e = *e;
