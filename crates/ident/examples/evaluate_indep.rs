@@ -151,7 +151,7 @@ fn main() {
         let above_final = ratio_final > ehactl_ident::residual::LEVEL_SOFT;
         let above = ratio > ehactl_ident::residual::LEVEL_SOFT;
         let line = format!(
-            "seed {seed} kind {kind} expect {want} {want_var} -> {} {variant} causes {} gain {:.3} nominal {:.4} refit {:.4} extended {:.4} floor {:.4} refit_over_true_noise {ratio:.1} refit_above_noise {above} final_over_true_noise {ratio_final:.1} final_above_noise {above_final} time {dt:.1}{}",
+            "seed {seed} kind {kind} expect {want} {want_var} -> {} {variant} causes {} gain {:.3} nominal {:.4} refit {:.4} extended {:.4} floor {:.4} refit_over_true_noise {ratio:.1} refit_above_noise {above} final_over_true_noise {ratio_final:.1} final_above_noise {above_final} refit_continued {} time {dt:.1}{}",
             d.cause,
             if d.causes.is_empty() { "-".to_string() } else { d.causes.join("+") },
             d.gain,
@@ -159,6 +159,7 @@ fn main() {
             d.nrmse_refit.overall,
             d.nrmse_extended.overall,
             d.noise_floor,
+            d.refit_continued.len(),
             if want_all.len() > 1 {
                 format!(
                     " expect_all {} all_named {}",
@@ -197,6 +198,7 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
     let (mut n_h, mut top, mut var_ok, mut var_n, mut none_h, mut unexpl_h) = (0, 0, 0, 0, 0, 0);
     let (mut false_none_above, mut n_c, mut none_c, mut unexpl_c, mut failed) = (0, 0, 0, 0, 0);
     let (mut n_multi, mut all_named, mut false_none_final, mut extra) = (0, 0, 0, 0);
+    let mut continued = 0;
     let mut gains = Vec::new();
     let mut times = Vec::new();
     let mut per_kind: BTreeMap<String, (usize, usize)> = BTreeMap::new();
@@ -219,6 +221,7 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
         if let Some(t) = field(l, "time").and_then(|v| v.parse::<f64>().ok()) {
             times.push(t);
         }
+        continued += field(l, "refit_continued").is_some_and(|v| v != "0") as usize;
         *conf.entry((want.clone(), got.clone())).or_default() += 1;
         let e = per_kind.entry(kind.clone()).or_default();
         e.1 += 1;
@@ -286,6 +289,11 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
     let _ = writeln!(
         s,
         "| clean cases: `none` / `unexplained` | {none_c}/{n_c} / {unexpl_c}/{n_c} | — |"
+    );
+    let _ = writeln!(
+        s,
+        "| cases whose search went on from a better nominal fit than the refit's (`refit_continued`) | {continued}/{} | — |",
+        lines.len() - failed
     );
     if n_multi > 0 {
         let _ = writeln!(

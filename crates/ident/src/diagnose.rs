@@ -191,6 +191,10 @@ pub struct Diagnosis {
     pub sensor_offsets: BTreeMap<String, f64>,
     /// Effect pairs the data cannot separate, with the experiment that would.
     pub ambiguities: Vec<String>,
+    /// Where the search went on from a better nominal fit than the refit's: a candidate whose
+    /// gain its effect did not carry (`MIN_EFFECT_SHARE`), its fit without the effect becoming
+    /// the current model; one sentence each, in order.
+    pub refit_continued: Vec<String>,
     /// Warnings from loading and checking the data.
     pub warnings: Vec<String>,
     /// Residual analysis of the nominal replay (fitting part).
@@ -1409,6 +1413,7 @@ fn phase_report(
             extended_at_bounds,
             sensor_offsets,
             ambiguities,
+            refit_continued: rebased,
             warnings: rec
                 .warnings
                 .iter()

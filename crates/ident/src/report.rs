@@ -404,6 +404,12 @@ pub fn write_report(
             c.evidence.replace('|', "/")
         );
     }
+    if !d.refit_continued.is_empty() {
+        let _ = writeln!(r, "\n## A better nominal fit than the refit's\n");
+        for a in &d.refit_continued {
+            let _ = writeln!(r, "- {a}.");
+        }
+    }
     if !d.ambiguities.is_empty() {
         let _ = writeln!(r, "\n## What the data cannot tell apart\n");
         for a in &d.ambiguities {

@@ -787,6 +787,8 @@ class DiagnosisResult(_DictCompat):
             uncertainty.
         sensor_offsets: Sensor offsets per channel (N, m or Pa); empty unless ``sensor_offsets=True``.
         ambiguities: Effect pairs the data cannot separate, with the experiment that would.
+        refit_continued: Where the search went on from a better nominal fit than the refit's (a
+            candidate whose effect did not carry its gain; one sentence each).
         warnings: Warnings from loading and checking the data (also issued as Python warnings).
         split, summary: How the data were split; plain-words conclusion.
         extended_config, report, plots: Written files (None when no ``out`` directory was given).
@@ -825,13 +827,14 @@ class DiagnosisResult(_DictCompat):
     analysis: Mapping[str, Any]
     analysis_refit: Mapping[str, Any]
     identified_loop: Optional[Mapping[str, Any]] = None
+    refit_continued: Tuple[str, ...] = ()
     notes: Tuple[str, ...] = ()
 
     # JSON key order of `ehactl diagnose --json` (serde field order, then the files).
     _ORDER = ("cause", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
               "nrmse_baseline", "baseline", "residual_test", "integration", "greybox", "gain",
               "noise_floor", "candidates", "extended_params", "identified_loop", "refit_at_bounds", "extended_at_bounds",
-              "sensor_offsets", "ambiguities", "warnings", "analysis", "analysis_refit", "split",
+              "sensor_offsets", "ambiguities", "refit_continued", "warnings", "analysis", "analysis_refit", "split",
               "summary", "extended_config", "report", "plots")
 
     @classmethod
@@ -865,6 +868,7 @@ class DiagnosisResult(_DictCompat):
             integration=_freeze(d.get("integration") or {}), greybox=None if gb is None else _freeze(gb),
             analysis=_freeze(d.get("analysis") or {}), analysis_refit=_freeze(d.get("analysis_refit") or {}),
             identified_loop=None if d.get("identified_loop") is None else _freeze(d["identified_loop"]),
+            refit_continued=strs("refit_continued"),
             notes=tuple(str(n) for n in notes),
         )
 
