@@ -847,13 +847,15 @@ fn phase_candidates(
     let floor_ch = &rf.floor_ch;
     let noise_floor = rf.noise_floor;
     let jn = noise_floor * noise_floor;
-    // Within the noise only when every channel is (a small tone on one channel is not noise).
-    let within_noise = |e: &Errors| {
+    // Nothing left to explain in round `round` (0-based) for a model with held-out errors
+    // `e`: within the noise on every channel (a small tone on one channel is not noise), or,
+    // after the first round, overall within LATER_FLOOR_FACTOR × the floor.
+    let near_floor_of = |e: &Errors, round: usize| {
         nom.val_rec.channels.iter().zip(floor_ch).all(|(c, f)| {
             e.channels
                 .get(c.kind.column())
                 .is_some_and(|v| *v < FLOOR_FACTOR * f)
-        })
+        }) || (round > 0 && e.overall < LATER_FLOOR_FACTOR * noise_floor)
     };
     let threads = if opts.threads == 0 {
         std::thread::available_parallelism().map_or(2, |n| n.get())
@@ -895,8 +897,7 @@ fn phase_candidates(
         }
         // Nothing left to explain: the current model is within the noise (round 0 still
         // fits every candidate so that the report lists them all).
-        let near_floor = within_noise(&cur_err)
-            || (round > 0 && cur_err.overall < LATER_FLOOR_FACTOR * noise_floor);
+        let near_floor = near_floor_of(&cur_err, round);
         if round > 0 && near_floor {
             break;
         }
@@ -1061,8 +1062,7 @@ fn phase_candidates(
             if !refitted_round {
                 break;
             }
-            let near_floor = within_noise(&cur_err)
-                || (round > 0 && cur_err.overall < LATER_FLOOR_FACTOR * noise_floor);
+            let near_floor = near_floor_of(&cur_err, round);
             passing.retain(|(e, _, h, ctrain, err)| {
                 judge(
                     nom,
