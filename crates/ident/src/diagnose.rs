@@ -19,6 +19,12 @@ use std::sync::Mutex;
 /// channel is not extended further (-).
 pub const FLOOR_FACTOR: f64 = 1.2;
 
+/// The configured-step shortcut accepts the model as configured only while every channel's
+/// held-out residual is white and at most this many times its noise floor (-). The floor is
+/// the residual's own white level (PSD median over the upper half band), so a white residual
+/// sits at ≈ 1; 1.5 leaves room for the median estimate's spread on short records.
+pub const SHORTCUT_LEVEL: f64 = crate::residual::LEVEL_SOFT;
+
 /// After the first accepted effect, the search also stops when the overall held-out NRMSE is
 /// below this factor × the overall noise floor (-): the per-channel test alone lets a second
 /// effect soak up the small remainder of an imperfect lumped fit on a low-noise channel.
@@ -470,8 +476,11 @@ fn phase_nominal<'a>(
 
 /// The nominal model replayed at the config's own integration (no refinement: substeps as
 /// `ehactl run` takes them, automatic where the config says so): when its held-out residual
-/// is noise on every channel (the level-and-whiteness test of the final answer, against the
-/// noise floor of that residual), returns the fit and validation parameters to keep. A
+/// is at its noise floor **and** white on every channel (Ljung–Box below the 1 % critical
+/// value and level ≤ [`SHORTCUT_LEVEL`]), returns the fit and validation parameters to keep.
+/// Either failing sends the record to the full search: a residual 1.2–6× its floor but
+/// thousands of Ljung–Box units from white is a real effect, not noise (an outside
+/// generator's hidden effects were once answered `none` here on the level test alone). A
 /// record of the config's own run is reproduced this way up to its sensor noise; a replay at
 /// a finer step differs from it by the run's integration error, which the diagnosis would
 /// otherwise report as a model discrepancy.
@@ -520,7 +529,10 @@ fn reproduces(
                 .max(quantisation_floor(c.kind, p, y))
         })
         .collect();
-    crate::residual::test("nominal", val_rec, &sim, val_range, &floor).noise
+    crate::residual::test("nominal", val_rec, &sim, val_range, &floor)
+        .channels
+        .iter()
+        .all(|c| c.white && c.level <= SHORTCUT_LEVEL)
 }
 
 /// Noise floor per channel (NRMSE units) from the held-out residual of the model replayed in

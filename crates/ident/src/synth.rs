@@ -125,7 +125,21 @@ fn make_case_variants(seed: u64, hidden: &[(EffectId, &str)], duration: f64, dt:
     }
     let n = (duration / dt).round() as usize;
     let u = excitation(seed, dt, n);
-    let mut plant = Plant::configure(&truth, dt).expect("generated plant is valid");
+    let record = simulate(&truth, &u, dt, &format!("synthetic seed {seed}"));
+    Case {
+        seed,
+        hidden: hidden.to_vec(),
+        nominal,
+        truth,
+        record,
+    }
+}
+
+/// The record the plant `truth` gives for the valve command `u` (V) sampled at `dt` (s):
+/// force, position and both chamber pressures as its sensors measure them (with their noise).
+pub fn simulate(truth: &PlantParams, u: &[f64], dt: f64, source: &str) -> Record {
+    let n = u.len();
+    let mut plant = Plant::configure(truth, dt).expect("generated plant is valid");
     let kinds = [
         ChannelKind::Force,
         ChannelKind::Position,
@@ -134,7 +148,7 @@ fn make_case_variants(seed: u64, hidden: &[(EffectId, &str)], duration: f64, dt:
     ];
     let mut cols: Vec<Vec<f64>> = vec![Vec::with_capacity(n); kinds.len()];
     let mut t = Vec::with_capacity(n);
-    for &uk in &u {
+    for &uk in u {
         let m = plant.measure();
         t.push(m.t);
         for (c, k) in kinds.iter().enumerate() {
@@ -150,15 +164,8 @@ fn make_case_variants(seed: u64, hidden: &[(EffectId, &str)], duration: f64, dt:
             values: v,
         })
         .collect();
-    let record = Record::from_columns(&format!("synthetic seed {seed}"), t, u, channels, None, 0)
-        .expect("generated record is valid");
-    Case {
-        seed,
-        hidden: hidden.to_vec(),
-        nominal,
-        truth,
-        record,
-    }
+    Record::from_columns(source, t, u.to_vec(), channels, None, 0)
+        .expect("generated record is valid")
 }
 
 /// Sensor zero errors of a realistic bench, per channel (SI): pressure transducers +2.0 and

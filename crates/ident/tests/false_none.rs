@@ -1,0 +1,133 @@
+//! `none` means noise. A record of the test bench made with the config's own plant (so the
+//! configured-step shortcut may answer `none`) must be answered `none`; the same record with
+//! one catalogue effect added at a small magnitude — its residual 2–3× the noise floor on the
+//! channel it moves most — must not be: such a residual is coloured (thousands of Ljung–Box
+//! units from white), and a level test alone once took it for noise.
+//!
+//! The small magnitude is made from the effect's own output difference: the record of the
+//! plant with the effect (parameters drawn as in the catalogue tests) minus the clean record,
+//! both with the same sensor noise, scaled so that the largest channel's residual sits at
+//! 2.5× its sensor noise, and added to the clean record. To first order that is the effect at
+//! a smaller parameter; it keeps the effect's signature (band, dependence, lag) exactly.
+
+use ehactl_ident::data::{ChannelKind, Record};
+use ehactl_ident::synth::{self, excitation, simulate, testrig, Rng};
+use ehactl_ident::{diagnose, Options};
+use ehactl_plant::EffectId;
+
+const DT: f64 = 1e-3;
+const SECONDS: f64 = 2.0;
+/// Target level of the added residual over the sensor noise on its largest channel (-).
+const LEVEL: f64 = 2.5;
+
+fn sensor_noise(kind: ChannelKind) -> f64 {
+    let s = &testrig().plant.sensors;
+    match kind {
+        ChannelKind::Force => s.force.noise,
+        ChannelKind::Position => s.position.noise,
+        ChannelKind::PressureA | ChannelKind::PressureB => s.pressure.noise,
+        ChannelKind::Spool => s.spool.noise,
+    }
+}
+
+fn clean(seed: u64) -> Record {
+    let mut p = testrig().plant;
+    p.sensors.seed = seed;
+    let u = excitation(seed, DT, (SECONDS / DT).round() as usize);
+    simulate(&p, &u, DT, &format!("clean seed {seed}"))
+}
+
+/// The clean record of `seed` with effect `e` added at [`LEVEL`] × the sensor noise.
+fn with_small(seed: u64, e: EffectId) -> (Record, f64) {
+    let base = clean(seed);
+    let mut p = testrig().plant;
+    p.sensors.seed = seed;
+    synth::hide(e, &mut p, &mut Rng::new(seed));
+    let full = simulate(&p, &base.u, DT, "full effect");
+    let rms = |a: &[f64], b: &[f64]| {
+        (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt()
+    };
+    let worst = base
+        .channels
+        .iter()
+        .zip(&full.channels)
+        .map(|(c, f)| rms(&f.values, &c.values) / sensor_noise(c.kind))
+        .fold(0.0, f64::max);
+    assert!(worst > 0.0, "{e:?} changes no channel");
+    // Residual level √(1 + (α·d/σ)²) = LEVEL on the largest channel.
+    let alpha = (LEVEL * LEVEL - 1.0).sqrt() / worst;
+    let mut rec = base.clone();
+    rec.source = format!("seed {seed}, {} at {LEVEL}× the noise", e.as_str());
+    for (c, f) in rec.channels.iter_mut().zip(&full.channels) {
+        for (y, yf) in c.values.iter_mut().zip(&f.values) {
+            *y += alpha * (yf - *y);
+        }
+    }
+    (rec, alpha)
+}
+
+#[test]
+fn own_clean_record_is_none_by_the_shortcut() {
+    for seed in [3000, 3001] {
+        let d = diagnose(&testrig().plant, &clean(seed), None, &Options::default()).unwrap();
+        assert_eq!(d.cause, "none", "seed {seed}: {}", d.summary);
+        assert!(
+            d.integration.configured_step_explains,
+            "seed {seed}: the shortcut did not accept the config's own plant: {}",
+            d.summary
+        );
+    }
+}
+
+fn check_small(e: EffectId) {
+    let seed = 3100 + EffectId::ALL.iter().position(|x| *x == e).unwrap() as u64;
+    let (rec, alpha) = with_small(seed, e);
+    let d = diagnose(&testrig().plant, &rec, None, &Options::default()).unwrap();
+    let report = format!(
+        "{} (α = {alpha:.3}): cause {}, causes {:?}, configured step explains {}\n{}",
+        e.as_str(),
+        d.cause,
+        d.causes,
+        d.integration.configured_step_explains,
+        d.summary
+    );
+    assert!(!d.integration.configured_step_explains, "{report}");
+    assert_ne!(d.cause, "none", "{report}");
+}
+
+macro_rules! small {
+    ($name:ident, $e:expr) => {
+        #[test]
+        fn $name() {
+            check_small($e);
+        }
+    };
+}
+
+small!(small_friction_is_not_none, EffectId::Friction);
+small!(small_valve_deadband_is_not_none, EffectId::ValveDeadband);
+small!(
+    small_valve_saturation_is_not_none,
+    EffectId::ValveSaturation
+);
+small!(small_valve_dynamics_is_not_none, EffectId::ValveDynamics);
+small!(
+    small_internal_leakage_is_not_none,
+    EffectId::InternalLeakage
+);
+small!(
+    small_external_leakage_is_not_none,
+    EffectId::ExternalLeakage
+);
+small!(
+    small_bulk_modulus_pressure_is_not_none,
+    EffectId::BulkModulusPressure
+);
+small!(small_line_dynamics_is_not_none, EffectId::LineDynamics);
+small!(small_flexible_mount_is_not_none, EffectId::FlexibleMount);
+small!(small_time_delay_is_not_none, EffectId::TimeDelay);
+small!(small_sensor_tone_is_not_none, EffectId::SensorTone);
+small!(
+    small_supply_pressure_drop_is_not_none,
+    EffectId::SupplyPressureDrop
+);
