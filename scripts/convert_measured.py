@@ -66,13 +66,21 @@ def mts_columns(src, t0=5.0, t1=15.0):
     return {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl], "force": f[sl]}
 
 
+def coil_current(name):
+    """The MR damper's coil current (A) of a test, from its file name (`0A`, `1A`): the
+    campaign's operating input, a `current` column (configs/utfsm_mts_mrdamper.toml declares it)."""
+    return float(name.rstrip("A"))
+
+
 def mts(name, src_dir):
     """The raw DAQ files (4 MB each) are not in the repo; pass their directory."""
     src = pathlib.Path(src_dir) / f"{name}.txt"
     if not src.exists():
         print(f"skip MTS {name}: {src} not found", file=sys.stderr)
         return
-    write(ROOT / "utfsm_mts" / f"{name}_5to15s.csv", mts_columns(src))
+    cols = mts_columns(src)
+    cols["current"] = np.full(len(cols["t"]), coil_current(name))
+    write(ROOT / "utfsm_mts" / f"{name}_5to15s.csv", cols)
 
 
 if __name__ == "__main__":

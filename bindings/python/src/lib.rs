@@ -6,6 +6,7 @@
 #![deny(missing_docs)]
 
 mod analysis;
+mod campaign;
 mod columns;
 mod config;
 mod diagnose;
@@ -41,5 +42,7 @@ fn _ehactl(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(analysis::analyze_json, m)?)?;
     m.add_function(wrap_pyfunction!(analysis::sweep_json, m)?)?;
     m.add_function(wrap_pyfunction!(diagnose::diagnose_json, m)?)?;
+    m.add_function(wrap_pyfunction!(campaign::campaign_json, m)?)?;
+    m.add_function(wrap_pyfunction!(campaign::predict_json, m)?)?;
     Ok(())
 }

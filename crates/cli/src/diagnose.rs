@@ -20,8 +20,8 @@ pub struct Switches {
 /// data or --out directory, 1 other failure (I/O).
 pub fn cmd_diagnose(
     config: &Path,
-    data_path: &Path,
-    validate: Option<&Path>,
+    data: &[PathBuf],
+    validate: &[PathBuf],
     out: Option<PathBuf>,
     json: bool,
     sw: Switches,
@@ -34,6 +34,14 @@ pub fn cmd_diagnose(
         Ok(c) => c,
         Err(e) => return bad(crate::config_load_message(config, &e)),
     };
+    // Several records, or one displacement-controlled record: a campaign.
+    let motion_only =
+        data.len() == 1 && ehactl_ident::data::csv_is_motion_only(&data[0]).unwrap_or(false);
+    if data.len() > 1 || validate.len() > 1 || motion_only {
+        return cmd_campaign(&cfg, config, data, validate, out.as_deref(), json, sw.force);
+    }
+    let data_path = data[0].as_path();
+    let validate = validate.first().map(PathBuf::as_path);
     let bar =
         crate::styled_bar("{spinner} diagnose {msg} [{bar:30}] {pos}/{len} fits {elapsed_precise}");
     let b = bar.clone();
@@ -113,6 +121,118 @@ pub fn cmd_diagnose(
             println!("  extended config {}", f.extended_config.display());
             println!("  report          {}", f.report.display());
         }
+    }
+    ExitCode::SUCCESS
+}
+
+fn exit_of(e: SessionError) -> ExitCode {
+    match e {
+        SessionError::Input(e) => {
+            eprintln!("ehactl: {e}");
+            ExitCode::from(2)
+        }
+        SessionError::Io(e) => {
+            eprintln!("ehactl: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+/// `ehactl diagnose` with several records: one load law for the campaign.
+fn cmd_campaign(
+    cfg: &RigConfig,
+    config: &Path,
+    data: &[PathBuf],
+    validate: &[PathBuf],
+    out: Option<&Path>,
+    json: bool,
+    force: bool,
+) -> ExitCode {
+    let run = match ehactl_ident::campaign_run::run(cfg, config, data, validate, out, force) {
+        Ok(r) => r,
+        Err(e) => return exit_of(e),
+    };
+    for w in &run.warnings {
+        eprintln!("ehactl: warning: {w}");
+    }
+    if json {
+        println!("{}", run.json);
+    } else {
+        println!("{}", run.campaign.summary);
+        for f in &run.files {
+            println!("  wrote {}", f.display());
+        }
+    }
+    ExitCode::SUCCESS
+}
+
+/// The on/off options of `ehactl predict`.
+pub struct PredictSwitches {
+    /// `--imposed-motion`.
+    pub imposed_motion: bool,
+    /// `--held-out`.
+    pub held_out: bool,
+    /// `--force`.
+    pub force: bool,
+    /// `--json`.
+    pub json: bool,
+}
+
+/// `ehactl predict`: exit 0 ok, 2 bad config, data or --out, 1 I/O failure.
+pub fn cmd_predict(
+    config: &Path,
+    data: &[PathBuf],
+    sw: PredictSwitches,
+    out: Option<&Path>,
+) -> ExitCode {
+    let cfg = match RigConfig::load(config) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("ehactl: {}", crate::config_load_message(config, &e));
+            return ExitCode::from(2);
+        }
+    };
+    let run = match ehactl_ident::predict::run(
+        &cfg,
+        config,
+        data,
+        sw.imposed_motion,
+        sw.held_out,
+        out,
+        sw.force,
+    ) {
+        Ok(r) => r,
+        Err(e) => return exit_of(e),
+    };
+    for w in &run.warnings {
+        eprintln!("ehactl: warning: {w}");
+    }
+    if sw.json {
+        println!("{}", run.json);
+        return ExitCode::SUCCESS;
+    }
+    for p in &run.predictions {
+        let op: Vec<String> = p
+            .operating_point
+            .iter()
+            .map(|(k, v)| format!("{k} = {v}"))
+            .collect();
+        println!(
+            "{} ({} replay{}{}): NRMSE {:.4} over samples {}..{}",
+            p.source,
+            p.replay.replace('_', "-"),
+            if op.is_empty() { "" } else { " at " },
+            op.join(", "),
+            p.nrmse.overall,
+            p.scored.0,
+            p.scored.1
+        );
+        for (c, e) in &p.nrmse.channels {
+            println!("  {c:<6} {e:.4}");
+        }
+    }
+    for f in &run.files {
+        println!("wrote {}", f.display());
     }
     ExitCode::SUCCESS
 }

@@ -117,12 +117,17 @@ enum Command {
         /// Nominal rig config (TOML).
         #[arg(long)]
         config: PathBuf,
-        /// Measured data: CSV (t, u, any of force, x, p_a, p_b, x_v, ref; SI) or an ehactl MCAP.
+        /// Measured data: CSV (t, u, any of force, x, p_a, p_b, x_v, ref, v and the config's
+        /// declared [inputs] columns; SI) or an ehactl MCAP. Give it several times for a
+        /// campaign: one load law fitted to every record, coefficients depending on the
+        /// declared operating inputs; a record with x and force but no u / ref (a
+        /// displacement-controlled test) is diagnosed as a campaign too.
+        #[arg(long, required = true)]
+        data: Vec<PathBuf>,
+        /// Separate validation record (default: the last 30 % of each --data is held out);
+        /// several for a campaign (held out whole, e.g. an operating point never fitted).
         #[arg(long)]
-        data: PathBuf,
-        /// Separate validation record (default: the last 30 % of --data is held out).
-        #[arg(long)]
-        validate: Option<PathBuf>,
+        validate: Vec<PathBuf>,
         /// Output directory for extended.toml, report.md and plots: new, empty, or written by
         /// an earlier diagnosis (never over an input).
         #[arg(long)]
@@ -143,6 +148,34 @@ enum Command {
         /// trusted.
         #[arg(long)]
         sensor_offsets: bool,
+    },
+    /// Replay records through a model (a config or the extended.toml a diagnosis wrote) and
+    /// score each measured channel: closed loop, open loop, or with the record's motion
+    /// imposed on the rod (records with x and force only).
+    Predict {
+        /// The model (rig config TOML).
+        #[arg(long)]
+        config: PathBuf,
+        /// Records to predict (CSV or ehactl MCAP), one or more.
+        #[arg(long, required = true)]
+        data: Vec<PathBuf>,
+        /// Impose each record's measured motion on the rod and predict the force, whatever
+        /// other columns it has.
+        #[arg(long)]
+        imposed_motion: bool,
+        /// Score only the last 30 % of each record (the part a diagnosis holds out).
+        #[arg(long)]
+        held_out: bool,
+        /// Output directory for prediction.json and prediction.svg (new, empty, or written by
+        /// ehactl before).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Write into an --out directory that holds other files.
+        #[arg(long)]
+        force: bool,
+        /// Print exactly one JSON object on stdout.
+        #[arg(long)]
+        json: bool,
     },
     /// Measure the frequency response of the nonlinear plant by a stepped sine (logged to MCAP).
     Sweep(analysis_cmd::SweepArgs),
@@ -396,6 +429,7 @@ fn main() -> ExitCode {
             | Command::Params
             | Command::Analyze { .. }
             | Command::Diagnose { .. }
+            | Command::Predict { .. }
             | Command::Sweep(_)
             | Command::Recover { .. }
     ) {
@@ -514,7 +548,7 @@ fn main() -> ExitCode {
         } => diagnose::cmd_diagnose(
             &config,
             &data,
-            validate.as_deref(),
+            &validate,
             out,
             json,
             diagnose::Switches {
@@ -522,6 +556,25 @@ fn main() -> ExitCode {
                 force,
                 allow_config_mismatch,
             },
+        ),
+        Command::Predict {
+            config,
+            data,
+            imposed_motion,
+            held_out,
+            out,
+            force,
+            json,
+        } => diagnose::cmd_predict(
+            &config,
+            &data,
+            diagnose::PredictSwitches {
+                imposed_motion,
+                held_out,
+                force,
+                json,
+            },
+            out.as_deref(),
         ),
         Command::Params => {
             for table in registries() {

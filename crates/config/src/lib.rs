@@ -17,6 +17,8 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::LazyLock;
 
+pub mod inputs;
+
 /// Controlled variable.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "snake_case")]
@@ -352,6 +354,9 @@ pub struct RigConfig {
     pub canopen: CanopenConfig,
     /// Wall-clock executor (used with `--realtime`).
     pub realtime: RealtimeConfig,
+    /// Declared operating inputs (`[inputs.<name>]`, [`inputs`]): record columns that set the
+    /// operating point, and the plant parameters that depend on them.
+    pub inputs: inputs::Inputs,
 }
 
 /// Control, setpoint, supervisor, run, log and realtime parameters, generated from the
@@ -385,8 +390,9 @@ pub fn registries() -> [&'static [Param]; 3] {
     [spec::params(), control_params(), canopen_params()]
 }
 
-const RIG_KEYS: [&str; 8] = [
+const RIG_KEYS: [&str; 9] = [
     "rig",
+    "inputs",
     "control",
     "setpoint",
     "supervisor",
@@ -458,6 +464,8 @@ impl RigConfig {
     /// Validate a TOML tree.
     pub fn from_value(mut value: toml::Value) -> Result<RigConfig, ConfigError> {
         let tables = registries();
+        // `[inputs]` names its own keys (input names, parameter paths): not registry entries.
+        let inputs_value = value.as_table_mut().and_then(|t| t.remove("inputs"));
         spec::check_tree(&mut value, &tables)?;
         let toml::Value::Table(mut root) = value else {
             return Err(ConfigError::new("", "config must be a TOML table"));
@@ -478,6 +486,18 @@ impl RigConfig {
         })?;
         let plant: PlantParams = serde_path_to_error::deserialize(toml::Value::Table(root))
             .map_err(|e| spec::from_serde("", e, &tables))?;
+        let inputs: inputs::Inputs = match inputs_value {
+            None => inputs::Inputs::new(),
+            Some(v) if v.is_table() => serde_path_to_error::deserialize(v).map_err(|e| {
+                ConfigError::new(format!("inputs.{}", e.path()), e.inner().to_string())
+            })?,
+            Some(v) => {
+                return Err(ConfigError::new(
+                    "inputs",
+                    format!("expected a table [inputs.<name>], got {}", v.type_str()),
+                ))
+            }
+        };
         let cfg = RigConfig {
             rig,
             plant,
@@ -488,6 +508,7 @@ impl RigConfig {
             log,
             canopen,
             realtime,
+            inputs,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -496,6 +517,7 @@ impl RigConfig {
     /// Cross-field checks.
     pub fn validate(&self) -> Result<(), ConfigError> {
         ehactl_plant::model::validate(&self.plant)?;
+        inputs::validate(&self.inputs, &self.plant)?;
         match self.control.mode {
             ControlMode::Force if self.control.pi.is_none() => {
                 return Err(ConfigError::new(
@@ -715,6 +737,9 @@ impl RigConfig {
         put("log", toml::Value::try_from(&self.log));
         put("canopen", toml::Value::try_from(&self.canopen));
         put("realtime", toml::Value::try_from(&self.realtime));
+        if !self.inputs.is_empty() {
+            put("inputs", toml::Value::try_from(&self.inputs));
+        }
         toml::Value::Table(root)
     }
 

@@ -85,7 +85,7 @@ pub struct Record {
     pub source: String,
     /// Time stamps (s), strictly increasing.
     pub t: Vec<f64>,
-    /// Valve command (V).
+    /// Valve command (V); empty for an imposed-motion record ([`Record::imposed_motion`]).
     pub u: Vec<f64>,
     /// Output channels present in the file.
     pub channels: Vec<Channel>,
@@ -98,6 +98,12 @@ pub struct Record {
     /// The config the record was logged with (the `config` of an ehactl MCAP log's
     /// `/config` message, as `RigConfig::to_json`); `None` for CSV.
     pub logged_config: Option<serde_json::Value>,
+    /// Piston velocity (m/s), CSV column `v`, when the record gives it (otherwise an
+    /// imposed-motion replay derives it from `x`).
+    pub velocity: Option<Vec<f64>>,
+    /// Operating inputs the config declares (`[inputs.<name>]`), by column name, in their
+    /// declared units (e.g. an MR damper's coil `current` in A).
+    pub inputs: Vec<(String, Vec<f64>)>,
 }
 
 /// A data file that cannot be used; the message names file, row/column and expectation.
@@ -123,6 +129,21 @@ impl Record {
         self.t.is_empty()
     }
 
+    /// A displacement-controlled test: the record has the motion `x` and the force but
+    /// neither a valve command `u` nor a setpoint `ref`, so the measured motion drives the rod
+    /// and the model predicts the force ([`ehactl_plant::imposed`]).
+    pub fn imposed_motion(&self) -> bool {
+        self.u.is_empty() && self.reference.is_none()
+    }
+
+    /// The operating input `name`, if the record carries it.
+    pub fn input(&self, name: &str) -> Option<&[f64]> {
+        self.inputs
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
+    }
+
     /// The channel of a kind, if measured.
     pub fn channel(&self, kind: ChannelKind) -> Option<&[f64]> {
         self.channels
@@ -136,7 +157,10 @@ impl Record {
         Record {
             source: self.source.clone(),
             t: self.t[range.clone()].to_vec(),
-            u: self.u[range.clone()].to_vec(),
+            u: self
+                .u
+                .get(range.clone())
+                .map_or_else(Vec::new, <[f64]>::to_vec),
             channels: self
                 .channels
                 .iter()
@@ -149,6 +173,12 @@ impl Record {
             dt: self.dt,
             warnings: Vec::new(),
             logged_config: self.logged_config.clone(),
+            velocity: self.velocity.as_ref().map(|v| v[range.clone()].to_vec()),
+            inputs: self
+                .inputs
+                .iter()
+                .map(|(n, v)| (n.clone(), v[range.clone()].to_vec()))
+                .collect(),
         }
     }
 
@@ -224,12 +254,52 @@ impl Record {
             dt,
             warnings: Vec::new(),
             logged_config: None,
+            velocity: None,
+            inputs: Vec::new(),
         })
     }
 }
 
 /// Load a CSV (any extension but `.mcap`) or an ehactl MCAP log.
 pub fn load(path: &Path) -> Result<Record, DataError> {
+    load_with(path, &[])
+}
+
+/// Whether the CSV at `path` is a displacement-controlled record (its header has `x` but
+/// neither `u` nor `ref`), read from its first 64 KiB only; `None` for an MCAP log or a file
+/// that cannot be read (the full load then reports why).
+pub fn csv_is_motion_only(path: &Path) -> Option<bool> {
+    use std::io::Read;
+    if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
+        return None;
+    }
+    let meta = std::fs::metadata(path).ok()?;
+    if !meta.is_file() {
+        return None;
+    }
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .ok()?
+        .take(64 * 1024)
+        .read_to_end(&mut head)
+        .ok()?;
+    let text = String::from_utf8_lossy(&head);
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    let delim = detect_delimiter(text) as char;
+    let header = text
+        .lines()
+        .find(|l| !l.trim().is_empty() && !l.trim_start().starts_with('#'))?;
+    let names: Vec<&str> = header
+        .split(delim)
+        .map(|n| n.trim().trim_matches('"'))
+        .collect();
+    Some(names.contains(&"x") && !names.contains(&"u") && !names.contains(&"ref"))
+}
+
+/// [`load`] for a config that declares the operating inputs `inputs` (column names): a CSV
+/// column of that name is read into [`Record::inputs`]; any other column outside the format
+/// is an error.
+pub fn load_with(path: &Path, inputs: &[String]) -> Result<Record, DataError> {
     if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
         load_mcap(path)
     } else {
@@ -240,7 +310,7 @@ pub fn load(path: &Path) -> Result<Record, DataError> {
             "data (CSV)",
         )
         .map_err(|e| DataError(e.to_string()))?;
-        parse_csv(&path.display().to_string(), &text)
+        parse_csv_with(&path.display().to_string(), &text, inputs)
     }
 }
 
@@ -293,6 +363,11 @@ fn parse_number(f: &str, decimal_comma: bool) -> Option<f64> {
 /// byte-order mark, `#` comment lines, blank lines; the separator is detected (`,`, `;` or
 /// tab, see [`detect_delimiter`]) and a `;`- or tab-separated file may use a decimal comma.
 pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
+    parse_csv_with(source, text, &[])
+}
+
+/// [`parse_csv`] with the operating inputs the config declares (see [`load_with`]).
+pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Record, DataError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let delim = detect_delimiter(text);
     let decimal_comma = delim != b',';
@@ -327,13 +402,18 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
         .ok_or_else(|| DataError(format!("{source}: empty file; expected a CSV header row")))?;
     let header_line = line_of(&header);
     let names: Vec<String> = header.iter().map(|s| s.to_string()).collect();
-    let known = ["t", "u", "force", "x", "p_a", "p_b", "x_v", "ref"];
+    const FORMAT: [&str; 9] = ["t", "u", "force", "x", "p_a", "p_b", "x_v", "ref", "v"];
+    let known: Vec<&str> = FORMAT
+        .iter()
+        .copied()
+        .chain(inputs.iter().map(String::as_str))
+        .collect();
     // A column used by diagnose must be named once: which of two `p_a` is the measurement?
     for (j, n) in names.iter().enumerate() {
         if let Some(k) = names[..j].iter().position(|m| m == n) {
             if known.contains(&n.as_str()) {
                 return Err(DataError(format!(
-                    "{source}: column `{n}` appears twice in header line {header_line} (columns {} and {}); each of t, u, force, x, p_a, p_b, x_v, ref may appear once",
+                    "{source}: column `{n}` appears twice in header line {header_line} (columns {} and {}); each of t, u, force, x, p_a, p_b, x_v, ref, v and the declared inputs may appear once",
                     k + 1,
                     j + 1
                 )));
@@ -351,28 +431,33 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
         })
     };
     let it = need("t", "time in s")?;
-    let iu = need("u", "valve command in V")?;
-    let mut warnings = Vec::new();
-    let unknown: Vec<&String> = names
-        .iter()
-        .filter(|n| !known.contains(&n.as_str()))
-        .collect();
-    if !unknown.is_empty() {
-        warnings.push(format!(
-            "{source}: columns not used by diagnose (not in the documented format, docs/design.md): {}",
-            unknown
-                .iter()
-                .map(|s| s.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ));
-    }
+    // `u` is required unless the record is a displacement-controlled test (motion `x` and
+    // `force`, no `ref`): then the measured motion drives the rod.
+    let motion_only = col("u").is_none() && col("ref").is_none();
+    let iu = if motion_only {
+        if col("x").is_none() {
+            return Err(DataError(format!(
+                "{source}: header line {header_line} ({sep_name}-separated) has neither the valve command `u` (V) or setpoint `ref` of a loop test nor the motion `x` (m) of a displacement-controlled test: found [{}]; expected `u`, or `x` with `force` (N)",
+                names.iter().map(|n| clip(n, 64)).collect::<Vec<_>>().join(", ")
+            )));
+        }
+        if col("force").is_none() {
+            return Err(DataError(format!(
+                "{source}: a displacement-controlled record (no `u`, no `ref`) needs the load-cell `force` (N) beside `x`: found [{}]",
+                names.iter().map(|n| clip(n, 64)).collect::<Vec<_>>().join(", ")
+            )));
+        }
+        None
+    } else {
+        Some(need("u", "valve command in V")?)
+    };
     let ich: Vec<(ChannelKind, usize)> = ChannelKind::ALL
         .iter()
         .filter_map(|k| col(k.column()).map(|i| (*k, i)))
         .collect();
     let iref = col("ref");
     let mut cols: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+    let mut numeric = vec![true; names.len()];
     let mut first_data_line = None;
     for r in records {
         let r = r.map_err(csv_err)?;
@@ -387,7 +472,10 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
         }
         for (j, f) in r.iter().enumerate() {
             if !known.contains(&names[j].as_str()) {
-                continue; // not used (warned above): may hold text, e.g. a quoted note
+                // Not in the format: text (a quoted note) is left aside with a warning, a
+                // numeric column is refused below (an undeclared or misspelt input).
+                numeric[j] &= parse_number(f, decimal_comma).is_some_and(f64::is_finite);
+                continue;
             }
             let v = parse_number(f, decimal_comma).ok_or_else(|| {
                 DataError(format!(
@@ -404,6 +492,34 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
         }
     }
     let off = first_data_line.unwrap_or(header_line + 1);
+    let unknown: Vec<usize> = (0..names.len())
+        .filter(|j| !known.contains(&names[*j].as_str()))
+        .collect();
+    if let Some(&j) = unknown.iter().find(|j| numeric[**j]) {
+        return Err(DataError(format!(
+            "{source}: column `{}` in header line {header_line} holds numbers but is not in the record format (t, u, force, x, p_a, p_b, x_v, ref, v; docs/design.md); {}",
+            clip(&names[j], 64),
+            if inputs.is_empty() {
+                "an operating input (e.g. an MR damper's `current`) must be declared in the config as [inputs.<name>] with its unit; otherwise remove the column".to_string()
+            } else {
+                format!(
+                    "the config declares the operating inputs [{}]; declare another as [inputs.<name>] with its unit, fix a misspelt name, or remove the column",
+                    inputs.join(", ")
+                )
+            }
+        )));
+    }
+    let mut warnings = Vec::new();
+    if !unknown.is_empty() {
+        warnings.push(format!(
+            "{source}: text columns not used by diagnose (not in the documented format, docs/design.md): {}",
+            unknown
+                .iter()
+                .map(|j| clip(&names[*j], 64))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
     let channels = ich
         .iter()
         .map(|&(k, i)| Channel {
@@ -414,12 +530,31 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
     let mut rec = Record::from_columns(
         source,
         cols[it].clone(),
-        cols[iu].clone(),
+        iu.map_or_else(Vec::new, |i| cols[i].clone()),
         channels,
         iref.map(|i| cols[i].clone()),
         off,
     )?;
     rec.warnings.extend(warnings);
+    let finite = |name: &str, v: &[f64]| -> Result<(), DataError> {
+        match v.iter().position(|x| !x.is_finite()) {
+            Some(k) => Err(DataError(format!(
+                "{source}: column `{name}` is not a finite number at line {} (sample {k}); expected SI values in every row",
+                k + off
+            ))),
+            None => Ok(()),
+        }
+    };
+    if let Some(i) = col("v") {
+        finite("v", &cols[i])?;
+        rec.velocity = Some(cols[i].clone());
+    }
+    for name in inputs {
+        if let Some(i) = col(name) {
+            finite(name, &cols[i])?;
+            rec.inputs.push((name.clone(), cols[i].clone()));
+        }
+    }
     Ok(rec)
 }
 
@@ -508,6 +643,14 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
     rec.warnings.extend(warnings);
     rec.logged_config = logged_config;
     Ok(rec)
+}
+
+/// At most `max` characters of `s` (a header field quoted in an error), with `…` when cut.
+pub fn clip(s: &str, max: usize) -> String {
+    match s.char_indices().nth(max) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s.to_string(),
+    }
 }
 
 /// Row index and value of the largest |value| (NaN skipped).

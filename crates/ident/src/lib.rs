@@ -15,6 +15,8 @@
 
 pub mod analysis;
 pub mod baseline;
+pub mod campaign;
+pub mod campaign_run;
 pub mod ctx;
 pub mod data;
 pub mod diagnose;
@@ -27,6 +29,7 @@ pub mod indep;
 pub mod loopid;
 pub mod outdir;
 pub mod plots;
+pub mod predict;
 pub mod progress;
 pub mod replay;
 pub mod report;

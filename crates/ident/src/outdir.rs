@@ -29,6 +29,10 @@ pub const OUTPUTS: &[&str] = &[
     "frf.svg",
     "validation.svg",
     "report.md",
+    "campaign.json",
+    "campaign.svg",
+    "prediction.json",
+    "prediction.svg",
 ];
 
 /// Whether `a` and `b` are the same file (same device and inode, whatever the names).

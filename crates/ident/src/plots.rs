@@ -428,6 +428,46 @@ fn frf(path: &Path, rec: &Record, nom: &Replay, ext: &Replay) -> PlotResult<()> 
     root.present().map_err(err(path))
 }
 
+/// One panel of a prediction plot: a record's measured channel against the model's
+/// prediction (and the nominal model's, when given); samples from `shade_from` on are the
+/// scored (held-out) part.
+pub struct PredictionPanel<'a> {
+    /// Panel title: the record and the channel with its unit.
+    pub title: String,
+    /// Time stamps (s).
+    pub t: &'a [f64],
+    /// Measured values.
+    pub measured: &'a [f64],
+    /// Predicted values.
+    pub predicted: &'a [f64],
+    /// The nominal model's values, if drawn.
+    pub nominal: Option<&'a [f64]>,
+    /// First scored sample, if only a part is scored.
+    pub shade_from: Option<usize>,
+}
+
+/// Measured vs predicted, one panel per entry (`ehactl predict`, a campaign's report).
+pub fn prediction(path: &Path, panels: &[PredictionPanel<'_>]) -> PlotResult<()> {
+    let rows = panels.len().max(1);
+    let root = SVGBackend::new(path, (1100, 220 * rows as u32)).into_drawing_area();
+    root.fill(&WHITE).map_err(err(path))?;
+    let areas = root.split_evenly((rows, 1));
+    for (p, area) in panels.iter().zip(&areas) {
+        let mut series: Vec<(&[f64], RGBColor, &str)> = vec![(p.measured, MEASURED, "measured")];
+        if let Some(n) = p.nominal {
+            series.push((n, NOMINAL, "nominal"));
+        }
+        series.push((p.predicted, EXTENDED, "predicted"));
+        let x_desc = if p.shade_from.is_some() {
+            "t (s), shaded: scored"
+        } else {
+            "t (s)"
+        };
+        time_panel(area, path, p.t, &p.title, x_desc, &series, p.shade_from)?;
+    }
+    root.present().map_err(err(path))
+}
+
 /// Draw the report's plots into `out` (each written atomically, [`crate::outdir`]): returns
 /// the files written. `split` is the first held-out sample of `rec`; `val` the validation
 /// record with its nominal and extended replays. A plot that cannot be drawn is an error

@@ -163,6 +163,45 @@ pub const USER_INTEGRATION_COST: f64 = 4.0;
 /// BENCHMARKS.md "Diagnosis speed").
 pub const USER_INTEGRATION_MIN_COST: f64 = 0.0;
 
+/// Load a record (CSV with the config's declared operating inputs, or an ehactl MCAP log) and
+/// check it against the rig (sample period, units).
+pub fn load_checked(cfg: &RigConfig, p: &Path) -> Result<data::Record, SessionError> {
+    let inputs: Vec<String> = cfg.inputs.keys().cloned().collect();
+    let mut r = data::load_with(p, &inputs).map_err(|e| SessionError::Input(e.to_string()))?;
+    let w = data::check_against(&r, &cfg.plant, cfg.timebase().period())
+        .map_err(|e| SessionError::Input(e.to_string()))?;
+    r.warnings.extend(w);
+    Ok(r)
+}
+
+/// How a record is replayed through `cfg` and a note saying so: closed-loop records (a `ref`
+/// column and the config's PD position or PI force loop) through the same controller, since
+/// an integrating plant (a piston under position control, a force rig pressing on a stiff
+/// load) would drift open loop; otherwise the recorded valve command.
+pub fn drive_for(cfg: &RigConfig, rec: &data::Record) -> (Drive, Option<String>) {
+    let mut note = None;
+    let drive = match (&cfg.control.mode, &rec.reference) {
+        (ControlMode::Position, Some(_)) if cfg.pd_gains().is_some() => {
+            note = Some("closed-loop replay: the config's PD position controller acts on the recorded `ref`; the recorded `u` is not used".to_string());
+            Drive::PositionPd(cfg.pd_gains().expect("checked"))
+        }
+        (ControlMode::Force, Some(_)) if cfg.pi_gains().is_some() => {
+            note = Some("closed-loop replay: the config's PI force controller acts on the recorded force setpoint `ref` (N) and the model's force; the recorded `u` is not used".to_string());
+            Drive::ForcePi {
+                gains: cfg.pi_gains().expect("checked"),
+                max_command: cfg.supervisor.max_command.unwrap_or(f64::INFINITY),
+            }
+        }
+        _ => {
+            if rec.reference.is_some() {
+                note = Some("open-loop replay with the recorded valve command `u` (the config has no PD position or PI force loop to replay `ref` through)".to_string());
+            }
+            Drive::Recorded
+        }
+    };
+    (drive, note)
+}
+
 /// Diagnose `data_path` (CSV or ehactl MCAP) against the nominal `cfg` (labelled
 /// `config_label` in the report), holding out `validate` or the last 30 %; write the report to
 /// `out` when given.
@@ -175,10 +214,13 @@ pub fn run(
     choices: RunChoices,
 ) -> Result<DiagnoseRun, SessionError> {
     let load = |p: &Path| -> Result<data::Record, SessionError> {
-        let mut r = data::load(p).map_err(|e| SessionError::Input(e.to_string()))?;
-        let w = data::check_against(&r, &cfg.plant, cfg.timebase().period())
-            .map_err(|e| SessionError::Input(e.to_string()))?;
-        r.warnings.extend(w);
+        let r = load_checked(cfg, p)?;
+        if r.imposed_motion() {
+            return Err(SessionError::Input(format!(
+                "{}: a displacement-controlled record (x and force, no `u` or `ref`) is diagnosed as a campaign: the measured motion drives the rod and the load law is fitted (`ehactl diagnose` does this for such a record, or for several --data)",
+                r.source
+            )));
+        }
         Ok(r)
     };
     if let Some(v) = validate.filter(|v| crate::outdir::same_file(v, data_path)) {
@@ -252,28 +294,8 @@ pub fn run(
         }
     }
     let mut notes = Vec::new();
-    // Closed-loop records (a `ref` column and the config's PD position or PI force loop) are
-    // replayed through the same controller: an integrating plant (a piston under position
-    // control, a force rig pressing on a stiff load) would drift open loop.
-    let drive = match (&cfg.control.mode, &rec.reference) {
-        (ControlMode::Position, Some(_)) if cfg.pd_gains().is_some() => {
-            notes.push("closed-loop replay: the config's PD position controller acts on the recorded `ref`; the recorded `u` is not used".to_string());
-            Drive::PositionPd(cfg.pd_gains().expect("checked"))
-        }
-        (ControlMode::Force, Some(_)) if cfg.pi_gains().is_some() => {
-            notes.push("closed-loop replay: the config's PI force controller acts on the recorded force setpoint `ref` (N) and the model's force; the recorded `u` is not used".to_string());
-            Drive::ForcePi {
-                gains: cfg.pi_gains().expect("checked"),
-                max_command: cfg.supervisor.max_command.unwrap_or(f64::INFINITY),
-            }
-        }
-        _ => {
-            if rec.reference.is_some() {
-                notes.push("open-loop replay with the recorded valve command `u` (the config has no PD position or PI force loop to replay `ref` through)".to_string());
-            }
-            Drive::Recorded
-        }
-    };
+    let (drive, note) = drive_for(cfg, &rec);
+    notes.extend(note);
     if let (true, Some(v)) = (drive.closed_loop(), &val) {
         if v.reference.is_none() {
             return Err(SessionError::Input(format!(

@@ -23,6 +23,7 @@ pub mod cbv;
 pub mod effects;
 pub mod exact;
 pub mod excitation;
+pub mod imposed;
 pub mod line;
 pub mod model;
 pub mod params;

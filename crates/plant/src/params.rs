@@ -365,6 +365,16 @@ pub struct PositionSensor {
     #[serde(default)]
     #[param(unit = "m", range = NonNegative, desc = "position noise σ")]
     pub noise: f64,
+    /// Half-width (s) of the least-squares derivative that turns this sensor's recorded
+    /// position into a velocity where the velocity is not measured: an imposed-motion replay
+    /// (`ehactl predict`, a campaign diagnosis, which chooses it and writes it here); 0 = ±2 ms.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    #[param(unit = "s", range = Within(0.0, 1.0), desc = "half-width of the derivative turning recorded x into v (imposed motion; 0 = 2 ms)")]
+    pub velocity_window: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// Spool position (LVDT) sensor.

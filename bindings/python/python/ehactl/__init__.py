@@ -39,6 +39,7 @@ from ._ehactl import (  # noqa: F401  (re-exported)
     __version__,
 )
 from ._analysis import analyze, diagnose, diagnose_many, sweep
+from ._campaign import CampaignResult, PredictionResult, RecordPrediction, campaign, predict
 from ._runs import RunResult, param_grid, params, read_mcap, results_frame, run, run_many
 from . import results
 from .results import AnalysisResult, DiagnosisResult, RunSummary, SweepResult
@@ -55,6 +56,11 @@ __all__ = [
     "__version__",
     "analyze",
     "diagnose",
+    "campaign",
+    "predict",
+    "CampaignResult",
+    "PredictionResult",
+    "RecordPrediction",
     "diagnose_many",
     "param_grid",
     "params",

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import os
 import warnings
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, overload
 
 
 from . import _ehactl
@@ -15,6 +15,7 @@ from . import _ehactl
 if TYPE_CHECKING:
     import pandas as pd
 from ._runs import ConfigLike, _as_config, _must_exist, _progress_bar
+from ._campaign import CampaignResult, campaign
 from .results import AnalysisResult, DiagnosisResult, SweepResult
 
 
@@ -102,6 +103,7 @@ def sweep(
     return SweepResult.from_dict(json.loads(raw))
 
 
+@overload
 def diagnose(
     cfg: ConfigLike,
     data: str | os.PathLike[str],
@@ -110,7 +112,30 @@ def diagnose(
     *,
     progress: bool | Callable[[int, int], None] = False,
     sensor_offsets: bool = False,
-) -> DiagnosisResult:
+) -> DiagnosisResult: ...
+
+
+@overload
+def diagnose(
+    cfg: ConfigLike,
+    data: Sequence[str | os.PathLike[str]],
+    validate: Sequence[str | os.PathLike[str]] | None = None,
+    out: str | os.PathLike[str] | None = None,
+    *,
+    progress: bool | Callable[[int, int], None] = False,
+    sensor_offsets: bool = False,
+) -> CampaignResult: ...
+
+
+def diagnose(
+    cfg: ConfigLike,
+    data: Any,
+    validate: Any = None,
+    out: str | os.PathLike[str] | None = None,
+    *,
+    progress: bool | Callable[[int, int], None] = False,
+    sensor_offsets: bool = False,
+) -> DiagnosisResult | CampaignResult:
     """What the simulation of ``cfg`` gets wrong on measured data, like ``ehactl diagnose --json``.
 
     Replays the measured valve command (or, for closed-loop position records with ``ref``,
@@ -122,6 +147,9 @@ def diagnose(
         cfg: nominal ``Config`` or path of its TOML.
         data: measured record, CSV (``t, u`` and any of ``force, x, p_a, p_b, x_v, ref``; SI)
             or an MCAP written by ehactl.
+            A list or tuple of records runs a campaign instead (:func:`ehactl.campaign`: one
+            load law for every record, ``validate`` then a list too) and returns a
+            :class:`ehactl.CampaignResult`.
         validate: separate held-out record; default the last 30 % of ``data``.
         out: directory for ``extended.toml``, ``report.md`` and SVG plots.
         progress: True for a tqdm bar of the model fits, or a callable ``(done_fits,
@@ -143,6 +171,11 @@ def diagnose(
         ValueError: bad data or config (the message names the file, row or field).
         OSError: the report could not be written.
     """
+    if not isinstance(data, (str, os.PathLike)) or not (
+        validate is None or isinstance(validate, (str, os.PathLike))
+    ):
+        # Several records (a list or tuple of paths): one load law for the campaign.
+        return campaign(cfg, data, validate, out)
     c = _as_config(cfg)
     _must_exist(data, "measured data file")
     if validate is not None:

@@ -151,6 +151,25 @@ def sweep_json(
 ) -> str:
     """``ehactl sweep --json`` of ``cfg`` as a JSON string (see ``ehactl.sweep``)."""
 
+def campaign_json(
+    cfg: Config,
+    data: list[_Path],
+    validate: list[_Path] = ...,
+    out: _Path | None = None,
+    force: bool = False,
+) -> str:
+    """``ehactl diagnose --data … --json`` of a campaign (see ``ehactl.diagnose``)."""
+
+def predict_json(
+    cfg: Config,
+    data: list[_Path],
+    imposed_motion: bool = False,
+    held_out: bool = False,
+    out: _Path | None = None,
+    force: bool = False,
+) -> str:
+    """``ehactl predict --json`` (see ``ehactl.predict``)."""
+
 def diagnose_json(
     cfg: Config,
     data: _Path,

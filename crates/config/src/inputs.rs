@@ -1,0 +1,154 @@
+//! Operating inputs: signals a record may carry that are not loop signals but set the rig's
+//! operating point — an MR damper's coil current (A), a supply pressure, an oil temperature —
+//! and that plant parameters may depend on.
+//!
+//! ```toml
+//! [inputs.current]
+//! unit = "A"             # the input's SI unit
+//! value = 0.0            # operating point the plant section describes (and `ehactl run` uses)
+//! [inputs.current.linear]       # ∂p/∂current of each dependent parameter (its unit per A)
+//! "effects.polynomial_force.dahl" = 1027.0
+//! [inputs.current.quadratic]    # ½·∂²p/∂current² (its unit per A²), optional
+//! ```
+//!
+//! A parameter p with dependences is p(i) = p₀ + a·(i − i₀) + b·(i − i₀)² where p₀ is the
+//! value the plant section states and i₀ the input's `value`: the plant section stays the
+//! model at its own operating point (so `ehactl run` needs nothing else), and a record logged
+//! at another operating point is replayed with [`Inputs::plant_at`]. A record column named like
+//! a declared input carries it (`ehactl diagnose`, `ehactl predict`); an undeclared column is an
+//! error there.
+
+use ehactl_plant::spec::{ConfigError, ParamTree};
+use ehactl_plant::PlantParams;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// One declared operating input.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OperatingInput {
+    /// SI unit of the input (e.g. `A`), as a record's column carries it.
+    pub unit: String,
+    /// Operating point (in `unit`) at which the plant section holds (default 0).
+    #[serde(default)]
+    pub value: f64,
+    /// Linear sensitivities ∂p/∂input by parameter path (the parameter's unit per `unit`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub linear: BTreeMap<String, f64>,
+    /// Quadratic coefficients ½·∂²p/∂input² by parameter path (its unit per `unit`²).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub quadratic: BTreeMap<String, f64>,
+}
+
+/// The `[inputs]` section: declared operating inputs by name (a record's column name).
+pub type Inputs = BTreeMap<String, OperatingInput>;
+
+/// Column names a record uses for loop signals and outputs: no input may take one.
+pub const RESERVED_COLUMNS: [&str; 9] = ["t", "u", "force", "x", "p_a", "p_b", "x_v", "ref", "v"];
+
+/// Check the section against the plant: names are column-like and not reserved, units
+/// given, values finite, every dependent path a float parameter present in `plant`.
+pub fn validate(inputs: &Inputs, plant: &PlantParams) -> Result<(), ConfigError> {
+    for (name, inp) in inputs {
+        let at = |what: &str| format!("inputs.{name}{what}");
+        let ok_name = name
+            .chars()
+            .next()
+            .is_some_and(|c| c.is_ascii_lowercase() || c == '_')
+            && name
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_');
+        if !ok_name || RESERVED_COLUMNS.contains(&name.as_str()) {
+            return Err(ConfigError::new(
+                at(""),
+                format!(
+                    "`{name}` cannot name an operating input; expected a lower-case column name (letters, digits, `_`) other than {}",
+                    RESERVED_COLUMNS.join(", ")
+                ),
+            ));
+        }
+        if inp.unit.trim().is_empty() {
+            return Err(ConfigError::new(
+                at(".unit"),
+                "empty unit; expected the input's SI unit, e.g. \"A\"",
+            ));
+        }
+        if !inp.value.is_finite() {
+            return Err(ConfigError::new(
+                at(".value"),
+                format!(
+                    "{} is not finite; expected the operating point in {}",
+                    inp.value, inp.unit
+                ),
+            ));
+        }
+        for (kind, table) in [("linear", &inp.linear), ("quadratic", &inp.quadratic)] {
+            for (path, c) in table {
+                let Some(_) = plant.get_path(path) else {
+                    return Err(ConfigError::new(
+                        at(&format!(".{kind}.\"{path}\"")),
+                        format!("`{path}` is not a float parameter present in this config's plant; expected the dotted path of one (see `ehactl params`)"),
+                    ));
+                };
+                if !c.is_finite() {
+                    return Err(ConfigError::new(
+                        at(&format!(".{kind}.\"{path}\"")),
+                        format!("{c} is not finite"),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The plant at operating point `at` (input name → value in its unit); an input not given
+/// stays at its declared `value`. Errors name an unknown input or a parameter the dependence
+/// drives out of its admitted range.
+pub fn plant_at(
+    inputs: &Inputs,
+    plant: &PlantParams,
+    at: &BTreeMap<String, f64>,
+) -> Result<PlantParams, String> {
+    for name in at.keys() {
+        if !inputs.contains_key(name) {
+            return Err(format!(
+                "operating input `{name}` is not declared; the config declares [{}]",
+                inputs.keys().cloned().collect::<Vec<_>>().join(", ")
+            ));
+        }
+    }
+    let mut p = plant.clone();
+    for (name, inp) in inputs {
+        let d = at.get(name).map_or(0.0, |v| v - inp.value);
+        if d == 0.0 {
+            continue;
+        }
+        let paths: std::collections::BTreeSet<&String> =
+            inp.linear.keys().chain(inp.quadratic.keys()).collect();
+        for path in paths {
+            let Some(v) = p.get_path(path) else {
+                return Err(format!("inputs.{name}: `{path}` is not in the plant"));
+            };
+            let a = inp.linear.get(path).copied().unwrap_or(0.0);
+            let b = inp.quadratic.get(path).copied().unwrap_or(0.0);
+            let new = v + a * d + b * d * d;
+            p.set_path(path, new).map_err(|e| {
+                format!(
+                    "inputs.{name} = {} {}: `{path}` becomes {new}: {e}",
+                    at[name], inp.unit
+                )
+            })?;
+        }
+    }
+    ehactl_plant::model::validate(&p).map_err(|e| {
+        format!(
+            "the plant at operating point {}: {e}",
+            at.iter()
+                .map(|(k, v)| format!("{k} = {v}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    })?;
+    Ok(p)
+}

@@ -1,0 +1,211 @@
+//! A campaign diagnosis as the CLI and the Python bindings run it: load every record with the
+//! config's declared inputs, fit the campaign law ([`crate::campaign`]), write the report
+//! (`report.md`, `extended.toml`, `campaign.json`, `campaign.svg`) and return the JSON object.
+
+use crate::campaign::{diagnose_campaign, Campaign};
+use crate::data::ChannelKind;
+use crate::session::{load_checked, SessionError};
+use ehactl_config::RigConfig;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+/// A finished campaign.
+pub struct CampaignRun {
+    /// The law and its scores.
+    pub campaign: Campaign,
+    /// The `--json` object.
+    pub json: Value,
+    /// Warnings about the records.
+    pub warnings: Vec<String>,
+    /// Files written to `--out`.
+    pub files: Vec<PathBuf>,
+}
+
+/// Run a campaign on `data` (fitting records) and `validate` (held out whole) against `cfg`.
+pub fn run(
+    cfg: &RigConfig,
+    config_path: &Path,
+    data: &[PathBuf],
+    validate: &[PathBuf],
+    out: Option<&Path>,
+    force: bool,
+) -> Result<CampaignRun, SessionError> {
+    let all: Vec<&PathBuf> = data.iter().chain(validate).collect();
+    for (i, a) in all.iter().enumerate() {
+        if let Some(b) = all[..i].iter().find(|b| crate::outdir::same_file(a, b)) {
+            return Err(SessionError::Input(format!(
+                "{} and {} are the same file; each record of a campaign must be another recording",
+                b.display(),
+                a.display()
+            )));
+        }
+    }
+    if let Some(dir) = out {
+        let mut inputs: Vec<(&str, &Path)> =
+            data.iter().map(|d| ("--data file", d.as_path())).collect();
+        inputs.extend(validate.iter().map(|v| ("--validate file", v.as_path())));
+        inputs.push(("--config being run", config_path));
+        crate::outdir::check(dir, &inputs, force).map_err(SessionError::Input)?;
+    }
+    // Records load in parallel (a campaign of long CSVs is parse-bound).
+    use rayon::prelude::*;
+    let load = |ps: &[PathBuf]| -> Result<Vec<_>, SessionError> {
+        ps.par_iter().map(|p| load_checked(cfg, p)).collect()
+    };
+    let fit = load(data)?;
+    let val = load(validate)?;
+    let mut warnings: Vec<String> = fit
+        .iter()
+        .chain(&val)
+        .flat_map(|r| r.warnings.iter().cloned())
+        .collect();
+    let c = diagnose_campaign(cfg, &fit, &val).map_err(SessionError::Input)?;
+    warnings.extend(c.notes.iter().cloned());
+    let mut files = Vec::new();
+    if let Some(dir) = out {
+        let mut od = crate::outdir::OutDir::create(dir).map_err(SessionError::Io)?;
+        let toml = format!(
+            "# Extended by `ehactl diagnose` from a campaign of {} records against {}.\n# {}\n# The law: [effects.polynomial_force] at the config's operating point; its dependence on\n# the operating inputs: [inputs.<name>.linear / .quadratic] (ehactl_config::inputs).\n{}",
+            fit.len() + val.len(),
+            config_path.display(),
+            c.cause,
+            c.extended.to_toml_string()
+        );
+        files.push(
+            od.write("extended.toml", toml.as_bytes())
+                .map_err(SessionError::Io)?,
+        );
+        files.push(
+            od.write("report.md", report_md(&c).as_bytes())
+                .map_err(SessionError::Io)?,
+        );
+        let json = serde_json::to_string_pretty(&c).unwrap_or_default();
+        files.push(
+            od.write("campaign.json", json.as_bytes())
+                .map_err(SessionError::Io)?,
+        );
+        // Measured vs predicted force of every record (nominal beside it).
+        let preds: Vec<(Vec<f64>, Vec<f64>)> = fit
+            .iter()
+            .chain(&val)
+            .map(|r| {
+                let p = crate::predict::predict(&c.extended, r, true, None)
+                    .map(|p| p.predicted[0].1.clone())
+                    .unwrap_or_default();
+                let n = crate::predict::predict(cfg, r, true, None)
+                    .map(|p| p.predicted[0].1.clone())
+                    .unwrap_or_default();
+                (p, n)
+            })
+            .collect();
+        let panels: Vec<crate::plots::PredictionPanel<'_>> = fit
+            .iter()
+            .chain(&val)
+            .zip(&preds)
+            .zip(&c.records)
+            .filter_map(|((r, (p, n)), s)| {
+                Some(crate::plots::PredictionPanel {
+                    title: format!(
+                        "{} force (N)",
+                        Path::new(&r.source)
+                            .file_name()
+                            .map_or(r.source.clone(), |f| f.to_string_lossy().into_owned())
+                    ),
+                    t: &r.t,
+                    measured: r.channel(ChannelKind::Force)?,
+                    predicted: p,
+                    nominal: Some(n),
+                    shade_from: Some(s.scored.0),
+                })
+            })
+            .collect();
+        files.push(
+            od.write_with("campaign.svg", |p| crate::plots::prediction(p, &panels))
+                .map_err(SessionError::Io)?,
+        );
+    }
+    let mut json = serde_json::to_value(&c).unwrap_or_default();
+    json["mode"] = Value::from("campaign");
+    json["causes"] = Value::from(if c.terms.is_empty() {
+        Vec::<String>::new()
+    } else {
+        vec!["polynomial_force".to_string()]
+    });
+    json["nrmse"] = serde_json::json!({
+        "overall": c.pooled.law,
+        "nominal": c.pooled.nominal,
+        "arx": c.pooled.arx,
+    });
+    let file = |name: &str| {
+        files
+            .iter()
+            .find(|f| f.file_name().is_some_and(|n| n == name))
+            .map_or(Value::Null, |f| Value::from(f.display().to_string()))
+    };
+    json["extended_config"] = file("extended.toml");
+    json["report"] = file("report.md");
+    json["warnings"] = Value::from(warnings.clone());
+    Ok(CampaignRun {
+        campaign: c,
+        json,
+        warnings,
+        files,
+    })
+}
+
+fn report_md(c: &Campaign) -> String {
+    let mut s = String::from("# Campaign diagnosis\n\n");
+    let mut lines = c.summary.lines();
+    if let Some(first) = lines.next() {
+        s += &format!("**{first}**\n\n");
+    }
+    s += "| record | role | operating point | law | nominal | ARX |\n|---|---|---|---|---|---|\n";
+    for r in &c.records {
+        s += &format!(
+            "| {} | {} | {} | {:.4} | {:.4} | {:.4} |\n",
+            r.source,
+            r.role,
+            r.operating_point
+                .iter()
+                .map(|(k, v)| format!("{k} = {v}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            r.nrmse.law,
+            r.nrmse.nominal,
+            r.nrmse.arx
+        );
+    }
+    s += &format!(
+        "| pooled | | | {:.4} | {:.4} | {:.4} |\n\n",
+        c.pooled.law, c.pooled.nominal, c.pooled.arx
+    );
+    s += "## Law\n\n| term | coefficient at zero input | unit | dependence | share of force variance |\n|---|---|---|---|---|\n";
+    for t in &c.terms {
+        s += &format!(
+            "| {} (`{}`) | {:.6e} | {} | {} | {:.1} % |\n",
+            t.name,
+            t.path,
+            t.at_zero,
+            t.unit,
+            if t.dependence.is_empty() {
+                "none".to_string()
+            } else {
+                t.dependence
+                    .iter()
+                    .map(|(n, (f, k))| format!("{n}: {f:?} {k:?}"))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            },
+            100.0 * t.share
+        );
+    }
+    s += "\n";
+    for l in lines {
+        s += &format!("{l}\n\n");
+    }
+    s += &format!(
+        "Transfer NRMSE of the chosen law (fitted on the first 60 % of each fitting part, predicting the rest): {:.4}. Dependence: {}.\n\nPlot: campaign.svg (measured, nominal, predicted force; shaded: scored).\n",
+        c.nrmse_transfer, c.dependence_check
+    );
+    s
+}

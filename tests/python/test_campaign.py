@@ -1,0 +1,179 @@
+"""Campaign diagnosis (`ehactl diagnose --data R1 --data R2 …`) and `ehactl predict`, checked
+against records ehactl did not make:
+
+- an MR damper written in NumPy/SciPy from the modified Bouc–Wen model of Spencer et al. 1997
+  (tests/python/bouc_wen.py), tested at 0 … 1 A by sines of several amplitudes and
+  frequencies and a broadband displacement: fitted at 0, 0.5 and 1 A, it must predict 0.25 and
+  0.75 A, operating points it never saw;
+- the real UTFSM MTS chirps at 0 A and 1 A (tests/data/measured/utfsm_mts/), one campaign.
+"""
+import json
+import os
+import pathlib
+import subprocess
+
+import numpy as np
+import pytest
+
+import bouc_wen as bw
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+BIN = os.environ.get("EHACTL_BIN", str(REPO / "target" / "release" / "ehactl"))
+CONFIG = REPO / "configs" / "utfsm_mts_mrdamper.toml"
+MTS = REPO / "tests" / "data" / "measured" / "utfsm_mts"
+CURRENTS_FIT = (0.0, 0.5, 1.0)
+CURRENTS_NEW = (0.25, 0.75)
+RATE = 500.0  # Hz, the config's control rate
+
+
+def ehactl(*args, timeout=600):
+    return subprocess.run([BIN, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+
+
+def tests_at(current):
+    """The tests of one operating point: sines of 2–10 mm at 1–5 Hz and a random history."""
+    k = int(current * 100)
+    motions = [(f"sine_{a * 1e3:g}mm_{f:g}Hz", bw.sine(a, f), 3.0) for a, f in ((0.005, 1.0), (0.01, 2.0), (0.002, 5.0))]
+    motions.append(("random", bw.random_history(k + 3, 0.004, 5.0, 6.0), 6.0))
+    out = []
+    for i, (name, motion, duration) in enumerate(motions):
+        rec = bw.record(motion, current, duration, rate=RATE, seed=1000 * k + i)
+        rec["x"] = rec["x"] + 0.05  # mid stroke of the rig config
+        out.append((f"{name}_{current:g}A", rec))
+    return out
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bouc_wen")
+    files = {}
+    for c in CURRENTS_FIT + CURRENTS_NEW:
+        for name, rec in tests_at(c):
+            p = d / f"{name}.csv"
+            bw.write_csv(p, rec)
+            files.setdefault(c, []).append(p)
+    args = ["diagnose", "--config", CONFIG, "--json", "--out", d / "out"]
+    for c in CURRENTS_FIT:
+        args += [a for p in files[c] for a in ("--data", p)]
+    for c in CURRENTS_NEW:
+        args += [a for p in files[c] for a in ("--validate", p)]
+    r = ehactl(*args)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout), files, d
+
+
+def test_campaign_names_the_current_dependence(campaign):
+    j, _, _ = campaign
+    assert j["mode"] == "campaign"
+    assert "current" in j["cause"] and "N/A" in j["cause"], j["cause"]
+    # Three fitting operating points: the dependence was kept by leaving one out.
+    assert "leaving one operating point out (3 points)" in j["dependence_check"], j["dependence_check"]
+    assert any(t["dependence"] for t in j["terms"]), j["terms"]
+
+
+def test_unseen_currents_are_predicted_far_better_than_nominal_and_arx(campaign):
+    j, _, _ = campaign
+    new = [r for r in j["records"] if r["role"] == "validation"]
+    assert len(new) == 8
+    assert {r["operating_point"]["current"] for r in new} == set(CURRENTS_NEW)
+    for r in new:
+        s = r["nrmse"]
+        assert s["law"] < 0.25 * s["nominal"], r
+        assert s["law"] < 0.5 * s["arx"], r
+    # Measured 2026-11-28: pooled 0.063 over the eight unseen-current tests (0.030 … 0.108
+    # per test); the Dahl + yield law approximates Bouc–Wen's n = 2 loop and its internal
+    # dashpot c₁, which bounds it.
+    assert j["pooled"]["law"] <= 0.075, j["pooled"]
+
+
+@pytest.mark.xfail(strict=True, reason="target NRMSE ≤ 0.05 at unseen currents not reached: "
+                   "0.063 pooled, the law's Dahl/yield library does not hold the Bouc–Wen loop shape")
+def test_unseen_currents_meet_the_five_percent_target(campaign):
+    j, _, _ = campaign
+    assert j["pooled"]["law"] <= 0.05
+
+
+def test_predict_with_the_extended_config_reproduces_the_campaign(campaign, tmp_path):
+    j, files, d = campaign
+    ext = d / "out" / "extended.toml"
+    text = ext.read_text()
+    assert "[inputs.current.linear]" in text
+    by_source = {r["source"]: r for r in j["records"]}
+    for p in files[0.75][:2]:
+        r = ehactl("predict", "--config", ext, "--data", p, "--json")
+        assert r.returncode == 0, r.stderr
+        pj = json.loads(r.stdout)
+        assert pj["replay"] == "imposed_motion"
+        assert pj["operating_point"] == {"current": 0.75}
+        assert pj["nrmse"]["channels"]["force"] == pytest.approx(by_source[str(p)]["nrmse"]["law"], rel=1e-9)
+    # The same records predicted by the config without the campaign's law: far worse.
+    r = ehactl("predict", "--config", CONFIG, "--data", files[0.75][0], "--json")
+    assert json.loads(r.stdout)["nrmse"]["overall"] > 3 * by_source[str(files[0.75][0])]["nrmse"]["law"]
+
+
+def test_predict_writes_a_plot_and_json(campaign, tmp_path):
+    _, files, d = campaign
+    out = tmp_path / "pred"
+    r = ehactl("predict", "--config", d / "out" / "extended.toml", "--data", files[0.25][0],
+               "--data", files[0.25][1], "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert (out / "prediction.svg").read_text().startswith("<svg")
+    assert len(json.loads((out / "prediction.json").read_text())) == 2
+
+
+def with_current(src: pathlib.Path, dst: pathlib.Path, drop=()):
+    import csv
+    rows = list(csv.reader(src.open()))
+    keep = [i for i, n in enumerate(rows[0]) if n not in drop]
+    with dst.open("w", newline="") as f:
+        w = csv.writer(f)
+        for row in rows:
+            w.writerow([row[i] for i in keep])
+    return dst
+
+
+def test_june_chirps_as_one_campaign(tmp_path):
+    r = ehactl("diagnose", "--config", CONFIG, "--data", MTS / "0A_5to15s.csv", "--data", MTS / "1A_5to15s.csv",
+               "--json", "--out", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    j = json.loads(r.stdout)
+    assert "current" in j["cause"], j["cause"]
+    # Two operating points: the report says the dependence is not validated across them.
+    assert "NOT validated" in j["dependence_check"]
+    ext = tmp_path / "out" / "extended.toml"
+    for name in ("0A_5to15s.csv", "1A_5to15s.csv"):
+        p = ehactl("predict", "--config", ext, "--data", MTS / name, "--imposed-motion", "--held-out", "--json")
+        assert p.returncode == 0, p.stderr
+        f = json.loads(p.stdout)["nrmse"]["channels"]["force"]
+        rec = next(x for x in j["records"] if x["source"].endswith(name))
+        assert f == pytest.approx(rec["nrmse"]["law"], rel=1e-9)
+        # far better than the config without the law, and than the linear black box
+        assert f < 0.5 * rec["nrmse"]["nominal"] and f < rec["nrmse"]["arx"], rec
+
+
+def test_motion_only_record_is_a_campaign_of_one(tmp_path):
+    _, rec = tests_at(0.5)[3]
+    p = tmp_path / "motion_only.csv"
+    bw.write_csv(p, rec)
+    r = ehactl("diagnose", "--config", CONFIG, "--data", p, "--json")
+    assert r.returncode == 0, r.stderr
+    j = json.loads(r.stdout)
+    assert j["mode"] == "campaign" and j["pooled"]["law"] < 0.2, j["summary"]
+    assert "one operating point" in j["dependence_check"]
+
+
+def test_a_record_with_neither_command_nor_motion_is_refused(tmp_path):
+    p = tmp_path / "force_only.csv"
+    t = np.arange(100) / RATE
+    np.savetxt(p, np.column_stack([t, np.sin(t)]), delimiter=",", header="t,force", comments="")
+    r = ehactl("diagnose", "--config", CONFIG, "--data", p)
+    assert r.returncode == 2
+    assert "neither the valve command `u`" in r.stderr and "`x` (m)" in r.stderr, r.stderr
+
+
+def test_an_undeclared_column_is_an_error_naming_it(tmp_path):
+    p = with_current(MTS / "1A_5to15s.csv", tmp_path / "renamed.csv")
+    p.write_text(p.read_text().replace("current", "curent", 1))
+    r = ehactl("diagnose", "--config", CONFIG, "--data", p)
+    assert r.returncode == 2
+    assert "`curent`" in r.stderr and "[current]" in r.stderr, r.stderr
