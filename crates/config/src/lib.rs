@@ -140,6 +140,11 @@ pub struct ControlConfig {
     pub pd: Option<PdConfig>,
 }
 
+/// Longest run (s): the upper end of `run.duration`'s range, and the cap of every duration
+/// override (`ehactl run --duration`, `ehactl.run(duration=…)`). 10⁶ s is 11.6 days; at the
+/// 5 kHz of the Sahu 2022 rig that is 5·10⁹ cycles.
+pub const MAX_DURATION_S: f64 = 1.0e6;
+
 /// `[run]`.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]
