@@ -171,3 +171,47 @@ fn config_round_trips_through_toml() {
     let again = RigConfig::from_toml_str(&cfg.to_toml_string()).unwrap();
     assert_eq!(cfg, again);
 }
+
+/// A feed-forward gain has a physical range: 1.7e308 V/N (finite, formerly accepted) made
+/// ff_term infinite and pinned the command at +10 V for a whole run without a trip.
+#[test]
+fn feedforward_gains_have_a_physical_range() {
+    let text = base().replace("[control.pi]\n", "[control.pi]\nfeedforward = 1.7e308\n");
+    let e = err_of(&text);
+    assert!(
+        e.contains("control.pi.feedforward") && e.contains("V/N"),
+        "{e}"
+    );
+    let ok = base().replace("[control.pi]\n", "[control.pi]\nfeedforward = 1e-4\n");
+    assert!(RigConfig::from_toml_str(&ok).is_ok());
+}
+
+/// A control-law term that is not finite trips the supervisor, naming the term, whatever
+/// the config allowed (a live change, an integrator that overflowed).
+#[test]
+fn a_non_finite_control_term_trips() {
+    use ehactl_control::pi::{Pi, PiGains};
+    use ehactl_control::supervisor::{FeedbackChannel, Supervisor};
+    let cfg = RigConfig::from_toml_str(&base()).unwrap();
+    let mut sup = Supervisor::new(&cfg.supervisor, FeedbackChannel::Force);
+    let mut pi = Pi::new(PiGains {
+        kp: 0.5,
+        integral: 300.0,
+        error_scale: 5e-4,
+        u_min: -10.0,
+        u_max: 10.0,
+        tracking: 0.0,
+        feedforward: 1.7e308,
+    });
+    let terms = pi.step(2000.0, 0.0, 2e-4);
+    assert_eq!(terms.u, 10.0, "the clamp hides the infinite term");
+    let ev = sup.check_terms(0.0, 0, &terms).expect("a trip");
+    assert_eq!(ev.channel, "ff_term");
+    assert_eq!(ev.severity, ehactl_types::event::Severity::Trip);
+    let fine = Pi::new(PiGains {
+        feedforward: 1e-4,
+        ..pi.gains
+    })
+    .step(2000.0, 0.0, 2e-4);
+    assert!(sup.check_terms(0.0, 0, &fine).is_none());
+}

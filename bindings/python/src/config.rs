@@ -29,7 +29,19 @@ fn py_to_toml(v: &Bound<'_, PyAny>, path: &str) -> PyResult<toml::Value> {
         return Ok(toml::Value::Boolean(v.extract::<bool>()?));
     }
     if v.is_instance_of::<PyInt>() {
-        return Ok(toml::Value::Integer(v.extract::<i64>()?));
+        // TOML integers are 64-bit: a larger one (10**400) is refused naming the field,
+        // not as a bare OverflowError.
+        return v.extract::<i64>().map(toml::Value::Integer).map_err(|_| {
+            let digits = v.str().map(|s| s.to_string()).unwrap_or_default();
+            let shown = if digits.len() > 40 {
+                format!("an integer of {} digits", digits.trim_start_matches('-').len())
+            } else {
+                digits
+            };
+            PyValueError::new_err(format!(
+                "config error at `{path}`: {shown} does not fit a 64-bit integer (|value| ≤ 9.2e18); expected a value in the field's range (see ehactl.params())"
+            ))
+        });
     }
     if v.is_instance_of::<PyFloat>() {
         return Ok(toml::Value::Float(v.extract::<f64>()?));

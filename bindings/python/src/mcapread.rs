@@ -1,4 +1,5 @@
-//! Read any ehactl MCAP log into columns with the `mcap` crate (chunk CRCs checked).
+//! Read any ehactl MCAP log into columns with the `mcap` crate, after the checks of the
+//! CLI's reader (a bounded regular file, every chunk's sizes, decompression and CRC).
 //! CDR channels are decoded from their own `ros2msg` schema text by the log format's one
 //! decoder, `ehactl_log::record::FlatSchema` (primitive fields only, CDR alignment relative
 //! to the 4-byte encapsulation header), so a log whose messages gain fields still reads;
@@ -46,18 +47,34 @@ impl CdrTopic {
 /// `metadata` {name: {key: value}}, `profile`, `library`.
 #[pyfunction]
 pub fn read_mcap_raw<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
-    let bytes = std::fs::read(&path).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            pyo3::exceptions::PyFileNotFoundError::new_err((
-                2,
-                format!("MCAP file not found: {}", path.display()),
-                path.display().to_string(),
-            ))
-        } else {
-            PyOSError::new_err(format!("cannot read {}: {e}", path.display()))
-        }
-    })?;
+    // The CLI's reader of logs (`diagnose --data`): a regular file of at most 10 000 MB (a
+    // FIFO, /dev/zero or a directory is refused without blocking), every chunk checked
+    // (sizes, decompression bounded by its claimed size, CRC, inner framing) before the
+    // `mcap` crate sees it.
+    if !path.exists() {
+        return Err(pyo3::exceptions::PyFileNotFoundError::new_err((
+            2,
+            format!("MCAP file not found: {}", path.display()),
+            path.display().to_string(),
+        )));
+    }
+    let bytes =
+        ehactl_hal::input::read_bounded(&path, ehactl_hal::input::DATA_MAX_BYTES, "MCAP log")
+            .map_err(|e| {
+                if std::fs::metadata(&path).is_ok_and(|m| !m.is_file())
+                    || e.reason.contains("limit")
+                {
+                    PyValueError::new_err(e.to_string())
+                } else {
+                    PyOSError::new_err(e.to_string())
+                }
+            })?;
     let bad = |what: String| PyValueError::new_err(format!("{}: {what}", path.display()));
+    if let (_, Some(problem)) = ehactl_log::recover::readable_prefix(&bytes) {
+        return Err(bad(format!(
+            "not a readable MCAP file: {problem} (a log cut off by a killed run can be rebuilt with `ehactl recover`)"
+        )));
+    }
     let mut cdr: BTreeMap<String, CdrTopic> = BTreeMap::new();
     let mut json: BTreeMap<String, Vec<String>> = BTreeMap::new();
     let mut other: BTreeMap<String, u64> = BTreeMap::new();

@@ -9,11 +9,11 @@ use ehactl_config::RigConfig;
 use ehactl_log::record::CycleRecord;
 use ehactl_runtime::session::{run_sim, SessionOptions};
 use numpy::IntoPyArray;
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
@@ -24,13 +24,68 @@ struct RunOut {
     summary: String,
 }
 
+/// Largest result arrays one call returns (bytes, all runs of a batch together): 2 000 MB.
+/// With every column (31 float columns, `cycle`, `stuck`: 257 bytes per cycle) that is
+/// 7.8·10⁶ cycles, 1 556 s at 5 kHz; `fields=` selects fewer columns for longer runs, and
+/// the MCAP log (`mcap=`) has no such limit.
+const MAX_RESULT_BYTES: u64 = 2_000_000_000;
+
+/// Bytes of result arrays per cycle for the selected columns: 8 per float column, 8 for
+/// `cycle`, 1 for `stuck`.
+fn bytes_per_cycle(idx: &[usize], stuck: bool) -> u64 {
+    8 * idx.len() as u64 + 8 + u64::from(stuck)
+}
+
+/// Check a duration override (s) against the range of `run.duration`.
 fn check_duration(d: Option<f64>) -> PyResult<()> {
-    match d {
-        Some(x) if !(x.is_finite() && x > 0.0) => Err(PyValueError::new_err(format!(
-            "duration = {x} is not valid; expected a finite number > 0 in s"
-        ))),
+    match d.map(ehactl_runtime::session::check_duration) {
+        Some(Err(why)) => Err(PyValueError::new_err(format!("duration = {why}"))),
         _ => Ok(()),
     }
+}
+
+/// Cycles a run of `cfg` takes (the duration override or `run.duration`).
+fn cycles_of(cfg: &RigConfig, duration: Option<f64>) -> u64 {
+    cfg.timebase()
+        .cycles_in(duration.unwrap_or(cfg.run.duration))
+        .max(1)
+}
+
+/// Refuse runs whose result arrays would exceed [`MAX_RESULT_BYTES`] before anything is
+/// allocated (a ValueError naming the limit, instead of an allocation failure that aborts
+/// the interpreter).
+fn check_result_size(cycles: &[u64], idx: &[usize], stuck: bool) -> PyResult<()> {
+    let per = bytes_per_cycle(idx, stuck);
+    let total: u64 = cycles
+        .iter()
+        .map(|c| c.saturating_mul(per))
+        .fold(0, u64::saturating_add);
+    if total > MAX_RESULT_BYTES {
+        let n: u64 = cycles.iter().sum();
+        return Err(PyValueError::new_err(format!(
+            "duration: {n} cycles × {per} bytes of result columns = {:.1} MB exceeds the limit of {} MB for the arrays returned to Python; expected a shorter duration, fewer columns (fields=[…]) or fewer runs (the MCAP log, mcap=, has no such limit)",
+            total as f64 / 1e6,
+            MAX_RESULT_BYTES / 1_000_000
+        )));
+    }
+    Ok(())
+}
+
+/// Refuse an MCAP path that would destroy a file of the user's (the rules of `ehactl run
+/// --out`, `ehactl_log::outpath`): never the config, never a directory, never an existing
+/// file that is not an MCAP log unless `overwrite`.
+fn check_mcap_path(path: &Path, cfg: &Config, overwrite: bool) -> PyResult<()> {
+    use ehactl_log::outpath::{check_log_path, LogPathError, Naming};
+    let source = cfg.source.as_deref().map(Path::new);
+    let inputs: Vec<&Path> = source.into_iter().collect();
+    let naming = Naming {
+        arg: "mcap",
+        force_hint: "pass overwrite=True",
+    };
+    check_log_path(path, &inputs, overwrite, naming).map_err(|e| match e {
+        LogPathError::Refused(m) => PyValueError::new_err(m),
+        LogPathError::Busy(m) => PyOSError::new_err(m),
+    })
 }
 
 fn one(
@@ -47,9 +102,7 @@ fn one(
             p.store(k, Ordering::Relaxed);
         }
     };
-    let cycles = (duration.unwrap_or(cfg.run.duration) / cfg.timebase().period())
-        .round()
-        .max(1.0) as usize;
+    let cycles = usize::try_from(cycles_of(cfg, duration)).map_err(|e| e.to_string())?;
     let mut sink = ColumnSink::new(idx, stuck, cycles);
     let mut observe = |r: &CycleRecord| sink.push(r);
     let session = run_sim(
@@ -57,6 +110,7 @@ fn one(
         SessionOptions {
             duration,
             mcap,
+            atomic_log: true,
             stop: Some(stop),
             capture: false,
             progress: Some(&mut report),
@@ -145,11 +199,13 @@ fn to_py<'py>(py: Python<'py>, r: RunOut) -> PyResult<(Bound<'py, PyDict>, Strin
 }
 
 /// One closed-loop run of `cfg` (GIL released). Returns (dict of NumPy columns, summary
-/// JSON text). `duration` (s) overrides run.duration; `mcap` writes the log there;
-/// `fields` selects columns (None = all); `progress(done_cycles, total_cycles)` is
-/// called from the calling thread about every 50 ms.
+/// JSON text). `duration` (s) overrides run.duration; `mcap` writes the log there
+/// (written under a temporary name and renamed when complete; an existing file that is not
+/// an MCAP log only with `overwrite`, the config never); `fields` selects columns (None =
+/// all); `progress(done_cycles, total_cycles)` is called from the calling thread about
+/// every 50 ms.
 #[pyfunction]
-#[pyo3(signature = (cfg, duration = None, mcap = None, fields = None, progress = None))]
+#[pyo3(signature = (cfg, duration = None, mcap = None, fields = None, progress = None, overwrite = false))]
 pub fn run_one<'py>(
     py: Python<'py>,
     cfg: &Config,
@@ -157,15 +213,17 @@ pub fn run_one<'py>(
     mcap: Option<PathBuf>,
     fields: Option<Vec<String>>,
     progress: Option<Py<PyAny>>,
+    overwrite: bool,
 ) -> PyResult<(Bound<'py, PyDict>, String)> {
     check_duration(duration)?;
     let (idx, stuck) = columns::select(fields.as_deref()).map_err(PyValueError::new_err)?;
     let rc = cfg.cfg.clone();
-    let total = AtomicU64::new(
-        (duration.unwrap_or(rc.run.duration) / rc.timebase().period())
-            .round()
-            .max(1.0) as u64,
-    );
+    let cycles = cycles_of(&rc, duration);
+    check_result_size(&[cycles], &idx, stuck)?;
+    if let Some(m) = &mcap {
+        check_mcap_path(m, cfg, overwrite)?;
+    }
+    let total = AtomicU64::new(cycles);
     let counter = AtomicU64::new(0);
     let stop = AtomicBool::new(false);
     let out = detached(py, progress, &total, &counter, &stop, || {
@@ -177,10 +235,12 @@ pub fn run_one<'py>(
 
 /// Many closed-loop runs in parallel on a rayon pool of `threads` workers (None = one per
 /// core), GIL released. Same arguments as `run_one`, per run: `mcap` is None or a list of
-/// paths, one per config. `progress(done_runs, total_runs)`. Returns a list of
-/// (columns, summary JSON) in input order.
+/// paths, one per config (distinct; checked as `run_one`'s, with `overwrite`).
+/// `progress(done_runs, total_runs)`. Returns a list of (columns, summary JSON) in input
+/// order.
 #[pyfunction]
-#[pyo3(signature = (cfgs, duration = None, mcap = None, fields = None, threads = None, progress = None))]
+#[pyo3(signature = (cfgs, duration = None, mcap = None, fields = None, threads = None, progress = None, overwrite = false))]
+#[allow(clippy::too_many_arguments)]
 pub fn run_batch<'py>(
     py: Python<'py>,
     cfgs: Vec<Config>,
@@ -189,9 +249,12 @@ pub fn run_batch<'py>(
     fields: Option<Vec<String>>,
     threads: Option<usize>,
     progress: Option<Py<PyAny>>,
+    overwrite: bool,
 ) -> PyResult<Vec<(Bound<'py, PyDict>, String)>> {
     check_duration(duration)?;
     let (idx, stuck) = columns::select(fields.as_deref()).map_err(PyValueError::new_err)?;
+    let cycles: Vec<u64> = cfgs.iter().map(|c| cycles_of(&c.cfg, duration)).collect();
+    check_result_size(&cycles, &idx, stuck)?;
     if let Some(m) = &mcap {
         if m.len() != cfgs.len() {
             return Err(PyValueError::new_err(format!(
@@ -199,6 +262,16 @@ pub fn run_batch<'py>(
                 m.len(),
                 cfgs.len()
             )));
+        }
+        for (i, (p, c)) in m.iter().zip(&cfgs).enumerate() {
+            // The message names the path, which names the run.
+            if m[..i].contains(p) {
+                return Err(PyValueError::new_err(format!(
+                    "mcap {}: given for two runs; expected one distinct path per run",
+                    p.display()
+                )));
+            }
+            check_mcap_path(p, c, overwrite)?;
         }
     }
     if threads == Some(0) {

@@ -218,49 +218,22 @@ pub(crate) fn default_log_path(config: &Path, suffix: &str) -> PathBuf {
 }
 
 /// Refuse a log path that would destroy something of the user's: the config being run
-/// (always), a directory, or an existing file that is not an MCAP log (unless `force`). An
-/// earlier MCAP log at the path is replaced, as a re-run is expected to do.
+/// (always), a directory, or an existing file that is not an MCAP log (unless `force`); the
+/// rules are `ehactl_log::outpath`'s, shared with the Python bindings. An earlier MCAP log
+/// at the path is replaced, as a re-run is expected to do.
 pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(), ExitCode> {
-    if same_file(out, config) {
-        return Err(config_error(format!(
-            "--out {}: is the config being run; choose another file for the MCAP log",
-            out.display()
-        )));
-    }
-    let Ok(meta) = std::fs::symlink_metadata(out) else {
-        return Ok(()); // nothing there yet
+    use ehactl_log::outpath::{self, LogPathError, Naming};
+    let naming = Naming {
+        arg: "--out",
+        force_hint: "add --force",
     };
-    if meta.is_dir() {
-        return Err(config_error(format!(
-            "--out {}: is a directory; expected a file path for the MCAP log (e.g. {}/run.mcap)",
-            out.display(),
-            out.display()
-        )));
-    }
-    let is_mcap = meta.is_file() && ehactl_log::recover::is_mcap_file(out);
-    if !is_mcap && !force {
-        return Err(config_error(format!(
-            "--out {}: exists and is not an MCAP log; refusing to overwrite it (choose another path or add --force)",
-            out.display()
-        )));
-    }
-    if is_mcap && ehactl_log::logger::is_locked(out) {
-        eprintln!(
-            "ehactl: --out {}: is being written by another running ehactl (it holds the file's lock); choose another --out",
-            out.display()
-        );
-        return Err(ExitCode::from(1));
-    }
-    Ok(())
-}
-
-/// Whether `a` and `b` are the same file: same device and inode, whatever the names (a hard
-/// link, a symbolic link, `./x` and `x`). False when either does not exist.
-pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
-    use std::os::unix::fs::MetadataExt;
-    match (std::fs::metadata(a), std::fs::metadata(b)) {
-        (Ok(x), Ok(y)) => (x.dev(), x.ino()) == (y.dev(), y.ino()),
-        _ => false,
+    match outpath::check_log_path(out, &[config], force, naming) {
+        Ok(()) => Ok(()),
+        Err(LogPathError::Refused(m)) => Err(config_error(m)),
+        Err(LogPathError::Busy(m)) => {
+            eprintln!("ehactl: {m}");
+            Err(ExitCode::from(1))
+        }
     }
 }
 
@@ -299,7 +272,27 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
             output.display()
         ));
     }
-    match ehactl_log::recover::recover(input, output) {
+    // The CLI's bounded read of user input: a regular file of at most 10 000 MB; a FIFO,
+    // /dev/zero or a directory is refused without blocking.
+    let data =
+        match ehactl_hal::input::read_bounded(input, ehactl_hal::input::DATA_MAX_BYTES, "MCAP log")
+        {
+            Ok(d) => d,
+            Err(e) => return config_error(format!("recover: {e}")),
+        };
+    // A log a running ehactl still holds the lock of is being written: what is read is a
+    // snapshot of it, said so (the writer's lock, ehactl_log::logger).
+    let writer_active = ehactl_log::logger::is_locked(input);
+    if writer_active {
+        eprintln!(
+            "ehactl: recover: {}: is still being written by a running ehactl (it holds the file's lock); recovering a snapshot of its first {} bytes (the log is complete once that run ends)",
+            input.display(),
+            data.len()
+        );
+    }
+    match ehactl_log::recover::recover_bytes(&data, output)
+        .map_err(|e| format!("{}: {e}", input.display()))
+    {
         Ok(rep) => {
             if json {
                 println!(
@@ -318,16 +311,19 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
                         "messages_without_channel": rep.messages_without_channel,
                         "problems": rep.problems,
                         "last_time_s": rep.last_time_s,
+                        "writer_active": writer_active,
                     })
                 );
             } else {
                 println!("ehactl recover {} → {}", input.display(), output.display());
                 println!(
                     "  input         {}",
-                    match (rep.was_complete, rep.stopped_early) {
-                        (true, _) => "complete (had its footer and chunk index)",
-                        (false, true) => "cut off: no footer, the last record incomplete",
-                        (false, false) => "no footer",
+                    match (writer_active, rep.was_complete, rep.stopped_early) {
+                        (true, _, _) =>
+                            "still being written by a running ehactl (a snapshot was recovered)",
+                        (false, true, _) => "complete (had its footer and chunk index)",
+                        (false, false, true) => "cut off: no footer, the last record incomplete",
+                        (false, false, false) => "no footer",
                     }
                 );
                 println!(
@@ -358,6 +354,18 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
             // What was lost, and where, goes to stderr even with --json.
             for p in &rep.problems {
                 eprintln!("ehactl: recover: {p}");
+            }
+            if rep.total_messages() == 0 {
+                // Nothing of the run was kept: a failure, and no empty file left behind.
+                let _ = std::fs::remove_file(output);
+                eprintln!(
+                    "ehactl: recover: {}: no message could be recovered ({} chunks dropped, {} messages without their channel); {} not written",
+                    input.display(),
+                    rep.bad_chunks,
+                    rep.messages_without_channel,
+                    output.display()
+                );
+                return ExitCode::from(1);
             }
             ExitCode::SUCCESS
         }

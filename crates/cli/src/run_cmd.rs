@@ -108,10 +108,8 @@ pub fn cmd_run(args: RunArgs<'_>) -> ExitCode {
 fn prepare(args: &RunArgs<'_>) -> Result<(RigConfig, PathBuf), ExitCode> {
     let cfg = load(args.config)?;
     if let Some(d) = args.duration {
-        if !(d.is_finite() && d > 0.0) {
-            return Err(config_error(format!(
-                "--duration {d}: expected a finite number > 0 in s"
-            )));
+        if let Err(why) = ehactl_runtime::session::check_duration(d) {
+            return Err(config_error(format!("--duration {d}: {why}")));
         }
     }
     if let Some(Err(e)) = args.live.map(live::parse_addr) {

@@ -72,9 +72,16 @@ pub struct PiConfig {
         desc = "back-calculation anti-windup gain"
     )]
     pub tracking: f64,
-    /// Setpoint feed-forward (V/N).
+    /// Setpoint feed-forward (V/N): u_ff = feedforward · setpoint. Bounded to ±1 V/N, which
+    /// already puts the full ±10 V valve range on a 10 N setpoint; the shipped rigs' force
+    /// setpoints are 10²–10⁵ N, so a useful feed-forward is below 10⁻² V/N. (Unbounded, a
+    /// value such as 1.7e308 made the term infinite and pinned the command at a limit.)
     #[serde(default)]
-    #[param(unit = "V/N", range = Finite, desc = "setpoint feed-forward")]
+    #[param(
+        unit = "V/N",
+        range = Within(-1.0, 1.0),
+        desc = "setpoint feed-forward"
+    )]
     pub feedforward: f64,
 }
 
@@ -109,9 +116,14 @@ pub struct PdConfig {
     #[serde(default = "ten")]
     #[param(unit = "V", range = Positive, desc = "command limit")]
     pub u_max: f64,
-    /// Velocity feed-forward (V·s/m).
+    /// Velocity feed-forward (V·s/m): u_ff = feedforward_velocity · ṙ. Bounded to ±10⁴
+    /// V·s/m, the full ±10 V valve range at a setpoint rate of 1 mm/s.
     #[serde(default)]
-    #[param(unit = "V·s/m", range = Finite, desc = "velocity feed-forward")]
+    #[param(
+        unit = "V·s/m",
+        range = Within(-1.0e4, 1.0e4),
+        desc = "velocity feed-forward"
+    )]
     pub feedforward_velocity: f64,
 }
 
@@ -141,6 +153,11 @@ pub struct ControlConfig {
     #[param(nested)]
     pub pd: Option<PdConfig>,
 }
+
+/// Longest run (s): the upper end of `run.duration`'s range, and the cap of every duration
+/// override (`ehactl run --duration`, `ehactl.run(duration=…)`). 10⁶ s is 11.6 days; at the
+/// 5 kHz of the Sahu 2022 rig that is 5·10⁹ cycles.
+pub const MAX_DURATION_S: f64 = 1.0e6;
 
 /// `[run]`.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]

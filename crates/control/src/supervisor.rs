@@ -155,6 +155,29 @@ impl Supervisor {
         }
     }
 
+    /// Trip when a term of the control law is not finite (a feed-forward, gain or integrator
+    /// that overflowed): clamping ±∞ to the command limits would otherwise pin the valve at
+    /// a limit while the run goes on. The event names the term (V).
+    #[inline]
+    pub fn check_terms(
+        &mut self,
+        t: f64,
+        cycle: u64,
+        terms: &crate::pi::ControlTerms,
+    ) -> Option<Event> {
+        let named = [
+            ("p_term", terms.p),
+            ("i_term", terms.i),
+            ("d_term", terms.d),
+            ("ff_term", terms.ff),
+            ("command_unsat", terms.u_unsat),
+        ];
+        named
+            .iter()
+            .find(|(_, v)| !v.is_finite())
+            .map(|&(name, v)| Self::trip(t, cycle, EventKind::CommandLimit, name, v, f64::NAN, "V"))
+    }
+
     /// Check the sensors at loop time `t`; returns a trip event if any limit is violated.
     #[inline]
     pub fn check_sensors(&mut self, t: f64, cycle: u64, m: &Measurements) -> Option<Event> {

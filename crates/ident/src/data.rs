@@ -359,6 +359,44 @@ fn parse_number(f: &str, decimal_comma: bool) -> Option<f64> {
     f.parse().ok()
 }
 
+/// Longest line of a CSV file (bytes): a line of 8 numbers in full precision takes about
+/// 200 bytes; a longer line is not a data export (a file of NULs, a binary file).
+pub const MAX_LINE_BYTES: usize = 64 * 1024;
+
+/// Most bytes of the input quoted in an error message.
+const QUOTE_MAX_BYTES: usize = 200;
+
+/// `s` cut to at most `max` bytes (at a character boundary), control characters escaped,
+/// with the full length said when cut.
+fn quote(s: &str, max: usize) -> String {
+    let mut end = s.len().min(max);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    let shown: String = s[..end].escape_debug().collect();
+    if end < s.len() {
+        format!("{shown}… ({} bytes in all)", s.len())
+    } else {
+        shown
+    }
+}
+
+/// Refuse text with a line longer than [`MAX_LINE_BYTES`] before the CSV reader builds a
+/// record of it (a 1 GB "header" of NULs would take gigabytes), quoting its start only.
+fn check_line_lengths(source: &str, text: &str) -> Result<(), DataError> {
+    for (i, line) in text.split('\n').enumerate() {
+        if line.len() > MAX_LINE_BYTES {
+            return Err(DataError(format!(
+                "{source}: line {} is {} bytes long, more than the {MAX_LINE_BYTES} bytes a CSV line may have; expected a CSV text export (header row, then one row of numbers per sample). It starts with \"{}\"",
+                i + 1,
+                line.len(),
+                quote(line, QUOTE_MAX_BYTES)
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Parse CSV text (see the module doc) with the `csv` crate: RFC 4180 quoting, a UTF-8
 /// byte-order mark, `#` comment lines, blank lines; the separator is detected (`,`, `;` or
 /// tab, see [`detect_delimiter`]) and a `;`- or tab-separated file may use a decimal comma.
@@ -369,6 +407,7 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
 /// [`parse_csv`] with the operating inputs the config declares (see [`load_with`]).
 pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Record, DataError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    check_line_lengths(source, text)?;
     let delim = detect_delimiter(text);
     let decimal_comma = delim != b',';
     let sep_name = match delim {
@@ -426,7 +465,7 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
             DataError(format!(
                 "{source}: missing required column `{n}` ({what}) in header line {header_line} \
                  ({sep_name}-separated): found [{}]",
-                names.join(", ")
+                quote(&names.join(", "), QUOTE_MAX_BYTES)
             ))
         })
     };
@@ -880,6 +919,36 @@ mod tests {
             .unwrap_err()
             .0;
         assert_eq!(e, "f.csv: empty file; expected a CSV header row");
+    }
+
+    #[test]
+    fn an_overlong_line_is_refused_quoting_a_few_hundred_bytes() {
+        // A "header" of 1 MB of NULs (a binary file, /dev/zero copied): refused before the
+        // CSV reader builds a record of it, naming the line and quoting at most 200 bytes.
+        let text = "\0".repeat(1_000_000);
+        let e = parse_csv("z.csv", &text).unwrap_err().0;
+        assert!(
+            e.starts_with("z.csv: line 1 is 1000000 bytes long"),
+            "{}",
+            &e[..200]
+        );
+        assert!(e.len() < 2_000, "error of {} bytes", e.len());
+        // the same for a data line after a good header
+        let text = format!("t,u\n0,1\n{}\n", "9".repeat(MAX_LINE_BYTES + 1));
+        let e = parse_csv("d.csv", &text).unwrap_err().0;
+        assert!(
+            e.contains("line 3 is 65537 bytes long") && e.len() < 2_000,
+            "{e}"
+        );
+        // a missing column among many quotes a bounded list
+        let wide: Vec<String> = (0..5_000).map(|i| format!("c{i}")).collect();
+        let e = parse_csv("w.csv", &format!("{}\n", wide.join(",")))
+            .unwrap_err()
+            .0;
+        assert!(
+            e.contains("missing required column `t`") && e.len() < 1_000,
+            "{e}"
+        );
     }
 
     #[test]

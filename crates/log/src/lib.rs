@@ -7,11 +7,14 @@
 //! - [`logger`], the MCAP writer fed through a bounded lock-free queue from another thread
 //!   (the MCAP records are written by a private hand-written writer, `mcap_writer.rs`),
 //! - [`schemas`], the JSON schemas of the JSON channels, and
+//! - [`outpath`], where a log may be written (never over an input or a file that is not
+//!   an MCAP log),
 //! - [`recover`], rebuilding a valid MCAP file from a damaged or cut-off log.
 #![deny(missing_docs)]
 
 pub mod logger;
 mod mcap_writer;
+pub mod outpath;
 pub mod record;
 pub mod recover;
 pub mod schemas;

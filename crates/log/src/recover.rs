@@ -298,6 +298,50 @@ fn chunk_framed(data: &[u8], pos: usize) -> Option<(usize, bool)> {
     Some((end, matches!(h.compression, "" | "lz4" | "zstd")))
 }
 
+/// Opcodes of the data section's records outside chunks that reading may resume at after
+/// corrupt bytes (MCAP spec: Schema 0x03, Channel 0x04, Message 0x05, Message Index 0x07,
+/// Attachment 0x09, Metadata 0x0C, Data End 0x0F).
+const RESYNC_OPS: [u8; 7] = [0x03, 0x04, 0x05, 0x07, 0x09, 0x0C, OP_DATA_END];
+
+/// Whether a record outside a chunk starts at `pos`: an opcode of [`RESYNC_OPS`], a length
+/// that fits in `data`, a body that parses, and after it the end of `data` or the header of
+/// a record whose length fits too (a random byte rarely passes all three).
+fn record_frame_at(data: &[u8], pos: usize) -> bool {
+    let op = data[pos];
+    if !RESYNC_OPS.contains(&op) {
+        return false;
+    }
+    let Ok((_, end)) = frame_at(data, pos) else {
+        return false;
+    };
+    if op != OP_DATA_END && parse_record(op, &data[pos + 9..end]).is_err() {
+        return false;
+    }
+    end == data.len()
+        || chunk_frame_at(data, end).is_some()
+        || (RESYNC_OPS.contains(&data[end]) || data[end] == OP_FOOTER)
+            && frame_at(data, end).is_ok()
+}
+
+/// Whether the end `end` of a record that parsed is a place a record can start: the end of
+/// the data section, a record whose opcode the specification knows (or a private one,
+/// 0x80–0xFF) and whose length fits, or, in a file cut off while being written, a known
+/// opcode whose record the cut ends inside.
+fn follows_ok(data: &[u8], limit: usize, end: usize) -> bool {
+    if end >= limit {
+        return end == limit;
+    }
+    let op = data[end];
+    let known = (0x01..=0x0F).contains(&op) || op >= 0x80;
+    known && (frame_at(&data[..limit], end).is_ok() || limit == data.len())
+}
+
+/// Whether reading may resume at `pos`: a chunk with consistent framing
+/// ([`chunk_frame_at`]) or another record of the data section ([`record_frame_at`]).
+fn resync_at(data: &[u8], pos: usize) -> bool {
+    chunk_frame_at(data, pos).is_some() || record_frame_at(data, pos)
+}
+
 /// The summary section of a complete file: where it starts, and its chunk index offsets,
 /// schemas and channels. `None` when the footer or the summary cannot be read.
 struct Summary {
@@ -432,7 +476,10 @@ fn walk(data: &[u8], limit: usize, found: &mut Found, problems: &mut Vec<String>
                 } else {
                     None
                 };
-                if let Some(r) = parsed {
+                // Taken only when what follows frames too: a corrupt length that still lands
+                // inside the file (and a body parser that ignores trailing bytes) must not
+                // carry reading into the middle of the next record.
+                if let (Some(r), true) = (parsed, follows_ok(data, limit, end)) {
                     if let Some(r) = r {
                         found.take(r, pos);
                     }
@@ -442,9 +489,23 @@ fn walk(data: &[u8], limit: usize, found: &mut Found, problems: &mut Vec<String>
             }
             _ => {}
         }
+        // A record whose length frames but whose body does not parse (a flipped byte in a
+        // string length): skip that record alone when a well-framed record follows it.
+        if let Ok((op, end)) = framed {
+            if op != OP_CHUNK && end > pos + 9 && (end == limit || resync_at(&data[..limit], end)) {
+                problems.push(format!(
+                    "record at byte {pos} (opcode {op:#04x}, {} bytes) does not parse; skipped",
+                    end - pos
+                ));
+                skipped += (end - pos) as u64;
+                pos = end;
+                continue;
+            }
+        }
         // Corrupt framing at `pos` (or the file ends inside this record): resume at the next
-        // chunk whose framing is consistent.
-        let next = (pos + 1..limit).find(|&p| chunk_frame_at(&data[..limit], p).is_some());
+        // record whose framing is consistent: a chunk, or a schema, channel, metadata, ...
+        // record that parses and is followed by another well-framed record.
+        let next = (pos + 1..limit).find(|&p| resync_at(&data[..limit], p));
         let stop = next.unwrap_or(limit);
         if next.is_none() && framed.is_err() && limit == data.len() {
             cut_off = true;
@@ -723,6 +784,30 @@ mod tests {
         assert_eq!((rep.chunks, rep.bad_chunks), (5, 1), "{:?}", rep.problems);
         assert_eq!(rep.count("/x"), 500);
         assert_eq!(rep.chunks_indexed, Some(6));
+    }
+
+    #[test]
+    fn a_flipped_byte_outside_chunks_loses_no_schema_channel_or_message() {
+        // A footerless log (killed writer). Byte 25 is the length of the Header's library
+        // string (magic 8, opcode 1, length 8, profile "ros2" 4 + 4): flipped, the Header
+        // does not parse, but its framing does; the Schema and Channel records after it are
+        // intact and must be read, not skipped to the first chunk.
+        let good = log(6, false);
+        for (at, bit) in [(25usize, 0x01u8), (25, 0x80), (26, 0x10)] {
+            let mut bad = good.clone();
+            bad[at] ^= bit;
+            let rep = recover_to_tmp(&bad, &format!("hdr{at}-{bit}"));
+            assert_eq!(rep.messages_without_channel, 0, "{:?}", rep.problems);
+            assert_eq!((rep.chunks, rep.bad_chunks), (6, 0), "{:?}", rep.problems);
+            assert_eq!(rep.count("/x"), 600);
+        }
+        // The Header's own record length corrupted (its framing broken): reading resumes at
+        // the Schema record, not at the first chunk.
+        let mut bad = good.clone();
+        bad[9] ^= 0x20;
+        let rep = recover_to_tmp(&bad, "hdrlen");
+        assert_eq!(rep.messages_without_channel, 0, "{:?}", rep.problems);
+        assert_eq!(rep.count("/x"), 600);
     }
 
     #[test]

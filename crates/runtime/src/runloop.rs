@@ -204,6 +204,9 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
             return Err(Ending::Trip(ev));
         }
         let terms = self.controller.step(r, rdot, &meas, dt);
+        if let Some(ev) = self.supervisor.check_terms(t, k, &terms) {
+            return Err(Ending::Trip(ev));
+        }
         let (u, ev) = self.supervisor.limit_command(t, k, terms.u);
         if let Some(ev) = ev {
             if ev.severity == Severity::Trip {

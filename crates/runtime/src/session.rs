@@ -26,6 +26,12 @@ pub struct SessionOptions<'a> {
     pub duration: Option<f64>,
     /// MCAP output path; None = no log.
     pub mcap: Option<PathBuf>,
+    /// Write the log under a temporary name beside `mcap` and rename it to `mcap` only once
+    /// it is complete (footer written): the path then holds either what was there before or
+    /// a whole log, never a half-written one. A run that fails removes its temporary file.
+    /// (The CLI does not: a killed run's log must stay under the name the user gave, for
+    /// `ehactl recover`.)
+    pub atomic_log: bool,
     /// Stop flag (signal handler).
     pub stop: Option<&'a AtomicBool>,
     /// Keep every cycle record in memory (for the Python bindings).
@@ -205,6 +211,32 @@ pub fn run_sim_live(
     run_with_live(cfg, backend, opts, live)
 }
 
+/// Check a run duration `d` (s): finite, > 0 and at most
+/// [`ehactl_config::MAX_DURATION_S`] (the range of `run.duration`). The reason, with unit,
+/// when not.
+pub fn check_duration(d: f64) -> Result<(), String> {
+    let max = ehactl_config::MAX_DURATION_S;
+    if d.is_finite() && d > 0.0 && d <= max {
+        Ok(())
+    } else {
+        Err(format!(
+            "{d} s is not a valid duration; expected a finite number > 0 and at most {max:e} s (the range of run.duration)"
+        ))
+    }
+}
+
+/// The temporary name an atomic log is written under: `.<name>.partial-<pid>-<n>` in the
+/// same directory (a rename within one file system is atomic).
+fn partial_path(path: &std::path::Path) -> PathBuf {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
+    let name = path
+        .file_name()
+        .map_or("log.mcap".into(), |n| n.to_string_lossy().into_owned());
+    let n = N.fetch_add(1, Ordering::Relaxed);
+    path.with_file_name(format!(".{name}.partial-{}-{n}", std::process::id()))
+}
+
 /// The hardware side of a session: which `Hal`, how cycles are paced, and what the logger
 /// does when its queue is full (block in simulated time, drop against the wall clock).
 pub struct Backend<'a> {
@@ -316,19 +348,28 @@ pub fn run_with_live(
     } = backend;
     let timebase = cfg.timebase();
     let duration = opts.duration.unwrap_or(cfg.run.duration);
-    if !(duration.is_finite() && duration > 0.0) {
-        return Err(SessionError::Config(ConfigError::new(
-            "--duration",
-            format!("{duration} is not a valid duration; expected a finite number > 0 in s"),
-        )));
+    if let Err(why) = check_duration(duration) {
+        return Err(SessionError::Config(ConfigError::new("--duration", why)));
     }
     let cycles = timebase.cycles_in(duration).max(1);
     let mut controller = Controller::from_config(cfg);
     let mut supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
     let setpoint = Setpoint::new(&cfg.setpoint);
-    let logger = match &opts.mcap {
-        Some(path) => Some(open_log(cfg, path, hal.name(), overflow).map_err(SessionError::Log)?),
-        None => None,
+    // With `atomic_log` the file is written under `partial` and renamed at the end.
+    let partial = opts
+        .mcap
+        .as_deref()
+        .filter(|_| opts.atomic_log)
+        .map(partial_path);
+    let logger = match (&opts.mcap, &partial) {
+        (_, Some(tmp)) => Some(open_log(cfg, tmp, hal.name(), overflow).map_err(|e| {
+            let _ = std::fs::remove_file(tmp);
+            SessionError::Log(e)
+        })?),
+        (Some(path), None) => {
+            Some(open_log(cfg, path, hal.name(), overflow).map_err(SessionError::Log)?)
+        }
+        (None, None) => None,
     };
     if let (Some(l), Some(frames)) = (logger.as_ref(), hal.frame_log()) {
         l.attach_frames(frames);
@@ -411,9 +452,30 @@ pub fn run_with_live(
         log_every,
     };
     if let Some(l) = logger {
+        let final_path = opts.mcap.clone().unwrap_or_else(|| l.path().to_path_buf());
         let mut summary = session.summary_json();
-        summary["mcap"] = serde_json::json!(l.path().display().to_string());
-        session.log = Some(l.finish(summary).map_err(SessionError::Log)?);
+        summary["mcap"] = serde_json::json!(final_path.display().to_string());
+        let finished = l.finish(summary).map_err(SessionError::Log);
+        let mut stats = match (finished, &partial) {
+            (Ok(s), _) => s,
+            (Err(e), Some(tmp)) => {
+                let _ = std::fs::remove_file(tmp);
+                return Err(e);
+            }
+            (Err(e), None) => return Err(e),
+        };
+        if let Some(tmp) = &partial {
+            if let Err(e) = std::fs::rename(tmp, &final_path) {
+                let _ = std::fs::remove_file(tmp);
+                return Err(SessionError::Log(ehactl_log::logger::LogError {
+                    path: final_path,
+                    message: format!("cannot move the finished log into place: {e}"),
+                    at_create: false,
+                }));
+            }
+            stats.path = final_path;
+        }
+        session.log = Some(stats);
     }
     Ok(session)
 }

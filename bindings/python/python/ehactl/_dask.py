@@ -32,11 +32,12 @@ def _run_chunk(
     duration: float | None,
     mcaps: Sequence[str] | None,
     fields: Sequence[str] | None,
+    overwrite: bool = False,
 ) -> list[tuple[dict[str, np.ndarray], str]]:
     """Worker side of :func:`run_many`: one chunk, sequentially (one rayon thread)."""
     _check_version(version)
     cfgs = [_ehactl.Config.from_toml(t) for t in tomls]
-    return _ehactl.run_batch(cfgs, duration, mcaps, fields, 1, None)
+    return _ehactl.run_batch(cfgs, duration, mcaps, fields, 1, None, overwrite)
 
 
 def _diagnose_one(
@@ -81,6 +82,7 @@ def run_batch(
     fields: Sequence[str] | None,
     chunk_size: int | None,
     progress_cb: Callable[[int, int], None] | None,
+    overwrite: bool = False,
 ) -> list[tuple[dict[str, np.ndarray], str]]:
     """``_ehactl.run_batch`` on the cluster: same inputs, same outputs, input order."""
     from dask.distributed import as_completed
@@ -98,6 +100,7 @@ def run_batch(
                 duration,
                 None if mcaps is None else [mcaps[i] for i in r],
                 fields,
+                overwrite,
                 pure=False,
             )
         )

@@ -107,6 +107,7 @@ def run_one(
     mcap: Optional[_Path] = None,
     fields: Optional[Sequence[str]] = None,
     progress: Optional[Callable[[int, int], Any]] = None,
+    overwrite: bool = False,
 ) -> tuple[dict[str, np.ndarray], str]:
     """One closed-loop run (GIL released): (columns, summary JSON)."""
 
@@ -117,6 +118,7 @@ def run_batch(
     fields: Optional[Sequence[str]] = None,
     threads: Optional[int] = None,
     progress: Optional[Callable[[int, int], Any]] = None,
+    overwrite: bool = False,
 ) -> list[tuple[dict[str, np.ndarray], str]]:
     """Closed-loop runs in parallel on a rayon pool (GIL released), in input order."""
 

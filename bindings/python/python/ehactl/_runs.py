@@ -282,6 +282,7 @@ def run(
     params: Mapping[str, Any] | None = None,
     fields: Sequence[str] | None = None,
     progress: bool | Callable[[int, int], None] = False,
+    overwrite: bool = False,
 ) -> RunResult:
     """Run one closed loop of ``cfg`` against the simulated plant, in simulated time.
 
@@ -290,10 +291,19 @@ def run(
         duration: run length (s); default ``run.duration``.
         setpoint: None (as configured), a number (step to it at ``setpoint.start``, N or m)
             or a dict of ``[setpoint]`` fields, e.g. ``{"kind": "sine", "f0": 20.0}``.
-        mcap: write the MCAP log of the run there (same format as ``ehactl run --out``).
+        mcap: write the MCAP log of the run there (same format and same rules as ``ehactl
+            run --out``): an earlier MCAP log there is replaced, but never the config being
+            run, a directory, or a file that is not an MCAP log (ValueError) unless
+            ``overwrite=True``. The log is written under a temporary name beside it and
+            renamed when complete, so the path never holds a half-written log.
         params: extra dotted-path overrides, e.g. ``{"control.pi.kp": 0.4}``.
         fields: subset of columns to return (default all).
         progress: True for a tqdm bar, or a callable ``(done_cycles, total_cycles)``.
+        overwrite: allow ``mcap`` to replace an existing file that is not an MCAP log.
+
+    ``duration`` (and ``run.duration``) is at most 10⁶ s, and the returned columns at most
+    2 000 MB (8 bytes per column and cycle): a longer run raises ValueError naming the limit
+    (select fewer columns with ``fields=``).
 
     The GIL is released while Rust simulates; Ctrl-C stops the run and raises
     KeyboardInterrupt (the MCAP log is finalised first).
@@ -308,7 +318,8 @@ def run(
         cb = progress
     try:
         cols, summary = _ehactl.run_one(
-            c, duration, None if mcap is None else os.fspath(mcap), None if fields is None else list(fields), cb
+            c, duration, None if mcap is None else os.fspath(mcap), None if fields is None else list(fields), cb,
+            overwrite,
         )
     finally:
         if bar is not None:
@@ -338,6 +349,7 @@ def run_many(
     fields: Sequence[str] | None = None,
     threads: int | None = None,
     mcap_dir: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
     progress: bool | Callable[[int, int], None] = False,
     client: None = None,
     chunk_size: int | None = None,
@@ -354,6 +366,7 @@ def run_many(
     fields: Sequence[str] | None = None,
     threads: int | None = None,
     mcap_dir: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
     progress: bool | Callable[[int, int], None] = False,
     client: Any = None,
     chunk_size: int | None = None,
@@ -370,6 +383,7 @@ def run_many(
     fields: Sequence[str] | None = None,
     threads: int | None = None,
     mcap_dir: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
     progress: bool | Callable[[int, int], None] = False,
     client: Any = None,
     chunk_size: int | None = None,
@@ -386,6 +400,7 @@ def run_many(
     fields: Sequence[str] | None = None,
     threads: int | None = None,
     mcap_dir: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
     progress: bool | Callable[[int, int], None] = False,
     client: Any = None,
     chunk_size: int | None = None,
@@ -401,6 +416,7 @@ def run_many(
     fields: Sequence[str] | None = None,
     threads: int | None = None,
     mcap_dir: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
     progress: bool | Callable[[int, int], None] = False,
     client: Any = None,
     chunk_size: int | None = None,
@@ -414,7 +430,8 @@ def run_many(
             expanded over ``base`` (see :func:`param_grid`).
         duration, setpoint, params, fields: as in :func:`run`, applied to every run.
         threads: worker threads (default: one per core).
-        mcap_dir: if given, write ``run_0000.mcap``, ``run_0001.mcap``, … there.
+        mcap_dir: if given, write ``run_0000.mcap``, ``run_0001.mcap``, … there (the rules
+            of :func:`run`'s ``mcap``; ``overwrite`` as there).
         progress: True for a tqdm bar over runs, or a callable ``(done_runs, total_runs)``.
         client: a ``dask.distributed.Client`` (``Client(LocalCluster())``, or
             ``Client("tcp://scheduler:8786")`` for a remote cluster whose workers have the
@@ -455,9 +472,9 @@ def run_many(
         if client is not None:
             from . import _dask
 
-            outs = _dask.run_batch(client, configs, duration, mcap, flist, chunk_size, cb)
+            outs = _dask.run_batch(client, configs, duration, mcap, flist, chunk_size, cb, overwrite)
         else:
-            outs = _ehactl.run_batch(configs, duration, mcap, flist, threads, cb)
+            outs = _ehactl.run_batch(configs, duration, mcap, flist, threads, cb, overwrite)
     finally:
         if bar is not None:
             bar.close()

@@ -957,17 +957,72 @@ class RunSummary(_DictCompat):
               "error_unit", "mcap", "trip", "trip_kind", "interrupted", "sim_speed_x_realtime",
               "wall_time_s", "substeps", "log_decimation", "log", "realtime")
 
+    # Keys every run summary has (``ehactl run --json``); from_dict refuses a dict without them.
+    _REQUIRED = ("cycles", "control_rate_hz", "duration_s", "error_unit")
+
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> RunSummary:
+        """Summary from its JSON object (``ehactl run --json``, ``to_dict()``).
+
+        Raises TypeError when ``d`` is not a mapping and ValueError naming the field when a
+        required field (``cycles``, ``control_rate_hz``, ``duration_s``, ``error_unit``) is
+        missing or a field has the wrong type or an impossible value.
+        """
+        if not isinstance(d, Mapping):
+            raise TypeError(
+                f"RunSummary.from_dict: got {type(d).__name__}; expected a mapping (the run summary JSON object)"
+            )
+        missing = [k for k in cls._REQUIRED if k not in d]
+        if missing:
+            raise ValueError(
+                f"RunSummary.from_dict: missing field(s) {', '.join(missing)}; expected a run summary "
+                f"(keys {', '.join(cls._REQUIRED)}, …)"
+            )
+
+        def num(key: str, kind: type, optional: bool = False, default: Any = None) -> Any:
+            v = d.get(key, default)
+            if v is None and (optional or key not in d):
+                return None if optional else (math.nan if kind is float else 0)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ValueError(
+                    f"RunSummary.from_dict: field `{key}` = {v!r:.80}; expected a {kind.__name__}"
+                    + (" or None" if optional else "")
+                )
+            if kind is int:
+                if isinstance(v, float) and not v.is_integer():
+                    raise ValueError(f"RunSummary.from_dict: field `{key}` = {v!r}; expected an int")
+                if v < 0:
+                    raise ValueError(f"RunSummary.from_dict: field `{key}` = {v!r}; expected an int ≥ 0")
+                return int(v)
+            return float(v)
+
+        def text(key: str, optional: bool = True) -> Optional[str]:
+            v = d.get(key)
+            if v is None and optional:
+                return None
+            if not isinstance(v, str):
+                raise ValueError(f"RunSummary.from_dict: field `{key}` = {v!r:.80}; expected a str")
+            return v
+
         log = d.get("log")
+        if log is not None and not isinstance(log, Mapping):
+            raise ValueError(f"RunSummary.from_dict: field `log` = {log!r:.80}; expected a mapping or None")
+        cycles = num("cycles", int)
+        rate = num("control_rate_hz", float)
+        if not (math.isfinite(rate) and rate > 0):
+            raise ValueError(f"RunSummary.from_dict: field `control_rate_hz` = {rate!r}; expected a finite number > 0 in Hz")
+        duration = num("duration_s", float)
+        if not (math.isfinite(duration) and duration >= 0):
+            raise ValueError(f"RunSummary.from_dict: field `duration_s` = {duration!r}; expected a finite number ≥ 0 in s")
         return cls(
-            cycles=int(d.get("cycles") or 0), control_rate_hz=_f(d.get("control_rate_hz")),
-            duration_s=_f(d.get("duration_s")), rms_error=_opt(d.get("rms_error")),
-            rms_error_settled=_opt(d.get("rms_error_settled")), max_abs_error=_opt(d.get("max_abs_error")),
-            error_unit=str(d.get("error_unit") or ""), mcap=d.get("mcap"), trip=d.get("trip"),
-            trip_kind=d.get("trip_kind"), interrupted=bool(d.get("interrupted")),
-            sim_speed_x_realtime=_f(d.get("sim_speed_x_realtime")), wall_time_s=_f(d.get("wall_time_s")),
-            substeps=int(d.get("substeps") or 0), log_decimation=int(d.get("log_decimation") or 0),
+            cycles=cycles, control_rate_hz=rate, duration_s=duration,
+            rms_error=num("rms_error", float, optional=True),
+            rms_error_settled=num("rms_error_settled", float, optional=True),
+            max_abs_error=num("max_abs_error", float, optional=True),
+            error_unit=str(text("error_unit", optional=False)), mcap=text("mcap"), trip=text("trip"),
+            trip_kind=text("trip_kind"), interrupted=bool(d.get("interrupted")),
+            sim_speed_x_realtime=num("sim_speed_x_realtime", float), wall_time_s=num("wall_time_s", float),
+            substeps=num("substeps", int), log_decimation=num("log_decimation", int),
             log=None if log is None else _freeze(log), realtime=bool(d.get("realtime")),
             extra=_freeze({k: v for k, v in d.items() if k not in cls._ORDER}),
         )
