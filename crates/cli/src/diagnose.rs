@@ -83,6 +83,7 @@ pub fn cmd_diagnose(
     if json {
         println!("{}", run.json);
     } else {
+        println!("{}", ehactl_ident::report::headline(d));
         println!(
             "ehactl diagnose {} (config {})",
             data_path.display(),

@@ -477,13 +477,13 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
         if col("x").is_none() {
             return Err(DataError(format!(
                 "{source}: header line {header_line} ({sep_name}-separated) has neither the valve command `u` (V) or setpoint `ref` of a loop test nor the motion `x` (m) of a displacement-controlled test: found [{}]; expected `u`, or `x` with `force` (N)",
-                names.iter().map(|n| clip(n, 64)).collect::<Vec<_>>().join(", ")
+                quote(&names.join(", "), QUOTE_MAX_BYTES)
             )));
         }
         if col("force").is_none() {
             return Err(DataError(format!(
                 "{source}: a displacement-controlled record (no `u`, no `ref`) needs the load-cell `force` (N) beside `x`: found [{}]",
-                names.iter().map(|n| clip(n, 64)).collect::<Vec<_>>().join(", ")
+                quote(&names.join(", "), QUOTE_MAX_BYTES)
             )));
         }
         None
@@ -537,7 +537,7 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
     if let Some(&j) = unknown.iter().find(|j| numeric[**j]) {
         return Err(DataError(format!(
             "{source}: column `{}` in header line {header_line} holds numbers but is not in the record format (t, u, force, x, p_a, p_b, x_v, ref, v; docs/design.md); {}",
-            clip(&names[j], 64),
+            quote(&names[j], 64),
             if inputs.is_empty() {
                 "an operating input (e.g. an MR damper's `current`) must be declared in the config as [inputs.<name>] with its unit; otherwise remove the column".to_string()
             } else {
@@ -552,11 +552,14 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
     if !unknown.is_empty() {
         warnings.push(format!(
             "{source}: text columns not used by diagnose (not in the documented format, docs/design.md): {}",
-            unknown
-                .iter()
-                .map(|j| clip(&names[*j], 64))
-                .collect::<Vec<_>>()
-                .join(", ")
+            quote(
+                &unknown
+                    .iter()
+                    .map(|j| names[*j].as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                QUOTE_MAX_BYTES
+            )
         ));
     }
     let channels = ich
@@ -682,14 +685,6 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
     rec.warnings.extend(warnings);
     rec.logged_config = logged_config;
     Ok(rec)
-}
-
-/// At most `max` characters of `s` (a header field quoted in an error), with `…` when cut.
-pub fn clip(s: &str, max: usize) -> String {
-    match s.char_indices().nth(max) {
-        Some((i, _)) => format!("{}…", &s[..i]),
-        None => s.to_string(),
-    }
 }
 
 /// Row index and value of the largest |value| (NaN skipped).

@@ -190,6 +190,58 @@ fn table(d: &Diagnosis) -> String {
 }
 
 /// Write extended.toml, traces.csv (and validation_traces.csv), diagnosis.json, the plots
+/// The model the diagnosis recommends — the one `extended.toml` holds — in words, and its
+/// held-out errors: the grey-box law on the catalogue model when one was accepted, else the
+/// catalogue model with the accepted effects, else the nominal model refit within its stated
+/// uncertainty.
+pub fn recommended(d: &Diagnosis) -> (String, &crate::ctx::Errors) {
+    match &d.greybox {
+        Some(g) if g.accepted => (
+            format!(
+                "grey-box rod-force law of {} term(s){}",
+                g.terms.len(),
+                if d.causes.is_empty() {
+                    String::new()
+                } else {
+                    format!(" on {}", d.causes.join(" + "))
+                }
+            ),
+            &g.nrmse_validation,
+        ),
+        _ if d.causes.is_empty() => ("nominal model, refit within its uncertainty".into(), &d.nrmse_extended),
+        _ => (format!("catalogue model with {}", d.causes.join(" + ")), &d.nrmse_extended),
+    }
+}
+
+/// First line of the text output and of report.md: the recommended model's held-out NRMSE
+/// beside the nominal model's and the ARX baseline's, overall and per channel.
+pub fn headline(d: &Diagnosis) -> String {
+    let (model, e) = recommended(d);
+    let per: Vec<String> = e
+        .channels
+        .iter()
+        .map(|(c, v)| {
+            format!(
+                "{c} {v:.4} (nominal {:.4}, ARX {:.4})",
+                d.nrmse_nominal.channels.get(c).copied().unwrap_or(f64::NAN),
+                d.nrmse_baseline.channels.get(c).copied().unwrap_or(f64::NAN)
+            )
+        })
+        .collect();
+    format!(
+        "{}: {model}: held-out NRMSE {:.4} vs nominal {:.4} and ARX {:.4}; per channel: {}",
+        if d.cause == "none" {
+            "No discrepancy beyond noise"
+        } else {
+            "Recommended model (extended.toml)"
+        },
+        e.overall,
+        d.nrmse_nominal.overall,
+        d.nrmse_baseline.overall,
+        per.join(", ")
+    )
+}
+
 /// and report.md into `dir`.
 pub fn write_report(
     dir: &Path,
@@ -233,6 +285,7 @@ pub fn write_report(
     };
     let mut r = String::new();
     let _ = writeln!(r, "# ehactl diagnose: {}\n", rec.source);
+    let _ = writeln!(r, "**{}**\n", headline(d));
     let _ = writeln!(r, "Nominal config: `{config_path}`. {}.\n", d.split);
     let _ = writeln!(
         r,

@@ -337,6 +337,14 @@ pub fn run(
         Value::from(f.plots.iter().map(path).collect::<Vec<_>>())
     });
     json["warnings"] = Value::from(warnings.clone());
+    let (model, errors) = report::recommended(&d);
+    json["recommended"] = serde_json::json!({
+        "model": model,
+        "nrmse": errors,
+        "nominal": d.nrmse_nominal,
+        "arx": d.nrmse_baseline,
+    });
+    json["headline"] = Value::from(report::headline(&d));
     Ok(DiagnoseRun {
         diagnosis: d,
         json,
