@@ -168,7 +168,7 @@ def test_a_record_with_neither_command_nor_motion_is_refused(tmp_path):
     np.savetxt(p, np.column_stack([t, np.sin(t)]), delimiter=",", header="t,force", comments="")
     r = ehactl("diagnose", "--config", CONFIG, "--data", p)
     assert r.returncode == 2
-    assert "neither the valve command `u`" in r.stderr and "`x` (m)" in r.stderr, r.stderr
+    assert "missing required column `u`" in r.stderr and "`x` (m)" in r.stderr, r.stderr
 
 
 def test_an_undeclared_column_is_an_error_naming_it(tmp_path):

@@ -476,7 +476,7 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
     let iu = if motion_only {
         if col("x").is_none() {
             return Err(DataError(format!(
-                "{source}: header line {header_line} ({sep_name}-separated) has neither the valve command `u` (V) or setpoint `ref` of a loop test nor the motion `x` (m) of a displacement-controlled test: found [{}]; expected `u`, or `x` with `force` (N)",
+                "{source}: missing required column `u` (valve command in V) in header line {header_line} ({sep_name}-separated), and no motion `x` (m) of a displacement-controlled test instead: found [{}]; expected `u` (with `ref` for a loop test), or `x` with `force` (N)",
                 quote(&names.join(", "), QUOTE_MAX_BYTES)
             )));
         }

@@ -23,7 +23,7 @@ pub const FLOOR_FACTOR: f64 = 1.2;
 /// held-out residual is white and at most this many times its noise floor (-). The floor is
 /// the residual's own white level (PSD median over the upper half band), so a white residual
 /// sits at ≈ 1; 1.5 leaves room for the median estimate's spread on short records.
-pub const SHORTCUT_LEVEL: f64 = crate::residual::LEVEL_SOFT;
+pub const SHORTCUT_LEVEL: f64 = 1.5;
 
 /// After the first accepted effect, the search also stops when the overall held-out NRMSE is
 /// below this factor × the overall noise floor (-): the per-channel test alone lets a second

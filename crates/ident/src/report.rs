@@ -208,8 +208,14 @@ pub fn recommended(d: &Diagnosis) -> (String, &crate::ctx::Errors) {
             ),
             &g.nrmse_validation,
         ),
-        _ if d.causes.is_empty() => ("nominal model, refit within its uncertainty".into(), &d.nrmse_extended),
-        _ => (format!("catalogue model with {}", d.causes.join(" + ")), &d.nrmse_extended),
+        _ if d.causes.is_empty() => (
+            "nominal model, refit within its uncertainty".into(),
+            &d.nrmse_extended,
+        ),
+        _ => (
+            format!("catalogue model with {}", d.causes.join(" + ")),
+            &d.nrmse_extended,
+        ),
     }
 }
 
@@ -224,7 +230,11 @@ pub fn headline(d: &Diagnosis) -> String {
             format!(
                 "{c} {v:.4} (nominal {:.4}, ARX {:.4})",
                 d.nrmse_nominal.channels.get(c).copied().unwrap_or(f64::NAN),
-                d.nrmse_baseline.channels.get(c).copied().unwrap_or(f64::NAN)
+                d.nrmse_baseline
+                    .channels
+                    .get(c)
+                    .copied()
+                    .unwrap_or(f64::NAN)
             )
         })
         .collect();
