@@ -30,7 +30,7 @@ def ehactl(*args, timeout=600):
     return subprocess.run([BIN, *map(str, args)], capture_output=True, text=True, timeout=timeout)
 
 
-def tests_at(current):
+def records_at(current):
     """The tests of one operating point: sines of 2–10 mm at 1–5 Hz and a random history."""
     k = int(current * 100)
     motions = [(f"sine_{a * 1e3:g}mm_{f:g}Hz", bw.sine(a, f), 3.0) for a, f in ((0.005, 1.0), (0.01, 2.0), (0.002, 5.0))]
@@ -48,7 +48,7 @@ def campaign(tmp_path_factory):
     d = tmp_path_factory.mktemp("bouc_wen")
     files = {}
     for c in CURRENTS_FIT + CURRENTS_NEW:
-        for name, rec in tests_at(c):
+        for name, rec in records_at(c):
             p = d / f"{name}.csv"
             bw.write_csv(p, rec)
             files.setdefault(c, []).append(p)
@@ -152,7 +152,7 @@ def test_june_chirps_as_one_campaign(tmp_path):
 
 
 def test_motion_only_record_is_a_campaign_of_one(tmp_path):
-    _, rec = tests_at(0.5)[3]
+    _, rec = records_at(0.5)[3]
     p = tmp_path / "motion_only.csv"
     bw.write_csv(p, rec)
     r = ehactl("diagnose", "--config", CONFIG, "--data", p, "--json")

@@ -482,7 +482,7 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
         }
         if col("force").is_none() {
             return Err(DataError(format!(
-                "{source}: a displacement-controlled record (no `u`, no `ref`) needs the load-cell `force` (N) beside `x`: found [{}]",
+                "{source}: missing required column `u` (valve command in V) in header line {header_line}; without it the record is a displacement-controlled test, which needs the load-cell `force` (N) beside `x` (m): found [{}]",
                 quote(&names.join(", "), QUOTE_MAX_BYTES)
             )));
         }
