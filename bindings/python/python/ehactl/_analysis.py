@@ -118,8 +118,8 @@ def diagnose(
 @overload
 def diagnose(
     cfg: ConfigLike,
-    data: Sequence[str | os.PathLike[str]],
-    validate: Sequence[str | os.PathLike[str]] | None = None,
+    data: list[str | os.PathLike[str]] | tuple[str | os.PathLike[str], ...],
+    validate: list[str | os.PathLike[str]] | tuple[str | os.PathLike[str], ...] | None = None,
     out: str | os.PathLike[str] | None = None,
     *,
     progress: bool | Callable[[int, int], None] = False,

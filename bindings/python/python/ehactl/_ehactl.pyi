@@ -155,8 +155,8 @@ def sweep_json(
 
 def campaign_json(
     cfg: Config,
-    data: list[_Path],
-    validate: list[_Path] = ...,
+    data: Sequence[_Path],
+    validate: Sequence[_Path] = ...,
     out: _Path | None = None,
     force: bool = False,
 ) -> str:
@@ -164,7 +164,7 @@ def campaign_json(
 
 def predict_json(
     cfg: Config,
-    data: list[_Path],
+    data: Sequence[_Path],
     imposed_motion: bool = False,
     held_out: bool = False,
     out: _Path | None = None,
