@@ -38,7 +38,7 @@ def one_run(out: Path, sdk_only: bool) -> dict:
     t0 = time.monotonic()
     proc = subprocess.Popen(
         [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", repr(DURATION),
-         "--out", str(out), "--force", "--json", "--live", "127.0.0.1:0"],
+         "--out", str(out), "--force", "--json", "--live", "127.0.0.1:0", "--live-max-clients", "20"],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     assert proc.stderr is not None

@@ -240,7 +240,7 @@ def test_slow_clients_dropped_messages_are_counted_per_client(tmp_path: Path) ->
     out = tmp_path / "slow.mcap"
     proc = subprocess.Popen(
         [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", "4",
-         "--out", str(out), "--json", "--live", "127.0.0.1:0"],
+         "--out", str(out), "--json", "--live", "127.0.0.1:0", "--live-max-clients", "20"],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     assert proc.stderr is not None
@@ -313,3 +313,83 @@ def test_subprotocol_negotiation_through_the_front(tmp_path: Path) -> None:
     assert live["connections_refused"] == 1
     assert [c["subprotocol"] for c in live["clients"]] == [
         "foxglove.sdk.v1.1", "foxglove.websocket.v1", "foxglove.sdk.v1"]
+
+
+def _vm(pid: int, key: str) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(key + ":"):
+            return int(line.split()[1])
+    raise AssertionError(f"no {key}")
+
+
+def test_idle_clients_are_capped_and_cost_bounded_memory(tmp_path: Path) -> None:
+    from faults import control_cycles
+
+    out = tmp_path / "idle.mcap"
+    proc = subprocess.Popen(
+        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", "8",
+         "--out", str(out), "--json", "--live", "127.0.0.1:0", "--live-max-clients", "6"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    assert proc.stderr is not None
+    url = None
+    while url is None:
+        line = proc.stderr.readline()
+        assert line, proc.communicate()
+        m = re.search(r"on (ws://\S+)", line)
+        url = m.group(1) if m else None
+    served, refused = [], []
+    for _ in range(30):
+        try:
+            served.append(SlowClient(url, "foxglove.websocket.v1"))
+        except (AssertionError, OSError) as e:
+            refused.append(str(e))
+    time.sleep(2.0)
+    peak_mb = _vm(proc.pid, "VmHWM") / 1024
+    stdout, stderr = proc.communicate(timeout=60)
+    for c in served:
+        c.sock.close()
+    assert proc.returncode == 0, stderr
+    # Six served, the others refused at once with a clear answer and counted.
+    assert len(served) == 6 and len(refused) == 24, (len(served), refused[:2])
+    assert all("503" in r for r in refused), refused[:2]
+    live = parse_json_stdout(stdout)["live"]
+    assert live["max_clients"] == 6
+    assert live["clients_refused_over_limit"] == 24 and live["connections_refused"] == 24, live
+    assert len(live["clients"]) == 6
+    # An idle subscribed client costs a bounded, small amount (it was 7.5 MB each; the run
+    # alone, locked in memory, is about 50 MB).
+    assert peak_mb < 100, f"6 idle clients (24 refused): peak RSS {peak_mb:.0f} MB"
+    # The loop and the log are untouched: every cycle logged, contiguous.
+    assert control_cycles(out) == (int(8 * 5000), True)
+
+
+def test_default_client_limit_holds_many_idle_clients_in_little_memory(tmp_path: Path) -> None:
+    out = tmp_path / "many.mcap"
+    proc = subprocess.Popen(
+        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", "6",
+         "--out", str(out), "--json", "--live", "127.0.0.1:0"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    assert proc.stderr is not None
+    url = None
+    while url is None:
+        line = proc.stderr.readline()
+        assert line, proc.communicate()
+        m = re.search(r"on (ws://\S+)", line)
+        url = m.group(1) if m else None
+    held = []
+    for _ in range(60):
+        try:
+            held.append(SlowClient(url, "foxglove.websocket.v1"))
+        except (AssertionError, OSError):
+            pass
+    time.sleep(1.5)
+    peak_mb = _vm(proc.pid, "VmHWM") / 1024
+    stdout, stderr = proc.communicate(timeout=60)
+    for c in held:
+        c.sock.close()
+    assert proc.returncode == 0, stderr
+    live = parse_json_stdout(stdout)["live"]
+    assert live["clients_refused_over_limit"] == 60 - live["max_clients"], live
+    assert peak_mb < 120, f"60 idle clients: peak RSS {peak_mb:.0f} MB"

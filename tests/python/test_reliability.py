@@ -225,3 +225,70 @@ def test_diagnose_json_into_a_closed_pipe_does_not_panic(tmp_path: Path) -> None
     os.close(w)
     assert "panicked" not in p.stderr, p.stderr
     assert p.returncode == -signal.SIGPIPE, (p.returncode, p.stderr)
+
+
+# --- refused live changes: logged, named, never locked out or ignored -----------------------
+
+def test_refused_set_is_logged_named_and_never_locked_out(tmp_path: Path) -> None:
+    from ehactl_mcap import read_run
+
+    sock = tmp_path / "ctl.sock"
+    out = tmp_path / "r.mcap"
+    p = subprocess.Popen([str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", "10",
+                          "--out", str(out), "--control-socket", str(sock)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    idle: list[socket.socket] = []
+    try:
+        _wait_for(sock)
+        time.sleep(0.3)
+        # The refused value names the field that was refused.
+        r = ehactl("set", "--socket", str(sock), "setpoint.amplitude=1e12", timeout=15)
+        assert r.returncode == 2, r.stdout + r.stderr
+        assert "setpoint.amplitude" in r.stderr and "setpoint.offset" not in r.stderr, r.stderr
+        r = ehactl("set", "--socket", str(sock), "control.pi.kp=1e9", timeout=15)
+        assert r.returncode == 2, r.stdout + r.stderr
+        # Eight (and more) idle connections do not lock `ehactl set` out.
+        for _ in range(12):
+            s = socket.socket(socket.AF_UNIX)
+            s.connect(str(sock))
+            idle.append(s)
+        time.sleep(0.1)
+        t0 = time.monotonic()
+        r = ehactl("set", "--socket", str(sock), "control.pi.kp=0.5", timeout=15)
+        took = time.monotonic() - t0
+        assert r.returncode == 0 and r.stdout.startswith("ok"), r.stdout + r.stderr
+        assert took < 1.0, f"idle connections delayed `ehactl set` by {took:.1f} s"
+        # Two request lines on one connection: two answers, in order.
+        two = socket.socket(socket.AF_UNIX)
+        two.connect(str(sock))
+        two.settimeout(10)
+        two.sendall(b"set control.pi.kp=0.45\nset setpoint.amplitude=1e12\n")
+        got = b""
+        while got.count(b"\n") < 2:
+            chunk = two.recv(4096)
+            assert chunk, f"connection closed after {got!r}"
+            got += chunk
+        first, second = got.decode().splitlines()[:2]
+        assert first.startswith("ok cycle") and "control.pi.kp=0.45" in first, got
+        assert second.startswith("error:") and "setpoint.amplitude" in second, got
+        two.close()
+    finally:
+        for s in idle:
+            s.close()
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=30)
+    assert p.returncode in (0, 130), err
+    # Every refusal is on stderr and in /events, with the request and the reason.
+    assert err.count("refused live change") >= 3, err
+    assert "setpoint.amplitude=1e12" in err and "control.pi.kp=1e9" in err, err
+    events = read_run(out)["events"]
+    refused = [ev for ev in events if ev["kind"] == "param_refused"]
+    assert len(refused) == 3, refused
+    amp = [ev for ev in refused if ev.get("request") == "set setpoint.amplitude=1e12"]
+    assert len(amp) == 2, refused
+    assert all(ev["channel"] == "setpoint.amplitude" and "setpoint.amplitude" in ev["reason"]
+               and ev["severity"] == "warning" for ev in amp), amp
+    kp = [ev for ev in refused if ev.get("request") == "set control.pi.kp=1e9"]
+    assert len(kp) == 1 and kp[0]["channel"] == "control.pi.kp" and kp[0]["reason"], kp
+    applied = [ev["value"] for ev in events if ev["kind"] == "param_change"]
+    assert applied == [0.5, 0.45], applied

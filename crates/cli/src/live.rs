@@ -39,8 +39,13 @@ pub struct LiveStats {
     pub clients: usize,
     /// Every client that connected (completed the WebSocket upgrade): what it got and missed.
     pub per_client: Vec<ClientStats>,
-    /// Connections refused (bad upgrade request, no subprotocol the server speaks) or failed.
+    /// Connections refused (bad upgrade request, no subprotocol the server speaks, over the
+    /// client limit) or failed.
     pub refused: u64,
+    /// Of `refused`: connections refused because `max_clients` were already served.
+    pub over_limit: u64,
+    /// Most clients served at once (`--live-max-clients`).
+    pub max_clients: usize,
 }
 
 impl LiveStats {
@@ -118,7 +123,7 @@ pub fn parse_addr(addr: &str) -> Result<(String, u16), String> {
 
 impl LiveView {
     /// Start the server on `addr` (`HOST:PORT`) and the publishing thread.
-    pub fn start(addr: &str) -> Result<LiveView, String> {
+    pub fn start(addr: &str, max_clients: usize) -> Result<LiveView, String> {
         let (host, port) = parse_addr(addr)?;
         let ctx = Context::new();
         let ch = Channels {
@@ -207,6 +212,7 @@ impl LiveView {
         let front = Front::start(
             listener,
             std::net::SocketAddr::from(([127, 0, 0, 1], server.port())),
+            max_clients,
         )
         .map_err(|e| format!("--live {addr}: cannot start the live view's listener: {e}"))?;
         let url = if host.contains(':') {
@@ -261,16 +267,19 @@ impl LiveView {
         }
         // The SDK closed its side of every connection: the front delivers what it still
         // holds for clients that read (up to `linger`) and cuts off the others.
-        let (per_client, refused) = self
+        let max_clients = self.front.as_ref().map_or(0, |f| f.max_clients());
+        let (per_client, refused, over_limit) = self
             .front
             .take()
-            .map_or((Vec::new(), 0), |f| f.finish(linger));
+            .map_or((Vec::new(), 0, 0), |f| f.finish(linger));
         LiveStats {
             published: self.published.load(Ordering::Relaxed),
             dropped: self.tap.dropped(),
             clients,
             per_client,
             refused,
+            over_limit,
+            max_clients,
         }
     }
 }

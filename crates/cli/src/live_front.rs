@@ -55,6 +55,15 @@ pub const SDK_V1_1: &str = "foxglove.sdk.v1.1";
 /// `Message Data` frames queued per client before the oldest is dropped: 0.27 s of a 5 kHz
 /// run publishing /control, /plant and /timing (15 000 messages/s).
 pub const MAX_QUEUED_MESSAGES: usize = 4096;
+/// Bytes of `Message Data` queued per client before the oldest is dropped: 0.45 s of the
+/// 2.3 MB/s a 5 kHz run publishes. Bounds what an idle subscribed client costs.
+pub const MAX_QUEUED_DATA_BYTES: usize = 1 << 20;
+/// Stack of each connection thread (bytes). Under `--realtime` the process is locked in
+/// memory (`mlockall`), so a thread's whole stack is resident: the default 2 MiB × three
+/// threads per client made an idle client cost 7.5 MB. These threads need a few kB.
+const CONN_STACK: usize = 256 << 10;
+/// Clients served at once unless `--live-max-clients` says otherwise.
+pub const DEFAULT_MAX_CLIENTS: u16 = 16;
 /// Undelivered bytes per client (all kinds) beyond which the client is disconnected.
 pub const MAX_QUEUED_BYTES: usize = 64 << 20;
 /// `SO_SNDBUF` of a client's socket (bytes; Linux doubles it): 1 MiB holds 0.4 s of the
@@ -163,6 +172,8 @@ struct Unit {
 struct QueueState {
     units: VecDeque<Unit>,
     data_units: usize,
+    /// Bytes of the queued `Message Data` units.
+    data_bytes: usize,
     bytes: usize,
     /// No more units will come (the SDK closed its side).
     closed: bool,
@@ -201,6 +212,7 @@ impl Conn {
         let n = q.data_units as u64;
         q.units.clear();
         q.data_units = 0;
+        q.data_bytes = 0;
         q.bytes = 0;
         self.counters.dropped.fetch_add(n, Ordering::Relaxed);
         self.queue.ready.notify_all();
@@ -215,16 +227,26 @@ impl Conn {
             }
             return;
         }
-        if unit.data && q.data_units >= MAX_QUEUED_MESSAGES {
-            if let Some(i) = q.units.iter().position(|u| u.data) {
-                if let Some(old) = q.units.remove(i) {
-                    q.bytes -= old.bytes.len();
-                    q.data_units -= 1;
-                    self.counters.dropped.fetch_add(1, Ordering::Relaxed);
-                }
-            }
+        while unit.data
+            && q.data_units > 0
+            && (q.data_units >= MAX_QUEUED_MESSAGES
+                || q.data_bytes + unit.bytes.len() > MAX_QUEUED_DATA_BYTES)
+        {
+            let Some(i) = q.units.iter().position(|u| u.data) else {
+                break;
+            };
+            let Some(old) = q.units.remove(i) else {
+                break;
+            };
+            q.bytes -= old.bytes.len();
+            q.data_bytes -= old.bytes.len();
+            q.data_units -= 1;
+            self.counters.dropped.fetch_add(1, Ordering::Relaxed);
         }
         q.bytes += unit.bytes.len();
+        if unit.data {
+            q.data_bytes += unit.bytes.len();
+        }
         q.data_units += usize::from(unit.data);
         q.units.push_back(unit);
         let over = q.bytes > MAX_QUEUED_BYTES;
@@ -252,14 +274,33 @@ pub struct Front {
     conns: Arc<Mutex<Vec<Arc<Conn>>>>,
     /// Connection threads still running.
     active: Arc<AtomicUsize>,
-    /// Clients whose upgrade failed (bad request, refused by the SDK).
+    /// Clients whose upgrade failed (bad request, refused by the SDK, over the limit).
     rejected: Arc<AtomicU64>,
+    /// Of `rejected`: refused because `max_clients` connections were open.
+    over_limit: Arc<AtomicU64>,
+    max_clients: usize,
+}
+
+/// Counts one open connection (from accept until its last thread ends); shared by the
+/// connection's threads.
+struct OpenSlot(Arc<AtomicUsize>);
+
+impl Drop for OpenSlot {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
+    }
 }
 
 impl Front {
     /// Listen on `listener` (already bound to the user's address) and relay every client to
     /// the SDK server at `upstream` (loopback).
-    pub fn start(listener: TcpListener, upstream: SocketAddr) -> std::io::Result<Front> {
+    /// At most `max_clients` connections are served at once; more are answered HTTP 503 and
+    /// closed at once, and counted.
+    pub fn start(
+        listener: TcpListener,
+        upstream: SocketAddr,
+        max_clients: usize,
+    ) -> std::io::Result<Front> {
         // Non-blocking accept, polled, so that `finish` can stop the thread without a
         // connection to itself.
         listener.set_nonblocking(true)?;
@@ -267,18 +308,22 @@ impl Front {
         let conns: Arc<Mutex<Vec<Arc<Conn>>>> = Arc::default();
         let active = Arc::new(AtomicUsize::new(0));
         let rejected = Arc::new(AtomicU64::new(0));
+        let over_limit = Arc::new(AtomicU64::new(0));
+        let max_clients = max_clients.max(1);
         let accept = {
-            let (stop, conns, active, rejected) = (
-                stop.clone(),
-                conns.clone(),
-                active.clone(),
-                rejected.clone(),
-            );
+            let ctx = AcceptCtx {
+                upstream,
+                stop: stop.clone(),
+                conns: conns.clone(),
+                active: active.clone(),
+                rejected: rejected.clone(),
+                over_limit: over_limit.clone(),
+                open: Arc::new(AtomicUsize::new(0)),
+                max_clients,
+            };
             std::thread::Builder::new()
                 .name("ehactl-live-front".into())
-                .spawn(move || {
-                    accept_loop(&listener, upstream, &stop, &conns, &active, &rejected)
-                })?
+                .spawn(move || accept_loop(&listener, &ctx))?
         };
         Ok(Front {
             stop,
@@ -286,14 +331,16 @@ impl Front {
             conns,
             active,
             rejected,
+            over_limit,
+            max_clients,
         })
     }
 
     /// Stop accepting; give the connections `grace` to deliver what they hold (the SDK
     /// server must have been stopped, which closes their SDK side), then cut off the rest.
-    /// Returns every client that completed the upgrade, in connection order, and the
-    /// number of connections refused.
-    pub fn finish(mut self, grace: Duration) -> (Vec<ClientStats>, u64) {
+    /// Returns every client that completed the upgrade, in connection order, the number of
+    /// connections refused and, of those, the number refused over the client limit.
+    pub fn finish(mut self, grace: Duration) -> (Vec<ClientStats>, u64, u64) {
         self.stop.store(true, Ordering::Release);
         if let Some(t) = self.accept.take() {
             let _ = t.join();
@@ -331,7 +378,16 @@ impl Front {
                 messages_dropped: c.counters.dropped.load(Ordering::Relaxed),
             })
             .collect();
-        (stats, self.rejected.load(Ordering::Relaxed))
+        (
+            stats,
+            self.rejected.load(Ordering::Relaxed),
+            self.over_limit.load(Ordering::Relaxed),
+        )
+    }
+
+    /// Most connections served at once.
+    pub fn max_clients(&self) -> usize {
+        self.max_clients
     }
 }
 
@@ -353,6 +409,7 @@ fn spawn_counted(
     let guard = ActiveGuard(active.clone());
     std::thread::Builder::new()
         .name(name)
+        .stack_size(CONN_STACK)
         .spawn(move || {
             let _g = guard;
             f();
@@ -360,17 +417,22 @@ fn spawn_counted(
         .map(|_| ())
 }
 
-fn accept_loop(
-    listener: &TcpListener,
+struct AcceptCtx {
     upstream: SocketAddr,
-    stop: &AtomicBool,
-    conns: &Arc<Mutex<Vec<Arc<Conn>>>>,
-    active: &Arc<AtomicUsize>,
-    rejected: &Arc<AtomicU64>,
-) {
+    stop: Arc<AtomicBool>,
+    conns: Arc<Mutex<Vec<Arc<Conn>>>>,
+    active: Arc<AtomicUsize>,
+    rejected: Arc<AtomicU64>,
+    over_limit: Arc<AtomicU64>,
+    /// Connections open now (see [`OpenSlot`]).
+    open: Arc<AtomicUsize>,
+    max_clients: usize,
+}
+
+fn accept_loop(listener: &TcpListener, cx: &AcceptCtx) {
     let mut reported = false;
-    while !stop.load(Ordering::Acquire) {
-        let (client, peer) = match listener.accept() {
+    while !cx.stop.load(Ordering::Acquire) {
+        let (mut client, peer) = match listener.accept() {
             Ok(c) => c,
             Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
                 std::thread::sleep(Duration::from_millis(10));
@@ -387,6 +449,25 @@ fn accept_loop(
             }
         };
         let _ = client.set_nonblocking(false);
+        if cx.open.load(Ordering::Acquire) >= cx.max_clients {
+            // Refused before anything is allocated for it: a short answer, then closed.
+            cx.rejected.fetch_add(1, Ordering::Relaxed);
+            cx.over_limit.fetch_add(1, Ordering::Relaxed);
+            let body = format!(
+                "too many live-view clients: {} connected (limit --live-max-clients {}); retry later\n",
+                cx.max_clients, cx.max_clients
+            );
+            let _ = client.set_write_timeout(Some(Duration::from_millis(100)));
+            let _ = write!(
+                client,
+                "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nRetry-After: 5\r\nConnection: close\r\n\r\n{body}",
+                body.len()
+            );
+            let _ = client.shutdown(Shutdown::Both);
+            continue;
+        }
+        cx.open.fetch_add(1, Ordering::AcqRel);
+        let slot = Arc::new(OpenSlot(cx.open.clone()));
         let _ = client.set_nodelay(true);
         set_send_buffer(&client, SEND_BUFFER);
         let Ok(client2) = client.try_clone() else {
@@ -407,13 +488,18 @@ fn accept_loop(
                 ready: Condvar::new(),
             },
         });
-        lock(conns).push(conn.clone());
-        let (a, r, list) = (active.clone(), rejected.clone(), conns.clone());
-        let spawned = spawn_counted(active, format!("live-conn-{peer}"), move || {
+        lock(&cx.conns).push(conn.clone());
+        let (a, r, list, upstream) = (
+            cx.active.clone(),
+            cx.rejected.clone(),
+            cx.conns.clone(),
+            cx.upstream,
+        );
+        let spawned = spawn_counted(&cx.active, format!("live-conn-{peer}"), move || {
             // On success the writer thread delivers what is queued and ends by itself.
             // On failure the client got its HTTP answer (or went away): counted, not logged
             // (a port scanner must not flood stderr), and forgotten unless it had upgraded.
-            if serve(client, &conn, upstream, &a).is_err() {
+            if serve(client, &conn, upstream, &a, &slot).is_err() {
                 r.fetch_add(1, Ordering::Relaxed);
                 conn.kill();
                 if lock(&conn.counters.subprotocol).is_empty() {
@@ -422,7 +508,7 @@ fn accept_loop(
             }
         });
         if spawned.is_err() {
-            rejected.fetch_add(1, Ordering::Relaxed);
+            cx.rejected.fetch_add(1, Ordering::Relaxed);
         }
     }
 }
@@ -580,6 +666,7 @@ fn serve(
     conn: &Arc<Conn>,
     upstream_addr: SocketAddr,
     active: &Arc<AtomicUsize>,
+    slot: &Arc<OpenSlot>,
 ) -> std::io::Result<()> {
     client.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
     client.set_write_timeout(Some(HANDSHAKE_TIMEOUT))?;
@@ -626,7 +713,9 @@ fn serve(
     // Client → SDK: bytes copied unchanged.
     {
         let (mut from, mut to, c) = (client.try_clone()?, up.try_clone()?, conn.clone());
+        let slot = slot.clone();
         spawn_counted(active, "live-up".into(), move || {
+            let _slot = slot;
             let mut buf = [0u8; 8192];
             loop {
                 match from.read(&mut buf) {
@@ -645,8 +734,11 @@ fn serve(
     }
     // Queue → client.
     {
-        let (mut to, c) = (client.try_clone()?, conn.clone());
-        spawn_counted(active, "live-down".into(), move || write_loop(&mut to, &c))?;
+        let (mut to, c, slot) = (client.try_clone()?, conn.clone(), slot.clone());
+        spawn_counted(active, "live-down".into(), move || {
+            let _slot = slot;
+            write_loop(&mut to, &c)
+        })?;
     }
     // SDK → queue (this thread).
     let mut frames = FrameSplitter::default();
@@ -684,6 +776,9 @@ fn write_loop(to: &mut TcpStream, conn: &Conn) {
                 }
                 if let Some(u) = q.units.pop_front() {
                     q.bytes -= u.bytes.len();
+                    if u.data {
+                        q.data_bytes -= u.bytes.len();
+                    }
                     q.data_units -= usize::from(u.data);
                     break u;
                 }

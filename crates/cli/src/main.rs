@@ -74,6 +74,12 @@ enum Command {
         /// --realtime; messages a viewer cannot take are dropped and counted, never waited for.
         #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live::DEFAULT_ADDR)]
         live: Option<String>,
+        /// Most live-view clients served at once; more are refused (HTTP 503) and counted in
+        /// the summary's `live.clients_refused_over_limit`. Each idle subscribed client costs
+        /// up to a few MB of queued messages.
+        #[arg(long, value_name = "N", default_value_t = live_front::DEFAULT_MAX_CLIENTS,
+              value_parser = clap::value_parser!(u16).range(1..=1024))]
+        live_max_clients: u16,
     },
     /// Rebuild a valid, indexed MCAP file from a log whose writer was killed (SIGKILL, power
     /// loss, full disk): every intact chunk is kept, a cut-off one is dropped.
@@ -461,6 +467,7 @@ fn main() -> ExitCode {
             bus,
             force,
             live,
+            live_max_clients,
         } => run_cmd::cmd_run(run_cmd::RunArgs {
             config: &config,
             duration,
@@ -472,6 +479,7 @@ fn main() -> ExitCode {
             hal,
             bus,
             live: live.as_deref(),
+            live_max_clients: usize::from(live_max_clients),
         }),
         Command::Recover {
             input,

@@ -47,6 +47,8 @@ pub struct RunArgs<'a> {
     pub bus: Option<String>,
     /// `--live ADDR` (Foxglove WebSocket).
     pub live: Option<&'a str>,
+    /// `--live-max-clients N`.
+    pub live_max_clients: usize,
 }
 
 /// Run `ehactl run`.
@@ -172,7 +174,11 @@ impl Services {
             args.json,
             &stop,
         )?;
-        let live_view = match args.live.map(live::LiveView::start).transpose() {
+        let live_view = match args
+            .live
+            .map(|a| live::LiveView::start(a, args.live_max_clients))
+            .transpose()
+        {
             Ok(v) => v,
             Err(e) => {
                 eprintln!("ehactl: {e}");
@@ -326,6 +332,8 @@ fn report(
             "clients_at_end": st.clients,
             "client_messages_dropped": st.client_dropped(),
             "connections_refused": st.refused,
+            "max_clients": st.max_clients,
+            "clients_refused_over_limit": st.over_limit,
             "clients": st.per_client.iter().map(|c| serde_json::json!({
                 "peer": c.peer.to_string(),
                 "subprotocol": c.subprotocol,
@@ -402,6 +410,12 @@ fn print_text_summary(
             "  live          {url}: {} messages published, {} dropped before the server, {} client(s) at the end",
             st.published, st.dropped, st.clients
         );
+        if st.over_limit > 0 {
+            println!(
+                "  live refused  {} client(s) beyond --live-max-clients {}",
+                st.over_limit, st.max_clients
+            );
+        }
         let slow: Vec<_> = st
             .per_client
             .iter()

@@ -781,6 +781,28 @@ mod tests {
     use super::*;
     use ehactl_plant::spec::{Kind, ParamTree, PathErrorKind, Range};
 
+    /// A setpoint out of the rig's reach names the field that put it there: the amplitude
+    /// when it is the larger term of `offset ± amplitude`, the offset otherwise.
+    #[test]
+    fn out_of_reach_setpoint_names_the_field_responsible() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/sahu2022_force.toml");
+        let cfg = RigConfig::load(&path).unwrap();
+        for (field, offset, amplitude) in [
+            ("setpoint.amplitude", 500.0, 1e12),
+            ("setpoint.offset", 1e12, 100.0),
+            ("setpoint.offset", -1e12, 0.0),
+        ] {
+            let mut tree = cfg.to_value();
+            *spec::get_mut(&mut tree, "setpoint.offset").unwrap() = toml::Value::Float(offset);
+            *spec::get_mut(&mut tree, "setpoint.amplitude").unwrap() =
+                toml::Value::Float(amplitude);
+            let e = RigConfig::from_value(tree).unwrap_err();
+            assert_eq!(e.path, field, "offset {offset}, amplitude {amplitude}: {e}");
+            assert!(e.message.contains("the setpoint reaches"), "{e}");
+        }
+    }
+
     /// A value admitted by `r`, different for each `i`.
     fn admitted(r: Range, i: usize) -> f64 {
         let t = 0.3 + 0.4 * (i as f64 / 100.0);

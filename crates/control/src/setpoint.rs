@@ -38,14 +38,24 @@ pub fn envelope(c: &SetpointConfig) -> ((f64, &'static str), (f64, &'static str)
             order((c.initial, "initial"), (c.final_value, "final"))
         }
         SetpointKind::Sine | SetpointKind::Chirp => (
-            (c.offset - c.amplitude, "offset"),
-            (c.offset + c.amplitude, "offset"),
+            (c.offset - c.amplitude, swing_field(c)),
+            (c.offset + c.amplitude, swing_field(c)),
         ),
         // Ramp from 0 to `offset`, then the sweep around it.
         SetpointKind::StaticDynamic => (
-            ((c.offset - c.amplitude).min(0.0), "offset"),
-            ((c.offset + c.amplitude).max(0.0), "offset"),
+            ((c.offset - c.amplitude).min(0.0), swing_field(c)),
+            ((c.offset + c.amplitude).max(0.0), swing_field(c)),
         ),
+    }
+}
+
+/// The field that puts `offset ± amplitude` where it is: the larger of the two in
+/// magnitude (an out-of-range extreme names the value that sent it there).
+fn swing_field(c: &SetpointConfig) -> &'static str {
+    if c.amplitude.abs() >= c.offset.abs() {
+        "amplitude"
+    } else {
+        "offset"
     }
 }
 

@@ -204,6 +204,82 @@ impl CanFrameRecord {
     }
 }
 
+/// An event with text that is not known at compile time (a refused live change: the
+/// request and the reason), queued off the loop for `/events` and `/log`.
+#[derive(Debug, Clone)]
+pub struct Note {
+    /// The event (time, cycle, kind, channel, …).
+    pub event: Event,
+    /// Extra string fields of the `/events` message, e.g. `("request", …)`, `("reason", …)`.
+    pub fields: Vec<(&'static str, String)>,
+}
+
+impl Note {
+    /// The `/events` JSON: the event's fields plus `fields`; a `reason` is appended to `text`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut v = self.event.to_json();
+        if let Some(o) = v.as_object_mut() {
+            for (k, val) in &self.fields {
+                o.insert((*k).to_string(), serde_json::Value::String(val.clone()));
+            }
+            o.insert("text".into(), serde_json::Value::String(self.text()));
+        }
+        v
+    }
+
+    /// One-line description: the event's, then the request and the reason if given.
+    pub fn text(&self) -> String {
+        let mut s = self.event.describe();
+        for key in ["request", "reason"] {
+            if let Some((_, v)) = self.fields.iter().find(|(k, _)| *k == key) {
+                s.push_str(&format!("; {key}: {v}"));
+            }
+        }
+        s
+    }
+}
+
+/// Bounded queue of [`Note`]s from threads off the loop (the control socket) to the MCAP
+/// writer. Never blocks: when full a note is dropped and counted.
+#[derive(Debug)]
+pub struct NoteLog {
+    queue: ArrayQueue<Note>,
+    dropped: AtomicU64,
+}
+
+impl Default for NoteLog {
+    fn default() -> Self {
+        Self::new(256)
+    }
+}
+
+impl NoteLog {
+    /// Queue with room for `capacity` notes.
+    pub fn new(capacity: usize) -> NoteLog {
+        NoteLog {
+            queue: ArrayQueue::new(capacity.max(1)),
+            dropped: AtomicU64::new(0),
+        }
+    }
+
+    /// Queue a note (counted as dropped if full).
+    pub fn push(&self, note: Note) {
+        if self.queue.push(note).is_err() {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// Take the oldest note.
+    pub fn pop(&self) -> Option<Note> {
+        self.queue.pop()
+    }
+
+    /// Notes dropped so far.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+}
+
 /// Bounded lock-free queues of raw CAN frames and backend events from a backend (its I/O
 /// threads and its cycle code) to the MCAP writer (`/can` and `/events`). Never blocks:
 /// when full the frame or event is dropped and counted.
@@ -318,6 +394,7 @@ struct Shared {
     high_water: AtomicUsize,
     summary: Mutex<Option<serde_json::Value>>,
     frames: OnceLock<Arc<FrameLog>>,
+    notes: OnceLock<Arc<NoteLog>>,
     frames_written: AtomicU64,
     /// Set by the writer when it can no longer write (disk full, I/O error): producers stop
     /// waiting for it and the run trips (see [`Logger::failed_flag`]).
@@ -523,6 +600,7 @@ impl Logger {
             high_water: AtomicUsize::new(0),
             summary: Mutex::new(None),
             frames: OnceLock::new(),
+            notes: OnceLock::new(),
             frames_written: AtomicU64::new(0),
             failed: AtomicBool::new(false),
             tap: OnceLock::new(),
@@ -634,6 +712,11 @@ impl Logger {
     /// The channel is created when the first frame arrives; one source per logger.
     pub fn attach_frames(&self, frames: Arc<FrameLog>) {
         let _ = self.shared.frames.set(frames);
+    }
+
+    /// Log every note of `notes` to `/events` and `/log`; one source per logger.
+    pub fn attach_notes(&self, notes: Arc<NoteLog>) {
+        let _ = self.shared.notes.set(notes);
     }
 
     /// Offer everything written from now on (and the `/config` message) to `tap` as well;
@@ -793,6 +876,27 @@ fn writer_loop(
             .map_err(io_error)?;
             if let Some(tp) = sh.tap.get() {
                 tp.offer(TapMessage::Event(ev));
+            }
+            events += 1;
+            chunk_start.get_or_insert(ns);
+        }
+        while let Some(note) = sh.notes.get().and_then(|n| n.pop()) {
+            idle = false;
+            let ns = to_ns(note.event.t);
+            w.write_message(
+                ch_events,
+                events as u32,
+                ns,
+                ns,
+                note.to_json().to_string().as_bytes(),
+            )
+            .map_err(io_error)?;
+            let mut log = schemas::event_to_foxglove_log(&note.event);
+            log["message"] = serde_json::Value::String(note.text());
+            w.write_message(ch_log, events as u32, ns, ns, log.to_string().as_bytes())
+                .map_err(io_error)?;
+            if let Some(tp) = sh.tap.get() {
+                tp.offer(TapMessage::Event(note.event));
             }
             events += 1;
             chunk_start.get_or_insert(ns);

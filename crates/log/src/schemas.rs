@@ -45,6 +45,8 @@ pub fn event_schema() -> Value {
             "limit": nullable_num("limit that was crossed (SI, unit in `unit`); null if none"),
             "unit": text("unit of value and limit"),
             "text": text("one-line description"),
+            "request": text("param_refused only: the refused request line, as received"),
+            "reason": text("param_refused only: why it was refused"),
         },
         "required": ["t", "cycle", "severity", "kind", "text"],
     })

@@ -5,16 +5,19 @@
 //! publishes it into the [`LiveParams`] back buffer and replies once the loop has taken it
 //! over at a cycle boundary.
 //!
-//! Protocol: one request line `set PATH=VALUE [PATH=VALUE …]`, one reply line
-//! `ok cycle N: PATH=VALUE UNIT, …` or `error: …`.
+//! Protocol: request lines `set PATH=VALUE [PATH=VALUE …]`, each answered in order by one
+//! reply line `ok cycle N: PATH=VALUE UNIT, …` or `error: …` (several lines may be sent on
+//! one connection). Every refused request is logged as a `param_refused` event in the
+//! run's `/events` and on stderr, with the request and the reason.
 
 use crate::live::{self, LiveParams};
 use ehactl_config::RigConfig;
 use std::io::{BufRead, BufReader, Read, Write};
+use std::net::Shutdown;
 use std::os::unix::fs::{FileTypeExt, PermissionsExt};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -25,7 +28,7 @@ const APPLY_TIMEOUT: Duration = Duration::from_secs(2);
 pub const MAX_LINE: usize = 4096;
 /// A client must deliver its whole request line within this time (s), however it trickles.
 pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(2);
-/// Clients served at once; more are told to retry and closed.
+/// Connections open at once; beyond it the longest-idle one is closed to make room.
 pub const MAX_CLIENTS: usize = 8;
 
 /// A running control-socket server; stops and removes the socket file when dropped.
@@ -145,30 +148,78 @@ impl Drop for ControlServer {
     }
 }
 
-/// Accept clients and serve each on its own thread (at most [`MAX_CLIENTS`] at once), so a
-/// slow or hostile client never blocks another; each must send its line within
-/// [`REQUEST_TIMEOUT`] and [`MAX_LINE`] bytes.
+/// Accept clients and serve each on its own thread, so a slow or hostile client never
+/// blocks another; each request line must arrive within [`REQUEST_TIMEOUT`] and
+/// [`MAX_LINE`] bytes. With [`MAX_CLIENTS`] connections open, the one that has waited
+/// longest for a request line is closed (with an answer) to make room: idle connections
+/// never lock out `ehactl set`. Only when every connection is busy with a request is the
+/// newcomer told to retry.
 fn serve(listener: UnixListener, cfg: RigConfig, live: Arc<LiveParams>, stop: Arc<AtomicBool>) {
     let cfg = Arc::new(Mutex::new(cfg));
-    let active = Arc::new(AtomicUsize::new(0));
+    let conns: Arc<Mutex<Vec<Conn>>> = Arc::new(Mutex::new(Vec::new()));
+    let mut next_id = 0u64;
     while !stop.load(Ordering::Relaxed) {
         match listener.accept() {
             Ok((mut stream, _)) => {
-                if active.load(Ordering::Acquire) >= MAX_CLIENTS {
-                    let _ = stream.set_write_timeout(Some(Duration::from_millis(100)));
-                    let _ = stream.write_all(b"error: too many control clients; retry\n");
+                let Ok(handle_copy) = stream.try_clone() else {
                     continue;
+                };
+                let evicted = Arc::new(AtomicBool::new(false));
+                {
+                    let mut list = conns.lock().unwrap_or_else(|p| p.into_inner());
+                    if list.len() >= MAX_CLIENTS {
+                        let oldest = list
+                            .iter()
+                            .enumerate()
+                            .filter(|(_, c)| c.reading)
+                            .min_by_key(|(_, c)| c.since)
+                            .map(|(i, _)| i);
+                        match oldest {
+                            Some(i) => {
+                                let c = list.swap_remove(i);
+                                c.evicted.store(true, Ordering::Release);
+                                let _ = c.stream.shutdown(Shutdown::Read);
+                            }
+                            None => {
+                                drop(list);
+                                let _ = stream.set_write_timeout(Some(Duration::from_millis(100)));
+                                let _ = stream.write_all(
+                                    b"error: too many control clients, all busy with a request; retry\n",
+                                );
+                                continue;
+                            }
+                        }
+                    }
+                    next_id += 1;
+                    list.push(Conn {
+                        id: next_id,
+                        stream: handle_copy,
+                        reading: true,
+                        since: Instant::now(),
+                        evicted: evicted.clone(),
+                    });
                 }
-                active.fetch_add(1, Ordering::AcqRel);
-                let (cfg, live, active2) = (cfg.clone(), live.clone(), active.clone());
+                let id = next_id;
+                let (cfg, live, conns2) = (cfg.clone(), live.clone(), conns.clone());
                 let spawned = std::thread::Builder::new()
                     .name("ehactl-ctl-client".into())
                     .spawn(move || {
-                        let _ = handle(stream, &cfg, &live);
-                        active2.fetch_sub(1, Ordering::AcqRel);
+                        let _ = handle(
+                            stream,
+                            &cfg,
+                            &live,
+                            &Registry {
+                                conns: &conns2,
+                                id,
+                                evicted,
+                            },
+                        );
+                        let mut list = conns2.lock().unwrap_or_else(|p| p.into_inner());
+                        list.retain(|c| c.id != id);
                     });
                 if spawned.is_err() {
-                    active.fetch_sub(1, Ordering::AcqRel);
+                    let mut list = conns.lock().unwrap_or_else(|p| p.into_inner());
+                    list.retain(|c| c.id != id);
                 }
             }
             Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
@@ -179,116 +230,287 @@ fn serve(listener: UnixListener, cfg: RigConfig, live: Arc<LiveParams>, stop: Ar
     }
 }
 
-/// Read one request line of at most [`MAX_LINE`] bytes within [`REQUEST_TIMEOUT`].
-pub fn read_request(stream: &mut UnixStream) -> Result<String, String> {
-    stream.set_nonblocking(false).map_err(|e| e.to_string())?;
-    let t0 = Instant::now();
-    let mut buf = Vec::with_capacity(256);
-    let mut chunk = [0u8; 512];
-    loop {
-        let left = REQUEST_TIMEOUT.saturating_sub(t0.elapsed());
-        if left.is_zero() {
-            return Err(format!(
-                "request not complete within {} s",
-                REQUEST_TIMEOUT.as_secs_f64()
-            ));
-        }
-        stream
-            .set_read_timeout(Some(left))
-            .map_err(|e| e.to_string())?;
-        let n = match stream.read(&mut chunk) {
-            Ok(0) => break,
-            Ok(n) => n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) =>
-            {
-                continue
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(e) => return Err(e.to_string()),
-        };
-        let part = &chunk[..n];
-        if let Some(i) = part.iter().position(|&b| b == b'\n') {
-            buf.extend_from_slice(&part[..i]);
-            break;
-        }
-        buf.extend_from_slice(part);
-        if buf.len() > MAX_LINE {
-            return Err(format!("request longer than {MAX_LINE} bytes"));
-        }
-    }
-    if buf.len() > MAX_LINE {
-        return Err(format!("request longer than {MAX_LINE} bytes"));
-    }
-    String::from_utf8(buf).map_err(|_| "request is not UTF-8 text".to_string())
+/// An open client connection, as the accept loop sees it.
+struct Conn {
+    id: u64,
+    /// A handle on the client's socket, to close it if it must make room.
+    stream: UnixStream,
+    /// Waiting for a request line (not serving one).
+    reading: bool,
+    /// Since when it has been waiting.
+    since: Instant,
+    /// Set when the accept loop closed it to make room.
+    evicted: Arc<AtomicBool>,
 }
 
+/// A connection's entry in the accept loop's list.
+struct Registry<'a> {
+    conns: &'a Mutex<Vec<Conn>>,
+    id: u64,
+    evicted: Arc<AtomicBool>,
+}
+
+impl Registry<'_> {
+    fn set_reading(&self, reading: bool) {
+        let mut list = self.conns.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(c) = list.iter_mut().find(|c| c.id == self.id) {
+            c.reading = reading;
+            c.since = Instant::now();
+        }
+    }
+}
+
+/// Why no request line could be read.
+#[derive(Debug, PartialEq)]
+pub enum ReadError {
+    /// The client closed the connection with nothing pending.
+    Closed,
+    /// Nothing at all arrived within [`REQUEST_TIMEOUT`].
+    Idle,
+    /// A partial line, a line too long, not text, or an I/O error; the bytes received
+    /// so far (at most [`MAX_LINE`]) and the message.
+    Bad(String, String),
+}
+
+/// Reads request lines one at a time from a stream, keeping what follows a line for the
+/// next call (a client may send several lines at once).
+#[derive(Default)]
+pub struct LineReader {
+    pending: Vec<u8>,
+}
+
+impl LineReader {
+    /// The next line (without its newline) of at most [`MAX_LINE`] bytes, which must
+    /// arrive within [`REQUEST_TIMEOUT`] from this call.
+    pub fn next_line(&mut self, stream: &mut UnixStream) -> Result<String, ReadError> {
+        stream
+            .set_nonblocking(false)
+            .map_err(|e| ReadError::Bad(String::new(), e.to_string()))?;
+        let t0 = Instant::now();
+        let mut chunk = [0u8; 512];
+        loop {
+            if let Some(i) = self.pending.iter().position(|&b| b == b'\n') {
+                let line: Vec<u8> = self.pending.drain(..=i).take(i).collect();
+                if line.len() > MAX_LINE {
+                    return Err(self.bad(line, format!("request longer than {MAX_LINE} bytes")));
+                }
+                return String::from_utf8(line)
+                    .map_err(|e| self.bad(e.into_bytes(), "request is not UTF-8 text".into()));
+            }
+            if self.pending.len() > MAX_LINE {
+                let line = std::mem::take(&mut self.pending);
+                return Err(self.bad(line, format!("request longer than {MAX_LINE} bytes")));
+            }
+            let left = REQUEST_TIMEOUT.saturating_sub(t0.elapsed());
+            if left.is_zero() {
+                if self.pending.is_empty() {
+                    return Err(ReadError::Idle);
+                }
+                let line = std::mem::take(&mut self.pending);
+                return Err(self.bad(
+                    line,
+                    format!(
+                        "request not complete within {} s (no newline)",
+                        REQUEST_TIMEOUT.as_secs_f64()
+                    ),
+                ));
+            }
+            stream
+                .set_read_timeout(Some(left))
+                .map_err(|e| ReadError::Bad(String::new(), e.to_string()))?;
+            match stream.read(&mut chunk) {
+                Ok(0) if self.pending.is_empty() => return Err(ReadError::Closed),
+                // A last line without its newline, then end of stream: take it as a line.
+                Ok(0) => self.pending.push(b'\n'),
+                Ok(n) => self.pending.extend_from_slice(&chunk[..n]),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock
+                            | std::io::ErrorKind::TimedOut
+                            | std::io::ErrorKind::Interrupted
+                    ) => {}
+                Err(e) => {
+                    let line = std::mem::take(&mut self.pending);
+                    return Err(self.bad(line, e.to_string()));
+                }
+            }
+        }
+    }
+
+    fn bad(&mut self, mut line: Vec<u8>, why: String) -> ReadError {
+        line.truncate(MAX_LINE);
+        ReadError::Bad(String::from_utf8_lossy(&line).into_owned(), why)
+    }
+}
+
+/// Read one request line of at most [`MAX_LINE`] bytes within [`REQUEST_TIMEOUT`].
+pub fn read_request(stream: &mut UnixStream) -> Result<String, String> {
+    LineReader::default()
+        .next_line(stream)
+        .map_err(|e| match e {
+            ReadError::Closed => "connection closed before a request".to_string(),
+            ReadError::Idle => format!(
+                "request not complete within {} s",
+                REQUEST_TIMEOUT.as_secs_f64()
+            ),
+            ReadError::Bad(_, why) => why,
+        })
+}
+
+/// Most request lines served on one connection; the next is refused and the client closed.
+pub const MAX_REQUESTS_PER_CONNECTION: usize = 64;
+
+/// Serve one connection: every request line gets one reply line, in order, until the
+/// client closes, stays idle for [`REQUEST_TIMEOUT`] after a reply, or sends a bad line
+/// (refused with an answer, then closed). Every refused request is logged
+/// ([`LiveParams::refused`]).
 fn handle(
     mut stream: UnixStream,
     cfg: &Mutex<RigConfig>,
     live: &LiveParams,
+    reg: &Registry<'_>,
 ) -> std::io::Result<()> {
-    let reply = match read_request(&mut stream) {
-        Ok(line) => {
-            let mut cfg = cfg.lock().unwrap_or_else(|p| p.into_inner());
-            respond(line.trim(), &mut cfg, live)
-        }
-        Err(e) => format!("error: {e}"),
-    };
     stream.set_write_timeout(Some(REQUEST_TIMEOUT))?;
-    stream.write_all(reply.as_bytes())?;
-    stream.write_all(b"\n")
+    let mut reader = LineReader::default();
+    let mut served = 0usize;
+    loop {
+        reg.set_reading(true);
+        let got = reader.next_line(&mut stream);
+        reg.set_reading(false);
+        if reg.evicted.load(Ordering::Acquire) {
+            let msg = format!(
+                "error: closed: no complete request line while {MAX_CLIENTS} connections were open and another client connected; send the request at once after connecting\n"
+            );
+            return stream.write_all(msg.as_bytes());
+        }
+        let line = match got {
+            Ok(line) => line,
+            Err(ReadError::Closed) => return Ok(()),
+            Err(ReadError::Idle) if served > 0 => return Ok(()),
+            Err(ReadError::Idle) => {
+                let msg = format!(
+                    "error: no request within {} s; expected `set PATH=VALUE …` and a newline\n",
+                    REQUEST_TIMEOUT.as_secs_f64()
+                );
+                return stream.write_all(msg.as_bytes());
+            }
+            Err(ReadError::Bad(partial, why)) => {
+                live.refused(partial.trim(), &why, None);
+                stream.write_all(format!("error: {why}\n").as_bytes())?;
+                return Ok(());
+            }
+        };
+        served += 1;
+        if served > MAX_REQUESTS_PER_CONNECTION {
+            let why = format!(
+                "more than {MAX_REQUESTS_PER_CONNECTION} requests on one connection; reconnect"
+            );
+            live.refused(line.trim(), &why, None);
+            return stream.write_all(format!("error: {why}\n").as_bytes());
+        }
+        let reply = {
+            let mut cfg = cfg.lock().unwrap_or_else(|p| p.into_inner());
+            match apply(line.trim(), &mut cfg, live) {
+                Ok(ok) => ok,
+                Err(r) => {
+                    live.refused(line.trim(), &r.reason, r.param);
+                    format!("error: {}", r.reason)
+                }
+            }
+        };
+        stream.write_all(reply.as_bytes())?;
+        stream.write_all(b"\n")?;
+    }
+}
+
+/// A refused request: the field concerned (a registry path) when known, and why.
+#[derive(Debug)]
+pub struct Refusal {
+    /// Registry path of the refused field, if the refusal concerns one.
+    pub param: Option<&'static str>,
+    /// Why (the reply's text after `error: `).
+    pub reason: String,
+}
+
+/// The registry's own `&'static` spelling of `path`, if it is a parameter.
+fn registry_path(path: &str) -> Option<&'static str> {
+    ehactl_config::registries()
+        .into_iter()
+        .flat_map(|t| t.iter())
+        .find(|p| p.path == path)
+        .map(|p| p.path)
+}
+
+/// [`parse_request`] with the refused field kept apart from the message.
+fn parse_checked(line: &str, cfg: &RigConfig) -> Result<(RigConfig, live::Update), Refusal> {
+    let mut words = line.split_whitespace();
+    let refuse = |reason: String| Refusal {
+        param: None,
+        reason,
+    };
+    match words.next() {
+        Some("set") => {}
+        Some(other) => {
+            return Err(refuse(format!(
+                "unknown request `{other}`; expected `set PATH=VALUE …`"
+            )))
+        }
+        None => return Err(refuse("empty request; expected `set PATH=VALUE …`".into())),
+    }
+    let from_config = |e: ehactl_plant::ConfigError| Refusal {
+        param: registry_path(&e.path),
+        reason: e.to_string(),
+    };
+    let parsed = words
+        .map(live::parse_assignment)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(from_config)?;
+    let mut trial = cfg.clone();
+    let update = live::prepare(&mut trial, &parsed).map_err(from_config)?;
+    Ok((trial, update))
 }
 
 /// Parse one request line and validate it against the running config `cfg` (the same
 /// checks as a config file): the config it would produce and the update to publish. `cfg`
 /// itself is not changed.
 pub fn parse_request(line: &str, cfg: &RigConfig) -> Result<(RigConfig, live::Update), String> {
-    let mut words = line.split_whitespace();
-    match words.next() {
-        Some("set") => {}
-        Some(other) => {
-            return Err(format!(
-                "unknown request `{other}`; expected `set PATH=VALUE …`"
-            ))
-        }
-        None => return Err("empty request; expected `set PATH=VALUE …`".into()),
-    }
-    let parsed = words
-        .map(live::parse_assignment)
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| e.to_string())?;
-    let mut trial = cfg.clone();
-    let update = live::prepare(&mut trial, &parsed).map_err(|e| e.to_string())?;
-    Ok((trial, update))
+    parse_checked(line, cfg).map_err(|r| r.reason)
 }
 
-/// Handle one request line; returns the reply line.
+/// Handle one request line; returns the reply line (refusals are not logged here; the
+/// server logs them).
 pub fn respond(line: &str, cfg: &mut RigConfig, live: &LiveParams) -> String {
-    let (trial, update) = match parse_request(line, cfg) {
-        Ok(r) => r,
-        Err(e) => return format!("error: {e}"),
-    };
+    match apply(line, cfg, live) {
+        Ok(s) => s,
+        Err(r) => format!("error: {}", r.reason),
+    }
+}
+
+/// Validate, publish and wait for one request; `Ok` is the reply line.
+fn apply(line: &str, cfg: &mut RigConfig, live: &LiveParams) -> Result<String, Refusal> {
+    let (trial, update) = parse_checked(line, cfg)?;
+    let first = update.changes.iter().flatten().next().map(|a| a.param.path);
     let text: Vec<String> = update
         .changes
         .iter()
         .flatten()
         .map(|a| format!("{}={} {}", a.param.path, a.value, a.param.unit))
         .collect();
-    let seq = match live.publish(update, APPLY_TIMEOUT) {
-        Ok(s) => s,
-        Err(e) => return format!("error: {e}"),
-    };
+    let seq = live.publish(update, APPLY_TIMEOUT).map_err(|e| Refusal {
+        param: first,
+        reason: e.to_string(),
+    })?;
     *cfg = trial;
     match live.wait_applied(seq, APPLY_TIMEOUT) {
-        Some(cycle) => format!("ok cycle {cycle}: {}", text.join(", ")),
-        None => format!(
-            "error: change published but not applied within {} s (loop stopped?)",
-            APPLY_TIMEOUT.as_secs()
-        ),
+        Some(cycle) => Ok(format!("ok cycle {cycle}: {}", text.join(", "))),
+        None => Err(Refusal {
+            param: first,
+            reason: format!(
+                "change published but not applied within {} s (loop stopped?)",
+                APPLY_TIMEOUT.as_secs()
+            ),
+        }),
     }
 }
 

@@ -21,11 +21,12 @@ use crate::controller::Controller;
 use crossbeam_queue::ArrayQueue;
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
+use ehactl_log::logger::{Note, NoteLog};
 use ehactl_log::record::{Event, EventKind, Severity};
 use ehactl_plant::spec::Param;
 use ehactl_plant::ConfigError;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Most assignments in one change (they land together, in one cycle).
@@ -70,6 +71,11 @@ pub struct LiveParams {
     published: AtomicU64,
     applied: AtomicU64,
     applied_cycle: AtomicU64,
+    /// Refused changes, for the run's `/events` (see [`LiveParams::refused`]).
+    notes: Arc<NoteLog>,
+    /// The loop's last cycle boundary: cycle and time (f64 bits), stamped on refusals.
+    now_cycle: AtomicU64,
+    now_t: AtomicU64,
 }
 
 impl std::fmt::Debug for LiveParams {
@@ -118,6 +124,9 @@ impl LiveParams {
             published: AtomicU64::new(0),
             applied: AtomicU64::new(0),
             applied_cycle: AtomicU64::new(u64::MAX),
+            notes: Arc::new(NoteLog::new(256)),
+            now_cycle: AtomicU64::new(0),
+            now_t: AtomicU64::new(0f64.to_bits()),
         }
     }
 
@@ -157,6 +166,35 @@ impl LiveParams {
         }
     }
 
+    /// The queue of refused changes; the run's logger writes them to `/events`.
+    pub fn notes(&self) -> Arc<NoteLog> {
+        self.notes.clone()
+    }
+
+    /// Record a refused change (off the loop): a `param_refused` warning carrying the
+    /// request line and the reason goes to the run's `/events` (stamped with the loop's
+    /// last cycle), and the same line to stderr. `param` names the refused field when
+    /// known (a registry path), else `control_socket`.
+    pub fn refused(&self, request: &str, reason: &str, param: Option<&'static str>) {
+        let cycle = self.now_cycle.load(Ordering::Relaxed);
+        let t = f64::from_bits(self.now_t.load(Ordering::Relaxed));
+        let ev = Event::note(
+            t,
+            cycle,
+            Severity::Warning,
+            EventKind::ParamRefused,
+            param.unwrap_or("control_socket"),
+        );
+        // Bounded: a hostile client cannot make a note (or stderr line) of megabytes.
+        let request = clip(request, 512);
+        let reason = clip(reason, 512);
+        eprintln!("ehactl: refused live change `{request}`: {reason}");
+        self.notes.push(Note {
+            event: ev,
+            fields: vec![("request", request), ("reason", reason)],
+        });
+    }
+
     /// Changes applied so far.
     pub fn applied_count(&self) -> u64 {
         self.applied.load(Ordering::Acquire)
@@ -174,6 +212,8 @@ impl LiveParams {
         setpoint: &mut Setpoint,
         event: &mut dyn FnMut(Event),
     ) {
+        self.now_cycle.store(k, Ordering::Relaxed);
+        self.now_t.store(t.to_bits(), Ordering::Relaxed);
         let Some(u) = self.slot.pop() else {
             return;
         };
@@ -200,6 +240,18 @@ impl LiveParams {
         let n = self.applied.load(Ordering::Relaxed) + 1;
         self.applied.store(n, Ordering::Release);
     }
+}
+
+/// `text` cut to at most `max` bytes (on a character boundary), marked when cut.
+fn clip(text: &str, max: usize) -> String {
+    if text.len() <= max {
+        return text.to_string();
+    }
+    let mut end = max;
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}… ({} bytes)", &text[..end], text.len())
 }
 
 /// Whether `path` may be changed while running a config in `mode`.

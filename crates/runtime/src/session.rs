@@ -374,6 +374,9 @@ pub fn run_with_live(
     if let (Some(l), Some(frames)) = (logger.as_ref(), hal.frame_log()) {
         l.attach_frames(frames);
     }
+    if let (Some(l), Some(lp)) = (logger.as_ref(), live) {
+        l.attach_notes(lp.notes());
+    }
     let mut records: Vec<CycleRecord> = if opts.capture {
         Vec::with_capacity(cycles as usize)
     } else {

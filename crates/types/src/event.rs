@@ -34,6 +34,8 @@ pub enum EventKind {
     RtSetup,
     /// A live parameter change took effect at a cycle boundary.
     ParamChange,
+    /// A live parameter change (`ehactl set`) was refused; nothing changed.
+    ParamRefused,
     /// The valve was given its safe command at the end of the run.
     SafeStop,
     /// Something on the CAN bus worth recording (malformed or unexpected frame, EMCY, device
@@ -63,6 +65,7 @@ impl EventKind {
             EventKind::Overrun => "overrun",
             EventKind::RtSetup => "rt_setup",
             EventKind::ParamChange => "param_change",
+            EventKind::ParamRefused => "param_refused",
             EventKind::SafeStop => "safe_stop",
             EventKind::CanBus => "can_bus",
             EventKind::LogFailed => "log_failed",
