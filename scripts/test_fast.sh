@@ -42,6 +42,9 @@ cargo test --release --workspace --exclude ehactl-ident "$@"
 cargo test --release --workspace --lib --test data_errors --test data_units "$@"
 
 echo "== Python tests (no CAN, no diagnosis catalogue, no bindings)"
+# Nothing to recompile here: the tests above built every crate the CLI needs with the same
+# features (crates/feature-unify; tests/python/test_feature_sets.py checks it), so this only
+# links target/release/ehactl if the tests did not already.
 cargo build --release -p ehactl-cli
 # Skipped here, run by test_all.sh: CAN end to end (hub, devices, LocalNode), diagnosis on
 # generated and real records, the README's examples and the documented tuning figures (need
