@@ -10,7 +10,8 @@
 # Env: GLIBC=2.31, EHACTL_REQUIRE_CROSS=1 to fail (not skip) when the toolchain is missing,
 #      CROSS_PRUNE=1 to delete the target's intermediate build files (deps, build scripts,
 #      fingerprints; ≈ 0.5 GB per target) once the binary is checked — the binary stays at
-#      target/TARGET/release/ehactl (CI sets it: its disk is small; a rebuild then starts cold).
+#      target/TARGET/release/ehactl (CI sets it: its disk is small; a rebuild then starts cold);
+#      EHACTL_SKIP_LOG=FILE: a skip appends its reason there (test_all.sh lists them at its end).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 GLIBC="${GLIBC:-2.31}"
@@ -23,6 +24,7 @@ skip() {
     exit 1
   fi
   echo "cross_build: SKIPPED: $* (set EHACTL_REQUIRE_CROSS=1 to make this an error)" >&2
+  [ -z "${EHACTL_SKIP_LOG:-}" ] || echo "ARM cross-builds (scripts/cross_build.sh): $*" >>"$EHACTL_SKIP_LOG"
   exit 0
 }
 
@@ -43,9 +45,14 @@ if ! command -v cargo-zigbuild >/dev/null || ! python3 -m ziglang version >/dev/
 fi
 command -v cargo-zigbuild >/dev/null || skip "cargo-zigbuild not on PATH after pip install"
 
+# One cargo invocation for all targets: cargo schedules their crates together (a core left
+# idle by one target's long crate compiles the other's), and the build scripts and proc macros,
+# which run on this machine, are compiled once for all of them.
+target_args=()
+for t in "${targets[@]}"; do target_args+=(--target "$t.$GLIBC"); done
+echo "== cross-building ehactl for ${targets[*]} (glibc $GLIBC)"
+cargo zigbuild --release -p ehactl-cli "${target_args[@]}"
 for t in "${targets[@]}"; do
-  echo "== cross-building ehactl for $t (glibc $GLIBC)"
-  cargo zigbuild --release -p ehactl-cli --target "$t.$GLIBC"
   bin="target/$t/release/ehactl"
   # Check the result is an ELF executable for the right machine (e_machine field).
   python3 - "$bin" "$t" <<'PY'

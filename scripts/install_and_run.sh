@@ -1,22 +1,28 @@
 #!/usr/bin/env bash
 # Install ehactl and run the main job:
-#   1. the `ehactl` binary with `cargo install --path crates/cli --locked` (into
-#      $CARGO_HOME/bin, normally ~/.cargo/bin, which rustup puts on PATH);
+#   1. the `ehactl` binary with `cargo install --path crates/cli --locked --target-dir target`
+#      (into $CARGO_HOME/bin, normally ~/.cargo/bin, which rustup puts on PATH). The build goes
+#      to the repository's target/ (or $CARGO_TARGET_DIR), not to a temporary directory, so
+#      that step 2 reuses it;
 #   2. the Python package `ehactl` with the extras a user needs (pandas, matplotlib, tqdm,
 #      Dask distributed; python-can and canopen for the simulated CAN devices) —
-#      `pip install "./bindings/python[all,devices]"`, a pyo3 extension built by maturin —
+#      `pip install -v "./bindings/python[all,devices]"`, a pyo3 extension built by maturin in
+#      the same target/ with the same features (crates/feature-unify), so it compiles only the
+#      extension's own crates (pyo3, numpy, the bindings) —
 #      into the virtual environment you have active, else into .venv/ in the repository
 #      (created if missing, reused otherwise; `source .venv/bin/activate` to use it), never
 #      into the system's Python;
 #   3. a closed-loop run of the default config (the Sahu 2022 force loop) against the
 #      simulated plant, logged to out/sahu2022_force.mcap. Extra arguments go to `ehactl run`.
+# Cargo and pip print their own progress (no --quiet): `pip -v` shows maturin's cargo lines.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 command -v cargo >/dev/null || { echo "error: cargo (Rust toolchain) not found; install it from rustup first" >&2; exit 1; }
 command -v python3 >/dev/null || { echo "error: python3 not found; install Python >= 3.9 first" >&2; exit 1; }
 python3 -c 'import sys; sys.exit(sys.version_info < (3, 9))' || { echo "error: $(python3 --version) is older than 3.9" >&2; exit 1; }
-echo "== installing the ehactl binary (cargo install --path crates/cli --locked)"
-cargo install --quiet --path crates/cli --locked
+target_dir="${CARGO_TARGET_DIR:-$PWD/target}"
+echo "== building and installing the ehactl binary (cargo install --path crates/cli --locked --target-dir $target_dir)"
+cargo install --path crates/cli --locked --target-dir "$target_dir"
 bin_dir="${CARGO_INSTALL_ROOT:-${CARGO_HOME:-$HOME/.cargo}}/bin"
 if [ -n "${VIRTUAL_ENV:-}" ]; then
   venv="$VIRTUAL_ENV"
@@ -28,8 +34,8 @@ else
     python3 -m venv "$venv" || { echo "error: python3 -m venv failed; install the venv module (Debian/Ubuntu: python3-venv)" >&2; exit 1; }
   fi
 fi
-echo "== installing the Python package ehactl with its extras into $venv (pip install './bindings/python[all,devices]')"
-"$venv/bin/python" -m pip install --quiet "./bindings/python[all,devices]"
+echo "== installing the Python package ehactl with its extras into $venv (pip install -v './bindings/python[all,devices]'; maturin builds the extension in $target_dir, reusing the build above)"
+CARGO_TARGET_DIR="$target_dir" "$venv/bin/python" -m pip install -v "./bindings/python[all,devices]"
 if [ "$(command -v ehactl || true)" != "$bin_dir/ehactl" ]; then
   echo "note: $bin_dir is not first on PATH; add it, e.g. to ~/.bashrc:" >&2
   echo "      export PATH=\"$bin_dir:\$PATH\"" >&2

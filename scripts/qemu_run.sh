@@ -4,8 +4,10 @@
 #   aarch64-unknown-linux-gnu      qemu-aarch64 -L /usr/aarch64-linux-gnu   (libc6-arm64-cross)
 #   armv7-unknown-linux-gnueabihf  qemu-arm     -L /usr/arm-linux-gnueabihf (libc6-armhf-cross)
 # QEMU and the target's glibc come from Debian's packages (qemu-user, libc6-*-cross,
-# libgcc-s1-*-cross), installed with apt-get if missing (EHACTL_NO_APT=1: skip instead); no binfmt registration is needed
-# because qemu is called directly.
+# libgcc-s1-*-cross), installed with apt-get if missing and allowed: EHACTL_APT=1, or a yes
+# to the question asked when run from a terminal; otherwise the step is skipped (EHACTL_APT=0
+# or EHACTL_NO_APT=1: skip without asking). No binfmt registration is needed because qemu is
+# called directly.
 # The check: the shipped rig config (configs/sahu2022_force.toml, simulated time, its full
 # 3.05 s) run natively (target/release/ehactl) and emulated; the summaries must agree
 # (cycles, trip, records written exactly; rms/max errors to 1e-9 relative) and so must the
@@ -19,7 +21,8 @@
 # Prints the emulated loop's time per cycle (an upper-bound sanity figure, not a board figure).
 # Usage: scripts/qemu_run.sh [TARGET ...]   (default: aarch64-unknown-linux-gnu)
 # Env: EHACTL_REQUIRE_QEMU=1 to fail (not skip) when qemu or the binary is missing;
-#      QEMU_DURATION to shorten the run (s).
+#      QEMU_DURATION to shorten the run (s); EHACTL_SKIP_LOG=FILE: a skip appends its reason
+#      there (scripts/test_all.sh lists them at its end).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 targets=("$@")
@@ -33,6 +36,7 @@ skip() {
     exit 1
   fi
   echo "qemu_run: SKIPPED: $* (set EHACTL_REQUIRE_QEMU=1 to make this an error)" >&2
+  [ -z "${EHACTL_SKIP_LOG:-}" ] || echo "QEMU runs of the ARM binaries (scripts/qemu_run.sh): $*" >>"$EHACTL_SKIP_LOG"
   exit 0
 }
 
@@ -50,10 +54,16 @@ for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
 if [ ${#missing[@]} -gt 0 ]; then
-  [ "${EHACTL_NO_APT:-0}" != 1 ] || skip "missing ${missing[*]} and EHACTL_NO_APT=1"
   command -v apt-get >/dev/null || skip "apt-get not found to install ${missing[*]}"
   sudo=""
   [ "$(id -u)" = 0 ] || sudo="sudo -n"
+  allowed="${EHACTL_APT:-}"
+  [ "${EHACTL_NO_APT:-0}" != 1 ] || allowed=0
+  if [ -z "$allowed" ] && [ -t 0 ] && [ -t 1 ]; then
+    read -r -p "qemu_run: install ${missing[*]} with ${sudo:+sudo }apt-get? [y/N] " answer
+    case "$answer" in y|Y|yes) allowed=1 ;; esac
+  fi
+  [ "$allowed" = 1 ] || skip "missing system packages ${missing[*]}; not installed without consent (EHACTL_APT=1 installs them with apt-get)"
   echo "== installing ${missing[*]} (apt-get): QEMU and the ARM C libraries the emulated binaries load"
   { $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq \
       --no-install-recommends "${missing[@]}" >/dev/null; } || skip "apt-get install ${missing[*]} failed"

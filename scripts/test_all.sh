@@ -7,11 +7,42 @@
 # It does not touch your Python: every Python package (test tools, the bindings, Zig and
 # cargo-zigbuild for the cross-builds) goes into a virtual environment it creates,
 # .venv-test/ in the repository (EHACTL_TEST_VENV=DIR to choose another), reused on the
-# next run. System packages it needs are listed first; the only ones it installs itself
-# (apt-get, with sudo -n when not root) are those of the QEMU step, and EHACTL_NO_APT=1
-# skips that step instead. The quick tier for the edit-test loop: scripts/test_fast.sh.
+# next run. Outside the repository it adds the two rustup targets of the cross-builds and
+# the caches of Zig, cargo-zigbuild, npm and matplotlib (README, "What the scripts install").
+# System packages it needs are listed first. It installs system packages (apt-get, with
+# sudo -n when not root: those of the QEMU step, and python3-venv if missing) only with
+# consent: EHACTL_APT=1, or a yes to the question it asks at the start when run from a
+# terminal; otherwise that step is skipped, and the suite's last lines say so. Everything
+# it skipped is listed at its very end, with the reason. One build serves every step: the
+# CLI, the tests and the bindings resolve the same features (crates/feature-unify).
+# The quick tier for the edit-test loop: scripts/test_fast.sh.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+t0=$(date +%s)
+# Steps that could not run append "step: reason" here (cross_build.sh and qemu_run.sh too);
+# the exit trap prints them last, in capitals, whether the suite passed or failed.
+EHACTL_SKIP_LOG="$(mktemp)"
+counts="$(mktemp)"
+export EHACTL_SKIP_LOG
+skipped() { echo "$*" >>"$EHACTL_SKIP_LOG"; echo "   SKIPPED: $*"; }
+finish() {
+  rc=$?
+  echo
+  if [ $rc = 0 ]; then
+    echo "== the whole suite passed in $(( $(date +%s) - t0 )) s"
+  else
+    echo "== the suite FAILED (exit $rc) after $(( $(date +%s) - t0 )) s"
+  fi
+  [ ! -s "$counts" ] || sed 's/^/   /' "$counts"
+  if [ -s "$EHACTL_SKIP_LOG" ]; then
+    echo "################################################################################"
+    echo "## NOT EVERYTHING WAS CHECKED: these steps were SKIPPED"
+    sed 's/^/##   /' "$EHACTL_SKIP_LOG"
+    echo "################################################################################"
+  fi
+  rm -f "$EHACTL_SKIP_LOG" "$counts" "$counts".*
+}
+trap finish EXIT
 # Disk use of the build directory and free space, printed between steps: a CI run once
 # failed with "No space left on device" in the cross-builds.
 disk() { echo "   disk: target $(du -sh target 2>/dev/null | cut -f1), free $(df -h . | awk 'NR==2 {print $4}')"; }
@@ -34,14 +65,34 @@ if command -v dpkg-query >/dev/null; then
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
   done
 fi
-if [ "${EHACTL_NO_APT:-0}" = 1 ]; then
-  echo "   EHACTL_NO_APT=1: nothing is installed with apt-get; the QEMU step is skipped"
-elif [ ${#missing[@]} -gt 0 ]; then
-  echo "   to run the ARM cross-builds under emulation the QEMU step will apt-get install: ${missing[*]}"
-  echo "   (EHACTL_NO_APT=1 skips that step instead)"
+# May this run install system packages with apt-get? EHACTL_APT=1 yes, EHACTL_APT=0 (or the
+# older EHACTL_NO_APT=1) no; unset: ask when run from a terminal, else no. CI says yes
+# (.ci/run: the project's own machine).
+apt_ok() {
+  case "${EHACTL_APT:-}" in
+    1) return 0 ;;
+    0) return 1 ;;
+  esac
+  [ "${EHACTL_NO_APT:-0}" != 1 ] || return 1
+  [ -t 0 ] && [ -t 1 ] || return 1
+  local answer
+  read -r -p "   install them now with apt-get$([ "$(id -u)" = 0 ] || echo " (sudo)")? [y/N] " answer
+  [ "$answer" = y ] || [ "$answer" = Y ] || [ "$answer" = yes ]
+}
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "   the QEMU step (ARM cross-builds run under emulation) needs, from apt-get: ${missing[*]}"
+  if apt_ok; then
+    EHACTL_APT=1
+    echo "   EHACTL_APT=1: the QEMU step installs them"
+  else
+    EHACTL_APT=0
+    echo "   not installing them (EHACTL_APT=1 allows it): the QEMU step will be skipped"
+  fi
 else
   echo "   system packages for the QEMU step: present"
+  EHACTL_APT="${EHACTL_APT:-0}"
 fi
+export EHACTL_APT
 
 VENV="${EHACTL_TEST_VENV:-$PWD/.venv-test}"
 echo "== Python virtual environment $VENV"
@@ -49,13 +100,13 @@ if [ ! -x "$VENV/bin/python" ]; then
   if ! python3 -m venv "$VENV" 2>/tmp/ehactl_venv_err.$$; then
     cat /tmp/ehactl_venv_err.$$ >&2
     rm -rf "$VENV"
-    if [ "${EHACTL_NO_APT:-0}" != 1 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    if [ "$EHACTL_APT" = 1 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
       echo "   python3 -m venv needs the venv module (ensurepip): apt-get install python3-venv"
       { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends python3-venv >/dev/null; } \
         || { echo "error: apt-get install python3-venv failed" >&2; exit 1; }
       python3 -m venv "$VENV"
     else
-      echo "error: python3 -m venv failed; install the venv module (Debian/Ubuntu: python3-venv)" >&2
+      echo "error: python3 -m venv failed; install the venv module (Debian/Ubuntu: python3-venv; as root with EHACTL_APT=1 the suite installs it)" >&2
       exit 1
     fi
   fi
@@ -71,16 +122,25 @@ echo "== formatting and lints (rustfmt, clippy with warnings as errors)"
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cargo fmt --all --check
 cargo clippy --release --workspace --all-targets -- -D warnings
-echo "== building (release)"
-cargo build --release --workspace --all-targets
+# The SocketCAN transport (this machine has no AF_CAN, so it is only compiled): checked by
+# clippy with the feature on, over the whole workspace so that every other crate keeps its
+# features and the check reuses the step above (a `-p ehactl-canopen` build recompiled the
+# plant and the logger with another feature set).
+echo "== SocketCAN transport (clippy with --features ehactl-canopen/socketcan)"
+cargo clippy --release --workspace --all-targets --features ehactl-canopen/socketcan -- -D warnings
+echo "== building (release): every target once; the tests, the QEMU step and the bindings reuse it"
+# The Python extension's crate is built once, by maturin below (its pyo3 build script depends
+# on maturin's environment, so a cargo build of it here would be redone there); clippy above
+# checked it, and it has no Rust tests.
+cargo build --release --workspace --exclude ehactl-python --all-targets
 disk
-echo "== SocketCAN transport (feature build; this machine has no AF_CAN, so only compiled)"
-cargo build --release -p ehactl-canopen --features socketcan
 echo "== Rust tests"
 # Property tests (proptest) run a fixed seed here so that a CI result is reproducible; without
 # the variable every developer run draws new cases, and the long random runs are in
 # BENCHMARKS.md ("Fuzzed parsers").
-PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}" cargo test --release --workspace
+PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}" cargo test --release --workspace --exclude ehactl-python 2>&1 | tee "$counts.rust"
+awk '/^test result:/ {p += $4; f += $6; i += $8; n++} END {printf "Rust: %d tests passed, %d ignored (%d test binaries and doc-test runs)\n", p, i, n}' "$counts.rust" >>"$counts"
+rm -f "$counts.rust"
 disk
 echo "== cross-build for aarch64 and armv7 (DEPLOY.md; Zig and cargo-zigbuild into $VENV; skipped with a message if the toolchain cannot be installed)"
 CROSS_PRUNE=1 scripts/cross_build.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
@@ -92,18 +152,17 @@ echo "== Python test dependencies and lint (into $VENV)"
 if command -v npm >/dev/null; then
   (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; })
 fi
-if [ "${EHACTL_NO_APT:-0}" = 1 ] && [ ${#missing[@]} -gt 0 ]; then
-  echo "== QEMU step skipped (EHACTL_NO_APT=1 and missing: ${missing[*]})"
-else
-  echo "== cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
-  scripts/qemu_run.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
-fi
+echo "== cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
+scripts/qemu_run.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
 echo "== Python bindings (pyo3 + maturin) with the simulated CANopen devices (python -m ehactl.devices): build, install into $VENV"
 "$PY" -m pip install --quiet "./bindings/python[devices]"
 echo "== Python tests"
-EHACTL_BIN="$PWD/target/release/ehactl" EHACTL_REQUIRE_BINDINGS=1 "$PY" -m pytest tests/python -q
+EHACTL_BIN="$PWD/target/release/ehactl" EHACTL_REQUIRE_BINDINGS=1 "$PY" -m pytest tests/python -q -rs 2>&1 | tee "$counts.py"
+echo "Python (tests/python): $(tail -n 1 "$counts.py" | tr -d '=')" >>"$counts"
 echo "== Python bindings: type check (mypy --strict, config in bindings/python/pyproject.toml)"
 (cd bindings/python && "$PY" -m mypy)
 echo "== Python bindings (pyo3 + maturin): tests"
-EHACTL_BIN="$PWD/target/release/ehactl" PY="$PY" bash -c 'cd bindings/python && "$PY" -m pytest tests -q'
+EHACTL_BIN="$PWD/target/release/ehactl" PY="$PY" bash -c 'cd bindings/python && "$PY" -m pytest tests -q -rs' 2>&1 | tee "$counts.py"
+echo "Python (bindings/python/tests): $(tail -n 1 "$counts.py" | tr -d '=')" >>"$counts"
+rm -f "$counts.py"
 disk

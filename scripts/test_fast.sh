@@ -35,13 +35,18 @@ cargo clippy --release --workspace --all-targets -- -D warnings
 
 echo "== Rust tests (without the diagnosis catalogue)"
 export PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}"
-cargo test --release --workspace --exclude ehactl-ident "$@"
+# The Python extension's crate has no Rust tests (its tests are pytest files, run by
+# test_all.sh after maturin builds it); clippy above checked it.
+cargo test --release --workspace --exclude ehactl-ident --exclude ehactl-python "$@"
 # ehactl-ident's unit tests and its two quick integration tests. Selected with --workspace (the
 # other crates' unit tests run again, a few seconds) so that Cargo resolves the same features
 # as above: `-p ehactl-ident` would build every dependency a second time after each change.
-cargo test --release --workspace --lib --test data_errors --test data_units "$@"
+cargo test --release --workspace --exclude ehactl-python --lib --test data_errors --test data_units "$@"
 
 echo "== Python tests (no CAN, no diagnosis catalogue, no bindings)"
+# Nothing to recompile here: the tests above built every crate the CLI needs with the same
+# features (crates/feature-unify; tests/python/test_feature_sets.py checks it), so this only
+# links target/release/ehactl if the tests did not already.
 cargo build --release -p ehactl-cli
 # Skipped here, run by test_all.sh: CAN end to end (hub, devices, LocalNode), diagnosis on
 # generated and real records, the README's examples and the documented tuning figures (need

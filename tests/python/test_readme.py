@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import re
+import resource
 import shlex
 import subprocess
 import sys
@@ -61,7 +62,9 @@ def test_readme_shell_command(cmd):
         argv[0] = sys.executable
     else:
         pytest.fail(f"README command this test does not know how to run: {cmd}")
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN).ru_utime
     r = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=1200)
+    cpu = resource.getrusage(resource.RUSAGE_CHILDREN).ru_utime - cpu0
     assert r.returncode == 0, f"{cmd}\n{r.stderr[-3000:]}"
     assert "panicked" not in r.stderr
     if argv[1:2] == ["diagnose"] and argv.count("--data") > 1:
@@ -83,6 +86,24 @@ def test_readme_shell_command(cmd):
                        f"ARX model ({arx:.2f})", f"a yield force on the rod, brings it to {grey:.2f}",
                        f"`{cause.group(1)}`"):
             assert phrase in readme, f"README.md should say: {phrase}"
+        # the CPU time the README states for this command, within a factor of 2 of this run's
+        # (user CPU barely depends on the load, unlike wall time)
+        stated = float(re.search(r"About ([\d.]+) s of user CPU time", readme).group(1))
+        assert stated / 2 <= cpu <= stated * 2, \
+            f"README.md says about {stated} s of user CPU time for diagnose; this run took {cpu:.1f} s"
+
+
+def test_readme_states_measured_figures_only():
+    """No test counts (the suite prints them at its end: they change with every test added),
+    and every duration the README gives for the two scripts comes with the date and the load
+    average it was measured at."""
+    readme = " ".join((REPO / "README.md").read_text().split())
+    counts = re.findall(r"\b\d[\d ]* (?:Rust|Python)(?: and [^.]*?)? tests\b", readme)
+    assert not counts, f"README.md states test counts {counts}: the suite prints them"
+    how_long = re.search(r"How long[,:](.*?)## ", readme).group(1)
+    assert re.search(r"\d+ min", how_long), how_long
+    assert re.search(r"measured 20\d\d-\d\d-\d\d", how_long), how_long
+    assert "load average" in how_long, how_long
 
 
 def run_python(code: str, tmp_path: Path) -> subprocess.CompletedProcess:

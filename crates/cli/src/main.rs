@@ -1,4 +1,5 @@
-//! `ehactl`: closed-loop runs against the simulated plant, config checks, parameter lists.
+//! `ehactl`: closed-loop runs against the simulated plant or CANopen devices (`--hal
+//! canopen`), config checks, parameter lists, analysis and diagnosis.
 //!
 //! Exit codes: 0 run completed, 2 bad config or arguments, 3 supervisor trip (including
 //! device faults of `--hal canopen`), 4 hardware start-up failed (bus, boot-up, SDO
@@ -28,7 +29,8 @@ use std::sync::Arc;
 #[command(
     name = "ehactl",
     version,
-    about = "Real-time electro-hydraulic actuator controller with a simulated plant"
+    about = "Real-time electro-hydraulic actuator controller: runs against a simulated plant \
+             or CANopen devices (run --hal canopen)"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -37,7 +39,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Run a closed-loop test of CONFIG against the simulated plant and log it to MCAP.
+    /// Run a closed-loop test of CONFIG and log it to MCAP: against the simulated plant
+    /// (default, --hal sim) or CANopen devices on a CAN bus (--hal canopen --bus …).
     Run {
         /// Rig config (TOML).
         config: PathBuf,
