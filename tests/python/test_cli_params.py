@@ -15,12 +15,14 @@ FIXTURE = REPO / "tests" / "fixtures" / "ehactl_params.txt"
 # Lines added on purpose after the fixture: parameters added since (2026-11-26: the line
 # scheme and its segment-mode margin; 2026-11-27: the friction variant lugre and the
 # line_dynamics variant hose, whose friction.variant description line the fixture carries
-# updated; the Dahl term of the grey-box force law) and the rig sections' switches, which the hand-written table left out
+# updated; the Dahl term of the grey-box force law; 2026-11-28: the position sensor's velocity
+# window of an imposed-motion replay) and the rig sections' switches, which the hand-written table left out
 # (tests/rust/param_registry.rs checks their entries). In output order.
 ADDED = ("effects.friction.bristle_stiffness", "effects.friction.bristle_damping",
          "effects.line_dynamics.variant", "effects.line_dynamics.wall_compliance",
          "effects.line_dynamics.resistance", "effects.polynomial_force.dahl",
-         "effects.polynomial_force.dahl_travel", "integration.max_omega_h_line", "integration.line_method", "control.mode", "setpoint.kind", "setpoint.sweep", "log.compression",
+         "effects.polynomial_force.dahl_travel", "sensors.position.velocity_window",
+         "integration.max_omega_h_line", "integration.line_method", "control.mode", "setpoint.kind", "setpoint.sweep", "log.compression",
          "realtime.lock_memory", "realtime.overrun_policy")
 
 
