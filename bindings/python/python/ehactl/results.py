@@ -797,6 +797,10 @@ class DiagnosisResult(_DictCompat):
         baseline, residual_test, integration, greybox, analysis, analysis_refit: sections
             kept in the JSON's form (read-only mappings; ``greybox`` None when it did not run).
         notes: Replay notes of the Python call (not part of the CLI's JSON).
+        headline: The text output's first line: the recommended model (the one
+            ``extended.toml`` holds) with its held-out NRMSE beside nominal and ARX.
+        recommended: That model in words (``model``) and its held-out ``nrmse``, with the
+            ``nominal`` and ``arx`` figures on the same split.
     """
 
     cause: str
@@ -829,13 +833,15 @@ class DiagnosisResult(_DictCompat):
     identified_loop: Optional[Mapping[str, Any]] = None
     refit_continued: Tuple[str, ...] = ()
     notes: Tuple[str, ...] = ()
+    headline: str = ""
+    recommended: Optional[Mapping[str, Any]] = None
 
     # JSON key order of `ehactl diagnose --json` (serde field order, then the files).
     _ORDER = ("cause", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
               "nrmse_baseline", "baseline", "residual_test", "integration", "greybox", "gain",
               "noise_floor", "candidates", "extended_params", "identified_loop", "refit_at_bounds", "extended_at_bounds",
               "sensor_offsets", "ambiguities", "refit_continued", "warnings", "analysis", "analysis_refit", "split",
-              "summary", "extended_config", "report", "plots")
+              "summary", "extended_config", "report", "plots", "recommended", "headline")
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], notes: Sequence[str] = ()) -> DiagnosisResult:
@@ -870,6 +876,8 @@ class DiagnosisResult(_DictCompat):
             identified_loop=None if d.get("identified_loop") is None else _freeze(d["identified_loop"]),
             refit_continued=strs("refit_continued"),
             notes=tuple(str(n) for n in notes),
+            headline=str(d.get("headline", "")),
+            recommended=None if d.get("recommended") is None else _freeze(d["recommended"]),
         )
 
     def to_dict(self) -> dict[str, Any]:
