@@ -213,17 +213,13 @@ pub fn cmd_predict(
         return ExitCode::SUCCESS;
     }
     for p in &run.predictions {
-        let op: Vec<String> = p
-            .operating_point
-            .iter()
-            .map(|(k, v)| format!("{k} = {v}"))
-            .collect();
+        let op = ehactl_config::inputs::describe_point(&p.operating_point);
         println!(
             "{} ({} replay{}{}): NRMSE {:.4} over samples {}..{}",
             p.source,
             p.replay.replace('_', "-"),
             if op.is_empty() { "" } else { " at " },
-            op.join(", "),
+            op,
             p.nrmse.overall,
             p.scored.0,
             p.scored.1

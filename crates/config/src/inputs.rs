@@ -102,6 +102,14 @@ pub fn validate(inputs: &Inputs, plant: &PlantParams) -> Result<(), ConfigError>
     Ok(())
 }
 
+/// An operating point in words: `current = 0.5, temperature = 40` (empty when none).
+pub fn describe_point(at: &BTreeMap<String, f64>) -> String {
+    at.iter()
+        .map(|(k, v)| format!("{k} = {v}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// The plant at operating point `at` (input name → value in its unit); an input not given
 /// stays at its declared `value`. Errors name an unknown input or a parameter the dependence
 /// drives out of its admitted range.
@@ -141,14 +149,7 @@ pub fn plant_at(
             })?;
         }
     }
-    ehactl_plant::model::validate(&p).map_err(|e| {
-        format!(
-            "the plant at operating point {}: {e}",
-            at.iter()
-                .map(|(k, v)| format!("{k} = {v}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        )
-    })?;
+    ehactl_plant::model::validate(&p)
+        .map_err(|e| format!("the plant at operating point {}: {e}", describe_point(at)))?;
     Ok(p)
 }

@@ -604,7 +604,7 @@ pub fn diagnose_campaign(
         if p.score.is_empty() {
             continue;
         }
-        let law_pred = law.predict(cfg, p, &names)?;
+        let law_pred = law.predict(cfg, p)?;
         let nom_pred = nominal_prediction(cfg, p, &names)?;
         let r = p.score.clone();
         let f = &p.force[r.clone()];
@@ -706,9 +706,7 @@ fn prepare<'a>(
         let inp = &cfg.inputs[name];
         match rec.input(name) {
             Some(v) => {
-                let mut s = v.to_vec();
-                s.sort_by(f64::total_cmp);
-                at.push(s[s.len() / 2]);
+                at.push(rec.input_median(name).unwrap_or(inp.value));
                 op.push(v.to_vec());
             }
             None => {
@@ -1176,15 +1174,20 @@ impl LawFit {
         self.coefficient_of(term, None)
     }
 
-    /// Coefficients of the basis functions of input `k` for `term`.
-    fn basis_coefficients(&self, term: LawTerm, k: usize) -> Vec<f64> {
-        let forms = &self
+    /// The forms (one per input) of a term of the law.
+    fn forms_of(&self, term: LawTerm) -> &[Form] {
+        &self
             .structure
             .terms
             .iter()
             .find(|t| t.0 == term)
             .expect("term in structure")
-            .1;
+            .1
+    }
+
+    /// Coefficients of the basis functions of input `k` for `term`.
+    fn basis_coefficients(&self, term: LawTerm, k: usize) -> Vec<f64> {
+        let forms = self.forms_of(term);
         let fi = self.forms[k]
             .iter()
             .position(|f| *f == forms[k])
@@ -1196,13 +1199,7 @@ impl LawFit {
 
     /// Coefficient of `term` at operating point `at` (per input).
     fn coefficient_at(&self, term: LawTerm, at: &[f64]) -> f64 {
-        let forms = &self
-            .structure
-            .terms
-            .iter()
-            .find(|t| t.0 == term)
-            .expect("term in structure")
-            .1;
+        let forms = self.forms_of(term);
         let mut c = self.constant_part(term);
         for (k, f) in forms.iter().enumerate() {
             let basis = f.basis(at[k]);
@@ -1223,12 +1220,7 @@ impl LawFit {
     }
 
     /// Force prediction along record `p` (time-varying inputs followed sample by sample).
-    fn predict(
-        &self,
-        cfg: &RigConfig,
-        p: &Prepared<'_>,
-        names: &[String],
-    ) -> Result<Vec<f64>, String> {
+    fn predict(&self, cfg: &RigConfig, p: &Prepared<'_>) -> Result<Vec<f64>, String> {
         let v = record_velocity(p.rec, p.x, self.shape.velocity_window);
         let m = Motion {
             dt: p.rec.dt,
@@ -1236,7 +1228,6 @@ impl LawFit {
             v: &v,
             dp: p.dp.as_deref(),
         };
-        let _ = names;
         let law0 = shape_law(self.shape);
         let pm = &cfg.plant.mechanics;
         let mut f: Vec<f64> =
@@ -1443,11 +1434,7 @@ fn summary_of(
             "  {} [{}] at {}: law {:.4}, nominal {:.4}, ARX {:.4}\n",
             r.source,
             r.role,
-            r.operating_point
-                .iter()
-                .map(|(k, v)| format!("{k} = {v}"))
-                .collect::<Vec<_>>()
-                .join(", "),
+            ehactl_config::inputs::describe_point(&r.operating_point),
             r.nrmse.law,
             r.nrmse.nominal,
             r.nrmse.arx

@@ -5,6 +5,7 @@
 use crate::campaign::{diagnose_campaign, Campaign};
 use crate::data::ChannelKind;
 use crate::session::{load_checked, SessionError};
+use ehactl_config::inputs::describe_point;
 use ehactl_config::RigConfig;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -165,11 +166,7 @@ fn report_md(c: &Campaign) -> String {
             "| {} | {} | {} | {:.4} | {:.4} | {:.4} |\n",
             r.source,
             r.role,
-            r.operating_point
-                .iter()
-                .map(|(k, v)| format!("{k} = {v}"))
-                .collect::<Vec<_>>()
-                .join(", "),
+            describe_point(&r.operating_point),
             r.nrmse.law,
             r.nrmse.nominal,
             r.nrmse.arx

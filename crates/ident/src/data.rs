@@ -144,6 +144,14 @@ impl Record {
             .map(|(_, v)| v.as_slice())
     }
 
+    /// The median of the operating input `name` over the record (its operating point), if
+    /// the record carries it.
+    pub fn input_median(&self, name: &str) -> Option<f64> {
+        let mut s = self.input(name)?.to_vec();
+        s.sort_by(f64::total_cmp);
+        s.get(s.len() / 2).copied()
+    }
+
     /// The channel of a kind, if measured.
     pub fn channel(&self, kind: ChannelKind) -> Option<&[f64]> {
         self.channels

@@ -47,13 +47,7 @@ pub struct Prediction {
 fn operating_point(cfg: &RigConfig, rec: &Record) -> BTreeMap<String, f64> {
     cfg.inputs
         .keys()
-        .filter_map(|n| {
-            rec.input(n).map(|v| {
-                let mut s = v.to_vec();
-                s.sort_by(f64::total_cmp);
-                (n.clone(), s[s.len() / 2])
-            })
-        })
+        .filter_map(|n| rec.input_median(n).map(|m| (n.clone(), m)))
         .collect()
 }
 

@@ -197,11 +197,6 @@ impl ImposedMotion {
         })
     }
 
-    /// The rod-force law in use (`None` without one).
-    pub fn law(&self) -> Option<&PolynomialForce> {
-        self.law.as_ref()
-    }
-
     /// Load-cell force (N) along the motion.
     pub fn rod_forces(&self, m: &Motion<'_>) -> Result<Vec<f64>, String> {
         let mut f: Vec<f64> =
