@@ -210,6 +210,12 @@ pub struct Diagnosis {
     /// gain its effect did not carry (`MIN_EFFECT_SHARE`), its fit without the effect becoming
     /// the current model; one sentence each, in order.
     pub refit_continued: Vec<String>,
+    /// Catalogue effects accepted on the fitting part but dropped for a grey-box law that
+    /// predicts the held-out part better, while they lost to the ARX baseline there.
+    pub dropped_effects: Option<DroppedEffects>,
+    /// Whether the catalogue model lost to the ARX baseline on the held-out part and no
+    /// grey-box law beat the baseline either (the cause is then `unexplained`).
+    pub beaten_by_baseline: bool,
     /// Warnings from loading and checking the data.
     pub warnings: Vec<String>,
     /// Residual analysis of the nominal replay (fitting part).
@@ -304,10 +310,13 @@ pub fn diagnose(
     } else {
         phase_candidates(&nom, &refit, nominal, opts, &bar)
     };
-    let resid = phase_residual_test(&nom, &refit, &search);
+    let mut search = search;
+    let mut resid = phase_residual_test(&nom, &refit, &search);
+    let grey = phase_greybox(&nom, &refit, &mut search, &mut resid, opts);
     let loop_h = identified_loop.as_ref().map(|l| &l.1);
-    let (mut d, reidentified) =
-        phase_report(nom, refit, search, resid, nominal, rec, val, opts, loop_h);
+    let (mut d, reidentified) = phase_report(
+        nom, refit, search, resid, grey, nominal, rec, val, opts, loop_h,
+    );
     let identified_loop = match (reidentified, identified_loop, opts.drive) {
         (Some((h, before, after)), Some(_), Drive::PositionPd(g)) => Some(crate::loopid::describe(
             config_nominal,
@@ -1205,6 +1214,95 @@ fn phase_residual_test(
     }
 }
 
+/// Catalogue effects dropped for a grey-box law: they predicted the held-out part worse than
+/// the ARX baseline, and the law alone (on the nominal refit) predicted it better than the
+/// catalogue model with or without a law on top.
+#[derive(Debug, Clone, Serialize)]
+pub struct DroppedEffects {
+    /// The effect ids that had been accepted on the fitting part.
+    pub effects: Vec<String>,
+    /// Held-out overall NRMSE of the catalogue model with them (-).
+    pub nrmse_catalogue: f64,
+    /// Held-out overall NRMSE of the catalogue model with a grey-box law on top, when one was
+    /// accepted there (-).
+    pub nrmse_catalogue_with_law: Option<f64>,
+    /// Held-out overall NRMSE of the grey-box law on the nominal refit alone, the kept model (-).
+    pub nrmse_law: f64,
+    /// Held-out overall NRMSE of the ARX baseline (-).
+    pub nrmse_baseline: f64,
+}
+
+/// What the grey-box phase hands on.
+struct GreyPhase {
+    /// The recommended model's hypothesis (the catalogue model, plus the law when accepted).
+    final_hyp: Hyp,
+    greybox: Option<crate::greybox::GreyBox>,
+    dropped: Option<DroppedEffects>,
+}
+
+/// Phase 5: a grey-box law when the catalogue model's held-out residual is not noise, fitted
+/// on top of it. A catalogue extension that predicts the held-out part worse than the ARX
+/// baseline is weak evidence (on a damper whose force tracks velocity, a mount's compliance
+/// was once accepted while a linear black box predicted twice as well): the law then competes
+/// on the nominal refit alone, scored on the same held-out part, and the better model is kept.
+/// When the law alone wins, `search` and `resid` become the refit's.
+fn phase_greybox(
+    nom: &NominalPhase<'_>,
+    rf: &RefitPhase,
+    search: &mut SearchPhase,
+    resid: &mut ResidualPhase,
+    opts: &Options,
+) -> GreyPhase {
+    let mut out = GreyPhase {
+        final_hyp: search.current.clone(),
+        greybox: None,
+        dropped: None,
+    };
+    if !opts.greybox || resid.test.noise {
+        return out;
+    }
+    let arx = nom.nrmse_baseline.overall;
+    let extend = |h: &Hyp, c: f64| {
+        crate::greybox::extend(&nom.ctx, h, c, &rf.scales, arx, opts.evals_per_param)
+    };
+    let (h, g) = extend(&search.current, search.cur_train);
+    let with_law = g.accepted.then_some(g.nrmse_validation.overall);
+    let catalogue = resid.ext_err.overall;
+    if let Some(h) = h {
+        out.final_hyp = h;
+    }
+    out.greybox = Some(g);
+    if search.accepted.is_empty() || catalogue <= arx {
+        return out;
+    }
+    let (hb, gb) = extend(&rf.h0, rf.c0_train);
+    let kept = with_law.unwrap_or(catalogue);
+    let Some(hb) = hb.filter(|_| gb.nrmse_validation.overall < kept) else {
+        return out;
+    };
+    out.dropped = Some(DroppedEffects {
+        effects: search
+            .accepted
+            .iter()
+            .map(|e| e.as_str().to_string())
+            .collect(),
+        nrmse_catalogue: catalogue,
+        nrmse_catalogue_with_law: with_law,
+        nrmse_law: gb.nrmse_validation.overall,
+        nrmse_baseline: arx,
+    });
+    for c in search.candidates.values_mut() {
+        c.accepted = false;
+    }
+    search.current = rf.h0.clone();
+    search.cur_train = rf.c0_train;
+    search.accepted.clear();
+    *resid = phase_residual_test(nom, rf, search);
+    out.final_hyp = hb;
+    out.greybox = Some(gb);
+    out
+}
+
 /// Nominal parameters that ended within 0.5 % of the span from a bound of their stated
 /// uncertainty: evidence of a missing effect (or of a wrong nominal value or uncertainty).
 fn at_bounds(h: &Hyp) -> Vec<String> {
@@ -1229,13 +1327,14 @@ fn at_bounds(h: &Hyp) -> Vec<String> {
         .collect()
 }
 
-/// Phase 5: the plain-words summary and the result.
+/// Phase 6: the plain-words summary and the result.
 #[allow(clippy::too_many_arguments)]
 fn phase_report(
     nom: NominalPhase<'_>,
     rf: RefitPhase,
     search: SearchPhase,
     resid: ResidualPhase,
+    grey: GreyPhase,
     nominal: &PlantParams,
     rec: &Record,
     val: Option<&Record>,
@@ -1245,7 +1344,7 @@ fn phase_report(
     let ctx = &nom.ctx;
     let SearchPhase {
         current,
-        cur_train,
+        cur_train: _,
         accepted,
         candidates,
         ambiguities,
@@ -1269,24 +1368,11 @@ fn phase_report(
         BTreeMap::new()
     };
     let gain = 1.0 - ext_err.overall / nom.nom_err.overall;
-    // Grey-box extension when the catalogue is exhausted (fitting part only; scored once).
-    let mut final_hyp = current.clone();
-    let greybox = if opts.greybox && !residual_test.noise {
-        let (h, g) = crate::greybox::extend(
-            ctx,
-            &current,
-            cur_train,
-            &rf.scales,
-            nom.nrmse_baseline.overall,
-            opts.evals_per_param,
-        );
-        if let Some(h) = h {
-            final_hyp = h;
-        }
-        Some(g)
-    } else {
-        None
-    };
+    let GreyPhase {
+        mut final_hyp,
+        greybox,
+        dropped,
+    } = grey;
     // A grey-box law that carries the gain (its held-out error below the catalogue model's) is
     // the cause, named in physical terms, not `unexplained`.
     let cause = match greybox.as_ref() {
@@ -1314,6 +1400,20 @@ fn phase_report(
             reidentified = Some((h, before, after));
         }
     }
+    // A catalogue model that loses to the linear black box, with no law that beats it either,
+    // is not an explanation whatever was accepted on the fitting part.
+    let arx = nom.nrmse_baseline.overall;
+    let best = greybox
+        .as_ref()
+        .filter(|g| g.accepted)
+        .map_or(ext_err.overall, |g| g.nrmse_validation.overall);
+    let catalogue_beaten = dropped.is_some() || (!accepted.is_empty() && ext_err.overall > arx);
+    let beaten_by_baseline = catalogue_beaten && best > arx;
+    let cause = if beaten_by_baseline {
+        "unexplained".to_string()
+    } else {
+        cause
+    };
     let (extended, ext_fit_sim, ext_val_sim) = if greybox.as_ref().is_some_and(|g| g.accepted) {
         (
             final_hyp.build(nominal),
@@ -1385,6 +1485,19 @@ fn phase_report(
             )
         };
     }
+    if let Some(d) = &dropped {
+        summary.push_str(&dropped_text(d));
+    }
+    if beaten_by_baseline {
+        summary.push_str(&format!(
+            " The answer is `unexplained`: neither the catalogue model (held-out NRMSE {:.4}) nor the grey-box law ({}) predicts the held-out part as well as the ARX baseline ({arx:.4}); extended.toml holds the better physical model.",
+            dropped.as_ref().map_or(ext_err.overall, |d| d.nrmse_catalogue),
+            greybox
+                .as_ref()
+                .filter(|g| g.accepted)
+                .map_or("no term accepted".to_string(), |g| format!("{:.4}", g.nrmse_validation.overall)),
+        ));
+    }
     if !extended_at_bounds.is_empty() {
         summary.push_str(&format!(
             " Nominal parameters of the final model on a bound of their stated uncertainty (evidence of a missing effect, or of a wrong nominal value): {}.",
@@ -1436,6 +1549,8 @@ fn phase_report(
             sensor_offsets,
             ambiguities,
             refit_continued: rebased,
+            dropped_effects: dropped,
+            beaten_by_baseline,
             warnings: rec
                 .warnings
                 .iter()
@@ -1455,6 +1570,20 @@ fn phase_report(
             traces,
         },
         reidentified,
+    )
+}
+
+/// The summary's sentence on catalogue effects dropped for a grey-box law.
+fn dropped_text(d: &DroppedEffects) -> String {
+    let on_top = d.nrmse_catalogue_with_law.map_or(String::new(), |w| {
+        format!(", {w:.4} with a grey-box law on top of them")
+    });
+    format!(
+        " The catalogue effect(s) {} accepted on the fitting part predicted the held-out part worse than the ARX baseline (held-out NRMSE {:.4} vs {:.4}{on_top}); the grey-box law on the nominal refit alone predicts it better ({:.4}), so they are not kept.",
+        d.effects.join(" + "),
+        d.nrmse_catalogue,
+        d.nrmse_baseline,
+        d.nrmse_law
     )
 }
 

@@ -256,6 +256,10 @@ fn dahl_trace(v: &[f64], dt: f64, delta: f64) -> Vec<f64> {
         .collect()
 }
 
+/// |r| of the force residual with velocity above which the velocity terms are fitted together
+/// when none was kept (velocity then explains at least a quarter of the residual's variance) (-).
+pub const VELOCITY_CORRELATION: f64 = 0.5;
+
 /// Robust scale of a trace: the 99th percentile of |v − c| (units of `v`).
 fn robust_scale(v: &[f64], c: f64) -> f64 {
     let mut a: Vec<f64> = v
@@ -664,6 +668,61 @@ pub(crate) fn extend(
         }
         (best.1, best.2)
     };
+    // A library term's coefficient (and the yield velocity or Dahl travel it carries) added
+    // to `hh` from its least-squares start on the force residual `resid`.
+    let push_term = |hh: &mut Hyp, l: &Lib, resid: &[f64]| {
+        let (init, partner) = match l.field {
+            "coulomb" if l.section == "polynomial_force" => {
+                (ls_start(l, resid), Some(yield_velocity(vs)))
+            }
+            "dahl" => {
+                let (fd, delta) = dahl_start(resid);
+                (fd, Some(dahl_travel(delta)))
+            }
+            _ => (ls_start(l, resid), None),
+        };
+        let fp = make_param(l, init, 1.0);
+        hh.values.push(fp.init);
+        hh.params.push(fp);
+        if let Some(fv) = partner {
+            hh.values.push(fv.init);
+            hh.params.push(fv);
+        }
+    };
+    // The report of a selected term `l` in hypothesis `h` (fitting cost `train`, judged
+    // overall NRMSE `judged`).
+    let term_of = |l: &Lib, h: &Hyp, train: f64, judged: f64| -> Term {
+        let k = h.params.iter().rposition(|p| p.name == l.path());
+        Term {
+            path: l.path(),
+            value: k.map_or(0.0, |k| h.values[k]),
+            unit: l.unit().to_string(),
+            name: l.name.to_string(),
+            physics: l.physics.to_string(),
+            nrmse_train: train.sqrt(),
+            nrmse_transfer: split.as_ref().map(|_| judged),
+            // Reported only: the held-out part never enters a choice.
+            nrmse_validation: frozen.val_errors(h).0.overall,
+            bound: k.map_or(0.0, |k| h.params[k].hi),
+            at_bound: false,
+        }
+    };
+    // Force residual (N) of `h` on the fitting part, when the record has a force channel.
+    let force_residual = |h: &Hyp| -> Option<Vec<f64>> {
+        force_resid.as_ref()?;
+        let s = frozen.fit_replay(&h.build(&base_fit)).ok()?;
+        let fc = rec
+            .channels
+            .iter()
+            .position(|c| c.kind == ChannelKind::Force)?;
+        Some(
+            rec.channels[fc].values[..n_fit]
+                .iter()
+                .zip(&s.y[fc][..n_fit])
+                .map(|(a, b)| a - b)
+                .collect(),
+        )
+    };
     for _round in 0..MAX_TERMS {
         let cands: Vec<&Lib> = lib
             .iter()
@@ -674,24 +733,8 @@ pub(crate) fn extend(
             .enumerate()
             .map(|(i, l)| {
                 let mut hh = h.clone();
-                let (init, partner) = match l.field {
-                    "coulomb" if l.section == "polynomial_force" => {
-                        (ls_start(l, &resid), Some(yield_velocity(vs)))
-                    }
-                    "dahl" => {
-                        let (fd, delta) = dahl_start(&resid);
-                        (fd, Some(dahl_travel(delta)))
-                    }
-                    _ => (ls_start(l, &resid), None),
-                };
-                let fp = make_param(l, init, 1.0);
-                hh.values.push(fp.init);
-                hh.params.push(fp);
-                let first_new = hh.params.len() - 1;
-                if let Some(fv) = partner {
-                    hh.values.push(fv.init);
-                    hh.params.push(fv);
-                }
+                let first_new = hh.params.len();
+                push_term(&mut hh, l, &resid);
                 let (hh, c) = sel.fit(hh, first_new, evals_per_param);
                 let (lc, e) = judge(&hh);
                 (i, hh, c, lc, e)
@@ -767,41 +810,50 @@ pub(crate) fn extend(
         h = hb;
         j_cur = cb;
         l_cur = lb;
-        let k = h
-            .params
-            .iter()
-            .rposition(|p| p.name == l.path())
-            .unwrap_or(0);
-        let value = h.values.get(k).copied().unwrap_or(0.0);
-        let bound = h.params.get(k).map_or(0.0, |p| p.hi);
-        terms.push(Term {
-            path: l.path(),
-            value,
-            unit: l.unit().to_string(),
-            name: l.name.to_string(),
-            physics: l.physics.to_string(),
-            nrmse_train: cb.sqrt(),
-            nrmse_transfer: split.as_ref().map(|_| eb),
-            // Reported only: the held-out part never enters a choice.
-            nrmse_validation: frozen.val_errors(&h).0.overall,
-            bound,
-            at_bound: false,
-        });
+        terms.push(term_of(l, &h, cb, eb));
         // Force residual after this term (for the next starts).
-        if force_resid.is_some() {
-            let p = h.build(&base_fit);
-            if let Ok(s) = frozen.fit_replay(&p) {
-                if let Some(fc) = rec
-                    .channels
-                    .iter()
-                    .position(|c| c.kind == ChannelKind::Force)
-                {
-                    resid = rec.channels[fc].values[..n_fit]
-                        .iter()
-                        .zip(&s.y[fc][..n_fit])
-                        .map(|(a, b)| a - b)
-                        .collect();
-                }
+        if let Some(r) = force_residual(&h) {
+            resid = r;
+        }
+    }
+    // The force residual still tracks velocity but no velocity term was kept: alone, each may
+    // fail the transfer check when the load both yields and flows viscously (an MR damper:
+    // a yield force alone misses the high-speed slope, a viscous term alone the reversals),
+    // so the velocity terms are fitted together once, judged by the same rule.
+    let r_v = force_resid
+        .as_ref()
+        .map_or(0.0, |(_, _, v)| crate::residual::corr(&resid, v));
+    let velocity_terms = ["viscous", "coulomb", "dahl"];
+    let kept_velocity = used
+        .iter()
+        .any(|(sec, f)| *sec == "polynomial_force" && velocity_terms.contains(f));
+    if r_v.abs() >= VELOCITY_CORRELATION && !kept_velocity {
+        let group: Vec<&Lib> = lib
+            .iter()
+            .filter(|l| l.section == "polynomial_force" && velocity_terms.contains(&l.field))
+            .collect();
+        let mut hh = h.clone();
+        let first_new = hh.params.len();
+        for l in &group {
+            push_term(&mut hh, l, &resid);
+        }
+        let (hh, c) = sel.fit(hh, first_new, evals_per_param);
+        let (lc, e) = judge(&hh);
+        let gain = 1.0 - (lc - l_cur).exp();
+        let keep = c <= j_cur && gain >= MIN_REL_GAIN;
+        selection.push(format!(
+            "the force residual tracks velocity (r = {r_v:+.2}) and no velocity term was kept: viscous, yield and Dahl terms fitted together: fitting NRMSE {:.4} → {:.4}, geometric mean of the per-channel J {:+.1} %{}",
+            j_cur.sqrt(),
+            c.sqrt(),
+            -100.0 * gain,
+            if keep { ", kept" } else { ", not kept" }
+        ));
+        if keep {
+            h = hh;
+            j_cur = c;
+            for l in group {
+                used.push((l.section, l.field));
+                terms.push(term_of(l, &h, c, e));
             }
         }
     }

@@ -102,7 +102,8 @@ pub fn ljung_box(e: &[f64], m: usize) -> f64 {
         * (nf + 2.0)
 }
 
-fn corr(a: &[f64], b: &[f64]) -> f64 {
+/// Pearson correlation of two traces over their common length (0 when either is constant).
+pub(crate) fn corr(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().min(b.len());
     if n < 3 {
         return 0.0;

@@ -789,6 +789,11 @@ class DiagnosisResult(_DictCompat):
         ambiguities: Effect pairs the data cannot separate, with the experiment that would.
         refit_continued: Where the search went on from a better nominal fit than the refit's (a
             candidate whose effect did not carry its gain; one sentence each).
+        dropped_effects: Catalogue effects accepted on the fitting part but dropped for a
+            grey-box law that predicts the held-out part better, while they lost to the ARX
+            baseline there (``effects`` and the held-out NRMSEs), or None.
+        beaten_by_baseline: True when the catalogue model lost to ARX on the held-out part and
+            no grey-box law beat ARX either (the cause is then ``unexplained``).
         warnings: Warnings from loading and checking the data (also issued as Python warnings).
         split, summary: How the data were split; plain-words conclusion.
         extended_config, report, plots: Written files (None when no ``out`` directory was given).
@@ -832,6 +837,8 @@ class DiagnosisResult(_DictCompat):
     analysis_refit: Mapping[str, Any]
     identified_loop: Optional[Mapping[str, Any]] = None
     refit_continued: Tuple[str, ...] = ()
+    dropped_effects: Optional[Mapping[str, Any]] = None
+    beaten_by_baseline: bool = False
     notes: Tuple[str, ...] = ()
     headline: str = ""
     recommended: Optional[Mapping[str, Any]] = None
@@ -840,7 +847,8 @@ class DiagnosisResult(_DictCompat):
     _ORDER = ("cause", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
               "nrmse_baseline", "baseline", "residual_test", "integration", "greybox", "gain",
               "noise_floor", "candidates", "extended_params", "identified_loop", "refit_at_bounds", "extended_at_bounds",
-              "sensor_offsets", "ambiguities", "refit_continued", "warnings", "analysis", "analysis_refit", "split",
+              "sensor_offsets", "ambiguities", "refit_continued",
+              "dropped_effects", "beaten_by_baseline", "warnings", "analysis", "analysis_refit", "split",
               "summary", "extended_config", "report", "plots", "recommended", "headline")
 
     @classmethod
@@ -875,6 +883,8 @@ class DiagnosisResult(_DictCompat):
             analysis=_freeze(d.get("analysis") or {}), analysis_refit=_freeze(d.get("analysis_refit") or {}),
             identified_loop=None if d.get("identified_loop") is None else _freeze(d["identified_loop"]),
             refit_continued=strs("refit_continued"),
+            dropped_effects=None if d.get("dropped_effects") is None else _freeze(d["dropped_effects"]),
+            beaten_by_baseline=bool(d.get("beaten_by_baseline", False)),
             notes=tuple(str(n) for n in notes),
             headline=str(d.get("headline", "")),
             recommended=None if d.get("recommended") is None else _freeze(d["recommended"]),
