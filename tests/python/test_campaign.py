@@ -162,6 +162,56 @@ def test_motion_only_record_is_a_campaign_of_one(tmp_path):
     assert "one operating point" in j["dependence_check"]
 
 
+def write_lab_mcap(path, rec):
+    """A lab record in MCAP as another tool writes it: the official `mcap` writer, JSON samples
+    on /measured with the CSV format's column names (no `t`: the log time carries it)."""
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("Sample", "jsonschema", json.dumps({"type": "object"}).encode())
+        ch = w.register_channel("/measured", "json", sid)
+        for i, t in enumerate(rec["t"]):
+            sample = {k: float(rec[k][i]) for k in ("x", "force", "current")}
+            ns = int(round(t * 1e9))
+            w.add_message(ch, log_time=ns, publish_time=ns, data=json.dumps(sample).encode(), sequence=i)
+        w.finish()
+
+
+def test_motion_only_mcap_is_the_same_record_as_its_csv(tmp_path):
+    _, rec = records_at(0.5)[3]
+    csv, lab = tmp_path / "motion_only.csv", tmp_path / "motion_only.mcap"
+    bw.write_csv(csv, rec)
+    write_lab_mcap(lab, rec)
+    runs = [ehactl("diagnose", "--config", CONFIG, "--data", p, "--json") for p in (csv, lab)]
+    for r in runs:
+        assert r.returncode == 0, r.stderr
+    a, b = (json.loads(r.stdout) for r in runs)
+    assert b["mode"] == "campaign" and b["records"][0]["source"].endswith("motion_only.mcap (/measured)")
+    # The same samples (the MCAP's times from nanosecond log times): the same law.
+    assert b["pooled"]["law"] == pytest.approx(a["pooled"]["law"], rel=1e-6)
+    p = ehactl("predict", "--config", CONFIG, "--data", lab, "--imposed-motion", "--json")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["nrmse"]["channels"]["force"] > 0
+
+
+def test_a_mcap_with_neither_log_nor_lab_record_is_refused(tmp_path):
+    from mcap.writer import Writer
+
+    p = tmp_path / "other.mcap"
+    with open(p, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("X", "jsonschema", b"{}")
+        ch = w.register_channel("/imu", "json", sid)
+        w.add_message(ch, log_time=0, publish_time=0, data=b"{}", sequence=0)
+        w.finish()
+    r = ehactl("diagnose", "--config", CONFIG, "--data", p)
+    assert r.returncode == 2
+    assert "no /control messages" in r.stderr and "/measured" in r.stderr, r.stderr
+
+
 def test_a_record_with_neither_command_nor_motion_is_refused(tmp_path):
     p = tmp_path / "force_only.csv"
     t = np.arange(100) / RATE

@@ -127,7 +127,8 @@ enum Command {
         #[arg(long)]
         config: PathBuf,
         /// Measured data: CSV (t, u, any of force, x, p_a, p_b, x_v, ref, v and the config's
-        /// declared [inputs] columns; SI) or an ehactl MCAP. Give it several times for a
+        /// declared [inputs] columns; SI) or MCAP (an ehactl log, or a lab record: JSON
+        /// samples with those column names on /measured). Give it several times for a
         /// campaign: one load law fitted to every record, coefficients depending on the
         /// declared operating inputs; a record with x and force but no u / ref (a
         /// displacement-controlled test) is diagnosed as a campaign too.
@@ -165,7 +166,8 @@ enum Command {
         /// The model (rig config TOML).
         #[arg(long)]
         config: PathBuf,
-        /// Records to predict (CSV or ehactl MCAP), one or more.
+        /// Records to predict (CSV, or MCAP: an ehactl log or JSON samples on /measured), one
+        /// or more.
         #[arg(long, required = true)]
         data: Vec<PathBuf>,
         /// Impose each record's measured motion on the rod and predict the force, whatever

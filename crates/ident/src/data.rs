@@ -273,13 +273,14 @@ pub fn load(path: &Path) -> Result<Record, DataError> {
     load_with(path, &[])
 }
 
-/// Whether the CSV at `path` is a displacement-controlled record (its header has `x` but
-/// neither `u` nor `ref`), read from its first 64 KiB only; `None` for an MCAP log or a file
-/// that cannot be read (the full load then reports why).
-pub fn csv_is_motion_only(path: &Path) -> Option<bool> {
+/// Whether the record at `path` is a displacement-controlled one (x but neither `u` nor
+/// `ref`): for a CSV from its header in the first 64 KiB, for an MCAP file by loading it
+/// (a lab record's `/measured` channel, [`parse_mcap_with`]); `None` for a file that cannot
+/// be read (the full load then reports why).
+pub fn is_motion_only(path: &Path, inputs: &[String]) -> Option<bool> {
     use std::io::Read;
     if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
-        return None;
+        return load_with(path, inputs).ok().map(|r| r.imposed_motion());
     }
     let meta = std::fs::metadata(path).ok()?;
     if !meta.is_file() {
@@ -309,7 +310,15 @@ pub fn csv_is_motion_only(path: &Path) -> Option<bool> {
 /// is an error.
 pub fn load_with(path: &Path, inputs: &[String]) -> Result<Record, DataError> {
     if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
-        load_mcap(path)
+        let source = path.display().to_string();
+        // The whole log is held in memory: a regular file of at most 10 000 MB.
+        let bytes = ehactl_hal::input::read_bounded(
+            path,
+            ehactl_hal::input::DATA_MAX_BYTES,
+            "data (MCAP log)",
+        )
+        .map_err(|e| DataError(e.to_string()))?;
+        parse_mcap_with(&source, &bytes, inputs)
     } else {
         // A regular file of at most 10 000 MB (a FIFO or /dev/zero is refused, never read).
         let text = ehactl_hal::input::read_bounded_string(
@@ -610,15 +619,88 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
 
 /// Read the `/control` channel of an ehactl MCAP log (ROS 2 CDR, see `ehactl_log::record`).
 pub fn load_mcap(path: &Path) -> Result<Record, DataError> {
-    let source = path.display().to_string();
-    // The whole log is held in memory: a regular file of at most 10 000 MB.
-    let bytes =
-        ehactl_hal::input::read_bounded(path, ehactl_hal::input::DATA_MAX_BYTES, "data (MCAP log)")
-            .map_err(|e| DataError(e.to_string()))?;
-    parse_mcap(&source, &bytes)
+    load_with(path, &[])
 }
 
-/// [`load_mcap`] on bytes already read (`source` names them in errors).
+/// Topic of a lab record in MCAP: one JSON object per sample whose keys are the CSV format's
+/// column names (`t`, `x`, `force`, `u`, `ref`, …, and the config's declared inputs), e.g.
+/// `{"t": 0.002, "x": 0.0498, "force": 220.9, "current": 1.0}`; `t` (s) may be left out, the
+/// message's log time then gives it.
+pub const MEASURED_TOPIC: &str = "/measured";
+
+/// [`load_mcap`] on bytes already read (`source` names them in errors), for a config
+/// declaring the operating inputs `inputs`: an ehactl log's `/control` channel, or else a lab
+/// record's [`MEASURED_TOPIC`] channel under the CSV format's rules (columns, units, inputs,
+/// imposed motion).
+pub fn parse_mcap_with(source: &str, bytes: &[u8], inputs: &[String]) -> Result<Record, DataError> {
+    match parse_mcap(source, bytes) {
+        Err(e) if e.0.ends_with(NO_CONTROL) => match measured_as_csv(source, bytes)? {
+            Some(text) => parse_csv_with(&format!("{source} ({MEASURED_TOPIC})"), &text, inputs),
+            None => Err(e),
+        },
+        r => r,
+    }
+}
+
+/// End of the error for an MCAP file with neither an ehactl log nor a lab record.
+const NO_CONTROL: &str = "no /control messages; expected an MCAP log written by `ehactl run`, or a lab record with JSON samples on /measured (DIAGNOSIS.md, \"Campaigns\")";
+
+/// The [`MEASURED_TOPIC`] messages of an MCAP file as CSV text (header: the first message's
+/// keys); `None` when the topic has no messages. A message that is not a JSON object of
+/// finite numbers with the first message's keys is an error naming its sequence.
+fn measured_as_csv(source: &str, bytes: &[u8]) -> Result<Option<String>, DataError> {
+    use std::fmt::Write;
+    let stream = mcap::MessageStream::new(bytes)
+        .map_err(|e| DataError(format!("{source}: not a readable MCAP file: {e}")))?;
+    let mut names: Vec<String> = Vec::new();
+    let mut text = String::new();
+    for m in stream {
+        let m = m.map_err(|e| DataError(format!("{source}: corrupt MCAP record: {e}")))?;
+        if m.channel.topic != MEASURED_TOPIC {
+            continue;
+        }
+        let at = format!(
+            "{source}: {MEASURED_TOPIC} message (MCAP sequence {})",
+            m.sequence
+        );
+        let obj: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(&m.data)
+            .map_err(|e| DataError(format!("{at}: not a JSON object of samples: {e}")))?;
+        if names.is_empty() {
+            names = obj.keys().cloned().collect();
+            let has_t = names.iter().any(|n| n == "t");
+            let header: Vec<&str> = (!has_t)
+                .then_some("t")
+                .into_iter()
+                .chain(names.iter().map(String::as_str))
+                .collect();
+            text.push_str(&header.join(","));
+            text.push('\n');
+        }
+        if obj.len() != names.len() || names.iter().any(|n| !obj.contains_key(n)) {
+            let keys: Vec<&String> = obj.keys().collect();
+            return Err(DataError(format!(
+                "{at}: keys {keys:?}; expected those of the first message, {names:?}"
+            )));
+        }
+        if !names.iter().any(|n| n == "t") {
+            // Log time in ns → s.
+            let _ = write!(text, "{:?},", m.log_time as f64 * 1e-9);
+        }
+        for (i, n) in names.iter().enumerate() {
+            let v = obj[n].as_f64().filter(|v| v.is_finite()).ok_or_else(|| {
+                DataError(format!(
+                    "{at}: `{n}` is {}; expected a finite number (SI units)",
+                    obj[n]
+                ))
+            })?;
+            let _ = write!(text, "{}{v:?}", if i == 0 { "" } else { "," });
+        }
+        text.push('\n');
+    }
+    Ok((!names.is_empty()).then_some(text))
+}
+
+/// [`parse_mcap_with`] for an ehactl log's `/control` channel only.
 pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
     use ehactl_log::record::CycleRecord;
     let source = source.to_string();
@@ -648,9 +730,7 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
         rows.push(r);
     }
     if rows.is_empty() {
-        return Err(DataError(format!(
-            "{source}: no /control messages; expected an MCAP log written by `ehactl run`"
-        )));
+        return Err(DataError(format!("{source}: {NO_CONTROL}")));
     }
     /// Reads one measured channel out of a cycle record.
     type Field = fn(&CycleRecord) -> f64;
@@ -960,6 +1040,82 @@ mod tests {
         assert_eq!(detect_delimiter("t\tu\tx\n"), b'\t');
         assert_eq!(detect_delimiter("\"a;b\",t,u\n"), b',');
         assert_eq!(detect_delimiter("t\n"), b',');
+    }
+
+    /// A lab record in MCAP: JSON samples on `/measured`, read under the CSV rules (an
+    /// imposed-motion record with a declared input); a sample missing a key or holding a
+    /// string is an error naming its sequence; a file with neither topic names both.
+    #[test]
+    fn mcap_measured_channel() {
+        let write = |bad: Option<&str>| {
+            let mut w = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+            let sid = w.add_schema("Sample", "jsonschema", b"{}").unwrap();
+            let ch = w
+                .add_channel(sid, MEASURED_TOPIC, "json", &Default::default())
+                .unwrap();
+            for k in 0..20u64 {
+                let x = 0.05 + 0.001 * (k as f64 * 0.3).sin();
+                let msg = match bad {
+                    Some(b) if k == 4 => b.to_string(),
+                    _ => format!(
+                        r#"{{"x": {x}, "force": {}, "current": 0.5}}"#,
+                        10.0 * k as f64
+                    ),
+                };
+                let header = mcap::records::MessageHeader {
+                    channel_id: ch,
+                    sequence: k as u32,
+                    log_time: k * 2_000_000,
+                    publish_time: k * 2_000_000,
+                };
+                w.write_to_known_channel(&header, msg.as_bytes()).unwrap();
+            }
+            w.finish().unwrap();
+            w.into_inner().into_inner()
+        };
+        let inputs = ["current".to_string()];
+        let rec = parse_mcap_with("lab.mcap", &write(None), &inputs).unwrap();
+        assert!(rec.imposed_motion());
+        assert_eq!(rec.len(), 20);
+        assert!((rec.dt - 2e-3).abs() < 1e-12, "{}", rec.dt);
+        assert_eq!(rec.channel(ChannelKind::Force).unwrap()[3], 30.0);
+        assert_eq!(rec.input_median("current"), Some(0.5));
+        let e = parse_mcap_with(
+            "lab.mcap",
+            &write(Some(r#"{"x": 0.05, "force": 1.0}"#)),
+            &inputs,
+        )
+        .unwrap_err()
+        .0;
+        assert!(
+            e.starts_with("lab.mcap: /measured message (MCAP sequence 4): keys"),
+            "{e}"
+        );
+        let e = parse_mcap_with(
+            "lab.mcap",
+            &write(Some(r#"{"x": 0.05, "force": "n/a", "current": 0.5}"#)),
+            &inputs,
+        )
+        .unwrap_err()
+        .0;
+        assert!(
+            e.contains("`force` is \"n/a\"; expected a finite number"),
+            "{e}"
+        );
+        let e = parse_mcap_with("lab.mcap", &write(None), &[])
+            .unwrap_err()
+            .0;
+        assert!(e.contains("current"), "undeclared input column named: {e}");
+        let empty = {
+            let mut w = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+            w.finish().unwrap();
+            w.into_inner().into_inner()
+        };
+        let e = parse_mcap_with("lab.mcap", &empty, &[]).unwrap_err().0;
+        assert!(
+            e.contains("no /control messages") && e.contains("/measured"),
+            "{e}"
+        );
     }
 
     /// An MCAP log's `/control` channel read through the hal decoder (no offsets here);

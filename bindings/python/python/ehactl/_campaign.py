@@ -117,7 +117,7 @@ def campaign(
 
     Args:
         cfg: the rig's ``Config`` or the path of its TOML.
-        data: records to fit (CSV or ehactl MCAP); their last 30 % is held out unless
+        data: records to fit (CSV, or MCAP: an ehactl log or JSON samples on ``/measured``); their last 30 % is held out unless
             ``validate`` is given.
         validate: records held out whole (e.g. an operating point never fitted).
         out: directory for ``extended.toml``, ``report.md``, ``campaign.json``, ``campaign.svg``.
@@ -165,7 +165,7 @@ def predict(
     Args:
         cfg: the model: a ``Config`` or the path of a TOML (a shipped config or the
             ``extended.toml`` a diagnosis wrote); taken at each record's operating point.
-        data: one record or several (CSV or ehactl MCAP).
+        data: one record or several (CSV, or MCAP: an ehactl log or JSON samples on ``/measured``).
         imposed_motion: impose each record's measured motion on the rod and predict the force
             (a record with ``x`` and ``force`` but no ``u`` / ``ref`` always is).
         held_out: score only the last 30 % of each record.
