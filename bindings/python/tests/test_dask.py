@@ -81,11 +81,31 @@ def test_diagnose_many_on_the_cluster(client, tmp_path):
     assert remote["nrmse_nominal"][1] > remote["nrmse_nominal"][0]
 
 
+def test_a_campaign_case_on_the_cluster_equals_the_local_campaign(client):
+    # the repository's real MR-damper chirps at 0 A and 1 A as one campaign, beside a
+    # single-record case of the same press
+    mts = REPO / "tests" / "data" / "measured" / "utfsm_mts"
+    cfg = REPO / "configs" / "utfsm_mts_mrdamper.toml"
+    chirps = [mts / "0A_5to15s.csv", mts / "1A_5to15s.csv"]
+    cases = [{"config": cfg, "data": chirps}, (cfg, chirps[1])]
+    remote = ehactl.diagnose_many(cases, client=client)
+    local = ehactl.diagnose_many(cases)
+    pd.testing.assert_frame_equal(remote, local)
+    assert list(remote["mode"]) == ["campaign", "record"]
+    assert remote["data"][0] == ";".join(str(p) for p in chirps)
+    direct = ehactl.diagnose(cfg, chirps)
+    assert remote["cause"][0] == direct.cause and "current" in direct.cause
+    assert remote["nrmse_extended"][0] == direct.nrmse
+    assert remote["nrmse_nominal"][0] == direct.nrmse_nominal
+
+
 def test_bad_client_and_missing_file(force_cfg, tmp_path):
     with pytest.raises(TypeError, match="dask.distributed.Client"):
         ehactl.run_many([force_cfg], duration=0.01, client=object())
     with pytest.raises(FileNotFoundError):
         ehactl.diagnose_many([(REPO / "configs/utfsm_mts_mrdamper.toml", tmp_path / "nope.csv")])
+    with pytest.raises(FileNotFoundError):
+        ehactl.diagnose_many([(REPO / "configs/utfsm_mts_mrdamper.toml", [tmp_path / "nope.csv"])])
 
 
 def test_monte_carlo_example_runs(tmp_path):

@@ -15,7 +15,7 @@ from . import _ehactl
 if TYPE_CHECKING:
     import pandas as pd
 from ._runs import ConfigLike, _as_config, _must_exist, _progress_bar
-from ._campaign import CampaignResult, campaign
+from ._campaign import CampaignResult, _paths, campaign
 from .results import AnalysisResult, DiagnosisResult, SweepResult
 
 
@@ -211,45 +211,54 @@ def diagnose_many(
     client: Any = None,
     sensor_offsets: bool = False,
 ) -> pd.DataFrame:
-    """Diagnose a fleet of records (e.g. one log per rig) and tabulate the causes.
+    """Diagnose a fleet of records (e.g. one log per rig) or of campaigns, and tabulate the causes.
 
     Args:
-        cases: each a dict with ``config`` (``Config`` or path), ``data`` (CSV or ehactl
-            MCAP) and optionally ``validate`` and ``out`` (report directory), or a tuple
-            ``(config, data[, validate[, out]])``.
+        cases: each a dict with ``config`` (``Config`` or path), ``data`` (CSV or MCAP) and
+            optionally ``validate`` and ``out`` (report directory), or a tuple
+            ``(config, data[, validate[, out]])``. A ``data`` that is a list of records is a
+            campaign (as :func:`diagnose` with a list: one load law for all of them, DIAGNOSIS.md
+            "Campaigns"); its ``validate`` is then a list too (or None).
         client: a ``dask.distributed.Client``: one Dask task per case on its workers (data
             paths must be readable there, e.g. a shared file system); default: one after
             the other in this process.
-        sensor_offsets: as in :func:`diagnose`.
+        sensor_offsets: as in :func:`diagnose` (single-record cases).
 
     Returns:
-        ``pandas.DataFrame`` with one row per case in input order: ``data``, ``cause``,
-        ``causes`` (comma-separated), ``gain``, ``nrmse_nominal`` and ``nrmse_extended``
-        (held-out, overall), ``warnings`` (count), ``report`` (path or None).
+        ``pandas.DataFrame`` with one row per case in input order: ``data`` (a campaign's
+        records joined by ``;``), ``mode`` (``record`` or ``campaign``), ``cause``, ``causes``
+        (comma-separated catalogue ids), ``gain``, ``nrmse_nominal`` and ``nrmse_extended``
+        (held-out, overall; a campaign's pooled force NRMSE of the config and of its law),
+        ``warnings`` (count), ``report`` (path or None).
     """
     import pandas as pd
 
     from . import _dask
 
-    norm: list[tuple[_ehactl.Config, str, str | None, str | None]] = []
+    norm: list[_dask.Case] = []
     for case in cases:
         if isinstance(case, Mapping):
             cfg, data, val, out = case["config"], case["data"], case.get("validate"), case.get("out")
         else:
             padded = tuple(case) + (None,) * (4 - len(case))
             cfg, data, val, out = padded[:4]
-        _must_exist(data, "measured data file")
-        if val is not None:
-            _must_exist(val, "validation data file")
-        norm.append((_as_config(cfg), os.fspath(data), None if val is None else os.fspath(val),
-                     None if out is None else os.fspath(out)))
+        if isinstance(data, (str, os.PathLike)):
+            _must_exist(data, "measured data file")
+            if val is not None:
+                _must_exist(val, "validation data file")
+            d: str | list[str] = os.fspath(data)
+            v: str | list[str] | None = None if val is None else os.fspath(val)
+        else:
+            d = _paths(data, "measured data file")
+            v = _paths(val, "validation data file")
+        norm.append((_as_config(cfg).to_toml(), d, v, None if out is None else os.fspath(out)))
     if client is not None:
-        raws = _dask.diagnose_batch(client, [(c.to_toml(), d, v, o) for c, d, v, o in norm], bool(sensor_offsets))
+        raws = _dask.diagnose_batch(client, norm, bool(sensor_offsets))
     else:
-        raws = [_ehactl.diagnose_json(c, d, v, o, None, bool(sensor_offsets)) for c, d, v, o in norm]
+        raws = [_dask.diagnose_case(_ehactl.__version__, *c, bool(sensor_offsets)) for c in norm]
     rows = []
     for (_c, d, _v, _o), (raw, _notes) in zip(norm, raws):
-        row: dict[str, Any] = {"data": d}
+        row: dict[str, Any] = {"data": d if isinstance(d, str) else ";".join(d)}
         row.update(_dask.diagnose_row(json.loads(raw)))
         rows.append(row)
     return pd.DataFrame(rows)

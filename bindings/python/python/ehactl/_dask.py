@@ -1,5 +1,5 @@
 """Batches on a Dask distributed cluster (``client=`` of :func:`ehactl.run_many`, the
-:mod:`ehactl.tune` functions and :func:`ehactl.diagnose_many`).
+:mod:`ehactl.tune` functions and :func:`ehactl.diagnose_many`, whose cases may be campaigns).
 
 The work is cut into chunks, one Dask task per chunk; each task runs its chunk with the same
 compiled code as the local path (a rayon batch of ``_ehactl.run_batch`` with one thread, or
@@ -11,7 +11,7 @@ worker with another version is refused by the task's version check.
 
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -40,12 +40,27 @@ def _run_chunk(
     return _ehactl.run_batch(cfgs, duration, mcaps, fields, 1, None, overwrite)
 
 
-def _diagnose_one(
-    version: str, toml: str, data: str, validate: str | None, out: str | None, sensor_offsets: bool
+#: One diagnosis case: config TOML, the record (or a campaign's records), validation
+#: record(s) or None, report directory or None.
+Case = Tuple[str, Union[str, List[str]], Union[str, List[str], None], Optional[str]]
+
+
+def diagnose_case(
+    version: str,
+    toml: str,
+    data: str | list[str],
+    validate: str | list[str] | None,
+    out: str | None,
+    sensor_offsets: bool,
 ) -> tuple[str, list[str]]:
-    """Worker side of :func:`diagnose_many`: one case, the JSON report and notes."""
+    """Worker side of :func:`diagnose_many` (and its local path): one case, the JSON report
+    and notes; a list of records is a campaign (``_ehactl.campaign_json``)."""
     _check_version(version)
     cfg = _ehactl.Config.from_toml(toml)
+    if isinstance(data, list):
+        val = [] if validate is None else [validate] if isinstance(validate, str) else list(validate)
+        return _ehactl.campaign_json(cfg, data, val, out, False), []
+    assert not isinstance(validate, list), "a single record takes one validation record"
     raw, notes = _ehactl.diagnose_json(cfg, data, validate, out, None, sensor_offsets)
     return raw, list(notes)
 
@@ -118,13 +133,11 @@ def run_batch(
     return out
 
 
-def diagnose_batch(
-    client: Any, cases: Sequence[tuple[str, str, str | None, str | None]], sensor_offsets: bool
-) -> list[tuple[str, list[str]]]:
-    """Diagnose every (config TOML, data, validate, out) case on the cluster; input order."""
+def diagnose_batch(client: Any, cases: Sequence[Case], sensor_offsets: bool) -> list[tuple[str, list[str]]]:
+    """Diagnose every case (:data:`Case`) on the cluster, one task each; input order."""
     client = _client(client)
     futs = [
-        client.submit(_diagnose_one, _ehactl.__version__, t, d, v, o, sensor_offsets, pure=False)
+        client.submit(diagnose_case, _ehactl.__version__, t, d, v, o, sensor_offsets, pure=False)
         for (t, d, v, o) in cases
     ]
     out: list[tuple[str, list[str]]] = client.gather(futs)
@@ -148,10 +161,24 @@ def summary_row(summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def diagnose_row(r: dict[str, Any]) -> dict[str, Any]:
-    """Flat fields of a diagnosis for a DataFrame row."""
+    """Flat fields of a diagnosis (or of a campaign: its pooled force NRMSE) for a DataFrame row."""
+    if r.get("mode") == "campaign":
+        pooled = r.get("pooled") or {}
+        nom, law = pooled.get("nominal"), pooled.get("law")
+        return {
+            "mode": "campaign",
+            "cause": r.get("cause"),
+            "causes": "",
+            "gain": None if not nom or law is None else 1.0 - law / nom,
+            "nrmse_nominal": nom,
+            "nrmse_extended": law,
+            "warnings": len(r.get("warnings") or []),
+            "report": r.get("report"),
+        }
     nom = r.get("nrmse_nominal") or {}
     ext = r.get("nrmse_extended") or {}
     return {
+        "mode": "record",
         "cause": r.get("cause"),
         "causes": ",".join(r.get("causes") or []),
         "gain": r.get("gain"),
@@ -160,4 +187,3 @@ def diagnose_row(r: dict[str, Any]) -> dict[str, Any]:
         "warnings": len(r.get("warnings") or []),
         "report": r.get("report"),
     }
-
