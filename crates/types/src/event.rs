@@ -138,7 +138,7 @@ impl Event {
         }
     }
 
-    /// One-line human description.
+    /// One-line human description (values in the event's SI unit).
     pub fn describe(&self) -> String {
         let mut s = format!(
             "{} {} on {} at t = {:.6} s (cycle {})",
@@ -148,11 +148,13 @@ impl Event {
             self.t,
             self.cycle
         );
-        if self.value.is_finite() || self.value.is_nan() && self.kind == EventKind::SensorNan {
-            s.push_str(&format!(": value {} {}", self.value, self.unit));
+        // An infinite value is what tripped (a non-finite term); only a NaN without meaning
+        // (no sensor reading) is left out.
+        if !self.value.is_nan() || self.kind == EventKind::SensorNan {
+            s.push_str(&format!(": value {} {}", readable(self.value), self.unit));
         }
         if self.limit.is_finite() {
-            s.push_str(&format!(", limit {} {}", self.limit, self.unit));
+            s.push_str(&format!(", limit {} {}", readable(self.limit), self.unit));
         }
         s
     }
@@ -170,5 +172,43 @@ impl Event {
             "unit": self.unit,
             "text": self.describe(),
         })
+    }
+}
+
+/// `v` in plain notation between 1e-4 and 1e9 in magnitude (and 0), else in scientific
+/// notation: a pressure of 2.1e300 Pa reads `2.1e300`, not 301 digits.
+fn readable(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 || (1e-4..1e9).contains(&a) || !v.is_finite() {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn trip(value: f64) -> String {
+        Event {
+            value,
+            limit: 25e6,
+            unit: "Pa",
+            ..Event::note(0.0, 0, Severity::Trip, EventKind::PressureLimit, "p_a")
+        }
+        .describe()
+    }
+
+    /// A runaway value reads as a number a person can read; an infinite one is shown (it is
+    /// what tripped), the limit keeps its plain form.
+    #[test]
+    fn values_stay_readable() {
+        let huge = trip(2.1e300);
+        assert!(huge.contains("value 2.1e300 Pa"), "{huge}");
+        assert!(huge.len() < 140, "{huge}");
+        assert!(trip(f64::INFINITY).contains("value inf Pa"));
+        assert!(trip(3.0e7).contains("value 30000000 Pa, limit 25000000 Pa"));
+        assert!(!trip(f64::NAN).contains("value"));
     }
 }
