@@ -46,6 +46,21 @@ pub struct LiveStats {
     pub over_limit: u64,
     /// Most clients served at once (`--live-max-clients`).
     pub max_clients: usize,
+    /// Connections that reached the SDK server's internal loopback port directly, not
+    /// through the front: not limited, not in `per_client`. The `foxglove` crate (0.30)
+    /// binds that port itself and has no hook to refuse a connection (its
+    /// `ServerListener::on_client_connect` takes no client and returns nothing), so they
+    /// can only be counted: SDK connections (`on_client_connect`) minus the front's.
+    pub direct_sdk_clients: u64,
+}
+
+/// Counts the SDK server's client connections (`ServerListener::on_client_connect`).
+struct SdkConnects(Arc<AtomicU64>);
+
+impl foxglove::websocket::ServerListener for SdkConnects {
+    fn on_client_connect(&self) {
+        self.0.fetch_add(1, Ordering::AcqRel);
+    }
 }
 
 impl LiveStats {
@@ -61,6 +76,8 @@ pub struct LiveView {
     _ctx: Arc<Context>,
     tap: Arc<LogTap>,
     server: Option<foxglove::WebSocketServerHandle>,
+    /// Clients the SDK server registered (through the front or not).
+    sdk_connects: Arc<AtomicU64>,
     front: Option<Front>,
     thread: Option<JoinHandle<()>>,
     published: Arc<AtomicU64>,
@@ -201,9 +218,11 @@ impl LiveView {
         ) {
             eprintln!("{w}");
         }
+        let sdk_connects = Arc::new(AtomicU64::new(0));
         let server = WebSocketServer::new()
             .name(concat!("ehactl ", env!("CARGO_PKG_VERSION")))
             .context(&ctx)
+            .listener(Arc::new(SdkConnects(sdk_connects.clone())))
             .bind("127.0.0.1", 0)
             .start_blocking()
             .map_err(|e| {
@@ -234,6 +253,7 @@ impl LiveView {
             _ctx: ctx,
             tap,
             server: Some(server),
+            sdk_connects,
             front: Some(front),
             thread: Some(thread),
             published,
@@ -268,6 +288,10 @@ impl LiveView {
         // The SDK closed its side of every connection: the front delivers what it still
         // holds for clients that read (up to `linger`) and cuts off the others.
         let max_clients = self.front.as_ref().map_or(0, |f| f.max_clients());
+        let direct_sdk_clients = self
+            .sdk_connects
+            .load(Ordering::Acquire)
+            .saturating_sub(self.front.as_ref().map_or(0, |f| f.upgraded()));
         let (per_client, refused, over_limit) = self
             .front
             .take()
@@ -280,6 +304,7 @@ impl LiveView {
             refused,
             over_limit,
             max_clients,
+            direct_sdk_clients,
         }
     }
 }

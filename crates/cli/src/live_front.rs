@@ -279,6 +279,8 @@ pub struct Front {
     /// Of `rejected`: refused because `max_clients` connections were open.
     over_limit: Arc<AtomicU64>,
     max_clients: usize,
+    /// Connections the SDK upgraded for the front (HTTP 101).
+    upgraded: Arc<AtomicU64>,
 }
 
 /// Counts one open connection (from accept until its last thread ends); shared by the
@@ -309,6 +311,7 @@ impl Front {
         let active = Arc::new(AtomicUsize::new(0));
         let rejected = Arc::new(AtomicU64::new(0));
         let over_limit = Arc::new(AtomicU64::new(0));
+        let upgraded = Arc::new(AtomicU64::new(0));
         let max_clients = max_clients.max(1);
         let accept = {
             let ctx = AcceptCtx {
@@ -320,6 +323,7 @@ impl Front {
                 over_limit: over_limit.clone(),
                 open: Arc::new(AtomicUsize::new(0)),
                 max_clients,
+                upgraded: upgraded.clone(),
             };
             std::thread::Builder::new()
                 .name("ehactl-live-front".into())
@@ -333,6 +337,7 @@ impl Front {
             rejected,
             over_limit,
             max_clients,
+            upgraded,
         })
     }
 
@@ -389,6 +394,12 @@ impl Front {
     pub fn max_clients(&self) -> usize {
         self.max_clients
     }
+
+    /// Connections the SDK server upgraded for the front so far: every SDK client beyond
+    /// these connected to its port directly (see `LiveStats::direct_sdk_clients`).
+    pub fn upgraded(&self) -> u64 {
+        self.upgraded.load(Ordering::Acquire)
+    }
 }
 
 /// Decrements the active-thread count when a connection thread ends (also on panic).
@@ -427,6 +438,8 @@ struct AcceptCtx {
     /// Connections open now (see [`OpenSlot`]).
     open: Arc<AtomicUsize>,
     max_clients: usize,
+    /// Connections the SDK upgraded for the front (HTTP 101).
+    upgraded: Arc<AtomicU64>,
 }
 
 fn accept_loop(listener: &TcpListener, cx: &AcceptCtx) {
@@ -489,17 +502,18 @@ fn accept_loop(listener: &TcpListener, cx: &AcceptCtx) {
             },
         });
         lock(&cx.conns).push(conn.clone());
-        let (a, r, list, upstream) = (
+        let (a, r, list, upstream, up) = (
             cx.active.clone(),
             cx.rejected.clone(),
             cx.conns.clone(),
             cx.upstream,
+            cx.upgraded.clone(),
         );
         let spawned = spawn_counted(&cx.active, format!("live-conn-{peer}"), move || {
             // On success the writer thread delivers what is queued and ends by itself.
             // On failure the client got its HTTP answer (or went away): counted, not logged
             // (a port scanner must not flood stderr), and forgotten unless it had upgraded.
-            if serve(client, &conn, upstream, &a, &slot).is_err() {
+            if serve(client, &conn, upstream, &a, &slot, &up).is_err() {
                 r.fetch_add(1, Ordering::Relaxed);
                 conn.kill();
                 if lock(&conn.counters.subprotocol).is_empty() {
@@ -667,6 +681,7 @@ fn serve(
     upstream_addr: SocketAddr,
     active: &Arc<AtomicUsize>,
     slot: &Arc<OpenSlot>,
+    upgraded: &AtomicU64,
 ) -> std::io::Result<()> {
     client.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
     client.set_write_timeout(Some(HANDSHAKE_TIMEOUT))?;
@@ -705,6 +720,7 @@ fn serve(
             "upgrade refused: HTTP {code}"
         )));
     }
+    upgraded.fetch_add(1, Ordering::AcqRel);
     *lock(&conn.counters.subprotocol) = proto;
     client.set_read_timeout(None)?;
     client.set_write_timeout(None)?;
