@@ -333,12 +333,13 @@ def _listening_ports(pid: int) -> set[int]:
     return ports
 
 
-def test_a_direct_connection_to_the_internal_sdk_port_is_counted_and_warned(
+def test_a_direct_connection_to_the_internal_sdk_port_is_cut_off_and_counted(
         tmp_path: Path) -> None:
     """The SDK server's internal loopback port is reachable by any local process (the
-    `foxglove` crate, 0.30, binds it itself and offers no hook to refuse a connection): a
-    client there bypasses the front's limit and per-client counts. It is counted in
-    `live.direct_sdk_clients` and warned about; the front's own clients are not."""
+    `foxglove` crate, 0.30, binds it itself): a client there would bypass the front's limit
+    and per-client counts. It gets the SDK's handshake and `serverInfo`, then is cut off
+    before any channel is advertised, counted in `live.direct_sdk_clients` and warned
+    about; the front's clients are served as before, also one that connects after it."""
     proc, url = start_live(tmp_path / "direct.mcap")
     try:
         front = int(url.rsplit(":", 1)[1])
@@ -351,15 +352,25 @@ def test_a_direct_connection_to_the_internal_sdk_port_is_counted_and_warned(
         sdk = f"ws://127.0.0.1:{internal.pop()}"
         with websockets_sync.connect(url, subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
             assert json.loads(ws.recv(timeout=5))["op"] == "serverInfo"
+            assert json.loads(ws.recv(timeout=5))["op"] == "advertise"
+        ops = []
         with websockets_sync.connect(sdk, subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
+            with pytest.raises(ConnectionClosed):
+                while True:
+                    m = ws.recv(timeout=5)
+                    ops.append(json.loads(m)["op"] if isinstance(m, str) else m[0])
+        assert ops in ([], ["serverInfo"]), ops
+        with websockets_sync.connect(url, subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
             assert json.loads(ws.recv(timeout=5))["op"] == "serverInfo"
+            assert json.loads(ws.recv(timeout=5))["op"] == "advertise"
     finally:
         stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 0, stderr
     live = parse_json_stdout(stdout)["live"]
-    assert len(live["clients"]) == 1, live
+    assert len(live["clients"]) == 2, live
     assert live["direct_sdk_clients"] == 1, live
-    assert "1 connection(s) reached the live view's internal Foxglove SDK port" in stderr
+    assert ("1 connection(s) reached the live view's internal Foxglove SDK port directly "
+            "(a local process bypassing the front); each was cut off") in stderr
 
 
 def _vm(pid: int, key: str) -> int:

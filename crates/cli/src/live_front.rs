@@ -283,6 +283,28 @@ pub struct Front {
     upgraded: Arc<AtomicU64>,
 }
 
+/// The local addresses of the front's connections to the SDK server: the peers the SDK
+/// server may serve (see `live.rs`, `SdkGate`); every other connection there is a process
+/// that bypassed the front.
+#[derive(Default)]
+pub struct FrontPeers(Mutex<std::collections::HashSet<SocketAddr>>);
+
+impl FrontPeers {
+    /// `peer` is one of the front's connections to the SDK server.
+    pub fn contains(&self, peer: &SocketAddr) -> bool {
+        lock(&self.0).contains(peer)
+    }
+}
+
+/// Keeps an upstream connection's local address in [`FrontPeers`] while it is open.
+struct PeerEntry<'a>(&'a FrontPeers, SocketAddr);
+
+impl Drop for PeerEntry<'_> {
+    fn drop(&mut self) {
+        lock(&(self.0).0).remove(&self.1);
+    }
+}
+
 /// Counts one open connection (from accept until its last thread ends); shared by the
 /// connection's threads.
 struct OpenSlot(Arc<AtomicUsize>);
@@ -302,6 +324,7 @@ impl Front {
         listener: TcpListener,
         upstream: SocketAddr,
         max_clients: usize,
+        peers: Arc<FrontPeers>,
     ) -> std::io::Result<Front> {
         // Non-blocking accept, polled, so that `finish` can stop the thread without a
         // connection to itself.
@@ -324,6 +347,7 @@ impl Front {
                 open: Arc::new(AtomicUsize::new(0)),
                 max_clients,
                 upgraded: upgraded.clone(),
+                peers,
             };
             std::thread::Builder::new()
                 .name("ehactl-live-front".into())
@@ -440,6 +464,7 @@ struct AcceptCtx {
     max_clients: usize,
     /// Connections the SDK upgraded for the front (HTTP 101).
     upgraded: Arc<AtomicU64>,
+    peers: Arc<FrontPeers>,
 }
 
 fn accept_loop(listener: &TcpListener, cx: &AcceptCtx) {
@@ -502,18 +527,19 @@ fn accept_loop(listener: &TcpListener, cx: &AcceptCtx) {
             },
         });
         lock(&cx.conns).push(conn.clone());
-        let (a, r, list, upstream, up) = (
+        let (a, r, list, upstream, up, peers) = (
             cx.active.clone(),
             cx.rejected.clone(),
             cx.conns.clone(),
             cx.upstream,
             cx.upgraded.clone(),
+            cx.peers.clone(),
         );
         let spawned = spawn_counted(&cx.active, format!("live-conn-{peer}"), move || {
             // On success the writer thread delivers what is queued and ends by itself.
             // On failure the client got its HTTP answer (or went away): counted, not logged
             // (a port scanner must not flood stderr), and forgotten unless it had upgraded.
-            if serve(client, &conn, upstream, &a, &slot, &up).is_err() {
+            if serve(client, &conn, upstream, &a, &slot, &up, &peers).is_err() {
                 r.fetch_add(1, Ordering::Relaxed);
                 conn.kill();
                 if lock(&conn.counters.subprotocol).is_empty() {
@@ -682,6 +708,7 @@ fn serve(
     active: &Arc<AtomicUsize>,
     slot: &Arc<OpenSlot>,
     upgraded: &AtomicU64,
+    peers: &FrontPeers,
 ) -> std::io::Result<()> {
     client.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
     client.set_write_timeout(Some(HANDSHAKE_TIMEOUT))?;
@@ -699,6 +726,11 @@ fn serve(
         Err(e) => return Err(bad_request(&mut client, &e)),
     };
     let mut up = TcpStream::connect_timeout(&upstream_addr, HANDSHAKE_TIMEOUT)?;
+    // Known to the SDK's gate before the request is written, so before the SDK can
+    // register the connection; forgotten when this thread ends (the SDK side closed).
+    let local = up.local_addr()?;
+    lock(&peers.0).insert(local);
+    let _entry = PeerEntry(peers, local);
     up.set_nodelay(true)?;
     up.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
     *lock(&conn.upstream) = Some(up.try_clone()?);

@@ -327,7 +327,7 @@ fn report(
     if let Some((_, st)) = live_stats {
         if st.direct_sdk_clients > 0 {
             eprintln!(
-                "ehactl: warning: --live: {} connection(s) reached the live view's internal Foxglove SDK port directly (a local process bypassing the front): not limited and not counted per client (live.direct_sdk_clients)",
+                "ehactl: warning: --live: {} connection(s) reached the live view's internal Foxglove SDK port directly (a local process bypassing the front); each was cut off before any channel was advertised to it (live.direct_sdk_clients)",
                 st.direct_sdk_clients
             );
         }
