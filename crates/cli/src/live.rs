@@ -4,7 +4,8 @@
 //! ([`crate::live_front`]) on ADDR that accepts the published subprotocol name
 //! `foxglove.websocket.v1` as well as the SDK's `foxglove.sdk.v1`/`v1.1`, hands each connection
 //! to the SDK server on an internal loopback port and counts per client what it delivers and
-//! drops.
+//! drops. A connection to that internal port that did not come through the front is cut off
+//! as the SDK registers it ([`SdkGate`]).
 //!
 //! Data path: the cycle pushes records to the MCAP logger's lock-free queue as always; the
 //! logger's writer thread offers each message it writes to a bounded [`LogTap`] (dropped and
