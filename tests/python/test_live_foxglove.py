@@ -315,6 +315,64 @@ def test_subprotocol_negotiation_through_the_front(tmp_path: Path) -> None:
         "foxglove.sdk.v1.1", "foxglove.websocket.v1", "foxglove.sdk.v1"]
 
 
+def _listening_ports(pid: int) -> set[int]:
+    """TCP ports process `pid` listens on (/proc/PID/net/tcp, its sockets from /proc/PID/fd)."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            m = re.match(r"socket:\[(\d+)\]", str(fd.readlink()))
+        except OSError:
+            continue
+        if m:
+            inodes.add(m.group(1))
+    ports = set()
+    for line in Path(f"/proc/{pid}/net/tcp").read_text().splitlines()[1:]:
+        f = line.split()
+        if f[3] == "0A" and f[9] in inodes:  # state LISTEN
+            ports.add(int(f[1].split(":")[1], 16))
+    return ports
+
+
+def test_a_direct_connection_to_the_internal_sdk_port_is_cut_off_and_counted(
+        tmp_path: Path) -> None:
+    """The SDK server's internal loopback port is reachable by any local process (the
+    `foxglove` crate, 0.30, binds it itself): a client there would bypass the front's limit
+    and per-client counts. It gets the SDK's handshake and `serverInfo`, then is cut off
+    before any channel is advertised, counted in `live.direct_sdk_clients` and warned
+    about; the front's clients are served as before, also one that connects after it."""
+    proc, url = start_live(tmp_path / "direct.mcap")
+    try:
+        front = int(url.rsplit(":", 1)[1])
+        t_end = time.monotonic() + 10
+        internal: set[int] = set()
+        while not internal and time.monotonic() < t_end:
+            internal = _listening_ports(proc.pid) - {front}
+            time.sleep(0.05)
+        assert len(internal) == 1, (front, internal)
+        sdk = f"ws://127.0.0.1:{internal.pop()}"
+        with websockets_sync.connect(url, subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
+            assert json.loads(ws.recv(timeout=5))["op"] == "serverInfo"
+            assert json.loads(ws.recv(timeout=5))["op"] == "advertise"
+        ops = []
+        with websockets_sync.connect(sdk, subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
+            with pytest.raises(ConnectionClosed):
+                while True:
+                    m = ws.recv(timeout=5)
+                    ops.append(json.loads(m)["op"] if isinstance(m, str) else m[0])
+        assert ops in ([], ["serverInfo"]), ops
+        with websockets_sync.connect(url, subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
+            assert json.loads(ws.recv(timeout=5))["op"] == "serverInfo"
+            assert json.loads(ws.recv(timeout=5))["op"] == "advertise"
+    finally:
+        stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    live = parse_json_stdout(stdout)["live"]
+    assert len(live["clients"]) == 2, live
+    assert live["direct_sdk_clients"] == 1, live
+    assert ("1 connection(s) reached the live view's internal Foxglove SDK port directly "
+            "(a local process bypassing the front); each was cut off") in stderr
+
+
 def _vm(pid: int, key: str) -> int:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith(key + ":"):

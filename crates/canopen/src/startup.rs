@@ -784,7 +784,8 @@ pub(crate) struct Startup {
     ids: [u8; 2],
     booted: [bool; 2],
     state: [Option<NmtState>; 2],
-    emcy: Option<Emcy>,
+    /// The last EMCY (not an error reset) of each device since its boot-up.
+    emcy: [Option<Emcy>; 2],
     verbose: bool,
 }
 
@@ -797,7 +798,7 @@ impl Startup {
             ids,
             booted: [false; 2],
             state: [None; 2],
-            emcy: None,
+            emcy: [None; 2],
             verbose,
         }
     }
@@ -831,6 +832,8 @@ impl Startup {
                             eprintln!("canopen: node {node} (0x{node:02X}) boot-up");
                         }
                         self.booted[i] = true;
+                        // an EMCY before the boot-up came from the session before the reset
+                        self.emcy[i] = None;
                     }
                     self.state[i] = st;
                 }
@@ -840,7 +843,7 @@ impl Startup {
             if !f.extended && f.id == u32::from(EMCY_BASE + u16::from(self.ids[i])) {
                 if let Ok(e) = Emcy::parse(self.ids[i], f.payload()) {
                     if !e.is_reset() {
-                        self.emcy = Some(e);
+                        self.emcy[i] = Some(e);
                     }
                 }
             }
@@ -1542,7 +1545,7 @@ impl<'a> Bringup<'a> {
                 }
             }
         }
-        if let Some(e) = self.st.emcy {
+        if let Some(e) = self.st.emcy.iter().flatten().next().copied() {
             return Err(StartupError::Device(format!(
                 "{} (node {}) sent EMCY 0x{:04X} ({}) during start-up",
                 if e.node == tr { "transducer" } else { "valve" },
@@ -1714,5 +1717,39 @@ mod tests {
         assert_eq!(p.devices[0].steps[0].index, 0x6000);
         assert_eq!(p.devices[0].steps[0].value, vec![4, 0]);
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// An EMCY a device sent before its boot-up belongs to the session before ehactl's NMT
+    /// reset (e.g. the valve's RPDO deadline firing after the previous run ended, seen by
+    /// the next run of the CAN demo 0.2 s later): its boot-up clears it. An EMCY after the
+    /// boot-up ends the start-up as before.
+    #[test]
+    fn an_emcy_from_before_the_boot_up_is_the_previous_sessions() {
+        let clock: Arc<dyn Clock> = Arc::new(crate::clock::ManualClock::at(0));
+        let (tr, va) = (0x20u8, 0x30u8);
+        let mut st = Startup::new([tr, va], false, clock);
+        let emcy = |node: u8| {
+            CanFrame::std(
+                EMCY_BASE + u16::from(node),
+                [0x50, 0x82, 0x11, 0, 0, 0, 0, 0],
+            )
+        };
+        let boot = |node: u8| CanFrame::std(0x700 + u16::from(node), [0x00]);
+        st.observe(&emcy(va), Direction::Rx);
+        st.observe(&emcy(tr), Direction::Rx);
+        st.observe(&boot(va), Direction::Rx);
+        // the transducer's is still standing (it has not booted yet)
+        let standing = |st: &Startup| {
+            st.emcy
+                .iter()
+                .flatten()
+                .map(|e| (e.node, e.code))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(standing(&st), [(tr, 0x8250)]);
+        st.observe(&boot(tr), Direction::Rx);
+        assert_eq!(standing(&st), []);
+        st.observe(&emcy(va), Direction::Rx);
+        assert_eq!(standing(&st), [(va, 0x8250)]);
     }
 }

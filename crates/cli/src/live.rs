@@ -4,7 +4,8 @@
 //! ([`crate::live_front`]) on ADDR that accepts the published subprotocol name
 //! `foxglove.websocket.v1` as well as the SDK's `foxglove.sdk.v1`/`v1.1`, hands each connection
 //! to the SDK server on an internal loopback port and counts per client what it delivers and
-//! drops.
+//! drops. A connection to that internal port that did not come through the front is cut off
+//! as the SDK registers it ([`SdkGate`]).
 //!
 //! Data path: the cycle pushes records to the MCAP logger's lock-free queue as always; the
 //! logger's writer thread offers each message it writes to a bounded [`LogTap`] (dropped and
@@ -12,12 +13,12 @@
 //! neither the cycle nor the log ever waits for a viewer. The front then queues per client and
 //! drops (and counts) the oldest messages for a slow client.
 
-use crate::live_front::{ClientStats, Front};
+use crate::live_front::{ClientStats, Front, FrontPeers};
 use ehactl_log::logger::{LogTap, TapMessage};
 use ehactl_log::record::{control_schema, plant_schema, timing_schema};
 use ehactl_log::schemas;
 use foxglove::{Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU16, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -46,6 +47,86 @@ pub struct LiveStats {
     pub over_limit: u64,
     /// Most clients served at once (`--live-max-clients`).
     pub max_clients: usize,
+    /// Connections that reached the SDK server's internal loopback port directly, not
+    /// through the front (SDK connections minus the front's), each cut off by [`SdkGate`]
+    /// once the SDK registered it: before any channel is advertised to it.
+    pub direct_sdk_clients: u64,
+}
+
+/// Lets the SDK server serve the front's connections only. The `foxglove` crate (0.30)
+/// binds its port itself (any local process can connect) and offers no hook to refuse a
+/// connection: `ServerListener::on_client_connect` takes no client and returns nothing,
+/// `Client` and `SinkChannelFilter` carry no address. But the SDK calls it synchronously
+/// when it registers a client, after the WebSocket handshake and its `serverInfo`, before
+/// it adds the client as a sink (which advertises the channels). Here, then, every TCP
+/// connection of this process accepted on the SDK's port whose peer is not one of the
+/// front's upstream sockets ([`FrontPeers`], recorded before the front writes its request)
+/// is shut down (`shutdown(2)` on the SDK's own descriptor, found through `/proc/self/fd`):
+/// the SDK's sends to it fail and it drops the client.
+struct SdkGate {
+    connects: Arc<AtomicU64>,
+    /// The SDK server's port (0 until it is known: nothing is cut off before).
+    port: Arc<AtomicU16>,
+    front: Arc<FrontPeers>,
+}
+
+impl foxglove::websocket::ServerListener for SdkGate {
+    fn on_client_connect(&self) {
+        self.connects.fetch_add(1, Ordering::AcqRel);
+        let port = self.port.load(Ordering::Acquire);
+        if port != 0 {
+            cut_off_direct(port, &self.front);
+        }
+    }
+}
+
+/// The IPv4 address `f` (`getsockname` / `getpeername`) gives for descriptor `fd`.
+fn sock_addr(
+    fd: libc::c_int,
+    f: unsafe extern "C" fn(libc::c_int, *mut libc::sockaddr, *mut libc::socklen_t) -> libc::c_int,
+) -> Option<std::net::SocketAddr> {
+    // SAFETY: `sa` is a zeroed sockaddr_in and `len` its size; the call writes at most
+    // `len` bytes into it. A descriptor that is no socket (or closed) only returns -1.
+    let mut sa: libc::sockaddr_in = unsafe { std::mem::zeroed() };
+    let mut len = std::mem::size_of::<libc::sockaddr_in>() as libc::socklen_t;
+    let r = unsafe { f(fd, (&mut sa as *mut libc::sockaddr_in).cast(), &mut len) };
+    if r != 0 || sa.sin_family != libc::AF_INET as libc::sa_family_t {
+        return None;
+    }
+    let ip = std::net::Ipv4Addr::from(u32::from_be(sa.sin_addr.s_addr));
+    Some(std::net::SocketAddr::from((ip, u16::from_be(sa.sin_port))))
+}
+
+/// Shut down every connection of this process accepted on 127.0.0.1:`port` whose peer is
+/// not one of the front's; returns how many.
+fn cut_off_direct(port: u16, front: &FrontPeers) -> u64 {
+    let Ok(dir) = std::fs::read_dir("/proc/self/fd") else {
+        return 0;
+    };
+    let mut n = 0;
+    for e in dir.flatten() {
+        let Some(fd) = e.file_name().to_str().and_then(|s| s.parse().ok()) else {
+            continue;
+        };
+        let Some(local) = sock_addr(fd, libc::getsockname) else {
+            continue;
+        };
+        if local.port() != port || !local.ip().is_loopback() {
+            continue;
+        }
+        // the listening socket has no peer
+        let Some(peer) = sock_addr(fd, libc::getpeername) else {
+            continue;
+        };
+        if !front.contains(&peer) {
+            // SAFETY: shutdown(2) on a descriptor number; it closes nothing, and at worst
+            // (the number reused meanwhile by another accepted SDK connection) it cuts off
+            // that connection, which this check would cut off too.
+            unsafe { libc::shutdown(fd, libc::SHUT_RDWR) };
+            n += 1;
+        }
+    }
+    n
 }
 
 impl LiveStats {
@@ -61,6 +142,8 @@ pub struct LiveView {
     _ctx: Arc<Context>,
     tap: Arc<LogTap>,
     server: Option<foxglove::WebSocketServerHandle>,
+    /// Clients the SDK server registered (through the front or not).
+    sdk_connects: Arc<AtomicU64>,
     front: Option<Front>,
     thread: Option<JoinHandle<()>>,
     published: Arc<AtomicU64>,
@@ -201,18 +284,28 @@ impl LiveView {
         ) {
             eprintln!("{w}");
         }
+        let sdk_connects = Arc::new(AtomicU64::new(0));
+        let sdk_port = Arc::new(AtomicU16::new(0));
+        let front_peers = Arc::new(FrontPeers::default());
         let server = WebSocketServer::new()
             .name(concat!("ehactl ", env!("CARGO_PKG_VERSION")))
             .context(&ctx)
+            .listener(Arc::new(SdkGate {
+                connects: sdk_connects.clone(),
+                port: sdk_port.clone(),
+                front: front_peers.clone(),
+            }))
             .bind("127.0.0.1", 0)
             .start_blocking()
             .map_err(|e| {
                 format!("--live {addr}: cannot start the Foxglove WebSocket server: {e}")
             })?;
+        sdk_port.store(server.port(), Ordering::Release);
         let front = Front::start(
             listener,
             std::net::SocketAddr::from(([127, 0, 0, 1], server.port())),
             max_clients,
+            front_peers,
         )
         .map_err(|e| format!("--live {addr}: cannot start the live view's listener: {e}"))?;
         let url = if host.contains(':') {
@@ -234,6 +327,7 @@ impl LiveView {
             _ctx: ctx,
             tap,
             server: Some(server),
+            sdk_connects,
             front: Some(front),
             thread: Some(thread),
             published,
@@ -268,6 +362,10 @@ impl LiveView {
         // The SDK closed its side of every connection: the front delivers what it still
         // holds for clients that read (up to `linger`) and cuts off the others.
         let max_clients = self.front.as_ref().map_or(0, |f| f.max_clients());
+        let direct_sdk_clients = self
+            .sdk_connects
+            .load(Ordering::Acquire)
+            .saturating_sub(self.front.as_ref().map_or(0, |f| f.upgraded()));
         let (per_client, refused, over_limit) = self
             .front
             .take()
@@ -280,6 +378,7 @@ impl LiveView {
             refused,
             over_limit,
             max_clients,
+            direct_sdk_clients,
         }
     }
 }

@@ -279,6 +279,30 @@ pub struct Front {
     /// Of `rejected`: refused because `max_clients` connections were open.
     over_limit: Arc<AtomicU64>,
     max_clients: usize,
+    /// Connections the SDK upgraded for the front (HTTP 101).
+    upgraded: Arc<AtomicU64>,
+}
+
+/// The local addresses of the front's connections to the SDK server: the peers the SDK
+/// server may serve (see `live.rs`, `SdkGate`); every other connection there is a process
+/// that bypassed the front.
+#[derive(Default)]
+pub struct FrontPeers(Mutex<std::collections::HashSet<SocketAddr>>);
+
+impl FrontPeers {
+    /// `peer` is one of the front's connections to the SDK server.
+    pub fn contains(&self, peer: &SocketAddr) -> bool {
+        lock(&self.0).contains(peer)
+    }
+}
+
+/// Keeps an upstream connection's local address in [`FrontPeers`] while it is open.
+struct PeerEntry<'a>(&'a FrontPeers, SocketAddr);
+
+impl Drop for PeerEntry<'_> {
+    fn drop(&mut self) {
+        lock(&(self.0).0).remove(&self.1);
+    }
 }
 
 /// Counts one open connection (from accept until its last thread ends); shared by the
@@ -300,6 +324,7 @@ impl Front {
         listener: TcpListener,
         upstream: SocketAddr,
         max_clients: usize,
+        peers: Arc<FrontPeers>,
     ) -> std::io::Result<Front> {
         // Non-blocking accept, polled, so that `finish` can stop the thread without a
         // connection to itself.
@@ -309,6 +334,7 @@ impl Front {
         let active = Arc::new(AtomicUsize::new(0));
         let rejected = Arc::new(AtomicU64::new(0));
         let over_limit = Arc::new(AtomicU64::new(0));
+        let upgraded = Arc::new(AtomicU64::new(0));
         let max_clients = max_clients.max(1);
         let accept = {
             let ctx = AcceptCtx {
@@ -320,6 +346,8 @@ impl Front {
                 over_limit: over_limit.clone(),
                 open: Arc::new(AtomicUsize::new(0)),
                 max_clients,
+                upgraded: upgraded.clone(),
+                peers,
             };
             std::thread::Builder::new()
                 .name("ehactl-live-front".into())
@@ -333,6 +361,7 @@ impl Front {
             rejected,
             over_limit,
             max_clients,
+            upgraded,
         })
     }
 
@@ -389,6 +418,12 @@ impl Front {
     pub fn max_clients(&self) -> usize {
         self.max_clients
     }
+
+    /// Connections the SDK server upgraded for the front so far: every SDK client beyond
+    /// these connected to its port directly (see `LiveStats::direct_sdk_clients`).
+    pub fn upgraded(&self) -> u64 {
+        self.upgraded.load(Ordering::Acquire)
+    }
 }
 
 /// Decrements the active-thread count when a connection thread ends (also on panic).
@@ -427,6 +462,9 @@ struct AcceptCtx {
     /// Connections open now (see [`OpenSlot`]).
     open: Arc<AtomicUsize>,
     max_clients: usize,
+    /// Connections the SDK upgraded for the front (HTTP 101).
+    upgraded: Arc<AtomicU64>,
+    peers: Arc<FrontPeers>,
 }
 
 fn accept_loop(listener: &TcpListener, cx: &AcceptCtx) {
@@ -489,17 +527,19 @@ fn accept_loop(listener: &TcpListener, cx: &AcceptCtx) {
             },
         });
         lock(&cx.conns).push(conn.clone());
-        let (a, r, list, upstream) = (
+        let (a, r, list, upstream, up, peers) = (
             cx.active.clone(),
             cx.rejected.clone(),
             cx.conns.clone(),
             cx.upstream,
+            cx.upgraded.clone(),
+            cx.peers.clone(),
         );
         let spawned = spawn_counted(&cx.active, format!("live-conn-{peer}"), move || {
             // On success the writer thread delivers what is queued and ends by itself.
             // On failure the client got its HTTP answer (or went away): counted, not logged
             // (a port scanner must not flood stderr), and forgotten unless it had upgraded.
-            if serve(client, &conn, upstream, &a, &slot).is_err() {
+            if serve(client, &conn, upstream, &a, &slot, &up, &peers).is_err() {
                 r.fetch_add(1, Ordering::Relaxed);
                 conn.kill();
                 if lock(&conn.counters.subprotocol).is_empty() {
@@ -667,6 +707,8 @@ fn serve(
     upstream_addr: SocketAddr,
     active: &Arc<AtomicUsize>,
     slot: &Arc<OpenSlot>,
+    upgraded: &AtomicU64,
+    peers: &FrontPeers,
 ) -> std::io::Result<()> {
     client.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
     client.set_write_timeout(Some(HANDSHAKE_TIMEOUT))?;
@@ -684,6 +726,11 @@ fn serve(
         Err(e) => return Err(bad_request(&mut client, &e)),
     };
     let mut up = TcpStream::connect_timeout(&upstream_addr, HANDSHAKE_TIMEOUT)?;
+    // Known to the SDK's gate before the request is written, so before the SDK can
+    // register the connection; forgotten when this thread ends (the SDK side closed).
+    let local = up.local_addr()?;
+    lock(&peers.0).insert(local);
+    let _entry = PeerEntry(peers, local);
     up.set_nodelay(true)?;
     up.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
     *lock(&conn.upstream) = Some(up.try_clone()?);
@@ -705,6 +752,7 @@ fn serve(
             "upgrade refused: HTTP {code}"
         )));
     }
+    upgraded.fetch_add(1, Ordering::AcqRel);
     *lock(&conn.counters.subprotocol) = proto;
     client.set_read_timeout(None)?;
     client.set_write_timeout(None)?;

@@ -324,6 +324,14 @@ fn report(
     live_stats: Option<&(String, live::LiveStats)>,
 ) {
     let mut summary = session.summary_json();
+    if let Some((_, st)) = live_stats {
+        if st.direct_sdk_clients > 0 {
+            eprintln!(
+                "ehactl: warning: --live: {} connection(s) reached the live view's internal Foxglove SDK port directly (a local process bypassing the front); each was cut off before any channel was advertised to it (live.direct_sdk_clients)",
+                st.direct_sdk_clients
+            );
+        }
+    }
     if let Some((url, st)) = live_stats {
         summary["live"] = serde_json::json!({
             "url": url,
@@ -334,6 +342,7 @@ fn report(
             "connections_refused": st.refused,
             "max_clients": st.max_clients,
             "clients_refused_over_limit": st.over_limit,
+            "direct_sdk_clients": st.direct_sdk_clients,
             "clients": st.per_client.iter().map(|c| serde_json::json!({
                 "peer": c.peer.to_string(),
                 "subprotocol": c.subprotocol,

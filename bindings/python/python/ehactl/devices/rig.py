@@ -148,9 +148,28 @@ class _HubBus(SocketCanDaemonBus):
     """python-can's socketcand client, plus detection of a closed TCP connection (the stock
     client then spins on select()/recv() returning nothing forever)."""
 
+    #: Bytes or a frame taken from the socket and not yet handled: set before the notifier
+    #: thread reads, cleared when it found nothing or (by the rig) once the frame has been
+    #: dispatched. python-can's client holds what it read in locals while it parses and
+    #: between handing a frame over and the first listener; a timer thread that took that
+    #: moment for an idle bus judged the heartbeat consumers on the wall clock with the
+    #: heartbeat in flight, and lost ehactl's heartbeat (tests/python/test_can_demo.py).
+    in_flight = False
+
     def _recv_internal(self, timeout):
+        sock = getattr(self, "_SocketCanDaemonBus__socket", None)
+        if sock is not None and not getattr(self, "_SocketCanDaemonBus__message_buffer", None):
+            try:
+                ready, _, _ = select.select([sock], [], [], timeout)
+            except OSError:
+                ready = [sock]  # the read below reports it
+            if not ready:
+                return None, False
+            timeout = 0
+        self.in_flight = True
         msg, filtered = super()._recv_internal(timeout)
         if msg is None:
+            self.in_flight = False
             sock = getattr(self, "_SocketCanDaemonBus__socket", None)
             if sock is not None:
                 try:
@@ -163,8 +182,8 @@ class _HubBus(SocketCanDaemonBus):
 
 
     def rx_pending(self) -> bool:
-        """Frames received but not yet handed to the notifier (parsed or still in the socket)."""
-        if getattr(self, "_SocketCanDaemonBus__message_buffer", None):
+        """Frames received but not yet handled (in flight, parsed or still in the socket)."""
+        if self.in_flight or getattr(self, "_SocketCanDaemonBus__message_buffer", None):
             return True
         sock = getattr(self, "_SocketCanDaemonBus__socket", None)
         if sock is None:
@@ -412,6 +431,8 @@ class SimRig:
         """Notifier thread, after each frame: heartbeat consumers checked at its bus time."""
         self._rx_handled = time.time()
         self.network.dispatching.busy = False
+        if isinstance(self.bus, _HubBus):
+            self.bus.in_flight = False
         for n in self.nodes:
             with n.lock:
                 n.consumers_due(bus_time)
