@@ -80,14 +80,13 @@ def test_unseen_currents_are_predicted_far_better_than_nominal_and_arx(campaign)
         s = r["nrmse"]
         assert s["law"] < 0.25 * s["nominal"], r
         assert s["law"] < 0.5 * s["arx"], r
-    # Measured 2026-11-28: pooled 0.063 over the eight unseen-current tests (0.030 … 0.108
-    # per test); the Dahl + yield law approximates Bouc–Wen's n = 2 loop and its internal
-    # dashpot c₁, which bounds it.
+    # Measured 2026-11-28: pooled 0.067 (0.031 … 0.106 per unseen-current test); the Dahl +
+    # yield law approximates Bouc–Wen's n = 2 loop and its internal dashpot c₁, which bounds it.
     assert j["pooled"]["law"] <= 0.075, j["pooled"]
 
 
 @pytest.mark.xfail(strict=True, reason="target NRMSE ≤ 0.05 at unseen currents not reached: "
-                   "0.063 pooled, the law's Dahl/yield library does not hold the Bouc–Wen loop shape")
+                   "0.067 pooled, the law's Dahl/yield library does not hold the Bouc–Wen loop shape")
 def test_unseen_currents_meet_the_five_percent_target(campaign):
     j, _, _ = campaign
     assert j["pooled"]["law"] <= 0.05
@@ -193,6 +192,51 @@ def test_june_chirps_as_one_campaign(tmp_path):
         assert f == pytest.approx(rec["nrmse"]["law"], rel=1e-9)
         # far better than the config without the law, and than the linear black box
         assert f < 0.5 * rec["nrmse"]["nominal"] and f < rec["nrmse"]["arx"], rec
+
+
+@pytest.fixture(scope="module")
+def june(tmp_path_factory):
+    """The June chirps as one campaign, and each diagnosed on its own (closed loop)."""
+    d = tmp_path_factory.mktemp("june")
+    r = ehactl("diagnose", "--config", CONFIG, "--data", MTS / "0A_5to15s.csv", "--data", MTS / "1A_5to15s.csv",
+               "--json", "--out", d / "campaign")
+    assert r.returncode == 0, r.stderr
+    single = {}
+    for a in ("0A", "1A"):
+        s = ehactl("diagnose", "--config", CONFIG, "--data", MTS / f"{a}_5to15s.csv", "--json", timeout=1800)
+        assert s.returncode == 0, s.stderr
+        single[a] = json.loads(s.stdout)
+    return json.loads(r.stdout), single
+
+
+def campaign_vs_single(june, a):
+    j, single = june
+    rec = next(x for x in j["records"] if x["source"].endswith(f"{a}_5to15s.csv"))
+    g = single[a]["greybox"]
+    return rec["nrmse"]["law"], g["nrmse_validation"]["channels"]["force"]
+
+
+def test_the_pre_yield_travel_follows_the_current(june):
+    j, _ = june
+    t = j["travel_dependence"]
+    assert t is not None and t["input"] == "current", j["summary"]
+    assert t["nrmse_transfer"] < 0.98 * t["nrmse_transfer_shared"]
+    assert "pre-yield travel follows current" in j["summary"]
+
+
+def test_the_1A_chirp_is_predicted_within_10_percent_of_its_own_diagnosis(june):
+    law, own = campaign_vs_single(june, "1A")
+    # Measured 2026-11-28: 0.137 against 0.142 (0.204 with one travel for both currents).
+    assert law <= 1.10 * own, (law, own)
+
+
+@pytest.mark.xfail(strict=True, reason="0 A chirp: campaign 0.252 vs its own closed-loop diagnosis 0.198 "
+                   "(force); alone as an imposed-motion campaign it reaches 0.244, so the imposed-motion "
+                   "replay, not the pooling, is what is missing (the closed-loop diagnosis models the loop "
+                   "and a pressure-dependent friction)")
+def test_the_0A_chirp_is_predicted_within_10_percent_of_its_own_diagnosis(june):
+    law, own = campaign_vs_single(june, "0A")
+    assert law <= 1.10 * own, (law, own)
 
 
 def test_motion_only_record_is_a_campaign_of_one(tmp_path):

@@ -312,6 +312,9 @@ pub struct Campaign {
     pub terms: Vec<TermFit>,
     /// The law's shape.
     pub shape: Shape,
+    /// The Dahl term's pre-yield travel as a function of the operating input, when one per
+    /// operating point predicted the fitting parts better than the shared `shape.dahl_travel`.
+    pub travel_dependence: Option<TravelDependence>,
     /// How each kept term's dependence was chosen.
     pub dependence_check: String,
     /// Per record: operating point and held-out NRMSE of nominal, law, ARX.
@@ -552,6 +555,22 @@ pub fn diagnose_campaign(
         &names,
     );
     let j_transfer = transfer_error(&data, &expanded, &library, &structure).unwrap_or(j_transfer);
+    let (travel_dependence, data, j_transfer) = match travel_by_point(
+        &prepared,
+        &library,
+        &expanded,
+        &structure,
+        shape,
+        &fit_groups,
+        &names,
+        j_transfer,
+    ) {
+        Some((dep, per_record)) => {
+            let j = dep.nrmse_transfer.powi(2);
+            (Some(dep), per_record, j)
+        }
+        None => (None, data, j_transfer),
+    };
     // Final fit on every fitting part.
     // (a validation record's fitting segments are empty: it adds nothing here)
     let all: Normal = sum_normals(data.a.iter().chain(&data.b), expanded.cols.len());
@@ -561,6 +580,7 @@ pub fn diagnose_campaign(
         .ok_or("the campaign law's least-squares problem is singular")?;
     let law = LawFit {
         shape: data.shape,
+        travel: travel_dependence.clone(),
         structure: structure.clone(),
         cols: cols.clone(),
         theta: theta.clone(),
@@ -652,12 +672,15 @@ pub fn diagnose_campaign(
         data.shape,
         &dependence_check,
         &arx.0,
-    );
+    ) + &travel_dependence
+        .as_ref()
+        .map_or(String::new(), |t| format!("\n{}", travel_text(t)));
     Ok(Campaign {
         cause,
         summary,
         terms,
         shape: data.shape,
+        travel_dependence,
         dependence_check,
         records,
         pooled,
@@ -817,6 +840,160 @@ fn shape_grid(v_rms: f64, library: &[LawTerm], prepared: &[Prepared<'_>]) -> Vec
         }
     }
     out
+}
+
+/// Pre-yield travel δ of the Dahl term depending on one operating input i: δ(i) = δ₀ + δ₁·i,
+/// through the travels chosen per fitted operating point (least squares over the points).
+/// Published models of MR dampers let a shape parameter follow the current as well (Quiroz,
+/// UTFSM 2022, ch. 7: β of the Bouc–Wen model exponential in i); kept only when it lowers
+/// the transfer error of the shared travel by [`TERM_MIN_GAIN`].
+#[derive(Debug, Clone, Serialize)]
+pub struct TravelDependence {
+    /// The input (a declared `[inputs]` name).
+    pub input: String,
+    /// δ₀ (m): the travel at i = 0.
+    pub at_zero: f64,
+    /// δ₁ (m per unit of the input).
+    pub slope: f64,
+    /// The travel chosen per fitted operating point (input value, δ in m).
+    pub per_point: Vec<(f64, f64)>,
+    /// Transfer error (NRMSE) with the shared travel, and with δ(i) (-).
+    pub nrmse_transfer_shared: f64,
+    /// See `nrmse_transfer_shared`.
+    pub nrmse_transfer: f64,
+}
+
+impl TravelDependence {
+    /// δ (m) at input value `i`, kept within the travels the campaign searches (within the
+    /// fitted operating points it always is; the extended config's linear dependence is not
+    /// clamped beyond them).
+    fn at(&self, i: f64) -> f64 {
+        (self.at_zero + self.slope * i).clamp(DAHL_TRAVELS[0], DAHL_TRAVELS[DAHL_TRAVELS.len() - 1])
+    }
+}
+
+/// Per-record normal equations with record `r` at travel `travel[r]` (m).
+fn normals_at_travels(
+    prepared: &[Prepared<'_>],
+    library: &[LawTerm],
+    expanded: &Expanded,
+    shape: Shape,
+    travel: &[f64],
+) -> ShapeData {
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for (r, d) in travel.iter().enumerate() {
+        let one = std::slice::from_ref(&prepared[r]);
+        let sh = Shape {
+            dahl_travel: *d,
+            ..shape
+        };
+        let kin = kinematics(one, sh.velocity_window, sh.dahl_travel, true);
+        let mut n = normals(one, library, expanded, sh, &kin);
+        a.append(&mut n.a);
+        b.append(&mut n.b);
+    }
+    ShapeData { shape, a, b }
+}
+
+/// The Dahl term's travel per fitted operating point (one declared input, two or more fitted
+/// points): coordinate descent over the points on the grid [`DAHL_TRAVELS`] by the transfer
+/// error, then δ(i) by least squares through them, refit and kept if the transfer error falls
+/// by [`TERM_MIN_GAIN`] against the shared travel (`j_shared`, NRMSE²). Returns the dependence
+/// and the per-record normal equations at δ(i) of each record.
+#[allow(clippy::too_many_arguments)]
+fn travel_by_point(
+    prepared: &[Prepared<'_>],
+    library: &[LawTerm],
+    expanded: &Expanded,
+    structure: &Structure,
+    shape: Shape,
+    fit_groups: &[usize],
+    names: &[String],
+    j_shared: f64,
+) -> Option<(TravelDependence, ShapeData)> {
+    if names.len() != 1
+        || fit_groups.len() < 2
+        || !structure.terms.iter().any(|t| t.0 == LawTerm::Dahl)
+    {
+        return None;
+    }
+    let grid: Vec<ShapeData> = DAHL_TRAVELS
+        .par_iter()
+        .map(|d| {
+            let sh = Shape {
+                dahl_travel: *d,
+                ..shape
+            };
+            let kin = kinematics(prepared, sh.velocity_window, *d, true);
+            normals(prepared, library, expanded, sh, &kin)
+        })
+        .collect();
+    let start = DAHL_TRAVELS
+        .iter()
+        .position(|d| *d == shape.dahl_travel)
+        .unwrap_or(0);
+    let mut choice: Vec<usize> = vec![start; fit_groups.len()];
+    let mixed = |choice: &[usize]| -> ShapeData {
+        let pick = |r: usize| {
+            let g = fit_groups.iter().position(|g| *g == prepared[r].group);
+            &grid[g.map_or(start, |g| choice[g])]
+        };
+        ShapeData {
+            shape,
+            a: (0..prepared.len()).map(|r| pick(r).a[r].clone()).collect(),
+            b: (0..prepared.len()).map(|r| pick(r).b[r].clone()).collect(),
+        }
+    };
+    for _pass in 0..2 {
+        for g in 0..fit_groups.len() {
+            let best = (0..grid.len()).min_by(|a, b| {
+                let j = |k: usize| {
+                    let mut c = choice.clone();
+                    c[g] = k;
+                    transfer_error(&mixed(&c), expanded, library, structure)
+                        .unwrap_or(f64::INFINITY)
+                };
+                j(*a).total_cmp(&j(*b))
+            })?;
+            choice[g] = best;
+        }
+    }
+    // δ(i) by least squares through the points (exact through two).
+    let pts: Vec<(f64, f64)> = fit_groups
+        .iter()
+        .zip(&choice)
+        .map(|(g, k)| {
+            let i = prepared
+                .iter()
+                .find(|p| p.group == *g)
+                .map_or(0.0, |p| p.at[0]);
+            (i, DAHL_TRAVELS[*k])
+        })
+        .collect();
+    let n = pts.len() as f64;
+    let (mi, md) = (
+        pts.iter().map(|p| p.0).sum::<f64>() / n,
+        pts.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let sii: f64 = pts.iter().map(|p| (p.0 - mi).powi(2)).sum();
+    let slope = if sii > 0.0 {
+        pts.iter().map(|p| (p.0 - mi) * (p.1 - md)).sum::<f64>() / sii
+    } else {
+        0.0
+    };
+    let mut dep = TravelDependence {
+        input: names[0].clone(),
+        at_zero: md - slope * mi,
+        slope,
+        per_point: pts,
+        nrmse_transfer_shared: j_shared.sqrt(),
+        nrmse_transfer: f64::NAN,
+    };
+    let travels: Vec<f64> = prepared.iter().map(|p| dep.at(p.at[0])).collect();
+    let data = normals_at_travels(prepared, library, expanded, shape, &travels);
+    let j = transfer_error(&data, expanded, library, structure)?;
+    dep.nrmse_transfer = j.sqrt();
+    (j < (1.0 - TERM_MIN_GAIN) * j_shared).then_some((dep, data))
 }
 
 fn shape_law(shape: Shape) -> PolynomialForce {
@@ -1149,6 +1326,8 @@ fn descend(
 /// The fitted law.
 struct LawFit {
     shape: Shape,
+    /// The Dahl travel's dependence on the input, if kept (else `shape.dahl_travel`).
+    travel: Option<TravelDependence>,
     structure: Structure,
     cols: Vec<usize>,
     theta: DVector<f64>,
@@ -1210,9 +1389,20 @@ impl LawFit {
         c
     }
 
+    /// The shape at operating point `at` (the Dahl travel δ(i) when it depends on the input).
+    fn shape_at(&self, at: &[f64]) -> Shape {
+        Shape {
+            dahl_travel: self
+                .travel
+                .as_ref()
+                .map_or(self.shape.dahl_travel, |t| t.at(at[0])),
+            ..self.shape
+        }
+    }
+
     /// The law at operating point `at`.
     fn law_at(&self, at: &[f64]) -> PolynomialForce {
-        let mut law = shape_law(self.shape);
+        let mut law = shape_law(self.shape_at(at));
         for (term, _) in &self.structure.terms {
             law = term.with(law, self.coefficient_at(*term, at));
         }
@@ -1228,7 +1418,9 @@ impl LawFit {
             v: &v,
             dp: p.dp.as_deref(),
         };
-        let law0 = shape_law(self.shape);
+        // The record's own travel (at its median operating point), as `ehactl predict` takes
+        // the extended config at it.
+        let law0 = shape_law(self.shape_at(&p.at));
         let pm = &cfg.plant.mechanics;
         let mut f: Vec<f64> =
             p.x.iter()
@@ -1259,6 +1451,10 @@ impl LawFit {
             inp.quadratic
                 .retain(|p, _| !p.starts_with("effects.polynomial_force."));
             let i0 = at0[k];
+            if let Some(t) = &self.travel {
+                inp.linear
+                    .insert("effects.polynomial_force.dahl_travel".into(), t.slope);
+            }
             for (term, forms) in &self.structure.terms {
                 let c = self.basis_coefficients(*term, k);
                 // Local Taylor form about i₀: exact for linear and quadratic, the saturating
@@ -1388,6 +1584,26 @@ fn cause_of(terms: &[TermFit], cfg: &RigConfig, names: &[String]) -> String {
         };
     }
     s
+}
+
+/// The summary's sentence on a pre-yield travel that follows the input.
+fn travel_text(t: &TravelDependence) -> String {
+    format!(
+            "The pre-yield travel follows {}: δ = {:.3e} m {} {:.3e} m per unit·{} (chosen per operating point: {}; transfer NRMSE {:.4} with one travel for all, {:.4} with δ({})).",
+            t.input,
+            t.at_zero,
+            if t.slope < 0.0 { "−" } else { "+" },
+            t.slope.abs(),
+            t.input,
+            t.per_point
+                .iter()
+                .map(|(i, d)| format!("{d:.1e} m at {i}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            t.nrmse_transfer_shared,
+            t.nrmse_transfer,
+            t.input
+        )
 }
 
 fn summary_of(
