@@ -396,12 +396,80 @@ fn path_of(t: LawTerm) -> String {
 }
 
 /// Run a campaign: `fit` records (their last [`HOLDOUT`] held out unless `validation` records
-/// are given, which are then held out whole) against the config `cfg`.
+/// are given, which are then held out whole) against the config `cfg`. Phases: the records
+/// and what the campaign may fit ([`setup`]), the law's shape and terms ([`choose_shape`]),
+/// each term's input dependence and the travel per operating point ([`fit_law`]), each term's
+/// share ([`rank_terms`]), the held-out scores ([`score`]).
 pub fn diagnose_campaign(
     cfg: &RigConfig,
     fit: &[Record],
     validation: &[Record],
 ) -> Result<Campaign, String> {
+    let su = setup(cfg, fit, validation)?;
+    let (shape, structure, j_shape) = choose_shape(&su)?;
+    let fitted = fit_law(&su, shape, structure, j_shape)?;
+    let terms = rank_terms(&su, &fitted);
+    let (records, pooled, baseline) = score(cfg, &su, &fitted.law)?;
+    let extended = fitted.law.extended(cfg, &su.names)?;
+    let cause = cause_of(&terms, cfg, &su.names);
+    let travel = fitted
+        .law
+        .travel
+        .as_ref()
+        .map_or(String::new(), |t| format!("\n{}", travel_text(t)));
+    let summary = summary_of(
+        &cause,
+        &pooled,
+        &records,
+        &terms,
+        fitted.law.shape,
+        &fitted.dependence_check,
+        &baseline,
+    ) + &travel;
+    Ok(Campaign {
+        cause,
+        summary,
+        terms,
+        shape: fitted.law.shape,
+        travel_dependence: fitted.law.travel.clone(),
+        dependence_check: fitted.dependence_check,
+        records,
+        pooled,
+        nrmse_transfer: fitted.j_transfer.sqrt(),
+        baseline,
+        notes: su.notes,
+        extended,
+    })
+}
+
+/// What a campaign may fit: its records prepared and grouped by operating point, the law's
+/// library and the dependence forms each input allows.
+struct Setup<'a> {
+    names: Vec<String>,
+    /// Unit of each input.
+    units: Vec<String>,
+    notes: Vec<String>,
+    prepared: Vec<Prepared<'a>>,
+    /// Operating-point groups with fitted records.
+    fit_groups: Vec<usize>,
+    library: Vec<LawTerm>,
+    /// RMS velocity of the fitting parts (m/s).
+    v_rms: f64,
+    /// Forms a term may take per input.
+    candidate_forms: Vec<Vec<Form>>,
+    /// The form per input while the terms are chosen: linear where the campaign allows it.
+    default_forms: Vec<Form>,
+    /// The library expanded with every candidate form.
+    expanded: Expanded,
+}
+
+/// Phase 1: prepare the records, group them by operating point, choose the library (the
+/// load-pressure terms only when every record has p_a and p_b) and the forms per input.
+fn setup<'a>(
+    cfg: &RigConfig,
+    fit: &'a [Record],
+    validation: &'a [Record],
+) -> Result<Setup<'a>, String> {
     if fit.is_empty() {
         return Err("a campaign needs at least one --data record".into());
     }
@@ -422,28 +490,7 @@ pub fn diagnose_campaign(
             &mut notes,
         )?);
     }
-    // Distinct operating points (groups).
-    let mut points: Vec<Vec<f64>> = Vec::new();
-    for p in prepared.iter_mut() {
-        let g = points
-            .iter()
-            .position(|q| same_point(q, &p.at))
-            .unwrap_or_else(|| {
-                points.push(p.at.clone());
-                points.len() - 1
-            });
-        p.group = g;
-    }
-    let fit_groups: Vec<usize> = {
-        let mut g: Vec<usize> = prepared
-            .iter()
-            .filter(|p| !p.validation)
-            .map(|p| p.group)
-            .collect();
-        g.sort_unstable();
-        g.dedup();
-        g
-    };
+    let fit_groups = group_by_point(&mut prepared);
     let has_dp = prepared.iter().all(|p| p.dp.is_some());
     let library: Vec<LawTerm> = LIBRARY
         .iter()
@@ -460,36 +507,8 @@ pub fn diagnose_campaign(
     if !(v_rms > 0.0) {
         return Err("the fitting parts of the records hold no motion (x is constant): a load law cannot be identified from them".into());
     }
-    let i_max: Vec<f64> = (0..names.len())
-        .map(|k| {
-            prepared
-                .iter()
-                .filter(|p| !p.validation)
-                .map(|p| p.at[k].abs())
-                .fold(0.0, f64::max)
-        })
-        .collect();
-    // The forms a term may take per input, given the fitting operating points.
-    let candidate_forms: Vec<Vec<Form>> = (0..names.len())
-        .map(|k| {
-            let distinct = distinct_values(&prepared, k);
-            let mut f = vec![Form::None];
-            if distinct >= 2 && i_max[k] > 0.0 {
-                f.push(Form::Linear);
-            }
-            if distinct >= 3 && i_max[k] > 0.0 {
-                f.extend(SATURATION_SCALES.iter().map(|s| Form::Saturating {
-                    scale: s * i_max[k],
-                }));
-            }
-            if distinct >= 4 {
-                f.push(Form::Quadratic);
-            }
-            f
-        })
-        .collect();
+    let candidate_forms = forms_per_input(&prepared, names.len());
     let expanded = expand(&library, &candidate_forms);
-    // The default form while the terms are chosen: linear where the campaign allows it.
     let default_forms: Vec<Form> = candidate_forms
         .iter()
         .map(|f| {
@@ -500,15 +519,87 @@ pub fn diagnose_campaign(
             }
         })
         .collect();
-    let shapes: Vec<Shape> = shape_grid(v_rms, &library, &prepared);
-    // Every shape: normal equations of the library with the default forms only (their cost
-    // grows with the square of the columns), then forward selection by the transfer error;
-    // the full expansion of the forms only for the shape chosen.
+    Ok(Setup {
+        units: names.iter().map(|n| cfg.inputs[n].unit.clone()).collect(),
+        names,
+        notes,
+        prepared,
+        fit_groups,
+        library,
+        v_rms,
+        candidate_forms,
+        default_forms,
+        expanded,
+    })
+}
+
+/// Number each record's distinct operating point (`group`); the groups with fitted records.
+fn group_by_point(prepared: &mut [Prepared<'_>]) -> Vec<usize> {
+    let mut points: Vec<Vec<f64>> = Vec::new();
+    for p in prepared.iter_mut() {
+        let g = points
+            .iter()
+            .position(|q| same_point(q, &p.at))
+            .unwrap_or_else(|| {
+                points.push(p.at.clone());
+                points.len() - 1
+            });
+        p.group = g;
+    }
+    let mut g: Vec<usize> = prepared
+        .iter()
+        .filter(|p| !p.validation)
+        .map(|p| p.group)
+        .collect();
+    g.sort_unstable();
+    g.dedup();
+    g
+}
+
+/// The forms a term may take per input, given the fitting operating points: none, linear
+/// (two distinct values), saturating (three), quadratic (four).
+fn forms_per_input(prepared: &[Prepared<'_>], inputs: usize) -> Vec<Vec<Form>> {
+    (0..inputs)
+        .map(|k| {
+            let i_max = prepared
+                .iter()
+                .filter(|p| !p.validation)
+                .map(|p| p.at[k].abs())
+                .fold(0.0, f64::max);
+            let distinct = distinct_values(prepared, k);
+            let mut f = vec![Form::None];
+            if distinct >= 2 && i_max > 0.0 {
+                f.push(Form::Linear);
+            }
+            if distinct >= 3 && i_max > 0.0 {
+                f.extend(
+                    SATURATION_SCALES
+                        .iter()
+                        .map(|s| Form::Saturating { scale: s * i_max }),
+                );
+            }
+            if distinct >= 4 {
+                f.push(Form::Quadratic);
+            }
+            f
+        })
+        .collect()
+}
+
+/// Phase 2: every shape of the grid, its terms chosen by the transfer error with the default
+/// forms only (the normal equations' cost grows with the square of the columns; the full
+/// expansion of the forms comes for the chosen shape only); the best shape, its structure and
+/// its transfer error (NRMSE²).
+fn choose_shape(su: &Setup<'_>) -> Result<(Shape, Structure, f64), String> {
+    let shapes: Vec<Shape> = shape_grid(su.v_rms, &su.library, &su.prepared);
     let narrow = expand(
-        &library,
-        &default_forms.iter().map(|f| vec![*f]).collect::<Vec<_>>(),
+        &su.library,
+        &su.default_forms
+            .iter()
+            .map(|f| vec![*f])
+            .collect::<Vec<_>>(),
     );
-    let has_dahl = library.contains(&LawTerm::Dahl);
+    let has_dahl = su.library.contains(&LawTerm::Dahl);
     // Shapes that share the derivative window and the pre-yield travel share the kinematics.
     let mut groups: Vec<Vec<Shape>> = Vec::new();
     for s in shapes {
@@ -522,88 +613,125 @@ pub fn diagnose_campaign(
     let tried: Vec<(Shape, Structure, f64)> = groups
         .par_iter()
         .flat_map_iter(|g| {
-            let kin = kinematics(&prepared, g[0].velocity_window, g[0].dahl_travel, has_dahl);
+            let kin = kinematics(
+                &su.prepared,
+                g[0].velocity_window,
+                g[0].dahl_travel,
+                has_dahl,
+            );
             g.iter()
                 .map(|s| {
-                    let data = normals(&prepared, &library, &narrow, *s, &kin);
-                    let (st, j) = select_terms(&data, &library, &narrow, &default_forms);
+                    let data = normals(&su.prepared, &su.library, &narrow, *s, &kin);
+                    let (st, j) = select_terms(&data, &su.library, &narrow, &su.default_forms);
                     (*s, st, j)
                 })
                 .collect::<Vec<_>>()
         })
         .collect();
-    let (shape, structure, j_transfer) = tried
+    tried
         .into_iter()
         .min_by(|a, b| a.2.total_cmp(&b.2))
-        .ok_or("no law shape could be fitted")?;
+        .ok_or_else(|| "no law shape could be fitted".to_string())
+}
+
+/// What phase 3 hands on.
+struct Fitted {
+    law: LawFit,
+    /// Normal equations of every fitting part, summed.
+    all: Normal,
+    dependence_check: String,
+    /// Transfer error of the final structure (NRMSE²).
+    j_transfer: f64,
+}
+
+/// Phase 3: each kept term's dependence on each input, the Dahl travel per operating point,
+/// then the final least-squares fit on every fitting part (a validation record's fitting
+/// segments are empty: it adds nothing there).
+fn fit_law(
+    su: &Setup<'_>,
+    shape: Shape,
+    structure: Structure,
+    j_shape: f64,
+) -> Result<Fitted, String> {
+    let (lib, ex) = (&su.library, &su.expanded);
+    let has_dahl = lib.contains(&LawTerm::Dahl);
     let kin = kinematics(
-        &prepared,
+        &su.prepared,
         shape.velocity_window,
         shape.dahl_travel,
         has_dahl,
     );
-    let data = normals(&prepared, &library, &expanded, shape, &kin);
-    // The dependence of each kept term on each input.
+    let data = normals(&su.prepared, lib, ex, shape, &kin);
     let (structure, dependence_check) = choose_dependence(
         &data,
-        &prepared,
-        &library,
-        &expanded,
+        &su.prepared,
+        lib,
+        ex,
         structure,
-        &candidate_forms,
-        &fit_groups,
-        &names,
+        &su.candidate_forms,
+        &su.fit_groups,
+        &su.names,
     );
-    let j_transfer = transfer_error(&data, &expanded, &library, &structure).unwrap_or(j_transfer);
-    let (travel_dependence, data, j_transfer) = match travel_by_point(
-        &prepared,
-        &library,
-        &expanded,
+    let j_transfer = transfer_error(&data, ex, lib, &structure).unwrap_or(j_shape);
+    let (travel, data, j_transfer) = match travel_by_point(
+        &su.prepared,
+        lib,
+        ex,
         &structure,
         shape,
-        &fit_groups,
-        &names,
+        &su.fit_groups,
+        &su.names,
         j_transfer,
     ) {
-        Some((dep, per_record)) => {
+        Some((mut dep, per_record)) => {
             let j = dep.nrmse_transfer.powi(2);
+            dep.unit = su.units[0].clone();
             (Some(dep), per_record, j)
         }
         None => (None, data, j_transfer),
     };
-    // Final fit on every fitting part.
-    // (a validation record's fitting segments are empty: it adds nothing here)
-    let all: Normal = sum_normals(data.a.iter().chain(&data.b), expanded.cols.len());
-    let cols = columns_of(&structure, &expanded, &library);
+    let all: Normal = sum_normals(data.a.iter().chain(&data.b), ex.cols.len());
+    let cols = columns_of(&structure, ex, lib);
     let theta = all
         .solve(&cols)
         .ok_or("the campaign law's least-squares problem is singular")?;
-    let law = LawFit {
-        shape: data.shape,
-        travel: travel_dependence.clone(),
-        structure: structure.clone(),
-        cols: cols.clone(),
-        theta: theta.clone(),
-        expanded_cols: expanded.cols.clone(),
-        forms: expanded.forms.clone(),
-        library: library.clone(),
-    };
-    // Ranking: the variance each term carries (removed and the rest refit).
-    let total = all.var_sum();
-    let base_sse = all.sse(&cols, &theta);
+    Ok(Fitted {
+        law: LawFit {
+            shape: data.shape,
+            travel,
+            structure,
+            cols,
+            theta,
+            expanded_cols: ex.cols.clone(),
+            forms: ex.forms.clone(),
+            library: lib.clone(),
+        },
+        all,
+        dependence_check,
+        j_transfer,
+    })
+}
+
+/// Phase 4: each term with its coefficients and the share of the force variance it carries
+/// (removed and the rest refit), largest first.
+fn rank_terms(su: &Setup<'_>, f: &Fitted) -> Vec<TermFit> {
+    let law = &f.law;
+    let total = f.all.var_sum();
+    let base_sse = f.all.sse(&law.cols, &law.theta);
     let mut terms = Vec::new();
-    for (ti, (term, forms)) in structure.terms.iter().enumerate() {
-        let mut without = structure.clone();
+    for (ti, (term, forms)) in law.structure.terms.iter().enumerate() {
+        let mut without = law.structure.clone();
         without.terms.remove(ti);
-        let c2 = columns_of(&without, &expanded, &library);
-        let share = all
+        let c2 = columns_of(&without, &su.expanded, &su.library);
+        let share = f
+            .all
             .solve(&c2)
-            .map_or(1.0, |th| (all.sse(&c2, &th) - base_sse).max(0.0) / total);
+            .map_or(1.0, |th| (f.all.sse(&c2, &th) - base_sse).max(0.0) / total);
         let (name, unit) = term_name(*term);
         let mut dependence = BTreeMap::new();
-        for (k, f) in forms.iter().enumerate() {
-            if *f != Form::None {
-                dependence.insert(names[k].clone(), (*f, law.basis_coefficients(*term, k)));
+        for (k, fm) in forms.iter().enumerate() {
+            if *fm != Form::None {
+                dependence.insert(su.names[k].clone(), (*fm, law.basis_coefficients(*term, k)));
             }
         }
         terms.push(TermFit {
@@ -616,16 +744,26 @@ pub fn diagnose_campaign(
         });
     }
     terms.sort_by(|a, b| b.share.total_cmp(&a.share));
-    // Held-out scores.
-    let arx = arx_baseline(&prepared)?;
+    terms
+}
+
+/// Phase 5: the held-out part of every record predicted by the law, the nominal config and the
+/// ARX baseline; per record and pooled (all scored samples, each record about its own mean),
+/// with the baseline's structure.
+fn score(
+    cfg: &RigConfig,
+    su: &Setup<'_>,
+    law: &LawFit,
+) -> Result<(Vec<RecordScore>, Scores, String), String> {
+    let arx = arx_baseline(&su.prepared)?;
     let mut records = Vec::new();
     let (mut sse, mut var, mut sse_nom, mut sse_arx) = (0.0, 0.0, 0.0, 0.0);
-    for (p, arx_pred) in prepared.iter().zip(&arx.1) {
+    for (p, arx_pred) in su.prepared.iter().zip(&arx.1) {
         if p.score.is_empty() {
             continue;
         }
         let law_pred = law.predict(cfg, p)?;
-        let nom_pred = nominal_prediction(cfg, p, &names)?;
+        let nom_pred = nominal_prediction(cfg, p, &su.names)?;
         let r = p.score.clone();
         let f = &p.force[r.clone()];
         let mean = f.iter().sum::<f64>() / f.len() as f64;
@@ -648,7 +786,7 @@ pub fn diagnose_campaign(
         records.push(RecordScore {
             source: p.rec.source.clone(),
             role: if p.validation { "validation" } else { "fit" }.into(),
-            operating_point: names.iter().cloned().zip(p.at.iter().copied()).collect(),
+            operating_point: su.names.iter().cloned().zip(p.at.iter().copied()).collect(),
             scored: (r.start, r.end),
             nrmse: Scores {
                 nominal: (en / v).sqrt(),
@@ -662,33 +800,7 @@ pub fn diagnose_campaign(
         law: (sse / var).sqrt(),
         arx: (sse_arx / var).sqrt(),
     };
-    let extended = law.extended(cfg, &names)?;
-    let cause = cause_of(&terms, cfg, &names);
-    let summary = summary_of(
-        &cause,
-        &pooled,
-        &records,
-        &terms,
-        data.shape,
-        &dependence_check,
-        &arx.0,
-    ) + &travel_dependence
-        .as_ref()
-        .map_or(String::new(), |t| format!("\n{}", travel_text(t)));
-    Ok(Campaign {
-        cause,
-        summary,
-        terms,
-        shape: data.shape,
-        travel_dependence,
-        dependence_check,
-        records,
-        pooled,
-        nrmse_transfer: j_transfer.sqrt(),
-        baseline: arx.0,
-        notes,
-        extended,
-    })
+    Ok((records, pooled, arx.0))
 }
 
 fn same_point(a: &[f64], b: &[f64]) -> bool {
@@ -851,6 +963,8 @@ fn shape_grid(v_rms: f64, library: &[LawTerm], prepared: &[Prepared<'_>]) -> Vec
 pub struct TravelDependence {
     /// The input (a declared `[inputs]` name).
     pub input: String,
+    /// The input's unit (its `[inputs.<name>] unit`).
+    pub unit: String,
     /// δ₀ (m): the travel at i = 0.
     pub at_zero: f64,
     /// δ₁ (m per unit of the input).
@@ -983,6 +1097,7 @@ fn travel_by_point(
     };
     let mut dep = TravelDependence {
         input: names[0].clone(),
+        unit: String::new(),
         at_zero: md - slope * mi,
         slope,
         per_point: pts,
@@ -1589,15 +1704,16 @@ fn cause_of(terms: &[TermFit], cfg: &RigConfig, names: &[String]) -> String {
 /// The summary's sentence on a pre-yield travel that follows the input.
 fn travel_text(t: &TravelDependence) -> String {
     format!(
-            "The pre-yield travel follows {}: δ = {:.3e} m {} {:.3e} m per unit·{} (chosen per operating point: {}; transfer NRMSE {:.4} with one travel for all, {:.4} with δ({})).",
+            "The pre-yield travel follows {}: δ = {:.3e} m {} {:.3e} m/{}·{} (chosen per operating point: {}; transfer NRMSE {:.4} with one travel for all, {:.4} with δ({})).",
             t.input,
             t.at_zero,
             if t.slope < 0.0 { "−" } else { "+" },
             t.slope.abs(),
+            t.unit,
             t.input,
             t.per_point
                 .iter()
-                .map(|(i, d)| format!("{d:.1e} m at {i}"))
+                .map(|(i, d)| format!("{d:.1e} m at {i} {}", t.unit))
                 .collect::<Vec<_>>()
                 .join(", "),
             t.nrmse_transfer_shared,
