@@ -114,6 +114,9 @@ fn main() {
                 );
             }
             println!("  residual {:?}", d.residual_test.channels);
+            for a in &d.ambiguities {
+                println!("  ambiguity: {a}");
+            }
         }
         let variant = d
             .candidates

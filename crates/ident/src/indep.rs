@@ -980,7 +980,21 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         c.kind = kind.to_string();
         return Ok(c);
     }
-    generate(seed, kind, duration, dt, true)
+    generate(seed, kind, duration, dt, &|_| true)
+}
+
+/// The record of case `kind` of `seed` with hidden effect number `drop` (0-based, in the
+/// order of `kind`) switched off and every draw, the excitation and the sensor noise kept:
+/// the truth against which the error each effect of a multi-effect case explains is measured
+/// (the record with all effects minus this one).
+pub fn make_case_without(
+    seed: u64,
+    kind: &str,
+    drop: usize,
+    duration: f64,
+    dt: f64,
+) -> Result<Case, String> {
+    generate(seed, kind, duration, dt, &|i| i != drop)
 }
 
 /// The case `kind` of `seed` with its hidden effects at a small magnitude: the clean record
@@ -996,8 +1010,8 @@ pub fn make_case_small(
     duration: f64,
     dt: f64,
 ) -> Result<Case, String> {
-    let full = generate(seed, kind, duration, dt, true)?;
-    let clean = generate(seed, kind, duration, dt, false)?;
+    let full = generate(seed, kind, duration, dt, &|_| true)?;
+    let clean = generate(seed, kind, duration, dt, &|_| false)?;
     let rig = if kind.starts_with("pi_") {
         force_rig()
     } else {
@@ -1016,14 +1030,15 @@ pub fn make_case_small(
     Ok(Case { record, ..full })
 }
 
-/// [`make_case`] without the `@L` suffix; `with_effects` false gives the clean record of the
-/// same draws (the hidden effects drawn, listed, and not simulated).
+/// [`make_case`] without the `@L` suffix, simulating the hidden effects `keep` selects (by
+/// index in `kind`); the others are drawn and listed but not simulated (`|_| false`: the clean
+/// record of the same draws).
 fn generate(
     seed: u64,
     kind: &str,
     duration: f64,
     dt: f64,
-    with_effects: bool,
+    keep: &dyn Fn(usize) -> bool,
 ) -> Result<Case, String> {
     let (closed, effects) = match kind.strip_prefix("pi_") {
         Some(rest) => (true, rest),
@@ -1067,7 +1082,13 @@ fn generate(
         (excitation, None)
     };
     let mut pi = ehactl_control::pi::Pi::new(force_pi_gains());
-    let sim: &[Hidden] = if with_effects { &all } else { &[] };
+    let sim: Vec<Hidden> = all
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| keep(*i))
+        .map(|(_, h)| h.clone())
+        .collect();
+    let sim = &sim[..];
     let model = Model::new(&rig, sim);
     let mut y = vec![0.0; model.n];
     y[0] = 0.5 * rig.stroke;
