@@ -38,8 +38,8 @@ pub(crate) fn without_effect(h: &Hyp, e: EffectId) -> Hyp {
 /// each is removed in turn, the other parameters refit from their final values (bounded
 /// Nelder–Mead, [`Ctx::fit`]) and the model re-scored; the effect whose removal leaves the
 /// larger held-out J = mean NRMSE² comes first. The refit matters: without it, an effect whose
-/// fit balances another's (a test-bench-like record of the independent generator, seed 7004: a
-/// dead band's zero offset balancing an asymmetric saturation fitted to a symmetric soft one)
+/// fit balances another's (independent generator seed 7004 of `bench/indep_cases.txt`: a dead
+/// band's zero offset balancing an asymmetric saturation fitted to a symmetric soft one)
 /// looks indispensable, since removing either alone unbalances the pair. Returns the order
 /// and, when it differs from the acceptance order `accepted`, a sentence with the figures
 /// (held-out NRMSE without each effect, `final_err` with all of them). One refit per accepted
@@ -102,6 +102,8 @@ enum Signature {
     Other,
 }
 
+/// The part of the record where effect `e`'s error concentrates (the analysis' prior rules,
+/// `EffectFit::prior` of each module in `crates/ident/src/effects`).
 fn signature(e: EffectId) -> Signature {
     use EffectId::*;
     match e {
