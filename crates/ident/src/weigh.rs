@@ -291,3 +291,82 @@ pub(crate) fn second_look(
         note,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::freeparam::FreeParam;
+    use std::collections::BTreeMap;
+    use std::sync::Arc;
+
+    fn param(name: &str, lo: f64, hi: f64) -> FreeParam {
+        FreeParam::new(name, lo, hi, false, lo, Arc::new(|_, _| {}))
+    }
+
+    /// A model: one nominal factor, then a dead band (2 parameters), then a delay (1).
+    fn model(values: [f64; 4]) -> Hyp {
+        Hyp {
+            effects: vec![EffectId::ValveDeadband, EffectId::TimeDelay],
+            variants: vec!["overlap", "-"],
+            params: vec![
+                param("valve.rated_flow/nominal", 0.9, 1.1),
+                param("effects.valve_deadband.overlap", 0.0, 0.3),
+                param("effects.valve_deadband.zero_offset", -0.1, 0.1),
+                param("effects.time_delay.delay", 0.0, 0.02),
+            ],
+            values: values.to_vec(),
+        }
+    }
+
+    fn errors(x: f64) -> Errors {
+        Errors {
+            channels: BTreeMap::from([("x".to_string(), x)]),
+            overall: x,
+        }
+    }
+
+    #[test]
+    fn removing_an_effect_keeps_the_others_as_fitted() {
+        let h = without_effect(&model([1.05, 0.02, -0.01, 0.004]), EffectId::ValveDeadband);
+        assert_eq!(h.effects, vec![EffectId::TimeDelay]);
+        assert_eq!(h.variants, vec!["-"]);
+        let names: Vec<&str> = h.params.iter().map(|p| p.name.as_str()).collect();
+        assert_eq!(
+            names,
+            ["valve.rated_flow/nominal", "effects.time_delay.delay"]
+        );
+        assert_eq!(h.values, vec![1.05, 0.004]);
+    }
+
+    /// A winner on a bound of its range, one that explains less than half of the excess, and
+    /// one that leaves 8× the floor beside a runner-up explaining 60 %, are weak; a winner
+    /// inside its range explaining 80 % and leaving 2× the floor is not.
+    #[test]
+    fn weak_winners() {
+        fn fitted<'a>(h: &'a Hyp, err: &'a Errors, excess: f64) -> Fitted<'a> {
+            Fitted {
+                e: EffectId::TimeDelay,
+                h,
+                err,
+                excess,
+                significant: true,
+            }
+        }
+        let floor = [("x".to_string(), 0.01)];
+        let (e2, e8) = (&errors(0.02), &errors(0.08));
+        let inside = &model([1.0, 0.1, 0.0, 0.004]);
+        let corner = &model([1.0, 0.1, 0.0, 0.02]);
+        let runner = fitted(inside, e2, 0.4);
+        // The delay's parameters start at index 3.
+        assert!(weakness(&fitted(corner, e2, 0.2), 3, &floor, &runner)
+            .is_some_and(|w| w.contains("corner")));
+        assert!(weakness(&fitted(inside, e2, 0.6), 3, &floor, &runner)
+            .is_some_and(|w| w.contains("40 %")));
+        assert!(weakness(&fitted(inside, e8, 0.2), 3, &floor, &runner)
+            .is_some_and(|w| w.contains("8×")));
+        assert!(weakness(&fitted(inside, e2, 0.2), 3, &floor, &runner).is_none());
+        // The leftover alone is not enough when the runner-up explains less than half.
+        let weak_runner = fitted(inside, e2, 0.7);
+        assert!(weakness(&fitted(inside, e8, 0.2), 3, &floor, &weak_runner).is_none());
+    }
+}
