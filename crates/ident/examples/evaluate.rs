@@ -1,13 +1,16 @@
 //! Slow evaluation of `diagnose` over seeded hidden-effect cases (not part of CI):
-//! `cargo run --release -p ehactl-ident --example evaluate -- [per_effect] [clean] [pairs] [first_seed] [OUT.md] [per_variant]`.
+//! `cargo run --release -p ehactl-ident --example evaluate -- [per_effect] [clean] [pairs] [first_seed] [OUT.md] [per_variant] [small]`.
 //! After the single-effect, clean and two-effect cases come `per_variant` (default
 //! `per_effect`) cases of each structural variant in `synth::VARIANT_CASES` (LuGre friction, a
-//! compliant hose), counted with their effect and scored also on the variant named.
+//! compliant hose), counted with their effect and scored also on the variant named. Last come
+//! `small` (default 3) small-magnitude cases of each catalogue effect
+//! (`synth::make_case_small`: the residual of the channel it moves most at 2, 3, 4, 2, …× the
+//! sensor noise), scored on their own, false `none` apart.
 //! Writes a Markdown section (confusion matrix, rates, gains) to OUT.md (default
 //! bench/results/diagnose_eval.md) and one line per case to stdout. With `OFFSETS=1` in the
 //! environment every record also gets `synth::realistic_offsets` (sensor zero errors); with
 //! `SENSOR_OFFSETS=1` the diagnosis estimates them (`Options::sensor_offsets`).
-use ehactl_ident::synth::{make_case, make_case_variant, VARIANT_CASES};
+use ehactl_ident::synth::{make_case, make_case_small, make_case_variant, VARIANT_CASES};
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
 use std::collections::BTreeMap;
@@ -22,6 +25,7 @@ fn main() {
         .cloned()
         .unwrap_or_else(|| "bench/results/diagnose_eval.md".into());
     let per_variant = arg(6, per_effect);
+    let per_small = arg(7, 3);
     let with_offsets = std::env::var("OFFSETS").is_ok_and(|v| v == "1");
     let estimate_offsets = std::env::var("SENSOR_OFFSETS").is_ok_and(|v| v == "1");
     let mut cases: Vec<Vec<EffectId>> = Vec::new();
@@ -51,6 +55,16 @@ fn main() {
             variant_of.push(Some(v));
         }
     }
+    // Small-magnitude cases last (levels over the sensor noise cycle through 2, 3, 4).
+    let mut level_of: Vec<Option<f64>> = vec![None; cases.len()];
+    for k in 0..per_small {
+        for e in EffectId::ALL {
+            cases.push(vec![e]);
+            variant_of.push(None);
+            level_of.push(Some([2.0, 3.0, 4.0][k as usize % 3]));
+        }
+    }
+    let mut small = SmallScore::default();
     let (mut variant_ok, mut n_variant) = (0, 0);
     let bar = indicatif::ProgressBar::new(cases.len() as u64);
     bar.set_style(
@@ -71,9 +85,10 @@ fn main() {
     let mut times = Vec::new();
     for (i, hidden) in cases.iter().enumerate() {
         let seed = first + i as u64;
-        let mut case = match variant_of[i] {
-            Some(v) => make_case_variant(seed, hidden[0], v, 2.0),
-            None => make_case(seed, hidden, 2.0),
+        let mut case = match (variant_of[i], level_of[i]) {
+            (_, Some(l)) => make_case_small(seed, hidden[0], l, 2.0).0,
+            (Some(v), None) => make_case_variant(seed, hidden[0], v, 2.0),
+            (None, None) => make_case(seed, hidden, 2.0),
         };
         if with_offsets {
             let b = ehactl_ident::synth::realistic_offsets(&case.record);
@@ -105,12 +120,17 @@ fn main() {
                 variant_ok += (named == Some(v)) as usize;
                 format!("{label} ({v}, named {})", named.unwrap_or("-"))
             }
-            None => label.clone(),
+            None => match level_of[i] {
+                Some(l) => format!("{label} (small, {l}× noise)"),
+                None => label.clone(),
+            },
         };
         let line = format!("seed {seed} hidden {shown} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { d.cause.clone() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
         bar.suspend(|| eprintln!("{line}"));
         let _ = writeln!(lines, "{line}");
-        if hidden.is_empty() {
+        if level_of[i].is_some() {
+            small.add(&label, &d.cause, dt);
+        } else if hidden.is_empty() {
             n_clean += 1;
             clean_ok += (d.cause == "none") as usize;
             unexplained_clean += (d.cause == "unexplained") as usize;
@@ -142,7 +162,7 @@ fn main() {
     times.sort_by(f64::total_cmp);
     let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
     let mut s = String::new();
-    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects, {per_variant} per structural variant of `synth::VARIANT_CASES`), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}{}.\n", cases.len(), first + cases.len() as u64 - 1, if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if estimate_offsets { "; diagnosed with `--sensor-offsets`" } else { "" });
+    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects, {per_variant} per structural variant of `synth::VARIANT_CASES`, {per_small} small-magnitude per effect), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}{}.\n", cases.len(), first + cases.len() as u64 - 1, if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if estimate_offsets { "; diagnosed with `--sensor-offsets`" } else { "" });
     let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
     let _ = writeln!(s, "| top cause is a hidden effect (cases with hidden effects) | {top_ok}/{n_hidden} = {:.1} % | ≥ 90 % |", pct(top_ok, n_hidden));
     let _ = writeln!(
@@ -217,6 +237,7 @@ fn main() {
                 .join(" | ")
         );
     }
+    s.push_str(&small.table());
     let _ = writeln!(
         s,
         "\n<details><summary>Per-case results</summary>\n\n```\n{lines}```\n</details>"
@@ -226,4 +247,56 @@ fn main() {
     }
     std::fs::write(&out, &s).expect("write evaluation");
     println!("{s}");
+}
+
+/// Scores of the small-magnitude cases, kept apart from the full-size ones.
+#[derive(Default)]
+struct SmallScore {
+    n: usize,
+    correct: usize,
+    false_none: usize,
+    unexplained: usize,
+    /// (hidden, named) → cases, for the named ≠ hidden ones.
+    confusions: BTreeMap<(String, String), usize>,
+    times: Vec<f64>,
+}
+
+impl SmallScore {
+    fn add(&mut self, hidden: &str, named: &str, time: f64) {
+        self.n += 1;
+        self.correct += (hidden == named) as usize;
+        self.false_none += (named == "none") as usize;
+        self.unexplained += (named == "unexplained") as usize;
+        if hidden != named && named != "none" && named != "unexplained" {
+            *self
+                .confusions
+                .entry((hidden.to_string(), named.to_string()))
+                .or_default() += 1;
+        }
+        self.times.push(time);
+    }
+
+    fn table(&self) -> String {
+        if self.n == 0 {
+            return String::new();
+        }
+        let mut t = self.times.clone();
+        t.sort_by(f64::total_cmp);
+        let conf: Vec<String> = self
+            .confusions
+            .iter()
+            .map(|((h, g), n)| format!("`{h}` → `{g}` {n}"))
+            .collect();
+        format!(
+            "\nSmall-magnitude cases (one effect, residual 2–4× the sensor noise on the channel it moves most, `synth::make_case_small`):\n\n| measure | result | target |\n|---|---|---|\n| top cause = hidden effect | {}/{} | — |\n| false `none` | {}/{} | 0 |\n| `unexplained` | {}/{} | — |\n| another effect named | {} | — |\n| median wall time per case | {:.1} s | — |\n",
+            self.correct,
+            self.n,
+            self.false_none,
+            self.n,
+            self.unexplained,
+            self.n,
+            if conf.is_empty() { "0".to_string() } else { conf.join(", ") },
+            t[t.len() / 2]
+        )
+    }
 }

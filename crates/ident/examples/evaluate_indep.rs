@@ -3,7 +3,8 @@
 //! Reads the fixed case list (`bench/indep_cases.txt`), diagnoses each case, appends one line
 //! per case to OUT.md.cases as it goes (so a partial run is reportable) and writes the summary
 //! (top-cause accuracy, variant agreement, `none` / `unexplained` rates, gains, confusion
-//! matrix) to OUT.md. "Above noise" for the false-`none` count: the refit nominal model's
+//! matrix) to OUT.md. Kinds with a level suffix (`lines@3`: the effect at a small magnitude,
+//! `indep::make_case_small`) are scored apart, with their false `none`. "Above noise" for the false-`none` count: the refit nominal model's
 //! held-out residual fails the residual test (level or whiteness) on some channel.
 use ehactl_ident::indep::{expected, make_case, parse_cases};
 use ehactl_ident::{diagnose, Options};
@@ -113,6 +114,9 @@ fn main() {
                 );
             }
             println!("  residual {:?}", d.residual_test.channels);
+            for a in &d.ambiguities {
+                println!("  ambiguity: {a}");
+            }
         }
         let variant = d
             .candidates
@@ -199,6 +203,9 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
     let (mut false_none_above, mut n_c, mut none_c, mut unexpl_c, mut failed) = (0, 0, 0, 0, 0);
     let (mut n_multi, mut all_named, mut false_none_final, mut extra) = (0, 0, 0, 0);
     let mut continued = 0;
+    // Small-magnitude cases (`kind@level`): run, correct, false `none`, `unexplained`, others.
+    let (mut s_n, mut s_ok, mut s_none, mut s_unexpl) = (0, 0, 0, 0);
+    let mut s_other: BTreeMap<(String, String), usize> = BTreeMap::new();
     let mut gains = Vec::new();
     let mut times = Vec::new();
     let mut per_kind: BTreeMap<String, (usize, usize)> = BTreeMap::new();
@@ -222,6 +229,16 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
             times.push(t);
         }
         continued += field(l, "refit_continued").is_some_and(|v| v != "0") as usize;
+        if kind.contains('@') {
+            s_n += 1;
+            s_ok += (got == want) as usize;
+            s_none += (got == "none") as usize;
+            s_unexpl += (got == "unexplained") as usize;
+            if got != want && got != "none" && got != "unexplained" {
+                *s_other.entry((want.clone(), got.clone())).or_default() += 1;
+            }
+            continue;
+        }
         *conf.entry((want.clone(), got.clone())).or_default() += 1;
         let e = per_kind.entry(kind.clone()).or_default();
         e.1 += 1;
@@ -312,6 +329,26 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
     }
     if !times.is_empty() {
         let _ = writeln!(s, "| wall time per case min / median / max (shared 2-core machine) | {:.1} s / {:.1} s / {:.1} s | — |", times[0], times[times.len() / 2], times[times.len() - 1]);
+    }
+    if s_n > 0 {
+        let other: Vec<String> = s_other
+            .iter()
+            .map(|((w, g), n)| format!("`{w}` → `{g}` {n}"))
+            .collect();
+        let _ = writeln!(s, "\nSmall-magnitude cases (`kind@L`: the effects at L × the sensor noise on the channel they move most), not counted above:\n");
+        let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
+        let _ = writeln!(s, "| top cause = hidden effect id | {s_ok}/{s_n} | — |");
+        let _ = writeln!(s, "| false `none` | {s_none}/{s_n} | 0 |");
+        let _ = writeln!(s, "| `unexplained` | {s_unexpl}/{s_n} | — |");
+        let _ = writeln!(
+            s,
+            "| another effect named | {} | — |",
+            if other.is_empty() {
+                "0".to_string()
+            } else {
+                other.join(", ")
+            }
+        );
     }
     let _ = writeln!(s, "\nPer generator variant (correct / run):\n");
     let _ = writeln!(s, "| variant | correct |\n|---|---|");

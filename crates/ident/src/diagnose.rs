@@ -157,7 +157,8 @@ pub struct Diagnosis {
     /// does (its first term with value and unit, e.g. `load-side yield force 576 N (…)`), or
     /// `unexplained` (the residual is not noise and nothing explains it).
     pub cause: String,
-    /// Accepted effect ids in order of acceptance.
+    /// Accepted effect ids, the one that explains most of the held-out error on the final model
+    /// first (each removed in turn and the rest refit, [`crate::weigh`]); `cause` is the first.
     pub causes: Vec<String>,
     /// Structural variant of each accepted effect (effect id → variant, `-` for effects with
     /// one form; see DIAGNOSIS.md "Effect variants").
@@ -958,7 +959,9 @@ fn phase_candidates(
         let first_new = current.params.len();
         let fits = phase_variants(ctx, &jobs, first_new, opts.evals_per_param, threads, bar);
         let mut j_cur = cur_err.overall.powi(2);
-        let mut passing: Vec<(EffectId, f64, Hyp, f64, Errors)> = Vec::new();
+        let mut passing: Vec<Passing> = Vec::new();
+        // Every effect's best variant of the round, for the second look at a weak winner.
+        let mut tried: Vec<Tried> = Vec::new();
         for (e, vfits) in fits {
             let prior = prior_of(e);
             // The effect's best variant by held-out score, and the others for the evidence.
@@ -1051,11 +1054,17 @@ fn phase_candidates(
                     },
                 );
             }
+            tried.push((
+                (e, sc, h.clone(), ctrain, err.clone()),
+                excess_ratio,
+                significant,
+            ));
             if significant {
                 passing.push((e, sc, h, ctrain, err));
             }
         }
         passing.sort_by(|a, b| a.1.total_cmp(&b.1));
+        tried.sort_by(|a, b| a.0 .1.total_cmp(&b.0 .1));
         // The effect must carry its gain (MIN_EFFECT_SHARE). When the best candidate's gain
         // is its refit's, not its effect's, that refit (without the effect) becomes the
         // current model and the round is fitted again from it: every candidate is then judged
@@ -1110,11 +1119,24 @@ fn phase_candidates(
             refitted_round = true;
             continue;
         }
-        let Some(best) = passing.first().cloned() else {
+        let Some(mut best) = passing.first().cloned() else {
             break;
         };
+        // A weak winner is compared with the runner-up on the evidence that tells them apart.
+        let mut looked: Option<EffectId> = None;
+        if let Some((note, runner, prefer)) = weak_winner(nom, floor_ch, &best, &tried, first_new) {
+            ambiguities.push(note);
+            looked = Some(runner.0);
+            if prefer {
+                looked = Some(best.0);
+                best = runner;
+            }
+        }
         let j_best = best.4.overall.powi(2);
-        for other in passing.iter().skip(1) {
+        for other in passing
+            .iter()
+            .filter(|o| o.0 != best.0 && Some(o.0) != looked)
+        {
             let j_o = other.4.overall.powi(2);
             if (j_o - jn).max(0.0) <= 1.15 * (j_best - jn).max(1e-300) + 0.02 * j_best {
                 ambiguities.push(format!(
@@ -1159,6 +1181,12 @@ fn phase_candidates(
         round += 1;
         refitted_round = false;
     }
+    // The first named cause is the one that explains most of the error on the final model.
+    let (accepted, note) =
+        crate::weigh::order_by_explained(ctx, &current, &accepted, &cur_err, opts.evals_per_param);
+    if let Some(c) = note.and_then(|n| Some((candidates.get_mut(accepted.first()?)?, n))) {
+        c.0.evidence = format!("{} Named first: {}.", c.0.evidence, c.1);
+    }
     SearchPhase {
         current,
         cur_train,
@@ -1167,6 +1195,48 @@ fn phase_candidates(
         ambiguities,
         rebased,
     }
+}
+
+/// A fitted candidate of one round: (effect, score, model, training cost, held-out errors),
+/// the share of the error above the floor it leaves, and whether it passed [`judge`].
+type Tried = (Passing, f64, bool);
+
+/// A candidate that passed [`judge`]: (effect, score, model, training cost, held-out errors).
+type Passing = (EffectId, f64, Hyp, f64, Errors);
+
+/// The second look at round winner `best` ([`crate::weigh::second_look`]) against the
+/// best-scoring other effect of the round in `tried`: the ambiguity sentence, the runner-up
+/// and whether it is named instead; `None` when the winner is not weak evidence.
+fn weak_winner(
+    nom: &NominalPhase<'_>,
+    floor_ch: &[f64],
+    best: &Passing,
+    tried: &[Tried],
+    first_new: usize,
+) -> Option<(String, Passing, bool)> {
+    use crate::weigh::{second_look, Fitted};
+    let w = tried.iter().find(|t| t.0 .0 == best.0)?;
+    let r = tried
+        .iter()
+        .find(|t| t.0 .0 != best.0 && t.0 .4.overall.is_finite())?;
+    fn fitted(t: &Tried) -> Fitted<'_> {
+        Fitted {
+            e: t.0 .0,
+            h: &t.0 .2,
+            err: &t.0 .4,
+            excess: t.1,
+            significant: t.2,
+        }
+    }
+    let floors: Vec<(String, f64)> = nom
+        .val_rec
+        .channels
+        .iter()
+        .zip(floor_ch)
+        .map(|(c, f)| (c.kind.column().to_string(), *f))
+        .collect();
+    let look = second_look(&nom.ctx, &fitted(w), &fitted(r), first_new, &floors)?;
+    Some((look.note, r.0.clone(), look.prefer_runner_up))
 }
 
 /// What the residual test hands on.

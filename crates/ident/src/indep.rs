@@ -967,7 +967,79 @@ noise = {np:e}
 /// ([`force_pi_gains`], the same `ehactl_control::pi::Pi` an ehactl-controlled rig runs, acting
 /// on the noisy measured force) tracking a force setpoint of [`FORCE_REF_SCALE`] × the
 /// excitation; the record then has the setpoint as `ref` and the controller's output as `u`.
+///
+/// A kind ending in `@L` (`lines@3`, `pi_delay@2.5`) is the same case with its effects at a
+/// small magnitude: the residual of the channel they move most at L × its sensor noise
+/// ([`make_case_small`]).
 pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, String> {
+    if let Some((base, level)) = kind.split_once('@') {
+        let level: f64 = level
+            .parse()
+            .map_err(|_| format!("`{kind}`: the level after `@` is not a number"))?;
+        let mut c = make_case_small(seed, base, level, duration, dt)?;
+        c.kind = kind.to_string();
+        return Ok(c);
+    }
+    generate(seed, kind, duration, dt, &|_| true)
+}
+
+/// The record of case `kind` of `seed` with hidden effect number `drop` (0-based, in the
+/// order of `kind`) switched off and every draw, the excitation and the sensor noise kept:
+/// the truth against which the error each effect of a multi-effect case explains is measured
+/// (the record with all effects minus this one).
+pub fn make_case_without(
+    seed: u64,
+    kind: &str,
+    drop: usize,
+    duration: f64,
+    dt: f64,
+) -> Result<Case, String> {
+    generate(seed, kind, duration, dt, &|i| i != drop)
+}
+
+/// The case `kind` of `seed` with its hidden effects at a small magnitude: the clean record
+/// (the same draws, excitation, nominal errors and sensor noise, the effects switched off)
+/// plus α × (the record with the effects − the clean record), α putting the channel the
+/// effects move most at `level` × its sensor noise ([`crate::synth::small_effect`]; to first
+/// order the effects at α × their size, their signature kept). A closed-loop (`pi_`) case
+/// blends the PI's command the same way.
+pub fn make_case_small(
+    seed: u64,
+    kind: &str,
+    level: f64,
+    duration: f64,
+    dt: f64,
+) -> Result<Case, String> {
+    let full = generate(seed, kind, duration, dt, &|_| true)?;
+    let clean = generate(seed, kind, duration, dt, &|_| false)?;
+    let rig = if kind.starts_with("pi_") {
+        force_rig()
+    } else {
+        Rig::default()
+    };
+    let noise = |k: ChannelKind| match k {
+        ChannelKind::Force => rig.noise.0,
+        ChannelKind::Position => rig.noise.1,
+        _ => rig.noise.2,
+    };
+    let (mut record, alpha) = crate::synth::small_effect(&clean.record, &full.record, level, noise)
+        .ok_or_else(|| format!("seed {seed} {kind}: no effect to scale"))?;
+    record.source = format!(
+        "independent generator seed {seed} ({kind} at {level}× the noise, α = {alpha:.3e})"
+    );
+    Ok(Case { record, ..full })
+}
+
+/// [`make_case`] without the `@L` suffix, simulating the hidden effects `keep` selects (by
+/// index in `kind`); the others are drawn and listed but not simulated (`|_| false`: the clean
+/// record of the same draws).
+fn generate(
+    seed: u64,
+    kind: &str,
+    duration: f64,
+    dt: f64,
+    keep: &dyn Fn(usize) -> bool,
+) -> Result<Case, String> {
     let (closed, effects) = match kind.strip_prefix("pi_") {
         Some(rest) => (true, rest),
         None => (false, kind),
@@ -1010,7 +1082,14 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         (excitation, None)
     };
     let mut pi = ehactl_control::pi::Pi::new(force_pi_gains());
-    let model = Model::new(&rig, &all);
+    let sim: Vec<Hidden> = all
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| keep(*i))
+        .map(|(_, h)| h.clone())
+        .collect();
+    let sim = &sim[..];
+    let model = Model::new(&rig, sim);
     let mut y = vec![0.0; model.n];
     y[0] = 0.5 * rig.stroke;
     // Start at the open-centre equilibrium estimate, then settle.
@@ -1030,12 +1109,12 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
         y[model.i_hose] = y[2];
         y[model.i_hose + 1] = y[3];
     }
-    if model.i_mount != usize::MAX && all.iter().any(|h| matches!(h, Hidden::LoadMount { .. })) {
+    if model.i_mount != usize::MAX && sim.iter().any(|h| matches!(h, Hidden::LoadMount { .. })) {
         y[model.i_mount] = y[0];
     }
     let substeps = 20;
     let h = dt / substeps as f64;
-    let delay = all
+    let delay = sim
         .iter()
         .find_map(|h| match h {
             Hidden::Delay { tau } => Some(*tau),
@@ -1081,7 +1160,7 @@ pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, 
     for _ in 0..settle {
         step(&mut y, 0.0);
     }
-    let (tone_ch, tone) = all
+    let (tone_ch, tone) = sim
         .iter()
         .find_map(|h| match h {
             Hidden::Tone { ch, f, a, phase } => Some((*ch, Some((*f, *a, *phase)))),

@@ -8,7 +8,7 @@
 //!
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
 //! noise level), [`spectrum`] (Welch PSD, H1 frequency response), [`analysis`] (residual analysis), [`evidence`] (its findings and shared evidence rules), [`fit`] (nominal refit, bounded
-//! Nelder–Mead), [`freeparam`] (a fit's free parameters and rig scales), [`effects`] (one module per catalogue effect: its fit parameters, variants, evidence score and synthetic hiding), [`rng`] (the synthetic cases' generator), [`ctx`] (the replay context and the hypotheses fitted in it), [`diagnose`] (the decision), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
+//! Nelder–Mead), [`freeparam`] (a fit's free parameters and rig scales), [`effects`] (one module per catalogue effect: its fit parameters, variants, evidence score and synthetic hiding), [`rng`] (the synthetic cases' generator), [`ctx`] (the replay context and the hypotheses fitted in it), [`diagnose`] (the decision), `weigh` (a weak round winner against the runner-up, the order of the accepted causes), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
 //! [`session`] (one complete diagnosis as the CLI and Python run it), [`progress`] (progress
 //! reports through the caller's callback; the library draws nothing).
 #![deny(missing_docs)]
@@ -38,6 +38,7 @@ pub mod rng;
 pub mod session;
 pub mod spectrum;
 pub mod synth;
+pub(crate) mod weigh;
 
 pub use data::{load, ChannelKind, DataError, Record};
 pub use diagnose::{diagnose, Diagnosis, Options};

@@ -10,7 +10,7 @@
 //! 2.5× its sensor noise, and added to the clean record. To first order that is the effect at
 //! a smaller parameter; it keeps the effect's signature (band, dependence, lag) exactly.
 
-use ehactl_ident::data::{ChannelKind, Record};
+use ehactl_ident::data::Record;
 use ehactl_ident::synth::{self, excitation, simulate, testrig, Rng};
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
@@ -19,16 +19,6 @@ const DT: f64 = 1e-3;
 const SECONDS: f64 = 2.0;
 /// Target level of the added residual over the sensor noise on its largest channel (-).
 const LEVEL: f64 = 2.5;
-
-fn sensor_noise(kind: ChannelKind) -> f64 {
-    let s = &testrig().plant.sensors;
-    match kind {
-        ChannelKind::Force => s.force.noise,
-        ChannelKind::Position => s.position.noise,
-        ChannelKind::PressureA | ChannelKind::PressureB => s.pressure.noise,
-        ChannelKind::Spool => s.spool.noise,
-    }
-}
 
 fn clean(seed: u64) -> Record {
     let mut p = testrig().plant;
@@ -44,25 +34,9 @@ fn with_small(seed: u64, e: EffectId) -> (Record, f64) {
     p.sensors.seed = seed;
     synth::hide(e, &mut p, &mut Rng::new(seed));
     let full = simulate(&p, &base.u, DT, "full effect");
-    let rms = |a: &[f64], b: &[f64]| {
-        (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt()
-    };
-    let worst = base
-        .channels
-        .iter()
-        .zip(&full.channels)
-        .map(|(c, f)| rms(&f.values, &c.values) / sensor_noise(c.kind))
-        .fold(0.0, f64::max);
-    assert!(worst > 0.0, "{e:?} changes no channel");
-    // Residual level √(1 + (α·d/σ)²) = LEVEL on the largest channel.
-    let alpha = (LEVEL * LEVEL - 1.0).sqrt() / worst;
-    let mut rec = base.clone();
+    let (mut rec, alpha) = synth::small_effect(&base, &full, LEVEL, synth::testrig_noise)
+        .unwrap_or_else(|| panic!("{e:?} changes no channel"));
     rec.source = format!("seed {seed}, {} at {LEVEL}× the noise", e.as_str());
-    for (c, f) in rec.channels.iter_mut().zip(&full.channels) {
-        for (y, yf) in c.values.iter_mut().zip(&f.values) {
-            *y += alpha * (yf - *y);
-        }
-    }
     (rec, alpha)
 }
 

@@ -774,7 +774,7 @@ class DiagnosisResult(_DictCompat):
     Attributes:
         cause: Top effect id, ``"none"`` (the nominal model explains the data within the noise) or
             ``"unexplained"``.
-        causes: Accepted effect ids in order of acceptance.
+        causes: Accepted effect ids, the one that explains most of the held-out error on the final model first.
         variants: Structural variant of each accepted effect.
         nrmse_nominal, nrmse_refit, nrmse_extended, nrmse_baseline: held-out NRMSE of
             the nominal model, the refit nominal model (nominal parameters within their
