@@ -43,11 +43,13 @@ finish() {
   rm -f "$EHACTL_SKIP_LOG" "$counts" "$counts".*
 }
 trap finish EXIT
+# A step's heading with the time since the start, so that a run shows where its minutes go.
+step() { echo "== [$(( $(date +%s) - t0 )) s] $*"; }
 # Disk use of the build directory and free space, printed between steps: a CI run once
 # failed with "No space left on device" in the cross-builds.
 disk() { echo "   disk: target $(du -sh target 2>/dev/null | cut -f1), free $(df -h . | awk 'NR==2 {print $4}')"; }
 
-echo "== what this needs"
+step "what this needs"
 command -v cargo >/dev/null || { echo "error: cargo not found: install Rust with rustup (https://rustup.rs)" >&2; exit 1; }
 command -v cc >/dev/null || echo "   warning: no C compiler (cc) found: the LZ4 library of the logger needs one (Debian: build-essential)" >&2
 command -v python3 >/dev/null || { echo "error: python3 not found: install Python >= 3.9 (Debian: python3 python3-venv)" >&2; exit 1; }
@@ -95,7 +97,7 @@ fi
 export EHACTL_APT
 
 VENV="${EHACTL_TEST_VENV:-$PWD/.venv-test}"
-echo "== Python virtual environment $VENV"
+step "Python virtual environment $VENV"
 if [ ! -x "$VENV/bin/python" ]; then
   if ! python3 -m venv "$VENV" 2>/tmp/ehactl_venv_err.$$; then
     cat /tmp/ehactl_venv_err.$$ >&2
@@ -118,7 +120,7 @@ PY="$VENV/bin/python"
 export VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH"
 "$PY" -m pip install --quiet --upgrade pip
 
-echo "== formatting and lints (rustfmt, clippy with warnings as errors)"
+step "formatting and lints (rustfmt, clippy with warnings as errors)"
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cargo fmt --all --check
 cargo clippy --release --workspace --all-targets -- -D warnings
@@ -126,15 +128,15 @@ cargo clippy --release --workspace --all-targets -- -D warnings
 # clippy with the feature on, over the whole workspace so that every other crate keeps its
 # features and the check reuses the step above (a `-p ehactl-canopen` build recompiled the
 # plant and the logger with another feature set).
-echo "== SocketCAN transport (clippy with --features ehactl-canopen/socketcan)"
+step "SocketCAN transport (clippy with --features ehactl-canopen/socketcan)"
 cargo clippy --release --workspace --all-targets --features ehactl-canopen/socketcan -- -D warnings
-echo "== building (release): every target once; the tests, the QEMU step and the bindings reuse it"
+step "building (release): every target once; the tests, the QEMU step and the bindings reuse it"
 # The Python extension's crate is built once, by maturin below (its pyo3 build script depends
 # on maturin's environment, so a cargo build of it here would be redone there); clippy above
 # checked it, and it has no Rust tests.
 cargo build --release --workspace --exclude ehactl-python --all-targets
 disk
-echo "== Rust tests"
+step "Rust tests"
 # Property tests (proptest) run a fixed seed here so that a CI result is reproducible; without
 # the variable every developer run draws new cases, and the long random runs are in
 # BENCHMARKS.md ("Fuzzed parsers").
@@ -142,26 +144,26 @@ PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}" cargo test --release --worksp
 awk '/^test result:/ {p += $4; f += $6; i += $8; n++} END {printf "Rust: %d tests passed, %d ignored (%d test binaries and doc-test runs)\n", p, i, n}' "$counts.rust" >>"$counts"
 rm -f "$counts.rust"
 disk
-echo "== cross-build for aarch64 and armv7 (DEPLOY.md; Zig and cargo-zigbuild into $VENV; skipped with a message if the toolchain cannot be installed)"
+step "cross-build for aarch64 and armv7 (DEPLOY.md; Zig and cargo-zigbuild into $VENV; skipped with a message if the toolchain cannot be installed)"
 CROSS_PRUNE=1 scripts/cross_build.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
 disk
-echo "== Python test dependencies and lint (into $VENV)"
+step "Python test dependencies and lint (into $VENV)"
 # both lists now: tests/python also runs the docs' Python snippets (pandas, Dask, tqdm)
 "$PY" -m pip install --quiet -r tests/python/requirements.txt -r bindings/python/requirements-test.txt
 "$PY" -m ruff check
 if command -v npm >/dev/null; then
   (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; })
 fi
-echo "== cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
+step "cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
 scripts/qemu_run.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
-echo "== Python bindings (pyo3 + maturin) with the simulated CANopen devices (python -m ehactl.devices): build, install into $VENV"
+step "Python bindings (pyo3 + maturin) with the simulated CANopen devices (python -m ehactl.devices): build, install into $VENV"
 "$PY" -m pip install --quiet "./bindings/python[devices]"
-echo "== Python tests"
+step "Python tests"
 EHACTL_BIN="$PWD/target/release/ehactl" EHACTL_REQUIRE_BINDINGS=1 "$PY" -m pytest tests/python -q -rs 2>&1 | tee "$counts.py"
 echo "Python (tests/python): $(tail -n 1 "$counts.py" | tr -d '=')" >>"$counts"
-echo "== Python bindings: type check (mypy --strict, config in bindings/python/pyproject.toml)"
+step "Python bindings: type check (mypy --strict, config in bindings/python/pyproject.toml)"
 (cd bindings/python && "$PY" -m mypy)
-echo "== Python bindings (pyo3 + maturin): tests"
+step "Python bindings (pyo3 + maturin): tests"
 EHACTL_BIN="$PWD/target/release/ehactl" PY="$PY" bash -c 'cd bindings/python && "$PY" -m pytest tests -q -rs' 2>&1 | tee "$counts.py"
 echo "Python (bindings/python/tests): $(tail -n 1 "$counts.py" | tr -d '=')" >>"$counts"
 rm -f "$counts.py"
