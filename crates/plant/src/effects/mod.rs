@@ -11,12 +11,13 @@
 //! path: `time_delay`), registered by one line in `components!` below; its `EffectId`
 //! variant with the lines in [`EffectId::ALL`], [`EffectId::as_str`] and the [`Effects`]
 //! switch matches below (exhaustive: a new id does not build without them); its `Option`
-//! field in [`Effects`] and its re-export line (crates/plant/src/params.rs). A stage kind the
-//! plant does not call yet needs its call in [`crate::model`] once (`Plant::step` calls the
-//! command-path stage). The effects not moved to a component yet (all but `time_delay`)
-//! still have their checks called from [`validate_variants`] or `model::validate`, their
-//! derived constants called in `Plant::configure` and their terms in the substep
-//! (`Plant::advance_substep`).
+//! field in [`Effects`] and its re-export line (crates/plant/src/params.rs). In
+//! [`crate::model`] the component's stage is called where the cycle reaches it (one line:
+//! `Plant::step` calls `time_delay`'s `push` once per period and `command` per substep);
+//! validation, configuration and reset go through [`Components`]. The effects not moved to
+//! a component yet (all but `time_delay`) still have their checks called from
+//! [`validate_variants`] or `model::validate`, their derived constants called in
+//! `Plant::configure` and their terms in the substep (`Plant::advance_substep`).
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
 //! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
