@@ -135,3 +135,34 @@ fn counterbalance_valve_plant_step_does_not_allocate() {
     }
     assert_eq!(allocations() - before, 0);
 }
+
+/// The delay line of `time_delay` (crates/plant/src/effects/time_delay.rs) pushes and reads
+/// its ring buffer without allocating, through 250 wraps of its 4 slots, before and after a
+/// restart (`Plant::initialize`, not itself a cycle): the Sahu 2022 force rig with a
+/// fractional delay of 1.55 control periods.
+#[test]
+fn delay_line_plant_step_does_not_allocate() {
+    let mut cfg = config("sahu2022_force.toml");
+    cfg.plant.effects.time_delay = Some(ehactl_plant::params::TimeDelay {
+        enabled: true,
+        delay: 3.1e-4,
+    });
+    let mut plant = ehactl_plant::Plant::configure(&cfg.plant, cfg.timebase().period()).unwrap();
+    for run in 0..2 {
+        plant.step(1.0).unwrap();
+        let before = allocations();
+        for k in 0..1000 {
+            plant.step(if k % 100 < 50 { 2.0 } else { -2.0 }).unwrap();
+        }
+        assert_eq!(allocations() - before, 0, "run {run}");
+        plant.initialize();
+    }
+    for k in 0..1000 {
+        plant.step(if k % 100 < 50 { 2.0 } else { -2.0 }).unwrap();
+    }
+    // The delay acts: in the period a new command is sent the valve still sees the old one
+    // (τ = 1.55 T: the last substep of the period reads commands k − 2 and k − 1).
+    plant.step(3.0).unwrap();
+    let seen = plant.state().command;
+    assert!((seen + 2.0).abs() < 1e-12, "valve command {seen} V");
+}

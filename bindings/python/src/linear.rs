@@ -5,8 +5,9 @@
 use crate::config::Config;
 use ehactl_analysis::linear::{self, Output};
 use ehactl_analysis::loopshape::Law;
-use ehactl_analysis::oppoint::{self, command_delay};
+use ehactl_analysis::oppoint;
 use ehactl_config::ControlMode;
+use ehactl_plant::effects::time_delay;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -42,7 +43,7 @@ pub fn linear_plant_response<'py>(
     let out = py.detach(|| -> Result<_, String> {
         let op = oppoint::find(&rc, max_time).map_err(|e| e.to_string())?;
         let model = linear::discrete(&op).map_err(|e| e.to_string())?;
-        let delay = command_delay(&rc.plant);
+        let delay = time_delay::delay(rc.plant.effects.time_delay.as_ref());
         let output = match Law::from_config(&rc) {
             Some(l) => l.output(),
             None if rc.control.mode == ControlMode::OpenLoop

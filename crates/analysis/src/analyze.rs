@@ -2,10 +2,11 @@
 
 use crate::linear::{self, LinearModel, Output};
 use crate::loopshape::{log_grid, margins, open_loop_bandwidth, Law, Loop, Margins};
-use crate::oppoint::{self, command_delay};
+use crate::oppoint;
 use crate::sdd::{self, SddRatios};
 use crate::AnalysisError;
 use ehactl_config::RigConfig;
+use ehactl_plant::effects::time_delay;
 use ehactl_plant::Plant;
 use serde::Serialize;
 use serde_json::{json, Value};
@@ -121,7 +122,7 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
     let nyquist = 0.5 / dt;
     let dmodel = linear::discrete(&op)?;
     let cmodel = linear::continuous(&op, 1e-7)?;
-    let delay = command_delay(&cfg.plant);
+    let delay = time_delay::delay(cfg.plant.effects.time_delay.as_ref());
     let law = Law::from_config(cfg);
     let out = law.map_or_else(
         || {

@@ -54,15 +54,6 @@ pub fn linearisation_params(p: &PlantParams) -> PlantParams {
     q
 }
 
-/// Command delay of the config (s), 0 without the `time_delay` effect.
-pub fn command_delay(p: &PlantParams) -> f64 {
-    p.effects
-        .time_delay
-        .as_ref()
-        .filter(|d| d.enabled)
-        .map_or(0.0, |d| d.delay)
-}
-
 /// A rig at rest at its operating point.
 #[derive(Debug, Clone)]
 pub struct OperatingPoint {

@@ -19,6 +19,11 @@
 //!   a bare `choice` does the same with the serialised variant names of the field's enum
 //!   type (`spec::variants`, read from its `Deserialize`, so they cannot drift from what the
 //!   loader accepts). `range` is a `spec::Range` variant.
+//! * `uncertain(order = N, default, to_range_end)` in a leaf's `#[param(…)]`: the field is a
+//!   nominal parameter whose uncertainty a config may state and that `ehactl diagnose`
+//!   refits (`spec::Uncertain`: its place `N` in the refit order, refit by default when the
+//!   config is silent, its range may reach the registry range's lower end); the plant's
+//!   list of such parameters is read from these declarations.
 //! * `#[param(nested)]` on a field whose type derives `Params` (or `Option` of one): its
 //!   parameters under `<field>.`; `with(field(desc = "…", choices = …, unit = "…",
 //!   range = …), …)` overrides an inner field's declaration for this instance (e.g. the two
@@ -53,6 +58,42 @@ struct Decl {
     range: Option<Expr>,
     desc: Option<LitStr>,
     choices: Option<Expr>,
+}
+
+/// What `uncertain(order = N, default, to_range_end)` says.
+struct UncertainDecl {
+    order: syn::LitInt,
+    default: bool,
+    to_range_end: bool,
+}
+
+impl UncertainDecl {
+    fn parse(meta: &syn::meta::ParseNestedMeta) -> syn::Result<UncertainDecl> {
+        let (mut order, mut default, mut to_range_end) = (None, false, false);
+        meta.parse_nested_meta(|m| {
+            if m.path.is_ident("order") {
+                order = Some(m.value()?.parse()?);
+            } else if m.path.is_ident("default") {
+                default = true;
+            } else if m.path.is_ident("to_range_end") {
+                to_range_end = true;
+            } else {
+                return Err(m.error("expected order = N, default or to_range_end"));
+            }
+            Ok(())
+        })?;
+        let order = order.ok_or_else(|| meta.error("uncertain(…): order = N is required"))?;
+        Ok(UncertainDecl {
+            order,
+            default,
+            to_range_end,
+        })
+    }
+
+    fn tokens(&self, sp: &Ts) -> Ts {
+        let (o, d, r) = (&self.order, self.default, self.to_range_end);
+        quote!(.with_uncertain(#sp::Uncertain { order: #o, default: #d, to_range_end: #r }))
+    }
 }
 
 impl Decl {
@@ -198,8 +239,13 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
         let mut decl = Decl::default();
         let mut nested = false;
         let mut choice = false;
+        let mut uncertain = None;
         let mut with: Vec<(String, Decl)> = Vec::new();
         attr.parse_nested_meta(|meta| {
+            if meta.path.is_ident("uncertain") {
+                uncertain = Some(UncertainDecl::parse(&meta)?);
+                return Ok(());
+            }
             if meta.path.is_ident("nested") {
                 nested = true;
                 return Ok(());
@@ -230,9 +276,17 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
             if decl.parse_item(&meta)? {
                 Ok(())
             } else {
-                Err(meta.error("expected unit, range, desc, choices, choice, nested or with(...)"))
+                Err(meta.error(
+                    "expected unit, range, desc, choices, choice, uncertain(…), nested or with(...)",
+                ))
             }
         })?;
+        if nested && uncertain.is_some() {
+            return Err(syn::Error::new_spanned(
+                attr,
+                "param: uncertain(…) on a leaf, not on a nested section",
+            ));
+        }
         if nested {
             let (inner, optional) = match option_inner(&f.ty) {
                 Some(t) => (t.clone(), true),
@@ -359,9 +413,19 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
                 ))
             }
         };
+        let uncertain = match (&uncertain, &sh) {
+            (None, _) => quote!(),
+            (Some(u), Shape::Float | Shape::OptFloat) if decl.choices.is_none() => u.tokens(&sp),
+            (Some(_), _) => {
+                return Err(syn::Error::new_spanned(
+                    attr,
+                    "param: uncertain(…) only on a float parameter",
+                ))
+            }
+        };
         declare.push(quote! {
             out.push((#sp::join(prefix, #key), #sp::Override::apply(
-                over, #key, #sp::Param::new("", #unit, #range, #desc, #kind))));
+                over, #key, #sp::Param::new("", #unit, #range, #desc, #kind)#uncertain)));
         });
         if decl.choices.is_some() {
             get_arms.push(quote!(#key => None,));

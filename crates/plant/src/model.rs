@@ -26,7 +26,7 @@
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
 use crate::effects::friction::FrictionModel;
-use crate::effects::{self, validate_variants};
+use crate::effects::{self, validate_variants, CommandStage};
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
 use crate::line::Line;
@@ -74,7 +74,6 @@ struct Consts {
     mount: Option<(f64, f64, f64)>,
     /// The mount is the cylinder body's (`flexible_mount` variant `piston_side`).
     body_mount: bool,
-    delay: f64,
     /// `max_omega_h / max_omega_h_line` (-): the line segment modes of the symplectic line
     /// scheme enter the substep rule scaled by it (a stability margin instead of the
     /// accuracy rule, see [`fastest_mode`]).
@@ -123,8 +122,10 @@ pub struct Plant {
     omega_max: f64,
     h: f64,
     state: PlantState,
+    /// Control periods stepped since the start (the index of the next one).
     cycle: u64,
-    delay_buf: Vec<f64>,
+    /// The effect components ([`effects::Components`]), e.g. the command delay line.
+    components: effects::Components,
     params: PlantParams,
 }
 
@@ -219,9 +220,7 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
         t.validate_amplitudes()?;
     }
     validate_variants(p)?;
-    if let Some(d) = p.effects.time_delay.as_ref() {
-        d.validate_delay()?;
-    }
+    effects::Components::validate(&p.effects)?;
     if let Some(cb) = p
         .effects
         .counterbalance_valve
@@ -305,7 +304,6 @@ impl Plant {
             supply,
             mount,
             body_mount,
-            delay: effects::time_delay::delay(e.time_delay.as_ref()),
             line_scale: params.integration.max_omega_h
                 / params
                     .integration
@@ -408,11 +406,6 @@ impl Plant {
             la.prepare(h);
             lb.prepare(h);
         }
-        let delay_len = if c.delay > 0.0 {
-            (c.delay / control_dt).ceil() as usize + 2
-        } else {
-            1
-        };
         // The automatic substep rule may later take any h up to the control period: the
         // spool must discretise there too (‖A·h‖₁ grows with h).
         SpoolModel::new(params, control_dt)?;
@@ -471,7 +464,7 @@ impl Plant {
             h,
             state: PlantState::default(),
             cycle: 0,
-            delay_buf: vec![0.0; delay_len],
+            components: effects::Components::configure(e, &effects::Setup { control_dt }),
             params: params.clone(),
             c,
         };
@@ -543,7 +536,7 @@ impl Plant {
             self.set_substeps(self.substeps_max);
         }
         self.substeps_taken = 0;
-        self.delay_buf.iter_mut().for_each(|u| *u = 0.0);
+        self.components.reset();
         self.sensors = SensorModel::new(
             &self.params.sensors,
             self.params.effects.sensor_tone.as_ref(),
@@ -790,46 +783,6 @@ impl Plant {
         self.sensors.sample(&tv)
     }
 
-    /// Command seen by the valve over the substep [t, t + h] given the delay line: the mean
-    /// of the delayed zero-order-hold command over the substep. The delayed command switches
-    /// at k·T + delay, which falls inside a substep unless the delay is a multiple of h; the
-    /// mean weights the two commands by their share of the substep, so the response is
-    /// continuous in the delay (a fractional delay) instead of stepping with the substep:
-    /// with the command taken at the substep's start, the position error of the MTS loop
-    /// stepped by 2.6e-5 NRMSE per 0.4 ms substep (examples/loop_delay_scan), flat between,
-    /// which a delay fit cannot resolve below a substep.
-    #[inline]
-    fn delayed_command(&self, t: f64) -> f64 {
-        if self.c.delay <= 0.0 {
-            return self.delay_buf[0];
-        }
-        let at = |k: u64| -> f64 {
-            let k = k.min(self.cycle);
-            let len = self.delay_buf.len() as u64;
-            if self.cycle - k >= len {
-                return 0.0;
-            }
-            self.delay_buf[(k % len) as usize]
-        };
-        let td = t - self.c.delay;
-        let h = self.h;
-        if td + h <= 0.0 {
-            return 0.0;
-        }
-        if td < 0.0 {
-            // The first command arrives within this substep (nothing before it).
-            return at(0) * (td + h) / h;
-        }
-        let k = (td / self.control_dt + 1e-9).floor() as u64;
-        // Switch to command k + 1 at (k + 1)·T + delay, if within the substep (h ≤ T: at most
-        // one switch).
-        let ts = (k + 1) as f64 * self.control_dt - td;
-        if ts >= h * (1.0 - 1e-9) || k + 1 > self.cycle {
-            return at(k);
-        }
-        (at(k) * ts + at(k + 1) * (h - ts)) / h
-    }
-
     /// Automatic substeps for the coming period: ω·h ≤ max ω·h at the smallest chamber
     /// volumes the piston can reach within it (|v| over two periods either side), so a
     /// piston mid-stroke is not integrated at the step its stroke ends would need. Raised at
@@ -886,13 +839,12 @@ impl Plant {
             self.choose_substeps(moh);
         }
         self.substeps_taken += self.substeps as u64;
-        let len = self.delay_buf.len() as u64;
         let u = if u.is_finite() { u } else { 0.0 };
-        self.delay_buf[(self.cycle % len) as usize] = u;
+        self.components.time_delay.push(self.cycle, u);
         let t0 = self.state.t;
         for i in 0..self.substeps {
             let t = t0 + i as f64 * self.h;
-            let uc = self.delayed_command(t);
+            let uc = self.components.time_delay.command(self.cycle, t, self.h);
             self.advance_substep(t, uc);
         }
         self.update_rod_force();

@@ -8,6 +8,7 @@
 
 use ehactl_params_derive::Params;
 use serde::{Deserialize, Serialize};
+use std::sync::LazyLock;
 
 fn yes() -> bool {
     true
@@ -21,7 +22,7 @@ pub struct Fluid {
     #[param(unit = "kg/m³", range = Positive, desc = "fluid density ρ")]
     pub density: f64,
     /// Effective bulk modulus β₀ at zero gauge pressure (Pa); 003: K = 1.8e9, 004: 1.75e9.
-    #[param(unit = "Pa", range = Positive, desc = "effective bulk modulus β₀ (003 K, 004 β_e)")]
+    #[param(unit = "Pa", range = Positive, desc = "effective bulk modulus β₀ (003 K, 004 β_e)", uncertain(order = 4, default))]
     pub bulk_modulus: f64,
     /// Kinematic viscosity ν (m²/s), used by line resistance (001 eq. 6–12, 002 eq. 9–17).
     #[serde(default = "Fluid::default_viscosity")]
@@ -47,7 +48,7 @@ impl Fluid {
 #[serde(deny_unknown_fields)]
 pub struct Supply {
     /// Supply pressure p_s (Pa); 003: p₀ = 24 MPa.
-    #[param(unit = "Pa", range = Positive, desc = "supply pressure p_s (003 p₀)")]
+    #[param(unit = "Pa", range = Positive, desc = "supply pressure p_s (003 p₀)", uncertain(order = 11))]
     pub pressure: f64,
     /// Tank (return) pressure p_T (Pa).
     #[serde(default)]
@@ -72,13 +73,13 @@ pub enum FlowForm {
 #[serde(deny_unknown_fields)]
 pub struct Valve {
     /// Command that drives the spool to full opening (V); spool target = u / command_full_scale.
-    #[param(unit = "V", range = Positive, desc = "command for full spool opening")]
+    #[param(unit = "V", range = Positive, desc = "command for full spool opening", uncertain(order = 12))]
     pub command_full_scale: f64,
     /// Flow law of each metering edge.
     pub flow_form: FlowForm,
     /// Underlap per edge as a fraction of full spool travel (-); 003: z₀/z_n = 2.16/6.
     #[serde(default)]
-    #[param(unit = "-", range = Within(0.0, 1.0), desc = "underlap per edge, fraction of travel (003 z₀)")]
+    #[param(unit = "-", range = Within(0.0, 1.0), desc = "underlap per edge, fraction of travel (003 z₀)", uncertain(order = 8, to_range_end))]
     pub underlap: f64,
     /// Discharge coefficient C_d (-) for `orifice`; 003: 0.56.
     #[serde(default)]
@@ -86,11 +87,11 @@ pub struct Valve {
     pub discharge_coefficient: Option<f64>,
     /// Metering area at full opening (m²) for `orifice`.
     #[serde(default)]
-    #[param(unit = "m²", range = Positive, desc = "metering area at full opening")]
+    #[param(unit = "m²", range = Positive, desc = "metering area at full opening", uncertain(order = 2, default))]
     pub area_max: Option<f64>,
     /// Rated flow per edge at full opening (m³/s) for `kq`; 003: 35 L/min.
     #[serde(default)]
-    #[param(unit = "m³/s", range = Positive, desc = "rated edge flow q_vn at full opening (003 eq. 13)")]
+    #[param(unit = "m³/s", range = Positive, desc = "rated edge flow q_vn at full opening (003 eq. 13)", uncertain(order = 1, default))]
     pub rated_flow: Option<f64>,
     /// Pressure drop per edge at which `rated_flow` is given (Pa) for `kq`; 003: 1 MPa.
     #[serde(default)]
@@ -98,7 +99,7 @@ pub struct Valve {
     pub rated_pressure_drop: Option<f64>,
     /// Flow per edge at full opening and P_d = 1 MPa (m³/s) for `power_law`; 004 eq. 20: 1.4075e-4.
     #[serde(default)]
-    #[param(unit = "m³/s", range = Positive, desc = "edge flow at P_d = 1 MPa (004 eq. 20)")]
+    #[param(unit = "m³/s", range = Positive, desc = "edge flow at P_d = 1 MPa (004 eq. 20)", uncertain(order = 3, default))]
     pub flow_at_1mpa: Option<f64>,
     /// Exponent n of the power law (-) for `power_law`; 004 eq. 20: 0.4667.
     #[serde(default)]
@@ -131,10 +132,10 @@ pub struct Cylinder {
     #[param(unit = "m²", range = Positive, desc = "annulus area A₂")]
     pub area_b: f64,
     /// Dead volume of chamber A incl. hose to the valve V₁₀ (m³).
-    #[param(unit = "m³", range = Positive, desc = "dead volume V₁₀")]
+    #[param(unit = "m³", range = Positive, desc = "dead volume V₁₀", uncertain(order = 9))]
     pub dead_volume_a: f64,
     /// Dead volume of chamber B V₂₀ (m³).
-    #[param(unit = "m³", range = Positive, desc = "dead volume V₂₀")]
+    #[param(unit = "m³", range = Positive, desc = "dead volume V₂₀", uncertain(order = 10))]
     pub dead_volume_b: f64,
     /// Stroke h (m); position x ∈ [0, stroke].
     #[param(unit = "m", range = Positive, desc = "stroke h")]
@@ -158,15 +159,15 @@ pub struct Cylinder {
 #[serde(deny_unknown_fields)]
 pub struct Mechanics {
     /// Moving mass m (kg): piston + rod (+ load for a rigid connection); 004: 0.893.
-    #[param(unit = "kg", range = Positive, desc = "moving mass")]
+    #[param(unit = "kg", range = Positive, desc = "moving mass", uncertain(order = 5, default))]
     pub mass: f64,
     /// Viscous damping d_y (N·s/m); 003: 2500, 004: C = 10.587.
     #[serde(default)]
-    #[param(unit = "N·s/m", range = NonNegative, desc = "viscous damping d_y / C")]
+    #[param(unit = "N·s/m", range = NonNegative, desc = "viscous damping d_y / C", uncertain(order = 6, default))]
     pub damping: f64,
     /// Stiffness of a spring to ground, e.g. load cell + frame K_L (N/m); 0 = none; 004: 4.83e8.
     #[serde(default)]
-    #[param(unit = "N/m", range = NonNegative, desc = "spring to ground K_L (004 load cell)")]
+    #[param(unit = "N/m", range = NonNegative, desc = "spring to ground K_L (004 load cell)", uncertain(order = 7, default))]
     pub load_stiffness: f64,
     /// Piston position at which the spring to ground is relaxed (m).
     #[serde(default)]
@@ -553,43 +554,39 @@ pub enum Uncertainty {
 /// (±[`DEFAULT_UNCERTAINTY`]) when the config is silent: the valve's flow gain (the one of
 /// its `flow_form`), β₀, mass, damping and load stiffness (the last two when nonzero). The
 /// others are refit only when listed. Units, ranges and meanings are the registry's
-/// ([`crate::spec::params`]); every path here is a float entry of it (tested).
+/// ([`crate::spec::params`]).
 ///
 /// The last five are the loop's assumptions when the rig's controller and valve electronics
 /// are not recorded (the valve's bandwidth, the loop's transport delay, the valve's null
 /// offset and null dead band; with a proportional loop its gain is the valve flow gain's, which is already
 /// here): an effect section the config carries with its assumed nominal value, refit within
 /// the stated range like any other nominal parameter (DIAGNOSIS.md "Assumed loop").
-pub const UNCERTAIN_PARAMS: &[(&str, bool)] = &[
-    ("valve.rated_flow", true),
-    ("valve.area_max", true),
-    ("valve.flow_at_1mpa", true),
-    ("fluid.bulk_modulus", true),
-    ("mechanics.mass", true),
-    ("mechanics.damping", true),
-    ("mechanics.load_stiffness", true),
-    ("valve.underlap", false),
-    ("cylinder.dead_volume_a", false),
-    ("cylinder.dead_volume_b", false),
-    ("supply.pressure", false),
-    ("valve.command_full_scale", false),
-    ("effects.valve_dynamics.time_constant", false),
-    ("effects.valve_dynamics.natural_frequency", false),
-    ("effects.time_delay.delay", false),
-    ("effects.valve_deadband.zero_offset", false),
-    ("effects.valve_deadband.overlap", false),
-];
+///
+/// Read from the declarations: each entry is a float field declared with
+/// `#[param(…, uncertain(order = N, default, to_range_end))]` ([`crate::spec::Uncertain`]),
+/// in ascending `order`.
+pub static UNCERTAIN_PARAMS: LazyLock<Vec<(&'static str, bool)>> = LazyLock::new(|| {
+    let mut v: Vec<(u16, &'static str, bool)> = crate::spec::params()
+        .iter()
+        .filter_map(|p| p.uncertain.map(|u| (u.order, p.path, u.default)))
+        .collect();
+    v.sort_by_key(|e| e.0);
+    v.into_iter()
+        .map(|(_, path, default)| (path, default))
+        .collect()
+});
 
-/// [`UNCERTAIN_PARAMS`] whose refit range may reach the lower end of their registry range
-/// (0 for an underlap, a time constant or a delay; a signed null offset may change sign):
-/// the range is clamped there instead of refused. Every other one must stay > 0.
-const MAY_REACH_RANGE_END: &[&str] = &[
-    "valve.underlap",
-    "effects.valve_dynamics.time_constant",
-    "effects.time_delay.delay",
-    "effects.valve_deadband.zero_offset",
-    "effects.valve_deadband.overlap",
-];
+/// Whether the refit range of an [`UNCERTAIN_PARAMS`] path may reach the lower end of its
+/// registry range (0 for an underlap, a time constant or a delay; a signed null offset may
+/// change sign; declared `to_range_end`): the range is clamped there instead of refused.
+/// Every other one must stay > 0.
+fn may_reach_range_end(path: &str) -> bool {
+    crate::spec::params()
+        .iter()
+        .find(|p| p.path == path)
+        .and_then(|p| p.uncertain)
+        .is_some_and(|u| u.to_range_end)
+}
 
 /// Admissible range of a registry path (`Finite` for a path the registry does not know,
 /// which no [`UNCERTAIN_PARAMS`] entry is).
@@ -712,7 +709,7 @@ impl PlantParams {
             }
         }
         let mut out = Vec::new();
-        for &(path, default) in UNCERTAIN_PARAMS {
+        for &(path, default) in UNCERTAIN_PARAMS.iter() {
             let Some(v) = self.nominal_value(path) else {
                 continue;
             };
@@ -756,7 +753,7 @@ impl PlantParams {
             // Physical parameters stay > 0 (an underlap, a delay or a time constant may reach
             // 0, a null offset may change sign: clamped to the registry's range).
             let (lo, hi) = (v - half, v + half);
-            if MAY_REACH_RANGE_END.contains(&path) {
+            if may_reach_range_end(path) {
                 let (r_lo, r_hi) = match registry_range(path) {
                     crate::spec::Range::Within(a, b) => (a, b),
                     crate::spec::Range::NonNegative | crate::spec::Range::Positive => {

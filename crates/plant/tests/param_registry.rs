@@ -226,42 +226,59 @@ fn absent_sections_and_unknown_paths_are_errors() {
 
 /// `UNCERTAIN_PARAMS` names registry entries only: every path is a float parameter of the
 /// registry (which gives its unit in the refit error messages), with the unit the list
-/// carried by hand before (main fcc370f).
+/// carried by hand before (main fcc370f); read from the `uncertain(…)` declarations, it keeps
+/// the order, the default-refit flags and the may-reach-the-range-end set of the hand lists it
+/// replaced (main 9d6b401), and no two declarations share a place in the order.
 #[test]
 fn uncertain_params_are_float_registry_entries_with_their_old_units() {
+    // (path, unit, refit by default, may reach the lower end of its range)
     let before = [
-        ("valve.rated_flow", "m³/s"),
-        ("valve.area_max", "m²"),
-        ("valve.flow_at_1mpa", "m³/s"),
-        ("fluid.bulk_modulus", "Pa"),
-        ("mechanics.mass", "kg"),
-        ("mechanics.damping", "N·s/m"),
-        ("mechanics.load_stiffness", "N/m"),
-        ("valve.underlap", "-"),
-        ("cylinder.dead_volume_a", "m³"),
-        ("cylinder.dead_volume_b", "m³"),
-        ("supply.pressure", "Pa"),
-        ("valve.command_full_scale", "V"),
+        ("valve.rated_flow", "m³/s", true, false),
+        ("valve.area_max", "m²", true, false),
+        ("valve.flow_at_1mpa", "m³/s", true, false),
+        ("fluid.bulk_modulus", "Pa", true, false),
+        ("mechanics.mass", "kg", true, false),
+        ("mechanics.damping", "N·s/m", true, false),
+        ("mechanics.load_stiffness", "N/m", true, false),
+        ("valve.underlap", "-", false, true),
+        ("cylinder.dead_volume_a", "m³", false, false),
+        ("cylinder.dead_volume_b", "m³", false, false),
+        ("supply.pressure", "Pa", false, false),
+        ("valve.command_full_scale", "V", false, false),
         // The loop's assumptions (valve bandwidth, transport delay, null offset, dead band).
-        ("effects.valve_dynamics.time_constant", "s"),
-        ("effects.valve_dynamics.natural_frequency", "rad/s"),
-        ("effects.time_delay.delay", "s"),
-        ("effects.valve_deadband.zero_offset", "-"),
-        ("effects.valve_deadband.overlap", "-"),
+        ("effects.valve_dynamics.time_constant", "s", false, true),
+        (
+            "effects.valve_dynamics.natural_frequency",
+            "rad/s",
+            false,
+            false,
+        ),
+        ("effects.time_delay.delay", "s", false, true),
+        ("effects.valve_deadband.zero_offset", "-", false, true),
+        ("effects.valve_deadband.overlap", "-", false, true),
     ];
-    let listed: Vec<&str> = ehactl_plant::params::UNCERTAIN_PARAMS
-        .iter()
-        .map(|u| u.0)
-        .collect();
-    assert_eq!(listed, before.map(|b| b.0));
-    for (path, unit) in before {
+    let listed: Vec<(&str, bool)> = ehactl_plant::params::UNCERTAIN_PARAMS.clone();
+    assert_eq!(listed, before.map(|b| (b.0, b.2)));
+    let mut orders = Vec::new();
+    for (path, unit, _, to_end) in before {
         let p = spec::params()
             .iter()
             .find(|p| p.path == path)
             .unwrap_or_else(|| panic!("{path} not in the registry"));
         assert_eq!(p.kind, Kind::Float, "{path}");
         assert_eq!(p.unit, unit, "{path}");
+        let u = p
+            .uncertain
+            .unwrap_or_else(|| panic!("{path}: no uncertain(…)"));
+        assert_eq!(u.to_range_end, to_end, "{path}");
+        orders.push(u.order);
     }
+    orders.dedup();
+    assert_eq!(
+        orders.len(),
+        before.len(),
+        "two declarations share an order"
+    );
 }
 
 /// The refit error message takes its unit from the registry.

@@ -61,6 +61,22 @@ pub enum Kind {
     Choice(&'static [&'static str]),
 }
 
+/// A nominal parameter's role in `ehactl diagnose`, declared on its field with
+/// `#[param(…, uncertain(order = N, default, to_range_end))]`: a config may state its
+/// uncertainty in `[uncertainty]`, and the diagnosis refits it within that range.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Uncertain {
+    /// Place in the order the diagnosis refits the nominal parameters (ascending; unique).
+    pub order: u16,
+    /// Refit by default (± the default uncertainty) when the config is silent about it;
+    /// otherwise only when `[uncertainty]` lists it.
+    pub default: bool,
+    /// Its refit range may reach the lower end of its registry range (a delay, a time
+    /// constant, an underlap of 0; a signed null offset may change sign) and is clamped
+    /// there; otherwise a range that reaches it is refused.
+    pub to_range_end: bool,
+}
+
 /// One declared parameter.
 #[derive(Debug, Clone, Copy)]
 pub struct Param {
@@ -74,6 +90,8 @@ pub struct Param {
     pub range: Range,
     /// Value kind.
     pub kind: Kind,
+    /// Its role as an uncertain nominal parameter of the diagnosis, if it has one.
+    pub uncertain: Option<Uncertain>,
 }
 
 impl Param {
@@ -91,6 +109,15 @@ impl Param {
             description,
             range,
             kind,
+            uncertain: None,
+        }
+    }
+
+    /// The entry with its role as an uncertain nominal parameter.
+    pub const fn with_uncertain(self, u: Uncertain) -> Param {
+        Param {
+            uncertain: Some(u),
+            ..self
         }
     }
 

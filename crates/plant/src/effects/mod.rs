@@ -4,14 +4,20 @@
 //! with the `#[param]` declarations, defaults and cross-field checks, and its physics where it
 //! is that effect's alone.
 //!
-//! Adding an effect on the plant side: its module here (section struct, checks, physics, the
-//! constants `Plant::configure` derives from the section), its `EffectId` variant with the
-//! lines in [`EffectId::ALL`], [`EffectId::as_str`] and the [`Effects`] switch matches below
-//! (exhaustive: a new id does not build without them), its `Option` field in [`Effects`] and
-//! its re-export line (crates/plant/src/params.rs), the call of its checks in
-//! [`validate_variants`] (or `model::validate`), and in [`crate::model`] the call of its
-//! derived constants in `Plant::configure` and its terms in the substep
-//! (`Plant::advance_substep`, the inner loop, kept in one place).
+//! Adding an effect on the plant side: its module here with its section struct (the
+//! `#[param]` declarations, defaults) and its component, a type implementing
+//! [`Component`] (cross-field checks, the constants derived from the section, its state and
+//! reset) and the trait of its stage in the substep (so far [`CommandStage`], the command
+//! path: `time_delay`), registered by one line in `components!` below; its `EffectId`
+//! variant with the lines in [`EffectId::ALL`], [`EffectId::as_str`] and the [`Effects`]
+//! switch matches below (exhaustive: a new id does not build without them); its `Option`
+//! field in [`Effects`] and its re-export line (crates/plant/src/params.rs). In
+//! [`crate::model`] the component's stage is called where the cycle reaches it (one line:
+//! `Plant::step` calls `time_delay`'s `push` once per period and `command` per substep);
+//! validation, configuration and reset go through [`Components`]. The effects not moved to
+//! a component yet (all but `time_delay`) still have their checks called from
+//! [`validate_variants`] or `model::validate`, their derived constants called in
+//! `Plant::configure` and their terms in the substep (`Plant::advance_substep`).
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
 //! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
@@ -20,6 +26,7 @@ use crate::params::Effects;
 pub use crate::params::{PolynomialFlow, PolynomialForce};
 
 pub mod bulk_modulus_pressure;
+pub mod component;
 pub mod flexible_mount;
 pub mod friction;
 pub mod leakage;
@@ -33,6 +40,7 @@ pub mod valve_dynamics;
 pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
+pub use component::{CommandStage, Component, Setup};
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
 
@@ -167,6 +175,51 @@ impl Effects {
             .filter(|e| self.is_enabled(*e))
             .collect()
     }
+}
+
+/// Declares [`Components`], the plant's effect components, one field per effect named as its
+/// section in [`Effects`], with the phases that run every component in declaration order.
+macro_rules! components {
+    ($($id:ident: $ty:ty),* $(,)?) => {
+        /// The effect components the plant holds by value ([`component`]): one field per
+        /// effect, named as its section in [`Effects`].
+        #[derive(Debug, Clone)]
+        pub struct Components {
+            $(
+                #[doc = concat!("`", stringify!($id), "`.")]
+                pub $id: $ty,
+            )*
+        }
+
+        impl Components {
+            /// Every present section's cross-field checks ([`Component::validate`]).
+            pub fn validate(e: &Effects) -> Result<(), crate::spec::ConfigError> {
+                $(
+                    if let Some(s) = e.$id.as_ref() {
+                        <$ty as Component>::validate(s)?;
+                    }
+                )*
+                Ok(())
+            }
+
+            /// Every component's constants and state ([`Component::configure`]).
+            pub fn configure(e: &Effects, setup: &Setup) -> Self {
+                Components {
+                    $($id: <$ty as Component>::configure(e.$id.as_ref(), setup),)*
+                }
+            }
+
+            /// Every component back to its initial state ([`Component::reset`]).
+            pub fn reset(&mut self) {
+                $(Component::reset(&mut self.$id);)*
+            }
+        }
+    };
+}
+
+// The registration of each effect component: its section's field in `Effects` and its type.
+components! {
+    time_delay: time_delay::DelayLine,
 }
 
 /// Cross-field checks of the effect variants: each variant's own parameters must
