@@ -248,28 +248,6 @@ pub struct Traces {
     pub split_index: usize,
 }
 
-/// Experiment that separates two effects the data could not tell apart.
-pub fn separating_experiment(a: EffectId, b: EffectId) -> String {
-    use EffectId::*;
-    let pair = |x: EffectId, y: EffectId| (a == x && b == y) || (a == y && b == x);
-    if pair(Friction, ValveDeadband) {
-        "slow triangle-wave position moves (velocity reversals at several speeds) with chamber pressures logged: friction shows a pressure jump at each reversal, a dead band a command gap independent of speed".into()
-    } else if pair(ValveDynamics, TimeDelay) {
-        "a sine sweep of the valve command to the spool bandwidth: a delay adds phase linearly in frequency at constant gain, spool dynamics also lower the gain".into()
-    } else if pair(InternalLeakage, ExternalLeakage) {
-        "hold the piston against an end stop and step the command: internal leakage equalises p_a and p_b, external leakage lowers both towards tank".into()
-    } else if pair(BulkModulusPressure, LineDynamics)
-        || pair(BulkModulusPressure, FlexibleMount)
-        || pair(LineDynamics, FlexibleMount)
-    {
-        "frequency responses at two supply pressures and two load masses: a pressure-dependent β moves the resonance with pressure, a compliant mount with the load mass, line modes with neither".into()
-    } else if pair(ValveSaturation, SupplyPressureDrop) {
-        "large steady commands at a low load: a spool limit caps flow at any pressure, a supply sag shows as falling supply pressure at high flow (log p_s)".into()
-    } else {
-        format!("an excitation that isolates one of them: steps and sweeps at different amplitudes and pressure levels, logging every available channel ({} vs {})", a.as_str(), b.as_str())
-    }
-}
-
 /// Run the diagnosis. `val` is an optional separate validation record; without it the last
 /// `opts.holdout` of `rec` is held out.
 ///
@@ -1141,7 +1119,7 @@ fn phase_candidates(
             if (j_o - jn).max(0.0) <= 1.15 * (j_best - jn).max(1e-300) + 0.02 * j_best {
                 ambiguities.push(format!(
                     "{} and {} fit the held-out data about equally well (NRMSE {:.4} vs {:.4}); {} is preferred by score. To separate them: {}",
-                    best.0.as_str(), other.0.as_str(), best.4.overall, other.4.overall, best.0.as_str(), separating_experiment(best.0, other.0)
+                    best.0.as_str(), other.0.as_str(), best.4.overall, other.4.overall, best.0.as_str(), crate::weigh::separating_experiment(best.0, other.0)
                 ));
             }
         }

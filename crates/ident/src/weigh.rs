@@ -5,7 +5,6 @@
 
 use crate::analysis::{analyse, Analysis};
 use crate::ctx::{Ctx, Errors, Hyp};
-use crate::diagnose::separating_experiment;
 use ehactl_plant::EffectId;
 
 /// `h` without effect `e`: its parameters (dotted paths `effects.<id>.…`), its entry in the
@@ -290,6 +289,28 @@ pub(crate) fn second_look(
         prefer_runner_up,
         note,
     })
+}
+
+/// Experiment that separates two effects the data could not tell apart.
+pub fn separating_experiment(a: EffectId, b: EffectId) -> String {
+    use EffectId::*;
+    let pair = |x: EffectId, y: EffectId| (a == x && b == y) || (a == y && b == x);
+    if pair(Friction, ValveDeadband) {
+        "slow triangle-wave position moves (velocity reversals at several speeds) with chamber pressures logged: friction shows a pressure jump at each reversal, a dead band a command gap independent of speed".into()
+    } else if pair(ValveDynamics, TimeDelay) {
+        "a sine sweep of the valve command to the spool bandwidth: a delay adds phase linearly in frequency at constant gain, spool dynamics also lower the gain".into()
+    } else if pair(InternalLeakage, ExternalLeakage) {
+        "hold the piston against an end stop and step the command: internal leakage equalises p_a and p_b, external leakage lowers both towards tank".into()
+    } else if pair(BulkModulusPressure, LineDynamics)
+        || pair(BulkModulusPressure, FlexibleMount)
+        || pair(LineDynamics, FlexibleMount)
+    {
+        "frequency responses at two supply pressures and two load masses: a pressure-dependent β moves the resonance with pressure, a compliant mount with the load mass, line modes with neither".into()
+    } else if pair(ValveSaturation, SupplyPressureDrop) {
+        "large steady commands at a low load: a spool limit caps flow at any pressure, a supply sag shows as falling supply pressure at high flow (log p_s)".into()
+    } else {
+        format!("an excitation that isolates one of them: steps and sweeps at different amplitudes and pressure levels, logging every available channel ({} vs {})", a.as_str(), b.as_str())
+    }
 }
 
 #[cfg(test)]
