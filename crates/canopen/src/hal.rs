@@ -1116,23 +1116,28 @@ mod tests {
         }
     }
 
-    /// The heartbeat consumers of the run on simulated time: the window of each device runs
-    /// from the reception of its last heartbeat (the RX thread's stamp on the caller's clock),
-    /// checked against the present time on that clock when the cycle reads — not against loop
-    /// time, which here does not move at all. With `heartbeat_timeout_ms` = 60 a device is
-    /// lost exactly when more than 60 ms have passed: not at 60 ms, at 60 ms + 1 ns.
-    #[test]
-    fn a_lost_heartbeat_trips_at_the_exact_simulated_time() {
-        let clock = Arc::new(ManualClock::at(7_000 * MS));
+    /// A HAL with its I/O threads on simulated time, as after a start-up that began at the
+    /// clock's present reading and took `startup` (default config; the bus's receive queue
+    /// for the test to fill); with the config and ehactl's heartbeat frame.
+    fn spawned_after_startup(
+        clock: &Arc<ManualClock>,
+        startup: Duration,
+    ) -> (
+        CanopenHal,
+        Arc<std::sync::Mutex<std::collections::VecDeque<CanFrame>>>,
+        CanopenConfig,
+        CanFrame,
+    ) {
         let bus = SimBus::new(clock.clone(), false);
         let rx = bus.rx.clone();
         let c = CanopenConfig::default();
-        assert_eq!(c.heartbeat_timeout_ms, 60);
-        let (tr, va) = (c.transducer_node_id, c.valve_node_id);
-        let s = settings(c);
         let t_start = clock.now_ns();
-        let mut st = Startup::new([tr, va], false, clock.clone());
-        clock.advance(Duration::from_secs(2)); // the start-up took 2 s
+        let mut st = Startup::new(
+            [c.transducer_node_id, c.valve_node_id],
+            false,
+            clock.clone(),
+        );
+        clock.advance(startup);
         let meas = Measurements {
             t: 0.0,
             force: f64::NAN,
@@ -1141,9 +1146,9 @@ mod tests {
             p_b: f64::NAN,
             spool: 0.0,
         };
-        let master_hb = CanFrame::std(HEARTBEAT_BASE + 1, [0x05]);
-        let mut hal = CanopenHal::spawn_io(
-            s,
+        let master_hb = CanFrame::std(HEARTBEAT_BASE + u16::from(c.master_node_id), [0x05]);
+        let hal = CanopenHal::spawn_io(
+            settings(c.clone()),
             Box::new(bus),
             t_start,
             &mut st,
@@ -1152,34 +1157,50 @@ mod tests {
             [None, None],
         )
         .unwrap();
+        (hal, rx, c, master_hb)
+    }
+
+    /// Wait (at most 10 s of real time) until the RX thread has taken in `frames` frames and
+    /// looked at an empty bus at or after the clock's present reading.
+    fn wait_for_rx(hal: &CanopenHal, clock: &ManualClock, frames: u64) {
+        let want = hal.shared.mono(clock.now_ns());
+        let waited = std::time::Instant::now();
+        while hal.shared.drained_ns.load(Ordering::Acquire) < want
+            || hal.shared.rx_frames.load(Ordering::Acquire) < frames
+        {
+            assert!(waited.elapsed() < Duration::from_secs(10), "RX thread idle");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    /// The heartbeat consumers of the run on simulated time: the window of each device runs
+    /// from the reception of its last heartbeat (the RX thread's stamp on the caller's clock),
+    /// checked against the present time on that clock when the cycle reads — not against loop
+    /// time, which here does not move at all. With `heartbeat_timeout_ms` = 60 a device is
+    /// lost exactly when more than 60 ms have passed: not at 60 ms, at 60 ms + 1 ns.
+    #[test]
+    fn a_lost_heartbeat_trips_at_the_exact_simulated_time() {
+        let clock = Arc::new(ManualClock::at(7_000 * MS));
+        // the start-up took 2 s
+        let (mut hal, rx, c, _) = spawned_after_startup(&clock, Duration::from_secs(2));
+        assert_eq!(c.heartbeat_timeout_ms, 60);
+        let (tr, va) = (c.transducer_node_id, c.valve_node_id);
         assert_eq!(hal.startup_seconds(), 2.0);
         // armed at 9.000 s; the valve's heartbeat arrives at 9.030 s
         clock.set(9_030 * MS);
         rx.lock()
             .unwrap()
             .push_back(CanFrame::std(HEARTBEAT_BASE + u16::from(va), [0x05]));
-        let waited = std::time::Instant::now();
-        while hal.shared.rx_frames.load(Ordering::Acquire) < 1 {
-            assert!(waited.elapsed() < Duration::from_secs(10), "RX thread idle");
-            std::thread::sleep(Duration::from_millis(1));
-        }
+        wait_for_rx(&hal, &clock, 1);
         // the consumers judge silence up to the RX thread's last look at the bus
-        let looked = |hal: &CanopenHal| {
-            let want = hal.shared.mono(clock.now_ns());
-            let waited = std::time::Instant::now();
-            while hal.shared.drained_ns.load(Ordering::Acquire) < want {
-                assert!(waited.elapsed() < Duration::from_secs(10), "RX thread idle");
-                std::thread::sleep(Duration::from_millis(1));
-            }
-        };
         // 9.060 s: the transducer has been silent for exactly 60 ms — not lost yet
         clock.set(9_060 * MS);
-        looked(&hal);
+        wait_for_rx(&hal, &clock, 1);
         hal.read(0.0, 2e-4)
             .expect("60 ms of silence is within the consumer time");
         // 1 ns later it is lost; the valve (heard at 9.030 s, taken in only at 9.060 s) is not
         clock.set(9_060 * MS + 1);
-        looked(&hal);
+        wait_for_rx(&hal, &clock, 1);
         match hal.read(0.0, 2e-4) {
             Err(HalError::Device { code, what }) => {
                 assert_eq!(code, u32::from(tr));
@@ -1212,43 +1233,10 @@ mod tests {
     #[test]
     fn heartbeats_waiting_for_a_stalled_rx_thread_are_no_loss() {
         let clock = Arc::new(ManualClock::at(7_000 * MS));
-        let bus = SimBus::new(clock.clone(), false);
-        let rx = bus.rx.clone();
-        let c = CanopenConfig::default();
+        let (mut hal, rx, c, _) = spawned_after_startup(&clock, Duration::from_secs(2));
         assert_eq!(c.heartbeat_timeout_ms, 60);
         let (tr, va) = (c.transducer_node_id, c.valve_node_id);
-        let s = settings(c);
-        let mut st = Startup::new([tr, va], false, clock.clone());
-        clock.advance(Duration::from_secs(2));
-        let meas = Measurements {
-            t: 0.0,
-            force: f64::NAN,
-            position: 0.1,
-            p_a: f64::NAN,
-            p_b: f64::NAN,
-            spool: 0.0,
-        };
-        let master_hb = CanFrame::std(HEARTBEAT_BASE + 1, [0x05]);
-        let mut hal = CanopenHal::spawn_io(
-            s,
-            Box::new(bus),
-            7_000 * MS,
-            &mut st,
-            master_hb,
-            meas,
-            [None, None],
-        )
-        .unwrap();
-        let wait_rx = |hal: &CanopenHal, frames: u64| {
-            let want = hal.shared.mono(clock.now_ns());
-            let waited = std::time::Instant::now();
-            while hal.shared.drained_ns.load(Ordering::Acquire) < want
-                || hal.shared.rx_frames.load(Ordering::Acquire) < frames
-            {
-                assert!(waited.elapsed() < Duration::from_secs(10), "RX thread idle");
-                std::thread::sleep(Duration::from_millis(1));
-            }
-        };
+        let wait_rx = |hal: &CanopenHal, frames: u64| wait_for_rx(hal, &clock, frames);
         // armed at 9.000 s; the RX thread has looked at the bus at 9.000 s
         wait_rx(&hal, 0);
         hal.read(0.0, 2e-4).unwrap();
@@ -1289,31 +1277,8 @@ mod tests {
     #[test]
     fn the_master_heartbeat_keeps_its_period_on_the_clock_when_the_loop_lags() {
         let clock = Arc::new(ManualClock::at(7_000 * MS));
-        let bus = SimBus::new(clock.clone(), false);
-        let c = CanopenConfig::default();
+        let (mut hal, _, c, master_hb) = spawned_after_startup(&clock, Duration::ZERO);
         assert_eq!(c.master_heartbeat_ms, 20);
-        let (tr, va, master) = (c.transducer_node_id, c.valve_node_id, c.master_node_id);
-        let s = settings(c);
-        let mut st = Startup::new([tr, va], false, clock.clone());
-        let meas = Measurements {
-            t: 0.0,
-            force: f64::NAN,
-            position: 0.1,
-            p_a: f64::NAN,
-            p_b: f64::NAN,
-            spool: 0.0,
-        };
-        let master_hb = CanFrame::std(HEARTBEAT_BASE + u16::from(master), [0x05]);
-        let mut hal = CanopenHal::spawn_io(
-            s,
-            Box::new(bus),
-            7_000 * MS,
-            &mut st,
-            master_hb,
-            meas,
-            [None, None],
-        )
-        .unwrap();
         // the I/O threads stopped: the test takes the cycle's frames off the TX queue itself
         hal.stop_io();
         hal.started = true;
