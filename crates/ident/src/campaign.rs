@@ -1060,15 +1060,15 @@ fn travel_by_point(
     };
     for _pass in 0..2 {
         for g in 0..fit_groups.len() {
-            let best = (0..grid.len()).min_by(|a, b| {
-                let j = |k: usize| {
+            // Each travel's transfer error once (a comparator would recompute both sides).
+            let (best, _) = (0..grid.len())
+                .map(|k| {
                     let mut c = choice.clone();
                     c[g] = k;
-                    transfer_error(&mixed(&c), expanded, library, structure)
-                        .unwrap_or(f64::INFINITY)
-                };
-                j(*a).total_cmp(&j(*b))
-            })?;
+                    let j = transfer_error(&mixed(&c), expanded, library, structure);
+                    (k, j.unwrap_or(f64::INFINITY))
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))?;
             choice[g] = best;
         }
     }
