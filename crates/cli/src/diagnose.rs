@@ -35,9 +35,8 @@ pub fn cmd_diagnose(
         Err(e) => return bad(crate::config_load_message(config, &e)),
     };
     // Several records, or one displacement-controlled record: a campaign.
-    let inputs: Vec<String> = cfg.inputs.keys().cloned().collect();
     let motion_only =
-        data.len() == 1 && ehactl_ident::data::is_motion_only(&data[0], &inputs).unwrap_or(false);
+        data.len() == 1 && ehactl_ident::data::is_motion_only(&data[0]).unwrap_or(false);
     if data.len() > 1 || validate.len() > 1 || motion_only {
         return cmd_campaign(&cfg, config, data, validate, out.as_deref(), json, sw.force);
     }

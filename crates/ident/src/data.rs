@@ -274,13 +274,13 @@ pub fn load(path: &Path) -> Result<Record, DataError> {
 }
 
 /// Whether the record at `path` is a displacement-controlled one (x but neither `u` nor
-/// `ref`): for a CSV from its header in the first 64 KiB, for an MCAP file by loading it
-/// (a lab record's `/measured` channel, [`parse_mcap_with`]); `None` for a file that cannot
-/// be read (the full load then reports why).
-pub fn is_motion_only(path: &Path, inputs: &[String]) -> Option<bool> {
+/// `ref`): for a CSV from its header in the first 64 KiB, for an MCAP file from its first
+/// message ([`mcap_is_motion_only`]); `None` for a file that cannot be read (the full load
+/// then reports why).
+pub fn is_motion_only(path: &Path) -> Option<bool> {
     use std::io::Read;
     if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
-        return load_with(path, inputs).ok().map(|r| r.imposed_motion());
+        return mcap_is_motion_only(path);
     }
     let meta = std::fs::metadata(path).ok()?;
     if !meta.is_file() {
@@ -303,6 +303,48 @@ pub fn is_motion_only(path: &Path, inputs: &[String]) -> Option<bool> {
         .map(|n| n.trim().trim_matches('"'))
         .collect();
     Some(names.contains(&"x") && !names.contains(&"u") && !names.contains(&"ref"))
+}
+
+/// [`is_motion_only`] for an MCAP file, read as a stream up to its first `/control` or
+/// [`MEASURED_TOPIC`] message, so that a long log is not loaded twice (the campaign or the
+/// session loads it in full): an ehactl log (`/control`) is not; a lab record is when its
+/// first sample has `x` but neither `u` nor `ref`. `None` when the file cannot be read or
+/// has neither topic. The mcap crate's sans-I/O reader does the framing and decompression.
+fn mcap_is_motion_only(path: &Path) -> Option<bool> {
+    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
+    use std::io::Read;
+    let mut file = std::fs::File::open(path).ok()?;
+    let mut reader = LinearReader::new();
+    let mut topics: std::collections::HashMap<u16, String> = Default::default();
+    while let Some(event) = reader.next_event() {
+        match event.ok()? {
+            LinearReadEvent::ReadRequest(need) => {
+                let got = file.read(reader.insert(need)).ok()?;
+                reader.notify_read(got);
+            }
+            LinearReadEvent::Record { opcode, data } => {
+                match mcap::parse_record(opcode, data).ok()? {
+                    mcap::records::Record::Channel(c) => {
+                        topics.insert(c.id, c.topic);
+                    }
+                    mcap::records::Record::Message { header, data } => {
+                        match topics.get(&header.channel_id).map(String::as_str) {
+                            Some("/control") => return Some(false),
+                            Some(MEASURED_TOPIC) => {
+                                let obj: serde_json::Map<String, serde_json::Value> =
+                                    serde_json::from_slice(&data).ok()?;
+                                let has = |k: &str| obj.contains_key(k);
+                                return Some(has("x") && !has("u") && !has("ref"));
+                            }
+                            _ => {}
+                        }
+                    }
+                    _ => {}
+                }
+            }
+        }
+    }
+    None
 }
 
 /// [`load`] for a config that declares the operating inputs `inputs` (column names): a CSV
