@@ -11,7 +11,10 @@
 #      CROSS_PRUNE=1 to delete the target's intermediate build files (deps, build scripts,
 #      fingerprints; ≈ 0.5 GB per target) once the binary is checked — the binary stays at
 #      target/TARGET/release/ehactl (CI sets it: its disk is small; a rebuild then starts cold);
-#      EHACTL_SKIP_LOG=FILE: a skip appends its reason there (test_all.sh lists them at its end).
+#      EHACTL_SKIP_LOG=FILE: a skip appends its reason there (test_all.sh lists them at its end);
+#      CROSS_SETUP_ONLY=1 to install the toolchain (rustup targets, Zig, cargo-zigbuild) and stop,
+#      status 3 if it skipped (test_all.sh: before the build, both in the background);
+#      CARGO_TARGET_DIR=DIR builds there (default target/): the binaries are DIR/TARGET/release/ehactl.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 GLIBC="${GLIBC:-2.31}"
@@ -25,6 +28,8 @@ skip() {
   fi
   echo "cross_build: SKIPPED: $* (set EHACTL_REQUIRE_CROSS=1 to make this an error)" >&2
   [ -z "${EHACTL_SKIP_LOG:-}" ] || echo "ARM cross-builds (scripts/cross_build.sh): $*" >>"$EHACTL_SKIP_LOG"
+  # CROSS_SETUP_ONLY: status 3 tells the caller there is nothing to build (the skip is logged).
+  [ "${CROSS_SETUP_ONLY:-0}" != 1 ] || exit 3
   exit 0
 }
 
@@ -44,6 +49,8 @@ if ! command -v cargo-zigbuild >/dev/null || ! python3 -m ziglang version >/dev/
   python3 -m pip install --quiet ziglang cargo-zigbuild || skip "pip install ziglang cargo-zigbuild failed"
 fi
 command -v cargo-zigbuild >/dev/null || skip "cargo-zigbuild not on PATH after pip install"
+[ "${CROSS_SETUP_ONLY:-0}" != 1 ] || exit 0
+tdir="${CARGO_TARGET_DIR:-target}"
 
 # One cargo invocation for all targets: cargo schedules their crates together (a core left
 # idle by one target's long crate compiles the other's), and the build scripts and proc macros,
@@ -53,7 +60,7 @@ for t in "${targets[@]}"; do target_args+=(--target "$t.$GLIBC"); done
 echo "== cross-building ehactl for ${targets[*]} (glibc $GLIBC)"
 cargo zigbuild --release -p ehactl-cli "${target_args[@]}"
 for t in "${targets[@]}"; do
-  bin="target/$t/release/ehactl"
+  bin="$tdir/$t/release/ehactl"
   # Check the result is an ELF executable for the right machine (e_machine field).
   python3 - "$bin" "$t" <<'PY'
 import struct, sys
@@ -66,7 +73,13 @@ assert (machine, raw[4]) == want, f"{path}: e_machine {machine:#x}, class {raw[4
 print(f"{path}: ELF {'64' if raw[4] == 2 else '32'}-bit, e_machine {machine:#x} ({target}) ok")
 PY
   if [ "${CROSS_PRUNE:-0}" = 1 ]; then
-    rm -rf "target/$t/release/deps" "target/$t/release/build" "target/$t/release/.fingerprint" \
-      "target/$t/release/incremental" "target/$t/release/examples"
+    rm -rf "$tdir/$t/release/deps" "$tdir/$t/release/build" "$tdir/$t/release/.fingerprint" \
+      "$tdir/$t/release/incremental" "$tdir/$t/release/examples"
   fi
 done
+# A build directory of its own (test_all.sh: target/cross) also holds the cross-build's host
+# tools (build scripts, proc macros) in DIR/release: pruned too. Never the repository's
+# target/release, which the native build and the tests use.
+if [ "${CROSS_PRUNE:-0}" = 1 ] && [ "$(realpath -m "$tdir")" != "$(realpath -m target)" ]; then
+  rm -rf "$tdir/release"
+fi

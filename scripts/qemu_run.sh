@@ -22,7 +22,8 @@
 # Usage: scripts/qemu_run.sh [TARGET ...]   (default: aarch64-unknown-linux-gnu)
 # Env: EHACTL_REQUIRE_QEMU=1 to fail (not skip) when qemu or the binary is missing;
 #      QEMU_DURATION to shorten the run (s); EHACTL_SKIP_LOG=FILE: a skip appends its reason
-#      there (scripts/test_all.sh lists them at its end).
+#      there (scripts/test_all.sh lists them at its end); CARGO_TARGET_DIR=DIR where
+#      cross_build.sh built (default target/): the ARM binaries are DIR/TARGET/release/ehactl.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 targets=("$@")
@@ -80,7 +81,7 @@ for t in "${targets[@]}"; do
     aarch64-*) qemu=qemu-aarch64; sysroot=/usr/aarch64-linux-gnu ;;
     armv7-*) qemu=qemu-arm; sysroot=/usr/arm-linux-gnueabihf ;;
   esac
-  bin="target/$t/release/ehactl"
+  bin="${CARGO_TARGET_DIR:-target}/$t/release/ehactl"
   [ -x "$bin" ] || skip "$bin not built (scripts/cross_build.sh $t)"
   command -v "$qemu" >/dev/null || skip "$qemu not found"
   echo "== $t under $qemu (user-mode emulation): ehactl run $config ${dur[*]}"

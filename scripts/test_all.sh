@@ -40,7 +40,13 @@ finish() {
     sed 's/^/##   /' "$EHACTL_SKIP_LOG"
     echo "################################################################################"
   fi
-  rm -f "$EHACTL_SKIP_LOG" "$counts" "$counts".*
+  # A suite that stops early stops its background cross-build too (its own process group).
+  if [ -n "${cross_pid:-}" ] && kill -0 "$cross_pid" 2>/dev/null; then
+    kill -- -"$cross_pid" 2>/dev/null || kill "$cross_pid" 2>/dev/null || true
+    echo "   (the background cross-build was stopped; its output so far:)"
+    sed 's/^/   /' "$cross_log"
+  fi
+  rm -f "$EHACTL_SKIP_LOG" "$counts" "$counts".* "${cross_log:-}" "${cross_ready:-}"
 }
 trap finish EXIT
 # A step's heading with the time since the start, so that a run shows where its minutes go.
@@ -120,8 +126,35 @@ PY="$VENV/bin/python"
 export VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH"
 "$PY" -m pip install --quiet --upgrade pip
 
-step "formatting and lints (rustfmt, clippy with warnings as errors)"
+# The ARM cross-builds (DEPLOY.md) run in the background from here, at the lowest CPU priority
+# (nice 19) and in a build directory of their own (target/cross: cargo locks a build
+# directory, and the tests use target/release meanwhile): they take the CPU the foreground
+# steps leave idle (a test waiting on a subprocess, a single-threaded link) instead of a
+# step of their own (5 min 40 s on an idle 2-core machine when they ran alone). Their output
+# is printed in one piece when the foreground is done; the QEMU step runs after them.
+cross_targets=(aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf)
+# rustup is not safe to run twice at once on one toolchain: the foreground's components first.
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
+cross_log="$(mktemp)"
+cross_ready="$cross_log.ready"
+export EHACTL_T0="$t0" CROSS_LOG="$cross_log" CROSS_READY="$cross_ready"
+# setsid: its own process group, so that a failing suite stops the whole build (exit trap).
+own_group=(setsid)
+command -v setsid >/dev/null || own_group=()
+"${own_group[@]}" bash -c '
+  set -uo pipefail
+  echo "== [$(( $(date +%s) - EHACTL_T0 )) s] cross-build toolchain (rustup targets; Zig and cargo-zigbuild into $VIRTUAL_ENV)"
+  CROSS_SETUP_ONLY=1 scripts/cross_build.sh "$@"; rc=$?
+  touch "$CROSS_READY"
+  [ $rc = 3 ] && exit 0
+  [ $rc = 0 ] || exit $rc
+  echo "== [$(( $(date +%s) - EHACTL_T0 )) s] cross-build starts (nice 19, CARGO_TARGET_DIR=target/cross)"
+  CARGO_TARGET_DIR=target/cross CROSS_PRUNE=1 nice -n 19 scripts/cross_build.sh "$@" || exit $?
+  echo "== [$(( $(date +%s) - EHACTL_T0 )) s] cross-build done"
+' cross_build "${cross_targets[@]}" >"$cross_log" 2>&1 </dev/null &
+cross_pid=$!
+
+step "formatting and lints (rustfmt, clippy with warnings as errors)"
 cargo fmt --all --check
 cargo clippy --release --workspace --all-targets -- -D warnings
 # The SocketCAN transport (this machine has no AF_CAN, so it is only compiled): checked by
@@ -130,11 +163,13 @@ cargo clippy --release --workspace --all-targets -- -D warnings
 # plant and the logger with another feature set).
 step "SocketCAN transport (clippy with --features ehactl-canopen/socketcan)"
 cargo clippy --release --workspace --all-targets --features ehactl-canopen/socketcan -- -D warnings
-step "building (release): every target once; the tests, the QEMU step and the bindings reuse it"
+step "building (release): every target but the benchmarks, once; the tests, the QEMU step and the bindings reuse it"
 # The Python extension's crate is built once, by maturin below (its pyo3 build script depends
 # on maturin's environment, so a cargo build of it here would be redone there); clippy above
-# checked it, and it has no Rust tests.
-cargo build --release --workspace --exclude ehactl-python --all-targets
+# checked it, and it has no Rust tests. The benchmarks (criterion) are not built: clippy
+# checked them, no test runs them, and their build is about a minute of CPU (BENCHMARKS.md
+# gives the command of each).
+cargo build --release --workspace --exclude ehactl-python --lib --bins --tests --examples
 disk
 step "Rust tests"
 # Property tests (proptest) run a fixed seed here so that a CI result is reproducible; without
@@ -144,22 +179,20 @@ PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}" cargo test --release --worksp
 awk '/^test result:/ {p += $4; f += $6; i += $8; n++} END {printf "Rust: %d tests passed, %d ignored (%d test binaries and doc-test runs)\n", p, i, n}' "$counts.rust" >>"$counts"
 rm -f "$counts.rust"
 disk
-step "cross-build for aarch64 and armv7 (DEPLOY.md; Zig and cargo-zigbuild into $VENV; skipped with a message if the toolchain cannot be installed)"
-CROSS_PRUNE=1 scripts/cross_build.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
-disk
 step "Python test dependencies and lint (into $VENV)"
+# The background cross-build installs Zig and cargo-zigbuild into the same environment first:
+# never two pip runs in one environment at once.
+while [ ! -e "$cross_ready" ] && kill -0 "$cross_pid" 2>/dev/null; do sleep 1; done
 # both lists now: tests/python also runs the docs' Python snippets (pandas, Dask, tqdm)
 "$PY" -m pip install --quiet -r tests/python/requirements.txt -r bindings/python/requirements-test.txt
 "$PY" -m ruff check
 if command -v npm >/dev/null; then
   (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; })
 fi
-step "cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
-scripts/qemu_run.sh aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf
 step "Python bindings (pyo3 + maturin) with the simulated CANopen devices (python -m ehactl.devices): build, install into $VENV"
 "$PY" -m pip install --quiet "./bindings/python[devices]"
 step "Python tests"
-EHACTL_BIN="$PWD/target/release/ehactl" EHACTL_REQUIRE_BINDINGS=1 "$PY" -m pytest tests/python -q -rs 2>&1 | tee "$counts.py"
+EHACTL_BIN="$PWD/target/release/ehactl" EHACTL_REQUIRE_BINDINGS=1 "$PY" -m pytest tests/python -q -rs --durations=15 2>&1 | tee "$counts.py"
 echo "Python (tests/python): $(tail -n 1 "$counts.py" | tr -d '=')" >>"$counts"
 step "Python bindings: type check (mypy --strict, config in bindings/python/pyproject.toml)"
 (cd bindings/python && "$PY" -m mypy)
@@ -167,4 +200,12 @@ step "Python bindings (pyo3 + maturin): tests"
 EHACTL_BIN="$PWD/target/release/ehactl" PY="$PY" bash -c 'cd bindings/python && "$PY" -m pytest tests -q -rs' 2>&1 | tee "$counts.py"
 echo "Python (bindings/python/tests): $(tail -n 1 "$counts.py" | tr -d '=')" >>"$counts"
 rm -f "$counts.py"
+step "cross-build for aarch64 and armv7 (DEPLOY.md; in the background since the start; skipped with a message if the toolchain cannot be installed)"
+cross_rc=0
+wait "$cross_pid" || cross_rc=$?
+cross_pid=""
+sed 's/^/   /' "$cross_log"
+[ $cross_rc = 0 ] || { echo "error: the cross-build failed (exit $cross_rc), its output is above" >&2; exit 1; }
 disk
+step "cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
+CARGO_TARGET_DIR=target/cross scripts/qemu_run.sh "${cross_targets[@]}"
