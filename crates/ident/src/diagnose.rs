@@ -285,6 +285,7 @@ pub fn diagnose(
             candidates: BTreeMap::new(),
             ambiguities: vec![],
             rebased: vec![],
+            weak: vec![],
         }
     } else {
         phase_candidates(&nom, &refit, nominal, opts, &bar)
@@ -689,6 +690,9 @@ struct SearchPhase {
     ambiguities: Vec<String>,
     /// Rounds in which a candidate's refit, without its effect, became the current model.
     rebased: Vec<String>,
+    /// Accepted effects whose round winner was weak evidence ([`weak_winner`]): a fit at a
+    /// corner of its range, or most of the error above the floor left unexplained.
+    weak: Vec<EffectId>,
 }
 
 /// Effects that act on one measured channel only (not through the plant's dynamics): judged
@@ -879,6 +883,7 @@ fn phase_candidates(
     let mut candidates: BTreeMap<EffectId, Candidate> = BTreeMap::new();
     let mut ambiguities = Vec::new();
     let mut rebased: Vec<String> = Vec::new();
+    let mut weak: Vec<EffectId> = Vec::new();
     // Later rounds refit every variant of every remaining effect, not only the one that won
     // round 0: that choice was made with the other effect still unexplained, which can favour
     // the wrong structure (test bench seed 5098, a load-side mount hidden with valve dynamics:
@@ -1109,6 +1114,7 @@ fn phase_candidates(
                 looked = Some(best.0);
                 best = runner;
             }
+            weak.push(best.0);
         }
         let j_best = best.4.overall.powi(2);
         for other in passing
@@ -1172,6 +1178,7 @@ fn phase_candidates(
         candidates,
         ambiguities,
         rebased,
+        weak,
     }
 }
 
@@ -1278,6 +1285,10 @@ pub struct DroppedEffects {
     pub nrmse_law: f64,
     /// Held-out overall NRMSE of the ARX baseline (-).
     pub nrmse_baseline: f64,
+    /// Why the catalogue model had to compete: it predicts worse than the ARX baseline, or
+    /// an accepted effect was weak evidence (its fit at a corner of its range, or most of the
+    /// error above the floor left unexplained).
+    pub why: String,
 }
 
 /// What the grey-box phase hands on.
@@ -1291,8 +1302,10 @@ struct GreyPhase {
 /// Phase 5: a grey-box law when the catalogue model's held-out residual is not noise, fitted
 /// on top of it. A catalogue extension that predicts the held-out part worse than the ARX
 /// baseline is weak evidence (on a damper whose force tracks velocity, a mount's compliance
-/// was once accepted while a linear black box predicted twice as well): the law then competes
-/// on the nominal refit alone, scored on the same held-out part, and the better model is kept.
+/// was once accepted while a linear black box predicted twice as well), and so is one whose
+/// round winner was weak ([`weak_winner`]: on a damper of 1150 N yield force, a mount of
+/// 200 kg, at its range's end, explaining 37 % of the error): the law then competes on the
+/// nominal refit alone, scored on the same held-out part, and the better model is kept.
 /// When the law alone wins, `search` and `resid` become the refit's.
 fn phase_greybox(
     nom: &NominalPhase<'_>,
@@ -1320,7 +1333,23 @@ fn phase_greybox(
         out.final_hyp = h;
     }
     out.greybox = Some(g);
-    if search.accepted.is_empty() || catalogue <= arx {
+    let weak: Vec<&str> = search
+        .accepted
+        .iter()
+        .filter(|e| search.weak.contains(e))
+        .map(|e| e.as_str())
+        .collect();
+    let why = if catalogue > arx {
+        format!("the catalogue model predicts the held-out part worse than the ARX baseline (NRMSE {catalogue:.4} vs {arx:.4})")
+    } else if !weak.is_empty() {
+        format!(
+            "`{}` was weak evidence when accepted (see `ambiguities`)",
+            weak.join("`, `")
+        )
+    } else {
+        return out;
+    };
+    if search.accepted.is_empty() {
         return out;
     }
     let (hb, gb) = extend(&rf.h0, rf.c0_train);
@@ -1338,6 +1367,7 @@ fn phase_greybox(
         nrmse_catalogue_with_law: with_law,
         nrmse_law: gb.nrmse_validation.overall,
         nrmse_baseline: arx,
+        why,
     });
     for c in search.candidates.values_mut() {
         c.accepted = false;
@@ -1397,6 +1427,7 @@ fn phase_report(
         candidates,
         ambiguities,
         rebased,
+        weak: _,
     } = search;
     let ResidualPhase {
         ext_err,
@@ -1627,8 +1658,9 @@ fn dropped_text(d: &DroppedEffects) -> String {
         format!(", {w:.4} with a grey-box law on top of them")
     });
     format!(
-        " The catalogue effect(s) {} accepted on the fitting part predicted the held-out part worse than the ARX baseline (held-out NRMSE {:.4} vs {:.4}{on_top}); the grey-box law on the nominal refit alone predicts it better ({:.4}), so they are not kept.",
+        " The catalogue effect(s) {} accepted on the fitting part had to compete with a grey-box law: {} (held-out NRMSE {:.4}, ARX baseline {:.4}{on_top}); the grey-box law on the nominal refit alone predicts it better ({:.4}), so they are not kept.",
         d.effects.join(" + "),
+        d.why,
         d.nrmse_catalogue,
         d.nrmse_baseline,
         d.nrmse_law
