@@ -9,7 +9,6 @@ use crate::{
     sig, stop_flag,
 };
 use ehactl_config::{ControlMode, RigConfig};
-use ehactl_hal::sim::SimHal;
 use ehactl_hal::Hal;
 use ehactl_log::logger::{LogTap, Overflow};
 use ehactl_runtime::control_socket::{ControlServer, StartError};
@@ -19,6 +18,7 @@ use ehactl_runtime::session::{
     build_plant, run_sim, run_sim_live, run_with_live, Backend, Session, SessionError,
     SessionOptions,
 };
+use ehactl_runtime::sim::SimHal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};

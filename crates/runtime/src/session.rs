@@ -5,11 +5,11 @@
 use crate::controller::Controller;
 use crate::live::LiveParams;
 use crate::runloop::{run_loop, LoopSettings, RunOutcome};
+use crate::sim::SimHal;
 use ehactl_config::{Compression, ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
 use ehactl_hal::pacer::{Pacer, SimulatedTime, TimingReport};
-use ehactl_hal::sim::SimHal;
 use ehactl_hal::Hal;
 use ehactl_log::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
 use ehactl_log::record::CycleRecord;
