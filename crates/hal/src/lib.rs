@@ -6,6 +6,8 @@
 //! - [`Hal`] and its error type,
 //! - [`pacer::Pacer`], what starts each cycle (simulated time or a wall-clock executor), and
 //!   the timing report it hands back,
+//! - [`clock`], the time sources (monotonic, manual, scripted) of the wall-clock pacer and
+//!   of the CANopen start-up and backend,
 //! - [`Timebase`], the one owner of the control period (built from `run.control_rate_hz`
 //!   and handed to the plant, the pacer and the backends; defined in `ehactl-types` so that
 //!   the config reaches it without this crate, re-exported here).
@@ -17,6 +19,7 @@
 //! `ehactl-types`; bounded reads of user input files in `ehactl-input`.
 #![deny(missing_docs)]
 
+pub mod clock;
 pub mod pacer;
 
 pub use ehactl_types::frames::FrameLog;
