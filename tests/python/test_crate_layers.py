@@ -1,7 +1,9 @@
 """The crate layers of ARCHITECTURE.md, read from the dependency graph cargo itself resolves
 (`cargo metadata`, normal dependencies only, transitively): the control laws compile no
 hardware, plant or logging crate; the config, the diagnosis and the analysis do not compile
-the CANopen master; the logger does not compile the plant or the Hal.
+the CANopen master; the logger does not compile the plant or the Hal; the Hal contract is
+bare (no plant, no logger), so the CANopen backend compiles no physics and no MCAP writer,
+the config no logger and the diagnosis no Hal.
 
 EHACTL_ROOT selects another checkout (default: this repository).
 """
@@ -59,3 +61,27 @@ def test_logger_compiles_neither_plant_nor_hal(deps):
     got = closure(deps, "ehactl-log")
     assert not got & {"ehactl-hal", "ehactl-plant", "nalgebra"}, sorted(got)
     assert "mcap" in got
+
+
+def test_hal_contract_compiles_neither_plant_nor_log(deps):
+    got = closure(deps, "ehactl-hal")
+    assert not got & {"ehactl-plant", "ehactl-log", "nalgebra", "mcap", "lz4", "zstd"}, \
+        sorted(got)
+    assert "ehactl-types" in got
+
+
+def test_canopen_backend_compiles_no_plant_and_no_mcap_writer(deps):
+    got = closure(deps, "ehactl-canopen")
+    assert not got & {"ehactl-plant", "nalgebra", "ehactl-log", "mcap", "lz4", "zstd"}, \
+        sorted(got)
+    assert "ehactl-hal" in got
+
+
+def test_config_compiles_no_logger(deps):
+    got = closure(deps, "ehactl-config")
+    assert not got & {"ehactl-log", "mcap", "lz4", "zstd", "ehactl-hal"}, sorted(got)
+
+
+def test_diagnosis_compiles_no_hal(deps):
+    got = closure(deps, "ehactl-ident")
+    assert "ehactl-hal" not in got, sorted(got)

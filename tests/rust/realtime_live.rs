@@ -4,13 +4,13 @@
 use ehactl_config::RigConfig;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_hal::pacer::Pacer;
-use ehactl_hal::sim::SimHal;
 use ehactl_log::logger::Overflow;
 use ehactl_log::record::CycleRecord;
 use ehactl_runtime::control_socket::{self, ControlServer};
 use ehactl_runtime::live::{self, LiveParams};
 use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
 use ehactl_runtime::session::{build_plant, run_with_live, Backend, SessionOptions};
+use ehactl_runtime::sim::SimHal;
 use ehactl_tests::config;
 use std::path::Path;
 use std::sync::Arc;

@@ -5,12 +5,12 @@
 //! allocate nothing. Its own test binary, because it installs its own #[global_allocator].
 
 use ehactl_hal::pacer::{Pacer, TimingReport};
-use ehactl_hal::sim::SimHal;
 use ehactl_log::logger::Overflow;
 use ehactl_log::record::{CycleTiming, Event};
 use ehactl_runtime::live::{self, LiveParams};
 use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
 use ehactl_runtime::session::{build_plant, run_with_live, Backend, SessionOptions};
+use ehactl_runtime::sim::SimHal;
 use ehactl_tests::config;
 use ehactl_tests::{allocations, CountingAlloc};
 use std::sync::Arc;

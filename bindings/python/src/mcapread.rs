@@ -58,17 +58,14 @@ pub fn read_mcap_raw<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py,
             path.display().to_string(),
         )));
     }
-    let bytes =
-        ehactl_hal::input::read_bounded(&path, ehactl_hal::input::DATA_MAX_BYTES, "MCAP log")
-            .map_err(|e| {
-                if std::fs::metadata(&path).is_ok_and(|m| !m.is_file())
-                    || e.reason.contains("limit")
-                {
-                    PyValueError::new_err(e.to_string())
-                } else {
-                    PyOSError::new_err(e.to_string())
-                }
-            })?;
+    let bytes = ehactl_input::read_bounded(&path, ehactl_input::DATA_MAX_BYTES, "MCAP log")
+        .map_err(|e| {
+            if std::fs::metadata(&path).is_ok_and(|m| !m.is_file()) || e.reason.contains("limit") {
+                PyValueError::new_err(e.to_string())
+            } else {
+                PyOSError::new_err(e.to_string())
+            }
+        })?;
     let bad = |what: String| PyValueError::new_err(format!("{}: {what}", path.display()));
     if let (_, Some(problem)) = ehactl_log::recover::readable_prefix(&bytes) {
         return Err(bad(format!(

@@ -255,14 +255,11 @@ impl Eds {
     }
 
     /// Read and parse a file: a regular file of at most
-    /// [`ehactl_hal::input::EDS_MAX_BYTES`] (a FIFO or /dev/zero is refused, never read).
+    /// [`ehactl_input::EDS_MAX_BYTES`] (a FIFO or /dev/zero is refused, never read).
     pub fn load(path: &Path) -> Result<Eds, String> {
-        let text = ehactl_hal::input::read_bounded_string(
-            path,
-            ehactl_hal::input::EDS_MAX_BYTES,
-            "EDS / DCF",
-        )
-        .map_err(|e| e.to_string())?;
+        let text =
+            ehactl_input::read_bounded_string(path, ehactl_input::EDS_MAX_BYTES, "EDS / DCF")
+                .map_err(|e| e.to_string())?;
         Eds::parse(&text, &path.display().to_string())
     }
 

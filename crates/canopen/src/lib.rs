@@ -14,17 +14,20 @@
 //!   config without the CANopen master),
 //! - [`eds`]: EDS / DCF files (CiA 306) that drive the start-up,
 //! - [`settings`]: [`settings::CanopenSettings`], what start-up and backend are given,
-//! - [`clock`]: the caller's time source ([`clock::Clock`]) of start-up and backend,
+//! - [`clock`]: the caller's time source ([`clock::Clock`]) of start-up and backend: the
+//!   clock module of the hardware contract (`ehactl_hal::clock`, shared with the runtime's
+//!   wall-clock pacer), re-exported,
 //! - [`startup`]: the start-up in phases (configure: boot, identity, EDS-driven SDO
 //!   configuration; activate: NMT start, valve state machine, priming),
 //! - [`hal`]: [`hal::CanopenHal`], the `Hal` implementation: I/O threads own the bus, the
 //!   control cycle talks to them through lock-free queues.
 #![deny(missing_docs)]
 
+pub use ehactl_hal::clock;
+
 pub mod bus;
 pub mod cia406;
 pub mod cia408;
-pub mod clock;
 pub mod eds;
 pub mod emcy;
 pub mod frame;

@@ -33,7 +33,7 @@ use crate::sdo::{self, SdoClient, SdoError};
 use crate::settings::CanopenSettings;
 use crate::sync;
 use ehactl_hal::Measurements;
-use ehactl_log::logger::CanFrameRecord;
+use ehactl_types::frames::CanFrameRecord;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

@@ -285,12 +285,10 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
     }
     // The CLI's bounded read of user input: a regular file of at most 10 000 MB; a FIFO,
     // /dev/zero or a directory is refused without blocking.
-    let data =
-        match ehactl_hal::input::read_bounded(input, ehactl_hal::input::DATA_MAX_BYTES, "MCAP log")
-        {
-            Ok(d) => d,
-            Err(e) => return config_error(format!("recover: {e}")),
-        };
+    let data = match ehactl_input::read_bounded(input, ehactl_input::DATA_MAX_BYTES, "MCAP log") {
+        Ok(d) => d,
+        Err(e) => return config_error(format!("recover: {e}")),
+    };
     // A log a running ehactl still holds the lock of is being written: what is read is a
     // snapshot of it, said so (the writer's lock, ehactl_log::logger).
     let writer_active = ehactl_log::logger::is_locked(input);

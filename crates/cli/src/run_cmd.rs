@@ -9,15 +9,12 @@ use crate::{
     sig, stop_flag,
 };
 use ehactl_config::{ControlMode, RigConfig};
-use ehactl_hal::sim::SimHal;
 use ehactl_hal::Hal;
-use ehactl_log::logger::{LogTap, Overflow};
+use ehactl_log::logger::LogTap;
 use ehactl_runtime::control_socket::{ControlServer, StartError};
 use ehactl_runtime::live::LiveParams;
-use ehactl_runtime::realtime::{RtOptions, WallClockPacer};
 use ehactl_runtime::session::{
-    build_plant, run_sim, run_sim_live, run_with_live, Backend, Session, SessionError,
-    SessionOptions,
+    run_realtime, run_sim, run_sim_live, Session, SessionError, SessionOptions,
 };
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -243,7 +240,7 @@ fn execute(
         };
         let opts = session_options(args.duration, out, &stop, &mut progress, tap);
         let hardware = services.can_hal.as_mut().map(|h| h as &mut dyn Hal);
-        let r = run_realtime(cfg, opts, live_ref, hardware);
+        let r = run_realtime(cfg, opts, live_ref, hardware, Some(warn));
         finished.store(true, Ordering::Relaxed);
         let _ = watcher.join();
         r
@@ -282,38 +279,9 @@ fn session_options<'a>(
     }
 }
 
-/// The loop on the wall clock: against `hardware` (a CAN rig) or, without it, against the
-/// simulated plant paced in real time (hardware-in-the-loop rehearsal).
-fn run_realtime(
-    cfg: &RigConfig,
-    opts: SessionOptions<'_>,
-    live: Option<&LiveParams>,
-    hardware: Option<&mut dyn Hal>,
-) -> Result<Session, SessionError> {
-    let mut cfg_run = cfg.clone();
-    if let Some(d) = opts.duration {
-        cfg_run.run.duration = d;
-    }
-    let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
-    let mut sim;
-    let (hal, substeps): (&mut dyn Hal, u32) = match hardware {
-        Some(h) => (h, 0),
-        None => {
-            let substeps = plant.substeps();
-            sim = SimHal::new(plant);
-            (&mut sim, substeps)
-        }
-    };
-    let mut rt = RtOptions::from_config(&cfg.realtime);
-    rt.warn = Some(|msg: &str| eprintln!("ehactl: warning: {msg}"));
-    let mut pacer = WallClockPacer::new(cfg.timebase(), rt);
-    let backend = Backend {
-        hal,
-        pacer: &mut pacer,
-        overflow: Overflow::Drop,
-        substeps,
-    };
-    run_with_live(cfg, backend, opts, live)
+/// Warnings of the wall-clock pacer's set-up (SCHED_FIFO, mlockall, affinity refused).
+fn warn(msg: &str) {
+    eprintln!("ehactl: warning: {msg}");
 }
 
 /// Phase 4: the summary, as one JSON object (`--json`) or as text.

@@ -8,11 +8,11 @@ use ehactl_control::pd::PdGains;
 use ehactl_control::pi::PiGains;
 use ehactl_control::setpoint::{SetpointConfig, SetpointKind, Sweep};
 use ehactl_control::supervisor::SupervisorConfig;
-use ehactl_hal::Timebase;
 use ehactl_params_derive::Params;
 use ehactl_plant::spec::{self, ConfigError, Param};
 use ehactl_plant::PlantParams;
 use ehactl_types::canopen::{canopen_params, CanopenConfig};
+use ehactl_types::Timebase;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::LazyLock;
@@ -448,12 +448,9 @@ impl RigConfig {
     /// Load and validate a config file.
     pub fn load(path: &Path) -> Result<RigConfig, ConfigError> {
         // A regular file of at most 16 MB (a FIFO or /dev/zero is refused, never read).
-        let text = ehactl_hal::input::read_bounded_string(
-            path,
-            ehactl_hal::input::CONFIG_MAX_BYTES,
-            "config",
-        )
-        .map_err(|e| ConfigError::new(path.display().to_string(), e.reason))?;
+        let text =
+            ehactl_input::read_bounded_string(path, ehactl_input::CONFIG_MAX_BYTES, "config")
+                .map_err(|e| ConfigError::new(path.display().to_string(), e.reason))?;
         Self::from_toml_str(&text)
     }
 

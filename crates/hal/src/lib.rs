@@ -6,84 +6,24 @@
 //! - [`Hal`] and its error type,
 //! - [`pacer::Pacer`], what starts each cycle (simulated time or a wall-clock executor), and
 //!   the timing report it hands back,
+//! - [`clock`], the time sources (monotonic, manual, scripted) of the wall-clock pacer and
+//!   of the CANopen start-up and backend,
 //! - [`Timebase`], the one owner of the control period (built from `run.control_rate_hz`
-//!   and handed to the plant, the pacer and the backends),
-//! - [`sim::SimHal`], the in-process nonlinear plant advanced one control period per write,
-//! - [`input`], bounded reads of the user's input files (regular files of a capped size).
+//!   and handed to the plant, the pacer and the backends; defined in `ehactl-types` so that
+//!   the config reaches it without this crate, re-exported here).
 //!
-//! The cycle records, the MCAP logger, the JSON schemas and log recovery are in `ehactl-log`
-//! (crates/log); the measurement, plant-state and event types in `ehactl-types`.
+//! The contract is bare: it compiles neither the plant nor the logger. The simulated
+//! backend (`SimHal`, the plant behind this trait) is `ehactl_runtime::sim`; the cycle
+//! records, the MCAP logger, the JSON schemas and log recovery are in `ehactl-log`
+//! (crates/log); the measurement, plant-state, event, cycle-timing and frame-queue types in
+//! `ehactl-types`; bounded reads of user input files in `ehactl-input`.
 #![deny(missing_docs)]
 
-pub mod input;
+pub mod clock;
 pub mod pacer;
-pub mod sim;
 
-pub use ehactl_types::{Measurements, PlantState};
-
-/// The control period, owned in one place. Built once from the config's
-/// `run.control_rate_hz` and handed to the plant (its discretisation step), the pacer (its
-/// deadline grid) and the backends (SYNC period, staleness limits); the time of cycle `k` is
-/// `k · period` everywhere.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Timebase {
-    rate_hz: f64,
-    period_ns: u64,
-}
-
-impl Timebase {
-    /// A timebase at a rate the caller has validated (the config loader checks
-    /// `run.control_rate_hz` ∈ [1, 1e6] Hz). An unusable rate gives a non-finite or zero
-    /// period, which `Plant::configure` and the pacer reject; nothing here panics.
-    pub fn at_rate_hz(rate_hz: f64) -> Timebase {
-        let period_ns = 1e9 / rate_hz;
-        Timebase {
-            rate_hz,
-            period_ns: if period_ns.is_finite() && period_ns >= 1.0 {
-                period_ns.round() as u64
-            } else {
-                1
-            },
-        }
-    }
-
-    /// Control rate (Hz).
-    #[inline]
-    pub fn rate_hz(&self) -> f64 {
-        self.rate_hz
-    }
-
-    /// Control period (s), `1 / rate_hz`.
-    #[inline]
-    pub fn period(&self) -> f64 {
-        1.0 / self.rate_hz
-    }
-
-    /// Control period rounded to whole nanoseconds (ns), the wall-clock pacer's grid.
-    #[inline]
-    pub fn period_ns(&self) -> u64 {
-        self.period_ns
-    }
-
-    /// Time of cycle `k` (s) on the control grid.
-    #[inline]
-    pub fn time_of(&self, k: u64) -> f64 {
-        k as f64 * self.period()
-    }
-
-    /// Number of whole cycles in `duration` (s), rounded to the nearest cycle.
-    #[inline]
-    pub fn cycles_in(&self, duration: f64) -> u64 {
-        (duration * self.rate_hz).round().max(0.0) as u64
-    }
-
-    /// Whether a measured period (s) is off the nominal one by more than `tolerance`
-    /// (relative, -): used by backends to count late or early cycles.
-    #[inline]
-    pub fn is_off(&self, measured: f64, tolerance: f64) -> bool {
-        (measured - self.period()).abs() > tolerance * self.period()
-    }
-}
+pub use ehactl_types::frames::FrameLog;
+pub use ehactl_types::{Measurements, PlantState, Timebase};
 
 /// Why a backend could not complete a read or write. `Copy` so that it can be raised in
 /// the cycle without allocating.
@@ -154,8 +94,9 @@ pub trait Hal {
     }
 
     /// Raw bus frames to log (CAN backends): the session attaches this queue to the MCAP
-    /// logger, which writes every frame to the `/can` channel.
-    fn frame_log(&self) -> Option<std::sync::Arc<ehactl_log::logger::FrameLog>> {
+    /// logger, which writes every frame to the `/can` channel and every queued backend
+    /// event to `/events`.
+    fn frame_log(&self) -> Option<std::sync::Arc<FrameLog>> {
         None
     }
 

@@ -3,7 +3,8 @@
 //! to absolute deadlines on the [`crate::Timebase`] grid) and the timing report a wall-clock
 //! pacer hands back after the run (`--json` summary, MCAP `/summary`).
 
-use ehactl_log::record::{CycleTiming, Event};
+use ehactl_types::event::Event;
+use ehactl_types::timing::CycleTiming;
 use serde::Serialize;
 
 /// Waits for the start of each cycle. The simulated loop does not wait; the wall-clock

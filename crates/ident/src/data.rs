@@ -354,21 +354,15 @@ pub fn load_with(path: &Path, inputs: &[String]) -> Result<Record, DataError> {
     if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
         let source = path.display().to_string();
         // The whole log is held in memory: a regular file of at most 10 000 MB.
-        let bytes = ehactl_hal::input::read_bounded(
-            path,
-            ehactl_hal::input::DATA_MAX_BYTES,
-            "data (MCAP log)",
-        )
-        .map_err(|e| DataError(e.to_string()))?;
+        let bytes =
+            ehactl_input::read_bounded(path, ehactl_input::DATA_MAX_BYTES, "data (MCAP log)")
+                .map_err(|e| DataError(e.to_string()))?;
         parse_mcap_with(&source, &bytes, inputs)
     } else {
         // A regular file of at most 10 000 MB (a FIFO or /dev/zero is refused, never read).
-        let text = ehactl_hal::input::read_bounded_string(
-            path,
-            ehactl_hal::input::DATA_MAX_BYTES,
-            "data (CSV)",
-        )
-        .map_err(|e| DataError(e.to_string()))?;
+        let text =
+            ehactl_input::read_bounded_string(path, ehactl_input::DATA_MAX_BYTES, "data (CSV)")
+                .map_err(|e| DataError(e.to_string()))?;
         parse_csv_with(&path.display().to_string(), &text, inputs)
     }
 }

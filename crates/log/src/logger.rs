@@ -10,6 +10,7 @@ use crate::mcap_writer::{Compression, Writer};
 use crate::record::{control_schema, plant_schema, timing_schema, CycleRecord, Event};
 use crate::schemas;
 use crossbeam_queue::ArrayQueue;
+pub use ehactl_types::frames::{CanFrameRecord, FrameLog};
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -170,38 +171,19 @@ pub struct LogStats {
     pub frames_dropped: u64,
 }
 
-/// One raw CAN frame seen by a CAN backend (fixed size, no heap).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct CanFrameRecord {
-    /// Time relative to the start of the control loop (ns); negative during start-up.
-    pub t_ns: i64,
-    /// CAN identifier.
-    pub id: u32,
-    /// 29-bit identifier.
-    pub extended: bool,
-    /// Data length (bytes).
-    pub dlc: u8,
-    /// Data (bytes beyond `dlc` are zero).
-    pub data: [u8; 8],
-    /// Sent by this process (true) or received (false).
-    pub tx: bool,
-}
-
-impl CanFrameRecord {
-    /// JSON form for the `/can` channel:
-    /// `{"t": s, "id": int, "ext": bool, "dlc": int, "data": "hex", "dir": "rx"|"tx"}`.
-    pub fn to_json(&self) -> serde_json::Value {
-        let n = usize::from(self.dlc.min(8));
-        let hex: String = self.data[..n].iter().map(|b| format!("{b:02X}")).collect();
-        serde_json::json!({
-            "t": self.t_ns as f64 * 1e-9,
-            "id": self.id,
-            "ext": self.extended,
-            "dlc": self.dlc,
-            "data": hex,
-            "dir": if self.tx { "tx" } else { "rx" },
-        })
-    }
+/// JSON form of a frame for the `/can` channel:
+/// `{"t": s, "id": int, "ext": bool, "dlc": int, "data": "hex", "dir": "rx"|"tx"}`.
+fn can_frame_json(f: &CanFrameRecord) -> serde_json::Value {
+    let n = usize::from(f.dlc.min(8));
+    let hex: String = f.data[..n].iter().map(|b| format!("{b:02X}")).collect();
+    serde_json::json!({
+        "t": f.t_ns as f64 * 1e-9,
+        "id": f.id,
+        "ext": f.extended,
+        "dlc": f.dlc,
+        "data": hex,
+        "dir": if f.tx { "tx" } else { "rx" },
+    })
 }
 
 /// An event with text that is not known at compile time (a refused live change: the
@@ -275,65 +257,6 @@ impl NoteLog {
     }
 
     /// Notes dropped so far.
-    pub fn dropped(&self) -> u64 {
-        self.dropped.load(Ordering::Relaxed)
-    }
-}
-
-/// Bounded lock-free queues of raw CAN frames and backend events from a backend (its I/O
-/// threads and its cycle code) to the MCAP writer (`/can` and `/events`). Never blocks:
-/// when full the frame or event is dropped and counted.
-#[derive(Debug)]
-pub struct FrameLog {
-    queue: ArrayQueue<CanFrameRecord>,
-    events: ArrayQueue<Event>,
-    dropped: AtomicU64,
-    events_dropped: AtomicU64,
-}
-
-impl FrameLog {
-    /// Queue with room for `capacity` frames.
-    pub fn new(capacity: usize) -> FrameLog {
-        FrameLog {
-            queue: ArrayQueue::new(capacity.max(16)),
-            events: ArrayQueue::new(256),
-            dropped: AtomicU64::new(0),
-            events_dropped: AtomicU64::new(0),
-        }
-    }
-
-    /// Queue a backend event for `/events` (lock-free; counted as dropped if full).
-    #[inline]
-    pub fn push_event(&self, ev: Event) {
-        if self.events.push(ev).is_err() {
-            self.events_dropped.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-
-    /// Take the oldest backend event.
-    pub fn pop_event(&self) -> Option<Event> {
-        self.events.pop()
-    }
-
-    /// Backend events dropped so far.
-    pub fn events_dropped(&self) -> u64 {
-        self.events_dropped.load(Ordering::Relaxed)
-    }
-
-    /// Queue a frame (lock-free, allocation-free); counts it as dropped if full.
-    #[inline]
-    pub fn push(&self, rec: CanFrameRecord) {
-        if self.queue.push(rec).is_err() {
-            self.dropped.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-
-    /// Take the oldest frame.
-    pub fn pop(&self) -> Option<CanFrameRecord> {
-        self.queue.pop()
-    }
-
-    /// Frames dropped so far.
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
     }
@@ -708,7 +631,7 @@ impl Logger {
         &self.shared.failed
     }
 
-    /// Log every frame of `frames` to the `/can` channel (JSON, see [`CanFrameRecord::to_json`]).
+    /// Log every frame of `frames` to the `/can` channel (JSON, see `can_frame_json`).
     /// The channel is created when the first frame arrives; one source per logger.
     pub fn attach_frames(&self, frames: Arc<FrameLog>) {
         let _ = self.shared.frames.set(frames);
@@ -903,7 +826,7 @@ fn writer_loop(
         }
         if let Some(fl) = sh.frames.get() {
             // While closing, take what is queued now: the I/O threads may still be receiving.
-            let limit = if closing { fl.queue.len() } else { usize::MAX };
+            let limit = if closing { fl.len() } else { usize::MAX };
             let mut n = 0usize;
             while n < limit {
                 let Some(f) = fl.pop() else { break };
@@ -936,7 +859,7 @@ fn writer_loop(
                     frames_written as u32,
                     ns,
                     ns,
-                    f.to_json().to_string().as_bytes(),
+                    can_frame_json(&f).to_string().as_bytes(),
                 )
                 .map_err(io_error)?;
                 frames_written += 1;

@@ -5,6 +5,8 @@
 //!   each cycle by an [`ehactl_hal::pacer::Pacer`] (the trait sits beside `Hal`),
 //! - [`controller`]: the configured control law ([`controller::Controller`]), stepped by the
 //!   loop, its gains replaced by [`live`],
+//! - [`sim`]: the simulated backend ([`sim::SimHal`], the nonlinear plant behind the
+//!   `Hal` trait, one control period per write),
 //! - [`realtime`]: the wall-clock pacer (absolute deadlines, SCHED_FIFO, jitter statistics),
 //! - [`live`]: gain / setpoint changes while running (handed over at a cycle boundary),
 //! - [`control_socket`]: the Unix socket that feeds [`live`] (`ehactl set`),
@@ -20,3 +22,4 @@ pub mod live;
 pub mod realtime;
 pub mod runloop;
 pub mod session;
+pub mod sim;

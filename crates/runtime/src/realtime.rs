@@ -16,6 +16,7 @@
 //! and lock-free; the first call (start-up) applies the real-time settings, so that threads
 //! spawned before it (the MCAP writer) keep the normal scheduler.
 
+use ehactl_hal::clock::{Clock, MonotonicClock};
 use ehactl_hal::pacer::{Pacer, Quantiles, RtApplied, TimingReport};
 use ehactl_hal::Timebase;
 use ehactl_log::record::{CycleTiming, Event, EventKind, Severity};
@@ -273,89 +274,16 @@ pub struct TimingStats {
     pub skipped_deadlines: u64,
 }
 
-/// Time source of a [`WallClockPacer`]: [`Monotonic`] (CLOCK_MONOTONIC) in every run; tests
-/// substitute a scripted clock so that the pacer's decisions (overruns, skipped deadlines,
-/// no catch-up burst) are checked by counting, independent of how loaded the machine is.
-pub trait Clock {
-    /// Current time (ns, monotonic).
-    fn now_ns(&self) -> u64;
-    /// Sleep until the absolute time `t_ns` (ns, same clock as [`Clock::now_ns`]).
-    fn sleep_until(&self, t_ns: u64);
-    /// CPU time consumed by the calling thread so far (ns): it advances only while the
-    /// thread runs, so a cycle's wall time minus its CPU time is the time it was preempted.
-    fn thread_cpu_ns(&self) -> u64;
-}
-
-/// CLOCK_MONOTONIC, slept on with `clock_nanosleep(TIMER_ABSTIME)`.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Monotonic;
-
-impl Clock for Monotonic {
-    #[inline]
-    fn now_ns(&self) -> u64 {
-        monotonic_ns()
-    }
-    #[inline]
-    fn sleep_until(&self, t_ns: u64) {
-        sleep_until(t_ns)
-    }
-    #[inline]
-    fn thread_cpu_ns(&self) -> u64 {
-        clock_ns(libc::CLOCK_THREAD_CPUTIME_ID)
-    }
-}
-
-/// Current CLOCK_MONOTONIC time (ns).
-#[inline]
-pub fn monotonic_ns() -> u64 {
-    clock_ns(libc::CLOCK_MONOTONIC)
-}
-
-/// Current time of `clock` (ns): CLOCK_MONOTONIC or CLOCK_THREAD_CPUTIME_ID.
-#[inline]
-fn clock_ns(clock: libc::clockid_t) -> u64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: ts is a valid, writable timespec; both clocks always exist on Linux.
-    unsafe { libc::clock_gettime(clock, &mut ts) };
-    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
-}
-
-/// Sleep until the absolute CLOCK_MONOTONIC time `t_ns` (retries on EINTR, so a signal
-/// handler that only sets a flag does not shorten the cycle).
-#[inline]
-fn sleep_until(t_ns: u64) {
-    let ts = libc::timespec {
-        tv_sec: (t_ns / 1_000_000_000) as libc::time_t,
-        tv_nsec: (t_ns % 1_000_000_000) as libc::c_long,
-    };
-    loop {
-        // SAFETY: ts is a valid timespec; the remainder pointer may be null with TIMER_ABSTIME.
-        let rc = unsafe {
-            libc::clock_nanosleep(
-                libc::CLOCK_MONOTONIC,
-                libc::TIMER_ABSTIME,
-                &ts,
-                std::ptr::null_mut(),
-            )
-        };
-        if rc != libc::EINTR {
-            break;
-        }
-    }
-}
-
 /// Minimum spacing of overrun warning events in the log (ns of wall time): the first
 /// overrun of each second is logged (value = how late, s); all are counted in the stats
 /// and flagged per cycle on `/timing`.
 const OVERRUN_EVENT_SPACING_NS: u64 = 1_000_000_000;
 const EVENT_SLOTS: usize = 8;
 
-/// The wall-clock pacer (see the module docs), on CLOCK_MONOTONIC unless a test gives it
-/// another [`Clock`].
-pub struct WallClockPacer<C: Clock = Monotonic> {
+/// The wall-clock pacer (see the module docs), on CLOCK_MONOTONIC ([`MonotonicClock`])
+/// unless a test gives it another [`Clock`] (`ehactl_hal::clock::ScriptedClock`: the
+/// pacer's decisions checked by counting, whatever the machine's load).
+pub struct WallClockPacer<C: Clock = MonotonicClock> {
     clock: C,
     period_ns: u64,
     spin_ns: u64,
@@ -386,11 +314,11 @@ impl<C: Clock> std::fmt::Debug for WallClockPacer<C> {
     }
 }
 
-impl WallClockPacer<Monotonic> {
+impl WallClockPacer<MonotonicClock> {
     /// Pacer on the deadline grid of `timebase` (its period in whole ns). Nothing is
     /// applied until the first cycle.
     pub fn new(timebase: Timebase, opts: RtOptions) -> Self {
-        WallClockPacer::with_clock(timebase, opts, Monotonic)
+        WallClockPacer::with_clock(timebase, opts, MonotonicClock::new())
     }
 }
 
@@ -726,6 +654,7 @@ impl<C: Clock> Pacer for WallClockPacer<C> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ehactl_hal::clock::ScriptedClock;
 
     #[test]
     fn histogram_buckets_are_contiguous_and_tight() {
@@ -788,11 +717,12 @@ mod tests {
         // 500 cycles at 1 kHz must take ≥ 499 ms of monotonic time (deadlines are absolute:
         // the pacer can never run ahead), and every period sample is ≥ 0.
         let mut p = WallClockPacer::new(Timebase::at_rate_hz(1e3), RtOptions::default());
-        let t0 = monotonic_ns();
+        let clock = MonotonicClock::new();
+        let t0 = clock.now_ns();
         for k in 0..500 {
             assert!(p.wait_for_cycle(k));
         }
-        let elapsed = monotonic_ns() - t0;
+        let elapsed = clock.now_ns() - t0;
         assert!(elapsed >= 499_000_000, "elapsed {elapsed} ns");
         let s = p.stats();
         assert_eq!(s.jitter.count(), 500);
@@ -808,56 +738,15 @@ mod tests {
         );
     }
 
-    /// A scripted clock: time moves only when the test says so ([`Scripted::work`], the
-    /// cycle's execution) or when the pacer sleeps (to the requested time + `late_by`), so
-    /// every decision of the pacer is checked by counting, whatever the machine's load.
-    #[derive(Debug, Default)]
-    struct Scripted {
-        now: std::cell::Cell<u64>,
-        sleeps: std::cell::Cell<u64>,
-        /// A sleep returns this much after the requested time (ns): the thread was not
-        /// running when its deadline came.
-        late_by: std::cell::Cell<u64>,
-        /// Thread CPU time (ns): advanced by [`Scripted::work`] only.
-        cpu: std::cell::Cell<u64>,
-    }
-
-    impl Scripted {
-        /// The cycle's work takes `ns` of wall and CPU time.
-        fn work(&self, ns: u64) {
-            self.now.set(self.now.get() + ns);
-            self.cpu.set(self.cpu.get() + ns);
-        }
-        /// The thread is preempted inside the cycle for `ns` (wall time passes, CPU not).
-        fn preempted(&self, ns: u64) {
-            self.now.set(self.now.get() + ns);
-        }
-        /// The CPU clock jumps `ns` ahead of the wall clock: a migration to a core whose
-        /// scheduler clock is ahead.
-        fn cpu_clock_skew(&self, ns: u64) {
-            self.cpu.set(self.cpu.get() + ns);
-        }
-    }
-
-    impl Clock for Scripted {
-        fn now_ns(&self) -> u64 {
-            self.now.get()
-        }
-        fn sleep_until(&self, t_ns: u64) {
-            self.sleeps.set(self.sleeps.get() + 1);
-            self.now.set(self.now.get().max(t_ns) + self.late_by.get());
-        }
-        fn thread_cpu_ns(&self) -> u64 {
-            self.cpu.get()
-        }
-    }
-
     const MS: u64 = 1_000_000;
 
-    fn scripted(opts: RtOptions) -> WallClockPacer<Scripted> {
+    /// A pacer on a scripted clock (`ehactl_hal::clock::ScriptedClock`): time moves only
+    /// when the test says so (`work`, the cycle's execution) or when the pacer sleeps (to
+    /// the requested time + the lateness set), so every decision of the pacer is checked by
+    /// counting, whatever the machine's load.
+    fn scripted(opts: RtOptions) -> WallClockPacer<ScriptedClock> {
         // 10 ms period; the clock starts at 1 s.
-        let clock = Scripted::default();
-        clock.now.set(1_000 * MS);
+        let clock = ScriptedClock::at(1_000 * MS);
         WallClockPacer::with_clock(Timebase::at_rate_hz(100.0), opts, clock)
     }
 
@@ -964,9 +853,9 @@ mod tests {
         p.clock().work(4 * MS);
         // The thread is not running at deadline 1: its sleep returns 7 ms late. Cycle 1
         // then does 4 ms of work: 7 + 4 = 11 ms > 10 ms, an overrun of a cycle that fit.
-        p.clock().late_by.set(7 * MS);
+        p.clock().set_late_by(7 * MS);
         assert!(p.wait_for_cycle(1));
-        p.clock().late_by.set(0);
+        p.clock().set_late_by(0);
         assert_eq!(p.cycle_timing().unwrap().lateness_us, 7_000.0);
         p.clock().work(4 * MS);
         assert!(p.wait_for_cycle(2));
@@ -1000,11 +889,11 @@ mod tests {
         assert!(p.wait_for_cycle(0));
         let d0 = p.clock().now_ns();
         p.clock().work(25 * MS);
-        let sleeps = p.clock().sleeps.get();
+        let sleeps = p.clock().sleeps();
         assert!(p.wait_for_cycle(1));
         // Started at once (no sleep to the next grid point, 5 ms away), nothing skipped,
         // and the late start (15 ms after the deadline it missed) counts as jitter.
-        assert_eq!(p.clock().sleeps.get(), sleeps);
+        assert_eq!(p.clock().sleeps(), sleeps);
         assert_eq!(p.clock().now_ns(), d0 + 25 * MS);
         assert_eq!(p.stats().skipped_deadlines, 0);
         assert_eq!(p.stats().overruns, 1);

@@ -134,7 +134,7 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
     /// forwarded) and the live hand-over at the cycle boundary. Returns the pacer's timing of
     /// the cycle that starts.
     fn admit(&mut self) -> Result<Option<CycleTiming>, Ending> {
-        let (k, t) = (self.k, self.k as f64 * self.dt);
+        let (k, t) = (self.k, self.settings.timebase.time_of(self.k));
         if self
             .settings
             .stop
@@ -169,7 +169,7 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
     /// read (with the safe command it applied) or its command was computed.
     fn execute(&mut self, timing: Option<CycleTiming>) -> Result<(), Ending> {
         let (k, dt) = (self.k, self.dt);
-        let t = k as f64 * dt;
+        let t = self.settings.timebase.time_of(k);
         // The measured period handed to the backend (ros2_control's `period`): wall-clock
         // pacers measure it, simulated time has the nominal one.
         let period = timing
@@ -240,7 +240,7 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
     /// After the loop: the safe command to the valve, the end event (trip, signal or normal
     /// end) and the safe-stop event, and the outcome.
     fn finish(self, ending: Option<Ending>) -> RunOutcome {
-        let (k, end_t) = (self.k, self.k as f64 * self.dt);
+        let (k, end_t) = (self.k, self.settings.timebase.time_of(self.k));
         let safe = self.supervisor.safe_command();
         let safe_result = self.hal.safe_stop(safe);
         let (trip, interrupted) = match ending {

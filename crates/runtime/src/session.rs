@@ -1,15 +1,17 @@
-//! One complete simulated run: configure the plant, build the controller, supervisor and
-//! setpoint, run the loop in simulated time, log every cycle to MCAP and summarise.
+//! One complete run: configure the plant, build the controller, supervisor and setpoint,
+//! run the loop (in simulated time, [`run_sim`], or paced by the wall clock against the
+//! simulated plant or a rig, [`run_realtime`]), log every cycle to MCAP and summarise.
 //! Shared by the CLI and the Python bindings so both run exactly the same code.
 
 use crate::controller::Controller;
 use crate::live::LiveParams;
+use crate::realtime::{RtOptions, WallClockPacer};
 use crate::runloop::{run_loop, LoopSettings, RunOutcome};
+use crate::sim::SimHal;
 use ehactl_config::{Compression, ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
 use ehactl_hal::pacer::{Pacer, SimulatedTime, TimingReport};
-use ehactl_hal::sim::SimHal;
 use ehactl_hal::Hal;
 use ehactl_log::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
 use ehactl_log::record::CycleRecord;
@@ -206,6 +208,47 @@ pub fn run_sim_live(
         hal: &mut hal,
         pacer: &mut SimulatedTime,
         overflow: Overflow::Block,
+        substeps,
+    };
+    run_with_live(cfg, backend, opts, live)
+}
+
+/// Run `cfg` paced by the wall clock ([`WallClockPacer`] with the config's `[realtime]`
+/// settings; `warn` receives the set-up warnings): against `hardware` (a CAN rig the caller
+/// brought up) or, without it, against the simulated plant in real time
+/// (hardware-in-the-loop rehearsal). The logger drops and counts rather than waits, so the
+/// loop never blocks on the disk. The one composition of a paced run, for `ehactl run
+/// --realtime` and CAN runs.
+pub fn run_realtime(
+    cfg: &RigConfig,
+    opts: SessionOptions<'_>,
+    live: Option<&LiveParams>,
+    hardware: Option<&mut dyn Hal>,
+    warn: Option<fn(&str)>,
+) -> Result<Session, SessionError> {
+    let mut cfg_run = cfg.clone();
+    if let Some(d) = opts.duration {
+        cfg_run.run.duration = d;
+    }
+    // The plant is configured with hardware too: a plant section the plant refuses fails
+    // the run the same way with or without a rig.
+    let plant = build_plant(&cfg_run).map_err(SessionError::Config)?;
+    let mut sim;
+    let (hal, substeps): (&mut dyn Hal, u32) = match hardware {
+        Some(h) => (h, 0),
+        None => {
+            let substeps = plant.substeps();
+            sim = SimHal::new(plant);
+            (&mut sim, substeps)
+        }
+    };
+    let mut rt = RtOptions::from_config(&cfg.realtime);
+    rt.warn = warn;
+    let mut pacer = WallClockPacer::new(cfg.timebase(), rt);
+    let backend = Backend {
+        hal,
+        pacer: &mut pacer,
+        overflow: Overflow::Drop,
         substeps,
     };
     run_with_live(cfg, backend, opts, live)

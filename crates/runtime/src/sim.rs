@@ -1,6 +1,8 @@
-//! Simulation backend: the in-process nonlinear plant behind the [`Hal`] trait.
+//! Simulation backend: the in-process nonlinear plant behind the [`Hal`] trait. Here, beside
+//! the sessions that build it, rather than in `ehactl-hal`: the contract stays bare (no
+//! plant, no nalgebra), so that the CANopen backend compiles no physics.
 
-use crate::{Hal, HalError, Measurements, PlantState, Timebase};
+use ehactl_hal::{Hal, HalError, Measurements, PlantState, Timebase};
 use ehactl_plant::Plant;
 
 /// Relative deviation of a measured period from the nominal one above which a cycle is

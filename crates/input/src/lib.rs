@@ -1,3 +1,5 @@
+//! # ehactl-input
+//!
 //! Bounded reads of the files a user hands to ehactl (config TOML, EDS / DCF, `diagnose
 //! --data` CSV / MCAP): a regular file of at most a given size, or one clear error.
 //!
@@ -7,6 +9,11 @@
 //! (FIFO, character or block device, socket, directory) before reading, opens without
 //! blocking, and reads at most `max_bytes` (a file that grows past it while being read is
 //! refused too).
+//!
+//! A crate of its own (only `libc` below it), so that the config loader, the CANopen EDS
+//! reader, `ehactl diagnose` and the Python bindings read input files without compiling the
+//! hardware contract or the logger.
+#![deny(missing_docs)]
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
