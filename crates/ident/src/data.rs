@@ -313,6 +313,11 @@ pub fn is_motion_only(path: &Path) -> Option<bool> {
 fn mcap_is_motion_only(path: &Path) -> Option<bool> {
     use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
     use std::io::Read;
+    // Only a regular file is opened here: a FIFO would block the open, a device never end
+    // (the full load refuses both with a clear error).
+    if !std::fs::metadata(path).ok()?.is_file() {
+        return None;
+    }
     let mut file = std::fs::File::open(path).ok()?;
     let mut reader = LinearReader::new();
     let mut topics: std::collections::HashMap<u16, String> = Default::default();
