@@ -554,7 +554,9 @@ impl CanopenHal {
         Ok(())
     }
 
-    /// Handle one received frame in the cycle.
+    /// Handle one received frame in the cycle, by its function code (CiA 301 predefined
+    /// connection set): TPDO1, heartbeat, EMCY of the two devices; a late SDO response or
+    /// any other COB-ID is counted and ignored.
     /// `rx_ns`: its receive time ([`IoShared::mono`]), from which the heartbeat consumer's
     /// window runs.
     #[inline]
@@ -572,10 +574,6 @@ impl CanopenHal {
         }
         let (base, node) = (id & 0x780, id & 0x7F);
         let dev = self.dev_of(node);
-        let wrong_dlc = |me: &mut Self, what: &'static str| {
-            me.wrong_dlc += 1;
-            me.warn(t, what, f64::from(id), me.wrong_dlc);
-        };
         if base as u16 == TPDO1_BASE {
             if let Some(d) = dev {
                 self.pdo_age(d, t)?;
@@ -583,123 +581,14 @@ impl CanopenHal {
         }
         match (base as u16, dev) {
             (TPDO1_BASE, Some(Dev::Transducer)) => {
-                if f.dlc != 4 {
-                    wrong_dlc(self, "wrong DLC on transducer TPDO1 (expected 4), ignored");
-                } else {
-                    self.meas.position = cia406::position_m(
-                        pdo::get_i32(&f.data, 0, 4),
-                        self.s.canopen.position_step_nm,
-                    );
-                    self.meas.t = t;
-                    self.first_tpdo = true;
-                }
+                self.on_transducer_tpdo(f, t);
+                Ok(())
             }
             (TPDO1_BASE, Some(Dev::Valve)) if self.s.canopen.valve_status_pdo => {
-                if f.dlc != 4 {
-                    wrong_dlc(self, "wrong DLC on valve TPDO1 (expected 4), ignored");
-                } else {
-                    let sw = pdo::get_u16(&f.data, 0);
-                    self.meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
-                    let st = ValveState::from_status(sw);
-                    self.valve_state = Some(st);
-                    match st {
-                        ValveState::Active => {}
-                        ValveState::FaultReaction => {
-                            return Err(self.trip(
-                                t,
-                                u32::from(sw),
-                                "valve reports FAULT_REACTION (status word)",
-                                f64::from(sw),
-                                "status word",
-                            ))
-                        }
-                        s if s.is_fault() => {
-                            return Err(self.trip(
-                                t,
-                                u32::from(sw),
-                                "valve reports a fault state (status word)",
-                                f64::from(sw),
-                                "status word",
-                            ))
-                        }
-                        _ => {
-                            return Err(self.trip(
-                                t,
-                                u32::from(sw),
-                                "valve left ACTIVE (status word)",
-                                f64::from(sw),
-                                "status word",
-                            ))
-                        }
-                    }
-                }
+                self.on_valve_tpdo(f, t)
             }
-            (HEARTBEAT_BASE, Some(d)) => {
-                if f.dlc != 1 {
-                    wrong_dlc(self, "wrong DLC on heartbeat (expected 1), ignored");
-                    return Ok(());
-                }
-                let st = NmtState::from_byte(f.data[0]);
-                let ev = st.and_then(|s| self.hb[d as usize].on_heartbeat(s, rx_ns));
-                match (st, ev, d) {
-                    (None, _, _) => {
-                        self.unknown += 1;
-                        self.warn(
-                            t,
-                            "heartbeat with an undefined NMT state, ignored",
-                            f64::from(id),
-                            self.unknown,
-                        );
-                    }
-                    (Some(NmtState::Operational), _, _) => {}
-                    (Some(s), _, dev) => {
-                        let (what, value, unit) = match (s, dev) {
-                            (NmtState::BootUp, Dev::Valve) => (
-                                "valve rebooted (boot-up during the run)",
-                                f64::from(node),
-                                "node",
-                            ),
-                            (NmtState::BootUp, Dev::Transducer) => (
-                                "transducer rebooted (boot-up during the run)",
-                                f64::from(node),
-                                "node",
-                            ),
-                            (_, Dev::Valve) => (
-                                "valve left NMT OPERATIONAL",
-                                f64::from(s as u8 as u32),
-                                "NMT state",
-                            ),
-                            (_, Dev::Transducer) => (
-                                "transducer left NMT OPERATIONAL",
-                                f64::from(s as u8 as u32),
-                                "NMT state",
-                            ),
-                        };
-                        return Err(self.trip(t, node, what, value, unit));
-                    }
-                }
-            }
-            (EMCY_BASE, Some(d)) if node != 0 => match Emcy::parse(node as u8, f.payload()) {
-                Err(_) => wrong_dlc(self, "wrong DLC on EMCY (expected 8), ignored"),
-                Ok(e) if e.is_reset() => {
-                    self.warn(t, "EMCY error reset (code 0x0000)", f64::from(id), 0);
-                }
-                Ok(e) => {
-                    self.emcy_count += 1;
-                    self.last_emcy = Some(e);
-                    let what = match d {
-                        Dev::Valve => "EMCY from the valve",
-                        Dev::Transducer => "EMCY from the transducer",
-                    };
-                    return Err(self.trip(
-                        t,
-                        u32::from(e.code),
-                        what,
-                        f64::from(e.code),
-                        "EMCY code",
-                    ));
-                }
-            },
+            (HEARTBEAT_BASE, Some(d)) => self.on_heartbeat(f, t, rx_ns, d),
+            (EMCY_BASE, Some(d)) if node != 0 => self.on_emcy(f, t, d),
             (0x580, Some(_)) => {
                 // A late SDO response (e.g. after a start-up timeout): harmless.
                 self.unknown += 1;
@@ -709,10 +598,126 @@ impl CanopenHal {
                     f64::from(id),
                     self.unknown,
                 );
+                Ok(())
             }
             _ => {
                 self.unknown += 1;
                 self.warn(t, "unknown COB-ID, ignored", f64::from(id), self.unknown);
+                Ok(())
+            }
+        }
+    }
+
+    /// A frame of a known kind with another length: counted, warned, ignored.
+    #[inline]
+    fn wrong_dlc(&mut self, f: &CanFrame, t: f64, what: &'static str) {
+        self.wrong_dlc += 1;
+        self.warn(t, what, f64::from(f.id), self.wrong_dlc);
+    }
+
+    /// The transducer's TPDO1 (CiA 406 position 0x6020:01, 4 bytes): the cycle's position.
+    #[inline]
+    fn on_transducer_tpdo(&mut self, f: &CanFrame, t: f64) {
+        if f.dlc != 4 {
+            self.wrong_dlc(f, t, "wrong DLC on transducer TPDO1 (expected 4), ignored");
+        } else {
+            self.meas.position =
+                cia406::position_m(pdo::get_i32(&f.data, 0, 4), self.s.canopen.position_step_nm);
+            self.meas.t = t;
+            self.first_tpdo = true;
+        }
+    }
+
+    /// The valve's TPDO1 (CiA 408 status word 0x6041 + actual spool 0x6301:01): the spool
+    /// position; any device control state but ACTIVE trips.
+    #[inline]
+    fn on_valve_tpdo(&mut self, f: &CanFrame, t: f64) -> Result<(), HalError> {
+        if f.dlc != 4 {
+            self.wrong_dlc(f, t, "wrong DLC on valve TPDO1 (expected 4), ignored");
+            return Ok(());
+        }
+        let sw = pdo::get_u16(&f.data, 0);
+        self.meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
+        let st = ValveState::from_status(sw);
+        self.valve_state = Some(st);
+        let what = match st {
+            ValveState::Active => return Ok(()),
+            ValveState::FaultReaction => "valve reports FAULT_REACTION (status word)",
+            s if s.is_fault() => "valve reports a fault state (status word)",
+            _ => "valve left ACTIVE (status word)",
+        };
+        Err(self.trip(t, u32::from(sw), what, f64::from(sw), "status word"))
+    }
+
+    /// A heartbeat of device `d` (CiA 301 error control, 1 byte NMT state): fed to its
+    /// consumer; a boot-up or any state but OPERATIONAL trips.
+    #[inline]
+    fn on_heartbeat(&mut self, f: &CanFrame, t: f64, rx_ns: i64, d: Dev) -> Result<(), HalError> {
+        if f.dlc != 1 {
+            self.wrong_dlc(f, t, "wrong DLC on heartbeat (expected 1), ignored");
+            return Ok(());
+        }
+        let node = f.id & 0x7F;
+        let st = NmtState::from_byte(f.data[0]);
+        let ev = st.and_then(|s| self.hb[d as usize].on_heartbeat(s, rx_ns));
+        match (st, ev, d) {
+            (None, _, _) => {
+                self.unknown += 1;
+                self.warn(
+                    t,
+                    "heartbeat with an undefined NMT state, ignored",
+                    f64::from(f.id),
+                    self.unknown,
+                );
+            }
+            (Some(NmtState::Operational), _, _) => {}
+            (Some(s), _, dev) => {
+                let (what, value, unit) = match (s, dev) {
+                    (NmtState::BootUp, Dev::Valve) => (
+                        "valve rebooted (boot-up during the run)",
+                        f64::from(node),
+                        "node",
+                    ),
+                    (NmtState::BootUp, Dev::Transducer) => (
+                        "transducer rebooted (boot-up during the run)",
+                        f64::from(node),
+                        "node",
+                    ),
+                    (_, Dev::Valve) => (
+                        "valve left NMT OPERATIONAL",
+                        f64::from(s as u8 as u32),
+                        "NMT state",
+                    ),
+                    (_, Dev::Transducer) => (
+                        "transducer left NMT OPERATIONAL",
+                        f64::from(s as u8 as u32),
+                        "NMT state",
+                    ),
+                };
+                return Err(self.trip(t, node, what, value, unit));
+            }
+        }
+        Ok(())
+    }
+
+    /// An EMCY of device `d` (CiA 301, 8 bytes): an error reset is warned, any other code
+    /// trips.
+    #[inline]
+    fn on_emcy(&mut self, f: &CanFrame, t: f64, d: Dev) -> Result<(), HalError> {
+        let node = f.id & 0x7F;
+        match Emcy::parse(node as u8, f.payload()) {
+            Err(_) => self.wrong_dlc(f, t, "wrong DLC on EMCY (expected 8), ignored"),
+            Ok(e) if e.is_reset() => {
+                self.warn(t, "EMCY error reset (code 0x0000)", f64::from(f.id), 0);
+            }
+            Ok(e) => {
+                self.emcy_count += 1;
+                self.last_emcy = Some(e);
+                let what = match d {
+                    Dev::Valve => "EMCY from the valve",
+                    Dev::Transducer => "EMCY from the transducer",
+                };
+                return Err(self.trip(t, u32::from(e.code), what, f64::from(e.code), "EMCY code"));
             }
         }
         Ok(())

@@ -33,6 +33,7 @@ use crate::sdo::{self, SdoClient, SdoError};
 use crate::settings::CanopenSettings;
 use crate::sync;
 use ehactl_hal::Measurements;
+use ehactl_types::canopen::CanopenConfig;
 use ehactl_types::frames::CanFrameRecord;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -370,217 +371,261 @@ impl DevicePlan {
 }
 
 impl Plan {
-    /// Build the plan from the settings and the device files (no bus).
+    /// Build the plan from the settings and the device files (no bus). The phases follow
+    /// the order in which the objects are written at start-up: the device's own DCF
+    /// settings, then CiA 301 communication objects (error control, SYNC), then the profile
+    /// objects and PDOs of CiA 406 (transducer) and CiA 408 (valve); last, a check that
+    /// ehactl overrides no DCF value.
     pub fn new(s: &CanopenSettings) -> Result<Plan, StartupError> {
         let c = &s.canopen;
-        let base = s.config_dir.as_deref();
-        let load = |dev: Dev| -> Result<Eds, StartupError> {
-            let (path, builtin, name) = match dev {
-                Dev::Transducer => (
-                    &c.transducer_eds,
-                    BUILTIN_TRANSDUCER_EDS,
-                    "built-in ehactl_transducer_406.eds",
-                ),
-                Dev::Valve => (
-                    &c.valve_eds,
-                    BUILTIN_VALVE_EDS,
-                    "built-in ehactl_valve_408.eds",
-                ),
-            };
-            Eds::from_config(path, base, builtin, name)
-                .map_err(|e| settings_err(format!("{}: {e}", dev.config_key())))
+        // Both files are read before either error is looked at (transducer's first).
+        let [t, v] = [Dev::Transducer, Dev::Valve].map(|dev| DevicePlan::load(s, dev));
+        let (mut t, mut v) = (t?, v?);
+        for p in [&mut t, &mut v] {
+            p.plan_dcf_settings()?;
+            p.plan_error_control(c)?;
+            p.plan_sync_objects(c)?;
+        }
+        t.plan_transducer_profile(c)?;
+        v.plan_valve_profile()?;
+        v.plan_valve_pdos(c)?;
+        for p in [&t, &v] {
+            p.check_dcf_not_overridden()?;
+        }
+        Ok(Plan { devices: [t, v] })
+    }
+}
+
+impl DevicePlan {
+    /// The device's EDS / DCF (the config's file or the built-in one), checked against the
+    /// config: the DCF's node id, the CiA profile in the device type 0x1000 (CiA 301
+    /// 7.5.2.1), and the identity 0x1018:01 / :02 to check on the bus. No steps yet.
+    fn load(s: &CanopenSettings, dev: Dev) -> Result<DevicePlan, StartupError> {
+        let c = &s.canopen;
+        let (path, builtin, name) = match dev {
+            Dev::Transducer => (
+                &c.transducer_eds,
+                BUILTIN_TRANSDUCER_EDS,
+                "built-in ehactl_transducer_406.eds",
+            ),
+            Dev::Valve => (
+                &c.valve_eds,
+                BUILTIN_VALVE_EDS,
+                "built-in ehactl_valve_408.eds",
+            ),
         };
-        let mut devices = [Dev::Transducer, Dev::Valve].map(|dev| -> Result<DevicePlan, StartupError> {
-            let eds = load(dev)?;
-            let (node, profile) = match dev {
-                Dev::Transducer => (c.transducer_node_id, cia406::PROFILE),
-                Dev::Valve => (c.valve_node_id, cia408::PROFILE),
-            };
-            if let Some(dcf) = eds.dcf_node_id.filter(|n| *n != 0 && *n != node) {
+        let eds = Eds::from_config(path, s.config_dir.as_deref(), builtin, name)
+            .map_err(|e| settings_err(format!("{}: {e}", dev.config_key())))?;
+        let (node, profile) = match dev {
+            Dev::Transducer => (c.transducer_node_id, cia406::PROFILE),
+            Dev::Valve => (c.valve_node_id, cia408::PROFILE),
+        };
+        if let Some(dcf) = eds.dcf_node_id.filter(|n| *n != 0 && *n != node) {
+            return Err(settings_err(format!(
+                "{} ({}): the DCF is for node {dcf}, the config has {} node id {node}",
+                eds.source,
+                dev.config_key(),
+                dev.name()
+            )));
+        }
+        match eds.default_number(0x1000, 0, node) {
+            Some(dt) if dt & 0xFFFF == i128::from(profile) => {}
+            other => {
                 return Err(settings_err(format!(
-                    "{} ({}): the DCF is for node {dcf}, the config has {} node id {node}",
+                    "{} ({}): device type 0x1000 = {} is no CiA {profile} device; expected the {}'s file",
                     eds.source,
                     dev.config_key(),
+                    other.map_or("(missing)".into(), |v| format!("0x{v:08X}")),
                     dev.name()
-                )));
-            }
-            match eds.default_number(0x1000, 0, node) {
-                Some(dt) if dt & 0xFFFF == i128::from(profile) => {}
-                other => {
-                    return Err(settings_err(format!(
-                        "{} ({}): device type 0x1000 = {} is no CiA {profile} device; expected the {}'s file",
-                        eds.source,
-                        dev.config_key(),
-                        other.map_or("(missing)".into(), |v| format!("0x{v:08X}")),
-                        dev.name()
-                    )))
-                }
-            }
-            let identity = (
-                eds.vendor.or_else(|| eds.default_number(0x1018, 1, node).map(|v| v as u32)),
-                eds.product.or_else(|| eds.default_number(0x1018, 2, node).map(|v| v as u32)),
-            );
-            Ok(DevicePlan {
-                dev,
-                node,
-                eds,
-                profile,
-                identity,
-                steps: Vec::new(),
-            })
-        });
-        let [t, v] = &mut devices;
-        let (mut t, mut v) = (
-            std::mem::replace(t, Err(StartupError::Settings(String::new())))?,
-            std::mem::replace(v, Err(StartupError::Settings(String::new())))?,
-        );
-        // Objects ehactl itself configures: a DCF value for them must agree (checked below).
-        let sync_period_us = (1e6 / c.sync_rate_hz).round() as u32;
-        for p in [&mut t, &mut v] {
-            // 1. Device-specific settings of a DCF (ParameterValue), in index order.
-            let dcf: Vec<(u16, u8, Vec<u8>, String)> = p
-                .eds
-                .parameter_values()
-                .map(|((i, sub), o)| {
-                    p.eds
-                        .encode(i, sub, o.parameter_value.as_deref().unwrap_or(""), p.node)
-                        .map(|b| (i, sub, b, o.name.clone()))
-                })
-                .collect::<Result<_, _>>()
-                .map_err(settings_err)?;
-            for (i, sub, b, name) in dcf {
-                p.push(i, sub, b, StepKind::Ensure, format!("DCF setting {name}"))?;
-            }
-            let name = p.dev.name();
-            // 2. Error control: heartbeat producer, consumer of ehactl's heartbeat.
-            p.push(
-                0x1017,
-                0,
-                c.heartbeat_ms.to_le_bytes().to_vec(),
-                StepKind::Ensure,
-                format!("setting the {name} heartbeat producer time"),
-            )?;
-            // The valve moves the load: it must detect a dead ehactl (its fault reaction), so
-            // its consumer is mandatory. A sensor's is used where the device has it, decided
-            // from what the device answers (an EDS may describe another make or revision).
-            let consumer =
-                (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
-            let what = format!("setting the {name} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)");
-            match (p.dev, p.eds.get(0x1016, 1).is_some()) {
-                (Dev::Valve, false) => {
-                    return Err(settings_err(format!(
-                        "{} ({}): the {name} has no heartbeat consumer 0x1016:01, so it cannot detect a dead ehactl (canopen.device_heartbeat_timeout_ms) and stop the load; ehactl refuses to drive it",
-                        p.eds.source,
-                        p.dev.config_key()
-                    )));
-                }
-                (dev, true) => {
-                    p.push(
-                        0x1016,
-                        1,
-                        consumer.to_le_bytes().to_vec(),
-                        StepKind::Ensure,
-                        what,
-                    )?;
-                    if dev == Dev::Transducer {
-                        p.if_device_has();
-                    }
-                }
-                (Dev::Transducer, false) => {
-                    // Not in the file: still asked, as CiA 301 defines it (UNSIGNED32, rw).
-                    p.steps.push(Step {
-                        index: 0x1016,
-                        sub: 1,
-                        value: consumer.to_le_bytes().to_vec(),
-                        access: Access::Rw,
-                        kind: StepKind::Ensure,
-                        what,
-                        optional: false,
-                        if_device_has: true,
-                    });
-                }
-            }
-            // 3. SYNC objects where the file has them (CiA 301 7.5.2.6/7/22): 0x1019 may only
-            //    change while 0x1006 = 0, so the period is cleared first.
-            if p.eds.get(0x1006, 0).is_some_and(|o| o.access.writable()) {
-                p.push(
-                    0x1006,
-                    0,
-                    0u32.to_le_bytes().to_vec(),
-                    StepKind::Ensure,
-                    "clearing the communication cycle period 0x1006 (before 0x1019)",
-                )?;
-                p.optional();
-            }
-            if p.eds.get(0x1019, 0).is_some() {
-                p.push(
-                    0x1019,
-                    0,
-                    vec![c.sync_counter_overflow],
-                    StepKind::Ensure,
-                    "setting the SYNC counter overflow 0x1019 (canopen.sync_counter_overflow)",
-                )?;
-                if c.sync_counter_overflow == 0 {
-                    p.optional();
-                }
-            } else if c.sync_counter_overflow != 0 {
-                return Err(settings_err(format!(
-                    "{} ({}): canopen.sync_counter_overflow = {} but the {name} has no 0x1019 (its SYNC consumer expects SYNC without counter); set it to 0",
-                    p.eds.source,
-                    p.dev.config_key(),
-                    c.sync_counter_overflow
-                )));
-            }
-            if p.eds.get(0x1007, 0).is_some() {
-                p.push(
-                    0x1007,
-                    0,
-                    c.sync_window_us.to_le_bytes().to_vec(),
-                    StepKind::Ensure,
-                    "setting the synchronous window 0x1007 (canopen.sync_window_us)",
-                )?;
-                if c.sync_window_us == 0 {
-                    p.optional();
-                }
-            }
-            if p.eds.get(0x1006, 0).is_some() {
-                p.push(
-                    0x1006,
-                    0,
-                    sync_period_us.to_le_bytes().to_vec(),
-                    StepKind::Ensure,
-                    "setting the communication cycle period 0x1006 (µs, 1 / canopen.sync_rate_hz)",
-                )?;
-                p.optional();
+                )))
             }
         }
-        // 4. Profile objects.
-        let tr = t.node;
-        t.push(
+        let identity = (
+            eds.vendor
+                .or_else(|| eds.default_number(0x1018, 1, node).map(|v| v as u32)),
+            eds.product
+                .or_else(|| eds.default_number(0x1018, 2, node).map(|v| v as u32)),
+        );
+        Ok(DevicePlan {
+            dev,
+            node,
+            eds,
+            profile,
+            identity,
+            steps: Vec::new(),
+        })
+    }
+
+    /// 1. Device-specific settings of a DCF (ParameterValue), in index order.
+    fn plan_dcf_settings(&mut self) -> Result<(), StartupError> {
+        let dcf: Vec<(u16, u8, Vec<u8>, String)> = self
+            .eds
+            .parameter_values()
+            .map(|((i, sub), o)| {
+                self.eds
+                    .encode(
+                        i,
+                        sub,
+                        o.parameter_value.as_deref().unwrap_or(""),
+                        self.node,
+                    )
+                    .map(|b| (i, sub, b, o.name.clone()))
+            })
+            .collect::<Result<_, _>>()
+            .map_err(settings_err)?;
+        for (i, sub, b, name) in dcf {
+            self.push(i, sub, b, StepKind::Ensure, format!("DCF setting {name}"))?;
+        }
+        Ok(())
+    }
+
+    /// 2. Error control (CiA 301 heartbeat): the device's heartbeat producer 0x1017, its
+    ///    consumer 0x1016:01 of ehactl's heartbeat.
+    fn plan_error_control(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
+        let name = self.dev.name();
+        self.push(
+            0x1017,
+            0,
+            c.heartbeat_ms.to_le_bytes().to_vec(),
+            StepKind::Ensure,
+            format!("setting the {name} heartbeat producer time"),
+        )?;
+        // The valve moves the load: it must detect a dead ehactl (its fault reaction), so
+        // its consumer is mandatory. A sensor's is used where the device has it, decided
+        // from what the device answers (an EDS may describe another make or revision).
+        let consumer =
+            (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
+        let what = format!("setting the {name} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)");
+        match (self.dev, self.eds.get(0x1016, 1).is_some()) {
+            (Dev::Valve, false) => {
+                return Err(settings_err(format!(
+                    "{} ({}): the {name} has no heartbeat consumer 0x1016:01, so it cannot detect a dead ehactl (canopen.device_heartbeat_timeout_ms) and stop the load; ehactl refuses to drive it",
+                    self.eds.source,
+                    self.dev.config_key()
+                )));
+            }
+            (dev, true) => {
+                self.push(
+                    0x1016,
+                    1,
+                    consumer.to_le_bytes().to_vec(),
+                    StepKind::Ensure,
+                    what,
+                )?;
+                if dev == Dev::Transducer {
+                    self.if_device_has();
+                }
+            }
+            (Dev::Transducer, false) => {
+                // Not in the file: still asked, as CiA 301 defines it (UNSIGNED32, rw).
+                self.steps.push(Step {
+                    index: 0x1016,
+                    sub: 1,
+                    value: consumer.to_le_bytes().to_vec(),
+                    access: Access::Rw,
+                    kind: StepKind::Ensure,
+                    what,
+                    optional: false,
+                    if_device_has: true,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// 3. SYNC objects where the file has them (CiA 301 7.5.2.6/7/22): 0x1019 may only
+    ///    change while 0x1006 = 0, so the period is cleared first.
+    fn plan_sync_objects(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
+        let name = self.dev.name();
+        let sync_period_us = (1e6 / c.sync_rate_hz).round() as u32;
+        if self.eds.get(0x1006, 0).is_some_and(|o| o.access.writable()) {
+            self.push(
+                0x1006,
+                0,
+                0u32.to_le_bytes().to_vec(),
+                StepKind::Ensure,
+                "clearing the communication cycle period 0x1006 (before 0x1019)",
+            )?;
+            self.optional();
+        }
+        if self.eds.get(0x1019, 0).is_some() {
+            self.push(
+                0x1019,
+                0,
+                vec![c.sync_counter_overflow],
+                StepKind::Ensure,
+                "setting the SYNC counter overflow 0x1019 (canopen.sync_counter_overflow)",
+            )?;
+            if c.sync_counter_overflow == 0 {
+                self.optional();
+            }
+        } else if c.sync_counter_overflow != 0 {
+            return Err(settings_err(format!(
+                "{} ({}): canopen.sync_counter_overflow = {} but the {name} has no 0x1019 (its SYNC consumer expects SYNC without counter); set it to 0",
+                self.eds.source,
+                self.dev.config_key(),
+                c.sync_counter_overflow
+            )));
+        }
+        if self.eds.get(0x1007, 0).is_some() {
+            self.push(
+                0x1007,
+                0,
+                c.sync_window_us.to_le_bytes().to_vec(),
+                StepKind::Ensure,
+                "setting the synchronous window 0x1007 (canopen.sync_window_us)",
+            )?;
+            if c.sync_window_us == 0 {
+                self.optional();
+            }
+        }
+        if self.eds.get(0x1006, 0).is_some() {
+            self.push(
+                0x1006,
+                0,
+                sync_period_us.to_le_bytes().to_vec(),
+                StepKind::Ensure,
+                "setting the communication cycle period 0x1006 (µs, 1 / canopen.sync_rate_hz)",
+            )?;
+            self.optional();
+        }
+        Ok(())
+    }
+
+    /// 4. CiA 406 profile objects of the transducer: position step 0x6005:01, cyclic timer
+    ///    off (position sent on SYNC only), TPDO1 = position 0x6020:01.
+    fn plan_transducer_profile(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
+        let tr = self.node;
+        self.push(
             cia406::POSITION_STEP,
             1,
             c.position_step_nm.to_le_bytes().to_vec(),
             StepKind::Ensure,
             "setting the transducer position step 0x6005:01 (canopen.position_step_nm)",
         )?;
-        if t.eds.get(cia406::CYCLIC_TIMER, 0).is_some() {
-            t.push(
+        if self.eds.get(cia406::CYCLIC_TIMER, 0).is_some() {
+            self.push(
                 cia406::CYCLIC_TIMER,
                 0,
                 0u16.to_le_bytes().to_vec(),
                 StepKind::Ensure,
                 "switching the transducer cyclic timer off (TPDO on SYNC)",
             )?;
-            t.optional();
+            self.optional();
         }
-        t.pdo(
+        self.pdo(
             TPDO1_COMM,
             TPDO1_MAP,
             TPDO1_BASE + u16::from(tr),
             &cia406::TPDO1_MAP,
             "the transducer TPDO1 (position 0x6020:01)",
-        )?;
-        let va = v.node;
+        )
+    }
+
+    /// 4. CiA 408 profile objects of the valve: device mode (setpoint from the bus),
+    ///    control mode (spool position, closed loop), a zero hold and spool setpoint; the
+    ///    device control objects (control word 0x6040, status word 0x6041) must exist.
+    fn plan_valve_profile(&mut self) -> Result<(), StartupError> {
         for (index, sub, bytes, what) in [
             (
                 cia408::DEVICE_MODE,
@@ -607,29 +652,36 @@ impl Plan {
                 "zeroing the valve spool setpoint",
             ),
         ] {
-            v.push(index, sub, bytes, StepKind::Ensure, what)?;
+            self.push(index, sub, bytes, StepKind::Ensure, what)?;
         }
         for (index, what) in [
             (cia408::CONTROL_WORD, "the valve control word 0x6040"),
             (cia408::STATUS_WORD, "the valve status word 0x6041"),
         ] {
-            v.obj(index, 0).map_err(|_| {
-                settings_err(format!("{}: no {what} in the valve's EDS", v.eds.source))
+            self.obj(index, 0).map_err(|_| {
+                settings_err(format!("{}: no {what} in the valve's EDS", self.eds.source))
             })?;
         }
-        if c.valve_rpdo_timeout_ms != 0 && v.eds.get(RPDO1_COMM, 5).is_some() {
+        Ok(())
+    }
+
+    /// 4. The valve's PDOs: RPDO1 deadline monitoring where the file has it, RPDO1 = spool
+    ///    setpoint 0x6300:01, TPDO1 = status word + actual spool, or TPDO1 disabled.
+    fn plan_valve_pdos(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
+        let va = self.node;
+        if c.valve_rpdo_timeout_ms != 0 && self.eds.get(RPDO1_COMM, 5).is_some() {
             // RPDO deadline monitoring (CiA 301 v4.2 7.5.2.35 sub 5): set before the RPDO is
             // re-mapped, so that the re-mapping's enable starts it.
-            v.push(
+            self.push(
                 RPDO1_COMM,
                 5,
                 c.valve_rpdo_timeout_ms.to_le_bytes().to_vec(),
                 StepKind::Ensure,
                 "setting the valve RPDO1 deadline 0x1400:05 (canopen.valve_rpdo_timeout_ms)",
             )?;
-            v.optional();
+            self.optional();
         }
-        v.pdo(
+        self.pdo(
             RPDO1_COMM,
             RPDO1_MAP,
             RPDO1_BASE + u16::from(va),
@@ -637,15 +689,15 @@ impl Plan {
             "the valve RPDO1 (spool setpoint 0x6300:01)",
         )?;
         if c.valve_status_pdo {
-            v.pdo(
+            self.pdo(
                 TPDO1_COMM,
                 TPDO1_MAP,
                 TPDO1_BASE + u16::from(va),
                 &cia408::TPDO1_MAP,
                 "the valve TPDO1 (status word 0x6041 + actual spool 0x6301:01)",
-            )?;
+            )
         } else {
-            v.push(
+            self.push(
                 TPDO1_COMM,
                 1,
                 (COB_ID_INVALID | u32::from(TPDO1_BASE + u16::from(va)))
@@ -653,32 +705,43 @@ impl Plan {
                     .to_vec(),
                 StepKind::Ensure,
                 "disabling the valve TPDO1 (canopen.valve_status_pdo = false)",
-            )?;
+            )
         }
-        // A DCF value that ehactl overrides would be silently lost: refuse it.
-        for p in [&t, &v] {
-            for ((i, sub), o) in p.eds.parameter_values() {
-                let Some(last) = p.steps.iter().rev().find(|s| (s.index, s.sub) == (i, sub)) else {
-                    continue;
-                };
-                let dcf = p
-                    .eds
-                    .encode(i, sub, o.parameter_value.as_deref().unwrap_or(""), p.node)
-                    .map_err(settings_err)?;
-                if last.value != dcf {
-                    return Err(settings_err(format!(
-                        "{} ({}): the DCF sets 0x{i:04X}:{sub:02X} ({}) = {}, but ehactl sets it to {:02X?} ({}); remove the ParameterValue or change the config",
-                        p.eds.source,
-                        p.dev.config_key(),
-                        o.name,
-                        o.parameter_value.as_deref().unwrap_or(""),
-                        last.value,
-                        last.what
-                    )));
-                }
+    }
+
+    /// A DCF value that ehactl overrides would be silently lost: refuse it.
+    fn check_dcf_not_overridden(&self) -> Result<(), StartupError> {
+        for ((i, sub), o) in self.eds.parameter_values() {
+            let Some(last) = self
+                .steps
+                .iter()
+                .rev()
+                .find(|s| (s.index, s.sub) == (i, sub))
+            else {
+                continue;
+            };
+            let dcf = self
+                .eds
+                .encode(
+                    i,
+                    sub,
+                    o.parameter_value.as_deref().unwrap_or(""),
+                    self.node,
+                )
+                .map_err(settings_err)?;
+            if last.value != dcf {
+                return Err(settings_err(format!(
+                    "{} ({}): the DCF sets 0x{i:04X}:{sub:02X} ({}) = {}, but ehactl sets it to {:02X?} ({}); remove the ParameterValue or change the config",
+                    self.eds.source,
+                    self.dev.config_key(),
+                    o.name,
+                    o.parameter_value.as_deref().unwrap_or(""),
+                    last.value,
+                    last.what
+                )));
             }
         }
-        Ok(Plan { devices: [t, v] })
+        Ok(())
     }
 }
 

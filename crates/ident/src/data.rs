@@ -467,12 +467,6 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     check_line_lengths(source, text)?;
     let delim = detect_delimiter(text);
-    let decimal_comma = delim != b',';
-    let sep_name = match delim {
-        b';' => "`;`",
-        b'\t' => "tab",
-        _ => "`,`",
-    };
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(false)
         .delimiter(delim)
@@ -485,110 +479,262 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
         Ok(r) if r.len() == 1 && r[0].is_empty() => None,
         other => Some(other),
     });
-    let line_of = |r: &csv::StringRecord| r.position().map_or(0, |p| p.line() as usize);
-    let csv_err = |e: csv::Error| {
-        let at = e
-            .position()
-            .map_or(String::new(), |p| format!(" at line {}", p.line()));
-        DataError(format!("{source}: not a readable CSV file{at}: {e}"))
-    };
-    let header = records
-        .next()
-        .transpose()
-        .map_err(csv_err)?
-        .ok_or_else(|| DataError(format!("{source}: empty file; expected a CSV header row")))?;
-    let header_line = line_of(&header);
-    let names: Vec<String> = header.iter().map(|s| s.to_string()).collect();
-    const FORMAT: [&str; 9] = ["t", "u", "force", "x", "p_a", "p_b", "x_v", "ref", "v"];
-    let known: Vec<&str> = FORMAT
+    let h = CsvHeader::read(source, delim, &mut records)?;
+    let known: Vec<&str> = CSV_FORMAT
         .iter()
         .copied()
         .chain(inputs.iter().map(String::as_str))
         .collect();
-    // A column used by diagnose must be named once: which of two `p_a` is the measurement?
-    for (j, n) in names.iter().enumerate() {
-        if let Some(k) = names[..j].iter().position(|m| m == n) {
-            if known.contains(&n.as_str()) {
+    let map = CsvColumns::map(source, &h, &known)?;
+    let rows = CsvRows::read(source, &h, &known, records)?;
+    let off = rows.first_data_line.unwrap_or(h.line + 1);
+    let warnings = check_unknown_columns(source, &h, &known, &rows.numeric, inputs)?;
+    let cols = rows.cols;
+    let channels = map
+        .ich
+        .iter()
+        .map(|&(k, i)| Channel {
+            kind: k,
+            values: cols[i].clone(),
+        })
+        .collect();
+    let mut rec = Record::from_columns(
+        source,
+        cols[map.it].clone(),
+        map.iu.map_or_else(Vec::new, |i| cols[i].clone()),
+        channels,
+        map.iref.map(|i| cols[i].clone()),
+        off,
+    )?;
+    rec.warnings.extend(warnings);
+    let finite = |name: &str, v: &[f64]| -> Result<(), DataError> {
+        match v.iter().position(|x| !x.is_finite()) {
+            Some(k) => Err(DataError(format!(
+                "{source}: column `{name}` is not a finite number at line {} (sample {k}); expected SI values in every row",
+                k + off
+            ))),
+            None => Ok(()),
+        }
+    };
+    if let Some(i) = h.col("v") {
+        finite("v", &cols[i])?;
+        rec.velocity = Some(cols[i].clone());
+    }
+    for name in inputs {
+        if let Some(i) = h.col(name) {
+            finite(name, &cols[i])?;
+            rec.inputs.push((name.clone(), cols[i].clone()));
+        }
+    }
+    Ok(rec)
+}
+
+/// The columns of the record format (docs/design.md); with the declared operating inputs,
+/// the columns parsed as numbers, each of which may appear once.
+const CSV_FORMAT: [&str; 9] = ["t", "u", "force", "x", "p_a", "p_b", "x_v", "ref", "v"];
+
+/// Line of a CSV record in the text (1-based; 0 if unknown).
+fn csv_line(r: &csv::StringRecord) -> usize {
+    r.position().map_or(0, |p| p.line() as usize)
+}
+
+/// A reader error of the `csv` crate, with its line.
+fn csv_error(source: &str, e: csv::Error) -> DataError {
+    let at = e
+        .position()
+        .map_or(String::new(), |p| format!(" at line {}", p.line()));
+    DataError(format!("{source}: not a readable CSV file{at}: {e}"))
+}
+
+/// The header row of a CSV text and how the rows after it are read.
+struct CsvHeader {
+    /// Column names, in order.
+    names: Vec<String>,
+    /// Its line in the text.
+    line: usize,
+    /// The separator, for messages.
+    sep_name: &'static str,
+    /// A `;`- or tab-separated file may use a decimal comma.
+    decimal_comma: bool,
+}
+
+impl CsvHeader {
+    /// The first record that is not blank or a comment.
+    fn read(
+        source: &str,
+        delim: u8,
+        records: &mut impl Iterator<Item = csv::Result<csv::StringRecord>>,
+    ) -> Result<CsvHeader, DataError> {
+        let sep_name = match delim {
+            b';' => "`;`",
+            b'\t' => "tab",
+            _ => "`,`",
+        };
+        let header = records
+            .next()
+            .transpose()
+            .map_err(|e| csv_error(source, e))?
+            .ok_or_else(|| DataError(format!("{source}: empty file; expected a CSV header row")))?;
+        Ok(CsvHeader {
+            names: header.iter().map(|s| s.to_string()).collect(),
+            line: csv_line(&header),
+            sep_name,
+            decimal_comma: delim != b',',
+        })
+    }
+
+    /// Position of column `n` (the first of that name).
+    fn col(&self, n: &str) -> Option<usize> {
+        self.names.iter().position(|h| h == n)
+    }
+}
+
+/// Where the record's columns are in the header.
+struct CsvColumns {
+    /// Time `t`.
+    it: usize,
+    /// Valve command `u` (`None`: a displacement-controlled test).
+    iu: Option<usize>,
+    /// The measured channels present.
+    ich: Vec<(ChannelKind, usize)>,
+    /// Reference `ref`, if any.
+    iref: Option<usize>,
+}
+
+impl CsvColumns {
+    /// Map the header to the record format: a known column appears once, `t` is required,
+    /// and `u` unless the record is a displacement-controlled test.
+    fn map(source: &str, h: &CsvHeader, known: &[&str]) -> Result<CsvColumns, DataError> {
+        let (names, header_line, sep_name) = (&h.names, h.line, h.sep_name);
+        // A column used by diagnose must be named once: which of two `p_a` is the measurement?
+        for (j, n) in names.iter().enumerate() {
+            if let Some(k) = names[..j].iter().position(|m| m == n) {
+                if known.contains(&n.as_str()) {
+                    return Err(DataError(format!(
+                        "{source}: column `{n}` appears twice in header line {header_line} (columns {} and {}); each of t, u, force, x, p_a, p_b, x_v, ref, v and the declared inputs may appear once",
+                        k + 1,
+                        j + 1
+                    )));
+                }
+            }
+        }
+        let col = |n: &str| h.col(n);
+        let need = |n: &str, what: &str| {
+            col(n).ok_or_else(|| {
+                DataError(format!(
+                    "{source}: missing required column `{n}` ({what}) in header line {header_line} \
+                     ({sep_name}-separated): found [{}]",
+                    quote(&names.join(", "), QUOTE_MAX_BYTES)
+                ))
+            })
+        };
+        let it = need("t", "time in s")?;
+        // `u` is required unless the record is a displacement-controlled test (motion `x` and
+        // `force`, no `ref`): then the measured motion drives the rod.
+        let motion_only = col("u").is_none() && col("ref").is_none();
+        let iu = if motion_only {
+            if col("x").is_none() {
                 return Err(DataError(format!(
-                    "{source}: column `{n}` appears twice in header line {header_line} (columns {} and {}); each of t, u, force, x, p_a, p_b, x_v, ref, v and the declared inputs may appear once",
-                    k + 1,
-                    j + 1
+                    "{source}: missing required column `u` (valve command in V) in header line {header_line} ({sep_name}-separated), and no motion `x` (m) of a displacement-controlled test instead: found [{}]; expected `u` (with `ref` for a loop test), or `x` with `force` (N)",
+                    quote(&names.join(", "), QUOTE_MAX_BYTES)
                 )));
             }
-        }
-    }
-    let col = |n: &str| names.iter().position(|h| h == n);
-    let need = |n: &str, what: &str| {
-        col(n).ok_or_else(|| {
-            DataError(format!(
-                "{source}: missing required column `{n}` ({what}) in header line {header_line} \
-                 ({sep_name}-separated): found [{}]",
-                quote(&names.join(", "), QUOTE_MAX_BYTES)
-            ))
-        })
-    };
-    let it = need("t", "time in s")?;
-    // `u` is required unless the record is a displacement-controlled test (motion `x` and
-    // `force`, no `ref`): then the measured motion drives the rod.
-    let motion_only = col("u").is_none() && col("ref").is_none();
-    let iu = if motion_only {
-        if col("x").is_none() {
-            return Err(DataError(format!(
-                "{source}: missing required column `u` (valve command in V) in header line {header_line} ({sep_name}-separated), and no motion `x` (m) of a displacement-controlled test instead: found [{}]; expected `u` (with `ref` for a loop test), or `x` with `force` (N)",
-                quote(&names.join(", "), QUOTE_MAX_BYTES)
-            )));
-        }
-        if col("force").is_none() {
-            return Err(DataError(format!(
-                "{source}: missing required column `u` (valve command in V) in header line {header_line}; without it the record is a displacement-controlled test, which needs the load-cell `force` (N) beside `x` (m): found [{}]",
-                quote(&names.join(", "), QUOTE_MAX_BYTES)
-            )));
-        }
-        None
-    } else {
-        Some(need("u", "valve command in V")?)
-    };
-    let ich: Vec<(ChannelKind, usize)> = ChannelKind::ALL
-        .iter()
-        .filter_map(|k| col(k.column()).map(|i| (*k, i)))
-        .collect();
-    let iref = col("ref");
-    let mut cols: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
-    let mut numeric = vec![true; names.len()];
-    let mut first_data_line = None;
-    for r in records {
-        let r = r.map_err(csv_err)?;
-        let ln = line_of(&r);
-        first_data_line.get_or_insert(ln);
-        if r.len() != names.len() {
-            return Err(DataError(format!(
-                "{source}: line {ln} has {} fields; the header has {} ({sep_name}-separated)",
-                r.len(),
-                names.len()
-            )));
-        }
-        for (j, f) in r.iter().enumerate() {
-            if !known.contains(&names[j].as_str()) {
-                // Not in the format: text (a quoted note) is left aside with a warning, a
-                // numeric column is refused below (an undeclared or misspelt input).
-                numeric[j] &= parse_number(f, decimal_comma).is_some_and(f64::is_finite);
-                continue;
+            if col("force").is_none() {
+                return Err(DataError(format!(
+                    "{source}: missing required column `u` (valve command in V) in header line {header_line}; without it the record is a displacement-controlled test, which needs the load-cell `force` (N) beside `x` (m): found [{}]",
+                    quote(&names.join(", "), QUOTE_MAX_BYTES)
+                )));
             }
-            let v = parse_number(f, decimal_comma).ok_or_else(|| {
-                DataError(format!(
-                    "{source}: line {ln}, column `{}`: `{f}` is not a number; expected a decimal number{}",
-                    names[j],
-                    if decimal_comma {
-                        " with `.` or `,` as decimal mark and no thousands separator"
-                    } else {
-                        " with `.` as decimal mark"
-                    }
-                ))
-            })?;
-            cols[j].push(v);
-        }
+            None
+        } else {
+            Some(need("u", "valve command in V")?)
+        };
+        let ich = ChannelKind::ALL
+            .iter()
+            .filter_map(|k| col(k.column()).map(|i| (*k, i)))
+            .collect();
+        Ok(CsvColumns {
+            it,
+            iu,
+            ich,
+            iref: col("ref"),
+        })
     }
-    let off = first_data_line.unwrap_or(header_line + 1);
+}
+
+/// The data rows of a CSV text, by column.
+struct CsvRows {
+    /// Values of each known column (others stay empty).
+    cols: Vec<Vec<f64>>,
+    /// Per column: every field a finite number (for columns not in the format).
+    numeric: Vec<bool>,
+    /// Line of the first data row, if any.
+    first_data_line: Option<usize>,
+}
+
+impl CsvRows {
+    /// Read every row after the header: as many fields as the header, a number in every
+    /// known column.
+    fn read(
+        source: &str,
+        h: &CsvHeader,
+        known: &[&str],
+        records: impl Iterator<Item = csv::Result<csv::StringRecord>>,
+    ) -> Result<CsvRows, DataError> {
+        let (names, sep_name, decimal_comma) = (&h.names, h.sep_name, h.decimal_comma);
+        let mut cols: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+        let mut numeric = vec![true; names.len()];
+        let mut first_data_line = None;
+        for r in records {
+            let r = r.map_err(|e| csv_error(source, e))?;
+            let ln = csv_line(&r);
+            first_data_line.get_or_insert(ln);
+            if r.len() != names.len() {
+                return Err(DataError(format!(
+                    "{source}: line {ln} has {} fields; the header has {} ({sep_name}-separated)",
+                    r.len(),
+                    names.len()
+                )));
+            }
+            for (j, f) in r.iter().enumerate() {
+                if !known.contains(&names[j].as_str()) {
+                    // Not in the format: text (a quoted note) is left aside with a warning, a
+                    // numeric column is refused later (an undeclared or misspelt input).
+                    numeric[j] &= parse_number(f, decimal_comma).is_some_and(f64::is_finite);
+                    continue;
+                }
+                let v = parse_number(f, decimal_comma).ok_or_else(|| {
+                    DataError(format!(
+                        "{source}: line {ln}, column `{}`: `{f}` is not a number; expected a decimal number{}",
+                        names[j],
+                        if decimal_comma {
+                            " with `.` or `,` as decimal mark and no thousands separator"
+                        } else {
+                            " with `.` as decimal mark"
+                        }
+                    ))
+                })?;
+                cols[j].push(v);
+            }
+        }
+        Ok(CsvRows {
+            cols,
+            numeric,
+            first_data_line,
+        })
+    }
+}
+
+/// Columns not in the record format: a numeric one is refused (an undeclared or misspelt
+/// operating input), text ones are left aside with the returned warning.
+fn check_unknown_columns(
+    source: &str,
+    h: &CsvHeader,
+    known: &[&str],
+    numeric: &[bool],
+    inputs: &[String],
+) -> Result<Vec<String>, DataError> {
+    let (names, header_line) = (&h.names, h.line);
     let unknown: Vec<usize> = (0..names.len())
         .filter(|j| !known.contains(&names[*j].as_str()))
         .collect();
@@ -620,42 +766,7 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
             )
         ));
     }
-    let channels = ich
-        .iter()
-        .map(|&(k, i)| Channel {
-            kind: k,
-            values: cols[i].clone(),
-        })
-        .collect();
-    let mut rec = Record::from_columns(
-        source,
-        cols[it].clone(),
-        iu.map_or_else(Vec::new, |i| cols[i].clone()),
-        channels,
-        iref.map(|i| cols[i].clone()),
-        off,
-    )?;
-    rec.warnings.extend(warnings);
-    let finite = |name: &str, v: &[f64]| -> Result<(), DataError> {
-        match v.iter().position(|x| !x.is_finite()) {
-            Some(k) => Err(DataError(format!(
-                "{source}: column `{name}` is not a finite number at line {} (sample {k}); expected SI values in every row",
-                k + off
-            ))),
-            None => Ok(()),
-        }
-    };
-    if let Some(i) = col("v") {
-        finite("v", &cols[i])?;
-        rec.velocity = Some(cols[i].clone());
-    }
-    for name in inputs {
-        if let Some(i) = col(name) {
-            finite(name, &cols[i])?;
-            rec.inputs.push((name.clone(), cols[i].clone()));
-        }
-    }
-    Ok(rec)
+    Ok(warnings)
 }
 
 /// Read the `/control` channel of an ehactl MCAP log (ROS 2 CDR, see `ehactl_log::record`).
