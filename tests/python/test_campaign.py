@@ -80,16 +80,19 @@ def test_unseen_currents_are_predicted_far_better_than_nominal_and_arx(campaign)
         s = r["nrmse"]
         assert s["law"] < 0.25 * s["nominal"], r
         assert s["law"] < 0.5 * s["arx"], r
-    # Measured 2026-11-28: pooled 0.067 (0.031 … 0.106 per unseen-current test); the Dahl +
-    # yield law approximates Bouc–Wen's n = 2 loop and its internal dashpot c₁, which bounds it.
-    assert j["pooled"]["law"] <= 0.075, j["pooled"]
+    # Measured 2026-11-28: pooled 0.029 (0.011 … 0.054 per unseen-current test) with the Dahl
+    # term behind a series dashpot, its δ and V following the current (0.067 with Dahl's law).
+    assert j["pooled"]["law"] <= 0.035, j["pooled"]
 
 
-@pytest.mark.xfail(strict=True, reason="target NRMSE ≤ 0.05 at unseen currents not reached: "
-                   "0.067 pooled, the law's Dahl/yield library does not hold the Bouc–Wen loop shape")
 def test_unseen_currents_meet_the_five_percent_target(campaign):
     j, _, _ = campaign
-    assert j["pooled"]["law"] <= 0.05
+    assert j["pooled"]["law"] <= 0.05, j["pooled"]
+    # The element's drive v − V·z with V following the current (Spencer et al. 1997: the
+    # roll-off velocity α·z/(c₀ + c₁) grows with α, affine in the coil input).
+    t = j["travel_dependence"]
+    assert t is not None and t["velocity_slope"] > 0, j["summary"]
+    assert j["shape"]["dahl_velocity"] > 0, j["shape"]
 
 
 def chirp(amplitude, f0, f1, duration):
@@ -130,10 +133,11 @@ def test_two_chirps_predict_sines_of_other_amplitudes_at_unseen_currents(tmp_pat
     for x in sines:
         assert x["nrmse"]["law"] < 0.35 * x["nrmse"]["nominal"], x
         assert x["nrmse"]["law"] < x["nrmse"]["arx"], x
-    # Measured 2026-11-28: median 0.094 over the 15 sines (0.061 … 0.233, the largest at
-    # 25 mm / 0.1 Hz, 0.25 A: slow travel far beyond the chirps' 2 mm).
+    # Measured 2026-11-28: median 0.069 over the 15 sines (0.027 … 0.160, the largest at
+    # 25 mm / 0.1 Hz, 0.25 A: slow travel far beyond the chirps' 2 mm); 0.093 with Dahl's
+    # law (no series dashpot).
     law = sorted(x["nrmse"]["law"] for x in sines)
-    assert law[len(law) // 2] < 0.12, law
+    assert law[len(law) // 2] < 0.085, law
 
 
 def test_predict_with_the_extended_config_reproduces_the_campaign(campaign, tmp_path):
@@ -226,12 +230,13 @@ def test_the_pre_yield_travel_follows_the_current(june):
 
 def test_the_1A_chirp_is_predicted_within_10_percent_of_its_own_diagnosis(june):
     law, own = campaign_vs_single(june, "1A")
-    # Measured 2026-11-28: 0.137 against 0.142 (0.204 with one travel for both currents).
+    # Measured 2026-11-28: 0.122 against 0.142 (0.137 with Dahl's law, no series dashpot;
+    # 0.204 with one travel for both currents).
     assert law <= 1.10 * own, (law, own)
 
 
-@pytest.mark.xfail(strict=True, reason="0 A chirp: campaign 0.252 vs its own closed-loop diagnosis 0.198 "
-                   "(force); alone as an imposed-motion campaign it reaches 0.244, so the imposed-motion "
+@pytest.mark.xfail(strict=True, reason="0 A chirp: campaign 0.245 vs its own closed-loop diagnosis 0.198 "
+                   "(force); alone as an imposed-motion campaign it reaches 0.238, so the imposed-motion "
                    "replay, not the pooling, is what is missing (the closed-loop diagnosis models the loop "
                    "and a pressure-dependent friction)")
 def test_the_0A_chirp_is_predicted_within_10_percent_of_its_own_diagnosis(june):

@@ -21,7 +21,7 @@ FIXTURE = REPO / "tests" / "fixtures" / "ehactl_params.txt"
 ADDED = ("effects.friction.bristle_stiffness", "effects.friction.bristle_damping",
          "effects.line_dynamics.variant", "effects.line_dynamics.wall_compliance",
          "effects.line_dynamics.resistance", "effects.polynomial_force.dahl",
-         "effects.polynomial_force.dahl_travel", "sensors.position.velocity_window",
+         "effects.polynomial_force.dahl_travel", "effects.polynomial_force.dahl_velocity", "sensors.position.velocity_window",
          "integration.max_omega_h_line", "integration.line_method", "control.mode", "setpoint.kind", "setpoint.sweep", "log.compression",
          "realtime.lock_memory", "realtime.overrun_policy")
 

@@ -20,9 +20,9 @@ fn fixture() -> Vec<String> {
 /// them only through serde), and parameters added since (2026-11-26: the line scheme and its
 /// segment-mode margin; 2026-11-27: the friction variant `lugre` and the line_dynamics
 /// variant `hose`, whose new choice the fixture's `effects.friction.variant` row carries;
-/// the Dahl term of the grey-box force law).
+/// the Dahl term of the grey-box force law and its series-dashpot velocity).
 /// Their choices are the enums' serde names.
-const ADDED: [(&str, &str); 16] = [
+const ADDED: [(&str, &str); 17] = [
     (
         "effects.friction.bristle_stiffness",
         "N/m\tNonNegative\tFloat",
@@ -45,6 +45,10 @@ const ADDED: [(&str, &str); 16] = [
     ),
     ("effects.polynomial_force.dahl", "N\tNonNegative\tFloat"),
     ("effects.polynomial_force.dahl_travel", "m\tPositive\tFloat"),
+    (
+        "effects.polynomial_force.dahl_velocity",
+        "m/s\tNonNegative\tFloat",
+    ),
     (
         "sensors.position.velocity_window",
         "s\tWithin(0.0, 1.0)\tFloat",

@@ -52,6 +52,11 @@ pub const TERM_MIN_GAIN: f64 = 0.02;
 pub const TRANSFER_SPLIT: f64 = 0.6;
 /// Pre-yield travels δ tried for the Dahl term (m).
 pub const DAHL_TRAVELS: [f64; 7] = [1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3];
+/// Series-dashpot velocities V of the Dahl term tried (beside V = 0, Dahl's law), as fractions
+/// of the campaign's rms velocity (-): the element is driven by v − V·z (Spencer, Dyke, Sain
+/// & Carlson 1997, J. Eng. Mech. 123(3):230–238: the dashpot c₁ in series with the Bouc–Wen
+/// element), so the force rolls off below V to the pre-yield slope F_d/V.
+pub const DAHL_VELOCITY_FRACTIONS: [f64; 5] = [0.025, 0.05, 0.1, 0.2, 0.4];
 /// Smoothing velocities v_s of the yield term tried, as fractions of the campaign's rms
 /// velocity (-).
 pub const SMOOTHING_FRACTIONS: [f64; 6] = [0.02, 0.05, 0.15, 0.4, 0.8, 1.5];
@@ -166,6 +171,8 @@ struct Structure {
 pub struct Shape {
     /// Pre-yield travel δ of the Dahl term (m).
     pub dahl_travel: f64,
+    /// Series-dashpot velocity V of the Dahl term (m/s; 0: Dahl's law).
+    pub dahl_velocity: f64,
     /// Smoothing velocity v_s of the yield term (m/s).
     pub smoothing_velocity: f64,
     /// Half-width of the derivative turning x into v (s); 0 when every record gives `v`.
@@ -591,7 +598,6 @@ fn forms_per_input(prepared: &[Prepared<'_>], inputs: usize) -> Vec<Vec<Form>> {
 /// expansion of the forms comes for the chosen shape only); the best shape, its structure and
 /// its transfer error (NRMSE²).
 fn choose_shape(su: &Setup<'_>) -> Result<(Shape, Structure, f64), String> {
-    let shapes: Vec<Shape> = shape_grid(su.v_rms, &su.library, &su.prepared);
     let narrow = expand(
         &su.library,
         &su.default_forms
@@ -599,39 +605,70 @@ fn choose_shape(su: &Setup<'_>) -> Result<(Shape, Structure, f64), String> {
             .map(|f| vec![*f])
             .collect::<Vec<_>>(),
     );
+    let shapes: Vec<Shape> = shape_grid(su.v_rms, &su.library, &su.prepared);
+    let best = try_shapes(su, &narrow, shapes)
+        .into_iter()
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .ok_or_else(|| "no law shape could be fitted".to_string())?;
+    if !su.library.contains(&LawTerm::Dahl) {
+        return Ok(best);
+    }
+    // The Dahl term behind a series dashpot (V > 0), at the derivative window chosen above:
+    // every travel, series velocity and smoothing velocity (the windows are not tried again,
+    // which would multiply this stage's cost by their number).
+    let mut series = Vec::new();
+    for &d in &DAHL_TRAVELS {
+        for &fv in &DAHL_VELOCITY_FRACTIONS {
+            for &fs in &SMOOTHING_FRACTIONS {
+                series.push(Shape {
+                    dahl_travel: d,
+                    dahl_velocity: fv * su.v_rms,
+                    smoothing_velocity: fs * su.v_rms,
+                    velocity_window: best.0.velocity_window,
+                });
+            }
+        }
+    }
+    Ok(try_shapes(su, &narrow, series)
+        .into_iter()
+        .chain(std::iter::once(best))
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .expect("one shape at least"))
+}
+
+/// Each shape's terms chosen by the transfer error with the default forms; the shapes that
+/// share the derivative window and the Dahl shape (travel, series velocity) share the
+/// kinematics.
+fn try_shapes(
+    su: &Setup<'_>,
+    narrow: &Expanded,
+    shapes: Vec<Shape>,
+) -> Vec<(Shape, Structure, f64)> {
     let has_dahl = su.library.contains(&LawTerm::Dahl);
-    // Shapes that share the derivative window and the pre-yield travel share the kinematics.
     let mut groups: Vec<Vec<Shape>> = Vec::new();
     for s in shapes {
         match groups.iter_mut().find(|g| {
-            g[0].velocity_window == s.velocity_window && g[0].dahl_travel == s.dahl_travel
+            g[0].velocity_window == s.velocity_window
+                && g[0].dahl_travel == s.dahl_travel
+                && g[0].dahl_velocity == s.dahl_velocity
         }) {
             Some(g) => g.push(s),
             None => groups.push(vec![s]),
         }
     }
-    let tried: Vec<(Shape, Structure, f64)> = groups
+    groups
         .par_iter()
         .flat_map_iter(|g| {
-            let kin = kinematics(
-                &su.prepared,
-                g[0].velocity_window,
-                g[0].dahl_travel,
-                has_dahl,
-            );
+            let kin = kinematics(&su.prepared, &g[0], has_dahl);
             g.iter()
                 .map(|s| {
-                    let data = normals(&su.prepared, &su.library, &narrow, *s, &kin);
-                    let (st, j) = select_terms(&data, &su.library, &narrow, &su.default_forms);
+                    let data = normals(&su.prepared, &su.library, narrow, *s, &kin);
+                    let (st, j) = select_terms(&data, &su.library, narrow, &su.default_forms);
                     (*s, st, j)
                 })
                 .collect::<Vec<_>>()
         })
-        .collect();
-    tried
-        .into_iter()
-        .min_by(|a, b| a.2.total_cmp(&b.2))
-        .ok_or_else(|| "no law shape could be fitted".to_string())
+        .collect()
 }
 
 /// What phase 3 hands on.
@@ -655,13 +692,30 @@ fn fit_law(
 ) -> Result<Fitted, String> {
     let (lib, ex) = (&su.library, &su.expanded);
     let has_dahl = lib.contains(&LawTerm::Dahl);
-    let kin = kinematics(
-        &su.prepared,
-        shape.velocity_window,
-        shape.dahl_travel,
-        has_dahl,
-    );
+    let kin = kinematics(&su.prepared, &shape, has_dahl);
     let data = normals(&su.prepared, lib, ex, shape, &kin);
+    let by_point = |st: &Structure, j: f64| {
+        travel_by_point(
+            su.v_rms,
+            &su.prepared,
+            lib,
+            ex,
+            st,
+            shape,
+            &su.fit_groups,
+            &su.names,
+            j,
+        )
+    };
+    // The Dahl shape per operating point first for the selected terms (every coefficient
+    // following the input where the campaign allows it: a shape that follows the input is
+    // found with coefficients that follow it too), then each term's dependence at that shape;
+    // if none was found so, again for the terms with their chosen dependences.
+    let j_selected = transfer_error(&data, ex, lib, &structure).unwrap_or(j_shape);
+    let (first, data) = match by_point(&structure, j_selected) {
+        Some((dep, per_record)) => (Some(dep), per_record),
+        None => (None, data),
+    };
     let (structure, dependence_check) = choose_dependence(
         &data,
         &su.prepared,
@@ -673,23 +727,20 @@ fn fit_law(
         &su.names,
     );
     let j_transfer = transfer_error(&data, ex, lib, &structure).unwrap_or(j_shape);
-    let (travel, data, j_transfer) = match travel_by_point(
-        &su.prepared,
-        lib,
-        ex,
-        &structure,
-        shape,
-        &su.fit_groups,
-        &su.names,
-        j_transfer,
-    ) {
-        Some((mut dep, per_record)) => {
-            let j = dep.nrmse_transfer.powi(2);
-            dep.unit = su.units[0].clone();
-            (Some(dep), per_record, j)
-        }
-        None => (None, data, j_transfer),
+    let (travel, data, j_transfer) = match first {
+        Some(dep) => (Some(dep), data, j_transfer),
+        None => match by_point(&structure, j_transfer) {
+            Some((dep, per_record)) => {
+                let j = dep.nrmse_transfer.powi(2);
+                (Some(dep), per_record, j)
+            }
+            None => (None, data, j_transfer),
+        },
     };
+    let travel = travel.map(|mut dep| {
+        dep.unit = su.units[0].clone();
+        dep
+    });
     let all: Normal = sum_normals(data.a.iter().chain(&data.b), ex.cols.len());
     let cols = columns_of(&structure, ex, lib);
     let theta = all
@@ -945,6 +996,7 @@ fn shape_grid(v_rms: f64, library: &[LawTerm], prepared: &[Prepared<'_>]) -> Vec
             for &s in &SMOOTHING_FRACTIONS {
                 out.push(Shape {
                     dahl_travel: d,
+                    dahl_velocity: 0.0,
                     smoothing_velocity: s * v_rms,
                     velocity_window: w,
                 });
@@ -954,11 +1006,13 @@ fn shape_grid(v_rms: f64, library: &[LawTerm], prepared: &[Prepared<'_>]) -> Vec
     out
 }
 
-/// Pre-yield travel δ of the Dahl term depending on one operating input i: δ(i) = δ₀ + δ₁·i,
-/// through the travels chosen per fitted operating point (least squares over the points).
-/// Published models of MR dampers let a shape parameter follow the current as well (Quiroz,
-/// UTFSM 2022, ch. 7: β of the Bouc–Wen model exponential in i); kept only when it lowers
-/// the transfer error of the shared travel by [`TERM_MIN_GAIN`].
+/// The Dahl term's shape depending on one operating input i: the pre-yield travel
+/// δ(i) = δ₀ + δ₁·i and the series-dashpot velocity V(i) = V₀ + V₁·i, through the pairs
+/// (δ, V) chosen per fitted operating point (least squares over the points). Published models
+/// of MR dampers let a shape parameter follow the current as well (Quiroz, UTFSM 2022, ch. 7:
+/// β of the Bouc–Wen model exponential in i; in Spencer et al. 1997 the roll-off velocity of
+/// the series dashpot, α·z/(c₀ + c₁), grows with α, affine in the coil input); kept only when
+/// it lowers the transfer error of the shared shape by [`TERM_MIN_GAIN`].
 #[derive(Debug, Clone, Serialize)]
 pub struct TravelDependence {
     /// The input (a declared `[inputs]` name).
@@ -969,39 +1023,61 @@ pub struct TravelDependence {
     pub at_zero: f64,
     /// δ₁ (m per unit of the input).
     pub slope: f64,
-    /// The travel chosen per fitted operating point (input value, δ in m).
-    pub per_point: Vec<(f64, f64)>,
-    /// Transfer error (NRMSE) with the shared travel, and with δ(i) (-).
+    /// V₀ (m/s): the series-dashpot velocity at i = 0.
+    pub velocity_at_zero: f64,
+    /// V₁ (m/s per unit of the input).
+    pub velocity_slope: f64,
+    /// The travel and series velocity chosen per fitted operating point (input value, δ in
+    /// m, V in m/s).
+    pub per_point: Vec<(f64, f64, f64)>,
+    /// Transfer error (NRMSE) with the shared shape, and with δ(i), V(i) (-).
     pub nrmse_transfer_shared: f64,
     /// See `nrmse_transfer_shared`.
     pub nrmse_transfer: f64,
+    /// Largest series velocity searched (m/s): V(i) is kept within [0, this].
+    #[serde(skip)]
+    velocity_max: f64,
 }
 
 impl TravelDependence {
-    /// δ (m) at input value `i`, kept within the travels the campaign searches (within the
-    /// fitted operating points it always is; the extended config's linear dependence is not
-    /// clamped beyond them).
-    fn at(&self, i: f64) -> f64 {
-        (self.at_zero + self.slope * i).clamp(DAHL_TRAVELS[0], DAHL_TRAVELS[DAHL_TRAVELS.len() - 1])
+    /// δ (m) and V (m/s) at input value `i`, kept within the values the campaign searches
+    /// (within the fitted operating points they always are; the extended config's linear
+    /// dependence is not clamped beyond them).
+    fn at(&self, i: f64) -> (f64, f64) {
+        (
+            (self.at_zero + self.slope * i)
+                .clamp(DAHL_TRAVELS[0], DAHL_TRAVELS[DAHL_TRAVELS.len() - 1]),
+            (self.velocity_at_zero + self.velocity_slope * i).clamp(0.0, self.velocity_max),
+        )
+    }
+
+    /// Whether δ, V follow the input.
+    fn travel_varies(&self) -> bool {
+        self.slope != 0.0
+    }
+
+    fn velocity_varies(&self) -> bool {
+        self.velocity_slope != 0.0
     }
 }
 
-/// Per-record normal equations with record `r` at travel `travel[r]` (m).
+/// Per-record normal equations with record `r` at the Dahl shape `dahl[r]` (δ m, V m/s).
 fn normals_at_travels(
     prepared: &[Prepared<'_>],
     library: &[LawTerm],
     expanded: &Expanded,
     shape: Shape,
-    travel: &[f64],
+    dahl: &[(f64, f64)],
 ) -> ShapeData {
     let (mut a, mut b) = (Vec::new(), Vec::new());
-    for (r, d) in travel.iter().enumerate() {
+    for (r, (d, vd)) in dahl.iter().enumerate() {
         let one = std::slice::from_ref(&prepared[r]);
         let sh = Shape {
             dahl_travel: *d,
+            dahl_velocity: *vd,
             ..shape
         };
-        let kin = kinematics(one, sh.velocity_window, sh.dahl_travel, true);
+        let kin = kinematics(one, &sh, true);
         let mut n = normals(one, library, expanded, sh, &kin);
         a.append(&mut n.a);
         b.append(&mut n.b);
@@ -1009,13 +1085,32 @@ fn normals_at_travels(
     ShapeData { shape, a, b }
 }
 
-/// The Dahl term's travel per fitted operating point (one declared input, two or more fitted
-/// points): coordinate descent over the points on the grid [`DAHL_TRAVELS`] by the transfer
-/// error, then δ(i) by least squares through them, refit and kept if the transfer error falls
-/// by [`TERM_MIN_GAIN`] against the shared travel (`j_shared`, NRMSE²). Returns the dependence
-/// and the per-record normal equations at δ(i) of each record.
+/// Least-squares line through points (i, y): (value at 0, slope); exact through two.
+fn line_through(pts: &[(f64, f64)]) -> (f64, f64) {
+    let n = pts.len() as f64;
+    let (mi, my) = (
+        pts.iter().map(|p| p.0).sum::<f64>() / n,
+        pts.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let sii: f64 = pts.iter().map(|p| (p.0 - mi).powi(2)).sum();
+    let slope = if sii > 0.0 {
+        pts.iter().map(|p| (p.0 - mi) * (p.1 - my)).sum::<f64>() / sii
+    } else {
+        0.0
+    };
+    (my - slope * mi, slope)
+}
+
+/// The Dahl term's shape per fitted operating point (one declared input, two or more fitted
+/// points): coordinate descent over the points on the grid of pairs (δ, V) — the travels of
+/// [`DAHL_TRAVELS`] next to the shared one (and it) × (0 and [`DAHL_VELOCITY_FRACTIONS`] of
+/// the rms velocity `v_rms`) — by the transfer error,
+/// then δ(i) and V(i) by least squares through them, refit and kept if the transfer error
+/// falls by [`TERM_MIN_GAIN`] against the shared shape (`j_shared`, NRMSE²). Returns the
+/// dependence and the per-record normal equations at each record's δ(i), V(i).
 #[allow(clippy::too_many_arguments)]
 fn travel_by_point(
+    v_rms: f64,
     prepared: &[Prepared<'_>],
     library: &[LawTerm],
     expanded: &Expanded,
@@ -1031,20 +1126,39 @@ fn travel_by_point(
     {
         return None;
     }
-    let grid: Vec<ShapeData> = DAHL_TRAVELS
+    let velocities: Vec<f64> = std::iter::once(0.0)
+        .chain(DAHL_VELOCITY_FRACTIONS.iter().map(|f| f * v_rms))
+        .collect();
+    // Travels within one step of the grid of the shared one (the cost of each pair is a set of
+    // normal equations on the full expansion of the forms, for every record).
+    let at = DAHL_TRAVELS
+        .iter()
+        .position(|d| *d == shape.dahl_travel)
+        .unwrap_or(0);
+    let travels = &DAHL_TRAVELS[at.saturating_sub(1)..(at + 2).min(DAHL_TRAVELS.len())];
+    let pairs: Vec<(f64, f64)> = travels
+        .iter()
+        .flat_map(|d| velocities.iter().map(move |v| (*d, *v)))
+        .collect();
+    let grid: Vec<ShapeData> = pairs
         .par_iter()
-        .map(|d| {
+        .map(|(d, vd)| {
             let sh = Shape {
                 dahl_travel: *d,
+                dahl_velocity: *vd,
                 ..shape
             };
-            let kin = kinematics(prepared, sh.velocity_window, *d, true);
+            let kin = kinematics(prepared, &sh, true);
             normals(prepared, library, expanded, sh, &kin)
         })
         .collect();
-    let start = DAHL_TRAVELS
+    // The shared shape's pair (the series velocity of the second stage of `choose_shape` is
+    // on the same grid of fractions).
+    let start = pairs
         .iter()
-        .position(|d| *d == shape.dahl_travel)
+        .position(|(d, vd)| {
+            *d == shape.dahl_travel && (vd - shape.dahl_velocity).abs() <= 1e-12 * v_rms
+        })
         .unwrap_or(0);
     let mut choice: Vec<usize> = vec![start; fit_groups.len()];
     let mixed = |choice: &[usize]| -> ShapeData {
@@ -1060,7 +1174,7 @@ fn travel_by_point(
     };
     for _pass in 0..2 {
         for g in 0..fit_groups.len() {
-            // Each travel's transfer error once (a comparator would recompute both sides).
+            // Each pair's transfer error once (a comparator would recompute both sides).
             let (best, _) = (0..grid.len())
                 .map(|k| {
                     let mut c = choice.clone();
@@ -1072,8 +1186,7 @@ fn travel_by_point(
             choice[g] = best;
         }
     }
-    // δ(i) by least squares through the points (exact through two).
-    let pts: Vec<(f64, f64)> = fit_groups
+    let pts: Vec<(f64, f64, f64)> = fit_groups
         .iter()
         .zip(&choice)
         .map(|(g, k)| {
@@ -1081,31 +1194,26 @@ fn travel_by_point(
                 .iter()
                 .find(|p| p.group == *g)
                 .map_or(0.0, |p| p.at[0]);
-            (i, DAHL_TRAVELS[*k])
+            (i, pairs[*k].0, pairs[*k].1)
         })
         .collect();
-    let n = pts.len() as f64;
-    let (mi, md) = (
-        pts.iter().map(|p| p.0).sum::<f64>() / n,
-        pts.iter().map(|p| p.1).sum::<f64>() / n,
-    );
-    let sii: f64 = pts.iter().map(|p| (p.0 - mi).powi(2)).sum();
-    let slope = if sii > 0.0 {
-        pts.iter().map(|p| (p.0 - mi) * (p.1 - md)).sum::<f64>() / sii
-    } else {
-        0.0
-    };
+    let (at_zero, slope) = line_through(&pts.iter().map(|p| (p.0, p.1)).collect::<Vec<_>>());
+    let (velocity_at_zero, velocity_slope) =
+        line_through(&pts.iter().map(|p| (p.0, p.2)).collect::<Vec<_>>());
     let mut dep = TravelDependence {
         input: names[0].clone(),
         unit: String::new(),
-        at_zero: md - slope * mi,
+        at_zero,
         slope,
+        velocity_at_zero,
+        velocity_slope,
         per_point: pts,
         nrmse_transfer_shared: j_shared.sqrt(),
         nrmse_transfer: f64::NAN,
+        velocity_max: velocities[velocities.len() - 1],
     };
-    let travels: Vec<f64> = prepared.iter().map(|p| dep.at(p.at[0])).collect();
-    let data = normals_at_travels(prepared, library, expanded, shape, &travels);
+    let dahl: Vec<(f64, f64)> = prepared.iter().map(|p| dep.at(p.at[0])).collect();
+    let data = normals_at_travels(prepared, library, expanded, shape, &dahl);
     let j = transfer_error(&data, expanded, library, structure)?;
     dep.nrmse_transfer = j.sqrt();
     (j < (1.0 - TERM_MIN_GAIN) * j_shared).then_some((dep, data))
@@ -1114,28 +1222,30 @@ fn travel_by_point(
 fn shape_law(shape: Shape) -> PolynomialForce {
     PolynomialForce {
         dahl_travel: shape.dahl_travel,
+        dahl_velocity: shape.dahl_velocity,
         smoothing_velocity: shape.smoothing_velocity,
         origin: 0.0,
         ..PolynomialForce::zero()
     }
 }
 
-/// Regressor columns of record `p` at `shape` (each expanded column's series).
-/// Velocity (m/s) and Dahl state (-) of every record at one derivative window and pre-yield
-/// travel: shared by the shapes that differ only in the smoothing velocity.
+/// Velocity (m/s) and Dahl state (-) of every record at one derivative window and Dahl shape
+/// (pre-yield travel, series velocity): shared by the shapes that differ only in the
+/// smoothing velocity.
 struct Kinematics {
     v: Vec<Vec<f64>>,
     z: Vec<Vec<f64>>,
 }
 
-fn kinematics(prepared: &[Prepared<'_>], window: f64, dahl_travel: f64, dahl: bool) -> Kinematics {
+fn kinematics(prepared: &[Prepared<'_>], shape: &Shape, dahl: bool) -> Kinematics {
     let law = PolynomialForce {
-        dahl_travel,
+        dahl_travel: shape.dahl_travel,
+        dahl_velocity: shape.dahl_velocity,
         ..PolynomialForce::zero()
     };
     let v: Vec<Vec<f64>> = prepared
         .iter()
-        .map(|p| record_velocity(p.rec, p.x, window))
+        .map(|p| record_velocity(p.rec, p.x, shape.velocity_window))
         .collect();
     let z = prepared
         .iter()
@@ -1504,13 +1614,18 @@ impl LawFit {
         c
     }
 
-    /// The shape at operating point `at` (the Dahl travel δ(i) when it depends on the input).
+    /// The shape at operating point `at` (the Dahl travel δ(i) and series velocity V(i) when
+    /// they depend on the input).
     fn shape_at(&self, at: &[f64]) -> Shape {
+        let (dahl_travel, dahl_velocity) = self
+            .travel
+            .as_ref()
+            .map_or((self.shape.dahl_travel, self.shape.dahl_velocity), |t| {
+                t.at(at[0])
+            });
         Shape {
-            dahl_travel: self
-                .travel
-                .as_ref()
-                .map_or(self.shape.dahl_travel, |t| t.at(at[0])),
+            dahl_travel,
+            dahl_velocity,
             ..self.shape
         }
     }
@@ -1569,6 +1684,12 @@ impl LawFit {
             if let Some(t) = &self.travel {
                 inp.linear
                     .insert("effects.polynomial_force.dahl_travel".into(), t.slope);
+                if t.velocity_varies() {
+                    inp.linear.insert(
+                        "effects.polynomial_force.dahl_velocity".into(),
+                        t.velocity_slope,
+                    );
+                }
             }
             for (term, forms) in &self.structure.terms {
                 let c = self.basis_coefficients(*term, k);
@@ -1701,25 +1822,53 @@ fn cause_of(terms: &[TermFit], cfg: &RigConfig, names: &[String]) -> String {
     s
 }
 
-/// The summary's sentence on a pre-yield travel that follows the input.
+/// The summary's sentence on a Dahl shape (pre-yield travel, series velocity) that follows the
+/// input.
 fn travel_text(t: &TravelDependence) -> String {
-    format!(
-            "The pre-yield travel follows {}: δ = {:.3e} m {} {:.3e} m/{}·{} (chosen per operating point: {}; transfer NRMSE {:.4} with one travel for all, {:.4} with δ({})).",
-            t.input,
-            t.at_zero,
-            if t.slope < 0.0 { "−" } else { "+" },
-            t.slope.abs(),
+    let line = |a: f64, b: f64, u: &str| {
+        format!(
+            "{a:.3e} {u} {} {:.3e} {u}/{}·{}",
+            if b < 0.0 { "−" } else { "+" },
+            b.abs(),
             t.unit,
-            t.input,
-            t.per_point
-                .iter()
-                .map(|(i, d)| format!("{d:.1e} m at {i} {}", t.unit))
-                .collect::<Vec<_>>()
-                .join(", "),
-            t.nrmse_transfer_shared,
-            t.nrmse_transfer,
             t.input
         )
+    };
+    let what = match (t.travel_varies(), t.velocity_varies()) {
+        (true, true) => format!(
+            "The pre-yield travel follows {}: δ = {}, and the series-dashpot velocity too: V = {}",
+            t.input,
+            line(t.at_zero, t.slope, "m"),
+            line(t.velocity_at_zero, t.velocity_slope, "m/s")
+        ),
+        (false, true) => format!(
+            "The series-dashpot velocity follows {}: V = {} (δ = {:.3e} m)",
+            t.input,
+            line(t.velocity_at_zero, t.velocity_slope, "m/s"),
+            t.at_zero
+        ),
+        _ => format!(
+            "The pre-yield travel follows {}: δ = {}{}",
+            t.input,
+            line(t.at_zero, t.slope, "m"),
+            if t.velocity_at_zero > 0.0 {
+                format!(" (V = {:.3e} m/s)", t.velocity_at_zero)
+            } else {
+                String::new()
+            }
+        ),
+    };
+    format!(
+        "{what} (chosen per operating point: {}; transfer NRMSE {:.4} with one shape for all, {:.4} with the shape following {}).",
+        t.per_point
+            .iter()
+            .map(|(i, d, v)| format!("δ {d:.1e} m, V {v:.1e} m/s at {i} {}", t.unit))
+            .collect::<Vec<_>>()
+            .join("; "),
+        t.nrmse_transfer_shared,
+        t.nrmse_transfer,
+        t.input
+    )
 }
 
 fn summary_of(
@@ -1744,7 +1893,7 @@ fn summary_of(
         pooled.arx
     );
     s += &format!(
-        "Law: {} (pre-yield travel δ = {:.3e} m, smoothing velocity v_s = {:.3e} m/s; velocity from x by a least-squares derivative over ±{:.0} ms where a record gives no `v`, all three chosen by the transfer error). Input dependence chosen {dependence}.\n",
+        "Law: {} (pre-yield travel δ = {:.3e} m, series-dashpot velocity V = {:.3e} m/s, smoothing velocity v_s = {:.3e} m/s; velocity from x by a least-squares derivative over ±{:.0} ms where a record gives no `v`, all four chosen by the transfer error). Input dependence chosen {dependence}.\n",
         terms
             .iter()
             .map(|t| {
@@ -1758,6 +1907,7 @@ fn summary_of(
             .collect::<Vec<_>>()
             .join(", "),
         shape.dahl_travel,
+        shape.dahl_velocity,
         shape.smoothing_velocity,
         shape.velocity_window * 1e3
     );

@@ -111,8 +111,9 @@ pub struct Motion<'a> {
 }
 
 /// Largest step of the Dahl state as a fraction of its pre-yield travel δ: the backward-Euler
-/// update stays in [−1, 1] at any step, but is accurate only while |v|·h ≪ δ, so a sample is
-/// split into substeps (velocity interpolated linearly) until |v|·h ≤ 0.1·δ (at most 256).
+/// update stays in [−1, 1] at any step, but is accurate only while (|v| + V)·h ≪ δ (V the
+/// series-dashpot velocity), so a sample is split into substeps (velocity interpolated
+/// linearly) until (|v| + V)·h ≤ 0.1·δ (at most 256).
 const DAHL_STEP_FRACTION: f64 = 0.1;
 
 /// Dahl state z (-) along the motion for the law's pre-yield travel, starting from z = 0
@@ -126,7 +127,9 @@ pub fn dahl_state(law: &PolynomialForce, m: &Motion<'_>) -> Vec<f64> {
         out.push(z);
         let Some(&v1) = m.v.get(k + 1) else { break };
         let v0 = m.v[k];
-        let need = (m.dt * v0.abs().max(v1.abs()) / (DAHL_STEP_FRACTION * delta)).ceil();
+        let need = (m.dt * (v0.abs().max(v1.abs()) + law.dahl_velocity.max(0.0))
+            / (DAHL_STEP_FRACTION * delta))
+            .ceil();
         let n = need.clamp(1.0, 256.0) as usize;
         let h = m.dt / n as f64;
         for j in 0..n {
@@ -296,6 +299,43 @@ mod tests {
         for (k, zk) in z.iter().enumerate().step_by(10) {
             let exact = 1.0 - (-(vel * k as f64 * dt) / delta).exp();
             assert!((zk - exact).abs() < 0.02, "k {k}: {zk} vs {exact}");
+        }
+    }
+
+    /// With the series-dashpot velocity V the element is driven by r = v − V·z (Spencer et
+    /// al. 1997's dashpot c₁ in series with the element): below V the state settles at
+    /// z = a = v/V along dz/dt = (V/δ)·(a − z)·(1 − z), whose solution from z = 0 is
+    /// z = a·(E − 1)/(E − a), E = exp((1 − a)·V·t/δ); above V it saturates at 1 as Dahl's
+    /// law does.
+    #[test]
+    fn series_velocity_gives_the_bi_viscous_roll_off() {
+        let (dt, delta, vd) = (1e-3, 1e-4, 0.02);
+        let n = 400;
+        for vel in [0.005, 0.05] {
+            let x: Vec<f64> = (0..n).map(|k| vel * k as f64 * dt).collect();
+            let v = vec![vel; n];
+            let l = PolynomialForce {
+                dahl: 1.0,
+                dahl_travel: delta,
+                dahl_velocity: vd,
+                ..PolynomialForce::zero()
+            };
+            let m = Motion {
+                dt,
+                x: &x,
+                v: &v,
+                dp: None,
+            };
+            let z = dahl_state(&l, &m);
+            let settled = if vel < vd { vel / vd } else { 1.0 };
+            assert!((z[n - 1] - settled).abs() < 1e-3, "v {vel}: {}", z[n - 1]);
+            if vel < vd {
+                for (k, zk) in z.iter().enumerate().take(40) {
+                    let e = ((1.0 - settled) * vd * k as f64 * dt / delta).exp();
+                    let exact = settled * (e - 1.0) / (e - settled);
+                    assert!((zk - exact).abs() < 0.01, "k {k}: {zk} vs {exact}");
+                }
+            }
         }
     }
 }

@@ -782,13 +782,17 @@ impl PlantParams {
 /// Stanway et al. 1987: F = c₀·v + F_y·sign(v) + F₀, with F₀ the accumulator preload):
 ///
 /// F = F₀ + c_v·v + F_c·tanh(v/v_s) + c_q·|v|·v + k·(x − x₀) + A_p·(p_a − p_b)
-///     + A_c·tanh(v/v_s)·|p_a − p_b| + F_d·z,   dz/dt = (v − |v|·z)/δ
+///     + A_c·tanh(v/v_s)·|p_a − p_b| + F_d·z,   dz/dt = (r − |r|·z)/δ,  r = v − V·z
 ///
 /// The last term is Dahl's solid-friction model with exponent 1 (Dahl, "A solid friction
 /// model", Aerospace Corp. TOR-0158(3107-18)-1, 1968), used for MR dampers with a viscous
 /// term by Ikhouane & Dyke (Smart Mater. Struct. 16(3):605–616, 2007): a yield force F_d that
 /// builds up over a pre-yield travel δ after each reversal (pre-yield stiffness F_d/δ) instead
-/// of following the sign of the velocity at once; z ∈ [−1, 1] is a state of the plant.
+/// of following the sign of the velocity at once; z ∈ [−1, 1] is a state of the plant. With
+/// V > 0 (`dahl_velocity`) the element is driven by v − V·z: a dashpot in series with it, as
+/// in the modified Bouc–Wen model of Spencer, Dyke, Sain & Carlson (J. Eng. Mech.
+/// 123(3):230–238, 1997), where it gives the roll-off of the force at low velocity; at steady
+/// velocity the force is F_d·clamp(v/V, −1, 1), a bi-viscous law of pre-yield slope F_d/V.
 ///
 /// F opposes +x on the piston and is carried by the rod, so a load cell sees it (it is added
 /// to the rod force). All coefficients default to 0 (term absent). The sign is smoothed by
@@ -843,6 +847,13 @@ pub struct PolynomialForce {
     #[serde(default = "PolynomialForce::default_dahl_travel")]
     #[param(unit = "m", range = Positive, desc = "pre-yield travel δ of the Dahl term (pre-yield stiffness F_d/δ)")]
     pub dahl_travel: f64,
+    /// Series-dashpot velocity V (m/s) of the Dahl term: the state is driven by v − V·z
+    /// instead of v, so below V the force rolls off to the viscous slope F_d/V with a lag
+    /// δ/V (the dashpot c₁ in series with the hysteretic element in the model of Spencer,
+    /// Dyke, Sain & Carlson 1997, J. Eng. Mech. 123(3):230–238); 0 is Dahl's law.
+    #[serde(default)]
+    #[param(unit = "m/s", range = NonNegative, desc = "series-dashpot velocity V of the Dahl term: dz/dt = (r − |r|·z)/δ with r = v − V·z (0: Dahl's law)")]
+    pub dahl_velocity: f64,
     /// Smoothing velocity v_s (m/s) of the sign terms.
     #[serde(default = "PolynomialForce::default_vs")]
     #[param(unit = "m/s", range = Positive, desc = "smoothing velocity v_s of sign(v) ≈ tanh(v/v_s)")]

@@ -31,10 +31,11 @@ fn row(p: &spec::Param) -> [String; 5] {
 /// Entries added on purpose after the fixture (the line scheme and the segment
 /// modes' stability margin, added 2026-11-26; the friction variant `lugre` and the
 /// line_dynamics variant `hose`, 2026-11-27, whose new choice the fixture's
-/// `effects.friction.variant` row carries; the Dahl term of the grey-box force law; the
+/// `effects.friction.variant` row carries; the Dahl term of the grey-box force law and its
+/// series-dashpot velocity; the
 /// position sensor's velocity window of an imposed-motion replay, 2026-11-28);
 /// tests/rust/param_registry.rs checks their rows.
-const ADDED: [&str; 10] = [
+const ADDED: [&str; 11] = [
     "integration.max_omega_h_line",
     "integration.line_method",
     "effects.friction.bristle_stiffness",
@@ -44,6 +45,7 @@ const ADDED: [&str; 10] = [
     "effects.line_dynamics.resistance",
     "effects.polynomial_force.dahl",
     "effects.polynomial_force.dahl_travel",
+    "effects.polynomial_force.dahl_velocity",
     "sensors.position.velocity_window",
 ];
 

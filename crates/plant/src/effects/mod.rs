@@ -271,6 +271,7 @@ impl PolynomialForce {
             pressure_coulomb: 0.0,
             dahl: 0.0,
             dahl_travel: Self::default_dahl_travel(),
+            dahl_velocity: 0.0,
             smoothing_velocity: Self::default_vs(),
         }
     }
@@ -292,8 +293,19 @@ impl PolynomialForce {
             return (0.0, 0.0);
         }
         let delta = self.dahl_travel.max(1e-12);
-        let den = 1.0 + h * v_old.abs() / delta;
+        let den = self.dahl_denominator(z, v_old, h);
         (self.dahl * z / den, self.dahl * h / (delta * den))
+    }
+
+    /// 1 + h·(|v_old − V·z| + V)/δ: the backward-Euler denominator of the Dahl state with the
+    /// series-dashpot velocity V (`dahl_velocity`; V = 0 gives 1 + h·|v_old|/δ), from
+    /// dz/dt = (r − |r|·z)/δ, r = v − V·z, with |r| about the start of the step and r
+    /// implicit in z. |z'| ≤ 1 whenever |v'| ≤ |r_old| + V.
+    #[inline]
+    fn dahl_denominator(&self, z: f64, v_old: f64, h: f64) -> f64 {
+        let delta = self.dahl_travel.max(1e-12);
+        let vd = self.dahl_velocity;
+        1.0 + h * ((v_old - vd * z).abs() + vd) / delta
     }
 
     /// The Dahl state after the substep of [`Self::dahl_implicit`], given the new velocity
@@ -304,7 +316,7 @@ impl PolynomialForce {
             return 0.0;
         }
         let delta = self.dahl_travel.max(1e-12);
-        ((z + h * v_new / delta) / (1.0 + h * v_old.abs() / delta)).clamp(-1.0, 1.0)
+        ((z + h * v_new / delta) / self.dahl_denominator(z, v_old, h)).clamp(-1.0, 1.0)
     }
 
     /// Force F (N, opposing +x) at position `x` (m), velocity `v` (m/s) and chamber
@@ -381,13 +393,23 @@ impl PolynomialForce {
                 self.pressure_coulomb
             ),
         );
-        t(
-            self.dahl,
-            format!(
-                "Dahl yield force {:.4e} N · z, dz/dt = (v − |v|·z)/δ, pre-yield travel δ = {:.3e} m",
-                self.dahl, self.dahl_travel
-            ),
-        );
+        if self.dahl_velocity > 0.0 {
+            t(
+                self.dahl,
+                format!(
+                    "Dahl yield force {:.4e} N · z behind a series dashpot, dz/dt = (r − |r|·z)/δ, r = v − V·z, pre-yield travel δ = {:.3e} m, V = {:.3e} m/s",
+                    self.dahl, self.dahl_travel, self.dahl_velocity
+                ),
+            );
+        } else {
+            t(
+                self.dahl,
+                format!(
+                    "Dahl yield force {:.4e} N · z, dz/dt = (v − |v|·z)/δ, pre-yield travel δ = {:.3e} m",
+                    self.dahl, self.dahl_travel
+                ),
+            );
+        }
         s
     }
 }
