@@ -10,6 +10,9 @@
 //! bench/results/diagnose_eval.md) and one line per case to stdout. With `OFFSETS=1` in the
 //! environment every record also gets `synth::realistic_offsets` (sensor zero errors); with
 //! `SENSOR_OFFSETS=1` the diagnosis estimates them (`Options::sensor_offsets`).
+//! `DEBUG=1` prints every candidate and the final residual test per channel (level, Ljung–Box
+//! Q) to stderr. The case index picks effect and level, so `0 0 0 5112 OUT.md 0 3` runs the
+//! full run's 36 small cases alone and `0 20 0 5072 OUT.md 0 0` its 20 clean cases.
 use ehactl_ident::synth::{make_case, make_case_small, make_case_variant, VARIANT_CASES};
 use ehactl_ident::{diagnose, Options};
 use ehactl_plant::EffectId;
@@ -125,6 +128,16 @@ fn main() {
                 None => label.clone(),
             },
         };
+        if std::env::var("DEBUG").is_ok_and(|v| v == "1") {
+            for c in &d.candidates {
+                eprintln!(
+                    "  {} [{}] {:.4} {}",
+                    c.effect, c.variant, c.nrmse_validation, c.evidence
+                );
+            }
+            eprintln!("  residual {:?}", d.residual_test.channels);
+            eprintln!("  floor {:.5} refit {:?}", d.noise_floor, d.nrmse_refit);
+        }
         let line = format!("seed {seed} hidden {shown} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { d.cause.clone() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
         bar.suspend(|| eprintln!("{line}"));
         let _ = writeln!(lines, "{line}");

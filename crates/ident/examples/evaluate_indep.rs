@@ -127,7 +127,7 @@ fn main() {
         // with the generator's true noise σ (not the diagnosis' own estimate): the largest
         // ratio over channels of the refit NRMSE to σ/std(held-out channel); above noise
         // when > 6 (the residual test's level at which a residual is never counted as
-        // noise, `residual::LEVEL_SOFT`; clean cases show ≈ 3, mostly the replay's own
+        // noise before 2026-11-28, `residual::LEVEL_LARGE`; clean cases show ≈ 3, mostly the replay's own
         // integration error on the low-noise position channel).
         let rig = ehactl_ident::indep::Rig::default();
         let n = case.record.len();
@@ -152,8 +152,8 @@ fn main() {
         // nominal-only model that a candidate's fit found (the effect carrying none of its
         // gain, `MIN_EFFECT_SHARE`).
         let ratio_final = over_true_noise(&d.nrmse_extended);
-        let above_final = ratio_final > ehactl_ident::residual::LEVEL_SOFT;
-        let above = ratio > ehactl_ident::residual::LEVEL_SOFT;
+        let above_final = ratio_final > ehactl_ident::residual::LEVEL_LARGE;
+        let above = ratio > ehactl_ident::residual::LEVEL_LARGE;
         let line = format!(
             "seed {seed} kind {kind} expect {want} {want_var} -> {} {variant} causes {} gain {:.3} nominal {:.4} refit {:.4} extended {:.4} floor {:.4} refit_over_true_noise {ratio:.1} refit_above_noise {above} final_over_true_noise {ratio_final:.1} final_above_noise {above_final} refit_continued {} time {dt:.1}{}",
             d.cause,

@@ -149,7 +149,7 @@ pub(crate) struct Fitted<'a> {
 /// Why a round winner is weak evidence, or `None`: one of its own parameters ended within
 /// 0.5 % of the span from a bound of its range (a fit at a corner: the effect's shape is
 /// forced onto an error of another shape); it explains less than [`WEAK_SHARE`] of the error
-/// above the floor; or it leaves a residual above `residual::LEVEL_SOFT` × the floor on some
+/// above the floor; or it leaves a residual above `residual::LEVEL_LARGE` × the floor on some
 /// channel while the runner-up explains at least [`WEAK_SHARE`] too (two effects fitting the
 /// same part of an error neither removes).
 fn weakness(
@@ -190,7 +190,7 @@ fn weakness(
         .filter_map(|(c, f)| Some((c, w.err.channels.get(c)? / f.max(1e-300))))
         .max_by(|a, b| a.1.total_cmp(&b.1))?;
     let r_share = 1.0 - r.excess.min(1.0);
-    (worst.1 > crate::residual::LEVEL_SOFT && r_share >= WEAK_SHARE).then(|| {
+    (worst.1 > crate::residual::LEVEL_LARGE && r_share >= WEAK_SHARE).then(|| {
         format!(
             "it leaves `{}` at {:.0}× its noise floor while {} explains {:.0} % of the error above the floor as well",
             worst.0,

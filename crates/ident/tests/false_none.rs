@@ -112,10 +112,18 @@ small!(
     EffectId::SupplyPressureDrop
 );
 small!(small_time_delay_is_not_none, EffectId::TimeDelay);
+// Not `none` since the refit with restarts and `residual::LEVEL_SOFT` = 2.5 (2026-11-28): the
+// residual is coloured above 2.5× its floor, so the answer is `unexplained` or the effect.
+small!(
+    small_internal_leakage_is_not_none,
+    EffectId::InternalLeakage
+);
+small!(small_flexible_mount_is_not_none, EffectId::FlexibleMount);
 // Known misses: after the full search no candidate passes the acceptance and the residual,
-// coloured but below `residual::LEVEL_SOFT` × its floor, is counted as noise (`none`).
-// Lowering LEVEL_SOFT to 1.5 found 5 of these 8 but made the independent generator's clean
-// case `unexplained`; the acceptance of small effects is the open work (DIAGNOSIS.md).
+// white or coloured below `residual::LEVEL_SOFT` = 2.5× its floor, is counted as noise
+// (`none`). The soft level is calibrated on clean records (a clean PI force-rig record leaves
+// 2.36×), so it cannot go lower without answering clean records `unexplained`; what would
+// name these is an acceptance that weighs the low-noise channels (DIAGNOSIS.md).
 small!(
     small_friction_is_not_none,
     EffectId::Friction,
@@ -137,11 +145,6 @@ small!(
     "known miss: none at 2.5x the noise"
 );
 small!(
-    small_internal_leakage_is_not_none,
-    EffectId::InternalLeakage,
-    "known miss: none at 2.5x the noise"
-);
-small!(
     small_bulk_modulus_pressure_is_not_none,
     EffectId::BulkModulusPressure,
     "known miss: none at 2.5x the noise"
@@ -149,10 +152,5 @@ small!(
 small!(
     small_line_dynamics_is_not_none,
     EffectId::LineDynamics,
-    "known miss: none at 2.5x the noise"
-);
-small!(
-    small_flexible_mount_is_not_none,
-    EffectId::FlexibleMount,
     "known miss: none at 2.5x the noise"
 );

@@ -79,7 +79,9 @@ fn dahl_presliding_friction() {
 /// Its variant is a documented miss since the plant's drift-before-kick substep (BENCHMARKS.md
 /// "Diagnosis speed: drift before kick"): `pipe` and `hose` fit this record within 1 % of each
 /// other (held-out 0.0128 vs 0.0129) and `pipe` is named; with the former substep `hose` was.
-/// Asserted as found: the tie, and the name.
+/// Since the nominal refit has a larger budget and a restart (`diagnose::REFIT_BUDGET`,
+/// 2026-11-28) the variants start from another refit and `hose` ends further off (0.0128 vs
+/// 0.0138, 8 %). Asserted as found: the two within 10 %, and the name.
 #[test]
 fn compliant_hose() {
     check_with(7109, "hose", false);
@@ -104,7 +106,7 @@ fn compliant_hose() {
     };
     let (pipe, hose) = (nrmse_of("pipe"), nrmse_of("hose"));
     assert!(
-        (hose / pipe - 1.0).abs() < 0.01,
+        (hose / pipe - 1.0).abs() < 0.1,
         "pipe {pipe} hose {hose}: {}",
         c.evidence
     );
@@ -154,8 +156,10 @@ fn tone_on_one_channel_7039() {
 /// A clean record (seed 7086) on which every candidate's fit lowered the held-out error by the
 /// same 10 %: the gain was the refit's, not any effect's (the internal leakage that used to be
 /// accepted had a coefficient of 2e-16 m³/(s·Pa)). The effect-share check
-/// (`MIN_EFFECT_SHARE`) takes that refit as the current model and fits the round again: the
-/// answer is `none`, on a model better than the first refit.
+/// (`MIN_EFFECT_SHARE`) took that refit as the current model and fitted the round again: the
+/// answer was `none`, on a model better than the first refit (held-out 0.0060 → 0.0054). Since
+/// the refit has a larger budget and a restart (`diagnose::REFIT_BUDGET`, 2026-11-28) it
+/// reaches that model itself (0.0054): still `none`, with no effect and no worse model.
 #[test]
 fn clean_refit_gain_is_not_an_effect_7086() {
     check(7086, "clean");
@@ -164,14 +168,9 @@ fn clean_refit_gain_is_not_an_effect_7086() {
         diagnose(&case.nominal, &case.record, None, &Options::default()).expect("diagnosis runs");
     assert!(d.causes.is_empty(), "{:?}", d.causes);
     assert!(
-        d.nrmse_extended.overall < 0.95 * d.nrmse_refit.overall,
-        "{} vs {}",
+        d.nrmse_extended.overall < 0.95 * 0.0060,
+        "{} (refit {})",
         d.nrmse_extended.overall,
         d.nrmse_refit.overall
-    );
-    assert!(
-        d.summary.contains("went on from that model"),
-        "{}",
-        d.summary
     );
 }
