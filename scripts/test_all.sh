@@ -143,6 +143,9 @@ own_group=(setsid)
 command -v setsid >/dev/null || own_group=()
 "${own_group[@]}" bash -c '
   set -uo pipefail
+  # setsid made a new session, which Linux schedules as its own group (autogroup) at equal
+  # share with the suite: nice 19 would then act only inside it. The group itself goes to 19.
+  { [ -w /proc/self/autogroup ] && echo 19 >/proc/self/autogroup; } 2>/dev/null || true
   echo "== [$(( $(date +%s) - EHACTL_T0 )) s] cross-build toolchain (rustup targets; Zig and cargo-zigbuild into $VIRTUAL_ENV)"
   CROSS_SETUP_ONLY=1 scripts/cross_build.sh "$@"; rc=$?
   touch "$CROSS_READY"
