@@ -616,19 +616,12 @@ fn choose_shape(su: &Setup<'_>) -> Result<(Shape, Structure, f64), String> {
     // The Dahl term behind a series dashpot (V > 0), at the derivative window chosen above:
     // every travel, series velocity and smoothing velocity (the windows are not tried again,
     // which would multiply this stage's cost by their number).
-    let mut series = Vec::new();
-    for &d in &DAHL_TRAVELS {
-        for &fv in &DAHL_VELOCITY_FRACTIONS {
-            for &fs in &SMOOTHING_FRACTIONS {
-                series.push(Shape {
-                    dahl_travel: d,
-                    dahl_velocity: fv * su.v_rms,
-                    smoothing_velocity: fs * su.v_rms,
-                    velocity_window: best.0.velocity_window,
-                });
-            }
-        }
-    }
+    let series = shape_product(
+        &[best.0.velocity_window],
+        &DAHL_TRAVELS,
+        &DAHL_VELOCITY_FRACTIONS.map(|f| f * su.v_rms),
+        &SMOOTHING_FRACTIONS.map(|f| f * su.v_rms),
+    );
     Ok(try_shapes(su, &narrow, series)
         .into_iter()
         .chain(std::iter::once(best))
@@ -990,16 +983,34 @@ fn shape_grid(v_rms: f64, library: &[LawTerm], prepared: &[Prepared<'_>]) -> Vec
             .map(|m| *m as f64 * dt)
             .collect()
     };
+    shape_product(
+        &windows,
+        &travels,
+        &[0.0],
+        &SMOOTHING_FRACTIONS.map(|f| f * v_rms),
+    )
+}
+
+/// Every shape of the given derivative windows (s), Dahl travels δ (m), series-dashpot
+/// velocities V (m/s) and smoothing velocities v_s (m/s), in that order of nesting.
+fn shape_product(
+    windows: &[f64],
+    travels: &[f64],
+    dahl_velocities: &[f64],
+    smoothings: &[f64],
+) -> Vec<Shape> {
     let mut out = Vec::new();
-    for &w in &windows {
-        for &d in &travels {
-            for &s in &SMOOTHING_FRACTIONS {
-                out.push(Shape {
-                    dahl_travel: d,
-                    dahl_velocity: 0.0,
-                    smoothing_velocity: s * v_rms,
-                    velocity_window: w,
-                });
+    for &velocity_window in windows {
+        for &dahl_travel in travels {
+            for &dahl_velocity in dahl_velocities {
+                for &smoothing_velocity in smoothings {
+                    out.push(Shape {
+                        dahl_travel,
+                        dahl_velocity,
+                        smoothing_velocity,
+                        velocity_window,
+                    });
+                }
             }
         }
     }
