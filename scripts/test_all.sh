@@ -164,21 +164,31 @@ cargo clippy --release --workspace --all-targets -- -D warnings
 # clippy with the feature on, over the whole workspace so that every other crate keeps its
 # features and the check reuses the step above (a `-p ehactl-canopen` build recompiled the
 # plant and the logger with another feature set).
+# The feature changes only the library of ehactl-canopen (crates/canopen/src/socketcan_bus.rs),
+# so the libraries are enough (--lib): the crates that use it are checked again against it,
+# their tests, examples and benchmarks, which the feature does not change, are not.
 step "SocketCAN transport (clippy with --features ehactl-canopen/socketcan)"
-cargo clippy --release --workspace --all-targets --features ehactl-canopen/socketcan -- -D warnings
-step "building (release): every target but the benchmarks, once; the tests, the QEMU step and the bindings reuse it"
+cargo clippy --release --workspace --lib --bins --features ehactl-canopen/socketcan -- -D warnings
+step "building (release): the libraries, binaries and tests, once; the tests, the QEMU step and the bindings reuse it"
 # The Python extension's crate is built once, by maturin below (its pyo3 build script depends
 # on maturin's environment, so a cargo build of it here would be redone there); clippy above
-# checked it, and it has no Rust tests. The benchmarks (criterion) are not built: clippy
-# checked them, no test runs them, and their build is about a minute of CPU (BENCHMARKS.md
-# gives the command of each).
-cargo build --release --workspace --exclude ehactl-python --lib --bins --tests --examples
+# checked it, and it has no Rust tests. Neither the benchmarks (criterion) nor the examples
+# (the evaluations, profilers and figure generators of BENCHMARKS.md, DIAGNOSIS.md and
+# REPRODUCTION.md, each documented with its command) are compiled to machine code: clippy
+# checked them, and no test runs them. The tests below select the same targets; the doc
+# tests run after them when the sources have any (scripts/doc_tests.py finds the Rust code
+# blocks of doc comments; today's snippets are all `text` or `toml`).
+cargo build --release --workspace --exclude ehactl-python --lib --bins --tests
 disk
 step "Rust tests"
 # Property tests (proptest) run a fixed seed here so that a CI result is reproducible; without
 # the variable every developer run draws new cases, and the long random runs are in
 # BENCHMARKS.md ("Fuzzed parsers").
-PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}" cargo test --release --workspace --exclude ehactl-python 2>&1 | tee "$counts.rust"
+PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}" cargo test --release --workspace --exclude ehactl-python --lib --bins --tests 2>&1 | tee "$counts.rust"
+if "$PY" scripts/doc_tests.py; then
+  step "Rust doc tests"
+  cargo test --release --workspace --exclude ehactl-python --doc 2>&1 | tee -a "$counts.rust"
+fi
 awk '/^test result:/ {p += $4; f += $6; i += $8; n++} END {printf "Rust: %d tests passed, %d ignored (%d test binaries and doc-test runs)\n", p, i, n}' "$counts.rust" >>"$counts"
 rm -f "$counts.rust"
 disk

@@ -7,6 +7,8 @@
 # bindings. No cross-builds, no QEMU, no apt-get.
 # Python tools go into .venv-test/ (EHACTL_TEST_VENV=DIR to choose another), as in test_all.sh.
 # Extra arguments go to every `cargo test`, e.g. `scripts/test_fast.sh -- --test-threads 1`.
+# It builds with the `fast` profile (Cargo.toml: release code, incremental) into target/fast/,
+# apart from the suite's target/release/: after an edit only what the edit reaches is rebuilt.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 t0=$(date +%s)
@@ -30,28 +32,28 @@ echo "== file-level import circles (scripts/file_cycles.py)"
 
 echo "== formatting and lints"
 cargo fmt --all --check
-cargo clippy --release --workspace --all-targets -- -D warnings
+cargo clippy --profile fast --workspace --all-targets -- -D warnings
 "$PY" -m ruff check
 
 echo "== Rust tests (without the diagnosis catalogue)"
 export PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}"
 # The Python extension's crate has no Rust tests (its tests are pytest files, run by
 # test_all.sh after maturin builds it); clippy above checked it.
-cargo test --release --workspace --exclude ehactl-ident --exclude ehactl-python "$@"
+cargo test --profile fast --workspace --exclude ehactl-ident --exclude ehactl-python "$@"
 # ehactl-ident's unit tests and its two quick integration tests. Selected with --workspace (the
 # other crates' unit tests run again, a few seconds) so that Cargo resolves the same features
 # as above: `-p ehactl-ident` would build every dependency a second time after each change.
-cargo test --release --workspace --exclude ehactl-python --lib --test data_errors --test data_units "$@"
+cargo test --profile fast --workspace --exclude ehactl-python --lib --test data_errors --test data_units "$@"
 
 echo "== Python tests (no CAN, no diagnosis catalogue, no bindings)"
 # Nothing to recompile here: the tests above built every crate the CLI needs with the same
 # features (crates/feature-unify; tests/python/test_feature_sets.py checks it), so this only
-# links target/release/ehactl if the tests did not already.
-cargo build --release -p ehactl-cli
+# links target/fast/ehactl if the tests did not already.
+cargo build --profile fast -p ehactl-cli
 # Skipped here, run by test_all.sh: CAN end to end (hub, devices, LocalNode), diagnosis on
 # generated and real records, the README's examples and the documented tuning figures (need
 # the bindings), fault injection.
-EHACTL_BIN="$PWD/target/release/ehactl" "$PY" -m pytest tests/python -q \
+EHACTL_BIN="$PWD/target/fast/ehactl" "$PY" -m pytest tests/python -q \
   --ignore=tests/python/test_canbus_hub.py --ignore=tests/python/test_canopen_e2e.py \
   --ignore=tests/python/test_canopen_localnode.py --ignore=tests/python/test_devices.py \
   --ignore=tests/python/test_diagnose_baseline.py --ignore=tests/python/test_diagnose_cli.py \
