@@ -571,7 +571,20 @@ fn fault_case(set: fn(&Knobs), expect: &str, bound: f64) -> Trip {
         panic!("no trip for {expect}: {err:?}")
     };
     assert!(what.contains(expect), "{what} vs {expect}");
+    let at_trip = knobs.seen.lock().unwrap().len();
     let _ = hal.safe_stop(0.0);
+    // The safe stop after the trip puts the valve at its safe command: setpoint 0 (the loop
+    // commanded +1 V, spool +1638), then control word HOLD.
+    std::thread::sleep(Duration::from_millis(20));
+    let after: Vec<_> = knobs.seen.lock().unwrap()[at_trip..].to_vec();
+    let zero = after.iter().position(|f| *f == (0x230, vec![0, 0]));
+    let hold = after
+        .iter()
+        .position(|f| *f == (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x03, 0x00, 0, 0]));
+    assert!(
+        matches!((zero, hold), (Some(z), Some(h)) if z < h),
+        "{expect}: no setpoint 0 then HOLD after the trip: {after:02X?}"
+    );
     knobs.stop.store(true, Ordering::Relaxed);
     rig_thread.join().unwrap();
     let last_hb = knobs.last_valve_heartbeat.lock().unwrap().unwrap();
