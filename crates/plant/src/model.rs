@@ -25,8 +25,7 @@
 //! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see [`fastest_mode`]).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
-use crate::effects::friction::FrictionModel;
-use crate::effects::{self, validate_variants, CommandStage};
+use crate::effects::{self, validate_variants, CommandStage, ForceStage};
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
 use crate::line::Line;
@@ -60,8 +59,9 @@ struct Consts {
     mass: f64,
     damping: f64,
     k_load: f64,
-    /// Pre-sliding spring σ₀ (N/m) of `friction` variant `lugre`, 0 otherwise: only the
-    /// substep rule reads it ([`fastest_mode`]).
+    /// Stiffness (N/m) of the force stage (`friction` variant `lugre`: the pre-sliding
+    /// spring σ₀; [`ForceStage::stiffness`]), 0 otherwise: only the substep rule reads it
+    /// ([`fastest_mode`]).
     k_bristle: f64,
     x_contact: f64,
     end_stops: bool,
@@ -90,7 +90,6 @@ pub struct Plant {
     spool_half: SpoolModel,
     /// Exact linear transition of chambers and mechanics (`integration.method = "linear_exact"`).
     linear: Option<LinearExact>,
-    friction: Option<FrictionModel>,
     /// `polynomial_force` on the rod ([`crate::effects::PolynomialForce`]).
     poly: Option<crate::effects::PolynomialForce>,
     /// Dahl state z (-, in [−1, 1]) of the `polynomial_force` Dahl term
@@ -210,9 +209,6 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
             ),
         ));
     }
-    if let Some(f) = p.effects.friction.as_ref() {
-        f.validate_forces()?;
-    }
     if let Some(d) = p.effects.valve_dynamics.as_ref() {
         d.validate_order()?;
     }
@@ -259,6 +255,8 @@ impl Plant {
             ));
         }
         let e = &params.effects;
+        // The effect components first: the constants below read the force stage's.
+        let components = effects::Components::configure(e, &effects::Setup { control_dt });
         // Each effect's constants, derived in its module (crates/plant/src/effects/).
         let (beta_slope, beta_max, air) = effects::bulk_modulus_pressure::chamber_constants(
             e.bulk_modulus_pressure.as_ref(),
@@ -268,8 +266,6 @@ impl Plant {
             e.internal_leakage.as_ref(),
             e.external_leakage.as_ref(),
         );
-        let (friction, friction_viscous, k_bristle) =
-            effects::friction::configure(e.friction.as_ref());
         let (supply_r, supply_tau, supply) = effects::supply_pressure_drop::configure(
             e.supply_pressure_drop.as_ref(),
             params.supply.pressure,
@@ -293,9 +289,9 @@ impl Plant {
             k_ext_b,
             air,
             mass: params.mechanics.mass,
-            damping: params.mechanics.damping + friction_viscous,
+            damping: params.mechanics.damping + components.friction.viscous(),
             k_load: params.mechanics.load_stiffness,
-            k_bristle,
+            k_bristle: components.friction.stiffness(),
             x_contact: params.mechanics.load_contact_position,
             end_stops: params.mechanics.end_stops,
             full_scale: params.valve.command_full_scale,
@@ -368,7 +364,7 @@ impl Plant {
         let linear_exact = params.integration.method
             == crate::params::IntegrationMethod::LinearExact
             && lines.is_none()
-            && !e.friction.as_ref().is_some_and(|f| f.enabled)
+            && !components.friction.is_active()
             && !e.polynomial_force.is_some_and(|f| f.enabled)
             && !e.polynomial_flow.is_some_and(|f| f.enabled)
             // The structural effect variants are integrated by the exponential-Euler substep only.
@@ -444,7 +440,6 @@ impl Plant {
             spool_model: SpoolModel::new(params, h)?,
             spool_half: SpoolModel::new(params, 0.5 * h)?,
             linear,
-            friction,
             poly: e.polynomial_force.filter(|f| f.enabled),
             dahl_z: 0.0,
             poly_flow: e.polynomial_flow.filter(|f| f.enabled),
@@ -464,7 +459,7 @@ impl Plant {
             h,
             state: PlantState::default(),
             cycle: 0,
-            components: effects::Components::configure(e, &effects::Setup { control_dt }),
+            components,
             params: params.clone(),
             c,
         };
@@ -508,11 +503,9 @@ impl Plant {
             friction: 0.0,
             external: f_ext0,
             rod_force: f_load0,
-            stuck: self.friction.is_some(),
+            // A run starts at rest, held by friction if there is any.
+            stuck: self.components.friction.is_active(),
         };
-        if let Some(f) = self.friction.as_mut() {
-            f.reset();
-        }
         self.dahl_z = 0.0;
         if let Some((la, lb)) = self.lines.as_mut() {
             la.p.iter_mut().for_each(|p| *p = p_a);
@@ -1165,16 +1158,14 @@ impl Plant {
         let d_mount = if c.body_mount { 0.0 } else { d_mount };
         let m_eff = c.mass + h * (c.damping + d_mount + df_poly);
         let v_free = (c.mass * s.v + h * f_other) / m_eff;
-        let (v_new, f_fric, stuck) = match self.friction.as_mut() {
-            Some(fm) => fm.project(s.v, v_free, m_eff, h),
-            None => (v_free, 0.0, false),
-        };
+        // The force stage (`friction`: stick projection, Stribeck slip or LuGre bristles).
+        let kick = self.components.friction.kick(s.v, v_free, m_eff, h);
         if let Some(f) = self.poly.as_ref() {
-            self.dahl_z = f.dahl_advance(self.dahl_z, v_old, v_new, h);
+            self.dahl_z = f.dahl_advance(self.dahl_z, v_old, kick.v, h);
         }
-        s.v = v_new;
-        s.friction = f_fric;
-        s.stuck = stuck;
+        s.v = kick.v;
+        s.friction = kick.force;
+        s.stuck = kick.stuck;
         if c.body_mount {
             // Body already advanced above.
         } else if let Some((ml, km, dm)) = c.mount {

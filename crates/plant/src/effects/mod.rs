@@ -7,15 +7,20 @@
 //! Adding an effect on the plant side: its module here with its section struct (the
 //! `#[param]` declarations, defaults) and its component, a type implementing
 //! [`Component`] (cross-field checks, the constants derived from the section, its state and
-//! reset) and the trait of its stage in the substep (so far [`CommandStage`], the command
-//! path: `time_delay`), registered by one line in `components!` below; its `EffectId`
-//! variant with the lines in [`EffectId::ALL`], [`EffectId::as_str`] and the [`Effects`]
-//! switch matches below (exhaustive: a new id does not build without them); its `Option`
-//! field in [`Effects`] and its re-export line (crates/plant/src/params.rs). In
-//! [`crate::model`] the component's stage is called where the cycle reaches it (one line:
-//! `Plant::step` calls `time_delay`'s `push` once per period and `command` per substep);
-//! validation, configuration and reset go through [`Components`]. The effects not moved to
-//! a component yet (all but `time_delay`) still have their checks called from
+//! reset) and the trait of its stage in the substep: [`CommandStage`] on the command path
+//! (`time_delay`: `DelayLine`) or [`ForceStage`] in the piston's velocity update
+//! (`friction`: `FrictionStage`), or a new stage trait in `component.rs` where the effect
+//! acts elsewhere; registered by one line in `components!` below. Beside it here: its
+//! `pub mod` line, its `EffectId` variant with the lines in [`EffectId::ALL`],
+//! [`EffectId::as_str`] and the [`Effects`] switch matches below (exhaustive: a new id does
+//! not build without them); in crates/plant/src/params.rs its `Option` field in [`Effects`]
+//! and its re-export line. In [`crate::model`] the component's stage is called where the
+//! cycle reaches it (`Plant::step` calls `time_delay`'s `push` once per period and `command`
+//! per substep; `Plant::advance_substep` calls `friction`'s `kick` in the velocity update,
+//! and `Plant::configure` reads the stage's constants it folds into the mechanics, the
+//! viscous friction and the bristle stiffness of the substep rule); validation,
+//! configuration and reset go through [`Components`]. The effects not moved to a component
+//! yet (all but `time_delay` and `friction`) still have their checks called from
 //! [`validate_variants`] or `model::validate`, their derived constants called in
 //! `Plant::configure` and their terms in the substep (`Plant::advance_substep`).
 //!
@@ -40,7 +45,7 @@ pub mod valve_dynamics;
 pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
-pub use component::{CommandStage, Component, Setup};
+pub use component::{CommandStage, Component, ForceStage, Kick, Setup};
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
 
@@ -219,6 +224,7 @@ macro_rules! components {
 
 // The registration of each effect component: its section's field in `Effects` and its type.
 components! {
+    friction: friction::FrictionStage,
     time_delay: time_delay::DelayLine,
 }
 
@@ -235,9 +241,6 @@ pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::sp
     }
     if let Some(s) = e.supply_pressure_drop.as_ref() {
         s.validate_variant()?;
-    }
-    if let Some(f) = e.friction.as_ref() {
-        f.validate_variant()?;
     }
     if let Some(l) = e.line_dynamics.as_ref() {
         l.validate_variant()?;
