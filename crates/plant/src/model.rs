@@ -25,7 +25,9 @@
 //! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see [`fastest_mode`]).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
-use crate::effects::{self, validate_variants, CommandStage, ForceStage};
+use crate::effects::{
+    self, validate_variants, CommandStage, ForceStage, LoadSpring, MountStage, PistonForces,
+};
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
 use crate::line::Line;
@@ -71,6 +73,8 @@ struct Consts {
     /// Supply time constant (s), variant `resistance` (the `linear_exact` step uses it).
     supply_tau: f64,
     supply: Option<crate::effects::SupplyModel>,
+    /// The mount's (mass (kg), stiffness (N/m), damping (N·s/m)) for the substep rule and
+    /// `linear_exact` ([`MountStage::coefficients`]); the substep calls the stage.
     mount: Option<(f64, f64, f64)>,
     /// The mount is the cylinder body's (`flexible_mount` variant `piston_side`).
     body_mount: bool,
@@ -271,7 +275,6 @@ impl Plant {
             params.supply.pressure,
             params.fluid.bulk_modulus,
         );
-        let (mount, body_mount) = effects::flexible_mount::configure(e.flexible_mount.as_ref());
         let c = Consts {
             a_a: params.cylinder.area_a,
             a_b: params.cylinder.area_b,
@@ -298,8 +301,8 @@ impl Plant {
             supply_r,
             supply_tau,
             supply,
-            mount,
-            body_mount,
+            mount: components.flexible_mount.coefficients(),
+            body_mount: components.flexible_mount.is_body(),
             line_scale: params.integration.max_omega_h
                 / params
                     .integration
@@ -496,7 +499,7 @@ impl Plant {
             x: x0,
             v: 0.0,
             // With a compliant cylinder mount x_load is the body's displacement.
-            x_load: if c.body_mount { 0.0 } else { x0 },
+            x_load: self.components.flexible_mount.initial_load_position(x0),
             v_load: 0.0,
             q_a: 0.0,
             q_b: 0.0,
@@ -1112,22 +1115,11 @@ impl Plant {
         // 95 % of the test bench's replay error (BENCHMARKS.md "Diagnosis speed: drift
         // before kick").
         s.x += h * s.v;
-        if c.mount.is_some() && !c.body_mount {
-            s.x_load += h * s.v_load;
-        }
+        let mount = &self.components.flexible_mount;
+        mount.drift(&mut s.x_load, s.v_load, h);
         let f_ext = self.excitation.force(t + h);
         s.external = f_ext;
         let f_hyd = s.p_a * c.a_a - s.p_b * c.a_b;
-        let f_spring = c.k_load * (s.x - c.x_contact);
-        let (f_mount, d_mount) = match c.mount {
-            Some((_, km, dm)) => (km * (s.x - s.x_load) - dm * s.v_load, dm),
-            None => (0.0, 0.0),
-        };
-        let f_on_piston_ext = if c.mount.is_some() && !c.body_mount {
-            0.0
-        } else {
-            f_ext
-        };
         // Rod force law, linearly implicit in v (stable for a stiff damper or smoothed sign).
         let (f_poly, df_poly) = self
             .poly
@@ -1140,22 +1132,23 @@ impl Plant {
             .map_or((0.0, 0.0), |f| f.dahl_implicit(self.dahl_z, s.v, h));
         let (f_poly, df_poly) = (f_poly + f_dahl0 + d_dahl * s.v, df_poly + d_dahl);
         let v_old = s.v;
-        let mut f_other = f_hyd - f_spring - f_mount - f_on_piston_ext - f_poly + df_poly * s.v;
-        if c.body_mount {
-            // Compliant cylinder mount: the body takes the reaction of the oil, seal and
-            // viscous forces; x, v are relative to it, the load spring sees x + x_body.
-            let mb = c.mount.unwrap_or((1.0, 0.0, 0.0));
-            let f_rel = f_hyd - c.damping * s.v - s.friction;
-            let a_body =
-                crate::effects::body_mount_step(&mut s.x_load, &mut s.v_load, f_rel, mb, h);
-            f_other = f_hyd
-                - c.k_load * (s.x + s.x_load - c.x_contact)
-                - f_ext
-                - c.mass * a_body
-                - f_poly
-                + df_poly * s.v;
-        }
-        let d_mount = if c.body_mount { 0.0 } else { d_mount };
+        // The mount stage (`flexible_mount`): hydraulic force, load spring, mount and
+        // external force where each acts on the piston, and the mount's implicit damping.
+        let piston = PistonForces {
+            x: s.x,
+            v: s.v,
+            f_hyd,
+            f_ext,
+            friction: s.friction,
+            spring: LoadSpring {
+                stiffness: c.k_load,
+                contact: c.x_contact,
+            },
+            mass: c.mass,
+            damping: c.damping,
+        };
+        let (f_mounted, d_mount) = mount.piston_force(&piston, &mut s.x_load, &mut s.v_load, h);
+        let f_other = f_mounted - f_poly + df_poly * s.v;
         let m_eff = c.mass + h * (c.damping + d_mount + df_poly);
         let v_free = (c.mass * s.v + h * f_other) / m_eff;
         // The force stage (`friction`: stick projection, Stribeck slip or LuGre bristles).
@@ -1166,15 +1159,7 @@ impl Plant {
         s.v = kick.v;
         s.friction = kick.force;
         s.stuck = kick.stuck;
-        if c.body_mount {
-            // Body already advanced above.
-        } else if let Some((ml, km, dm)) = c.mount {
-            let f = km * (s.x - s.x_load) + dm * s.v - f_ext;
-            s.v_load = (ml * s.v_load + h * f) / (ml + h * dm);
-        } else {
-            s.x_load = s.x;
-            s.v_load = s.v;
-        }
+        mount.follow(&mut s.x_load, &mut s.v_load, s.x, s.v, f_ext, h);
         if c.end_stops {
             if s.x < 0.0 {
                 s.x = 0.0;
@@ -1194,18 +1179,17 @@ impl Plant {
     fn update_rod_force(&mut self) {
         let c = &self.c;
         let s = &mut self.state;
-        let f_ext = s.external;
-        s.rod_force = if c.body_mount {
-            c.k_load * (s.x + s.x_load - c.x_contact) + f_ext
-        } else {
-            c.k_load * (s.x - c.x_contact)
-                + match c.mount {
-                    Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
-                    None => f_ext,
-                }
-        } + self
-            .poly
-            .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
+        let spring = LoadSpring {
+            stiffness: c.k_load,
+            contact: c.x_contact,
+        };
+        s.rod_force = self
+            .components
+            .flexible_mount
+            .rod_force(s.x, s.v, s.x_load, s.v_load, s.external, spring)
+            + self
+                .poly
+                .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
     }
 }
 

@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`ForceStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`ForceStage`], [`MountStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -91,4 +91,83 @@ pub trait ForceStage: Component {
     /// velocity, the stage's force and whether it holds the piston. Without the effect
     /// `Kick { v: v_free, force: 0, stuck: false }`. Real-time safe.
     fn kick(&mut self, v_old: f64, v_free: f64, m_eff: f64, h: f64) -> Kick;
+}
+
+/// The load spring K_L on the piston (`mechanics.load_stiffness`, `load_contact_position`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoadSpring {
+    /// Stiffness K_L (N/m).
+    pub stiffness: f64,
+    /// Piston position at which it is relaxed, x_c (m).
+    pub contact: f64,
+}
+
+/// The piston's side of the force balance a [`MountStage`] reads in a substep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PistonForces {
+    /// Piston position x (m), after the position drift of the substep.
+    pub x: f64,
+    /// Piston velocity v (m/s) at the start of the substep.
+    pub v: f64,
+    /// Hydraulic force A_A·p_A − A_B·p_B (N), at the new pressures.
+    pub f_hyd: f64,
+    /// External force (N), at the end of the substep.
+    pub f_ext: f64,
+    /// The force stage's force of the previous substep (N): the seal friction.
+    pub friction: f64,
+    /// The load spring.
+    pub spring: LoadSpring,
+    /// Piston mass m (kg).
+    pub mass: f64,
+    /// Viscous damping on the piston d (N·s/m), with the force stage's.
+    pub damping: f64,
+}
+
+/// The component on the far side of the rod or of the cylinder body: a mass on a
+/// spring-damper that the piston's velocity update (step 3 of crates/plant/src/model.rs,
+/// drift–kick) couples to. Its two states, the mass's position x_L (m) and velocity v_L
+/// (m/s), are the plant state's `x_load` and `v_load`, which the stage advances in place:
+/// [`MountStage::drift`] with the piston's position drift, [`MountStage::piston_force`]
+/// before the piston's kick, [`MountStage::follow`] after it.
+pub trait MountStage: Component {
+    /// (mass (kg), stiffness (N/m), damping (N·s/m)) of the mount, `None` without one: the
+    /// constants the substep rule and the `linear_exact` scheme read.
+    fn coefficients(&self) -> Option<(f64, f64, f64)>;
+
+    /// Whether the compliance is the cylinder body's (x, v then relative to it).
+    fn is_body(&self) -> bool;
+
+    /// x_L (m) at the start of a run with the piston at `x0` (m).
+    fn initial_load_position(&self, x0: f64) -> f64;
+
+    /// The position drift of x_L over the substep `h` (s) with the velocity `v_load`
+    /// (m/s). Real-time safe.
+    fn drift(&self, x_load: &mut f64, v_load: f64, h: f64);
+
+    /// The piston's force balance with the mount, before the grey-box and force-stage terms
+    /// (N), and the damping (N·s/m) the piston's velocity update takes implicitly; a mount
+    /// whose mass moves with the balance advances x_L, v_L here. Real-time safe.
+    fn piston_force(
+        &self,
+        p: &PistonForces,
+        x_load: &mut f64,
+        v_load: &mut f64,
+        h: f64,
+    ) -> (f64, f64);
+
+    /// After the piston's kick to the velocity `v` (m/s) at position `x` (m), with the
+    /// external force `f_ext` (N): the mass's velocity update over `h` (s). Real-time safe.
+    fn follow(&self, x_load: &mut f64, v_load: &mut f64, x: f64, v: f64, f_ext: f64, h: f64);
+
+    /// Rod force (N) the load cell sees from the load spring, the mount and the external
+    /// force (without the grey-box force law) at the piston state `x` (m), `v` (m/s).
+    fn rod_force(
+        &self,
+        x: f64,
+        v: f64,
+        x_load: f64,
+        v_load: f64,
+        f_ext: f64,
+        spring: LoadSpring,
+    ) -> f64;
 }

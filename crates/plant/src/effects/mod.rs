@@ -8,19 +8,23 @@
 //! `#[param]` declarations, defaults) and its component, a type implementing
 //! [`Component`] (cross-field checks, the constants derived from the section, its state and
 //! reset) and the trait of its stage in the substep: [`CommandStage`] on the command path
-//! (`time_delay`: `DelayLine`) or [`ForceStage`] in the piston's velocity update
-//! (`friction`: `FrictionStage`), or a new stage trait in `component.rs` where the effect
-//! acts elsewhere; registered by one line in `components!` below. Beside it here: its
+//! (`time_delay`: `DelayLine`), [`ForceStage`] in the piston's velocity update (`friction`:
+//! `FrictionStage`) or [`MountStage`] for the mass on the far side of the rod or body
+//! (`flexible_mount`: `Mount`), or a new stage trait in `component.rs` where the effect acts
+//! elsewhere; registered by one line in `components!` below. Beside it here: its
 //! `pub mod` line, its `EffectId` variant with the lines in [`EffectId::ALL`],
 //! [`EffectId::as_str`] and the [`Effects`] switch matches below (exhaustive: a new id does
 //! not build without them); in crates/plant/src/params.rs its `Option` field in [`Effects`]
 //! and its re-export line. In [`crate::model`] the component's stage is called where the
 //! cycle reaches it (`Plant::step` calls `time_delay`'s `push` once per period and `command`
-//! per substep; `Plant::advance_substep` calls `friction`'s `kick` in the velocity update,
-//! and `Plant::configure` reads the stage's constants it folds into the mechanics, the
-//! viscous friction and the bristle stiffness of the substep rule); validation,
-//! configuration and reset go through [`Components`]. The effects not moved to a component
-//! yet (all but `time_delay` and `friction`) still have their checks called from
+//! per substep; `Plant::advance_substep` calls `flexible_mount`'s `drift` with the position
+//! drift, its `piston_force` and `friction`'s `kick` in the velocity update and the mount's
+//! `follow` after it, `Plant::update_rod_force` the mount's `rod_force`; `Plant::configure`
+//! reads the constants the plant folds into its own: friction's viscous coefficient and
+//! bristle stiffness, the mount's coefficients for the substep rule and `linear_exact`);
+//! validation, configuration and reset go through [`Components`]. The effects not moved to
+//! a component yet (all but `time_delay`, `friction` and `flexible_mount`) still have their
+//! checks called from
 //! [`validate_variants`] or `model::validate`, their derived constants called in
 //! `Plant::configure` and their terms in the substep (`Plant::advance_substep`).
 //!
@@ -45,7 +49,9 @@ pub mod valve_dynamics;
 pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
-pub use component::{CommandStage, Component, ForceStage, Kick, Setup};
+pub use component::{
+    CommandStage, Component, ForceStage, Kick, LoadSpring, MountStage, PistonForces, Setup,
+};
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
 
@@ -225,6 +231,7 @@ macro_rules! components {
 // The registration of each effect component: its section's field in `Effects` and its type.
 components! {
     friction: friction::FrictionStage,
+    flexible_mount: flexible_mount::Mount,
     time_delay: time_delay::DelayLine,
 }
 
