@@ -27,6 +27,7 @@
 use crate::cbv::{Cbv, CbvSides, CbvState};
 use crate::effects::{
     self, validate_variants, CommandStage, ForceStage, LoadSpring, MountStage, PistonForces,
+    SupplyStage,
 };
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
@@ -72,7 +73,6 @@ struct Consts {
     supply_r: f64,
     /// Supply time constant (s), variant `resistance` (the `linear_exact` step uses it).
     supply_tau: f64,
-    supply: Option<crate::effects::SupplyModel>,
     /// The mount's (mass (kg), stiffness (N/m), damping (N·s/m)) for the substep rule and
     /// `linear_exact` ([`MountStage::coefficients`]); the substep calls the stage.
     mount: Option<(f64, f64, f64)>,
@@ -260,7 +260,13 @@ impl Plant {
         }
         let e = &params.effects;
         // The effect components first: the constants below read the force stage's.
-        let components = effects::Components::configure(e, &effects::Setup { control_dt });
+        let setup = effects::Setup {
+            control_dt,
+            supply_pressure: params.supply.pressure,
+            bulk_modulus: params.fluid.bulk_modulus,
+        };
+        let components = effects::Components::configure(e, &setup);
+        let supply = &components.supply_pressure_drop;
         // Each effect's constants, derived in its module (crates/plant/src/effects/).
         let (beta_slope, beta_max, air) = effects::bulk_modulus_pressure::chamber_constants(
             e.bulk_modulus_pressure.as_ref(),
@@ -269,11 +275,6 @@ impl Plant {
         let (k_in, k_ext, k_ext_b) = effects::leakage::coefficients(
             e.internal_leakage.as_ref(),
             e.external_leakage.as_ref(),
-        );
-        let (supply_r, supply_tau, supply) = effects::supply_pressure_drop::configure(
-            e.supply_pressure_drop.as_ref(),
-            params.supply.pressure,
-            params.fluid.bulk_modulus,
         );
         let c = Consts {
             a_a: params.cylinder.area_a,
@@ -298,9 +299,8 @@ impl Plant {
             x_contact: params.mechanics.load_contact_position,
             end_stops: params.mechanics.end_stops,
             full_scale: params.valve.command_full_scale,
-            supply_r,
-            supply_tau,
-            supply,
+            supply_r: supply.droop(),
+            supply_tau: supply.time_constant(),
             mount: components.flexible_mount.coefficients(),
             body_mount: components.flexible_mount.is_body(),
             line_scale: params.integration.max_omega_h
@@ -374,13 +374,13 @@ impl Plant {
             && !c.body_mount
             && c.air.is_none()
             && c.k_ext_b == c.k_ext
-            && !matches!(c.supply, Some(crate::effects::SupplyModel::PumpLimit { .. }));
+            && supply.is_linear();
         if linear_exact {
             // Hydraulic spring, load spring and mount are exact: the step is limited only by
             // what enters explicitly, the spool (its mid-step position sets the valve flow)
             // and the supply sag.
             omega_max = effects::valve_dynamics::bandwidth(e.valve_dynamics.as_ref());
-            if c.supply.is_some() {
+            if supply.is_active() {
                 omega_max = omega_max.max(1.0 / c.supply_tau);
             }
         }
@@ -1103,10 +1103,12 @@ impl Plant {
                 );
             }
         }
-        // Supply sag (000): first-order towards p_s0 − R·Q_s.
-        if let Some(sm) = &c.supply {
-            s.p_s = sm.advance(s.p_s, q_sa + q_sb, c.pt, h);
-        }
+        // The supply stage (`supply_pressure_drop`: the sag towards p_s0 − R·Q_s (000) or
+        // the pump's flow limit); p_s stays without it.
+        s.p_s = self
+            .components
+            .supply_pressure_drop
+            .advance(s.p_s, q_sa + q_sb, c.pt, h);
         // 3. Mechanics.
         // Positions drift with the velocities that drove the pressures above, then the
         // velocities take the forces at the new positions (drift–kick): piston, load and

@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`ForceStage`], [`MountStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`ForceStage`], [`MountStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -25,6 +25,10 @@ use crate::spec::ConfigError;
 pub struct Setup {
     /// Control period T (s): the command is held over it (zero-order hold).
     pub control_dt: f64,
+    /// Nominal supply pressure p_s0 (Pa, `supply.pressure`).
+    pub supply_pressure: f64,
+    /// The fluid's bulk modulus β₀ (Pa, `fluid.bulk_modulus`).
+    pub bulk_modulus: f64,
 }
 
 /// A catalogue effect on the plant side.
@@ -170,4 +174,28 @@ pub trait MountStage: Component {
         f_ext: f64,
         spring: LoadSpring,
     ) -> f64;
+}
+
+/// A component that sets the supply pressure p_s the valve draws from: a state of the plant
+/// (`p_s` of the plant state), advanced once per substep after the chamber pressures with
+/// the flow the valve took from the supply over it.
+pub trait SupplyStage: Component {
+    /// Equivalent droop (Pa·s/m³), > 0 when the supply pressure is a state (the substep
+    /// rule, `linear_exact` and the linearisation read it); 0 without the effect.
+    fn droop(&self) -> f64;
+
+    /// Time constant τ (s) of a first-order supply, as `linear_exact` and the substep rule
+    /// read it; 1 s without the effect.
+    fn time_constant(&self) -> f64;
+
+    /// Whether the supply is first order in p_s (or absent), which `linear_exact` holds.
+    fn is_linear(&self) -> bool;
+
+    /// Whether the effect acts (p_s stays at its initial value without it).
+    fn is_active(&self) -> bool;
+
+    /// The supply pressure (Pa) at the end of the substep `h` (s) from `ps` (Pa), with the
+    /// supply flow `qs` (m³/s) and the tank pressure `pt` (Pa); `ps` without the effect.
+    /// Real-time safe.
+    fn advance(&self, ps: f64, qs: f64, pt: f64, h: f64) -> f64;
 }

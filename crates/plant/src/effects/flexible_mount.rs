@@ -271,7 +271,11 @@ mod tests {
     /// the load spring act on it, nothing is implicit.
     #[test]
     fn without_the_effect_the_load_follows_the_rod() {
-        let setup = Setup { control_dt: 1e-3 };
+        let setup = Setup {
+            control_dt: 1e-3,
+            supply_pressure: 20e6,
+            bulk_modulus: 1.5e9,
+        };
         let mut off = section(MountVariant::LoadSide);
         off.enabled = false;
         for s in [None, Some(&off)] {
@@ -297,7 +301,11 @@ mod tests {
     fn load_side_mass_follows_the_mount_force() {
         let m = Mount::configure(
             Some(&section(MountVariant::LoadSide)),
-            &Setup { control_dt: 1e-3 },
+            &Setup {
+                control_dt: 1e-3,
+                supply_pressure: 20e6,
+                bulk_modulus: 1.5e9,
+            },
         );
         assert_eq!(m.coefficients(), Some((250.0, 5e4, 1.5e4)));
         assert_eq!(m.initial_load_position(0.2), 0.2);
@@ -322,7 +330,11 @@ mod tests {
     fn piston_side_body_takes_the_reaction() {
         let m = Mount::configure(
             Some(&section(MountVariant::PistonSide)),
-            &Setup { control_dt: 1e-3 },
+            &Setup {
+                control_dt: 1e-3,
+                supply_pressure: 20e6,
+                bulk_modulus: 1.5e9,
+            },
         );
         assert!(m.is_body());
         assert_eq!(m.initial_load_position(0.2), 0.0);

@@ -401,7 +401,11 @@ mod tests {
     /// force, damping or stiffness; with it, it is the law's projection.
     #[test]
     fn stage_without_the_effect_passes_the_velocity() {
-        let setup = Setup { control_dt: 1e-3 };
+        let setup = Setup {
+            control_dt: 1e-3,
+            supply_pressure: 20e6,
+            bulk_modulus: 1.5e9,
+        };
         let mut off = section(FrictionVariant::Stribeck);
         off.enabled = false;
         for s in [None, Some(&off)] {
@@ -425,7 +429,14 @@ mod tests {
     #[test]
     fn lugre_stage_has_the_bristle_spring_and_resets() {
         let s = section(FrictionVariant::Lugre);
-        let mut st = FrictionStage::configure(Some(&s), &Setup { control_dt: 1e-3 });
+        let mut st = FrictionStage::configure(
+            Some(&s),
+            &Setup {
+                control_dt: 1e-3,
+                supply_pressure: 20e6,
+                bulk_modulus: 1.5e9,
+            },
+        );
         assert_eq!(st.stiffness(), 1e7);
         st.kick(0.01, 0.01, 1e3, 1e-5);
         let z = st.law().map_or(0.0, FrictionModel::bristle_deflection);
