@@ -189,7 +189,7 @@ if "$PY" scripts/doc_tests.py; then
   step "Rust doc tests"
   cargo test --release --workspace --exclude ehactl-python --doc 2>&1 | tee -a "$counts.rust"
 fi
-awk '/^test result:/ {p += $4; f += $6; i += $8; n++} END {printf "Rust: %d tests passed, %d ignored (%d test binaries and doc-test runs)\n", p, i, n}' "$counts.rust" >>"$counts"
+awk '/^test result:/ {p += $4; f += $6; i += $8; n++} END {printf "Rust: %d tests passed, %d ignored (%d test binaries, doc tests included when there are any)\n", p, i, n}' "$counts.rust" >>"$counts"
 rm -f "$counts.rust"
 disk
 step "Python test dependencies and lint (into $VENV)"

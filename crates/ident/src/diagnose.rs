@@ -1684,47 +1684,23 @@ fn phase_report(
         greybox,
         dropped,
     } = grey;
-    // A grey-box law that carries the gain (its held-out error below the catalogue model's) is
-    // the cause, named in physical terms, not `unexplained`.
-    let cause = match greybox.as_ref() {
-        Some(g)
-            if g.accepted
-                && cause == "unexplained"
-                && g.nrmse_validation.overall < ext_err.overall =>
-        {
-            g.cause().unwrap_or(cause)
-        }
-        _ => cause,
-    };
-    // An identified loop is identified again with an accepted grey-box law in place (the
-    // law's load slows the valve's flow), and the combined model scored afresh.
-    let mut greybox = greybox;
-    let mut reidentified = None;
-    if let (Some(lh), Some(g)) = (loop_h, greybox.as_mut().filter(|g| g.accepted)) {
-        if let Some((h, before, after)) =
-            crate::loopid::reidentify(ctx, &final_hyp, lh, opts.evals_per_param)
-        {
-            final_hyp.params.extend(h.params.iter().cloned());
-            final_hyp.values.extend(h.values.iter().copied());
-            g.nrmse_validation = ctx.val_errors(&final_hyp).0;
-            g.ratio_to_baseline = g.nrmse_validation.overall / nom.nrmse_baseline.overall;
-            reidentified = Some((h, before, after));
-        }
-    }
-    // A catalogue model that loses to the linear black box, with no law that beats it either,
-    // is not an explanation whatever was accepted on the fitting part.
     let arx = nom.nrmse_baseline.overall;
-    let best = greybox
-        .as_ref()
-        .filter(|g| g.accepted)
-        .map_or(ext_err.overall, |g| g.nrmse_validation.overall);
-    let catalogue_beaten = dropped.is_some() || (!accepted.is_empty() && ext_err.overall > arx);
-    let beaten_by_baseline = catalogue_beaten && best > arx;
-    let cause = if beaten_by_baseline {
-        "unexplained".to_string()
-    } else {
-        cause
-    };
+    let Settled {
+        cause,
+        greybox,
+        reidentified,
+        beaten_by_baseline,
+    } = settle_cause(
+        &nom,
+        cause,
+        greybox,
+        &mut final_hyp,
+        &ext_err,
+        &accepted,
+        dropped.is_some(),
+        loop_h,
+        opts,
+    );
     let (extended, ext_fit_sim, ext_val_sim) = if greybox.as_ref().is_some_and(|g| g.accepted) {
         (
             final_hyp.build(nominal),
@@ -1742,80 +1718,47 @@ fn phase_report(
     });
     let refit_at_bounds = at_bounds(&rf.h0);
     let extended_at_bounds = at_bounds(&current);
-    let mut summary = if nom.integration.configured_step_explains {
-        format!(
-            "The nominal model as configured, replayed at the config's own integration step, reproduces the held-out data within the noise (held-out NRMSE {:.4}, estimated noise floor {:.4}); nothing was refitted or added. The answer is `none`.",
-            nom.nom_err.overall, rf.noise_floor
-        )
-    } else {
-        summary_text(
-            &accepted,
-            &cands,
-            &rf.analysis_refit,
-            &nom.nom_err,
-            &rf.refit_err,
-            &ext_err,
-            gain,
-            rf.noise_floor,
-            &ambiguities,
-        )
-    };
-    for r in &rebased {
-        summary.push_str(&format!(" The refit went on during the search: {r}."));
-    }
-    if let Some(sig) = &residual_test.signature {
-        let lv: Vec<String> = residual_test
-            .channels
-            .iter()
-            .map(|c| {
-                format!(
-                    "`{}` {:.1}× floor, Ljung–Box Q {:.0}{}",
-                    c.channel,
-                    c.level,
-                    c.ljung_box,
-                    if c.white { " (white)" } else { "" }
-                )
-            })
-            .collect();
-        summary = if accepted.is_empty() && cause != "unexplained" {
-            let g = greybox.as_ref().map_or(0.0, |g| g.nrmse_validation.overall);
-            format!(
-                "No catalogue effect explains the discrepancy (after refitting the nominal parameters within their uncertainty the held-out NRMSE is {:.4}, noise floor {:.4}; the catalogue model's held-out residual is not noise: {}. Signature: {}). The grey-box law does: the cause is {cause}; with it the held-out NRMSE is {g:.4} (ARX baseline {:.4}).",
-                rf.refit_err.overall, rf.noise_floor, lv.join("; "), sig.text, nom.nrmse_baseline.overall
-            )
-        } else if accepted.is_empty() {
-            format!(
-                "The answer is `unexplained`, not `none`: no catalogue effect explains the discrepancy (after refitting the nominal parameters within their uncertainty the held-out NRMSE is {:.4}, noise floor {:.4}), and the held-out residual is not noise ({}). Signature: {}.",
-                rf.refit_err.overall, rf.noise_floor, lv.join("; "), sig.text
-            )
+    let summary = opening_summary(
+        &nom,
+        &rf,
+        &accepted,
+        &cands,
+        &ext_err,
+        gain,
+        &ambiguities,
+        &rebased,
+    );
+    let mut summary = with_residual_sentence(
+        summary,
+        &residual_test,
+        &accepted,
+        &cause,
+        greybox.as_ref(),
+        &rf,
+        &nom,
+    );
+    closing_sentences(
+        &mut summary,
+        dropped.as_ref(),
+        beaten_by_baseline,
+        &ext_err,
+        greybox.as_ref(),
+        arx,
+        &extended_at_bounds,
+    );
+    // The records' own warnings (the held-out record's when it is another file), then the
+    // integration check's.
+    let warnings: Vec<String> = rec
+        .warnings
+        .iter()
+        .chain(if val.is_some() {
+            nom.val_rec.warnings.iter()
         } else {
-            format!(
-                "{summary} The remaining held-out residual is still not noise ({}): {}.",
-                lv.join("; "),
-                sig.text
-            )
-        };
-    }
-    if let Some(d) = &dropped {
-        summary.push_str(&dropped_text(d));
-    }
-    if beaten_by_baseline {
-        summary.push_str(&format!(
-            " The answer is `unexplained`: neither the catalogue model (held-out NRMSE {:.4}) nor the grey-box law ({}) predicts the held-out part as well as the ARX baseline ({arx:.4}); extended.toml holds the better physical model.",
-            dropped.as_ref().map_or(ext_err.overall, |d| d.nrmse_catalogue),
-            greybox
-                .as_ref()
-                .filter(|g| g.accepted)
-                .map_or("no term accepted".to_string(), |g| format!("{:.4}", g.nrmse_validation.overall)),
-        ));
-    }
-    if !extended_at_bounds.is_empty() {
-        summary.push_str(&format!(
-            " Nominal parameters of the final model on a bound of their stated uncertainty (evidence of a missing effect, or of a wrong nominal value): {}.",
-            extended_at_bounds.join("; ")
-        ));
-    }
-    let int_warning = integration_warning(&nom.integration);
+            [].iter()
+        })
+        .cloned()
+        .chain(integration_warning(&nom.integration))
+        .collect();
     let traces = Traces {
         nominal: Some(nom.nom_sim),
         extended: ext_fit_sim,
@@ -1862,17 +1805,7 @@ fn phase_report(
             refit_continued: rebased,
             dropped_effects: dropped,
             beaten_by_baseline,
-            warnings: rec
-                .warnings
-                .iter()
-                .chain(if val.is_some() {
-                    nom.val_rec.warnings.iter()
-                } else {
-                    [].iter()
-                })
-                .cloned()
-                .chain(int_warning)
-                .collect(),
+            warnings,
             analysis: nom.analysis,
             analysis_refit: rf.analysis_refit,
             split: nom.split,
@@ -1882,6 +1815,200 @@ fn phase_report(
         },
         reidentified,
     )
+}
+
+/// The summary's opening: the configured-step shortcut's `none`, or the search's account of
+/// what it accepted, with every move of the current model during the search (`rebased`).
+#[allow(clippy::too_many_arguments)]
+fn opening_summary(
+    nom: &NominalPhase<'_>,
+    rf: &RefitPhase,
+    accepted: &[EffectId],
+    cands: &[Candidate],
+    ext_err: &Errors,
+    gain: f64,
+    ambiguities: &[String],
+    rebased: &[String],
+) -> String {
+    let mut summary = if nom.integration.configured_step_explains {
+        format!(
+            "The nominal model as configured, replayed at the config's own integration step, reproduces the held-out data within the noise (held-out NRMSE {:.4}, estimated noise floor {:.4}); nothing was refitted or added. The answer is `none`.",
+            nom.nom_err.overall, rf.noise_floor
+        )
+    } else {
+        summary_text(
+            accepted,
+            cands,
+            &rf.analysis_refit,
+            &nom.nom_err,
+            &rf.refit_err,
+            ext_err,
+            gain,
+            rf.noise_floor,
+            ambiguities,
+        )
+    };
+    for r in rebased {
+        summary.push_str(&format!(" The refit went on during the search: {r}."));
+    }
+    summary
+}
+
+/// `summary` with the residual test's sentence when the final model's held-out residual is
+/// not noise: per channel its level and whiteness, and the signature, worded for a law that
+/// carries the cause, for `unexplained`, or after accepted effects.
+fn with_residual_sentence(
+    mut summary: String,
+    residual_test: &crate::residual::ResidualTest,
+    accepted: &[EffectId],
+    cause: &str,
+    greybox: Option<&crate::greybox::GreyBox>,
+    rf: &RefitPhase,
+    nom: &NominalPhase<'_>,
+) -> String {
+    if let Some(sig) = &residual_test.signature {
+        let lv: Vec<String> = residual_test
+            .channels
+            .iter()
+            .map(|c| {
+                format!(
+                    "`{}` {:.1}× floor, Ljung–Box Q {:.0}{}",
+                    c.channel,
+                    c.level,
+                    c.ljung_box,
+                    if c.white { " (white)" } else { "" }
+                )
+            })
+            .collect();
+        summary = if accepted.is_empty() && cause != "unexplained" {
+            let g = greybox.map_or(0.0, |g| g.nrmse_validation.overall);
+            format!(
+                "No catalogue effect explains the discrepancy (after refitting the nominal parameters within their uncertainty the held-out NRMSE is {:.4}, noise floor {:.4}; the catalogue model's held-out residual is not noise: {}. Signature: {}). The grey-box law does: the cause is {cause}; with it the held-out NRMSE is {g:.4} (ARX baseline {:.4}).",
+                rf.refit_err.overall, rf.noise_floor, lv.join("; "), sig.text, nom.nrmse_baseline.overall
+            )
+        } else if accepted.is_empty() {
+            format!(
+                "The answer is `unexplained`, not `none`: no catalogue effect explains the discrepancy (after refitting the nominal parameters within their uncertainty the held-out NRMSE is {:.4}, noise floor {:.4}), and the held-out residual is not noise ({}). Signature: {}.",
+                rf.refit_err.overall, rf.noise_floor, lv.join("; "), sig.text
+            )
+        } else {
+            format!(
+                "{summary} The remaining held-out residual is still not noise ({}): {}.",
+                lv.join("; "),
+                sig.text
+            )
+        };
+    }
+    summary
+}
+
+/// The summary's closing sentences: the effects dropped for a grey-box law, a model that
+/// loses to the ARX baseline (`arx`, held-out NRMSE), nominal parameters of the final model
+/// on a bound of their uncertainty.
+fn closing_sentences(
+    summary: &mut String,
+    dropped: Option<&DroppedEffects>,
+    beaten_by_baseline: bool,
+    ext_err: &Errors,
+    greybox: Option<&crate::greybox::GreyBox>,
+    arx: f64,
+    extended_at_bounds: &[String],
+) {
+    if let Some(d) = dropped {
+        summary.push_str(&dropped_text(d));
+    }
+    if beaten_by_baseline {
+        summary.push_str(&format!(
+            " The answer is `unexplained`: neither the catalogue model (held-out NRMSE {:.4}) nor the grey-box law ({}) predicts the held-out part as well as the ARX baseline ({arx:.4}); extended.toml holds the better physical model.",
+            dropped.map_or(ext_err.overall, |d| d.nrmse_catalogue),
+            greybox
+                .filter(|g| g.accepted)
+                .map_or("no term accepted".to_string(), |g| format!("{:.4}", g.nrmse_validation.overall)),
+        ));
+    }
+    if !extended_at_bounds.is_empty() {
+        summary.push_str(&format!(
+            " Nominal parameters of the final model on a bound of their stated uncertainty (evidence of a missing effect, or of a wrong nominal value): {}.",
+            extended_at_bounds.join("; ")
+        ));
+    }
+}
+
+/// The cause once the grey-box law has had its say: what [`phase_report`] names.
+struct Settled {
+    cause: String,
+    greybox: Option<crate::greybox::GreyBox>,
+    /// The loop identified again with the law in place: (its hypothesis, held-out NRMSE
+    /// before, after).
+    reidentified: Option<(Hyp, f64, f64)>,
+    /// Neither the catalogue model nor the law predicts the held-out part as well as ARX.
+    beaten_by_baseline: bool,
+}
+
+/// Settles the cause of the residual test (`cause`) against the grey-box phase: an accepted
+/// law that beats the catalogue model names it; with an identified loop (`loop_h`) the loop
+/// is identified again with the law in place (the law's load slows the valve's flow) and
+/// `final_hyp` gains it; a catalogue model that loses to ARX (or whose effects were
+/// `dropped`) with no law beating ARX either is `unexplained`.
+#[allow(clippy::too_many_arguments)]
+fn settle_cause(
+    nom: &NominalPhase<'_>,
+    cause: String,
+    greybox: Option<crate::greybox::GreyBox>,
+    final_hyp: &mut Hyp,
+    ext_err: &Errors,
+    accepted: &[EffectId],
+    dropped: bool,
+    loop_h: Option<&Hyp>,
+    opts: &Options,
+) -> Settled {
+    // A grey-box law that carries the gain (its held-out error below the catalogue model's) is
+    // the cause, named in physical terms, not `unexplained`.
+    let cause = match greybox.as_ref() {
+        Some(g)
+            if g.accepted
+                && cause == "unexplained"
+                && g.nrmse_validation.overall < ext_err.overall =>
+        {
+            g.cause().unwrap_or(cause)
+        }
+        _ => cause,
+    };
+    // An identified loop is identified again with an accepted grey-box law in place (the
+    // law's load slows the valve's flow), and the combined model scored afresh.
+    let mut greybox = greybox;
+    let mut reidentified = None;
+    if let (Some(lh), Some(g)) = (loop_h, greybox.as_mut().filter(|g| g.accepted)) {
+        if let Some((h, before, after)) =
+            crate::loopid::reidentify(&nom.ctx, final_hyp, lh, opts.evals_per_param)
+        {
+            final_hyp.params.extend(h.params.iter().cloned());
+            final_hyp.values.extend(h.values.iter().copied());
+            g.nrmse_validation = nom.ctx.val_errors(final_hyp).0;
+            g.ratio_to_baseline = g.nrmse_validation.overall / nom.nrmse_baseline.overall;
+            reidentified = Some((h, before, after));
+        }
+    }
+    // A catalogue model that loses to the linear black box, with no law that beats it either,
+    // is not an explanation whatever was accepted on the fitting part.
+    let arx = nom.nrmse_baseline.overall;
+    let best = greybox
+        .as_ref()
+        .filter(|g| g.accepted)
+        .map_or(ext_err.overall, |g| g.nrmse_validation.overall);
+    let catalogue_beaten = dropped || (!accepted.is_empty() && ext_err.overall > arx);
+    let beaten_by_baseline = catalogue_beaten && best > arx;
+    let cause = if beaten_by_baseline {
+        "unexplained".to_string()
+    } else {
+        cause
+    };
+    Settled {
+        cause,
+        greybox,
+        reidentified,
+        beaten_by_baseline,
+    }
 }
 
 /// The summary's sentence on catalogue effects dropped for a grey-box law.
