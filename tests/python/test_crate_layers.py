@@ -1,6 +1,6 @@
 """The crate layers of ARCHITECTURE.md, read from the dependency graph cargo itself resolves
 (`cargo metadata`, normal dependencies only, transitively): the control laws compile no
-hardware, plant or logging crate; the config, the diagnosis and the analysis do not compile
+hardware, plant or logging crate and no TOML parser; the config, the diagnosis and the analysis do not compile
 the CANopen master; the logger does not compile the plant or the Hal; the Hal contract is
 bare (no plant, no logger), so the CANopen backend compiles no physics and no MCAP writer,
 the config no logger and the diagnosis no Hal; the diagnosis' evaluation harness
@@ -50,6 +50,14 @@ def test_control_laws_compile_no_io_and_no_plant(deps):
     assert not got & {"ehactl-hal", "ehactl-plant", "ehactl-log", "ehactl-canopen",
                       "mcap", "lz4", "zstd", "nalgebra"}, sorted(got)
     assert "ehactl-types" in got
+
+
+def test_control_laws_compile_no_toml_parser(deps):
+    # The registry's checks on a parsed TOML tree belong to the loader (crates/config/src/tree.rs);
+    # the control laws declare parameters through ehactl-types, which parses nothing.
+    got = closure(deps, "ehactl-control")
+    assert not {d for d in got if d == "toml" or d.startswith("toml_")}, sorted(got)
+    assert "serde" in got
 
 
 @pytest.mark.parametrize("crate", ["ehactl-config", "ehactl-ident", "ehactl-analysis"])

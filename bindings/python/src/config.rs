@@ -2,7 +2,7 @@
 //! validated by the same loader as the CLI (`RigConfig::from_value`), so a config that
 //! Python accepts is one the 5 kHz loop accepts, and errors name the field and its unit.
 
-use ehactl_config::{registries, RigConfig};
+use ehactl_config::{registries, tree, RigConfig};
 use ehactl_plant::spec::{self, ConfigError, Kind};
 use pyo3::exceptions::{PyKeyError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -154,7 +154,7 @@ fn insert_path(root: &mut toml::Value, path: &str, value: toml::Value) -> Result
 
 fn remove_path(root: &mut toml::Value, path: &str) -> Option<toml::Value> {
     let (parent, key) = match path.rsplit_once('.') {
-        Some((p, k)) => (spec::get_mut(root, p)?, k),
+        Some((p, k)) => (tree::get_mut(root, p)?, k),
         None => (root, path),
     };
     parent.as_table_mut()?.remove(key)
@@ -242,7 +242,7 @@ impl Config {
     /// Value at a dotted path, e.g. `cfg["control.pi.kp"]` (V/V); sections come as dicts.
     fn __getitem__<'py>(&self, py: Python<'py>, path: &str) -> PyResult<Bound<'py, PyAny>> {
         let tree = self.cfg.to_value();
-        match spec::get(&tree, path) {
+        match tree::get(&tree, path) {
             Some(v) => toml_to_py(py, v),
             None => Err(PyKeyError::new_err(format!(
                 "config has no field `{path}`{}",
@@ -270,7 +270,7 @@ impl Config {
     }
 
     fn __contains__(&self, path: &str) -> bool {
-        spec::get(&self.cfg.to_value(), path).is_some()
+        tree::get(&self.cfg.to_value(), path).is_some()
     }
 
     /// Set several fields at once (dict of dotted path → value), validated together.

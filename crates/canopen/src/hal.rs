@@ -51,6 +51,7 @@
 //!
 //! Safe stop: RPDO setpoint for the safe command (0) + SYNC, then the I/O threads are
 //! stopped and the valve control word is set to HOLD (D=1, H=1, A=0) by SDO.
+//! Dropping a `CanopenHal` whose safe stop was never called performs it (see its `Drop`).
 
 use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
@@ -1088,8 +1089,19 @@ impl Hal for CanopenHal {
     }
 }
 
+/// A rig released without its safe stop (an error of the session before the loop ran, such
+/// as a log that cannot be created or a plant section the plant refuses, or a panic that
+/// unwinds past the loop) is safe-stopped here, with the configured safe command
+/// (`supervisor.safe_command`, closed centre by [`CanopenHal::check_settings`]): the RPDO
+/// setpoint 0 and a SYNC, then control word HOLD, as at the end of every run. Without it
+/// the valve would stay ACTIVE at its last setpoint until its consumer of ehactl's heartbeat
+/// (0x1016) timed out. After a [`Hal::safe_stop`], successful or not, only the I/O threads
+/// are stopped.
 impl Drop for CanopenHal {
     fn drop(&mut self) {
+        if self.safe_stop_result.is_none() {
+            let _ = self.safe_stop(self.s.safe_command);
+        }
         self.stop_io();
     }
 }
@@ -1152,7 +1164,7 @@ mod tests {
             spool: 0.0,
         };
         let master_hb = CanFrame::std(HEARTBEAT_BASE + u16::from(c.master_node_id), [0x05]);
-        let hal = CanopenHal::spawn_io(
+        let mut hal = CanopenHal::spawn_io(
             settings(c.clone()),
             Box::new(bus),
             t_start,
@@ -1162,6 +1174,11 @@ mod tests {
             [None, None],
         )
         .unwrap();
+        // Released without the drop's safe stop: nobody answers its SDO on this bus and the
+        // clock moves only when the test moves it, so the SDO would wait forever (a failed
+        // assertion would hang instead of failing). The drop's safe stop is tested against
+        // the scripted rig (crates/canopen/tests/hal_rig.rs).
+        hal.safe_stop_result = Some("not sent (unit test on simulated time)".into());
         (hal, rx, c, master_hb)
     }
 

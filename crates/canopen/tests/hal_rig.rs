@@ -571,7 +571,20 @@ fn fault_case(set: fn(&Knobs), expect: &str, bound: f64) -> Trip {
         panic!("no trip for {expect}: {err:?}")
     };
     assert!(what.contains(expect), "{what} vs {expect}");
+    let at_trip = knobs.seen.lock().unwrap().len();
     let _ = hal.safe_stop(0.0);
+    // The safe stop after the trip puts the valve at its safe command: setpoint 0 (the loop
+    // commanded +1 V, spool +1638), then control word HOLD.
+    std::thread::sleep(Duration::from_millis(20));
+    let after: Vec<_> = knobs.seen.lock().unwrap()[at_trip..].to_vec();
+    let zero = after.iter().position(|f| *f == (0x230, vec![0, 0]));
+    let hold = after
+        .iter()
+        .position(|f| *f == (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x03, 0x00, 0, 0]));
+    assert!(
+        matches!((zero, hold), (Some(z), Some(h)) if z < h),
+        "{expect}: no setpoint 0 then HOLD after the trip: {after:02X?}"
+    );
     knobs.stop.store(true, Ordering::Relaxed);
     rig_thread.join().unwrap();
     let last_hb = knobs.last_valve_heartbeat.lock().unwrap().unwrap();
@@ -675,6 +688,34 @@ fn sdo_abort_at_configuration_names_step_object_and_meaning() {
         msg.contains("valve RPDO1") && msg.contains("invalid value for parameter"),
         "{msg}"
     );
+    knobs.stop.store(true, Ordering::Relaxed);
+    rig_thread.join().unwrap();
+}
+
+#[test]
+fn a_rig_dropped_without_its_safe_stop_leaves_the_valve_in_hold_at_setpoint_0() {
+    // A session that fails after the bring-up and before the loop (or a panic past the loop)
+    // releases the HAL without calling `safe_stop`: the drop performs it.
+    let (port, knobs, _one_at_a_time) = start();
+    let rig_thread = rig(port, knobs.clone());
+    let mut hal = CanopenHal::connect(settings(port, test_bus())).unwrap();
+    let (_, _, err, _) = drive(&mut hal, 0.1, 5.0, &mut |_| {});
+    assert!(err.is_none(), "{err:?}");
+    let before_drop = knobs.seen.lock().unwrap().len();
+    drop(hal);
+    std::thread::sleep(Duration::from_millis(50));
+    let seen = knobs.seen.lock().unwrap().clone();
+    let after: Vec<_> = seen[before_drop..].to_vec();
+    // the last setpoint of the loop was +5 V (spool +8192, 50 %); the drop sends 0, then HOLD
+    let zero = after
+        .iter()
+        .position(|f| *f == (0x230, vec![0, 0]))
+        .unwrap_or_else(|| panic!("no setpoint 0 after the drop: {after:02X?}"));
+    let hold = after
+        .iter()
+        .position(|f| *f == (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x03, 0x00, 0, 0]))
+        .unwrap_or_else(|| panic!("no control word HOLD after the drop: {after:02X?}"));
+    assert!(zero < hold, "{after:02X?}");
     knobs.stop.store(true, Ordering::Relaxed);
     rig_thread.join().unwrap();
 }

@@ -18,6 +18,7 @@ use std::path::Path;
 use std::sync::LazyLock;
 
 pub mod inputs;
+pub mod tree;
 
 /// Controlled variable.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
@@ -480,7 +481,7 @@ impl RigConfig {
         let tables = registries();
         // `[inputs]` names its own keys (input names, parameter paths): not registry entries.
         let inputs_value = value.as_table_mut().and_then(|t| t.remove("inputs"));
-        spec::check_tree(&mut value, &tables)?;
+        tree::check_tree(&mut value, &tables)?;
         let toml::Value::Table(mut root) = value else {
             return Err(ConfigError::new("", "config must be a TOML table"));
         };
@@ -791,8 +792,8 @@ mod tests {
             ("setpoint.offset", -1e12, 0.0),
         ] {
             let mut tree = cfg.to_value();
-            *spec::get_mut(&mut tree, "setpoint.offset").unwrap() = toml::Value::Float(offset);
-            *spec::get_mut(&mut tree, "setpoint.amplitude").unwrap() =
+            *tree::get_mut(&mut tree, "setpoint.offset").unwrap() = toml::Value::Float(offset);
+            *tree::get_mut(&mut tree, "setpoint.amplitude").unwrap() =
                 toml::Value::Float(amplitude);
             let e = RigConfig::from_value(tree).unwrap_err();
             assert_eq!(e.path, field, "offset {offset}, amplitude {amplitude}: {e}");
@@ -826,7 +827,7 @@ mod tests {
                 assert_eq!(s.get_path(rel), Some(v), "{}", e.path);
                 let tree = toml::Value::try_from(&*s).unwrap();
                 assert_eq!(
-                    spec::get(&tree, rel).and_then(|x| x.as_float()),
+                    tree::get(&tree, rel).and_then(|x| x.as_float()),
                     Some(v),
                     "{}",
                     e.path
@@ -840,7 +841,7 @@ mod tests {
                     e.path
                 );
                 let tree = toml::Value::try_from(&*s).unwrap();
-                assert!(spec::get(&tree, rel).is_some(), "{} not serialised", e.path);
+                assert!(tree::get(&tree, rel).is_some(), "{} not serialised", e.path);
             }
         }
         floats

@@ -109,6 +109,33 @@ pub fn plant_schema() -> String {
     s
 }
 
+/// The plant state of the `/plant` values in [`PLANT_FIELDS`] order and the `stuck` flag: the
+/// one place that names the float64 fields by position (the inverse of
+/// [`CycleRecord::plant_values`]).
+pub fn plant_state(values: [f64; 16], stuck: bool) -> PlantState {
+    let [t, command, spool, spool_velocity, p_a, p_b, p_s, x, v, x_load, v_load, q_a, q_b, friction, external, rod_force] =
+        values;
+    PlantState {
+        t,
+        command,
+        spool,
+        spool_velocity,
+        p_a,
+        p_b,
+        p_s,
+        x,
+        v,
+        x_load,
+        v_load,
+        q_a,
+        q_b,
+        friction,
+        external,
+        rod_force,
+        stuck,
+    }
+}
+
 /// Field names of the `/timing` message after `cycle` and `t` (all float64), in order;
 /// then `uint32 skipped`, `bool overrun` and `bool overrun_exec` (appended 2026-11-26;
 /// readers of the older layout, which ends at `overrun`, still read a prefix).
@@ -155,7 +182,8 @@ impl CycleRecord {
         ]
     }
 
-    /// Values of the `/plant` message in [`PLANT_FIELDS`] order.
+    /// Values of the `/plant` message in [`PLANT_FIELDS`] order (the inverse of
+    /// [`plant_state`]).
     pub fn plant_values(&self) -> [f64; 16] {
         let p = &self.plant;
         [
@@ -418,28 +446,9 @@ impl CycleRecord {
     /// Decode a `/plant` message written by [`CycleRecord::encode_plant`].
     pub fn decode_plant(data: &[u8]) -> Result<PlantState, DecodeError> {
         let mut c = CdrCursor::new("/plant", data, 8 * PLANT_FIELDS.len() + 1)?;
-        let [t, command, spool, spool_velocity, p_a, p_b, p_s, x, v, x_load, v_load, q_a, q_b, friction, external, rod_force] =
-            c.f64s::<16>();
+        let values = c.f64s::<16>();
         let stuck = c.bool("stuck")?;
-        Ok(PlantState {
-            t,
-            command,
-            spool,
-            spool_velocity,
-            p_a,
-            p_b,
-            p_s,
-            x,
-            v,
-            x_load,
-            v_load,
-            q_a,
-            q_b,
-            friction,
-            external,
-            rod_force,
-            stuck,
-        })
+        Ok(plant_state(values, stuck))
     }
 
     /// Decode a `/timing` message written by [`CycleRecord::encode_timing`]. Messages of
@@ -720,25 +729,8 @@ mod decode_tests {
                 p_b: v[14],
                 spool: v[15],
             },
-            plant: PlantState {
-                t: v[16],
-                command: v[17],
-                spool: v[18],
-                spool_velocity: v[19],
-                p_a: v[20],
-                p_b: v[21],
-                p_s: v[22],
-                x: v[23],
-                v: v[24],
-                x_load: v[25],
-                v_load: v[26],
-                q_a: v[27],
-                q_b: v[28],
-                friction: v[29],
-                external: v[30],
-                rod_force: v[31],
-                stuck,
-            },
+            // The `/plant` values after the 16 of `/control`, in `PLANT_FIELDS` order.
+            plant: plant_state(std::array::from_fn(|i| v[CONTROL_FIELDS.len() + i]), stuck),
             has_plant: true,
             timing: timing.map(|(skipped, overrun, overrun_exec)| CycleTiming {
                 wall_t: v[32],

@@ -36,9 +36,10 @@ pub mod valve;
 /// [`effects::friction`]).
 pub use effects::friction;
 
-/// The parameter registry: the registry types (`Param`, `Range`, `ParamTree`, the TOML
-/// checks, `ConfigError`), which live in `ehactl-types` (crates/types/src/spec.rs) so that
-/// the control laws and the backends declare parameters without compiling the plant, and
+/// The parameter registry: the registry types (`Param`, `Range`, `ParamTree`,
+/// `ConfigError`), which live in `ehactl-types` (crates/types/src/spec.rs) so that the
+/// control laws and the backends declare parameters without compiling the plant (the checks
+/// on a parsed TOML tree are `ehactl_config::tree`), and
 /// the plant's own table ([`spec::params`]) and serde error mapping ([`spec::from_serde`]).
 pub mod spec {
     pub use crate::registry::{from_serde, params};

@@ -25,8 +25,10 @@
 //! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see [`fastest_mode`]).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
-use crate::effects::friction::FrictionModel;
-use crate::effects::{self, validate_variants, CommandStage};
+use crate::effects::{
+    self, validate_variants, CommandStage, ForceStage, LoadSpring, MountStage, PistonForces,
+    SupplyStage,
+};
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
 use crate::line::Line;
@@ -60,8 +62,9 @@ struct Consts {
     mass: f64,
     damping: f64,
     k_load: f64,
-    /// Pre-sliding spring σ₀ (N/m) of `friction` variant `lugre`, 0 otherwise: only the
-    /// substep rule reads it ([`fastest_mode`]).
+    /// Stiffness (N/m) of the force stage (`friction` variant `lugre`: the pre-sliding
+    /// spring σ₀; [`ForceStage::stiffness`]), 0 otherwise: only the substep rule reads it
+    /// ([`fastest_mode`]).
     k_bristle: f64,
     x_contact: f64,
     end_stops: bool,
@@ -70,7 +73,8 @@ struct Consts {
     supply_r: f64,
     /// Supply time constant (s), variant `resistance` (the `linear_exact` step uses it).
     supply_tau: f64,
-    supply: Option<crate::effects::SupplyModel>,
+    /// The mount's (mass (kg), stiffness (N/m), damping (N·s/m)) for the substep rule and
+    /// `linear_exact` ([`MountStage::coefficients`]); the substep calls the stage.
     mount: Option<(f64, f64, f64)>,
     /// The mount is the cylinder body's (`flexible_mount` variant `piston_side`).
     body_mount: bool,
@@ -90,7 +94,6 @@ pub struct Plant {
     spool_half: SpoolModel,
     /// Exact linear transition of chambers and mechanics (`integration.method = "linear_exact"`).
     linear: Option<LinearExact>,
-    friction: Option<FrictionModel>,
     /// `polynomial_force` on the rod ([`crate::effects::PolynomialForce`]).
     poly: Option<crate::effects::PolynomialForce>,
     /// Dahl state z (-, in [−1, 1]) of the `polynomial_force` Dahl term
@@ -210,9 +213,6 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
             ),
         ));
     }
-    if let Some(f) = p.effects.friction.as_ref() {
-        f.validate_forces()?;
-    }
     if let Some(d) = p.effects.valve_dynamics.as_ref() {
         d.validate_order()?;
     }
@@ -259,6 +259,14 @@ impl Plant {
             ));
         }
         let e = &params.effects;
+        // The effect components first: the constants below read the force stage's.
+        let setup = effects::Setup {
+            control_dt,
+            supply_pressure: params.supply.pressure,
+            bulk_modulus: params.fluid.bulk_modulus,
+        };
+        let components = effects::Components::configure(e, &setup);
+        let supply = &components.supply_pressure_drop;
         // Each effect's constants, derived in its module (crates/plant/src/effects/).
         let (beta_slope, beta_max, air) = effects::bulk_modulus_pressure::chamber_constants(
             e.bulk_modulus_pressure.as_ref(),
@@ -268,14 +276,6 @@ impl Plant {
             e.internal_leakage.as_ref(),
             e.external_leakage.as_ref(),
         );
-        let (friction, friction_viscous, k_bristle) =
-            effects::friction::configure(e.friction.as_ref());
-        let (supply_r, supply_tau, supply) = effects::supply_pressure_drop::configure(
-            e.supply_pressure_drop.as_ref(),
-            params.supply.pressure,
-            params.fluid.bulk_modulus,
-        );
-        let (mount, body_mount) = effects::flexible_mount::configure(e.flexible_mount.as_ref());
         let c = Consts {
             a_a: params.cylinder.area_a,
             a_b: params.cylinder.area_b,
@@ -293,17 +293,16 @@ impl Plant {
             k_ext_b,
             air,
             mass: params.mechanics.mass,
-            damping: params.mechanics.damping + friction_viscous,
+            damping: params.mechanics.damping + components.friction.viscous(),
             k_load: params.mechanics.load_stiffness,
-            k_bristle,
+            k_bristle: components.friction.stiffness(),
             x_contact: params.mechanics.load_contact_position,
             end_stops: params.mechanics.end_stops,
             full_scale: params.valve.command_full_scale,
-            supply_r,
-            supply_tau,
-            supply,
-            mount,
-            body_mount,
+            supply_r: supply.droop(),
+            supply_tau: supply.time_constant(),
+            mount: components.flexible_mount.coefficients(),
+            body_mount: components.flexible_mount.is_body(),
             line_scale: params.integration.max_omega_h
                 / params
                     .integration
@@ -368,20 +367,20 @@ impl Plant {
         let linear_exact = params.integration.method
             == crate::params::IntegrationMethod::LinearExact
             && lines.is_none()
-            && !e.friction.as_ref().is_some_and(|f| f.enabled)
+            && !components.friction.is_active()
             && !e.polynomial_force.is_some_and(|f| f.enabled)
             && !e.polynomial_flow.is_some_and(|f| f.enabled)
             // The structural effect variants are integrated by the exponential-Euler substep only.
             && !c.body_mount
             && c.air.is_none()
             && c.k_ext_b == c.k_ext
-            && !matches!(c.supply, Some(crate::effects::SupplyModel::PumpLimit { .. }));
+            && supply.is_linear();
         if linear_exact {
             // Hydraulic spring, load spring and mount are exact: the step is limited only by
             // what enters explicitly, the spool (its mid-step position sets the valve flow)
             // and the supply sag.
             omega_max = effects::valve_dynamics::bandwidth(e.valve_dynamics.as_ref());
-            if c.supply.is_some() {
+            if supply.is_active() {
                 omega_max = omega_max.max(1.0 / c.supply_tau);
             }
         }
@@ -444,7 +443,6 @@ impl Plant {
             spool_model: SpoolModel::new(params, h)?,
             spool_half: SpoolModel::new(params, 0.5 * h)?,
             linear,
-            friction,
             poly: e.polynomial_force.filter(|f| f.enabled),
             dahl_z: 0.0,
             poly_flow: e.polynomial_flow.filter(|f| f.enabled),
@@ -464,7 +462,7 @@ impl Plant {
             h,
             state: PlantState::default(),
             cycle: 0,
-            components: effects::Components::configure(e, &effects::Setup { control_dt }),
+            components,
             params: params.clone(),
             c,
         };
@@ -501,18 +499,16 @@ impl Plant {
             x: x0,
             v: 0.0,
             // With a compliant cylinder mount x_load is the body's displacement.
-            x_load: if c.body_mount { 0.0 } else { x0 },
+            x_load: self.components.flexible_mount.initial_load_position(x0),
             v_load: 0.0,
             q_a: 0.0,
             q_b: 0.0,
             friction: 0.0,
             external: f_ext0,
             rod_force: f_load0,
-            stuck: self.friction.is_some(),
+            // A run starts at rest, held by friction if there is any.
+            stuck: self.components.friction.is_active(),
         };
-        if let Some(f) = self.friction.as_mut() {
-            f.reset();
-        }
         self.dahl_z = 0.0;
         if let Some((la, lb)) = self.lines.as_mut() {
             la.p.iter_mut().for_each(|p| *p = p_a);
@@ -1107,10 +1103,12 @@ impl Plant {
                 );
             }
         }
-        // Supply sag (000): first-order towards p_s0 − R·Q_s.
-        if let Some(sm) = &c.supply {
-            s.p_s = sm.advance(s.p_s, q_sa + q_sb, c.pt, h);
-        }
+        // The supply stage (`supply_pressure_drop`: the sag towards p_s0 − R·Q_s (000) or
+        // the pump's flow limit); p_s stays without it.
+        s.p_s = self
+            .components
+            .supply_pressure_drop
+            .advance(s.p_s, q_sa + q_sb, c.pt, h);
         // 3. Mechanics.
         // Positions drift with the velocities that drove the pressures above, then the
         // velocities take the forces at the new positions (drift–kick): piston, load and
@@ -1119,22 +1117,11 @@ impl Plant {
         // 95 % of the test bench's replay error (BENCHMARKS.md "Diagnosis speed: drift
         // before kick").
         s.x += h * s.v;
-        if c.mount.is_some() && !c.body_mount {
-            s.x_load += h * s.v_load;
-        }
+        let mount = &self.components.flexible_mount;
+        mount.drift(&mut s.x_load, s.v_load, h);
         let f_ext = self.excitation.force(t + h);
         s.external = f_ext;
         let f_hyd = s.p_a * c.a_a - s.p_b * c.a_b;
-        let f_spring = c.k_load * (s.x - c.x_contact);
-        let (f_mount, d_mount) = match c.mount {
-            Some((_, km, dm)) => (km * (s.x - s.x_load) - dm * s.v_load, dm),
-            None => (0.0, 0.0),
-        };
-        let f_on_piston_ext = if c.mount.is_some() && !c.body_mount {
-            0.0
-        } else {
-            f_ext
-        };
         // Rod force law, linearly implicit in v (stable for a stiff damper or smoothed sign).
         let (f_poly, df_poly) = self
             .poly
@@ -1147,43 +1134,34 @@ impl Plant {
             .map_or((0.0, 0.0), |f| f.dahl_implicit(self.dahl_z, s.v, h));
         let (f_poly, df_poly) = (f_poly + f_dahl0 + d_dahl * s.v, df_poly + d_dahl);
         let v_old = s.v;
-        let mut f_other = f_hyd - f_spring - f_mount - f_on_piston_ext - f_poly + df_poly * s.v;
-        if c.body_mount {
-            // Compliant cylinder mount: the body takes the reaction of the oil, seal and
-            // viscous forces; x, v are relative to it, the load spring sees x + x_body.
-            let mb = c.mount.unwrap_or((1.0, 0.0, 0.0));
-            let f_rel = f_hyd - c.damping * s.v - s.friction;
-            let a_body =
-                crate::effects::body_mount_step(&mut s.x_load, &mut s.v_load, f_rel, mb, h);
-            f_other = f_hyd
-                - c.k_load * (s.x + s.x_load - c.x_contact)
-                - f_ext
-                - c.mass * a_body
-                - f_poly
-                + df_poly * s.v;
-        }
-        let d_mount = if c.body_mount { 0.0 } else { d_mount };
+        // The mount stage (`flexible_mount`): hydraulic force, load spring, mount and
+        // external force where each acts on the piston, and the mount's implicit damping.
+        let piston = PistonForces {
+            x: s.x,
+            v: s.v,
+            f_hyd,
+            f_ext,
+            friction: s.friction,
+            spring: LoadSpring {
+                stiffness: c.k_load,
+                contact: c.x_contact,
+            },
+            mass: c.mass,
+            damping: c.damping,
+        };
+        let (f_mounted, d_mount) = mount.piston_force(&piston, &mut s.x_load, &mut s.v_load, h);
+        let f_other = f_mounted - f_poly + df_poly * s.v;
         let m_eff = c.mass + h * (c.damping + d_mount + df_poly);
         let v_free = (c.mass * s.v + h * f_other) / m_eff;
-        let (v_new, f_fric, stuck) = match self.friction.as_mut() {
-            Some(fm) => fm.project(s.v, v_free, m_eff, h),
-            None => (v_free, 0.0, false),
-        };
+        // The force stage (`friction`: stick projection, Stribeck slip or LuGre bristles).
+        let kick = self.components.friction.kick(s.v, v_free, m_eff, h);
         if let Some(f) = self.poly.as_ref() {
-            self.dahl_z = f.dahl_advance(self.dahl_z, v_old, v_new, h);
+            self.dahl_z = f.dahl_advance(self.dahl_z, v_old, kick.v, h);
         }
-        s.v = v_new;
-        s.friction = f_fric;
-        s.stuck = stuck;
-        if c.body_mount {
-            // Body already advanced above.
-        } else if let Some((ml, km, dm)) = c.mount {
-            let f = km * (s.x - s.x_load) + dm * s.v - f_ext;
-            s.v_load = (ml * s.v_load + h * f) / (ml + h * dm);
-        } else {
-            s.x_load = s.x;
-            s.v_load = s.v;
-        }
+        s.v = kick.v;
+        s.friction = kick.force;
+        s.stuck = kick.stuck;
+        mount.follow(&mut s.x_load, &mut s.v_load, s.x, s.v, f_ext, h);
         if c.end_stops {
             if s.x < 0.0 {
                 s.x = 0.0;
@@ -1203,18 +1181,17 @@ impl Plant {
     fn update_rod_force(&mut self) {
         let c = &self.c;
         let s = &mut self.state;
-        let f_ext = s.external;
-        s.rod_force = if c.body_mount {
-            c.k_load * (s.x + s.x_load - c.x_contact) + f_ext
-        } else {
-            c.k_load * (s.x - c.x_contact)
-                + match c.mount {
-                    Some((_, km, dm)) => km * (s.x - s.x_load) + dm * (s.v - s.v_load),
-                    None => f_ext,
-                }
-        } + self
-            .poly
-            .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
+        let spring = LoadSpring {
+            stiffness: c.k_load,
+            contact: c.x_contact,
+        };
+        s.rod_force = self
+            .components
+            .flexible_mount
+            .rod_force(s.x, s.v, s.x_load, s.v_load, s.external, spring)
+            + self
+                .poly
+                .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
     }
 }
 

@@ -315,7 +315,7 @@ pub fn prepare(cfg: &mut RigConfig, assignments: &[(&str, f64)]) -> Result<Updat
                 .to_lowercase(),
             ));
         }
-        let slot = ehactl_plant::spec::get_mut(&mut tree, path)
+        let slot = ehactl_config::tree::get_mut(&mut tree, path)
             .ok_or_else(|| ConfigError::new(path, "not present in the running config"))?;
         *slot = match param.kind {
             ehactl_plant::spec::Kind::Integer => {

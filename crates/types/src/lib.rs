@@ -4,7 +4,8 @@
 //! physics:
 //! - [`spec`], the parameter registry types that `#[derive(Params)]` (crate
 //!   `ehactl-params-derive`) generates code against: [`spec::Param`], [`spec::ParamTree`],
-//!   ranges, path access, TOML checks and [`spec::ConfigError`],
+//!   ranges, path access and [`spec::ConfigError`] (the checks on a parsed TOML tree are in
+//!   `ehactl-config`, crates/config/src/tree.rs, so that this crate compiles no TOML parser),
 //! - [`Measurements`], one sample of every sensor (what `Hal::read` returns),
 //! - [`PlantState`], the simulated plant's complete state (logged every cycle),
 //! - [`event`], the fixed-size events of the supervisor, the pacer and the backends,

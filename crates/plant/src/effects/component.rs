@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait, e.g. [`CommandStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`ForceStage`], [`MountStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -25,6 +25,10 @@ use crate::spec::ConfigError;
 pub struct Setup {
     /// Control period T (s): the command is held over it (zero-order hold).
     pub control_dt: f64,
+    /// Nominal supply pressure p_s0 (Pa, `supply.pressure`).
+    pub supply_pressure: f64,
+    /// The fluid's bulk modulus β₀ (Pa, `fluid.bulk_modulus`).
+    pub bulk_modulus: f64,
 }
 
 /// A catalogue effect on the plant side.
@@ -54,4 +58,144 @@ pub trait CommandStage: Component {
     /// The command (V) the valve sees over the substep [t, t + h] (s) of period `cycle`,
     /// whose command was the last one pushed; `h` ≤ the control period. Real-time safe.
     fn command(&self, cycle: u64, t: f64, h: f64) -> f64;
+}
+
+/// What a [`ForceStage`] does to the piston velocity over one substep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Kick {
+    /// Piston velocity at the end of the substep (m/s).
+    pub v: f64,
+    /// The stage's force on the piston over the substep, opposing +x (N).
+    pub force: f64,
+    /// Whether the stage holds the piston at rest (stick).
+    pub stuck: bool,
+}
+
+/// A component in the piston's force balance whose force depends on the new velocity and on
+/// a state of its own (stick, bristles), so that it cannot be one more explicit term: the
+/// velocity update of the substep (step 3 of crates/plant/src/model.rs, the kick after the
+/// position drift) first solves the rest of the balance, linearly implicit in the damping,
+/// for the velocity without the stage, then hands it here.
+pub trait ForceStage: Component {
+    /// Whether the stage acts (false without the effect: the plant may then use a scheme
+    /// that cannot hold it, e.g. `integration.method = "linear_exact"`).
+    fn is_active(&self) -> bool;
+
+    /// Viscous coefficient (N·s/m) the stage adds to the mechanical damping; the plant
+    /// takes it into the implicit damping of the velocity update (configure phase).
+    fn viscous(&self) -> f64;
+
+    /// Stiffness (N/m) the stage puts on the piston mass, that the substep rule must
+    /// resolve (configure phase); 0 for a stage without a spring.
+    fn stiffness(&self) -> f64;
+
+    /// One substep `h` (s): from the velocity `v_old` (m/s) at its start and the velocity
+    /// `v_free` (m/s) the rest of the force balance reaches without the stage, with the
+    /// effective mass `m_eff` (kg, the mass with the implicit damping h·c), the new
+    /// velocity, the stage's force and whether it holds the piston. Without the effect
+    /// `Kick { v: v_free, force: 0, stuck: false }`. Real-time safe.
+    fn kick(&mut self, v_old: f64, v_free: f64, m_eff: f64, h: f64) -> Kick;
+}
+
+/// The load spring K_L on the piston (`mechanics.load_stiffness`, `load_contact_position`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoadSpring {
+    /// Stiffness K_L (N/m).
+    pub stiffness: f64,
+    /// Piston position at which it is relaxed, x_c (m).
+    pub contact: f64,
+}
+
+/// The piston's side of the force balance a [`MountStage`] reads in a substep.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PistonForces {
+    /// Piston position x (m), after the position drift of the substep.
+    pub x: f64,
+    /// Piston velocity v (m/s) at the start of the substep.
+    pub v: f64,
+    /// Hydraulic force A_A·p_A − A_B·p_B (N), at the new pressures.
+    pub f_hyd: f64,
+    /// External force (N), at the end of the substep.
+    pub f_ext: f64,
+    /// The force stage's force of the previous substep (N): the seal friction.
+    pub friction: f64,
+    /// The load spring.
+    pub spring: LoadSpring,
+    /// Piston mass m (kg).
+    pub mass: f64,
+    /// Viscous damping on the piston d (N·s/m), with the force stage's.
+    pub damping: f64,
+}
+
+/// The component on the far side of the rod or of the cylinder body: a mass on a
+/// spring-damper that the piston's velocity update (step 3 of crates/plant/src/model.rs,
+/// drift–kick) couples to. Its two states, the mass's position x_L (m) and velocity v_L
+/// (m/s), are the plant state's `x_load` and `v_load`, which the stage advances in place:
+/// [`MountStage::drift`] with the piston's position drift, [`MountStage::piston_force`]
+/// before the piston's kick, [`MountStage::follow`] after it.
+pub trait MountStage: Component {
+    /// (mass (kg), stiffness (N/m), damping (N·s/m)) of the mount, `None` without one: the
+    /// constants the substep rule and the `linear_exact` scheme read.
+    fn coefficients(&self) -> Option<(f64, f64, f64)>;
+
+    /// Whether the compliance is the cylinder body's (x, v then relative to it).
+    fn is_body(&self) -> bool;
+
+    /// x_L (m) at the start of a run with the piston at `x0` (m).
+    fn initial_load_position(&self, x0: f64) -> f64;
+
+    /// The position drift of x_L over the substep `h` (s) with the velocity `v_load`
+    /// (m/s). Real-time safe.
+    fn drift(&self, x_load: &mut f64, v_load: f64, h: f64);
+
+    /// The piston's force balance with the mount, before the grey-box and force-stage terms
+    /// (N), and the damping (N·s/m) the piston's velocity update takes implicitly; a mount
+    /// whose mass moves with the balance advances x_L, v_L here. Real-time safe.
+    fn piston_force(
+        &self,
+        p: &PistonForces,
+        x_load: &mut f64,
+        v_load: &mut f64,
+        h: f64,
+    ) -> (f64, f64);
+
+    /// After the piston's kick to the velocity `v` (m/s) at position `x` (m), with the
+    /// external force `f_ext` (N): the mass's velocity update over `h` (s). Real-time safe.
+    fn follow(&self, x_load: &mut f64, v_load: &mut f64, x: f64, v: f64, f_ext: f64, h: f64);
+
+    /// Rod force (N) the load cell sees from the load spring, the mount and the external
+    /// force (without the grey-box force law) at the piston state `x` (m), `v` (m/s).
+    fn rod_force(
+        &self,
+        x: f64,
+        v: f64,
+        x_load: f64,
+        v_load: f64,
+        f_ext: f64,
+        spring: LoadSpring,
+    ) -> f64;
+}
+
+/// A component that sets the supply pressure p_s the valve draws from: a state of the plant
+/// (`p_s` of the plant state), advanced once per substep after the chamber pressures with
+/// the flow the valve took from the supply over it.
+pub trait SupplyStage: Component {
+    /// Equivalent droop (Pa·s/m³), > 0 when the supply pressure is a state (the substep
+    /// rule, `linear_exact` and the linearisation read it); 0 without the effect.
+    fn droop(&self) -> f64;
+
+    /// Time constant τ (s) of a first-order supply, as `linear_exact` and the substep rule
+    /// read it; 1 s without the effect.
+    fn time_constant(&self) -> f64;
+
+    /// Whether the supply is first order in p_s (or absent), which `linear_exact` holds.
+    fn is_linear(&self) -> bool;
+
+    /// Whether the effect acts (p_s stays at its initial value without it).
+    fn is_active(&self) -> bool;
+
+    /// The supply pressure (Pa) at the end of the substep `h` (s) from `ps` (Pa), with the
+    /// supply flow `qs` (m³/s) and the tank pressure `pt` (Pa); `ps` without the effect.
+    /// Real-time safe.
+    fn advance(&self, ps: f64, qs: f64, pt: f64, h: f64) -> f64;
 }

@@ -1,7 +1,8 @@
 //! `friction`: Stribeck seal friction with stick (003 eq. 5, 004 eq. 28–34), a load-side
 //! Coulomb force (variant `load_coulomb`) or LuGre / Dahl pre-sliding friction (variant
-//! `lugre`): the config section [`Friction`] (`[effects.friction]`) and its law with the stick
-//! state, [`FrictionModel`].
+//! `lugre`): the config section [`Friction`] (`[effects.friction]`), its law with the stick
+//! state, [`FrictionModel`], and its component [`FrictionStage`], the force stage of the
+//! piston's velocity update ([`ForceStage`]).
 //!
 //! Seal friction with a true stick phase (003 eq. 5, 004 eq. 28–34).
 //!
@@ -23,6 +24,7 @@
 //! √(σ₀/m) enters the substep rule
 //! (`crate::model`, `fastest_mode`), so its oscillation is resolved, not only damped.
 
+use super::component::{Component, ForceStage, Kick, Setup};
 use super::switch::yes;
 use crate::spec::ConfigError;
 use ehactl_params_derive::Params;
@@ -229,18 +231,75 @@ impl FrictionModel {
     }
 }
 
-/// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
-/// present and enabled): the friction law with its stick state, the extra viscous friction
-/// (N·s/m) added to `mechanics.damping`, and the bristle stiffness σ₀ (N/m) of variant `lugre`
-/// that the substep rule resolves (0 otherwise).
-pub(crate) fn configure(s: Option<&Friction>) -> (Option<FrictionModel>, f64, f64) {
-    let f = s.filter(|f| f.enabled);
-    (
-        f.map(FrictionModel::new),
-        f.map_or(0.0, |f| f.viscous),
-        f.filter(|f| f.variant == FrictionVariant::Lugre)
-            .map_or(0.0, |f| f.bristle_stiffness),
-    )
+/// The component of `friction`: the law with its stick (or bristle) state, absent without
+/// the effect, and the extra viscous friction that the mechanics take into their damping.
+#[derive(Debug, Clone)]
+pub struct FrictionStage {
+    /// The law, `None` when the section is absent or switched off.
+    law: Option<FrictionModel>,
+    /// Extra viscous friction `viscous` (N·s/m), 0 without the effect.
+    viscous: f64,
+}
+
+impl FrictionStage {
+    /// The law with its state, `None` without the effect.
+    pub fn law(&self) -> Option<&FrictionModel> {
+        self.law.as_ref()
+    }
+}
+
+impl Component for FrictionStage {
+    type Section = Friction;
+
+    /// F_s ≥ F_C, and variant `lugre` has its bristle stiffness and a Coulomb force.
+    fn validate(s: &Friction) -> Result<(), ConfigError> {
+        s.validate_forces()?;
+        s.validate_variant()
+    }
+
+    fn configure(s: Option<&Friction>, _setup: &Setup) -> Self {
+        let f = s.filter(|f| f.enabled);
+        FrictionStage {
+            law: f.map(FrictionModel::new),
+            viscous: f.map_or(0.0, |f| f.viscous),
+        }
+    }
+
+    /// Relaxed bristles (z = 0).
+    fn reset(&mut self) {
+        if let Some(f) = self.law.as_mut() {
+            f.reset();
+        }
+    }
+}
+
+impl ForceStage for FrictionStage {
+    #[inline]
+    fn is_active(&self) -> bool {
+        self.law.is_some()
+    }
+
+    fn viscous(&self) -> f64 {
+        self.viscous
+    }
+
+    /// The bristle stiffness σ₀ of variant `lugre` (the pre-sliding spring √(σ₀/m)), else 0.
+    fn stiffness(&self) -> f64 {
+        self.law
+            .as_ref()
+            .map_or(0.0, FrictionModel::bristle_stiffness)
+    }
+
+    /// [`FrictionModel::project`]: stick as a velocity projection, slip on the Stribeck
+    /// curve, or the LuGre bristles.
+    #[inline]
+    fn kick(&mut self, v_old: f64, v_free: f64, m_eff: f64, h: f64) -> Kick {
+        let (v, force, stuck) = match self.law.as_mut() {
+            Some(fm) => fm.project(v_old, v_free, m_eff, h),
+            None => (v_free, 0.0, false),
+        };
+        Kick { v, force, stuck }
+    }
 }
 
 #[cfg(test)]
@@ -323,5 +382,84 @@ mod tests {
             assert!(x > 0.0 && x < 2.0 * push / s0, "h {h}: x {x}");
             assert!(v.abs() < 1e-9, "h {h}: v {v}");
         }
+    }
+
+    fn section(variant: FrictionVariant) -> Friction {
+        Friction {
+            enabled: true,
+            variant,
+            static_force: 450.0,
+            coulomb_force: 300.0,
+            stribeck_velocity: 0.01,
+            viscous: 120.0,
+            bristle_stiffness: 1e7,
+            bristle_damping: 2e3,
+        }
+    }
+
+    /// Without the effect (absent or switched off) the stage passes the velocity on, with no
+    /// force, damping or stiffness; with it, it is the law's projection.
+    #[test]
+    fn stage_without_the_effect_passes_the_velocity() {
+        let setup = Setup {
+            control_dt: 1e-3,
+            supply_pressure: 20e6,
+            bulk_modulus: 1.5e9,
+        };
+        let mut off = section(FrictionVariant::Stribeck);
+        off.enabled = false;
+        for s in [None, Some(&off)] {
+            let mut st = FrictionStage::configure(s, &setup);
+            assert!(!st.is_active());
+            assert_eq!((st.viscous(), st.stiffness()), (0.0, 0.0));
+            let k = st.kick(0.1, 0.2, 10.0, 1e-4);
+            assert_eq!((k.v, k.force, k.stuck), (0.2, 0.0, false));
+        }
+        let on = section(FrictionVariant::Stribeck);
+        let mut st = FrictionStage::configure(Some(&on), &setup);
+        assert!(st.is_active());
+        assert_eq!((st.viscous(), st.stiffness()), (120.0, 0.0));
+        // 10 kg pushed from rest by less than F_s over the substep: held.
+        let k = st.kick(0.0, 1e-3, 10.0, 1e-4);
+        assert_eq!((k.v, k.stuck), (0.0, true));
+        assert!((k.force - 100.0).abs() < 1e-9, "{}", k.force);
+    }
+
+    /// Variant `lugre`: the substep rule sees σ₀; a reset relaxes the bristles.
+    #[test]
+    fn lugre_stage_has_the_bristle_spring_and_resets() {
+        let s = section(FrictionVariant::Lugre);
+        let mut st = FrictionStage::configure(
+            Some(&s),
+            &Setup {
+                control_dt: 1e-3,
+                supply_pressure: 20e6,
+                bulk_modulus: 1.5e9,
+            },
+        );
+        assert_eq!(st.stiffness(), 1e7);
+        st.kick(0.01, 0.01, 1e3, 1e-5);
+        let z = st.law().map_or(0.0, FrictionModel::bristle_deflection);
+        assert!(z > 0.0, "z {z}");
+        st.reset();
+        assert_eq!(st.law().map(FrictionModel::bristle_deflection), Some(0.0));
+    }
+
+    /// The component's checks are the section's: F_s < F_C and a `lugre` without σ₀ are
+    /// refused, naming the parameter.
+    #[test]
+    fn validate_refuses_breakaway_below_coulomb_and_lugre_without_bristles() {
+        let mut s = section(FrictionVariant::Lugre);
+        assert!(FrictionStage::validate(&s).is_ok());
+        s.static_force = 200.0;
+        let e = FrictionStage::validate(&s).unwrap_err();
+        assert!(
+            e.to_string().contains("effects.friction.static_force"),
+            "{e}"
+        );
+        s.static_force = 450.0;
+        s.bristle_stiffness = 0.0;
+        let e = FrictionStage::validate(&s).unwrap_err();
+        assert!(e.to_string().contains("bristle_stiffness"), "{e}");
     }
 }

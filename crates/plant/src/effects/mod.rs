@@ -7,15 +7,30 @@
 //! Adding an effect on the plant side: its module here with its section struct (the
 //! `#[param]` declarations, defaults) and its component, a type implementing
 //! [`Component`] (cross-field checks, the constants derived from the section, its state and
-//! reset) and the trait of its stage in the substep (so far [`CommandStage`], the command
-//! path: `time_delay`), registered by one line in `components!` below; its `EffectId`
-//! variant with the lines in [`EffectId::ALL`], [`EffectId::as_str`] and the [`Effects`]
-//! switch matches below (exhaustive: a new id does not build without them); its `Option`
-//! field in [`Effects`] and its re-export line (crates/plant/src/params.rs). In
-//! [`crate::model`] the component's stage is called where the cycle reaches it (one line:
-//! `Plant::step` calls `time_delay`'s `push` once per period and `command` per substep);
+//! reset) and the trait of its stage in the substep: [`CommandStage`] on the command path
+//! (`time_delay`: `DelayLine`), [`SupplyStage`] for the supply pressure
+//! (`supply_pressure_drop`: `Supply`), [`ForceStage`] in the piston's velocity update
+//! (`friction`: `FrictionStage`) or [`MountStage`] for the mass on the far side of the rod or
+//! body (`flexible_mount`: `Mount`), or a new stage trait in `component.rs` where the effect
+//! acts elsewhere (statically dispatched, no allocation in the step); registered by one line
+//! in `components!` below. What the configure phase may read besides the section is in
+//! [`Setup`] (plain numbers the plant owns; add a field there if the effect needs another). Beside it here: its
+//! `pub mod` line, its `EffectId` variant with the lines in [`EffectId::ALL`],
+//! [`EffectId::as_str`] and the [`Effects`] switch matches below (exhaustive: a new id does
+//! not build without them); in crates/plant/src/params.rs its `Option` field in [`Effects`]
+//! and its re-export line. In [`crate::model`] the component's stage is called where the
+//! cycle reaches it (`Plant::step` calls `time_delay`'s `push` once per period and `command`
+//! per substep; `Plant::advance_substep` calls `supply_pressure_drop`'s `advance` after the
+//! chamber pressures, `flexible_mount`'s `drift` with the position
+//! drift, its `piston_force` and `friction`'s `kick` in the velocity update and the mount's
+//! `follow` after it, `Plant::update_rod_force` the mount's `rod_force`; `Plant::configure`
+//! reads the constants the plant folds into its own: friction's viscous coefficient and
+//! bristle stiffness, the mount's coefficients and the supply's droop and time constant for
+//! the substep rule, `linear_exact` and the linearisation);
 //! validation, configuration and reset go through [`Components`]. The effects not moved to
-//! a component yet (all but `time_delay`) still have their checks called from
+//! a component yet (`valve_deadband`, `valve_saturation`, `valve_dynamics`,
+//! `internal_leakage`, `external_leakage`, `bulk_modulus_pressure`, `line_dynamics`,
+//! `sensor_tone`) still have their checks called from
 //! [`validate_variants`] or `model::validate`, their derived constants called in
 //! `Plant::configure` and their terms in the substep (`Plant::advance_substep`).
 //!
@@ -40,7 +55,10 @@ pub mod valve_dynamics;
 pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
-pub use component::{CommandStage, Component, Setup};
+pub use component::{
+    CommandStage, Component, ForceStage, Kick, LoadSpring, MountStage, PistonForces, Setup,
+    SupplyStage,
+};
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
 
@@ -219,6 +237,9 @@ macro_rules! components {
 
 // The registration of each effect component: its section's field in `Effects` and its type.
 components! {
+    friction: friction::FrictionStage,
+    flexible_mount: flexible_mount::Mount,
+    supply_pressure_drop: supply_pressure_drop::Supply,
     time_delay: time_delay::DelayLine,
 }
 
@@ -232,12 +253,6 @@ pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::sp
     }
     if let Some(b) = e.bulk_modulus_pressure.as_ref() {
         b.validate_variant()?;
-    }
-    if let Some(s) = e.supply_pressure_drop.as_ref() {
-        s.validate_variant()?;
-    }
-    if let Some(f) = e.friction.as_ref() {
-        f.validate_variant()?;
     }
     if let Some(l) = e.line_dynamics.as_ref() {
         l.validate_variant()?;

@@ -1,8 +1,10 @@
 //! `supply_pressure_drop`: the supply pressure sags with the valve's flow, p_s → p_s0 − R·Q_s with
 //! time constant τ (000), or a flow-limited pressure-compensated pump feeding a volume (variant
 //! `pump_limit`; Manring 2005, "Hydraulic Control Systems", §6.5): the config section
-//! [`SupplyPressureDrop`] (`[effects.supply_pressure_drop]`) and its substep [`SupplyModel`].
+//! [`SupplyPressureDrop`] (`[effects.supply_pressure_drop]`), its substep [`SupplyModel`] and
+//! its component [`Supply`], the supply stage of the substep ([`SupplyStage`]).
 
+use super::component::{Component, Setup, SupplyStage};
 use super::switch::yes;
 use crate::spec::ConfigError;
 use ehactl_params_derive::Params;
@@ -171,20 +173,139 @@ impl SupplyModel {
     }
 }
 
-/// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
-/// present and enabled), with the nominal supply pressure `ps0` (Pa) and the fluid's β₀ (Pa):
-/// the equivalent droop (Pa·s/m³; 0 without the effect, and the supply pressure is no state),
-/// the time constant τ (s) of variant `resistance` (floored at 1 ns; 1 s without the effect)
-/// and the substep model.
-pub(crate) fn configure(
-    s: Option<&SupplyPressureDrop>,
-    ps0: f64,
-    beta0: f64,
-) -> (f64, f64, Option<SupplyModel>) {
-    let sdrop = s.filter(|s| s.enabled);
-    (
-        sdrop.map_or(0.0, |s| SupplyModel::new(s, ps0, beta0).droop()),
-        sdrop.map_or(1.0, |s| s.time_constant.max(1e-9)),
-        sdrop.map(|s| SupplyModel::new(s, ps0, beta0)),
-    )
+/// The component of `supply_pressure_drop`: the supply model (absent without the effect) and
+/// the constants the plant reads of it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Supply {
+    /// The substep model, `None` when the section is absent or switched off.
+    model: Option<SupplyModel>,
+    /// Equivalent droop (Pa·s/m³), 0 without the effect.
+    droop: f64,
+    /// Time constant τ (s) of variant `resistance`, floored at 1 ns; 1 s without the effect.
+    tau: f64,
+}
+
+impl Component for Supply {
+    type Section = SupplyPressureDrop;
+
+    /// Each variant's own parameters are given and admissible.
+    fn validate(s: &SupplyPressureDrop) -> Result<(), ConfigError> {
+        s.validate_variant()
+    }
+
+    /// With the nominal supply pressure p_s0 and the fluid's β₀ of `setup`.
+    fn configure(s: Option<&SupplyPressureDrop>, setup: &Setup) -> Self {
+        let (ps0, beta0) = (setup.supply_pressure, setup.bulk_modulus);
+        let sdrop = s.filter(|s| s.enabled);
+        Supply {
+            model: sdrop.map(|s| SupplyModel::new(s, ps0, beta0)),
+            droop: sdrop.map_or(0.0, |s| SupplyModel::new(s, ps0, beta0).droop()),
+            tau: sdrop.map_or(1.0, |s| s.time_constant.max(1e-9)),
+        }
+    }
+
+    /// No state of its own: p_s is set with the plant state.
+    fn reset(&mut self) {}
+}
+
+impl SupplyStage for Supply {
+    fn droop(&self) -> f64 {
+        self.droop
+    }
+
+    fn time_constant(&self) -> f64 {
+        self.tau
+    }
+
+    fn is_linear(&self) -> bool {
+        !matches!(self.model, Some(SupplyModel::PumpLimit { .. }))
+    }
+
+    fn is_active(&self) -> bool {
+        self.model.is_some()
+    }
+
+    /// [`SupplyModel::advance`].
+    #[inline]
+    fn advance(&self, ps: f64, qs: f64, pt: f64, h: f64) -> f64 {
+        match &self.model {
+            Some(sm) => sm.advance(ps, qs, pt, h),
+            None => ps,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SETUP: Setup = Setup {
+        control_dt: 1e-3,
+        supply_pressure: 20e6,
+        bulk_modulus: 1.5e9,
+    };
+
+    fn section(variant: SupplyVariant) -> SupplyPressureDrop {
+        SupplyPressureDrop {
+            enabled: true,
+            variant,
+            resistance: 2e10,
+            time_constant: 0.02,
+            max_flow: 1e-4,
+            regulation_band: 1e6,
+            volume: 1e-3,
+        }
+    }
+
+    /// Without the effect (absent or switched off) p_s is no state: it stays, with no droop,
+    /// and `linear_exact` may run.
+    #[test]
+    fn without_the_effect_the_supply_pressure_stays() {
+        let mut off = section(SupplyVariant::Resistance);
+        off.enabled = false;
+        for s in [None, Some(&off)] {
+            let st = Supply::configure(s, &SETUP);
+            assert!(!st.is_active() && st.is_linear());
+            assert_eq!((st.droop(), st.time_constant()), (0.0, 1.0));
+            assert_eq!(st.advance(19e6, 1e-4, 0.0, 1e-4), 19e6);
+        }
+    }
+
+    /// Variant `resistance`: p_s relaxes towards p_s0 − R·Q_s with τ, exactly over a step.
+    #[test]
+    fn resistance_relaxes_to_the_drooped_pressure() {
+        let st = Supply::configure(Some(&section(SupplyVariant::Resistance)), &SETUP);
+        assert!(st.is_active() && st.is_linear());
+        assert_eq!((st.droop(), st.time_constant()), (2e10, 0.02));
+        // Q_s = 1e-4 m³/s: target 20 MPa − 2 MPa = 18 MPa; one τ from 20 MPa.
+        let p = st.advance(20e6, 1e-4, 0.0, 0.02);
+        let want = 18e6 + 2e6 * (-1.0f64).exp();
+        assert!((p - want).abs() < 1e-6, "{p} vs {want}");
+    }
+
+    /// Variant `pump_limit`: nonlinear (no `linear_exact`); the droop is Δp_c/Q_max; a
+    /// demand above Q_max empties the volume at (q_s − Q_max)/C below the band.
+    #[test]
+    fn pump_limit_is_nonlinear_and_sags_beyond_its_flow() {
+        let st = Supply::configure(Some(&section(SupplyVariant::PumpLimit)), &SETUP);
+        assert!(st.is_active() && !st.is_linear());
+        assert!((st.droop() - 1e6 / 1e-4).abs() < 1e-3);
+        let (ps, h) = (15e6, 1e-4);
+        let p = st.advance(ps, 3e-4, 0.0, h);
+        let want = ps + h * (1e-4 - 3e-4) / (1e-3 / 1.5e9);
+        assert!((p - want).abs() < 1e-6, "{p} vs {want}");
+    }
+
+    /// The component's check is the variant's: `pump_limit` without its volume is refused.
+    #[test]
+    fn validate_refuses_a_pump_without_volume() {
+        let mut s = section(SupplyVariant::PumpLimit);
+        assert!(Supply::validate(&s).is_ok());
+        s.volume = 0.0;
+        let e = Supply::validate(&s).unwrap_err();
+        assert!(
+            e.to_string().contains("effects.supply_pressure_drop"),
+            "{e}"
+        );
+    }
 }

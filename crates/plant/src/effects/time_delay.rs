@@ -133,7 +133,14 @@ mod tests {
             enabled: true,
             delay,
         };
-        DelayLine::configure(Some(&s), &Setup { control_dt })
+        DelayLine::configure(
+            Some(&s),
+            &Setup {
+                control_dt,
+                supply_pressure: 20e6,
+                bulk_modulus: 1.5e9,
+            },
+        )
     }
 
     /// The mean over [t, t + h] of u(s − τ), u held over each period of `us` (0 V before
@@ -184,7 +191,14 @@ mod tests {
             delay: 0.01,
         };
         for s in [None, Some(&off)] {
-            let mut l = DelayLine::configure(s, &Setup { control_dt: 1e-3 });
+            let mut l = DelayLine::configure(
+                s,
+                &Setup {
+                    control_dt: 1e-3,
+                    supply_pressure: 20e6,
+                    bulk_modulus: 1.5e9,
+                },
+            );
             assert_eq!((l.delay, l.buf.len()), (0.0, 1));
             for k in 0..5u64 {
                 l.push(k, k as f64 + 0.5);
