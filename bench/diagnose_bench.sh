@@ -7,7 +7,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS="${1:-3}"
 EFFECT="${2:-friction}"
-cargo build --release -p ehactl-cli -p ehactl-ident --examples --bins >/dev/null
+cargo build --release -p ehactl-cli -p ehactl-ident-eval --examples --bins >/dev/null
 DIR="$(mktemp -d)"
 ./target/release/examples/make_csv 77 10 5000 "$DIR/data.csv" "$EFFECT"
 echo "data: $(($(wc -l < "$DIR/data.csv") - 1)) samples at 5 kHz, hidden: $EFFECT, nproc $(nproc), load $(cut -d' ' -f1-3 /proc/loadavg)"

@@ -10,7 +10,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 REPS="${1:-3}"
 EFFECTS="${2:-friction valve_deadband line_dynamics}"
-cargo build --release -p ehactl-ident --example diagnose_speed >/dev/null 2>&1
+cargo build --release -p ehactl-ident-eval --example diagnose_speed >/dev/null 2>&1
 BIN=./target/release/examples/diagnose_speed
 OUT="$(mktemp)"
 echo "nproc $(nproc); $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2)"

@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # The quick test tier for the edit-test loop (the full suite, what CI runs, is
 # scripts/test_all.sh). Runs: the check for file-level import circles (scripts/file_cycles.py),
-# rustfmt and clippy (warnings as errors), the Rust unit and integration tests except the long
-# diagnosis catalogue (crates/ident/tests/hidden_effects.rs and indep_generator.rs), ruff, and
-# the Python tests that need neither a CAN bus, the diagnosis catalogue nor the compiled Python
-# bindings. No cross-builds, no QEMU, no apt-get.
+# rustfmt and clippy (warnings as errors), the Rust unit and integration tests except the
+# diagnosis' long evaluation tests (crates/ident-eval/tests/: the catalogue in hidden_effects.rs
+# and indep_generator.rs, false_none.rs, force_loop.rs, …; its data_errors.rs and data_units.rs
+# run), ruff, and the Python tests that need neither a CAN bus, the diagnosis catalogue nor the
+# compiled Python bindings. No cross-builds, no QEMU, no apt-get.
 # Python tools go into .venv-test/ (EHACTL_TEST_VENV=DIR to choose another), as in test_all.sh.
 # Extra arguments go to every `cargo test`, e.g. `scripts/test_fast.sh -- --test-threads 1`.
 # It builds with the `fast` profile (Cargo.toml: release code, incremental) into target/fast/,
@@ -39,10 +40,12 @@ echo "== Rust tests (without the diagnosis catalogue)"
 export PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}"
 # The Python extension's crate has no Rust tests (its tests are pytest files, run by
 # test_all.sh after maturin builds it); clippy above checked it.
-cargo test --profile fast --workspace --exclude ehactl-ident --exclude ehactl-python "$@"
-# ehactl-ident's unit tests and its two quick integration tests. Selected with --workspace (the
-# other crates' unit tests run again, a few seconds) so that Cargo resolves the same features
-# as above: `-p ehactl-ident` would build every dependency a second time after each change.
+cargo test --profile fast --workspace --exclude ehactl-ident --exclude ehactl-ident-eval \
+  --exclude ehactl-python "$@"
+# ehactl-ident's unit tests, the evaluation harness's (crates/ident-eval) and the harness's two
+# quick integration tests of the diagnosis. Selected with --workspace (the other crates' unit
+# tests run again, a few seconds) so that Cargo resolves the same features as above:
+# `-p ehactl-ident-eval` would build every dependency a second time after each change.
 cargo test --profile fast --workspace --exclude ehactl-python --lib --test data_errors --test data_units "$@"
 
 echo "== Python tests (no CAN, no diagnosis catalogue, no bindings)"

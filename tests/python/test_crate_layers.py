@@ -3,7 +3,8 @@
 hardware, plant or logging crate and no TOML parser; the config, the diagnosis and the analysis do not compile
 the CANopen master; the logger does not compile the plant or the Hal; the Hal contract is
 bare (no plant, no logger), so the CANopen backend compiles no physics and no MCAP writer,
-the config no logger and the diagnosis no Hal.
+the config no logger and the diagnosis no Hal; the diagnosis' evaluation harness
+(ehactl-ident-eval) is compiled by none of the CLI, the Python bindings and the diagnosis.
 
 EHACTL_ROOT selects another checkout (default: this repository).
 """
@@ -93,3 +94,14 @@ def test_config_compiles_no_logger(deps):
 def test_diagnosis_compiles_no_hal(deps):
     got = closure(deps, "ehactl-ident")
     assert "ehactl-hal" not in got, sorted(got)
+
+
+@pytest.mark.parametrize("crate", ["ehactl-cli", "ehactl-python", "ehactl-ident"])
+def test_shipped_crates_do_not_compile_the_evaluation_harness(deps, crate):
+    # The diagnosis' evaluation harness (crates/ident-eval: synthetic and independent cases,
+    # effect hiding) is dev-only: neither the CLI, the Python bindings (bindings/python) nor
+    # the diagnosis library itself compile it.
+    assert "ehactl-ident-eval" in deps, sorted(deps)
+    got = closure(deps, crate)
+    assert "ehactl-ident-eval" not in got, sorted(got)
+    assert "ehactl-ident" in got or crate == "ehactl-ident", sorted(got)

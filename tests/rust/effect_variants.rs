@@ -239,7 +239,7 @@ mod uncertainty {
     use ehactl_plant::PlantParams;
 
     fn with(table: &str) -> Result<PlantParams, String> {
-        let base = ehactl_ident::synth::TESTRIG_TOML;
+        let base = ehactl_ident_eval::synth::TESTRIG_TOML;
         let text = format!("{base}\n[uncertainty]\n{table}\n");
         ehactl_config::RigConfig::from_toml_str(&text)
             .map(|c| c.plant)
@@ -300,7 +300,7 @@ mod uncertainty {
         let sections = "[effects.time_delay]\ndelay = 0.002\n[effects.valve_dynamics]\norder = 1\ntime_constant = 0.0\n[effects.valve_deadband]\noverlap = 0.0\nzero_offset = 0.01\n";
         let text = format!(
             "{}\n{sections}\n[uncertainty]\n\"effects.time_delay.delay\" = 0.02\n\"effects.valve_dynamics.time_constant\" = 0.02\n\"effects.valve_deadband.zero_offset\" = 0.05\n\"effects.valve_deadband.overlap\" = 0.05\n",
-            ehactl_ident::synth::TESTRIG_TOML
+            ehactl_ident_eval::synth::TESTRIG_TOML
         );
         let p = ehactl_config::RigConfig::from_toml_str(&text)
             .unwrap()
@@ -333,7 +333,7 @@ mod uncertainty {
         ] {
             let text = format!(
                 "{}\n{sections}\n[uncertainty]\n\"{key}\" = 0.01\n",
-                ehactl_ident::synth::TESTRIG_TOML
+                ehactl_ident_eval::synth::TESTRIG_TOML
             );
             let e = ehactl_config::RigConfig::from_toml_str(&text)
                 .map(|_| ())
@@ -417,7 +417,7 @@ fn lugre_without_bristles_and_hose_resistance_with_unsteady_friction_are_refused
 /// (a delay fit on a closed-loop record could not resolve it below a substep).
 #[test]
 fn a_delay_between_substeps_is_a_fractional_delay() {
-    let mut p = ehactl_ident::synth::testrig().plant;
+    let mut p = ehactl_ident_eval::synth::testrig().plant;
     p.integration.substeps = 4;
     let dt = 1e-3;
     let h = dt / 4.0;

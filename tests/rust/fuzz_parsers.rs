@@ -139,7 +139,7 @@ proptest! {
             csv.push_str(&format!("{},{},{},{}\n", k as f64 * dt, r[0], r[1], r[2]));
         }
         if let Ok(rec) = ehactl_ident::data::parse_csv("fuzz.csv", &csv) {
-            let rig = ehactl_ident::synth::testrig();
+            let rig = ehactl_ident_eval::synth::testrig();
             let _ = ehactl_ident::data::check_against(&rec, &rig.plant, rig.timebase().period());
         }
     }

@@ -8,9 +8,13 @@
 //!
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
 //! noise level), [`spectrum`] (Welch PSD, H1 frequency response), [`analysis`] (residual analysis), [`evidence`] (its findings and shared evidence rules), [`fit`] (nominal refit, bounded
-//! Nelder–Mead), [`freeparam`] (a fit's free parameters and rig scales), [`effects`] (one module per catalogue effect: its fit parameters, variants, evidence score and synthetic hiding), [`rng`] (the synthetic cases' generator), [`ctx`] (the replay context and the hypotheses fitted in it), [`diagnose`] (the decision), `weigh` (a weak round winner against the runner-up, the order of the accepted causes), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
+//! Nelder–Mead), [`freeparam`] (a fit's free parameters and rig scales), [`effects`] (one module per catalogue effect: its fit parameters, variants and evidence score), [`ctx`] (the replay context and the hypotheses fitted in it), [`diagnose`] (the decision), `weigh` (a weak round winner against the runner-up, the order of the accepted causes), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
 //! [`session`] (one complete diagnosis as the CLI and Python run it), [`progress`] (progress
 //! reports through the caller's callback; the library draws nothing).
+//!
+//! The evaluation harness (the seeded synthetic and independent cases, how each effect is
+//! hidden in them, the evaluation examples and the integration tests) is the dev-only crate
+//! `ehactl-ident-eval` (crates/ident-eval), which this library does not depend on.
 #![deny(missing_docs)]
 
 pub mod analysis;
@@ -25,7 +29,6 @@ pub mod evidence;
 pub mod fit;
 pub mod freeparam;
 pub mod greybox;
-pub mod indep;
 pub mod loopid;
 pub mod outdir;
 pub mod plots;
@@ -34,10 +37,8 @@ pub mod progress;
 pub mod replay;
 pub mod report;
 pub mod residual;
-pub mod rng;
 pub mod session;
 pub mod spectrum;
-pub mod synth;
 pub(crate) mod weigh;
 
 pub use data::{load, ChannelKind, DataError, Record};

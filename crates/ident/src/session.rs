@@ -358,9 +358,12 @@ pub fn run(
 mod tests {
     use super::*;
 
+    /// The diagnosis test bench, configs/diagnose_testrig.toml.
+    const TESTRIG_TOML: &str = include_str!("../../../configs/diagnose_testrig.toml");
+
     #[test]
     fn a_log_of_another_rig_differs_and_a_hidden_effect_does_not() {
-        let rig = crate::synth::testrig();
+        let rig = RigConfig::from_toml_str(TESTRIG_TOML).unwrap();
         let other =
             RigConfig::from_toml_str(include_str!("../../../configs/sahu2022_force.toml")).unwrap();
         let d = config_mismatch(&rig, &other.to_json());
@@ -374,7 +377,7 @@ mod tests {
         // estimated quantities.
         let truth = RigConfig::from_toml_str(&format!(
             "{}\n[effects.time_delay]\ndelay = 0.005\n",
-            crate::synth::TESTRIG_TOML.replace("bulk_modulus = 1.4e9", "bulk_modulus = 1.2e9")
+            TESTRIG_TOML.replace("bulk_modulus = 1.4e9", "bulk_modulus = 1.2e9")
         ))
         .unwrap();
         assert_eq!(

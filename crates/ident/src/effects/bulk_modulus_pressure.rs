@@ -8,7 +8,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{BulkModulusPressure, BulkVariant};
 use ehactl_plant::PlantParams;
 
@@ -90,17 +89,5 @@ impl EffectFit for Effect {
             ));
         }
         out
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.bulk_modulus_pressure = Some(BulkModulusPressure {
-            enabled: true,
-            variant: Default::default(),
-            air_fraction: 0.0,
-            polytropic_index: 1.4,
-            slope: rng.range(80.0, 200.0),
-            max: 2.2e9,
-        })
     }
 }

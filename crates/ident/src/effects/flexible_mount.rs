@@ -8,7 +8,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, write, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{FlexibleMount, MountVariant};
 use ehactl_plant::PlantParams;
 use std::sync::Arc;
@@ -106,18 +105,5 @@ impl EffectFit for Effect {
             out.push((v, first));
         }
         out
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        let m = rng.range(10.0, 40.0);
-        let k = rng.log_range(2e6, 8e6);
-        ef.flexible_mount = Some(FlexibleMount {
-            enabled: true,
-            variant: Default::default(),
-            load_mass: m,
-            stiffness: k,
-            damping: rng.range(0.05, 0.2) * 2.0 * (k * m).sqrt(),
-        });
     }
 }

@@ -10,7 +10,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, write, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{Friction, FrictionVariant};
 use ehactl_plant::PlantParams;
 
@@ -144,45 +143,6 @@ impl EffectFit for Effect {
             ));
         }
         out
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        let fc = rng.range(150.0, 400.0);
-        ef.friction = Some(Friction {
-            enabled: true,
-            variant: Default::default(),
-            coulomb_force: fc,
-            static_force: fc * rng.range(1.1, 1.6),
-            stribeck_velocity: rng.log_range(0.005, 0.02),
-            viscous: 0.0,
-            bristle_stiffness: 0.0,
-            bristle_damping: 0.0,
-        });
-    }
-
-    fn hide_variant(&self, variant: &str, p: &mut PlantParams, rng: &mut Rng) {
-        let mass = p.mechanics.mass;
-        match variant {
-            // Seal friction with pre-sliding bristles (Canudas de Wit et al. 1995): pre-sliding
-            // range F_C/σ₀ of 20–80 µm (tens of µm on hydraulic cylinder seals, e.g. Yanada &
-            // Sekikawa 2008, Tribology International 41), bristle damping 10–50 % of critical.
-            "lugre" => {
-                let fc = rng.range(150.0, 400.0);
-                let s0 = fc / rng.log_range(20e-6, 80e-6);
-                p.effects.friction = Some(Friction {
-                    enabled: true,
-                    variant: FrictionVariant::Lugre,
-                    coulomb_force: fc,
-                    static_force: fc * rng.range(1.1, 1.6),
-                    stribeck_velocity: rng.log_range(0.005, 0.02),
-                    viscous: 0.0,
-                    bristle_stiffness: s0,
-                    bristle_damping: rng.range(0.1, 0.5) * 2.0 * (s0 * mass).sqrt(),
-                });
-            }
-            _ => self.hide(p, rng),
-        }
     }
 }
 

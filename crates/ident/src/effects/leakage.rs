@@ -8,7 +8,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{Leakage, LeakageVariant};
 use ehactl_plant::{EffectId, PlantParams};
 
@@ -22,16 +21,6 @@ impl EffectFit for Internal {
 
     fn params(&self, nominal: &PlantParams, sc: &Scales, _an: &Analysis) -> Option<Vec<FreeParam>> {
         Some(leakage_params(EffectId::InternalLeakage, nominal, sc))
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.internal_leakage = Some(Leakage {
-            enabled: true,
-            variant: Default::default(),
-            coefficient_b: 0.0,
-            coefficient: rng.log_range(2e-12, 8e-12),
-        })
     }
 }
 
@@ -96,16 +85,6 @@ impl EffectFit for External {
             ));
         }
         out
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.external_leakage = Some(Leakage {
-            enabled: true,
-            variant: Default::default(),
-            coefficient_b: 0.0,
-            coefficient: rng.log_range(2e-12, 8e-12),
-        })
     }
 }
 

@@ -8,7 +8,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{LineDynamics, LineVariant};
 use ehactl_plant::PlantParams;
 
@@ -68,44 +67,6 @@ impl EffectFit for Effect {
             out.push(("hose", hose_params(nominal, sc)));
         }
         out
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.line_dynamics = Some(LineDynamics {
-            enabled: true,
-            length: rng.range(1.5, 4.0),
-            diameter: rng.range(6e-3, 10e-3),
-            segments: 3,
-            bulk_modulus: None,
-            port_volume: 0.0,
-            variant: Default::default(),
-            wall_compliance: 0.0,
-            resistance: 0.0,
-            friction: Default::default(),
-        })
-    }
-
-    fn hide_variant(&self, variant: &str, p: &mut PlantParams, rng: &mut Rng) {
-        match variant {
-            // A 1.5–4 m hose of 8–13 mm bore, wall compliance 0.6–2.5·10⁻⁹ 1/Pa (β_eff ≈
-            // 0.3–0.8 GPa), fittings 0.5–2·10⁹ Pa·s/m³; three segments (the fit uses two).
-            "hose" => {
-                p.effects.line_dynamics = Some(LineDynamics {
-                    enabled: true,
-                    variant: LineVariant::Hose,
-                    length: rng.range(1.5, 4.0),
-                    diameter: rng.range(8e-3, 13e-3),
-                    segments: 3,
-                    bulk_modulus: None,
-                    port_volume: 0.0,
-                    friction: Default::default(),
-                    wall_compliance: rng.log_range(0.6e-9, 2.5e-9),
-                    resistance: rng.range(0.5e9, 2e9),
-                });
-            }
-            _ => self.hide(p, rng),
-        }
     }
 }
 

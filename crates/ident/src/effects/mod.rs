@@ -1,13 +1,14 @@
 //! The diagnosis side of each catalogue effect, one module per effect: its free parameters
 //! with seeds and bounds ([`EffectFit::params`]), its structural variants
 //! ([`EffectFit::variants`], DIAGNOSIS.md "Effect variants"), its evidence score from the
-//! residual analysis ([`EffectFit::prior`]) and how the synthetic generator
-//! hides it in a record ([`EffectFit::hide`], [`EffectFit::hide_variant`]). [`of`] is the one
-//! table keyed by [`EffectId`]; `crate::fit::effect_params` / `effect_variants` and
-//! `crate::synth::hide` / `hide_variant` look the effect up there.
+//! residual analysis ([`EffectFit::prior`]). [`of`] is the one table keyed by [`EffectId`];
+//! `crate::fit::effect_params` / `effect_variants` and the residual analysis look the effect
+//! up there. How the synthetic generator hides each effect in a record is the evaluation
+//! harness's (crates/ident-eval/src/hide.rs), not the library's.
 //!
 //! Adding an effect on the diagnosis side: one module here implementing [`EffectFit`] and its
-//! line in [`of`] (the match is exhaustive, so a new [`EffectId`] does not build without it).
+//! line in [`of`] (the match is exhaustive, so a new [`EffectId`] does not build without it),
+//! and its hiding in crates/ident-eval/src/hide.rs (exhaustive as well).
 //! The plant side is the module of the same name in crates/plant/src/effects/ (the effect's
 //! config section, checks, own physics and derived constants; its registration in that
 //! directory's mod.rs) and the effect's terms in the state equations, in
@@ -15,7 +16,6 @@
 
 use crate::evidence::Analysis;
 use crate::freeparam::{FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::{EffectId, PlantParams};
 
 pub mod bulk_modulus_pressure;
@@ -55,17 +55,6 @@ pub trait EffectFit: Sync {
     /// analysis `an` of a record sampled at period `dt` (s); shared rules are methods of
     /// [`Analysis`] (`crate::evidence`).
     fn prior(&self, an: &Analysis, dt: f64) -> (f64, String);
-
-    /// Switch the effect on in `p` with parameters drawn from a realistic range for the test
-    /// bench (`crate::synth`).
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng);
-
-    /// Switch the effect on in `p` in its structural variant `variant` (one of
-    /// `crate::synth::VARIANT_CASES`, else its default as [`EffectFit::hide`]).
-    fn hide_variant(&self, variant: &str, p: &mut PlantParams, rng: &mut Rng) {
-        let _ = variant;
-        self.hide(p, rng)
-    }
 }
 
 /// The diagnosis side of catalogue effect `e`: the registration table.
@@ -83,27 +72,5 @@ pub fn of(e: EffectId) -> &'static dyn EffectFit {
         EffectId::TimeDelay => &time_delay::Effect,
         EffectId::SensorTone => &sensor_tone::Effect,
         EffectId::SupplyPressureDrop => &supply_pressure_drop::Effect,
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Each registered module hides its own effect and no other (a wrong line in [`of`]
-    /// would hide, fit and score one effect under another's name).
-    #[test]
-    fn each_effect_hides_itself_only() {
-        let base = crate::synth::testrig().plant;
-        for e in EffectId::ALL {
-            for variant in ["", "lugre", "hose"] {
-                let mut p = base.clone();
-                p.effects = Default::default();
-                of(e).hide_variant(variant, &mut p, &mut Rng::new(1));
-                for o in EffectId::ALL {
-                    assert_eq!(p.effects.is_enabled(o), o == e, "{e} {variant:?} hid {o}");
-                }
-            }
-        }
     }
 }

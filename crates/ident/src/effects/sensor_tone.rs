@@ -8,7 +8,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{SensorChannel, SensorTone};
 use ehactl_plant::PlantParams;
 use std::sync::Arc;
@@ -112,28 +111,5 @@ impl EffectFit for Effect {
             ));
         }
         Some(v)
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        let force = rng.uniform() < 0.5;
-        let f = rng.range(80.0, 300.0);
-        ef.sensor_tone = Some(if force {
-            SensorTone {
-                enabled: true,
-                channel: SensorChannel::Force,
-                phases: vec![],
-                frequencies: vec![f],
-                amplitudes: vec![rng.range(20.0, 40.0)],
-            }
-        } else {
-            SensorTone {
-                enabled: true,
-                channel: SensorChannel::PressureA,
-                phases: vec![],
-                frequencies: vec![f],
-                amplitudes: vec![rng.range(8e4, 1.6e5)],
-            }
-        });
     }
 }

@@ -8,7 +8,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{SupplyPressureDrop, SupplyVariant};
 use ehactl_plant::PlantParams;
 
@@ -109,18 +108,5 @@ impl EffectFit for Effect {
             ));
         }
         out
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.supply_pressure_drop = Some(SupplyPressureDrop {
-            enabled: true,
-            variant: Default::default(),
-            max_flow: 0.0,
-            regulation_band: 0.0,
-            volume: 0.0,
-            resistance: rng.range(1.0e10, 2.5e10),
-            time_constant: rng.log_range(0.01, 0.05),
-        })
     }
 }

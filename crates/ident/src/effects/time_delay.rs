@@ -6,7 +6,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::TimeDelay;
 use ehactl_plant::PlantParams;
 
@@ -34,13 +33,5 @@ impl EffectFit for Effect {
             (0.0, (60.0 * sc.dt).min(0.2), false, init),
             &seed,
         )])
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.time_delay = Some(TimeDelay {
-            enabled: true,
-            delay: rng.range(0.003, 0.010),
-        })
     }
 }

@@ -7,7 +7,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{DeadbandVariant, ValveDeadband};
 use ehactl_plant::PlantParams;
 
@@ -106,16 +105,5 @@ impl EffectFit for Effect {
             ));
         }
         out
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.valve_deadband = Some(ValveDeadband {
-            enabled: true,
-            variant: Default::default(),
-            deadzone: 0.0,
-            overlap: rng.range(0.05, 0.12),
-            zero_offset: rng.range(-0.01, 0.01),
-        });
     }
 }

@@ -7,7 +7,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::ValveDynamics;
 use ehactl_plant::PlantParams;
 
@@ -78,16 +77,5 @@ impl EffectFit for Effect {
                 ]
             }
         })
-    }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.valve_dynamics = Some(ValveDynamics {
-            enabled: true,
-            order: 2,
-            time_constant: 0.0,
-            natural_frequency: std::f64::consts::TAU * rng.range(15.0, 45.0),
-            damping_ratio: rng.range(0.5, 0.9),
-        });
     }
 }

@@ -11,7 +11,6 @@
 use super::EffectFit;
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
-use crate::rng::Rng;
 use ehactl_plant::params::{SaturationVariant, ValveSaturation};
 use ehactl_plant::PlantParams;
 
@@ -107,17 +106,6 @@ impl EffectFit for Effect {
         }
         out
     }
-
-    fn hide(&self, p: &mut PlantParams, rng: &mut Rng) {
-        let ef = &mut p.effects;
-        ef.valve_saturation = Some(ValveSaturation {
-            enabled: true,
-            variant: Default::default(),
-            spool_limit_negative: 1.0,
-            spool_limit: rng.range(0.45, 0.7),
-            max_flow: 0.0,
-        });
-    }
 }
 
 #[cfg(test)]
@@ -194,7 +182,11 @@ mod tests {
     /// start: no limit there can be told from the record, so none is invented at the bound.
     #[test]
     fn unreached_direction_keeps_the_default_start() {
-        let mut nominal = crate::synth::testrig().plant;
+        let mut nominal = ehactl_config::RigConfig::from_toml_str(include_str!(
+            "../../../../configs/diagnose_testrig.toml"
+        ))
+        .unwrap()
+        .plant;
         nominal.effects.valve_saturation = None;
         let sc = Scales {
             force: 1e4,

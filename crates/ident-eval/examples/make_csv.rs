@@ -14,8 +14,8 @@ fn main() {
         .iter()
         .map(|s| EffectId::parse(s).unwrap_or_else(|| panic!("unknown effect id {s}")))
         .collect();
-    let case = ehactl_ident::synth::make_case_at(seed, &hidden, dur, 1.0 / rate);
-    std::fs::write(&a[4], ehactl_ident::synth::to_csv(&case.record)).expect("write csv");
+    let case = ehactl_ident_eval::synth::make_case_at(seed, &hidden, dur, 1.0 / rate);
+    std::fs::write(&a[4], ehactl_ident_eval::synth::to_csv(&case.record)).expect("write csv");
     std::fs::write(
         format!("{}.nominal.toml", a[4]),
         case.nominal.to_toml_string(),

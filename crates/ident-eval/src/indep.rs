@@ -18,7 +18,7 @@
 //! The cases of the evaluation are listed with their seeds in `bench/indep_cases.txt`
 //! (committed before any result was seen).
 
-use crate::data::{Channel, ChannelKind, Record};
+use ehactl_ident::data::{Channel, ChannelKind, Record};
 use ehactl_plant::PlantParams;
 use std::f64::consts::{PI, TAU};
 
@@ -825,7 +825,7 @@ pub struct Case {
     pub record: Record,
     /// How the diagnosis must replay it: the recorded command, or for a `pi_` case the
     /// rig's PI force loop on the recorded force setpoint `ref` (the gains the rig ran with).
-    pub drive: crate::replay::Drive,
+    pub drive: ehactl_ident::replay::Drive,
 }
 
 impl Case {
@@ -1239,12 +1239,12 @@ fn generate(
         nominal,
         record,
         drive: if closed {
-            crate::replay::Drive::ForcePi {
+            ehactl_ident::replay::Drive::ForcePi {
                 gains: force_pi_gains(),
                 max_command: f64::INFINITY,
             }
         } else {
-            crate::replay::Drive::Recorded
+            ehactl_ident::replay::Drive::Recorded
         },
     })
 }

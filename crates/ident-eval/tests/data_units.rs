@@ -3,7 +3,7 @@
 //! come from the conversion factors (1 bar = 1e5 Pa, 1 psi = 6894.757 Pa, 1 MPa = 1e6 Pa).
 
 use ehactl_ident::data::{check_against, parse_csv};
-use ehactl_ident::synth::testrig;
+use ehactl_ident_eval::synth::testrig;
 
 fn rows(header: &str, n: usize, dt: f64, row: impl Fn(usize) -> String) -> String {
     let mut v = vec![header.to_string()];

@@ -3,12 +3,12 @@
 //! that tells them apart, and the ambiguity is reported; with two effects accepted, the first
 //! named is the one that explains more of the error on the final model.
 //!
-//! Records from the independent generator (`ehactl_ident::indep`: its own equations, RK4 and
+//! Records from the independent generator (`ehactl_ident_eval::indep`: its own equations, RK4 and
 //! noise), seeds of `bench/indep_cases.txt` and `bench/indep_force_cases.txt`.
 
-use ehactl_ident::indep::{expected, make_case, make_case_without};
 use ehactl_ident::replay::std;
 use ehactl_ident::{diagnose, Diagnosis, Options};
+use ehactl_ident_eval::indep::{expected, make_case, make_case_without};
 use ehactl_plant::EffectId;
 
 fn run(seed: u64, kind: &str) -> (Diagnosis, String) {
@@ -104,14 +104,14 @@ fn top_cause_of_a_pair_explains_most_7205() {
 }
 
 /// The error effect `e` explains in the own-plant generator's truth (-), as [`true_share`]:
-/// the record of `ehactl_ident::synth` with every hidden effect against the record with `e`
+/// the record of `ehactl_ident_eval::synth` with every hidden effect against the record with `e`
 /// switched off (same command and sensor noise).
-fn synth_true_share(case: &ehactl_ident::synth::Case, e: EffectId) -> f64 {
+fn synth_true_share(case: &ehactl_ident_eval::synth::Case, e: EffectId) -> f64 {
     let mut t = case.truth.clone();
     if let Some(on) = t.effects.enabled_mut(e) {
         *on = false;
     }
-    let without = ehactl_ident::synth::simulate(&t, &case.record.u, 1e-3, "without");
+    let without = ehactl_ident_eval::synth::simulate(&t, &case.record.u, 1e-3, "without");
     let k0 = (0.7 * case.record.len() as f64).round() as usize;
     let per: Vec<f64> = case
         .record
@@ -134,7 +134,7 @@ fn synth_true_share(case: &ehactl_ident::synth::Case, e: EffectId) -> f64 {
 /// A two-effect case of the test-bench evaluation (`examples/evaluate.rs`, seed `seed`):
 /// both named, the first the one with the larger error in the generator's truth.
 fn check_synth_pair(seed: u64, hidden: [EffectId; 2]) {
-    let case = ehactl_ident::synth::make_case(seed, &hidden, 2.0);
+    let case = ehactl_ident_eval::synth::make_case(seed, &hidden, 2.0);
     let sh: Vec<f64> = hidden.iter().map(|e| synth_true_share(&case, *e)).collect();
     let top = if sh[0] >= sh[1] { hidden[0] } else { hidden[1] };
     let d = diagnose(&case.nominal.plant, &case.record, None, &Options::default()).unwrap();

@@ -1,5 +1,5 @@
 //! CI subset of the independent-generator evaluation (docs/diagnosis-archive.md "Evaluation on an
-//! independent generator"): records made by `ehactl_ident::indep` (its own RK4 and equations,
+//! independent generator"): records made by `ehactl_ident_eval::indep` (its own RK4 and equations,
 //! no plant code). The cases are chosen by a rule fixed in advance, not by their results: for
 //! each of the five effects that an outside independent simulator saw answered `none`, the
 //! first seed in `bench/indep_cases.txt` of the variant that check named (entrained air,
@@ -7,8 +7,8 @@
 //! and the first clean seed. The diagnosis must name the effect (never `none`), and its
 //! variant; the clean case must be `none`.
 
-use ehactl_ident::indep::{expected, make_case};
 use ehactl_ident::{diagnose, Options};
+use ehactl_ident_eval::indep::{expected, make_case};
 
 fn check(seed: u64, kind: &str) {
     check_with(seed, kind, true)
@@ -130,7 +130,7 @@ fn clean_is_none() {
 fn tone_on_one_channel_7039() {
     check(7039, "tone");
     let case = make_case(7039, "tone", 1.5, 1e-3).expect("generated");
-    let Some(ehactl_ident::indep::Hidden::Tone { f, a, .. }) = case.hidden.clone() else {
+    let Some(ehactl_ident_eval::indep::Hidden::Tone { f, a, .. }) = case.hidden.clone() else {
         panic!("seed 7039 is a tone case: {:?}", case.hidden)
     };
     let d =

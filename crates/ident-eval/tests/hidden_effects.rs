@@ -4,8 +4,8 @@
 //! hidden effect and cut the held-out NRMSE by at least 50 %; with nothing hidden it must say
 //! `none`. Seeds are fixed (1000 + catalogue index), not chosen after looking at results.
 
-use ehactl_ident::synth::{self, make_case};
 use ehactl_ident::{diagnose, Options};
+use ehactl_ident_eval::synth::{self, make_case};
 use ehactl_plant::EffectId;
 
 fn check(seed: u64, hidden: &[EffectId]) {

@@ -1,5 +1,5 @@
 //! Small deterministic random generator of the synthetic cases ([`crate::synth`]) and of the
-//! parameters each catalogue effect hides in them ([`crate::effects`]).
+//! parameters each catalogue effect hides in them ([`crate::hide`]).
 
 /// Small deterministic generator (SplitMix64).
 #[derive(Debug, Clone)]

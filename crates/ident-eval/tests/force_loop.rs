@@ -1,13 +1,13 @@
 //! Closed-loop force records: replay through the rig's PI force loop (`Drive::ForcePi`), on
-//! records of the independent generator's force rig (`ehactl_ident::indep::force_rig`: a
+//! records of the independent generator's force rig (`ehactl_ident_eval::indep::force_rig`: a
 //! stiff load on a nearly critically lapped valve under PI force control acting on the noisy
 //! measured force).
 
-use ehactl_ident::indep::make_case;
 use ehactl_ident::replay::Drive;
 use ehactl_ident::{diagnose, Options};
+use ehactl_ident_eval::indep::make_case;
 
-fn run(case: &ehactl_ident::indep::Case, drive: Drive) -> ehactl_ident::Diagnosis {
+fn run(case: &ehactl_ident_eval::indep::Case, drive: Drive) -> ehactl_ident::Diagnosis {
     let opts = Options {
         drive,
         ..Options::default()

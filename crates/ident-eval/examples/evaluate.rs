@@ -1,5 +1,5 @@
 //! Slow evaluation of `diagnose` over seeded hidden-effect cases (not part of CI):
-//! `cargo run --release -p ehactl-ident --example evaluate -- [per_effect] [clean] [pairs] [first_seed] [OUT.md] [per_variant] [small]`.
+//! `cargo run --release -p ehactl-ident-eval --example evaluate -- [per_effect] [clean] [pairs] [first_seed] [OUT.md] [per_variant] [small]`.
 //! After the single-effect, clean and two-effect cases come `per_variant` (default
 //! `per_effect`) cases of each structural variant in `synth::VARIANT_CASES` (LuGre friction, a
 //! compliant hose), counted with their effect and scored also on the variant named. Last come
@@ -13,8 +13,8 @@
 //! `DEBUG=1` prints every candidate and the final residual test per channel (level, Ljung–Box
 //! Q) to stderr. The case index picks effect and level, so `0 0 0 5112 OUT.md 0 3` runs the
 //! full run's 36 small cases alone and `0 20 0 5072 OUT.md 0 0` its 20 clean cases.
-use ehactl_ident::synth::{make_case, make_case_small, make_case_variant, VARIANT_CASES};
 use ehactl_ident::{diagnose, Options};
+use ehactl_ident_eval::synth::{make_case, make_case_small, make_case_variant, VARIANT_CASES};
 use ehactl_plant::EffectId;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -40,7 +40,7 @@ fn main() {
     for _ in 0..clean {
         cases.push(vec![]);
     }
-    let mut pr = ehactl_ident::synth::Rng::new(first);
+    let mut pr = ehactl_ident_eval::synth::Rng::new(first);
     for _ in 0..pairs {
         let i = (pr.uniform() * 12.0) as usize;
         let mut j = (pr.uniform() * 11.0) as usize;
@@ -94,8 +94,8 @@ fn main() {
             (None, None) => make_case(seed, hidden, 2.0),
         };
         if with_offsets {
-            let b = ehactl_ident::synth::realistic_offsets(&case.record);
-            ehactl_ident::synth::add_sensor_offsets(&mut case.record, &b);
+            let b = ehactl_ident_eval::synth::realistic_offsets(&case.record);
+            ehactl_ident_eval::synth::add_sensor_offsets(&mut case.record, &b);
         }
         let t0 = std::time::Instant::now();
         let opts = Options {

@@ -4,7 +4,7 @@
 
 use ehactl_ident::data::{check_against, parse_csv};
 use ehactl_ident::replay::{noise_level, nrmse, replay, replay_params};
-use ehactl_ident::synth::{make_case, testrig, to_csv, Rng};
+use ehactl_ident_eval::synth::{make_case, testrig, to_csv, Rng};
 
 fn csv(rows: &[&str]) -> String {
     rows.join("\n")

@@ -11,8 +11,8 @@
 //! a smaller parameter; it keeps the effect's signature (band, dependence, lag) exactly.
 
 use ehactl_ident::data::Record;
-use ehactl_ident::synth::{self, excitation, simulate, testrig, Rng};
 use ehactl_ident::{diagnose, Options};
+use ehactl_ident_eval::synth::{self, excitation, simulate, testrig, Rng};
 use ehactl_plant::EffectId;
 
 const DT: f64 = 1e-3;

@@ -1,13 +1,13 @@
-//! Evaluation of `diagnose` on the independent generator (`ehactl_ident::indep`, not part of
-//! CI): `cargo run --release -p ehactl-ident --example evaluate_indep -- CASES.txt OUT.md [DURATION_S]`.
+//! Evaluation of `diagnose` on the independent generator (`ehactl_ident_eval::indep`, not part of
+//! CI): `cargo run --release -p ehactl-ident-eval --example evaluate_indep -- CASES.txt OUT.md [DURATION_S]`.
 //! Reads the fixed case list (`bench/indep_cases.txt`), diagnoses each case, appends one line
 //! per case to OUT.md.cases as it goes (so a partial run is reportable) and writes the summary
 //! (top-cause accuracy, variant agreement, `none` / `unexplained` rates, gains, confusion
 //! matrix) to OUT.md. Kinds with a level suffix (`lines@3`: the effect at a small magnitude,
 //! `indep::make_case_small`) are scored apart, with their false `none`. "Above noise" for the false-`none` count: the refit nominal model's
 //! held-out residual fails the residual test (level or whiteness) on some channel.
-use ehactl_ident::indep::{expected, make_case, parse_cases};
 use ehactl_ident::{diagnose, Options};
+use ehactl_ident_eval::indep::{expected, make_case, parse_cases};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -129,7 +129,7 @@ fn main() {
         // when > 6 (the residual test's level at which a residual is never counted as
         // noise before 2026-11-28, `residual::LEVEL_LARGE`; clean cases show ≈ 3, mostly the replay's own
         // integration error on the low-noise position channel).
-        let rig = ehactl_ident::indep::Rig::default();
+        let rig = ehactl_ident_eval::indep::Rig::default();
         let n = case.record.len();
         let split = ((1.0 - Options::default().holdout) * n as f64).round() as usize;
         let over_true_noise = |e: &ehactl_ident::diagnose::Errors| {
@@ -285,7 +285,7 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
     times.sort_by(f64::total_cmp);
     let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
     let mut s = String::new();
-    let _ = writeln!(s, "Independent generator (`crates/ident/src/indep.rs`, RK4, own equations per variant), cases from `{list}` ({listed} listed, {} run, {failed} failed to generate or diagnose), {duration} s at 1 kHz each, nominal errors ±10 %.\n", lines.len());
+    let _ = writeln!(s, "Independent generator (`crates/ident-eval/src/indep.rs`, RK4, own equations per variant), cases from `{list}` ({listed} listed, {} run, {failed} failed to generate or diagnose), {duration} s at 1 kHz each, nominal errors ±10 %.\n", lines.len());
     let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
     let _ = writeln!(
         s,

@@ -9,12 +9,12 @@ fn main() {
     let seed: u64 = a[1].parse().unwrap();
     let (nominal, record) = match std::env::var("INDEP") {
         Ok(kind) => {
-            let c = ehactl_ident::indep::make_case(seed, &kind, 1.5, 1e-3).expect("generate");
+            let c = ehactl_ident_eval::indep::make_case(seed, &kind, 1.5, 1e-3).expect("generate");
             (c.nominal, c.record)
         }
         Err(_) => {
             let hidden: Vec<EffectId> = a[2..].iter().filter_map(|s| EffectId::parse(s)).collect();
-            let c = ehactl_ident::synth::make_case(seed, &hidden, 2.0);
+            let c = ehactl_ident_eval::synth::make_case(seed, &hidden, 2.0);
             (c.nominal.plant, c.record)
         }
     };

@@ -10,7 +10,7 @@
 
 use ehactl_ident::data::ChannelKind;
 use ehactl_ident::replay::{replay_guarded, replay_with, Drive, REPLAY_MAX_OMEGA_H};
-use ehactl_ident::synth::{make_case_at, testrig};
+use ehactl_ident_eval::synth::{make_case_at, testrig};
 use ehactl_plant::{Plant, PlantParams};
 
 /// The test bench (`configs/diagnose_testrig.toml`) with fixed substeps and its centring

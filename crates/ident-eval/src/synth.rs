@@ -5,9 +5,8 @@
 //! to the diagnosis lacks the effects and has ±10 % errors in valve gain, β₀, damping, mass
 //! and spring rate.
 
-use crate::data::{Channel, ChannelKind, Record};
-use crate::effects;
 use ehactl_config::RigConfig;
+use ehactl_ident::data::{Channel, ChannelKind, Record};
 use ehactl_plant::{EffectId, Plant, PlantParams};
 
 /// The diagnosis test bench config (embedded copy of `configs/diagnose_testrig.toml`).
@@ -53,8 +52,9 @@ pub fn excitation(seed: u64, dt: f64, n: usize) -> Vec<f64> {
 }
 
 /// Switch effect `e` on in `p` with parameters drawn from a realistic range for the test bench.
+/// (One function per effect in [`crate::hide`].)
 pub fn hide(e: EffectId, p: &mut PlantParams, rng: &mut Rng) {
-    effects::of(e).hide(p, rng)
+    crate::hide::hide(e, p, rng)
 }
 
 /// Structural variants the evaluation hides besides each effect's default one
@@ -67,7 +67,7 @@ pub const VARIANT_CASES: [(EffectId, &str); 2] = [
 /// Switch effect `e` on in `p` in its structural variant `variant` (one of [`VARIANT_CASES`],
 /// else its default as [`hide`]) with parameters drawn from a realistic range.
 pub fn hide_variant(e: EffectId, variant: &str, p: &mut PlantParams, rng: &mut Rng) {
-    effects::of(e).hide_variant(variant, p, rng)
+    crate::hide::hide_variant(e, variant, p, rng)
 }
 
 /// One generated case.
@@ -177,7 +177,7 @@ pub fn realistic_offsets(rec: &Record) -> Vec<(ChannelKind, f64)> {
         .filter_map(|c| match c.kind {
             ChannelKind::PressureA => Some((c.kind, 2.0e5)),
             ChannelKind::PressureB => Some((c.kind, -1.5e5)),
-            ChannelKind::Force => Some((c.kind, 0.05 * crate::replay::std(&c.values))),
+            ChannelKind::Force => Some((c.kind, 0.05 * ehactl_ident::replay::std(&c.values))),
             ChannelKind::Position => Some((c.kind, 5.0e-4)),
             _ => None,
         })
