@@ -291,15 +291,7 @@ pub fn diagnose(
     // (a refit could only fit the noise).
     let refit = phase_refit(&nom, nominal, opts, &bar, !explained);
     let search = if explained {
-        SearchPhase {
-            current: refit.h0.clone(),
-            cur_train: refit.c0_train,
-            accepted: vec![],
-            candidates: BTreeMap::new(),
-            ambiguities: vec![],
-            rebased: vec![],
-            weak: vec![],
-        }
+        SearchPhase::at_refit(&refit)
     } else {
         phase_candidates(&nom, &refit, nominal, opts, &bar)
     };
@@ -719,6 +711,21 @@ struct SearchPhase {
     weak: Vec<EffectId>,
 }
 
+impl SearchPhase {
+    /// The search before its first round: the refit nominal model, nothing found.
+    fn at_refit(rf: &RefitPhase) -> SearchPhase {
+        SearchPhase {
+            current: rf.h0.clone(),
+            cur_train: rf.c0_train,
+            accepted: vec![],
+            candidates: BTreeMap::new(),
+            ambiguities: vec![],
+            rebased: vec![],
+            weak: vec![],
+        }
+    }
+}
+
 /// Effects that act on one measured channel only (not through the plant's dynamics): judged
 /// per channel as well as on the channel mean ([`phase_candidates`]).
 fn measurement_only(e: EffectId) -> bool {
@@ -938,14 +945,8 @@ fn phase_candidates(
         opts.threads
     };
     let mut s = Search {
-        current: rf.h0.clone(),
+        found: SearchPhase::at_refit(rf),
         cur_err: rf.refit_err.clone(),
-        cur_train: rf.c0_train,
-        accepted: Vec::new(),
-        candidates: BTreeMap::new(),
-        ambiguities: Vec::new(),
-        rebased: Vec::new(),
-        weak: Vec::new(),
     };
     // Later rounds refit every variant of every remaining effect, not only the one that won
     // round 0: that choice was made with the other effect still unexplained, which can favour
@@ -960,7 +961,7 @@ fn phase_candidates(
             .effects
             .iter()
             .copied()
-            .filter(|e| !s.accepted.contains(e))
+            .filter(|e| !s.found.accepted.contains(e))
             .collect();
         if remaining.is_empty() {
             break;
@@ -971,7 +972,7 @@ fn phase_candidates(
         if round > 0 && near_floor {
             break;
         }
-        let jobs = round_jobs(&s.current, &remaining, nominal, rf);
+        let jobs = round_jobs(&s.found.current, &remaining, nominal, rf);
         bar.add_stage(
             jobs.len() as u64,
             format!(
@@ -980,7 +981,7 @@ fn phase_candidates(
                 if refitted_round { " again" } else { "" }
             ),
         );
-        let first_new = s.current.params.len();
+        let first_new = s.found.current.params.len();
         let fits = phase_variants(
             &nom.ctx,
             &jobs,
@@ -1006,22 +1007,17 @@ fn phase_candidates(
     // The first named cause is the one that explains most of the error on the final model.
     let (accepted, note) = crate::weigh::order_by_explained(
         &nom.ctx,
-        &s.current,
-        &s.accepted,
+        &s.found.current,
+        &s.found.accepted,
         &s.cur_err,
         opts.evals_per_param,
     );
-    if let Some(c) = note.and_then(|n| Some((s.candidates.get_mut(accepted.first()?)?, n))) {
+    if let Some(c) = note.and_then(|n| Some((s.found.candidates.get_mut(accepted.first()?)?, n))) {
         c.0.evidence = format!("{} Named first: {}.", c.0.evidence, c.1);
     }
     SearchPhase {
-        current: s.current,
-        cur_train: s.cur_train,
         accepted,
-        candidates: s.candidates,
-        ambiguities: s.ambiguities,
-        rebased: s.rebased,
-        weak: s.weak,
+        ..s.found
     }
 }
 
@@ -1087,23 +1083,17 @@ impl SearchEnv<'_, '_> {
             self.floor_ch(),
             round,
             near_floor,
-            (&s.cur_err, s.cur_train, s.current.params.len()),
+            (&s.cur_err, s.found.cur_train, s.found.current.params.len()),
             cand,
         )
     }
 }
 
-/// The search's running state: the current model, its held-out errors and fitting cost, and
-/// what the rounds found so far.
+/// The search's running state: what the rounds found so far (the current model, its fitting
+/// cost, the accepted effects …) and the current model's held-out errors.
 struct Search {
-    current: Hyp,
+    found: SearchPhase,
     cur_err: Errors,
-    cur_train: f64,
-    accepted: Vec<EffectId>,
-    candidates: BTreeMap<EffectId, Candidate>,
-    ambiguities: Vec<String>,
-    rebased: Vec<String>,
-    weak: Vec<EffectId>,
 }
 
 /// A round's fits: every variant of every `remaining` effect on top of `current` (an effect
@@ -1173,15 +1163,15 @@ fn judge_round(
         };
         let Some((variant, sc, h, ctrain, err)) = scored.into_iter().next() else {
             if round == 0 {
-                s.candidates.insert(e, untestable(e, &prior));
+                s.found.candidates.insert(e, untestable(e, &prior));
             }
             continue;
         };
         let jd = env.judge(s, round, near_floor, (e, &err, ctrain, h.params.len()));
-        if round == 0 || !s.candidates.contains_key(&e) {
+        if round == 0 || !s.found.candidates.contains_key(&e) {
             let n_new = h.params.len() - first_new;
             let verdict = verdict(env, s, &jd, &err);
-            s.candidates.insert(
+            s.found.candidates.insert(
                 e,
                 Candidate {
                     effect: e.as_str().into(),
@@ -1305,13 +1295,13 @@ fn rebase_round(
             100.0 * MIN_EFFECT_SHARE,
             round + 1
         );
-        if let Some(c) = s.candidates.get_mut(&e) {
+        if let Some(c) = s.found.candidates.get_mut(&e) {
             c.evidence = format!("{} Not accepted: {note}.", c.evidence);
         }
-        s.rebased.push(note);
+        s.found.rebased.push(note);
         rebased_now = true;
-        s.cur_train = nom.ctx.train_cost(&sh.model);
-        s.current = sh.model;
+        s.found.cur_train = nom.ctx.train_cost(&sh.model);
+        s.found.current = sh.model;
         s.cur_err = sh.err;
         if !refitted_round {
             break;
@@ -1343,13 +1333,13 @@ fn accept(
     if let Some((note, runner, prefer)) =
         weak_winner(env.nom, env.floor_ch(), &best, tried, first_new)
     {
-        s.ambiguities.push(note);
+        s.found.ambiguities.push(note);
         looked = Some(runner.0);
         if prefer {
             looked = Some(best.0);
             best = runner;
         }
-        s.weak.push(best.0);
+        s.found.weak.push(best.0);
     }
     let j_best = best.4.overall.powi(2);
     for other in passing
@@ -1358,7 +1348,7 @@ fn accept(
     {
         let j_o = other.4.overall.powi(2);
         if (j_o - jn).max(0.0) <= 1.15 * (j_best - jn).max(1e-300) + 0.02 * j_best {
-            s.ambiguities.push(format!(
+            s.found.ambiguities.push(format!(
                 "{} and {} fit the held-out data about equally well (NRMSE {:.4} vs {:.4}); {} is preferred by score. To separate them: {}",
                 best.0.as_str(), other.0.as_str(), best.4.overall, other.4.overall, best.0.as_str(), crate::weigh::separating_experiment(best.0, other.0)
             ));
@@ -1369,12 +1359,13 @@ fn accept(
         // Report the numbers of the round in which the effect was accepted.
         let j_cur = s.cur_err.overall.powi(2);
         let on_top = s
+            .found
             .accepted
             .iter()
             .map(|a| a.as_str())
             .collect::<Vec<_>>()
             .join(" + ");
-        if let Some(c) = s.candidates.get_mut(&e) {
+        if let Some(c) = s.found.candidates.get_mut(&e) {
             let j = err.overall.powi(2);
             let excess_ratio = (j - jn).max(0.0) / (j_cur - jn).max(1e-300);
             c.params = new_params(&h, first_new);
@@ -1392,13 +1383,13 @@ fn accept(
             );
         }
     }
-    if let Some(c) = s.candidates.get_mut(&e) {
+    if let Some(c) = s.found.candidates.get_mut(&e) {
         c.accepted = true;
     }
-    s.accepted.push(e);
-    s.current = h;
+    s.found.accepted.push(e);
+    s.found.current = h;
     s.cur_err = err;
-    s.cur_train = ctrain;
+    s.found.cur_train = ctrain;
 }
 
 /// A fitted candidate of one round: (effect, score, model, training cost, held-out errors),
