@@ -9,7 +9,6 @@ use ehactl_analysis::motion::{LineTerms, MotionEstimator, PortSample};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_plant::rng::NoiseRng;
 use ehactl_plant::Plant;
-use ehactl_runtime::runloop::Controller;
 use ehactl_tests::config;
 
 /// One closed-loop run of the crane config, sampled at the control rate.
@@ -30,7 +29,7 @@ fn simulate() -> (Run, ehactl_config::RigConfig) {
     let cfg = config("cristofori2015_crane.toml");
     let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&cfg.plant, dt).expect("crane config");
-    let mut ctrl = Controller::from_config(&cfg);
+    let mut ctrl = cfg.controller();
     let sp = Setpoint::new(&cfg.setpoint);
     let n = (cfg.run.duration / dt).round() as usize;
     let x0 = plant.state().x;
@@ -264,7 +263,7 @@ fn simulate_cycle() -> (Cycle, ehactl_config::RigConfig) {
 fn simulate_cycle_with(cfg: ehactl_config::RigConfig) -> (Cycle, ehactl_config::RigConfig) {
     let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&cfg.plant, dt).expect("cycle config");
-    let mut ctrl = Controller::from_config(&cfg);
+    let mut ctrl = cfg.controller();
     let sp = Setpoint::new(&cfg.setpoint);
     let n = (cfg.run.duration / dt).round() as usize;
     let mut c = Cycle {

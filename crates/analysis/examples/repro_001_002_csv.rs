@@ -21,7 +21,6 @@ use ehactl_control::setpoint::Setpoint;
 use ehactl_plant::params::LineFriction;
 use ehactl_plant::rng::NoiseRng;
 use ehactl_plant::Plant;
-use ehactl_runtime::runloop::Controller;
 use std::f64::consts::PI;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -118,7 +117,7 @@ fn motion_table(path: &Path, root: &Path) -> Result<(), Box<dyn std::error::Erro
     let cfg = RigConfig::load(&root.join("configs/cristofori2015_crane.toml"))?;
     let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&cfg.plant, dt)?;
-    let mut ctrl = Controller::from_config(&cfg);
+    let mut ctrl = cfg.controller();
     let sp = Setpoint::new(&cfg.setpoint);
     let x0 = plant.state().x;
     let mut est = MotionEstimator::new(&cfg.plant, dt, x0).expect("spool of the shipped config");

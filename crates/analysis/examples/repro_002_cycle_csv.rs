@@ -12,7 +12,6 @@ use ehactl_analysis::motion::{MotionEstimator, PortSample};
 use ehactl_config::RigConfig;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_plant::Plant;
-use ehactl_runtime::runloop::Controller;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -27,7 +26,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let cfg = RigConfig::load(&root.join("configs/cristofori2015_crane_cycle.toml"))?;
     let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&cfg.plant, dt)?;
-    let mut ctrl = Controller::from_config(&cfg);
+    let mut ctrl = cfg.controller();
     let sp = Setpoint::new(&cfg.setpoint);
     let x0 = plant.state().x;
     let mut est = MotionEstimator::new(&cfg.plant, dt, x0).expect("spool of the shipped config");

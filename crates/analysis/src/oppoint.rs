@@ -6,7 +6,6 @@ use ehactl_config::{ControlMode, RigConfig};
 use ehactl_control::setpoint::{SetpointConfig, SetpointKind};
 use ehactl_plant::params::{ExcitationKind, PlantParams};
 use ehactl_plant::Plant;
-use ehactl_runtime::runloop::Controller;
 
 /// The static value of a setpoint (N, m or V): the offset of a sine, chirp or static + dynamic
 /// setpoint, the final value of a step or ramp, the middle of random steps.
@@ -81,7 +80,7 @@ pub fn find(cfg: &RigConfig, max_time: f64) -> Result<OperatingPoint, AnalysisEr
     }
     let dt = cfg.timebase().period();
     let mut plant = Plant::configure(&params, dt)?;
-    let mut controller = Controller::from_config(cfg);
+    let mut controller = cfg.controller();
     let n = (max_time / dt).ceil() as u64;
     let window = ((0.1 / dt).ceil() as u64).max(10);
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);

@@ -4,8 +4,9 @@
 //! supervisor, run, log, realtime and CANopen sections. Loading validates every field against the parameter
 //! registries and reports the first problem with its dotted path and expected unit.
 
-use ehactl_control::pd::PdGains;
-use ehactl_control::pi::PiGains;
+use ehactl_control::controller::Controller;
+use ehactl_control::pd::{Pd, PdGains};
+use ehactl_control::pi::{Pi, PiGains};
 use ehactl_control::setpoint::{SetpointConfig, SetpointKind, Sweep};
 use ehactl_control::supervisor::SupervisorConfig;
 use ehactl_params_derive::Params;
@@ -731,6 +732,18 @@ impl RigConfig {
             u_max: p.u_max,
             feedforward_velocity: p.feedforward_velocity,
         })
+    }
+
+    /// The control law `control.mode` selects, with its gains (a validated config has the
+    /// section its mode needs).
+    pub fn controller(&self) -> Controller {
+        match self.control.mode {
+            ControlMode::Force => Controller::Force(Pi::new(self.pi_gains().expect("validated"))),
+            ControlMode::Position => {
+                Controller::Position(Pd::new(self.pd_gains().expect("validated")))
+            }
+            ControlMode::OpenLoop => Controller::OpenLoop,
+        }
     }
 
     /// The whole config as a TOML tree (defaults filled in).

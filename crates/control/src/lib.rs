@@ -6,9 +6,12 @@
 //! - [`pi`]: PI force control in the ideal form of 004 with anti-windup and limits,
 //! - [`pd`]: PD position control, 003 eq. 32, with a derivative filter,
 //! - [`setpoint`]: step, ramp, sine, chirp, static + dynamic, random steps,
-//! - [`supervisor`]: limits and sensor plausibility, trips to the safe command.
+//! - [`supervisor`]: limits and sensor plausibility, trips to the safe command,
+//! - [`controller`]: the law a config selects, the one kernel `ehactl run` and the
+//!   diagnosis's closed-loop replay both step.
 #![deny(missing_docs)]
 
+pub mod controller;
 pub mod pd;
 pub mod pi;
 pub mod setpoint;

@@ -349,9 +349,20 @@ impl Supervisor {
                         unit: "V",
                     })
                 };
-                (u.clamp(-m, m), ev)
+                (clamp_command(u, m), ev)
             }
             _ => (u, None),
         }
+    }
+}
+
+/// Command `u` (V) limited to ±`max_command` (V; `f64::INFINITY`: no limit): the clamp of
+/// [`Supervisor::limit_command`], which the diagnosis's closed-loop replay applies too.
+#[inline]
+pub fn clamp_command(u: f64, max_command: f64) -> f64 {
+    if u.abs() > max_command {
+        u.clamp(-max_command, max_command)
+    } else {
+        u
     }
 }

@@ -1,6 +1,10 @@
 //! Open-loop replay of a measured valve command through the plant, and error measures.
 
 use crate::data::{ChannelKind, Record};
+use ehactl_control::controller::Controller;
+use ehactl_control::pd::Pd;
+use ehactl_control::pi::Pi;
+use ehactl_control::supervisor::clamp_command;
 use ehactl_plant::{Plant, PlantParams};
 
 /// Simulated outputs of one replay: `y[c][k]` for the record's channels in order.
@@ -97,13 +101,19 @@ pub enum Drive {
     },
 }
 
-/// The controller a closed-loop [`Drive`] steps during a replay.
-enum Loop {
-    Pd(ehactl_control::pd::Pd),
-    Pi(ehactl_control::pi::Pi, f64),
-}
-
 impl Drive {
+    /// The law a closed-loop drive steps (the kernel `ehactl run`'s cycle steps,
+    /// `ehactl_control::controller`) and the command limit (V) after it; `None` when open loop.
+    fn controller(&self) -> Option<(Controller, f64)> {
+        match *self {
+            Drive::PositionPd(g) => Some((Controller::Position(Pd::new(g)), f64::INFINITY)),
+            Drive::ForcePi { gains, max_command } => {
+                Some((Controller::Force(Pi::new(gains)), max_command))
+            }
+            Drive::Recorded => None,
+        }
+    }
+
     /// Whether the replay closes the rig's loop on the recorded setpoint `ref`.
     pub fn closed_loop(&self) -> bool {
         !matches!(self, Drive::Recorded)
@@ -266,13 +276,7 @@ fn run(
             rec.source
         ));
     }
-    let mut ctl = match drive {
-        Drive::PositionPd(g) => Some(Loop::Pd(ehactl_control::pd::Pd::new(g))),
-        Drive::ForcePi { gains, max_command } => {
-            Some(Loop::Pi(ehactl_control::pi::Pi::new(gains), max_command))
-        }
-        Drive::Recorded => None,
-    };
+    let mut ctl = drive.controller();
     let t_start = std::time::Instant::now();
     let mut plant = configure_stable(params, rec.dt, max_substeps)?;
     let t_configured = std::time::Instant::now();
@@ -287,16 +291,11 @@ fn run(
             *o = kind.pick(&m);
         }
         let (v, dp) = (plant.state().v, plant.state().p_a - plant.state().p_b);
+        // `ehactl run`'s cycle: the law on the measured feedback (the record has no setpoint
+        // rate), then the supervisor's command limit.
         let u = match (&mut ctl, &rec.reference) {
-            (Some(Loop::Pd(pd)), Some(r)) => pd.step(r[k], 0.0, m.position, rec.dt).u,
-            // `ehactl run`: PI on the measured force, then the supervisor's command limit.
-            (Some(Loop::Pi(pi, lim)), Some(r)) => {
-                let u = pi.step(r[k], m.force, rec.dt).u;
-                if u.abs() > *lim {
-                    u.clamp(-*lim, *lim)
-                } else {
-                    u
-                }
+            (Some((law, max_command)), Some(r)) => {
+                clamp_command(law.step(r[k], 0.0, &m, rec.dt).u, *max_command)
             }
             _ => rec.u[k],
         };

@@ -3,8 +3,8 @@
 //! Everything that runs the control laws of `ehactl-control` against a [`ehactl_hal::Hal`]:
 //! - [`runloop`]: the fixed-step loop (read → supervise → control → write → log), started
 //!   each cycle by an [`ehactl_hal::pacer::Pacer`] (the trait sits beside `Hal`),
-//! - [`controller`]: the configured control law ([`controller::Controller`]), stepped by the
-//!   loop, its gains replaced by [`live`],
+//!   It steps the configured law, `ehactl_control::controller::Controller` (the kernel the
+//!   diagnosis's replay steps too), whose gains [`live`] replaces,
 //! - [`sim`]: the simulated backend ([`sim::SimHal`], the nonlinear plant behind the
 //!   `Hal` trait, one control period per write),
 //! - [`realtime`]: the wall-clock pacer (absolute deadlines, SCHED_FIFO, jitter statistics),
@@ -17,7 +17,6 @@
 #![deny(missing_docs)]
 
 pub mod control_socket;
-pub mod controller;
 pub mod live;
 pub mod realtime;
 pub mod runloop;

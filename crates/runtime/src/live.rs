@@ -17,9 +17,9 @@
 //! (sharing `&LiveParams` with the control socket) does not have. The queue hands over
 //! every change exactly once through a shared reference, with no `unsafe` here.
 
-use crate::controller::Controller;
 use crossbeam_queue::ArrayQueue;
 use ehactl_config::{ControlMode, RigConfig};
+use ehactl_control::controller::Controller;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_log::logger::{Note, NoteLog};
 use ehactl_log::record::{Event, EventKind, Severity};
@@ -361,7 +361,7 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../configs/sahu2022_force.toml");
         let mut cfg = RigConfig::load(&path).unwrap();
-        let mut controller = Controller::from_config(&cfg);
+        let mut controller = cfg.controller();
         let mut setpoint = Setpoint::new(&cfg.setpoint);
         let live = LiveParams::new();
         let a = prepare(&mut cfg, &[("control.pi.kp", 0.31)]).unwrap();

@@ -3,8 +3,8 @@
 //! (the sim backend, as fast as the CPU allows) and against a wall clock: only the
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
-pub use crate::controller::Controller;
 use crate::live::LiveParams;
+pub use ehactl_control::controller::Controller;
 use ehactl_control::pi::ControlTerms;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;

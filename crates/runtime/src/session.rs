@@ -3,7 +3,6 @@
 //! simulated plant or a rig, [`run_realtime`]), log every cycle to MCAP and summarise.
 //! Shared by the CLI and the Python bindings so both run exactly the same code.
 
-use crate::controller::Controller;
 use crate::live::LiveParams;
 use crate::realtime::{RtOptions, WallClockPacer};
 use crate::runloop::{run_loop, LoopSettings, RunOutcome};
@@ -395,7 +394,7 @@ pub fn run_with_live(
         return Err(SessionError::Config(ConfigError::new("--duration", why)));
     }
     let cycles = timebase.cycles_in(duration).max(1);
-    let mut controller = Controller::from_config(cfg);
+    let mut controller = cfg.controller();
     let mut supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
     let setpoint = Setpoint::new(&cfg.setpoint);
     // With `atomic_log` the file is written under `partial` and renamed at the end.

@@ -1,12 +1,13 @@
-//! [`Controller`]: the control law the config selects (PI on force, PD on position, or
-//! open loop), one pure `step` per cycle. Used by the run loop ([`crate::runloop`]) and by
-//! the live parameter hand-over ([`crate::live`]), which writes new gains into it.
+//! [`Controller`]: the control law a config selects (PI on force, PD on position, or
+//! open loop), one pure `step` per cycle — the loop kernel shared by `ehactl run`'s cycle
+//! (`ehactl_runtime::runloop`, whose live hand-over writes new gains into it) and the
+//! diagnosis's closed-loop replay (`ehactl_ident::replay`), so both step the same law.
+//! The config builds it (`ehactl_config::RigConfig::controller`).
 
-use ehactl_config::{ControlMode, RigConfig};
-use ehactl_control::pd::Pd;
-use ehactl_control::pi::{ControlTerms, Pi};
-use ehactl_control::supervisor::FeedbackChannel;
-use ehactl_hal::Measurements;
+use crate::pd::Pd;
+use crate::pi::{ControlTerms, Pi};
+use crate::supervisor::FeedbackChannel;
+use ehactl_types::Measurements;
 
 /// The configured control law.
 #[derive(Debug, Clone)]
@@ -20,17 +21,6 @@ pub enum Controller {
 }
 
 impl Controller {
-    /// From a validated config.
-    pub fn from_config(cfg: &RigConfig) -> Controller {
-        match cfg.control.mode {
-            ControlMode::Force => Controller::Force(Pi::new(cfg.pi_gains().expect("validated"))),
-            ControlMode::Position => {
-                Controller::Position(Pd::new(cfg.pd_gains().expect("validated")))
-            }
-            ControlMode::OpenLoop => Controller::OpenLoop,
-        }
-    }
-
     /// Feedback channel the law closes on.
     pub fn feedback_channel(&self) -> FeedbackChannel {
         match self {
