@@ -29,8 +29,9 @@
 //! the force residual on that term (the equation-error estimate), computed on the fitting part.
 
 use crate::ctx::{Ctx, Errors, Hyp};
-use crate::data::ChannelKind;
+use crate::data::{ChannelKind, Record};
 use crate::fit::{FreeParam, Scales};
+use crate::replay::Replay;
 use ehactl_plant::effects::{PolynomialFlow, PolynomialForce};
 use ehactl_plant::spec::{self, ParamTree};
 use ehactl_plant::PlantParams;
@@ -279,48 +280,11 @@ fn v_scale(v: &[f64]) -> f64 {
     robust_scale(v, 0.0)
 }
 
-/// Run the grey-box extension on top of hypothesis `current` (whose fitting-part cost is
-/// `cur_train`). Returns the extended hypothesis when a term was selected, and the report.
-/// `baseline` is the ARX baseline's held-out overall NRMSE.
-pub(crate) fn extend(
-    ctx: &Ctx,
-    current: &Hyp,
-    cur_train: f64,
-    scales: &Scales,
-    baseline: f64,
-    evals_per_param: usize,
-) -> (Option<Hyp>, GreyBox) {
-    // The catalogue model is frozen: the library terms are fitted on top of it.
-    let frozen = ctx.frozen(current);
-    let base_fit = frozen.fit_base_params().clone();
-    let sim = frozen.fit_replay(&base_fit).ok();
-    let vr = sim
-        .as_ref()
-        .map(|s| v_scale(&s.v[..frozen.n_fit().min(s.v.len())]))
-        .unwrap_or(0.0);
-    let vr = if vr > 0.0 { vr } else { 1e-2 };
-    let fs = scales.force.max(1e-9);
-    let area = base_fit.cylinder.area_a;
-    let prior = base_fit
-        .effects
-        .polynomial_force
-        .unwrap_or_else(PolynomialForce::zero);
-    // Sign smoothing at 2 % of the velocity scale; stiffness origin at the data's mean position.
-    let vs = if base_fit.effects.polynomial_force.is_some() {
-        prior.smoothing_velocity
-    } else {
-        0.02 * vr
-    };
-    let rec = frozen.fit_rec();
-    let n_fit = frozen.n_fit();
-    let origin = if base_fit.effects.polynomial_force.is_some() {
-        prior.origin
-    } else {
-        rec.channel(ChannelKind::Position)
-            .map(|x| x[..n_fit].iter().sum::<f64>() / n_fit as f64)
-            .unwrap_or(base_fit.cylinder.initial_position)
-    };
-    let lib = [
+/// The term library: every candidate term with its bound, from the force scale `fs` (N), the
+/// velocity scale `vr` (m/s), the cap area `area` (m²), the stroke (m) and the flow and
+/// stiffness scales of `scales`.
+fn term_library(scales: &Scales, fs: f64, vr: f64, area: f64, stroke: f64) -> [Lib; 11] {
+    [
         Lib {
             section: "polynomial_force",
             field: "constant",
@@ -367,7 +331,7 @@ pub(crate) fn extend(
             field: "stiffness",
             name: "load-side stiffness",
             physics: "stiffness ∝ (x − x₀)",
-            bound: 0.5 * scales.stiffness.max(fs / base_fit.cylinder.stroke),
+            bound: 0.5 * scales.stiffness.max(fs / stroke),
             feature: Some(|x, _, f| x - f.origin),
         },
         Lib {
@@ -410,11 +374,15 @@ pub(crate) fn extend(
             bound: 0.5 * scales.flow,
             feature: None,
         },
-    ];
-    // Each term is a declared float parameter of its section: its unit and its accessor
-    // (`get_path` / `set_path` below) come from the `#[param]` declaration. Checked on every
-    // run, so a misspelt term fails loudly instead of being fitted as nothing.
-    for l in &lib {
+    ]
+}
+
+/// Checks that each term is a declared float parameter of its section: its unit and its
+/// accessor (`get_path` / `set_path` in [`GreyBoxFit::make_param`]) come from the `#[param]`
+/// declaration. Checked on every run, so a misspelt term fails loudly instead of being fitted
+/// as nothing.
+fn check_library(lib: &[Lib]) {
+    for l in lib {
         let path = l.path();
         assert!(
             spec::params()
@@ -423,52 +391,312 @@ pub(crate) fn extend(
             "grey-box term {path} is not a declared float parameter"
         );
     }
-    let mut start = prior;
-    start.enabled = true;
-    start.smoothing_velocity = vs;
-    start.origin = origin;
-    // Force residual of the frozen model on the fitting part (equation-error starts).
-    let force_resid: Option<(Vec<f64>, Vec<f64>, Vec<f64>)> = (|| {
-        let s = sim.as_ref()?;
-        let fc = rec
-            .channels
+}
+
+/// Force residual of the frozen model on the fitting part, with the states the equation-error
+/// starts regress it on.
+struct ForceResidual {
+    /// Measured minus simulated force (N).
+    resid: Vec<f64>,
+    /// Simulated position (m), or the stiffness origin without a position channel.
+    x: Vec<f64>,
+    /// Simulated velocity (m/s).
+    v: Vec<f64>,
+}
+
+/// The force residual of replay `s` on the first `n_fit` samples of `rec`, when the record has
+/// a force channel; `origin` (m) stands in for a missing position channel.
+fn force_residual_of(rec: &Record, s: &Replay, n_fit: usize, origin: f64) -> Option<ForceResidual> {
+    let fc = rec
+        .channels
+        .iter()
+        .position(|c| c.kind == ChannelKind::Force)?;
+    let xs: Vec<f64> = match rec
+        .channels
+        .iter()
+        .position(|c| c.kind == ChannelKind::Position)
+    {
+        Some(i) => s.y[i][..n_fit].to_vec(),
+        None => vec![origin; n_fit],
+    };
+    let r: Vec<f64> = rec.channels[fc].values[..n_fit]
+        .iter()
+        .zip(&s.y[fc][..n_fit])
+        .map(|(a, b)| a - b)
+        .collect();
+    Some(ForceResidual {
+        resid: r,
+        x: xs,
+        v: s.v[..n_fit].to_vec(),
+    })
+}
+
+/// Selection criterion: mean over channels of ln J_c (the negative log-likelihood of Gaussian
+/// errors with an unknown variance per channel, up to constants), so a term that fixes a small
+/// channel counts as much as one that fixes a large one (-).
+fn log_cost(jc: &[f64]) -> f64 {
+    jc.iter().map(|j| j.max(1e-300).ln()).sum::<f64>() / jc.len().max(1) as f64
+}
+
+/// Start of the Dahl term (force F_d in N, travel δ in m): least squares of the force residual
+/// `resid` on the Dahl state of the velocity `v` (m/s, period `dt` s), over a log grid of δ from
+/// 0.2 % to 50 % of the position scale `xr` (m) (the equation-error estimate of
+/// scripts/mts_force_law_check.py).
+fn dahl_start(v: &[f64], dt: f64, resid: &[f64], xr: f64) -> (f64, f64) {
+    let mut best = (f64::INFINITY, 0.0, 0.05 * xr);
+    for k in 0..16 {
+        let delta = 0.002 * xr * (250.0_f64).powf(k as f64 / 15.0);
+        let z = dahl_trace(v, dt, delta);
+        let (num, den) = z
             .iter()
-            .position(|c| c.kind == ChannelKind::Force)?;
-        let xs: Vec<f64> = match rec
-            .channels
+            .zip(resid)
+            .fold((0.0, 0.0), |(n, d), (z, r)| (n + z * r, d + z * z));
+        if den <= 0.0 {
+            continue;
+        }
+        let c = (num / den).max(0.0);
+        let sse: f64 = z
             .iter()
-            .position(|c| c.kind == ChannelKind::Position)
-        {
-            Some(i) => s.y[i][..n_fit].to_vec(),
-            None => vec![origin; n_fit],
+            .zip(resid)
+            .map(|(z, r)| (r - c * z) * (r - c * z))
+            .sum();
+        if sse < best.0 {
+            best = (sse, c, delta);
+        }
+    }
+    (best.1, best.2)
+}
+
+/// Value of the free parameter named `name` in `h`, when `h` fits it.
+fn param_value(h: &Hyp, name: &str) -> Option<f64> {
+    h.params
+        .iter()
+        .position(|p| p.name == name)
+        .map(|k| h.values[k])
+}
+
+/// Median |p_a − p_b| (Pa) of replay `s` over its first `n_fit` samples while sliding (|v| above
+/// `v_min`, m/s); `None` when it never slides.
+fn median_sliding_pressure(s: &Replay, n_fit: usize, v_min: f64) -> Option<f64> {
+    let mut a: Vec<f64> = s.dp[..n_fit.min(s.dp.len())]
+        .iter()
+        .zip(&s.v)
+        .filter(|(_, v)| v.abs() > v_min)
+        .map(|(dp, _)| dp.abs())
+        .filter(|x| x.is_finite())
+        .collect();
+    if a.is_empty() {
+        return None;
+    }
+    a.sort_by(f64::total_cmp);
+    Some(a[a.len() / 2])
+}
+
+/// Yield force (N) of the selected `terms` in steady sliding: the yield and Dahl forces plus
+/// the pressure-dependent friction at the median load pressure `dp` (Pa); `None` without one.
+fn yield_force_of(terms: &[Term], dp: Option<f64>) -> Option<f64> {
+    let yield_terms: Vec<f64> = terms
+        .iter()
+        .filter_map(|t| {
+            if t.path.ends_with(".coulomb") || t.path.ends_with(".dahl") {
+                Some(t.value)
+            } else if t.path.ends_with(".pressure_coulomb") {
+                dp.map(|dp| t.value * dp)
+            } else {
+                None
+            }
+        })
+        .collect();
+    (!yield_terms.is_empty()).then(|| yield_terms.iter().sum())
+}
+
+/// The extended law in words: the force law and the flow law of `p` that selected `terms`
+/// enter, or why nothing was accepted.
+fn structure_of(p: Option<PlantParams>, terms: &[Term]) -> String {
+    let Some(p) = p else {
+        return "no library term lowered the fitting-part error (geometric mean over channels) by ≥ 5 %"
+            .to_string();
+    };
+    let mut parts = Vec::new();
+    if let Some(f) = p
+        .effects
+        .polynomial_force
+        .filter(|_| terms.iter().any(|t| t.path.contains("force")))
+    {
+        parts.push(format!(
+            "rod force law (opposing +x, seen by the load cell) = {}",
+            f.describe().join(" + ")
+        ));
+    }
+    if let Some(f) = p
+        .effects
+        .polynomial_flow
+        .filter(|_| terms.iter().any(|t| t.path.contains("flow")))
+    {
+        parts.push(format!("B→A flow law = {}", f.describe().join(" + ")));
+    }
+    parts.join("; ")
+}
+
+/// A candidate law of one selection round: the hypothesis with its costs.
+struct Candidate {
+    h: Hyp,
+    /// Cost J on the selection segment (-).
+    cost: f64,
+    /// Judged mean ln J_c ([`log_cost`]) (-).
+    judged_log: f64,
+    /// Judged overall NRMSE (-).
+    judged: f64,
+}
+
+/// The state of the forward selection: the law so far, its costs and the log.
+struct Selection {
+    /// The grey-box parameters selected so far.
+    h: Hyp,
+    /// Cost J of `h` on the selection segment (-).
+    j_cur: f64,
+    /// Judged mean ln J_c of `h` (-).
+    l_cur: f64,
+    terms: Vec<Term>,
+    /// Selection log (see [`GreyBox::selection`]).
+    log: Vec<String>,
+    /// Library terms selected (section, field).
+    used: Vec<(&'static str, &'static str)>,
+    /// Force residual (N) of `h` on the fitting part, for the next starts (empty without a
+    /// force channel).
+    resid: Vec<f64>,
+}
+
+/// The grey-box fit on top of a frozen catalogue model: its scales, the term library, the
+/// force residual the terms start from and the transfer split that judges them.
+struct GreyBoxFit<'a> {
+    /// The catalogue model frozen into the base parameters.
+    frozen: &'a Ctx<'a>,
+    /// Transfer check, the measure of an extension's gain: terms are chosen on the first
+    /// [`TRANSFER_SPLIT`] of the fitting part and judged by how they predict the rest, which a
+    /// chirp or a sweep fills with other content (another band, other velocities). A term that
+    /// only fits (a viscous coefficient fitted at low speed that extrapolates to forces the rig
+    /// never saw, say) does not pass; the chosen law is then refit jointly on the whole fitting
+    /// part. The held-out part still never enters a choice. `None`: too short to split.
+    split: Option<Ctx<'a>>,
+    /// Base parameters of the fitting part (the frozen model).
+    base_fit: PlantParams,
+    /// The base config's force law (zero without one).
+    prior: PolynomialForce,
+    /// The base config's flow law.
+    prior_flow: Option<PolynomialFlow>,
+    /// The force law a term's section is inserted with (smoothing velocity and origin set).
+    start: PolynomialForce,
+    /// Robust velocity scale (m/s).
+    vr: f64,
+    /// Force scale (N).
+    fs: f64,
+    /// Sign smoothing velocity (m/s).
+    vs: f64,
+    /// Position scale (m): the 99th percentile of |x − x₀| on the fitting part, for the Dahl
+    /// term's pre-yield travel.
+    xr: f64,
+    lib: [Lib; 11],
+    /// Force residual of the frozen model, when the record has a force channel.
+    force_resid: Option<ForceResidual>,
+    evals_per_param: usize,
+}
+
+impl<'a> GreyBoxFit<'a> {
+    /// Scales, library, force residual and transfer split of the frozen model `frozen`.
+    fn new(frozen: &'a Ctx<'a>, scales: &Scales, evals_per_param: usize) -> Self {
+        let base_fit = frozen.fit_base_params().clone();
+        let sim = frozen.fit_replay(&base_fit).ok();
+        let vr = sim
+            .as_ref()
+            .map(|s| v_scale(&s.v[..frozen.n_fit().min(s.v.len())]))
+            .unwrap_or(0.0);
+        let vr = if vr > 0.0 { vr } else { 1e-2 };
+        let fs = scales.force.max(1e-9);
+        let area = base_fit.cylinder.area_a;
+        let prior = base_fit
+            .effects
+            .polynomial_force
+            .unwrap_or_else(PolynomialForce::zero);
+        // Sign smoothing at 2 % of the velocity scale; stiffness origin at the data's mean
+        // position.
+        let vs = if base_fit.effects.polynomial_force.is_some() {
+            prior.smoothing_velocity
+        } else {
+            0.02 * vr
         };
-        let r: Vec<f64> = rec.channels[fc].values[..n_fit]
-            .iter()
-            .zip(&s.y[fc][..n_fit])
-            .map(|(a, b)| a - b)
-            .collect();
-        Some((r, xs, s.v[..n_fit].to_vec()))
-    })();
-    let prior_flow = base_fit.effects.polynomial_flow;
-    let make_param = |l: &Lib, init: f64, widen: f64| -> FreeParam {
+        let rec = frozen.fit_rec();
+        let n_fit = frozen.n_fit();
+        let origin = if base_fit.effects.polynomial_force.is_some() {
+            prior.origin
+        } else {
+            rec.channel(ChannelKind::Position)
+                .map(|x| x[..n_fit].iter().sum::<f64>() / n_fit as f64)
+                .unwrap_or(base_fit.cylinder.initial_position)
+        };
+        let lib = term_library(scales, fs, vr, area, base_fit.cylinder.stroke);
+        check_library(&lib);
+        let mut start = prior;
+        start.enabled = true;
+        start.smoothing_velocity = vs;
+        start.origin = origin;
+        let force_resid = sim
+            .as_ref()
+            .and_then(|s| force_residual_of(rec, s, n_fit, origin));
+        let xr = rec
+            .channel(ChannelKind::Position)
+            .map(|x| robust_scale(&x[..n_fit], origin))
+            .filter(|a| *a > 0.0)
+            .unwrap_or(0.01 * base_fit.cylinder.stroke);
+        Self {
+            frozen,
+            split: frozen.transfer_split(TRANSFER_SPLIT),
+            prior_flow: base_fit.effects.polynomial_flow,
+            base_fit,
+            prior,
+            start,
+            vr,
+            fs,
+            vs,
+            xr,
+            lib,
+            force_resid,
+            evals_per_param,
+        }
+    }
+
+    /// The fitting record.
+    fn rec(&self) -> &'a Record {
+        self.frozen.fit_rec()
+    }
+
+    /// The context terms are chosen on: the transfer split's first segment, else the fitting
+    /// part.
+    fn sel(&self) -> &Ctx<'a> {
+        self.split.as_ref().unwrap_or(self.frozen)
+    }
+
+    /// The free coefficient of library term `l`, started at the prior plus `init` (SI), its
+    /// bound widened `widen` times (-).
+    fn make_param(&self, l: &Lib, init: f64, widen: f64) -> FreeParam {
         // Every library field is a declared float of its section (tested), so the
         // accessor's `None` (0) is never taken.
         let p0 = if l.section == "polynomial_force" {
-            prior.get_path(l.field)
+            self.prior.get_path(l.field)
         } else {
-            prior_flow.and_then(|f| f.get_path(l.field))
+            self.prior_flow.and_then(|f| f.get_path(l.field))
         }
         .unwrap_or(0.0);
         let b = widen * l.bound.max(2.0 * p0.abs());
         // A rod force beyond what the actuator can push (supply pressure × cap area) is a
         // stand-in, not a load: force coefficients are never widened past it.
         let b = if l.unit() == "N" {
-            b.min(fs.max(l.bound))
+            b.min(self.fs.max(l.bound))
         } else {
             b
         };
         let field = l.field;
-        let st = start;
+        let st = self.start;
         let set: crate::fit::Setter = if l.section == "polynomial_force" {
             Arc::new(move |p: &mut PlantParams, v| {
                 // Inserted with the start's smoothing velocity and origin; an existing section
@@ -509,10 +737,12 @@ pub(crate) fn extend(
             init: (p0 + init).clamp(lo, b),
             set,
         }
-    };
-    // Per-channel cost (NRMSE² per channel) of parameters `p` on the samples of context `c`'s
-    // fit cost, normalised by its own stds.
-    let channel_costs_on = |c: &Ctx, p: &PlantParams| -> Vec<f64> {
+    }
+
+    /// Per-channel cost (NRMSE² per channel, -) of parameters `p` on the samples of context
+    /// `c`'s fit cost, normalised by its own stds.
+    fn channel_costs_on(&self, c: &Ctx, p: &PlantParams) -> Vec<f64> {
+        let rec = self.rec();
         let (n_fit, sd) = (c.n_fit(), c.sd_fit());
         match c.fit_replay(p) {
             Ok(s) if !s.failed => rec
@@ -532,21 +762,40 @@ pub(crate) fn extend(
                 .collect(),
             _ => vec![1e6; rec.channels.len()],
         }
-    };
-    let channel_costs = |p: &PlantParams| channel_costs_on(&frozen, p);
-    // Selection criterion: mean over channels of ln J_c (the negative log-likelihood of
-    // Gaussian errors with an unknown variance per channel, up to constants), so a term that
-    // fixes a small channel counts as much as one that fixes a large one.
-    let log_cost = |jc: &[f64]| -> f64 {
-        jc.iter().map(|j| j.max(1e-300).ln()).sum::<f64>() / jc.len().max(1) as f64
-    };
-    let ls_start = |l: &Lib, resid: &[f64]| -> f64 {
-        let (Some(feat), Some((_, xs, v))) = (l.feature, force_resid.as_ref()) else {
+    }
+
+    /// Mean per-channel cost J (-) of parameters `p` on the selection segment.
+    fn sel_cost(&self, p: &PlantParams) -> f64 {
+        let jc = self.channel_costs_on(self.sel(), p);
+        jc.iter().sum::<f64>() / jc.len().max(1) as f64
+    }
+
+    /// Judged cost of `hh`: mean ln NRMSE² over channels (-) and overall NRMSE (-) on the
+    /// predicted segment (or, without a split, on the fitting part).
+    fn judge(&self, hh: &Hyp) -> (f64, f64) {
+        match &self.split {
+            Some(t) => {
+                let (e, _) = t.val_errors(hh);
+                let jc: Vec<f64> = e.channels.values().map(|x| x * x).collect();
+                (log_cost(&jc), e.overall)
+            }
+            None => {
+                let jc = self.channel_costs_on(self.frozen, &hh.build(&self.base_fit));
+                let j = jc.iter().sum::<f64>() / jc.len().max(1) as f64;
+                (log_cost(&jc), j.sqrt())
+            }
+        }
+    }
+
+    /// Least-squares start (SI) of library term `l` on the force residual `resid` (N), the
+    /// equation-error estimate; 0 without a regressor or a force channel.
+    fn ls_start(&self, l: &Lib, resid: &[f64]) -> f64 {
+        let (Some(feat), Some(fr)) = (l.feature, self.force_resid.as_ref()) else {
             return 0.0;
         };
         let (mut num, mut den) = (0.0, 0.0);
-        for ((r, x), v) in resid.iter().zip(xs).zip(v) {
-            let phi = feat(*x, *v, &start);
+        for ((r, x), v) in resid.iter().zip(&fr.x).zip(&fr.v) {
+            let phi = feat(*x, *v, &self.start);
             num += phi * r;
             den += phi * phi;
         }
@@ -555,143 +804,59 @@ pub(crate) fn extend(
         } else {
             0.0
         }
-    };
-    // Transfer check, the measure of an extension's gain: terms are chosen on the first
-    // TRANSFER_SPLIT of the fitting part and judged by how they predict the rest, which a chirp
-    // or a sweep fills with other content (another band, other velocities). A term that only
-    // fits (a viscous coefficient fitted at low speed that extrapolates to forces the rig never
-    // saw, say) does not pass; the chosen law is then refit jointly on the whole fitting part.
-    // The held-out part still never enters a choice.
-    let split = frozen.transfer_split(TRANSFER_SPLIT);
-    let sel: &Ctx = split.as_ref().unwrap_or(&frozen);
-    let sel_cost = |p: &PlantParams| -> f64 {
-        let jc = channel_costs_on(sel, p);
-        jc.iter().sum::<f64>() / jc.len().max(1) as f64
-    };
-    // Judged cost: mean ln NRMSE² over channels on the predicted segment (or, without a
-    // split, on the fitting part).
-    let judge = |hh: &Hyp| -> (f64, f64) {
-        match &split {
-            Some(t) => {
-                let (e, _) = t.val_errors(hh);
-                let jc: Vec<f64> = e.channels.values().map(|x| x * x).collect();
-                (log_cost(&jc), e.overall)
-            }
-            None => {
-                let jc = channel_costs(&hh.build(&base_fit));
-                let j = jc.iter().sum::<f64>() / jc.len().max(1) as f64;
-                (log_cost(&jc), j.sqrt())
-            }
-        }
-    };
-    let mut h = Hyp {
-        effects: vec![],
-        variants: vec![],
-        params: vec![],
-        values: vec![],
-    };
-    let mut j_cur = if split.is_some() {
-        sel_cost(&base_fit)
-    } else {
-        cur_train
-    };
-    let (mut l_cur, transfer_before) = judge(&h);
-    let mut terms: Vec<Term> = Vec::new();
-    let mut selection = Vec::new();
-    if let Some(t) = &split {
-        selection.push(format!(
-            "terms chosen on samples 0..{} of the fitting part and judged on how they predict samples {}..{} (transfer check); the chosen law refit on the whole fitting part",
-            t.n_fit(),
-            t.n_fit(),
-            frozen.n_fit()
-        ));
     }
-    let mut used: Vec<(&'static str, &'static str)> = Vec::new();
-    let mut resid = force_resid
-        .as_ref()
-        .map(|r| r.0.clone())
-        .unwrap_or_default();
-    // The yield term's pre-yield velocity v_y (m/s), fitted in log space with its force (from
-    // the base's smoothing velocity when the config has a force law: an assumption there).
-    // (Written after its force term, which inserts the section.)
-    let yield_velocity = |init: f64| {
+
+    /// The yield term's pre-yield velocity v_y (m/s) started at `init`, fitted in log space
+    /// with its force (from the base's smoothing velocity when the config has a force law: an
+    /// assumption there). Written after its force term, which inserts the section.
+    fn yield_velocity_param(&self, init: f64) -> FreeParam {
         FreeParam::at(
             "effects.polynomial_force.smoothing_velocity",
-            (0.005 * vr, 0.5 * vr, true, init),
-            &base_fit,
+            (0.005 * self.vr, 0.5 * self.vr, true, init),
+            &self.base_fit,
         )
-    };
-    // Position scale (m): the 99th percentile of |x − x₀| on the fitting part, for the Dahl
-    // term's pre-yield travel.
-    let xr = rec
-        .channel(ChannelKind::Position)
-        .map(|x| robust_scale(&x[..n_fit], origin))
-        .filter(|a| *a > 0.0)
-        .unwrap_or(0.01 * base_fit.cylinder.stroke);
-    // The Dahl term's pre-yield travel δ (m), fitted in log space with its force (written
-    // after it, as the yield velocity).
-    let dahl_travel = |init: f64| {
+    }
+
+    /// The Dahl term's pre-yield travel δ (m) started at `init`, fitted in log space with its
+    /// force (written after it, as the yield velocity).
+    fn dahl_travel_param(&self, init: f64) -> FreeParam {
         FreeParam::at(
             "effects.polynomial_force.dahl_travel",
-            (0.002 * xr, 0.5 * xr, true, init),
-            &base_fit,
+            (0.002 * self.xr, 0.5 * self.xr, true, init),
+            &self.base_fit,
         )
-    };
-    // Start of the Dahl term (force F_d, travel δ): least squares of the force residual on
-    // the Dahl state of the frozen model's velocity, over a log grid of δ (the equation-error
-    // estimate of scripts/mts_force_law_check.py); without a force channel, F_d = 0 and δ at
-    // 5 % of the position scale.
-    let dahl_start = |resid: &[f64]| -> (f64, f64) {
-        let Some((_, _, v)) = force_resid.as_ref() else {
-            return (0.0, 0.05 * xr);
-        };
-        let mut best = (f64::INFINITY, 0.0, 0.05 * xr);
-        for k in 0..16 {
-            let delta = 0.002 * xr * (250.0_f64).powf(k as f64 / 15.0);
-            let z = dahl_trace(v, rec.dt, delta);
-            let (num, den) = z
-                .iter()
-                .zip(resid)
-                .fold((0.0, 0.0), |(n, d), (z, r)| (n + z * r, d + z * z));
-            if den <= 0.0 {
-                continue;
-            }
-            let c = (num / den).max(0.0);
-            let sse: f64 = z
-                .iter()
-                .zip(resid)
-                .map(|(z, r)| (r - c * z) * (r - c * z))
-                .sum();
-            if sse < best.0 {
-                best = (sse, c, delta);
-            }
-        }
-        (best.1, best.2)
-    };
-    // A library term's coefficient (and the yield velocity or Dahl travel it carries) added
-    // to `hh` from its least-squares start on the force residual `resid`.
-    let push_term = |hh: &mut Hyp, l: &Lib, resid: &[f64]| {
+    }
+
+    /// Adds library term `l`'s coefficient (and the yield velocity or Dahl travel it carries)
+    /// to `hh`, from its least-squares start on the force residual `resid` (N).
+    fn push_term(&self, hh: &mut Hyp, l: &Lib, resid: &[f64]) {
         let (init, partner) = match l.field {
-            "coulomb" if l.section == "polynomial_force" => {
-                (ls_start(l, resid), Some(yield_velocity(vs)))
-            }
+            "coulomb" if l.section == "polynomial_force" => (
+                self.ls_start(l, resid),
+                Some(self.yield_velocity_param(self.vs)),
+            ),
             "dahl" => {
-                let (fd, delta) = dahl_start(resid);
-                (fd, Some(dahl_travel(delta)))
+                // Without a force channel, F_d = 0 and δ at 5 % of the position scale.
+                let (fd, delta) = match self.force_resid.as_ref() {
+                    Some(fr) => dahl_start(&fr.v, self.rec().dt, resid, self.xr),
+                    None => (0.0, 0.05 * self.xr),
+                };
+                (fd, Some(self.dahl_travel_param(delta)))
             }
-            _ => (ls_start(l, resid), None),
+            _ => (self.ls_start(l, resid), None),
         };
-        let fp = make_param(l, init, 1.0);
+        let fp = self.make_param(l, init, 1.0);
         hh.values.push(fp.init);
         hh.params.push(fp);
         if let Some(fv) = partner {
             hh.values.push(fv.init);
             hh.params.push(fv);
         }
-    };
-    // The report of a selected term `l` in hypothesis `h` (fitting cost `train`, judged
-    // overall NRMSE `judged`).
-    let term_of = |l: &Lib, h: &Hyp, train: f64, judged: f64| -> Term {
+    }
+
+    /// The report of a selected term `l` in hypothesis `h` (fitting cost `train`, judged
+    /// overall NRMSE `judged`, -).
+    fn term_of(&self, l: &Lib, h: &Hyp, train: f64, judged: f64) -> Term {
         let k = h.params.iter().rposition(|p| p.name == l.path());
         Term {
             path: l.path(),
@@ -700,17 +865,20 @@ pub(crate) fn extend(
             name: l.name.to_string(),
             physics: l.physics.to_string(),
             nrmse_train: train.sqrt(),
-            nrmse_transfer: split.as_ref().map(|_| judged),
+            nrmse_transfer: self.split.as_ref().map(|_| judged),
             // Reported only: the held-out part never enters a choice.
-            nrmse_validation: frozen.val_errors(h).0.overall,
+            nrmse_validation: self.frozen.val_errors(h).0.overall,
             bound: k.map_or(0.0, |k| h.params[k].hi),
             at_bound: false,
         }
-    };
-    // Force residual (N) of `h` on the fitting part, when the record has a force channel.
-    let force_residual = |h: &Hyp| -> Option<Vec<f64>> {
-        force_resid.as_ref()?;
-        let s = frozen.fit_replay(&h.build(&base_fit)).ok()?;
+    }
+
+    /// Force residual (N) of `h` on the fitting part, when the record has a force channel.
+    fn force_residual(&self, h: &Hyp) -> Option<Vec<f64>> {
+        self.force_resid.as_ref()?;
+        let rec = self.rec();
+        let n_fit = self.frozen.n_fit();
+        let s = self.frozen.fit_replay(&h.build(&self.base_fit)).ok()?;
         let fc = rec
             .channels
             .iter()
@@ -722,256 +890,318 @@ pub(crate) fn extend(
                 .map(|(a, b)| a - b)
                 .collect(),
         )
-    };
-    for _round in 0..MAX_TERMS {
-        let cands: Vec<&Lib> = lib
+    }
+
+    /// The empty law to select on, judged, and its judged overall NRMSE (-) (the transfer
+    /// check's before); `cur_train` is the catalogue model's fitting-part cost (-).
+    fn start_selection(&self, cur_train: f64) -> (Selection, f64) {
+        let h = Hyp {
+            effects: vec![],
+            variants: vec![],
+            params: vec![],
+            values: vec![],
+        };
+        let j_cur = if self.split.is_some() {
+            self.sel_cost(&self.base_fit)
+        } else {
+            cur_train
+        };
+        let (l_cur, transfer_before) = self.judge(&h);
+        let mut log = Vec::new();
+        if let Some(t) = &self.split {
+            log.push(format!(
+                "terms chosen on samples 0..{} of the fitting part and judged on how they predict samples {}..{} (transfer check); the chosen law refit on the whole fitting part",
+                t.n_fit(),
+                t.n_fit(),
+                self.frozen.n_fit()
+            ));
+        }
+        let resid = self
+            .force_resid
+            .as_ref()
+            .map(|r| r.resid.clone())
+            .unwrap_or_default();
+        let st = Selection {
+            h,
+            j_cur,
+            l_cur,
+            terms: Vec::new(),
+            log,
+            used: Vec::new(),
+            resid,
+        };
+        (st, transfer_before)
+    }
+
+    /// Every remaining term fitted on top of the law so far (in parallel), and the one with the
+    /// lowest judged cost among those that do not raise the cost J; `None` when none is left.
+    fn best_candidate(&self, st: &Selection) -> Option<(&Lib, Candidate)> {
+        let cands: Vec<&Lib> = self
+            .lib
             .iter()
-            .filter(|l| !used.contains(&(l.section, l.field)))
+            .filter(|l| !st.used.contains(&(l.section, l.field)))
             .collect();
-        let results: Vec<(usize, Hyp, f64, f64, f64)> = cands
+        let results: Vec<(usize, Candidate)> = cands
             .par_iter()
             .enumerate()
             .map(|(i, l)| {
-                let mut hh = h.clone();
+                let mut hh = st.h.clone();
                 let first_new = hh.params.len();
-                push_term(&mut hh, l, &resid);
-                let (hh, c) = sel.fit(hh, first_new, evals_per_param);
-                let (lc, e) = judge(&hh);
-                (i, hh, c, lc, e)
+                self.push_term(&mut hh, l, &st.resid);
+                let (hh, c) = self.sel().fit(hh, first_new, self.evals_per_param);
+                let (lc, e) = self.judge(&hh);
+                let cand = Candidate {
+                    h: hh,
+                    cost: c,
+                    judged_log: lc,
+                    judged: e,
+                };
+                (i, cand)
             })
             .collect();
-        let Some((i, mut hb, mut cb, mut lb, mut eb)) = results
+        let (i, best) = results
             .into_iter()
-            .filter(|r| r.2 <= j_cur)
-            .min_by(|a, b| a.3.total_cmp(&b.3))
-        else {
-            break;
-        };
-        let l = cands[i];
-        // A coefficient that ends on its bound says the bound, not the data, stopped it: widen
-        // the bound (4×, at most twice) and refit, on the fitting segment only.
+            .filter(|r| r.1.cost <= st.j_cur)
+            .min_by(|a, b| a.1.judged_log.total_cmp(&b.1.judged_log))?;
+        Some((cands[i], best))
+    }
+
+    /// A coefficient of term `l` that ends on its bound says the bound, not the data, stopped
+    /// it: widen the bound (4×, at most twice) and refit `best`, on the fitting segment only.
+    fn widen_on_bound(&self, l: &Lib, best: &mut Candidate, log: &mut Vec<String>) {
         let mut widen = 1.0;
         for _ in 0..2 {
             let path = l.path();
-            let Some(k) = hb.params.iter().rposition(|p| p.name == path) else {
+            let Some(k) = best.h.params.iter().rposition(|p| p.name == path) else {
                 break;
             };
-            let (fp, v) = (hb.params[k].clone(), hb.values[k]);
+            let (fp, v) = (best.h.params[k].clone(), best.h.values[k]);
             if v.abs() < 0.98 * fp.hi {
                 break;
             }
             widen *= 4.0;
-            let wider = make_param(l, 0.0, widen);
+            let wider = self.make_param(l, 0.0, widen);
             if wider.hi <= fp.hi * (1.0 + 1e-9) {
-                selection.push(format!(
+                log.push(format!(
                     "{}.{} ended on its bound ±{:.3e} {}: not widened (the actuator's force scale, supply pressure × cap area)",
                     l.section, l.field, fp.hi, l.unit()
                 ));
                 break;
             }
-            let mut hw = hb.clone();
+            let mut hw = best.h.clone();
             hw.params[k] = wider;
             hw.values[k] = v;
-            let (hw, cw) = sel.fit(hw, k, evals_per_param);
-            selection.push(format!(
+            let (hw, cw) = self.sel().fit(hw, k, self.evals_per_param);
+            log.push(format!(
                 "{}.{} ended on its bound ±{:.3e} {}: bound widened 4× and refit (fitting NRMSE {:.4} → {:.4})",
-                l.section, l.field, fp.hi, l.unit(), cb.sqrt(), cw.sqrt()
+                l.section, l.field, fp.hi, l.unit(), best.cost.sqrt(), cw.sqrt()
             ));
-            if cw < cb {
-                (lb, eb) = judge(&hw);
-                hb = hw;
-                cb = cw;
+            if cw < best.cost {
+                (best.judged_log, best.judged) = self.judge(&hw);
+                best.h = hw;
+                best.cost = cw;
             }
         }
+    }
+
+    /// One round of the forward selection: the best remaining term, kept if it lowers the
+    /// geometric mean of the judged per-channel J by [`MIN_REL_GAIN`]. Returns whether a term
+    /// was kept (the selection goes on).
+    fn select_round(&self, st: &mut Selection) -> bool {
+        let Some((l, mut best)) = self.best_candidate(st) else {
+            return false;
+        };
+        self.widen_on_bound(l, &mut best, &mut st.log);
         // Geometric-mean reduction of the per-channel cost on the judged segment (a replay
         // that failed or diverged scores the failure cost: said so, not as a huge number).
-        let gain = 1.0 - (lb - l_cur).exp();
+        let gain = 1.0 - (best.judged_log - st.l_cur).exp();
         let gain_text = if gain.is_finite() && gain > -10.0 {
             format!("{:+.1} %", -100.0 * gain)
         } else {
             "replay failed or diverged".to_string()
         };
-        selection.push(format!(
+        st.log.push(format!(
             "round {}: best {}.{} ({}): fitting NRMSE {:.4} → {:.4}, {} geometric mean of the per-channel J {}{}",
-            terms.len() + 1,
+            st.terms.len() + 1,
             l.section,
             l.field,
             l.physics,
-            j_cur.sqrt(),
-            cb.sqrt(),
-            if split.is_some() { "predicted segment:" } else { "fitting part:" },
+            st.j_cur.sqrt(),
+            best.cost.sqrt(),
+            if self.split.is_some() { "predicted segment:" } else { "fitting part:" },
             gain_text,
             if gain >= MIN_REL_GAIN { "" } else { " — not a 5 % fall, stop" }
         ));
         if gain < MIN_REL_GAIN {
-            break;
+            return false;
         }
-        used.push((l.section, l.field));
-        h = hb;
-        j_cur = cb;
-        l_cur = lb;
-        terms.push(term_of(l, &h, cb, eb));
+        st.used.push((l.section, l.field));
+        st.h = best.h;
+        st.j_cur = best.cost;
+        st.l_cur = best.judged_log;
+        st.terms
+            .push(self.term_of(l, &st.h, best.cost, best.judged));
         // Force residual after this term (for the next starts).
-        if let Some(r) = force_residual(&h) {
-            resid = r;
+        if let Some(r) = self.force_residual(&st.h) {
+            st.resid = r;
         }
+        true
     }
-    // The force residual still tracks velocity but no velocity term was kept: alone, each may
-    // fail the transfer check when the load both yields and flows viscously (an MR damper:
-    // a yield force alone misses the high-speed slope, a viscous term alone the reversals),
-    // so the velocity terms are fitted together once, judged by the same rule.
-    let r_v = force_resid
-        .as_ref()
-        .map_or(0.0, |(_, _, v)| crate::residual::corr(&resid, v));
-    let velocity_terms = ["viscous", "coulomb", "dahl"];
-    let kept_velocity = used
-        .iter()
-        .any(|(sec, f)| *sec == "polynomial_force" && velocity_terms.contains(f));
-    if r_v.abs() >= VELOCITY_CORRELATION && !kept_velocity {
-        let group: Vec<&Lib> = lib
+
+    /// The force residual still tracks velocity but no velocity term was kept: alone, each may
+    /// fail the transfer check when the load both yields and flows viscously (an MR damper: a
+    /// yield force alone misses the high-speed slope, a viscous term alone the reversals), so
+    /// the velocity terms are fitted together once, judged by the same rule.
+    fn fit_velocity_terms_together(&self, st: &mut Selection) {
+        let r_v = self
+            .force_resid
+            .as_ref()
+            .map_or(0.0, |fr| crate::residual::corr(&st.resid, &fr.v));
+        let velocity_terms = ["viscous", "coulomb", "dahl"];
+        let kept_velocity = st
+            .used
+            .iter()
+            .any(|(sec, f)| *sec == "polynomial_force" && velocity_terms.contains(f));
+        if r_v.abs() < VELOCITY_CORRELATION || kept_velocity {
+            return;
+        }
+        let group: Vec<&Lib> = self
+            .lib
             .iter()
             .filter(|l| l.section == "polynomial_force" && velocity_terms.contains(&l.field))
             .collect();
-        let mut hh = h.clone();
+        let mut hh = st.h.clone();
         let first_new = hh.params.len();
         for l in &group {
-            push_term(&mut hh, l, &resid);
+            self.push_term(&mut hh, l, &st.resid);
         }
-        let (hh, c) = sel.fit(hh, first_new, evals_per_param);
-        let (lc, e) = judge(&hh);
-        let gain = 1.0 - (lc - l_cur).exp();
-        let keep = c <= j_cur && gain >= MIN_REL_GAIN;
-        selection.push(format!(
+        let (hh, c) = self.sel().fit(hh, first_new, self.evals_per_param);
+        let (lc, e) = self.judge(&hh);
+        let gain = 1.0 - (lc - st.l_cur).exp();
+        let keep = c <= st.j_cur && gain >= MIN_REL_GAIN;
+        st.log.push(format!(
             "the force residual tracks velocity (r = {r_v:+.2}) and no velocity term was kept: viscous, yield and Dahl terms fitted together: fitting NRMSE {:.4} → {:.4}, geometric mean of the per-channel J {:+.1} %{}",
-            j_cur.sqrt(),
+            st.j_cur.sqrt(),
             c.sqrt(),
             -100.0 * gain,
             if keep { ", kept" } else { ", not kept" }
         ));
         if keep {
-            h = hh;
-            j_cur = c;
+            st.h = hh;
+            st.j_cur = c;
             for l in group {
-                used.push((l.section, l.field));
-                terms.push(term_of(l, &h, c, e));
+                st.used.push((l.section, l.field));
+                st.terms.push(self.term_of(l, &st.h, c, e));
             }
         }
     }
-    let transfer = split.as_ref().map(|t| Transfer {
-        fit_samples: 0..t.n_fit(),
-        predicted_samples: t.n_fit()..frozen.n_fit(),
-        nrmse_before: transfer_before,
-        nrmse_after: terms
-            .last()
-            .and_then(|x| x.nrmse_transfer)
-            .unwrap_or(transfer_before),
-    });
-    // The chosen law refit jointly on the whole fitting part (starts: the segment's values).
-    if split.is_some() && !h.params.is_empty() {
-        let n = h.params.len();
-        let (hf, cf) = frozen.fit(h.clone(), n, evals_per_param);
-        if cf.is_finite() {
-            h = hf;
-            j_cur = cf;
-        }
-    }
-    // Final values of every selected term (the last joint fit moved the earlier ones too).
-    for t in terms.iter_mut() {
-        if let Some(k) = h.params.iter().position(|p| p.name == t.path) {
-            t.value = h.values[k];
-            t.at_bound = t.value.abs() >= 0.98 * h.params[k].hi;
-        }
-    }
-    // The yield term's fitted pre-yield velocity.
-    let yield_velocity = h
-        .params
-        .iter()
-        .position(|p| p.name == "effects.polynomial_force.smoothing_velocity")
-        .map(|k| h.values[k]);
-    // The Dahl term's fitted pre-yield travel.
-    let dahl_travel = h
-        .params
-        .iter()
-        .position(|p| p.name == "effects.polynomial_force.dahl_travel")
-        .map(|k| h.values[k]);
-    let accepted = !terms.is_empty();
-    // The pressure-dependent friction at the extended model's median load pressure while
-    // sliding, so that the yield force is comparable whichever term carries it.
-    let median_load_pressure = terms
-        .iter()
-        .any(|t| t.path.ends_with(".pressure_coulomb"))
-        .then(|| frozen.fit_replay(&h.build(&base_fit)).ok())
-        .flatten()
-        .and_then(|s| {
-            let mut a: Vec<f64> = s.dp[..n_fit.min(s.dp.len())]
-                .iter()
-                .zip(&s.v)
-                .filter(|(_, v)| v.abs() > 0.1 * vr)
-                .map(|(dp, _)| dp.abs())
-                .filter(|x| x.is_finite())
-                .collect();
-            if a.is_empty() {
-                return None;
-            }
-            a.sort_by(f64::total_cmp);
-            Some(a[a.len() / 2])
-        });
-    let yield_terms: Vec<f64> = terms
-        .iter()
-        .filter_map(|t| {
-            if t.path.ends_with(".coulomb") || t.path.ends_with(".dahl") {
-                Some(t.value)
-            } else if t.path.ends_with(".pressure_coulomb") {
-                median_load_pressure.map(|dp| t.value * dp)
-            } else {
-                None
-            }
+
+    /// The transfer check of the selected law, from the catalogue model's judged overall
+    /// NRMSE `before` (-); `None` without a split.
+    fn transfer(&self, st: &Selection, before: f64) -> Option<Transfer> {
+        self.split.as_ref().map(|t| Transfer {
+            fit_samples: 0..t.n_fit(),
+            predicted_samples: t.n_fit()..self.frozen.n_fit(),
+            nrmse_before: before,
+            nrmse_after: st
+                .terms
+                .last()
+                .and_then(|x| x.nrmse_transfer)
+                .unwrap_or(before),
         })
-        .collect();
-    let yield_force = (!yield_terms.is_empty()).then(|| yield_terms.iter().sum());
-    let (val, _) = frozen.val_errors(&h);
-    let structure = if accepted {
-        let p = h.build(&base_fit);
-        let mut parts = Vec::new();
-        if let Some(f) = p
-            .effects
-            .polynomial_force
-            .filter(|_| terms.iter().any(|t| t.path.contains("force")))
-        {
-            parts.push(format!(
-                "rod force law (opposing +x, seen by the load cell) = {}",
-                f.describe().join(" + ")
-            ));
+    }
+
+    /// The chosen law refit jointly on the whole fitting part (starts: the segment's values),
+    /// then the final values of every selected term (the joint fit moved the earlier ones too).
+    fn refit_on_fitting_part(&self, st: &mut Selection) {
+        if self.split.is_some() && !st.h.params.is_empty() {
+            let n = st.h.params.len();
+            let (hf, cf) = self.frozen.fit(st.h.clone(), n, self.evals_per_param);
+            if cf.is_finite() {
+                st.h = hf;
+                st.j_cur = cf;
+            }
         }
-        if let Some(f) = p
-            .effects
-            .polynomial_flow
-            .filter(|_| terms.iter().any(|t| t.path.contains("flow")))
-        {
-            parts.push(format!("B→A flow law = {}", f.describe().join(" + ")));
+        for t in st.terms.iter_mut() {
+            if let Some(k) = st.h.params.iter().position(|p| p.name == t.path) {
+                t.value = st.h.values[k];
+                t.at_bound = t.value.abs() >= 0.98 * st.h.params[k].hi;
+            }
         }
-        parts.join("; ")
-    } else {
-        "no library term lowered the fitting-part error (geometric mean over channels) by ≥ 5 %"
-            .to_string()
-    };
-    let ratio = val.overall / baseline;
-    let report = GreyBox {
-        structure,
-        terms,
-        nrmse_train_before: cur_train.sqrt(),
-        nrmse_train: j_cur.sqrt(),
-        nrmse_validation: val,
-        ratio_to_baseline: ratio,
-        accepted,
-        transfer,
-        yield_velocity,
-        dahl_travel,
-        yield_force,
-        median_load_pressure,
-        selection,
-    };
-    if !accepted {
+    }
+
+    /// The report of the finished selection `st` (`cur_train`: the catalogue model's
+    /// fitting-part cost, `baseline`: the ARX baseline's held-out overall NRMSE, -).
+    fn report(
+        &self,
+        st: Selection,
+        transfer: Option<Transfer>,
+        cur_train: f64,
+        baseline: f64,
+    ) -> GreyBox {
+        let h = &st.h;
+        let terms = st.terms;
+        // The yield term's fitted pre-yield velocity.
+        let yield_velocity = param_value(h, "effects.polynomial_force.smoothing_velocity");
+        // The Dahl term's fitted pre-yield travel.
+        let dahl_travel = param_value(h, "effects.polynomial_force.dahl_travel");
+        let accepted = !terms.is_empty();
+        // The pressure-dependent friction at the extended model's median load pressure while
+        // sliding, so that the yield force is comparable whichever term carries it.
+        let median_load_pressure = terms
+            .iter()
+            .any(|t| t.path.ends_with(".pressure_coulomb"))
+            .then(|| self.frozen.fit_replay(&h.build(&self.base_fit)).ok())
+            .flatten()
+            .and_then(|s| median_sliding_pressure(&s, self.frozen.n_fit(), 0.1 * self.vr));
+        let yield_force = yield_force_of(&terms, median_load_pressure);
+        let (val, _) = self.frozen.val_errors(h);
+        let structure = structure_of(accepted.then(|| h.build(&self.base_fit)), &terms);
+        let ratio = val.overall / baseline;
+        GreyBox {
+            structure,
+            terms,
+            nrmse_train_before: cur_train.sqrt(),
+            nrmse_train: st.j_cur.sqrt(),
+            nrmse_validation: val,
+            ratio_to_baseline: ratio,
+            accepted,
+            transfer,
+            yield_velocity,
+            dahl_travel,
+            yield_force,
+            median_load_pressure,
+            selection: st.log,
+        }
+    }
+}
+
+/// Run the grey-box extension on top of hypothesis `current` (whose fitting-part cost is
+/// `cur_train`). Returns the extended hypothesis when a term was selected, and the report.
+/// `baseline` is the ARX baseline's held-out overall NRMSE.
+pub(crate) fn extend(
+    ctx: &Ctx,
+    current: &Hyp,
+    cur_train: f64,
+    scales: &Scales,
+    baseline: f64,
+    evals_per_param: usize,
+) -> (Option<Hyp>, GreyBox) {
+    // The catalogue model is frozen: the library terms are fitted on top of it.
+    let frozen = ctx.frozen(current);
+    let fit = GreyBoxFit::new(&frozen, scales, evals_per_param);
+    let (mut st, transfer_before) = fit.start_selection(cur_train);
+    for _round in 0..MAX_TERMS {
+        if !fit.select_round(&mut st) {
+            break;
+        }
+    }
+    fit.fit_velocity_terms_together(&mut st);
+    let transfer = fit.transfer(&st, transfer_before);
+    fit.refit_on_fitting_part(&mut st);
+    let h = st.h.clone();
+    let report = fit.report(st, transfer, cur_train, baseline);
+    if !report.accepted {
         return (None, report);
     }
     // Combine: the catalogue hypothesis plus the grey-box parameters.

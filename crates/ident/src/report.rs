@@ -189,7 +189,6 @@ fn table(d: &Diagnosis) -> String {
     s
 }
 
-/// Write extended.toml, traces.csv (and validation_traces.csv), diagnosis.json, the plots
 /// The model the diagnosis recommends — the one `extended.toml` holds — in words, and its
 /// held-out errors: the grey-box law on the catalogue model when one was accepted, else the
 /// catalogue model with the accepted effects, else the nominal model refit within its stated
@@ -252,6 +251,7 @@ pub fn headline(d: &Diagnosis) -> String {
     )
 }
 
+/// Write extended.toml, traces.csv (and validation_traces.csv), diagnosis.json, the plots
 /// and report.md into `dir`.
 pub fn write_report(
     dir: &Path,
@@ -293,6 +293,26 @@ pub fn write_report(
             Vec::new()
         }
     };
+    let r = report_text(config_path, rec, d, &warnings, &plots);
+    let report = out.write("report.md", r.as_bytes())?;
+    Ok(ReportFiles {
+        extended_config,
+        report,
+        plots,
+        warnings,
+    })
+}
+
+/// report.md: the conclusion, the held-out errors against the nominal model and the ARX
+/// baseline, the grey-box law and every section after them (`warnings`: the report's own,
+/// `plots`: the plots made).
+fn report_text(
+    config_path: &str,
+    rec: &Record,
+    d: &Diagnosis,
+    warnings: &[String],
+    plots: &[PathBuf],
+) -> String {
     let mut r = String::new();
     let _ = writeln!(r, "# ehactl diagnose: {}\n", rec.source);
     let _ = writeln!(r, "**{}**\n", headline(d));
@@ -337,6 +357,16 @@ pub fn write_report(
     if let Some(g) = &d.greybox {
         r.push_str(&greybox_section(d, g));
     }
+    write_residual_test(&mut r, d);
+    write_fit_notes(&mut r, d);
+    write_residual_analysis(&mut r, d);
+    write_hypothesis_tests(&mut r, d);
+    write_closing(&mut r, d, warnings, plots);
+    r
+}
+
+/// The section on whether the held-out residual is noise (per-channel level and whiteness).
+fn write_residual_test(r: &mut String, d: &Diagnosis) {
     let rt = &d.residual_test;
     let _ = writeln!(
         r,
@@ -366,6 +396,10 @@ pub fn write_report(
                 s.text
             ))
     );
+}
+
+/// The replay accuracy, the nominal parameters on a bound and the sensor offsets.
+fn write_fit_notes(r: &mut String, d: &Diagnosis) {
     let ig = &d.integration;
     let _ = writeln!(
         r,
@@ -413,6 +447,10 @@ pub fn write_report(
             list.join(", ")
         );
     }
+}
+
+/// The residual analyses of the nominal replay and of the refit nominal model.
+fn write_residual_analysis(r: &mut String, d: &Diagnosis) {
     for (title, a) in [
         ("nominal replay", &d.analysis),
         (
@@ -445,6 +483,10 @@ pub fn write_report(
         }
         r.push('\n');
     }
+}
+
+/// The table of the hypothesis tests (every catalogue effect).
+fn write_hypothesis_tests(r: &mut String, d: &Diagnosis) {
     let _ = writeln!(
         r,
         "## Hypothesis tests (every catalogue effect against the refit nominal model)\n"
@@ -467,6 +509,11 @@ pub fn write_report(
             c.evidence.replace('|', "/")
         );
     }
+}
+
+/// The closing sections: a better nominal fit, ambiguities, warnings (the diagnosis's and
+/// the report's own `warnings`) and the `plots`.
+fn write_closing(r: &mut String, d: &Diagnosis, warnings: &[String], plots: &[PathBuf]) {
     if !d.refit_continued.is_empty() {
         let _ = writeln!(r, "\n## A better nominal fit than the refit's\n");
         for a in &d.refit_continued {
@@ -479,7 +526,7 @@ pub fn write_report(
             let _ = writeln!(r, "- {a}");
         }
     }
-    let all_warn: Vec<&String> = d.warnings.iter().chain(&warnings).collect();
+    let all_warn: Vec<&String> = d.warnings.iter().chain(warnings).collect();
     if !all_warn.is_empty() {
         let _ = writeln!(r, "\n## Warnings\n");
         for w in all_warn {
@@ -488,18 +535,11 @@ pub fn write_report(
     }
     if !plots.is_empty() {
         let _ = writeln!(r, "\n## Plots\n");
-        for p in &plots {
+        for p in plots {
             let name = p
                 .file_name()
                 .map_or(String::new(), |n| n.to_string_lossy().into_owned());
             let _ = writeln!(r, "![{name}]({name})\n");
         }
     }
-    let report = out.write("report.md", r.as_bytes())?;
-    Ok(ReportFiles {
-        extended_config,
-        report,
-        plots,
-        warnings,
-    })
 }
