@@ -179,15 +179,12 @@ def with_current(src: pathlib.Path, dst: pathlib.Path, drop=()):
     return dst
 
 
-def test_june_chirps_as_one_campaign(tmp_path):
-    r = ehactl("diagnose", "--config", CONFIG, "--data", MTS / "0A_5to15s.csv", "--data", MTS / "1A_5to15s.csv",
-               "--json", "--out", tmp_path / "out")
-    assert r.returncode == 0, r.stderr
-    j = json.loads(r.stdout)
+def test_june_chirps_as_one_campaign(diagnosis):
+    j, out = diagnosis("--config", CONFIG, "--data", MTS / "0A_5to15s.csv", "--data", MTS / "1A_5to15s.csv")
     assert "current" in j["cause"], j["cause"]
     # Two operating points: the report says the dependence is not validated across them.
     assert "NOT validated" in j["dependence_check"]
-    ext = tmp_path / "out" / "extended.toml"
+    ext = out / "extended.toml"
     for name in ("0A_5to15s.csv", "1A_5to15s.csv"):
         p = ehactl("predict", "--config", ext, "--data", MTS / name, "--imposed-motion", "--held-out", "--json")
         assert p.returncode == 0, p.stderr
@@ -199,18 +196,12 @@ def test_june_chirps_as_one_campaign(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def june(tmp_path_factory):
-    """The June chirps as one campaign, and each diagnosed on its own (closed loop)."""
-    d = tmp_path_factory.mktemp("june")
-    r = ehactl("diagnose", "--config", CONFIG, "--data", MTS / "0A_5to15s.csv", "--data", MTS / "1A_5to15s.csv",
-               "--json", "--out", d / "campaign")
-    assert r.returncode == 0, r.stderr
-    single = {}
-    for a in ("0A", "1A"):
-        s = ehactl("diagnose", "--config", CONFIG, "--data", MTS / f"{a}_5to15s.csv", "--json", timeout=1800)
-        assert s.returncode == 0, s.stderr
-        single[a] = json.loads(s.stdout)
-    return json.loads(r.stdout), single
+def june(diagnosis):
+    """The June chirps as one campaign, and each diagnosed on its own (closed loop); the same
+    diagnoses as test_diagnose_greybox.py's (conftest.py runs each once)."""
+    j, _ = diagnosis("--config", CONFIG, "--data", MTS / "0A_5to15s.csv", "--data", MTS / "1A_5to15s.csv")
+    single = {a: diagnosis("--config", CONFIG, "--data", MTS / f"{a}_5to15s.csv")[0] for a in ("0A", "1A")}
+    return j, single
 
 
 def campaign_vs_single(june, a):

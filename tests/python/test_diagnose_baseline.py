@@ -92,9 +92,9 @@ def test_arx_baseline_sjoberg_matches_numpy():
     assert 0.5 < e < 0.7, e
 
 
-def test_arx_baseline_mts_matches_numpy():
+def test_arx_baseline_mts_matches_numpy(diagnosis):
     f = MTS / "1A_5to15s.csv"
-    d = diagnose("--config", str(REPO / "configs" / "utfsm_mts_mrdamper.toml"), "--data", str(f))
+    d, _ = diagnosis("--config", REPO / "configs" / "utfsm_mts_mrdamper.toml", "--data", f)
     rec = np.genfromtxt(f, delimiter=",", names=True)
     n = len(rec)
     n_fit = int(round(0.7 * n))

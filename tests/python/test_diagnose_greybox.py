@@ -39,12 +39,9 @@ def diagnose(out, *args):
 
 
 @pytest.fixture(scope="module")
-def mts(tmp_path_factory):
-    out = {}
-    for rec in ("0A", "1A"):
-        d = tmp_path_factory.mktemp(rec)
-        out[rec] = (diagnose(d, "--config", str(CFG), "--data", str(MTS / f"{rec}_5to15s.csv")), d)
-    return out
+def mts(diagnosis):
+    """Each MTS record's diagnosis (shared with the other modules: conftest.py)."""
+    return {rec: diagnosis("--config", CFG, "--data", MTS / f"{rec}_5to15s.csv") for rec in ("0A", "1A")}
 
 
 def numpy_damper(rec, force=None):
