@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`ForceStage`], [`MountStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`FlowStage`], [`ForceStage`], [`MountStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -198,4 +198,20 @@ pub trait SupplyStage: Component {
     /// supply flow `qs` (m³/s) and the tank pressure `pt` (Pa); `ps` without the effect.
     /// Real-time safe.
     fn advance(&self, ps: f64, qs: f64, pt: f64, h: f64) -> f64;
+}
+
+/// A component that takes flow out of the chambers as a function of their pressures: a
+/// laminar leakage Q = k·Δp (`internal_leakage`, `external_leakage`). The chamber balances
+/// of the substep (step 2 of crates/plant/src/model.rs) subtract its flows and take its
+/// conductances into the exponential-Euler linearisation of each chamber in its own
+/// pressure; `linear_exact` and the linearisation read the conductances as constants.
+pub trait FlowStage: Component {
+    /// The flows (m³/s) out of chamber A and out of chamber B at the chamber gauge pressures
+    /// `p_a`, `p_b` (Pa); a flow into a chamber is negative. (0, 0) without the effect.
+    /// Real-time safe.
+    fn flows(&self, p_a: f64, p_b: f64) -> (f64, f64);
+
+    /// ∂(flow out of A)/∂p_a and ∂(flow out of B)/∂p_b (m³/(s·Pa)), constant for a laminar
+    /// leakage: what the chamber step takes implicitly; (0, 0) without the effect.
+    fn conductances(&self) -> (f64, f64);
 }
