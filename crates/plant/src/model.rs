@@ -26,8 +26,8 @@
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
 use crate::effects::{
-    self, validate_variants, CommandStage, FlowStage, ForceStage, LoadSpring, MountStage,
-    PistonForces, SupplyStage,
+    self, validate_variants, BulkStage, CommandStage, FlowStage, ForceStage, LoadSpring,
+    MountStage, PistonForces, SupplyStage,
 };
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
@@ -48,13 +48,12 @@ struct Consts {
     v_b0: f64,
     stroke: f64,
     beta0: f64,
-    beta_slope: f64,
+    /// The largest bulk modulus (Pa) of the bulk stage ([`BulkStage::max`]), for the
+    /// substep rule ([`fastest_mode`]); the substep calls the stage.
     beta_max: f64,
     p_cav: f64,
     ps0: f64,
     pt: f64,
-    /// Entrained air (α₀, n) of `bulk_modulus_pressure` variant `entrained_air`.
-    air: Option<(f64, f64)>,
     mass: f64,
     damping: f64,
     k_load: f64,
@@ -263,11 +262,6 @@ impl Plant {
         };
         let components = effects::Components::configure(e, &setup);
         let supply = &components.supply_pressure_drop;
-        // Each effect's constants, derived in its module (crates/plant/src/effects/).
-        let (beta_slope, beta_max, air) = effects::bulk_modulus_pressure::chamber_constants(
-            e.bulk_modulus_pressure.as_ref(),
-            params.fluid.bulk_modulus,
-        );
         let c = Consts {
             a_a: params.cylinder.area_a,
             a_b: params.cylinder.area_b,
@@ -275,12 +269,10 @@ impl Plant {
             v_b0: params.cylinder.dead_volume_b,
             stroke: params.cylinder.stroke,
             beta0: params.fluid.bulk_modulus,
-            beta_slope,
-            beta_max,
+            beta_max: components.bulk_modulus_pressure.max(),
             p_cav: params.fluid.cavitation_pressure,
             ps0: params.supply.pressure,
             pt: params.supply.tank_pressure,
-            air,
             mass: params.mechanics.mass,
             damping: params.mechanics.damping + components.friction.viscous(),
             k_load: params.mechanics.load_stiffness,
@@ -364,7 +356,7 @@ impl Plant {
             && !e.polynomial_flow.is_some_and(|f| f.enabled)
             // The structural effect variants are integrated by the exponential-Euler substep only.
             && !c.body_mount
-            && c.air.is_none()
+            && components.bulk_modulus_pressure.is_linear()
             && k_ext_b == k_ext
             && supply.is_linear();
         if linear_exact {
@@ -568,16 +560,12 @@ impl Plant {
         self.control_dt
     }
 
-    /// Effective bulk modulus at gauge pressure `p` (Pa): β₀ + K_b·p, capped (002 eq. 35).
+    /// Effective bulk modulus at gauge pressure `p` (Pa): the bulk stage's
+    /// (`bulk_modulus_pressure`: β₀ + K_b·p capped (002 eq. 35), or entrained air), β₀
+    /// without the effect.
     #[inline]
     pub fn bulk_modulus(&self, p: f64) -> f64 {
-        effects::bulk_modulus_pressure::bulk_modulus(
-            self.c.beta0,
-            self.c.beta_slope,
-            self.c.beta_max,
-            self.c.air,
-            p,
-        )
+        self.components.bulk_modulus_pressure.bulk_modulus(p)
     }
 
     /// Chamber volumes (m³) at piston position `x` (003 eq. 7–8).

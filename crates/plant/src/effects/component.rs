@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`FlowStage`], [`ForceStage`], [`MountStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -214,4 +214,22 @@ pub trait FlowStage: Component {
     /// ∂(flow out of A)/∂p_a and ∂(flow out of B)/∂p_b (m³/(s·Pa)), constant for a laminar
     /// leakage: what the chamber step takes implicitly; (0, 0) without the effect.
     fn conductances(&self) -> (f64, f64);
+}
+
+/// A component that sets the effective bulk modulus β(p) of the oil in a chamber
+/// (`bulk_modulus_pressure`): the chamber balances of the substep (step 2 of
+/// crates/plant/src/model.rs) read β at each chamber's pressure at the start of the step;
+/// the substep rule and `linear_exact` read its constants.
+pub trait BulkStage: Component {
+    /// β(p) (Pa) of the oil at gauge pressure `p` (Pa); β₀ (`fluid.bulk_modulus`) without
+    /// the effect. Real-time safe.
+    fn bulk_modulus(&self, p: f64) -> f64;
+
+    /// The largest β (Pa) a chamber can see, which the substep rule holds the hydraulic
+    /// spring to; β₀ without the effect.
+    fn max(&self) -> f64;
+
+    /// Whether `linear_exact` holds the law (β(p) re-discretised when it drifts): false for
+    /// a law it does not (entrained air).
+    fn is_linear(&self) -> bool;
 }

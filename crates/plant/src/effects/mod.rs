@@ -56,8 +56,8 @@ pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
 pub use component::{
-    CommandStage, Component, FlowStage, ForceStage, Kick, LoadSpring, MountStage, PistonForces,
-    Setup, SupplyStage,
+    BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LoadSpring, MountStage,
+    PistonForces, Setup, SupplyStage,
 };
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
@@ -240,6 +240,7 @@ components! {
     friction: friction::FrictionStage,
     internal_leakage: leakage::CrossPiston,
     external_leakage: leakage::ToTank,
+    bulk_modulus_pressure: bulk_modulus_pressure::BulkModulus,
     flexible_mount: flexible_mount::Mount,
     supply_pressure_drop: supply_pressure_drop::Supply,
     time_delay: time_delay::DelayLine,
@@ -250,9 +251,6 @@ components! {
 pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::spec::ConfigError> {
     p.refit_ranges()?;
     let e = &p.effects;
-    if let Some(b) = e.bulk_modulus_pressure.as_ref() {
-        b.validate_variant()?;
-    }
     if let Some(l) = e.line_dynamics.as_ref() {
         l.validate_variant()?;
     }
