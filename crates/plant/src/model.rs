@@ -211,9 +211,6 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
     if let Some(d) = p.effects.valve_dynamics.as_ref() {
         d.validate_order()?;
     }
-    if let Some(t) = p.effects.sensor_tone.as_ref() {
-        t.validate_amplitudes()?;
-    }
     validate_variants(p)?;
     effects::Components::validate(&p.effects)?;
     if let Some(cb) = p
@@ -431,7 +428,7 @@ impl Plant {
             dahl_z: 0.0,
             poly_flow: e.polynomial_flow.filter(|f| f.enabled),
             excitation: ExcitationModel::new(&params.excitation),
-            sensors: SensorModel::new(&params.sensors, e.sensor_tone.as_ref()),
+            sensors: SensorModel::new(&params.sensors),
             lines,
             implicit_lines,
             cbv,
@@ -517,10 +514,7 @@ impl Plant {
         }
         self.substeps_taken = 0;
         self.components.reset();
-        self.sensors = SensorModel::new(
-            &self.params.sensors,
-            self.params.effects.sensor_tone.as_ref(),
-        );
+        self.sensors = SensorModel::new(&self.params.sensors);
     }
 
     /// Parameters the plant was configured with.
@@ -756,7 +750,8 @@ impl Plant {
             p_b: s.p_b,
             spool: s.spool,
         };
-        self.sensors.sample(&tv)
+        // The sensor stage (`sensor_tone`) adds its tones to its channel.
+        self.sensors.sample(&tv, &mut self.components.sensor_tone)
     }
 
     /// Automatic substeps for the coming period: ω·h ≤ max ω·h at the smallest chamber

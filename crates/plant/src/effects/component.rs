@@ -11,13 +11,14 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
 //! (scripts/file_cycles.py).
 
 use crate::spec::ConfigError;
+use serde::{Deserialize, Serialize};
 
 /// What a component's configure phase may read besides its own section: quantities the plant
 /// owns, as plain numbers in SI units (an effect module does not read `crate::params`).
@@ -232,4 +233,28 @@ pub trait BulkStage: Component {
     /// Whether `linear_exact` holds the law (β(p) re-discretised when it drifts): false for
     /// a law it does not (entrained air).
     fn is_linear(&self) -> bool;
+}
+
+/// A measured channel of the sensor set (crates/plant/src/sensors.rs), as a config names it
+/// (`[effects.sensor_tone] channel`).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorChannel {
+    /// Load cell force (N).
+    Force,
+    /// Piston position (m).
+    Position,
+    /// Chamber A pressure (Pa).
+    PressureA,
+    /// Chamber B pressure (Pa).
+    PressureB,
+}
+
+/// A component between the true value and the measurement: it adds to a sensor channel's
+/// reading (`sensor_tone`), called once per channel each time the plant samples its sensors
+/// (once per control period), after the channel's own noise.
+pub trait SensorStage: Component {
+    /// What the stage adds to channel `ch` (in the channel's unit: N, m or Pa) when it is
+    /// sampled at time `t` (s); 0 for a channel it does not act on. Real-time safe.
+    fn add(&mut self, ch: SensorChannel, t: f64) -> f64;
 }

@@ -57,7 +57,7 @@ pub mod valve_saturation;
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
 pub use component::{
     BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LoadSpring, MountStage,
-    PistonForces, Setup, SupplyStage,
+    PistonForces, SensorChannel, SensorStage, Setup, SupplyStage,
 };
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
@@ -244,6 +244,7 @@ components! {
     flexible_mount: flexible_mount::Mount,
     supply_pressure_drop: supply_pressure_drop::Supply,
     time_delay: time_delay::DelayLine,
+    sensor_tone: sensor_tone::Tones,
 }
 
 /// Cross-field checks of the effect variants: each variant's own parameters must
@@ -253,9 +254,6 @@ pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::sp
     let e = &p.effects;
     if let Some(l) = e.line_dynamics.as_ref() {
         l.validate_variant()?;
-    }
-    if let Some(t) = e.sensor_tone.as_ref() {
-        t.validate_variant()?;
     }
     Ok(())
 }
