@@ -26,8 +26,8 @@
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
 use crate::effects::{
-    self, validate_variants, CommandStage, ForceStage, LoadSpring, MountStage, PistonForces,
-    SupplyStage,
+    self, validate_variants, BulkStage, CommandStage, FlowStage, ForceStage, LoadSpring,
+    MountStage, PistonForces, SupplyStage,
 };
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
@@ -48,17 +48,12 @@ struct Consts {
     v_b0: f64,
     stroke: f64,
     beta0: f64,
-    beta_slope: f64,
+    /// The largest bulk modulus (Pa) of the bulk stage ([`BulkStage::max`]), for the
+    /// substep rule ([`fastest_mode`]); the substep calls the stage.
     beta_max: f64,
     p_cav: f64,
     ps0: f64,
     pt: f64,
-    k_in: f64,
-    k_ext: f64,
-    /// Chamber B's external leakage (m³/(s·Pa)): `k_ext` unless `per_chamber`.
-    k_ext_b: f64,
-    /// Entrained air (α₀, n) of `bulk_modulus_pressure` variant `entrained_air`.
-    air: Option<(f64, f64)>,
     mass: f64,
     damping: f64,
     k_load: f64,
@@ -216,9 +211,6 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
     if let Some(d) = p.effects.valve_dynamics.as_ref() {
         d.validate_order()?;
     }
-    if let Some(t) = p.effects.sensor_tone.as_ref() {
-        t.validate_amplitudes()?;
-    }
     validate_variants(p)?;
     effects::Components::validate(&p.effects)?;
     if let Some(cb) = p
@@ -267,15 +259,6 @@ impl Plant {
         };
         let components = effects::Components::configure(e, &setup);
         let supply = &components.supply_pressure_drop;
-        // Each effect's constants, derived in its module (crates/plant/src/effects/).
-        let (beta_slope, beta_max, air) = effects::bulk_modulus_pressure::chamber_constants(
-            e.bulk_modulus_pressure.as_ref(),
-            params.fluid.bulk_modulus,
-        );
-        let (k_in, k_ext, k_ext_b) = effects::leakage::coefficients(
-            e.internal_leakage.as_ref(),
-            e.external_leakage.as_ref(),
-        );
         let c = Consts {
             a_a: params.cylinder.area_a,
             a_b: params.cylinder.area_b,
@@ -283,15 +266,10 @@ impl Plant {
             v_b0: params.cylinder.dead_volume_b,
             stroke: params.cylinder.stroke,
             beta0: params.fluid.bulk_modulus,
-            beta_slope,
-            beta_max,
+            beta_max: components.bulk_modulus_pressure.max(),
             p_cav: params.fluid.cavitation_pressure,
             ps0: params.supply.pressure,
             pt: params.supply.tank_pressure,
-            k_in,
-            k_ext,
-            k_ext_b,
-            air,
             mass: params.mechanics.mass,
             damping: params.mechanics.damping + components.friction.viscous(),
             k_load: params.mechanics.load_stiffness,
@@ -360,6 +338,9 @@ impl Plant {
             ));
         }
         let x0 = params.cylinder.initial_position.clamp(0.0, c.stroke);
+        // The flow stages' conductances (m³/(s·Pa)): cross-piston k_in, to tank k_A, k_B.
+        let (k_in, _) = components.internal_leakage.conductances();
+        let (k_ext, k_ext_b) = components.external_leakage.conductances();
         // `linear_exact` covers chambers, leakage, springs, dampers and the mount; with lines,
         // friction (stick) or the grey-box polynomial effects the plant integrates with
         // `exponential_euler` instead (e.g. when `ehactl diagnose` adds such an effect to a
@@ -372,8 +353,8 @@ impl Plant {
             && !e.polynomial_flow.is_some_and(|f| f.enabled)
             // The structural effect variants are integrated by the exponential-Euler substep only.
             && !c.body_mount
-            && c.air.is_none()
-            && c.k_ext_b == c.k_ext
+            && components.bulk_modulus_pressure.is_linear()
+            && k_ext_b == k_ext
             && supply.is_linear();
         if linear_exact {
             // Hydraulic spring, load spring and mount are exact: the step is limited only by
@@ -414,8 +395,8 @@ impl Plant {
                     LinearCoefficients {
                         a_a: c.a_a,
                         a_b: c.a_b,
-                        k_in: c.k_in,
-                        k_ext: c.k_ext,
+                        k_in,
+                        k_ext,
                         mass: c.mass,
                         damping: c.damping,
                         k_load: c.k_load,
@@ -447,7 +428,7 @@ impl Plant {
             dahl_z: 0.0,
             poly_flow: e.polynomial_flow.filter(|f| f.enabled),
             excitation: ExcitationModel::new(&params.excitation),
-            sensors: SensorModel::new(&params.sensors, e.sensor_tone.as_ref()),
+            sensors: SensorModel::new(&params.sensors),
             lines,
             implicit_lines,
             cbv,
@@ -533,10 +514,7 @@ impl Plant {
         }
         self.substeps_taken = 0;
         self.components.reset();
-        self.sensors = SensorModel::new(
-            &self.params.sensors,
-            self.params.effects.sensor_tone.as_ref(),
-        );
+        self.sensors = SensorModel::new(&self.params.sensors);
     }
 
     /// Parameters the plant was configured with.
@@ -576,16 +554,12 @@ impl Plant {
         self.control_dt
     }
 
-    /// Effective bulk modulus at gauge pressure `p` (Pa): β₀ + K_b·p, capped (002 eq. 35).
+    /// Effective bulk modulus at gauge pressure `p` (Pa): the bulk stage's
+    /// (`bulk_modulus_pressure`: β₀ + K_b·p capped (002 eq. 35), or entrained air), β₀
+    /// without the effect.
     #[inline]
     pub fn bulk_modulus(&self, p: f64) -> f64 {
-        effects::bulk_modulus_pressure::bulk_modulus(
-            self.c.beta0,
-            self.c.beta_slope,
-            self.c.beta_max,
-            self.c.air,
-            p,
-        )
+        self.components.bulk_modulus_pressure.bulk_modulus(p)
     }
 
     /// Chamber volumes (m³) at piston position `x` (003 eq. 7–8).
@@ -776,7 +750,8 @@ impl Plant {
             p_b: s.p_b,
             spool: s.spool,
         };
-        self.sensors.sample(&tv)
+        // The sensor stage (`sensor_tone`) adds its tones to its channel.
+        self.sensors.sample(&tv, &mut self.components.sensor_tone)
     }
 
     /// Automatic substeps for the coming period: ω·h ≤ max ω·h at the smallest chamber
@@ -971,8 +946,15 @@ impl Plant {
         let (va, vb) = self.volumes(s.x);
         let beta_a = self.bulk_modulus(s.p_a);
         let beta_b = self.bulk_modulus(s.p_b);
-        // Internal leakage less the grey-box B→A flow (crate::effects::PolynomialFlow).
-        let q_in = c.k_in * (s.p_a - s.p_b) - self.poly_flow.map_or(0.0, |f| f.flow(s.spool));
+        // The flow stages (`internal_leakage`, `external_leakage`): cross-piston flow A→B
+        // less the grey-box B→A flow (crate::effects::PolynomialFlow), flows to tank, and
+        // their conductances for the chambers' linearisation.
+        let leak_in = &self.components.internal_leakage;
+        let leak_ext = &self.components.external_leakage;
+        let q_in = leak_in.flows(s.p_a, s.p_b).0 - self.poly_flow.map_or(0.0, |f| f.flow(s.spool));
+        let (q_ext_a, q_ext_b) = leak_ext.flows(s.p_a, s.p_b);
+        let (k_in, _) = leak_in.conductances();
+        let (k_ext, k_ext_b) = leak_ext.conductances();
         let (q_sa, q_sb);
         match self.lines.as_mut() {
             None => {
@@ -982,10 +964,10 @@ impl Plant {
                 s.q_b = qb;
                 q_sa = qsa;
                 q_sb = qsb;
-                let fa = beta_a / va * (qa - c.a_a * s.v - q_in - c.k_ext * s.p_a);
-                let la = beta_a / va * (dqa - c.k_in - c.k_ext);
-                let fb = beta_b / vb * (qb + c.a_b * s.v + q_in - c.k_ext_b * s.p_b);
-                let lb = beta_b / vb * (dqb - c.k_in - c.k_ext_b);
+                let fa = beta_a / va * (qa - c.a_a * s.v - q_in - q_ext_a);
+                let la = beta_a / va * (dqa - k_in - k_ext);
+                let fb = beta_b / vb * (qb + c.a_b * s.v + q_in - q_ext_b);
+                let lb = beta_b / vb * (dqb - k_in - k_ext_b);
                 s.p_a = (s.p_a + h * fa * phi1(la * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lb * h)).max(c.p_cav);
             }
@@ -1001,14 +983,14 @@ impl Plant {
                 let end_a = crate::line::EndNode {
                     p: s.p_a,
                     cap: va / beta_a,
-                    flow: -c.a_a * s.v - q_in - c.k_ext * s.p_a,
-                    dflow: -c.k_in - c.k_ext,
+                    flow: -c.a_a * s.v - q_in - q_ext_a,
+                    dflow: -k_in - k_ext,
                 };
                 let end_b = crate::line::EndNode {
                     p: s.p_b,
                     cap: vb / beta_b,
-                    flow: c.a_b * s.v + q_in - c.k_ext_b * s.p_b,
-                    dflow: -c.k_in - c.k_ext_b,
+                    flow: c.a_b * s.v + q_in - q_ext_b,
+                    dflow: -k_in - k_ext_b,
                 };
                 s.p_a = la.advance_implicit(h, qa, dqa, end_a).max(c.p_cav);
                 s.p_b = lb.advance_implicit(h, qb, dqb, end_b).max(c.p_cav);
@@ -1079,10 +1061,10 @@ impl Plant {
                         p_end[i] = pn;
                     }
                 }
-                let fa = beta_a / va * (into[0] - c.a_a * s.v - q_in - c.k_ext * s.p_a);
-                let lam_a = beta_a / va * (-c.k_in - c.k_ext - dinto[0]);
-                let fb = beta_b / vb * (into[1] + c.a_b * s.v + q_in - c.k_ext_b * s.p_b);
-                let lam_b = beta_b / vb * (-c.k_in - c.k_ext_b - dinto[1]);
+                let fa = beta_a / va * (into[0] - c.a_a * s.v - q_in - q_ext_a);
+                let lam_a = beta_a / va * (-k_in - k_ext - dinto[0]);
+                let fb = beta_b / vb * (into[1] + c.a_b * s.v + q_in - q_ext_b);
+                let lam_b = beta_b / vb * (-k_in - k_ext_b - dinto[1]);
                 s.p_a = (s.p_a + h * fa * phi1(lam_a * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lam_b * h)).max(c.p_cav);
                 la.advance_flows(

@@ -1,8 +1,9 @@
-//! Sensor models: load cell (sensitivity, noise, tones as in 004 at 225/420 Hz), chamber
-//! pressures, magnetostrictive position transducer (resolution, update period), spool.
+//! Sensor models: load cell (sensitivity, noise; tones as in 004 at 225/420 Hz from the sensor
+//! stage, crates/plant/src/effects/sensor_tone.rs), chamber pressures, magnetostrictive
+//! position transducer (resolution, update period), spool.
 
-use crate::effects::sensor_tone::Tone;
-use crate::params::{SensorChannel, SensorTone, Sensors};
+use crate::effects::{SensorChannel, SensorStage};
+use crate::params::Sensors;
 use crate::rng::NoiseRng;
 
 pub use ehactl_types::Measurements;
@@ -37,28 +38,16 @@ const CHANNELS: usize = 5;
 #[derive(Debug, Clone)]
 pub struct SensorModel {
     cfg: Sensors,
-    tone_channel: Option<SensorChannel>,
-    tones: Vec<Tone>,
     rngs: [NoiseRng; CHANNELS],
     held_position: f64,
     next_position_update: f64,
 }
 
 impl SensorModel {
-    /// From config; `tone` is the `sensor_tone` effect when enabled.
-    pub fn new(cfg: &Sensors, tone: Option<&SensorTone>) -> Self {
-        let tone = tone.filter(|t| t.enabled);
+    /// From config.
+    pub fn new(cfg: &Sensors) -> Self {
         Self {
             cfg: cfg.clone(),
-            tone_channel: tone.map(|t| t.channel),
-            tones: tone.map_or(Vec::new(), |t| {
-                t.frequencies
-                    .iter()
-                    .zip(&t.amplitudes)
-                    .enumerate()
-                    .map(|(i, (f, a))| Tone::new(*f, *a, t.phases.get(i).copied().unwrap_or(0.0)))
-                    .collect()
-            }),
             rngs: std::array::from_fn(|k| {
                 NoiseRng::new(
                     cfg.seed
@@ -68,14 +57,6 @@ impl SensorModel {
             held_position: f64::NAN,
             next_position_update: f64::NEG_INFINITY,
         }
-    }
-
-    #[inline]
-    fn tone(&mut self, ch: SensorChannel, t: f64) -> f64 {
-        if self.tone_channel != Some(ch) {
-            return 0.0;
-        }
-        self.tones.iter_mut().map(|tone| tone.value(t)).sum()
     }
 
     /// σ·N(0, 1) from channel `k`'s stream, nothing drawn when σ = 0.
@@ -88,8 +69,9 @@ impl SensorModel {
         }
     }
 
-    /// Sample every sensor. Does not allocate.
-    pub fn sample(&mut self, v: &TrueValues) -> Measurements {
+    /// Sample every sensor, each channel's reading with what the sensor `stage` adds to it
+    /// (the `sensor_tone` component). Does not allocate.
+    pub fn sample(&mut self, v: &TrueValues, stage: &mut impl SensorStage) -> Measurements {
         let c = &self.cfg;
         let (sf, sx, sp, ss) = (
             c.force.noise,
@@ -98,7 +80,7 @@ impl SensorModel {
             c.spool.noise,
         );
         let (res, upd) = (c.position.resolution, c.position.update_period);
-        let force = v.force + self.noise(0, sf) + self.tone(SensorChannel::Force, v.t);
+        let force = v.force + self.noise(0, sf) + stage.add(SensorChannel::Force, v.t);
         if v.t + 1e-12 >= self.next_position_update {
             let mut x = v.position + self.noise(1, sx);
             if res > 0.0 {
@@ -112,9 +94,9 @@ impl SensorModel {
                 f64::NEG_INFINITY
             };
         }
-        let position = self.held_position + self.tone(SensorChannel::Position, v.t);
-        let p_a = v.p_a + self.noise(2, sp) + self.tone(SensorChannel::PressureA, v.t);
-        let p_b = v.p_b + self.noise(3, sp) + self.tone(SensorChannel::PressureB, v.t);
+        let position = self.held_position + stage.add(SensorChannel::Position, v.t);
+        let p_a = v.p_a + self.noise(2, sp) + stage.add(SensorChannel::PressureA, v.t);
+        let p_b = v.p_b + self.noise(3, sp) + stage.add(SensorChannel::PressureB, v.t);
         let spool = v.spool + self.noise(4, ss);
         Measurements {
             t: v.t,

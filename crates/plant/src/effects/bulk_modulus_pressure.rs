@@ -3,8 +3,10 @@
 //! `entrained_air`; Yu, Chen & Lu 1994, the "Yu" model of Gholizadeh, Burton & Schoenau 2011,
 //! Int. J. Fluid Power 12(3), eq. 20): the config section [`BulkModulusPressure`]
 //! (`[effects.bulk_modulus_pressure]`) and the entrained-air law
-//! [`entrained_air_bulk_modulus`].
+//! [`entrained_air_bulk_modulus`], and its component [`BulkModulus`], the chambers' bulk
+//! modulus stage ([`BulkStage`]).
 
+use super::component::{BulkStage, Component, Setup};
 use super::switch::yes;
 use crate::spec::ConfigError;
 use ehactl_params_derive::Params;
@@ -94,37 +96,148 @@ pub fn entrained_air_bulk_modulus(beta0: f64, alpha0: f64, n: f64, p: f64) -> f6
     ((1.0 - alpha0) + air) / ((1.0 - alpha0) / beta0 + air / (n * pa))
 }
 
-/// β(p) (Pa) at gauge pressure `p` (Pa) from the constants of [`chamber_constants`]: with
-/// `air` (α₀, n) the entrained-air law ([`entrained_air_bulk_modulus`]), else
-/// β₀ + K_b·max(p, 0) capped at β_max (002 eq. 35); without the effect (K_b = 0, β_max = β₀)
-/// β₀.
-#[inline]
-pub(crate) fn bulk_modulus(
+/// The component of `bulk_modulus_pressure`: the constants of the chambers' β(p) derived
+/// from the section and the fluid's β₀.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BulkModulus {
+    /// β₀ (Pa), `fluid.bulk_modulus`.
     beta0: f64,
+    /// Slope K_b (-), 0 without the effect.
     slope: f64,
+    /// Cap β_max (Pa), at least β₀; β₀ without the effect.
     max: f64,
+    /// Entrained air (α₀ (-), n (-)) of variant `entrained_air`.
     air: Option<(f64, f64)>,
-    p: f64,
-) -> f64 {
-    if let Some((alpha0, n)) = air {
-        return entrained_air_bulk_modulus(beta0, alpha0, n, p);
-    }
-    (beta0 + slope * p.max(0.0)).min(max)
 }
 
-/// What `Plant::configure` (crates/plant/src/model.rs) derives from the section `s` (used when
-/// present and enabled) for the chambers' β(p), given the fluid's β₀ (Pa): the slope K_b (-),
-/// the cap β_max (Pa) and, for variant `entrained_air`, the air (α₀ (-), n (-)). Without the
-/// effect: 0, β₀ and none, i.e. β = β₀.
-pub(crate) fn chamber_constants(
-    s: Option<&BulkModulusPressure>,
-    beta0: f64,
-) -> (f64, f64, Option<(f64, f64)>) {
-    let bmp = s.filter(|b| b.enabled);
-    (
-        bmp.map_or(0.0, |b| b.slope),
-        bmp.map_or(beta0, |b| b.max.max(beta0)),
-        bmp.filter(|b| b.variant == BulkVariant::EntrainedAir)
-            .map(|b| (b.air_fraction, b.polytropic_index)),
-    )
+impl Component for BulkModulus {
+    type Section = BulkModulusPressure;
+
+    /// `entrained_air` needs an air fraction > 0.
+    fn validate(s: &BulkModulusPressure) -> Result<(), ConfigError> {
+        s.validate_variant()
+    }
+
+    /// With the fluid's β₀ of `setup`: K_b, β_max = max(`max`, β₀) and, for variant
+    /// `entrained_air`, (α₀, n); without the effect (absent or switched off) 0, β₀ and none,
+    /// i.e. β = β₀.
+    fn configure(s: Option<&BulkModulusPressure>, setup: &Setup) -> Self {
+        let beta0 = setup.bulk_modulus;
+        let bmp = s.filter(|b| b.enabled);
+        BulkModulus {
+            beta0,
+            slope: bmp.map_or(0.0, |b| b.slope),
+            max: bmp.map_or(beta0, |b| b.max.max(beta0)),
+            air: bmp
+                .filter(|b| b.variant == BulkVariant::EntrainedAir)
+                .map(|b| (b.air_fraction, b.polytropic_index)),
+        }
+    }
+
+    /// No state.
+    fn reset(&mut self) {}
+}
+
+impl BulkStage for BulkModulus {
+    /// With entrained air [`entrained_air_bulk_modulus`], else β₀ + K_b·max(p, 0) capped at
+    /// β_max (002 eq. 35); β₀ without the effect (K_b = 0, β_max = β₀).
+    #[inline]
+    fn bulk_modulus(&self, p: f64) -> f64 {
+        if let Some((alpha0, n)) = self.air {
+            return entrained_air_bulk_modulus(self.beta0, alpha0, n, p);
+        }
+        (self.beta0 + self.slope * p.max(0.0)).min(self.max)
+    }
+
+    /// β_max.
+    fn max(&self) -> f64 {
+        self.max
+    }
+
+    /// False for variant `entrained_air`.
+    fn is_linear(&self) -> bool {
+        self.air.is_none()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SETUP: Setup = Setup {
+        control_dt: 1e-3,
+        supply_pressure: 20e6,
+        bulk_modulus: 1.5e9,
+    };
+
+    fn section(variant: BulkVariant) -> BulkModulusPressure {
+        BulkModulusPressure {
+            enabled: true,
+            variant,
+            slope: 10.0,
+            air_fraction: 0.01,
+            polytropic_index: 1.4,
+            max: 1.6e9,
+        }
+    }
+
+    /// Without the effect (absent or switched off) β = β₀ at every pressure.
+    #[test]
+    fn without_the_effect_beta_is_beta0() {
+        let mut off = section(BulkVariant::Linear);
+        off.enabled = false;
+        for s in [None, Some(&off)] {
+            let b = BulkModulus::configure(s, &SETUP);
+            assert!(b.is_linear());
+            assert_eq!(b.max(), 1.5e9);
+            for p in [-1e5, 0.0, 1e7, 1e9] {
+                assert_eq!(b.bulk_modulus(p), 1.5e9);
+            }
+        }
+    }
+
+    /// Variant `linear`: β₀ + K_b·p above 0 Pa, β₀ below, capped at `max`.
+    #[test]
+    fn linear_rises_with_pressure_up_to_the_cap() {
+        let b = BulkModulus::configure(Some(&section(BulkVariant::Linear)), &SETUP);
+        assert!(b.is_linear());
+        assert_eq!(b.max(), 1.6e9);
+        assert_eq!(b.bulk_modulus(-1e6), 1.5e9);
+        assert_eq!(b.bulk_modulus(5e6), 1.5e9 + 10.0 * 5e6);
+        assert_eq!(b.bulk_modulus(5e7), 1.6e9);
+        // A cap below β₀ is raised to β₀.
+        let mut low = section(BulkVariant::Linear);
+        low.max = 1e9;
+        assert_eq!(BulkModulus::configure(Some(&low), &SETUP).max(), 1.5e9);
+    }
+
+    /// Variant `entrained_air`: the Yu law, not held by `linear_exact`; air softens the oil
+    /// most at low pressure.
+    #[test]
+    fn entrained_air_is_the_yu_law() {
+        let b = BulkModulus::configure(Some(&section(BulkVariant::EntrainedAir)), &SETUP);
+        assert!(!b.is_linear());
+        for p in [0.0, 1e6, 1e7] {
+            assert_eq!(
+                b.bulk_modulus(p),
+                entrained_air_bulk_modulus(1.5e9, 0.01, 1.4, p)
+            );
+        }
+        assert!(b.bulk_modulus(1e5) < b.bulk_modulus(1e7));
+        assert!(b.bulk_modulus(1e7) < 1.5e9);
+    }
+
+    /// The component's check is the variant's: `entrained_air` without air is refused.
+    #[test]
+    fn validate_refuses_entrained_air_without_air() {
+        let mut s = section(BulkVariant::EntrainedAir);
+        assert!(BulkModulus::validate(&s).is_ok());
+        s.air_fraction = 0.0;
+        let e = BulkModulus::validate(&s).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("effects.bulk_modulus_pressure.air_fraction"),
+            "{e}"
+        );
+    }
 }

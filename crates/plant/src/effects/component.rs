@@ -11,13 +11,14 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`ForceStage`], [`MountStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
 //! (scripts/file_cycles.py).
 
 use crate::spec::ConfigError;
+use serde::{Deserialize, Serialize};
 
 /// What a component's configure phase may read besides its own section: quantities the plant
 /// owns, as plain numbers in SI units (an effect module does not read `crate::params`).
@@ -198,4 +199,62 @@ pub trait SupplyStage: Component {
     /// supply flow `qs` (m³/s) and the tank pressure `pt` (Pa); `ps` without the effect.
     /// Real-time safe.
     fn advance(&self, ps: f64, qs: f64, pt: f64, h: f64) -> f64;
+}
+
+/// A component that takes flow out of the chambers as a function of their pressures: a
+/// laminar leakage Q = k·Δp (`internal_leakage`, `external_leakage`). The chamber balances
+/// of the substep (step 2 of crates/plant/src/model.rs) subtract its flows and take its
+/// conductances into the exponential-Euler linearisation of each chamber in its own
+/// pressure; `linear_exact` and the linearisation read the conductances as constants.
+pub trait FlowStage: Component {
+    /// The flows (m³/s) out of chamber A and out of chamber B at the chamber gauge pressures
+    /// `p_a`, `p_b` (Pa); a flow into a chamber is negative. (0, 0) without the effect.
+    /// Real-time safe.
+    fn flows(&self, p_a: f64, p_b: f64) -> (f64, f64);
+
+    /// ∂(flow out of A)/∂p_a and ∂(flow out of B)/∂p_b (m³/(s·Pa)), constant for a laminar
+    /// leakage: what the chamber step takes implicitly; (0, 0) without the effect.
+    fn conductances(&self) -> (f64, f64);
+}
+
+/// A component that sets the effective bulk modulus β(p) of the oil in a chamber
+/// (`bulk_modulus_pressure`): the chamber balances of the substep (step 2 of
+/// crates/plant/src/model.rs) read β at each chamber's pressure at the start of the step;
+/// the substep rule and `linear_exact` read its constants.
+pub trait BulkStage: Component {
+    /// β(p) (Pa) of the oil at gauge pressure `p` (Pa); β₀ (`fluid.bulk_modulus`) without
+    /// the effect. Real-time safe.
+    fn bulk_modulus(&self, p: f64) -> f64;
+
+    /// The largest β (Pa) a chamber can see, which the substep rule holds the hydraulic
+    /// spring to; β₀ without the effect.
+    fn max(&self) -> f64;
+
+    /// Whether `linear_exact` holds the law (β(p) re-discretised when it drifts): false for
+    /// a law it does not (entrained air).
+    fn is_linear(&self) -> bool;
+}
+
+/// A measured channel of the sensor set (crates/plant/src/sensors.rs), as a config names it
+/// (`[effects.sensor_tone] channel`).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorChannel {
+    /// Load cell force (N).
+    Force,
+    /// Piston position (m).
+    Position,
+    /// Chamber A pressure (Pa).
+    PressureA,
+    /// Chamber B pressure (Pa).
+    PressureB,
+}
+
+/// A component between the true value and the measurement: it adds to a sensor channel's
+/// reading (`sensor_tone`), called once per channel each time the plant samples its sensors
+/// (once per control period), after the channel's own noise.
+pub trait SensorStage: Component {
+    /// What the stage adds to channel `ch` (in the channel's unit: N, m or Pa) when it is
+    /// sampled at time `t` (s); 0 for a channel it does not act on. Real-time safe.
+    fn add(&mut self, ch: SensorChannel, t: f64) -> f64;
 }

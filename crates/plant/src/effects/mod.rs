@@ -7,32 +7,39 @@
 //! Adding an effect on the plant side: its module here with its section struct (the
 //! `#[param]` declarations, defaults) and its component, a type implementing
 //! [`Component`] (cross-field checks, the constants derived from the section, its state and
-//! reset) and the trait of its stage in the substep: [`CommandStage`] on the command path
-//! (`time_delay`: `DelayLine`), [`SupplyStage`] for the supply pressure
-//! (`supply_pressure_drop`: `Supply`), [`ForceStage`] in the piston's velocity update
-//! (`friction`: `FrictionStage`) or [`MountStage`] for the mass on the far side of the rod or
-//! body (`flexible_mount`: `Mount`), or a new stage trait in `component.rs` where the effect
-//! acts elsewhere (statically dispatched, no allocation in the step); registered by one line
-//! in `components!` below. What the configure phase may read besides the section is in
-//! [`Setup`] (plain numbers the plant owns; add a field there if the effect needs another). Beside it here: its
-//! `pub mod` line, its `EffectId` variant with the lines in [`EffectId::ALL`],
-//! [`EffectId::as_str`] and the [`Effects`] switch matches below (exhaustive: a new id does
-//! not build without them); in crates/plant/src/params.rs its `Option` field in [`Effects`]
-//! and its re-export line. In [`crate::model`] the component's stage is called where the
-//! cycle reaches it (`Plant::step` calls `time_delay`'s `push` once per period and `command`
-//! per substep; `Plant::advance_substep` calls `supply_pressure_drop`'s `advance` after the
-//! chamber pressures, `flexible_mount`'s `drift` with the position
-//! drift, its `piston_force` and `friction`'s `kick` in the velocity update and the mount's
-//! `follow` after it, `Plant::update_rod_force` the mount's `rod_force`; `Plant::configure`
-//! reads the constants the plant folds into its own: friction's viscous coefficient and
-//! bristle stiffness, the mount's coefficients and the supply's droop and time constant for
-//! the substep rule, `linear_exact` and the linearisation);
+//! reset) and the trait of its stage: [`CommandStage`] on the command path (`time_delay`:
+//! `DelayLine`), [`SupplyStage`] for the supply pressure (`supply_pressure_drop`: `Supply`),
+//! [`FlowStage`] for flows out of the chambers (`internal_leakage`: `CrossPiston`,
+//! `external_leakage`: `ToTank`), [`BulkStage`] for the chambers' bulk modulus
+//! (`bulk_modulus_pressure`: `BulkModulus`), [`ForceStage`] in the piston's velocity update
+//! (`friction`: `FrictionStage`), [`MountStage`] for the mass on the far side of the rod or
+//! body (`flexible_mount`: `Mount`) or [`SensorStage`] on a measured channel (`sensor_tone`:
+//! `Tones`), or a new stage trait in `component.rs` where the effect acts elsewhere
+//! (statically dispatched, no allocation in the step); registered by one line in
+//! `components!` below. What the configure phase may read besides the section is in
+//! [`Setup`] (plain numbers the plant owns; add a field there if the effect needs another).
+//! Beside it here: its `pub mod` line, its `EffectId` variant with the lines in
+//! [`EffectId::ALL`], [`EffectId::as_str`] and the [`Effects`] switch matches below
+//! (exhaustive: a new id does not build without them); in crates/plant/src/params.rs its
+//! `Option` field in [`Effects`] and its re-export line. In [`crate::model`] the component's
+//! stage is called where the cycle reaches it (`Plant::step` calls `time_delay`'s `push`
+//! once per period and `command` per substep; `Plant::advance_substep` reads
+//! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
+//! leakages' `flows` and `conductances` in the chamber balances, calls
+//! `supply_pressure_drop`'s `advance` after the chamber pressures, `flexible_mount`'s `drift`
+//! with the position drift, its `piston_force` and `friction`'s `kick` in the velocity update
+//! and the mount's `follow` after it; `Plant::update_rod_force` the mount's `rod_force`;
+//! `Plant::measure` hands `sensor_tone` to the sensor model, whose `sample` calls its `add`
+//! per channel); `Plant::configure` reads the constants the plant folds into its own:
+//! friction's viscous coefficient and bristle stiffness, the mount's coefficients, the
+//! supply's droop and time constant, the bulk stage's β_max and `is_linear` and the
+//! leakages' conductances for the substep rule, `linear_exact` and the linearisation);
 //! validation, configuration and reset go through [`Components`]. The effects not moved to
-//! a component yet (`valve_deadband`, `valve_saturation`, `valve_dynamics`,
-//! `internal_leakage`, `external_leakage`, `bulk_modulus_pressure`, `line_dynamics`,
-//! `sensor_tone`) still have their checks called from
-//! [`validate_variants`] or `model::validate`, their derived constants called in
-//! `Plant::configure` and their terms in the substep (`Plant::advance_substep`).
+//! a component yet (`valve_deadband`, `valve_saturation`, `valve_dynamics`, `line_dynamics`)
+//! still have their checks called from [`validate_variants`] or `model::validate`, their
+//! derived constants in `Plant::configure` (the valve edge law `EdgeLaw` and the spool
+//! discretisation `SpoolModel` in crates/plant/src/valve.rs, the line chains in
+//! crates/plant/src/line.rs) and their terms in the substep (`Plant::advance_substep`).
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
 //! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
@@ -56,8 +63,8 @@ pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
 pub use component::{
-    CommandStage, Component, ForceStage, Kick, LoadSpring, MountStage, PistonForces, Setup,
-    SupplyStage,
+    BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LoadSpring, MountStage,
+    PistonForces, SensorChannel, SensorStage, Setup, SupplyStage,
 };
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
@@ -238,9 +245,13 @@ macro_rules! components {
 // The registration of each effect component: its section's field in `Effects` and its type.
 components! {
     friction: friction::FrictionStage,
+    internal_leakage: leakage::CrossPiston,
+    external_leakage: leakage::ToTank,
+    bulk_modulus_pressure: bulk_modulus_pressure::BulkModulus,
     flexible_mount: flexible_mount::Mount,
     supply_pressure_drop: supply_pressure_drop::Supply,
     time_delay: time_delay::DelayLine,
+    sensor_tone: sensor_tone::Tones,
 }
 
 /// Cross-field checks of the effect variants: each variant's own parameters must
@@ -248,17 +259,8 @@ components! {
 pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::spec::ConfigError> {
     p.refit_ranges()?;
     let e = &p.effects;
-    if let Some(l) = e.internal_leakage.as_ref() {
-        l.validate_internal_variant()?;
-    }
-    if let Some(b) = e.bulk_modulus_pressure.as_ref() {
-        b.validate_variant()?;
-    }
     if let Some(l) = e.line_dynamics.as_ref() {
         l.validate_variant()?;
-    }
-    if let Some(t) = e.sensor_tone.as_ref() {
-        t.validate_variant()?;
     }
     Ok(())
 }
