@@ -349,32 +349,7 @@ fn phase_nominal<'a>(
     opts: &Options,
 ) -> Result<NominalPhase<'a>, String> {
     nominal.refit_ranges().map_err(|e| e.to_string())?;
-    let n = rec.len();
-    let (n_fit, val_rec, val_range, split) = match val {
-        Some(v) => (
-            n,
-            v,
-            0..v.len(),
-            format!(
-                "fit on {} ({} samples), validated on {} ({} samples)",
-                rec.source,
-                n,
-                v.source,
-                v.len()
-            ),
-        ),
-        None => {
-            let nf = ((1.0 - opts.holdout) * n as f64).round() as usize;
-            if nf < 10 || n - nf < 10 {
-                return Err(format!(
-                    "{}: {n} samples are too few to hold out {:.0} %",
-                    rec.source,
-                    opts.holdout * 100.0
-                ));
-            }
-            (nf, rec, nf..n, format!("first {nf} samples ({:.3} s) for fitting, last {} ({:.3} s) held out; the held-out part is replayed continuously from the start", nf as f64 * rec.dt, n - nf, (n - nf) as f64 * rec.dt))
-        }
-    };
+    let (n_fit, val_rec, val_range, split) = split_data(rec, val, opts)?;
     let split = format!("{split}; {}", opts.drive.describe());
     let n_cost = n_fit.min(opts.max_fit_samples.max(100));
     let (fit_base, integration) = crate::replay::choose_integration_between(
@@ -387,21 +362,9 @@ fn phase_nominal<'a>(
     );
     let mut val_base = replay_params(nominal, val_rec);
     val_base.integration = fit_base.integration.clone();
-    let (fit_base, val_base, integration, drive, split) = match configured_step_explains(
-        nominal,
-        rec,
-        val_rec,
-        val_range.clone(),
-        opts.drive,
-    ) {
-        Some((f, v, d)) => {
-            let split = match (opts.drive, d) {
-                    (a, Drive::Recorded) if a.closed_loop() => format!(
-                        "{split}; the open-loop replay of the recorded command `u` reproduces the data at the config's own step, so it is used instead (the rig's loop acted on measured, noisy signals the closed-loop replay does not have)"
-                    ),
-                    _ => split,
-                };
-            (
+    let (fit_base, val_base, integration, drive, split) =
+        match configured_step_explains(nominal, rec, val_rec, val_range.clone(), opts.drive) {
+            Some((f, v, d)) => (
                 f,
                 v,
                 crate::replay::IntegrationCheck {
@@ -409,11 +372,10 @@ fn phase_nominal<'a>(
                     ..integration
                 },
                 d,
-                split,
-            )
-        }
-        None => (fit_base, val_base, integration, opts.drive, split),
-    };
+                configured_step_split(split, opts.drive, d),
+            ),
+            None => (fit_base, val_base, integration, opts.drive, split),
+        };
     let sd_fit: Vec<f64> = rec
         .channels
         .iter()
@@ -442,25 +404,7 @@ fn phase_nominal<'a>(
         .map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
     let analysis = analyse(rec, &nom_sim, 0..n_fit);
     let (nom_err, nom_val_sim) = ctx.val_errors(&Hyp::empty());
-    // Black-box baseline on the same split (input: the recorded command, or the setpoint
-    // when the rig's own loop is replayed).
-    let (input, input_name) = match (opts.drive, &rec.reference) {
-        (d, Some(r)) if d.closed_loop() => (r.clone(), "ref"),
-        _ => (rec.u.clone(), "u"),
-    };
-    let baseline = crate::baseline::fit(rec, &input, n_fit, input_name);
-    let val_input = match (opts.drive, &val_rec.reference) {
-        (d, Some(r)) if d.closed_loop() => r.clone(),
-        _ => val_rec.u.clone(),
-    };
-    let nrmse_baseline = {
-        let ch = crate::baseline::score(&baseline, val_rec, &val_input, val_range.clone());
-        let v: Vec<f64> = ch.values().copied().collect();
-        Errors {
-            overall: overall(&v),
-            channels: ch,
-        }
-    };
+    let (baseline, nrmse_baseline) = fit_baseline(rec, val_rec, val_range.clone(), n_fit, opts);
     Ok(NominalPhase {
         ctx,
         n_fit,
@@ -475,6 +419,81 @@ fn phase_nominal<'a>(
         baseline,
         nrmse_baseline,
     })
+}
+
+/// The fitting part's length, the held-out record and its range, and the split's account:
+/// all of `rec` against `val`, or `rec`'s last `opts.holdout` held out (at least 10 samples
+/// on each side).
+fn split_data<'a>(
+    rec: &'a Record,
+    val: Option<&'a Record>,
+    opts: &Options,
+) -> Result<(usize, &'a Record, std::ops::Range<usize>, String), String> {
+    let n = rec.len();
+    Ok(match val {
+        Some(v) => (
+            n,
+            v,
+            0..v.len(),
+            format!(
+                "fit on {} ({} samples), validated on {} ({} samples)",
+                rec.source,
+                n,
+                v.source,
+                v.len()
+            ),
+        ),
+        None => {
+            let nf = ((1.0 - opts.holdout) * n as f64).round() as usize;
+            if nf < 10 || n - nf < 10 {
+                return Err(format!(
+                    "{}: {n} samples are too few to hold out {:.0} %",
+                    rec.source,
+                    opts.holdout * 100.0
+                ));
+            }
+            (nf, rec, nf..n, format!("first {nf} samples ({:.3} s) for fitting, last {} ({:.3} s) held out; the held-out part is replayed continuously from the start", nf as f64 * rec.dt, n - nf, (n - nf) as f64 * rec.dt))
+        }
+    })
+}
+
+/// The split's account once the configured step explains the data with drive `used`
+/// (configured: `configured`): it says so when the recorded command replaced the rig's loop.
+fn configured_step_split(split: String, configured: Drive, used: Drive) -> String {
+    match (configured, used) {
+        (a, Drive::Recorded) if a.closed_loop() => format!(
+            "{split}; the open-loop replay of the recorded command `u` reproduces the data at the config's own step, so it is used instead (the rig's loop acted on measured, noisy signals the closed-loop replay does not have)"
+        ),
+        _ => split,
+    }
+}
+
+/// Black-box baseline fitted on the first `n_fit` samples of `rec` and its held-out NRMSE on
+/// `val_range` of `val_rec` (input: the recorded command, or the setpoint when the rig's own
+/// loop is replayed).
+fn fit_baseline(
+    rec: &Record,
+    val_rec: &Record,
+    val_range: std::ops::Range<usize>,
+    n_fit: usize,
+    opts: &Options,
+) -> (Baseline, Errors) {
+    let (input, input_name) = match (opts.drive, &rec.reference) {
+        (d, Some(r)) if d.closed_loop() => (r.clone(), "ref"),
+        _ => (rec.u.clone(), "u"),
+    };
+    let baseline = crate::baseline::fit(rec, &input, n_fit, input_name);
+    let val_input = match (opts.drive, &val_rec.reference) {
+        (d, Some(r)) if d.closed_loop() => r.clone(),
+        _ => val_rec.u.clone(),
+    };
+    let ch = crate::baseline::score(&baseline, val_rec, &val_input, val_range);
+    let v: Vec<f64> = ch.values().copied().collect();
+    let nrmse_baseline = Errors {
+        overall: overall(&v),
+        channels: ch,
+    };
+    (baseline, nrmse_baseline)
 }
 
 /// The nominal model replayed at the config's own integration (no refinement: substeps as
