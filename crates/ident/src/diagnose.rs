@@ -349,32 +349,7 @@ fn phase_nominal<'a>(
     opts: &Options,
 ) -> Result<NominalPhase<'a>, String> {
     nominal.refit_ranges().map_err(|e| e.to_string())?;
-    let n = rec.len();
-    let (n_fit, val_rec, val_range, split) = match val {
-        Some(v) => (
-            n,
-            v,
-            0..v.len(),
-            format!(
-                "fit on {} ({} samples), validated on {} ({} samples)",
-                rec.source,
-                n,
-                v.source,
-                v.len()
-            ),
-        ),
-        None => {
-            let nf = ((1.0 - opts.holdout) * n as f64).round() as usize;
-            if nf < 10 || n - nf < 10 {
-                return Err(format!(
-                    "{}: {n} samples are too few to hold out {:.0} %",
-                    rec.source,
-                    opts.holdout * 100.0
-                ));
-            }
-            (nf, rec, nf..n, format!("first {nf} samples ({:.3} s) for fitting, last {} ({:.3} s) held out; the held-out part is replayed continuously from the start", nf as f64 * rec.dt, n - nf, (n - nf) as f64 * rec.dt))
-        }
-    };
+    let (n_fit, val_rec, val_range, split) = split_data(rec, val, opts)?;
     let split = format!("{split}; {}", opts.drive.describe());
     let n_cost = n_fit.min(opts.max_fit_samples.max(100));
     let (fit_base, integration) = crate::replay::choose_integration_between(
@@ -387,21 +362,9 @@ fn phase_nominal<'a>(
     );
     let mut val_base = replay_params(nominal, val_rec);
     val_base.integration = fit_base.integration.clone();
-    let (fit_base, val_base, integration, drive, split) = match configured_step_explains(
-        nominal,
-        rec,
-        val_rec,
-        val_range.clone(),
-        opts.drive,
-    ) {
-        Some((f, v, d)) => {
-            let split = match (opts.drive, d) {
-                    (a, Drive::Recorded) if a.closed_loop() => format!(
-                        "{split}; the open-loop replay of the recorded command `u` reproduces the data at the config's own step, so it is used instead (the rig's loop acted on measured, noisy signals the closed-loop replay does not have)"
-                    ),
-                    _ => split,
-                };
-            (
+    let (fit_base, val_base, integration, drive, split) =
+        match configured_step_explains(nominal, rec, val_rec, val_range.clone(), opts.drive) {
+            Some((f, v, d)) => (
                 f,
                 v,
                 crate::replay::IntegrationCheck {
@@ -409,11 +372,10 @@ fn phase_nominal<'a>(
                     ..integration
                 },
                 d,
-                split,
-            )
-        }
-        None => (fit_base, val_base, integration, opts.drive, split),
-    };
+                configured_step_split(split, opts.drive, d),
+            ),
+            None => (fit_base, val_base, integration, opts.drive, split),
+        };
     let sd_fit: Vec<f64> = rec
         .channels
         .iter()
@@ -442,25 +404,7 @@ fn phase_nominal<'a>(
         .map_err(|e| format!("nominal config cannot be replayed: {e}"))?;
     let analysis = analyse(rec, &nom_sim, 0..n_fit);
     let (nom_err, nom_val_sim) = ctx.val_errors(&Hyp::empty());
-    // Black-box baseline on the same split (input: the recorded command, or the setpoint
-    // when the rig's own loop is replayed).
-    let (input, input_name) = match (opts.drive, &rec.reference) {
-        (d, Some(r)) if d.closed_loop() => (r.clone(), "ref"),
-        _ => (rec.u.clone(), "u"),
-    };
-    let baseline = crate::baseline::fit(rec, &input, n_fit, input_name);
-    let val_input = match (opts.drive, &val_rec.reference) {
-        (d, Some(r)) if d.closed_loop() => r.clone(),
-        _ => val_rec.u.clone(),
-    };
-    let nrmse_baseline = {
-        let ch = crate::baseline::score(&baseline, val_rec, &val_input, val_range.clone());
-        let v: Vec<f64> = ch.values().copied().collect();
-        Errors {
-            overall: overall(&v),
-            channels: ch,
-        }
-    };
+    let (baseline, nrmse_baseline) = fit_baseline(rec, val_rec, val_range.clone(), n_fit, opts);
     Ok(NominalPhase {
         ctx,
         n_fit,
@@ -475,6 +419,81 @@ fn phase_nominal<'a>(
         baseline,
         nrmse_baseline,
     })
+}
+
+/// The fitting part's length, the held-out record and its range, and the split's account:
+/// all of `rec` against `val`, or `rec`'s last `opts.holdout` held out (at least 10 samples
+/// on each side).
+fn split_data<'a>(
+    rec: &'a Record,
+    val: Option<&'a Record>,
+    opts: &Options,
+) -> Result<(usize, &'a Record, std::ops::Range<usize>, String), String> {
+    let n = rec.len();
+    Ok(match val {
+        Some(v) => (
+            n,
+            v,
+            0..v.len(),
+            format!(
+                "fit on {} ({} samples), validated on {} ({} samples)",
+                rec.source,
+                n,
+                v.source,
+                v.len()
+            ),
+        ),
+        None => {
+            let nf = ((1.0 - opts.holdout) * n as f64).round() as usize;
+            if nf < 10 || n - nf < 10 {
+                return Err(format!(
+                    "{}: {n} samples are too few to hold out {:.0} %",
+                    rec.source,
+                    opts.holdout * 100.0
+                ));
+            }
+            (nf, rec, nf..n, format!("first {nf} samples ({:.3} s) for fitting, last {} ({:.3} s) held out; the held-out part is replayed continuously from the start", nf as f64 * rec.dt, n - nf, (n - nf) as f64 * rec.dt))
+        }
+    })
+}
+
+/// The split's account once the configured step explains the data with drive `used`
+/// (configured: `configured`): it says so when the recorded command replaced the rig's loop.
+fn configured_step_split(split: String, configured: Drive, used: Drive) -> String {
+    match (configured, used) {
+        (a, Drive::Recorded) if a.closed_loop() => format!(
+            "{split}; the open-loop replay of the recorded command `u` reproduces the data at the config's own step, so it is used instead (the rig's loop acted on measured, noisy signals the closed-loop replay does not have)"
+        ),
+        _ => split,
+    }
+}
+
+/// Black-box baseline fitted on the first `n_fit` samples of `rec` and its held-out NRMSE on
+/// `val_range` of `val_rec` (input: the recorded command, or the setpoint when the rig's own
+/// loop is replayed).
+fn fit_baseline(
+    rec: &Record,
+    val_rec: &Record,
+    val_range: std::ops::Range<usize>,
+    n_fit: usize,
+    opts: &Options,
+) -> (Baseline, Errors) {
+    let (input, input_name) = match (opts.drive, &rec.reference) {
+        (d, Some(r)) if d.closed_loop() => (r.clone(), "ref"),
+        _ => (rec.u.clone(), "u"),
+    };
+    let baseline = crate::baseline::fit(rec, &input, n_fit, input_name);
+    let val_input = match (opts.drive, &val_rec.reference) {
+        (d, Some(r)) if d.closed_loop() => r.clone(),
+        _ => val_rec.u.clone(),
+    };
+    let ch = crate::baseline::score(&baseline, val_rec, &val_input, val_range);
+    let v: Vec<f64> = ch.values().copied().collect();
+    let nrmse_baseline = Errors {
+        overall: overall(&v),
+        channels: ch,
+    };
+    (baseline, nrmse_baseline)
 }
 
 /// The nominal model replayed at the config's own integration (no refinement: substeps as
@@ -1633,7 +1652,7 @@ fn at_bounds(h: &Hyp) -> Vec<String> {
 fn phase_report(
     nom: NominalPhase<'_>,
     rf: RefitPhase,
-    search: SearchPhase,
+    mut search: SearchPhase,
     resid: ResidualPhase,
     grey: GreyPhase,
     nominal: &PlantParams,
@@ -1643,134 +1662,60 @@ fn phase_report(
     loop_h: Option<&Hyp>,
 ) -> (Diagnosis, Option<(Hyp, f64, f64)>) {
     let ctx = &nom.ctx;
-    let SearchPhase {
-        current,
-        cur_train: _,
-        accepted,
-        candidates,
-        ambiguities,
-        rebased,
-        weak: _,
-    } = search;
     let ResidualPhase {
         ext_err,
         ext_val_sim,
         test: residual_test,
         cause,
     } = resid;
+    let current = &search.current;
     let extended = current.build(nominal);
     let ext_fit_sim = ctx.fit_replay(&current.build(&ctx.fit_base)).ok();
-    let sensor_offsets = if opts.sensor_offsets {
-        rec.channels
-            .iter()
-            .zip(&ext_val_sim.offsets)
-            .map(|(c, b)| (c.kind.column().to_string(), *b))
-            .collect()
-    } else {
-        BTreeMap::new()
-    };
+    let sensor_offsets = sensor_offsets(rec, &ext_val_sim, opts);
     let gain = 1.0 - ext_err.overall / nom.nom_err.overall;
-    let GreyPhase {
-        mut final_hyp,
-        greybox,
-        dropped,
-    } = grey;
-    let arx = nom.nrmse_baseline.overall;
     let Settled {
         cause,
         greybox,
         reidentified,
         beaten_by_baseline,
-    } = settle_cause(
-        &nom,
-        cause,
-        greybox,
-        &mut final_hyp,
-        &ext_err,
-        &accepted,
-        dropped.is_some(),
-        loop_h,
-        opts,
-    );
-    let (extended, ext_fit_sim, ext_val_sim) = if greybox.as_ref().is_some_and(|g| g.accepted) {
-        (
-            final_hyp.build(nominal),
-            ctx.fit_replay(&final_hyp.build(&ctx.fit_base)).ok(),
-            ctx.val_errors(&final_hyp).1,
-        )
+        final_hyp,
+        dropped,
+    } = settle_cause(&nom, cause, grey, &ext_err, &search.accepted, loop_h, opts);
+    let law_accepted = greybox.as_ref().is_some_and(|g| g.accepted);
+    let (extended, ext_fit_sim, ext_val_sim) = if law_accepted {
+        final_models(ctx, nominal, &final_hyp)
     } else {
         (extended, ext_fit_sim, ext_val_sim)
     };
-    let mut cands: Vec<Candidate> = candidates.into_values().collect();
-    cands.sort_by(|a, b| {
-        b.accepted
-            .cmp(&a.accepted)
-            .then(a.score.total_cmp(&b.score))
-    });
+    let cands = ranked(std::mem::take(&mut search.candidates));
     let refit_at_bounds = at_bounds(&rf.h0);
-    let extended_at_bounds = at_bounds(&current);
-    let summary = opening_summary(
+    let extended_at_bounds = at_bounds(&search.current);
+    let summary = write_summary(
         &nom,
         &rf,
-        &accepted,
+        &search,
         &cands,
         &ext_err,
         gain,
-        &ambiguities,
-        &rebased,
-    );
-    let mut summary = with_residual_sentence(
-        summary,
         &residual_test,
-        &accepted,
         &cause,
         greybox.as_ref(),
-        &rf,
-        &nom,
-    );
-    closing_sentences(
-        &mut summary,
         dropped.as_ref(),
         beaten_by_baseline,
-        &ext_err,
-        greybox.as_ref(),
-        arx,
         &extended_at_bounds,
     );
-    // The records' own warnings (the held-out record's when it is another file), then the
-    // integration check's.
-    let warnings: Vec<String> = rec
-        .warnings
-        .iter()
-        .chain(if val.is_some() {
-            nom.val_rec.warnings.iter()
-        } else {
-            [].iter()
-        })
-        .cloned()
-        .chain(integration_warning(&nom.integration))
-        .collect();
+    let warnings = record_warnings(rec, val, &nom);
     let traces = Traces {
         nominal: Some(nom.nom_sim),
         extended: ext_fit_sim,
-        validation: if val.is_some() {
-            Some((nom.nom_val_sim, ext_val_sim))
-        } else {
-            None
-        },
+        validation: val.map(|_| (nom.nom_val_sim, ext_val_sim)),
         split_index: nom.n_fit,
     };
-    let variants = current
-        .effects
-        .iter()
-        .zip(&current.variants)
-        .map(|(e, v)| (e.as_str().to_string(), v.to_string()))
-        .collect();
     (
         Diagnosis {
             cause,
-            causes: accepted.iter().map(|e| e.as_str().to_string()).collect(),
-            variants,
+            causes: ids(&search.accepted),
+            variants: variants_of(&search.current),
             nrmse_nominal: nom.nom_err,
             nrmse_refit: rf.refit_err,
             nrmse_extended: ext_err,
@@ -1782,18 +1727,13 @@ fn phase_report(
             gain,
             noise_floor: rf.noise_floor,
             candidates: cands,
-            extended_params: final_hyp
-                .params
-                .iter()
-                .zip(&final_hyp.values)
-                .map(|(p, v)| (p.name.clone(), *v))
-                .collect(),
+            extended_params: params_of(&final_hyp),
             identified_loop: None,
             refit_at_bounds,
             extended_at_bounds,
             sensor_offsets,
-            ambiguities,
-            refit_continued: rebased,
+            ambiguities: search.ambiguities,
+            refit_continued: search.rebased,
             dropped_effects: dropped,
             beaten_by_baseline,
             warnings,
@@ -1806,6 +1746,130 @@ fn phase_report(
         },
         reidentified,
     )
+}
+
+/// The extended plant parameters of `h`, its replay of the fitting record and its held-out
+/// replay.
+fn final_models(
+    ctx: &Ctx<'_>,
+    nominal: &PlantParams,
+    h: &Hyp,
+) -> (PlantParams, Option<Replay>, Replay) {
+    (
+        h.build(nominal),
+        ctx.fit_replay(&h.build(&ctx.fit_base)).ok(),
+        ctx.val_errors(h).1,
+    )
+}
+
+/// The ids of `effects`, in order.
+fn ids(effects: &[EffectId]) -> Vec<String> {
+    effects.iter().map(|e| e.as_str().to_string()).collect()
+}
+
+/// Sensor offsets of replay `sim` per channel column (SI unit of each channel); empty when
+/// `opts.sensor_offsets` is off.
+fn sensor_offsets(rec: &Record, sim: &Replay, opts: &Options) -> BTreeMap<String, f64> {
+    if opts.sensor_offsets {
+        rec.channels
+            .iter()
+            .zip(&sim.offsets)
+            .map(|(c, b)| (c.kind.column().to_string(), *b))
+            .collect()
+    } else {
+        BTreeMap::new()
+    }
+}
+
+/// The tested candidates, the accepted ones first, each group by ascending score.
+fn ranked(candidates: BTreeMap<EffectId, Candidate>) -> Vec<Candidate> {
+    let mut cands: Vec<Candidate> = candidates.into_values().collect();
+    cands.sort_by(|a, b| {
+        b.accepted
+            .cmp(&a.accepted)
+            .then(a.score.total_cmp(&b.score))
+    });
+    cands
+}
+
+/// The whole summary: its opening, the residual test's sentence, the closing sentences.
+#[allow(clippy::too_many_arguments)]
+fn write_summary(
+    nom: &NominalPhase<'_>,
+    rf: &RefitPhase,
+    search: &SearchPhase,
+    cands: &[Candidate],
+    ext_err: &Errors,
+    gain: f64,
+    residual_test: &crate::residual::ResidualTest,
+    cause: &str,
+    greybox: Option<&crate::greybox::GreyBox>,
+    dropped: Option<&DroppedEffects>,
+    beaten_by_baseline: bool,
+    extended_at_bounds: &[String],
+) -> String {
+    let summary = opening_summary(
+        nom,
+        rf,
+        &search.accepted,
+        cands,
+        ext_err,
+        gain,
+        &search.ambiguities,
+        &search.rebased,
+    );
+    let mut summary = with_residual_sentence(
+        summary,
+        residual_test,
+        &search.accepted,
+        cause,
+        greybox,
+        rf,
+        nom,
+    );
+    closing_sentences(
+        &mut summary,
+        dropped,
+        beaten_by_baseline,
+        ext_err,
+        greybox,
+        nom.nrmse_baseline.overall,
+        extended_at_bounds,
+    );
+    summary
+}
+
+/// The records' own warnings (the held-out record's when it is another file), then the
+/// integration check's.
+fn record_warnings(rec: &Record, val: Option<&Record>, nom: &NominalPhase<'_>) -> Vec<String> {
+    rec.warnings
+        .iter()
+        .chain(if val.is_some() {
+            nom.val_rec.warnings.iter()
+        } else {
+            [].iter()
+        })
+        .cloned()
+        .chain(integration_warning(&nom.integration))
+        .collect()
+}
+
+/// Structural variant of each effect of `h` (effect id → variant).
+fn variants_of(h: &Hyp) -> BTreeMap<String, String> {
+    h.effects
+        .iter()
+        .zip(&h.variants)
+        .map(|(e, v)| (e.as_str().to_string(), v.to_string()))
+        .collect()
+}
+
+/// Parameters of `h` (dotted path → value).
+fn params_of(h: &Hyp) -> BTreeMap<String, f64> {
+    h.params
+        .iter()
+        .zip(&h.values)
+        .map(|(p, v)| (p.name.clone(), *v))
+        .collect()
 }
 
 /// The summary's opening: the configured-step shortcut's `none`, or the search's account of
@@ -1934,25 +1998,32 @@ struct Settled {
     reidentified: Option<(Hyp, f64, f64)>,
     /// Neither the catalogue model nor the law predicts the held-out part as well as ARX.
     beaten_by_baseline: bool,
+    /// The recommended model's hypothesis (the grey-box phase's, plus the loop identified
+    /// again when `reidentified`).
+    final_hyp: Hyp,
+    /// The grey-box phase's dropped catalogue effects.
+    dropped: Option<DroppedEffects>,
 }
 
-/// Settles the cause of the residual test (`cause`) against the grey-box phase: an accepted
-/// law that beats the catalogue model names it; with an identified loop (`loop_h`) the loop
-/// is identified again with the law in place (the law's load slows the valve's flow) and
-/// `final_hyp` gains it; a catalogue model that loses to ARX (or whose effects were
-/// `dropped`) with no law beating ARX either is `unexplained`.
-#[allow(clippy::too_many_arguments)]
+/// Settles the cause of the residual test (`cause`) against the grey-box phase `grey`: an
+/// accepted law that beats the catalogue model names it; with an identified loop (`loop_h`)
+/// the loop is identified again with the law in place (the law's load slows the valve's flow)
+/// and the final hypothesis gains it; a catalogue model that loses to ARX (or whose effects
+/// were dropped) with no law beating ARX either is `unexplained`.
 fn settle_cause(
     nom: &NominalPhase<'_>,
     cause: String,
-    greybox: Option<crate::greybox::GreyBox>,
-    final_hyp: &mut Hyp,
+    grey: GreyPhase,
     ext_err: &Errors,
     accepted: &[EffectId],
-    dropped: bool,
     loop_h: Option<&Hyp>,
     opts: &Options,
 ) -> Settled {
+    let GreyPhase {
+        mut final_hyp,
+        greybox,
+        dropped,
+    } = grey;
     // A grey-box law that carries the gain (its held-out error below the catalogue model's) is
     // the cause, named in physical terms, not `unexplained`.
     let cause = match greybox.as_ref() {
@@ -1971,11 +2042,11 @@ fn settle_cause(
     let mut reidentified = None;
     if let (Some(lh), Some(g)) = (loop_h, greybox.as_mut().filter(|g| g.accepted)) {
         if let Some((h, before, after)) =
-            crate::loopid::reidentify(&nom.ctx, final_hyp, lh, opts.evals_per_param)
+            crate::loopid::reidentify(&nom.ctx, &final_hyp, lh, opts.evals_per_param)
         {
             final_hyp.params.extend(h.params.iter().cloned());
             final_hyp.values.extend(h.values.iter().copied());
-            g.nrmse_validation = nom.ctx.val_errors(final_hyp).0;
+            g.nrmse_validation = nom.ctx.val_errors(&final_hyp).0;
             g.ratio_to_baseline = g.nrmse_validation.overall / nom.nrmse_baseline.overall;
             reidentified = Some((h, before, after));
         }
@@ -1987,7 +2058,7 @@ fn settle_cause(
         .as_ref()
         .filter(|g| g.accepted)
         .map_or(ext_err.overall, |g| g.nrmse_validation.overall);
-    let catalogue_beaten = dropped || (!accepted.is_empty() && ext_err.overall > arx);
+    let catalogue_beaten = dropped.is_some() || (!accepted.is_empty() && ext_err.overall > arx);
     let beaten_by_baseline = catalogue_beaten && best > arx;
     let cause = if beaten_by_baseline {
         "unexplained".to_string()
@@ -1999,6 +2070,8 @@ fn settle_cause(
         greybox,
         reidentified,
         beaten_by_baseline,
+        final_hyp,
+        dropped,
     }
 }
 

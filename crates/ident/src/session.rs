@@ -213,85 +213,13 @@ pub fn run(
     out: Option<&Path>,
     choices: RunChoices,
 ) -> Result<DiagnoseRun, SessionError> {
-    let load = |p: &Path| -> Result<data::Record, SessionError> {
-        let r = load_checked(cfg, p)?;
-        if r.imposed_motion() {
-            return Err(SessionError::Input(format!(
-                "{}: a displacement-controlled record (x and force, no `u` or `ref`) is diagnosed as a campaign: the measured motion drives the rod and the load law is fitted (`ehactl diagnose` does this for such a record, or for several --data)",
-                r.source
-            )));
-        }
-        Ok(r)
-    };
-    if let Some(v) = validate.filter(|v| crate::outdir::same_file(v, data_path)) {
-        return Err(SessionError::Input(format!(
-            "--validate {}: is the same file as --data {}; the held-out record must be another recording (or leave --validate out to hold out the last 30 % of --data)",
-            v.display(),
-            data_path.display()
-        )));
-    }
-    if let Some(dir) = out {
-        let mut inputs = vec![("--data file", data_path)];
-        inputs.extend(validate.map(|v| ("--validate file", v)));
-        inputs.extend(
-            choices
-                .config_path
-                .as_deref()
-                .map(|c| ("--config being run", c)),
-        );
-        crate::outdir::check(dir, &inputs, choices.force).map_err(SessionError::Input)?;
-    }
-    let rec = load(data_path)?;
-    let val = validate.map(load).transpose()?;
-    let mut mismatch = Vec::new();
-    for r in std::iter::once(&rec).chain(val.as_ref()) {
-        let Some(logged) = &r.logged_config else {
-            continue;
-        };
-        let diff = config_mismatch(cfg, logged);
-        if diff.is_empty() {
-            continue;
-        }
-        let what = format!(
-            "{}: logged with a config that differs from --config {config_label} in what the diagnosis takes as known (another rig, or the config changed since): {}",
-            r.source,
-            diff.join("; ")
-        );
-        if !choices.allow_config_mismatch {
-            return Err(SessionError::Input(format!(
-                "{what}; diagnose it against the config it was logged with, or add --allow-config-mismatch if the rig really is the one --config describes"
-            )));
-        }
-        mismatch.push(format!("{what} (accepted by --allow-config-mismatch)"));
-    }
-    // Long records take minutes; say so at once instead of going silent (a front end's
-    // progress bar is hidden when stderr is not a terminal). Figure: 50 000 samples of the
-    // 5 kHz bench record take ≈ 21 s on 2 idle cores (BENCHMARKS.md, bench/diagnose_bench.sh).
-    let n_total = rec.t.len() + val.as_ref().map_or(0, |v| v.t.len());
-    if n_total > 50_000 {
-        eprintln!(
-            "ehactl: note: {n_total} samples to replay per candidate model; expect about {:.0} s or more on 2 cores (fits use the first {} samples of the fitting part, scoring uses all held-out samples)",
-            21.0 * n_total as f64 / 50_000.0,
-            crate::diagnose::Options::default().max_fit_samples
-        );
-    }
+    check_paths(data_path, validate, out, &choices)?;
+    let rec = load_single(cfg, data_path)?;
+    let val = validate.map(|p| load_single(cfg, p)).transpose()?;
+    let mismatch = logged_config_mismatches(cfg, config_label, &rec, val.as_ref(), &choices)?;
+    note_long_records(&rec, val.as_ref());
     if let Some(v) = &val {
-        let a: Vec<_> = rec.channels.iter().map(|c| c.kind).collect();
-        let b: Vec<_> = v.channels.iter().map(|c| c.kind).collect();
-        if a != b {
-            return Err(SessionError::Input(format!(
-                "{}: channels [{}] differ from the data file's [{}]; the validation file must have the same output columns",
-                v.source,
-                b.iter().map(|k| k.column()).collect::<Vec<_>>().join(", "),
-                a.iter().map(|k| k.column()).collect::<Vec<_>>().join(", ")
-            )));
-        }
-        if (v.dt - rec.dt).abs() > 1e-6 * rec.dt {
-            return Err(SessionError::Input(format!(
-                "{}: sample period {} s differs from the data file's {} s",
-                v.source, v.dt, rec.dt
-            )));
-        }
+        check_validation_record(&rec, v)?;
     }
     let mut notes = Vec::new();
     let (drive, note) = drive_for(cfg, &rec);
@@ -327,24 +255,7 @@ pub fn run(
         }
         None => None,
     };
-    let path = |p: &PathBuf| Value::from(p.display().to_string());
-    let mut json = serde_json::to_value(&d).unwrap_or_default();
-    json["extended_config"] = files
-        .as_ref()
-        .map_or(Value::Null, |f| path(&f.extended_config));
-    json["report"] = files.as_ref().map_or(Value::Null, |f| path(&f.report));
-    json["plots"] = files.as_ref().map_or(Value::Null, |f| {
-        Value::from(f.plots.iter().map(path).collect::<Vec<_>>())
-    });
-    json["warnings"] = Value::from(warnings.clone());
-    let (model, errors) = report::recommended(&d);
-    json["recommended"] = serde_json::json!({
-        "model": model,
-        "nrmse": errors,
-        "nominal": d.nrmse_nominal,
-        "arx": d.nrmse_baseline,
-    });
-    json["headline"] = Value::from(report::headline(&d));
+    let json = run_json(&d, files.as_ref(), &warnings);
     Ok(DiagnoseRun {
         diagnosis: d,
         json,
@@ -352,6 +263,138 @@ pub fn run(
         notes,
         files,
     })
+}
+
+/// Refuses a `validate` file that is `data_path` itself, and an output directory `out` that
+/// would write over an input or over files diagnose did not write ([`crate::outdir::check`]).
+fn check_paths(
+    data_path: &Path,
+    validate: Option<&Path>,
+    out: Option<&Path>,
+    choices: &RunChoices,
+) -> Result<(), SessionError> {
+    if let Some(v) = validate.filter(|v| crate::outdir::same_file(v, data_path)) {
+        return Err(SessionError::Input(format!(
+            "--validate {}: is the same file as --data {}; the held-out record must be another recording (or leave --validate out to hold out the last 30 % of --data)",
+            v.display(),
+            data_path.display()
+        )));
+    }
+    if let Some(dir) = out {
+        let mut inputs = vec![("--data file", data_path)];
+        inputs.extend(validate.map(|v| ("--validate file", v)));
+        inputs.extend(
+            choices
+                .config_path
+                .as_deref()
+                .map(|c| ("--config being run", c)),
+        );
+        crate::outdir::check(dir, &inputs, choices.force).map_err(SessionError::Input)?;
+    }
+    Ok(())
+}
+
+/// [`load_checked`], refusing a displacement-controlled record (diagnosed as a campaign).
+fn load_single(cfg: &RigConfig, p: &Path) -> Result<data::Record, SessionError> {
+    let r = load_checked(cfg, p)?;
+    if r.imposed_motion() {
+        return Err(SessionError::Input(format!(
+            "{}: a displacement-controlled record (x and force, no `u` or `ref`) is diagnosed as a campaign: the measured motion drives the rod and the load law is fitted (`ehactl diagnose` does this for such a record, or for several --data)",
+            r.source
+        )));
+    }
+    Ok(r)
+}
+
+/// One warning per MCAP record logged with a config that differs from `cfg` in what the
+/// diagnosis takes as known ([`config_mismatch`]); an error unless
+/// `choices.allow_config_mismatch`.
+fn logged_config_mismatches(
+    cfg: &RigConfig,
+    config_label: &str,
+    rec: &data::Record,
+    val: Option<&data::Record>,
+    choices: &RunChoices,
+) -> Result<Vec<String>, SessionError> {
+    let mut mismatch = Vec::new();
+    for r in std::iter::once(rec).chain(val) {
+        let Some(logged) = &r.logged_config else {
+            continue;
+        };
+        let diff = config_mismatch(cfg, logged);
+        if diff.is_empty() {
+            continue;
+        }
+        let what = format!(
+            "{}: logged with a config that differs from --config {config_label} in what the diagnosis takes as known (another rig, or the config changed since): {}",
+            r.source,
+            diff.join("; ")
+        );
+        if !choices.allow_config_mismatch {
+            return Err(SessionError::Input(format!(
+                "{what}; diagnose it against the config it was logged with, or add --allow-config-mismatch if the rig really is the one --config describes"
+            )));
+        }
+        mismatch.push(format!("{what} (accepted by --allow-config-mismatch)"));
+    }
+    Ok(mismatch)
+}
+
+/// Long records take minutes; say so at once instead of going silent (a front end's
+/// progress bar is hidden when stderr is not a terminal). Figure: 50 000 samples of the
+/// 5 kHz bench record take ≈ 21 s on 2 idle cores (BENCHMARKS.md, bench/diagnose_bench.sh).
+fn note_long_records(rec: &data::Record, val: Option<&data::Record>) {
+    let n_total = rec.t.len() + val.map_or(0, |v| v.t.len());
+    if n_total > 50_000 {
+        eprintln!(
+            "ehactl: note: {n_total} samples to replay per candidate model; expect about {:.0} s or more on 2 cores (fits use the first {} samples of the fitting part, scoring uses all held-out samples)",
+            21.0 * n_total as f64 / 50_000.0,
+            crate::diagnose::Options::default().max_fit_samples
+        );
+    }
+}
+
+/// Refuses a validation record `v` whose output channels or sample period differ from `rec`'s.
+fn check_validation_record(rec: &data::Record, v: &data::Record) -> Result<(), SessionError> {
+    let a: Vec<_> = rec.channels.iter().map(|c| c.kind).collect();
+    let b: Vec<_> = v.channels.iter().map(|c| c.kind).collect();
+    if a != b {
+        return Err(SessionError::Input(format!(
+            "{}: channels [{}] differ from the data file's [{}]; the validation file must have the same output columns",
+            v.source,
+            b.iter().map(|k| k.column()).collect::<Vec<_>>().join(", "),
+            a.iter().map(|k| k.column()).collect::<Vec<_>>().join(", ")
+        )));
+    }
+    if (v.dt - rec.dt).abs() > 1e-6 * rec.dt {
+        return Err(SessionError::Input(format!(
+            "{}: sample period {} s differs from the data file's {} s",
+            v.source, v.dt, rec.dt
+        )));
+    }
+    Ok(())
+}
+
+/// The `--json` object of diagnosis `d`: the diagnosis plus the written `files`' paths, the
+/// `warnings`, the recommended model and the headline.
+fn run_json(d: &Diagnosis, files: Option<&report::ReportFiles>, warnings: &[String]) -> Value {
+    let path = |p: &PathBuf| Value::from(p.display().to_string());
+    let mut json = serde_json::to_value(d).unwrap_or_default();
+    json["extended_config"] = files.map_or(Value::Null, |f| path(&f.extended_config));
+    json["report"] = files.map_or(Value::Null, |f| path(&f.report));
+    json["plots"] = files.map_or(Value::Null, |f| {
+        Value::from(f.plots.iter().map(path).collect::<Vec<_>>())
+    });
+    json["warnings"] = Value::from(warnings.to_vec());
+    let (model, errors) = report::recommended(d);
+    json["recommended"] = serde_json::json!({
+        "model": model,
+        "nrmse": errors,
+        "nominal": d.nrmse_nominal,
+        "arx": d.nrmse_baseline,
+    });
+    json["headline"] = Value::from(report::headline(d));
+    json
 }
 
 #[cfg(test)]
