@@ -164,11 +164,7 @@ impl BulkStage for BulkModulus {
 mod tests {
     use super::*;
 
-    const SETUP: Setup = Setup {
-        control_dt: 1e-3,
-        supply_pressure: 20e6,
-        bulk_modulus: 1.5e9,
-    };
+    const SETUP: Setup = Setup::TEST;
 
     fn section(variant: BulkVariant) -> BulkModulusPressure {
         BulkModulusPressure {

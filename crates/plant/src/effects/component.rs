@@ -32,6 +32,17 @@ pub struct Setup {
     pub bulk_modulus: f64,
 }
 
+impl Setup {
+    /// The setup the components' unit tests configure against: a 1 kHz control period, a
+    /// 20 MPa supply and β₀ = 1.5 GPa.
+    #[cfg(test)]
+    pub(crate) const TEST: Setup = Setup {
+        control_dt: 1e-3,
+        supply_pressure: 20e6,
+        bulk_modulus: 1.5e9,
+    };
+}
+
 /// A catalogue effect on the plant side.
 pub trait Component: Sized {
     /// Its config section `[effects.<id>]` (the `#[param]` declarations, in the same module).

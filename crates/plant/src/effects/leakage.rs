@@ -155,11 +155,7 @@ impl FlowStage for ToTank {
 mod tests {
     use super::*;
 
-    const SETUP: Setup = Setup {
-        control_dt: 1e-3,
-        supply_pressure: 20e6,
-        bulk_modulus: 1.5e9,
-    };
+    const SETUP: Setup = Setup::TEST;
 
     /// `got` equals `want` to rounding (1e-12 relative), per component.
     fn close(got: (f64, f64), want: (f64, f64)) {
