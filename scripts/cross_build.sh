@@ -14,7 +14,12 @@
 #      EHACTL_SKIP_LOG=FILE: a skip appends its reason there (test_all.sh lists them at its end);
 #      CROSS_SETUP_ONLY=1 to install the toolchain (rustup targets, Zig, cargo-zigbuild) and stop,
 #      status 3 if it skipped (test_all.sh: before the build, both in the background);
-#      CARGO_TARGET_DIR=DIR builds there (default target/): the binaries are DIR/TARGET/release/ehactl.
+#      CARGO_TARGET_DIR=DIR builds there (default target/): the binaries are DIR/TARGET/release/ehactl;
+#      CROSS_DIAGNOSIS=1 builds the full binary (with `diagnose` / `predict`) instead of the
+#      controller build (`--no-default-features`, DEPLOY.md §2).
+# The controller build leaves the diagnosis crate out (no plotting, FFT or MCAP reading on the
+# board); for armv7 that crate is still type-checked (`cargo-zigbuild check`), so code that
+# assumes a 64-bit usize fails here as before, at a fraction of a code-generation's cost.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 GLIBC="${GLIBC:-2.31}"
@@ -57,8 +62,21 @@ tdir="${CARGO_TARGET_DIR:-target}"
 # which run on this machine, are compiled once for all of them.
 target_args=()
 for t in "${targets[@]}"; do target_args+=(--target "$t.$GLIBC"); done
-echo "== cross-building ehactl for ${targets[*]} (glibc $GLIBC)"
-cargo zigbuild --release -p ehactl-cli "${target_args[@]}"
+features=(--no-default-features)
+what="controller build, no diagnosis"
+if [ "${CROSS_DIAGNOSIS:-0}" = 1 ]; then features=(); what="full build, with the diagnosis"; fi
+echo "== cross-building ehactl for ${targets[*]} (glibc $GLIBC; $what)"
+cargo zigbuild --release -p ehactl-cli "${features[@]}" "${target_args[@]}"
+if [ "${CROSS_DIAGNOSIS:-0}" != 1 ]; then
+  for t in "${targets[@]}"; do
+    case "$t" in
+      armv7-*)
+        echo "== type-checking the diagnosis crate (ehactl-ident) for $t (32-bit usize)"
+        # `cargo-zigbuild check`, not `cargo zigbuild check` (no such cargo subcommand form).
+        cargo-zigbuild check --release -p ehactl-ident --target "$t.$GLIBC" ;;
+    esac
+  done
+fi
 for t in "${targets[@]}"; do
   bin="$tdir/$t/release/ehactl"
   # Check the result is an ELF executable for the right machine (e_machine field).

@@ -23,7 +23,11 @@
 # Env: EHACTL_REQUIRE_QEMU=1 to fail (not skip) when qemu or the binary is missing;
 #      QEMU_DURATION to shorten the run (s); EHACTL_SKIP_LOG=FILE: a skip appends its reason
 #      there (scripts/test_all.sh lists them at its end); CARGO_TARGET_DIR=DIR where
-#      cross_build.sh built (default target/): the ARM binaries are DIR/TARGET/release/ehactl.
+#      cross_build.sh built (default target/): the ARM binaries are DIR/TARGET/release/ehactl;
+#      QEMU_INSTALL_ONLY=1 to install the missing packages (as allowed above) and stop, status 1
+#      if that was refused or failed (scripts/test_all.sh: in the background, early);
+#      CROSS_DIAGNOSIS=1 when cross_build.sh built the full binary (else the controller build
+#      must refuse `diagnose` with exit 2).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 targets=("$@")
@@ -32,6 +36,8 @@ config=configs/sahu2022_force.toml
 native=target/release/ehactl
 
 skip() {
+  # QEMU_INSTALL_ONLY: the caller runs the real step later and logs the skip then.
+  [ "${QEMU_INSTALL_ONLY:-0}" != 1 ] || { echo "qemu_run: install step: $*" >&2; exit 1; }
   if [ "${EHACTL_REQUIRE_QEMU:-0}" = 1 ]; then
     echo "qemu_run: FAILED: $*" >&2
     exit 1
@@ -41,7 +47,6 @@ skip() {
   exit 0
 }
 
-[ -x "$native" ] || skip "$native not built (cargo build --release -p ehactl-cli)"
 pkgs=(qemu-user)
 for t in "${targets[@]}"; do
   case "$t" in
@@ -69,6 +74,8 @@ if [ ${#missing[@]} -gt 0 ]; then
   { $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq \
       --no-install-recommends "${missing[@]}" >/dev/null; } || skip "apt-get install ${missing[*]} failed"
 fi
+[ "${QEMU_INSTALL_ONLY:-0}" != 1 ] || exit 0
+[ -x "$native" ] || skip "$native not built (cargo build --release -p ehactl-cli)"
 
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
@@ -84,6 +91,16 @@ for t in "${targets[@]}"; do
   bin="${CARGO_TARGET_DIR:-target}/$t/release/ehactl"
   [ -x "$bin" ] || skip "$bin not built (scripts/cross_build.sh $t)"
   command -v "$qemu" >/dev/null || skip "$qemu not found"
+  if [ "${CROSS_DIAGNOSIS:-0}" != 1 ]; then
+    # The controller build (cross_build.sh) has no diagnosis: it must say so, exit 2.
+    set +e
+    msg=$("$qemu" -L "$sysroot" "$bin" diagnose --config "$config" --data none.csv 2>&1)
+    rc=$?
+    set -e
+    [ "$rc" = 2 ] && grep -q "built without the diagnosis" <<<"$msg" || {
+      echo "qemu_run: $t: the controller build's \`diagnose\` gave exit $rc: $msg" >&2; exit 1; }
+    echo "== $t: controller build, \`diagnose\` refused as documented (exit 2)"
+  fi
   echo "== $t under $qemu (user-mode emulation): ehactl run $config ${dur[*]}"
   start=$(date +%s.%N)
   "$qemu" -L "$sysroot" "$bin" run "$config" "${dur[@]}" --out "$out/$t.mcap" --json >"$out/$t.json"

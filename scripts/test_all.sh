@@ -46,7 +46,32 @@ finish() {
     echo "   (the background cross-build was stopped; its output so far:)"
     sed 's/^/   /' "$cross_log"
   fi
-  rm -f "$EHACTL_SKIP_LOG" "$counts" "$counts".* "${cross_log:-}" "${cross_ready:-}"
+  # The other background jobs: the pip/npm one is stopped; an apt-get one is waited for
+  # (stopping apt-get in the middle of an install can leave dpkg half-configured).
+  if [ -n "${bg_pid[pydeps]:-}" ]; then
+    pkill -P "${bg_pid[pydeps]}" 2>/dev/null || true
+    kill "${bg_pid[pydeps]}" 2>/dev/null || true
+  fi
+  if [ -n "${bg_pid[qemu_apt]:-}" ]; then wait "${bg_pid[qemu_apt]}" 2>/dev/null || true; fi
+  rm -f "$EHACTL_SKIP_LOG" "$counts" "$counts".* "${cross_log:-}" "${cross_ready:-}" "${bg_log[@]}"
+}
+# Steps that only wait for the network (apt-get, pip, npm) run in the background beside the
+# builds: `background NAME CMD…` starts one (its output into a file), `await NAME` waits for
+# it, prints that output and fails the suite if it failed.
+declare -A bg_pid=() bg_log=()
+background() {
+  local name=$1; shift
+  bg_log[$name]="$(mktemp)"
+  "$@" >"${bg_log[$name]}" 2>&1 </dev/null &
+  bg_pid[$name]=$!
+}
+await() {
+  local name=$1 rc=0
+  [ -n "${bg_pid[$name]:-}" ] || return 0
+  wait "${bg_pid[$name]}" || rc=$?
+  bg_pid[$name]=""
+  sed 's/^/   /' "${bg_log[$name]}"
+  return $rc
 }
 trap finish EXIT
 # A step's heading with the time since the start, so that a run shows where its minutes go.
@@ -66,6 +91,8 @@ if command -v node >/dev/null && command -v npm >/dev/null; then
 else
   echo "   Node.js/npm not found: the @mcap/core cross-check is skipped (Debian: nodejs npm)"
 fi
+# The ARM targets of the cross-builds (and their QEMU runs).
+cross_targets=(aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf)
 qemu_pkgs=(qemu-user libc6-arm64-cross libgcc-s1-arm64-cross libc6-armhf-cross libgcc-s1-armhf-cross)
 missing=()
 if command -v dpkg-query >/dev/null; then
@@ -132,7 +159,6 @@ export VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH"
 # steps leave idle (a test waiting on a subprocess, a single-threaded link) instead of a
 # step of their own (5 min 40 s on an idle 2-core machine when they ran alone). Their output
 # is printed in one piece when the foreground is done; the QEMU step runs after them.
-cross_targets=(aarch64-unknown-linux-gnu armv7-unknown-linux-gnueabihf)
 # rustup is not safe to run twice at once on one toolchain: the foreground's components first.
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
 cross_log="$(mktemp)"
@@ -156,6 +182,25 @@ command -v setsid >/dev/null || own_group=()
   echo "== [$(( $(date +%s) - EHACTL_T0 )) s] cross-build done"
 ' cross_build "${cross_targets[@]}" >"$cross_log" 2>&1 </dev/null &
 cross_pid=$!
+# QEMU and the ARM C libraries (apt-get, when allowed above) are installed now, beside the
+# builds; the QEMU step at the end waits for it (and, if it failed, tries once more and says
+# what it skipped).
+if [ ${#missing[@]} -gt 0 ] && [ "$EHACTL_APT" = 1 ]; then
+  step "installing ${missing[*]} with apt-get, in the background"
+  background qemu_apt env QEMU_INSTALL_ONLY=1 scripts/qemu_run.sh "${cross_targets[@]}"
+fi
+# The Python test dependencies (pip, npm) in the background too, once the cross-build's
+# toolchain install is done with the environment: never two pip runs in one at once.
+python_test_deps() {
+  while [ ! -e "$cross_ready" ] && kill -0 "$cross_pid" 2>/dev/null; do sleep 1; done
+  # both lists: tests/python also runs the docs' Python snippets (pandas, Dask, tqdm)
+  "$PY" -m pip install --quiet -r tests/python/requirements.txt \
+    -r bindings/python/requirements-test.txt || return 1
+  if command -v npm >/dev/null; then
+    (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; }) || return 1
+  fi
+}
+background pydeps python_test_deps
 
 step "formatting and lints (rustfmt, clippy with warnings as errors)"
 cargo fmt --all --check
@@ -193,15 +238,8 @@ awk '/^test result:/ {p += $4; f += $6; i += $8; n++} END {printf "Rust: %d test
 rm -f "$counts.rust"
 disk
 step "Python test dependencies and lint (into $VENV)"
-# The background cross-build installs Zig and cargo-zigbuild into the same environment first:
-# never two pip runs in one environment at once.
-while [ ! -e "$cross_ready" ] && kill -0 "$cross_pid" 2>/dev/null; do sleep 1; done
-# both lists now: tests/python also runs the docs' Python snippets (pandas, Dask, tqdm)
-"$PY" -m pip install --quiet -r tests/python/requirements.txt -r bindings/python/requirements-test.txt
+await pydeps || { echo "error: installing the Python test dependencies failed (output above)" >&2; exit 1; }
 "$PY" -m ruff check
-if command -v npm >/dev/null; then
-  (cd tests/node && { [ -d node_modules ] || npm ci --no-audit --no-fund --silent; })
-fi
 step "Python bindings (pyo3 + maturin) with the simulated CANopen devices (python -m ehactl.devices): build, install into $VENV"
 "$PY" -m pip install --quiet "./bindings/python[devices]"
 step "Python tests"
@@ -221,4 +259,5 @@ sed 's/^/   /' "$cross_log"
 [ $cross_rc = 0 ] || { echo "error: the cross-build failed (exit $cross_rc), its output is above" >&2; exit 1; }
 disk
 step "cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
+await qemu_apt || echo "   the background apt-get install failed (above): the QEMU step tries once more"
 CARGO_TARGET_DIR=target/cross scripts/qemu_run.sh "${cross_targets[@]}"

@@ -11,6 +11,7 @@ mod analysis_cmd;
 mod canbus;
 
 use canbus::HalKind;
+#[cfg(feature = "diagnosis")]
 mod diagnose;
 mod live;
 mod live_front;
@@ -555,6 +556,7 @@ fn main() -> ExitCode {
         Command::Analyze { config, json } => analysis_cmd::analyze(&config, json),
         Command::Sweep(args) => analysis_cmd::sweep(&args),
         Command::Canbus { command } => canbus::run(command),
+        #[cfg(feature = "diagnosis")]
         Command::Diagnose {
             config,
             data,
@@ -576,6 +578,7 @@ fn main() -> ExitCode {
                 allow_config_mismatch,
             },
         ),
+        #[cfg(feature = "diagnosis")]
         Command::Predict {
             config,
             data,
@@ -595,6 +598,8 @@ fn main() -> ExitCode {
             },
             out.as_deref(),
         ),
+        #[cfg(not(feature = "diagnosis"))]
+        Command::Diagnose { .. } | Command::Predict { .. } => without_diagnosis(),
         Command::Params => {
             for table in registries() {
                 for p in table {
@@ -604,6 +609,18 @@ fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
     }
+}
+
+/// `diagnose` / `predict` in a controller build (`--no-default-features`): exit 2 with the
+/// reason and the remedy, never a silent no-op.
+#[cfg(not(feature = "diagnosis"))]
+fn without_diagnosis() -> ExitCode {
+    eprintln!(
+        "error: this ehactl was built without the diagnosis (cargo feature `diagnosis`, left \
+         out of the controller build for an embedded target); run `diagnose` / `predict` on \
+         a workstation build, or rebuild with `--features diagnosis`"
+    );
+    ExitCode::from(2)
 }
 
 fn cmd_set(socket: &Path, assignments: &[String]) -> ExitCode {
