@@ -1,30 +1,57 @@
 //! [`CanopenHal`]: the `Hal` of a CAN rig with a CiA 406 position transducer and a CiA 408
 //! valve (Dindorf 2022's boom: magnetostrictive transducer + 4WRSE OBE).
 //!
+//! Lifecycle (the states of [`Hal`]; the start-up steps are [`crate::startup`]):
+//! - [`CanopenHal::new`] / [`CanopenHal::new_with`]: **Unconfigured**, no bus I/O;
+//! - [`Hal::configure`] → **Configured**: a plan is made from the settings and the devices'
+//!   EDS / DCF files without the bus ([`CanopenHal::check_settings`]); the bus is opened; NMT
+//!   reset communication → boot-ups (or an SDO probe, `boot_timeout_s`), NMT
+//!   pre-operational, device type and identity 0x1018 against the files, the planned objects
+//!   (heartbeat 0x1017, consumer 0x1016 of ehactl's heartbeat, SYNC objects
+//!   0x1006/0x1019/0x1007, transducer step, PDO mappings, valve device mode 0x6042 / control
+//!   mode 0x6043 / hold setpoint 0x6314, RPDO deadline 0x1400:05: read first, written and
+//!   read back where the file allows, read-only ones checked), NMT start and heartbeats
+//!   OPERATIONAL. The valve's CiA 408 device state is not touched: it is not enabled;
+//! - [`Hal::activate`] → **Active**: a fault reset of the valve if it is in a fault state
+//!   (rising edge of control-word R with its D/H bits held, CiA 408 as published in Moog
+//!   B99224-DV018 §5.2), valve DISABLED → HOLD → ACTIVE by SDO control word, one priming SYNC
+//!   so that the first cycle has a position, then the I/O threads below; a failure after the
+//!   valve is ACTIVE (priming) first returns it to HOLD with setpoint 0;
+//! - [`Hal::deactivate`] (Active only) → **Configured**: the safe stop below. In Configured
+//!   (never activated, or already deactivated) deactivate is a [`HalError::Lifecycle`]
+//!   error and sends nothing to the valve (documented decision: it is not ACTIVE, there is
+//!   nothing to undo, and an unexpected HOLD command could surprise whoever configured it);
+//!   a later activate enables the valve again on the same bus;
+//! - [`Hal::safe_stop`], in every state: Active as below (then Configured); Configured:
+//!   setpoint 0 and control word HOLD (on the start-up bus before the first activation, by
+//!   SDO after a deactivation); Unconfigured: nothing to send;
+//! - a failed configure or activate → **Failed**: only safe_stop (nothing sent: the failed
+//!   start-up already returned a valve it had enabled to HOLD);
+//!   [`CanopenHal::take_startup_failure`] hands back the error with every frame of the
+//!   attempt, for the log (a failed start-up is recorded like a trip, see
+//!   [`StartupFailure`]). Read and write are refused outside Active.
+//!
+//! [`CanopenHal::connect`] and its variants are new + configure + activate and may block for
+//! at most `boot_timeout_s` plus a few SDO timeouts; [`CanopenHal::connect_logged`] hands
+//! back every frame of a failed attempt.
+//!
 //! Threads and queues:
-//! - start-up ([`CanopenHal::connect`], [`crate::startup`]) runs before the loop and may
-//!   block. A plan is made from the settings and the devices' EDS / DCF files without the bus
-//!   ([`CanopenHal::check_settings`]); then *configure*: NMT reset communication → boot-ups
-//!   (or an SDO probe, `boot_timeout_s`), NMT pre-operational, device type and identity
-//!   0x1018 against the files, the planned objects (heartbeat 0x1017, consumer 0x1016 of
-//!   ehactl's heartbeat, SYNC objects 0x1006/0x1019/0x1007, transducer step, PDO mappings,
-//!   valve device mode 0x6042 / control mode 0x6043 / hold setpoint 0x6314, RPDO deadline
-//!   0x1400:05: read first, written and read back where the file allows, read-only ones
-//!   checked); then *activate*: NMT start, heartbeats OPERATIONAL, a fault reset of the
-//!   valve if it is in a fault state (rising edge of control-word R with its D/H bits held,
-//!   CiA 408 as published in Moog B99224-DV018 §5.2), valve DISABLED → HOLD → ACTIVE by SDO
-//!   control word, one priming SYNC so that the first cycle has a position; a failure after
-//!   the valve is ACTIVE (priming) first returns it to HOLD with setpoint 0, and
-//!   [`CanopenHal::connect_logged`] hands back every frame of a failed attempt for the log;
+//! - start-up (the lifecycle calls, [`crate::startup`]) runs before the loop and may block;
 //! - an RX thread owns the receiving side of the bus and pushes every frame into a
 //!   lock-free queue for the cycle (and into the `/can` log queue);
 //! - a TX thread owns the sending side and sends what the cycle pushed into another
 //!   lock-free queue (woken by `unpark`, which does not block the cycle);
 //! - ehactl's own heartbeat (0x700 + `master_node_id`): during start-up sent by the start-up
-//!   bus wrapper while it waits for frames, until the first cycle by the TX thread, then
+//!   bus wrapper while it waits for frames (in configure, activate and a Configured
+//!   safe stop), from the end of activate until the first cycle by the TX thread, then
 //!   queued by the control cycle in `write` every `master_heartbeat_ms` of the caller's
 //!   clock (not of loop time, which lags it by the deadlines the pacer skips), so that a
-//!   dead or hung cycle silences it and the devices' consumers (0x1016) react;
+//!   dead or hung cycle silences it and the devices' consumers (0x1016) react. Limitation:
+//!   nothing sends it between the lifecycle calls (after configure returns and before
+//!   activate, after a deactivate): a pause longer than the devices' consumer time
+//!   (`device_heartbeat_timeout_ms`) lets their consumers time out, and they enter their
+//!   fault reaction — safe (the valve leaves ACTIVE or is not in it; activate resets a
+//!   FAULT_HOLD). The connect functions call activate right after configure;
 //! - the cycle (`read` / `write`) never touches the bus: `read` drains the RX queue
 //!   (TPDO decode, PDO age, heartbeat consumer, EMCY consumer, valve status) with the loop
 //!   time as injected time base — except the heartbeat consumers, which time from each
@@ -51,7 +78,8 @@
 //!
 //! Safe stop: RPDO setpoint for the safe command (0) + SYNC, then the I/O threads are
 //! stopped and the valve control word is set to HOLD (D=1, H=1, A=0) by SDO.
-//! Dropping a `CanopenHal` whose safe stop was never called performs it (see its `Drop`).
+//! Dropping an Active `CanopenHal` whose safe stop was never called performs it (see its
+//! `Drop`); a Configured one sends nothing when dropped.
 
 use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
