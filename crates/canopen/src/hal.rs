@@ -29,7 +29,9 @@
 //!   start-up already returned a valve it had enabled to HOLD);
 //!   [`CanopenHal::take_startup_failure`] hands back the error with every frame of the
 //!   attempt, for the log (a failed start-up is recorded like a trip, see
-//!   [`StartupFailure`]). Read and write are refused outside Active.
+//!   [`StartupFailure`]). A safe stop the valve did not confirm also leaves the backend
+//!   Failed; there a safe stop tries the HOLD again (by SDO, if the bus is still there) and
+//!   fails again without one. Read and write are refused outside Active.
 //!
 //! [`CanopenHal::connect`] and its variants are new + configure + activate and may block for
 //! at most `boot_timeout_s` plus a few SDO timeouts; [`CanopenHal::connect_logged`] hands
@@ -254,6 +256,8 @@ pub struct CanopenHal {
     phase: &'static str,
     /// The failure of the last configure / activate, with its frames.
     failure: Option<StartupFailure>,
+    /// Failed because a configure / activate failed (not a safe stop).
+    startup_failed: bool,
     shared: Arc<IoShared>,
     frame_log: Arc<FrameLog>,
     /// Received frames with their receive time (ns, [`IoShared::mono`]).
@@ -393,6 +397,7 @@ impl CanopenHal {
             pending: None,
             phase: "the bus connection",
             failure: None,
+            startup_failed: false,
             shared: Arc::new(IoShared::new(clock, t_start)),
             frame_log: Arc::new(FrameLog::new(FRAME_LOG)),
             rxq: Arc::new(ArrayQueue::new(RX_QUEUE)),
@@ -449,6 +454,7 @@ impl CanopenHal {
     /// with every frame of the attempt, times relative to now.
     fn fail(&mut self, error: StartupError) -> StartupFailure {
         self.lifecycle = Lifecycle::Failed;
+        self.startup_failed = true;
         self.pending = None;
         let failed_at = self.st.clock.now_ns();
         self.st.merge();
@@ -1283,15 +1289,16 @@ impl Hal for CanopenHal {
     /// word HOLD by SDO; then Configured (Failed when the valve did not confirm). Blocks for
     /// at most two SYNC periods plus one SDO timeout. In Configured: setpoint 0 and control
     /// word HOLD (by the start-up bus before the first activation, by SDO after a
-    /// deactivation). Unconfigured or Failed: nothing sent (the valve was never commanded, or
-    /// the failed start-up already returned a valve it had enabled to HOLD), `Ok`.
+    /// deactivation). Unconfigured or after a failed configure / activate: nothing sent (the
+    /// valve was never commanded, or the failed start-up already returned a valve it had
+    /// enabled to HOLD), `Ok`. After an unconfirmed safe stop: the HOLD by SDO again.
     fn safe_stop(&mut self, command: f64) -> Result<(), HalError> {
         match self.lifecycle {
             Lifecycle::Unconfigured => {
                 self.safe_stop_result = Some("not sent: the backend was never configured".into());
                 return Ok(());
             }
-            Lifecycle::Failed if self.tx_thread.is_none() && self.bus_after_stop.is_none() => {
+            Lifecycle::Failed if self.startup_failed => {
                 if self.safe_stop_result.is_none() {
                     self.safe_stop_result = Some(
                         "not sent: the start-up failed (a valve it had enabled was returned to HOLD)"

@@ -892,6 +892,28 @@ fn connection_drop_trips_on_the_next_cycle() {
         hal.safe_stop(0.0).is_err(),
         "HOLD cannot be confirmed without a bus"
     );
+    // the backend is Failed; a second safe stop (the loop's fallback after a failed
+    // deactivate) is not confirmed either, and the summary keeps the reason
+    assert_eq!(hal.lifecycle_state(), "failed");
+    assert!(
+        hal.safe_stop(0.0).is_err(),
+        "a second safe stop is no success"
+    );
+    assert_eq!(
+        hal.deactivate(0.0).unwrap_err(),
+        HalError::Lifecycle {
+            call: "deactivate",
+            state: "failed"
+        }
+    );
+    let rep = hal.report().unwrap();
+    assert!(
+        rep["safe_stop"]
+            .as_str()
+            .unwrap()
+            .starts_with("failed: bus unavailable"),
+        "{rep}"
+    );
     knobs.stop.store(true, Ordering::Relaxed);
     rig_thread.join().unwrap();
     let _ = cia408::CW_HOLD_STATE;
