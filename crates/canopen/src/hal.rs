@@ -1,30 +1,59 @@
 //! [`CanopenHal`]: the `Hal` of a CAN rig with a CiA 406 position transducer and a CiA 408
 //! valve (Dindorf 2022's boom: magnetostrictive transducer + 4WRSE OBE).
 //!
+//! Lifecycle (the states of [`Hal`]; the start-up steps are [`crate::startup`]):
+//! - [`CanopenHal::new`] / [`CanopenHal::new_with`]: **Unconfigured**, no bus I/O;
+//! - [`Hal::configure`] → **Configured**: a plan is made from the settings and the devices'
+//!   EDS / DCF files without the bus ([`CanopenHal::check_settings`]); the bus is opened; NMT
+//!   reset communication → boot-ups (or an SDO probe, `boot_timeout_s`), NMT
+//!   pre-operational, device type and identity 0x1018 against the files, the planned objects
+//!   (heartbeat 0x1017, consumer 0x1016 of ehactl's heartbeat, SYNC objects
+//!   0x1006/0x1019/0x1007, transducer step, PDO mappings, valve device mode 0x6042 / control
+//!   mode 0x6043 / hold setpoint 0x6314, RPDO deadline 0x1400:05: read first, written and
+//!   read back where the file allows, read-only ones checked), NMT start and heartbeats
+//!   OPERATIONAL. The valve's CiA 408 device state is not touched: it is not enabled;
+//! - [`Hal::activate`] → **Active**: a fault reset of the valve if it is in a fault state
+//!   (rising edge of control-word R with its D/H bits held, CiA 408 as published in Moog
+//!   B99224-DV018 §5.2), valve DISABLED → HOLD → ACTIVE by SDO control word, one priming SYNC
+//!   so that the first cycle has a position, then the I/O threads below; a failure after the
+//!   valve is ACTIVE (priming) first returns it to HOLD with setpoint 0;
+//! - [`Hal::deactivate`] (Active only) → **Configured**: the safe stop below. In Configured
+//!   (never activated, or already deactivated) deactivate is a [`HalError::Lifecycle`]
+//!   error and sends nothing to the valve (documented decision: it is not ACTIVE, there is
+//!   nothing to undo, and an unexpected HOLD command could surprise whoever configured it);
+//!   a later activate enables the valve again on the same bus;
+//! - [`Hal::safe_stop`], in every state: Active as below (then Configured); Configured:
+//!   setpoint 0 and control word HOLD (on the start-up bus before the first activation, by
+//!   SDO after a deactivation); Unconfigured: nothing to send;
+//! - a failed configure or activate → **Failed**: only safe_stop (nothing sent: the failed
+//!   start-up already returned a valve it had enabled to HOLD);
+//!   [`CanopenHal::take_startup_failure`] hands back the error with every frame of the
+//!   attempt, for the log (a failed start-up is recorded like a trip, see
+//!   [`StartupFailure`]). A safe stop the valve did not confirm also leaves the backend
+//!   Failed; there a safe stop tries the HOLD again (by SDO, if the bus is still there) and
+//!   fails again without one. Read and write are refused outside Active.
+//!
+//! [`CanopenHal::connect`] and its variants are new + configure + activate and may block for
+//! at most `boot_timeout_s` plus a few SDO timeouts; [`CanopenHal::connect_logged`] hands
+//! back every frame of a failed attempt.
+//!
 //! Threads and queues:
-//! - start-up ([`CanopenHal::connect`], [`crate::startup`]) runs before the loop and may
-//!   block. A plan is made from the settings and the devices' EDS / DCF files without the bus
-//!   ([`CanopenHal::check_settings`]); then *configure*: NMT reset communication → boot-ups
-//!   (or an SDO probe, `boot_timeout_s`), NMT pre-operational, device type and identity
-//!   0x1018 against the files, the planned objects (heartbeat 0x1017, consumer 0x1016 of
-//!   ehactl's heartbeat, SYNC objects 0x1006/0x1019/0x1007, transducer step, PDO mappings,
-//!   valve device mode 0x6042 / control mode 0x6043 / hold setpoint 0x6314, RPDO deadline
-//!   0x1400:05: read first, written and read back where the file allows, read-only ones
-//!   checked); then *activate*: NMT start, heartbeats OPERATIONAL, a fault reset of the
-//!   valve if it is in a fault state (rising edge of control-word R with its D/H bits held,
-//!   CiA 408 as published in Moog B99224-DV018 §5.2), valve DISABLED → HOLD → ACTIVE by SDO
-//!   control word, one priming SYNC so that the first cycle has a position; a failure after
-//!   the valve is ACTIVE (priming) first returns it to HOLD with setpoint 0, and
-//!   [`CanopenHal::connect_logged`] hands back every frame of a failed attempt for the log;
+//! - start-up (the lifecycle calls, [`crate::startup`]) runs before the loop and may block;
 //! - an RX thread owns the receiving side of the bus and pushes every frame into a
 //!   lock-free queue for the cycle (and into the `/can` log queue);
 //! - a TX thread owns the sending side and sends what the cycle pushed into another
 //!   lock-free queue (woken by `unpark`, which does not block the cycle);
 //! - ehactl's own heartbeat (0x700 + `master_node_id`): during start-up sent by the start-up
-//!   bus wrapper while it waits for frames, until the first cycle by the TX thread, then
+//!   bus wrapper while it waits for frames (in configure, activate and a Configured
+//!   safe stop), from the end of activate until the first cycle by the TX thread, then
 //!   queued by the control cycle in `write` every `master_heartbeat_ms` of the caller's
 //!   clock (not of loop time, which lags it by the deadlines the pacer skips), so that a
-//!   dead or hung cycle silences it and the devices' consumers (0x1016) react;
+//!   dead or hung cycle silences it and the devices' consumers (0x1016) react. Limitation:
+//!   nothing sends it between the lifecycle calls (after configure returns and before
+//!   activate, after a deactivate): a pause longer than the devices' consumer time
+//!   (`device_heartbeat_timeout_ms`) lets their consumers time out, and they enter their
+//!   fault reaction — safe (the valve leaves ACTIVE or is not in it; activate resets a
+//!   FAULT_HOLD). The connect functions call activate right after configure;
 //! - the cycle (`read` / `write`) never touches the bus: `read` drains the RX queue
 //!   (TPDO decode, PDO age, heartbeat consumer, EMCY consumer, valve status) with the loop
 //!   time as injected time base — except the heartbeat consumers, which time from each
@@ -51,7 +80,8 @@
 //!
 //! Safe stop: RPDO setpoint for the safe command (0) + SYNC, then the I/O threads are
 //! stopped and the valve control word is set to HOLD (D=1, H=1, A=0) by SDO.
-//! Dropping a `CanopenHal` whose safe stop was never called performs it (see its `Drop`).
+//! Dropping an Active `CanopenHal` whose safe stop was never called performs it (see its
+//! `Drop`); a Configured one sends nothing when dropped.
 
 use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
@@ -64,7 +94,7 @@ use crate::nmt::{NmtState, HEARTBEAT_BASE};
 use crate::pdo::{self, RPDO1_BASE, TPDO1_BASE};
 use crate::sdo::{self, SdoClient, SDO_TX_BASE};
 pub use crate::settings::CanopenSettings;
-use crate::startup::{Activated, Bringup, Dev, Plan, Startup};
+use crate::startup::{Activated, Bringup, Dev, Plan, StartBus, Startup};
 pub use crate::startup::{StartupError, StartupFailure};
 use crate::sync::{self, SyncProducer};
 use crate::transport;
@@ -102,6 +132,26 @@ struct IoShared {
 }
 
 impl IoShared {
+    /// Fresh state on `clock` whose stamps count from `epoch_ns`; loop time 0 and the RX
+    /// thread's last look at the bus are now.
+    fn new(clock: Arc<dyn Clock>, epoch_ns: u64) -> IoShared {
+        let now = clock.now_ns().saturating_sub(epoch_ns) as i64;
+        IoShared {
+            stop: AtomicBool::new(false),
+            cycle_started: AtomicBool::new(false),
+            failed: AtomicBool::new(false),
+            error: Mutex::new(None),
+            clock,
+            epoch_ns,
+            zero_ns: AtomicI64::new(now),
+            drained_ns: AtomicI64::new(now),
+            rx_frames: AtomicU64::new(0),
+            tx_frames: AtomicU64::new(0),
+            rx_overflow: AtomicU64::new(0),
+            transport_errors: AtomicU64::new(0),
+        }
+    }
+
     /// The present time on the caller's clock (ns).
     #[inline]
     fn now(&self) -> u64 {
@@ -150,10 +200,64 @@ const FRAME_LOG: usize = 1 << 17;
 /// Warning events logged per kind (the counters in the summary keep counting).
 const MAX_WARNINGS: u64 = 100;
 
+/// Where a [`CanopenHal`] is in its lifecycle (see the module docs and [`Hal`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Lifecycle {
+    /// Made by [`CanopenHal::new`]: no bus I/O yet.
+    Unconfigured,
+    /// The devices are configured and OPERATIONAL, the valve is not enabled (never
+    /// activated, or deactivated / safe-stopped since).
+    Configured,
+    /// The valve is ACTIVE and the I/O threads run the cyclic exchange.
+    Active,
+    /// A configure or activate failed (the reason: [`CanopenHal::take_startup_failure`]), or
+    /// a safe stop was not confirmed: only [`Hal::safe_stop`] is allowed.
+    Failed,
+}
+
+impl Lifecycle {
+    fn as_str(self) -> &'static str {
+        match self {
+            Lifecycle::Unconfigured => "unconfigured",
+            Lifecycle::Configured => "configured",
+            Lifecycle::Active => "active",
+            Lifecycle::Failed => "failed",
+        }
+    }
+}
+
+/// The start-up between configure and activate: the start-up bus (ehactl's heartbeat keeps
+/// its period across the calls), the plan and what configure found.
+struct Pending {
+    bus: Box<StartBus>,
+    names: [Option<String>; 2],
+    skipped: Vec<String>,
+}
+
 /// The CANopen backend (see the module docs).
 pub struct CanopenHal {
     s: CanopenSettings,
     ids: [u8; 2],
+    lifecycle: Lifecycle,
+    /// The bus handed to [`CanopenHal::new_with`], opened by configure (`None`: configure
+    /// opens `s.bus`).
+    given_bus: Option<Box<dyn CanBus>>,
+    /// Stop request (SIGINT / SIGTERM) honoured by every blocking phase of the start-up.
+    stop: Option<Arc<AtomicBool>>,
+    /// The start-up's bookkeeping (frames for the log, device states) and the clock.
+    st: Startup,
+    /// Clock reading at the start of configure (ns): the epoch of the run's stamps.
+    t_start: u64,
+    /// The plan of the last configure (for a re-activation after deactivate).
+    plan: Option<Plan>,
+    /// Between configure and activate.
+    pending: Option<Pending>,
+    /// The start-up step in progress or, after a failure, the one that failed.
+    phase: &'static str,
+    /// The failure of the last configure / activate, with its frames.
+    failure: Option<StartupFailure>,
+    /// Failed because a configure / activate failed (not a safe stop).
+    startup_failed: bool,
     shared: Arc<IoShared>,
     frame_log: Arc<FrameLog>,
     /// Received frames with their receive time (ns, [`IoShared::mono`]).
@@ -179,7 +283,7 @@ pub struct CanopenHal {
     /// The transducer's first TPDO of the loop has arrived (start-up grace, see `read`).
     first_tpdo: bool,
     /// PDO age (per device): SYNCs queued whose synchronous TPDO has not arrived yet.
-    pending: [u32; 2],
+    pending_syncs: [u32; 2],
     /// Synchronous TPDOs that arrived after the next SYNC had been sent (age ≥ 1 SYNC).
     late: [u64; 2],
     /// Largest TPDO age seen (SYNC periods).
@@ -208,6 +312,7 @@ impl std::fmt::Debug for CanopenHal {
         f.debug_struct("CanopenHal")
             .field("bus", &self.s.bus.to_string())
             .field("ids", &self.ids)
+            .field("lifecycle", &self.lifecycle.as_str())
             .finish()
     }
 }
@@ -240,34 +345,145 @@ impl CanopenHal {
     /// settings are checked) with the caller's `clock`: every timeout of the start-up, ehactl's
     /// heartbeat, the frames' times and the heartbeat consumers' receive stamps come from it
     /// (see [`crate::clock`]; a [`crate::clock::ManualClock`] makes them simulated time).
+    /// [`CanopenHal::new_with`], then configure and activate.
     pub fn connect_with(
         s: CanopenSettings,
         bus: Option<Box<dyn CanBus>>,
         stop: Option<Arc<AtomicBool>>,
         clock: Arc<dyn Clock>,
     ) -> Result<CanopenHal, StartupFailure> {
+        let mut hal = Self::new_with(s, bus, stop, clock);
+        match hal.configure_step().and_then(|()| hal.activate_step()) {
+            Ok(()) => Ok(hal),
+            Err(e) => Err(hal.fail(e)),
+        }
+    }
+
+    /// An unconfigured backend for the bus at `s.bus`: no bus I/O, nothing checked yet
+    /// (configure checks the settings first, [`CanopenHal::check_settings`]). Then
+    /// [`Hal::configure`] and [`Hal::activate`]; [`CanopenHal::connect`] does all three.
+    pub fn new(s: CanopenSettings) -> CanopenHal {
+        Self::new_with(s, None, None, Arc::new(MonotonicClock::new()))
+    }
+
+    /// [`CanopenHal::new`] on `bus` (`None`: configure opens the bus at `s.bus`), with the
+    /// stop request `stop` (see [`CanopenHal::connect_until`]) and the caller's `clock` (see
+    /// [`CanopenHal::connect_with`]).
+    pub fn new_with(
+        s: CanopenSettings,
+        bus: Option<Box<dyn CanBus>>,
+        stop: Option<Arc<AtomicBool>>,
+        clock: Arc<dyn Clock>,
+    ) -> CanopenHal {
+        let c = &s.canopen;
+        let ids = [c.transducer_node_id, c.valve_node_id];
         let t_start = clock.now_ns();
-        let mut st = Startup::new(
-            [s.canopen.transducer_node_id, s.canopen.valve_node_id],
-            s.verbose,
-            clock,
-        );
-        Self::bring_up(s, bus, t_start, &mut st, stop).map_err(|error| {
-            let failed_at = st.clock.now_ns();
-            st.merge();
-            StartupFailure {
-                error,
-                frames: st
-                    .frames
-                    .iter()
-                    .map(|(at, f, tx)| {
-                        let before = failed_at.saturating_sub(*at);
-                        record(f, -(before.min(i64::MAX as u64) as i64), *tx)
-                    })
-                    .collect(),
-                elapsed_s: failed_at.saturating_sub(t_start) as f64 * 1e-9,
-            }
-        })
+        let hb_ns = u64::from(c.heartbeat_timeout_ms) * 1_000_000;
+        CanopenHal {
+            sync: SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1),
+            master_hb: CanFrame::std(
+                HEARTBEAT_BASE + u16::from(c.master_node_id),
+                [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
+            ),
+            master_hb_period_ns: u64::from(c.master_heartbeat_ms) * 1_000_000,
+            master_hb_next_ns: 0,
+            ids,
+            lifecycle: Lifecycle::Unconfigured,
+            given_bus: bus,
+            stop,
+            st: Startup::new(ids, s.verbose, clock.clone()),
+            t_start,
+            plan: None,
+            pending: None,
+            phase: "the bus connection",
+            failure: None,
+            startup_failed: false,
+            shared: Arc::new(IoShared::new(clock, t_start)),
+            frame_log: Arc::new(FrameLog::new(FRAME_LOG)),
+            rxq: Arc::new(ArrayQueue::new(RX_QUEUE)),
+            txq: Arc::new(ArrayQueue::new(TX_QUEUE)),
+            rx_thread: None,
+            tx_thread: None,
+            tx_waker: None,
+            bus_after_stop: None,
+            startup_frames: Vec::new(),
+            started: false,
+            last_write_t: None,
+            hb: [
+                HeartbeatConsumer::new(ids[0], hb_ns),
+                HeartbeatConsumer::new(ids[1], hb_ns),
+            ],
+            meas: Measurements {
+                t: f64::NAN,
+                force: f64::NAN,
+                position: f64::NAN,
+                p_a: f64::NAN,
+                p_b: f64::NAN,
+                spool: f64::NAN,
+            },
+            valve_state: None,
+            first_tpdo: false,
+            pending_syncs: [0; 2],
+            late: [0; 2],
+            max_age: [0; 2],
+            loop_t0: None,
+            grace_s: f64::from(c.heartbeat_timeout_ms) * 1e-3,
+            hb_timeout_ns: i64::from(c.heartbeat_timeout_ms) * 1_000_000,
+            setpoint: 0,
+            fault: None,
+            wrong_dlc: 0,
+            unknown: 0,
+            emcy_count: 0,
+            last_emcy: None,
+            safe_stop_result: None,
+            startup_s: 0.0,
+            names: [None, None],
+            skipped: Vec::new(),
+            s,
+        }
+    }
+
+    /// The failure of the last [`Hal::configure`] / [`Hal::activate`] that returned
+    /// [`HalError::Startup`]: the start-up error with every frame of the attempt (for the
+    /// log, as [`CanopenHal::connect_logged`] returns it). Taken: a second call gives `None`.
+    pub fn take_startup_failure(&mut self) -> Option<StartupFailure> {
+        self.failure.take()
+    }
+
+    /// A configure / activate failed with `error`: the backend is `Failed`; the failure
+    /// with every frame of the attempt, times relative to now.
+    fn fail(&mut self, error: StartupError) -> StartupFailure {
+        self.lifecycle = Lifecycle::Failed;
+        self.startup_failed = true;
+        self.pending = None;
+        let failed_at = self.st.clock.now_ns();
+        self.st.merge();
+        StartupFailure {
+            error,
+            frames: self
+                .st
+                .frames
+                .iter()
+                .map(|(at, f, tx)| {
+                    let before = failed_at.saturating_sub(*at);
+                    record(f, -(before.min(i64::MAX as u64) as i64), *tx)
+                })
+                .collect(),
+            elapsed_s: failed_at.saturating_sub(self.t_start) as f64 * 1e-9,
+        }
+    }
+
+    /// The call `call` needs state `want`: [`HalError::Lifecycle`] otherwise.
+    #[inline]
+    fn expect(&self, call: &'static str, want: Lifecycle) -> Result<(), HalError> {
+        if self.lifecycle == want {
+            Ok(())
+        } else {
+            Err(HalError::Lifecycle {
+                call,
+                state: self.lifecycle.as_str(),
+            })
+        }
     }
 
     /// The checks of the settings that need no bus (config consistency, SYNC rate against
@@ -318,76 +534,109 @@ impl CanopenHal {
         Plan::new(s)
     }
 
-    /// configure then activate (see [`crate::startup`]), then the I/O threads.
-    /// `t_start`: clock reading at the start (ns).
-    fn bring_up(
-        s: CanopenSettings,
-        bus: Option<Box<dyn CanBus>>,
-        t_start: u64,
-        st: &mut Startup,
-        stop: Option<Arc<AtomicBool>>,
-    ) -> Result<CanopenHal, StartupError> {
-        let plan = Self::check_settings(&s)?;
-        let bus = match bus {
+    /// configure (see [`crate::startup`]): the settings, the bus, the devices up to NMT
+    /// OPERATIONAL with the valve not enabled. Unconfigured → Configured.
+    fn configure_step(&mut self) -> Result<(), StartupError> {
+        self.t_start = self.st.clock.now_ns();
+        self.phase = "the settings check";
+        let plan = Self::check_settings(&self.s)?;
+        self.phase = "the bus connection";
+        let bus = match self.given_bus.take() {
             Some(b) => b,
-            None => transport::open(&s.bus, Duration::from_secs(3))?,
+            None => transport::open(&self.s.bus, Duration::from_secs(3))?,
         };
-        let c = s.canopen.clone();
-        let master_hb = CanFrame::std(
-            HEARTBEAT_BASE + u16::from(c.master_node_id),
-            [0x05], // OPERATIONAL (CiA 301 7.2.8.3.2.1)
+        let mut b = Bringup::open(
+            &self.s,
+            bus,
+            plan.clone(),
+            &mut self.st,
+            self.master_hb,
+            self.stop.clone(),
         );
-        let mut b = Bringup::open(&s, bus, plan, st, master_hb, stop)?;
-        b.configure()?;
-        let Activated { mut meas } = b.activate()?;
-        if s.verbose {
+        let r = b.configure().and_then(|()| b.start());
+        self.phase = b.phase();
+        let (bus, _, names, skipped) = b.into_parts();
+        r?;
+        self.plan = Some(plan);
+        self.pending = Some(Pending {
+            bus,
+            names,
+            skipped,
+        });
+        self.lifecycle = Lifecycle::Configured;
+        Ok(())
+    }
+
+    /// activate (see [`crate::startup`]): the valve to ACTIVE, the priming SYNC, the I/O
+    /// threads. Configured → Active. After a deactivate the start-up bus is the one the I/O
+    /// threads handed back.
+    fn activate_step(&mut self) -> Result<(), StartupError> {
+        let (bus, names, skipped) = match self.pending.take() {
+            Some(p) => (p.bus, p.names, p.skipped),
+            None => {
+                // re-activation: the bus the I/O threads handed back, a new start-up bus
+                self.t_start = self.st.clock.now_ns();
+                let bus = self.bus_after_stop.take().ok_or_else(|| {
+                    StartupError::Bus(BusError::new(
+                        BusErrorKind::Io,
+                        "the bus is gone (it failed during the run before)",
+                    ))
+                })?;
+                let b = Bringup::open(
+                    &self.s,
+                    bus,
+                    self.plan.clone().expect("configured before"),
+                    &mut self.st,
+                    self.master_hb,
+                    self.stop.clone(),
+                );
+                let (bus, _, _, _) = b.into_parts();
+                (
+                    bus,
+                    std::mem::take(&mut self.names),
+                    std::mem::take(&mut self.skipped),
+                )
+            }
+        };
+        let plan = self.plan.clone().expect("configured before");
+        let mut b = Bringup::resume(&self.s, bus, plan, &mut self.st, names, skipped);
+        let r = b.activate();
+        self.phase = b.phase();
+        let Activated { mut meas } = r?;
+        if self.s.verbose {
             eprintln!(
                 "canopen: start-up done in {:.2} s; first position {:.6} m",
-                b.now().saturating_sub(t_start) as f64 * 1e-9,
+                b.now().saturating_sub(self.t_start) as f64 * 1e-9,
                 meas.position
             );
         }
         meas.t = 0.0;
         let names = std::mem::take(&mut b.names);
         let skipped = std::mem::take(&mut b.skipped);
-        let bus: Box<dyn CanBus> = b.bus.inner;
-        let mut hal = Self::spawn_io(s, bus, t_start, st, master_hb, meas, names)?;
-        hal.skipped = skipped;
-        Ok(hal)
+        let (bus, _, _, _) = b.into_parts();
+        self.start_io(bus.inner, meas, names)?;
+        self.skipped = skipped;
+        Ok(())
     }
 
-    /// The I/O threads and the run-time state, after a successful start-up.
-    fn spawn_io(
-        s: CanopenSettings,
+    /// The I/O threads and the run-time state, after a successful activation (the valve
+    /// ACTIVE, the priming SYNC answered with `meas`): the backend is Active.
+    fn start_io(
+        &mut self,
         bus: Box<dyn CanBus>,
-        t_start: u64,
-        st: &mut Startup,
-        master_hb: CanFrame,
         meas: Measurements,
         names: [Option<String>; 2],
-    ) -> Result<CanopenHal, StartupError> {
-        let c = s.canopen.clone();
-        let ids = [c.transducer_node_id, c.valve_node_id];
-        let (tr, va) = (ids[0], ids[1]);
+    ) -> Result<(), StartupError> {
+        let c = self.s.canopen.clone();
+        let (tr, va) = (self.ids[0], self.ids[1]);
+        let master_hb = self.master_hb;
         let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
         let keepalive = CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes());
-        let shared = Arc::new(IoShared {
-            stop: AtomicBool::new(false),
-            cycle_started: AtomicBool::new(false),
-            failed: AtomicBool::new(false),
-            error: Mutex::new(None),
-            clock: st.clock.clone(),
-            epoch_ns: t_start,
-            zero_ns: AtomicI64::new(st.clock.now_ns().saturating_sub(t_start) as i64),
-            drained_ns: AtomicI64::new(st.clock.now_ns().saturating_sub(t_start) as i64),
-            rx_frames: AtomicU64::new(0),
-            tx_frames: AtomicU64::new(0),
-            rx_overflow: AtomicU64::new(0),
-            transport_errors: AtomicU64::new(0),
-        });
-        let frame_log = Arc::new(FrameLog::new(FRAME_LOG));
-        let rxq = Arc::new(ArrayQueue::new(RX_QUEUE));
-        let txq = Arc::new(ArrayQueue::new(TX_QUEUE));
+        let clock = self.st.clock.clone();
+        let shared = Arc::new(IoShared::new(clock.clone(), self.t_start));
+        // frames a previous activation left in the queues are no part of this one
+        while self.rxq.pop().is_some() {}
+        while self.txq.pop().is_some() {}
         let tx_bus = bus.try_clone_bus()?;
         let spawn_err = |e: std::io::Error| {
             StartupError::Bus(BusError::new(
@@ -396,14 +645,14 @@ impl CanopenHal {
             ))
         };
         let rx_thread = {
-            let (sh, q, lg) = (shared.clone(), rxq.clone(), frame_log.clone());
+            let (sh, q, lg) = (shared.clone(), self.rxq.clone(), self.frame_log.clone());
             std::thread::Builder::new()
                 .name("ehactl-can-rx".into())
                 .spawn(move || rx_loop(bus, &sh, &q, &lg))
                 .map_err(spawn_err)?
         };
         let tx_thread = {
-            let (sh, q, lg) = (shared.clone(), txq.clone(), frame_log.clone());
+            let (sh, q, lg) = (shared.clone(), self.txq.clone(), self.frame_log.clone());
             std::thread::Builder::new()
                 .name("ehactl-can-tx".into())
                 .spawn(move || {
@@ -411,62 +660,41 @@ impl CanopenHal {
                 })
                 .map_err(spawn_err)?
         };
-        let waker = tx_thread.thread().clone();
+        self.tx_waker = Some(tx_thread.thread().clone());
+        self.rx_thread = Some(rx_thread);
+        self.tx_thread = Some(tx_thread);
         let hb_ns = u64::from(c.heartbeat_timeout_ms) * 1_000_000;
-        let mut hb = [
+        self.hb = [
             HeartbeatConsumer::new(tr, hb_ns),
             HeartbeatConsumer::new(va, hb_ns),
         ];
         // the devices were OPERATIONAL with heartbeats at the end of start-up: the windows
         // start now (the receive clock), the devices' next heartbeats come through the RX queue
         let armed_at = shared.mono(shared.now());
-        for h in hb.iter_mut() {
+        for h in self.hb.iter_mut() {
             h.on_heartbeat(NmtState::Operational, armed_at);
         }
-        let startup_s = shared.now().saturating_sub(t_start) as f64 * 1e-9;
-        Ok(CanopenHal {
-            // the start-up's priming SYNC was SYNC 1 (for the SYNC counter)
-            sync: SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1),
-            master_hb,
-            master_hb_period_ns: u64::from(c.master_heartbeat_ms) * 1_000_000,
-            master_hb_next_ns: 0,
-            ids,
-            shared,
-            frame_log,
-            rxq,
-            txq,
-            rx_thread: Some(rx_thread),
-            tx_thread: Some(tx_thread),
-            tx_waker: Some(waker),
-            bus_after_stop: None,
-            startup_frames: {
-                st.merge();
-                std::mem::take(&mut st.frames)
-            },
-            started: false,
-            last_write_t: None,
-            hb,
-            meas,
-            valve_state: Some(ValveState::Active),
-            first_tpdo: false,
-            pending: [0; 2],
-            late: [0; 2],
-            max_age: [0; 2],
-            loop_t0: None,
-            grace_s: f64::from(c.heartbeat_timeout_ms) * 1e-3,
-            hb_timeout_ns: i64::from(c.heartbeat_timeout_ms) * 1_000_000,
-            setpoint: 0,
-            fault: None,
-            wrong_dlc: 0,
-            unknown: 0,
-            emcy_count: 0,
-            last_emcy: None,
-            safe_stop_result: None,
-            startup_s,
-            names,
-            skipped: Vec::new(),
-            s,
-        })
+        self.startup_s = shared.now().saturating_sub(self.t_start) as f64 * 1e-9;
+        self.shared = shared;
+        // the start-up's priming SYNC was SYNC 1 (for the SYNC counter)
+        self.sync = SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1);
+        self.master_hb_next_ns = 0;
+        self.bus_after_stop = None;
+        self.st.merge();
+        self.startup_frames = std::mem::take(&mut self.st.frames);
+        self.started = false;
+        self.last_write_t = None;
+        self.meas = meas;
+        self.valve_state = Some(ValveState::Active);
+        self.first_tpdo = false;
+        self.pending_syncs = [0; 2];
+        self.loop_t0 = None;
+        self.setpoint = 0;
+        self.fault = None;
+        self.safe_stop_result = None;
+        self.names = names;
+        self.lifecycle = Lifecycle::Active;
+        Ok(())
     }
 
     #[inline]
@@ -533,8 +761,8 @@ impl CanopenHal {
         if d == Dev::Valve && !self.s.canopen.valve_status_pdo {
             return Ok(());
         }
-        let age = self.pending[i].saturating_sub(1);
-        self.pending[i] = self.pending[i].saturating_sub(1);
+        let age = self.pending_syncs[i].saturating_sub(1);
+        self.pending_syncs[i] = self.pending_syncs[i].saturating_sub(1);
         if age >= 1 {
             self.late[i] += 1;
             self.max_age[i] = self.max_age[i].max(age);
@@ -745,6 +973,42 @@ impl CanopenHal {
         self.frame_log.push(record(f, t, dir == Direction::Tx));
     }
 
+    /// [`Hal::safe_stop`] between configure and the first activate: setpoint 0 and control
+    /// word HOLD on the start-up bus (which keeps ehactl's heartbeat going while it waits).
+    fn safe_stop_configured(&mut self) -> Result<(), HalError> {
+        let Some(p) = self.pending.take() else {
+            return Ok(());
+        };
+        let plan = self.plan.clone().expect("configured");
+        let mut b = Bringup::resume(&self.s, p.bus, plan, &mut self.st, p.names, p.skipped);
+        let r = b.valve_to_hold_checked("safe stop of the configured valve");
+        let (bus, _, names, skipped) = b.into_parts();
+        self.pending = Some(Pending {
+            bus,
+            names,
+            skipped,
+        });
+        match r {
+            Ok(m) => {
+                self.safe_stop_result = Some(m);
+                Ok(())
+            }
+            Err(m) => {
+                eprintln!("ehactl: canopen: safe stop: {m}");
+                self.safe_stop_result = Some(format!("failed: {m}"));
+                Err(HalError::Device {
+                    code: 0,
+                    what: "safe stop not confirmed by the valve",
+                })
+            }
+        }
+    }
+
+    /// The lifecycle state: "unconfigured", "configured", "active" or "failed".
+    pub fn lifecycle_state(&self) -> &'static str {
+        self.lifecycle.as_str()
+    }
+
     /// How long start-up took (s).
     pub fn startup_seconds(&self) -> f64 {
         self.startup_s
@@ -866,6 +1130,7 @@ impl Hal for CanopenHal {
     /// Real-time safe: lock-free queue pops, no allocation (except the one-time hand-over
     /// of the start-up frames to the log queue in the first cycle, which does not allocate).
     fn read(&mut self, t: f64, _period: f64) -> Result<Measurements, HalError> {
+        self.expect("read", Lifecycle::Active)?;
         if !self.started {
             self.started = true;
             self.shared.cycle_started.store(true, Ordering::Release);
@@ -936,6 +1201,7 @@ impl Hal for CanopenHal {
     /// Converts the command to the spool setpoint; when SYNC is due, queues RPDO1 then
     /// SYNC for the TX thread. Real-time safe (lock-free push + unpark).
     fn write(&mut self, t: f64, _period: f64, command: f64) -> Result<(), HalError> {
+        self.expect("write", Lifecycle::Active)?;
         if let Some(e) = self.fault {
             return Err(e);
         }
@@ -973,7 +1239,7 @@ impl Hal for CanopenHal {
                 RPDO1_BASE + u16::from(self.ids[1]),
                 self.setpoint.to_le_bytes(),
             );
-            for p in self.pending.iter_mut() {
+            for p in self.pending_syncs.iter_mut() {
                 *p = p.saturating_add(1);
             }
             if self.txq.push(rpdo).is_err() || self.txq.push(self.sync.frame()).is_err() {
@@ -986,9 +1252,66 @@ impl Hal for CanopenHal {
         Ok(())
     }
 
-    /// RPDO setpoint for `command` + SYNC, stop the I/O threads, valve control word HOLD by
-    /// SDO. Blocks for at most two SYNC periods plus one SDO timeout.
+    /// Unconfigured → Configured: the settings check, the bus, the CANopen configuration
+    /// and NMT start; the valve is not enabled (see the module docs). On failure the backend
+    /// is Failed and [`CanopenHal::take_startup_failure`] has the reason and the frames.
+    fn configure(&mut self) -> Result<(), HalError> {
+        self.expect("configure", Lifecycle::Unconfigured)?;
+        self.configure_step().map_err(|e| {
+            let f = self.fail(e);
+            self.failure = Some(f);
+            HalError::Startup { what: self.phase }
+        })
+    }
+
+    /// Configured → Active: the valve to ACTIVE, the priming SYNC, the I/O threads (see
+    /// the module docs). On failure the backend is Failed (a valve that was being enabled is
+    /// back in HOLD with setpoint 0) and [`CanopenHal::take_startup_failure`] has the reason.
+    fn activate(&mut self) -> Result<(), HalError> {
+        self.expect("activate", Lifecycle::Configured)?;
+        self.activate_step().map_err(|e| {
+            let f = self.fail(e);
+            self.failure = Some(f);
+            HalError::Startup { what: self.phase }
+        })
+    }
+
+    /// Active → Configured: what [`Hal::safe_stop`] does in Active (setpoint for
+    /// `safe_command` + SYNC, the I/O threads stopped, control word HOLD). In any other state
+    /// a [`HalError::Lifecycle`] error, and nothing is sent: in Configured the valve was
+    /// never enabled (or is already out of ACTIVE), so there is nothing to undo.
+    fn deactivate(&mut self, safe_command: f64) -> Result<(), HalError> {
+        self.expect("deactivate", Lifecycle::Active)?;
+        self.safe_stop(safe_command)
+    }
+
+    /// In Active: RPDO setpoint for `command` + SYNC, stop the I/O threads, valve control
+    /// word HOLD by SDO; then Configured (Failed when the valve did not confirm). Blocks for
+    /// at most two SYNC periods plus one SDO timeout. In Configured: setpoint 0 and control
+    /// word HOLD (by the start-up bus before the first activation, by SDO after a
+    /// deactivation). Unconfigured or after a failed configure / activate: nothing sent (the
+    /// valve was never commanded, or the failed start-up already returned a valve it had
+    /// enabled to HOLD), `Ok`. After an unconfirmed safe stop: the HOLD by SDO again.
     fn safe_stop(&mut self, command: f64) -> Result<(), HalError> {
+        match self.lifecycle {
+            Lifecycle::Unconfigured => {
+                self.safe_stop_result = Some("not sent: the backend was never configured".into());
+                return Ok(());
+            }
+            Lifecycle::Failed if self.startup_failed => {
+                if self.safe_stop_result.is_none() {
+                    self.safe_stop_result = Some(
+                        "not sent: the start-up failed (a valve it had enabled was returned to HOLD)"
+                            .into(),
+                    );
+                }
+                return Ok(());
+            }
+            Lifecycle::Configured if self.pending.is_some() => {
+                return self.safe_stop_configured();
+            }
+            _ => {}
+        }
         let s = cia408::setpoint_from_command(command, self.s.command_full_scale);
         let va = self.ids[1];
         if self.tx_thread.is_some() && !self.shared.failed.load(Ordering::Acquire) {
@@ -1041,11 +1364,13 @@ impl Hal for CanopenHal {
                     "setpoint {s} and control word HOLD (0x{:04X}) sent to the valve",
                     cia408::CW_HOLD_STATE
                 ));
+                self.lifecycle = Lifecycle::Configured;
                 Ok(())
             }
             Err(m) => {
                 eprintln!("ehactl: canopen: safe stop: {m}");
                 self.safe_stop_result = Some(format!("failed: {m}"));
+                self.lifecycle = Lifecycle::Failed;
                 Err(HalError::Device {
                     code: 0,
                     what: "safe stop not confirmed by the valve",
@@ -1097,9 +1422,13 @@ impl Hal for CanopenHal {
 /// the valve would stay ACTIVE at its last setpoint until its consumer of ehactl's heartbeat
 /// (0x1016) timed out. After a [`Hal::safe_stop`], successful or not, only the I/O threads
 /// are stopped.
+///
+/// Only an Active backend is safe-stopped: a Configured one never enabled the valve (or
+/// already took it out of ACTIVE), and dropping it only ends ehactl's heartbeat, so that the
+/// devices' consumers (0x1016) time out and they go to their fault reaction.
 impl Drop for CanopenHal {
     fn drop(&mut self) {
-        if self.safe_stop_result.is_none() {
+        if self.lifecycle == Lifecycle::Active && self.safe_stop_result.is_none() {
             let _ = self.safe_stop(self.s.safe_command);
         }
         self.stop_io();
@@ -1148,12 +1477,8 @@ mod tests {
         let bus = SimBus::new(clock.clone(), false);
         let rx = bus.rx.clone();
         let c = CanopenConfig::default();
-        let t_start = clock.now_ns();
-        let mut st = Startup::new(
-            [c.transducer_node_id, c.valve_node_id],
-            false,
-            clock.clone(),
-        );
+        let mut hal = CanopenHal::new_with(settings(c.clone()), None, None, clock.clone());
+        hal.t_start = clock.now_ns();
         clock.advance(startup);
         let meas = Measurements {
             t: 0.0,
@@ -1164,16 +1489,8 @@ mod tests {
             spool: 0.0,
         };
         let master_hb = CanFrame::std(HEARTBEAT_BASE + u16::from(c.master_node_id), [0x05]);
-        let mut hal = CanopenHal::spawn_io(
-            settings(c.clone()),
-            Box::new(bus),
-            t_start,
-            &mut st,
-            master_hb,
-            meas,
-            [None, None],
-        )
-        .unwrap();
+        assert_eq!(hal.master_hb, master_hb);
+        hal.start_io(Box::new(bus), meas, [None, None]).unwrap();
         // Released without the drop's safe stop: nobody answers its SDO on this bus and the
         // clock moves only when the test moves it, so the SDO would wait forever (a failed
         // assertion would hang instead of failing). The drop's safe stop is tested against

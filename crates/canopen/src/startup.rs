@@ -4,14 +4,19 @@
 //!   settings checks and the EDS / DCF files named in the config → one [`DevicePlan`] per
 //!   device: the identity to check, and every SDO object to configure with its value and the
 //!   access type the file gives (ro / const objects are read and checked, never written);
-//! - **configure** ([`Bringup::configure`]): NMT reset communication → boot-up, or an SDO probe
-//!   for a node that sends none ([`Bringup::boot`]); NMT pre-operational; per device the
-//!   device type and identity 0x1018 against its file, then the planned objects
-//!   ([`Bringup::apply_plan`]);
-//! - **activate** ([`Bringup::activate`]): NMT start and OPERATIONAL heartbeats
-//!   ([`Bringup::start_nodes`]), the CiA 408 device state machine of the valve from a fault
-//!   state, if any, to ACTIVE ([`Bringup::enable_valve`]), one priming SYNC
+//! - **configure** ([`Bringup::configure`], then [`Bringup::start`]): NMT reset
+//!   communication → boot-up, or an SDO probe for a node that sends none ([`Bringup::boot`]);
+//!   NMT pre-operational; per device the device type and identity 0x1018 against its file,
+//!   then the planned objects ([`Bringup::apply_plan`]); NMT start and OPERATIONAL
+//!   heartbeats ([`Bringup::start_nodes`]). The valve is not enabled: it stays in the device
+//!   state it booted in;
+//! - **activate** ([`Bringup::activate`]): the CiA 408 device state machine of the valve
+//!   from a fault state, if any, to ACTIVE ([`Bringup::enable_valve`]), one priming SYNC
 //!   ([`Bringup::prime`]; a failure returns the valve to HOLD).
+//!
+//! These are the steps of `CanopenHal`'s `Hal::configure` and `Hal::activate`
+//! ([`crate::hal`]); the bus and the bookkeeping are handed from one to the next
+//! ([`Bringup::into_parts`], [`Bringup::resume`]).
 //!
 //! Every frame of the attempt is kept ([`Startup`]) for the log, and ehactl's heartbeat runs
 //! from the first frame on ([`StartBus`]). Every wait and timeout is counted on the caller's
@@ -968,7 +973,7 @@ impl<'a> Bringup<'a> {
         st: &'a mut Startup,
         master_hb: CanFrame,
         stop: Option<Arc<AtomicBool>>,
-    ) -> Result<Bringup<'a>, StartupError> {
+    ) -> Bringup<'a> {
         let c = &s.canopen;
         let bus = Box::new(StartBus {
             inner: bus,
@@ -980,17 +985,41 @@ impl<'a> Bringup<'a> {
             stop,
             honour_stop: true,
         });
-        Ok(Bringup {
+        Self::resume(s, bus, plan, st, [None, None], Vec::new())
+    }
+
+    /// Go on with a start-up whose earlier step (configure) ended with `bus`, `names` and
+    /// `skipped`: ehactl's heartbeat keeps its period across the steps.
+    pub(crate) fn resume(
+        s: &'a CanopenSettings,
+        bus: Box<StartBus>,
+        plan: Plan,
+        st: &'a mut Startup,
+        names: [Option<String>; 2],
+        skipped: Vec<String>,
+    ) -> Bringup<'a> {
+        let c = &s.canopen;
+        Bringup {
             s,
             plan,
             bus,
             st,
             sdo_t: Duration::from_millis(u64::from(c.sdo_timeout_ms)),
             ids: [c.transducer_node_id, c.valve_node_id],
-            names: [None, None],
-            skipped: Vec::new(),
+            names,
+            skipped,
             phase: "the bus connection",
-        })
+        }
+    }
+
+    /// The step in progress or, after a failure, the step that failed.
+    pub(crate) fn phase(&self) -> &'static str {
+        self.phase
+    }
+
+    /// The bus and what configure found, to resume with ([`Bringup::resume`]).
+    pub(crate) fn into_parts(self) -> (Box<StartBus>, Plan, [Option<String>; 2], Vec<String>) {
+        (self.bus, self.plan, self.names, self.skipped)
     }
 
     /// The present time (ns, the caller's clock).
@@ -1027,6 +1056,12 @@ impl<'a> Bringup<'a> {
     /// Valve back to HOLD with setpoint 0 (best effort, also after a stop request); returns
     /// what was done.
     fn valve_to_hold(&mut self, why: &str) -> String {
+        self.valve_to_hold_checked(why).unwrap_or_else(|e| e)
+    }
+
+    /// [`Bringup::valve_to_hold`]: `Ok` with what was done when the valve confirmed the
+    /// control word HOLD, `Err` with why not.
+    pub(crate) fn valve_to_hold_checked(&mut self, why: &str) -> Result<String, String> {
         self.bus.honour_stop = false;
         let va = self.ids[1];
         // A stop request cuts an SDO transfer short: the valve's answer to it may still be
@@ -1061,11 +1096,11 @@ impl<'a> Bringup<'a> {
         );
         self.bus.honour_stop = true;
         match (sp, r) {
-            (Ok(()), Ok(())) => format!(
+            (Ok(()), Ok(())) => Ok(format!(
                 "valve setpoint 0 and control word HOLD (0x{:04X}) sent",
                 cia408::CW_HOLD_STATE
-            ),
-            (Err(e), _) | (_, Err(e)) => format!("valve HOLD could not be commanded: {e}"),
+            )),
+            (Err(e), _) | (_, Err(e)) => Err(format!("valve HOLD could not be commanded: {e}")),
         }
     }
 
@@ -1147,11 +1182,16 @@ impl<'a> Bringup<'a> {
         Ok(())
     }
 
-    /// activate: NMT start, valve to ACTIVE, priming SYNC. A failure or a stop request once
-    /// the valve is being enabled returns it to HOLD with setpoint 0 (best effort).
-    pub(crate) fn activate(&mut self) -> Result<Activated, StartupError> {
+    /// The end of configure: NMT start and OPERATIONAL heartbeats (the valve stays in its
+    /// device state, not enabled).
+    pub(crate) fn start(&mut self) -> Result<(), StartupError> {
         self.phase = "NMT start";
-        self.start_nodes().map_err(|e| self.or_stopped(e, None))?;
+        self.start_nodes().map_err(|e| self.or_stopped(e, None))
+    }
+
+    /// activate: valve to ACTIVE, priming SYNC. A failure or a stop request once the valve
+    /// is being enabled returns it to HOLD with setpoint 0 (best effort).
+    pub(crate) fn activate(&mut self) -> Result<Activated, StartupError> {
         self.phase = "the valve state machine (DISABLED → HOLD → ACTIVE)";
         if let Err(e) = self.enable_valve() {
             if self.stop_requested() {

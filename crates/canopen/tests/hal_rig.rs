@@ -16,7 +16,7 @@ use ehactl_canopen::socketcand::SocketcandBus;
 use ehactl_canopen::{BusUrl, CanBus, CanFrame, CanopenConfig};
 use ehactl_hal::{Hal, HalError};
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -84,6 +84,10 @@ struct Knobs {
     seen: Mutex<Vec<(u32, Vec<u8>)>>,
     /// When the rig last sent a valve heartbeat (wall clock).
     last_valve_heartbeat: Mutex<Option<Instant>>,
+    /// The valve's device state (status code RMHD, as in its status word) and its latched
+    /// RPDO setpoint, as the rig last saw them.
+    valve_state: AtomicU32,
+    valve_setpoint: AtomicI32,
 }
 
 struct Node {
@@ -154,6 +158,10 @@ fn rig(port: u16, knobs: Arc<Knobs>) -> std::thread::JoinHandle<()> {
             }
         };
         while !knobs.stop.load(Ordering::Relaxed) {
+            knobs.valve_state.store(u32::from(state), Ordering::Relaxed);
+            knobs
+                .valve_setpoint
+                .store(i32::from(latched), Ordering::Relaxed);
             let silent_va = knobs.silence_valve.load(Ordering::Relaxed);
             let now = Instant::now();
             for n in nodes.iter_mut() {
@@ -884,6 +892,28 @@ fn connection_drop_trips_on_the_next_cycle() {
         hal.safe_stop(0.0).is_err(),
         "HOLD cannot be confirmed without a bus"
     );
+    // the backend is Failed; a second safe stop (the loop's fallback after a failed
+    // deactivate) is not confirmed either, and the summary keeps the reason
+    assert_eq!(hal.lifecycle_state(), "failed");
+    assert!(
+        hal.safe_stop(0.0).is_err(),
+        "a second safe stop is no success"
+    );
+    assert_eq!(
+        hal.deactivate(0.0).unwrap_err(),
+        HalError::Lifecycle {
+            call: "deactivate",
+            state: "failed"
+        }
+    );
+    let rep = hal.report().unwrap();
+    assert!(
+        rep["safe_stop"]
+            .as_str()
+            .unwrap()
+            .starts_with("failed: bus unavailable"),
+        "{rep}"
+    );
     knobs.stop.store(true, Ordering::Relaxed);
     rig_thread.join().unwrap();
     let _ = cia408::CW_HOLD_STATE;
@@ -1368,4 +1398,209 @@ fn a_stop_request_ends_every_start_up_phase_and_returns_an_enabled_valve_to_hold
         knobs.stop.store(true, Ordering::Relaxed);
         rig_thread.join().unwrap();
     }
+}
+
+/// The valve's device state code (RMHD) and latched setpoint once the rig has taken in
+/// everything the master sent (the rig loop runs every millisecond).
+fn valve(knobs: &Knobs) -> (u32, i32) {
+    std::thread::sleep(Duration::from_millis(30));
+    (
+        knobs.valve_state.load(Ordering::Relaxed),
+        knobs.valve_setpoint.load(Ordering::Relaxed),
+    )
+}
+
+/// CiA 408 status codes RMHD of the scripted valve.
+const ST_INIT: u32 = 0b1000;
+const ST_HOLD: u32 = 0b1011;
+const ST_ACTIVE: u32 = 0b1111;
+
+fn lifecycle_err(call: &'static str, state: &'static str) -> HalError {
+    HalError::Lifecycle { call, state }
+}
+
+#[test]
+fn an_unconfigured_backend_does_no_bus_io_and_refuses_every_call_but_configure() {
+    // Nothing listens on port 1: any bus I/O would fail.
+    let mut hal = CanopenHal::new(settings(1, test_bus()));
+    assert_eq!(hal.lifecycle_state(), "unconfigured");
+    assert_eq!(
+        hal.activate().unwrap_err(),
+        lifecycle_err("activate", "unconfigured")
+    );
+    assert_eq!(
+        hal.deactivate(0.0).unwrap_err(),
+        lifecycle_err("deactivate", "unconfigured")
+    );
+    assert_eq!(
+        hal.read(0.0, 5e-4).unwrap_err(),
+        lifecycle_err("read", "unconfigured")
+    );
+    assert_eq!(
+        hal.write(0.0, 5e-4, 1.0).unwrap_err(),
+        lifecycle_err("write", "unconfigured")
+    );
+    let msg = hal.activate().unwrap_err().to_string();
+    assert!(
+        msg.contains("`activate`") && msg.contains("unconfigured") && msg.contains("configured"),
+        "{msg}"
+    );
+    // the safe stop is allowed in every state: here there is nothing to send
+    hal.safe_stop(0.0).unwrap();
+    assert_eq!(hal.lifecycle_state(), "unconfigured");
+    assert!(hal.report().unwrap()["safe_stop"]
+        .as_str()
+        .unwrap()
+        .starts_with("not sent"));
+    // configure now opens the bus, which is not there: a start-up error with the reason
+    let e = hal.configure().unwrap_err();
+    assert!(matches!(e, HalError::Startup { .. }), "{e:?}");
+    assert_eq!(hal.lifecycle_state(), "failed");
+    let f = hal.take_startup_failure().expect("the failure is kept");
+    assert!(matches!(f.error, StartupError::Bus(_)), "{}", f.error);
+    assert_eq!(
+        hal.configure().unwrap_err(),
+        lifecycle_err("configure", "failed")
+    );
+    hal.safe_stop(0.0).unwrap();
+}
+
+#[test]
+fn configure_leaves_the_valve_disabled_activate_enables_it_deactivate_holds_it_at_0() {
+    let (port, knobs, _one_at_a_time) = start();
+    let rig_thread = rig(port, knobs.clone());
+    let mut hal = CanopenHal::new(settings(port, test_bus()));
+    std::thread::sleep(Duration::from_millis(30));
+    assert!(knobs.seen.lock().unwrap().is_empty(), "new did bus I/O");
+    // configure: the devices configured and OPERATIONAL, the valve never commanded
+    if let Err(e) = hal.configure() {
+        panic!("{e}: {:?}", hal.take_startup_failure().map(|f| f.error));
+    }
+    assert_eq!(hal.lifecycle_state(), "configured");
+    let (state, _) = valve(&knobs);
+    assert_eq!(state, ST_INIT, "configure must not enable the valve");
+    {
+        let seen = knobs.seen.lock().unwrap();
+        assert!(seen.contains(&(0x000, vec![0x01, VA])), "no NMT start");
+        assert!(
+            !seen
+                .iter()
+                .any(|(id, d)| *id == 0x630 && d[..3] == [0x2B, 0x40, 0x60]),
+            "configure wrote the valve control word"
+        );
+        assert!(seen.contains(&(0x701, vec![0x05])), "no master heartbeat");
+    }
+    assert_eq!(
+        hal.configure().unwrap_err(),
+        lifecycle_err("configure", "configured")
+    );
+    assert_eq!(
+        hal.read(0.0, 5e-4).unwrap_err(),
+        lifecycle_err("read", "configured")
+    );
+    // deactivate in Configured sends nothing to the valve
+    let before = knobs.seen.lock().unwrap().len();
+    assert_eq!(
+        hal.deactivate(0.0).unwrap_err(),
+        lifecycle_err("deactivate", "configured")
+    );
+    let (state, _) = valve(&knobs);
+    assert_eq!(state, ST_INIT);
+    assert!(
+        knobs.seen.lock().unwrap()[before..]
+            .iter()
+            .all(|(id, _)| *id == 0x701),
+        "deactivate in Configured sent something"
+    );
+    // activate: the valve ACTIVE, the cyclic exchange runs
+    let before = knobs.seen.lock().unwrap().len();
+    if let Err(e) = hal.activate() {
+        panic!("{e}: {:?}", hal.take_startup_failure().map(|f| f.error));
+    }
+    assert_eq!(hal.lifecycle_state(), "active");
+    assert_eq!(valve(&knobs).0, ST_ACTIVE);
+    assert!(
+        knobs.seen.lock().unwrap()[before..].contains(&(0x701, vec![0x05])),
+        "no master heartbeat during activate"
+    );
+    assert_eq!(
+        hal.activate().unwrap_err(),
+        lifecycle_err("activate", "active")
+    );
+    let (_, _, err, _) = drive(&mut hal, 0.1, 5.0, &mut |_| {});
+    assert!(err.is_none(), "{err:?}");
+    let (state, sp) = valve(&knobs);
+    assert_eq!((state, sp), (ST_ACTIVE, 8192), "+5 V = +50 % spool");
+    // deactivate: setpoint 0 (the safe command) and out of ACTIVE, back to Configured
+    hal.deactivate(0.0).unwrap();
+    assert_eq!(hal.lifecycle_state(), "configured");
+    assert_eq!(valve(&knobs), (ST_HOLD, 0));
+    assert_eq!(
+        hal.read(0.1, 5e-4).unwrap_err(),
+        lifecycle_err("read", "configured")
+    );
+    assert_eq!(
+        hal.deactivate(0.0).unwrap_err(),
+        lifecycle_err("deactivate", "configured")
+    );
+    // the safe stop after a deactivate: HOLD again, still Configured
+    hal.safe_stop(0.0).unwrap();
+    assert_eq!(valve(&knobs), (ST_HOLD, 0));
+    assert_eq!(hal.lifecycle_state(), "configured");
+    // a second activation on the same bus
+    if let Err(e) = hal.activate() {
+        panic!("{e}: {:?}", hal.take_startup_failure().map(|f| f.error));
+    }
+    assert_eq!(valve(&knobs).0, ST_ACTIVE);
+    let (_, _, err, _) = drive(&mut hal, 0.1, -5.0, &mut |_| {});
+    assert!(err.is_none(), "{err:?}");
+    assert_eq!(valve(&knobs), (ST_ACTIVE, -8192));
+    // the safe stop in Active: setpoint 0, HOLD, Configured
+    hal.safe_stop(0.0).unwrap();
+    assert_eq!(valve(&knobs), (ST_HOLD, 0));
+    assert_eq!(hal.lifecycle_state(), "configured");
+    let rep = hal.report().unwrap();
+    assert!(rep["safe_stop"].as_str().unwrap().contains("HOLD"), "{rep}");
+    // dropping a Configured backend sends nothing more to the valve
+    let before = knobs.seen.lock().unwrap().len();
+    drop(hal);
+    std::thread::sleep(Duration::from_millis(50));
+    assert!(knobs.seen.lock().unwrap()[before..]
+        .iter()
+        .all(|(id, _)| *id == 0x701));
+    knobs.stop.store(true, Ordering::Relaxed);
+    rig_thread.join().unwrap();
+}
+
+#[test]
+fn a_safe_stop_between_configure_and_activate_holds_the_valve_at_0() {
+    let (port, knobs, _one_at_a_time) = start();
+    let rig_thread = rig(port, knobs.clone());
+    let mut hal = CanopenHal::new(settings(port, test_bus()));
+    if let Err(e) = hal.configure() {
+        panic!("{e}: {:?}", hal.take_startup_failure().map(|f| f.error));
+    }
+    assert_eq!(valve(&knobs).0, ST_INIT);
+    hal.safe_stop(0.0).unwrap();
+    assert_eq!(valve(&knobs), (ST_HOLD, 0));
+    assert_eq!(hal.lifecycle_state(), "configured");
+    let seen = knobs.seen.lock().unwrap().clone();
+    let hold = seen
+        .iter()
+        .position(|f| *f == (0x630, vec![0x2B, 0x40, 0x60, 0x00, 0x03, 0x00, 0, 0]))
+        .expect("control word HOLD");
+    let zero = seen
+        .iter()
+        .position(|f| *f == (0x230, vec![0, 0]))
+        .expect("setpoint 0");
+    assert!(zero < hold, "{seen:02X?}");
+    // the valve can still be enabled from there
+    if let Err(e) = hal.activate() {
+        panic!("{e}: {:?}", hal.take_startup_failure().map(|f| f.error));
+    }
+    assert_eq!(valve(&knobs).0, ST_ACTIVE);
+    hal.deactivate(0.0).unwrap();
+    assert_eq!(valve(&knobs), (ST_HOLD, 0));
+    knobs.stop.store(true, Ordering::Relaxed);
+    rig_thread.join().unwrap();
 }

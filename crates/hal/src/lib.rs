@@ -3,7 +3,8 @@
 //! The hardware abstraction of ehactl, in the manner of ros2_control's hardware interface:
 //! one [`Hal`] trait with `read(time, period)` / `write(time, period)` called once per
 //! cycle. The controller never knows which backend it talks to. This crate holds:
-//! - [`Hal`] and its error type,
+//! - [`Hal`] and its error type, with the lifecycle of a backend (configure / activate /
+//!   deactivate, see [`Hal`]),
 //! - [`pacer::Pacer`], what starts each cycle (simulated time or a wall-clock executor), and
 //!   the timing report it hands back,
 //! - [`clock`], the time sources (monotonic, manual, scripted) of the wall-clock pacer and
@@ -43,13 +44,42 @@ pub enum HalError {
         /// Short description.
         what: &'static str,
     },
+    /// A lifecycle call ([`Hal::configure`], [`Hal::activate`], [`Hal::deactivate`], or a
+    /// cycle call [`Hal::read`] / [`Hal::write`]) in a state that does not allow it.
+    Lifecycle {
+        /// The call (`"configure"`, `"activate"`, `"deactivate"`, `"read"`, `"write"`).
+        call: &'static str,
+        /// The backend's state at the call (`"unconfigured"`, `"configured"`, `"active"`).
+        state: &'static str,
+    },
+    /// The bring-up of a lifecycle call failed ([`Hal::configure`] or [`Hal::activate`]).
+    /// `what` is the phase that failed; the backend keeps the full reason (the CANopen
+    /// backend: the start-up error with its frames). A `&'static str` rather than a message
+    /// so that `HalError` stays `Copy` and allocation-free for the cycle.
+    Startup {
+        /// The bring-up phase that failed.
+        what: &'static str,
+    },
+}
+
+/// The state a call needs: `"configured"` for activate, `"active"` for deactivate, read
+/// and write, `"unconfigured"` for configure.
+fn expected_state(call: &str) -> &'static str {
+    match call {
+        "configure" => "unconfigured",
+        "activate" => "configured",
+        _ => "active",
+    }
 }
 
 impl HalError {
     /// The state or device concerned (the event channel of a fault).
     pub fn what(&self) -> &'static str {
         match self {
-            HalError::Numerical { what, .. } | HalError::Device { what, .. } => what,
+            HalError::Numerical { what, .. }
+            | HalError::Device { what, .. }
+            | HalError::Startup { what } => what,
+            HalError::Lifecycle { call, .. } => call,
         }
     }
 }
@@ -61,13 +91,43 @@ impl std::fmt::Display for HalError {
                 write!(f, "plant state `{what}` became non-finite at t = {t} s")
             }
             HalError::Device { code, what } => write!(f, "device fault {code:#x}: {what}"),
+            HalError::Lifecycle { call, state } => write!(
+                f,
+                "backend lifecycle: `{call}` called in state {state}; it needs state {}",
+                expected_state(call)
+            ),
+            HalError::Startup { what } => write!(f, "backend bring-up failed during {what}"),
         }
     }
 }
 
 impl std::error::Error for HalError {}
 
-/// Hardware interface used by the control loop, once per cycle.
+/// Hardware interface used by the control loop, once per cycle, with the lifecycle of
+/// ros2_control's hardware components:
+///
+/// ```text
+///  Unconfigured ──configure──▶ Configured ──activate──▶ Active
+///                                  ▲                       │
+///                                  └──────deactivate───────┘
+/// ```
+///
+/// - **Unconfigured**: the backend exists, nothing has been done to the hardware (a
+///   constructor does no I/O);
+/// - **Configured** ([`Hal::configure`]): the devices are reachable and set up, the actuator
+///   is not enabled (nothing moves);
+/// - **Active** ([`Hal::activate`]): the actuator is enabled and the cyclic exchange runs;
+///   only here may the loop call [`Hal::read`] and [`Hal::write`];
+/// - [`Hal::deactivate`] brings the valve to the safe command and the actuator out of its
+///   enabled state, back to Configured: the normal end of a run;
+/// - [`Hal::safe_stop`] is allowed in every state and leaves the valve at the safe command:
+///   the fallback on every trip, signal and error (and after a failed deactivate).
+///
+/// A lifecycle call in the wrong state returns [`HalError::Lifecycle`] and changes nothing.
+/// A backend without bring-up (the simulated plant) keeps the default implementations:
+/// configure and activate succeed without doing anything, deactivate is
+/// [`Hal::safe_stop`]; such a backend has no states to enforce, every call succeeds in any
+/// order.
 pub trait Hal {
     /// Backend name for logs ("sim", "canopen").
     fn name(&self) -> &'static str;
@@ -84,9 +144,28 @@ pub trait Hal {
     /// here. Real-time safe.
     fn write(&mut self, t: f64, period: f64, command: f64) -> Result<(), HalError>;
 
-    /// Put the actuator in its safe state (valve to `command`, typically 0 V). Called on a
-    /// trip, on a signal and at the end of every run; may block briefly.
+    /// Put the actuator in its safe state (valve to `command`, typically 0 V). Allowed in
+    /// every lifecycle state; called on a trip, on a signal, on an error and when
+    /// [`Hal::deactivate`] failed at the end of a run; may block briefly.
     fn safe_stop(&mut self, command: f64) -> Result<(), HalError>;
+
+    /// Unconfigured → Configured: bring the hardware up to ready, actuator not enabled. May
+    /// block (bus I/O, device timeouts). Default: nothing to do, succeeds.
+    fn configure(&mut self) -> Result<(), HalError> {
+        Ok(())
+    }
+
+    /// Configured → Active: enable the actuator and start the cyclic exchange; the next
+    /// call is the loop's first [`Hal::read`]. May block. Default: nothing to do, succeeds.
+    fn activate(&mut self) -> Result<(), HalError> {
+        Ok(())
+    }
+
+    /// Active → Configured: valve to `safe_command` (V) and the actuator out of its enabled
+    /// state; the end of a run. May block briefly. Default: [`Hal::safe_stop`].
+    fn deactivate(&mut self, safe_command: f64) -> Result<(), HalError> {
+        self.safe_stop(safe_command)
+    }
 
     /// Ground-truth plant state when the backend knows it (simulation), for logging.
     fn plant_state(&self) -> Option<PlantState> {
@@ -104,5 +183,73 @@ pub trait Hal {
     /// object whose keys are added to the summary. Called once after the loop.
     fn report(&self) -> Option<serde_json::Value> {
         None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A backend that keeps the defaults and counts its safe stops.
+    struct Bare {
+        stops: Vec<f64>,
+    }
+
+    impl Hal for Bare {
+        fn name(&self) -> &'static str {
+            "bare"
+        }
+        fn read(&mut self, t: f64, _period: f64) -> Result<Measurements, HalError> {
+            Err(HalError::Numerical { t, what: "unused" })
+        }
+        fn write(&mut self, _t: f64, _period: f64, _command: f64) -> Result<(), HalError> {
+            Ok(())
+        }
+        fn safe_stop(&mut self, command: f64) -> Result<(), HalError> {
+            self.stops.push(command);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn the_default_lifecycle_succeeds_and_deactivate_is_the_safe_stop() {
+        let mut b = Bare { stops: Vec::new() };
+        b.configure().unwrap();
+        b.activate().unwrap();
+        assert!(
+            b.stops.is_empty(),
+            "configure / activate must not stop the valve"
+        );
+        b.deactivate(0.25).unwrap();
+        assert_eq!(b.stops, [0.25]);
+    }
+
+    #[test]
+    fn a_lifecycle_error_names_the_call_its_state_and_the_state_it_needs() {
+        let e = HalError::Lifecycle {
+            call: "activate",
+            state: "unconfigured",
+        };
+        assert_eq!(
+            e.to_string(),
+            "backend lifecycle: `activate` called in state unconfigured; it needs state configured"
+        );
+        assert_eq!(e.what(), "activate");
+        let e = HalError::Lifecycle {
+            call: "deactivate",
+            state: "configured",
+        };
+        assert!(e.to_string().ends_with("it needs state active"), "{e}");
+        let e = HalError::Lifecycle {
+            call: "configure",
+            state: "active",
+        };
+        assert!(
+            e.to_string().ends_with("it needs state unconfigured"),
+            "{e}"
+        );
+        let e = HalError::Startup { what: "NMT start" };
+        assert_eq!(e.to_string(), "backend bring-up failed during NMT start");
+        assert_eq!(e.what(), "NMT start");
     }
 }

@@ -238,11 +238,20 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
     }
 
     /// After the loop: the safe command to the valve, the end event (trip, signal or normal
-    /// end) and the safe-stop event, and the outcome.
+    /// end) and the safe-stop event, and the outcome. A run that ended normally deactivates
+    /// the backend ([`Hal::deactivate`]: valve to the safe command, out of its enabled state);
+    /// [`Hal::safe_stop`] is the fallback when that fails, and what every trip and signal
+    /// calls. The safe-stop event reports the last of them.
     fn finish(self, ending: Option<Ending>) -> RunOutcome {
         let (k, end_t) = (self.k, self.settings.timebase.time_of(self.k));
         let safe = self.supervisor.safe_command();
-        let safe_result = self.hal.safe_stop(safe);
+        let safe_result = match ending {
+            None => self
+                .hal
+                .deactivate(safe)
+                .or_else(|_| self.hal.safe_stop(safe)),
+            Some(_) => self.hal.safe_stop(safe),
+        };
         let (trip, interrupted) = match ending {
             Some(Ending::Trip(ev)) => (Some(ev), false),
             Some(Ending::Interrupted) => (None, true),
@@ -355,5 +364,132 @@ fn cycle_record(
         plant: plant.unwrap_or_default(),
         has_plant: plant.is_some(),
         timing,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::session::build_plant;
+    use crate::sim::SimHal;
+    use ehactl_config::RigConfig;
+    use ehactl_hal::pacer::SimulatedTime;
+    use ehactl_hal::HalError;
+
+    /// The simulated plant behind a backend that records its lifecycle calls, and whose
+    /// deactivate can fail or whose read can trip.
+    struct Recording {
+        sim: SimHal,
+        calls: Vec<&'static str>,
+        deactivate_fails: bool,
+        trip_at: Option<f64>,
+    }
+
+    impl Hal for Recording {
+        fn name(&self) -> &'static str {
+            "recording"
+        }
+        fn read(&mut self, t: f64, period: f64) -> Result<Measurements, HalError> {
+            if self.trip_at.is_some_and(|at| t >= at) {
+                return Err(HalError::Device {
+                    code: 1,
+                    what: "test trip",
+                });
+            }
+            self.sim.read(t, period)
+        }
+        fn write(&mut self, t: f64, period: f64, command: f64) -> Result<(), HalError> {
+            self.sim.write(t, period, command)
+        }
+        fn safe_stop(&mut self, command: f64) -> Result<(), HalError> {
+            self.calls.push("safe_stop");
+            self.sim.safe_stop(command)
+        }
+        fn deactivate(&mut self, safe_command: f64) -> Result<(), HalError> {
+            self.calls.push("deactivate");
+            if self.deactivate_fails {
+                return Err(HalError::Device {
+                    code: 0,
+                    what: "safe stop not confirmed by the valve",
+                });
+            }
+            self.sim.deactivate(safe_command)
+        }
+    }
+
+    /// Runs 0.05 s of the Sahu 2022 force config; returns the calls and the safe-stop event.
+    fn run(deactivate_fails: bool, trip_at: Option<f64>) -> (Vec<&'static str>, Event) {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/sahu2022_force.toml");
+        let cfg = RigConfig::load(&path).unwrap();
+        let mut hal = Recording {
+            sim: SimHal::new(build_plant(&cfg).unwrap()),
+            calls: Vec::new(),
+            deactivate_fails,
+            trip_at,
+        };
+        let mut controller = cfg.controller();
+        let mut supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
+        let setpoint = Setpoint::new(&cfg.setpoint);
+        let timebase = cfg.timebase();
+        let settings = LoopSettings {
+            cycles: timebase.cycles_in(0.05),
+            timebase,
+            stop: None,
+            settle_time: 0.0,
+            live: None,
+            log_failed: None,
+        };
+        let mut events = Vec::new();
+        run_loop(
+            &mut hal,
+            &mut controller,
+            &setpoint,
+            &mut supervisor,
+            &mut SimulatedTime,
+            &settings,
+            &mut |_| {},
+            &mut |e| events.push(e),
+            &mut |_| {},
+        );
+        let safe = events
+            .into_iter()
+            .find(|e| e.kind == EventKind::SafeStop)
+            .expect("a safe-stop event");
+        (hal.calls, safe)
+    }
+
+    #[test]
+    fn a_normal_end_deactivates_a_trip_safe_stops_a_failed_deactivate_falls_back() {
+        let (calls, ev) = run(false, None);
+        assert_eq!(calls, ["deactivate"]);
+        assert_eq!((ev.severity, ev.channel), (Severity::Info, "valve"));
+        let (calls, ev) = run(true, None);
+        assert_eq!(calls, ["deactivate", "safe_stop"]);
+        assert_eq!((ev.severity, ev.channel), (Severity::Info, "valve"));
+        let (calls, _) = run(false, Some(0.01));
+        assert_eq!(calls, ["safe_stop"]);
+    }
+
+    /// The simulated backend's lifecycle: configure and activate are no-ops that succeed in
+    /// any order and leave the plant untouched, deactivate is its safe stop.
+    #[test]
+    fn the_sim_lifecycle_calls_succeed_and_leave_the_plant_alone() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/sahu2022_force.toml");
+        let cfg = RigConfig::load(&path).unwrap();
+        let mut sim = SimHal::new(build_plant(&cfg).unwrap());
+        let before = *sim.plant().state();
+        sim.activate().unwrap();
+        sim.configure().unwrap();
+        sim.activate().unwrap();
+        sim.deactivate(0.0).unwrap();
+        sim.deactivate(0.0).unwrap();
+        sim.safe_stop(0.0).unwrap();
+        assert_eq!(format!("{:?}", *sim.plant().state()), format!("{before:?}"));
+        // and the cycle runs as before
+        let dt = cfg.timebase().period();
+        sim.read(0.0, dt).unwrap();
+        sim.write(0.0, dt, 1.0).unwrap();
     }
 }
