@@ -156,7 +156,7 @@ fn second_order_spool_matches_analytic_step() {
         damping_ratio: 0.59,
     });
     let h = 1e-5;
-    let m = SpoolModel::new(&p, h).expect("spool discretises");
+    let m = SpoolModel::new(p.effects.valve_dynamics.as_ref(), h).expect("spool discretises");
     let (w, z) = (1507.9_f64, 0.59_f64);
     let wd = w * (1.0 - z * z).sqrt();
     let (mut s, mut sd) = (0.0, 0.0);
@@ -179,7 +179,7 @@ fn first_order_spool_matches_pt1() {
         damping_ratio: 0.0,
     });
     let h = 1e-4;
-    let m = SpoolModel::new(&p, h).expect("spool discretises");
+    let m = SpoolModel::new(p.effects.valve_dynamics.as_ref(), h).expect("spool discretises");
     let (mut s, mut sd) = (0.0, 0.0);
     for k in 1..=300 {
         m.advance(&mut s, &mut sd, 0.5);
@@ -200,7 +200,7 @@ fn spool_beyond_the_exponential_bound_is_a_config_error() {
         natural_frequency: 1507.9,
         damping_ratio: 1e53,
     });
-    let e = SpoolModel::new(&p, 1e-5).expect_err("refused");
+    let e = SpoolModel::new(p.effects.valve_dynamics.as_ref(), 1e-5).expect_err("refused");
     assert!(
         e.to_string()
             .contains("effects.valve_dynamics.damping_ratio"),

@@ -222,7 +222,7 @@ impl MotionEstimator {
             bleed: cbv.map_or(0.0, |c| c.port_bleed),
             dt,
             full_scale: p.valve.command_full_scale,
-            spool_model: SpoolModel::new(p, dt)?,
+            spool_model: SpoolModel::new(p.effects.valve_dynamics.as_ref(), dt)?,
             edges: EdgeLaw::new(p),
             line,
             terms: LineTerms::Resistive,

@@ -1,6 +1,6 @@
 //! `integration.method = "linear_exact"`: chambers, piston (and load mass) as one linear
 //! system, discretised exactly over a substep (zero-order hold on its inputs), as the spool
-//! already is ([`crate::valve::SpoolModel`]).
+//! already is ([`crate::effects::valve_dynamics::SpoolModel`]).
 //!
 //! States z = (p_A, p_B, x, v, x_L, v_L) (Pa, Pa, m, m/s, m, m/s; the last two only with a
 //! flexible mount), inputs w = (Q_A, Q_B, F_ext, 1) (m³/s, m³/s, N, -):

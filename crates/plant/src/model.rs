@@ -27,7 +27,7 @@
 use crate::cbv::{Cbv, CbvSides, CbvState};
 use crate::effects::{
     self, validate_variants, BulkStage, CommandStage, FlowStage, ForceStage, LoadSpring,
-    MountStage, PistonForces, SupplyStage,
+    MountStage, PistonForces, SpoolStage, SupplyStage,
 };
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
@@ -35,7 +35,7 @@ use crate::line::Line;
 use crate::params::PlantParams;
 use crate::sensors::{Measurements, SensorModel, TrueValues};
 use crate::spec::ConfigError;
-use crate::valve::{EdgeLaw, SpoolModel};
+use crate::valve::EdgeLaw;
 
 pub use ehactl_types::PlantState;
 
@@ -84,9 +84,6 @@ struct Consts {
 pub struct Plant {
     c: Consts,
     edges: EdgeLaw,
-    spool_model: SpoolModel,
-    /// Spool discretised over h/2, for the mid-step valve opening of `linear_exact`.
-    spool_half: SpoolModel,
     /// Exact linear transition of chambers and mechanics (`integration.method = "linear_exact"`).
     linear: Option<LinearExact>,
     /// `polynomial_force` on the rod ([`crate::effects::PolynomialForce`]).
@@ -208,9 +205,6 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
             ),
         ));
     }
-    if let Some(d) = p.effects.valve_dynamics.as_ref() {
-        d.validate_order()?;
-    }
     validate_variants(p)?;
     effects::Components::validate(&p.effects)?;
     if let Some(cb) = p
@@ -257,7 +251,7 @@ impl Plant {
             supply_pressure: params.supply.pressure,
             bulk_modulus: params.fluid.bulk_modulus,
         };
-        let components = effects::Components::configure(e, &setup);
+        let mut components = effects::Components::configure(e, &setup);
         let supply = &components.supply_pressure_drop;
         let c = Consts {
             a_a: params.cylinder.area_a,
@@ -360,7 +354,7 @@ impl Plant {
             // Hydraulic spring, load spring and mount are exact: the step is limited only by
             // what enters explicitly, the spool (its mid-step position sets the valve flow)
             // and the supply sag.
-            omega_max = effects::valve_dynamics::bandwidth(e.valve_dynamics.as_ref());
+            omega_max = components.valve_dynamics.bandwidth();
             if supply.is_active() {
                 omega_max = omega_max.max(1.0 / c.supply_tau);
             }
@@ -386,9 +380,11 @@ impl Plant {
             la.prepare(h);
             lb.prepare(h);
         }
-        // The automatic substep rule may later take any h up to the control period: the
-        // spool must discretise there too (‖A·h‖₁ grows with h).
-        SpoolModel::new(params, control_dt)?;
+        // The spool stage (`valve_dynamics`) at the substep. The automatic substep rule may
+        // later take any h up to the control period: the spool must discretise there too
+        // (‖A·h‖₁ grows with h).
+        components.valve_dynamics.discretise(control_dt)?;
+        components.valve_dynamics.discretise(h)?;
         let linear = if linear_exact {
             let lin = {
                 LinearExact::new(
@@ -421,8 +417,6 @@ impl Plant {
         };
         let mut plant = Plant {
             edges: EdgeLaw::new(params),
-            spool_model: SpoolModel::new(params, h)?,
-            spool_half: SpoolModel::new(params, 0.5 * h)?,
             linear,
             poly: e.polynomial_force.filter(|f| f.enabled),
             dahl_z: 0.0,
@@ -601,7 +595,7 @@ impl Plant {
     /// Used for linearisation.
     pub fn linear_state_names(&self) -> Vec<String> {
         let mut n = Vec::new();
-        let order = self.spool_order();
+        let order = self.components.valve_dynamics.order();
         if order >= 1 {
             n.push("spool".to_string());
         }
@@ -641,21 +635,12 @@ impl Plant {
         self.poly.is_some_and(|f| f.dahl != 0.0)
     }
 
-    fn spool_order(&self) -> u8 {
-        self.params
-            .effects
-            .valve_dynamics
-            .as_ref()
-            .filter(|v| v.enabled)
-            .map_or(0, |v| v.order)
-    }
-
     /// The continuous state as a vector (SI units, order of [`Plant::linear_state_names`]).
     /// Not for the real-time cycle (allocates).
     pub fn linear_state(&self) -> Vec<f64> {
         let s = &self.state;
         let mut v = Vec::new();
-        let order = self.spool_order();
+        let order = self.components.valve_dynamics.order();
         if order >= 1 {
             v.push(s.spool);
         }
@@ -692,7 +677,7 @@ impl Plant {
     pub fn set_linear_state(&mut self, v: &[f64]) {
         let mut it = v.iter().copied();
         let mut next = || it.next().unwrap_or(0.0);
-        let order = self.spool_order();
+        let order = self.components.valve_dynamics.order();
         let dahl = self.has_dahl();
         let s = &mut self.state;
         if order >= 1 {
@@ -785,13 +770,7 @@ impl Plant {
         self.substeps = n;
         self.h = self.control_dt / n as f64;
         // h ≤ the control period, at which configure checked the spool: always Ok.
-        if let (Ok(m), Ok(half)) = (
-            SpoolModel::new(&self.params, self.h),
-            SpoolModel::new(&self.params, 0.5 * self.h),
-        ) {
-            self.spool_model = m;
-            self.spool_half = half;
-        }
+        let _ = self.components.valve_dynamics.discretise(self.h);
         if let Some((la, lb)) = self.lines.as_mut() {
             la.prepare(self.h);
             lb.prepare(self.h);
@@ -871,10 +850,10 @@ impl Plant {
         let mut s = self.state;
         s.command = u;
         let target = u / c.full_scale;
-        let (mut sm, mut smd) = (s.spool, s.spool_velocity);
-        self.spool_half.advance(&mut sm, &mut smd, target);
-        self.spool_model
-            .advance(&mut s.spool, &mut s.spool_velocity, target);
+        // The spool stage (`valve_dynamics`): its mid-step position opens the edges.
+        let spool = &self.components.valve_dynamics;
+        let sm = spool.midstep(s.spool, s.spool_velocity, target);
+        spool.advance(&mut s.spool, &mut s.spool_velocity, target);
         let o = self.edges.openings(sm);
         let (va, vb) = self.volumes(s.x);
         let ca = self.bulk_modulus(s.p_a) / va;
@@ -937,9 +916,10 @@ impl Plant {
         let c = &self.c;
         let mut s = self.state;
         s.command = u;
-        // 1. Spool.
+        // 1. Spool: the spool stage (`valve_dynamics`) towards the edge law's target.
         let target = self.edges.target(u / c.full_scale);
-        self.spool_model
+        self.components
+            .valve_dynamics
             .advance(&mut s.spool, &mut s.spool_velocity, target);
         let o = self.edges.openings(s.spool);
         // 2. Pressures.

@@ -1,4 +1,5 @@
-//! Four-edge valve: spool dynamics and metering-edge flow.
+//! Four-edge valve: metering-edge flow. The spool dynamics are `valve_dynamics`'s
+//! ([`crate::effects::valve_dynamics`]; [`SpoolModel`] re-exported here).
 //!
 //! Flow per edge Q = k · o · φ(Δp) where o ≥ 0 is the edge opening (fraction of full
 //! spool travel) and φ(Δp) = Δp·(Δp² + Δp_l²)^((n−1)/2) is the signed power law
@@ -7,92 +8,8 @@
 //! - `kq`: k = q_vn/√Δp_n, n = ½ (003 eq. 9–13).
 //! - `power_law`: k = c/(1 MPa)ⁿ with the supply raised by P_o (004 eq. 20–23: P_d = P_s − P_L − P_T + P_o).
 
+pub use crate::effects::valve_dynamics::SpoolModel;
 use crate::params::{FlowForm, PlantParams};
-use nalgebra::{Matrix2, Vector2};
-
-/// Spool dynamics discretised exactly for one substep (zero-order hold on the command).
-#[derive(Debug, Clone)]
-pub enum SpoolModel {
-    /// Spool follows the command instantly.
-    Ideal,
-    /// PT1: ż = (u − z)/T_z (003 eq. 1).
-    FirstOrder {
-        /// e^(−h/T_z).
-        decay: f64,
-    },
-    /// Second order: ẍ = ω²(u − x) − 2ζω ẋ (004 eq. 1); state transition over one substep.
-    SecondOrder {
-        /// Φ = e^(A h).
-        phi: Matrix2<f64>,
-        /// Γ = ∫₀ʰ e^(A τ) dτ · B.
-        gamma: Vector2<f64>,
-    },
-}
-
-impl SpoolModel {
-    /// Build the discretisation for substep `h` (s). `Err` names the field when the
-    /// second-order spool's ‖A·h‖₁ = h·max(ω², 1 + 2ζω) lies beyond
-    /// [`crate::exact::EXPM_MAX_NORM`] ([`crate::exact::expm_checked`] refuses it).
-    pub fn new(params: &PlantParams, h: f64) -> Result<Self, crate::spec::ConfigError> {
-        let d = match params.effects.valve_dynamics.as_ref().filter(|d| d.enabled) {
-            None => return Ok(SpoolModel::Ideal),
-            Some(d) => d,
-        };
-        if d.order == 1 {
-            return Ok(if d.time_constant <= 0.0 {
-                SpoolModel::Ideal
-            } else {
-                SpoolModel::FirstOrder {
-                    decay: (-h / d.time_constant).exp(),
-                }
-            });
-        }
-        let (w, z) = (d.natural_frequency, d.damping_ratio);
-        if w <= 0.0 {
-            return Ok(SpoolModel::Ideal);
-        }
-        let a = Matrix2::new(0.0, 1.0, -w * w, -2.0 * z * w);
-        let b = Vector2::new(0.0, w * w);
-        // Augmented-matrix exponential gives Φ and Γ together (Van Loan).
-        let mut m = nalgebra::Matrix3::<f64>::zeros();
-        m.fixed_view_mut::<2, 2>(0, 0).copy_from(&(a * h));
-        m.fixed_view_mut::<2, 1>(0, 2).copy_from(&(b * h));
-        match crate::exact::expm_checked(&m) {
-            Some(e) => Ok(SpoolModel::SecondOrder {
-                phi: e.fixed_view::<2, 2>(0, 0).into_owned(),
-                gamma: e.fixed_view::<2, 1>(0, 2).into_owned(),
-            }),
-            None => Err(crate::spec::ConfigError::new(
-                "effects.valve_dynamics.damping_ratio",
-                format!(
-                    "spool ω = {w:e} rad/s with ζ = {z:e} gives ‖A·h‖₁ beyond {:e} at h = {h:e} s; expected a spool damping ratio of order 0.1–10 and ω below 10⁶ rad/s",
-                    crate::exact::EXPM_MAX_NORM
-                ),
-            )),
-        }
-    }
-
-    /// Advance spool position `s` and velocity `sd` towards target `u` over one substep.
-    #[inline]
-    pub fn advance(&self, s: &mut f64, sd: &mut f64, u: f64) {
-        match self {
-            SpoolModel::Ideal => {
-                *s = u;
-                *sd = 0.0;
-            }
-            SpoolModel::FirstOrder { decay } => {
-                let s1 = u + (*s - u) * decay;
-                *sd = 0.0;
-                *s = s1;
-            }
-            SpoolModel::SecondOrder { phi, gamma } => {
-                let x = phi * Vector2::new(*s, *sd) + gamma * u;
-                *s = x[0];
-                *sd = x[1];
-            }
-        }
-    }
-}
 
 /// Metering-edge geometry and flow law.
 #[derive(Debug, Clone)]

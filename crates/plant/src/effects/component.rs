@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SpoolStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -70,6 +70,37 @@ pub trait CommandStage: Component {
     /// The command (V) the valve sees over the substep [t, t + h] (s) of period `cycle`,
     /// whose command was the last one pushed; `h` ≤ the control period. Real-time safe.
     fn command(&self, cycle: u64, t: f64, h: f64) -> f64;
+}
+
+/// A component between the command path and the metering edges: the spool's own dynamics
+/// (`valve_dynamics`), linear and discretised exactly over the substep (zero-order hold on
+/// the spool target). Its two states, the spool position and velocity (fractions of full
+/// travel, 1/s), are the plant state's `spool` and `spool_velocity`, which the stage
+/// advances in place once per substep (step 1 of crates/plant/src/model.rs), before the
+/// valve edges open.
+pub trait SpoolStage: Component {
+    /// Order of the spool model, the count of its states in the linearisation's state
+    /// (`Plant::linear_state`): 1 or 2, 0 without the effect.
+    fn order(&self) -> u8;
+
+    /// The spool's bandwidth (rad/s), that sets the substep of `integration.method =
+    /// "linear_exact"`, where the spool is the fastest part integrated explicitly; 0 for an
+    /// ideal spool.
+    fn bandwidth(&self) -> f64;
+
+    /// Discretise for the substep `h` (s) (configure phase, and again when the automatic
+    /// substep rule changes `h`, for an `h` up to one the call accepted before: no
+    /// allocation then). `Err` names the field when the discretisation is not representable
+    /// at `h`; the stage then keeps its previous discretisation.
+    fn discretise(&mut self, h: f64) -> Result<(), ConfigError>;
+
+    /// Advance the spool position `spool` and velocity `velocity` towards `target`
+    /// (fraction of full travel) over one substep. Real-time safe.
+    fn advance(&self, spool: &mut f64, velocity: &mut f64, target: f64);
+
+    /// The spool position half a substep on from `spool`, `velocity` towards `target`,
+    /// without advancing them (the mid-step opening of `linear_exact`). Real-time safe.
+    fn midstep(&self, spool: f64, velocity: f64, target: f64) -> f64;
 }
 
 /// What a [`ForceStage`] does to the piston velocity over one substep.

@@ -8,7 +8,8 @@
 //! `#[param]` declarations, defaults) and its component, a type implementing
 //! [`Component`] (cross-field checks, the constants derived from the section, its state and
 //! reset) and the trait of its stage: [`CommandStage`] on the command path (`time_delay`:
-//! `DelayLine`), [`SupplyStage`] for the supply pressure (`supply_pressure_drop`: `Supply`),
+//! `DelayLine`), [`SpoolStage`] for the spool's dynamics (`valve_dynamics`: `Spool`),
+//! [`SupplyStage`] for the supply pressure (`supply_pressure_drop`: `Supply`),
 //! [`FlowStage`] for flows out of the chambers (`internal_leakage`: `CrossPiston`,
 //! `external_leakage`: `ToTank`), [`BulkStage`] for the chambers' bulk modulus
 //! (`bulk_modulus_pressure`: `BulkModulus`), [`ForceStage`] in the piston's velocity update
@@ -23,7 +24,8 @@
 //! (exhaustive: a new id does not build without them); in crates/plant/src/params.rs its
 //! `Option` field in [`Effects`] and its re-export line. In [`crate::model`] the component's
 //! stage is called where the cycle reaches it (`Plant::step` calls `time_delay`'s `push`
-//! once per period and `command` per substep; `Plant::advance_substep` reads
+//! once per period and `command` per substep; `Plant::advance_substep` calls
+//! `valve_dynamics`'s `advance` (and `advance_substep_linear` its `midstep` too) first, reads
 //! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
 //! leakages' `flows` and `conductances` in the chamber balances, calls
 //! `supply_pressure_drop`'s `advance` after the chamber pressures, `flexible_mount`'s `drift`
@@ -32,14 +34,17 @@
 //! `Plant::measure` hands `sensor_tone` to the sensor model, whose `sample` calls its `add`
 //! per channel); `Plant::configure` reads the constants the plant folds into its own:
 //! friction's viscous coefficient and bristle stiffness, the mount's coefficients, the
-//! supply's droop and time constant, the bulk stage's β_max and `is_linear` and the
-//! leakages' conductances for the substep rule, `linear_exact` and the linearisation);
+//! supply's droop and time constant, the bulk stage's β_max and `is_linear`, the spool's
+//! bandwidth and the leakages' conductances for the substep rule, `linear_exact` and the
+//! linearisation, and calls the spool's `discretise` once the substep is chosen, as
+//! `Plant::set_substeps` does when it changes; the linearisation's state reads the spool's
+//! `order`);
 //! validation, configuration and reset go through [`Components`]. The effects not moved to
-//! a component yet (`valve_deadband`, `valve_saturation`, `valve_dynamics`, `line_dynamics`)
-//! still have their checks called from [`validate_variants`] or `model::validate`, their
-//! derived constants in `Plant::configure` (the valve edge law `EdgeLaw` and the spool
-//! discretisation `SpoolModel` in crates/plant/src/valve.rs, the line chains in
-//! crates/plant/src/line.rs) and their terms in the substep (`Plant::advance_substep`).
+//! a component yet (`valve_deadband`, `valve_saturation`, `line_dynamics`) still have their
+//! checks called from [`validate_variants`] or `model::validate`, their derived constants in
+//! `Plant::configure` (the valve edge law `EdgeLaw` in crates/plant/src/valve.rs, the line
+//! chains in crates/plant/src/line.rs) and their terms in the substep
+//! (`Plant::advance_substep`).
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
 //! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
@@ -64,7 +69,7 @@ pub mod valve_saturation;
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
 pub use component::{
     BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LoadSpring, MountStage,
-    PistonForces, SensorChannel, SensorStage, Setup, SupplyStage,
+    PistonForces, SensorChannel, SensorStage, Setup, SpoolStage, SupplyStage,
 };
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
@@ -251,6 +256,7 @@ components! {
     flexible_mount: flexible_mount::Mount,
     supply_pressure_drop: supply_pressure_drop::Supply,
     time_delay: time_delay::DelayLine,
+    valve_dynamics: valve_dynamics::Spool,
     sensor_tone: sensor_tone::Tones,
 }
 
