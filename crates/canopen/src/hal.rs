@@ -413,13 +413,10 @@ impl CanopenHal {
                 HeartbeatConsumer::new(ids[0], hb_ns),
                 HeartbeatConsumer::new(ids[1], hb_ns),
             ],
+            // Nothing measured yet, the time included.
             meas: Measurements {
                 t: f64::NAN,
-                force: f64::NAN,
-                position: f64::NAN,
-                p_a: f64::NAN,
-                p_b: f64::NAN,
-                spool: f64::NAN,
+                ..Measurements::default()
             },
             valve_state: None,
             first_tpdo: false,

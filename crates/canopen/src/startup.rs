@@ -1616,11 +1616,7 @@ impl<'a> Bringup<'a> {
         let (tr, va) = (self.ids[0], self.ids[1]);
         let mut meas = Measurements {
             t: f64::NAN,
-            force: f64::NAN,
-            position: f64::NAN,
-            p_a: f64::NAN,
-            p_b: f64::NAN,
-            spool: f64::NAN,
+            ..Measurements::default()
         };
         self.send(CanFrame::std(
             RPDO1_BASE + u16::from(va),
