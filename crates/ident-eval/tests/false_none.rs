@@ -178,3 +178,91 @@ fn an_effect_seen_on_the_position_channel_alone_is_named() {
         c.evidence
     );
 }
+
+/// The test bench's nominal stated as known: `[uncertainty]` 0 % on the five parameters the
+/// diagnosis refits by default (DIAGNOSIS.md "Nominal uncertainty from the config"), so the
+/// refit cannot absorb a small effect into them.
+fn known_nominal() -> ehactl_plant::PlantParams {
+    let mut p = testrig().plant;
+    for k in [
+        "valve.rated_flow",
+        "fluid.bulk_modulus",
+        "mechanics.mass",
+        "mechanics.damping",
+        "mechanics.load_stiffness",
+    ] {
+        p.uncertainty.insert(
+            k.into(),
+            ehactl_plant::params::Uncertainty::Relative("0%".into()),
+        );
+    }
+    p
+}
+
+/// Why the known misses above are misses: with the nominal stated as known, the same small
+/// records are not `none` (the refit within the default ±15 % had absorbed the effect), while
+/// the clean records stay `none`.
+fn check_small_known(e: EffectId) {
+    let seed = 3100 + EffectId::ALL.iter().position(|x| *x == e).unwrap() as u64;
+    let (rec, alpha) = with_small(seed, e);
+    let d = diagnose(&known_nominal(), &rec, None, &Options::default()).unwrap();
+    assert_ne!(
+        d.cause,
+        "none",
+        "{} (α = {alpha:.3}), nominal known: {}",
+        e.as_str(),
+        d.summary
+    );
+}
+
+#[test]
+fn own_clean_record_with_the_nominal_known_is_none() {
+    for seed in [3000, 3001] {
+        let d = diagnose(&known_nominal(), &clean(seed), None, &Options::default()).unwrap();
+        assert_eq!(d.cause, "none", "seed {seed}: {}", d.summary);
+    }
+}
+
+macro_rules! small_known {
+    ($name:ident, $e:expr) => {
+        #[test]
+        fn $name() {
+            check_small_known($e);
+        }
+    };
+    ($name:ident, $e:expr, $why:literal) => {
+        #[test]
+        #[ignore = $why]
+        fn $name() {
+            check_small_known($e);
+        }
+    };
+}
+
+// Not `none` with the nominal known (2026-12-03); named: dead band and β(p); friction
+// `unexplained`; the saturation is answered `supply_pressure_drop`, the spool lag `time_delay`.
+small_known!(small_friction_known_nominal_is_not_none, EffectId::Friction);
+small_known!(
+    small_valve_deadband_known_nominal_is_not_none,
+    EffectId::ValveDeadband
+);
+small_known!(
+    small_valve_saturation_known_nominal_is_not_none,
+    EffectId::ValveSaturation
+);
+small_known!(
+    small_valve_dynamics_known_nominal_is_not_none,
+    EffectId::ValveDynamics
+);
+small_known!(
+    small_bulk_modulus_pressure_known_nominal_is_not_none,
+    EffectId::BulkModulusPressure
+);
+// The position residual is coloured (2.0× its floor, Ljung–Box Q ≈ 5900) with nothing refit,
+// but below `residual::LEVEL_SOFT` = 2.5, which excuses the colour a refit leaves on clean
+// records and is applied here too.
+small_known!(
+    small_line_dynamics_known_nominal_is_not_none,
+    EffectId::LineDynamics,
+    "known miss: none at 2.5x the noise even with the nominal known"
+);
