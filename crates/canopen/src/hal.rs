@@ -413,11 +413,7 @@ impl CanopenHal {
                 HeartbeatConsumer::new(ids[0], hb_ns),
                 HeartbeatConsumer::new(ids[1], hb_ns),
             ],
-            // Nothing measured yet, the time included.
-            meas: Measurements {
-                t: f64::NAN,
-                ..Measurements::default()
-            },
+            meas: Measurements::UNMEASURED,
             valve_state: None,
             first_tpdo: false,
             pending_syncs: [0; 2],

@@ -1614,10 +1614,7 @@ impl<'a> Bringup<'a> {
     pub(crate) fn prime(&mut self) -> Result<Measurements, StartupError> {
         let c = &self.s.canopen;
         let (tr, va) = (self.ids[0], self.ids[1]);
-        let mut meas = Measurements {
-            t: f64::NAN,
-            ..Measurements::default()
-        };
+        let mut meas = Measurements::UNMEASURED;
         self.send(CanFrame::std(
             RPDO1_BASE + u16::from(va),
             0i16.to_le_bytes(),
