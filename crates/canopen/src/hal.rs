@@ -29,13 +29,17 @@
 //!   start-up already returned a valve it had enabled to HOLD);
 //!   [`CanopenHal::take_startup_failure`] hands back the error with every frame of the
 //!   attempt, for the log (a failed start-up is recorded like a trip, see
-//!   [`StartupFailure`]). A safe stop the valve did not confirm also leaves the backend
-//!   Failed; there a safe stop tries the HOLD again (by SDO, if the bus is still there) and
+//!   [`StartupFailure`]; [`Hal::take_startup_report`] gives the same as the
+//!   backend-neutral [`StartupReport`], with which the session, `ehactl_runtime::session`,
+//!   logs it). A safe stop the valve did not confirm also leaves the backend Failed; there
+//!   a safe stop tries the HOLD again (by SDO, if the bus is still there) and
 //!   fails again without one. Read and write are refused outside Active.
 //!
-//! [`CanopenHal::connect`] and its variants are new + configure + activate and may block for
-//! at most `boot_timeout_s` plus a few SDO timeouts; [`CanopenHal::connect_logged`] hands
-//! back every frame of a failed attempt.
+//! `ehactl run --hal canopen` builds the backend with [`CanopenHal::new_until`] and hands it
+//! to the session, which configures and activates it as any backend. [`CanopenHal::connect`]
+//! and its variants are new + configure + activate in one call and may block for at most
+//! `boot_timeout_s` plus a few SDO timeouts; [`CanopenHal::connect_logged`] hands back every
+//! frame of a failed attempt.
 //!
 //! Threads and queues:
 //! - start-up (the lifecycle calls, [`crate::startup`]) runs before the loop and may block;
@@ -99,7 +103,7 @@ pub use crate::startup::{StartupError, StartupFailure};
 use crate::sync::{self, SyncProducer};
 use crate::transport;
 use crossbeam_queue::ArrayQueue;
-use ehactl_hal::{Hal, HalError, Measurements};
+use ehactl_hal::{Hal, HalError, Measurements, StartupReport};
 use ehactl_types::event::{Event, EventKind, Severity};
 use ehactl_types::frames::{CanFrameRecord, FrameLog};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
@@ -366,6 +370,14 @@ impl CanopenHal {
         Self::new_with(s, None, None, Arc::new(MonotonicClock::new()))
     }
 
+    /// [`CanopenHal::new`] with the stop request `stop` (SIGINT / SIGTERM), honoured by every
+    /// blocking phase of [`Hal::configure`] and [`Hal::activate`] as by
+    /// [`CanopenHal::connect_until`]: what `ehactl run --hal canopen` hands to the session,
+    /// which brings it up.
+    pub fn new_until(s: CanopenSettings, stop: Option<Arc<AtomicBool>>) -> CanopenHal {
+        Self::new_with(s, None, stop, Arc::new(MonotonicClock::new()))
+    }
+
     /// [`CanopenHal::new`] on `bus` (`None`: configure opens the bus at `s.bus`), with the
     /// stop request `stop` (see [`CanopenHal::connect_until`]) and the caller's `clock` (see
     /// [`CanopenHal::connect_with`]).
@@ -413,11 +425,7 @@ impl CanopenHal {
                 HeartbeatConsumer::new(ids[0], hb_ns),
                 HeartbeatConsumer::new(ids[1], hb_ns),
             ],
-            // Nothing measured yet, the time included.
-            meas: Measurements {
-                t: f64::NAN,
-                ..Measurements::default()
-            },
+            meas: Measurements::UNMEASURED,
             valve_state: None,
             first_tpdo: false,
             pending_syncs: [0; 2],
@@ -1378,6 +1386,11 @@ impl Hal for CanopenHal {
 
     fn frame_log(&self) -> Option<Arc<FrameLog>> {
         Some(self.frame_log.clone())
+    }
+
+    /// [`CanopenHal::take_startup_failure`] as the backend-neutral report.
+    fn take_startup_report(&mut self) -> Option<StartupReport> {
+        self.take_startup_failure().map(StartupFailure::report)
     }
 
     fn report(&self) -> Option<serde_json::Value> {

@@ -37,7 +37,7 @@ use crate::pdo::{
 use crate::sdo::{self, SdoClient, SdoError};
 use crate::settings::CanopenSettings;
 use crate::sync;
-use ehactl_hal::Measurements;
+use ehactl_hal::{Measurements, StartupReport};
 use ehactl_types::canopen::CanopenConfig;
 use ehactl_types::frames::CanFrameRecord;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -118,6 +118,21 @@ pub struct StartupFailure {
     pub frames: Vec<CanFrameRecord>,
     /// Time from the start of the attempt to the failure (s).
     pub elapsed_s: f64,
+}
+
+impl StartupFailure {
+    /// The failure as the backend-neutral [`StartupReport`] the session logs (reason text,
+    /// the settings / stop flags, the time limit, the frames of the attempt).
+    pub fn report(self) -> StartupReport {
+        StartupReport {
+            reason: self.error.to_string(),
+            settings_error: matches!(self.error, StartupError::Settings(_)),
+            stopped: matches!(self.error, StartupError::Stopped { .. }),
+            elapsed_s: self.elapsed_s,
+            time_limit_s: self.error.time_limit_s(),
+            frames: self.frames,
+        }
+    }
 }
 
 impl StartupError {
@@ -1614,10 +1629,7 @@ impl<'a> Bringup<'a> {
     pub(crate) fn prime(&mut self) -> Result<Measurements, StartupError> {
         let c = &self.s.canopen;
         let (tr, va) = (self.ids[0], self.ids[1]);
-        let mut meas = Measurements {
-            t: f64::NAN,
-            ..Measurements::default()
-        };
+        let mut meas = Measurements::UNMEASURED;
         self.send(CanFrame::std(
             RPDO1_BASE + u16::from(va),
             0i16.to_le_bytes(),

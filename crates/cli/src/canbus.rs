@@ -1,13 +1,14 @@
-//! `ehactl canbus ...`: CAN bus tools.
+//! `ehactl canbus ...`: CAN bus tools; and the CAN side of `ehactl run --hal canopen`: the
+//! checks of `--hal` / `--bus` and the settings before anything is opened ([`check_args`]),
+//! the unconfigured backend handed to the session, which brings it up and logs a failed
+//! start-up ([`backend`]), and the exit of such a failure ([`startup_failed`]).
 
 use clap::Subcommand;
-use ehactl_canopen::hal::{CanopenHal, CanopenSettings, StartupError, StartupFailure};
+use ehactl_canopen::hal::{CanopenHal, CanopenSettings};
 use ehactl_canopen::hub::Hub;
 use ehactl_canopen::BusUrl;
 use ehactl_config::RigConfig;
-use ehactl_log::logger::{FrameLog, Overflow};
-use ehactl_log::record::{Event, EventKind, Severity};
-use ehactl_runtime::session::open_log;
+use ehactl_runtime::session::FailedStartup;
 use std::io::Write;
 use std::path::Path;
 use std::process::ExitCode;
@@ -98,8 +99,29 @@ fn config_dir(config: &Path) -> Option<std::path::PathBuf> {
     })
 }
 
-/// Exit code when the hardware could not be brought up.
-pub const EXIT_STARTUP: u8 = 4;
+pub use ehactl_runtime::session::{EXIT_STARTUP, EXIT_STOPPED};
+
+/// The bus of `--hal`/`--bus`: `None` for the sim backend; exit 2 with one line for a
+/// combination that is refused or an address that does not parse.
+fn bus_url((hal, bus): (HalKind, Option<&str>)) -> Result<Option<BusUrl>, ExitCode> {
+    let arg_err = |m: String| {
+        eprintln!("ehactl: {m}");
+        ExitCode::from(2)
+    };
+    match (hal, bus) {
+        (HalKind::Sim, None) => Ok(None),
+        (HalKind::Sim, Some(b)) => Err(arg_err(format!(
+            "--bus {b} needs --hal canopen (the sim backend has no bus)"
+        ))),
+        (HalKind::Canopen, None) => Err(arg_err(
+            "--hal canopen needs --bus socketcan://IFACE or --bus socketcand://HOST:PORT/CHANNEL"
+                .into(),
+        )),
+        (HalKind::Canopen, Some(b)) => BusUrl::parse(b)
+            .map(Some)
+            .map_err(|e| arg_err(format!("--bus: {e}"))),
+    }
+}
 
 /// Check `--hal`/`--bus` and the CAN settings that need no bus (exit 2 with one line), before
 /// anything is opened or written (the log file included).
@@ -108,27 +130,16 @@ pub const EXIT_STARTUP: u8 = 4;
 pub fn check_args(
     cfg: &RigConfig,
     config: &Path,
-    (hal, bus): (HalKind, Option<&str>),
+    hal_bus: (HalKind, Option<&str>),
 ) -> Result<(), ExitCode> {
-    let arg_err = |m: String| {
-        eprintln!("ehactl: {m}");
-        ExitCode::from(2)
-    };
-    match (hal, bus) {
-        (HalKind::Sim, None) => Ok(()),
-        (HalKind::Sim, Some(b)) => Err(arg_err(format!(
-            "--bus {b} needs --hal canopen (the sim backend has no bus)"
-        ))),
-        (HalKind::Canopen, None) => Err(arg_err(
-            "--hal canopen needs --bus socketcan://IFACE or --bus socketcand://HOST:PORT/CHANNEL"
-                .into(),
-        )),
-        (HalKind::Canopen, Some(b)) => {
-            let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
-            CanopenHal::check_settings(&settings(cfg, config, url, false))
-                .map(|_plan| ())
-                .map_err(|e| arg_err(e.to_string()))
-        }
+    match bus_url(hal_bus)? {
+        None => Ok(()),
+        Some(url) => CanopenHal::check_settings(&settings(cfg, config, url, false))
+            .map(|_plan| ())
+            .map_err(|e| {
+                eprintln!("ehactl: {e}");
+                ExitCode::from(2)
+            }),
     }
 }
 
@@ -172,121 +183,49 @@ pub fn check_config(cfg: &RigConfig, config: &Path) -> Result<Option<String>, St
     )))
 }
 
-/// Exit code of a run stopped by SIGINT / SIGTERM (also during start-up).
-pub const EXIT_STOPPED: u8 = 130;
-
-/// Bring the CAN rig up for `--hal canopen`; `Ok(None)` for the sim backend. A failed
-/// start-up (exit code 4) is still logged to `out`: the frames of the attempt on `/can`, a
-/// trip on `/events` and the reason in `/summary` (printed on stdout with `json`). `stop`
-/// (SIGINT / SIGTERM) ends the start-up within one master heartbeat period: exit 130, the
-/// attempt logged the same way, as interrupted (no trip).
-pub fn connect(
+/// The CAN rig of `--hal canopen`, unconfigured (no bus I/O yet); `Ok(None)` for the sim
+/// backend. The session brings it up ([`ehactl_runtime::session::run_realtime`]: configure,
+/// then activate; may block up to `canopen.boot_timeout_s`); `stop` (SIGINT / SIGTERM) ends
+/// that start-up within one master heartbeat period, the valve back to HOLD if it was being
+/// enabled. `json`: no start-up progress on stderr.
+pub fn backend(
     cfg: &RigConfig,
     config: &Path,
-    (hal, bus): (HalKind, Option<&str>),
-    out: &Path,
+    hal_bus: (HalKind, Option<&str>),
     json: bool,
     stop: &Arc<AtomicBool>,
 ) -> Result<Option<CanopenHal>, ExitCode> {
-    let arg_err = |m: String| {
-        eprintln!("ehactl: {m}");
-        ExitCode::from(2)
-    };
-    match (hal, bus) {
-        (HalKind::Sim, None) => Ok(None),
-        (HalKind::Sim, Some(b)) => Err(arg_err(format!(
-            "--bus {b} needs --hal canopen (the sim backend has no bus)"
-        ))),
-        (HalKind::Canopen, None) => Err(arg_err(
-            "--hal canopen needs --bus socketcan://IFACE or --bus socketcand://HOST:PORT/CHANNEL"
-                .into(),
-        )),
-        (HalKind::Canopen, Some(b)) => {
-            let url = BusUrl::parse(b).map_err(|e| arg_err(format!("--bus: {e}")))?;
-            let settings = settings(cfg, config, url, !json);
-            match CanopenHal::connect_until(settings, Some(stop.clone())) {
-                Ok(h) => Ok(Some(h)),
-                Err(f) => {
-                    eprintln!("ehactl: {}", f.error);
-                    if let StartupError::Settings(_) = f.error {
-                        return Err(ExitCode::from(2));
-                    }
-                    let code = if matches!(f.error, StartupError::Stopped { .. }) {
-                        EXIT_STOPPED
-                    } else {
-                        EXIT_STARTUP
-                    };
-                    match log_failed_startup(cfg, b, out, &f) {
-                        Ok(summary) => {
-                            eprintln!("ehactl: start-up attempt logged to {}", out.display());
-                            if json {
-                                println!("{summary}");
-                            }
-                        }
-                        Err(e) => eprintln!("ehactl: {e}"),
-                    }
-                    Err(ExitCode::from(code))
-                }
-            }
-        }
-    }
+    Ok(bus_url(hal_bus)?
+        .map(|url| CanopenHal::new_until(settings(cfg, config, url, !json), Some(stop.clone()))))
 }
 
-/// Write the MCAP of a failed start-up: `/config`, `/can` (every frame of the attempt, times
-/// ≤ 0 up to the failure), one `hal_fault` trip on `/events`, and `/summary` with the reason
-/// (`trip`, `trip_kind` = `startup`); returns the summary. A start-up stopped by a signal is
-/// logged as interrupted instead: an info `signal` event, `trip` null, `interrupted` true,
-/// the reason in `startup_stopped`, `exit_code` 130.
-fn log_failed_startup(
-    cfg: &RigConfig,
-    bus: &str,
-    out: &Path,
-    f: &StartupFailure,
-) -> Result<serde_json::Value, String> {
-    let logger = open_log(cfg, out, "canopen", Overflow::Block).map_err(|e| e.to_string())?;
-    let frames = Arc::new(FrameLog::new(f.frames.len().max(1)));
-    for r in &f.frames {
-        frames.push(*r);
+/// The exit of a failed start-up ([`SessionError::Startup`]): the reason on stderr; a
+/// settings error exits 2 (nothing was logged); otherwise the session logged the attempt to
+/// `out` (the frames on `/can`, a trip on `/events`, the reason in `/summary`, printed on
+/// stdout with `json`) and the exit code is 4, or 130 when a signal stopped the start-up
+/// (logged as interrupted, no trip).
+///
+/// [`SessionError::Startup`]: ehactl_runtime::session::SessionError::Startup
+pub fn startup_failed(f: &FailedStartup, out: &Path, json: bool) -> ExitCode {
+    eprintln!("ehactl: {}", f.report.reason);
+    if f.report.settings_error {
+        return ExitCode::from(2);
     }
-    logger.attach_frames(frames);
-    let stopped = matches!(f.error, StartupError::Stopped { .. });
-    logger.event(Event {
-        t: 0.0,
-        cycle: 0,
-        severity: if stopped {
-            Severity::Info
-        } else {
-            Severity::Trip
-        },
-        kind: if stopped {
-            EventKind::Signal
-        } else {
-            EventKind::HalFault
-        },
-        channel: "canopen start-up",
-        value: f.elapsed_s,
-        limit: f.error.time_limit_s().unwrap_or(f64::NAN),
-        unit: "s",
-    });
-    let reason = f.error.to_string();
-    let mut summary = serde_json::json!({
-        "backend": "canopen",
-        "bus": bus,
-        "cycles": 0,
-        "duration_s": 0.0,
-        "trip": if stopped { serde_json::Value::Null } else { reason.clone().into() },
-        "trip_kind": if stopped { serde_json::Value::Null } else { "startup".into() },
-        "interrupted": stopped,
-        "startup_stopped": if stopped { reason.into() } else { serde_json::Value::Null },
-        "startup_s": f.elapsed_s,
-        "can_startup_frames": f.frames.len(),
-        "exit_code": if stopped { EXIT_STOPPED } else { EXIT_STARTUP },
-        "mcap": out.display().to_string(),
-    });
-    let stats = logger.finish(summary.clone()).map_err(|e| e.to_string())?;
-    // What the logger added to the logged summary, so that both are the same.
-    summary["records_written"] = stats.records_written.into();
-    Ok(summary)
+    match &f.log {
+        Ok(Some(summary)) => {
+            eprintln!("ehactl: start-up attempt logged to {}", out.display());
+            if json {
+                println!("{summary}");
+            }
+        }
+        Ok(None) => {}
+        Err(e) => eprintln!("ehactl: {e}"),
+    }
+    ExitCode::from(if f.report.stopped {
+        EXIT_STOPPED
+    } else {
+        EXIT_STARTUP
+    })
 }
 
 /// Human-readable CAN lines of the run summary (nothing for the sim backend).

@@ -1,7 +1,8 @@
 //! `ehactl run`: one closed-loop run, in four phases — check everything that can be checked
 //! before anything starts ([`prepare`]), start the services around the loop (control socket,
-//! CAN rig, live view: [`Services::start`]), run the loop with a progress bar ([`execute`]),
-//! and report ([`report`]). Exit codes as listed in `main.rs`.
+//! the CAN backend unconfigured, live view: [`Services::start`]), bring the backend up and
+//! run the loop with a progress bar ([`execute`], through `ehactl_runtime::session`, which
+//! also logs a failed start-up), and report ([`report`]). Exit codes as listed in `main.rs`.
 
 use crate::canbus::{self, HalKind};
 use crate::{
@@ -55,23 +56,26 @@ pub fn cmd_run(args: RunArgs<'_>) -> ExitCode {
         Err(code) => return code,
     };
     let live = Arc::new(LiveParams::new());
-    let mut services = match Services::start(&args, &cfg, &out, &live) {
+    let mut services = match Services::start(&args, &cfg, &live) {
         Ok(s) => s,
         Err(code) => return code,
     };
-    let result = execute(&args, &cfg, out, &mut services, &live);
+    let result = execute(&args, &cfg, out.clone(), &mut services, &live);
+    // After a failed start-up no run log was opened, so nothing will close the tap: no wait.
+    let drain = match result {
+        Err(SessionError::Startup(_)) => Duration::ZERO,
+        _ => Duration::from_secs(5),
+    };
     let live_stats = services.live_view.take().map(|v| {
         let url = v.url.clone();
-        (
-            url,
-            v.finish(Duration::from_secs(5), Duration::from_millis(500)),
-        )
+        (url, v.finish(drain, Duration::from_millis(500)))
     });
     let session = match result {
         Ok(s) => s,
         Err(SessionError::Config(e)) => {
             return config_error(format!("{}: {e}", args.config.display()))
         }
+        Err(SessionError::Startup(f)) => return canbus::startup_failed(&f, &out, args.json),
         Err(SessionError::Log(e)) => {
             let msg = if e.at_create {
                 // The loop never started: nothing to stop, nothing to recover.
@@ -125,8 +129,9 @@ fn prepare(args: &RunArgs<'_>) -> Result<(RigConfig, PathBuf), ExitCode> {
     Ok((cfg, out))
 }
 
-/// Phase 2: what runs beside the loop. Dropped at the end of the command (the control
-/// socket is removed, the CAN rig is released after its safe stop).
+/// Phase 2: what runs beside the loop, and the CAN backend (unconfigured until the session
+/// brings it up). Dropped at the end of the command (the control socket is removed, the CAN
+/// rig is released after its safe stop).
 struct Services {
     _control: Option<ControlServer>,
     can_hal: Option<ehactl_canopen::hal::CanopenHal>,
@@ -138,10 +143,10 @@ impl Services {
     fn start(
         args: &RunArgs<'_>,
         cfg: &RigConfig,
-        out: &Path,
         live: &Arc<LiveParams>,
     ) -> Result<Services, ExitCode> {
-        // The socket is opened before CAN bring-up, so its errors never leave a started rig.
+        // The socket and the live view are opened before the CAN bring-up (in the session),
+        // so that their errors never leave a started rig.
         let control = match &args.control_socket {
             Some(path) => match ControlServer::start(path, cfg.clone(), live.clone()) {
                 Ok(s) => Some(s),
@@ -159,15 +164,14 @@ impl Services {
             None => None,
         };
         let stop = stop_flag();
-        // The CAN rig is brought up before the run (may block up to canopen.boot_timeout_s);
-        // a signal meanwhile ends the start-up within one master heartbeat period (exit 130,
-        // the valve back to HOLD if it was being enabled); a signal after it ends the run at
-        // its first cycle, through the safe stop.
-        let can_hal = canbus::connect(
+        // No bus I/O yet: the session brings the rig up before the loop (may block up to
+        // canopen.boot_timeout_s); a signal meanwhile ends the start-up within one master
+        // heartbeat period (exit 130, the valve back to HOLD if it was being enabled); a
+        // signal after it ends the run at its first cycle, through the safe stop.
+        let can_hal = canbus::backend(
             cfg,
             args.config,
             (args.hal, args.bus.as_deref()),
-            out,
             args.json,
             &stop,
         )?;
@@ -195,8 +199,8 @@ impl Services {
     }
 }
 
-/// Phase 3: the loop, under wall-clock pacing (`--realtime` or a CAN rig) or simulated
-/// time, with a progress bar on a terminal.
+/// Phase 3: the backend's start-up and the loop, under wall-clock pacing (`--realtime` or a
+/// CAN rig) or simulated time, with a progress bar on a terminal.
 fn execute(
     args: &RunArgs<'_>,
     cfg: &RigConfig,
@@ -238,7 +242,7 @@ fn execute(
             total.store(n, Ordering::Relaxed);
             done.store(k, Ordering::Relaxed);
         };
-        let opts = session_options(args.duration, out, &stop, &mut progress, tap);
+        let opts = session_options(args, out, &stop, &mut progress, tap);
         let hardware = services.can_hal.as_mut().map(|h| h as &mut dyn Hal);
         let r = run_realtime(cfg, opts, live_ref, hardware, Some(warn));
         finished.store(true, Ordering::Relaxed);
@@ -250,7 +254,7 @@ fn execute(
             bar.set_length(n);
             bar.set_position(k);
         };
-        let opts = session_options(args.duration, out, &stop, &mut progress, tap);
+        let opts = session_options(args, out, &stop, &mut progress, tap);
         if live_ref.is_some() {
             run_sim_live(cfg, opts, live_ref)
         } else {
@@ -262,15 +266,16 @@ fn execute(
 }
 
 fn session_options<'a>(
-    duration: Option<f64>,
+    args: &RunArgs<'_>,
     out: PathBuf,
     stop: &'a AtomicBool,
     progress: &'a mut dyn FnMut(u64, u64),
     tap: Option<Arc<LogTap>>,
 ) -> SessionOptions<'a> {
     SessionOptions {
-        duration,
+        duration: args.duration,
         mcap: Some(out),
+        bus: args.bus.clone(),
         stop: Some(stop),
         capture: false,
         progress: Some(progress),

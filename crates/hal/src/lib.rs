@@ -23,7 +23,7 @@
 pub mod clock;
 pub mod pacer;
 
-pub use ehactl_types::frames::FrameLog;
+pub use ehactl_types::frames::{CanFrameRecord, FrameLog};
 pub use ehactl_types::{Measurements, PlantState, Timebase};
 
 /// Why a backend could not complete a read or write. `Copy` so that it can be raised in
@@ -60,6 +60,28 @@ pub enum HalError {
         /// The bring-up phase that failed.
         what: &'static str,
     },
+}
+
+/// Why a backend's bring-up ([`Hal::configure`] then [`Hal::activate`]) failed, in full:
+/// what [`HalError::Startup`] cannot carry (it is `Copy` for the cycle). Handed over once by
+/// [`Hal::take_startup_report`], so that the session logs a failed start-up the same way for
+/// every backend without knowing it (the CANopen backend's `StartupFailure`, converted).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StartupReport {
+    /// The reason, one line (e.g. `CANopen start-up: ...`).
+    pub reason: String,
+    /// The settings or device files are wrong: nothing reached the hardware, and there is
+    /// no attempt to log (the CLI's exit code 2).
+    pub settings_error: bool,
+    /// The start-up was cut short by a stop request (SIGINT / SIGTERM), not by a fault.
+    pub stopped: bool,
+    /// Time from the start of the attempt to the failure (s).
+    pub elapsed_s: f64,
+    /// The time limit that ran out, when the failure is a timeout (s).
+    pub time_limit_s: Option<f64>,
+    /// Every bus frame sent and received during the attempt, in order; times relative to the
+    /// failure (ns, all <= 0).
+    pub frames: Vec<CanFrameRecord>,
 }
 
 /// The state a call needs: `"configured"` for activate, `"active"` for deactivate, read
@@ -165,6 +187,14 @@ pub trait Hal {
     /// state; the end of a run. May block briefly. Default: [`Hal::safe_stop`].
     fn deactivate(&mut self, safe_command: f64) -> Result<(), HalError> {
         self.safe_stop(safe_command)
+    }
+
+    /// The full reason of the last failed [`Hal::configure`] / [`Hal::activate`] (one that
+    /// returned [`HalError::Startup`]), with the bus frames of the attempt; taken, so a
+    /// second call gives `None`. Default: `None` (a backend without bring-up never fails
+    /// it).
+    fn take_startup_report(&mut self) -> Option<StartupReport> {
+        None
     }
 
     /// Ground-truth plant state when the backend knows it (simulation), for logging.

@@ -1,7 +1,15 @@
 //! One complete run: configure the plant, build the controller, supervisor and setpoint,
-//! run the loop (in simulated time, [`run_sim`], or paced by the wall clock against the
-//! simulated plant or a rig, [`run_realtime`]), log every cycle to MCAP and summarise.
-//! Shared by the CLI and the Python bindings so both run exactly the same code.
+//! bring the backend up, run the loop (in simulated time, [`run_sim`], or paced by the wall
+//! clock against the simulated plant or a rig, [`run_realtime`]), log every cycle to MCAP
+//! and summarise. Shared by the CLI and the Python bindings so both run exactly the same
+//! code: the one composition root of sim and CAN runs.
+//!
+//! Every backend goes through the [`Hal`] lifecycle here ([`run_with_live`]): configure,
+//! activate, the loop's read / write, and the loop's deactivate or safe stop at the end. The
+//! simulated plant keeps the trait's defaults (nothing to bring up); a CAN rig arrives
+//! unconfigured and is brought up here, where a failed start-up is logged like a trip: the
+//! MCAP holds `/config`, the frames of the attempt on `/can`, one event and a `/summary` with
+//! the reason (`trip_kind` `startup`; see [`SessionError::Startup`]).
 
 use crate::live::LiveParams;
 use crate::realtime::{RtOptions, WallClockPacer};
@@ -11,14 +19,25 @@ use ehactl_config::{Compression, ControlMode, RigConfig};
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
 use ehactl_hal::pacer::{Pacer, SimulatedTime, TimingReport};
-use ehactl_hal::Hal;
-use ehactl_log::logger::{LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata};
-use ehactl_log::record::CycleRecord;
+use ehactl_hal::{Hal, StartupReport};
+use ehactl_log::logger::{
+    FrameLog, LogCompression, LogOptions, LogStats, Logger, Overflow, RunMetadata,
+};
+use ehactl_log::record::{CycleRecord, Event, EventKind, Severity};
 use ehactl_plant::{ConfigError, Plant};
 use serde_json::json;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 use std::time::Instant;
+
+/// Exit code of `ehactl run` when the hardware could not be brought up, as recorded in the
+/// summary of a failed start-up (`exit_code`).
+pub const EXIT_STARTUP: u8 = 4;
+
+/// Exit code of `ehactl run` stopped by SIGINT / SIGTERM (also during start-up), as recorded
+/// in the summary of a start-up cut short by a signal.
+pub const EXIT_STOPPED: u8 = 130;
 
 /// Options of a run beyond the config.
 #[derive(Default)]
@@ -46,6 +65,9 @@ pub struct SessionOptions<'a> {
     pub log_every: u64,
     /// Also hand everything logged to this tap (live view, `ehactl run --live`).
     pub tap: Option<std::sync::Arc<ehactl_log::logger::LogTap>>,
+    /// The bus address as the user gave it (`ehactl run --bus`), the `bus` of the summary
+    /// of a failed hardware start-up.
+    pub bus: Option<String>,
 }
 
 /// Result of a run.
@@ -80,6 +102,20 @@ pub enum SessionError {
     Config(ConfigError),
     /// Log file problem.
     Log(ehactl_log::logger::LogError),
+    /// The backend's configure or activate failed; the loop never ran.
+    Startup(Box<FailedStartup>),
+}
+
+/// A backend start-up that failed ([`Hal::configure`] / [`Hal::activate`]), and what became
+/// of its log.
+#[derive(Debug)]
+pub struct FailedStartup {
+    /// Why, with the frames of the attempt ([`Hal::take_startup_report`]).
+    pub report: StartupReport,
+    /// The summary written to the MCAP of the attempt (with `records_written`); `Ok(None)`
+    /// when nothing was logged (no `mcap` path, or a settings error: nothing reached the
+    /// hardware); `Err` with the reason when the log could not be written.
+    pub log: Result<Option<serde_json::Value>, String>,
 }
 
 impl std::fmt::Display for SessionError {
@@ -87,6 +123,7 @@ impl std::fmt::Display for SessionError {
         match self {
             SessionError::Config(e) => e.fmt(f),
             SessionError::Log(e) => e.fmt(f),
+            SessionError::Startup(s) => f.write_str(&s.report.reason),
         }
     }
 }
@@ -213,11 +250,11 @@ pub fn run_sim_live(
 }
 
 /// Run `cfg` paced by the wall clock ([`WallClockPacer`] with the config's `[realtime]`
-/// settings; `warn` receives the set-up warnings): against `hardware` (a CAN rig the caller
-/// brought up) or, without it, against the simulated plant in real time
-/// (hardware-in-the-loop rehearsal). The logger drops and counts rather than waits, so the
-/// loop never blocks on the disk. The one composition of a paced run, for `ehactl run
-/// --realtime` and CAN runs.
+/// settings; `warn` receives the set-up warnings): against `hardware` (a CAN rig, handed
+/// over unconfigured: [`run_with_live`] brings it up) or, without it, against the simulated
+/// plant in real time (hardware-in-the-loop rehearsal). The logger drops and counts rather
+/// than waits, so the loop never blocks on the disk. The one composition of a paced run, for
+/// `ehactl run --realtime` and CAN runs.
 pub fn run_realtime(
     cfg: &RigConfig,
     opts: SessionOptions<'_>,
@@ -323,6 +360,111 @@ pub fn open_log(
     )
 }
 
+/// Bring `hal` up: [`Hal::configure`] then [`Hal::activate`] (nothing to do for the
+/// simulated plant). On failure the attempt is logged to `opts.mcap` (unless the settings
+/// were wrong, then nothing reached the hardware) by [`log_failed_startup`] with `cfg`, the
+/// config as given (without a `duration` override: the loop never ran).
+fn start_up(
+    cfg: &RigConfig,
+    hal: &mut dyn Hal,
+    opts: &SessionOptions<'_>,
+) -> Result<(), SessionError> {
+    let Err(e) = hal.configure().and_then(|()| hal.activate()) else {
+        return Ok(());
+    };
+    // A backend without a report (a lifecycle error): the error itself, no frames.
+    let report = hal.take_startup_report().unwrap_or_else(|| StartupReport {
+        reason: e.to_string(),
+        settings_error: false,
+        stopped: false,
+        elapsed_s: 0.0,
+        time_limit_s: None,
+        frames: Vec::new(),
+    });
+    let log = match (&opts.mcap, report.settings_error) {
+        (Some(path), false) => {
+            // With `atomic_log` under the temporary name first, as a run's log.
+            let partial = opts.atomic_log.then(|| partial_path(path));
+            let target = partial.as_deref().unwrap_or(path);
+            let mut r = log_failed_startup(cfg, target, path, hal.name(), opts, &report);
+            if let (Ok(_), Some(tmp)) = (&r, &partial) {
+                if let Err(e) = std::fs::rename(tmp, path) {
+                    r = Err(format!("cannot move the finished log into place: {e}"));
+                }
+            }
+            if let (Err(_), Some(tmp)) = (&r, &partial) {
+                let _ = std::fs::remove_file(tmp);
+            }
+            r.map(Some)
+        }
+        _ => Ok(None),
+    };
+    Err(SessionError::Startup(Box::new(FailedStartup {
+        report,
+        log,
+    })))
+}
+
+/// Write the MCAP of a failed start-up at `target` (named `path` in the summary): `/config`,
+/// `/can` (every frame of the attempt, times <= 0 up to the failure), one `hal_fault` trip on
+/// `/events`, and `/summary` with the reason (`trip`, `trip_kind` = `startup`); returns the
+/// summary. A start-up stopped by a signal is logged as interrupted instead: an info
+/// `signal` event, `trip` null, `interrupted` true, the reason in `startup_stopped`,
+/// `exit_code` 130.
+fn log_failed_startup(
+    cfg: &RigConfig,
+    target: &std::path::Path,
+    path: &std::path::Path,
+    backend: &'static str,
+    opts: &SessionOptions<'_>,
+    f: &StartupReport,
+) -> Result<serde_json::Value, String> {
+    let logger = open_log(cfg, target, backend, Overflow::Block).map_err(|e| e.to_string())?;
+    let frames = Arc::new(FrameLog::new(f.frames.len().max(1)));
+    for r in &f.frames {
+        frames.push(*r);
+    }
+    logger.attach_frames(frames);
+    let stopped = f.stopped;
+    logger.event(Event {
+        t: 0.0,
+        cycle: 0,
+        severity: if stopped {
+            Severity::Info
+        } else {
+            Severity::Trip
+        },
+        kind: if stopped {
+            EventKind::Signal
+        } else {
+            EventKind::HalFault
+        },
+        channel: "canopen start-up",
+        value: f.elapsed_s,
+        limit: f.time_limit_s.unwrap_or(f64::NAN),
+        unit: "s",
+    });
+    let reason = f.reason.clone();
+    let mut summary = serde_json::json!({
+        "backend": backend,
+        "bus": opts.bus,
+        "cycles": 0,
+        "duration_s": 0.0,
+        "trip": if stopped { serde_json::Value::Null } else { reason.clone().into() },
+        "trip_kind": if stopped { serde_json::Value::Null } else { "startup".into() },
+        "interrupted": stopped,
+        "startup_stopped": if stopped { reason.into() } else { serde_json::Value::Null },
+        "startup_s": f.elapsed_s,
+        "can_startup_frames": f.frames.len(),
+        "exit_code": if stopped { EXIT_STOPPED } else { EXIT_STARTUP },
+        "mcap": path.display().to_string(),
+    });
+    let stats = logger.finish(summary.clone()).map_err(|e| e.to_string())?;
+    // What the logger added to the logged summary, so that both are the same.
+    summary["records_written"] = stats.records_written.into();
+    Ok(summary)
+}
+
 /// JSON Schema of a config as JSON ([`RigConfig::to_json`]), built from the parameter
 /// registries: every registered field with its type, unit and meaning (the `/config` schema,
 /// so that Foxglove lists the fields).
@@ -369,30 +511,33 @@ pub fn run_with(
 }
 
 /// [`run_with`] with live gain / setpoint changes taken from `live` at cycle boundaries
-/// (fed by the control socket, [`crate::control_socket`]).
+/// (fed by the control socket, [`crate::control_socket`]). The backend is brought up here
+/// ([`Hal::configure`], [`Hal::activate`]; may block, and ends early on `opts.stop`); a
+/// failed start-up is logged and returned as [`SessionError::Startup`].
 pub fn run_with_live(
     cfg: &RigConfig,
     backend: Backend<'_>,
     mut opts: SessionOptions<'_>,
     live: Option<&LiveParams>,
 ) -> Result<Session, SessionError> {
-    // The log records the config as run, including a duration override.
-    let mut cfg_run = cfg.clone();
-    if let Some(d) = opts.duration {
-        cfg_run.run.duration = d;
-    }
-    let cfg = &cfg_run;
     let Backend {
         hal,
         pacer,
         overflow,
         substeps,
     } = backend;
-    let timebase = cfg.timebase();
     let duration = opts.duration.unwrap_or(cfg.run.duration);
     if let Err(why) = check_duration(duration) {
         return Err(SessionError::Config(ConfigError::new("--duration", why)));
     }
+    start_up(cfg, hal, &opts)?;
+    // The log records the config as run, including a duration override.
+    let mut cfg_run = cfg.clone();
+    if let Some(d) = opts.duration {
+        cfg_run.run.duration = d;
+    }
+    let cfg = &cfg_run;
+    let timebase = cfg.timebase();
     let cycles = timebase.cycles_in(duration).max(1);
     let mut controller = cfg.controller();
     let mut supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
@@ -523,4 +668,184 @@ pub fn run_with_live(
         session.log = Some(stats);
     }
     Ok(session)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ehactl_hal::pacer::SimulatedTime;
+    use ehactl_hal::{CanFrameRecord, HalError, Measurements};
+
+    fn boom() -> RigConfig {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/dindorf2022_boom.toml");
+        RigConfig::load(&path).expect("config loads")
+    }
+
+    /// A backend whose configure or activate fails with `report` (or succeeds), recording
+    /// the lifecycle calls it gets.
+    struct Scripted {
+        fail_at: Option<&'static str>,
+        report: Option<StartupReport>,
+        calls: Vec<&'static str>,
+    }
+
+    impl Scripted {
+        fn lifecycle(&mut self, call: &'static str) -> Result<(), HalError> {
+            self.calls.push(call);
+            if self.fail_at == Some(call) {
+                Err(HalError::Startup { what: "the test" })
+            } else {
+                Ok(())
+            }
+        }
+    }
+
+    impl Hal for Scripted {
+        fn name(&self) -> &'static str {
+            "canopen"
+        }
+        fn read(&mut self, t: f64, _period: f64) -> Result<Measurements, HalError> {
+            self.calls.push("read");
+            Ok(Measurements {
+                t,
+                ..Measurements::UNMEASURED
+            })
+        }
+        fn write(&mut self, _t: f64, _period: f64, _command: f64) -> Result<(), HalError> {
+            Ok(())
+        }
+        fn safe_stop(&mut self, _command: f64) -> Result<(), HalError> {
+            self.calls.push("safe_stop");
+            Ok(())
+        }
+        fn configure(&mut self) -> Result<(), HalError> {
+            self.lifecycle("configure")
+        }
+        fn activate(&mut self) -> Result<(), HalError> {
+            self.lifecycle("activate")
+        }
+        fn take_startup_report(&mut self) -> Option<StartupReport> {
+            self.report.take()
+        }
+    }
+
+    fn report(settings_error: bool, stopped: bool) -> StartupReport {
+        let frame = CanFrameRecord {
+            t_ns: -1_000,
+            id: 0x701,
+            extended: false,
+            dlc: 1,
+            data: [5, 0, 0, 0, 0, 0, 0, 0],
+            tx: true,
+        };
+        StartupReport {
+            reason: "CANopen start-up: scripted".into(),
+            settings_error,
+            stopped,
+            elapsed_s: 0.25,
+            time_limit_s: Some(0.2),
+            frames: vec![frame, frame],
+        }
+    }
+
+    fn run_scripted(
+        hal: &mut Scripted,
+        mcap: &std::path::Path,
+        atomic_log: bool,
+    ) -> Result<Session, SessionError> {
+        let cfg = boom();
+        let opts = SessionOptions {
+            duration: Some(0.002),
+            mcap: Some(mcap.to_path_buf()),
+            atomic_log,
+            bus: Some("socketcand://127.0.0.1:1/can0".into()),
+            ..Default::default()
+        };
+        let backend = Backend {
+            hal,
+            pacer: &mut SimulatedTime,
+            overflow: Overflow::Block,
+            substeps: 0,
+        };
+        run_with(&cfg, backend, opts)
+    }
+
+    fn temp(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("ehactl_session_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        dir.join(name)
+    }
+
+    #[test]
+    fn a_failed_activate_is_logged_as_a_startup_trip() {
+        for atomic in [false, true] {
+            let out = temp(&format!("activate_{atomic}.mcap"));
+            let mut hal = Scripted {
+                fail_at: Some("activate"),
+                report: Some(report(false, false)),
+                calls: Vec::new(),
+            };
+            let Err(SessionError::Startup(f)) = run_scripted(&mut hal, &out, atomic) else {
+                panic!("a failed activate must end the session before the loop");
+            };
+            assert_eq!(hal.calls, ["configure", "activate"], "no cycle ran");
+            let s = f.log.expect("logged").expect("a summary");
+            assert_eq!(s["trip"], "CANopen start-up: scripted");
+            assert_eq!(s["trip_kind"], "startup");
+            assert_eq!(s["exit_code"], EXIT_STARTUP);
+            assert_eq!(s["can_startup_frames"], 2);
+            assert_eq!(s["bus"], "socketcand://127.0.0.1:1/can0");
+            assert_eq!(s["records_written"], 0);
+            assert_eq!(s["mcap"], out.display().to_string());
+            assert!(out.is_file(), "the log is at its name, atomic or not");
+        }
+    }
+
+    #[test]
+    fn a_stopped_startup_is_logged_as_interrupted_and_a_settings_error_not_at_all() {
+        let out = temp("stopped.mcap");
+        let mut hal = Scripted {
+            fail_at: Some("configure"),
+            report: Some(report(false, true)),
+            calls: Vec::new(),
+        };
+        let Err(SessionError::Startup(f)) = run_scripted(&mut hal, &out, false) else {
+            panic!("a failed configure must end the session");
+        };
+        assert_eq!(hal.calls, ["configure"]);
+        let s = f.log.expect("logged").expect("a summary");
+        assert_eq!(s["interrupted"], true);
+        assert!(s["trip"].is_null() && s["trip_kind"].is_null());
+        assert_eq!(s["startup_stopped"], "CANopen start-up: scripted");
+        assert_eq!(s["exit_code"], EXIT_STOPPED);
+
+        let out = temp("settings.mcap");
+        let mut hal = Scripted {
+            fail_at: Some("configure"),
+            report: Some(report(true, false)),
+            calls: Vec::new(),
+        };
+        let Err(SessionError::Startup(f)) = run_scripted(&mut hal, &out, false) else {
+            panic!("a failed configure must end the session");
+        };
+        assert!(f.report.settings_error);
+        assert!(
+            matches!(f.log, Ok(None)),
+            "nothing reached the hardware: no log"
+        );
+        assert!(!out.exists());
+    }
+
+    #[test]
+    fn a_backend_is_configured_and_activated_before_its_first_read() {
+        let out = temp("ok.mcap");
+        let mut hal = Scripted {
+            fail_at: None,
+            report: None,
+            calls: Vec::new(),
+        };
+        let _ = run_scripted(&mut hal, &out, false);
+        assert_eq!(hal.calls[..3], ["configure", "activate", "read"]);
+    }
 }

@@ -18,15 +18,25 @@ pub struct Measurements {
     pub spool: f64,
 }
 
+impl Measurements {
+    /// Nothing measured yet, the sample time included: every field NaN (a backend's held
+    /// sample before its first reading, e.g. the CANopen backend before its priming SYNC).
+    pub const UNMEASURED: Measurements = Measurements {
+        t: f64::NAN,
+        force: f64::NAN,
+        position: f64::NAN,
+        p_a: f64::NAN,
+        p_b: f64::NAN,
+        spool: f64::NAN,
+    };
+}
+
+/// Every channel NaN ([`Measurements::UNMEASURED`]) at sample time 0 s.
 impl Default for Measurements {
     fn default() -> Self {
         Self {
             t: 0.0,
-            force: f64::NAN,
-            position: f64::NAN,
-            p_a: f64::NAN,
-            p_b: f64::NAN,
-            spool: f64::NAN,
+            ..Self::UNMEASURED
         }
     }
 }
