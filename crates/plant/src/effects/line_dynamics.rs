@@ -2,7 +2,10 @@
 //! (001, 002 eq. 9–17), rigid pipes or compliant hoses (variant `hose`; Merritt 1967,
 //! "Hydraulic Control Systems", §2.7 eq. 2-46): the config section [`LineDynamics`]
 //! (`[effects.line_dynamics]`) with its wall-friction model [`LineFriction`]. The segment
-//! chains themselves are `Line` in crates/plant/src/line.rs (it also reads the fluid section).
+//! chains themselves are [`line::Line`] in crates/plant/src/effects/line_dynamics/line.rs (it
+//! also reads the fluid section), re-exported as `crate::line`.
+
+pub mod line;
 
 use super::switch::yes;
 use crate::spec::ConfigError;

@@ -43,7 +43,7 @@
 //! a component yet (`valve_deadband`, `valve_saturation`, `line_dynamics`) still have their
 //! checks called from [`validate_variants`] or `model::validate`, their derived constants in
 //! `Plant::configure` (the valve edge law `EdgeLaw` in crates/plant/src/valve.rs, the line
-//! chains in crates/plant/src/line.rs) and their terms in the substep
+//! chains in crates/plant/src/effects/line_dynamics/line.rs) and their terms in the substep
 //! (`Plant::advance_substep`).
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
