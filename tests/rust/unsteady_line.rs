@@ -58,7 +58,13 @@ fn simulated_impedance(friction: LineFriction, nu: f64, f_hz: f64, h: f64) -> C6
         friction,
     };
     let fl = fluid(nu);
-    let mut line = Line::new(&cfg, &fl, 0.0);
+    let mut line = Line::with_fluid(
+        &cfg,
+        fl.density,
+        fl.kinematic_viscosity,
+        fl.bulk_modulus,
+        0.0,
+    );
     line.prepare(h);
     let w = TAU * f_hz;
     let r = 0.5 * SIROHI_TUBE_ID;

@@ -3,13 +3,17 @@
 //! "Hydraulic Control Systems", §2.7 eq. 2-46): the config section [`LineDynamics`]
 //! (`[effects.line_dynamics]`) with its wall-friction model [`LineFriction`]. The segment
 //! chains themselves are [`line::Line`] in crates/plant/src/effects/line_dynamics/line.rs (it
-//! also reads the fluid section), re-exported as `crate::line`.
+//! reads the fluid as plain numbers), re-exported as `crate::line`; the component [`Lines`]
+//! holds the two chains (valve port A → chamber A, port B → chamber B) as its state and is
+//! the [`LineStage`] the plant's substep calls (crates/plant/src/model.rs).
 
 pub mod line;
 
+use super::component::{phi1, Component, EndNode, LineStage, Setup};
 use super::switch::yes;
 use crate::spec::ConfigError;
 use ehactl_params_derive::Params;
+use line::Line;
 use serde::{Deserialize, Serialize};
 
 /// Structural variant of `line_dynamics`.
@@ -106,12 +110,25 @@ impl LineFriction {
     pub const NAMES: &'static [&'static str] = &["steady", "unsteady", "unsteady_trikha"];
 }
 
-impl LineDynamics {
+/// `line_dynamics` as a component: the two line chains, A and B, built alike from the
+/// section (`None` without the effect), and whether they are solved whole per substep
+/// (`integration.line_method = "implicit"`, [`Setup::implicit_lines`]).
+#[derive(Debug, Clone)]
+pub struct Lines {
+    /// Line A (valve port A → chamber A) and line B.
+    chains: Option<(Line, Line)>,
+    /// [`LineStage::is_implicit`].
+    implicit: bool,
+}
+
+impl Component for Lines {
+    type Section = LineDynamics;
+
     /// Cross-field check of the variant: a `hose` fitting resistance is steady, laminar.
-    pub(crate) fn validate_variant(&self) -> Result<(), ConfigError> {
-        if self.variant == LineVariant::Hose
-            && self.resistance > 0.0
-            && self.friction != LineFriction::Steady
+    fn validate(section: &LineDynamics) -> Result<(), ConfigError> {
+        if section.variant == LineVariant::Hose
+            && section.resistance > 0.0
+            && section.friction != LineFriction::Steady
         {
             return Err(ConfigError::new(
                 "effects.line_dynamics.resistance",
@@ -119,5 +136,199 @@ impl LineDynamics {
             ));
         }
         Ok(())
+    }
+
+    fn configure(section: Option<&LineDynamics>, setup: &Setup) -> Self {
+        let chains = section.filter(|l| l.enabled).map(|l| {
+            let line = || {
+                Line::with_fluid(
+                    l,
+                    setup.density,
+                    setup.kinematic_viscosity,
+                    setup.bulk_modulus,
+                    0.0,
+                )
+            };
+            (line(), line())
+        });
+        Lines {
+            implicit: chains.is_some() && setup.implicit_lines,
+            chains,
+        }
+    }
+
+    /// At rest at 0 Pa gauge; [`LineStage::fill`] then sets the start pressures.
+    fn reset(&mut self) {
+        self.fill(0.0, 0.0);
+    }
+}
+
+impl LineStage for Lines {
+    #[inline]
+    fn is_active(&self) -> bool {
+        self.chains.is_some()
+    }
+
+    #[inline]
+    fn is_implicit(&self) -> bool {
+        self.implicit
+    }
+
+    fn fill(&mut self, p_a: f64, p_b: f64) {
+        if let Some((la, lb)) = self.chains.as_mut() {
+            la.fill(p_a);
+            lb.fill(p_b);
+        }
+    }
+
+    fn discretise(&mut self, h: f64) {
+        if let Some((la, lb)) = self.chains.as_mut() {
+            la.prepare(h);
+            lb.prepare(h);
+        }
+    }
+
+    #[inline]
+    fn port_pressures(&self) -> Option<(f64, f64)> {
+        self.chains.as_ref().map(|(la, lb)| (la.p[0], lb.p[0]))
+    }
+
+    fn fastest_mode(
+        &self,
+        omega: f64,
+        line_scale: f64,
+        chamber_cap: f64,
+        cbv_caps: [Option<f64>; 2],
+    ) -> f64 {
+        // Both lines are built alike: line A's modes are line B's.
+        let Some((la, _)) = self.chains.as_ref() else {
+            return omega;
+        };
+        let mut omega = omega;
+        if self.implicit {
+            return omega.max(la.omega_wave());
+        }
+        omega = omega.max(line_scale * la.omega_max());
+        if line_scale < 1.0 {
+            // Segment modes held to a stability margin only: the line's own wave modes keep
+            // the accuracy rule.
+            omega = omega.max(la.omega_wave());
+        }
+        // Line node coupled to the chamber through the last segment.
+        let c_min = la.c.min(chamber_cap);
+        omega = omega.max(line_scale * 2.0 / (la.l * c_min).sqrt());
+        // Last segment against a counterbalance valve's body volume.
+        for c_node in cbv_caps.iter().flatten() {
+            omega = omega.max(2.0 / (la.l * c_node.min(la.c)).sqrt());
+        }
+        omega
+    }
+
+    #[inline]
+    fn advance_nodes(
+        &mut self,
+        h: f64,
+        q_valve: [f64; 2],
+        dq_valve: [f64; 2],
+        p_cav: f64,
+        p_chamber: [f64; 2],
+    ) -> [(f64, f64); 2] {
+        let Some((la, lb)) = self.chains.as_mut() else {
+            return [(p_chamber[0], 0.0), (p_chamber[1], 0.0)];
+        };
+        let [qa, qb] = q_valve;
+        let [dqa, dqb] = dq_valve;
+        let f0a = (qa - la.q[0]) / la.c0;
+        let f0b = (qb - lb.q[0]) / lb.c0;
+        let p0a = la.p[0] + h * f0a * phi1(dqa / la.c0 * h);
+        let p0b = lb.p[0] + h * f0b * phi1(dqb / lb.c0 * h);
+        la.advance_interior_nodes(h);
+        lb.advance_interior_nodes(h);
+        la.p[0] = p0a.max(p_cav);
+        lb.p[0] = p0b.max(p_cav);
+        for p in la.p.iter_mut().chain(lb.p.iter_mut()) {
+            *p = p.max(p_cav);
+        }
+        [
+            (
+                *la.p.last().unwrap_or(&p_chamber[0]),
+                *la.q.last().unwrap_or(&0.0),
+            ),
+            (
+                *lb.p.last().unwrap_or(&p_chamber[1]),
+                *lb.q.last().unwrap_or(&0.0),
+            ),
+        ]
+    }
+
+    #[inline]
+    fn advance_flows(&mut self, h: f64, p_end: [f64; 2]) {
+        if let Some((la, lb)) = self.chains.as_mut() {
+            la.advance_flows(h, p_end[0]);
+            lb.advance_flows(h, p_end[1]);
+        }
+    }
+
+    #[inline]
+    fn advance_implicit(
+        &mut self,
+        h: f64,
+        q_valve: [f64; 2],
+        dq_valve: [f64; 2],
+        ends: [EndNode; 2],
+        p_cav: f64,
+    ) -> (f64, f64) {
+        let Some((la, lb)) = self.chains.as_mut() else {
+            return (ends[0].p, ends[1].p);
+        };
+        let p_a = la
+            .advance_implicit(h, q_valve[0], dq_valve[0], ends[0])
+            .max(p_cav);
+        let p_b = lb
+            .advance_implicit(h, q_valve[1], dq_valve[1], ends[1])
+            .max(p_cav);
+        for p in la.p.iter_mut().chain(lb.p.iter_mut()) {
+            *p = p.max(p_cav);
+        }
+        (p_a, p_b)
+    }
+
+    fn state_names(&self, names: &mut Vec<String>) {
+        if let Some((la, lb)) = &self.chains {
+            for (tag, l) in [("a", la), ("b", lb)] {
+                names.extend((0..l.p.len()).map(|i| format!("line_{tag}.p[{i}]")));
+                names.extend((0..l.q.len()).map(|i| format!("line_{tag}.q[{i}]")));
+                let t = l.terms();
+                names.extend(
+                    (0..l.y.len()).map(|k| format!("line_{tag}.q[{}].y[{}]", k / t, k % t)),
+                );
+            }
+        }
+    }
+
+    fn state(&self, v: &mut Vec<f64>) {
+        if let Some((la, lb)) = &self.chains {
+            for l in [la, lb] {
+                v.extend_from_slice(&l.p);
+                v.extend_from_slice(&l.q);
+                v.extend_from_slice(&l.y);
+            }
+        }
+    }
+
+    fn set_state(&mut self, next: &mut impl FnMut() -> f64) {
+        if let Some((la, lb)) = self.chains.as_mut() {
+            for l in [la, lb] {
+                for p in l.p.iter_mut() {
+                    *p = next();
+                }
+                for q in l.q.iter_mut() {
+                    *q = next();
+                }
+                for y in l.y.iter_mut() {
+                    *y = next();
+                }
+            }
+        }
     }
 }
