@@ -21,7 +21,8 @@
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
 //! With `integration.line_method = "implicit"` step 2 for a rig with lines is one
 //! trapezoidal solve of each chain from the valve-side node to the chamber
-//! ([`crate::line::Line::advance_implicit`]); no segment mode enters the rule then, only the line's
+//! ([`crate::line::Line::advance_implicit`], through the line stage
+//! [`LineStage::advance_implicit`]); no segment mode enters the rule then, only the line's
 //! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see [`fastest_mode`]).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};

@@ -332,3 +332,154 @@ impl LineStage for Lines {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Sirohi 2003's tube (11.5 in × 1.753 mm, 001), 4 segments, steady friction.
+    fn section() -> LineDynamics {
+        LineDynamics {
+            enabled: true,
+            variant: LineVariant::Pipe,
+            length: 0.2921,
+            diameter: 1.753e-3,
+            segments: 4,
+            bulk_modulus: None,
+            port_volume: 0.0,
+            friction: LineFriction::Steady,
+            wall_compliance: 0.0,
+            resistance: 0.0,
+        }
+    }
+
+    /// Without the effect (absent or switched off) the stage holds no line: the ports see
+    /// the chambers, the substep rule and the log state get nothing from it, and its calls
+    /// pass their inputs on. `implicit` alone does not make a chain.
+    #[test]
+    fn stage_without_the_effect_passes_everything_on() {
+        let mut off = section();
+        off.enabled = false;
+        let setup = Setup {
+            implicit_lines: true,
+            ..Setup::TEST
+        };
+        for s in [None, Some(&off)] {
+            let mut st = Lines::configure(s, &setup);
+            assert!(!st.is_active() && !st.is_implicit());
+            assert_eq!(st.port_pressures(), None);
+            assert_eq!(
+                st.fastest_mode(123.0, 1.0, 1e-12, [Some(1e-13), None]),
+                123.0
+            );
+            let ends = st.advance_nodes(1e-5, [1e-4, -1e-4], [-1e-9, -1e-9], -0.95e5, [2e6, 1e6]);
+            assert_eq!(ends, [(2e6, 0.0), (1e6, 0.0)]);
+            let end = EndNode {
+                p: 3e6,
+                cap: 1e-12,
+                flow: 0.0,
+                dflow: 0.0,
+            };
+            let end_b = EndNode { p: 4e6, ..end };
+            assert_eq!(
+                st.advance_implicit(1e-5, [1e-4, 0.0], [0.0; 2], [end, end_b], -0.95e5),
+                (3e6, 4e6)
+            );
+            let (mut names, mut v) = (Vec::new(), Vec::new());
+            st.state_names(&mut names);
+            st.state(&mut v);
+            assert!(names.is_empty() && v.is_empty());
+        }
+    }
+
+    /// With the effect: two equal chains, filled at the chambers' pressures by `fill`, back
+    /// at rest after `reset`, their state named and laid out node pressures, segment flows,
+    /// convolution states, line A before line B.
+    #[test]
+    fn stage_holds_two_chains_that_fill_reset_and_round_trip_their_state() {
+        let mut s = section();
+        s.friction = LineFriction::UnsteadyTrikha;
+        let mut st = Lines::configure(Some(&s), &Setup::TEST);
+        assert!(st.is_active() && !st.is_implicit());
+        st.fill(2e6, 1e6);
+        assert_eq!(st.port_pressures(), Some((2e6, 1e6)));
+        let mut names = Vec::new();
+        st.state_names(&mut names);
+        // Per line 4 nodes, 4 segment flows and 4 × 3 Trikha states.
+        assert_eq!(names.len(), 2 * (4 + 4 + 12));
+        assert_eq!(names[0], "line_a.p[0]");
+        assert_eq!(names[4], "line_a.q[0]");
+        assert_eq!(names[8], "line_a.q[0].y[0]");
+        assert_eq!(names[19], "line_a.q[3].y[2]");
+        assert_eq!(names[20], "line_b.p[0]");
+        let mut v = Vec::new();
+        st.state(&mut v);
+        assert_eq!(v.len(), names.len());
+        assert!(v[..4].iter().all(|&p| p == 2e6) && v[20..24].iter().all(|&p| p == 1e6));
+        let mut k = 0.0;
+        st.set_state(&mut || {
+            k += 1.0;
+            k
+        });
+        let mut w = Vec::new();
+        st.state(&mut w);
+        assert_eq!(w, (1..=names.len()).map(|i| i as f64).collect::<Vec<_>>());
+        st.reset();
+        let mut r = Vec::new();
+        st.state(&mut r);
+        assert!(r.iter().all(|&x| x == 0.0));
+        let implicit = Lines::configure(
+            Some(&s),
+            &Setup {
+                implicit_lines: true,
+                ..Setup::TEST
+            },
+        );
+        assert!(implicit.is_implicit());
+    }
+
+    /// The substep rule: the implicit chain adds its half-wave mode only; the symplectic one
+    /// its segment mode, its end against the chamber and a counterbalance valve's node.
+    #[test]
+    fn fastest_mode_of_each_scheme() {
+        let s = section();
+        let sym = Lines::configure(Some(&s), &Setup::TEST);
+        let imp = Lines::configure(
+            Some(&s),
+            &Setup {
+                implicit_lines: true,
+                ..Setup::TEST
+            },
+        );
+        let (la, _) = sym.chains.as_ref().unwrap();
+        assert_eq!(imp.fastest_mode(0.0, 1.0, 1.0, [None; 2]), la.omega_wave());
+        // A huge chamber: the segment mode sets it.
+        let seg = sym.fastest_mode(0.0, 1.0, 1.0, [None; 2]);
+        assert_eq!(seg, la.omega_max().max(2.0 / (la.l * la.c).sqrt()));
+        // A counterbalance valve node far stiffer than a segment node raises it.
+        let c_node = la.c * 1e-4;
+        let cbv = sym.fastest_mode(0.0, 1.0, 1.0, [Some(c_node), None]);
+        assert_eq!(cbv, seg.max(2.0 / (la.l * c_node).sqrt()));
+        assert!(cbv > seg);
+        // Above every line mode, ω passes.
+        assert_eq!(sym.fastest_mode(1e12, 1.0, 1.0, [None; 2]), 1e12);
+    }
+
+    /// The component's check: a hose fitting resistance with unsteady friction is refused,
+    /// naming the parameter; steady is fine.
+    #[test]
+    fn validate_refuses_a_fitting_resistance_with_unsteady_friction() {
+        let mut s = section();
+        s.variant = LineVariant::Hose;
+        s.resistance = 1e9;
+        assert!(Lines::validate(&s).is_ok());
+        s.friction = LineFriction::Unsteady;
+        let e = Lines::validate(&s).unwrap_err();
+        assert!(
+            e.to_string().contains("effects.line_dynamics.resistance"),
+            "{e}"
+        );
+        s.variant = LineVariant::Pipe;
+        assert!(Lines::validate(&s).is_ok());
+    }
+}
