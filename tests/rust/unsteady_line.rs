@@ -1,6 +1,6 @@
 //! Unsteady (frequency-dependent) laminar friction of the plant's lumped line
 //! (`effects.line_dynamics.friction = "unsteady"`, Zielke 1968 weighting function, see
-//! crates/plant/src/line.rs) against the exact Bessel-function line impedance of Sirohi 2003
+//! crates/plant/src/effects/line_dynamics/line.rs) against the exact Bessel-function line impedance of Sirohi 2003
 //! eq. 6–8 (crates/analysis/src/tline.rs, `Friction::Bessel`).
 //!
 //! One segment of a long tube (1 m, 1.75 mm bore: 001's tube) is driven in the time domain by
@@ -58,7 +58,13 @@ fn simulated_impedance(friction: LineFriction, nu: f64, f_hz: f64, h: f64) -> C6
         friction,
     };
     let fl = fluid(nu);
-    let mut line = Line::new(&cfg, &fl, 0.0);
+    let mut line = Line::with_fluid(
+        &cfg,
+        fl.density,
+        fl.kinematic_viscosity,
+        fl.bulk_modulus,
+        0.0,
+    );
     line.prepare(h);
     let w = TAU * f_hz;
     let r = 0.5 * SIROHI_TUBE_ID;

@@ -24,7 +24,6 @@ pub mod effects;
 pub mod exact;
 pub mod excitation;
 pub mod imposed;
-pub mod line;
 pub mod model;
 pub mod params;
 mod registry;
@@ -35,6 +34,9 @@ pub mod valve;
 /// `friction`'s law with the stick state, under its historical path (now in
 /// [`effects::friction`]).
 pub use effects::friction;
+/// `line_dynamics`' segment chains under their historical path (now in
+/// [`effects::line_dynamics::line`]).
+pub use effects::line_dynamics::line;
 
 /// The parameter registry: the registry types (`Param`, `Range`, `ParamTree`,
 /// `ConfigError`), which live in `ehactl-types` (crates/types/src/spec.rs) so that the

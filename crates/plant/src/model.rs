@@ -21,17 +21,18 @@
 //! the substep is chosen so that the fastest mode has ω·h ≤ `integration.max_omega_h`.
 //! With `integration.line_method = "implicit"` step 2 for a rig with lines is one
 //! trapezoidal solve of each chain from the valve-side node to the chamber
-//! ([`Line::advance_implicit`]); no segment mode enters the rule then, only the line's
+//! ([`crate::line::Line::advance_implicit`], through the line stage
+//! [`LineStage::advance_implicit`]); no segment mode enters the rule then, only the line's
 //! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see [`fastest_mode`]).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
+use crate::effects::line_dynamics::Lines;
 use crate::effects::{
-    self, validate_variants, BulkStage, CommandStage, FlowStage, ForceStage, LoadSpring,
-    MountStage, PistonForces, SpoolStage, SupplyStage,
+    self, phi1, validate_variants, BulkStage, CommandStage, EndNode, FlowStage, ForceStage,
+    LineStage, LoadSpring, MountStage, PistonForces, SpoolStage, SupplyStage,
 };
 use crate::exact::{LinearCoefficients, LinearExact};
 use crate::excitation::ExcitationModel;
-use crate::line::Line;
 use crate::params::PlantParams;
 use crate::sensors::{Measurements, SensorModel, TrueValues};
 use crate::spec::ConfigError;
@@ -95,9 +96,6 @@ pub struct Plant {
     poly_flow: Option<crate::effects::PolynomialFlow>,
     excitation: ExcitationModel,
     sensors: SensorModel,
-    lines: Option<(Line, Line)>,
-    /// Lines integrated by [`Line::advance_implicit`] (`integration.line_method = "implicit"`).
-    implicit_lines: bool,
     /// Counterbalance valves at the cylinder ends of lines A and B ([`crate::cbv`]).
     cbv: [Option<Cbv>; 2],
     /// Work port → tank bleed of the directional valve (m³/(s·Pa)), with the CBVs.
@@ -250,6 +248,9 @@ impl Plant {
             control_dt,
             supply_pressure: params.supply.pressure,
             bulk_modulus: params.fluid.bulk_modulus,
+            density: params.fluid.density,
+            kinematic_viscosity: params.fluid.kinematic_viscosity,
+            implicit_lines: params.integration.line_method == crate::params::LineMethod::Implicit,
         };
         let mut components = effects::Components::configure(e, &setup);
         let supply = &components.supply_pressure_drop;
@@ -281,21 +282,13 @@ impl Plant {
                     .max_omega_h_line
                     .unwrap_or(params.integration.max_omega_h),
         };
-        let lines = e.line_dynamics.as_ref().filter(|l| l.enabled).map(|l| {
-            (
-                Line::new(l, &params.fluid, 0.0),
-                Line::new(l, &params.fluid, 0.0),
-            )
-        });
         let cbv_cfg = e.counterbalance_valve.as_ref().filter(|c| c.enabled);
         let cbv = [CbvSides::A, CbvSides::B].map(|side| {
             cbv_cfg
                 .filter(|c| c.sides == side || c.sides == CbvSides::Both)
                 .map(|c| Cbv::new(c, params.fluid.density, params.fluid.bulk_modulus))
         });
-        let implicit_lines = lines.is_some()
-            && params.integration.line_method == crate::params::LineMethod::Implicit;
-        if implicit_lines && cbv.iter().any(|c| c.is_some()) {
+        if components.line_dynamics.is_implicit() && cbv.iter().any(|c| c.is_some()) {
             return Err(ConfigError::new(
                 "integration.line_method",
                 "\"implicit\" solves each line from the valve port to the chamber; with \
@@ -303,14 +296,7 @@ impl Plant {
             ));
         }
         // Fastest oscillatory mode over the whole stroke (rad/s): the smallest chamber volumes.
-        let mut omega_max = fastest_mode(
-            &c,
-            lines.as_ref().map(|l| &l.0),
-            implicit_lines,
-            &cbv,
-            c.v_a0,
-            c.v_b0,
-        );
+        let mut omega_max = fastest_mode(&c, &components.line_dynamics, &cbv, c.v_a0, c.v_b0);
         if let (true, Some((ml, km, dm))) = (c.body_mount, c.mount) {
             // A compliant cylinder body sees its mount and the oil column.
             let k_oil = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0);
@@ -341,7 +327,7 @@ impl Plant {
         // `linear_exact` rig); [`Plant::method`] tells which one runs.
         let linear_exact = params.integration.method
             == crate::params::IntegrationMethod::LinearExact
-            && lines.is_none()
+            && !components.line_dynamics.is_active()
             && !components.friction.is_active()
             && !e.polynomial_force.is_some_and(|f| f.enabled)
             && !e.polynomial_flow.is_some_and(|f| f.enabled)
@@ -375,11 +361,7 @@ impl Plant {
             n.max(1.0) as u32
         };
         let h = control_dt / substeps as f64;
-        let mut lines = lines;
-        if let Some((la, lb)) = lines.as_mut() {
-            la.prepare(h);
-            lb.prepare(h);
-        }
+        components.line_dynamics.discretise(h);
         // The spool stage (`valve_dynamics`) at the substep. The automatic substep rule may
         // later take any h up to the control period: the spool must discretise there too
         // (‖A·h‖₁ grows with h).
@@ -423,8 +405,6 @@ impl Plant {
             poly_flow: e.polynomial_flow.filter(|f| f.enabled),
             excitation: ExcitationModel::new(&params.excitation),
             sensors: SensorModel::new(&params.sensors),
-            lines,
-            implicit_lines,
             cbv,
             port_bleed: cbv_cfg.map_or(0.0, |c| c.port_bleed),
             control_dt,
@@ -485,14 +465,6 @@ impl Plant {
             stuck: self.components.friction.is_active(),
         };
         self.dahl_z = 0.0;
-        if let Some((la, lb)) = self.lines.as_mut() {
-            la.p.iter_mut().for_each(|p| *p = p_a);
-            la.q.iter_mut().for_each(|q| *q = 0.0);
-            la.y.iter_mut().for_each(|y| *y = 0.0);
-            lb.p.iter_mut().for_each(|p| *p = p_b);
-            lb.q.iter_mut().for_each(|q| *q = 0.0);
-            lb.y.iter_mut().for_each(|y| *y = 0.0);
-        }
         for (cb, p) in self.cbv.iter_mut().zip([p_a, p_b]) {
             if let Some(cb) = cb {
                 cb.s = CbvState {
@@ -508,6 +480,8 @@ impl Plant {
         }
         self.substeps_taken = 0;
         self.components.reset();
+        // The line stage (`line_dynamics`): every node at its chamber's start pressure.
+        self.components.line_dynamics.fill(p_a, p_b);
         self.sensors = SensorModel::new(&self.params.sensors);
     }
 
@@ -577,7 +551,7 @@ impl Plant {
     /// line dynamics of eq. 9–17); `None` without the `line_dynamics` effect, where the port
     /// pressures are the chamber pressures `state().p_a`, `state().p_b`.
     pub fn valve_port_pressures(&self) -> Option<(f64, f64)> {
-        self.lines.as_ref().map(|(la, lb)| (la.p[0], lb.p[0]))
+        self.components.line_dynamics.port_pressures()
     }
 
     /// State of the counterbalance valves on lines A and B (`None` where none is fitted):
@@ -610,14 +584,7 @@ impl Plant {
         if self.c.mount.is_some() {
             n.extend(["x_load", "v_load"].map(String::from));
         }
-        if let Some((la, lb)) = &self.lines {
-            for (tag, l) in [("a", la), ("b", lb)] {
-                n.extend((0..l.p.len()).map(|i| format!("line_{tag}.p[{i}]")));
-                n.extend((0..l.q.len()).map(|i| format!("line_{tag}.q[{i}]")));
-                let t = l.terms();
-                n.extend((0..l.y.len()).map(|k| format!("line_{tag}.q[{}].y[{}]", k / t, k % t)));
-            }
-        }
+        self.components.line_dynamics.state_names(&mut n);
         for (tag, cb) in ["a", "b"].iter().zip(&self.cbv) {
             if cb.is_some() {
                 n.push(format!("cbv_{tag}.p_node"));
@@ -655,13 +622,7 @@ impl Plant {
         if self.c.mount.is_some() {
             v.extend([s.x_load, s.v_load]);
         }
-        if let Some((la, lb)) = &self.lines {
-            for l in [la, lb] {
-                v.extend_from_slice(&l.p);
-                v.extend_from_slice(&l.q);
-                v.extend_from_slice(&l.y);
-            }
-        }
+        self.components.line_dynamics.state(&mut v);
         for cb in self.cbv.iter().flatten() {
             v.extend([cb.s.p_node, cb.s.opening]);
         }
@@ -701,19 +662,7 @@ impl Plant {
             s.v_load = s.v;
         }
         s.stuck = false;
-        if let Some((la, lb)) = self.lines.as_mut() {
-            for l in [la, lb] {
-                for p in l.p.iter_mut() {
-                    *p = next();
-                }
-                for q in l.q.iter_mut() {
-                    *q = next();
-                }
-                for y in l.y.iter_mut() {
-                    *y = next();
-                }
-            }
-        }
+        self.components.line_dynamics.set_state(&mut next);
         for cb in self.cbv.iter_mut().flatten() {
             cb.s.p_node = next();
             cb.s.opening = next();
@@ -751,14 +700,7 @@ impl Plant {
         let x_hi = (s.x + reach).clamp(0.0, c.stroke);
         let va = c.v_a0 + c.a_a * x_lo;
         let vb = c.v_b0 + c.a_b * (c.stroke - x_hi);
-        let w = fastest_mode(
-            c,
-            self.lines.as_ref().map(|l| &l.0),
-            self.implicit_lines,
-            &self.cbv,
-            va,
-            vb,
-        );
+        let w = fastest_mode(c, &self.components.line_dynamics, &self.cbv, va, vb);
         let n = ((self.control_dt * w / max_omega_h).ceil() as u32).clamp(1, self.substeps_max);
         if n > self.substeps || 4 * n <= 3 * self.substeps {
             self.set_substeps(n);
@@ -771,10 +713,7 @@ impl Plant {
         self.h = self.control_dt / n as f64;
         // h ≤ the control period, at which configure checked the spool: always Ok.
         let _ = self.components.valve_dynamics.discretise(self.h);
-        if let Some((la, lb)) = self.lines.as_mut() {
-            la.prepare(self.h);
-            lb.prepare(self.h);
-        }
+        self.components.line_dynamics.discretise(self.h);
     }
 
     /// Substeps taken since the start (sum over periods; cost figures).
@@ -936,7 +875,9 @@ impl Plant {
         let (k_in, _) = leak_in.conductances();
         let (k_ext, k_ext_b) = leak_ext.conductances();
         let (q_sa, q_sb);
-        match self.lines.as_mut() {
+        // The line stage (`line_dynamics`): the valve ports see the lines' valve-side nodes.
+        let lines = &mut self.components.line_dynamics;
+        match lines.port_pressures() {
             None => {
                 let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, s.p_a);
                 let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, s.p_b);
@@ -951,58 +892,44 @@ impl Plant {
                 s.p_a = (s.p_a + h * fa * phi1(la * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lb * h)).max(c.p_cav);
             }
-            Some((la, lb)) if self.implicit_lines => {
+            Some((port_a, port_b)) if lines.is_implicit() => {
                 // Whole chains valve node → chamber, trapezoidal (crate::line); no CBVs here
                 // (configure refuses them), the port bleed is theirs too, so 0.
-                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, la.p[0]);
-                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, lb.p[0]);
+                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, port_a);
+                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, port_b);
                 s.q_a = qa;
                 s.q_b = qb;
                 q_sa = qsa;
                 q_sb = qsb;
-                let end_a = crate::line::EndNode {
+                let end_a = EndNode {
                     p: s.p_a,
                     cap: va / beta_a,
                     flow: -c.a_a * s.v - q_in - q_ext_a,
                     dflow: -k_in - k_ext,
                 };
-                let end_b = crate::line::EndNode {
+                let end_b = EndNode {
                     p: s.p_b,
                     cap: vb / beta_b,
                     flow: c.a_b * s.v + q_in - q_ext_b,
                     dflow: -k_in - k_ext_b,
                 };
-                s.p_a = la.advance_implicit(h, qa, dqa, end_a).max(c.p_cav);
-                s.p_b = lb.advance_implicit(h, qb, dqb, end_b).max(c.p_cav);
-                for p in la.p.iter_mut().chain(lb.p.iter_mut()) {
-                    *p = p.max(c.p_cav);
-                }
+                (s.p_a, s.p_b) =
+                    lines.advance_implicit(h, [qa, qb], [dqa, dqb], [end_a, end_b], c.p_cav);
             }
-            Some((la, lb)) => {
+            Some((port_a, port_b)) => {
                 // Valve-side nodes, exponential Euler in their own pressure.
-                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, la.p[0]);
-                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, lb.p[0]);
+                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, port_a);
+                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, port_b);
                 // Neutral A,B→T bleed with the CBVs (crate::cbv, `port_bleed`).
                 let kb = self.port_bleed;
-                let (qa, dqa) = (qa - kb * (la.p[0] - c.pt), dqa - kb);
-                let (qb, dqb) = (qb - kb * (lb.p[0] - c.pt), dqb - kb);
+                let (qa, dqa) = (qa - kb * (port_a - c.pt), dqa - kb);
+                let (qb, dqb) = (qb - kb * (port_b - c.pt), dqb - kb);
                 s.q_a = qa;
                 s.q_b = qb;
                 q_sa = qsa;
                 q_sb = qsb;
-                let f0a = (qa - la.q[0]) / la.c0;
-                let f0b = (qb - lb.q[0]) / lb.c0;
-                let p0a = la.p[0] + h * f0a * phi1(dqa / la.c0 * h);
-                let p0b = lb.p[0] + h * f0b * phi1(dqb / lb.c0 * h);
-                la.advance_interior_nodes(h);
-                lb.advance_interior_nodes(h);
-                la.p[0] = p0a.max(c.p_cav);
-                lb.p[0] = p0b.max(c.p_cav);
-                for p in la.p.iter_mut().chain(lb.p.iter_mut()) {
-                    *p = p.max(c.p_cav);
-                }
-                let qla = *la.q.last().unwrap_or(&0.0);
-                let qlb = *lb.q.last().unwrap_or(&0.0);
+                let [(p_last_a, qla), (p_last_b, qlb)] =
+                    lines.advance_nodes(h, [qa, qb], [dqa, dqb], c.p_cav, [s.p_a, s.p_b]);
                 // Counterbalance valves between line end and chamber (crate::cbv): the node
                 // (port 2) in exponential Euler in its own pressure; the chamber takes the flow
                 // the node passed on over the substep (line inflow less the node's storage
@@ -1011,10 +938,7 @@ impl Plant {
                 // check or the poppet opens within the step (node time constant C/G ≈ 1 µs
                 // against a 5–20 µs substep): a numerical chatter that needed 4× the substeps
                 // to converge (docs/benchmarks-archive.md, "Short stiff lines").
-                let ends = [
-                    (*la.p.last().unwrap_or(&s.p_a), qla, s.p_a),
-                    (*lb.p.last().unwrap_or(&s.p_b), qlb, s.p_b),
-                ];
+                let ends = [(p_last_a, qla, s.p_a), (p_last_b, qlb, s.p_b)];
                 let mut into = [qla, qlb];
                 let mut dinto = [0.0; 2];
                 let mut p_end = [s.p_a, s.p_b];
@@ -1047,21 +971,20 @@ impl Plant {
                 let lam_b = beta_b / vb * (-k_in - k_ext_b - dinto[1]);
                 s.p_a = (s.p_a + h * fa * phi1(lam_a * h)).max(c.p_cav);
                 s.p_b = (s.p_b + h * fb * phi1(lam_b * h)).max(c.p_cav);
-                la.advance_flows(
+                lines.advance_flows(
                     h,
-                    if self.cbv[0].is_some() {
-                        p_end[0]
-                    } else {
-                        s.p_a
-                    },
-                );
-                lb.advance_flows(
-                    h,
-                    if self.cbv[1].is_some() {
-                        p_end[1]
-                    } else {
-                        s.p_b
-                    },
+                    [
+                        if self.cbv[0].is_some() {
+                            p_end[0]
+                        } else {
+                            s.p_a
+                        },
+                        if self.cbv[1].is_some() {
+                            p_end[1]
+                        } else {
+                            s.p_b
+                        },
+                    ],
                 );
             }
         }
@@ -1161,18 +1084,13 @@ impl Plant {
 /// `va`, `vb` (m³): hydraulic spring + load spring on the piston mass, mount, line segments,
 /// line end against the chamber or a CBV body. The segment mode and the line end against the
 /// chamber enter scaled by `max_omega_h / max_omega_h_line` (`Consts::line_scale`), so the
-/// rule ω·h ≤ `max_omega_h` on the result holds them to ω·h ≤ `max_omega_h_line`. With `implicit_line` (the trapezoidal chain
-/// of [`Line::advance_implicit`], stable at any step) the segment modes and the line end
-/// against the chamber are no stability limit and the lumping's high modes are numerical,
-/// not physical: the line contributes its half-wave mode π/T ([`Line::omega_wave`]) only.
-fn fastest_mode(
-    c: &Consts,
-    line: Option<&Line>,
-    implicit_line: bool,
-    cbv: &[Option<Cbv>; 2],
-    va: f64,
-    vb: f64,
-) -> f64 {
+/// rule ω·h ≤ `max_omega_h` on the result holds them to ω·h ≤ `max_omega_h_line`; the
+/// line stage adds its modes ([`LineStage::fastest_mode`]). With implicit lines (the
+/// trapezoidal chain of [`crate::line::Line::advance_implicit`], stable at any step) the
+/// segment modes and the line end against the chamber are no stability limit and the
+/// lumping's high modes are numerical, not physical: the line contributes its half-wave mode
+/// π/T ([`crate::line::Line::omega_wave`]) only.
+fn fastest_mode(c: &Consts, lines: &Lines, cbv: &[Option<Cbv>; 2], va: f64, vb: f64) -> f64 {
     let mut k_total =
         c.beta_max * (c.a_a * c.a_a / va + c.a_b * c.a_b / vb) + c.k_load + c.k_bristle;
     let mut omega_max: f64 = 0.0;
@@ -1182,32 +1100,11 @@ fn fastest_mode(
         omega_max = omega_max.max(dm / c.mass);
     }
     omega_max = omega_max.max((k_total / c.mass).sqrt());
-    if let Some(la) = line.filter(|_| implicit_line) {
-        omega_max = omega_max.max(la.omega_wave());
-    } else if let Some(la) = line {
-        omega_max = omega_max.max(c.line_scale * la.omega_max());
-        if c.line_scale < 1.0 {
-            // Segment modes held to a stability margin only: the line's own wave modes keep
-            // the accuracy rule.
-            omega_max = omega_max.max(la.omega_wave());
-        }
-        // Line node coupled to the chamber through the last segment.
-        let c_min = la.c.min(va.min(vb) / c.beta_max);
-        omega_max = omega_max.max(c.line_scale * 2.0 / (la.l * c_min).sqrt());
-        // Last segment against a CBV body volume.
-        for cb in cbv.iter().flatten() {
-            omega_max = omega_max.max(2.0 / (la.l * cb.c_node.min(la.c)).sqrt());
-        }
-    }
-    omega_max
-}
-
-/// φ₁(z) = (eᶻ − 1)/z, the exponential-Euler weight (→ 1 as z → 0).
-#[inline]
-fn phi1(z: f64) -> f64 {
-    if z.abs() < 1e-6 {
-        1.0 + 0.5 * z
-    } else {
-        z.exp_m1() / z
-    }
+    // The line stage (`line_dynamics`): segment modes, wave mode, line ends.
+    lines.fastest_mode(
+        omega_max,
+        c.line_scale,
+        va.min(vb) / c.beta_max,
+        cbv.each_ref().map(|cb| cb.as_ref().map(|cb| cb.c_node)),
+    )
 }

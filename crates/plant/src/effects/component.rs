@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SpoolStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SpoolStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`], [`LineStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -30,6 +30,13 @@ pub struct Setup {
     pub supply_pressure: f64,
     /// The fluid's bulk modulus β₀ (Pa, `fluid.bulk_modulus`).
     pub bulk_modulus: f64,
+    /// The fluid's density ρ (kg/m³, `fluid.density`).
+    pub density: f64,
+    /// The fluid's kinematic viscosity ν (m²/s, `fluid.kinematic_viscosity`).
+    pub kinematic_viscosity: f64,
+    /// Whether the line chains are solved whole per substep (`integration.line_method =
+    /// "implicit"`) instead of the symplectic node/flow update.
+    pub implicit_lines: bool,
 }
 
 impl Setup {
@@ -40,6 +47,9 @@ impl Setup {
         control_dt: 1e-3,
         supply_pressure: 20e6,
         bulk_modulus: 1.5e9,
+        density: 870.0,
+        kinematic_viscosity: 4.6e-5,
+        implicit_lines: false,
     };
 }
 
@@ -299,4 +309,120 @@ pub trait SensorStage: Component {
     /// What the stage adds to channel `ch` (in the channel's unit: N, m or Pa) when it is
     /// sampled at time `t` (s); 0 for a channel it does not act on. Real-time safe.
     fn add(&mut self, ch: SensorChannel, t: f64) -> f64;
+}
+
+/// A component between the valve ports and the chambers: the two lumped line chains
+/// (`line_dynamics`), valve port A → chamber A and valve port B → chamber B, each a
+/// [`super::line_dynamics::line::Line`] of node pressures (Pa), segment flows (m³/s) and
+/// unsteady-friction convolution states (m³/s). The valve's metering edges see the
+/// valve-side node pressures ([`LineStage::port_pressures`]) instead of the chambers'; the
+/// chamber balances take the last segment's flow (step 2 of crates/plant/src/model.rs), with
+/// a counterbalance valve (crates/plant/src/cbv.rs) between the line end and the chamber
+/// where one is fitted. Without the effect every call is a no-op and the ports see the
+/// chambers.
+pub trait LineStage: Component {
+    /// Whether the lines are present.
+    fn is_active(&self) -> bool;
+
+    /// Whether the chains are solved whole per substep ([`LineStage::advance_implicit`],
+    /// `integration.line_method = "implicit"`); false without the effect.
+    fn is_implicit(&self) -> bool;
+
+    /// Every node of line A at `p_a` and of line B at `p_b` (Pa), at rest: the start of a run
+    /// (initialize phase, after [`Component::reset`]). No allocation.
+    fn fill(&mut self, p_a: f64, p_b: f64);
+
+    /// The per-substep factors for the substep `h` (s) (configure phase, and again when the
+    /// automatic substep rule changes `h`). No allocation.
+    fn discretise(&mut self, h: f64);
+
+    /// Pressures (Pa) at the valve-side nodes of lines A and B (the valve ports), `None`
+    /// without the effect.
+    fn port_pressures(&self) -> Option<(f64, f64)>;
+
+    /// The substep rule: `omega` (rad/s, the fastest mode of the rest of the rig) raised to
+    /// the lines' fastest mode. `line_scale` (-) is `max_omega_h / max_omega_h_line`,
+    /// `chamber_cap` (m³/Pa) the stiffest chamber's capacitance V_min/β_max, `cbv_caps`
+    /// (m³/Pa) the node capacitance of a counterbalance valve at the end of line A, B. With
+    /// the symplectic chain: the segment mode (scaled), the wave mode where the segment
+    /// modes are held to a stability margin only (`line_scale` < 1), the last segment
+    /// against the chamber (scaled) and against each counterbalance valve's node; with the
+    /// implicit chain the half-wave mode only. `omega` without the effect.
+    fn fastest_mode(
+        &self,
+        omega: f64,
+        line_scale: f64,
+        chamber_cap: f64,
+        cbv_caps: [Option<f64>; 2],
+    ) -> f64;
+
+    /// The symplectic chain's first half of a substep `h` (s): the valve-side nodes in
+    /// exponential Euler in their own pressure with the valve flows `q_valve` (m³/s) into
+    /// them and their derivatives `dq_valve` (m³/(s·Pa)), then the interior nodes from the
+    /// old segment flows, every node floored at `p_cav` (Pa). Returns per line the pressure
+    /// (Pa) of its last node and the flow (m³/s) of its last segment, the inflow of the
+    /// chamber or counterbalance valve at its end (`p_chamber` (Pa) and 0 for a line without
+    /// nodes). Real-time safe.
+    fn advance_nodes(
+        &mut self,
+        h: f64,
+        q_valve: [f64; 2],
+        dq_valve: [f64; 2],
+        p_cav: f64,
+        p_chamber: [f64; 2],
+    ) -> [(f64, f64); 2];
+
+    /// The symplectic chain's second half: the segment flows over `h` (s) from the new node
+    /// pressures with the pressure `p_end` (Pa) at the cylinder end of each line (the
+    /// chamber's or the counterbalance valve node's), resistance implicit. Real-time safe.
+    fn advance_flows(&mut self, h: f64, p_end: [f64; 2]);
+
+    /// The implicit chain over a substep `h` (s): valve-side node, segments and the chamber
+    /// `ends` as the end node of each line, with the valve flows `q_valve` (m³/s) and their
+    /// derivatives `dq_valve` (m³/(s·Pa)). Returns the chamber pressures A, B (Pa), every
+    /// pressure floored at `p_cav` (Pa). Real-time safe.
+    fn advance_implicit(
+        &mut self,
+        h: f64,
+        q_valve: [f64; 2],
+        dq_valve: [f64; 2],
+        ends: [EndNode; 2],
+        p_cav: f64,
+    ) -> (f64, f64);
+
+    /// Names of the line states in the linearisation's state (after the plant's own):
+    /// `line_a.p[i]`, `line_a.q[j]`, `line_a.q[j].y[i]`, then line B's. Allocates.
+    fn state_names(&self, names: &mut Vec<String>);
+
+    /// The line states in the order of [`LineStage::state_names`]. Allocates.
+    fn state(&self, v: &mut Vec<f64>);
+
+    /// Overwrite the line states, in the order of [`LineStage::state_names`], from `next`.
+    fn set_state(&mut self, next: &mut impl FnMut() -> f64);
+}
+
+/// The chamber (or any lumped volume) at the cylinder end of a line, as the end node of
+/// [`LineStage::advance_implicit`] (`Line::advance_implicit` in
+/// crates/plant/src/effects/line_dynamics/line.rs); its other flows linearised in its own pressure.
+#[derive(Debug, Clone, Copy)]
+pub struct EndNode {
+    /// Pressure at the start of the substep (Pa).
+    pub p: f64,
+    /// Capacitance V/β (m³/Pa).
+    pub cap: f64,
+    /// Net flow into the node other than from the line, at `p` (m³/s): −A·v − leakage.
+    pub flow: f64,
+    /// Its derivative in the node's own pressure (m³/(s·Pa)), ≤ 0 for leakage.
+    pub dflow: f64,
+}
+
+/// φ₁(z) = (eᶻ − 1)/z (-), the exponential-Euler weight (→ 1 as z → 0) of the plant's
+/// pressure nodes: the chambers' (crates/plant/src/model.rs) and the lines' valve-side nodes.
+#[inline]
+pub fn phi1(z: f64) -> f64 {
+    if z.abs() < 1e-6 {
+        1.0 + 0.5 * z
+    } else {
+        z.exp_m1() / z
+    }
 }

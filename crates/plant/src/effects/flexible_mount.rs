@@ -275,6 +275,7 @@ mod tests {
             control_dt: 1e-3,
             supply_pressure: 20e6,
             bulk_modulus: 1.5e9,
+            ..Setup::TEST
         };
         let mut off = section(MountVariant::LoadSide);
         off.enabled = false;
@@ -305,6 +306,7 @@ mod tests {
                 control_dt: 1e-3,
                 supply_pressure: 20e6,
                 bulk_modulus: 1.5e9,
+                ..Setup::TEST
             },
         );
         assert_eq!(m.coefficients(), Some((250.0, 5e4, 1.5e4)));
@@ -334,6 +336,7 @@ mod tests {
                 control_dt: 1e-3,
                 supply_pressure: 20e6,
                 bulk_modulus: 1.5e9,
+                ..Setup::TEST
             },
         );
         assert!(m.is_body());

@@ -405,6 +405,7 @@ mod tests {
             control_dt: 1e-3,
             supply_pressure: 20e6,
             bulk_modulus: 1.5e9,
+            ..Setup::TEST
         };
         let mut off = section(FrictionVariant::Stribeck);
         off.enabled = false;
@@ -435,6 +436,7 @@ mod tests {
                 control_dt: 1e-3,
                 supply_pressure: 20e6,
                 bulk_modulus: 1.5e9,
+                ..Setup::TEST
             },
         );
         assert_eq!(st.stiffness(), 1e7);

@@ -14,8 +14,9 @@
 //! `external_leakage`: `ToTank`), [`BulkStage`] for the chambers' bulk modulus
 //! (`bulk_modulus_pressure`: `BulkModulus`), [`ForceStage`] in the piston's velocity update
 //! (`friction`: `FrictionStage`), [`MountStage`] for the mass on the far side of the rod or
-//! body (`flexible_mount`: `Mount`) or [`SensorStage`] on a measured channel (`sensor_tone`:
-//! `Tones`), or a new stage trait in `component.rs` where the effect acts elsewhere
+//! body (`flexible_mount`: `Mount`), [`LineStage`] for the line chains between the valve
+//! ports and the chambers (`line_dynamics`: `Lines`) or [`SensorStage`] on a measured channel
+//! (`sensor_tone`: `Tones`), or a new stage trait in `component.rs` where the effect acts elsewhere
 //! (statically dispatched, no allocation in the step); registered by one line in
 //! `components!` below. What the configure phase may read besides the section is in
 //! [`Setup`] (plain numbers the plant owns; add a field there if the effect needs another).
@@ -26,24 +27,30 @@
 //! stage is called where the cycle reaches it (`Plant::step` calls `time_delay`'s `push`
 //! once per period and `command` per substep; `Plant::advance_substep` calls
 //! `valve_dynamics`'s `advance` (and `advance_substep_linear` its `midstep` too) first, reads
+//! `line_dynamics`' `port_pressures` (the pressures the valve ports see), reads
 //! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
-//! leakages' `flows` and `conductances` in the chamber balances, calls
-//! `supply_pressure_drop`'s `advance` after the chamber pressures, `flexible_mount`'s `drift`
-//! with the position drift, its `piston_force` and `friction`'s `kick` in the velocity update
-//! and the mount's `follow` after it; `Plant::update_rod_force` the mount's `rod_force`;
-//! `Plant::measure` hands `sensor_tone` to the sensor model, whose `sample` calls its `add`
-//! per channel); `Plant::configure` reads the constants the plant folds into its own:
-//! friction's viscous coefficient and bristle stiffness, the mount's coefficients, the
-//! supply's droop and time constant, the bulk stage's β_max and `is_linear`, the spool's
-//! bandwidth and the leakages' conductances for the substep rule, `linear_exact` and the
-//! linearisation, and calls the spool's `discretise` once the substep is chosen, as
-//! `Plant::set_substeps` does when it changes; the linearisation's state reads the spool's
-//! `order`);
+//! leakages' `flows` and `conductances` in the chamber balances, calls the lines'
+//! `advance_implicit` (`integration.line_method = "implicit"`) or, symplectic, their
+//! `advance_nodes` before the counterbalance valves (crates/plant/src/cbv.rs, which the plant
+//! keeps: they sit between a line's end and its chamber) and `advance_flows` after the
+//! chamber pressures, `supply_pressure_drop`'s `advance` after the chamber pressures,
+//! `flexible_mount`'s `drift` with the position drift, its `piston_force` and `friction`'s
+//! `kick` in the velocity update and the mount's `follow` after it;
+//! `Plant::update_rod_force` the mount's `rod_force`; `Plant::measure` hands `sensor_tone` to
+//! the sensor model, whose `sample` calls its `add` per channel); `Plant::configure` reads the
+//! constants the plant folds into its own: friction's viscous coefficient and bristle
+//! stiffness, the mount's coefficients, the supply's droop and time constant, the bulk
+//! stage's β_max and `is_linear`, the spool's bandwidth, the leakages' conductances and
+//! whether lines are present (`is_active`, `is_implicit`) for the substep rule,
+//! `linear_exact` and the linearisation, and calls the spool's and the lines' `discretise`
+//! once the substep is chosen, as `Plant::set_substeps` does when it changes; the substep
+//! rule (`fastest_mode` in model.rs) adds the lines' `fastest_mode`; `Plant::initialize`
+//! `fill`s the lines at the chambers' start pressures after the reset; the linearisation's
+//! state reads the spool's `order` and the lines' `state_names` / `state` / `set_state`);
 //! validation, configuration and reset go through [`Components`]. The effects not moved to
-//! a component yet (`valve_deadband`, `valve_saturation`, `line_dynamics`) still have their
-//! checks called from [`validate_variants`] or `model::validate`, their derived constants in
-//! `Plant::configure` (the valve edge law `EdgeLaw` in crates/plant/src/valve.rs, the line
-//! chains in crates/plant/src/line.rs) and their terms in the substep
+//! a component yet (`valve_deadband`, `valve_saturation`, which have no cross-field checks)
+//! still have their derived constants in `Plant::configure` (the valve edge law `EdgeLaw` in
+//! crates/plant/src/valve.rs, that both shape) and their terms in the substep
 //! (`Plant::advance_substep`).
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
@@ -68,8 +75,9 @@ pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
 pub use component::{
-    BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LoadSpring, MountStage,
-    PistonForces, SensorChannel, SensorStage, Setup, SpoolStage, SupplyStage,
+    phi1, BulkStage, CommandStage, Component, EndNode, FlowStage, ForceStage, Kick, LineStage,
+    LoadSpring, MountStage, PistonForces, SensorChannel, SensorStage, Setup, SpoolStage,
+    SupplyStage,
 };
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
@@ -249,6 +257,7 @@ macro_rules! components {
 
 // The registration of each effect component: its section's field in `Effects` and its type.
 components! {
+    line_dynamics: line_dynamics::Lines,
     friction: friction::FrictionStage,
     internal_leakage: leakage::CrossPiston,
     external_leakage: leakage::ToTank,
@@ -260,14 +269,11 @@ components! {
     sensor_tone: sensor_tone::Tones,
 }
 
-/// Cross-field checks of the effect variants: each variant's own parameters must
-/// be given and admissible.
+/// The checks across sections that no component can make alone: the refit ranges of the
+/// nominal parameters the diagnosis refits ([`crate::params::PlantParams::refit_ranges`]).
+/// Each effect's own cross-field checks are its component's ([`Components::validate`]).
 pub fn validate_variants(p: &crate::params::PlantParams) -> Result<(), crate::spec::ConfigError> {
     p.refit_ranges()?;
-    let e = &p.effects;
-    if let Some(l) = e.line_dynamics.as_ref() {
-        l.validate_variant()?;
-    }
     Ok(())
 }
 

@@ -139,6 +139,7 @@ mod tests {
                 control_dt,
                 supply_pressure: 20e6,
                 bulk_modulus: 1.5e9,
+                ..Setup::TEST
             },
         )
     }
@@ -197,6 +198,7 @@ mod tests {
                     control_dt: 1e-3,
                     supply_pressure: 20e6,
                     bulk_modulus: 1.5e9,
+                    ..Setup::TEST
                 },
             );
             assert_eq!((l.delay, l.buf.len()), (0.0, 1));

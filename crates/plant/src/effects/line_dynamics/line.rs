@@ -74,7 +74,9 @@
 //! Fast terms (aᵢh ≫ 1) act as added inertance, slow ones as added resistance; no term
 //! limits the step (stiff-safe, like the plant's exponential Euler).
 
-use crate::params::{Fluid, LineDynamics, LineFriction};
+use super::{LineDynamics, LineFriction};
+/// The end node of [`Line::advance_implicit`] (crates/plant/src/effects/component.rs).
+pub use crate::effects::component::EndNode;
 
 /// Number of convolution terms of the `unsteady` model.
 pub const UNSTEADY_TERMS: usize = 8;
@@ -178,52 +180,36 @@ pub struct Line {
 /// Trapezoidal weight of [`Line::advance_implicit`] (-): ½, Crank–Nicolson.
 const THETA: f64 = 0.5;
 
-/// The chamber (or any lumped volume) at the cylinder end of a line, as the end node of
-/// [`Line::advance_implicit`]; its other flows linearised in its own pressure.
-#[derive(Debug, Clone, Copy)]
-pub struct EndNode {
-    /// Pressure at the start of the substep (Pa).
-    pub p: f64,
-    /// Capacitance V/β (m³/Pa).
-    pub cap: f64,
-    /// Net flow into the node other than from the line, at `p` (m³/s): −A·v − leakage.
-    pub flow: f64,
-    /// Its derivative in the node's own pressure (m³/(s·Pa)), ≤ 0 for leakage.
-    pub dflow: f64,
-}
-
 impl Line {
-    /// Build a line filled at pressure `p0`.
-    pub fn new(cfg: &LineDynamics, fluid: &Fluid, p0: f64) -> Self {
+    /// Build a line filled at pressure `p0` (Pa) in a fluid of density `density` (kg/m³),
+    /// kinematic viscosity `nu` (m²/s) and bulk modulus `beta0` (Pa).
+    pub fn with_fluid(cfg: &LineDynamics, density: f64, nu: f64, beta0: f64, p0: f64) -> Self {
         let n = cfg.segments.max(1) as usize;
         let seg = cfg.length / n as f64;
         let area = std::f64::consts::PI * cfg.diameter * cfg.diameter / 4.0;
-        let mut beta = cfg.bulk_modulus.unwrap_or(fluid.bulk_modulus);
+        let mut beta = cfg.bulk_modulus.unwrap_or(beta0);
         // Variant `hose`: the wall's compliance in series with the oil's (Merritt 1967
         // eq. 2-46), the fittings' resistance spread evenly over the segments.
-        let hose = cfg.variant == crate::params::LineVariant::Hose;
+        let hose = cfg.variant == super::LineVariant::Hose;
         let r_fit = if hose {
             beta = 1.0 / (1.0 / beta + cfg.wall_compliance.max(0.0));
             cfg.resistance.max(0.0) / n as f64
         } else {
             0.0
         };
-        let mu = fluid.density * fluid.kinematic_viscosity;
+        let mu = density * nu;
         let c = area * seg / beta;
         let (m, nn, residual) = weighting_terms(cfg.friction);
         let radius = 0.5 * cfg.diameter;
-        let a: Vec<f64> = nn
-            .iter()
-            .map(|x| x * fluid.kinematic_viscosity / (radius * radius))
-            .collect();
+        let a: Vec<f64> = nn.iter().map(|x| x * nu / (radius * radius)).collect();
         let terms = m.len();
         let mut line = Self {
             p: vec![p0; n],
             q: vec![0.0; n],
             y: vec![0.0; n * terms],
             c,
-            c0: c + cfg.port_volume.max(0.0) / fluid.bulk_modulus,
-            l: fluid.density * seg / area * (1.0 + 4.0 * residual),
+            c0: c + cfg.port_volume.max(0.0) / beta0,
+            l: density * seg / area * (1.0 + 4.0 * residual),
             r: 128.0 * mu * seg / (std::f64::consts::PI * cfg.diameter.powi(4)) + r_fit,
             decay: vec![1.0; terms],
             gain: m.clone(),
@@ -247,6 +233,14 @@ impl Line {
     /// Convolution terms per segment (0 for steady friction).
     pub fn terms(&self) -> usize {
         self.m.len()
+    }
+
+    /// At rest at pressure `p0` (Pa): every node at `p0`, no segment flow, no convolution
+    /// state. No allocation.
+    pub fn fill(&mut self, p0: f64) {
+        self.p.iter_mut().for_each(|p| *p = p0);
+        self.q.iter_mut().for_each(|q| *q = 0.0);
+        self.y.iter_mut().for_each(|y| *y = 0.0);
     }
 
     /// Precompute the exact per-substep factors of the convolution states for substep `h`
@@ -471,6 +465,18 @@ fn solve_interior(inv_pivot: &[f64], upper: &[f64], off: f64, b: &mut [f64]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::params::Fluid;
+
+    /// A line in the fluid of a `[fluid]` section.
+    fn new_line(cfg: &LineDynamics, fluid: &Fluid, p0: f64) -> Line {
+        Line::with_fluid(
+            cfg,
+            fluid.density,
+            fluid.kinematic_viscosity,
+            fluid.bulk_modulus,
+            p0,
+        )
+    }
 
     /// Sirohi 2003's tube (11.5 in × 1.753 mm, 16 segments) in 001's fluid; `nu` = 0 makes the
     /// segments frictionless (R = 0).
@@ -493,7 +499,7 @@ mod tests {
             kinematic_viscosity: nu,
             cavitation_pressure: -1e5,
         };
-        Line::new(&cfg, &fluid, 0.0)
+        new_line(&cfg, &fluid, 0.0)
     }
 
     /// The bordered solve of [`Line::advance_implicit`] against Gaussian elimination with
@@ -526,7 +532,7 @@ mod tests {
                 kinematic_viscosity: 2e-6,
                 cavitation_pressure: -1e5,
             };
-            let mut l = Line::new(&cfg, &fluid, 2e6);
+            let mut l = new_line(&cfg, &fluid, 2e6);
             let h = 1.3e-5;
             l.prepare(h);
             let n = l.p.len();
@@ -697,7 +703,7 @@ mod tests {
             wall_compliance: 1e-9,
             resistance: 3e9,
         };
-        let l = Line::new(&cfg, &fluid, 0.0);
+        let l = new_line(&cfg, &fluid, 0.0);
         let area = std::f64::consts::PI * 0.25e-4;
         // β_eff = 1/(1/1.5e9 + 1e-9) = 0.6 GPa.
         assert!((l.c - area * 1.0 / 0.6e9).abs() < 1e-12 * l.c);
@@ -711,7 +717,7 @@ mod tests {
         assert!((l.l - 860.0 / area).abs() < 1e-9 * l.l);
         // The same numbers on a pipe are the fluid's.
         cfg.variant = crate::params::LineVariant::Pipe;
-        let p = Line::new(&cfg, &fluid, 0.0);
+        let p = new_line(&cfg, &fluid, 0.0);
         assert!((p.c - area / 1.5e9).abs() < 1e-12 * p.c);
         assert!((p.r - r_hp).abs() < 1e-9 * p.r);
     }
