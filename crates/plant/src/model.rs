@@ -849,7 +849,9 @@ impl Plant {
         let c = &self.c;
         let mut s = self.state;
         s.command = u;
-        let target = u / c.full_scale;
+        // The amplifier's offset and dead zone (`valve_deadband` variant `amplifier`), as in
+        // `advance_substep`.
+        let target = self.edges.target(u / c.full_scale);
         // The spool stage (`valve_dynamics`): its mid-step position opens the edges.
         let spool = &self.components.valve_dynamics;
         let sm = spool.midstep(s.spool, s.spool_velocity, target);
