@@ -20,8 +20,13 @@ ROOT = pathlib.Path(os.environ.get("EHACTL_ROOT", pathlib.Path(__file__).resolve
 
 @pytest.fixture(scope="module")
 def deps():
+    # The graph of the host only: what this machine compiles. Without `--filter-platform`
+    # cargo wants every target's crates (android, windows) in the local registry, which a
+    # fresh machine that only built for its host does not have offline.
+    host = subprocess.run(["rustc", "-vV"], capture_output=True, text=True, check=True).stdout
+    triple = next(line.split()[1] for line in host.splitlines() if line.startswith("host:"))
     out = subprocess.run(
-        ["cargo", "metadata", "--format-version", "1", "--offline"],
+        ["cargo", "metadata", "--format-version", "1", "--offline", "--filter-platform", triple],
         cwd=ROOT, capture_output=True, text=True, check=True,
     ).stdout
     meta = json.loads(out)
