@@ -416,7 +416,8 @@ impl Plant {
             None
         };
         let mut plant = Plant {
-            edges: EdgeLaw::new(params),
+            // The edge law with the lap stage (`valve_deadband`) as configured.
+            edges: EdgeLaw::with_stages(params, components.valve_deadband),
             linear,
             poly: e.polynomial_force.filter(|f| f.enabled),
             dahl_z: 0.0,

@@ -8,7 +8,9 @@
 //! - `kq`: k = q_vn/√Δp_n, n = ½ (003 eq. 9–13).
 //! - `power_law`: k = c/(1 MPa)ⁿ with the supply raised by P_o (004 eq. 20–23: P_d = P_s − P_L − P_T + P_o).
 
+pub use crate::effects::valve_deadband::Deadband;
 pub use crate::effects::valve_dynamics::SpoolModel;
+use crate::effects::LapStage;
 use crate::params::{FlowForm, PlantParams};
 
 /// Metering-edge geometry and flow law.
@@ -24,26 +26,29 @@ pub struct EdgeLaw {
     pub supply_offset: f64,
     /// Underlap (fraction).
     pub underlap: f64,
-    /// Overlap (fraction).
-    pub overlap: f64,
-    /// Zero offset (fraction).
-    pub zero_offset: f64,
+    /// `valve_deadband`'s lap stage: the spool target, its zero offset and overlap.
+    pub deadband: Deadband,
     /// Spool travel limit (fraction).
     pub spool_limit: f64,
     /// Limit of negative spool travel (fraction); = `spool_limit` unless asymmetric.
     pub spool_limit_neg: f64,
-    /// Amplifier dead zone on the spool target (fraction of full scale), `valve_deadband`
-    /// variant `amplifier`.
-    pub deadzone: f64,
-    /// Amplifier offset added to the command before the dead zone (fraction).
-    pub command_offset: f64,
     /// Edge flow limit (m³/s), infinite if none.
     pub max_flow: f64,
 }
 
 impl EdgeLaw {
-    /// Derive from the parameters (assumes they passed validation).
+    /// Derive from the parameters (assumes they passed validation), the stages from their
+    /// sections.
     pub fn new(params: &PlantParams) -> Self {
+        Self::with_stages(
+            params,
+            Deadband::new(params.effects.valve_deadband.as_ref()),
+        )
+    }
+
+    /// Derive the flow law from the parameters (assumes they passed validation), with the
+    /// effects' stages as configured (`Plant::configure` passes its components).
+    pub fn with_stages(params: &PlantParams, deadband: Deadband) -> Self {
         let v = &params.valve;
         let (k, n, po) = match v.flow_form {
             FlowForm::Orifice => (
@@ -67,25 +72,19 @@ impl EdgeLaw {
                 )
             }
         };
-        let db = params.effects.valve_deadband.as_ref().filter(|d| d.enabled);
         let sat = params
             .effects
             .valve_saturation
             .as_ref()
             .filter(|d| d.enabled);
-        use crate::params::{DeadbandVariant, SaturationVariant};
-        let amp = db.filter(|d| d.variant == DeadbandVariant::Amplifier);
-        let spool_db = db.filter(|d| d.variant == DeadbandVariant::Overlap);
+        use crate::params::SaturationVariant;
         Self {
             k,
             n,
             dp_lam: v.laminar_pressure,
             supply_offset: po,
             underlap: v.underlap,
-            overlap: spool_db.map_or(0.0, |d| d.overlap),
-            zero_offset: spool_db.map_or(0.0, |d| d.zero_offset),
-            deadzone: amp.map_or(0.0, |d| d.deadzone),
-            command_offset: amp.map_or(0.0, |d| d.zero_offset),
+            deadband,
             spool_limit: sat.map_or(f64::INFINITY, |s| s.spool_limit),
             spool_limit_neg: sat.map_or(f64::INFINITY, |s| match s.variant {
                 SaturationVariant::Symmetric => s.spool_limit,
@@ -98,23 +97,21 @@ impl EdgeLaw {
         }
     }
 
-    /// Spool target (fraction) for the command `c` = u / full scale: `c`, or through the
-    /// amplifier's offset and dead zone sign(c')·max(|c'| − d, 0), c' = c + offset.
+    /// Spool target (fraction) for the command `c` = u / full scale: the lap stage's
+    /// ([`LapStage::target`]: `c`, or through an amplifier's offset and dead zone).
     #[inline]
     pub fn target(&self, c: f64) -> f64 {
-        if self.deadzone <= 0.0 && self.command_offset == 0.0 {
-            return c;
-        }
-        let c = c + self.command_offset;
-        (c.abs() - self.deadzone).max(0.0).copysign(c)
+        self.deadband.target(c)
     }
 
-    /// Edge openings (P→A, A→T, P→B, B→T) for spool position `s` (fraction).
+    /// Edge openings (P→A, A→T, P→B, B→T) for spool position `s` (fraction): the travel
+    /// from the lap stage's zero offset, limited, plus the underlap less its overlap, ≥ 0.
     #[inline]
     pub fn openings(&self, s: f64) -> [f64; 4] {
-        let se = (s - self.zero_offset).clamp(-self.spool_limit_neg, self.spool_limit);
-        let pos = (se + self.underlap - self.overlap).max(0.0);
-        let neg = (-se + self.underlap - self.overlap).max(0.0);
+        let d = &self.deadband;
+        let se = d.travel(s).clamp(-self.spool_limit_neg, self.spool_limit);
+        let pos = d.lap(se + self.underlap).max(0.0);
+        let neg = d.lap(-se + self.underlap).max(0.0);
         [pos, neg, neg, pos]
     }
 

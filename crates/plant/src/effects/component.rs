@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SpoolStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`LapStage`], [`SpoolStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -101,6 +101,26 @@ pub trait SpoolStage: Component {
     /// The spool position half a substep on from `spool`, `velocity` towards `target`,
     /// without advancing them (the mid-step opening of `linear_exact`). Real-time safe.
     fn midstep(&self, spool: f64, velocity: f64, target: f64) -> f64;
+}
+
+/// A component that sets where the valve's four metering edges open (`valve_deadband`): the
+/// spool target from the command (an amplifier's dead zone ahead of the spool), and the
+/// spool's zero offset and overlap between its position and the edge openings. The valve's
+/// edge law (`EdgeLaw` in crates/plant/src/valve.rs) holds it and calls it in each substep
+/// (steps 1 and 2 of crates/plant/src/model.rs: the spool target before the spool stage,
+/// the openings after it). All quantities are fractions of full spool travel (-).
+pub trait LapStage: Component {
+    /// The spool target for the command `c` = u / full scale (-): `c` without an amplifier
+    /// dead zone. Real-time safe.
+    fn target(&self, c: f64) -> f64;
+
+    /// The spool travel the edges see at the spool position `s`: `s` without a zero
+    /// offset. Real-time safe.
+    fn travel(&self, s: f64) -> f64;
+
+    /// An edge's opening from `x`, the (limited) travel towards it plus the valve's underlap,
+    /// before it is cut at 0: `x` without an overlap. Real-time safe.
+    fn lap(&self, x: f64) -> f64;
 }
 
 /// What a [`ForceStage`] does to the piston velocity over one substep.

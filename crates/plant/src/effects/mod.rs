@@ -8,7 +8,8 @@
 //! `#[param]` declarations, defaults) and its component, a type implementing
 //! [`Component`] (cross-field checks, the constants derived from the section, its state and
 //! reset) and the trait of its stage: [`CommandStage`] on the command path (`time_delay`:
-//! `DelayLine`), [`SpoolStage`] for the spool's dynamics (`valve_dynamics`: `Spool`),
+//! `DelayLine`), [`LapStage`] for where the valve's metering edges open (`valve_deadband`:
+//! `Deadband`), [`SpoolStage`] for the spool's dynamics (`valve_dynamics`: `Spool`),
 //! [`SupplyStage`] for the supply pressure (`supply_pressure_drop`: `Supply`),
 //! [`FlowStage`] for flows out of the chambers (`internal_leakage`: `CrossPiston`,
 //! `external_leakage`: `ToTank`), [`BulkStage`] for the chambers' bulk modulus
@@ -25,7 +26,10 @@
 //! `Option` field in [`Effects`] and its re-export line. In [`crate::model`] the component's
 //! stage is called where the cycle reaches it (`Plant::step` calls `time_delay`'s `push`
 //! once per period and `command` per substep; `Plant::advance_substep` calls
-//! `valve_dynamics`'s `advance` (and `advance_substep_linear` its `midstep` too) first, reads
+//! `valve_deadband`'s `target` (through the valve's edge law `EdgeLaw` in
+//! crates/plant/src/valve.rs, which holds a copy of the stateless component from
+//! `Plant::configure`), then `valve_dynamics`'s `advance` (and `advance_substep_linear` its
+//! `midstep` too), then the edge law's `openings` with the lap stage's `travel` and `lap`, reads
 //! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
 //! leakages' `flows` and `conductances` in the chamber balances, calls
 //! `supply_pressure_drop`'s `advance` after the chamber pressures, `flexible_mount`'s `drift`
@@ -40,7 +44,7 @@
 //! `Plant::set_substeps` does when it changes; the linearisation's state reads the spool's
 //! `order`);
 //! validation, configuration and reset go through [`Components`]. The effects not moved to
-//! a component yet (`valve_deadband`, `valve_saturation`, `line_dynamics`) still have their
+//! a component yet (`valve_saturation`, `line_dynamics`) still have their
 //! checks called from [`validate_variants`] or `model::validate`, their derived constants in
 //! `Plant::configure` (the valve edge law `EdgeLaw` in crates/plant/src/valve.rs, the line
 //! chains in crates/plant/src/line.rs) and their terms in the substep
@@ -68,8 +72,8 @@ pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
 pub use component::{
-    BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LoadSpring, MountStage,
-    PistonForces, SensorChannel, SensorStage, Setup, SpoolStage, SupplyStage,
+    BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LapStage, LoadSpring,
+    MountStage, PistonForces, SensorChannel, SensorStage, Setup, SpoolStage, SupplyStage,
 };
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
@@ -257,6 +261,7 @@ components! {
     supply_pressure_drop: supply_pressure_drop::Supply,
     time_delay: time_delay::DelayLine,
     valve_dynamics: valve_dynamics::Spool,
+    valve_deadband: valve_deadband::Deadband,
     sensor_tone: sensor_tone::Tones,
 }
 
