@@ -416,8 +416,13 @@ impl Plant {
             None
         };
         let mut plant = Plant {
-            // The edge law with the lap stage (`valve_deadband`) as configured.
-            edges: EdgeLaw::with_stages(params, components.valve_deadband),
+            // The edge law with the lap and limit stages (`valve_deadband`,
+            // `valve_saturation`) as configured.
+            edges: EdgeLaw::with_stages(
+                params,
+                components.valve_deadband,
+                components.valve_saturation,
+            ),
             linear,
             poly: e.polynomial_force.filter(|f| f.enabled),
             dahl_z: 0.0,

@@ -1,5 +1,8 @@
 //! Four-edge valve: metering-edge flow. The spool dynamics are `valve_dynamics`'s
-//! ([`crate::effects::valve_dynamics`]; [`SpoolModel`] re-exported here).
+//! ([`crate::effects::valve_dynamics`]; [`SpoolModel`] re-exported here); the dead band and
+//! the saturation that shape the edges are the components of `valve_deadband` and
+//! `valve_saturation` ([`Deadband`], [`Saturation`], re-exported here), which [`EdgeLaw`]
+//! calls.
 //!
 //! Flow per edge Q = k · o · φ(Δp) where o ≥ 0 is the edge opening (fraction of full
 //! spool travel) and φ(Δp) = Δp·(Δp² + Δp_l²)^((n−1)/2) is the signed power law
@@ -10,10 +13,13 @@
 
 pub use crate::effects::valve_deadband::Deadband;
 pub use crate::effects::valve_dynamics::SpoolModel;
-use crate::effects::LapStage;
+pub use crate::effects::valve_saturation::Saturation;
+use crate::effects::{LapStage, LimitStage};
 use crate::params::{FlowForm, PlantParams};
 
-/// Metering-edge geometry and flow law.
+/// Metering-edge geometry and flow law, with the two effect components that shape the
+/// edges: `valve_deadband`'s lap stage and `valve_saturation`'s limit stage (copies of the
+/// stateless components; `Plant::configure` passes the ones it configured).
 #[derive(Debug, Clone)]
 pub struct EdgeLaw {
     /// Flow coefficient k (m³/s per unit opening per Paⁿ).
@@ -28,12 +34,8 @@ pub struct EdgeLaw {
     pub underlap: f64,
     /// `valve_deadband`'s lap stage: the spool target, its zero offset and overlap.
     pub deadband: Deadband,
-    /// Spool travel limit (fraction).
-    pub spool_limit: f64,
-    /// Limit of negative spool travel (fraction); = `spool_limit` unless asymmetric.
-    pub spool_limit_neg: f64,
-    /// Edge flow limit (m³/s), infinite if none.
-    pub max_flow: f64,
+    /// `valve_saturation`'s limit stage: the spool travel limits and the edge flow limit.
+    pub saturation: Saturation,
 }
 
 impl EdgeLaw {
@@ -43,12 +45,13 @@ impl EdgeLaw {
         Self::with_stages(
             params,
             Deadband::new(params.effects.valve_deadband.as_ref()),
+            Saturation::new(params.effects.valve_saturation.as_ref()),
         )
     }
 
     /// Derive the flow law from the parameters (assumes they passed validation), with the
     /// effects' stages as configured (`Plant::configure` passes its components).
-    pub fn with_stages(params: &PlantParams, deadband: Deadband) -> Self {
+    pub fn with_stages(params: &PlantParams, deadband: Deadband, saturation: Saturation) -> Self {
         let v = &params.valve;
         let (k, n, po) = match v.flow_form {
             FlowForm::Orifice => (
@@ -72,12 +75,6 @@ impl EdgeLaw {
                 )
             }
         };
-        let sat = params
-            .effects
-            .valve_saturation
-            .as_ref()
-            .filter(|d| d.enabled);
-        use crate::params::SaturationVariant;
         Self {
             k,
             n,
@@ -85,15 +82,7 @@ impl EdgeLaw {
             supply_offset: po,
             underlap: v.underlap,
             deadband,
-            spool_limit: sat.map_or(f64::INFINITY, |s| s.spool_limit),
-            spool_limit_neg: sat.map_or(f64::INFINITY, |s| match s.variant {
-                SaturationVariant::Symmetric => s.spool_limit,
-                SaturationVariant::Asymmetric => s.spool_limit_negative,
-            }),
-            max_flow: sat
-                .map(|s| s.max_flow)
-                .filter(|m| *m > 0.0)
-                .unwrap_or(f64::INFINITY),
+            saturation,
         }
     }
 
@@ -105,11 +94,12 @@ impl EdgeLaw {
     }
 
     /// Edge openings (P→A, A→T, P→B, B→T) for spool position `s` (fraction): the travel
-    /// from the lap stage's zero offset, limited, plus the underlap less its overlap, ≥ 0.
+    /// from the lap stage's zero offset, within the limit stage's travel limits
+    /// ([`LimitStage::clip_travel`]), plus the underlap less the lap stage's overlap, ≥ 0.
     #[inline]
     pub fn openings(&self, s: f64) -> [f64; 4] {
         let d = &self.deadband;
-        let se = d.travel(s).clamp(-self.spool_limit_neg, self.spool_limit);
+        let se = self.saturation.clip_travel(d.travel(s));
         let pos = d.lap(se + self.underlap).max(0.0);
         let neg = d.lap(-se + self.underlap).max(0.0);
         [pos, neg, neg, pos]
@@ -131,7 +121,8 @@ impl EdgeLaw {
         }
     }
 
-    /// Flow through one edge of opening `o` at pressure drop `dp`, and dQ/d(Δp).
+    /// Flow through one edge of opening `o` at pressure drop `dp`, and dQ/d(Δp), within the
+    /// limit stage's edge flow limit ([`LimitStage::clip_flow`]).
     #[inline]
     pub fn edge(&self, o: f64, dp: f64) -> (f64, f64) {
         if o <= 0.0 {
@@ -139,11 +130,7 @@ impl EdgeLaw {
         }
         let (f, df) = self.phi(dp);
         let q = self.k * o * f;
-        if q.abs() > self.max_flow {
-            (self.max_flow.copysign(q), 0.0)
-        } else {
-            (q, self.k * o * df)
-        }
+        self.saturation.clip_flow(q, self.k * o * df)
     }
 
     /// Net flow into a port at pressure `p` from supply `ps` and to tank `pt` through the

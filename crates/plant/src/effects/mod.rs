@@ -9,7 +9,8 @@
 //! [`Component`] (cross-field checks, the constants derived from the section, its state and
 //! reset) and the trait of its stage: [`CommandStage`] on the command path (`time_delay`:
 //! `DelayLine`), [`LapStage`] for where the valve's metering edges open (`valve_deadband`:
-//! `Deadband`), [`SpoolStage`] for the spool's dynamics (`valve_dynamics`: `Spool`),
+//! `Deadband`) and [`LimitStage`] for their travel and flow limits (`valve_saturation`:
+//! `Saturation`), [`SpoolStage`] for the spool's dynamics (`valve_dynamics`: `Spool`),
 //! [`SupplyStage`] for the supply pressure (`supply_pressure_drop`: `Supply`),
 //! [`FlowStage`] for flows out of the chambers (`internal_leakage`: `CrossPiston`,
 //! `external_leakage`: `ToTank`), [`BulkStage`] for the chambers' bulk modulus
@@ -27,9 +28,11 @@
 //! stage is called where the cycle reaches it (`Plant::step` calls `time_delay`'s `push`
 //! once per period and `command` per substep; `Plant::advance_substep` calls
 //! `valve_deadband`'s `target` (through the valve's edge law `EdgeLaw` in
-//! crates/plant/src/valve.rs, which holds a copy of the stateless component from
+//! crates/plant/src/valve.rs, which holds copies of the two stateless edge components from
 //! `Plant::configure`), then `valve_dynamics`'s `advance` (and `advance_substep_linear` its
-//! `midstep` too), then the edge law's `openings` with the lap stage's `travel` and `lap`, reads
+//! `midstep` too), then the edge law's `openings` (the lap stage's `travel`, the limit
+//! stage's `clip_travel`, the lap stage's `lap`) and in its `port` flows the limit stage's
+//! `clip_flow`, reads
 //! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
 //! leakages' `flows` and `conductances` in the chamber balances, calls
 //! `supply_pressure_drop`'s `advance` after the chamber pressures, `flexible_mount`'s `drift`
@@ -43,12 +46,10 @@
 //! linearisation, and calls the spool's `discretise` once the substep is chosen, as
 //! `Plant::set_substeps` does when it changes; the linearisation's state reads the spool's
 //! `order`);
-//! validation, configuration and reset go through [`Components`]. The effects not moved to
-//! a component yet (`valve_saturation`, `line_dynamics`) still have their
-//! checks called from [`validate_variants`] or `model::validate`, their derived constants in
-//! `Plant::configure` (the valve edge law `EdgeLaw` in crates/plant/src/valve.rs, the line
-//! chains in crates/plant/src/line.rs) and their terms in the substep
-//! (`Plant::advance_substep`).
+//! validation, configuration and reset go through [`Components`]. The effect not moved to
+//! a component yet, `line_dynamics`, still has its checks called from [`validate_variants`],
+//! its derived constants in `Plant::configure` (the line chains in crates/plant/src/line.rs)
+//! and its terms in the substep (`Plant::advance_substep`).
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
 //! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
@@ -72,8 +73,9 @@ pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
 pub use component::{
-    BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LapStage, LoadSpring,
-    MountStage, PistonForces, SensorChannel, SensorStage, Setup, SpoolStage, SupplyStage,
+    BulkStage, CommandStage, Component, FlowStage, ForceStage, Kick, LapStage, LimitStage,
+    LoadSpring, MountStage, PistonForces, SensorChannel, SensorStage, Setup, SpoolStage,
+    SupplyStage,
 };
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
@@ -262,6 +264,7 @@ components! {
     time_delay: time_delay::DelayLine,
     valve_dynamics: valve_dynamics::Spool,
     valve_deadband: valve_deadband::Deadband,
+    valve_saturation: valve_saturation::Saturation,
     sensor_tone: sensor_tone::Tones,
 }
 
