@@ -253,3 +253,53 @@ fn sealed_chambers_keep_their_oil_mass_at_every_substep() {
         worst / swing
     );
 }
+
+/// `integration.method = "linear_exact"` with the amplifier dead zone (`valve_deadband`
+/// variant `amplifier`): the spool target is sign(c')·max(|c'| − d, 0), c' = c + offset,
+/// c = u/full scale, as in the exponential-Euler substep. A command held inside the dead
+/// zone leaves the spool at 0 exactly; one beyond it drives the first-order spool (T_z =
+/// 10 ms, exact zero-order-hold discretisation) along s(t) = s∞·(1 − e^(−t/T_z)).
+#[test]
+fn linear_exact_applies_the_amplifier_dead_zone() {
+    use ehactl_plant::params::{DeadbandVariant, IntegrationMethod, ValveDeadband};
+    let (d, offset, tz, dt) = (0.1, 0.02, 0.01, 1e-3);
+    let mut p = blocked_cylinder(10.0, 0.0, 0.5);
+    p.integration.method = IntegrationMethod::LinearExact;
+    p.effects.valve_dynamics = Some(ValveDynamics {
+        enabled: true,
+        order: 1,
+        time_constant: tz,
+        natural_frequency: 0.0,
+        damping_ratio: 0.0,
+    });
+    p.effects.valve_deadband = Some(ValveDeadband {
+        enabled: true,
+        variant: DeadbandVariant::Amplifier,
+        deadzone: d,
+        overlap: 0.0,
+        zero_offset: offset,
+    });
+    // Inside the dead zone: c' = 0.05 + 0.02 and −0.11 + 0.02, |c'| < d.
+    for u in [0.5, -1.1] {
+        let mut plant = Plant::configure(&p, dt).unwrap();
+        assert_eq!(plant.method(), IntegrationMethod::LinearExact);
+        for _ in 0..200 {
+            plant.step(u).unwrap();
+            assert_eq!(plant.state().spool, 0.0, "u {u} V");
+        }
+    }
+    // Beyond it: c = 0.5, s∞ = 0.5 + 0.02 − 0.1; c = −0.5, s∞ = −(0.5 − 0.02 − 0.1).
+    for (u, s_inf) in [(5.0, 0.5 + offset - d), (-5.0, -(0.5 - offset - d))] {
+        let mut plant = Plant::configure(&p, dt).unwrap();
+        for k in 1..=100 {
+            plant.step(u).unwrap();
+            let exact = s_inf * (1.0 - (-(k as f64) * dt / tz).exp());
+            let s = plant.state().spool;
+            assert!(
+                (s - exact).abs() < 1e-12,
+                "u {u} V, t {} s: {s} vs {exact}",
+                k as f64 * dt
+            );
+        }
+    }
+}

@@ -398,7 +398,13 @@ impl Plant {
             None
         };
         let mut plant = Plant {
-            edges: EdgeLaw::new(params),
+            // The edge law with the lap and limit stages (`valve_deadband`,
+            // `valve_saturation`) as configured.
+            edges: EdgeLaw::with_stages(
+                params,
+                components.valve_deadband,
+                components.valve_saturation,
+            ),
             linear,
             poly: e.polynomial_force.filter(|f| f.enabled),
             dahl_z: 0.0,
@@ -788,7 +794,9 @@ impl Plant {
         let c = &self.c;
         let mut s = self.state;
         s.command = u;
-        let target = u / c.full_scale;
+        // The amplifier's offset and dead zone (`valve_deadband` variant `amplifier`), as in
+        // `advance_substep`.
+        let target = self.edges.target(u / c.full_scale);
         // The spool stage (`valve_dynamics`): its mid-step position opens the edges.
         let spool = &self.components.valve_dynamics;
         let sm = spool.midstep(s.spool, s.spool_velocity, target);

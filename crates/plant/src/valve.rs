@@ -1,5 +1,8 @@
 //! Four-edge valve: metering-edge flow. The spool dynamics are `valve_dynamics`'s
-//! ([`crate::effects::valve_dynamics`]; [`SpoolModel`] re-exported here).
+//! ([`crate::effects::valve_dynamics`]; [`SpoolModel`] re-exported here); the dead band and
+//! the saturation that shape the edges are the components of `valve_deadband` and
+//! `valve_saturation` ([`Deadband`], [`Saturation`], re-exported here), which [`EdgeLaw`]
+//! calls.
 //!
 //! Flow per edge Q = k · o · φ(Δp) where o ≥ 0 is the edge opening (fraction of full
 //! spool travel) and φ(Δp) = Δp·(Δp² + Δp_l²)^((n−1)/2) is the signed power law
@@ -8,10 +11,15 @@
 //! - `kq`: k = q_vn/√Δp_n, n = ½ (003 eq. 9–13).
 //! - `power_law`: k = c/(1 MPa)ⁿ with the supply raised by P_o (004 eq. 20–23: P_d = P_s − P_L − P_T + P_o).
 
+pub use crate::effects::valve_deadband::Deadband;
 pub use crate::effects::valve_dynamics::SpoolModel;
+pub use crate::effects::valve_saturation::Saturation;
+use crate::effects::{LapStage, LimitStage};
 use crate::params::{FlowForm, PlantParams};
 
-/// Metering-edge geometry and flow law.
+/// Metering-edge geometry and flow law, with the two effect components that shape the
+/// edges: `valve_deadband`'s lap stage and `valve_saturation`'s limit stage (copies of the
+/// stateless components; `Plant::configure` passes the ones it configured).
 #[derive(Debug, Clone)]
 pub struct EdgeLaw {
     /// Flow coefficient k (m³/s per unit opening per Paⁿ).
@@ -24,26 +32,26 @@ pub struct EdgeLaw {
     pub supply_offset: f64,
     /// Underlap (fraction).
     pub underlap: f64,
-    /// Overlap (fraction).
-    pub overlap: f64,
-    /// Zero offset (fraction).
-    pub zero_offset: f64,
-    /// Spool travel limit (fraction).
-    pub spool_limit: f64,
-    /// Limit of negative spool travel (fraction); = `spool_limit` unless asymmetric.
-    pub spool_limit_neg: f64,
-    /// Amplifier dead zone on the spool target (fraction of full scale), `valve_deadband`
-    /// variant `amplifier`.
-    pub deadzone: f64,
-    /// Amplifier offset added to the command before the dead zone (fraction).
-    pub command_offset: f64,
-    /// Edge flow limit (m³/s), infinite if none.
-    pub max_flow: f64,
+    /// `valve_deadband`'s lap stage: the spool target, its zero offset and overlap.
+    pub deadband: Deadband,
+    /// `valve_saturation`'s limit stage: the spool travel limits and the edge flow limit.
+    pub saturation: Saturation,
 }
 
 impl EdgeLaw {
-    /// Derive from the parameters (assumes they passed validation).
+    /// Derive from the parameters (assumes they passed validation), the stages from their
+    /// sections.
     pub fn new(params: &PlantParams) -> Self {
+        Self::with_stages(
+            params,
+            Deadband::new(params.effects.valve_deadband.as_ref()),
+            Saturation::new(params.effects.valve_saturation.as_ref()),
+        )
+    }
+
+    /// Derive the flow law from the parameters (assumes they passed validation), with the
+    /// effects' stages as configured (`Plant::configure` passes its components).
+    pub fn with_stages(params: &PlantParams, deadband: Deadband, saturation: Saturation) -> Self {
         let v = &params.valve;
         let (k, n, po) = match v.flow_form {
             FlowForm::Orifice => (
@@ -67,54 +75,33 @@ impl EdgeLaw {
                 )
             }
         };
-        let db = params.effects.valve_deadband.as_ref().filter(|d| d.enabled);
-        let sat = params
-            .effects
-            .valve_saturation
-            .as_ref()
-            .filter(|d| d.enabled);
-        use crate::params::{DeadbandVariant, SaturationVariant};
-        let amp = db.filter(|d| d.variant == DeadbandVariant::Amplifier);
-        let spool_db = db.filter(|d| d.variant == DeadbandVariant::Overlap);
         Self {
             k,
             n,
             dp_lam: v.laminar_pressure,
             supply_offset: po,
             underlap: v.underlap,
-            overlap: spool_db.map_or(0.0, |d| d.overlap),
-            zero_offset: spool_db.map_or(0.0, |d| d.zero_offset),
-            deadzone: amp.map_or(0.0, |d| d.deadzone),
-            command_offset: amp.map_or(0.0, |d| d.zero_offset),
-            spool_limit: sat.map_or(f64::INFINITY, |s| s.spool_limit),
-            spool_limit_neg: sat.map_or(f64::INFINITY, |s| match s.variant {
-                SaturationVariant::Symmetric => s.spool_limit,
-                SaturationVariant::Asymmetric => s.spool_limit_negative,
-            }),
-            max_flow: sat
-                .map(|s| s.max_flow)
-                .filter(|m| *m > 0.0)
-                .unwrap_or(f64::INFINITY),
+            deadband,
+            saturation,
         }
     }
 
-    /// Spool target (fraction) for the command `c` = u / full scale: `c`, or through the
-    /// amplifier's offset and dead zone sign(c')·max(|c'| − d, 0), c' = c + offset.
+    /// Spool target (fraction) for the command `c` = u / full scale: the lap stage's
+    /// ([`LapStage::target`]: `c`, or through an amplifier's offset and dead zone).
     #[inline]
     pub fn target(&self, c: f64) -> f64 {
-        if self.deadzone <= 0.0 && self.command_offset == 0.0 {
-            return c;
-        }
-        let c = c + self.command_offset;
-        (c.abs() - self.deadzone).max(0.0).copysign(c)
+        self.deadband.target(c)
     }
 
-    /// Edge openings (P→A, A→T, P→B, B→T) for spool position `s` (fraction).
+    /// Edge openings (P→A, A→T, P→B, B→T) for spool position `s` (fraction): the travel
+    /// from the lap stage's zero offset, within the limit stage's travel limits
+    /// ([`LimitStage::clip_travel`]), plus the underlap less the lap stage's overlap, ≥ 0.
     #[inline]
     pub fn openings(&self, s: f64) -> [f64; 4] {
-        let se = (s - self.zero_offset).clamp(-self.spool_limit_neg, self.spool_limit);
-        let pos = (se + self.underlap - self.overlap).max(0.0);
-        let neg = (-se + self.underlap - self.overlap).max(0.0);
+        let d = &self.deadband;
+        let se = self.saturation.clip_travel(d.travel(s));
+        let pos = d.lap(se + self.underlap).max(0.0);
+        let neg = d.lap(-se + self.underlap).max(0.0);
         [pos, neg, neg, pos]
     }
 
@@ -134,7 +121,8 @@ impl EdgeLaw {
         }
     }
 
-    /// Flow through one edge of opening `o` at pressure drop `dp`, and dQ/d(Δp).
+    /// Flow through one edge of opening `o` at pressure drop `dp`, and dQ/d(Δp), within the
+    /// limit stage's edge flow limit ([`LimitStage::clip_flow`]).
     #[inline]
     pub fn edge(&self, o: f64, dp: f64) -> (f64, f64) {
         if o <= 0.0 {
@@ -142,11 +130,7 @@ impl EdgeLaw {
         }
         let (f, df) = self.phi(dp);
         let q = self.k * o * f;
-        if q.abs() > self.max_flow {
-            (self.max_flow.copysign(q), 0.0)
-        } else {
-            (q, self.k * o * df)
-        }
+        self.saturation.clip_flow(q, self.k * o * df)
     }
 
     /// Net flow into a port at pressure `p` from supply `ps` and to tank `pt` through the

@@ -11,7 +11,7 @@
 //! | validate (config load) | [`Component::validate`] | yes |
 //! | configure ([`crate::model::Plant::configure`]) | [`Component::configure`] | yes |
 //! | initialize ([`crate::model::Plant::initialize`]) | [`Component::reset`] | no |
-//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`SpoolStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`], [`LineStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
+//! | step ([`crate::model::Plant::step`]) | the effect's stage trait: [`CommandStage`], [`LapStage`], [`LimitStage`], [`SpoolStage`], [`SupplyStage`], [`BulkStage`], [`FlowStage`], [`ForceStage`], [`MountStage`], [`LineStage`]; sampling ([`crate::model::Plant::measure`]): [`SensorStage`] | no |
 //!
 //! A leaf module like `switch.rs`: it uses neither `crate::params` nor the registry
 //! (`mod.rs`), so that an effect module can implement it without a file circle
@@ -111,6 +111,41 @@ pub trait SpoolStage: Component {
     /// The spool position half a substep on from `spool`, `velocity` towards `target`,
     /// without advancing them (the mid-step opening of `linear_exact`). Real-time safe.
     fn midstep(&self, spool: f64, velocity: f64, target: f64) -> f64;
+}
+
+/// A component that sets where the valve's four metering edges open (`valve_deadband`): the
+/// spool target from the command (an amplifier's dead zone ahead of the spool), and the
+/// spool's zero offset and overlap between its position and the edge openings. The valve's
+/// edge law (`EdgeLaw` in crates/plant/src/valve.rs) holds it and calls it in each substep
+/// (steps 1 and 2 of crates/plant/src/model.rs: the spool target before the spool stage,
+/// the openings after it). All quantities are fractions of full spool travel (-).
+pub trait LapStage: Component {
+    /// The spool target for the command `c` = u / full scale (-): `c` without an amplifier
+    /// dead zone. Real-time safe.
+    fn target(&self, c: f64) -> f64;
+
+    /// The spool travel the edges see at the spool position `s`: `s` without a zero
+    /// offset. Real-time safe.
+    fn travel(&self, s: f64) -> f64;
+
+    /// An edge's opening from `x`, the (limited) travel towards it plus the valve's underlap,
+    /// before it is cut at 0: `x` without an overlap. Real-time safe.
+    fn lap(&self, x: f64) -> f64;
+}
+
+/// A component that limits the valve's metering edges (`valve_saturation`): the spool
+/// travel they see (amplifier clipping or the spool's end stops) and the flow through any
+/// one edge. The valve's edge law (`EdgeLaw` in crates/plant/src/valve.rs) holds it and
+/// calls it in each substep (step 2 of crates/plant/src/model.rs, the openings and the edge
+/// flows), after the [`LapStage`]'s zero offset and before its overlap.
+pub trait LimitStage: Component {
+    /// The spool travel `travel` (fraction of full travel, -) within the travel limits:
+    /// `travel` without the effect. Real-time safe.
+    fn clip_travel(&self, travel: f64) -> f64;
+
+    /// An edge's flow `q` (m³/s) and its derivative `dq` = dQ/dΔp (m³/(s·Pa)) within the
+    /// edge flow limit: (q, dq) without it. Real-time safe.
+    fn clip_flow(&self, q: f64, dq: f64) -> (f64, f64);
 }
 
 /// What a [`ForceStage`] does to the piston velocity over one substep.

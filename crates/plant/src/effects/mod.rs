@@ -8,7 +8,9 @@
 //! `#[param]` declarations, defaults) and its component, a type implementing
 //! [`Component`] (cross-field checks, the constants derived from the section, its state and
 //! reset) and the trait of its stage: [`CommandStage`] on the command path (`time_delay`:
-//! `DelayLine`), [`SpoolStage`] for the spool's dynamics (`valve_dynamics`: `Spool`),
+//! `DelayLine`), [`LapStage`] for where the valve's metering edges open (`valve_deadband`:
+//! `Deadband`) and [`LimitStage`] for their travel and flow limits (`valve_saturation`:
+//! `Saturation`), [`SpoolStage`] for the spool's dynamics (`valve_dynamics`: `Spool`),
 //! [`SupplyStage`] for the supply pressure (`supply_pressure_drop`: `Supply`),
 //! [`FlowStage`] for flows out of the chambers (`internal_leakage`: `CrossPiston`,
 //! `external_leakage`: `ToTank`), [`BulkStage`] for the chambers' bulk modulus
@@ -26,9 +28,13 @@
 //! `Option` field in [`Effects`] and its re-export line. In [`crate::model`] the component's
 //! stage is called where the cycle reaches it (`Plant::step` calls `time_delay`'s `push`
 //! once per period and `command` per substep; `Plant::advance_substep` calls
-//! `valve_dynamics`'s `advance` (and `advance_substep_linear` its `midstep` too) first, reads
-//! `line_dynamics`' `port_pressures` (the pressures the valve ports see), reads
-//! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
+//! `valve_deadband`'s `target` (through the valve's edge law `EdgeLaw` in
+//! crates/plant/src/valve.rs, which holds copies of the two stateless edge components from
+//! `Plant::configure`), then `valve_dynamics`'s `advance` (and `advance_substep_linear` its
+//! `midstep` too), then the edge law's `openings` (the lap stage's `travel`, the limit
+//! stage's `clip_travel`, the lap stage's `lap`) and in its `port` flows the limit stage's
+//! `clip_flow`, reads `line_dynamics`' `port_pressures` (the pressures the valve ports see),
+//! reads //! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
 //! leakages' `flows` and `conductances` in the chamber balances, calls the lines'
 //! `advance_implicit` (`integration.line_method = "implicit"`) or, symplectic, their
 //! `advance_nodes` before the counterbalance valves (crates/plant/src/cbv.rs, which the plant
@@ -47,11 +53,8 @@
 //! rule (`fastest_mode` in model.rs) adds the lines' `fastest_mode`; `Plant::initialize`
 //! `fill`s the lines at the chambers' start pressures after the reset; the linearisation's
 //! state reads the spool's `order` and the lines' `state_names` / `state` / `set_state`);
-//! validation, configuration and reset go through [`Components`]. The effects not moved to
-//! a component yet (`valve_deadband`, `valve_saturation`, which have no cross-field checks)
-//! still have their derived constants in `Plant::configure` (the valve edge law `EdgeLaw` in
-//! crates/plant/src/valve.rs, that both shape) and their terms in the substep
-//! (`Plant::advance_substep`).
+//! validation, configuration and reset go through [`Components`]; every catalogue effect is
+//! a component.
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
 //! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
@@ -75,9 +78,9 @@ pub mod valve_saturation;
 
 pub use bulk_modulus_pressure::entrained_air_bulk_modulus;
 pub use component::{
-    phi1, BulkStage, CommandStage, Component, EndNode, FlowStage, ForceStage, Kick, LineStage,
-    LoadSpring, MountStage, PistonForces, SensorChannel, SensorStage, Setup, SpoolStage,
-    SupplyStage,
+    phi1, BulkStage, CommandStage, Component, EndNode, FlowStage, ForceStage, Kick, LapStage,
+    LimitStage, LineStage, LoadSpring, MountStage, PistonForces, SensorChannel, SensorStage, Setup,
+    SpoolStage, SupplyStage,
 };
 pub use flexible_mount::body_mount_step;
 pub use supply_pressure_drop::SupplyModel;
@@ -266,6 +269,8 @@ components! {
     supply_pressure_drop: supply_pressure_drop::Supply,
     time_delay: time_delay::DelayLine,
     valve_dynamics: valve_dynamics::Spool,
+    valve_deadband: valve_deadband::Deadband,
+    valve_saturation: valve_saturation::Saturation,
     sensor_tone: sensor_tone::Tones,
 }
 
