@@ -234,8 +234,9 @@ fn own_clean_record_with_the_nominal_known_is_none() {
     }
 }
 
-// Not `none` with the nominal known (2026-12-03); named: dead band and β(p); friction
-// `unexplained`; the saturation is answered `supply_pressure_drop`, the spool lag `time_delay`.
+// Not `none` with the nominal known (2026-12-03); named: dead band and β(p); friction and the
+// line `unexplained`; the saturation is answered `supply_pressure_drop`, the spool lag
+// `time_delay`.
 small!(
     small_friction_known_nominal_is_not_none,
     EffectId::Friction,
@@ -261,12 +262,11 @@ small!(
     EffectId::BulkModulusPressure,
     check_small_known
 );
-// The position residual is coloured (2.0× its floor, Ljung–Box Q ≈ 5900) with nothing refit,
-// but below `residual::LEVEL_SOFT` = 2.5, which excuses the colour a refit leaves on clean
-// records and is applied here too.
+// The position residual is coloured (2.0× its floor, Ljung–Box Q ≈ 5900) with nothing fitted:
+// `none` while the soft level excused colour after no fit too; `unexplained` since
+// `residual::LEVEL_SOFT_UNFITTED` (2026-12-03).
 small!(
     small_line_dynamics_known_nominal_is_not_none,
     EffectId::LineDynamics,
-    check_small_known,
-    "known miss: none at 2.5x the noise even with the nominal known"
+    check_small_known
 );

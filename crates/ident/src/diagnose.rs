@@ -289,7 +289,14 @@ pub fn diagnose(
     let nominal = &loop_nominal;
     // The model as configured reproduces the data within the noise: nothing to refit or add
     // (a refit could only fit the noise).
-    let refit = phase_refit(&nom, nominal, opts, &bar, !explained);
+    let refit = phase_refit(
+        &nom,
+        nominal,
+        opts,
+        &bar,
+        !explained,
+        identified_loop.is_some(),
+    );
     let search = if explained {
         SearchPhase::at_refit(&refit)
     } else {
@@ -552,10 +559,17 @@ fn reproduces(
                 .max(quantisation_floor(c.kind, p, y))
         })
         .collect();
-    crate::residual::test("nominal", val_rec, &sim, val_range, &floor)
-        .channels
-        .iter()
-        .all(|c| c.level <= 1.0 || (c.ljung_box <= SHORTCUT_LB_CRIT && c.level <= SHORTCUT_LEVEL))
+    crate::residual::test(
+        "nominal",
+        val_rec,
+        &sim,
+        val_range,
+        &floor,
+        crate::residual::LEVEL_SOFT,
+    )
+    .channels
+    .iter()
+    .all(|c| c.level <= 1.0 || (c.ljung_box <= SHORTCUT_LB_CRIT && c.level <= SHORTCUT_LEVEL))
 }
 
 /// Noise floor per channel (NRMSE units) from the held-out residual of the model replayed in
@@ -598,6 +612,10 @@ struct RefitPhase {
     noise_floor: f64,
     analysis_refit: Analysis,
     scales: Scales,
+    /// Something was fitted before the search (a nominal parameter, an assumed loop), or the
+    /// configured step explained the record (its shortcut's own test has judged it): the soft
+    /// level of the final test ([`crate::residual::LEVEL_SOFT`]) excuses the colour a fit leaves.
+    fitted: bool,
 }
 
 /// Phase 2: refit the nominal parameters alone within their stated uncertainty (the
@@ -608,6 +626,7 @@ fn phase_refit(
     opts: &Options,
     bar: &Tracker,
     refit: bool,
+    loop_fitted: bool,
 ) -> RefitPhase {
     let ctx = &nom.ctx;
     let base = base_params(nominal);
@@ -643,6 +662,7 @@ fn phase_refit(
     // it can be blamed neither on an effect nor on `unexplained`.
     let floor_ch = channel_floors(nom, nominal, &refit_val_sim);
     let noise_floor = overall(&floor_ch);
+    let fitted = !refit || loop_fitted || !h0.params.is_empty();
     // Residual analysis of the refit model: what is left once parameter errors are absorbed.
     // Its findings are the evidence and the start values of the effect fits.
     let analysis_refit = match ctx.fit_replay(&h0.build(&ctx.fit_base)) {
@@ -655,6 +675,7 @@ fn phase_refit(
         refit_err,
         floor_ch,
         noise_floor,
+        fitted,
         analysis_refit,
         scales: Scales::new(nominal, ctx.fit_rec),
     }
@@ -1463,12 +1484,19 @@ struct ResidualPhase {
 
 /// Phase 4: test the final model's held-out residual per channel (level and whiteness):
 /// `none` only when it is noise, `unexplained` when nothing was accepted and it is not.
+/// With nothing fitted ([`RefitPhase::fitted`] false, no effect accepted) colour is excused
+/// only at the floor ([`crate::residual::LEVEL_SOFT_UNFITTED`]).
 fn phase_residual_test(
     nom: &NominalPhase<'_>,
     rf: &RefitPhase,
     search: &SearchPhase,
 ) -> ResidualPhase {
     let (ext_err, ext_val_sim) = nom.ctx.val_errors(&search.current);
+    let soft_level = if rf.fitted || !search.accepted.is_empty() {
+        crate::residual::LEVEL_SOFT
+    } else {
+        crate::residual::LEVEL_SOFT_UNFITTED
+    };
     let test = crate::residual::test(
         if search.accepted.is_empty() {
             "nominal refit"
@@ -1479,6 +1507,7 @@ fn phase_residual_test(
         &ext_val_sim,
         nom.val_range.clone(),
         &rf.floor_ch,
+        soft_level,
     );
     let cause = search.accepted.first().map_or_else(
         || {

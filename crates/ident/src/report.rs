@@ -387,7 +387,7 @@ fn write_residual_test(r: &mut String, d: &Diagnosis) {
     let _ = writeln!(
         r,
         "\nA channel counts as noise when its level is ≤ {} or ≤ {} and white. {}\n",
-        crate::residual::LEVEL_SOFT,
+        rt.soft_level,
         crate::residual::LEVEL_HARD,
         rt.signature
             .as_ref()
