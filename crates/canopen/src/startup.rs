@@ -126,6 +126,7 @@ impl StartupFailure {
     pub fn report(self) -> StartupReport {
         StartupReport {
             reason: self.error.to_string(),
+            channel: "canopen start-up",
             settings_error: matches!(self.error, StartupError::Settings(_)),
             stopped: matches!(self.error, StartupError::Stopped { .. }),
             elapsed_s: self.elapsed_s,

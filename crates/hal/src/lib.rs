@@ -70,6 +70,9 @@ pub enum HalError {
 pub struct StartupReport {
     /// The reason, one line (e.g. `CANopen start-up: ...`).
     pub reason: String,
+    /// What failed to start, as the event channel of the attempt's log (e.g.
+    /// `canopen start-up`).
+    pub channel: &'static str,
     /// The settings or device files are wrong: nothing reached the hardware, and there is
     /// no attempt to log (the CLI's exit code 2).
     pub settings_error: bool,

@@ -375,6 +375,7 @@ fn start_up(
     // A backend without a report (a lifecycle error): the error itself, no frames.
     let report = hal.take_startup_report().unwrap_or_else(|| StartupReport {
         reason: e.to_string(),
+        channel: "start-up",
         settings_error: false,
         stopped: false,
         elapsed_s: 0.0,
@@ -439,7 +440,7 @@ fn log_failed_startup(
         } else {
             EventKind::HalFault
         },
-        channel: "canopen start-up",
+        channel: f.channel,
         value: f.elapsed_s,
         limit: f.time_limit_s.unwrap_or(f64::NAN),
         unit: "s",
@@ -741,6 +742,7 @@ mod tests {
         };
         StartupReport {
             reason: "CANopen start-up: scripted".into(),
+            channel: "canopen start-up",
             settings_error,
             stopped,
             elapsed_s: 0.25,
@@ -835,6 +837,28 @@ mod tests {
             "nothing reached the hardware: no log"
         );
         assert!(!out.exists());
+    }
+
+    #[test]
+    fn a_lifecycle_error_without_a_report_is_logged_as_the_error_itself() {
+        let out = temp("no_report.mcap");
+        let mut hal = Scripted {
+            fail_at: Some("configure"),
+            report: None,
+            calls: Vec::new(),
+        };
+        let Err(SessionError::Startup(f)) = run_scripted(&mut hal, &out, false) else {
+            panic!("a failed configure must end the session");
+        };
+        assert_eq!(f.report.channel, "start-up", "not named after a backend");
+        assert!(f.report.frames.is_empty());
+        let s = f.log.expect("logged").expect("a summary");
+        assert_eq!(s["trip"], f.report.reason);
+        assert!(
+            s["trip"].as_str().is_some_and(|t| t.contains("the test")),
+            "{s}"
+        );
+        assert_eq!(s["exit_code"], EXIT_STARTUP);
     }
 
     #[test]
