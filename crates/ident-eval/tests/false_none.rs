@@ -212,17 +212,26 @@ fn known_nominal() -> ehactl_plant::PlantParams {
 
 /// Why the known misses above are misses: with the nominal stated as known, the same small
 /// records are not `none` (the refit within the default ±15 % had absorbed the effect), while
-/// the clean records stay `none`.
+/// the clean records stay `none`. And no confident wrong name: a cause other than the hidden
+/// effect (a look-alike at so small a size) comes with an ambiguity naming it.
 fn check_small_known(e: EffectId) {
     let seed = 3100 + EffectId::ALL.iter().position(|x| *x == e).unwrap() as u64;
     let (rec, alpha) = with_small(seed, e);
     let d = diagnose(&known_nominal(), &rec, None, &Options::default()).unwrap();
-    assert_ne!(
-        d.cause,
-        "none",
-        "{} (α = {alpha:.3}), nominal known: {}",
+    let report = format!(
+        "{} (α = {alpha:.3}), nominal known: cause {}, ambiguities {:?}\n{}",
         e.as_str(),
+        d.cause,
+        d.ambiguities,
         d.summary
+    );
+    assert_ne!(d.cause, "none", "{report}");
+    let named = format!("`{}`", d.cause);
+    assert!(
+        d.cause == e.as_str()
+            || d.cause == "unexplained"
+            || d.ambiguities.iter().any(|a| a.contains(&named)),
+        "{report}"
     );
 }
 
@@ -236,7 +245,7 @@ fn own_clean_record_with_the_nominal_known_is_none() {
 
 // Not `none` with the nominal known (2026-12-03); named: dead band and β(p); friction and the
 // line `unexplained`; the saturation is answered `supply_pressure_drop`, the spool lag
-// `time_delay`.
+// `time_delay`, each with an ambiguity (a weak winner: its fit at a corner of its range).
 small!(
     small_friction_known_nominal_is_not_none,
     EffectId::Friction,
