@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Run the whole test suite (what CI runs, .ci/run): formatting and lints, Rust unit +
-# integration tests, the aarch64/armv7 cross-builds run under QEMU, Python lint (ruff) and
-# the Python tests (MCAP read back by the official Python reader and by @mcap/core under
-# Node.js, CLI behaviour, CAN end to end, the Python bindings, the README's examples).
+# Run the whole test suite (what CI runs, .ci/run): formatting and lints, the API docs
+# (cargo doc, rustdoc warnings as errors), Rust unit + integration tests, the aarch64/armv7
+# cross-builds run under QEMU, Python lint (ruff) and the Python tests (MCAP read back by the
+# official Python reader and by @mcap/core under Node.js, CLI behaviour, CAN end to end, the
+# Python bindings, the README's examples).
 #
 # It does not touch your Python: every Python package (test tools, the bindings, Zig and
 # cargo-zigbuild for the cross-builds) goes into a virtual environment it creates,
@@ -214,6 +215,15 @@ cargo clippy --release --workspace --all-targets -- -D warnings
 # their tests, examples and benchmarks, which the feature does not change, are not.
 step "SocketCAN transport (clippy with --features ehactl-canopen/socketcan)"
 cargo clippy --release --workspace --lib --bins --features ehactl-canopen/socketcan -- -D warnings
+# Broken links, links from public docs to private items, ambiguous links and stray HTML in doc
+# comments fail here. `cargo doc` compiles no machine code: it type-checks the workspace's
+# crates again (the dependencies' metadata of the clippy steps is reused) and runs rustdoc on
+# them (the binary's with its private items, as cargo does for binaries). The Python
+# extension's crate is documented too: that needs no maturin. It took 11 s after
+# `touch crates/plant/src/model.rs` and 30 s after a touch of crates/types (2026-12-03, on a
+# warm target/release, with another build beside it); 0.3 s when nothing changed.
+step "API documentation (cargo doc, rustdoc warnings as errors)"
+RUSTDOCFLAGS="${RUSTDOCFLAGS:-} -D warnings" cargo doc --release --workspace --no-deps
 step "building (release): the libraries, binaries and tests, once; the tests, the QEMU step and the bindings reuse it"
 # The Python extension's crate is built once, by maturin below (its pyo3 build script depends
 # on maturin's environment, so a cargo build of it here would be redone there); clippy above

@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The quick test tier for the edit-test loop (the full suite, what CI runs, is
 # scripts/test_all.sh). Runs: the check for file-level import circles (scripts/file_cycles.py),
-# rustfmt and clippy (warnings as errors), the Rust unit and integration tests except the
-# diagnosis' long evaluation tests (crates/ident-eval/tests/: the catalogue in hidden_effects.rs
-# and indep_generator.rs, false_none.rs, force_loop.rs, …; its data_errors.rs and data_units.rs
-# run), ruff, and the Python tests that need neither a CAN bus, the diagnosis catalogue nor the
-# compiled Python bindings. No cross-builds, no QEMU, no apt-get.
+# rustfmt and clippy (warnings as errors), ruff, the API docs (cargo doc, rustdoc warnings as
+# errors), the Rust unit and integration tests except the diagnosis' long evaluation tests
+# (crates/ident-eval/tests/: the catalogue in hidden_effects.rs and indep_generator.rs,
+# false_none.rs, force_loop.rs, …; its data_errors.rs and data_units.rs run), and the Python
+# tests that need neither a CAN bus, the diagnosis catalogue nor the compiled Python bindings.
+# No cross-builds, no QEMU, no apt-get.
 # Python tools go into .venv-test/ (EHACTL_TEST_VENV=DIR to choose another), as in test_all.sh.
 # Extra arguments go to every `cargo test`, e.g. `scripts/test_fast.sh -- --test-threads 1`.
 # It builds with the `fast` profile (Cargo.toml: release code, incremental) into target/fast/,
@@ -35,6 +36,12 @@ echo "== formatting and lints"
 cargo fmt --all --check
 cargo clippy --profile fast --workspace --all-targets -- -D warnings
 "$PY" -m ruff check
+
+echo "== API documentation (cargo doc, rustdoc warnings as errors)"
+# As in test_all.sh: broken, private or ambiguous links and stray HTML in doc comments fail.
+# 21–26 s after a touch of crates/plant or crates/types, 0.5 s when nothing changed
+# (2026-12-03, warm target/fast, another build beside it).
+RUSTDOCFLAGS="${RUSTDOCFLAGS:-} -D warnings" cargo doc --profile fast --workspace --no-deps
 
 echo "== Rust tests (without the diagnosis catalogue)"
 export PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261123}"

@@ -8,8 +8,8 @@
 //! - [`oppoint`]: the operating point, found by running the noise-free loop to rest.
 //! - [`linear`]: numerical linearisation of the plant's step map (x⁺ = A·x + B·u).
 //! - [`loopshape`]: controller transfer functions, loop frequency response, margins.
-//! - [`analyze`]: the `ehactl analyze` result.
-//! - [`sweep`]: the `ehactl sweep` stepped-sine estimator on the nonlinear plant.
+//! - [`mod@analyze`]: the `ehactl analyze` result.
+//! - [`mod@sweep`]: the `ehactl sweep` stepped-sine estimator on the nonlinear plant.
 //! - [`sdd`]: Dindorf 2022's frequency and damping ratios of a spring-damper connection.
 #![deny(missing_docs)]
 

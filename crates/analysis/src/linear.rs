@@ -28,7 +28,7 @@ pub struct LinearModel {
     pub c_position: DVector<f64>,
     /// Sample period (s) for a discrete model, None for continuous.
     pub dt: Option<f64>,
-    /// State scaling of the balanced realisation: model state i = physical state i / scale[i].
+    /// State scaling of the balanced realisation: model state i = physical state i / `scale[i]`.
     pub scale: Vec<f64>,
 }
 

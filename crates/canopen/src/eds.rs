@@ -3,7 +3,7 @@
 //! asks; no quote or backslash-escape processing, which CiA 306 does not have).
 //!
 //! What the start-up takes from a file ([`crate::startup`]): the identity it checks
-//! ([DeviceInfo] VendorNumber / ProductNumber against 0x1018:01/02), the device type 0x1000
+//! (`[DeviceInfo]` VendorNumber / ProductNumber against 0x1018:01/02), the device type 0x1000
 //! (profile number), which objects exist, their data type, access type (ro / const objects
 //! are read and checked, never written) and PDO mappability, and, in a DCF, the
 //! `ParameterValue` of each object, which is written (or, for ro / const, checked) at start-up
@@ -99,15 +99,15 @@ pub fn type_size(data_type: u16) -> Option<usize> {
 pub struct Eds {
     /// Where it came from (path, or "built-in ..."), for messages.
     pub source: String,
-    /// [DeviceInfo] VendorNumber.
+    /// `[DeviceInfo]` VendorNumber.
     pub vendor: Option<u32>,
-    /// [DeviceInfo] ProductNumber.
+    /// `[DeviceInfo]` ProductNumber.
     pub product: Option<u32>,
-    /// [DeviceInfo] RevisionNumber.
+    /// `[DeviceInfo]` RevisionNumber.
     pub revision: Option<u32>,
-    /// [DeviceInfo] ProductName.
+    /// `[DeviceInfo]` ProductName.
     pub product_name: Option<String>,
-    /// [DeviceComissioning] NodeID (DCF only).
+    /// `[DeviceComissioning]` NodeID (DCF only).
     pub dcf_node_id: Option<u8>,
     objects: BTreeMap<(u16, u8), EdsObject>,
 }

@@ -4,22 +4,22 @@
 //!   settings checks and the EDS / DCF files named in the config → one [`DevicePlan`] per
 //!   device: the identity to check, and every SDO object to configure with its value and the
 //!   access type the file gives (ro / const objects are read and checked, never written);
-//! - **configure** ([`Bringup::configure`], then [`Bringup::start`]): NMT reset
-//!   communication → boot-up, or an SDO probe for a node that sends none ([`Bringup::boot`]);
+//! - **configure** (`Bringup::configure`, then `Bringup::start`): NMT reset
+//!   communication → boot-up, or an SDO probe for a node that sends none (`Bringup::boot`);
 //!   NMT pre-operational; per device the device type and identity 0x1018 against its file,
-//!   then the planned objects ([`Bringup::apply_plan`]); NMT start and OPERATIONAL
-//!   heartbeats ([`Bringup::start_nodes`]). The valve is not enabled: it stays in the device
+//!   then the planned objects (`Bringup::apply_plan`); NMT start and OPERATIONAL
+//!   heartbeats (`Bringup::start_nodes`). The valve is not enabled: it stays in the device
 //!   state it booted in;
-//! - **activate** ([`Bringup::activate`]): the CiA 408 device state machine of the valve
-//!   from a fault state, if any, to ACTIVE ([`Bringup::enable_valve`]), one priming SYNC
-//!   ([`Bringup::prime`]; a failure returns the valve to HOLD).
+//! - **activate** (`Bringup::activate`): the CiA 408 device state machine of the valve
+//!   from a fault state, if any, to ACTIVE (`Bringup::enable_valve`), one priming SYNC
+//!   (`Bringup::prime`; a failure returns the valve to HOLD).
 //!
 //! These are the steps of `CanopenHal`'s `Hal::configure` and `Hal::activate`
 //! ([`crate::hal`]); the bus and the bookkeeping are handed from one to the next
-//! ([`Bringup::into_parts`], [`Bringup::resume`]).
+//! (`Bringup::into_parts`, `Bringup::resume`).
 //!
-//! Every frame of the attempt is kept ([`Startup`]) for the log, and ehactl's heartbeat runs
-//! from the first frame on ([`StartBus`]). Every wait and timeout is counted on the caller's
+//! Every frame of the attempt is kept (`Startup`) for the log, and ehactl's heartbeat runs
+//! from the first frame on (`StartBus`). Every wait and timeout is counted on the caller's
 //! [`Clock`] (ns); the bus waits at most until the next deadline.
 
 use crate::bus::{BusError, BusErrorKind, CanBus};
@@ -234,7 +234,7 @@ pub struct DevicePlan {
     pub eds: Eds,
     /// CiA profile number expected in 0x1000 bits 0..15 (406 / 408).
     pub profile: u16,
-    /// Vendor-ID and product code to check in 0x1018:01 / :02 (from [DeviceInfo]).
+    /// Vendor-ID and product code to check in 0x1018:01 / :02 (from `[DeviceInfo]`).
     pub identity: (Option<u32>, Option<u32>),
     /// The SDO steps, in order.
     pub steps: Vec<Step>,
@@ -769,7 +769,7 @@ impl DevicePlan {
 // ------------------------------------------------------------------------ the bus side
 
 /// The bus during start-up: sends ehactl's heartbeat (0x700 + master id, state
-/// OPERATIONAL [05]) every `master_heartbeat_ms` while the start-up waits for frames, so
+/// OPERATIONAL `[05]`) every `master_heartbeat_ms` while the start-up waits for frames, so
 /// that the devices' heartbeat consumers (0x1016) see the master alive from the moment
 /// they are configured. The heartbeats it sent are kept for the log.
 pub(crate) struct StartBus {

@@ -35,6 +35,9 @@ pub struct SweepArgs {
     periods: f64,
     /// MCAP log (default out/<config name>_sweep.mcap closed loop,
     /// out/<config name>_sweep_open.mcap open loop).
+    // The doc comment is clap's `--help` text, printed as written: `<config name>` is no
+    // HTML tag.
+    #[allow(rustdoc::invalid_html_tags)]
     #[arg(long)]
     out: Option<PathBuf>,
     /// Log one control cycle in N to the MCAP file (1 = every cycle); the estimate always

@@ -49,6 +49,9 @@ enum Command {
         #[arg(long, allow_negative_numbers = true)]
         duration: Option<f64>,
         /// MCAP output file (default: out/<config name>.mcap).
+        // The doc comment is clap's `--help` text, printed as written: `<config name>` is
+        // no HTML tag.
+        #[allow(rustdoc::invalid_html_tags)]
         #[arg(long)]
         out: Option<PathBuf>,
         /// Print exactly one JSON object with the summary on stdout.
@@ -57,6 +60,8 @@ enum Command {
         /// Pace the loop against the wall clock (the [realtime] section: SCHED_FIFO,
         /// mlockall, CPU affinity, overrun policy); with the sim backend the plant then
         /// runs in real time. Timing statistics go to the summary and the MCAP log.
+        // `--help` text, printed as written: `[realtime]` is the config section, no link.
+        #[allow(rustdoc::broken_intra_doc_links)]
         #[arg(long)]
         realtime: bool,
         /// Serve live gain / setpoint changes on this Unix socket (see `ehactl set`).
@@ -133,6 +138,8 @@ enum Command {
         /// campaign: one load law fitted to every record, coefficients depending on the
         /// declared operating inputs; a record with x and force but no u / ref (a
         /// displacement-controlled test) is diagnosed as a campaign too.
+        // `--help` text, printed as written: `[inputs]` is the config section, no link.
+        #[allow(rustdoc::broken_intra_doc_links)]
         #[arg(long, required = true)]
         data: Vec<PathBuf>,
         /// Separate validation record (default: the last 30 % of each --data is held out);

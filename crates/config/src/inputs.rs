@@ -14,7 +14,7 @@
 //! A parameter p with dependences is p(i) = p₀ + a·(i − i₀) + b·(i − i₀)² where p₀ is the
 //! value the plant section states and i₀ the input's `value`: the plant section stays the
 //! model at its own operating point (so `ehactl run` needs nothing else), and a record logged
-//! at another operating point is replayed with [`Inputs::plant_at`]. A record column named like
+//! at another operating point is replayed with [`plant_at`]. A record column named like
 //! a declared input carries it (`ehactl diagnose`, `ehactl predict`); an undeclared column is an
 //! error there.
 

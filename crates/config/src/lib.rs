@@ -380,7 +380,7 @@ pub struct RigConfig {
 
 /// Control, setpoint, supervisor, run, log and realtime parameters, generated from the
 /// `#[param(...)]` declarations on the fields of their sections (`#[derive(Params)]`), in
-/// the order of [`RIG_SECTIONS`] and then of the fields.
+/// the order of `RIG_SECTIONS` and then of the fields.
 pub fn control_params() -> &'static [Param] {
     static TABLE: LazyLock<Vec<Param>> = LazyLock::new(|| {
         let mut out = Vec::new();

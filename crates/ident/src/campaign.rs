@@ -404,9 +404,9 @@ fn path_of(t: LawTerm) -> String {
 
 /// Run a campaign: `fit` records (their last [`HOLDOUT`] held out unless `validation` records
 /// are given, which are then held out whole) against the config `cfg`. Phases: the records
-/// and what the campaign may fit ([`setup`]), the law's shape and terms ([`choose_shape`]),
-/// each term's input dependence and the travel per operating point ([`fit_law`]), each term's
-/// share ([`rank_terms`]), the held-out scores ([`score`]).
+/// and what the campaign may fit (`setup`), the law's shape and terms (`choose_shape`),
+/// each term's input dependence and the travel per operating point (`fit_law`), each term's
+/// share (`rank_terms`), the held-out scores (`score`).
 pub fn diagnose_campaign(
     cfg: &RigConfig,
     fit: &[Record],

@@ -1,7 +1,7 @@
-//! The replay context of one diagnosis and the hypotheses fitted in it: [`Ctx`] (fit and
-//! held-out records, the base parameters, the drive, the cost), [`Hyp`] (effects, variants
+//! The replay context of one diagnosis and the hypotheses fitted in it: `Ctx` (fit and
+//! held-out records, the base parameters, the drive, the cost), `Hyp` (effects, variants
 //! and free-parameter values on top of the base) and [`Errors`] (held-out NRMSE per channel).
-//! Shared by the decision ([`crate::diagnose`]), the loop identification ([`crate::loopid`])
+//! Shared by the decision ([`mod@crate::diagnose`]), the loop identification ([`crate::loopid`])
 //! and the grey-box extension ([`crate::greybox`]), none of which the context uses.
 
 use crate::data::Record;

@@ -275,7 +275,7 @@ pub fn load(path: &Path) -> Result<Record, DataError> {
 
 /// Whether the record at `path` is a displacement-controlled one (x but neither `u` nor
 /// `ref`): for a CSV from its header in the first 64 KiB, for an MCAP file from its first
-/// message ([`mcap_is_motion_only`]); `None` for a file that cannot be read (the full load
+/// message (`mcap_is_motion_only`); `None` for a file that cannot be read (the full load
 /// then reports why).
 pub fn is_motion_only(path: &Path) -> Option<bool> {
     use std::io::Read;
@@ -457,7 +457,7 @@ fn check_line_lengths(source: &str, text: &str) -> Result<(), DataError> {
 
 /// Parse CSV text (see the module doc) with the `csv` crate: RFC 4180 quoting, a UTF-8
 /// byte-order mark, `#` comment lines, blank lines; the separator is detected (`,`, `;` or
-/// tab, see [`detect_delimiter`]) and a `;`- or tab-separated file may use a decimal comma.
+/// tab, see `detect_delimiter`) and a `;`- or tab-separated file may use a decimal comma.
 pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
     parse_csv_with(source, text, &[])
 }

@@ -171,7 +171,7 @@ pub struct Diagnosis {
     /// `unexplained` (the residual is not noise and nothing explains it).
     pub cause: String,
     /// Accepted effect ids, the one that explains most of the held-out error on the final model
-    /// first (each removed in turn and the rest refit, [`crate::weigh`]); `cause` is the first.
+    /// first (each removed in turn and the rest refit, `crate::weigh`); `cause` is the first.
     pub causes: Vec<String>,
     /// Structural variant of each accepted effect (effect id → variant, `-` for effects with
     /// one form; see DIAGNOSIS.md "Effect variants").
@@ -264,11 +264,11 @@ pub struct Traces {
 /// Run the diagnosis. `val` is an optional separate validation record; without it the last
 /// `opts.holdout` of `rec` is held out.
 ///
-/// The phases, each a function below: [`phase_nominal`] (split, replay accuracy, nominal
-/// replay, residual analysis, ARX baseline), [`phase_refit`] (nominal parameters refit within
-/// their stated uncertainty, noise floor), [`phase_candidates`] (greedy rounds; each round fits
-/// every catalogue effect in each of its structural variants via [`phase_variants`]),
-/// [`phase_residual_test`] (`none` / `unexplained`) and [`phase_report`] (summary and result).
+/// The phases, each a function below: `phase_nominal` (split, replay accuracy, nominal
+/// replay, residual analysis, ARX baseline), `phase_refit` (nominal parameters refit within
+/// their stated uncertainty, noise floor), `phase_candidates` (greedy rounds; each round fits
+/// every catalogue effect in each of its structural variants via `phase_variants`),
+/// `phase_residual_test` (`none` / `unexplained`) and `phase_report` (summary and result).
 pub fn diagnose(
     nominal: &PlantParams,
     rec: &Record,
@@ -866,9 +866,9 @@ fn judge(
     }
 }
 
-/// Share of the floor-weighted error above the floor ([`weighted_j`] − 1) a round-0
+/// Share of the floor-weighted error above the floor (`weighted_j` − 1) a round-0
 /// candidate must explain to pass on the weighted J alone (-): a fit that leaves more than
-/// half of it is weak evidence (the weak-winner rule of [`crate::weigh`] uses the same
+/// half of it is weak evidence (the weak-winner rule of `crate::weigh` uses the same
 /// half), and on the weighted J it would pass on the leftover structure of clean records.
 pub const WEIGHTED_EXPLAINED: f64 = 0.5;
 

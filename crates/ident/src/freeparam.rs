@@ -75,7 +75,7 @@ impl FreeParam {
 impl FreeParam {
     /// The declared float parameter at `path` (bounds, log scale, start value), written
     /// through the accessor `#[derive(Params)]` generates from its field declaration; see
-    /// [`write`].
+    /// [`write()`].
     pub(crate) fn at(
         path: &'static str,
         bounds: (f64, f64, bool, f64),

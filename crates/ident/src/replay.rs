@@ -344,7 +344,7 @@ fn stable_substeps(plant: &Plant, dt: f64) -> u32 {
 }
 
 /// [`Plant::configure`] for a replay at period `dt` (s): fixed substeps are raised for this
-/// replay towards [`stable_substeps`], at most to `max_substeps`, where the parameters would
+/// replay towards `stable_substeps`, at most to `max_substeps`, where the parameters would
 /// step the fastest mode beyond [`REPLAY_MAX_OMEGA_H`] (automatic substeps hold their own,
 /// tighter, rule).
 pub fn configure_stable(params: &PlantParams, dt: f64, max_substeps: u32) -> Result<Plant, String> {

@@ -42,7 +42,7 @@ pub const LEVEL_SOFT: f64 = 2.5;
 /// position residual 2.0× the floor and Ljung–Box Q ≈ 5900 (`tests/false_none.rs`).
 pub const LEVEL_SOFT_UNFITTED: f64 = 1.0;
 /// A residual this many times its noise floor is large: the weak-winner rule of
-/// [`crate::weigh`] uses it (a winner that leaves it on some channel is compared with the
+/// `crate::weigh` uses it (a winner that leaves it on some channel is compared with the
 /// runner-up), and the evaluation on the independent generator counts a final residual above
 /// it (against the generator's true noise) as clearly above the noise (-).
 pub const LEVEL_LARGE: f64 = 6.0;

@@ -83,7 +83,7 @@ const RIG_SECTIONS: &[&str] = &["fluid", "supply", "valve", "cylinder", "mechani
 
 /// Fields in which the config an MCAP record was logged with (`logged`, the `config` of its
 /// `/config` message) differs from `cfg` among what the diagnosis takes as known: the rig's
-/// fluid, supply, valve, cylinder and mechanics except [`ESTIMATED`], and `control.mode`.
+/// fluid, supply, valve, cylinder and mechanics except `ESTIMATED`, and `control.mode`.
 /// Each as "path: logged A, --config B (unit)". A log of another rig (another geometry,
 /// supply pressure, valve) replayed through this one gives a confident wrong answer.
 pub fn config_mismatch(cfg: &RigConfig, logged: &Value) -> Vec<String> {

@@ -1,5 +1,5 @@
 //! Weighing the evidence between effects, after the held-out score has ranked them
-//! ([`crate::diagnose`]): the order of the accepted causes by the error each explains on the
+//! ([`mod@crate::diagnose`]): the order of the accepted causes by the error each explains on the
 //! final model ([`order_by_explained`]), and a second look at a weak round winner against the
 //! runner-up on the evidence that tells the two apart ([`second_look`]).
 

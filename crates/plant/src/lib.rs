@@ -10,7 +10,7 @@
 //! | [`model`] | chambers over stroke, β(p), leakage, cavitation, mechanics, end stops, supply | 002 eq. 35, 003 eq. 1, 7–8, 14–15 |
 //! | [`exact`] | exact discretisation of chambers + mechanics (`linear_exact`) | Van Loan 1978 |
 //! | [`effects`] | the effect catalogue ([`EffectId`]), one module per effect: its config section and its own physics, e.g. [`effects::friction`] (static/Coulomb/Stribeck with true stick, LuGre), [`effects::supply_pressure_drop`] | the effect's seed, in its module docs |
-//! | [`line`] | lumped R-L-C lines | 002 eq. 9–17 |
+//! | [`mod@line`] | lumped R-L-C lines | 002 eq. 9–17 |
 //! | [`cbv`] | counterbalance valves: pilot-assisted relief + free-flow check | 002 eq. 18–19, fig. 2 |
 //! | [`excitation`] | constant, harmonic, impact train | 003 eq. 2, 17 |
 //! | [`sensors`] | load cell, pressures, position transducer, spool | 004, 003 |

@@ -23,7 +23,7 @@
 //! trapezoidal solve of each chain from the valve-side node to the chamber
 //! ([`crate::line::Line::advance_implicit`], through the line stage
 //! [`LineStage::advance_implicit`]); no segment mode enters the rule then, only the line's
-//! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see [`fastest_mode`]).
+//! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see `fastest_mode`).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
 use crate::effects::line_dynamics::Lines;

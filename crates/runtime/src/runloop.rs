@@ -50,8 +50,8 @@ pub struct LoopSettings<'a> {
 
 /// Run the loop. `record` receives every cycle's record (the logger push), `event`
 /// every event, `progress` the cycle count every 1 % (all called from the loop thread).
-/// Each cycle is [`Loop::admit`] (may it start?) then [`Loop::execute`] (the cycle itself);
-/// [`Loop::finish`] brings the valve to its safe command and reports how the run ended.
+/// Each cycle is `Loop::admit` (may it start?) then `Loop::execute` (the cycle itself);
+/// `Loop::finish` brings the valve to its safe command and reports how the run ended.
 #[allow(clippy::too_many_arguments)]
 pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     hal: &mut H,

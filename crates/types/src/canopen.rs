@@ -56,7 +56,7 @@ pub struct CanopenConfig {
     #[param(unit = "-", range = Within(1.0, 127.0), desc = "node id of ehactl (its heartbeat COB-ID is 0x700 + id)")]
     pub master_node_id: u8,
     /// Heartbeat producer time of ehactl (ms): the control cycle sends 0x700 + master id
-    /// [05] this often.
+    /// `[05]` this often.
     #[param(unit = "ms", range = Within(1.0, 65535.0), desc = "heartbeat producer time of ehactl (sent by the control cycle)")]
     pub master_heartbeat_ms: u16,
     /// Consumer time of ehactl's heartbeat written to 0x1016:01 of every device (ms): a
