@@ -305,61 +305,9 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
     {
         Ok(rep) => {
             if json {
-                println!(
-                    "{}",
-                    serde_json::json!({
-                        "input": input.display().to_string(),
-                        "output": output.display().to_string(),
-                        "was_complete": rep.was_complete,
-                        "stopped_early": rep.stopped_early,
-                        "chunks": rep.chunks,
-                        "bad_chunks": rep.bad_chunks,
-                        "chunks_indexed": rep.chunks_indexed,
-                        "skipped_bytes": rep.skipped_bytes,
-                        "messages": rep.messages,
-                        "messages_total": rep.total_messages(),
-                        "messages_without_channel": rep.messages_without_channel,
-                        "problems": rep.problems,
-                        "last_time_s": rep.last_time_s,
-                        "writer_active": writer_active,
-                    })
-                );
+                print_recover_json(input, output, &rep, writer_active);
             } else {
-                println!("ehactl recover {} → {}", input.display(), output.display());
-                println!(
-                    "  input         {}",
-                    match (writer_active, rep.was_complete, rep.stopped_early) {
-                        (true, _, _) =>
-                            "still being written by a running ehactl (a snapshot was recovered)",
-                        (false, true, _) => "complete (had its footer and chunk index)",
-                        (false, false, true) => "cut off: no footer, the last record incomplete",
-                        (false, false, false) => "no footer",
-                    }
-                );
-                println!(
-                    "  chunks        {} kept, {} dropped (bad size, compression, CRC or contents){}",
-                    rep.chunks,
-                    rep.bad_chunks,
-                    rep.chunks_indexed
-                        .map_or(String::new(), |n| format!("; the chunk index lists {n}"))
-                );
-                if rep.skipped_bytes > 0 {
-                    println!(
-                        "  skipped       {} bytes that are not readable records",
-                        rep.skipped_bytes
-                    );
-                }
-                println!("  messages      {} kept", rep.total_messages());
-                for (topic, n) in &rep.messages {
-                    println!("  {topic:<13} {n} messages");
-                }
-                if rep.messages_without_channel > 0 {
-                    println!(
-                        "  not copied    {} messages whose channel record was lost",
-                        rep.messages_without_channel
-                    );
-                }
-                println!("  last message  t = {:.4} s", rep.last_time_s);
+                print_recover_text(input, output, &rep, writer_active);
             }
             // What was lost, and where, goes to stderr even with --json.
             for p in &rep.problems {
@@ -384,6 +332,79 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+/// `ehactl recover --json`: the report of recovering `input` into `output` as one JSON
+/// object on stdout.
+fn print_recover_json(
+    input: &Path,
+    output: &Path,
+    rep: &ehactl_log::recover::RecoverReport,
+    writer_active: bool,
+) {
+    println!(
+        "{}",
+        serde_json::json!({
+            "input": input.display().to_string(),
+            "output": output.display().to_string(),
+            "was_complete": rep.was_complete,
+            "stopped_early": rep.stopped_early,
+            "chunks": rep.chunks,
+            "bad_chunks": rep.bad_chunks,
+            "chunks_indexed": rep.chunks_indexed,
+            "skipped_bytes": rep.skipped_bytes,
+            "messages": rep.messages,
+            "messages_total": rep.total_messages(),
+            "messages_without_channel": rep.messages_without_channel,
+            "problems": rep.problems,
+            "last_time_s": rep.last_time_s,
+            "writer_active": writer_active,
+        })
+    );
+}
+
+/// `ehactl recover`: the report of recovering `input` into `output` as text on stdout
+/// (times in s).
+fn print_recover_text(
+    input: &Path,
+    output: &Path,
+    rep: &ehactl_log::recover::RecoverReport,
+    writer_active: bool,
+) {
+    println!("ehactl recover {} → {}", input.display(), output.display());
+    println!(
+        "  input         {}",
+        match (writer_active, rep.was_complete, rep.stopped_early) {
+            (true, _, _) => "still being written by a running ehactl (a snapshot was recovered)",
+            (false, true, _) => "complete (had its footer and chunk index)",
+            (false, false, true) => "cut off: no footer, the last record incomplete",
+            (false, false, false) => "no footer",
+        }
+    );
+    println!(
+        "  chunks        {} kept, {} dropped (bad size, compression, CRC or contents){}",
+        rep.chunks,
+        rep.bad_chunks,
+        rep.chunks_indexed
+            .map_or(String::new(), |n| format!("; the chunk index lists {n}"))
+    );
+    if rep.skipped_bytes > 0 {
+        println!(
+            "  skipped       {} bytes that are not readable records",
+            rep.skipped_bytes
+        );
+    }
+    println!("  messages      {} kept", rep.total_messages());
+    for (topic, n) in &rep.messages {
+        println!("  {topic:<13} {n} messages");
+    }
+    if rep.messages_without_channel > 0 {
+        println!(
+            "  not copied    {} messages whose channel record was lost",
+            rep.messages_without_channel
+        );
+    }
+    println!("  last message  t = {:.4} s", rep.last_time_s);
 }
 
 /// `v` with `digits` significant digits, without float noise (`3.05`, not
