@@ -312,61 +312,9 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
     {
         Ok(rep) => {
             if json {
-                println!(
-                    "{}",
-                    serde_json::json!({
-                        "input": input.display().to_string(),
-                        "output": output.display().to_string(),
-                        "was_complete": rep.was_complete,
-                        "stopped_early": rep.stopped_early,
-                        "chunks": rep.chunks,
-                        "bad_chunks": rep.bad_chunks,
-                        "chunks_indexed": rep.chunks_indexed,
-                        "skipped_bytes": rep.skipped_bytes,
-                        "messages": rep.messages,
-                        "messages_total": rep.total_messages(),
-                        "messages_without_channel": rep.messages_without_channel,
-                        "problems": rep.problems,
-                        "last_time_s": rep.last_time_s,
-                        "writer_active": writer_active,
-                    })
-                );
+                print_recover_json(input, output, &rep, writer_active);
             } else {
-                println!("ehactl recover {} → {}", input.display(), output.display());
-                println!(
-                    "  input         {}",
-                    match (writer_active, rep.was_complete, rep.stopped_early) {
-                        (true, _, _) =>
-                            "still being written by a running ehactl (a snapshot was recovered)",
-                        (false, true, _) => "complete (had its footer and chunk index)",
-                        (false, false, true) => "cut off: no footer, the last record incomplete",
-                        (false, false, false) => "no footer",
-                    }
-                );
-                println!(
-                    "  chunks        {} kept, {} dropped (bad size, compression, CRC or contents){}",
-                    rep.chunks,
-                    rep.bad_chunks,
-                    rep.chunks_indexed
-                        .map_or(String::new(), |n| format!("; the chunk index lists {n}"))
-                );
-                if rep.skipped_bytes > 0 {
-                    println!(
-                        "  skipped       {} bytes that are not readable records",
-                        rep.skipped_bytes
-                    );
-                }
-                println!("  messages      {} kept", rep.total_messages());
-                for (topic, n) in &rep.messages {
-                    println!("  {topic:<13} {n} messages");
-                }
-                if rep.messages_without_channel > 0 {
-                    println!(
-                        "  not copied    {} messages whose channel record was lost",
-                        rep.messages_without_channel
-                    );
-                }
-                println!("  last message  t = {:.4} s", rep.last_time_s);
+                print_recover_text(input, output, &rep, writer_active);
             }
             // What was lost, and where, goes to stderr even with --json.
             for p in &rep.problems {
@@ -391,6 +339,79 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+/// `ehactl recover --json`: the report of recovering `input` into `output` as one JSON
+/// object on stdout.
+fn print_recover_json(
+    input: &Path,
+    output: &Path,
+    rep: &ehactl_log::recover::RecoverReport,
+    writer_active: bool,
+) {
+    println!(
+        "{}",
+        serde_json::json!({
+            "input": input.display().to_string(),
+            "output": output.display().to_string(),
+            "was_complete": rep.was_complete,
+            "stopped_early": rep.stopped_early,
+            "chunks": rep.chunks,
+            "bad_chunks": rep.bad_chunks,
+            "chunks_indexed": rep.chunks_indexed,
+            "skipped_bytes": rep.skipped_bytes,
+            "messages": rep.messages,
+            "messages_total": rep.total_messages(),
+            "messages_without_channel": rep.messages_without_channel,
+            "problems": rep.problems,
+            "last_time_s": rep.last_time_s,
+            "writer_active": writer_active,
+        })
+    );
+}
+
+/// `ehactl recover`: the report of recovering `input` into `output` as text on stdout
+/// (times in s).
+fn print_recover_text(
+    input: &Path,
+    output: &Path,
+    rep: &ehactl_log::recover::RecoverReport,
+    writer_active: bool,
+) {
+    println!("ehactl recover {} → {}", input.display(), output.display());
+    println!(
+        "  input         {}",
+        match (writer_active, rep.was_complete, rep.stopped_early) {
+            (true, _, _) => "still being written by a running ehactl (a snapshot was recovered)",
+            (false, true, _) => "complete (had its footer and chunk index)",
+            (false, false, true) => "cut off: no footer, the last record incomplete",
+            (false, false, false) => "no footer",
+        }
+    );
+    println!(
+        "  chunks        {} kept, {} dropped (bad size, compression, CRC or contents){}",
+        rep.chunks,
+        rep.bad_chunks,
+        rep.chunks_indexed
+            .map_or(String::new(), |n| format!("; the chunk index lists {n}"))
+    );
+    if rep.skipped_bytes > 0 {
+        println!(
+            "  skipped       {} bytes that are not readable records",
+            rep.skipped_bytes
+        );
+    }
+    println!("  messages      {} kept", rep.total_messages());
+    for (topic, n) in &rep.messages {
+        println!("  {topic:<13} {n} messages");
+    }
+    if rep.messages_without_channel > 0 {
+        println!(
+            "  not copied    {} messages whose channel record was lost",
+            rep.messages_without_channel
+        );
+    }
+    println!("  last message  t = {:.4} s", rep.last_time_s);
 }
 
 /// `v` with `digits` significant digits, without float noise (`3.05`, not
@@ -444,12 +465,18 @@ pub(crate) fn config_load_message(path: &Path, e: &ehactl_plant::spec::ConfigErr
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    set_signal_dispositions(&cli.command);
+    dispatch(cli.command)
+}
+
+/// SIGPIPE and SIGXFSZ as `command` needs them; called before any thread is started.
+fn set_signal_dispositions(command: &Command) {
     // Commands that only write to stdout end quietly when the reader goes away
     // (`ehactl diagnose … --json | head`), as Unix filters do: SIGPIPE back to its default.
     // Not for `run`, `set` and `canbus`, which also write to sockets: there a closed peer
     // must be an error to handle, never a silent death with a valve attached.
     if matches!(
-        cli.command,
+        command,
         Command::CheckConfig { .. }
             | Command::Params
             | Command::Analyze { .. }
@@ -466,7 +493,11 @@ fn main() -> ExitCode {
     // limit fails with EFBIG and is handled as any other write error (a log failure on `run`).
     // SAFETY: setting a signal disposition before any thread is started.
     unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
-    match cli.command {
+}
+
+/// Hand the parsed subcommand to its `cmd_*` function; returns its exit code.
+fn dispatch(command: Command) -> ExitCode {
+    match command {
         Command::Run {
             config,
             duration,
@@ -501,69 +532,99 @@ fn main() -> ExitCode {
             socket,
             assignments,
         } => cmd_set(&socket, &assignments),
-        Command::CheckConfig { config } => {
-            let cfg = match load(&config) {
-                Ok(c) => c,
-                Err(code) => return code,
-            };
-            // The EDS / DCF files named in [canopen] are loaded and checked as `run --hal
-            // canopen` does before it opens the bus (DEPLOY.md: check-config is the go/no-go).
-            let can = match canbus::check_config(&cfg, &config) {
-                Ok(c) => c,
-                Err(e) => return config_error(format!("{}: {e}", config.display())),
-            };
-            match ehactl_runtime::session::build_plant(&cfg) {
-                Ok(plant) => {
-                    if let Some(c) = can {
-                        println!("{}: {c}", config.display());
-                    }
-                    // Besides the catalogue effects: the grey-box laws `ehactl diagnose` writes
-                    // and circuit components, which are not catalogue effects but change the model.
-                    let fx = &cfg.plant.effects;
-                    let mut other: Vec<&str> = Vec::new();
-                    if fx.polynomial_force.as_ref().is_some_and(|e| e.enabled) {
-                        other.push("polynomial_force");
-                    }
-                    if fx.polynomial_flow.as_ref().is_some_and(|e| e.enabled) {
-                        other.push("polynomial_flow");
-                    }
-                    let grey_box = if other.is_empty() {
-                        String::new()
-                    } else {
-                        format!(", grey-box terms: [{}]", other.join(", "))
-                    };
-                    let cbv = if fx.counterbalance_valve.is_some() {
-                        ", counterbalance valves"
-                    } else {
-                        ""
-                    };
-                    println!(
-                        "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]{grey_box}{cbv}",
-                        config.display(),
-                        serde_json::to_value(cfg.control.mode)
-                            .ok()
-                            .and_then(|v| v.as_str().map(str::to_owned))
-                            .unwrap_or_default(),
-                        sig(cfg.run.control_rate_hz, 6),
-                        plant.substeps(),
-                        plant.substep_length() * 1e6,
-                        cfg.plant
-                            .effects
-                            .enabled()
-                            .iter()
-                            .map(|e| e.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    );
-                    ExitCode::SUCCESS
-                }
-                Err(e) => config_error(format!("{}: {e}", config.display())),
-            }
-        }
+        Command::CheckConfig { config } => cmd_check_config(&config),
         Command::Analyze { config, json } => analysis_cmd::analyze(&config, json),
         Command::Sweep(args) => analysis_cmd::sweep(&args),
         Command::Canbus { command } => canbus::run(command),
         #[cfg(feature = "diagnosis")]
+        Command::Diagnose { .. } | Command::Predict { .. } => cmd_diagnosis(command),
+        #[cfg(not(feature = "diagnosis"))]
+        Command::Diagnose { .. } | Command::Predict { .. } => without_diagnosis(),
+        Command::Params => cmd_params(),
+    }
+}
+
+/// `ehactl check-config CONFIG`.
+fn cmd_check_config(config: &Path) -> ExitCode {
+    let cfg = match load(config) {
+        Ok(c) => c,
+        Err(code) => return code,
+    };
+    // The EDS / DCF files named in [canopen] are loaded and checked as `run --hal
+    // canopen` does before it opens the bus (DEPLOY.md: check-config is the go/no-go).
+    let can = match canbus::check_config(&cfg, config) {
+        Ok(c) => c,
+        Err(e) => return config_error(format!("{}: {e}", config.display())),
+    };
+    match ehactl_runtime::session::build_plant(&cfg) {
+        Ok(plant) => {
+            if let Some(c) = can {
+                println!("{}: {c}", config.display());
+            }
+            print_config_ok(config, &cfg, &plant);
+            ExitCode::SUCCESS
+        }
+        Err(e) => config_error(format!("{}: {e}", config.display())),
+    }
+}
+
+/// The `ok` line of `check-config`: control mode, rate (Hz), plant substeps and their
+/// length (µs), the effects and what else changes the model.
+fn print_config_ok(config: &Path, cfg: &RigConfig, plant: &ehactl_plant::Plant) {
+    // Besides the catalogue effects: the grey-box laws `ehactl diagnose` writes
+    // and circuit components, which are not catalogue effects but change the model.
+    let fx = &cfg.plant.effects;
+    let mut other: Vec<&str> = Vec::new();
+    if fx.polynomial_force.as_ref().is_some_and(|e| e.enabled) {
+        other.push("polynomial_force");
+    }
+    if fx.polynomial_flow.as_ref().is_some_and(|e| e.enabled) {
+        other.push("polynomial_flow");
+    }
+    let grey_box = if other.is_empty() {
+        String::new()
+    } else {
+        format!(", grey-box terms: [{}]", other.join(", "))
+    };
+    let cbv = if fx.counterbalance_valve.is_some() {
+        ", counterbalance valves"
+    } else {
+        ""
+    };
+    println!(
+        "{}: ok — mode {}, {} Hz control, {} substeps of {:.3} µs, effects: [{}]{grey_box}{cbv}",
+        config.display(),
+        serde_json::to_value(cfg.control.mode)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_owned))
+            .unwrap_or_default(),
+        sig(cfg.run.control_rate_hz, 6),
+        plant.substeps(),
+        plant.substep_length() * 1e6,
+        cfg.plant
+            .effects
+            .enabled()
+            .iter()
+            .map(|e| e.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+}
+
+/// `ehactl params`: every registered parameter with its unit and meaning.
+fn cmd_params() -> ExitCode {
+    for table in registries() {
+        for p in table {
+            println!("{:<48} {:<12} {}", p.path, p.unit, p.description);
+        }
+    }
+    ExitCode::SUCCESS
+}
+
+/// `ehactl diagnose` and `ehactl predict`: `command` is one of the two.
+#[cfg(feature = "diagnosis")]
+fn cmd_diagnosis(command: Command) -> ExitCode {
+    match command {
         Command::Diagnose {
             config,
             data,
@@ -585,7 +646,6 @@ fn main() -> ExitCode {
                 allow_config_mismatch,
             },
         ),
-        #[cfg(feature = "diagnosis")]
         Command::Predict {
             config,
             data,
@@ -605,16 +665,7 @@ fn main() -> ExitCode {
             },
             out.as_deref(),
         ),
-        #[cfg(not(feature = "diagnosis"))]
-        Command::Diagnose { .. } | Command::Predict { .. } => without_diagnosis(),
-        Command::Params => {
-            for table in registries() {
-                for p in table {
-                    println!("{:<48} {:<12} {}", p.path, p.unit, p.description);
-                }
-            }
-            ExitCode::SUCCESS
-        }
+        _ => unreachable!("dispatch hands only diagnose and predict to cmd_diagnosis"),
     }
 }
 

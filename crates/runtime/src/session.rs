@@ -16,6 +16,7 @@ use crate::realtime::{RtOptions, WallClockPacer};
 use crate::runloop::{run_loop, LoopSettings, RunOutcome};
 use crate::sim::SimHal;
 use ehactl_config::{Compression, ControlMode, RigConfig};
+use ehactl_control::controller::Controller;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
 use ehactl_hal::pacer::{Pacer, SimulatedTime, TimingReport};
@@ -533,103 +534,11 @@ pub fn run_with_live(
     }
     start_up(cfg, hal, &opts)?;
     // The log records the config as run, including a duration override.
-    let mut cfg_run = cfg.clone();
-    if let Some(d) = opts.duration {
-        cfg_run.run.duration = d;
-    }
-    let cfg = &cfg_run;
-    let timebase = cfg.timebase();
-    let cycles = timebase.cycles_in(duration).max(1);
-    let mut controller = cfg.controller();
-    let mut supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
-    let setpoint = Setpoint::new(&cfg.setpoint);
-    // With `atomic_log` the file is written under `partial` and renamed at the end.
-    let partial = opts
-        .mcap
-        .as_deref()
-        .filter(|_| opts.atomic_log)
-        .map(partial_path);
-    let logger = match (&opts.mcap, &partial) {
-        (_, Some(tmp)) => Some(open_log(cfg, tmp, hal.name(), overflow).map_err(|e| {
-            let _ = std::fs::remove_file(tmp);
-            SessionError::Log(e)
-        })?),
-        (Some(path), None) => {
-            Some(open_log(cfg, path, hal.name(), overflow).map_err(SessionError::Log)?)
-        }
-        (None, None) => None,
-    };
-    if let (Some(l), Some(frames)) = (logger.as_ref(), hal.frame_log()) {
-        l.attach_frames(frames);
-    }
-    if let (Some(l), Some(lp)) = (logger.as_ref(), live) {
-        l.attach_notes(lp.notes());
-    }
-    let mut records: Vec<CycleRecord> = if opts.capture {
-        Vec::with_capacity(cycles as usize)
-    } else {
-        Vec::new()
-    };
-    let capture = opts.capture;
-    let settle = setpoint.dynamic_start();
-    let settings = LoopSettings {
-        cycles,
-        timebase,
-        stop: opts.stop,
-        settle_time: settle,
-        live,
-        log_failed: logger.as_ref().map(|l| l.failed_flag()),
-    };
-    let start = Instant::now();
-    if let (Some(l), Some(tap)) = (logger.as_ref(), opts.tap.clone()) {
-        l.attach_tap(tap);
-    }
-    let log_every = opts.log_every.max(1);
-    let outcome = {
-        let lg = logger.as_ref();
-        let observer = &mut opts.observer;
-        let mut on_record = |r: &CycleRecord| {
-            if let Some(l) = lg {
-                if r.cycle.is_multiple_of(log_every) || r.cycle + 1 >= cycles {
-                    l.push(r);
-                }
-            }
-            if let Some(o) = observer.as_mut() {
-                o(r);
-            }
-            if capture {
-                records.push(*r);
-            }
-        };
-        let mut on_event = |e| {
-            if let Some(l) = lg {
-                l.event(e);
-            }
-        };
-        let mut on_progress = |k: u64| {
-            if let Some(p) = opts.progress.as_mut() {
-                p(k, cycles);
-            }
-        };
-        run_loop(
-            hal,
-            &mut controller,
-            &setpoint,
-            &mut supervisor,
-            pacer,
-            &settings,
-            &mut on_record,
-            &mut on_event,
-            &mut on_progress,
-        )
-    };
-    let wall = start.elapsed().as_secs_f64();
+    let cfg = &config_as_run(cfg, opts.duration);
+    let cycles = cfg.timebase().cycles_in(duration).max(1);
+    let log = RunLog::open(cfg, &opts, hal, overflow, live)?;
+    let (outcome, records, wall) = run_cycles(cfg, hal, pacer, &mut opts, live, cycles, &log);
     let timing = pacer.timing_report();
-    let unit = match cfg.control.mode {
-        ControlMode::Force => "N",
-        ControlMode::Position => "m",
-        ControlMode::OpenLoop => "V",
-    };
     let mut session = Session {
         outcome,
         control_rate_hz: cfg.run.control_rate_hz,
@@ -637,13 +546,92 @@ pub fn run_with_live(
         substeps,
         log: None,
         records,
-        unit,
+        unit: controlled_unit(cfg.control.mode),
         backend_report: hal.report(),
         timing,
-        log_every,
+        log_every: opts.log_every.max(1),
     };
-    if let Some(l) = logger {
-        let final_path = opts.mcap.clone().unwrap_or_else(|| l.path().to_path_buf());
+    session.log = log.finish(&session, opts.mcap.clone())?;
+    Ok(session)
+}
+
+/// `cfg` with `run.duration` replaced by the override `duration` (s), if there is one.
+fn config_as_run(cfg: &RigConfig, duration: Option<f64>) -> RigConfig {
+    let mut cfg_run = cfg.clone();
+    if let Some(d) = duration {
+        cfg_run.run.duration = d;
+    }
+    cfg_run
+}
+
+/// Unit of the variable `mode` controls: N (force), m (position), V (open loop: the valve
+/// command).
+fn controlled_unit(mode: ControlMode) -> &'static str {
+    match mode {
+        ControlMode::Force => "N",
+        ControlMode::Position => "m",
+        ControlMode::OpenLoop => "V",
+    }
+}
+
+/// The MCAP log of a run while it is written: none without an `mcap` path; with
+/// `atomic_log` it is written under the temporary name `partial` and renamed at the end.
+struct RunLog {
+    logger: Option<Logger>,
+    partial: Option<PathBuf>,
+}
+
+impl RunLog {
+    /// Open the log of the run of `cfg` (the config as run) on `hal` as `opts` say, with
+    /// the backend's CAN frames, the live notes and the tap attached.
+    fn open(
+        cfg: &RigConfig,
+        opts: &SessionOptions<'_>,
+        hal: &dyn Hal,
+        overflow: Overflow,
+        live: Option<&LiveParams>,
+    ) -> Result<Self, SessionError> {
+        // With `atomic_log` the file is written under `partial` and renamed at the end.
+        let partial = opts
+            .mcap
+            .as_deref()
+            .filter(|_| opts.atomic_log)
+            .map(partial_path);
+        let logger = match (&opts.mcap, &partial) {
+            (_, Some(tmp)) => Some(open_log(cfg, tmp, hal.name(), overflow).map_err(|e| {
+                let _ = std::fs::remove_file(tmp);
+                SessionError::Log(e)
+            })?),
+            (Some(path), None) => {
+                Some(open_log(cfg, path, hal.name(), overflow).map_err(SessionError::Log)?)
+            }
+            (None, None) => None,
+        };
+        if let (Some(l), Some(frames)) = (logger.as_ref(), hal.frame_log()) {
+            l.attach_frames(frames);
+        }
+        if let (Some(l), Some(lp)) = (logger.as_ref(), live) {
+            l.attach_notes(lp.notes());
+        }
+        if let (Some(l), Some(tap)) = (logger.as_ref(), opts.tap.clone()) {
+            l.attach_tap(tap);
+        }
+        Ok(Self { logger, partial })
+    }
+
+    /// Write the summary of `session` (with `mcap`, the path the log ends up at), close the
+    /// file and, with `atomic_log`, move it into place; a run that fails here removes its
+    /// temporary file. Returns the log's counters (None when nothing was logged).
+    fn finish(
+        self,
+        session: &Session,
+        mcap: Option<PathBuf>,
+    ) -> Result<Option<LogStats>, SessionError> {
+        let Self { logger, partial } = self;
+        let Some(l) = logger else {
+            return Ok(None);
+        };
+        let final_path = mcap.unwrap_or_else(|| l.path().to_path_buf());
         let mut summary = session.summary_json();
         summary["mcap"] = serde_json::json!(final_path.display().to_string());
         let finished = l.finish(summary).map_err(SessionError::Log);
@@ -666,9 +654,121 @@ pub fn run_with_live(
             }
             stats.path = final_path;
         }
-        session.log = Some(stats);
+        Ok(Some(stats))
     }
-    Ok(session)
+}
+
+/// The control side of a run, built from the config as run: the control law, the
+/// supervisor and the setpoint generator.
+struct ControlParts {
+    controller: Controller,
+    supervisor: Supervisor,
+    setpoint: Setpoint,
+}
+
+impl ControlParts {
+    fn new(cfg: &RigConfig) -> Self {
+        let controller = cfg.controller();
+        let supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
+        let setpoint = Setpoint::new(&cfg.setpoint);
+        Self {
+            controller,
+            supervisor,
+            setpoint,
+        }
+    }
+}
+
+/// Run the `cycles` control cycles of `cfg` (the config as run) on `hal`, paced by `pacer`.
+/// Returns the outcome, the records kept with `opts.capture` (memory reserved for all
+/// `cycles` before the loop starts) and the wall-clock time of the loop (s).
+fn run_cycles(
+    cfg: &RigConfig,
+    hal: &mut dyn Hal,
+    pacer: &mut dyn Pacer,
+    opts: &mut SessionOptions<'_>,
+    live: Option<&LiveParams>,
+    cycles: u64,
+    log: &RunLog,
+) -> (RunOutcome, Vec<CycleRecord>, f64) {
+    let mut parts = ControlParts::new(cfg);
+    let mut records: Vec<CycleRecord> = if opts.capture {
+        Vec::with_capacity(cycles as usize)
+    } else {
+        Vec::new()
+    };
+    let logger = log.logger.as_ref();
+    let settings = LoopSettings {
+        cycles,
+        timebase: cfg.timebase(),
+        stop: opts.stop,
+        settle_time: parts.setpoint.dynamic_start(),
+        live,
+        log_failed: logger.map(|l| l.failed_flag()),
+    };
+    let start = Instant::now();
+    let outcome = drive(
+        hal,
+        pacer,
+        &mut parts,
+        &settings,
+        opts,
+        logger,
+        &mut records,
+    );
+    (outcome, records, start.elapsed().as_secs_f64())
+}
+
+/// The loop itself, with where each cycle goes: its record to the log (one in
+/// `opts.log_every`, the last always), the observer and, with `opts.capture`, `records`
+/// (reserved beforehand); its events to the log; progress every 1 % to `opts.progress`.
+fn drive(
+    hal: &mut dyn Hal,
+    pacer: &mut dyn Pacer,
+    parts: &mut ControlParts,
+    settings: &LoopSettings<'_>,
+    opts: &mut SessionOptions<'_>,
+    lg: Option<&Logger>,
+    records: &mut Vec<CycleRecord>,
+) -> RunOutcome {
+    let cycles = settings.cycles;
+    let capture = opts.capture;
+    let log_every = opts.log_every.max(1);
+    let observer = &mut opts.observer;
+    let mut on_record = |r: &CycleRecord| {
+        if let Some(l) = lg {
+            if r.cycle.is_multiple_of(log_every) || r.cycle + 1 >= cycles {
+                l.push(r);
+            }
+        }
+        if let Some(o) = observer.as_mut() {
+            o(r);
+        }
+        if capture {
+            records.push(*r);
+        }
+    };
+    let mut on_event = |e| {
+        if let Some(l) = lg {
+            l.event(e);
+        }
+    };
+    let mut on_progress = |k: u64| {
+        if let Some(p) = opts.progress.as_mut() {
+            p(k, cycles);
+        }
+    };
+    run_loop(
+        hal,
+        &mut parts.controller,
+        &parts.setpoint,
+        &mut parts.supervisor,
+        pacer,
+        settings,
+        &mut on_record,
+        &mut on_event,
+        &mut on_progress,
+    )
 }
 
 #[cfg(test)]
