@@ -873,6 +873,25 @@ mod tests {
         run_with(&cfg, backend, opts)
     }
 
+    /// Runs a scripted backend that fails at lifecycle call `fail_at` with `report`: the
+    /// session must end at start-up. Returns the backend's calls and the failure.
+    fn failed_start(
+        fail_at: &'static str,
+        report: Option<StartupReport>,
+        out: &std::path::Path,
+        atomic_log: bool,
+    ) -> (Vec<&'static str>, Box<FailedStartup>) {
+        let mut hal = Scripted {
+            fail_at: Some(fail_at),
+            report,
+            calls: Vec::new(),
+        };
+        let Err(SessionError::Startup(f)) = run_scripted(&mut hal, out, atomic_log) else {
+            panic!("a failed {fail_at} must end the session before the loop");
+        };
+        (hal.calls, f)
+    }
+
     fn temp(name: &str) -> PathBuf {
         let dir = std::env::temp_dir().join(format!("ehactl_session_{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("temp dir");
@@ -883,15 +902,8 @@ mod tests {
     fn a_failed_activate_is_logged_as_a_startup_trip() {
         for atomic in [false, true] {
             let out = temp(&format!("activate_{atomic}.mcap"));
-            let mut hal = Scripted {
-                fail_at: Some("activate"),
-                report: Some(report(false, false)),
-                calls: Vec::new(),
-            };
-            let Err(SessionError::Startup(f)) = run_scripted(&mut hal, &out, atomic) else {
-                panic!("a failed activate must end the session before the loop");
-            };
-            assert_eq!(hal.calls, ["configure", "activate"], "no cycle ran");
+            let (calls, f) = failed_start("activate", Some(report(false, false)), &out, atomic);
+            assert_eq!(calls, ["configure", "activate"], "no cycle ran");
             let s = f.log.expect("logged").expect("a summary");
             assert_eq!(s["trip"], "CANopen start-up: scripted");
             assert_eq!(s["trip_kind"], "startup");
@@ -907,15 +919,8 @@ mod tests {
     #[test]
     fn a_stopped_startup_is_logged_as_interrupted_and_a_settings_error_not_at_all() {
         let out = temp("stopped.mcap");
-        let mut hal = Scripted {
-            fail_at: Some("configure"),
-            report: Some(report(false, true)),
-            calls: Vec::new(),
-        };
-        let Err(SessionError::Startup(f)) = run_scripted(&mut hal, &out, false) else {
-            panic!("a failed configure must end the session");
-        };
-        assert_eq!(hal.calls, ["configure"]);
+        let (calls, f) = failed_start("configure", Some(report(false, true)), &out, false);
+        assert_eq!(calls, ["configure"]);
         let s = f.log.expect("logged").expect("a summary");
         assert_eq!(s["interrupted"], true);
         assert!(s["trip"].is_null() && s["trip_kind"].is_null());
@@ -923,14 +928,7 @@ mod tests {
         assert_eq!(s["exit_code"], EXIT_STOPPED);
 
         let out = temp("settings.mcap");
-        let mut hal = Scripted {
-            fail_at: Some("configure"),
-            report: Some(report(true, false)),
-            calls: Vec::new(),
-        };
-        let Err(SessionError::Startup(f)) = run_scripted(&mut hal, &out, false) else {
-            panic!("a failed configure must end the session");
-        };
+        let (_, f) = failed_start("configure", Some(report(true, false)), &out, false);
         assert!(f.report.settings_error);
         assert!(
             matches!(f.log, Ok(None)),
@@ -942,14 +940,7 @@ mod tests {
     #[test]
     fn a_lifecycle_error_without_a_report_is_logged_as_the_error_itself() {
         let out = temp("no_report.mcap");
-        let mut hal = Scripted {
-            fail_at: Some("configure"),
-            report: None,
-            calls: Vec::new(),
-        };
-        let Err(SessionError::Startup(f)) = run_scripted(&mut hal, &out, false) else {
-            panic!("a failed configure must end the session");
-        };
+        let (_, f) = failed_start("configure", None, &out, false);
         assert_eq!(f.report.channel, "start-up", "not named after a backend");
         assert!(f.report.frames.is_empty());
         let s = f.log.expect("logged").expect("a summary");
