@@ -478,28 +478,36 @@ mod tests {
         )
     }
 
-    /// Sirohi 2003's tube (11.5 in × 1.753 mm, 16 segments) in 001's fluid; `nu` = 0 makes the
-    /// segments frictionless (R = 0).
-    fn sirohi_line(nu: f64, friction: LineFriction) -> Line {
-        let cfg = LineDynamics {
+    /// Sirohi 2003's tube (11.5 in × 1.753 mm) in `segments`, with a port volume (m³).
+    fn sirohi_cfg(segments: u32, port_volume: f64, friction: LineFriction) -> LineDynamics {
+        LineDynamics {
             enabled: true,
             length: 0.2921,
             diameter: 1.753e-3,
-            segments: 16,
+            segments,
             bulk_modulus: None,
-            port_volume: 0.0,
+            port_volume,
             variant: Default::default(),
             wall_compliance: 0.0,
             resistance: 0.0,
             friction,
-        };
-        let fluid = Fluid {
+        }
+    }
+
+    /// 001's fluid with kinematic viscosity `nu` (m²/s).
+    fn sirohi_fluid(nu: f64) -> Fluid {
+        Fluid {
             density: 859.0,
             bulk_modulus: 1.793e9,
             kinematic_viscosity: nu,
             cavitation_pressure: -1e5,
-        };
-        new_line(&cfg, &fluid, 0.0)
+        }
+    }
+
+    /// Sirohi 2003's tube in 16 segments in 001's fluid; `nu` = 0 makes the segments
+    /// frictionless (R = 0).
+    fn sirohi_line(nu: f64, friction: LineFriction) -> Line {
+        new_line(&sirohi_cfg(16, 0.0, friction), &sirohi_fluid(nu), 0.0)
     }
 
     /// The bordered solve of [`Line::advance_implicit`] against Gaussian elimination with
@@ -514,25 +522,11 @@ mod tests {
             (3, LineFriction::Steady),
             (16, LineFriction::Unsteady),
         ] {
-            let cfg = LineDynamics {
-                enabled: true,
-                length: 0.2921,
-                diameter: 1.753e-3,
-                segments,
-                bulk_modulus: None,
-                port_volume: 3e-6,
-                variant: Default::default(),
-                wall_compliance: 0.0,
-                resistance: 0.0,
-                friction,
-            };
-            let fluid = Fluid {
-                density: 859.0,
-                bulk_modulus: 1.793e9,
-                kinematic_viscosity: 2e-6,
-                cavitation_pressure: -1e5,
-            };
-            let mut l = new_line(&cfg, &fluid, 2e6);
+            let mut l = new_line(
+                &sirohi_cfg(segments, 3e-6, friction),
+                &sirohi_fluid(2e-6),
+                2e6,
+            );
             let h = 1.3e-5;
             l.prepare(h);
             let n = l.p.len();
