@@ -129,6 +129,10 @@ struct IoShared {
     /// ns ([`IoShared::mono`]) when the RX thread last found the bus drained: every frame
     /// received before it is in the RX queue (stored after the pushes, Release).
     drained_ns: AtomicI64,
+    /// Longest time between two looks of the RX thread at the bus (ns): at most its
+    /// receive timeout ([`RX_WAIT`]) plus the time to take a frame in while the thread is
+    /// scheduled; more is a stall of the thread (reported as `can_rx_gap_max_us`).
+    rx_gap_max_ns: AtomicI64,
     rx_frames: AtomicU64,
     tx_frames: AtomicU64,
     rx_overflow: AtomicU64,
@@ -149,6 +153,7 @@ impl IoShared {
             epoch_ns,
             zero_ns: AtomicI64::new(now),
             drained_ns: AtomicI64::new(now),
+            rx_gap_max_ns: AtomicI64::new(0),
             rx_frames: AtomicU64::new(0),
             tx_frames: AtomicU64::new(0),
             rx_overflow: AtomicU64::new(0),
@@ -1025,20 +1030,27 @@ impl CanopenHal {
     }
 }
 
+/// How long the RX thread blocks for a frame before it looks at the stop flag again.
+const RX_WAIT: Duration = Duration::from_millis(20);
+
 fn rx_loop(
     mut bus: Box<dyn CanBus>,
     sh: &IoShared,
     q: &ArrayQueue<(CanFrame, i64)>,
     log: &FrameLog,
 ) -> Box<dyn CanBus> {
+    let mut last_look_ns = sh.mono(sh.now());
     while !sh.stop.load(Ordering::Acquire) {
         // Nothing waiting at `t0`: every frame received before it is in the queue (the
         // heartbeat consumers judge silence up to there, see `read`); then block.
         let t0 = sh.mono(sh.now());
+        sh.rx_gap_max_ns
+            .fetch_max(t0 - last_look_ns, Ordering::Relaxed);
+        last_look_ns = t0;
         let got = match bus.try_recv() {
             Ok(None) => {
                 sh.drained_ns.store(t0, Ordering::Release);
-                bus.recv_timeout(Duration::from_millis(20))
+                bus.recv_timeout(RX_WAIT)
             }
             r => r,
         };
@@ -1411,6 +1423,7 @@ impl Hal for CanopenHal {
             "can_unknown_cob_id": self.unknown,
             "can_transport_errors": sh.transport_errors.load(Ordering::Relaxed),
             "can_rx_overflow": sh.rx_overflow.load(Ordering::Relaxed),
+            "can_rx_gap_max_us": sh.rx_gap_max_ns.load(Ordering::Relaxed) as f64 * 1e-3,
             "can_log_frames_dropped": self.frame_log.dropped(),
             "can_bus_error": sh.error.lock().ok().and_then(|e| e.clone()),
             "emcy_count": self.emcy_count,
