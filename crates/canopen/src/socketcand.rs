@@ -11,6 +11,7 @@ use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::frame::{CanFrame, MAX_EXTENDED_ID, MAX_STANDARD_ID};
 use std::io::{Read, Write};
 use std::net::{TcpStream, ToSocketAddrs};
+use std::os::fd::AsRawFd;
 use std::time::{Duration, Instant};
 
 /// Longest message accepted without its closing `>` (bytes).
@@ -288,7 +289,6 @@ pub fn format_frame(f: &CanFrame, t: Duration) -> MsgBuf {
 pub struct SocketcandBus {
     stream: TcpStream,
     framer: Framer,
-    nonblocking: bool,
     addr: String,
     rbuf: Box<[u8; 4096]>,
 }
@@ -327,7 +327,6 @@ impl SocketcandBus {
         let mut bus = SocketcandBus {
             stream,
             framer: Framer::new(),
-            nonblocking: false,
             addr: addr.clone(),
             rbuf: Box::new([0; 4096]),
         };
@@ -340,7 +339,6 @@ impl SocketcandBus {
     }
 
     fn write_raw(&mut self, b: &[u8]) -> Result<(), BusError> {
-        self.set_nonblocking(false)?;
         self.stream.write_all(b).map_err(|e| {
             let kind = match e.kind() {
                 std::io::ErrorKind::BrokenPipe
@@ -350,16 +348,6 @@ impl SocketcandBus {
             };
             io_err(kind, &format!("{}: send failed", self.addr), e)
         })
-    }
-
-    fn set_nonblocking(&mut self, nb: bool) -> Result<(), BusError> {
-        if self.nonblocking != nb {
-            self.stream
-                .set_nonblocking(nb)
-                .map_err(|e| io_err(BusErrorKind::Io, &self.addr, e))?;
-            self.nonblocking = nb;
-        }
-        Ok(())
     }
 
     /// Wait for one handshake message and check it.
@@ -401,17 +389,22 @@ impl SocketcandBus {
     }
 
     /// One read into the framer. `None` timeout = non-blocking. Returns bytes read (0 = nothing).
+    ///
+    /// The socket stays blocking: the clone that sends ([`CanBus::try_clone_bus`]) shares its
+    /// file status flags, so an `O_NONBLOCK` set here would make its writes fail at once on a
+    /// full send buffer instead of waiting up to the write timeout. A non-blocking read is one
+    /// `recv` with `MSG_DONTWAIT` (a per-call flag, no std API for it).
     fn fill(&mut self, timeout: Option<Duration>) -> Result<usize, BusError> {
-        match timeout {
-            None => self.set_nonblocking(true)?,
+        let got = match timeout {
+            None => self.recv_dontwait(),
             Some(t) => {
-                self.set_nonblocking(false)?;
                 self.stream
                     .set_read_timeout(Some(t.max(Duration::from_micros(1))))
                     .map_err(|e| io_err(BusErrorKind::Io, &self.addr, e))?;
+                self.stream.read(&mut self.rbuf[..])
             }
-        }
-        match self.stream.read(&mut self.rbuf[..]) {
+        };
+        match got {
             Ok(0) => Err(BusError::new(
                 BusErrorKind::Closed,
                 format!("{}: connection closed by the server", self.addr),
@@ -434,6 +427,25 @@ impl SocketcandBus {
                 &format!("{}: receive failed", self.addr),
                 e,
             )),
+        }
+    }
+
+    /// Reads what is waiting without blocking (`recv` with `MSG_DONTWAIT`).
+    fn recv_dontwait(&mut self) -> std::io::Result<usize> {
+        // SAFETY: the descriptor is the open socket of `self.stream` (alive for the call);
+        // `rbuf` is a valid, writable buffer of `rbuf.len()` bytes.
+        let n = unsafe {
+            libc::recv(
+                self.stream.as_raw_fd(),
+                self.rbuf.as_mut_ptr().cast(),
+                self.rbuf.len(),
+                libc::MSG_DONTWAIT,
+            )
+        };
+        if n < 0 {
+            Err(std::io::Error::last_os_error())
+        } else {
+            Ok(n as usize)
         }
     }
 
@@ -504,7 +516,6 @@ impl CanBus for SocketcandBus {
         Ok(Box::new(SocketcandBus {
             stream,
             framer: Framer::new(),
-            nonblocking: self.nonblocking,
             addr: self.addr.clone(),
             rbuf: Box::new([0; 4096]),
         }))
@@ -592,5 +603,53 @@ mod tests {
         assert_eq!(fr.next_message().unwrap(), Some("< ok >"));
         fr.push(&[b'<'; 300]);
         assert!(fr.next_message().is_err());
+    }
+
+    /// A socketcand server that answers the rawmode handshake, sends `frames`, and then
+    /// holds the connection without reading until the test ends.
+    fn handshake_server(frames: &'static [u8]) -> (u16, std::thread::JoinHandle<()>) {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let port = l.local_addr().unwrap().port();
+        let t = std::thread::spawn(move || {
+            let (mut c, _) = l.accept().unwrap();
+            let mut fr = Framer::new();
+            let mut buf = [0u8; 256];
+            c.write_all(b"< hi >").unwrap();
+            for _ in ["< open can0 >", "< rawmode >"] {
+                while fr.next_message().unwrap().is_none() {
+                    let n = c.read(&mut buf).unwrap();
+                    fr.push(&buf[..n]);
+                }
+                c.write_all(b"< ok >").unwrap();
+            }
+            c.write_all(frames).unwrap();
+            // hold: the client closes first (read returns 0 then)
+            let _ = c.read(&mut buf);
+        });
+        (port, t)
+    }
+
+    #[test]
+    fn a_non_blocking_receive_leaves_the_shared_socket_blocking_for_the_sender() {
+        // The RX and TX threads own clones of one socket (one open file description, one
+        // set of status flags): the sender's 500 ms write timeout only holds while no read
+        // has made the socket O_NONBLOCK.
+        let (port, server) = handshake_server(b"< frame 123 0.000000 11 >");
+        let mut rx =
+            SocketcandBus::connect("127.0.0.1", port, "can0", Duration::from_secs(5)).unwrap();
+        let tx = rx.try_clone_bus().unwrap();
+        let got = rx.recv_timeout(Duration::from_secs(5)).unwrap();
+        assert_eq!(got, CanFrame::new(0x123, &[0x11]));
+        assert_eq!(rx.try_recv().unwrap(), None, "nothing else was sent");
+        // SAFETY: F_GETFL on the open socket of `rx.stream`.
+        let flags = unsafe { libc::fcntl(rx.stream.as_raw_fd(), libc::F_GETFL) };
+        assert!(flags >= 0);
+        assert_eq!(
+            flags & libc::O_NONBLOCK,
+            0,
+            "the socket was left non-blocking"
+        );
+        drop((rx, tx));
+        server.join().unwrap();
     }
 }
