@@ -1090,6 +1090,9 @@ fn rx_loop(
             }
         }
     }
+    // the stretch since the last look counts too (a stall just before the stop)
+    sh.rx_gap_max_ns
+        .fetch_max(sh.mono(sh.now()) - last_look_ns, Ordering::Relaxed);
     bus
 }
 
