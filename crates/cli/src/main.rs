@@ -10,7 +10,6 @@ mod analysis_cmd;
 
 mod canbus;
 
-use canbus::HalKind;
 #[cfg(feature = "diagnosis")]
 mod diagnose;
 mod live;
@@ -42,54 +41,7 @@ struct Cli {
 enum Command {
     /// Run a closed-loop test of CONFIG and log it to MCAP: against the simulated plant
     /// (default, --hal sim) or CANopen devices on a CAN bus (--hal canopen --bus …).
-    Run {
-        /// Rig config (TOML).
-        config: PathBuf,
-        /// Override run.duration (s).
-        #[arg(long, allow_negative_numbers = true)]
-        duration: Option<f64>,
-        /// MCAP output file (default: out/<config name>.mcap).
-        // The doc comment is clap's `--help` text, printed as written: `<config name>` is
-        // no HTML tag.
-        #[allow(rustdoc::invalid_html_tags)]
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Print exactly one JSON object with the summary on stdout.
-        #[arg(long)]
-        json: bool,
-        /// Pace the loop against the wall clock (the [realtime] section: SCHED_FIFO,
-        /// mlockall, CPU affinity, overrun policy); with the sim backend the plant then
-        /// runs in real time. Timing statistics go to the summary and the MCAP log.
-        // `--help` text, printed as written: `[realtime]` is the config section, no link.
-        #[allow(rustdoc::broken_intra_doc_links)]
-        #[arg(long)]
-        realtime: bool,
-        /// Serve live gain / setpoint changes on this Unix socket (see `ehactl set`).
-        #[arg(long, value_name = "PATH")]
-        control_socket: Option<PathBuf>,
-        /// Backend: `sim` (in-process plant) or `canopen` (CiA 406 transducer + CiA 408
-        /// valve on a CAN bus, paced by the wall clock; needs --bus).
-        #[arg(long, value_enum, default_value = "sim")]
-        hal: HalKind,
-        /// CAN bus for --hal canopen: socketcan://IFACE or socketcand://HOST:PORT/CHANNEL.
-        #[arg(long, value_name = "URL")]
-        bus: Option<String>,
-        /// Overwrite --out even if it is an existing file that is not an MCAP log (never the
-        /// config being run).
-        #[arg(long)]
-        force: bool,
-        /// Serve the run live to Foxglove (Foxglove WebSocket protocol, same channels as the
-        /// MCAP log) on HOST:PORT (default 127.0.0.1:8765; port 0 = any free port). Best with
-        /// --realtime; messages a viewer cannot take are dropped and counted, never waited for.
-        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live::DEFAULT_ADDR)]
-        live: Option<String>,
-        /// Most live-view clients served at once; more are refused (HTTP 503) and counted in
-        /// the summary's `live.clients_refused_over_limit`. Each idle subscribed client costs
-        /// up to a few MB of queued messages.
-        #[arg(long, value_name = "N", default_value_t = live_front::DEFAULT_MAX_CLIENTS,
-              value_parser = clap::value_parser!(u16).range(1..=1024))]
-        live_max_clients: u16,
-    },
+    Run(run_cmd::RunArgs),
     /// Rebuild a valid, indexed MCAP file from a log whose writer was killed (SIGKILL, power
     /// loss, full disk): every intact chunk is kept, a cut-off one is dropped.
     Recover {
@@ -498,31 +450,7 @@ fn set_signal_dispositions(command: &Command) {
 /// Hand the parsed subcommand to its `cmd_*` function; returns its exit code.
 fn dispatch(command: Command) -> ExitCode {
     match command {
-        Command::Run {
-            config,
-            duration,
-            out,
-            json,
-            realtime,
-            control_socket,
-            hal,
-            bus,
-            force,
-            live,
-            live_max_clients,
-        } => run_cmd::cmd_run(run_cmd::RunArgs {
-            config: &config,
-            duration,
-            out,
-            force,
-            json,
-            realtime,
-            control_socket,
-            hal,
-            bus,
-            live: live.as_deref(),
-            live_max_clients: usize::from(live_max_clients),
-        }),
+        Command::Run(args) => run_cmd::cmd_run(args),
         Command::Recover {
             input,
             output,

@@ -23,34 +23,59 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-/// The command line of `ehactl run`.
-pub struct RunArgs<'a> {
+/// The command line of `ehactl run` (clap reads the doc comments as its `--help`).
+#[derive(clap::Args)]
+pub struct RunArgs {
     /// Rig config (TOML).
-    pub config: &'a Path,
-    /// `--duration` override (s).
+    pub config: PathBuf,
+    /// Override run.duration (s).
+    #[arg(long, allow_negative_numbers = true)]
     pub duration: Option<f64>,
-    /// `--out` MCAP path (default `out/<config stem>.mcap`).
+    /// MCAP output file (default: out/<config name>.mcap).
+    // The doc comment is clap's `--help` text, printed as written: `<config name>` is
+    // no HTML tag.
+    #[allow(rustdoc::invalid_html_tags)]
+    #[arg(long)]
     pub out: Option<PathBuf>,
-    /// `--force`: replace a non-MCAP file at `out`.
-    pub force: bool,
-    /// `--json`: one JSON summary on stdout.
+    /// Print exactly one JSON object with the summary on stdout.
+    #[arg(long)]
     pub json: bool,
-    /// `--realtime`: wall-clock pacing.
+    /// Pace the loop against the wall clock (the [realtime] section: SCHED_FIFO,
+    /// mlockall, CPU affinity, overrun policy); with the sim backend the plant then
+    /// runs in real time. Timing statistics go to the summary and the MCAP log.
+    // `--help` text, printed as written: `[realtime]` is the config section, no link.
+    #[allow(rustdoc::broken_intra_doc_links)]
+    #[arg(long)]
     pub realtime: bool,
-    /// `--control-socket PATH`.
+    /// Serve live gain / setpoint changes on this Unix socket (see `ehactl set`).
+    #[arg(long, value_name = "PATH")]
     pub control_socket: Option<PathBuf>,
-    /// `--hal`.
+    /// Backend: `sim` (in-process plant) or `canopen` (CiA 406 transducer + CiA 408
+    /// valve on a CAN bus, paced by the wall clock; needs --bus).
+    #[arg(long, value_enum, default_value = "sim")]
     pub hal: HalKind,
-    /// `--bus`.
+    /// CAN bus for --hal canopen: socketcan://IFACE or socketcand://HOST:PORT/CHANNEL.
+    #[arg(long, value_name = "URL")]
     pub bus: Option<String>,
-    /// `--live ADDR` (Foxglove WebSocket).
-    pub live: Option<&'a str>,
-    /// `--live-max-clients N`.
-    pub live_max_clients: usize,
+    /// Overwrite --out even if it is an existing file that is not an MCAP log (never the
+    /// config being run).
+    #[arg(long)]
+    pub force: bool,
+    /// Serve the run live to Foxglove (Foxglove WebSocket protocol, same channels as the
+    /// MCAP log) on HOST:PORT (default 127.0.0.1:8765; port 0 = any free port). Best with
+    /// --realtime; messages a viewer cannot take are dropped and counted, never waited for.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live::DEFAULT_ADDR)]
+    pub live: Option<String>,
+    /// Most live-view clients served at once; more are refused (HTTP 503) and counted in
+    /// the summary's `live.clients_refused_over_limit`. Each idle subscribed client costs
+    /// up to a few MB of queued messages.
+    #[arg(long, value_name = "N", default_value_t = crate::live_front::DEFAULT_MAX_CLIENTS,
+          value_parser = clap::value_parser!(u16).range(1..=1024))]
+    pub live_max_clients: u16,
 }
 
 /// Run `ehactl run`.
-pub fn cmd_run(args: RunArgs<'_>) -> ExitCode {
+pub fn cmd_run(args: RunArgs) -> ExitCode {
     let (cfg, out) = match prepare(&args) {
         Ok(v) => v,
         Err(code) => return code,
@@ -108,23 +133,23 @@ pub fn cmd_run(args: RunArgs<'_>) -> ExitCode {
 
 /// Phase 1: everything that can be refused before anything starts (exit 2, or 1 for an
 /// unwritable log), so that no error leaves a brought-up rig or an empty log behind.
-fn prepare(args: &RunArgs<'_>) -> Result<(RigConfig, PathBuf), ExitCode> {
-    let cfg = load(args.config)?;
+fn prepare(args: &RunArgs) -> Result<(RigConfig, PathBuf), ExitCode> {
+    let cfg = load(&args.config)?;
     if let Some(d) = args.duration {
         if let Err(why) = ehactl_runtime::session::check_duration(d) {
             return Err(config_error(format!("--duration {d}: {why}")));
         }
     }
-    if let Some(Err(e)) = args.live.map(live::parse_addr) {
+    if let Some(Err(e)) = args.live.as_deref().map(live::parse_addr) {
         return Err(config_error(e));
     }
     let out = args
         .out
         .clone()
-        .unwrap_or_else(|| default_log_path(args.config, ""));
+        .unwrap_or_else(|| default_log_path(&args.config, ""));
     // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
-    canbus::check_args(&cfg, args.config, (args.hal, args.bus.as_deref()))?;
-    check_log_path(&out, args.config, args.force)?;
+    canbus::check_args(&cfg, &args.config, (args.hal, args.bus.as_deref()))?;
+    check_log_path(&out, &args.config, args.force)?;
     check_log_writable(&out)?;
     Ok((cfg, out))
 }
@@ -141,7 +166,7 @@ struct Services {
 
 impl Services {
     fn start(
-        args: &RunArgs<'_>,
+        args: &RunArgs,
         cfg: &RigConfig,
         live: &Arc<LiveParams>,
     ) -> Result<Services, ExitCode> {
@@ -170,14 +195,15 @@ impl Services {
         // signal after it ends the run at its first cycle, through the safe stop.
         let can_hal = canbus::backend(
             cfg,
-            args.config,
+            &args.config,
             (args.hal, args.bus.as_deref()),
             args.json,
             &stop,
         )?;
         let live_view = match args
             .live
-            .map(|a| live::LiveView::start(a, args.live_max_clients))
+            .as_deref()
+            .map(|a| live::LiveView::start(a, usize::from(args.live_max_clients)))
             .transpose()
         {
             Ok(v) => v,
@@ -202,7 +228,7 @@ impl Services {
 /// Phase 3: the backend's start-up and the loop, under wall-clock pacing (`--realtime` or a
 /// CAN rig) or simulated time, with a progress bar on a terminal.
 fn execute(
-    args: &RunArgs<'_>,
+    args: &RunArgs,
     cfg: &RigConfig,
     out: PathBuf,
     services: &mut Services,
@@ -266,7 +292,7 @@ fn execute(
 }
 
 fn session_options<'a>(
-    args: &RunArgs<'_>,
+    args: &RunArgs,
     out: PathBuf,
     stop: &'a AtomicBool,
     progress: &'a mut dyn FnMut(u64, u64),
@@ -291,7 +317,7 @@ fn warn(msg: &str) {
 
 /// Phase 4: the summary, as one JSON object (`--json`) or as text.
 fn report(
-    args: &RunArgs<'_>,
+    args: &RunArgs,
     cfg: &RigConfig,
     session: &Session,
     live_stats: Option<&(String, live::LiveStats)>,
@@ -330,7 +356,7 @@ fn report(
         use std::io::Write;
         let _ = writeln!(std::io::stdout(), "{summary}");
     } else {
-        print_text_summary(args.config, cfg, session, &summary, live_stats);
+        print_text_summary(&args.config, cfg, session, &summary, live_stats);
     }
 }
 
