@@ -540,14 +540,15 @@ impl Logger {
         let thread = std::thread::Builder::new()
             .name("ehactl-mcap".into())
             .spawn(move || {
-                let r = writer_loop(
-                    w,
-                    sh.clone(),
-                    [
-                        ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log,
-                    ],
-                    chunk_ns,
-                );
+                let ch = Channels {
+                    control: ch_control,
+                    plant: ch_plant,
+                    timing: ch_timing,
+                    events: ch_events,
+                    summary: ch_summary,
+                    log: ch_log,
+                };
+                let r = WriterThread::new(w, sh.clone(), ch, chunk_ns).run();
                 if r.is_err() {
                     sh.failed.store(true, Ordering::Release);
                     if let Some(t) = sh.producer.get() {
@@ -710,206 +711,271 @@ fn io_error(e: std::io::Error) -> String {
     e.to_string()
 }
 
-/// Close the open chunk and flush it to the file; the chunk clock starts again.
-fn close_chunk(
-    w: &mut Writer,
-    chunk_start: &mut Option<u64>,
-    wall_flush: &mut std::time::Instant,
-) -> Result<(), String> {
-    w.flush().map_err(io_error)?;
-    *chunk_start = None;
-    *wall_flush = std::time::Instant::now();
-    Ok(())
+/// The channels the writer thread writes to (`/config` is written once at creation).
+#[derive(Clone, Copy)]
+struct Channels {
+    control: u16,
+    plant: u16,
+    timing: u16,
+    events: u16,
+    summary: u16,
+    log: u16,
 }
 
-fn writer_loop(
-    mut w: Writer,
+/// Records in a row before the writer turns to the other queues.
+const BATCH: u64 = 4096;
+
+/// The writer thread: takes the queues in turn (records, events, notes, CAN frames) and
+/// writes them to the MCAP file until the logger closes, then the summary and the footer.
+struct WriterThread {
+    w: Writer,
     sh: Arc<Shared>,
-    ch: [u16; 6],
+    ch: Channels,
+    /// `/can`, added with the first frame (runs without CAN have no such channel).
+    ch_can: Option<u16>,
     chunk_ns: u64,
-) -> Result<(u64, u64), String> {
-    let [ch_control, ch_plant, ch_events, ch_summary, ch_timing, ch_log] = ch;
-    let _ = sh.writer.set(std::thread::current());
-    // Record time (ns) of the first message in the open chunk; the chunk is closed and
-    // flushed to the file once it spans `chunk_ns`, and whenever the queues run dry, so a
-    // killed process loses at most one chunk interval of what the writer had taken.
-    let mut chunk_start: Option<u64> = None;
-    let mut wall_flush = std::time::Instant::now();
-    let mut written = 0u64;
-    let mut events = 0u64;
-    let mut last_ns = 0u64;
-    let mut ch_can: Option<u16> = None;
-    let mut frames_written = 0u64;
-    let to_ns = |t: f64| (t.max(0.0) * 1e9).round() as u64;
-    loop {
-        let closing = sh.closing.load(Ordering::Acquire);
-        let mut idle = true;
-        while let Some(rec) = sh.records.pop() {
-            idle = false;
-            sh.wake_producer();
+    /// Record time (ns) of the first message in the open chunk; the chunk is closed and
+    /// flushed to the file once it spans `chunk_ns`, and whenever the queues run dry, so a
+    /// killed process loses at most one chunk interval of what the writer had taken.
+    chunk_start: Option<u64>,
+    /// When the open chunk was last flushed (wall clock).
+    wall_flush: std::time::Instant,
+    /// Latest record time written (ns): the summary's time.
+    last_ns: u64,
+    written: u64,
+    events: u64,
+    frames_written: u64,
+}
+
+fn to_ns(t: f64) -> u64 {
+    (t.max(0.0) * 1e9).round() as u64
+}
+
+impl WriterThread {
+    fn new(w: Writer, sh: Arc<Shared>, ch: Channels, chunk_ns: u64) -> WriterThread {
+        WriterThread {
+            w,
+            sh,
+            ch,
+            ch_can: None,
+            chunk_ns,
+            chunk_start: None,
+            wall_flush: std::time::Instant::now(),
+            last_ns: 0,
+            written: 0,
+            events: 0,
+            frames_written: 0,
+        }
+    }
+
+    /// Write until the logger closes and its queues are empty; returns (records, events).
+    fn run(mut self) -> Result<(u64, u64), String> {
+        let _ = self.sh.writer.set(std::thread::current());
+        loop {
+            let closing = self.sh.closing.load(Ordering::Acquire);
+            let mut busy = self.take_records()?;
+            busy |= self.take_events()?;
+            busy |= self.take_notes()?;
+            busy |= self.take_frames(closing)?;
+            if closing && self.sh.records.is_empty() && self.sh.events.is_empty() {
+                break;
+            }
+            if !busy {
+                self.wait_for_work()?;
+            }
+        }
+        self.finish()
+    }
+
+    /// Close the open chunk and flush it to the file; the chunk clock starts again.
+    fn close_chunk(&mut self) -> Result<(), String> {
+        self.w.flush().map_err(io_error)?;
+        self.chunk_start = None;
+        self.wall_flush = std::time::Instant::now();
+        Ok(())
+    }
+
+    /// Up to [`BATCH`] cycle records; true if there was any.
+    fn take_records(&mut self) -> Result<bool, String> {
+        let mut any = false;
+        while let Some(rec) = self.sh.records.pop() {
+            any = true;
+            self.sh.wake_producer();
             let ns = to_ns(rec.t);
-            last_ns = last_ns.max(ns);
+            self.last_ns = self.last_ns.max(ns);
             let seq = rec.cycle as u32;
-            w.write_message_with(ch_control, seq, ns, ns, |b| rec.append_control(b))
+            let (w, ch) = (&mut self.w, self.ch);
+            w.write_message_with(ch.control, seq, ns, ns, |b| rec.append_control(b))
                 .map_err(io_error)?;
             if rec.has_plant {
-                w.write_message_with(ch_plant, seq, ns, ns, |b| rec.append_plant(b))
+                w.write_message_with(ch.plant, seq, ns, ns, |b| rec.append_plant(b))
                     .map_err(io_error)?;
             }
             if rec.timing.is_some() {
-                w.write_message_with(ch_timing, seq, ns, ns, |b| {
+                w.write_message_with(ch.timing, seq, ns, ns, |b| {
                     rec.append_timing(b);
                 })
                 .map_err(io_error)?;
             }
-            if let Some(tp) = sh.tap.get() {
+            if let Some(tp) = self.sh.tap.get() {
                 tp.offer(TapMessage::Record(rec));
             }
-            written += 1;
-            let start = *chunk_start.get_or_insert(ns);
-            if ns.saturating_sub(start) >= chunk_ns {
-                close_chunk(&mut w, &mut chunk_start, &mut wall_flush)?;
+            self.written += 1;
+            let start = *self.chunk_start.get_or_insert(ns);
+            if ns.saturating_sub(start) >= self.chunk_ns {
+                self.close_chunk()?;
             }
-            if written.is_multiple_of(4096) {
+            if self.written.is_multiple_of(BATCH) {
                 break;
             }
         }
-        while let Some(ev) = sh
+        Ok(any)
+    }
+
+    /// One event on `/events` (as `event_json`) and `/log` (as `log`), numbered in order.
+    fn write_event(&mut self, t: f64, event_json: &str, log: &str) -> Result<(), String> {
+        let ns = to_ns(t);
+        let seq = self.events as u32;
+        self.w
+            .write_message(self.ch.events, seq, ns, ns, event_json.as_bytes())
+            .map_err(io_error)?;
+        self.w
+            .write_message(self.ch.log, seq, ns, ns, log.as_bytes())
+            .map_err(io_error)?;
+        self.events += 1;
+        self.chunk_start.get_or_insert(ns);
+        Ok(())
+    }
+
+    /// Every queued event (the run's and the CAN threads'); true if there was any.
+    fn take_events(&mut self) -> Result<bool, String> {
+        let mut any = false;
+        while let Some(ev) = self
+            .sh
             .events
             .pop()
-            .or_else(|| sh.frames.get().and_then(|f| f.pop_event()))
+            .or_else(|| self.sh.frames.get().and_then(|f| f.pop_event()))
         {
-            idle = false;
-            let ns = to_ns(ev.t);
-            w.write_message(
-                ch_events,
-                events as u32,
-                ns,
-                ns,
-                ev.to_json().to_string().as_bytes(),
-            )
-            .map_err(io_error)?;
-            w.write_message(
-                ch_log,
-                events as u32,
-                ns,
-                ns,
-                schemas::event_to_foxglove_log(&ev).to_string().as_bytes(),
-            )
-            .map_err(io_error)?;
-            if let Some(tp) = sh.tap.get() {
+            any = true;
+            let log = schemas::event_to_foxglove_log(&ev).to_string();
+            self.write_event(ev.t, &ev.to_json().to_string(), &log)?;
+            if let Some(tp) = self.sh.tap.get() {
                 tp.offer(TapMessage::Event(ev));
             }
-            events += 1;
-            chunk_start.get_or_insert(ns);
         }
-        while let Some(note) = sh.notes.get().and_then(|n| n.pop()) {
-            idle = false;
-            let ns = to_ns(note.event.t);
-            w.write_message(
-                ch_events,
-                events as u32,
-                ns,
-                ns,
-                note.to_json().to_string().as_bytes(),
-            )
-            .map_err(io_error)?;
+        Ok(any)
+    }
+
+    /// Every queued note (an event with a text of its own); true if there was any.
+    fn take_notes(&mut self) -> Result<bool, String> {
+        let mut any = false;
+        while let Some(note) = self.sh.notes.get().and_then(|n| n.pop()) {
+            any = true;
             let mut log = schemas::event_to_foxglove_log(&note.event);
             log["message"] = serde_json::Value::String(note.text());
-            w.write_message(ch_log, events as u32, ns, ns, log.to_string().as_bytes())
-                .map_err(io_error)?;
-            if let Some(tp) = sh.tap.get() {
+            self.write_event(note.event.t, &note.to_json().to_string(), &log.to_string())?;
+            if let Some(tp) = self.sh.tap.get() {
                 tp.offer(TapMessage::Event(note.event));
             }
-            events += 1;
-            chunk_start.get_or_insert(ns);
         }
-        if let Some(fl) = sh.frames.get() {
-            // While closing, take what is queued now: the I/O threads may still be receiving.
-            let limit = if closing { fl.len() } else { usize::MAX };
-            let mut n = 0usize;
-            while n < limit {
-                let Some(f) = fl.pop() else { break };
-                n += 1;
-                idle = false;
-                let ch = match ch_can {
-                    Some(c) => c,
-                    None => {
-                        let schema = serde_json::json!({"type": "object", "properties": {
-                            "t": {"type": "number", "description": "time from the start of the control loop (s); negative during start-up"},
-                            "id": {"type": "integer", "description": "CAN identifier"},
-                            "ext": {"type": "boolean", "description": "29-bit identifier"},
-                            "dlc": {"type": "integer", "description": "data length (bytes)"},
-                            "data": {"type": "string", "description": "data bytes, hex"},
-                            "dir": {"type": "string", "enum": ["rx", "tx"], "description": "received or sent by ehactl"}}})
-                        .to_string();
-                        let s = w
-                            .add_schema("ehactl.CanFrame", "jsonschema", schema.as_bytes())
-                            .map_err(io_error)?;
-                        let c = w
-                            .add_channel(s, "/can", "json", &BTreeMap::new())
-                            .map_err(io_error)?;
-                        ch_can = Some(c);
-                        c
-                    }
-                };
-                let ns = f.t_ns.max(0) as u64;
-                w.write_message(
-                    ch,
-                    frames_written as u32,
-                    ns,
-                    ns,
-                    can_frame_json(&f).to_string().as_bytes(),
-                )
+        Ok(any)
+    }
+
+    /// `/can`, added on first use.
+    fn can_channel(&mut self) -> Result<u16, String> {
+        if let Some(c) = self.ch_can {
+            return Ok(c);
+        }
+        let schema = serde_json::json!({"type": "object", "properties": {
+            "t": {"type": "number", "description": "time from the start of the control loop (s); negative during start-up"},
+            "id": {"type": "integer", "description": "CAN identifier"},
+            "ext": {"type": "boolean", "description": "29-bit identifier"},
+            "dlc": {"type": "integer", "description": "data length (bytes)"},
+            "data": {"type": "string", "description": "data bytes, hex"},
+            "dir": {"type": "string", "enum": ["rx", "tx"], "description": "received or sent by ehactl"}}})
+        .to_string();
+        let s = self
+            .w
+            .add_schema("ehactl.CanFrame", "jsonschema", schema.as_bytes())
+            .map_err(io_error)?;
+        let c = self
+            .w
+            .add_channel(s, "/can", "json", &BTreeMap::new())
+            .map_err(io_error)?;
+        self.ch_can = Some(c);
+        Ok(c)
+    }
+
+    /// Up to [`BATCH`] CAN frames, or while closing every frame queued now (the I/O threads
+    /// may still be receiving); true if there was any.
+    fn take_frames(&mut self, closing: bool) -> Result<bool, String> {
+        let Some(fl) = self.sh.frames.get().cloned() else {
+            return Ok(false);
+        };
+        let limit = if closing { fl.len() } else { usize::MAX };
+        let mut n = 0usize;
+        while n < limit {
+            let Some(f) = fl.pop() else { break };
+            n += 1;
+            let ch = self.can_channel()?;
+            let ns = f.t_ns.max(0) as u64;
+            let seq = self.frames_written as u32;
+            self.w
+                .write_message(ch, seq, ns, ns, can_frame_json(&f).to_string().as_bytes())
                 .map_err(io_error)?;
-                frames_written += 1;
-                chunk_start.get_or_insert(ns);
-                sh.frames_written.store(frames_written, Ordering::Relaxed);
-                if !closing && n >= 4096 {
-                    break;
-                }
+            self.frames_written += 1;
+            self.chunk_start.get_or_insert(ns);
+            self.sh
+                .frames_written
+                .store(self.frames_written, Ordering::Relaxed);
+            if !closing && n >= BATCH as usize {
+                break;
             }
         }
-        if closing && sh.records.is_empty() && sh.events.is_empty() {
-            break;
+        Ok(n > 0)
+    }
+
+    /// Nothing queued: close the open chunk once it is older than one interval of wall time
+    /// too (a paused or slow loop must not keep records unflushed), then sleep until there
+    /// is work (see `Logger::push`) or `IDLE_WAIT` has passed. Announce first, then check
+    /// again, so that a wake-up in between is not missed.
+    fn wait_for_work(&mut self) -> Result<(), String> {
+        if self.chunk_start.is_some()
+            && self.wall_flush.elapsed().as_nanos() as u64 >= self.chunk_ns
+        {
+            self.close_chunk()?;
         }
-        if idle {
-            // Nothing queued: close the open chunk once it is older than one interval of
-            // wall time too (a paused or slow loop must not keep records unflushed).
-            if chunk_start.is_some() && wall_flush.elapsed().as_nanos() as u64 >= chunk_ns {
-                close_chunk(&mut w, &mut chunk_start, &mut wall_flush)?;
+        let sh = &self.sh;
+        sh.writer_waiting.store(true, Ordering::SeqCst);
+        if sh.records.is_empty() && sh.events.is_empty() && !sh.closing.load(Ordering::SeqCst) {
+            std::thread::park_timeout(IDLE_WAIT);
+        }
+        sh.writer_waiting.store(false, Ordering::SeqCst);
+        Ok(())
+    }
+
+    /// The summary (with the records written) and the file's footer.
+    fn finish(mut self) -> Result<(u64, u64), String> {
+        let summary = self.sh.summary.lock().ok().and_then(|mut s| s.take());
+        if let Some(mut summary) = summary {
+            if let Some(obj) = summary.as_object_mut() {
+                obj.insert("records_written".into(), self.written.into());
             }
-            // Sleep until there is work (see `Logger::push`) or `IDLE_WAIT` has passed.
-            // Announce first, then check again, so that a wake-up in between is not missed.
-            sh.writer_waiting.store(true, Ordering::SeqCst);
-            if sh.records.is_empty() && sh.events.is_empty() && !sh.closing.load(Ordering::SeqCst) {
-                std::thread::park_timeout(IDLE_WAIT);
+            let text = summary.to_string();
+            let ns = self.last_ns;
+            self.w
+                .write_message(self.ch.summary, 0, ns, ns, text.as_bytes())
+                .map_err(io_error)?;
+            if let Some(tp) = self.sh.tap.get() {
+                tp.offer(TapMessage::Summary(text));
             }
-            sh.writer_waiting.store(false, Ordering::SeqCst);
         }
-    }
-    let summary = sh.summary.lock().ok().and_then(|mut s| s.take());
-    if let Some(mut summary) = summary {
-        if let Some(obj) = summary.as_object_mut() {
-            obj.insert("records_written".into(), written.into());
+        if let Some(tp) = self.sh.tap.get() {
+            tp.close();
         }
-        w.write_message(
-            ch_summary,
-            0,
-            last_ns,
-            last_ns,
-            summary.to_string().as_bytes(),
-        )
-        .map_err(io_error)?;
-        if let Some(tp) = sh.tap.get() {
-            tp.offer(TapMessage::Summary(summary.to_string()));
-        }
+        self.w.finish().map_err(io_error)?;
+        Ok((self.written, self.events))
     }
-    if let Some(tp) = sh.tap.get() {
-        tp.close();
-    }
-    w.finish().map_err(io_error)?;
-    Ok((written, events))
 }
 
 #[cfg(test)]
