@@ -344,6 +344,31 @@ struct Shared {
 const IDLE_WAIT: Duration = Duration::from_micros(200);
 
 impl Shared {
+    /// Empty queues for `capacity` records; `config_msg` is the `/config` message.
+    fn new(capacity: usize, config_msg: String) -> Shared {
+        Shared {
+            records: ArrayQueue::new(capacity),
+            events: ArrayQueue::new(1024),
+            closing: AtomicBool::new(false),
+            dropped: AtomicU64::new(0),
+            waited: AtomicU64::new(0),
+            high_water: AtomicUsize::new(0),
+            summary: Mutex::new(None),
+            frames: OnceLock::new(),
+            notes: OnceLock::new(),
+            frames_written: AtomicU64::new(0),
+            failed: AtomicBool::new(false),
+            tap: OnceLock::new(),
+            config_msg,
+            producer: OnceLock::new(),
+            producer_waiting: AtomicBool::new(false),
+            resume_at: capacity / 2,
+            writer: OnceLock::new(),
+            writer_waiting: AtomicBool::new(false),
+            wake_writer_at: (capacity / 4).max(1),
+        }
+    }
+
     /// Wake the writer if it sleeps (one wake-up per sleep).
     #[inline]
     fn wake_writer(&self) {
@@ -399,25 +424,7 @@ impl Logger {
             message: m,
             at_create: true,
         };
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir)
-                .map_err(|e| err(format!("cannot create directory: {e}")))?;
-        }
-        // Opened without truncation and locked first: a second run to the same path is
-        // refused before it can truncate the first run's log. The lock is advisory (flock)
-        // and held by the open file until the writer drops it; a killed run's lock goes with
-        // its process and its log stays where it was, for `ehactl recover`. (Writing to a
-        // temporary name renamed at the end would leave a killed run's log under a name the
-        // user does not know, and the previous log in its place.)
-        let file = std::fs::OpenOptions::new()
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(path)
-            .map_err(|e| err(format!("cannot create file: {e}")))?;
-        lock_exclusive(&file).map_err(err)?;
-        file.set_len(0)
-            .map_err(|e| err(format!("cannot truncate file: {e}")))?;
+        let file = open_locked(path).map_err(err)?;
         let compression = match opts.compression {
             LogCompression::None => Compression::None,
             LogCompression::Lz4 => Compression::Lz4,
@@ -431,76 +438,7 @@ impl Logger {
         )
         .map_err(|e| err(format!("cannot start MCAP: {e}")))?;
         let me = |e: std::io::Error| err(e.to_string());
-        let s_control = w
-            .add_schema(
-                "ehactl_msgs/msg/ControlCycle",
-                "ros2msg",
-                control_schema().as_bytes(),
-            )
-            .map_err(me)?;
-        let s_plant = w
-            .add_schema(
-                "ehactl_msgs/msg/PlantState",
-                "ros2msg",
-                plant_schema().as_bytes(),
-            )
-            .map_err(me)?;
-        let s_timing = w
-            .add_schema(
-                "ehactl_msgs/msg/CycleTiming",
-                "ros2msg",
-                timing_schema().as_bytes(),
-            )
-            .map_err(me)?;
-        let mut json_schema = |name: &str, schema: serde_json::Value| {
-            w.add_schema(name, "jsonschema", schema.to_string().as_bytes())
-        };
-        let s_config = json_schema(
-            schemas::CONFIG_SCHEMA_NAME,
-            schemas::config_schema(meta.config_schema.clone()),
-        )
-        .map_err(me)?;
-        let s_events =
-            json_schema(schemas::EVENT_SCHEMA_NAME, schemas::event_schema()).map_err(me)?;
-        let s_summary =
-            json_schema(schemas::SUMMARY_SCHEMA_NAME, schemas::summary_schema()).map_err(me)?;
-        let s_log = json_schema(
-            schemas::FOXGLOVE_LOG_SCHEMA_NAME,
-            schemas::foxglove_log_schema(),
-        )
-        .map_err(me)?;
-        let none = BTreeMap::new();
-        let ch_control = w
-            .add_channel(s_control, "/control", "cdr", &none)
-            .map_err(me)?;
-        let ch_plant = w.add_channel(s_plant, "/plant", "cdr", &none).map_err(me)?;
-        // Written only by wall-clock runs (records with timing); empty otherwise.
-        let ch_timing = w
-            .add_channel(s_timing, "/timing", "cdr", &none)
-            .map_err(me)?;
-        let ch_config = w
-            .add_channel(s_config, "/config", "json", &none)
-            .map_err(me)?;
-        let ch_events = w
-            .add_channel(s_events, "/events", "json", &none)
-            .map_err(me)?;
-        let ch_summary = w
-            .add_channel(s_summary, "/summary", "json", &none)
-            .map_err(me)?;
-        // The events again as foxglove.Log, for Foxglove's Log panel.
-        let ch_log = w.add_channel(s_log, "/log", "json", &none).map_err(me)?;
-        let mut md = BTreeMap::new();
-        md.insert("config_toml".to_string(), meta.config_toml.clone());
-        md.insert("backend".to_string(), meta.backend.clone());
-        md.insert(
-            "control_rate_hz".to_string(),
-            meta.control_rate_hz.to_string(),
-        );
-        md.insert(
-            "ehactl_version".to_string(),
-            env!("CARGO_PKG_VERSION").to_string(),
-        );
-        w.write_metadata("ehactl_run", &md).map_err(me)?;
+        let (ch, ch_config) = write_header(&mut w, meta).map_err(me)?;
         // Header, schemas, channels and metadata reach the file now: from here on it is an
         // MCAP file (for `ehactl recover` and the `--out` checks).
         w.flush()
@@ -514,40 +452,12 @@ impl Logger {
         // the run can use. Under Drop (wall clock) the whole capacity absorbs writer stalls
         // and is allocated up front, before the loop (and locked with it by mlockall).
         let capacity = effective_capacity(&opts);
-        let shared = Arc::new(Shared {
-            records: ArrayQueue::new(capacity),
-            events: ArrayQueue::new(1024),
-            closing: AtomicBool::new(false),
-            dropped: AtomicU64::new(0),
-            waited: AtomicU64::new(0),
-            high_water: AtomicUsize::new(0),
-            summary: Mutex::new(None),
-            frames: OnceLock::new(),
-            notes: OnceLock::new(),
-            frames_written: AtomicU64::new(0),
-            failed: AtomicBool::new(false),
-            tap: OnceLock::new(),
-            config_msg,
-            producer: OnceLock::new(),
-            producer_waiting: AtomicBool::new(false),
-            resume_at: capacity / 2,
-            writer: OnceLock::new(),
-            writer_waiting: AtomicBool::new(false),
-            wake_writer_at: (capacity / 4).max(1),
-        });
+        let shared = Arc::new(Shared::new(capacity, config_msg));
         let sh = shared.clone();
         let chunk_ns = (opts.chunk_interval.max(0.0) * 1e9) as u64;
         let thread = std::thread::Builder::new()
             .name("ehactl-mcap".into())
             .spawn(move || {
-                let ch = Channels {
-                    control: ch_control,
-                    plant: ch_plant,
-                    timing: ch_timing,
-                    events: ch_events,
-                    summary: ch_summary,
-                    log: ch_log,
-                };
                 let r = WriterThread::new(w, sh.clone(), ch, chunk_ns).run();
                 if r.is_err() {
                     sh.failed.store(true, Ordering::Release);
@@ -709,6 +619,94 @@ impl Drop for Logger {
 /// An I/O error of the writer as text (the OS error, e.g. "No space left on device").
 fn io_error(e: std::io::Error) -> String {
     e.to_string()
+}
+
+/// `path` created (with its directory), locked against a second run and emptied.
+fn open_locked(path: &Path) -> Result<File, String> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| format!("cannot create directory: {e}"))?;
+    }
+    // Opened without truncation and locked first: a second run to the same path is
+    // refused before it can truncate the first run's log. The lock is advisory (flock)
+    // and held by the open file until the writer drops it; a killed run's lock goes with
+    // its process and its log stays where it was, for `ehactl recover`. (Writing to a
+    // temporary name renamed at the end would leave a killed run's log under a name the
+    // user does not know, and the previous log in its place.)
+    let file = std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(path)
+        .map_err(|e| format!("cannot create file: {e}"))?;
+    lock_exclusive(&file)?;
+    file.set_len(0)
+        .map_err(|e| format!("cannot truncate file: {e}"))?;
+    Ok(file)
+}
+
+/// The file's schemas, channels and run metadata; returns the channels the writer thread
+/// writes to and `/config`'s.
+fn write_header(w: &mut Writer, meta: &RunMetadata) -> std::io::Result<(Channels, u16)> {
+    let s_control = w.add_schema(
+        "ehactl_msgs/msg/ControlCycle",
+        "ros2msg",
+        control_schema().as_bytes(),
+    )?;
+    let s_plant = w.add_schema(
+        "ehactl_msgs/msg/PlantState",
+        "ros2msg",
+        plant_schema().as_bytes(),
+    )?;
+    let s_timing = w.add_schema(
+        "ehactl_msgs/msg/CycleTiming",
+        "ros2msg",
+        timing_schema().as_bytes(),
+    )?;
+    let mut json_schema = |name: &str, schema: serde_json::Value| {
+        w.add_schema(name, "jsonschema", schema.to_string().as_bytes())
+    };
+    let s_config = json_schema(
+        schemas::CONFIG_SCHEMA_NAME,
+        schemas::config_schema(meta.config_schema.clone()),
+    )?;
+    let s_events = json_schema(schemas::EVENT_SCHEMA_NAME, schemas::event_schema())?;
+    let s_summary = json_schema(schemas::SUMMARY_SCHEMA_NAME, schemas::summary_schema())?;
+    let s_log = json_schema(
+        schemas::FOXGLOVE_LOG_SCHEMA_NAME,
+        schemas::foxglove_log_schema(),
+    )?;
+    let none = BTreeMap::new();
+    let ch_control = w.add_channel(s_control, "/control", "cdr", &none)?;
+    let ch_plant = w.add_channel(s_plant, "/plant", "cdr", &none)?;
+    // Written only by wall-clock runs (records with timing); empty otherwise.
+    let ch_timing = w.add_channel(s_timing, "/timing", "cdr", &none)?;
+    let ch_config = w.add_channel(s_config, "/config", "json", &none)?;
+    let ch_events = w.add_channel(s_events, "/events", "json", &none)?;
+    let ch_summary = w.add_channel(s_summary, "/summary", "json", &none)?;
+    // The events again as foxglove.Log, for Foxglove's Log panel.
+    let ch_log = w.add_channel(s_log, "/log", "json", &none)?;
+    let md = BTreeMap::from([
+        ("config_toml".to_string(), meta.config_toml.clone()),
+        ("backend".to_string(), meta.backend.clone()),
+        (
+            "control_rate_hz".to_string(),
+            meta.control_rate_hz.to_string(),
+        ),
+        (
+            "ehactl_version".to_string(),
+            env!("CARGO_PKG_VERSION").to_string(),
+        ),
+    ]);
+    w.write_metadata("ehactl_run", &md)?;
+    let ch = Channels {
+        control: ch_control,
+        plant: ch_plant,
+        timing: ch_timing,
+        events: ch_events,
+        summary: ch_summary,
+        log: ch_log,
+    };
+    Ok((ch, ch_config))
 }
 
 /// The channels the writer thread writes to (`/config` is written once at creation).
