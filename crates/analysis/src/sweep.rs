@@ -230,11 +230,18 @@ impl SweepOptions<'_> {
     }
 }
 
-/// Run the sweep of `cfg`.
-pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult, AnalysisError> {
+/// A config error at `what` (a CLI option or option field).
+fn bad(what: &str, msg: String) -> AnalysisError {
+    AnalysisError::Config(ehactl_plant::ConfigError::new(what, msg))
+}
+
+/// The frequency range (Hz): the options, else the setpoint's, else 1 Hz to a tenth of the
+/// control rate; checked with the number of points and the periods per dwell.
+fn frequency_range(cfg: &RigConfig, opts: &SweepOptions<'_>) -> Result<(f64, f64), AnalysisError> {
     let sp = &cfg.setpoint;
-    let default_from = if sp.f0 > 0.0 { sp.f0 } else { 1.0 };
-    let f0 = opts.from_hz.unwrap_or(default_from);
+    let f0 = opts
+        .from_hz
+        .unwrap_or(if sp.f0 > 0.0 { sp.f0 } else { 1.0 });
     let default_to = if sp.f1 > f0 {
         sp.f1
     } else {
@@ -242,8 +249,6 @@ pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult,
     };
     let f1 = opts.to_hz.unwrap_or(default_to);
     let nyq = 0.5 * cfg.run.control_rate_hz;
-    let bad =
-        |what: &str, msg: String| AnalysisError::Config(ehactl_plant::ConfigError::new(what, msg));
     if !(f0.is_finite() && f0 > 0.0) {
         return Err(bad(
             "--from",
@@ -271,15 +276,32 @@ pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult,
             ),
         ));
     }
+    Ok((f0, f1))
+}
+
+/// Where the sine goes in and what is read out.
+struct Excitation {
+    open_loop: bool,
+    /// Operating point the sine is added to (V open loop, N or m closed loop).
+    offset: f64,
+    /// Sine amplitude (same unit as `offset`).
+    amplitude: f64,
+    /// What the input is, with its unit.
+    input: String,
+    output: Channel,
+}
+
+/// The excitation of `cfg` under `opts`: open loop around the operating command (found by
+/// [`oppoint::find`] for a closed-loop config) or closed loop around the setpoint.
+fn excitation(cfg: &RigConfig, opts: &SweepOptions<'_>) -> Result<Excitation, AnalysisError> {
+    let sp = &cfg.setpoint;
     let open_loop = opts.open_loop || cfg.control.mode == ControlMode::OpenLoop;
-    let mut run_cfg = cfg.clone();
     let (offset, input) = if open_loop {
         let u0 = if cfg.control.mode == ControlMode::OpenLoop {
             operating_reference(sp)
         } else {
             oppoint::find(cfg, 5.0)?.u0
         };
-        run_cfg.control.mode = ControlMode::OpenLoop;
         (u0, "valve command (V)".to_string())
     } else {
         let unit = if cfg.control.mode == ControlMode::Force {
@@ -306,39 +328,178 @@ pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult,
     let output = opts.output.unwrap_or(match cfg.control.mode {
         ControlMode::Position => Channel::Position,
         ControlMode::Force => Channel::Force,
-        ControlMode::OpenLoop => {
-            if cfg.plant.mechanics.load_stiffness > 0.0 {
-                Channel::Force
-            } else {
-                Channel::Position
-            }
-        }
+        ControlMode::OpenLoop if cfg.plant.mechanics.load_stiffness > 0.0 => Channel::Force,
+        ControlMode::OpenLoop => Channel::Position,
     });
+    Ok(Excitation {
+        open_loop,
+        offset,
+        amplitude,
+        input,
+        output,
+    })
+}
+
+/// `cfg` set up to run the stepped sine: `n` dwells of `dwell` s from `f0` to `f1` Hz after
+/// [`SETTLE_S`].
+fn sweep_config(
+    cfg: &RigConfig,
+    ex: &Excitation,
+    (f0, f1): (f64, f64),
+    n: usize,
+    dwell: f64,
+) -> RigConfig {
+    let mut run_cfg = cfg.clone();
+    if ex.open_loop {
+        run_cfg.control.mode = ControlMode::OpenLoop;
+    }
     if cfg.control.mode == ControlMode::Position {
-        run_cfg.plant.cylinder.initial_position = offset.clamp(0.0, cfg.plant.cylinder.stroke);
+        run_cfg.plant.cylinder.initial_position = ex.offset.clamp(0.0, cfg.plant.cylinder.stroke);
     }
-    let settle = SETTLE_S;
-    let dwell = opts.dwell(f0);
-    let n = opts.points;
-    {
-        let s = &mut run_cfg.setpoint;
-        s.kind = SetpointKind::Chirp;
-        s.sweep = Sweep::Stepped;
-        s.steps = n as u32;
-        s.f0 = f0;
-        s.f1 = f1;
-        s.offset = offset;
-        s.amplitude = amplitude;
-        s.start = settle;
-        s.duration = dwell * n as f64;
+    let s = &mut run_cfg.setpoint;
+    s.kind = SetpointKind::Chirp;
+    s.sweep = Sweep::Stepped;
+    s.steps = n as u32;
+    s.f0 = f0;
+    s.f1 = f1;
+    s.offset = ex.offset;
+    s.amplitude = ex.amplitude;
+    s.start = SETTLE_S;
+    s.duration = dwell * n as f64;
+    run_cfg.run.duration = SETTLE_S + dwell * n as f64;
+    run_cfg
+}
+
+/// The sine fits of every dwell: [`BLOCKS`] blocks of whole periods in the last two thirds
+/// of each dwell (the first third lets the response settle).
+struct DwellFits {
+    freqs: Vec<f64>,
+    dwell: f64,
+    fits: Vec<[Fit; BLOCKS]>,
+    input_is_command: bool,
+    output: Channel,
+}
+
+impl DwellFits {
+    fn new(freqs: Vec<f64>, dwell: f64, ex: &Excitation) -> DwellFits {
+        let n = freqs.len();
+        DwellFits {
+            freqs,
+            dwell,
+            fits: vec![[Fit::default(); BLOCKS]; n],
+            input_is_command: ex.open_loop,
+            output: ex.output,
+        }
     }
-    run_cfg.run.duration = settle + dwell * n as f64;
+
+    /// Adds one control cycle to the block it falls in, if any.
+    fn observe(&mut self, r: &CycleRecord) {
+        let td = r.t - SETTLE_S;
+        if td < 0.0 {
+            return;
+        }
+        let i = (td / self.dwell).floor() as usize;
+        if i >= self.freqs.len() {
+            return;
+        }
+        let tau = td - i as f64 * self.dwell;
+        let f = self.freqs[i];
+        let periods = ((self.dwell * 2.0 / 3.0) * f / BLOCKS as f64)
+            .floor()
+            .max(1.0);
+        let block_len = periods / f;
+        let start = self.dwell - BLOCKS as f64 * block_len;
+        if tau < start {
+            return;
+        }
+        let b = (((tau - start) / block_len).floor() as usize).min(BLOCKS - 1);
+        let u = if self.input_is_command {
+            r.command
+        } else {
+            r.setpoint
+        };
+        self.fits[i][b].add(tau, TAU * f, self.output.read(r), u);
+    }
+
+    /// One point per dwell whose blocks all have a fit: H = Σ y r̄ / Σ |r|² over the blocks,
+    /// the phase unwrapped from the previous point, the coherence and the distortion.
+    fn points(&self) -> Vec<SweepPoint> {
+        let mut points = Vec::with_capacity(self.freqs.len());
+        let mut prev_phase: Option<f64> = None;
+        for (blocks, &f_hz) in self.fits.iter().zip(&self.freqs) {
+            if blocks.iter().any(|b| b.n < 3.0) {
+                continue;
+            }
+            let mut syr = Complex::new(0.0, 0.0);
+            let (mut srr, mut syy, mut dist) = (0.0, 0.0, 0.0);
+            for b in blocks {
+                let Some((y, r, res)) = b.solve() else {
+                    continue;
+                };
+                syr += y * r.conj();
+                srr += r.norm_sqr();
+                syy += y.norm_sqr();
+                dist += res / (y.norm() / 2f64.sqrt()).max(1e-300);
+            }
+            if srr <= 0.0 {
+                continue;
+            }
+            let h = syr / srr;
+            let ph = unwrap_phase(h.arg().to_degrees(), prev_phase);
+            prev_phase = Some(ph);
+            points.push(SweepPoint {
+                f_hz,
+                mag_db: 20.0 * h.norm().log10(),
+                phase_deg: ph,
+                coherence: syr.norm_sqr() / (srr * syy).max(1e-300),
+                gain: h.norm(),
+                distortion: dist / BLOCKS as f64,
+            });
+        }
+        points
+    }
+}
+
+/// `ph` (degrees) within 180° of the previous point's phase; the first point in (−270°, 90°].
+fn unwrap_phase(mut ph: f64, prev: Option<f64>) -> f64 {
+    if let Some(p) = prev {
+        while ph - p > 180.0 {
+            ph -= 360.0;
+        }
+        while ph - p < -180.0 {
+            ph += 360.0;
+        }
+    } else if ph > 90.0 {
+        ph -= 360.0;
+    }
+    ph
+}
+
+/// The −3 dB bandwidth (Hz) relative to the first point, interpolated in log frequency;
+/// `None` if the magnitude does not cross it.
+fn bandwidth(points: &[SweepPoint]) -> Option<f64> {
+    let target = points.first()?.mag_db - 3.0103;
+    points.windows(2).find_map(|w| {
+        if w[0].mag_db >= target && w[1].mag_db < target {
+            let a = (target - w[0].mag_db) / (w[1].mag_db - w[0].mag_db);
+            Some((w[0].f_hz.ln() + a * (w[1].f_hz.ln() - w[0].f_hz.ln())).exp())
+        } else {
+            None
+        }
+    })
+}
+
+/// Run the sweep of `cfg`.
+pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult, AnalysisError> {
+    let range = frequency_range(cfg, &opts)?;
+    let ex = excitation(cfg, &opts)?;
+    let (n, dwell) = (opts.points, opts.dwell(range.0));
+    let run_cfg = sweep_config(cfg, &ex, range, n, dwell);
     let setpoint = Setpoint::new(&run_cfg.setpoint);
-    let freqs: Vec<f64> = (0..n)
+    let freqs = (0..n)
         .map(|i| setpoint.sweep_phase((i as f64 + 0.5) * dwell).0)
         .collect();
-    let mut fits = vec![[Fit::default(); BLOCKS]; n];
-    let input_is_command = open_loop;
+    let mut fits = DwellFits::new(freqs, dwell, &ex);
     let mut progress = opts.progress.take();
     let session: Session = {
         let mut forward = |k: u64, total: u64| {
@@ -346,31 +507,7 @@ pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult,
                 p(k, total)
             }
         };
-        let mut observe = |r: &CycleRecord| {
-            let td = r.t - settle;
-            if td < 0.0 {
-                return;
-            }
-            let i = (td / dwell).floor() as usize;
-            if i >= n {
-                return;
-            }
-            let tau = td - i as f64 * dwell;
-            let f = freqs[i];
-            let periods = ((dwell * 2.0 / 3.0) * f / BLOCKS as f64).floor().max(1.0);
-            let block_len = periods / f;
-            let start = dwell - BLOCKS as f64 * block_len;
-            if tau < start {
-                return;
-            }
-            let b = (((tau - start) / block_len).floor() as usize).min(BLOCKS - 1);
-            let u = if input_is_command {
-                r.command
-            } else {
-                r.setpoint
-            };
-            fits[i][b].add(tau, TAU * f, output.read(r), u);
-        };
+        let mut observe = |r: &CycleRecord| fits.observe(r);
         run_sim(
             &run_cfg,
             SessionOptions {
@@ -386,74 +523,22 @@ pub fn sweep(cfg: &RigConfig, mut opts: SweepOptions<'_>) -> Result<SweepResult,
         )
         .map_err(AnalysisError::Session)?
     };
-    let mut points = Vec::with_capacity(n);
-    let mut prev_phase: Option<f64> = None;
-    for (i, blocks) in fits.iter().enumerate() {
-        if blocks.iter().any(|b| b.n < 3.0) {
-            continue;
-        }
-        let mut syr = Complex::new(0.0, 0.0);
-        let (mut srr, mut syy, mut dist) = (0.0, 0.0, 0.0);
-        for b in blocks {
-            let Some((y, r, res)) = b.solve() else {
-                continue;
-            };
-            syr += y * r.conj();
-            srr += r.norm_sqr();
-            syy += y.norm_sqr();
-            dist += res / (y.norm() / 2f64.sqrt()).max(1e-300);
-        }
-        if srr <= 0.0 {
-            continue;
-        }
-        let h = syr / srr;
-        let mut ph = h.arg().to_degrees();
-        if let Some(p) = prev_phase {
-            while ph - p > 180.0 {
-                ph -= 360.0;
-            }
-            while ph - p < -180.0 {
-                ph += 360.0;
-            }
-        } else if ph > 90.0 {
-            ph -= 360.0;
-        }
-        prev_phase = Some(ph);
-        points.push(SweepPoint {
-            f_hz: freqs[i],
-            mag_db: 20.0 * h.norm().log10(),
-            phase_deg: ph,
-            coherence: syr.norm_sqr() / (srr * syy).max(1e-300),
-            gain: h.norm(),
-            distortion: dist / BLOCKS as f64,
-        });
-    }
-    let bandwidth_hz = points.first().and_then(|p0| {
-        let target = p0.mag_db - 3.0103;
-        points.windows(2).find_map(|w| {
-            if w[0].mag_db >= target && w[1].mag_db < target {
-                let a = (target - w[0].mag_db) / (w[1].mag_db - w[0].mag_db);
-                Some((w[0].f_hz.ln() + a * (w[1].f_hz.ln() - w[0].f_hz.ln())).exp())
-            } else {
-                None
-            }
-        })
-    });
+    let points = fits.points();
     let o = &session.outcome;
     Ok(SweepResult {
-        mode: if open_loop {
+        mode: if ex.open_loop {
             "open_loop"
         } else {
             "closed_loop"
         },
-        input,
-        output: format!("{} ({})", output.name(), output.unit()),
-        offset,
-        amplitude,
+        input: ex.input,
+        output: format!("{} ({})", ex.output.name(), ex.output.unit()),
+        offset: ex.offset,
+        amplitude: ex.amplitude,
         dwell_s: dwell,
         complete: points.len() == n && o.trip.is_none() && !o.interrupted,
+        bandwidth_hz: bandwidth(&points),
         points,
-        bandwidth_hz,
         duration_s: o.duration_s,
         trip: o.trip.map(|e| e.describe()),
         mcap: session.log.as_ref().map(|l| l.path.display().to_string()),
