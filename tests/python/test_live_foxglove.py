@@ -35,9 +35,9 @@ TOPICS = {"/control", "/plant", "/timing", "/config", "/events", "/log", "/summa
 DURATION = 1.5  # s of wall-clock run
 
 
-def start_live(out: Path, *extra: str) -> tuple[subprocess.Popen, str]:
+def start_live(out: Path, *extra: str, duration: float = DURATION) -> tuple[subprocess.Popen, str]:
     proc = subprocess.Popen(
-        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", repr(DURATION),
+        [str(ehactl_bin()), "run", str(FORCE_CONFIG), "--realtime", "--duration", repr(duration),
          "--out", str(out), "--json", "--live", "127.0.0.1:0", *extra],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )

@@ -46,12 +46,18 @@ def node() -> str:
     return node
 
 
+# s of wall-clock run: room for Node to start and connect on a loaded machine (in CI it once
+# took longer than the 1.5 s run of the other live tests: the server had closed, ECONNREFUSED)
+RUN_S = 6.0
+MESSAGES = 2000  # the client disconnects after this many; the run goes on to its end
+
+
 def test_foxglove_ws_protocol_client_receives_control(tmp_path: Path, node: str) -> None:
     out = tmp_path / "live.mcap"
-    proc, url = start_live(out)
+    proc, url = start_live(out, duration=RUN_S)
     try:
         client = subprocess.run(
-            [node, str(NODE_DIR / "live_client.mjs"), url, "/control", "0", "20"],
+            [node, str(NODE_DIR / "live_client.mjs"), url, "/control", str(MESSAGES), "20"],
             cwd=NODE_DIR, capture_output=True, text=True, timeout=60,
         )
     finally:
