@@ -231,30 +231,11 @@ pub fn validate(p: &PlantParams) -> Result<(), ConfigError> {
     Ok(())
 }
 
-impl Plant {
-    /// Validate, derive constants, choose the substep and allocate (configure phase).
-    /// `control_dt` is the control period (s).
-    pub fn configure(params: &PlantParams, control_dt: f64) -> Result<Plant, ConfigError> {
-        validate(params)?;
-        if !(control_dt.is_finite() && control_dt > 0.0) {
-            return Err(ConfigError::new(
-                "run.control_rate_hz",
-                "control period must be finite and > 0 s",
-            ));
-        }
-        let e = &params.effects;
-        // The effect components first: the constants below read the force stage's.
-        let setup = effects::Setup {
-            control_dt,
-            supply_pressure: params.supply.pressure,
-            bulk_modulus: params.fluid.bulk_modulus,
-            density: params.fluid.density,
-            kinematic_viscosity: params.fluid.kinematic_viscosity,
-            implicit_lines: params.integration.line_method == crate::params::LineMethod::Implicit,
-        };
-        let mut components = effects::Components::configure(e, &setup);
+impl Consts {
+    /// The plant's constants from `params` and the configured effect components.
+    fn new(params: &PlantParams, components: &effects::Components) -> Consts {
         let supply = &components.supply_pressure_drop;
-        let c = Consts {
+        Consts {
             a_a: params.cylinder.area_a,
             a_b: params.cylinder.area_b,
             v_a0: params.cylinder.dead_volume_a,
@@ -281,85 +262,186 @@ impl Plant {
                     .integration
                     .max_omega_h_line
                     .unwrap_or(params.integration.max_omega_h),
+        }
+    }
+}
+
+/// The counterbalance valves on sides A and B as configured; an error with implicit lines,
+/// which solve each line from the valve port to the chamber.
+fn counterbalance_valves(
+    params: &PlantParams,
+    components: &effects::Components,
+) -> Result<[Option<Cbv>; 2], ConfigError> {
+    let cbv_cfg = params
+        .effects
+        .counterbalance_valve
+        .as_ref()
+        .filter(|c| c.enabled);
+    let cbv = [CbvSides::A, CbvSides::B].map(|side| {
+        cbv_cfg
+            .filter(|c| c.sides == side || c.sides == CbvSides::Both)
+            .map(|c| Cbv::new(c, params.fluid.density, params.fluid.bulk_modulus))
+    });
+    if components.line_dynamics.is_implicit() && cbv.iter().any(|c| c.is_some()) {
+        return Err(ConfigError::new(
+            "integration.line_method",
+            "\"implicit\" solves each line from the valve port to the chamber; with \
+             effects.counterbalance_valve between line end and chamber use \"symplectic\"",
+        ));
+    }
+    Ok(cbv)
+}
+
+/// Fastest oscillatory mode over the whole stroke (rad/s): the smallest chamber volumes,
+/// the lines and valves, and a compliant cylinder body on its mount; an error if it is not
+/// representable.
+fn fastest_mode_of_rig(
+    c: &Consts,
+    components: &effects::Components,
+    cbv: &[Option<Cbv>; 2],
+) -> Result<f64, ConfigError> {
+    let mut omega_max = fastest_mode(c, &components.line_dynamics, cbv, c.v_a0, c.v_b0);
+    if let (true, Some((ml, km, dm))) = (c.body_mount, c.mount) {
+        // A compliant cylinder body sees its mount and the oil column.
+        let k_oil = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0);
+        omega_max = omega_max.max(((km + k_oil) / ml).sqrt()).max(dm / ml);
+    }
+    if omega_max.is_finite() {
+        return Ok(omega_max);
+    }
+    // e.g. `mechanics.mass = 5e-324`: every parameter is admissible alone, but A/m or
+    // β·A²/V overflows and no integrator (nor the exact discretisation) can step it.
+    let path = if !(c.a_a / c.mass).is_finite() || !(c.k_load / c.mass).is_finite() {
+        "mechanics.mass"
+    } else {
+        "cylinder.dead_volume_a"
+    };
+    Err(ConfigError::new(
+        path,
+        format!(
+            "the fastest mode of this rig is not representable (ω = {omega_max:e} rad/s from the hydraulic spring √(β·A²/(V·m)), load spring, mount or lines); check the mass (kg), chamber volumes (m³), areas (m²) and stiffnesses (N/m) for values off by many orders of magnitude"
+        ),
+    ))
+}
+
+/// Whether the plant steps with `linear_exact`. It covers chambers, leakage, springs,
+/// dampers and the mount; with lines, friction (stick) or the grey-box polynomial effects the
+/// plant integrates with `exponential_euler` instead (e.g. when `ehactl diagnose` adds such
+/// an effect to a `linear_exact` rig); [`Plant::method`] tells which one runs.
+fn runs_linear_exact(params: &PlantParams, components: &effects::Components, c: &Consts) -> bool {
+    let e = &params.effects;
+    let (k_ext, k_ext_b) = components.external_leakage.conductances();
+    params.integration.method == crate::params::IntegrationMethod::LinearExact
+        && !components.line_dynamics.is_active()
+        && !components.friction.is_active()
+        && !e.polynomial_force.is_some_and(|f| f.enabled)
+        && !e.polynomial_flow.is_some_and(|f| f.enabled)
+        // The structural effect variants are integrated by the exponential-Euler substep only.
+        && !c.body_mount
+        && components.bulk_modulus_pressure.is_linear()
+        && k_ext_b == k_ext
+        && components.supply_pressure_drop.is_linear()
+}
+
+/// Substeps per control period: the configured number, else enough for ω·h ≤
+/// `integration.max_omega_h` at the fastest mode `omega_max` (rad/s), at most
+/// [`MAX_SUBSTEPS`].
+fn substeps_for(params: &PlantParams, control_dt: f64, omega_max: f64) -> Result<u32, ConfigError> {
+    if params.integration.substeps > 0 {
+        return Ok(params.integration.substeps);
+    }
+    let n = (control_dt * omega_max / params.integration.max_omega_h).ceil();
+    if n.is_nan() || n > MAX_SUBSTEPS as f64 {
+        return Err(ConfigError::new(
+            "integration.substeps",
+            format!(
+                "the fastest mode of this rig (ω = {omega_max:.3e} rad/s: hydraulic spring, mount or line segments) needs {n:.0} substeps per control period for ω·h ≤ {}; at most {MAX_SUBSTEPS} are allowed (slower than real time); check the line, volume, stiffness and mass parameters or raise integration.max_omega_h",
+                params.integration.max_omega_h
+            ),
+        ));
+    }
+    Ok(n.max(1.0) as u32)
+}
+
+/// The exact discretisation of chambers, leakage, springs and mount at substep `h` (s),
+/// at the initial position (re-discretised at the first substep if β(p) or the volume
+/// differs by more than the tolerance).
+fn linear_exact_model(
+    params: &PlantParams,
+    components: &effects::Components,
+    c: &Consts,
+    h: f64,
+) -> Result<LinearExact, ConfigError> {
+    let x0 = params.cylinder.initial_position.clamp(0.0, c.stroke);
+    // The flow stages' conductances (m³/(s·Pa)): cross-piston k_in, to tank k_A.
+    let (k_in, _) = components.internal_leakage.conductances();
+    let (k_ext, _) = components.external_leakage.conductances();
+    LinearExact::new(
+        LinearCoefficients {
+            a_a: c.a_a,
+            a_b: c.a_b,
+            k_in,
+            k_ext,
+            mass: c.mass,
+            damping: c.damping,
+            k_load: c.k_load,
+            x_contact: c.x_contact,
+            mount: c.mount,
+        },
+        h,
+        c.beta0 / (c.v_a0 + c.a_a * x0),
+        c.beta0 / (c.v_b0 + c.a_b * (c.stroke - x0)),
+    )
+    .ok_or_else(|| {
+        ConfigError::new(
+            "mechanics.mass",
+            format!("the chambers, mass and springs give a system matrix A·h (h = {h:e} s) beyond what the exact discretisation can represent (‖A·h‖₁ > {:e}); check the mass (kg), chamber volumes (m³), areas (m²), stiffnesses (N/m) and damping (N·s/m)", crate::exact::EXPM_MAX_NORM),
+        )
+    })
+}
+
+impl Plant {
+    /// Validate, derive constants, choose the substep and allocate (configure phase).
+    /// `control_dt` is the control period (s).
+    pub fn configure(params: &PlantParams, control_dt: f64) -> Result<Plant, ConfigError> {
+        validate(params)?;
+        if !(control_dt.is_finite() && control_dt > 0.0) {
+            return Err(ConfigError::new(
+                "run.control_rate_hz",
+                "control period must be finite and > 0 s",
+            ));
+        }
+        let e = &params.effects;
+        // The effect components first: the constants below read the force stage's.
+        let setup = effects::Setup {
+            control_dt,
+            supply_pressure: params.supply.pressure,
+            bulk_modulus: params.fluid.bulk_modulus,
+            density: params.fluid.density,
+            kinematic_viscosity: params.fluid.kinematic_viscosity,
+            implicit_lines: params.integration.line_method == crate::params::LineMethod::Implicit,
         };
+        let mut components = effects::Components::configure(e, &setup);
+        let c = Consts::new(params, &components);
         let cbv_cfg = e.counterbalance_valve.as_ref().filter(|c| c.enabled);
-        let cbv = [CbvSides::A, CbvSides::B].map(|side| {
-            cbv_cfg
-                .filter(|c| c.sides == side || c.sides == CbvSides::Both)
-                .map(|c| Cbv::new(c, params.fluid.density, params.fluid.bulk_modulus))
-        });
-        if components.line_dynamics.is_implicit() && cbv.iter().any(|c| c.is_some()) {
-            return Err(ConfigError::new(
-                "integration.line_method",
-                "\"implicit\" solves each line from the valve port to the chamber; with \
-                 effects.counterbalance_valve between line end and chamber use \"symplectic\"",
-            ));
-        }
-        // Fastest oscillatory mode over the whole stroke (rad/s): the smallest chamber volumes.
-        let mut omega_max = fastest_mode(&c, &components.line_dynamics, &cbv, c.v_a0, c.v_b0);
-        if let (true, Some((ml, km, dm))) = (c.body_mount, c.mount) {
-            // A compliant cylinder body sees its mount and the oil column.
-            let k_oil = c.beta_max * (c.a_a * c.a_a / c.v_a0 + c.a_b * c.a_b / c.v_b0);
-            omega_max = omega_max.max(((km + k_oil) / ml).sqrt()).max(dm / ml);
-        }
-        if !omega_max.is_finite() {
-            // e.g. `mechanics.mass = 5e-324`: every parameter is admissible alone, but A/m or
-            // β·A²/V overflows and no integrator (nor the exact discretisation) can step it.
-            let path = if !(c.a_a / c.mass).is_finite() || !(c.k_load / c.mass).is_finite() {
-                "mechanics.mass"
-            } else {
-                "cylinder.dead_volume_a"
-            };
-            return Err(ConfigError::new(
-                path,
-                format!(
-                    "the fastest mode of this rig is not representable (ω = {omega_max:e} rad/s from the hydraulic spring √(β·A²/(V·m)), load spring, mount or lines); check the mass (kg), chamber volumes (m³), areas (m²) and stiffnesses (N/m) for values off by many orders of magnitude"
-                ),
-            ));
-        }
-        let x0 = params.cylinder.initial_position.clamp(0.0, c.stroke);
-        // The flow stages' conductances (m³/(s·Pa)): cross-piston k_in, to tank k_A, k_B.
-        let (k_in, _) = components.internal_leakage.conductances();
-        let (k_ext, k_ext_b) = components.external_leakage.conductances();
-        // `linear_exact` covers chambers, leakage, springs, dampers and the mount; with lines,
-        // friction (stick) or the grey-box polynomial effects the plant integrates with
-        // `exponential_euler` instead (e.g. when `ehactl diagnose` adds such an effect to a
-        // `linear_exact` rig); [`Plant::method`] tells which one runs.
-        let linear_exact = params.integration.method
-            == crate::params::IntegrationMethod::LinearExact
-            && !components.line_dynamics.is_active()
-            && !components.friction.is_active()
-            && !e.polynomial_force.is_some_and(|f| f.enabled)
-            && !e.polynomial_flow.is_some_and(|f| f.enabled)
-            // The structural effect variants are integrated by the exponential-Euler substep only.
-            && !c.body_mount
-            && components.bulk_modulus_pressure.is_linear()
-            && k_ext_b == k_ext
-            && supply.is_linear();
-        if linear_exact {
+        let cbv = counterbalance_valves(params, &components)?;
+        // Checked for every rig: its fastest mode must be representable.
+        let rig_mode = fastest_mode_of_rig(&c, &components, &cbv)?;
+        let linear_exact = runs_linear_exact(params, &components, &c);
+        let omega_max = if linear_exact {
             // Hydraulic spring, load spring and mount are exact: the step is limited only by
             // what enters explicitly, the spool (its mid-step position sets the valve flow)
             // and the supply sag.
-            omega_max = components.valve_dynamics.bandwidth();
-            if supply.is_active() {
-                omega_max = omega_max.max(1.0 / c.supply_tau);
+            let spool = components.valve_dynamics.bandwidth();
+            if components.supply_pressure_drop.is_active() {
+                spool.max(1.0 / c.supply_tau)
+            } else {
+                spool
             }
-        }
-        let substeps = if params.integration.substeps > 0 {
-            params.integration.substeps
         } else {
-            let n = (control_dt * omega_max / params.integration.max_omega_h).ceil();
-            if n.is_nan() || n > MAX_SUBSTEPS as f64 {
-                return Err(ConfigError::new(
-                    "integration.substeps",
-                    format!(
-                        "the fastest mode of this rig (ω = {omega_max:.3e} rad/s: hydraulic spring, mount or line segments) needs {n:.0} substeps per control period for ω·h ≤ {}; at most {MAX_SUBSTEPS} are allowed (slower than real time); check the line, volume, stiffness and mass parameters or raise integration.max_omega_h",
-                        params.integration.max_omega_h
-                    ),
-                ));
-            }
-            n.max(1.0) as u32
+            rig_mode
         };
+        let substeps = substeps_for(params, control_dt, omega_max)?;
         let h = control_dt / substeps as f64;
         components.line_dynamics.discretise(h);
         // The spool stage (`valve_dynamics`) at the substep. The automatic substep rule may
@@ -368,32 +450,7 @@ impl Plant {
         components.valve_dynamics.discretise(control_dt)?;
         components.valve_dynamics.discretise(h)?;
         let linear = if linear_exact {
-            let lin = {
-                LinearExact::new(
-                    LinearCoefficients {
-                        a_a: c.a_a,
-                        a_b: c.a_b,
-                        k_in,
-                        k_ext,
-                        mass: c.mass,
-                        damping: c.damping,
-                        k_load: c.k_load,
-                        x_contact: c.x_contact,
-                        mount: c.mount,
-                    },
-                    h,
-                    // At the initial position; re-discretised at the first substep if β(p)
-                    // or the volume differs by more than the tolerance.
-                    c.beta0 / (c.v_a0 + c.a_a * x0),
-                    c.beta0 / (c.v_b0 + c.a_b * (c.stroke - x0)),
-                )
-            };
-            Some(lin.ok_or_else(|| {
-                ConfigError::new(
-                    "mechanics.mass",
-                    format!("the chambers, mass and springs give a system matrix A·h (h = {h:e} s) beyond what the exact discretisation can represent (‖A·h‖₁ > {:e}); check the mass (kg), chamber volumes (m³), areas (m²), stiffnesses (N/m) and damping (N·s/m)", crate::exact::EXPM_MAX_NORM),
-                )
-            })?)
+            Some(linear_exact_model(params, &components, &c, h)?)
         } else {
             None
         };
