@@ -180,6 +180,27 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
     let Fields::Named(fields) = &ds.fields else {
         return Err(syn::Error::new_spanned(name, "Params: only named fields"));
     };
+    reject_struct_renames(input)?;
+    let sp = quote!(::ehactl_types::spec);
+    let mut p = Pieces::default();
+    for f in &fields.named {
+        let ident = f.ident.as_ref().expect("named field");
+        let key = field_key(f)?;
+        let Some(attr) = f.attrs.iter().find(|a| a.path().is_ident("param")) else {
+            continue;
+        };
+        let fa = FieldAttr::parse(attr)?;
+        if fa.nested {
+            p.push_nested(f, ident, &key, &fa, &sp);
+        } else {
+            p.push_leaf(f, ident, &key, attr, fa, &sp)?;
+        }
+    }
+    Ok(p.impl_tokens(input, &sp))
+}
+
+/// A `#[serde(rename_all / rename)]` on the struct: refused (paths are the field names).
+fn reject_struct_renames(input: &DeriveInput) -> syn::Result<()> {
     for a in &input.attrs {
         if a.path().is_ident("serde") {
             let mut bad = None;
@@ -197,61 +218,69 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
             }
         }
     }
-    let sp = quote!(::ehactl_types::spec);
-    let mut declare = Vec::new();
-    let mut get_arms = Vec::new();
-    let mut set_arms = Vec::new();
-    let mut nested_get = Vec::new();
-    let mut nested_set = Vec::new();
-    let mut vec_get = Vec::new();
-    let mut vec_set = Vec::new();
-    for f in &fields.named {
-        let ident = f.ident.as_ref().expect("named field");
-        let mut key = ident.to_string();
-        for a in &f.attrs {
-            if a.path().is_ident("serde") {
-                let mut rename: Option<LitStr> = None;
-                let mut unsupported = None;
-                let _ = a.parse_nested_meta(|m| {
-                    if m.path.is_ident("rename") && m.input.peek(syn::Token![=]) {
-                        rename = Some(m.value()?.parse()?);
-                        return Ok(());
-                    }
-                    if m.path.is_ident("rename") || m.path.is_ident("flatten") {
-                        unsupported = Some("rename(…) / flatten");
-                    }
-                    skip_value(&m)
-                });
-                if let Some(what) = unsupported {
-                    return Err(syn::Error::new_spanned(
-                        a,
-                        format!("Params: serde {what} is not supported; use rename = \"…\""),
-                    ));
+    Ok(())
+}
+
+/// The field's key in parameter paths: its name, or its `#[serde(rename = "…")]`.
+fn field_key(f: &syn::Field) -> syn::Result<String> {
+    let mut key = f.ident.as_ref().expect("named field").to_string();
+    for a in &f.attrs {
+        if a.path().is_ident("serde") {
+            let mut rename: Option<LitStr> = None;
+            let mut unsupported = None;
+            let _ = a.parse_nested_meta(|m| {
+                if m.path.is_ident("rename") && m.input.peek(syn::Token![=]) {
+                    rename = Some(m.value()?.parse()?);
+                    return Ok(());
                 }
-                if let Some(r) = rename {
-                    key = r.value();
+                if m.path.is_ident("rename") || m.path.is_ident("flatten") {
+                    unsupported = Some("rename(…) / flatten");
                 }
+                skip_value(&m)
+            });
+            if let Some(what) = unsupported {
+                return Err(syn::Error::new_spanned(
+                    a,
+                    format!("Params: serde {what} is not supported; use rename = \"…\""),
+                ));
+            }
+            if let Some(r) = rename {
+                key = r.value();
             }
         }
-        let Some(attr) = f.attrs.iter().find(|a| a.path().is_ident("param")) else {
-            continue;
+    }
+    Ok(key)
+}
+
+/// What one field's `#[param(...)]` says.
+struct FieldAttr {
+    decl: Decl,
+    nested: bool,
+    choice: bool,
+    uncertain: Option<UncertainDecl>,
+    with: Vec<(String, Decl)>,
+}
+
+impl FieldAttr {
+    fn parse(attr: &syn::Attribute) -> syn::Result<FieldAttr> {
+        let mut fa = FieldAttr {
+            decl: Decl::default(),
+            nested: false,
+            choice: false,
+            uncertain: None,
+            with: Vec::new(),
         };
-        let mut decl = Decl::default();
-        let mut nested = false;
-        let mut choice = false;
-        let mut uncertain = None;
-        let mut with: Vec<(String, Decl)> = Vec::new();
         attr.parse_nested_meta(|meta| {
             if meta.path.is_ident("uncertain") {
-                uncertain = Some(UncertainDecl::parse(&meta)?);
+                fa.uncertain = Some(UncertainDecl::parse(&meta)?);
                 return Ok(());
             }
             if meta.path.is_ident("nested") {
-                nested = true;
+                fa.nested = true;
                 return Ok(());
             }
             if meta.path.is_ident("choice") {
-                choice = true;
+                fa.choice = true;
                 return Ok(());
             }
             if meta.path.is_ident("with") {
@@ -269,11 +298,11 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
                             Err(m.error("expected unit, range, desc or choices"))
                         }
                     })?;
-                    with.push((field, d));
+                    fa.with.push((field, d));
                     Ok(())
                 });
             }
-            if decl.parse_item(&meta)? {
+            if fa.decl.parse_item(&meta)? {
                 Ok(())
             } else {
                 Err(meta.error(
@@ -281,88 +310,132 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
                 ))
             }
         })?;
-        if nested && uncertain.is_some() {
+        if fa.nested && fa.uncertain.is_some() {
             return Err(syn::Error::new_spanned(
                 attr,
                 "param: uncertain(…) on a leaf, not on a nested section",
             ));
         }
-        if nested {
-            let (inner, optional) = match option_inner(&f.ty) {
-                Some(t) => (t.clone(), true),
-                None => (f.ty.clone(), false),
-            };
-            let overrides = with.iter().map(|(field, d)| {
-                let opt_str = |x: &Option<LitStr>| match x {
-                    Some(s) => quote!(Some(#s)),
-                    None => quote!(None),
-                };
-                let unit = opt_str(&d.unit);
-                let desc = opt_str(&d.desc);
-                let range = match &d.range {
-                    Some(r) => {
-                        let r = range_tokens(r);
-                        quote!(Some(#r))
-                    }
-                    None => quote!(None),
-                };
-                let choices = match &d.choices {
-                    Some(c) => quote!(Some(#c)),
-                    None => quote!(None),
-                };
-                quote! {
-                    #sp::Override { field: #field, unit: #unit, range: #range,
-                                    desc: #desc, choices: #choices }
+        Ok(fa)
+    }
+}
+
+/// A `with(field(...))` override as a `spec::Override` literal.
+fn override_tokens(field: &str, d: &Decl, sp: &Ts) -> Ts {
+    let opt_str = |x: &Option<LitStr>| match x {
+        Some(s) => quote!(Some(#s)),
+        None => quote!(None),
+    };
+    let unit = opt_str(&d.unit);
+    let desc = opt_str(&d.desc);
+    let range = match &d.range {
+        Some(r) => {
+            let r = range_tokens(r);
+            quote!(Some(#r))
+        }
+        None => quote!(None),
+    };
+    let choices = match &d.choices {
+        Some(c) => quote!(Some(#c)),
+        None => quote!(None),
+    };
+    quote! {
+        #sp::Override { field: #field, unit: #unit, range: #range,
+                        desc: #desc, choices: #choices }
+    }
+}
+
+/// The generated pieces of one struct's `ParamTree` impl, gathered field by field.
+#[derive(Default)]
+struct Pieces {
+    declare: Vec<Ts>,
+    get_arms: Vec<Ts>,
+    set_arms: Vec<Ts>,
+    nested_get: Vec<Ts>,
+    nested_set: Vec<Ts>,
+    vec_get: Vec<Ts>,
+    vec_set: Vec<Ts>,
+}
+
+impl Pieces {
+    /// A nested section (`#[param(nested)]`, optionally `Option<…>`): its declarations
+    /// under `key.` and the path forwarding of get / set.
+    fn push_nested(
+        &mut self,
+        f: &syn::Field,
+        ident: &syn::Ident,
+        key: &str,
+        fa: &FieldAttr,
+        sp: &Ts,
+    ) {
+        let (inner, optional) = match option_inner(&f.ty) {
+            Some(t) => (t.clone(), true),
+            None => (f.ty.clone(), false),
+        };
+        let overrides = fa
+            .with
+            .iter()
+            .map(|(field, d)| override_tokens(field, d, sp));
+        self.declare.push(quote! {
+            <#inner as #sp::ParamTree>::declare(
+                &#sp::join(prefix, #key), &[#(#overrides),*], out);
+        });
+        let pfx = format!("{key}.");
+        if optional {
+            self.nested_get.push(quote! {
+                if let Some(rest) = path.strip_prefix(#pfx) {
+                    return self.#ident.as_ref().and_then(|s| #sp::ParamTree::param_get(s, rest));
                 }
             });
-            declare.push(quote! {
-                <#inner as #sp::ParamTree>::declare(
-                    &#sp::join(prefix, #key), &[#(#overrides),*], out);
-            });
-            let pfx = format!("{key}.");
-            if optional {
-                nested_get.push(quote! {
-                    if let Some(rest) = path.strip_prefix(#pfx) {
-                        return self.#ident.as_ref().and_then(|s| #sp::ParamTree::param_get(s, rest));
-                    }
-                });
-                nested_set.push(quote! {
-                    if let Some(rest) = path.strip_prefix(#pfx) {
-                        let tpl = tpl.and_then(|t| t.#ident.as_ref());
-                        if self.#ident.is_none() {
-                            match tpl {
-                                Some(t) => self.#ident = Some(t.clone()),
-                                None => {
-                                    // Unknown paths stay unknown even under an absent section.
-                                    return if <#inner as #sp::ParamTree>::knows(rest) {
-                                        Err(#sp::PathErrorKind::Absent)
-                                    } else {
-                                        Err(#sp::PathErrorKind::Unknown)
-                                    };
-                                }
+            self.nested_set.push(quote! {
+                if let Some(rest) = path.strip_prefix(#pfx) {
+                    let tpl = tpl.and_then(|t| t.#ident.as_ref());
+                    if self.#ident.is_none() {
+                        match tpl {
+                            Some(t) => self.#ident = Some(t.clone()),
+                            None => {
+                                // Unknown paths stay unknown even under an absent section.
+                                return if <#inner as #sp::ParamTree>::knows(rest) {
+                                    Err(#sp::PathErrorKind::Absent)
+                                } else {
+                                    Err(#sp::PathErrorKind::Unknown)
+                                };
                             }
                         }
-                        return match self.#ident.as_mut() {
-                            Some(s) => #sp::ParamTree::param_set(s, rest, v, tpl),
-                            None => Err(#sp::PathErrorKind::Absent),
-                        };
                     }
-                });
-            } else {
-                nested_get.push(quote! {
-                    if let Some(rest) = path.strip_prefix(#pfx) {
-                        return #sp::ParamTree::param_get(&self.#ident, rest);
-                    }
-                });
-                nested_set.push(quote! {
-                    if let Some(rest) = path.strip_prefix(#pfx) {
-                        return #sp::ParamTree::param_set(&mut self.#ident, rest, v, tpl.map(|t| &t.#ident));
-                    }
-                });
-            }
-            continue;
+                    return match self.#ident.as_mut() {
+                        Some(s) => #sp::ParamTree::param_set(s, rest, v, tpl),
+                        None => Err(#sp::PathErrorKind::Absent),
+                    };
+                }
+            });
+        } else {
+            self.nested_get.push(quote! {
+                if let Some(rest) = path.strip_prefix(#pfx) {
+                    return #sp::ParamTree::param_get(&self.#ident, rest);
+                }
+            });
+            self.nested_set.push(quote! {
+                if let Some(rest) = path.strip_prefix(#pfx) {
+                    return #sp::ParamTree::param_set(&mut self.#ident, rest, v, tpl.map(|t| &t.#ident));
+                }
+            });
         }
-        if choice {
+    }
+
+    /// A leaf parameter: its declaration (kind, unit, range, description, uncertainty)
+    /// and its get / set arms.
+    fn push_leaf(
+        &mut self,
+        f: &syn::Field,
+        ident: &syn::Ident,
+        key: &str,
+        attr: &syn::Attribute,
+        fa: FieldAttr,
+        sp: &Ts,
+    ) -> syn::Result<()> {
+        let mut decl = fa.decl;
+        if fa.choice {
             if decl.choices.is_some() {
                 return Err(syn::Error::new_spanned(
                     attr,
@@ -372,89 +445,50 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
             let ty = &f.ty;
             decl.choices = Some(syn::parse_quote!(#sp::variants::<#ty>()));
         }
-        let desc = decl
-            .desc
-            .ok_or_else(|| syn::Error::new_spanned(attr, "param: desc = \"…\" is required"))?;
         let sh = shape(&f.ty);
-        let kind = if let Some(c) = &decl.choices {
-            quote!(#sp::Kind::Choice(#c))
-        } else {
-            match sh {
-                Shape::Float | Shape::OptFloat => quote!(#sp::Kind::Float),
-                Shape::Int => quote!(#sp::Kind::Integer),
-                Shape::Bool => quote!(#sp::Kind::Bool),
-                Shape::FloatVec => quote!(#sp::Kind::FloatArray),
-                Shape::Other => {
-                    return Err(syn::Error::new_spanned(
-                        &f.ty,
-                        "param: type must be f64, Option<f64>, an integer, bool or Vec<f64>, \
-                         or the field needs choices = …",
-                    ))
-                }
-            }
-        };
-        let unit = match (&decl.unit, &decl.choices) {
-            (Some(u), _) => quote!(#u),
-            (None, Some(_)) => quote!("-"),
-            (None, None) => {
-                return Err(syn::Error::new_spanned(
-                    attr,
-                    "param: unit = \"…\" is required",
-                ))
-            }
-        };
-        let range = match (&decl.range, &decl.choices) {
-            (Some(r), _) => range_tokens(r),
-            (None, Some(_)) => quote!(#sp::Range::Finite),
-            (None, None) => {
-                return Err(syn::Error::new_spanned(
-                    attr,
-                    "param: range = … is required",
-                ))
-            }
-        };
-        let uncertain = match (&uncertain, &sh) {
-            (None, _) => quote!(),
-            (Some(u), Shape::Float | Shape::OptFloat) if decl.choices.is_none() => u.tokens(&sp),
-            (Some(_), _) => {
-                return Err(syn::Error::new_spanned(
-                    attr,
-                    "param: uncertain(…) only on a float parameter",
-                ))
-            }
-        };
-        declare.push(quote! {
-            out.push((#sp::join(prefix, #key), #sp::Override::apply(
-                over, #key, #sp::Param::new("", #unit, #range, #desc, #kind)#uncertain)));
+        let param = leaf_param(&decl, &f.ty, &sh, attr, fa.uncertain.as_ref(), sp)?;
+        self.declare.push(quote! {
+            out.push((#sp::join(prefix, #key), #sp::Override::apply(over, #key, #param)));
         });
         if decl.choices.is_some() {
-            get_arms.push(quote!(#key => None,));
-            set_arms.push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
-            continue;
+            self.get_arms.push(quote!(#key => None,));
+            self.set_arms
+                .push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
+            return Ok(());
         }
+        self.push_accessors(&sh, ident, key, sp);
+        Ok(())
+    }
+
+    /// The get / set arms of a leaf of shape `sh` (floats read and written; vectors by index).
+    fn push_accessors(&mut self, sh: &Shape, ident: &syn::Ident, key: &str, sp: &Ts) {
         match sh {
             Shape::Float => {
-                get_arms.push(quote!(#key => Some(self.#ident),));
-                set_arms.push(quote!(#key => { self.#ident = v; Ok(()) }));
+                self.get_arms.push(quote!(#key => Some(self.#ident),));
+                self.set_arms
+                    .push(quote!(#key => { self.#ident = v; Ok(()) }));
             }
             Shape::OptFloat => {
-                get_arms.push(quote!(#key => self.#ident,));
-                set_arms.push(quote!(#key => { self.#ident = Some(v); Ok(()) }));
+                self.get_arms.push(quote!(#key => self.#ident,));
+                self.set_arms
+                    .push(quote!(#key => { self.#ident = Some(v); Ok(()) }));
             }
             Shape::Int | Shape::Bool | Shape::Other => {
-                get_arms.push(quote!(#key => None,));
-                set_arms.push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
+                self.get_arms.push(quote!(#key => None,));
+                self.set_arms
+                    .push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
             }
             Shape::FloatVec => {
-                get_arms.push(quote!(#key => None,));
-                set_arms.push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
+                self.get_arms.push(quote!(#key => None,));
+                self.set_arms
+                    .push(quote!(#key => Err(#sp::PathErrorKind::NotFloat),));
                 let pfx = format!("{key}[");
-                vec_get.push(quote! {
+                self.vec_get.push(quote! {
                     if let Some(i) = #sp::index_of(path, #pfx) {
                         return self.#ident.get(i).copied();
                     }
                 });
-                vec_set.push(quote! {
+                self.vec_set.push(quote! {
                     if let Some(i) = #sp::index_of(path, #pfx) {
                         return match self.#ident.get_mut(i) {
                             Some(x) => { *x = v; Ok(()) }
@@ -465,35 +499,196 @@ fn expand(input: &DeriveInput) -> syn::Result<Ts> {
             }
         }
     }
-    let (ig, tg, wc) = input.generics.split_for_impl();
-    Ok(quote! {
-        impl #ig #sp::ParamTree for #name #tg #wc {
-            fn declare(
-                prefix: &str,
-                over: &[#sp::Override],
-                out: &mut ::std::vec::Vec<(::std::string::String, #sp::Param)>,
-            ) {
-                let _ = over;
-                #(#declare)*
-            }
-            fn param_get(&self, path: &str) -> Option<f64> {
-                #(#nested_get)*
-                #(#vec_get)*
-                match path {
-                    #(#get_arms)*
-                    _ => None,
+
+    /// The `ParamTree` impl of `input` from the gathered pieces.
+    fn impl_tokens(&self, input: &DeriveInput, sp: &Ts) -> Ts {
+        let name = &input.ident;
+        let Pieces {
+            declare,
+            get_arms,
+            set_arms,
+            nested_get,
+            nested_set,
+            vec_get,
+            vec_set,
+        } = self;
+        let (ig, tg, wc) = input.generics.split_for_impl();
+        quote! {
+            impl #ig #sp::ParamTree for #name #tg #wc {
+                fn declare(
+                    prefix: &str,
+                    over: &[#sp::Override],
+                    out: &mut ::std::vec::Vec<(::std::string::String, #sp::Param)>,
+                ) {
+                    let _ = over;
+                    #(#declare)*
                 }
-            }
-            fn param_set(&mut self, path: &str, v: f64, tpl: Option<&Self>)
-                -> Result<(), #sp::PathErrorKind> {
-                let _ = tpl;
-                #(#nested_set)*
-                #(#vec_set)*
-                match path {
-                    #(#set_arms)*
-                    _ => Err(#sp::PathErrorKind::Unknown),
+                fn param_get(&self, path: &str) -> Option<f64> {
+                    #(#nested_get)*
+                    #(#vec_get)*
+                    match path {
+                        #(#get_arms)*
+                        _ => None,
+                    }
+                }
+                fn param_set(&mut self, path: &str, v: f64, tpl: Option<&Self>)
+                    -> Result<(), #sp::PathErrorKind> {
+                    let _ = tpl;
+                    #(#nested_set)*
+                    #(#vec_set)*
+                    match path {
+                        #(#set_arms)*
+                        _ => Err(#sp::PathErrorKind::Unknown),
+                    }
                 }
             }
         }
-    })
+    }
+}
+
+/// A leaf's `spec::Param` expression: kind from the type (or its choices), unit, range,
+/// the required description and the optional uncertainty.
+fn leaf_param(
+    decl: &Decl,
+    ty: &Type,
+    sh: &Shape,
+    attr: &syn::Attribute,
+    uncertain: Option<&UncertainDecl>,
+    sp: &Ts,
+) -> syn::Result<Ts> {
+    let desc = decl
+        .desc
+        .as_ref()
+        .ok_or_else(|| syn::Error::new_spanned(attr, "param: desc = \"…\" is required"))?;
+    let kind = if let Some(c) = &decl.choices {
+        quote!(#sp::Kind::Choice(#c))
+    } else {
+        match sh {
+            Shape::Float | Shape::OptFloat => quote!(#sp::Kind::Float),
+            Shape::Int => quote!(#sp::Kind::Integer),
+            Shape::Bool => quote!(#sp::Kind::Bool),
+            Shape::FloatVec => quote!(#sp::Kind::FloatArray),
+            Shape::Other => {
+                return Err(syn::Error::new_spanned(
+                    ty,
+                    "param: type must be f64, Option<f64>, an integer, bool or Vec<f64>, \
+                     or the field needs choices = …",
+                ))
+            }
+        }
+    };
+    let unit = match (&decl.unit, &decl.choices) {
+        (Some(u), _) => quote!(#u),
+        (None, Some(_)) => quote!("-"),
+        (None, None) => {
+            return Err(syn::Error::new_spanned(
+                attr,
+                "param: unit = \"…\" is required",
+            ))
+        }
+    };
+    let range = match (&decl.range, &decl.choices) {
+        (Some(r), _) => range_tokens(r),
+        (None, Some(_)) => quote!(#sp::Range::Finite),
+        (None, None) => {
+            return Err(syn::Error::new_spanned(
+                attr,
+                "param: range = … is required",
+            ))
+        }
+    };
+    let uncertain = match (uncertain, sh) {
+        (None, _) => quote!(),
+        (Some(u), Shape::Float | Shape::OptFloat) if decl.choices.is_none() => u.tokens(sp),
+        (Some(_), _) => {
+            return Err(syn::Error::new_spanned(
+                attr,
+                "param: uncertain(…) only on a float parameter",
+            ))
+        }
+    };
+    Ok(quote!(#sp::Param::new("", #unit, #range, #desc, #kind)#uncertain))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The error `expand` gives for `input`, or `None` if it expands.
+    fn error_of(input: DeriveInput) -> Option<String> {
+        expand(&input).err().map(|e| e.to_string())
+    }
+
+    #[test]
+    fn a_complete_leaf_expands_to_its_declaration_and_accessors() {
+        let ts = expand(&syn::parse_quote! {
+            struct S {
+                #[param(unit = "m", range = Positive, desc = "stroke")]
+                stroke: f64,
+                plain: u32,
+            }
+        })
+        .unwrap()
+        .to_string();
+        assert!(ts.contains("\"stroke\" => Some (self . stroke)"), "{ts}");
+        assert!(ts.contains("\"m\""), "{ts}");
+        assert!(
+            !ts.contains("plain"),
+            "a field without #[param] is not declared: {ts}"
+        );
+    }
+
+    #[test]
+    fn every_missing_or_contradicting_item_is_an_error_naming_it() {
+        let cases: [(DeriveInput, &str); 7] = [
+            (
+                syn::parse_quote! { struct S { #[param(unit = "m", range = Positive)] x: f64 } },
+                "desc = \"…\" is required",
+            ),
+            (
+                syn::parse_quote! { struct S { #[param(range = Positive, desc = "d")] x: f64 } },
+                "unit = \"…\" is required",
+            ),
+            (
+                syn::parse_quote! { struct S { #[param(unit = "m", desc = "d")] x: f64 } },
+                "range = … is required",
+            ),
+            (
+                syn::parse_quote! { struct S { #[param(unit = "m", range = Positive, desc = "d")] x: String } },
+                "type must be f64",
+            ),
+            (
+                syn::parse_quote! { struct S { #[param(choice, choices = NAMES, desc = "d")] x: E } },
+                "exclude each other",
+            ),
+            (
+                syn::parse_quote! { struct S { #[param(nested, uncertain(order = 1))] x: T } },
+                "on a leaf, not on a nested section",
+            ),
+            (
+                syn::parse_quote! { #[serde(rename_all = "snake_case")] struct S { x: f64 } },
+                "rename_all / rename on the struct",
+            ),
+        ];
+        for (input, want) in cases {
+            let got = error_of(input).unwrap_or_default();
+            assert!(
+                got.contains(want),
+                "expected an error with {want:?}, got {got:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn uncertainty_only_on_a_float_leaf() {
+        let got = error_of(syn::parse_quote! {
+            struct S { #[param(unit = "-", range = Finite, desc = "d", uncertain(order = 1))] n: u32 }
+        });
+        assert!(
+            got.as_deref()
+                .unwrap_or("")
+                .contains("only on a float parameter"),
+            "{got:?}"
+        );
+    }
 }
