@@ -304,11 +304,8 @@ fn excitation(cfg: &RigConfig, opts: &SweepOptions<'_>) -> Result<Excitation, An
         };
         (u0, "valve command (V)".to_string())
     } else {
-        let unit = if cfg.control.mode == ControlMode::Force {
-            "N"
-        } else {
-            "m"
-        };
+        // closed loop: force (N) or position (m)
+        let unit = cfg.control.mode.unit();
         (operating_reference(sp), format!("setpoint ({unit})"))
     };
     let default_amp = if !open_loop && sp.amplitude > 0.0 {

@@ -71,13 +71,8 @@ fn fmt_opt(v: Option<f64>, unit: &str) -> String {
 /// chamber pressures, rod force, and whether and when the loop came to rest.
 fn operating_point_text(op: &serde_json::Value, mode: ehactl_config::ControlMode) -> String {
     use crate::sig;
-    use ehactl_config::ControlMode;
     let num = |k: &str| op[k].as_f64().unwrap_or(f64::NAN);
-    let unit = match mode {
-        ControlMode::Force => "N",
-        ControlMode::Position => "m",
-        ControlMode::OpenLoop => "V",
-    };
+    let unit = mode.unit();
     let x = num("position_m");
     let position = if x.abs() < 1e-3 {
         format!("{} µm", sig(x * 1e6, 4))

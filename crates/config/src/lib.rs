@@ -33,6 +33,18 @@ pub enum ControlMode {
     OpenLoop,
 }
 
+impl ControlMode {
+    /// Unit of the reference and the controlled variable: N (force), m (position), V (open
+    /// loop: the valve command).
+    pub fn unit(self) -> &'static str {
+        match self {
+            ControlMode::Force => "N",
+            ControlMode::Position => "m",
+            ControlMode::OpenLoop => "V",
+        }
+    }
+}
+
 /// PI section `[control.pi]`.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Params)]
 #[serde(deny_unknown_fields)]

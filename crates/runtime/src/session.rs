@@ -15,7 +15,7 @@ use crate::live::LiveParams;
 use crate::realtime::{RtOptions, WallClockPacer};
 use crate::runloop::{run_loop, LoopSettings, RunOutcome};
 use crate::sim::SimHal;
-use ehactl_config::{Compression, ControlMode, RigConfig};
+use ehactl_config::{Compression, RigConfig};
 use ehactl_control::controller::Controller;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
@@ -546,7 +546,7 @@ pub fn run_with_live(
         substeps,
         log: None,
         records,
-        unit: controlled_unit(cfg.control.mode),
+        unit: cfg.control.mode.unit(),
         backend_report: hal.report(),
         timing,
         log_every: opts.log_every.max(1),
@@ -562,16 +562,6 @@ fn config_as_run(cfg: &RigConfig, duration: Option<f64>) -> RigConfig {
         cfg_run.run.duration = d;
     }
     cfg_run
-}
-
-/// Unit of the variable `mode` controls: N (force), m (position), V (open loop: the valve
-/// command).
-fn controlled_unit(mode: ControlMode) -> &'static str {
-    match mode {
-        ControlMode::Force => "N",
-        ControlMode::Position => "m",
-        ControlMode::OpenLoop => "V",
-    }
 }
 
 /// The MCAP log of a run while it is written: none without an `mcap` path; with
