@@ -749,6 +749,29 @@ fn to_ns(t: f64) -> u64 {
     (t.max(0.0) * 1e9).round() as u64
 }
 
+/// `/can` of `w`, added on first use (`ch_can` holds it then).
+fn can_channel(w: &mut Writer, ch_can: &mut Option<u16>) -> Result<u16, String> {
+    if let Some(c) = *ch_can {
+        return Ok(c);
+    }
+    let schema = serde_json::json!({"type": "object", "properties": {
+        "t": {"type": "number", "description": "time from the start of the control loop (s); negative during start-up"},
+        "id": {"type": "integer", "description": "CAN identifier"},
+        "ext": {"type": "boolean", "description": "29-bit identifier"},
+        "dlc": {"type": "integer", "description": "data length (bytes)"},
+        "data": {"type": "string", "description": "data bytes, hex"},
+        "dir": {"type": "string", "enum": ["rx", "tx"], "description": "received or sent by ehactl"}}})
+    .to_string();
+    let s = w
+        .add_schema("ehactl.CanFrame", "jsonschema", schema.as_bytes())
+        .map_err(io_error)?;
+    let c = w
+        .add_channel(s, "/can", "json", &BTreeMap::new())
+        .map_err(io_error)?;
+    *ch_can = Some(c);
+    Ok(c)
+}
+
 impl WriterThread {
     fn new(w: Writer, sh: Arc<Shared>, ch: Channels, chunk_ns: u64) -> WriterThread {
         WriterThread {
@@ -879,35 +902,10 @@ impl WriterThread {
         Ok(any)
     }
 
-    /// `/can`, added on first use.
-    fn can_channel(&mut self) -> Result<u16, String> {
-        if let Some(c) = self.ch_can {
-            return Ok(c);
-        }
-        let schema = serde_json::json!({"type": "object", "properties": {
-            "t": {"type": "number", "description": "time from the start of the control loop (s); negative during start-up"},
-            "id": {"type": "integer", "description": "CAN identifier"},
-            "ext": {"type": "boolean", "description": "29-bit identifier"},
-            "dlc": {"type": "integer", "description": "data length (bytes)"},
-            "data": {"type": "string", "description": "data bytes, hex"},
-            "dir": {"type": "string", "enum": ["rx", "tx"], "description": "received or sent by ehactl"}}})
-        .to_string();
-        let s = self
-            .w
-            .add_schema("ehactl.CanFrame", "jsonschema", schema.as_bytes())
-            .map_err(io_error)?;
-        let c = self
-            .w
-            .add_channel(s, "/can", "json", &BTreeMap::new())
-            .map_err(io_error)?;
-        self.ch_can = Some(c);
-        Ok(c)
-    }
-
     /// Up to [`BATCH`] CAN frames, or while closing every frame queued now (the I/O threads
     /// may still be receiving); true if there was any.
     fn take_frames(&mut self, closing: bool) -> Result<bool, String> {
-        let Some(fl) = self.sh.frames.get().cloned() else {
+        let Some(fl) = self.sh.frames.get() else {
             return Ok(false);
         };
         let limit = if closing { fl.len() } else { usize::MAX };
@@ -915,7 +913,7 @@ impl WriterThread {
         while n < limit {
             let Some(f) = fl.pop() else { break };
             n += 1;
-            let ch = self.can_channel()?;
+            let ch = can_channel(&mut self.w, &mut self.ch_can)?;
             let ns = f.t_ns.max(0) as u64;
             let seq = self.frames_written as u32;
             self.w
