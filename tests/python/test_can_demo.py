@@ -16,9 +16,9 @@ replaced, up to a bound. The last of those was seen in CI: one loop cycle of 62.
 thread CPU reading equalled its wall time, ehactl's heartbeat 66.3 ms apart at the hub, the
 devices' heartbeats at most 21.1 ms apart there and the sleeper late by 3.5 ms, and ehactl's
 consumer tripped on the transducer (a whole-process stop of ehactl for 62 ms, SIGSTOP /
-SIGCONT, does not trip it: 3 of 3; its receive thread's gap was not reported then). The last one was seen on this 2-core VM
-running the suite: a 108 ms gap of ehactl's heartbeat at the hub, one cycle of 91.4 ms whose
-thread CPU reading equalled its wall time (the reading ran ahead of the wall clock 59 times
+SIGCONT, does not trip it: 3 of 3; its receive thread's gap was not reported then). An
+earlier one was seen on this 2-core VM running the suite: a 108 ms gap of ehactl's heartbeat
+at the hub, one cycle of 91.4 ms whose thread CPU reading equalled its wall time (the reading ran ahead of the wall clock 59 times
 in that run, `exec_cpu_clamped`, so on this VM it cannot tell the host not running the vCPU
 from ehactl's own work), while this process's sleeper overslept 4 ms. This excuse would also
 hide a cycle of ehactl's that really spends that long: no other test bounds a CAN cycle's

@@ -615,11 +615,15 @@ mod tests {
             let mut fr = Framer::new();
             let mut buf = [0u8; 256];
             c.write_all(b"< hi >").unwrap();
-            for _ in ["< open can0 >", "< rawmode >"] {
-                while fr.next_message().unwrap().is_none() {
+            for want in ["< open can0 >", "< rawmode >"] {
+                let got = loop {
+                    if let Some(m) = fr.next_message().unwrap() {
+                        break m.to_string();
+                    }
                     let n = c.read(&mut buf).unwrap();
                     fr.push(&buf[..n]);
-                }
+                };
+                assert_eq!(got, want, "the client's handshake");
                 c.write_all(b"< ok >").unwrap();
             }
             c.write_all(frames).unwrap();
