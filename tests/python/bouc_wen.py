@@ -31,15 +31,25 @@ A_BW = 301.0
 N_BW = 2
 
 
-def coefficients(current: float) -> tuple[float, float, float]:
+def coil(current: float, saturation: float | None = None) -> float:
+    """The coil input the coefficients are affine in: the current itself (A), or with a
+    magnetic `saturation` scale i_s (A) the saturating (1 − e^(−i/i_s)) / (1 − e^(−1/i_s)),
+    equal to the current at 0 and 1 A and bending between."""
+    if saturation is None:
+        return current
+    return (1.0 - np.exp(-current / saturation)) / (1.0 - np.exp(-1.0 / saturation))
+
+
+def coefficients(current: float, saturation: float | None = None) -> tuple[float, float, float]:
     """α (N/m), c₀ (N·s/m), c₁ (N·s/m) at the coil input `current` (A, as the paper's V)."""
-    return ALPHA_A + ALPHA_B * current, C0A + C0B * current, C1A + C1B * current
+    u = coil(current, saturation)
+    return ALPHA_A + ALPHA_B * u, C0A + C0B * u, C1A + C1B * u
 
 
-def force(t: np.ndarray, x, v, current: float) -> np.ndarray:
+def force(t: np.ndarray, x, v, current: float, saturation: float | None = None) -> np.ndarray:
     """Damper force (N) at times `t` (s) for the displacement x(t) (m) and velocity v(t) (m/s),
-    given as functions of time, at a constant `current` (A)."""
-    alpha, c0, c1 = coefficients(current)
+    given as functions of time, at a constant `current` (A); `saturation`: see :func:`coil`."""
+    alpha, c0, c1 = coefficients(current, saturation)
 
     def rhs(tt, s):
         y, z = s
@@ -79,12 +89,12 @@ def random_history(seed: int, rms: float, f_max: float, duration: float):
 
 
 def record(motion, current: float, duration: float, rate: float = 1000.0,
-           noise: float = 2.0, seed: int = 0) -> dict[str, np.ndarray]:
+           noise: float = 2.0, seed: int = 0, saturation: float | None = None) -> dict[str, np.ndarray]:
     """One motion-only test: columns t (s), x (m), force (N, with `noise` N rms white load-cell
-    noise), current (A)."""
+    noise), current (A); `saturation`: the coil's, see :func:`coil`."""
     x, v = motion
     t = np.arange(int(round(duration * rate))) / rate
-    f = force(t, x, v, current)
+    f = force(t, x, v, current, saturation)
     rng = np.random.default_rng(seed)
     return {
         "t": t,

@@ -179,7 +179,8 @@ pub struct PredictSwitches {
     pub json: bool,
 }
 
-/// `ehactl predict`: exit 0 ok, 2 bad config, data or --out, 1 I/O failure.
+/// `ehactl predict`: exit 0 ok, 2 bad config, data or --out, 1 I/O failure, 5 a replay
+/// diverged (the results are printed and written all the same).
 pub fn cmd_predict(
     config: &Path,
     data: &[PathBuf],
@@ -208,28 +209,48 @@ pub fn cmd_predict(
     for w in &run.warnings {
         eprintln!("ehactl: warning: {w}");
     }
+    let status = if run.predictions.iter().any(|p| p.diverged.is_some()) {
+        ExitCode::from(5)
+    } else {
+        ExitCode::SUCCESS
+    };
     if sw.json {
         println!("{}", run.json);
-        return ExitCode::SUCCESS;
+        return status;
     }
     for p in &run.predictions {
-        let op = ehactl_config::inputs::describe_point(&p.operating_point);
-        println!(
-            "{} ({} replay{}{}): NRMSE {:.4} over samples {}..{}",
-            p.source,
-            p.replay.replace('_', "-"),
-            if op.is_empty() { "" } else { " at " },
-            op,
-            p.nrmse.overall,
-            p.scored.0,
-            p.scored.1
-        );
+        println!("{}", prediction_line(p));
         for (c, e) in &p.nrmse.channels {
-            println!("  {c:<6} {e:.4}");
+            match e {
+                Some(e) => println!("  {c:<6} {e:.4}"),
+                None => println!("  {c:<6} —"),
+            }
         }
     }
     for f in &run.files {
         println!("wrote {}", f.display());
     }
-    ExitCode::SUCCESS
+    status
+}
+
+/// The summary line of one prediction: its score (or where it diverged) and whether it lies
+/// inside the model's fitted envelope.
+fn prediction_line(p: &ehactl_ident::predict::Prediction) -> String {
+    let op = ehactl_config::inputs::describe_point(&p.operating_point);
+    let score = match (&p.diverged, p.nrmse.overall) {
+        (Some(d), _) => format!("DIVERGED at t = {:.4} s: {}; no NRMSE", d.t, d.reason),
+        (None, Some(e)) => format!("NRMSE {e:.4} over samples {}..{}", p.scored.0, p.scored.1),
+        (None, None) => "no NRMSE".to_string(),
+    };
+    let envelope = p
+        .envelope
+        .as_ref()
+        .map_or(String::new(), |e| format!("; {}", e.describe()));
+    format!(
+        "{} ({} replay{}{}): {score}{envelope}",
+        p.source,
+        p.replay.replace('_', "-"),
+        if op.is_empty() { "" } else { " at " },
+        op,
+    )
 }

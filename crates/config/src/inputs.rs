@@ -9,10 +9,18 @@
 //! [inputs.current.linear]       # ∂p/∂current of each dependent parameter (its unit per A)
 //! "effects.polynomial_force.dahl" = 1027.0
 //! [inputs.current.quadratic]    # ½·∂²p/∂current² (its unit per A²), optional
+//! [inputs.current.saturating."effects.polynomial_force.coulomb"]  # optional
+//! gain = 850.0           # g (the parameter's unit): the rise from i = 0 to saturation
+//! scale = 0.25           # i_s (A): the input at which 63 % of the rise is reached
 //! ```
 //!
-//! A parameter p with dependences is p(i) = p₀ + a·(i − i₀) + b·(i − i₀)² where p₀ is the
-//! value the plant section states and i₀ the input's `value`: the plant section stays the
+//! A parameter p with dependences is
+//! p(i) = p₀ + a·(i − i₀) + b·(i − i₀)² + g·(e^(−i₀/i_s) − e^(−i/i_s)) where p₀ is the
+//! value the plant section states and i₀ the input's `value` (the saturating part is the
+//! magnetic saturation of an MR damper's coil, g·(1 − e^(−i/i_s)): Spencer, Dyke, Sain &
+//! Carlson 1997, J. Eng. Mech. 123(3):230–238 take the damper's coefficients affine in the
+//! coil's filtered voltage; the exponential rise is the saturating form a campaign fits,
+//! crates/ident/src/campaign.rs): the plant section stays the
 //! model at its own operating point (so `ehactl run` needs nothing else), and a record logged
 //! at another operating point is replayed with [`plant_at`]. A record column named like
 //! a declared input carries it (`ehactl diagnose`, `ehactl predict`); an undeclared column is an
@@ -38,6 +46,26 @@ pub struct OperatingInput {
     /// Quadratic coefficients ½·∂²p/∂input² by parameter path (its unit per `unit`²).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub quadratic: BTreeMap<String, f64>,
+    /// Saturating dependences g·(1 − e^(−i/i_s)) by parameter path.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub saturating: BTreeMap<String, Saturating>,
+}
+
+/// A saturating dependence of a parameter on an input: g·(1 − e^(−i/i_s)).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Saturating {
+    /// g: the rise from i = 0 to saturation (the parameter's unit).
+    pub gain: f64,
+    /// i_s: the input at which 1 − 1/e of the rise is reached (the input's unit, > 0).
+    pub scale: f64,
+}
+
+impl Saturating {
+    /// g·(1 − e^(−i/i_s)) at input `i`.
+    pub fn at(&self, i: f64) -> f64 {
+        self.gain * (1.0 - (-i / self.scale).exp())
+    }
 }
 
 /// The `[inputs]` section: declared operating inputs by name (a record's column name).
@@ -98,6 +126,30 @@ pub fn validate(inputs: &Inputs, plant: &PlantParams) -> Result<(), ConfigError>
                 }
             }
         }
+        for (path, s) in &inp.saturating {
+            let here = at(&format!(".saturating.\"{path}\""));
+            if plant.get_path(path).is_none() {
+                return Err(ConfigError::new(
+                    here,
+                    format!("`{path}` is not a float parameter present in this config's plant; expected the dotted path of one (see `ehactl params`)"),
+                ));
+            }
+            if !s.gain.is_finite() {
+                return Err(ConfigError::new(
+                    here,
+                    format!("gain {} is not finite", s.gain),
+                ));
+            }
+            if !(s.scale.is_finite() && s.scale > 0.0) {
+                return Err(ConfigError::new(
+                    here,
+                    format!(
+                        "scale {} is not a positive finite number; expected the input ({}) at which 63 % of the rise is reached",
+                        s.scale, inp.unit
+                    ),
+                ));
+            }
+        }
     }
     Ok(())
 }
@@ -132,15 +184,24 @@ pub fn plant_at(
         if d == 0.0 {
             continue;
         }
-        let paths: std::collections::BTreeSet<&String> =
-            inp.linear.keys().chain(inp.quadratic.keys()).collect();
+        let paths: std::collections::BTreeSet<&String> = inp
+            .linear
+            .keys()
+            .chain(inp.quadratic.keys())
+            .chain(inp.saturating.keys())
+            .collect();
         for path in paths {
             let Some(v) = p.get_path(path) else {
                 return Err(format!("inputs.{name}: `{path}` is not in the plant"));
             };
             let a = inp.linear.get(path).copied().unwrap_or(0.0);
             let b = inp.quadratic.get(path).copied().unwrap_or(0.0);
-            let new = v + a * d + b * d * d;
+            let i = at.get(name).copied().unwrap_or(inp.value);
+            let sat = inp
+                .saturating
+                .get(path)
+                .map_or(0.0, |s| s.at(i) - s.at(inp.value));
+            let new = v + a * d + b * d * d + sat;
             p.set_path(path, new).map_err(|e| {
                 format!(
                     "inputs.{name} = {} {}: `{path}` becomes {new}: {e}",

@@ -18,6 +18,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::LazyLock;
 
+pub mod envelope;
 pub mod inputs;
 pub mod tree;
 
@@ -388,6 +389,9 @@ pub struct RigConfig {
     /// Declared operating inputs (`[inputs.<name>]`, [`inputs`]): record columns that set the
     /// operating point, and the plant parameters that depend on them.
     pub inputs: inputs::Inputs,
+    /// What a fitted law in this config was fitted on (`[envelope]`, [`envelope`]); `None`
+    /// when the config makes no such claim.
+    pub envelope: Option<envelope::Envelope>,
 }
 
 /// Control, setpoint, supervisor, run, log and realtime parameters, generated from the
@@ -421,9 +425,10 @@ pub fn registries() -> [&'static [Param]; 3] {
     [spec::params(), control_params(), canopen_params()]
 }
 
-const RIG_KEYS: [&str; 9] = [
+const RIG_KEYS: [&str; 10] = [
     "rig",
     "inputs",
+    "envelope",
     "control",
     "setpoint",
     "supervisor",
@@ -494,6 +499,8 @@ impl RigConfig {
         let tables = registries();
         // `[inputs]` names its own keys (input names, parameter paths): not registry entries.
         let inputs_value = value.as_table_mut().and_then(|t| t.remove("inputs"));
+        // `[envelope]` is a record of fitted data, not parameters either.
+        let envelope_value = value.as_table_mut().and_then(|t| t.remove("envelope"));
         tree::check_tree(&mut value, &tables)?;
         let toml::Value::Table(mut root) = value else {
             return Err(ConfigError::new("", "config must be a TOML table"));
@@ -526,6 +533,18 @@ impl RigConfig {
                 ))
             }
         };
+        let envelope = match envelope_value {
+            None => None,
+            Some(v) if v.is_table() => Some(serde_path_to_error::deserialize(v).map_err(|e| {
+                ConfigError::new(format!("envelope.{}", e.path()), e.inner().to_string())
+            })?),
+            Some(v) => {
+                return Err(ConfigError::new(
+                    "envelope",
+                    format!("expected a table [envelope], got {}", v.type_str()),
+                ))
+            }
+        };
         let cfg = RigConfig {
             rig,
             plant,
@@ -537,6 +556,7 @@ impl RigConfig {
             canopen,
             realtime,
             inputs,
+            envelope,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -546,6 +566,9 @@ impl RigConfig {
     pub fn validate(&self) -> Result<(), ConfigError> {
         ehactl_plant::model::validate(&self.plant)?;
         inputs::validate(&self.inputs, &self.plant)?;
+        if let Some(env) = &self.envelope {
+            envelope::validate(env, &self.inputs)?;
+        }
         match self.control.mode {
             ControlMode::Force if self.control.pi.is_none() => {
                 return Err(ConfigError::new(
@@ -779,6 +802,9 @@ impl RigConfig {
         put("realtime", toml::Value::try_from(&self.realtime));
         if !self.inputs.is_empty() {
             put("inputs", toml::Value::try_from(&self.inputs));
+        }
+        if let Some(env) = &self.envelope {
+            put("envelope", toml::Value::try_from(env));
         }
         toml::Value::Table(root)
     }

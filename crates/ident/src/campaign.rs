@@ -213,8 +213,10 @@ impl Normal {
         (self.yy - self.ysum * self.ysum / self.n.max(1.0)).max(1e-300)
     }
 
-    /// Least-squares coefficients on columns `cols` (scaled to unit diagonal, tiny ridge).
-    fn solve(&self, cols: &[usize]) -> Option<DVector<f64>> {
+    /// Least-squares coefficients on columns `cols` (scaled to unit diagonal, tiny ridge),
+    /// each term's coefficient held admissible at the operating points of `ex`
+    /// ([`Admissible`], [`crate::signlsq`]).
+    fn solve(&self, cols: &[usize], ex: &Expanded) -> Option<DVector<f64>> {
         let p = cols.len();
         if p == 0 {
             return Some(DVector::zeros(0));
@@ -232,11 +234,8 @@ impl Normal {
             }
             g[(r, r)] += 1e-10;
         }
-        let th = g
-            .clone()
-            .cholesky()
-            .map(|ch| ch.solve(&b))
-            .or_else(|| g.svd(true, true).solve(&b, 1e-12).ok())?;
+        let (c, h) = constraints(ex, cols, &d);
+        let th = crate::signlsq::solve(&g, &b, &c, &h)?;
         Some(DVector::from_iterator(
             p,
             th.iter().zip(&d).map(|(t, s)| t * s),
@@ -256,6 +255,38 @@ impl Normal {
     }
 }
 
+/// The rows C and offsets h of the admissibility constraints C·θ̃ + h ≥ 0 on the scaled
+/// coefficients θ̃ (θ = d·θ̃) of columns `cols`: per bounded term and grid point, the
+/// coefficient there, c₀ + Σ c_b·basis_b(i), at least its floor.
+fn constraints(ex: &Expanded, cols: &[usize], d: &[f64]) -> (DMatrix<f64>, DVector<f64>) {
+    let adm = &ex.admissible;
+    let mut terms: Vec<usize> = cols.iter().map(|&c| ex.cols[c].term).collect();
+    terms.sort_unstable();
+    terms.dedup();
+    let (mut rows, mut h) = (Vec::new(), Vec::new());
+    for t in terms {
+        let Some(floor) = adm.floor.get(t).copied().flatten() else {
+            continue;
+        };
+        for q in &adm.grid {
+            rows.extend(cols.iter().zip(d).map(|(&c, s)| {
+                let col = ex.cols[c];
+                let basis = match col.part {
+                    _ if col.term != t => 0.0,
+                    None => 1.0,
+                    Some((k, slot)) => ex.forms[k][slot / 2].basis(q[k])[slot % 2].unwrap_or(0.0),
+                };
+                basis * s
+            }));
+            h.push(-floor);
+        }
+    }
+    (
+        DMatrix::from_row_slice(h.len(), cols.len(), &rows),
+        DVector::from_vec(h),
+    )
+}
+
 /// Columns of the expanded library: term × (constant, basis 1, basis 2 per input and form).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Column {
@@ -270,6 +301,51 @@ struct Expanded {
     cols: Vec<Column>,
     /// Forms per input whose bases the columns carry: the union used below.
     forms: Vec<Vec<Form>>,
+    /// Where each library term's coefficient must stay admissible (see [`Admissible`]).
+    admissible: Admissible,
+}
+
+/// The sign physics gives the law's coefficients, held at operating points spanning the
+/// fitted ones: viscous, yield, quadratic and Dahl forces and pressure-dependent friction
+/// dissipate (coefficient ≥ 0), and a passive element's stiffness keeps the total stiffness
+/// with the config's load spring ≥ 0 (k + k_load ≥ 0). The constant and the load-pressure
+/// area take either sign. Enforced in every least-squares fit of the campaign
+/// ([`crate::signlsq`]), so the term selection and the input dependences only ever compare
+/// admissible laws.
+#[derive(Debug, Clone, Default)]
+struct Admissible {
+    /// Per library term: the lower bound of its coefficient, −h (h ≥ 0), or `None` if free.
+    floor: Vec<Option<f64>>,
+    /// Operating points (one value per input) at which the bound is held: the fitted values
+    /// and, with one input, 9 points evenly across their range (a quadratic dependence may
+    /// dip between the fitted points).
+    grid: Vec<Vec<f64>>,
+}
+
+impl Admissible {
+    fn new(library: &[LawTerm], load_stiffness: f64, fitted: &[Vec<f64>]) -> Self {
+        let floor = library
+            .iter()
+            .map(|t| match t {
+                LawTerm::Constant | LawTerm::Pressure => None,
+                LawTerm::Stiffness => Some(-load_stiffness.max(0.0)),
+                _ => Some(0.0),
+            })
+            .collect();
+        let mut grid: Vec<Vec<f64>> = fitted.to_vec();
+        if fitted.first().is_some_and(|p| p.len() == 1) {
+            let lo = fitted.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min);
+            let hi = fitted
+                .iter()
+                .map(|p| p[0])
+                .fold(f64::NEG_INFINITY, f64::max);
+            grid.extend((0..9).map(|k| vec![lo + (hi - lo) * k as f64 / 8.0]));
+        }
+        if grid.is_empty() {
+            grid.push(Vec::new());
+        }
+        Admissible { floor, grid }
+    }
 }
 
 /// Per shape: normal equations per record for the transfer-fit segment (A), the
@@ -334,6 +410,8 @@ pub struct Campaign {
     pub baseline: String,
     /// Notes (inputs taken from the config, warnings of the records).
     pub notes: Vec<String>,
+    /// The extended config's closed-loop replays against the nominal one's.
+    pub closed_loop: ClosedLoopCheck,
     /// The extended config (the law written into `[effects.polynomial_force]` at the config's
     /// operating point, the dependences into `[inputs.<name>]`).
     #[serde(skip)]
@@ -382,6 +460,9 @@ pub struct RecordScore {
     pub scored: (usize, usize),
     /// Force NRMSE on the scored samples.
     pub nrmse: Scores,
+    /// Whether the scored samples lie inside the motion and operating inputs the law was
+    /// fitted on ([`crate::envelope`]).
+    pub envelope: crate::envelope::EnvelopeCheck,
 }
 
 /// Display name and unit of a term.
@@ -416,8 +497,11 @@ pub fn diagnose_campaign(
     let (shape, structure, j_shape) = choose_shape(&su)?;
     let fitted = fit_law(&su, shape, structure, j_shape)?;
     let terms = rank_terms(&su, &fitted);
-    let (records, pooled, baseline) = score(cfg, &su, &fitted.law)?;
-    let extended = fitted.law.extended(cfg, &su.names)?;
+    let envelope = fitted_envelope(&su, fitted.law.shape.velocity_window);
+    let (records, pooled, baseline) = score(cfg, &su, &fitted.law, &envelope)?;
+    let mut extended = fitted.law.extended(cfg, &su.names)?;
+    extended.envelope = Some(envelope);
+    let closed_loop = closed_loop_check(cfg, &extended, fit.iter().chain(validation));
     let cause = cause_of(&terms, cfg, &su.names);
     let travel = fitted
         .law
@@ -432,7 +516,9 @@ pub fn diagnose_campaign(
         fitted.law.shape,
         &fitted.dependence_check,
         &baseline,
-    ) + &travel;
+    ) + &travel
+        + "\n"
+        + &closed_loop.describe();
     Ok(Campaign {
         cause,
         summary,
@@ -445,8 +531,65 @@ pub fn diagnose_campaign(
         nrmse_transfer: fitted.j_transfer.sqrt(),
         baseline,
         notes: su.notes,
+        closed_loop,
         extended,
     })
+}
+
+/// The extended config replayed in closed loop (the config's own controller on the record's
+/// setpoint `ref`, as `ehactl predict` replays it) beside the nominal config, on every record
+/// with a setpoint.
+#[derive(Debug, Clone, Serialize)]
+pub struct ClosedLoopCheck {
+    /// Records replayed in closed loop.
+    pub records: usize,
+    /// Why the law was dropped: the extended config's replay of a record diverged
+    /// ([`crate::predict::check_divergence`]) where the nominal one stayed bounded. `None`:
+    /// kept.
+    pub dropped: Option<String>,
+}
+
+impl ClosedLoopCheck {
+    /// One sentence for the summary and the report.
+    pub fn describe(&self) -> String {
+        match (&self.dropped, self.records) {
+            (Some(why), _) => format!("The law is DROPPED and no extended.toml is written: {why}."),
+            (None, 0) => "Closed-loop check: no record has a setpoint `ref`, so the extended config was not replayed in closed loop.".into(),
+            (None, n) => format!("Closed-loop check: the extended config replayed in closed loop on the {n} record(s) with a setpoint stays within physical bounds (crates/ident/src/predict.rs, check_divergence)."),
+        }
+    }
+}
+
+/// Replay `ext` and `cfg` in closed loop on each record with a setpoint; the first record on
+/// which `ext` diverges and `cfg` does not drops the law.
+fn closed_loop_check<'r>(
+    cfg: &RigConfig,
+    ext: &RigConfig,
+    records: impl Iterator<Item = &'r Record>,
+) -> ClosedLoopCheck {
+    let mut n = 0;
+    for rec in records.filter(|r| r.reference.is_some()) {
+        let run = |c: &RigConfig| crate::predict::predict(c, rec, false, None);
+        let Ok(e) = run(ext) else { continue };
+        if e.replay != "closed_loop" {
+            continue;
+        }
+        n += 1;
+        let Some(d) = e.diverged else { continue };
+        if run(cfg).is_ok_and(|p| p.diverged.is_none()) {
+            return ClosedLoopCheck {
+                records: n,
+                dropped: Some(format!(
+                    "its closed-loop replay of {} diverged at t = {:.4} s ({}) where the nominal config stays bounded",
+                    rec.source, d.t, d.reason
+                )),
+            };
+        }
+    }
+    ClosedLoopCheck {
+        records: n,
+        dropped: None,
+    }
 }
 
 /// What a campaign may fit: its records prepared and grouped by operating point, the law's
@@ -515,7 +658,13 @@ fn setup<'a>(
         return Err("the fitting parts of the records hold no motion (x is constant): a load law cannot be identified from them".into());
     }
     let candidate_forms = forms_per_input(&prepared, names.len());
-    let expanded = expand(&library, &candidate_forms);
+    let fitted_points: Vec<Vec<f64>> = prepared
+        .iter()
+        .filter(|p| !p.validation)
+        .map(|p| p.at.clone())
+        .collect();
+    let admissible = Admissible::new(&library, cfg.plant.mechanics.load_stiffness, &fitted_points);
+    let expanded = expand(&library, &candidate_forms, &admissible);
     let default_forms: Vec<Form> = candidate_forms
         .iter()
         .map(|f| {
@@ -604,6 +753,7 @@ fn choose_shape(su: &Setup<'_>) -> Result<(Shape, Structure, f64), String> {
             .iter()
             .map(|f| vec![*f])
             .collect::<Vec<_>>(),
+        &su.expanded.admissible,
     );
     let shapes: Vec<Shape> = shape_grid(su.v_rms, &su.library, &su.prepared);
     let best = try_shapes(su, &narrow, shapes)
@@ -737,7 +887,7 @@ fn fit_law(
     let all: Normal = sum_normals(data.a.iter().chain(&data.b), ex.cols.len());
     let cols = columns_of(&structure, ex, lib);
     let theta = all
-        .solve(&cols)
+        .solve(&cols, ex)
         .ok_or("the campaign law's least-squares problem is singular")?;
     Ok(Fitted {
         law: LawFit {
@@ -769,7 +919,7 @@ fn rank_terms(su: &Setup<'_>, f: &Fitted) -> Vec<TermFit> {
         let c2 = columns_of(&without, &su.expanded, &su.library);
         let share = f
             .all
-            .solve(&c2)
+            .solve(&c2, &su.expanded)
             .map_or(1.0, |th| (f.all.sse(&c2, &th) - base_sse).max(0.0) / total);
         let (name, unit) = term_name(*term);
         let mut dependence = BTreeMap::new();
@@ -798,6 +948,7 @@ fn score(
     cfg: &RigConfig,
     su: &Setup<'_>,
     law: &LawFit,
+    envelope: &ehactl_config::envelope::Envelope,
 ) -> Result<(Vec<RecordScore>, Scores, String), String> {
     let arx = arx_baseline(&su.prepared)?;
     let mut records = Vec::new();
@@ -827,7 +978,12 @@ fn score(
         sse_nom += en;
         sse_arx += ea;
         var += v;
+        let inputs: BTreeMap<String, f64> =
+            su.names.iter().cloned().zip(p.at.iter().copied()).collect();
+        let motion =
+            crate::envelope::motion_point(p.rec, p.x, r.clone(), law.shape.velocity_window, inputs);
         records.push(RecordScore {
+            envelope: crate::envelope::check(envelope, &motion, &cfg.inputs),
             source: p.rec.source.clone(),
             role: if p.validation { "validation" } else { "fit" }.into(),
             operating_point: su.names.iter().cloned().zip(p.at.iter().copied()).collect(),
@@ -845,6 +1001,21 @@ fn score(
         arx: (sse_arx / var).sqrt(),
     };
     Ok((records, pooled, arx.0))
+}
+
+/// The motion and operating inputs of the fitting parts, merged per operating point
+/// (`[envelope]` of the extended config).
+fn fitted_envelope(su: &Setup<'_>, window: f64) -> ehactl_config::envelope::Envelope {
+    crate::envelope::merge(
+        su.prepared
+            .iter()
+            .filter(|p| !p.validation && !p.fit.is_empty())
+            .map(|p| {
+                let inputs = su.names.iter().cloned().zip(p.at.iter().copied()).collect();
+                crate::envelope::motion_point(p.rec, p.x, p.fit.clone(), window, inputs)
+            })
+            .collect(),
+    )
 }
 
 fn same_point(a: &[f64], b: &[f64]) -> bool {
@@ -941,7 +1112,7 @@ fn prepare<'a>(
     })
 }
 
-fn expand(library: &[LawTerm], forms: &[Vec<Form>]) -> Expanded {
+fn expand(library: &[LawTerm], forms: &[Vec<Form>], admissible: &Admissible) -> Expanded {
     let mut cols = Vec::new();
     for ti in 0..library.len() {
         cols.push(Column {
@@ -962,6 +1133,7 @@ fn expand(library: &[LawTerm], forms: &[Vec<Form>]) -> Expanded {
     Expanded {
         cols,
         forms: forms.to_vec(),
+        admissible: admissible.clone(),
     }
 }
 
@@ -1396,7 +1568,7 @@ fn transfer_error(
     let p = ex.cols.len();
     let a = sum_normals(d.a.iter(), p);
     let cols = columns_of(st, ex, library);
-    let th = a.solve(&cols)?;
+    let th = a.solve(&cols, ex)?;
     let per: Vec<f64> =
         d.b.iter()
             .filter(|b| b.n > 0.0)
@@ -1456,7 +1628,7 @@ fn loco_error(
                 train.add(&d.b[i]);
             }
         }
-        let th = train.solve(&cols)?;
+        let th = train.solve(&cols, ex)?;
         for (i, pr) in prepared.iter().enumerate() {
             if !pr.validation && pr.group == g {
                 let mut test = d.a[i].clone();
@@ -1691,6 +1863,8 @@ impl LawFit {
                 .retain(|p, _| !p.starts_with("effects.polynomial_force."));
             inp.quadratic
                 .retain(|p, _| !p.starts_with("effects.polynomial_force."));
+            inp.saturating
+                .retain(|p, _| !p.starts_with("effects.polynomial_force."));
             let i0 = at0[k];
             if let Some(t) = &self.travel {
                 inp.linear
@@ -1704,15 +1878,19 @@ impl LawFit {
             }
             for (term, forms) in &self.structure.terms {
                 let c = self.basis_coefficients(*term, k);
-                // Local Taylor form about i₀: exact for linear and quadratic, the saturating
-                // form to second order (its exact law is reported in the JSON and report).
+                // About i₀: the linear and quadratic forms exactly as Taylor terms, the
+                // saturating one as itself (`[inputs.<name>.saturating]`): a second-order
+                // Taylor form of 1 − e^(−i/i_s) turns negative within a few i_s of i₀.
                 let (a, b) = match forms[k] {
                     Form::None => continue,
                     Form::Linear => (c[0], 0.0),
                     Form::Quadratic => (c[0] + 2.0 * c[1] * i0, c[1]),
                     Form::Saturating { scale } => {
-                        let e = (-i0 / scale).exp();
-                        (c[0] * e / scale, -0.5 * c[0] * e / (scale * scale))
+                        inp.saturating.insert(
+                            path_of(*term),
+                            ehactl_config::inputs::Saturating { gain: c[0], scale },
+                        );
+                        continue;
                     }
                 };
                 inp.linear.insert(path_of(*term), a);
@@ -1924,13 +2102,18 @@ fn summary_of(
     );
     for r in records {
         s += &format!(
-            "  {} [{}] at {}: law {:.4}, nominal {:.4}, ARX {:.4}\n",
+            "  {} [{}] at {}: law {:.4}, nominal {:.4}, ARX {:.4}{}\n",
             r.source,
             r.role,
             ehactl_config::inputs::describe_point(&r.operating_point),
             r.nrmse.law,
             r.nrmse.nominal,
-            r.nrmse.arx
+            r.nrmse.arx,
+            if r.envelope.inside {
+                String::new()
+            } else {
+                format!(" — {}", r.envelope.describe())
+            }
         );
     }
     s += &format!("Baseline: {arx}.");

@@ -62,20 +62,25 @@ pub fn run(
         .collect();
     let c = diagnose_campaign(cfg, &fit, &val).map_err(SessionError::Input)?;
     warnings.extend(c.notes.iter().cloned());
+    if let Some(why) = &c.closed_loop.dropped {
+        warnings.push(format!("the campaign law is dropped: {why}"));
+    }
     let mut files = Vec::new();
     if let Some(dir) = out {
         let mut od = crate::outdir::OutDir::create(dir).map_err(SessionError::Io)?;
         let toml = format!(
-            "# Extended by `ehactl diagnose` from a campaign of {} records against {}.\n# {}\n# The law: [effects.polynomial_force] at the config's operating point; its dependence on\n# the operating inputs: [inputs.<name>.linear / .quadratic] (ehactl_config::inputs).\n{}",
+            "# Extended by `ehactl diagnose` from a campaign of {} records against {}.\n# {}\n# The law: [effects.polynomial_force] at the config's operating point; its dependence on\n# the operating inputs: [inputs.<name>.linear / .quadratic / .saturating] (ehactl_config::inputs);\n# what it was fitted on: [envelope] (ehactl predict says when a record lies outside).\n{}",
             fit.len() + val.len(),
             config_path.display(),
             c.cause,
             c.extended.to_toml_string()
         );
-        files.push(
-            od.write("extended.toml", toml.as_bytes())
-                .map_err(SessionError::Io)?,
-        );
+        if c.closed_loop.dropped.is_none() {
+            files.push(
+                od.write("extended.toml", toml.as_bytes())
+                    .map_err(SessionError::Io)?,
+            );
+        }
         files.push(
             od.write("report.md", report_md(&c).as_bytes())
                 .map_err(SessionError::Io)?,
@@ -160,20 +165,21 @@ fn report_md(c: &Campaign) -> String {
     if let Some(first) = lines.next() {
         s += &format!("**{first}**\n\n");
     }
-    s += "| record | role | operating point | law | nominal | ARX |\n|---|---|---|---|---|---|\n";
+    s += "| record | role | operating point | law | nominal | ARX | fitted envelope |\n|---|---|---|---|---|---|---|\n";
     for r in &c.records {
         s += &format!(
-            "| {} | {} | {} | {:.4} | {:.4} | {:.4} |\n",
+            "| {} | {} | {} | {:.4} | {:.4} | {:.4} | {} |\n",
             r.source,
             r.role,
             describe_point(&r.operating_point),
             r.nrmse.law,
             r.nrmse.nominal,
-            r.nrmse.arx
+            r.nrmse.arx,
+            r.envelope.describe()
         );
     }
     s += &format!(
-        "| pooled | | | {:.4} | {:.4} | {:.4} |\n\n",
+        "| pooled | | | {:.4} | {:.4} | {:.4} | |\n\n",
         c.pooled.law, c.pooled.nominal, c.pooled.arx
     );
     s += "## Law\n\n| term | coefficient at zero input | unit | dependence | share of force variance |\n|---|---|---|---|---|\n";

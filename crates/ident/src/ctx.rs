@@ -291,6 +291,7 @@ impl Ctx<'_> {
             v: vec![0.0; n],
             dp: vec![0.0; n],
             failed: true,
+            failed_at: Some((0, "parameters")),
             offsets: vec![0.0; self.val_rec.channels.len()],
         };
         let p = h.build(&self.val_base);

@@ -25,6 +25,7 @@ pub mod ctx;
 pub mod data;
 pub mod diagnose;
 pub mod effects;
+pub mod envelope;
 pub mod evidence;
 pub mod fit;
 pub mod freeparam;
@@ -38,6 +39,7 @@ pub mod replay;
 pub mod report;
 pub mod residual;
 pub mod session;
+pub mod signlsq;
 pub mod spectrum;
 pub(crate) mod weigh;
 

@@ -5,25 +5,62 @@
 //! motion on the rod ([`ehactl_plant::imposed`]); `imposed` asks for the last on any record
 //! with x and force. The model is taken at the record's operating point (its declared input
 //! columns, [`ehactl_config::inputs`]).
+//!
+//! A prediction knows its limits: a record outside the motion and operating inputs the model
+//! was fitted on (its `[envelope]`, [`crate::envelope`]) is flagged with how far outside, and a
+//! replay that leaves physical bounds ([`check_divergence`]) is reported as diverged, with the
+//! time, channel and value, never as a number.
 
 use crate::data::{ChannelKind, Record};
 use crate::replay::{replay_params, replay_with, std};
 use crate::session::{drive_for, load_checked, SessionError};
 use ehactl_config::RigConfig;
 use ehactl_plant::imposed::{ImposedMotion, Motion};
+use ehactl_plant::PlantParams;
 use serde::Serialize;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// NRMSE of a prediction.
+/// NRMSE of a prediction (`None`: the replay diverged, there is no score).
 #[derive(Debug, Clone, Serialize)]
 pub struct Nrmse {
     /// Root mean square over the channels (-).
-    pub overall: f64,
+    pub overall: Option<f64>,
     /// Per channel (CSV column → NRMSE, -).
-    pub channels: BTreeMap<String, f64>,
+    pub channels: BTreeMap<String, Option<f64>>,
 }
+
+/// Where a replay left physical bounds: it stopped there and has no score.
+#[derive(Debug, Clone, Serialize)]
+pub struct Divergence {
+    /// Time of the first sample out of bounds (s from the record's start).
+    pub t: f64,
+    /// Its sample index.
+    pub sample: usize,
+    /// The channel or state variable (`force`, `p_a`, `x`, or a plant state).
+    pub channel: String,
+    /// Its value there (SI unit of the channel).
+    pub value: f64,
+    /// The bound it crossed (same unit; NaN for a non-finite value or a failed step).
+    pub bound: f64,
+    /// Unit of `value` and `bound`.
+    pub unit: String,
+    /// In words, e.g. `force −1.9e9 N beyond ±1.5e4 N (10× the record's largest |force|)`.
+    pub reason: String,
+}
+
+/// A predicted force beyond this many times the record's largest |force| is a divergence (-):
+/// far beyond any modelling error, as no law fitted to a record predicts ten times its range.
+pub const FORCE_BOUND_FACTOR: f64 = 10.0;
+/// A predicted chamber pressure beyond this many times the larger of the supply pressure and
+/// the record's largest pressure is a divergence (-).
+pub const PRESSURE_BOUND_FACTOR: f64 = 2.0;
+/// A predicted chamber pressure below this (Pa, gauge) is a divergence: an order of magnitude
+/// below the cavitation limit of about −1 bar gauge.
+pub const PRESSURE_FLOOR: f64 = -1.0e6;
+/// A predicted position beyond the cylinder's stroke by this share of it is a divergence (-).
+pub const POSITION_MARGIN: f64 = 0.1;
 
 /// One record's prediction.
 #[derive(Debug, Clone, Serialize)]
@@ -38,7 +75,11 @@ pub struct Prediction {
     pub scored: (usize, usize),
     /// Scores.
     pub nrmse: Nrmse,
-    /// Predicted channels (column → values, whole record).
+    /// Where the replay left physical bounds (`None`: it stayed within them).
+    pub diverged: Option<Divergence>,
+    /// The record against the model's `[envelope]` (`None`: the model states none).
+    pub envelope: Option<crate::envelope::EnvelopeCheck>,
+    /// Predicted channels (column → values, up to the divergence if any).
     #[serde(skip)]
     pub predicted: Vec<(ChannelKind, Vec<f64>)>,
 }
@@ -52,6 +93,7 @@ fn operating_point(cfg: &RigConfig, rec: &Record) -> BTreeMap<String, f64> {
 }
 
 fn nrmse_on(y: &[f64], yh: &[f64], r: std::ops::Range<usize>) -> f64 {
+    let r = r.start.min(yh.len())..r.end.min(yh.len());
     let e = y[r.clone()]
         .iter()
         .zip(&yh[r.clone()])
@@ -105,7 +147,7 @@ pub fn predict(
                 dp: dp.as_deref(),
             })
             .map_err(|e| format!("{src}: {e}"))?;
-        ("imposed_motion", vec![(ChannelKind::Force, f)])
+        ("imposed_motion", (vec![(ChannelKind::Force, f)], None))
     } else {
         let (drive, _) = drive_for(cfg, rec);
         let sim = replay_with(&replay_params(&plant, rec), rec, n, drive)
@@ -116,25 +158,145 @@ pub fn predict(
             "open_loop"
         };
         let y = rec.channels.iter().map(|c| c.kind).zip(sim.y).collect();
-        (how, y)
+        (how, (y, sim.failed_at))
     };
-    let channels: BTreeMap<String, f64> = predicted
+    let (mut predicted, failed_at) = predicted;
+    let diverged = check_divergence(&plant, rec, &predicted, failed_at);
+    if let Some(d) = &diverged {
+        for (_, yh) in predicted.iter_mut() {
+            yh.truncate(d.sample);
+        }
+    }
+    let channels: BTreeMap<String, Option<f64>> = predicted
         .iter()
         .filter_map(|(k, yh)| {
-            rec.channel(*k)
-                .map(|y| (k.column().to_string(), nrmse_on(y, yh, score.clone())))
+            rec.channel(*k).map(|y| {
+                let e = diverged.is_none().then(|| nrmse_on(y, yh, score.clone()));
+                (k.column().to_string(), e)
+            })
         })
         .collect();
-    let v: Vec<f64> = channels.values().copied().collect();
-    let overall = (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    let overall = diverged.is_none().then(|| {
+        let v: Vec<f64> = channels.values().flatten().copied().collect();
+        (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
+    });
     Ok(Prediction {
         source: src.clone(),
         replay: replay.to_string(),
         operating_point: at,
         scored: (score.start, score.end),
         nrmse: Nrmse { overall, channels },
+        diverged,
+        envelope: crate::envelope::check_record(cfg, rec),
         predicted,
     })
+}
+
+/// The first sample at which a prediction leaves physical bounds, if any: a failed plant
+/// step (`failed_at`: sample and state variable), a non-finite value, a force beyond
+/// [`FORCE_BOUND_FACTOR`] × the record's largest |force|, a chamber pressure beyond
+/// [`PRESSURE_BOUND_FACTOR`] × max(supply, the record's largest pressure) or below
+/// [`PRESSURE_FLOOR`], a position beyond the stroke by [`POSITION_MARGIN`] of it.
+pub fn check_divergence(
+    plant: &PlantParams,
+    rec: &Record,
+    predicted: &[(ChannelKind, Vec<f64>)],
+    failed_at: Option<(usize, &'static str)>,
+) -> Option<Divergence> {
+    let peak = |k: ChannelKind| {
+        rec.channel(k)
+            .map_or(0.0, |y| y.iter().fold(0.0_f64, |m, v| m.max(v.abs())))
+    };
+    let p_hi = PRESSURE_BOUND_FACTOR
+        * plant
+            .supply
+            .pressure
+            .max(peak(ChannelKind::PressureA))
+            .max(peak(ChannelKind::PressureB));
+    let stroke = plant.cylinder.stroke;
+    let x_margin = POSITION_MARGIN * stroke;
+    let f_bound = FORCE_BOUND_FACTOR * peak(ChannelKind::Force);
+    let mut first: Option<Divergence> = None;
+    let mut note = |d: Divergence| {
+        if first.as_ref().is_none_or(|f| d.sample < f.sample) {
+            first = Some(d);
+        }
+    };
+    let at =
+        |k: usize, channel: &str, value: f64, bound: f64, unit: &str, reason: String| Divergence {
+            t: k as f64 * rec.dt,
+            sample: k,
+            channel: channel.into(),
+            value,
+            bound,
+            unit: unit.into(),
+            reason,
+        };
+    if let Some((k, what)) = failed_at {
+        note(at(
+            k,
+            what,
+            f64::NAN,
+            f64::NAN,
+            "",
+            format!("the plant's step failed: {what} left the states a rig can have"),
+        ));
+    }
+    for (kind, yh) in predicted {
+        let (ch, unit) = (kind.column(), kind.unit());
+        let bound = |v: f64| -> Option<(f64, String)> {
+            if !v.is_finite() {
+                return Some((f64::NAN, format!("{ch} is not finite ({v})")));
+            }
+            match kind {
+                ChannelKind::Force if f_bound > 0.0 && v.abs() > f_bound => Some((
+                    f_bound,
+                    format!("{ch} {v:.3e} {unit} beyond ±{f_bound:.3e} {unit} ({FORCE_BOUND_FACTOR}× the record's largest |{ch}|)"),
+                )),
+                ChannelKind::PressureA | ChannelKind::PressureB if v > p_hi || v < PRESSURE_FLOOR => Some((
+                    if v > p_hi { p_hi } else { PRESSURE_FLOOR },
+                    format!("{ch} {v:.3e} {unit} outside {PRESSURE_FLOOR:.1e}…{p_hi:.3e} {unit} ({PRESSURE_BOUND_FACTOR}× the larger of the supply and the record's pressures)"),
+                )),
+                ChannelKind::Position if v < -x_margin || v > stroke + x_margin => Some((
+                    if v < 0.0 { -x_margin } else { stroke + x_margin },
+                    format!("{ch} {v:.4} {unit} beyond the stroke 0…{stroke} {unit}"),
+                )),
+                _ => None,
+            }
+        };
+        if let Some((k, (b, reason))) = yh
+            .iter()
+            .enumerate()
+            .find_map(|(k, v)| bound(*v).map(|b| (k, b)))
+        {
+            note(at(k, ch, yh[k], b, unit, reason));
+        }
+    }
+    first
+}
+
+/// The warnings a prediction's limits give: a divergence, and a record outside the model's
+/// fitted envelope (one line each, naming the record).
+fn limits_warnings(p: &Prediction) -> Vec<String> {
+    let mut w = Vec::new();
+    if let Some(d) = &p.diverged {
+        w.push(format!(
+            "{}: the {} replay DIVERGED at t = {:.4} s (sample {}): {}; it has no NRMSE",
+            p.source,
+            p.replay.replace('_', "-"),
+            d.t,
+            d.sample,
+            d.reason
+        ));
+    }
+    if let Some(e) = p.envelope.as_ref().filter(|e| !e.inside) {
+        w.push(format!(
+            "{}: the model extrapolates, the record lies {}",
+            p.source,
+            e.describe()
+        ));
+    }
+    w
 }
 
 /// A finished `ehactl predict`.
@@ -178,7 +340,9 @@ pub fn run(
             let nf = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
             nf..n
         });
-        predictions.push(predict(cfg, &rec, imposed, score).map_err(SessionError::Input)?);
+        let p = predict(cfg, &rec, imposed, score).map_err(SessionError::Input)?;
+        warnings.extend(limits_warnings(&p));
+        predictions.push(p);
         records.push(rec);
     }
     let mut files = Vec::new();
@@ -223,10 +387,13 @@ pub fn run(
     let mut json = if predictions.len() == 1 {
         one(&predictions[0])
     } else {
-        let v: Vec<f64> = predictions.iter().map(|p| p.nrmse.overall).collect();
+        // No pooled score when a record has none (it diverged).
+        let v: Option<Vec<f64>> = predictions.iter().map(|p| p.nrmse.overall).collect();
+        let pooled =
+            v.map(|v| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt());
         serde_json::json!({
             "records": predictions.iter().map(one).collect::<Vec<_>>(),
-            "nrmse": {"overall": (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()},
+            "nrmse": {"overall": pooled},
         })
     };
     json["config"] = Value::from(config_path.display().to_string());
@@ -237,6 +404,8 @@ pub fn run(
             .collect::<Vec<_>>(),
     );
     json["warnings"] = Value::from(warnings.clone());
+    json["diverged_records"] =
+        Value::from(predictions.iter().filter(|p| p.diverged.is_some()).count());
     Ok(PredictRun {
         predictions,
         json,

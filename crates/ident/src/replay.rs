@@ -18,6 +18,8 @@ pub struct Replay {
     pub dp: Vec<f64>,
     /// Whether the integration failed (outputs after failure are held).
     pub failed: bool,
+    /// Where it failed: the sample k whose step failed and the state variable that did.
+    pub failed_at: Option<(usize, &'static str)>,
     /// Sensor offsets already added to `y`, per channel in the channel's SI unit (zero
     /// unless [`apply_offsets`] was called).
     pub offsets: Vec<f64>,
@@ -168,7 +170,7 @@ pub fn replay_guarded(
     let mut y: Vec<Vec<f64>> = rec.channels.iter().map(|_| Vec::with_capacity(n)).collect();
     let mut v = Vec::with_capacity(n);
     let mut dp = Vec::with_capacity(n);
-    let failed = run(params, rec, n, drive, max_substeps, |_, out, vk, dpk| {
+    let failed_at = run(params, rec, n, drive, max_substeps, |_, out, vk, dpk| {
         for (yc, o) in y.iter_mut().zip(out) {
             yc.push(*o);
         }
@@ -181,7 +183,8 @@ pub fn replay_guarded(
         y,
         v,
         dp,
-        failed,
+        failed: failed_at.is_some(),
+        failed_at,
         offsets,
     })
 }
@@ -226,7 +229,7 @@ pub fn replay_cost(
         }
         true
     })?;
-    Ok(lost.unwrap_or_else(|| cost(&sums, failed)))
+    Ok(lost.unwrap_or_else(|| cost(&sums, failed.is_some())))
 }
 
 /// The fit cost from the per-channel sums of squared residuals `sums` over `n` samples: the
@@ -260,8 +263,8 @@ pub(crate) fn fit_cost(
 /// The replay loop: for each sample k < `n` the record channels' measured outputs (taken
 /// before command u_k is applied, the order of `ehactl run`'s loop: read, compute, write; set
 /// to 0 where non-finite once the integration failed), the model's velocity (m/s) and load
-/// pressure p_a − p_b (Pa) go to `sample`, which returns `false` to stop. Returns whether the
-/// integration failed (the state is then held).
+/// pressure p_a − p_b (Pa) go to `sample`, which returns `false` to stop. Returns where the
+/// integration failed, if it did (the sample and the state variable; the state is then held).
 fn run(
     params: &PlantParams,
     rec: &Record,
@@ -269,7 +272,7 @@ fn run(
     drive: Drive,
     max_substeps: u32,
     mut sample: impl FnMut(usize, &[f64], f64, f64) -> bool,
-) -> Result<bool, String> {
+) -> Result<Option<(usize, &'static str)>, String> {
     if drive.closed_loop() && rec.reference.is_none() {
         return Err(format!(
             "{}: closed-loop replay needs a `ref` column",
@@ -283,7 +286,7 @@ fn run(
     let n = n.min(rec.len());
     let kinds: Vec<ChannelKind> = rec.channels.iter().map(|c| c.kind).collect();
     let mut out = vec![0.0; kinds.len()];
-    let mut failed = false;
+    let mut failed: Option<(usize, &'static str)> = None;
     let mut samples = 0;
     for k in 0..n {
         let m = plant.measure();
@@ -299,10 +302,12 @@ fn run(
             }
             _ => rec.u[k],
         };
-        if !failed && plant.step(u).is_err() {
-            failed = true;
+        if failed.is_none() {
+            if let Err(e) = plant.step(u) {
+                failed = Some((k, e.what));
+            }
         }
-        if failed {
+        if failed.is_some() {
             // Keep the last good outputs; the fit sees a large error, never a NaN.
             for o in out.iter_mut() {
                 if !o.is_finite() {

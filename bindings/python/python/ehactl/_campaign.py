@@ -26,10 +26,16 @@ class RecordPrediction:
     operating_point: Mapping[str, float]
     #: First and end sample scored.
     scored: tuple[int, int]
-    #: NRMSE over the scored samples: RMS over the channels.
-    nrmse: float
-    #: Per channel (CSV column → NRMSE).
-    channels: Mapping[str, float]
+    #: NRMSE over the scored samples: RMS over the channels (``None``: the replay diverged).
+    nrmse: float | None
+    #: Per channel (CSV column → NRMSE; ``None`` when the replay diverged).
+    channels: Mapping[str, float | None]
+    #: Where the replay left physical bounds (``t``, ``channel``, ``value``, ``bound``,
+    #: ``unit``, ``reason``), or ``None``.
+    diverged: Mapping[str, Any] | None = None
+    #: The record against the model's fitted envelope (``inside``, ``excursions``), or
+    #: ``None`` when the model states none.
+    envelope: Mapping[str, Any] | None = None
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> RecordPrediction:
@@ -41,11 +47,17 @@ class RecordPrediction:
                 replay=str(d["replay"]),
                 operating_point=dict(d["operating_point"]),
                 scored=(int(d["scored"][0]), int(d["scored"][1])),
-                nrmse=float(d["nrmse"]["overall"]),
-                channels={str(k): float(v) for k, v in d["nrmse"]["channels"].items()},
+                nrmse=_maybe_float(d["nrmse"]["overall"]),
+                channels={str(k): _maybe_float(v) for k, v in d["nrmse"]["channels"].items()},
+                diverged=d.get("diverged"),
+                envelope=d.get("envelope"),
             )
         except (KeyError, TypeError, IndexError, ValueError) as e:
             raise ValueError(f"not an `ehactl predict` record object: {e!r}") from e
+
+
+def _maybe_float(v: Any) -> float | None:
+    return None if v is None else float(v)
 
 
 @dataclass(frozen=True)
@@ -53,8 +65,8 @@ class PredictionResult:
     """``ehactl predict --json`` as an object: one :class:`RecordPrediction` per record."""
 
     records: tuple[RecordPrediction, ...]
-    #: RMS of the records' overall NRMSE.
-    nrmse: float
+    #: RMS of the records' overall NRMSE (``None`` when a record's replay diverged).
+    nrmse: float | None
     files: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
     raw: Mapping[str, Any] = field(default_factory=dict, repr=False)
@@ -183,7 +195,7 @@ def predict(
     recs = [raw] if "records" not in raw else list(raw["records"])
     r = PredictionResult(
         records=tuple(RecordPrediction.from_dict(x) for x in recs),
-        nrmse=float(raw["nrmse"]["overall"]),
+        nrmse=_maybe_float(raw["nrmse"]["overall"]),
         files=tuple(raw.get("files", ())),
         warnings=tuple(raw.get("warnings", ())),
         raw=raw,
