@@ -237,3 +237,62 @@ def test_a_diverging_replay_is_an_outcome_not_a_number(tmp_path):
     text = ehactl("predict", "--config", cfg, "--data", data)
     assert text.returncode == 5
     assert "DIVERGED at t = " in text.stdout and "no NRMSE" in text.stdout, text.stdout
+
+
+def band_campaign(tmp_path, saturation):
+    """Fitted at 0, 0.5 and 1 A (sines of 2–10 mm at 1–5 Hz and a random history each),
+    predicting 0.25 and 0.75 A, on a linear or a saturating coil."""
+    args = ["diagnose", "--config", CONFIG, "--json", "--out", tmp_path / "out"]
+    for c in (0.0, 0.25, 0.5, 0.75, 1.0):
+        k = int(c * 100)
+        motions = [(f"sine_{a * 1e3:g}mm_{f:g}Hz", bw.sine(a, f), 3.0) for a, f in ((0.005, 1.0), (0.01, 2.0), (0.002, 5.0))]
+        motions.append(("random", bw.random_history(k + 3, 0.004, 5.0, 6.0), 6.0))
+        for i, (name, motion, duration) in enumerate(motions):
+            rec = bw.record(motion, c, duration, rate=RATE, seed=1000 * k + i, saturation=saturation)
+            p = write(tmp_path / f"{name}_{c:g}A.csv", rec)
+            args += ["--validate" if c in (0.25, 0.75) else "--data", p]
+    r = ehactl(*args)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
+@pytest.mark.parametrize("saturation", [None, 0.3], ids=["linear_coil", "saturating_coil"])
+def test_the_band_covers_its_level_at_unseen_currents(tmp_path, saturation):
+    j = band_campaign(tmp_path, saturation)
+    new = [r for r in j["records"] if r["role"] == "validation"]
+    assert len(new) == 8
+    inside = sum(r["band"]["coverage"] * (r["scored"][1] - r["scored"][0]) for r in new)
+    total = sum(r["scored"][1] - r["scored"][0] for r in new)
+    # Nominal 90 %: pooled over the 8 unseen-current records, 80–97 %. Measured 2026-12-07:
+    # 0.87 (linear coil; 0.56 … 1.0 per record), 0.92 (saturating coil; 0.73 … 1.0).
+    assert 0.80 <= inside / total <= 0.97, [(r["source"], r["band"]["coverage"]) for r in new]
+    assert all(r["band"]["level"] == 0.9 for r in new)
+
+
+def test_predict_carries_the_band_and_draws_it(chirp_campaign, tmp_path):
+    _, sines, d = chirp_campaign
+    out = tmp_path / "pred"
+    r = ehactl("predict", "--config", d / "out" / "extended.toml", "--data", sines[(0.002, 5.0)],
+               "--out", out, "--json")
+    assert r.returncode == 0, r.stderr
+    pj = json.loads(r.stdout)
+    b = pj["band"]
+    assert b["level"] == 0.9 and 0.0 <= b["coverage"] <= 1.0 and b["half_width_rms"] > 0, b
+    # The coverage is the share of measured samples within the band: recomputed here from
+    # the half-width would need the series; at least it is not vacuous (a band that covers
+    # everything would be as useless as none).
+    svg = (out / "prediction.svg").read_text()
+    assert "band, upper" in svg and "band, lower" in svg
+
+
+def test_the_band_stays_honest_beyond_the_fitted_stroke(chirp_campaign):
+    """Beyond the chirps' stroke (the 10 and 25 mm sines, 5× and 12.5×) the band must not be
+    overconfident: the refits disagree more there and the band grows with the force, so it
+    still covers about its level. Measured 2026-12-07: 0.99 at 25 mm, against 0.92 for the
+    2 mm sine inside the envelope."""
+    j, sines, _ = chirp_campaign
+    by_source = {r["source"]: r for r in j["records"]}
+    for (a, f), p in sines.items():
+        r = by_source[str(p)]
+        if not r["envelope"]["inside"]:
+            assert r["band"]["coverage"] >= 0.85, (a, f, r["band"])

@@ -242,12 +242,19 @@ fn prediction_line(p: &ehactl_ident::predict::Prediction) -> String {
         (None, Some(e)) => format!("NRMSE {e:.4} over samples {}..{}", p.scored.0, p.scored.1),
         (None, None) => "no NRMSE".to_string(),
     };
+    let band = p.band.as_ref().map_or(String::new(), |b| {
+        format!(
+            "; {:.0} % band covers {:.1} %",
+            100.0 * b.level,
+            100.0 * b.coverage
+        )
+    });
     let envelope = p
         .envelope
         .as_ref()
         .map_or(String::new(), |e| format!("; {}", e.describe()));
     format!(
-        "{} ({} replay{}{}): {score}{envelope}",
+        "{} ({} replay{}{}): {score}{band}{envelope}",
         p.source,
         p.replay.replace('_', "-"),
         if op.is_empty() { "" } else { " at " },

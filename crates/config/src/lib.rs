@@ -392,6 +392,9 @@ pub struct RigConfig {
     /// What a fitted law in this config was fitted on (`[envelope]`, [`envelope`]); `None`
     /// when the config makes no such claim.
     pub envelope: Option<envelope::Envelope>,
+    /// The spread of a fitted law for the band on its predictions (`[band]`,
+    /// [`envelope::Band`]); `None` when the config states none.
+    pub band: Option<envelope::Band>,
 }
 
 /// Control, setpoint, supervisor, run, log and realtime parameters, generated from the
@@ -425,10 +428,11 @@ pub fn registries() -> [&'static [Param]; 3] {
     [spec::params(), control_params(), canopen_params()]
 }
 
-const RIG_KEYS: [&str; 10] = [
+const RIG_KEYS: [&str; 11] = [
     "rig",
     "inputs",
     "envelope",
+    "band",
     "control",
     "setpoint",
     "supervisor",
@@ -501,6 +505,7 @@ impl RigConfig {
         let inputs_value = value.as_table_mut().and_then(|t| t.remove("inputs"));
         // `[envelope]` is a record of fitted data, not parameters either.
         let envelope_value = value.as_table_mut().and_then(|t| t.remove("envelope"));
+        let band_value = value.as_table_mut().and_then(|t| t.remove("band"));
         tree::check_tree(&mut value, &tables)?;
         let toml::Value::Table(mut root) = value else {
             return Err(ConfigError::new("", "config must be a TOML table"));
@@ -545,6 +550,18 @@ impl RigConfig {
                 ))
             }
         };
+        let band = match band_value {
+            None => None,
+            Some(v) if v.is_table() => Some(serde_path_to_error::deserialize(v).map_err(|e| {
+                ConfigError::new(format!("band.{}", e.path()), e.inner().to_string())
+            })?),
+            Some(v) => {
+                return Err(ConfigError::new(
+                    "band",
+                    format!("expected a table [band], got {}", v.type_str()),
+                ))
+            }
+        };
         let cfg = RigConfig {
             rig,
             plant,
@@ -557,6 +574,7 @@ impl RigConfig {
             realtime,
             inputs,
             envelope,
+            band,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -568,6 +586,9 @@ impl RigConfig {
         inputs::validate(&self.inputs, &self.plant)?;
         if let Some(env) = &self.envelope {
             envelope::validate(env, &self.inputs)?;
+        }
+        if let Some(band) = &self.band {
+            envelope::validate_band(band, &self.inputs)?;
         }
         match self.control.mode {
             ControlMode::Force if self.control.pi.is_none() => {
@@ -805,6 +826,9 @@ impl RigConfig {
         }
         if let Some(env) = &self.envelope {
             put("envelope", toml::Value::try_from(env));
+        }
+        if let Some(band) = &self.band {
+            put("band", toml::Value::try_from(band));
         }
         toml::Value::Table(root)
     }

@@ -463,6 +463,8 @@ pub struct RecordScore {
     /// Whether the scored samples lie inside the motion and operating inputs the law was
     /// fitted on ([`crate::envelope`]).
     pub envelope: crate::envelope::EnvelopeCheck,
+    /// The law's uncertainty band on the scored samples and its coverage ([`crate::band`]).
+    pub band: crate::band::BandScore,
 }
 
 /// Display name and unit of a term.
@@ -498,9 +500,15 @@ pub fn diagnose_campaign(
     let fitted = fit_law(&su, shape, structure, j_shape)?;
     let terms = rank_terms(&su, &fitted);
     let envelope = fitted_envelope(&su, fitted.law.shape.velocity_window);
-    let (records, pooled, baseline) = score(cfg, &su, &fitted.law, &envelope)?;
+    let members = bootstrap(&fitted, &su.expanded);
+    let spread = Spread {
+        members: &members,
+        relative_residual: fitted.j_transfer.sqrt(),
+    };
+    let (records, pooled, baseline) = score(cfg, &su, &fitted.law, &envelope, &spread)?;
     let mut extended = fitted.law.extended(cfg, &su.names)?;
     extended.envelope = Some(envelope);
+    extended.band = band_section(cfg, &su.names, &spread)?;
     let closed_loop = closed_loop_check(cfg, &extended, fit.iter().chain(validation));
     let cause = cause_of(&terms, cfg, &su.names);
     let travel = fitted
@@ -819,6 +827,9 @@ struct Fitted {
     law: LawFit,
     /// Normal equations of every fitting part, summed.
     all: Normal,
+    /// The fitting segments' normal equations (the transfer split's two per record), which
+    /// the band's bootstrap resamples.
+    segments: Vec<Normal>,
     dependence_check: String,
     /// Transfer error of the final structure (NRMSE²).
     j_transfer: f64,
@@ -885,6 +896,13 @@ fn fit_law(
         dep
     });
     let all: Normal = sum_normals(data.a.iter().chain(&data.b), ex.cols.len());
+    let segments: Vec<Normal> = data
+        .a
+        .iter()
+        .chain(&data.b)
+        .filter(|n| n.n > 0.0)
+        .cloned()
+        .collect();
     let cols = columns_of(&structure, ex, lib);
     let theta = all
         .solve(&cols, ex)
@@ -901,9 +919,33 @@ fn fit_law(
             library: lib.clone(),
         },
         all,
+        segments,
         dependence_check,
         j_transfer,
     })
+}
+
+/// The law refitted on [`crate::band::MEMBERS`] bootstrap resamples of its fitting segments
+/// (the same structure, shape and admissibility; a resample whose fit fails is left out).
+fn bootstrap(f: &Fitted, ex: &Expanded) -> Vec<LawFit> {
+    let k = f.segments.len();
+    if k < 2 {
+        return Vec::new();
+    }
+    let mut rng = crate::band::SplitMix::new(0x5EED_0000 + k as u64);
+    (0..crate::band::MEMBERS)
+        .filter_map(|_| {
+            let mut sum = Normal::zero(ex.cols.len());
+            for _ in 0..k {
+                sum.add(&f.segments[rng.below(k)]);
+            }
+            let theta = sum.solve(&f.law.cols, ex)?;
+            Some(LawFit {
+                theta,
+                ..f.law.clone()
+            })
+        })
+        .collect()
 }
 
 /// Phase 4: each term with its coefficients and the share of the force variance it carries
@@ -949,6 +991,7 @@ fn score(
     su: &Setup<'_>,
     law: &LawFit,
     envelope: &ehactl_config::envelope::Envelope,
+    spread: &Spread<'_>,
 ) -> Result<(Vec<RecordScore>, Scores, String), String> {
     let arx = arx_baseline(&su.prepared)?;
     let mut records = Vec::new();
@@ -958,6 +1001,19 @@ fn score(
             continue;
         }
         let law_pred = law.predict(cfg, p)?;
+        let member_preds: Vec<Vec<f64>> = spread
+            .members
+            .iter()
+            .map(|m| m.predict(cfg, p))
+            .collect::<Result<_, _>>()?;
+        let band = crate::band::band(
+            &law_pred,
+            &member_preds,
+            spread.relative_residual,
+            crate::band::LEVEL,
+            p.force,
+            p.score.clone(),
+        );
         let nom_pred = nominal_prediction(cfg, p, &su.names)?;
         let r = p.score.clone();
         let f = &p.force[r.clone()];
@@ -984,6 +1040,7 @@ fn score(
             crate::envelope::motion_point(p.rec, p.x, r.clone(), law.shape.velocity_window, inputs);
         records.push(RecordScore {
             envelope: crate::envelope::check(envelope, &motion, &cfg.inputs),
+            band,
             source: p.rec.source.clone(),
             role: if p.validation { "validation" } else { "fit" }.into(),
             operating_point: su.names.iter().cloned().zip(p.at.iter().copied()).collect(),
@@ -1001,6 +1058,41 @@ fn score(
         arx: (sse_arx / var).sqrt(),
     };
     Ok((records, pooled, arx.0))
+}
+
+/// The law's bootstrap refits and its out-of-sample relative residual (the band's inputs).
+struct Spread<'m> {
+    members: &'m [LawFit],
+    relative_residual: f64,
+}
+
+/// The `[band]` section of the extended config: each member as the law and dependences it
+/// writes.
+fn band_section(
+    cfg: &RigConfig,
+    names: &[String],
+    spread: &Spread<'_>,
+) -> Result<Option<ehactl_config::envelope::Band>, String> {
+    if spread.members.is_empty() {
+        return Ok(None);
+    }
+    // A member whose law the config cannot hold (a parameter out of its range) is left out.
+    let members: Vec<_> = spread
+        .members
+        .iter()
+        .filter_map(|m| {
+            let c = m.extended(cfg, names).ok()?;
+            ehactl_config::envelope::BandMember::of(&c)
+        })
+        .collect();
+    if members.len() < 2 {
+        return Ok(None);
+    }
+    Ok(Some(ehactl_config::envelope::Band {
+        level: crate::band::LEVEL,
+        relative_residual: spread.relative_residual,
+        members,
+    }))
 }
 
 /// The motion and operating inputs of the fitting parts, merged per operating point
@@ -1732,6 +1824,7 @@ fn descend(
 }
 
 /// The fitted law.
+#[derive(Clone)]
 struct LawFit {
     shape: Shape,
     /// The Dahl travel's dependence on the input, if kept (else `shape.dahl_travel`).
@@ -2102,13 +2195,15 @@ fn summary_of(
     );
     for r in records {
         s += &format!(
-            "  {} [{}] at {}: law {:.4}, nominal {:.4}, ARX {:.4}{}\n",
+            "  {} [{}] at {}: law {:.4}, nominal {:.4}, ARX {:.4}; {:.0} % band covers {:.0} %{}\n",
             r.source,
             r.role,
             ehactl_config::inputs::describe_point(&r.operating_point),
             r.nrmse.law,
             r.nrmse.nominal,
             r.nrmse.arx,
+            100.0 * r.band.level,
+            100.0 * r.band.coverage,
             if r.envelope.inside {
                 String::new()
             } else {

@@ -122,6 +122,7 @@ pub fn run(
                     predicted: p,
                     nominal: Some(n),
                     shade_from: Some(s.scored.0),
+                    band: None,
                 })
             })
             .collect();

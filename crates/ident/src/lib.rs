@@ -18,6 +18,7 @@
 #![deny(missing_docs)]
 
 pub mod analysis;
+pub mod band;
 pub mod baseline;
 pub mod campaign;
 pub mod campaign_run;

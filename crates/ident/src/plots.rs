@@ -22,6 +22,8 @@ use std::path::{Path, PathBuf};
 const MEASURED: RGBColor = RGBColor(0, 0, 0);
 const NOMINAL: RGBColor = RGBColor(31, 119, 180);
 const EXTENDED: RGBColor = RGBColor(214, 39, 40);
+/// The uncertainty band of a prediction (light red).
+const BAND: RGBColor = RGBColor(240, 160, 160);
 const SHADE: RGBColor = RGBColor(230, 230, 230);
 /// At most this many points per scatter panel (evenly decimated): keeps each SVG small.
 const MAX_SCATTER: usize = 2500;
@@ -444,6 +446,8 @@ pub struct PredictionPanel<'a> {
     pub nominal: Option<&'a [f64]>,
     /// First scored sample, if only a part is scored.
     pub shade_from: Option<usize>,
+    /// The prediction's uncertainty band (lower, upper), if it has one.
+    pub band: Option<(&'a [f64], &'a [f64])>,
 }
 
 /// Measured vs predicted, one panel per entry (`ehactl predict`, a campaign's report).
@@ -458,6 +462,10 @@ pub fn prediction(path: &Path, panels: &[PredictionPanel<'_>]) -> PlotResult<()>
             series.push((n, NOMINAL, "nominal"));
         }
         series.push((p.predicted, EXTENDED, "predicted"));
+        if let Some((lo, hi)) = p.band {
+            series.push((lo, BAND, "band, lower"));
+            series.push((hi, BAND, "band, upper"));
+        }
         let x_desc = if p.shade_from.is_some() {
             "t (s), shaded: scored"
         } else {

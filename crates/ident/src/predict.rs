@@ -79,6 +79,10 @@ pub struct Prediction {
     pub diverged: Option<Divergence>,
     /// The record against the model's `[envelope]` (`None`: the model states none).
     pub envelope: Option<crate::envelope::EnvelopeCheck>,
+    /// The force's uncertainty band and its coverage ([`crate::band`]): for an
+    /// imposed-motion prediction by a model with a `[band]` (a campaign's extended config);
+    /// `None` otherwise.
+    pub band: Option<crate::band::BandScore>,
     /// Predicted channels (column → values, up to the divergence if any).
     #[serde(skip)]
     pub predicted: Vec<(ChannelKind, Vec<f64>)>,
@@ -121,6 +125,7 @@ pub fn predict(
         .map_err(|e| format!("{src}: {e}"))?;
     let n = rec.len();
     let score = score.unwrap_or(0..n);
+    let mut band = None;
     let (replay, predicted) = if imposed || rec.imposed_motion() {
         let (Some(x), Some(_)) = (
             rec.channel(ChannelKind::Position),
@@ -130,23 +135,27 @@ pub fn predict(
                 "{src}: an imposed-motion prediction needs the motion `x` (m) and the load-cell `force` (N)"
             ));
         };
-        let v = crate::campaign::record_velocity(rec, x, plant.sensors.position.velocity_window);
-        let dp = match (
-            rec.channel(ChannelKind::PressureA),
-            rec.channel(ChannelKind::PressureB),
-        ) {
-            (Some(a), Some(b)) => Some(a.iter().zip(b).map(|(a, b)| a - b).collect::<Vec<_>>()),
-            _ => None,
-        };
-        let im = ImposedMotion::new(&plant).map_err(|e| format!("{src}: {e}"))?;
-        let f = im
-            .rod_forces(&Motion {
-                dt: rec.dt,
-                x,
-                v: &v,
-                dp: dp.as_deref(),
-            })
-            .map_err(|e| format!("{src}: {e}"))?;
+        let f = imposed_force(&plant, rec, x).map_err(|e| format!("{src}: {e}"))?;
+        band = cfg.band.as_ref().map(|b| {
+            let members: Vec<Vec<f64>> = b
+                .members
+                .iter()
+                .filter_map(|m| {
+                    let c = m.apply(cfg);
+                    let p = ehactl_config::inputs::plant_at(&c.inputs, &c.plant, &at).ok()?;
+                    imposed_force(&p, rec, x).ok()
+                })
+                .collect();
+            let measured = rec.channel(ChannelKind::Force).unwrap_or(&[]);
+            crate::band::band(
+                &f,
+                &members,
+                b.relative_residual,
+                b.level,
+                measured,
+                score.clone(),
+            )
+        });
         ("imposed_motion", (vec![(ChannelKind::Force, f)], None))
     } else {
         let (drive, _) = drive_for(cfg, rec);
@@ -180,6 +189,7 @@ pub fn predict(
         let v: Vec<f64> = channels.values().flatten().copied().collect();
         (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
     });
+    let band = band.filter(|_| diverged.is_none());
     Ok(Prediction {
         source: src.clone(),
         replay: replay.to_string(),
@@ -188,7 +198,27 @@ pub fn predict(
         nrmse: Nrmse { overall, channels },
         diverged,
         envelope: crate::envelope::check_record(cfg, rec),
+        band,
         predicted,
+    })
+}
+
+/// The rod force (N) the law of `plant` gives along the record's measured motion `x` (m) and
+/// its velocity, with the load pressure p_a − p_b where the record has both.
+fn imposed_force(plant: &PlantParams, rec: &Record, x: &[f64]) -> Result<Vec<f64>, String> {
+    let v = crate::campaign::record_velocity(rec, x, plant.sensors.position.velocity_window);
+    let dp = match (
+        rec.channel(ChannelKind::PressureA),
+        rec.channel(ChannelKind::PressureB),
+    ) {
+        (Some(a), Some(b)) => Some(a.iter().zip(b).map(|(a, b)| a - b).collect::<Vec<_>>()),
+        _ => None,
+    };
+    ImposedMotion::new(plant)?.rod_forces(&Motion {
+        dt: rec.dt,
+        x,
+        v: &v,
+        dp: dp.as_deref(),
     })
 }
 
@@ -348,10 +378,22 @@ pub fn run(
     let mut files = Vec::new();
     if let Some(dir) = out {
         let mut od = crate::outdir::OutDir::create(dir).map_err(SessionError::Io)?;
+        // The force band's edges, predicted ∓ half-width.
+        let edges: Vec<Option<(Vec<f64>, Vec<f64>)>> = predictions
+            .iter()
+            .map(|p| {
+                let b = p.band.as_ref()?;
+                let (_, f) = p.predicted.iter().find(|(k, _)| *k == ChannelKind::Force)?;
+                let lo = f.iter().zip(&b.half_width).map(|(y, h)| y - h).collect();
+                let hi = f.iter().zip(&b.half_width).map(|(y, h)| y + h).collect();
+                Some((lo, hi))
+            })
+            .collect();
         let panels: Vec<crate::plots::PredictionPanel<'_>> = predictions
             .iter()
             .zip(&records)
-            .flat_map(|(p, r)| {
+            .zip(&edges)
+            .flat_map(|((p, r), e)| {
                 p.predicted.iter().filter_map(move |(k, yh)| {
                     r.channel(*k).map(|y| crate::plots::PredictionPanel {
                         title: format!(
@@ -367,6 +409,10 @@ pub fn run(
                         predicted: yh,
                         nominal: None,
                         shade_from: (p.scored.0 > 0).then_some(p.scored.0),
+                        band: e
+                            .as_ref()
+                            .filter(|_| *k == ChannelKind::Force)
+                            .map(|(lo, hi)| (lo.as_slice(), hi.as_slice())),
                     })
                 })
             })
