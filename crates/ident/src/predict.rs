@@ -137,9 +137,11 @@ pub fn predict(
         };
         let f = imposed_force(&plant, rec, x).map_err(|e| format!("{src}: {e}"))?;
         band = cfg.band.as_ref().map(|b| {
+            // The members in parallel: each is a whole imposed-motion prediction.
+            use rayon::prelude::*;
             let members: Vec<Vec<f64>> = b
                 .members
-                .iter()
+                .par_iter()
                 .filter_map(|m| {
                     let c = m.apply(cfg);
                     let p = ehactl_config::inputs::plant_at(&c.inputs, &c.plant, &at).ok()?;

@@ -246,16 +246,30 @@ pub fn run(
     let d = diagnose(&cfg.plant, &rec, val.as_ref(), &opts).map_err(SessionError::Input)?;
     // The diagnosis's own list: the records' warnings and its findings (replay accuracy).
     let mut warnings: Vec<String> = d.warnings.iter().chain(&mismatch).cloned().collect();
+    let (fitted_on, held_out) = single_envelope(cfg, &rec, val.as_ref());
+    if let Some(e) = held_out.as_ref().filter(|e| !e.inside) {
+        warnings.push(format!(
+            "the held-out {} lies {}: its score tells how the model extrapolates",
+            val.as_ref()
+                .map_or("part of the record".to_string(), |v| v.source.clone()),
+            e.describe()
+        ));
+    }
+    let with_envelope = RigConfig {
+        envelope: fitted_on,
+        ..cfg.clone()
+    };
     let files = match out {
         Some(dir) => {
-            let f = report::write_report(dir, cfg, config_label, &rec, val.as_ref(), &d)
+            let f = report::write_report(dir, &with_envelope, config_label, &rec, val.as_ref(), &d)
                 .map_err(|e| SessionError::Io(e.to_string()))?;
             warnings.extend(f.warnings.iter().cloned());
             Some(f)
         }
         None => None,
     };
-    let json = run_json(&d, files.as_ref(), &warnings);
+    let mut json = run_json(&d, files.as_ref(), &warnings);
+    json["envelope"] = serde_json::to_value(&held_out).unwrap_or_default();
     Ok(DiagnoseRun {
         diagnosis: d,
         json,
@@ -263,6 +277,41 @@ pub fn run(
         notes,
         files,
     })
+}
+
+/// The motion a single-record diagnosis fitted (the record, less its held-out last 30 % when
+/// no validation record is given; `[envelope]` of its extended config) and the check of the
+/// held-out part against it (`None` without a position column).
+fn single_envelope(
+    cfg: &RigConfig,
+    rec: &data::Record,
+    val: Option<&data::Record>,
+) -> (
+    Option<ehactl_config::envelope::Envelope>,
+    Option<crate::envelope::EnvelopeCheck>,
+) {
+    let point = |r: &data::Record, range: std::ops::Range<usize>| {
+        let x = r.channel(data::ChannelKind::Position)?;
+        let inputs = cfg
+            .inputs
+            .iter()
+            .map(|(n, i)| (n.clone(), r.input_median(n).unwrap_or(i.value)))
+            .collect();
+        let w = cfg.plant.sensors.position.velocity_window;
+        Some(crate::envelope::motion_point(r, x, range, w, inputs))
+    };
+    let n = rec.len();
+    let split = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
+    let (fit, held) = match val {
+        Some(v) => (point(rec, 0..n), point(v, 0..v.len())),
+        None => (point(rec, 0..split), point(rec, split..n)),
+    };
+    let Some(fit) = fit else {
+        return (None, None);
+    };
+    let env = crate::envelope::merge(vec![fit]);
+    let check = held.map(|h| crate::envelope::check(&env, &h, &cfg.inputs));
+    (Some(env), check)
 }
 
 /// Refuses a `validate` file that is `data_path` itself, and an output directory `out` that
