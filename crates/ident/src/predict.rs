@@ -161,23 +161,41 @@ pub fn run(
     out: Option<&Path>,
     force: bool,
 ) -> Result<PredictRun, SessionError> {
+    if data.is_empty() {
+        return Err(SessionError::Input(
+            "no record to predict; give one or more --data files (CSV or MCAP)".into(),
+        ));
+    }
     if let Some(dir) = out {
         let mut inputs: Vec<(&str, &Path)> =
             data.iter().map(|d| ("--data file", d.as_path())).collect();
         inputs.push(("--config being run", config_path));
-        crate::outdir::check(dir, &inputs, force).map_err(SessionError::Input)?;
+        crate::outdir::check(dir, &inputs, force, "predict").map_err(SessionError::Input)?;
     }
+    // Held until the last file is written: a second run into `out` is refused meanwhile.
+    let _lock = out
+        .map(crate::outdir::lock)
+        .transpose()
+        .map_err(SessionError::Io)?;
     let mut predictions = Vec::new();
     let mut warnings = Vec::new();
     let mut records = Vec::new();
     for d in data {
         let rec = load_checked(cfg, d)?;
+        let label = config_path.display().to_string();
+        crate::session::check_logged_configs(cfg, &label, &[&rec], "predict", None)?;
         warnings.extend(rec.warnings.iter().cloned());
         let n = rec.len();
         let score = held_out.then(|| {
             let nf = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
             nf..n
         });
+        let (scored, only_force) = (
+            score.clone().unwrap_or(0..n),
+            imposed || rec.imposed_motion(),
+        );
+        crate::record_checks::scorable(&rec, only_force, scored, &cfg.plant)
+            .map_err(SessionError::Input)?;
         predictions.push(predict(cfg, &rec, imposed, score).map_err(SessionError::Input)?);
         records.push(rec);
     }
@@ -213,12 +231,30 @@ pub fn run(
             })
             .map_err(SessionError::Io)?,
         );
-        let text = serde_json::to_string_pretty(&predictions).unwrap_or_default();
-        files.push(
-            od.write("prediction.json", text.as_bytes())
-                .map_err(SessionError::Io)?,
-        );
+        // prediction.json is the `--json` object (that lists it among the files).
+        files.push(od.path("prediction.json"));
+        let json = run_json(&predictions, config_path, &files, &warnings);
+        let text = serde_json::to_string_pretty(&json).unwrap_or_default();
+        od.write("prediction.json", text.as_bytes())
+            .map_err(SessionError::Io)?;
     }
+    let json = run_json(&predictions, config_path, &files, &warnings);
+    Ok(PredictRun {
+        predictions,
+        json,
+        warnings,
+        files,
+    })
+}
+
+/// The `--json` object of `predictions` of the model at `config_path`, listing the `files`
+/// written and the `warnings`.
+fn run_json(
+    predictions: &[Prediction],
+    config_path: &Path,
+    files: &[PathBuf],
+    warnings: &[String],
+) -> Value {
     let one = |p: &Prediction| serde_json::to_value(p).unwrap_or_default();
     let mut json = if predictions.len() == 1 {
         one(&predictions[0])
@@ -236,11 +272,6 @@ pub fn run(
             .map(|f| f.display().to_string())
             .collect::<Vec<_>>(),
     );
-    json["warnings"] = Value::from(warnings.clone());
-    Ok(PredictRun {
-        predictions,
-        json,
-        warnings,
-        files,
-    })
+    json["warnings"] = Value::from(warnings.to_vec());
+    json
 }
