@@ -174,3 +174,101 @@ fn same_samples(a: &Record, b: &Record) -> bool {
             .zip(&b.inputs)
             .all(|((n, v), (m, w))| n == m && eq(v, w))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The MTS rig with its MR damper (`[inputs.current]`, unit A, value 0).
+    fn mts() -> RigConfig {
+        RigConfig::from_toml_str(include_str!("../../../configs/utfsm_mts_mrdamper.toml")).unwrap()
+    }
+
+    /// A 500 Hz record of x, force and `current` (when given), named `src`.
+    fn record(
+        src: &str,
+        force: impl Fn(usize) -> f64,
+        current: Option<&dyn Fn(usize) -> f64>,
+    ) -> Record {
+        let mut text = String::from(if current.is_some() {
+            "t,x,force,current\n"
+        } else {
+            "t,x,force\n"
+        });
+        for k in 0..300 {
+            let x = 0.05 + 0.002 * (k as f64 * 0.05).sin();
+            text += &format!("{},{x},{}", k as f64 * 0.002, force(k));
+            if let Some(c) = current {
+                text += &format!(",{}", c(k));
+            }
+            text += "\n";
+        }
+        crate::data::parse_csv_with(src, &text, &["current".to_string()]).unwrap()
+    }
+
+    #[test]
+    fn a_constant_force_cannot_be_scored_and_a_varying_one_can() {
+        let p = &mts().plant;
+        let flat = record("flat.csv", |_| 120.0, None);
+        let e = scorable(&flat, true, 0..300, p).unwrap_err();
+        assert!(
+            e.starts_with("flat.csv: column `force` is constant over samples 0..300"),
+            "{e}"
+        );
+        let varying = record("v.csv", |k| 120.0 + (k % 7) as f64, None);
+        assert!(scorable(&varying, true, 0..300, p).is_ok());
+        // Constant over the scored part only.
+        let step = record("s.csv", |k| if k < 200 { k as f64 } else { 5.0 }, None);
+        assert!(scorable(&step, true, 0..300, p).is_ok());
+        assert!(scorable(&step, true, 200..300, p)
+            .unwrap_err()
+            .contains("samples 200..300"));
+    }
+
+    #[test]
+    fn an_input_stepping_within_a_record_is_refused_and_a_missing_one_warned() {
+        let cfg = mts();
+        let steps = record("steps.csv", |k| k as f64, Some(&|k| (k / 100) as f64));
+        let e = operating_inputs(&cfg, &steps).unwrap_err();
+        assert!(
+            e.contains("`current` varies within the record: 0 … 2 A"),
+            "{e}"
+        );
+        let one = record("one.csv", |k| k as f64, Some(&|_| 1.0));
+        assert_eq!(operating_inputs(&cfg, &one).unwrap(), Vec::<String>::new());
+        let none = record("none.csv", |k| k as f64, None);
+        assert_eq!(
+            operating_inputs(&cfg, &none).unwrap(),
+            vec!["none.csv: no `current` column; taken at the config's operating point 0 A"]
+        );
+    }
+
+    #[test]
+    fn the_noise_of_an_alternating_signal_is_its_amplitude_scaled() {
+        // Every difference of ±a alternating is 2a: σ = 2a · 1.4826 / √2.
+        let v: Vec<f64> = (0..101)
+            .map(|k| if k % 2 == 0 { 0.01 } else { -0.01 })
+            .collect();
+        assert!((noise_std(&v) - 0.02 * 1.4826 / 2f64.sqrt()).abs() < 1e-15);
+        // A single step leaves the median difference, and the noise, at zero.
+        let s: Vec<f64> = (0..100).map(|k| if k < 50 { 0.0 } else { 2.0 }).collect();
+        assert_eq!(noise_std(&s), 0.0);
+    }
+
+    #[test]
+    fn records_with_the_same_samples_are_one_recording() {
+        let a = record("a.csv", |k| k as f64, Some(&|_| 1.0));
+        let b = record("b.csv", |k| k as f64, Some(&|_| 1.0));
+        let c = record(
+            "c.csv",
+            |k| if k == 299 { 0.5 } else { k as f64 },
+            Some(&|_| 1.0),
+        );
+        let e = distinct(&[&a, &c, &b]).unwrap_err();
+        assert!(
+            e.starts_with("a.csv and b.csv hold the same samples (300 of them"),
+            "{e}"
+        );
+        assert!(distinct(&[&a, &c]).is_ok());
+    }
+}
