@@ -240,3 +240,21 @@ def test_prediction_json_is_the_json_object(tmp_path):
 def test_predict_without_data_is_refused():
     r = ehactl("predict", "--config", CONFIG)
     assert r.returncode == 2 and "--data" in r.stderr, r
+
+
+def test_predict_data_messages_do_not_name_diagnose(tmp_path):
+    t = rows(A1)
+    t[0].append("note")
+    for row in t[1:]:
+        row.append("ok")
+    noted = write(tmp_path / "noted.csv", t)
+    r = ehactl("predict", "--config", CONFIG, "--data", noted, "--imposed-motion")
+    assert r.returncode == 0, r.stderr
+    assert "text columns not used by ehactl" in r.stderr and "diagnose" not in r.stderr, r.stderr
+    t = rows(A1)
+    t[100][0] = repr(float(t[100][0]) + 0.0005)  # one time stamp 0.5 ms late at 500 Hz
+    jitter = write(tmp_path / "jitter.csv", t)
+    r = ehactl("predict", "--config", CONFIG, "--data", jitter, "--imposed-motion")
+    assert r.returncode == 2, r
+    line = one_error(r)
+    assert "sampling is not uniform" in line and "diagnose" not in line, line
