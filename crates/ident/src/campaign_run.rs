@@ -190,14 +190,12 @@ fn check_records(
         "diagnose",
         Some(allow_config_mismatch),
     )?;
+    // The fitting and held-out parts, or the whole record fitted.
     let parts = |r: &crate::data::Record, held: bool| {
         let n = r.len();
         let nf = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
-        if held {
-            vec![0..nf.min(n), nf.min(n)..n]
-        } else {
-            vec![0..n]
-        }
+        let cut = if held { nf.min(n) } else { n };
+        [0..cut, cut..n]
     };
     let held = val.is_empty();
     for (r, part) in fit

@@ -127,10 +127,11 @@ pub fn check(
 }
 
 /// An output directory held by one ehactl (`diagnose`, a campaign, `predict`) from its check
-/// to its last file: an advisory lock (flock(2), through [`std::fs::File::try_lock`]) on the
-/// directory itself, so that no lock file is left among the outputs and a killed run's lock
-/// goes with its process. A directory [`lock`] created is removed again when the run ends
-/// without writing into it (a refused record leaves no empty directory behind).
+/// to its last file: an advisory lock (flock(2),
+/// [`ehactl_log::logger::try_lock_exclusive`]) on the directory itself, so that no lock file
+/// is left among the outputs and a killed run's lock goes with its process. A directory
+/// [`lock`] created is removed again when the run ends without writing into it (a refused
+/// record leaves no empty directory behind).
 pub struct DirLock {
     dir: PathBuf,
     created: bool,
@@ -149,15 +150,15 @@ pub fn lock(dir: &Path) -> Result<DirLock, String> {
             .map_err(|e| format!("{}: cannot create output directory: {e}", dir.display()))?;
         let file = std::fs::File::open(dir)
             .map_err(|e| format!("--out {}: cannot open the directory: {e}", dir.display()))?;
-        match file.try_lock() {
-            Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => {
+        match ehactl_log::logger::try_lock_exclusive(&file) {
+            Ok(true) => {}
+            Ok(false) => {
                 return Err(format!(
                     "--out {}: another running ehactl (diagnose or predict) is writing into this directory (it holds the directory's lock); wait for it to end or choose another --out",
                     dir.display()
                 ))
             }
-            Err(std::fs::TryLockError::Error(e)) => {
+            Err(e) => {
                 return Err(format!(
                     "--out {}: cannot lock the directory: {e}",
                     dir.display()

@@ -182,20 +182,13 @@ pub fn run(
     let mut records = Vec::new();
     for d in data {
         let rec = load_checked(cfg, d)?;
-        let label = config_path.display().to_string();
-        crate::session::check_logged_configs(cfg, &label, &[&rec], "predict", None)?;
         warnings.extend(rec.warnings.iter().cloned());
         let n = rec.len();
         let score = held_out.then(|| {
             let nf = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
             nf..n
         });
-        let (scored, only_force) = (
-            score.clone().unwrap_or(0..n),
-            imposed || rec.imposed_motion(),
-        );
-        crate::record_checks::scorable(&rec, only_force, scored, &cfg.plant)
-            .map_err(SessionError::Input)?;
+        crate::session::check_for_prediction(cfg, config_path, &rec, imposed, score.clone())?;
         predictions.push(predict(cfg, &rec, imposed, score).map_err(SessionError::Input)?);
         records.push(rec);
     }

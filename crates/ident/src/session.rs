@@ -178,6 +178,25 @@ pub fn load_checked(cfg: &RigConfig, p: &Path) -> Result<data::Record, SessionEr
     Ok(r)
 }
 
+/// What `ehactl predict` checks on a loaded record `rec` before it scores samples `score`
+/// (all when `None`) of the model at `config_path`: no ehactl log of another rig
+/// ([`check_logged_configs`]) and no constant scored channel
+/// ([`crate::record_checks::scorable`]; only the force when `imposed` or the record is a
+/// displacement-controlled one).
+pub fn check_for_prediction(
+    cfg: &RigConfig,
+    config_path: &Path,
+    rec: &data::Record,
+    imposed: bool,
+    score: Option<std::ops::Range<usize>>,
+) -> Result<(), SessionError> {
+    let label = config_path.display().to_string();
+    check_logged_configs(cfg, &label, &[rec], "predict", None)?;
+    let only_force = imposed || rec.imposed_motion();
+    crate::record_checks::scorable(rec, only_force, score.unwrap_or(0..rec.len()), &cfg.plant)
+        .map_err(SessionError::Input)
+}
+
 /// How a record is replayed through `cfg` and a note saying so: closed-loop records (a `ref`
 /// column and the config's PD position or PI force loop) through the same controller, since
 /// an integrating plant (a piston under position control, a force rig pressing on a stiff

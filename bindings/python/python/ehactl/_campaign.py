@@ -125,8 +125,9 @@ def campaign(
 
     Raises:
         FileNotFoundError: a record does not exist.
-        ValueError: bad data or config (the message names the file, row or field).
-        OSError: the report could not be written.
+        ValueError: bad data or config (the message names the file, row or field), e.g. two
+            records with the same samples, a constant force, an ehactl log of another rig.
+        OSError: the report could not be written, or ``out`` is held by another running ehactl.
     """
     c = _as_config(cfg)
     raw = json.loads(_ehactl.campaign_json(c, _paths(data, "measured data file"),
