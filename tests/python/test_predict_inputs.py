@@ -93,6 +93,24 @@ def test_a_constant_force_is_refused_by_predict_and_a_campaign(tmp_path):
     assert str(flat) in line and "column `force` is constant" in line, line
 
 
+def test_a_constant_channel_beside_others_is_left_out_of_the_score_with_a_warning(tmp_path):
+    # Closed-loop replay of the MTS chirp scores x and force; with the force constant only x
+    # is scored, and said so.
+    n = len(rows(A0)) - 1
+    flat = with_column(A0, tmp_path / "flat.csv", "force", [120.0] * n)
+    r = ehactl("predict", "--config", CONFIG, "--data", flat, "--json")
+    assert r.returncode == 0, r.stderr
+    j = json.loads(r.stdout)
+    assert j["replay"] == "closed_loop" and set(j["nrmse"]["channels"]) == {"x"}, j
+    assert j["nrmse"]["overall"] == j["nrmse"]["channels"]["x"] > 0
+    w = [x for x in j["warnings"] if "column `force` is constant" in x]
+    assert len(w) == 1 and str(flat) in w[0] and "left out of the NRMSE" in w[0], j["warnings"]
+    # The same record with the force varying: x scores the same, the force is scored too.
+    r = ehactl("predict", "--config", CONFIG, "--data", A0, "--json")
+    both = json.loads(r.stdout)["nrmse"]["channels"]
+    assert set(both) == {"x", "force"} and both["x"] == j["nrmse"]["channels"]["x"]
+
+
 def test_a_force_constant_over_the_held_out_part_only_is_refused(tmp_path):
     f = [float(r[4]) for r in rows(A0)[1:]]
     n = len(f)

@@ -137,6 +137,24 @@ pub fn predict(
     })
 }
 
+/// `p` without the scores of the constant channels `flat` (each with its warning, added to
+/// `warnings`): the overall NRMSE is the RMS over the channels that remain.
+fn leave_out(
+    mut p: Prediction,
+    flat: &[(ChannelKind, String)],
+    warnings: &mut Vec<String>,
+) -> Prediction {
+    for (k, w) in flat {
+        p.nrmse.channels.remove(k.column());
+        warnings.push(w.clone());
+    }
+    if !flat.is_empty() {
+        let v: Vec<f64> = p.nrmse.channels.values().copied().collect();
+        p.nrmse.overall = (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    }
+    p
+}
+
 /// A finished `ehactl predict`.
 pub struct PredictRun {
     /// One prediction per record.
@@ -188,8 +206,10 @@ pub fn run(
             let nf = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
             nf..n
         });
-        crate::session::check_for_prediction(cfg, config_path, &rec, imposed, score.clone())?;
-        predictions.push(predict(cfg, &rec, imposed, score).map_err(SessionError::Input)?);
+        let flat =
+            crate::session::check_for_prediction(cfg, config_path, &rec, imposed, score.clone())?;
+        let p = predict(cfg, &rec, imposed, score).map_err(SessionError::Input)?;
+        predictions.push(leave_out(p, &flat, &mut warnings));
         records.push(rec);
     }
     let mut files = Vec::new();

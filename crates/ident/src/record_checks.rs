@@ -20,16 +20,18 @@ pub const INPUT_NOISE_TOLERANCE: f64 = 5.0;
 /// rounding of the numbers as written (-): a CSV export prints 6 to 17 significant digits.
 pub const ROUNDING_STD: f64 = 1e-9;
 
-/// Refuse a channel of `rec` that cannot be scored over samples `r`, since an NRMSE divides
-/// by its standard deviation there: zero, at most [`ROUNDING_STD`] of its largest |value|, or
-/// (for `x`) at most half `sensors.position.resolution` (one count of flicker). `imposed`:
-/// only the force is scored.
-pub fn scorable(
+/// The channels of `rec` scored over samples `r` (only the force when `imposed`) that cannot
+/// be scored, since an NRMSE divides by their standard deviation there: zero, at most
+/// [`ROUNDING_STD`] of the largest |value|, or (for `x`) at most half
+/// `sensors.position.resolution` (one count of flicker). Each with what it is:
+/// "`{src}: column `force` is constant over samples a..b (standard deviation …)`".
+pub fn unscorable(
     rec: &Record,
     imposed: bool,
     r: Range<usize>,
     plant: &ehactl_plant::PlantParams,
-) -> Result<(), String> {
+) -> Vec<(ChannelKind, String)> {
+    let mut out = Vec::new();
     for c in &rec.channels {
         if imposed && c.kind != ChannelKind::Force {
             continue;
@@ -49,18 +51,38 @@ pub fn scorable(
             } else {
                 format!("{ROUNDING_STD:e} of its largest value: rounding only")
             };
-            return Err(format!(
-                "{}: column `{}` is constant over samples {}..{} (standard deviation {s:.3e} {}, {why}); a prediction error is normalised by the measured standard deviation, so a constant channel cannot be scored: give a record in which it varies{}",
-                rec.source,
-                c.kind.column(),
-                r.start,
-                r.end,
-                c.kind.unit(),
-                if imposed { "" } else { ", or leave the column out" }
+            out.push((
+                c.kind,
+                format!(
+                    "{}: column `{}` is constant over samples {}..{} (standard deviation {s:.3e} {}, {why})",
+                    rec.source,
+                    c.kind.column(),
+                    r.start,
+                    r.end,
+                    c.kind.unit()
+                ),
             ));
         }
     }
-    Ok(())
+    out
+}
+
+/// Why a constant channel cannot be scored (the end of the messages about one).
+pub const CANNOT_SCORE: &str = "a prediction error is normalised by the measured standard deviation, so a constant channel cannot be scored";
+
+/// Refuse a record with a channel that cannot be scored over samples `r` ([`unscorable`]).
+pub fn scorable(
+    rec: &Record,
+    imposed: bool,
+    r: Range<usize>,
+    plant: &ehactl_plant::PlantParams,
+) -> Result<(), String> {
+    match unscorable(rec, imposed, r, plant).first() {
+        Some((_, what)) => Err(format!(
+            "{what}; {CANNOT_SCORE}: give a record in which it varies"
+        )),
+        None => Ok(()),
+    }
 }
 
 /// Check each operating input `cfg` declares against `rec`: one that varies within the record

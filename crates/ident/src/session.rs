@@ -180,21 +180,43 @@ pub fn load_checked(cfg: &RigConfig, p: &Path) -> Result<data::Record, SessionEr
 
 /// What `ehactl predict` checks on a loaded record `rec` before it scores samples `score`
 /// (all when `None`) of the model at `config_path`: no ehactl log of another rig
-/// ([`check_logged_configs`]) and no constant scored channel
-/// ([`crate::record_checks::scorable`]; only the force when `imposed` or the record is a
-/// displacement-controlled one).
+/// ([`check_logged_configs`]) and a scored channel that varies
+/// ([`crate::record_checks::unscorable`]; only the force when `imposed` or the record is a
+/// displacement-controlled one). Returns the constant channels to leave out of the score,
+/// each with its warning, when others remain (e.g. the zero force of an ehactl log of a rig
+/// without a load cell); an error when none does.
 pub fn check_for_prediction(
     cfg: &RigConfig,
     config_path: &Path,
     rec: &data::Record,
     imposed: bool,
     score: Option<std::ops::Range<usize>>,
-) -> Result<(), SessionError> {
+) -> Result<Vec<(data::ChannelKind, String)>, SessionError> {
+    use crate::record_checks::{unscorable, CANNOT_SCORE};
     let label = config_path.display().to_string();
     check_logged_configs(cfg, &label, &[rec], "predict", None)?;
     let only_force = imposed || rec.imposed_motion();
-    crate::record_checks::scorable(rec, only_force, score.unwrap_or(0..rec.len()), &cfg.plant)
-        .map_err(SessionError::Input)
+    let r = score.unwrap_or(0..rec.len());
+    let flat = unscorable(rec, only_force, r, &cfg.plant);
+    let scored = if only_force { 1 } else { rec.channels.len() };
+    if !flat.is_empty() && flat.len() >= scored {
+        let what: Vec<&str> = flat.iter().map(|(_, w)| w.as_str()).collect();
+        return Err(SessionError::Input(format!(
+            "{}; {CANNOT_SCORE}: give a record in which it varies",
+            what.join("; ")
+        )));
+    }
+    Ok(flat
+        .into_iter()
+        .map(|(k, w)| {
+            (
+                k,
+                format!(
+                    "{w}; {CANNOT_SCORE}: left out of the NRMSE, the other channels are scored"
+                ),
+            )
+        })
+        .collect())
 }
 
 /// How a record is replayed through `cfg` and a note saying so: closed-loop records (a `ref`
