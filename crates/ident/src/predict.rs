@@ -244,30 +244,9 @@ pub fn run(
             })
             .map_err(SessionError::Io)?,
         );
-        // prediction.json is the `--json` object (that lists it among the files).
+        // Written below: the `--json` object, which lists it among the files.
         files.push(od.path("prediction.json"));
-        let json = run_json(&predictions, config_path, &files, &warnings);
-        let text = serde_json::to_string_pretty(&json).unwrap_or_default();
-        od.write("prediction.json", text.as_bytes())
-            .map_err(SessionError::Io)?;
     }
-    let json = run_json(&predictions, config_path, &files, &warnings);
-    Ok(PredictRun {
-        predictions,
-        json,
-        warnings,
-        files,
-    })
-}
-
-/// The `--json` object of `predictions` of the model at `config_path`, listing the `files`
-/// written and the `warnings`.
-fn run_json(
-    predictions: &[Prediction],
-    config_path: &Path,
-    files: &[PathBuf],
-    warnings: &[String],
-) -> Value {
     let one = |p: &Prediction| serde_json::to_value(p).unwrap_or_default();
     let mut json = if predictions.len() == 1 {
         one(&predictions[0])
@@ -285,6 +264,17 @@ fn run_json(
             .map(|f| f.display().to_string())
             .collect::<Vec<_>>(),
     );
-    json["warnings"] = Value::from(warnings.to_vec());
-    json
+    json["warnings"] = Value::from(warnings.clone());
+    if let Some(dir) = out {
+        let text = serde_json::to_string_pretty(&json).unwrap_or_default();
+        crate::outdir::OutDir::create(dir)
+            .and_then(|mut od| od.write("prediction.json", text.as_bytes()))
+            .map_err(SessionError::Io)?;
+    }
+    Ok(PredictRun {
+        predictions,
+        json,
+        warnings,
+        files,
+    })
 }
