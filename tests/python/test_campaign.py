@@ -165,7 +165,7 @@ def test_predict_writes_a_plot_and_json(campaign, tmp_path):
                "--data", files[0.25][1], "--out", out)
     assert r.returncode == 0, r.stderr
     assert (out / "prediction.svg").read_text().startswith("<svg")
-    assert len(json.loads((out / "prediction.json").read_text())) == 2
+    assert len(json.loads((out / "prediction.json").read_text())["records"]) == 2
 
 
 def with_current(src: pathlib.Path, dst: pathlib.Path, drop=()):

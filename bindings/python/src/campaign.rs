@@ -34,7 +34,7 @@ pub fn campaign_json(
     let rc = cfg.cfg.clone();
     let src = source(cfg);
     py.detach(|| {
-        ehactl_ident::campaign_run::run(&rc, &src, &data, &validate, out.as_deref(), force)
+        ehactl_ident::campaign_run::run(&rc, &src, &data, &validate, out.as_deref(), force, false)
     })
     .map(|r| r.json.to_string())
     .map_err(to_py)

@@ -42,3 +42,22 @@ def test_predict_matches_the_cli(tmp_path):
 def test_predict_refuses_a_missing_record(tmp_path):
     with pytest.raises(FileNotFoundError):
         ehactl.predict(CONFIGS / "utfsm_mts_mrdamper.toml", tmp_path / "nope.csv")
+
+
+@pytest.mark.parametrize("data", [None, []])
+def test_predict_without_a_record_raises_like_diagnose(data):
+    cfg = CONFIGS / "utfsm_mts_mrdamper.toml"
+    with pytest.raises(ValueError, match="no record to predict"):
+        ehactl.predict(cfg, data)
+    with pytest.raises(ValueError):
+        ehactl.diagnose(cfg, data)
+
+
+def test_predict_of_a_constant_force_raises_a_value_error_naming_it(tmp_path):
+    lines = CHIRPS[0].read_text().splitlines()
+    j = lines[0].split(",").index("force")
+    flat = tmp_path / "flat.csv"
+    flat.write_text("\n".join([lines[0]] + [",".join(f if k != j else "120.0" for k, f in enumerate(row.split(",")))
+                                            for row in lines[1:]]) + "\n")
+    with pytest.raises(ValueError, match=r"column `force` is constant .*standard deviation"):
+        ehactl.predict(CONFIGS / "utfsm_mts_mrdamper.toml", flat, imposed_motion=True)

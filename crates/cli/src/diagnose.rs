@@ -38,7 +38,7 @@ pub fn cmd_diagnose(
     let motion_only =
         data.len() == 1 && ehactl_ident::data::is_motion_only(&data[0]).unwrap_or(false);
     if data.len() > 1 || validate.len() > 1 || motion_only {
-        return cmd_campaign(&cfg, config, data, validate, out.as_deref(), json, sw.force);
+        return cmd_campaign(&cfg, config, data, validate, out.as_deref(), json, &sw);
     }
     let data_path = data[0].as_path();
     let validate = validate.first().map(PathBuf::as_path);
@@ -147,9 +147,17 @@ fn cmd_campaign(
     validate: &[PathBuf],
     out: Option<&Path>,
     json: bool,
-    force: bool,
+    sw: &Switches,
 ) -> ExitCode {
-    let run = match ehactl_ident::campaign_run::run(cfg, config, data, validate, out, force) {
+    let run = match ehactl_ident::campaign_run::run(
+        cfg,
+        config,
+        data,
+        validate,
+        out,
+        sw.force,
+        sw.allow_config_mismatch,
+    ) {
         Ok(r) => r,
         Err(e) => return exit_of(e),
     };

@@ -162,6 +162,21 @@ pub fn describe_point(at: &BTreeMap<String, f64>) -> String {
         .join(", ")
 }
 
+/// The registry's range check ([`ehactl_plant::spec::params`], the one `check-config` runs on
+/// the file) on the value `v` a dependence gives the parameter `path` at an operating point:
+/// `Err` holds the rest of the message (unit, out of range, what was expected).
+fn check_range(path: &str, v: f64) -> Result<(), String> {
+    let tables = [ehactl_plant::spec::params()];
+    match ehactl_plant::spec::find(&tables, path) {
+        Some(p) if !p.range.admits(v) => Err(format!(
+            " {}, out of range; {} (check-config checks the file's value, the dependence leaves it here; narrow the operating range or the dependence)",
+            p.unit,
+            ehactl_plant::spec::expectation(&tables, path)
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// The plant at operating point `at` (input name → value in its unit); an input not given
 /// stays at its declared `value`. Errors name an unknown input or a parameter the dependence
 /// drives out of its admitted range.
@@ -208,9 +223,56 @@ pub fn plant_at(
                     at[name], inp.unit
                 )
             })?;
+            check_range(path, new).map_err(|e| {
+                format!(
+                    "inputs.{name} = {} {}: `{path}` becomes {new}{e}",
+                    at[name], inp.unit
+                )
+            })?;
         }
     }
     ehactl_plant::model::validate(&p)
         .map_err(|e| format!("the plant at operating point {}: {e}", describe_point(at)))?;
     Ok(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The MTS rig with its MR damper (`[inputs.current]`, value 0 A, mass 10 kg).
+    fn mts(extra: &str) -> crate::RigConfig {
+        let text = include_str!("../../../configs/utfsm_mts_mrdamper.toml");
+        crate::RigConfig::from_toml_str(&format!("{text}\n{extra}")).unwrap()
+    }
+
+    fn at(i: f64) -> BTreeMap<String, f64> {
+        BTreeMap::from([("current".to_string(), i)])
+    }
+
+    #[test]
+    fn a_dependence_may_not_push_a_parameter_out_of_its_range() {
+        // 10 kg − 100 kg/A · 1 A = −90 kg: a mass must be > 0 (registry range `Positive`).
+        let cfg = mts("[inputs.current.linear]\n\"mechanics.mass\" = -100.0\n");
+        let ok = plant_at(&cfg.inputs, &cfg.plant, &at(0.05)).unwrap();
+        assert!((ok.mechanics.mass - 5.0).abs() < 1e-12);
+        let e = plant_at(&cfg.inputs, &cfg.plant, &at(1.0)).unwrap_err();
+        assert!(
+            e.contains("inputs.current = 1 A")
+                && e.contains("`mechanics.mass` becomes -90 kg")
+                && e.contains("out of range")
+                && e.contains("> 0"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_negative_pre_yield_travel_is_refused() {
+        let cfg = mts("[inputs.current.linear]\n\"effects.polynomial_force.dahl_travel\" = -1.0\n");
+        let e = plant_at(&cfg.inputs, &cfg.plant, &at(2.0)).unwrap_err();
+        assert!(
+            e.contains("effects.polynomial_force.dahl_travel") && e.contains("out of range"),
+            "{e}"
+        );
+    }
 }

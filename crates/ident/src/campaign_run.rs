@@ -22,7 +22,9 @@ pub struct CampaignRun {
     pub files: Vec<PathBuf>,
 }
 
-/// Run a campaign on `data` (fitting records) and `validate` (held out whole) against `cfg`.
+/// Run a campaign on `data` (fitting records) and `validate` (held out whole) against `cfg`;
+/// `allow_config_mismatch`: take ehactl logs of a config that differs from `cfg` in what the
+/// model takes as known ([`crate::session::check_logged_configs`]).
 pub fn run(
     cfg: &RigConfig,
     config_path: &Path,
@@ -30,6 +32,7 @@ pub fn run(
     validate: &[PathBuf],
     out: Option<&Path>,
     force: bool,
+    allow_config_mismatch: bool,
 ) -> Result<CampaignRun, SessionError> {
     let all: Vec<&PathBuf> = data.iter().chain(validate).collect();
     for (i, a) in all.iter().enumerate() {
@@ -46,8 +49,13 @@ pub fn run(
             data.iter().map(|d| ("--data file", d.as_path())).collect();
         inputs.extend(validate.iter().map(|v| ("--validate file", v.as_path())));
         inputs.push(("--config being run", config_path));
-        crate::outdir::check(dir, &inputs, force).map_err(SessionError::Input)?;
+        crate::outdir::check(dir, &inputs, force, "diagnose").map_err(SessionError::Input)?;
     }
+    // Held until the last file is written: a second run into `out` is refused meanwhile.
+    let _lock = out
+        .map(crate::outdir::lock)
+        .transpose()
+        .map_err(SessionError::Io)?;
     // Records load in parallel (a campaign of long CSVs is parse-bound).
     use rayon::prelude::*;
     let load = |ps: &[PathBuf]| -> Result<Vec<_>, SessionError> {
@@ -55,13 +63,21 @@ pub fn run(
     };
     let fit = load(data)?;
     let val = load(validate)?;
-    let mut warnings: Vec<String> = fit
-        .iter()
-        .chain(&val)
-        .flat_map(|r| r.warnings.iter().cloned())
-        .collect();
+    let mut warnings = check_records(cfg, config_path, &fit, &val, allow_config_mismatch)?;
+    warnings.extend(
+        fit.iter()
+            .chain(&val)
+            .flat_map(|r| r.warnings.iter().cloned()),
+    );
     let c = diagnose_campaign(cfg, &fit, &val).map_err(SessionError::Input)?;
-    warnings.extend(c.notes.iter().cloned());
+    // A record without a declared input is noted by the load and by the campaign: once.
+    warnings.extend(
+        c.notes
+            .iter()
+            .filter(|n| !warnings.contains(n))
+            .cloned()
+            .collect::<Vec<_>>(),
+    );
     if let Some(why) = &c.closed_loop.dropped {
         warnings.push(format!("the campaign law is dropped: {why}"));
     }
@@ -158,6 +174,47 @@ pub fn run(
         warnings,
         files,
     })
+}
+
+/// The records as a campaign may take them: no two with the same samples, no ehactl log of
+/// another rig (unless allowed; its warnings returned), and a force that varies over what is
+/// fitted and what is scored (the last [`crate::campaign::HOLDOUT`] of a fitting record held
+/// out when no validation record is given).
+fn check_records(
+    cfg: &RigConfig,
+    config_path: &Path,
+    fit: &[crate::data::Record],
+    val: &[crate::data::Record],
+    allow_config_mismatch: bool,
+) -> Result<Vec<String>, SessionError> {
+    let all: Vec<&crate::data::Record> = fit.iter().chain(val).collect();
+    crate::record_checks::distinct(&all).map_err(SessionError::Input)?;
+    let w = crate::session::check_logged_configs(
+        cfg,
+        &config_path.display().to_string(),
+        &all,
+        "diagnose",
+        Some(allow_config_mismatch),
+    )?;
+    // The fitting and held-out parts, or the whole record fitted.
+    let parts = |r: &crate::data::Record, held: bool| {
+        let n = r.len();
+        let nf = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
+        let cut = if held { nf.min(n) } else { n };
+        [0..cut, cut..n]
+    };
+    let held = val.is_empty();
+    for (r, part) in fit
+        .iter()
+        .flat_map(|r| parts(r, held).into_iter().map(move |p| (r, p)))
+        .chain(val.iter().map(|r| (r, 0..r.len())))
+    {
+        if !part.is_empty() {
+            crate::record_checks::scorable(r, true, part, &cfg.plant)
+                .map_err(SessionError::Input)?;
+        }
+    }
+    Ok(w)
 }
 
 fn report_md(c: &Campaign) -> String {

@@ -248,7 +248,7 @@ impl Record {
             if (di - dt).abs() > 0.01 * dt {
                 return Err(DataError(format!(
                     "{source}: sampling is not uniform at line {} (Δt = {di} s, median {dt} s); \
-                     diagnose replays at a fixed period — resample the record first",
+                     ehactl replays at a fixed period — resample the record first",
                     i + row_offset
                 )));
             }
@@ -755,7 +755,7 @@ fn check_unknown_columns(
     let mut warnings = Vec::new();
     if !unknown.is_empty() {
         warnings.push(format!(
-            "{source}: text columns not used by diagnose (not in the documented format, docs/design.md): {}",
+            "{source}: text columns not used by ehactl (not in the documented format, docs/design.md): {}",
             quote(
                 &unknown
                     .iter()

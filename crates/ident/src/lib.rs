@@ -36,6 +36,7 @@ pub mod outdir;
 pub mod plots;
 pub mod predict;
 pub mod progress;
+pub mod record_checks;
 pub mod replay;
 pub mod report;
 pub mod residual;

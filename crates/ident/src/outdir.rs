@@ -70,14 +70,20 @@ fn manifest(dir: &Path) -> BTreeSet<String> {
 
 /// Check `dir` before anything is computed: refuse (with the reason) an output that would be
 /// one of `inputs` (label, path), a path that is not a directory, and a directory holding
-/// files diagnose did not write (unless `force`).
-pub fn check(dir: &Path, inputs: &[(&str, &Path)], force: bool) -> Result<(), String> {
+/// files ehactl did not write (unless `force`). `command` (`diagnose`, `predict`) names the
+/// command in the messages.
+pub fn check(
+    dir: &Path,
+    inputs: &[(&str, &Path)],
+    force: bool,
+    command: &str,
+) -> Result<(), String> {
     for name in OUTPUTS.iter().chain(std::iter::once(&MANIFEST)) {
         let p = dir.join(name);
         for (label, input) in inputs {
             if same_file(&p, input) {
                 return Err(format!(
-                    "--out {}: {} is the {label} ({}); diagnose never writes over its inputs: choose another --out directory",
+                    "--out {}: {} is the {label} ({}); {command} never writes over its inputs: choose another --out directory",
                     dir.display(),
                     p.display(),
                     input.display()
@@ -111,13 +117,76 @@ pub fn check(dir: &Path, inputs: &[(&str, &Path)], force: bool) -> Result<(), St
         let n = foreign.len();
         foreign.truncate(5);
         return Err(format!(
-            "--out {}: holds {n} file(s) ehactl diagnose did not write ({}{}); it writes only into a new or empty directory or one it wrote before: choose another --out, or add --force to write beside them (files named like its outputs are then replaced)",
+            "--out {}: holds {n} file(s) ehactl did not write ({}{}); ehactl {command} writes only into a new or empty directory or one ehactl wrote before: choose another --out, or add --force to write beside them (files named like its outputs are then replaced)",
             dir.display(),
             foreign.join(", "),
             if n > 5 { ", …" } else { "" }
         ));
     }
     Ok(())
+}
+
+/// An output directory held by one ehactl (`diagnose`, a campaign, `predict`) from its check
+/// to its last file: an advisory lock (flock(2),
+/// [`ehactl_log::logger::try_lock_exclusive`]) on the directory itself, so that no lock file
+/// is left among the outputs and a killed run's lock goes with its process. A directory
+/// [`lock`] created is removed again when the run ends without writing into it (a refused
+/// record leaves no empty directory behind).
+pub struct DirLock {
+    dir: PathBuf,
+    created: bool,
+    _file: std::fs::File,
+}
+
+/// Create `dir` if needed and lock it; a directory another running ehactl holds is refused
+/// (the message names it), never waited for.
+pub fn lock(dir: &Path) -> Result<DirLock, String> {
+    use std::os::unix::fs::MetadataExt;
+    let created = !dir.exists();
+    // A directory removed and made again by another run between our open and our lock is
+    // another directory: lock the one at the path (a few tries).
+    for _ in 0..3 {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| format!("{}: cannot create output directory: {e}", dir.display()))?;
+        let file = std::fs::File::open(dir)
+            .map_err(|e| format!("--out {}: cannot open the directory: {e}", dir.display()))?;
+        match ehactl_log::logger::try_lock_exclusive(&file) {
+            Ok(true) => {}
+            Ok(false) => {
+                return Err(format!(
+                    "--out {}: another running ehactl (diagnose or predict) is writing into this directory (it holds the directory's lock); wait for it to end or choose another --out",
+                    dir.display()
+                ))
+            }
+            Err(e) => {
+                return Err(format!(
+                    "--out {}: cannot lock the directory: {e}",
+                    dir.display()
+                ))
+            }
+        }
+        let id = |m: std::fs::Metadata| (m.dev(), m.ino());
+        if file.metadata().map(id).ok() == std::fs::metadata(dir).map(id).ok() {
+            return Ok(DirLock {
+                dir: dir.to_path_buf(),
+                created,
+                _file: file,
+            });
+        }
+    }
+    Err(format!(
+        "--out {}: the directory keeps being replaced while it is locked; choose another --out",
+        dir.display()
+    ))
+}
+
+impl Drop for DirLock {
+    fn drop(&mut self) {
+        if self.created {
+            // Only an empty directory is removed (remove_dir fails otherwise), under the lock.
+            let _ = std::fs::remove_dir(&self.dir);
+        }
+    }
 }
 
 /// The output directory while the report is written: every file goes through
@@ -216,9 +285,9 @@ mod tests {
     fn a_directory_of_the_users_is_refused_unless_forced() {
         let d = tmp("user");
         std::fs::write(d.join("report.md"), "mine").unwrap();
-        let e = check(&d, &[], false).unwrap_err();
+        let e = check(&d, &[], false, "diagnose").unwrap_err();
         assert!(e.contains("report.md") && e.contains("--force"), "{e}");
-        assert!(check(&d, &[], true).is_ok());
+        assert!(check(&d, &[], true, "diagnose").is_ok());
         let _ = std::fs::remove_dir_all(&d);
     }
 
@@ -228,18 +297,18 @@ mod tests {
         let mut o = OutDir::create(&d).unwrap();
         o.write("report.md", b"one").unwrap();
         o.write("extended.toml", b"x = 1").unwrap();
-        assert!(check(&d, &[], false).is_ok());
+        assert!(check(&d, &[], false, "diagnose").is_ok());
         let cfg = d.join("extended.toml");
-        let e = check(&d, &[("--config", &cfg)], true).unwrap_err();
+        let e = check(&d, &[("--config", &cfg)], true, "predict").unwrap_err();
         assert!(
-            e.contains("--config") && e.contains("never writes over"),
+            e.contains("--config") && e.contains("predict never writes over"),
             "{e}"
         );
         // A hard link elsewhere is the same file.
         let link = std::env::temp_dir().join(format!("ehactl-outdir-link-{}", std::process::id()));
         let _ = std::fs::remove_file(&link);
         std::fs::hard_link(d.join("report.md"), &link).unwrap();
-        assert!(check(&d, &[("--data", &link)], true).is_err());
+        assert!(check(&d, &[("--data", &link)], true, "diagnose").is_err());
         let _ = std::fs::remove_file(&link);
         // No temporary file is left behind.
         let names: Vec<String> = std::fs::read_dir(&d)
@@ -248,6 +317,30 @@ mod tests {
             .collect();
         assert!(names.iter().all(|n| !n.contains(".tmp-")), "{names:?}");
         let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn a_locked_directory_is_refused_and_an_unused_new_one_removed() {
+        let d = tmp("lock").join("new");
+        let held = lock(&d).unwrap();
+        assert!(d.is_dir());
+        let e = lock(&d).err().expect("a second lock is refused");
+        assert!(
+            e.contains(&d.display().to_string()) && e.contains("another running ehactl"),
+            "{e}"
+        );
+        drop(held);
+        // Created by the lock and left empty: removed with it.
+        assert!(!d.exists());
+        // Released: the next run takes it, and what it writes stays.
+        let held = lock(&d).unwrap();
+        OutDir::create(&d)
+            .unwrap()
+            .write("report.md", b"one")
+            .unwrap();
+        drop(held);
+        assert!(d.join("report.md").is_file());
+        let _ = std::fs::remove_dir_all(d.parent().unwrap());
     }
 
     #[test]

@@ -331,6 +331,25 @@ fn limits_warnings(p: &Prediction) -> Vec<String> {
     w
 }
 
+/// `p` without the scores of the constant channels `flat` (each with its warning, added to
+/// `warnings`): the overall NRMSE is the RMS over the channels that remain.
+fn leave_out(
+    mut p: Prediction,
+    flat: &[(ChannelKind, String)],
+    warnings: &mut Vec<String>,
+) -> Prediction {
+    for (k, w) in flat {
+        p.nrmse.channels.remove(k.column());
+        warnings.push(w.clone());
+    }
+    if !flat.is_empty() && p.diverged.is_none() {
+        let v: Vec<f64> = p.nrmse.channels.values().flatten().copied().collect();
+        p.nrmse.overall =
+            Some((v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt());
+    }
+    p
+}
+
 /// A finished `ehactl predict`.
 pub struct PredictRun {
     /// One prediction per record.
@@ -355,12 +374,22 @@ pub fn run(
     out: Option<&Path>,
     force: bool,
 ) -> Result<PredictRun, SessionError> {
+    if data.is_empty() {
+        return Err(SessionError::Input(
+            "no record to predict; give one or more --data files (CSV or MCAP)".into(),
+        ));
+    }
     if let Some(dir) = out {
         let mut inputs: Vec<(&str, &Path)> =
             data.iter().map(|d| ("--data file", d.as_path())).collect();
         inputs.push(("--config being run", config_path));
-        crate::outdir::check(dir, &inputs, force).map_err(SessionError::Input)?;
+        crate::outdir::check(dir, &inputs, force, "predict").map_err(SessionError::Input)?;
     }
+    // Held until the last file is written: a second run into `out` is refused meanwhile.
+    let _lock = out
+        .map(crate::outdir::lock)
+        .transpose()
+        .map_err(SessionError::Io)?;
     let mut predictions = Vec::new();
     let mut warnings = Vec::new();
     let mut records = Vec::new();
@@ -372,9 +401,11 @@ pub fn run(
             let nf = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
             nf..n
         });
+        let flat =
+            crate::session::check_for_prediction(cfg, config_path, &rec, imposed, score.clone())?;
         let p = predict(cfg, &rec, imposed, score).map_err(SessionError::Input)?;
         warnings.extend(limits_warnings(&p));
-        predictions.push(p);
+        predictions.push(leave_out(p, &flat, &mut warnings));
         records.push(rec);
     }
     let mut files = Vec::new();
@@ -425,11 +456,8 @@ pub fn run(
             })
             .map_err(SessionError::Io)?,
         );
-        let text = serde_json::to_string_pretty(&predictions).unwrap_or_default();
-        files.push(
-            od.write("prediction.json", text.as_bytes())
-                .map_err(SessionError::Io)?,
-        );
+        // Written below: the `--json` object, which lists it among the files.
+        files.push(od.path("prediction.json"));
     }
     let one = |p: &Prediction| serde_json::to_value(p).unwrap_or_default();
     let mut json = if predictions.len() == 1 {
@@ -454,6 +482,12 @@ pub fn run(
     json["warnings"] = Value::from(warnings.clone());
     json["diverged_records"] =
         Value::from(predictions.iter().filter(|p| p.diverged.is_some()).count());
+    if let Some(dir) = out {
+        let text = serde_json::to_string_pretty(&json).unwrap_or_default();
+        crate::outdir::OutDir::create(dir)
+            .and_then(|mut od| od.write("prediction.json", text.as_bytes()))
+            .map_err(SessionError::Io)?;
+    }
     Ok(PredictRun {
         predictions,
         json,

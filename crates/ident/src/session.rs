@@ -164,14 +164,59 @@ pub const USER_INTEGRATION_COST: f64 = 4.0;
 pub const USER_INTEGRATION_MIN_COST: f64 = 0.0;
 
 /// Load a record (CSV with the config's declared operating inputs, or an ehactl MCAP log) and
-/// check it against the rig (sample period, units).
+/// check it against the rig (sample period, units) and the config's operating inputs (one
+/// operating point per record, a missing one warned about:
+/// [`crate::record_checks::operating_inputs`]).
 pub fn load_checked(cfg: &RigConfig, p: &Path) -> Result<data::Record, SessionError> {
     let inputs: Vec<String> = cfg.inputs.keys().cloned().collect();
     let mut r = data::load_with(p, &inputs).map_err(|e| SessionError::Input(e.to_string()))?;
     let w = data::check_against(&r, &cfg.plant, cfg.timebase().period())
         .map_err(|e| SessionError::Input(e.to_string()))?;
     r.warnings.extend(w);
+    let w = crate::record_checks::operating_inputs(cfg, &r).map_err(SessionError::Input)?;
+    r.warnings.extend(w);
     Ok(r)
+}
+
+/// What `ehactl predict` checks on a loaded record `rec` before it scores samples `score`
+/// (all when `None`) of the model at `config_path`: no ehactl log of another rig
+/// ([`check_logged_configs`]) and a scored channel that varies
+/// ([`crate::record_checks::unscorable`]; only the force when `imposed` or the record is a
+/// displacement-controlled one). Returns the constant channels to leave out of the score,
+/// each with its warning, when others remain (e.g. the zero force of an ehactl log of a rig
+/// without a load cell); an error when none does.
+pub fn check_for_prediction(
+    cfg: &RigConfig,
+    config_path: &Path,
+    rec: &data::Record,
+    imposed: bool,
+    score: Option<std::ops::Range<usize>>,
+) -> Result<Vec<(data::ChannelKind, String)>, SessionError> {
+    use crate::record_checks::{unscorable, CANNOT_SCORE};
+    let label = config_path.display().to_string();
+    check_logged_configs(cfg, &label, &[rec], "predict", None)?;
+    let only_force = imposed || rec.imposed_motion();
+    let r = score.unwrap_or(0..rec.len());
+    let flat = unscorable(rec, only_force, r, &cfg.plant);
+    let scored = if only_force { 1 } else { rec.channels.len() };
+    if !flat.is_empty() && flat.len() >= scored {
+        let what: Vec<&str> = flat.iter().map(|(_, w)| w.as_str()).collect();
+        return Err(SessionError::Input(format!(
+            "{}; {CANNOT_SCORE}: give a record in which it varies",
+            what.join("; ")
+        )));
+    }
+    Ok(flat
+        .into_iter()
+        .map(|(k, w)| {
+            (
+                k,
+                format!(
+                    "{w}; {CANNOT_SCORE}: left out of the NRMSE, the other channels are scored"
+                ),
+            )
+        })
+        .collect())
 }
 
 /// How a record is replayed through `cfg` and a note saying so: closed-loop records (a `ref`
@@ -214,6 +259,11 @@ pub fn run(
     choices: RunChoices,
 ) -> Result<DiagnoseRun, SessionError> {
     check_paths(data_path, validate, out, &choices)?;
+    // Held until the report is written: a second run into `out` is refused meanwhile.
+    let _lock = out
+        .map(crate::outdir::lock)
+        .transpose()
+        .map_err(SessionError::Io)?;
     let rec = load_single(cfg, data_path)?;
     let val = validate.map(|p| load_single(cfg, p)).transpose()?;
     let mismatch = logged_config_mismatches(cfg, config_label, &rec, val.as_ref(), &choices)?;
@@ -338,7 +388,8 @@ fn check_paths(
                 .as_deref()
                 .map(|c| ("--config being run", c)),
         );
-        crate::outdir::check(dir, &inputs, choices.force).map_err(SessionError::Input)?;
+        crate::outdir::check(dir, &inputs, choices.force, "diagnose")
+            .map_err(SessionError::Input)?;
     }
     Ok(())
 }
@@ -365,8 +416,30 @@ fn logged_config_mismatches(
     val: Option<&data::Record>,
     choices: &RunChoices,
 ) -> Result<Vec<String>, SessionError> {
+    let recs: Vec<&data::Record> = std::iter::once(rec).chain(val).collect();
+    check_logged_configs(
+        cfg,
+        config_label,
+        &recs,
+        "diagnose",
+        Some(choices.allow_config_mismatch),
+    )
+}
+
+/// Refuse an ehactl MCAP log among `recs` that was logged with a config that differs from
+/// `cfg` (labelled `config_label`) in what the rig's model takes as known
+/// ([`config_mismatch`]): a log of another rig. `allow`: the `--allow-config-mismatch` of a
+/// `command` that has the option (then each mismatch is returned as a warning); `None` for
+/// one that has not (`predict`). The one check of `diagnose`, a campaign and `predict`.
+pub fn check_logged_configs(
+    cfg: &RigConfig,
+    config_label: &str,
+    recs: &[&data::Record],
+    command: &str,
+    allow: Option<bool>,
+) -> Result<Vec<String>, SessionError> {
     let mut mismatch = Vec::new();
-    for r in std::iter::once(rec).chain(val) {
+    for r in recs {
         let Some(logged) = &r.logged_config else {
             continue;
         };
@@ -375,16 +448,19 @@ fn logged_config_mismatches(
             continue;
         }
         let what = format!(
-            "{}: logged with a config that differs from --config {config_label} in what the diagnosis takes as known (another rig, or the config changed since): {}",
+            "{}: logged with a config that differs from --config {config_label} in what the model takes as known (another rig, or the config changed since): {}",
             r.source,
             diff.join("; ")
         );
-        if !choices.allow_config_mismatch {
-            return Err(SessionError::Input(format!(
-                "{what}; diagnose it against the config it was logged with, or add --allow-config-mismatch if the rig really is the one --config describes"
-            )));
+        match allow {
+            Some(true) => mismatch.push(format!("{what} (accepted by --allow-config-mismatch)")),
+            Some(false) => return Err(SessionError::Input(format!(
+                "{what}; {command} it against the config it was logged with, or add --allow-config-mismatch if the rig really is the one --config describes"
+            ))),
+            None => return Err(SessionError::Input(format!(
+                "{what}; {command} it with the config it was logged with or the extended.toml of its diagnosis"
+            ))),
         }
-        mismatch.push(format!("{what} (accepted by --allow-config-mismatch)"));
     }
     Ok(mismatch)
 }

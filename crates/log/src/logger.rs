@@ -264,17 +264,29 @@ impl NoteLog {
 
 /// Take the exclusive advisory lock (flock(2)) of the open log file without waiting.
 fn lock_exclusive(file: &File) -> Result<(), String> {
+    match try_lock_exclusive(file) {
+        Ok(true) => Ok(()),
+        Ok(false) => Err("is being written by another running ehactl (it holds the file's lock); choose another --out".to_string()),
+        Err(e) => Err(format!("cannot lock the file: {e}")),
+    }
+}
+
+/// Take the exclusive advisory lock (flock(2)) of an open file or directory without waiting:
+/// `Ok(false)` when another open file description holds it (another process, or another
+/// `open` of the same path). Released when `file` is closed. Also the lock of
+/// `ehactl diagnose` / `predict` on their `--out` directory (crates/ident/src/outdir.rs).
+pub fn try_lock_exclusive(file: &File) -> std::io::Result<bool> {
     use std::os::fd::AsRawFd;
     // SAFETY: flock on a file descriptor this `File` owns for the duration of the call.
     if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
-        return Ok(());
+        return Ok(true);
     }
     let e = std::io::Error::last_os_error();
-    Err(if e.kind() == std::io::ErrorKind::WouldBlock {
-        "is being written by another running ehactl (it holds the file's lock); choose another --out".to_string()
+    if e.kind() == std::io::ErrorKind::WouldBlock {
+        Ok(false)
     } else {
-        format!("cannot lock the file: {e}")
-    })
+        Err(e)
+    }
 }
 
 /// Whether another process holds the lock of the log file at `path` (a run writing it).

@@ -137,8 +137,9 @@ def campaign(
 
     Raises:
         FileNotFoundError: a record does not exist.
-        ValueError: bad data or config (the message names the file, row or field).
-        OSError: the report could not be written.
+        ValueError: bad data or config (the message names the file, row or field), e.g. two
+            records with the same samples, a constant force, an ehactl log of another rig.
+        OSError: the report could not be written, or ``out`` is held by another running ehactl.
     """
     c = _as_config(cfg)
     raw = json.loads(_ehactl.campaign_json(c, _paths(data, "measured data file"),
@@ -187,6 +188,12 @@ def predict(
     Returns:
         :class:`PredictionResult`: ``records`` (per record ``nrmse`` and ``channels``),
         ``nrmse`` (RMS over records), ``to_dict()`` the ``--json`` object.
+
+    Raises:
+        FileNotFoundError: a record does not exist.
+        ValueError: no record, bad data or config (the message names the file, column or
+            field: e.g. a constant channel, an operating input that varies within a record).
+        OSError: the output could not be written, or ``out`` is held by another running ehactl.
     """
     c = _as_config(cfg)
     raw = json.loads(_ehactl.predict_json(c, _paths(data, "measured data file"), bool(imposed_motion),
