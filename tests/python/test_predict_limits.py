@@ -147,17 +147,25 @@ def test_predict_flags_a_record_beyond_the_fitted_stroke_and_current(chirp_campa
     pj = json.loads(r.stdout)
     assert pj["envelope"]["inside"] is False
     assert any("stroke" in w and "12.5× the fitted range" in w for w in pj["warnings"]), pj["warnings"]
-    # The same motion labelled 5 A and −0.34 A: outside the fitted 0–1 A, by 4 A and 0.34 A.
-    for current, beyond in ((5.0, 4.0), (-0.34, 0.34)):
-        rec = bw.record(bw.sine(0.002, 5.0), 1.0, 3.0, rate=RATE, seed=3)
+    # The same motion labelled 1.2 A: outside the fitted 0–1 A by 0.2 A, predicted and flagged.
+    rec = bw.record(bw.sine(0.002, 5.0), 1.0, 3.0, rate=RATE, seed=3)
+    rec["current"] = np.full(rec["t"].size, 1.2)
+    r = ehactl("predict", "--config", ext, "--data", write(tmp_path / "at_1.2A.csv", rec), "--json")
+    assert r.returncode == 0, r.stderr
+    pj = json.loads(r.stdout)
+    cur = [e for e in pj["envelope"]["excursions"] if e["quantity"] == "current"]
+    assert cur and cur[0]["beyond"] == pytest.approx(0.2, rel=1e-9), pj["envelope"]
+    assert "current 1.2 A outside the fitted 0–1 A" in cur[0]["text"], cur
+    assert any("outside the fitted 0–1 A" in w for w in pj["warnings"]), pj["warnings"]
+    # At −0.34 A and 5 A the law's linear dependence leaves a parameter's range (a negative
+    # Dahl force or travel): refused (exit 2), and the message says the record lies beyond
+    # what the law was fitted on (it used to answer 7e12 and 1.85 without a word).
+    for current in (-0.34, 5.0):
         rec["current"] = np.full(rec["t"].size, current)
-        p = write(tmp_path / f"at_{current:g}A.csv", rec)
-        r = ehactl("predict", "--config", ext, "--data", p, "--json")
-        pj = json.loads(r.stdout)
-        cur = [e for e in pj["envelope"]["excursions"] if e["quantity"] == "current"]
-        assert cur and cur[0]["beyond"] == pytest.approx(beyond, rel=1e-9), pj["envelope"]
-        assert "outside the fitted 0–1 A" in cur[0]["text"], cur
-        assert any("outside the fitted 0–1 A" in w for w in pj["warnings"]), pj["warnings"]
+        r = ehactl("predict", "--config", ext, "--data", write(tmp_path / f"at_{current:g}A.csv", rec), "--json")
+        assert r.returncode == 2, r.stdout
+        assert "out of range" in r.stderr, r.stderr
+        assert f"current {current:g} A outside the fitted 0–1 A" in r.stderr, r.stderr
 
 
 def test_a_chirp_fitted_on_part_of_its_sweep_flags_the_other_frequencies(tmp_path):

@@ -121,8 +121,15 @@ pub fn predict(
 ) -> Result<Prediction, String> {
     let src = &rec.source;
     let at = operating_point(cfg, rec);
-    let plant = ehactl_config::inputs::plant_at(&cfg.inputs, &cfg.plant, &at)
-        .map_err(|e| format!("{src}: {e}"))?;
+    let plant = ehactl_config::inputs::plant_at(&cfg.inputs, &cfg.plant, &at).map_err(|e| {
+        // Most often the law taken beyond what it was fitted on: say so.
+        let outside = crate::envelope::check_record(cfg, rec)
+            .filter(|c| !c.inside)
+            .map_or(String::new(), |c| {
+                format!("; the record lies {}", c.describe())
+            });
+        format!("{src}: {e}{outside}")
+    })?;
     let n = rec.len();
     let score = score.unwrap_or(0..n);
     let mut band = None;
