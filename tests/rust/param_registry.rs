@@ -20,9 +20,9 @@ fn fixture() -> Vec<String> {
 /// them only through serde), and parameters added since (2026-11-26: the line scheme and its
 /// segment-mode margin; 2026-11-27: the friction variant `lugre` and the line_dynamics
 /// variant `hose`, whose new choice the fixture's `effects.friction.variant` row carries;
-/// the Dahl term of the grey-box force law and its series-dashpot velocity).
-/// Their choices are the enums' serde names.
-const ADDED: [(&str, &str); 17] = [
+/// the Dahl term of the grey-box force law and its series-dashpot velocity; 2026-12-07: the
+/// supervisor's following-error bound and time). Their choices are the enums' serde names.
+const ADDED: [(&str, &str); 19] = [
     (
         "effects.friction.bristle_stiffness",
         "N/m\tNonNegative\tFloat",
@@ -72,6 +72,11 @@ const ADDED: [(&str, &str); 17] = [
     (
         "setpoint.sweep",
         r#"-	Finite	Choice(["linear", "log", "stepped"])"#,
+    ),
+    ("supervisor.following_error", "N or m\tPositive\tFloat"),
+    (
+        "supervisor.following_error_time",
+        "s\tWithin(0.0001, 1000.0)\tFloat",
     ),
     ("log.compression", r#"-	Finite	Choice(["none", "lz4"])"#),
     ("realtime.lock_memory", "bool\tFinite\tBool"),

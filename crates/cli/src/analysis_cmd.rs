@@ -95,6 +95,39 @@ fn operating_point_text(op: &serde_json::Value, mode: ehactl_config::ControlMode
     )
 }
 
+/// The stability verdict in words: stable with the largest closed-loop pole magnitude, or
+/// UNSTABLE with the poles on or outside the unit circle (|z| and frequency).
+pub fn stability_text(st: &ehactl_analysis::analyze::Stability) -> String {
+    use crate::sig;
+    if st.stable {
+        // A pole a hair inside the circle (a slow leak-limited mode) reads 1 − δ, not 1.
+        let gap = 1.0 - st.max_pole_magnitude;
+        let largest = if gap < 1e-4 {
+            format!("1 − {gap:.2e}")
+        } else {
+            sig(st.max_pole_magnitude, 6)
+        };
+        return format!(
+            "stable (linearised sampled loop: every closed-loop pole inside the unit circle, largest |z| = {largest})"
+        );
+    }
+    let poles: Vec<String> = st
+        .unstable_poles
+        .iter()
+        .map(|p| {
+            format!(
+                "|z| = {} at {} Hz",
+                sig(p.magnitude, 4),
+                sig(p.frequency_hz, 4)
+            )
+        })
+        .collect();
+    format!(
+        "UNSTABLE (linearised sampled loop: closed-loop poles on or outside the unit circle: {})",
+        poles.join(", ")
+    )
+}
+
 /// `ehactl analyze CONFIG [--json]`.
 pub fn analyze(config: &Path, json: bool) -> ExitCode {
     let cfg = match load(config) {
@@ -124,19 +157,30 @@ pub fn analyze(config: &Path, json: bool) -> ExitCode {
         "  open-loop bandwidth   {}",
         fmt_opt(a.open_loop_bandwidth_hz, "Hz")
     );
+    if let Some(st) = &a.stability {
+        println!("  stability             {}", stability_text(st));
+    }
+    let unstable = a.stability.as_ref().is_some_and(|s| !s.stable);
     for (name, m) in [
         ("sampled loop (ZOH)", &a.discrete),
         ("continuous loop", &a.continuous),
     ] {
         if let Some(m) = m {
+            let closed = if unstable {
+                "closed-loop bandwidth meaningless (unstable loop)".to_string()
+            } else {
+                format!(
+                    "closed-loop bandwidth {} peak {:.2} dB",
+                    fmt_opt(m.closed_loop_bandwidth_hz, "Hz"),
+                    m.closed_loop_peak_db
+                )
+            };
             println!(
-                "  {name:<21} crossover {} PM {} | phase crossover {} GM {} | closed-loop bandwidth {} peak {:.2} dB",
+                "  {name:<21} crossover {} PM {} | phase crossover {} GM {} | {closed}",
                 fmt_opt(m.gain_crossover_hz, "Hz"),
                 fmt_opt(m.phase_margin_deg, "°"),
                 fmt_opt(m.phase_crossover_hz, "Hz"),
                 fmt_opt(m.gain_margin_db, "dB"),
-                fmt_opt(m.closed_loop_bandwidth_hz, "Hz"),
-                m.closed_loop_peak_db
             );
         }
     }

@@ -1,5 +1,5 @@
 //! The fixed-step control loop: `Hal::read` → supervisor → setpoint → control law →
-//! supervisor command limit → `Hal::write` → record. The same code runs in simulated time
+//! supervisor command limit, saturation and following-error watches → `Hal::write` → record. The same code runs in simulated time
 //! (the sim backend, as fast as the CPU allows) and against a wall clock: only the
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
@@ -216,6 +216,9 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
         }
         let saturated = terms.u != terms.u_unsat || u != terms.u;
         if let Some(ev) = self.supervisor.check_saturation(t, k, saturated, dt) {
+            return Err(Ending::Trip(ev));
+        }
+        if let Some(ev) = self.supervisor.check_following(t, k, terms.error, dt) {
             return Err(Ending::Trip(ev));
         }
         let plant = self.hal.plant_state();

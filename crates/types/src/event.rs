@@ -45,6 +45,16 @@ pub enum EventKind {
     LogFailed,
     /// The command sat at a limit for too much of the supervisor's saturation window.
     Saturation,
+    /// |setpoint − feedback| stayed above the supervisor's following-error bound for longer
+    /// than its time (a loop that does not follow: unstable, stuck, or mis-tuned).
+    FollowingError,
+    /// The simulated plant reached a state no rig can have (a pressure far beyond the
+    /// supply, a velocity or force far beyond what the cylinder can produce): a simulation
+    /// fault, not a tracking figure.
+    PlantImplausible,
+    /// The linearised loop of the config is unstable (a closed-loop pole on or outside the
+    /// unit circle), warned at the start of a run.
+    UnstableLoop,
 }
 
 impl EventKind {
@@ -70,6 +80,9 @@ impl EventKind {
             EventKind::CanBus => "can_bus",
             EventKind::LogFailed => "log_failed",
             EventKind::Saturation => "saturation",
+            EventKind::FollowingError => "following_error",
+            EventKind::PlantImplausible => "plant_implausible",
+            EventKind::UnstableLoop => "unstable_loop",
         }
     }
 }
