@@ -115,3 +115,30 @@ def test_analyze_gives_a_stability_verdict(tmp_path):
     assert "UNSTABLE" in text and "bandwidth meaningless" in text, text
     assert "closed-loop bandwidth 8" not in text
     assert "stable (" in run("analyze", SAHU).stdout
+
+
+def test_a_runaway_plant_is_a_simulation_fault(diagnosis, tmp_path):
+    """The README campaign's `extended.toml` (the MR damper law fitted to the UTFSM chirps at
+    0 A and 1 A) run closed loop drove the plant to 1e11 Pa, 1.4e13 N and 1e7 m/s with exit
+    0. The plant must refuse such a state: a `plant_implausible` trip naming the state, its
+    value, its bound and unit, exit 3 — with the following-error watch out of the way, so
+    that the plant check alone is seen."""
+    mts = ROOT / "tests" / "data" / "measured" / "utfsm_mts"
+    _, out = diagnosis("--config", ROOT / "configs" / "utfsm_mts_mrdamper.toml",
+                       "--data", mts / "0A_5to15s.csv", "--data", mts / "1A_5to15s.csv")
+    text = (out / "extended.toml").read_text()
+    text, n = re.subn(r"(?m)^following_error = .*$", "following_error = 1e9", text)
+    assert n == 1, "the extended config keeps the shipped supervisor section"
+    cfg = tmp_path / "extended.toml"
+    cfg.write_text(text)
+    mcap = tmp_path / "ext.mcap"
+    p = run("run", cfg, "--out", mcap, "--json")
+    assert p.returncode == 3, p.stdout + p.stderr
+    s = json.loads(p.stdout)
+    assert s["trip_kind"] == "plant_implausible", s["trip"]
+    trip = next(e for e in read_run(mcap)["events"] if e["kind"] == "plant_implausible")
+    units = {"p_a": "Pa", "p_b": "Pa", "p_s": "Pa", "v": "m/s", "rod_force": "N"}
+    assert trip["channel"] in units and trip["unit"] == units[trip["channel"]], trip
+    assert abs(trip["value"]) > abs(trip["limit"]) > 0, trip
+    # Far from the probe's figures: stopped before the state ran off by orders of magnitude.
+    assert abs(trip["value"]) < 1e3 * abs(trip["limit"]), trip

@@ -198,3 +198,26 @@ fn the_gain_margin_is_where_a_closed_loop_pole_leaves_the_unit_circle() {
     assert!(largest(0.9 * critical) < 1.0, "{}", largest(0.9 * critical));
     assert!(largest(1.1 * critical) > 1.0, "{}", largest(1.1 * critical));
 }
+
+/// The verdict on given poles: one outside the unit circle makes the loop unstable and is
+/// listed with its frequency (arg z/(2π·T): z = 1.1·e^(jπ/2) at T = 1 ms is 250 Hz); one
+/// within the linearisation's rounding of the circle (1 + 1e-9) is marginal, not unstable.
+#[test]
+fn the_verdict_separates_unstable_from_marginal_poles() {
+    use ehactl_analysis::analyze::Stability;
+    use nalgebra::Complex;
+    let t = 1e-3;
+    let inside = [Complex::new(0.5, 0.2), Complex::new(0.5, -0.2)];
+    let s = Stability::of_poles(&inside, t);
+    assert!(s.stable && s.unstable_poles.is_empty() && s.marginal_poles.is_empty());
+    let marginal = [inside[0], Complex::new(1.0 + 1e-9, 0.0)];
+    let s = Stability::of_poles(&marginal, t);
+    assert!(s.stable && s.unstable_poles.is_empty());
+    assert_eq!(s.marginal_poles.len(), 1);
+    let outside = [inside[0], Complex::new(0.0, 1.1), Complex::new(0.0, -1.1)];
+    let s = Stability::of_poles(&outside, t);
+    assert!(!s.stable);
+    assert_eq!(s.unstable_poles.len(), 1, "a complex pair is listed once");
+    let p = &s.unstable_poles[0];
+    assert!((p.magnitude - 1.1).abs() < 1e-12 && (p.frequency_hz - 250.0).abs() < 1e-9);
+}

@@ -303,3 +303,44 @@ fn linear_exact_applies_the_amplifier_dead_zone() {
         }
     }
 }
+
+/// The bounds of the states a rig can have (crates/plant/src/plausible.rs), worked out by
+/// hand for Sahu 2022 (20 MPa supply, 2.364e-4 m² on both sides, 2 mm stroke, 5 kHz,
+/// K_q valve with 1.4299e-5 m³/s at 1 MPa): pressure ≤ 10·20 MPa + 10 MPa = 210 MPa and
+/// ≥ −0.95 bar − 10 MPa; rod force ≤ 210 MPa · 2 · 2.364e-4 m² = 99 288 N; velocity ≤ the
+/// larger of 10 · k·√(210 MPa)/A = 8.77 m/s (k = 1.4299e-5/√1e6) and 2 mm / 0.2 ms = 10 m/s.
+/// A state beyond one is named with its value and bound; the probe's runaway (a chamber at
+/// 1e11 Pa) makes the step an implausible-state error, not a result.
+#[test]
+fn an_impossible_state_is_refused_with_its_bound() {
+    let cfg = ehactl_tests::config("sahu2022_force.toml");
+    let mut plant = Plant::configure(&cfg.plant, cfg.timebase().period()).unwrap();
+    let b = *plant.plausible();
+    let close = |a: f64, e: f64| (a - e).abs() <= 1e-9 * e.abs();
+    assert!(close(b.p_max, 210.0e6), "{b:?}");
+    assert!(close(b.p_min, -0.95e5 - 10.0e6), "{b:?}");
+    assert!(close(b.f_max, 210.0e6 * 2.0 * 2.364e-4), "{b:?}");
+    let v_valve = 10.0 * (1.4299e-5 / 1.0e3) * 210.0e6_f64.sqrt() / 2.364e-4;
+    assert!(
+        v_valve < 10.0 && close(b.v_max, 2.0e-3 / 2.0e-4),
+        "{b:?} ({v_valve} m/s)"
+    );
+    let mut s = *plant.state();
+    assert_eq!(b.check(&s), None, "the initial state is plausible");
+    s.p_b = 2.2e8;
+    assert_eq!(b.check(&s), Some(("p_b", 2.2e8, b.p_max, "Pa")));
+    s.p_b = 1.0e7;
+    s.v = -11.0;
+    assert_eq!(b.check(&s), Some(("v", -11.0, b.v_max, "m/s")));
+    // The probe's runaway chamber: one step from 1e11 Pa fails as implausible.
+    let names = plant.linear_state_names();
+    let mut x = plant.linear_state();
+    x[names.iter().position(|n| n == "p_a").unwrap()] = 1.0e11;
+    plant.set_linear_state(&x);
+    let e = plant.step(0.0).unwrap_err();
+    assert!(e.is_implausible() && e.bound.is_finite(), "{e}");
+    assert!(
+        e.to_string().contains("beyond what the rig can reach"),
+        "{e}"
+    );
+}

@@ -36,7 +36,7 @@ pub struct LoopPoint {
     pub closed_phase_deg: f64,
 }
 
-/// A pole of the closed sampled loop on or outside the unit circle.
+/// A pole of the closed sampled loop outside or on the unit circle.
 #[derive(Debug, Clone, Serialize)]
 pub struct UnstablePole {
     /// |z| (-): how much an oscillation at this pole grows per control period.
@@ -53,35 +53,49 @@ pub struct UnstablePole {
 /// The stability verdict of the linearised sampled loop.
 #[derive(Debug, Clone, Serialize)]
 pub struct Stability {
-    /// Every closed-loop pole strictly inside the unit circle.
+    /// No closed-loop pole outside the unit circle (beyond [`ON_THE_CIRCLE`]).
     pub stable: bool,
     /// Largest |z| of the closed-loop poles (-).
     pub max_pole_magnitude: f64,
-    /// The poles with |z| ≥ 1, largest first.
+    /// The poles with |z| ≥ 1 + [`ON_THE_CIRCLE`], largest first.
     pub unstable_poles: Vec<UnstablePole>,
+    /// The poles within [`ON_THE_CIRCLE`] of the unit circle.
+    pub marginal_poles: Vec<UnstablePole>,
 }
+
+/// How close to the unit circle (in |z|) a closed-loop pole counts as on it (-): the
+/// linearisation is a central difference of the plant's step map, whose rounding moves a
+/// pole that lies on the circle (an integrator the loop does not act on at its operating
+/// point, e.g. a piston whose valve rests in its dead band) by about 1e-9 either way.
+pub const ON_THE_CIRCLE: f64 = 1e-6;
 
 impl Stability {
     /// The verdict on the closed-loop poles `poles` (z-plane) of a loop sampled at `dt` (s):
     /// unstable when any has |z| ≥ 1 (Franklin, Powell & Workman, "Digital Control of
     /// Dynamic Systems", 3rd ed., 1998, §4.3: a discrete system is stable iff every pole lies
-    /// inside the unit circle).
+    /// inside the unit circle), up to the linearisation's rounding ([`ON_THE_CIRCLE`]): the
+    /// poles within it are listed as marginal.
     pub fn of_poles(poles: &[nalgebra::Complex<f64>], dt: f64) -> Self {
-        let mut unstable_poles: Vec<UnstablePole> = poles
-            .iter()
-            .filter(|z| z.norm() >= 1.0 && z.im >= 0.0)
-            .map(|z| UnstablePole {
-                magnitude: z.norm(),
-                frequency_hz: z.arg().abs() / (TAU * dt),
-                re: z.re,
-                im: z.im,
-            })
-            .collect();
-        unstable_poles.sort_by(|a, b| b.magnitude.total_cmp(&a.magnitude));
+        let listed = |keep: &dyn Fn(f64) -> bool| {
+            let mut v: Vec<UnstablePole> = poles
+                .iter()
+                .filter(|z| keep(z.norm()) && z.im >= 0.0)
+                .map(|z| UnstablePole {
+                    magnitude: z.norm(),
+                    frequency_hz: z.arg().abs() / (TAU * dt),
+                    re: z.re,
+                    im: z.im,
+                })
+                .collect();
+            v.sort_by(|a, b| b.magnitude.total_cmp(&a.magnitude));
+            v
+        };
+        let unstable_poles = listed(&|m| m >= 1.0 + ON_THE_CIRCLE);
         Stability {
             stable: unstable_poles.is_empty(),
             max_pole_magnitude: poles.iter().map(|z| z.norm()).fold(0.0, f64::max),
             unstable_poles,
+            marginal_poles: listed(&|m| (m - 1.0).abs() < ON_THE_CIRCLE),
         }
     }
 }
@@ -338,6 +352,7 @@ impl Analysis {
             o["stable"] = json!(st.stable);
             o["max_closed_loop_pole_magnitude"] = json!(st.max_pole_magnitude);
             o["unstable_poles"] = serde_json::to_value(&st.unstable_poles).unwrap_or(Value::Null);
+            o["marginal_poles"] = serde_json::to_value(&st.marginal_poles).unwrap_or(Value::Null);
             if !st.stable {
                 o["closed_loop_bandwidth_note"] = json!(UNSTABLE_BANDWIDTH_NOTE);
             }

@@ -95,20 +95,34 @@ fn operating_point_text(op: &serde_json::Value, mode: ehactl_config::ControlMode
     )
 }
 
-/// The stability verdict in words: stable with the largest closed-loop pole magnitude, or
-/// UNSTABLE with the poles on or outside the unit circle (|z| and frequency).
+/// The stability verdict in words: stable with the largest closed-loop pole magnitude (and
+/// the poles on the circle, if any), or UNSTABLE with the poles outside it (|z| and
+/// frequency).
 pub fn stability_text(st: &ehactl_analysis::analyze::Stability) -> String {
     use crate::sig;
-    if st.stable {
-        // A pole a hair inside the circle (a slow leak-limited mode) reads 1 − δ, not 1.
-        let gap = 1.0 - st.max_pole_magnitude;
-        let largest = if gap < 1e-4 {
-            format!("1 − {gap:.2e}")
+    // A pole a hair off the circle reads 1 ± δ, not 1.
+    let magnitude = |m: f64| {
+        if (m - 1.0).abs() < 1e-3 {
+            format!(
+                "1 {} {:.2e}",
+                if m < 1.0 { "−" } else { "+" },
+                (m - 1.0).abs()
+            )
         } else {
-            sig(st.max_pole_magnitude, 6)
+            sig(m, 4)
+        }
+    };
+    if st.stable {
+        let marginal = match st.marginal_poles.len() {
+            0 => String::new(),
+            n => format!(
+                "; {n} on it within {:e}: modes the loop does not act on at this operating point",
+                ehactl_analysis::analyze::ON_THE_CIRCLE
+            ),
         };
         return format!(
-            "stable (linearised sampled loop: every closed-loop pole inside the unit circle, largest |z| = {largest})"
+            "stable (linearised sampled loop: no closed-loop pole outside the unit circle, largest |z| = {}{marginal})",
+            magnitude(st.max_pole_magnitude)
         );
     }
     let poles: Vec<String> = st
@@ -117,13 +131,13 @@ pub fn stability_text(st: &ehactl_analysis::analyze::Stability) -> String {
         .map(|p| {
             format!(
                 "|z| = {} at {} Hz",
-                sig(p.magnitude, 4),
+                magnitude(p.magnitude),
                 sig(p.frequency_hz, 4)
             )
         })
         .collect();
     format!(
-        "UNSTABLE (linearised sampled loop: closed-loop poles on or outside the unit circle: {})",
+        "UNSTABLE (linearised sampled loop: closed-loop poles outside the unit circle: {})",
         poles.join(", ")
     )
 }

@@ -294,9 +294,25 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
     }
 }
 
-/// The trip event of a backend fault in cycle `k` at `t` (s).
+/// The trip event of a backend fault in cycle `k` at `t` (s): a simulated plant beyond
+/// what the rig can have is its own kind (`plant_implausible`, with the state, its value,
+/// bound and unit), every other fault a `hal_fault`.
 fn hal_fault(t: f64, k: u64, e: ehactl_hal::HalError) -> Event {
-    Event::note(t, k, Severity::Trip, EventKind::HalFault, e.what())
+    match e {
+        ehactl_hal::HalError::Implausible {
+            what,
+            value,
+            bound,
+            unit,
+            ..
+        } => Event {
+            value,
+            limit: bound,
+            unit,
+            ..Event::note(t, k, Severity::Trip, EventKind::PlantImplausible, what)
+        },
+        _ => Event::note(t, k, Severity::Trip, EventKind::HalFault, e.what()),
+    }
 }
 
 /// Control-error statistics of a run (N or m), accumulated without allocation.

@@ -334,7 +334,7 @@ class Pole(_DictCompat):
 
 @dataclass(frozen=True, eq=False)
 class UnstablePole(_DictCompat):
-    """A pole of the closed sampled loop on or outside the unit circle.
+    """A pole of the closed sampled loop outside or on the unit circle.
 
     Attributes:
         magnitude: |z| (-): growth per control period.
@@ -497,7 +497,9 @@ class AnalysisResult(_DictCompat):
             |z| < 1); None in open loop. An unstable loop has no closed-loop bandwidth or
             peak (``None``; ``closed_loop_bandwidth_note`` says why).
         max_closed_loop_pole_magnitude: Largest |z| of the closed-loop poles (-), or None.
-        unstable_poles: The closed-loop poles with |z| ≥ 1 (:class:`UnstablePole`), largest first.
+        unstable_poles: The closed-loop poles with |z| ≥ 1 + 1e-6 (:class:`UnstablePole`), largest first.
+        marginal_poles: The closed-loop poles within 1e-6 of the unit circle (modes the loop
+            does not act on at its operating point; they do not make it unstable).
         closed_loop_bandwidth_note: Why the bandwidth is left out (unstable loop), or None.
         operating_point: Operating point of the linearisation.
         poles: Slowest poles of the continuous plant model.
@@ -526,6 +528,7 @@ class AnalysisResult(_DictCompat):
     stable: Optional[bool]
     max_closed_loop_pole_magnitude: Optional[float]
     unstable_poles: Tuple[UnstablePole, ...]
+    marginal_poles: Tuple[UnstablePole, ...]
     closed_loop_bandwidth_note: Optional[str]
     operating_point: OperatingPoint
     poles: Tuple[Pole, ...]
@@ -563,6 +566,7 @@ class AnalysisResult(_DictCompat):
             stable=None if d.get("stable") is None else bool(d["stable"]),
             max_closed_loop_pole_magnitude=_opt(d.get("max_closed_loop_pole_magnitude")),
             unstable_poles=tuple(UnstablePole.from_dict(q) for q in d.get("unstable_poles") or []),
+            marginal_poles=tuple(UnstablePole.from_dict(q) for q in d.get("marginal_poles") or []),
             closed_loop_bandwidth_note=d.get("closed_loop_bandwidth_note"),
             operating_point=OperatingPoint.from_dict(d.get("operating_point") or {}),
             poles=tuple(Pole(frequency_hz=_f(p.get("frequency_hz")), damping_ratio=_f(p.get("damping_ratio")))
@@ -602,6 +606,7 @@ class AnalysisResult(_DictCompat):
             out["stable"] = self.stable
             out["max_closed_loop_pole_magnitude"] = self.max_closed_loop_pole_magnitude
             out["unstable_poles"] = [q.to_dict() for q in self.unstable_poles]
+            out["marginal_poles"] = [q.to_dict() for q in self.marginal_poles]
             if self.closed_loop_bandwidth_note is not None:
                 out["closed_loop_bandwidth_note"] = self.closed_loop_bandwidth_note
         if self.continuous is not None:
