@@ -486,7 +486,7 @@ impl Plant {
             components.valve_deadband,
             components.valve_saturation,
         );
-        let plausible = crate::plausible::Plausible::new(params, &edges, control_dt);
+        let plausible = crate::plausible::Plausible::new(params, &edges, control_dt, c.beta_max);
         let mut plant = Plant {
             edges,
             plausible,

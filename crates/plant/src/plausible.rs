@@ -5,26 +5,32 @@
 //!
 //! The bounds are orders of magnitude beyond anything the modelled rig produces, so that
 //! only a broken simulation reaches them:
-//! - pressure above 10 × the supply pressure + 10 MPa: a valve-controlled cylinder cannot
-//!   raise a chamber above the supply by more than the area ratio (pressure intensification
-//!   of a differential cylinder, Merritt, "Hydraulic Control Systems", 1967, §5.3) plus a
-//!   pressure peak of a decelerated load; both stay within a few times the supply;
+//! - pressure above 10 × a reference pressure + 10 MPa. The reference is the largest
+//!   pressure the rig itself can make: the supply, plus the pressure the largest imposed
+//!   force makes on the smaller piston area (a load force blocked by the oil), plus the
+//!   pressure peak of the moving mass stopped by the oil at the speed the fully open valve
+//!   gives at the supply pressure (a mass m at speed v on the oil spring k_h = β·A²/V peaks
+//!   at v·√(m·k_h) = v·A·√(m·β/V); the oil spring and the load mass as in Merritt,
+//!   "Hydraulic Control Systems", 1967, ch. 5; with the largest bulk modulus and the smaller
+//!   dead volume). The imposed forces are the
+//!   excitation's |F₀| + |F_A| and the load spring's preload at the initial position;
+//!   configured initial chamber pressures raise the reference to themselves;
 //! - pressure below the cavitation floor (`fluid.cavitation_pressure`, ≥ −1 bar gauge) by
 //!   more than 10 MPa, a hundred times the deepest vacuum (−1 bar gauge);
 //! - |piston velocity| above the larger of ten times the speed the fully open valve can
 //!   feed the smaller piston area at the pressure bound (Q = k·o·φ(Δp) of
 //!   `crate::valve::EdgeLaw`) and the speed that crosses the whole stroke in one control
 //!   period;
-//! - |rod force| above the pressure bound on both piston areas plus the external force
-//!   acting at the step: more than the cylinder and its load can push.
+//! - |rod force| above the pressure bound on both piston areas plus the largest imposed
+//!   force: more than the cylinder and its load can push.
 
 use crate::params::PlantParams;
 use crate::valve::EdgeLaw;
 use ehactl_types::PlantState;
 
-/// Pressure bound factor on the supply pressure (-).
+/// Pressure bound factor on the reference pressure (-).
 const PRESSURE_FACTOR: f64 = 10.0;
-/// Pressure margin (Pa) above the supply bound and below the cavitation floor.
+/// Pressure margin (Pa) above the reference bound and below the cavitation floor.
 const PRESSURE_MARGIN: f64 = 10.0e6;
 /// Velocity margin on the fully open valve's piston speed (-).
 const VELOCITY_FACTOR: f64 = 10.0;
@@ -41,32 +47,42 @@ pub struct Plausible {
     pub p_min: f64,
     /// Largest plausible |piston velocity| (m/s).
     pub v_max: f64,
-    /// Largest plausible |rod force| without the external force (N).
+    /// Largest plausible |rod force| (N).
     pub f_max: f64,
 }
 
 impl Plausible {
-    /// The bounds of the rig `params` with its edge law `edges`, stepped at `control_dt` (s).
-    pub fn new(params: &PlantParams, edges: &EdgeLaw, control_dt: f64) -> Self {
+    /// The bounds of the rig `params` with its edge law `edges`, stepped at `control_dt` (s),
+    /// whose oil is at most `beta_max` (Pa) stiff.
+    pub fn new(params: &PlantParams, edges: &EdgeLaw, control_dt: f64, beta_max: f64) -> Self {
         let cyl = &params.cylinder;
-        let p_max = PRESSURE_FACTOR * params.supply.pressure.abs() + PRESSURE_MARGIN;
-        let p_min = params.fluid.cavitation_pressure.min(0.0) - PRESSURE_MARGIN;
-        let opening = 1.0 + edges.underlap;
-        let dp = p_max - params.supply.tank_pressure + edges.supply_offset;
-        let q_full = edges.edge(opening, dp).0.abs();
         let smaller = cyl.area_a.min(cyl.area_b);
         let area = if smaller > 0.0 {
             smaller
         } else {
             cyl.area_a.max(cyl.area_b)
         };
-        let v_valve = VELOCITY_FACTOR * q_full / area;
-        let v_stroke = cyl.stroke / control_dt;
+        // Piston speed (m/s) of the fully open valve at the pressure drop `dp` (Pa).
+        let speed = |dp: f64| {
+            let dp = dp - params.supply.tank_pressure + edges.supply_offset;
+            edges.edge(1.0 + edges.underlap, dp).0.abs() / area
+        };
+        let supply = params.supply.pressure.abs();
+        let peak =
+            speed(supply) * (moving_mass(params) * beta_max / smallest_volume(params)).sqrt();
+        let initial = cyl
+            .initial_pressure_a
+            .unwrap_or(0.0)
+            .abs()
+            .max(cyl.initial_pressure_b.unwrap_or(0.0).abs());
+        let f_in = imposed_force(params);
+        let reference = (supply + f_in / area + peak).max(initial);
+        let p_max = PRESSURE_FACTOR * reference + PRESSURE_MARGIN;
         Plausible {
             p_max,
-            p_min,
-            v_max: v_valve.max(v_stroke),
-            f_max: p_max * (cyl.area_a + cyl.area_b),
+            p_min: params.fluid.cavitation_pressure.min(0.0) - PRESSURE_MARGIN,
+            v_max: (VELOCITY_FACTOR * speed(p_max)).max(cyl.stroke / control_dt),
+            f_max: p_max * (cyl.area_a + cyl.area_b) + f_in,
         }
     }
 
@@ -85,10 +101,36 @@ impl Plausible {
         if s.v.abs() > self.v_max {
             return Some(("v", s.v, self.v_max, "m/s"));
         }
-        let f_max = self.f_max + s.external.abs();
-        if s.rod_force.abs() > f_max {
-            return Some(("rod_force", s.rod_force, f_max, "N"));
+        if s.rod_force.abs() > self.f_max {
+            return Some(("rod_force", s.rod_force, self.f_max, "N"));
         }
         None
     }
+}
+
+/// The largest force (N) imposed on the rig from outside its hydraulics: the excitation's
+/// |F₀| + |F_A| (`excitation`) plus the load spring's preload at the initial position.
+fn imposed_force(params: &PlantParams) -> f64 {
+    let e = &params.excitation;
+    let excitation = if e.kind == crate::params::ExcitationKind::None {
+        0.0
+    } else {
+        e.offset.abs() + e.amplitude.abs()
+    };
+    let m = &params.mechanics;
+    let preload =
+        (m.load_stiffness * (params.cylinder.initial_position - m.load_contact_position)).abs();
+    excitation + preload
+}
+
+/// The mass (kg) the oil decelerates: the piston's, plus a flexibly mounted load's.
+fn moving_mass(params: &PlantParams) -> f64 {
+    let mount = params.effects.flexible_mount.as_ref().filter(|m| m.enabled);
+    params.mechanics.mass + mount.map_or(0.0, |m| m.load_mass)
+}
+
+/// The smaller chamber dead volume (m³), where the oil spring is stiffest.
+fn smallest_volume(params: &PlantParams) -> f64 {
+    let c = &params.cylinder;
+    c.dead_volume_a.min(c.dead_volume_b)
 }
