@@ -6,8 +6,7 @@
 
 use crate::canbus::{self, HalKind};
 use crate::{
-    check_log_path, check_log_writable, config_error, default_log_path, live, load, progress_bar,
-    sig, stop_flag,
+    check_log_path, config_error, default_log_path, live, load, progress_bar, sig, stop_flag,
 };
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_hal::Hal;
@@ -152,8 +151,23 @@ fn prepare(args: &RunArgs) -> Result<(RigConfig, PathBuf), ExitCode> {
     // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
     canbus::check_args(&cfg, &args.config, (args.hal, args.bus.as_deref()))?;
     check_log_path(&out, &args.config, args.force)?;
-    check_log_writable(&out)?;
+    if let Err(msg) = crate::log_writable(&out) {
+        return Err(io_failure(args, &msg, "out"));
+    }
     Ok((cfg, out))
+}
+
+/// A start-up I/O failure of `ehactl run` (exit 1): the message on stderr and, with `--json`,
+/// the one JSON object `--json` promises (`error`, `error_kind`, `exit_code`; docs/usage.md).
+fn io_failure(args: &RunArgs, msg: &str, kind: &str) -> ExitCode {
+    eprintln!("ehactl: {msg}");
+    if args.json {
+        // Not println!: a closed stdout must not turn into a panic.
+        use std::io::Write;
+        let obj = serde_json::json!({"error": msg, "error_kind": kind, "exit_code": 1});
+        let _ = writeln!(std::io::stdout(), "{obj}");
+    }
+    ExitCode::from(1)
 }
 
 /// Phase 2: what runs beside the loop, and the CAN backend (unconfigured until the session
@@ -184,8 +198,8 @@ impl Services {
                     )));
                 }
                 Err(e) => {
-                    eprintln!("ehactl: --control-socket {}: {e}", path.display());
-                    return Err(ExitCode::from(1));
+                    let msg = format!("--control-socket {}: {e}", path.display());
+                    return Err(io_failure(args, &msg, "control_socket"));
                 }
             },
             None => None,
@@ -209,10 +223,7 @@ impl Services {
             .transpose()
         {
             Ok(v) => v,
-            Err(e) => {
-                eprintln!("ehactl: {e}");
-                return Err(ExitCode::from(1));
-            }
+            Err(e) => return Err(io_failure(args, &e.to_string(), "live")),
         };
         if let Some(v) = &live_view {
             // Parsed by tests and scripts: the URL is the last word.
