@@ -21,6 +21,10 @@ def run(*args, cwd=None):
         ("mass = 0.893", 'mass = "x"', ["mechanics.mass", "kg", "wrong type"]),
         ("mass = 0.893", "mass = -0.893", ["mechanics.mass", "kg"]),
         ("mass = 0.893", "mass = nan", ["mechanics.mass", "not finite"]),
+        # An upper bound on physical quantities (1000 t), and a huge value written as one.
+        ("mass = 0.893", "mass = 1e300", ["mechanics.mass", "value 1e300 is out of range", "≤ 1000000 in kg"]),
+        ("mass = 0.893", "mass = 1.7e308", ["mechanics.mass", "value 1.7e308 is out"]),
+        ("pressure = 20.0e6", "pressure = 5e9", ["supply.pressure", "value 5e9 is out", "≤ 1e9 in Pa"]),
         ("[effects.sensor_tone]", "[effects.sensor_tones]", ["effects.sensor_tones", "unknown effect id"]),
     ],
 )

@@ -89,12 +89,21 @@ const ADDED: [(&str, &str); 19] = [
 /// Rows whose range changed on purpose after the fixture, with the new range: the
 /// feed-forward gains, `Finite` until a live `set` of 1.7e308 ran a loop pinned at +10 V
 /// (2026-11-28: ±1 V/N and ±1e4 V·s/m).
-const CHANGED: [(&str, &str); 2] = [
+const CHANGED: [(&str, &str); 9] = [
     ("control.pi.feedforward", "Within(-1.0, 1.0)"),
     (
         "control.pd.feedforward_velocity",
         "Within(-10000.0, 10000.0)",
     ),
+    // 2026-12-07: plausible upper bounds of the physical quantities (`mechanics.mass = 1e300`
+    // was accepted), each explained on its field in crates/plant/src/params.rs.
+    ("fluid.density", "PositiveAtMost(20000.0)"),
+    ("fluid.bulk_modulus", "PositiveAtMost(100000000000.0)"),
+    ("supply.pressure", "PositiveAtMost(1000000000.0)"),
+    ("cylinder.area_a", "PositiveAtMost(10.0)"),
+    ("cylinder.area_b", "PositiveAtMost(10.0)"),
+    ("cylinder.stroke", "PositiveAtMost(100.0)"),
+    ("mechanics.mass", "PositiveAtMost(1000000.0)"),
 ];
 
 fn rows() -> Vec<String> {

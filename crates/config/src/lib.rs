@@ -897,6 +897,7 @@ mod tests {
             Range::Within(lo, hi) => lo + t * (hi - lo),
             Range::Finite => -1.5 * t,
             Range::Positive | Range::NonNegative => 2.5 * t,
+            Range::PositiveAtMost(hi) => t * hi,
         }
     }
 

@@ -3,6 +3,9 @@
 //! the logger (crates/log/src/record.rs encodes them, crates/log/src/schemas.rs names their
 //! channel).
 
+// A pressure of 2.1e300 Pa reads `2.1e300`, not 301 digits.
+use crate::spec::readable;
+
 /// What an event reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EventKind {
@@ -185,17 +188,6 @@ impl Event {
             "unit": self.unit,
             "text": self.describe(),
         })
-    }
-}
-
-/// `v` in plain notation between 1e-4 and 1e9 in magnitude (and 0), else in scientific
-/// notation: a pressure of 2.1e300 Pa reads `2.1e300`, not 301 digits.
-fn readable(v: f64) -> String {
-    let a = v.abs();
-    if a == 0.0 || (1e-4..1e9).contains(&a) || !v.is_finite() {
-        format!("{v}")
-    } else {
-        format!("{v:e}")
     }
 }
 
