@@ -21,6 +21,10 @@ def run(*args, cwd=None):
         ("mass = 0.893", 'mass = "x"', ["mechanics.mass", "kg", "wrong type"]),
         ("mass = 0.893", "mass = -0.893", ["mechanics.mass", "kg"]),
         ("mass = 0.893", "mass = nan", ["mechanics.mass", "not finite"]),
+        # An upper bound on physical quantities (1000 t), and a huge value written as one.
+        ("mass = 0.893", "mass = 1e300", ["mechanics.mass", "value 1e300 is out of range", "≤ 1000000 in kg"]),
+        ("mass = 0.893", "mass = 1.7e308", ["mechanics.mass", "value 1.7e308 is out"]),
+        ("pressure = 20.0e6", "pressure = 5e9", ["supply.pressure", "value 5e9 is out", "≤ 1e9 in Pa"]),
         ("[effects.sensor_tone]", "[effects.sensor_tones]", ["effects.sensor_tones", "unknown effect id"]),
     ],
 )
@@ -59,3 +63,27 @@ def test_json_is_exactly_one_object(tmp_path):
         assert key in obj
     assert obj["cycles"] == 1000 and obj["trip"] is None
     assert pathlib.Path(obj["mcap"]).exists()
+
+
+def test_json_reports_a_start_up_io_failure(tmp_path):
+    """`run --json` promises one object on stdout for an I/O failure too (docs/usage.md:
+    `error` and `exit_code`, exit 1): an unwritable `--out` and a `--live` port in use used to
+    print nothing on stdout."""
+    import json
+    import socket
+
+    cfg = str(REPO / "configs" / "sahu2022_force.toml")
+    r = run("run", cfg, "--duration", "0.1", "--json", "--out", "/proc/nope/x.mcap")
+    assert r.returncode == 1, r
+    obj = json.loads(r.stdout)
+    assert obj["exit_code"] == 1 and obj["error_kind"] == "out" and "/proc/nope/x.mcap" in obj["error"]
+    assert obj["error"] in r.stderr
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        addr = f"127.0.0.1:{busy.getsockname()[1]}"
+        r = run("run", cfg, "--duration", "0.1", "--json", "--out", str(tmp_path / "l.mcap"), "--live", addr)
+    assert r.returncode == 1, r
+    obj = json.loads(r.stdout)
+    assert obj["exit_code"] == 1 and obj["error_kind"] == "live" and addr in obj["error"]
+    assert not (tmp_path / "l.mcap").exists()

@@ -94,3 +94,130 @@ fn linearised_cylinder_mode_matches_the_hydraulic_stiffness() {
         assert!(c.c(Output::Position).iter().any(|v| *v != 0.0));
     }
 }
+
+/// Roots of z² + p·z + q (complex).
+fn quadratic_roots(p: f64, q: f64) -> [nalgebra::Complex<f64>; 2] {
+    let disc = nalgebra::Complex::new(p * p - 4.0 * q, 0.0).sqrt();
+    [(-p + disc) / 2.0, (-p - disc) / 2.0]
+}
+
+/// The closed-loop poles of [`Loop::closed_loop_poles`] hold `roots` (each found within
+/// 1e-9), whatever else they hold (a law state the loop cannot see sits at 0).
+fn assert_poles_hold(lp: &Loop<'_>, roots: &[nalgebra::Complex<f64>]) {
+    let poles = lp.closed_loop_poles().expect("a discrete loop has poles");
+    for r in roots {
+        assert!(
+            poles.iter().any(|p| (p - r).norm() < 1e-9),
+            "{r} not among {poles:?}"
+        );
+    }
+}
+
+/// Closed forms of the sampled loop's poles on the first-order plant x⁺ = a·x + b·u, y = x
+/// (T = 1 ms): a P law puts the pole at a − b·K (Franklin, Powell & Workman, "Digital
+/// Control of Dynamic Systems", 3rd ed., 1998, §7.2: the characteristic equation
+/// 1 + C(z)·P(z) = 0); one period of command delay makes it z² − a·z + b·K = 0; the PI law
+/// K·((1 + I·T) − z⁻¹)/(1 − z⁻¹) makes it (z − a)(z − 1) + b·K·((1 + I·T)·z − 1) = 0.
+#[test]
+fn closed_loop_poles_of_a_first_order_plant_match_the_characteristic_equation() {
+    let (a, b, t) = (0.9, 0.1, 1e-3);
+    let p = model(
+        DMatrix::from_element(1, 1, a),
+        DVector::from_element(1, b),
+        DVector::from_element(1, 1.0),
+        Some(t),
+    );
+    let p_law = |kp: f64| Law::Pd {
+        kp,
+        td: 0.0,
+        tf: 0.0,
+    };
+    for kp in [5.0, 20.0] {
+        let lp = Loop {
+            plant: &p,
+            law: p_law(kp),
+            delay: 0.0,
+        };
+        assert_poles_hold(&lp, &[nalgebra::Complex::new(a - b * kp, 0.0)]);
+        let delayed = Loop { delay: t, ..lp };
+        assert_poles_hold(&delayed, &quadratic_roots(-a, b * kp));
+    }
+    let (kp, integral) = (3.0, 200.0);
+    let pi = Loop {
+        plant: &p,
+        law: Law::Pi {
+            kp,
+            integral,
+            scale: 1.0,
+        },
+        delay: 0.0,
+    };
+    // (z − a)(z − 1) + b·K·((1 + I·T)·z − 1) = z² + (b·K·(1 + I·T) − a − 1)·z + (a − b·K).
+    let roots = quadratic_roots(b * kp * (1.0 + integral * t) - a - 1.0, a - b * kp);
+    assert_poles_hold(&pi, &roots);
+}
+
+/// Against the margins, which come from the frequency response alone: the gain margin of
+/// Sahu 2022's sampled force loop says by how much K_P may grow before the loop goes
+/// unstable, so 0.9 of that factor leaves every closed-loop pole inside the unit circle and
+/// 1.1 of it puts one outside.
+#[test]
+fn the_gain_margin_is_where_a_closed_loop_pole_leaves_the_unit_circle() {
+    let cfg = ehactl_tests::config("sahu2022_force.toml");
+    let op = ehactl_analysis::oppoint::find(&cfg, 5.0).unwrap();
+    let plant = linear::discrete(&op).unwrap();
+    let Some(Law::Pi {
+        kp,
+        integral,
+        scale,
+    }) = Law::from_config(&cfg)
+    else {
+        panic!("a PI law")
+    };
+    let lp = |kp: f64| Loop {
+        plant: &plant,
+        law: Law::Pi {
+            kp,
+            integral,
+            scale,
+        },
+        delay: 0.0,
+    };
+    let nyquist = 0.5 * cfg.run.control_rate_hz;
+    let gm = margins(&lp(kp), 0.1, nyquist).gain_margin_db.unwrap();
+    let critical = kp * 10f64.powf(gm / 20.0);
+    let largest = |kp: f64| {
+        lp(kp)
+            .closed_loop_poles()
+            .unwrap()
+            .iter()
+            .map(|p| p.norm())
+            .fold(0.0, f64::max)
+    };
+    assert!(largest(kp) < 1.0, "{}", largest(kp));
+    assert!(largest(0.9 * critical) < 1.0, "{}", largest(0.9 * critical));
+    assert!(largest(1.1 * critical) > 1.0, "{}", largest(1.1 * critical));
+}
+
+/// The verdict on given poles: one outside the unit circle makes the loop unstable and is
+/// listed with its frequency (arg z/(2π·T): z = 1.1·e^(jπ/2) at T = 1 ms is 250 Hz); one
+/// within the linearisation's rounding of the circle (1 + 1e-9) is marginal, not unstable.
+#[test]
+fn the_verdict_separates_unstable_from_marginal_poles() {
+    use ehactl_analysis::analyze::Stability;
+    use nalgebra::Complex;
+    let t = 1e-3;
+    let inside = [Complex::new(0.5, 0.2), Complex::new(0.5, -0.2)];
+    let s = Stability::of_poles(&inside, t);
+    assert!(s.stable && s.unstable_poles.is_empty() && s.marginal_poles.is_empty());
+    let marginal = [inside[0], Complex::new(1.0 + 1e-9, 0.0)];
+    let s = Stability::of_poles(&marginal, t);
+    assert!(s.stable && s.unstable_poles.is_empty());
+    assert_eq!(s.marginal_poles.len(), 1);
+    let outside = [inside[0], Complex::new(0.0, 1.1), Complex::new(0.0, -1.1)];
+    let s = Stability::of_poles(&outside, t);
+    assert!(!s.stable);
+    assert_eq!(s.unstable_poles.len(), 1, "a complex pair is listed once");
+    let p = &s.unstable_poles[0];
+    assert!((p.magnitude - 1.1).abs() < 1e-12 && (p.frequency_hz - 250.0).abs() < 1e-9);
+}

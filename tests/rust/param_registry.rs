@@ -20,9 +20,9 @@ fn fixture() -> Vec<String> {
 /// them only through serde), and parameters added since (2026-11-26: the line scheme and its
 /// segment-mode margin; 2026-11-27: the friction variant `lugre` and the line_dynamics
 /// variant `hose`, whose new choice the fixture's `effects.friction.variant` row carries;
-/// the Dahl term of the grey-box force law and its series-dashpot velocity).
-/// Their choices are the enums' serde names.
-const ADDED: [(&str, &str); 17] = [
+/// the Dahl term of the grey-box force law and its series-dashpot velocity; 2026-12-07: the
+/// supervisor's following-error bound and time). Their choices are the enums' serde names.
+const ADDED: [(&str, &str); 19] = [
     (
         "effects.friction.bristle_stiffness",
         "N/m\tNonNegative\tFloat",
@@ -73,6 +73,11 @@ const ADDED: [(&str, &str); 17] = [
         "setpoint.sweep",
         r#"-	Finite	Choice(["linear", "log", "stepped"])"#,
     ),
+    ("supervisor.following_error", "N or m\tPositive\tFloat"),
+    (
+        "supervisor.following_error_time",
+        "s\tWithin(0.0001, 1000.0)\tFloat",
+    ),
     ("log.compression", r#"-	Finite	Choice(["none", "lz4"])"#),
     ("realtime.lock_memory", "bool\tFinite\tBool"),
     (
@@ -84,12 +89,21 @@ const ADDED: [(&str, &str); 17] = [
 /// Rows whose range changed on purpose after the fixture, with the new range: the
 /// feed-forward gains, `Finite` until a live `set` of 1.7e308 ran a loop pinned at +10 V
 /// (2026-11-28: ±1 V/N and ±1e4 V·s/m).
-const CHANGED: [(&str, &str); 2] = [
+const CHANGED: [(&str, &str); 9] = [
     ("control.pi.feedforward", "Within(-1.0, 1.0)"),
     (
         "control.pd.feedforward_velocity",
         "Within(-10000.0, 10000.0)",
     ),
+    // 2026-12-07: plausible upper bounds of the physical quantities (`mechanics.mass = 1e300`
+    // was accepted), each explained on its field in crates/plant/src/params.rs.
+    ("fluid.density", "PositiveAtMost(20000.0)"),
+    ("fluid.bulk_modulus", "PositiveAtMost(100000000000.0)"),
+    ("supply.pressure", "PositiveAtMost(1000000000.0)"),
+    ("cylinder.area_a", "PositiveAtMost(10.0)"),
+    ("cylinder.area_b", "PositiveAtMost(10.0)"),
+    ("cylinder.stroke", "PositiveAtMost(100.0)"),
+    ("mechanics.mass", "PositiveAtMost(1000000.0)"),
 ];
 
 fn rows() -> Vec<String> {

@@ -303,3 +303,53 @@ fn linear_exact_applies_the_amplifier_dead_zone() {
         }
     }
 }
+
+/// The bounds of the states a rig can have (crates/plant/src/plausible.rs), worked out by
+/// hand for Sahu 2022 (20 MPa supply, 2.364e-4 m² on both sides, 1.182e-6 m³ dead volumes,
+/// 0.893 kg, β = 1.75e9 Pa, 2 mm stroke, 5 kHz, K_q valve k = 1.4299e-5 m³/s / √(1 MPa), no
+/// excitation, the load cell relaxed at the initial position): the open valve's speed at
+/// the supply v_s = k·√(20 MPa)/A = 0.2705 m/s, the oil-spring pressure peak of the mass
+/// v_s·√(m·β/V) = 9.84 MPa, so p ≤ 10·(20 MPa + 9.84 MPa) + 10 MPa = 308 MPa and
+/// ≥ −0.95 bar − 10 MPa; rod force ≤ that on 2 · 2.364e-4 m²; |v| ≤ the larger of
+/// 10·k·√(p_max)/A = 10.6 m/s and 2 mm / 0.2 ms = 10 m/s. (√Δp stands for the edge law's
+/// regularised power, within 1e-5 at these drops.) A state beyond a bound is named with its
+/// value and bound; the probe's runaway (a chamber at 1e11 Pa) makes the step an
+/// implausible-state error, not a result.
+#[test]
+fn an_impossible_state_is_refused_with_its_bound() {
+    let cfg = ehactl_tests::config("sahu2022_force.toml");
+    let mut plant = Plant::configure(&cfg.plant, cfg.timebase().period()).unwrap();
+    let b = *plant.plausible();
+    let close = |a: f64, e: f64| (a - e).abs() <= 1e-4 * e.abs();
+    let (k, area, ps) = (1.4299e-5 / 1.0e3, 2.364e-4, 20.0e6_f64);
+    let v_s = k * ps.sqrt() / area;
+    let peak = v_s * (0.893 * 1.75e9 / 1.182e-6_f64).sqrt();
+    let p_max = 10.0 * (ps + peak) + 10.0e6;
+    assert!((peak - 9.84e6).abs() < 0.01e6, "{peak}");
+    assert!(close(b.p_max, p_max), "{b:?} vs {p_max}");
+    assert!(close(b.p_min, -0.95e5 - 10.0e6), "{b:?}");
+    assert!(close(b.f_max, p_max * 2.0 * area), "{b:?}");
+    let v_valve = 10.0 * k * p_max.sqrt() / area;
+    assert!(
+        close(b.v_max, v_valve.max(2.0e-3 / 2.0e-4)),
+        "{b:?} ({v_valve} m/s)"
+    );
+    let mut s = *plant.state();
+    assert_eq!(b.check(&s), None, "the initial state is plausible");
+    s.p_b = 1.1 * p_max;
+    assert_eq!(b.check(&s), Some(("p_b", 1.1 * p_max, b.p_max, "Pa")));
+    s.p_b = 1.0e7;
+    s.v = -1.1 * b.v_max;
+    assert_eq!(b.check(&s), Some(("v", -1.1 * b.v_max, b.v_max, "m/s")));
+    // The probe's runaway chamber: one step from 1e11 Pa fails as implausible.
+    let names = plant.linear_state_names();
+    let mut x = plant.linear_state();
+    x[names.iter().position(|n| n == "p_a").unwrap()] = 1.0e11;
+    plant.set_linear_state(&x);
+    let e = plant.step(0.0).unwrap_err();
+    assert!(e.is_implausible() && e.bound.is_finite(), "{e}");
+    assert!(
+        e.to_string().contains("beyond what the rig can reach"),
+        "{e}"
+    );
+}

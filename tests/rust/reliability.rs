@@ -26,12 +26,6 @@ fn err_of(text: &str) -> String {
     }
 }
 
-fn with(text: &str, section: &str, line: &str) -> String {
-    let head = format!("[{section}]");
-    assert!(text.contains(&head), "{head} not in config");
-    text.replacen(&head, &format!("{head}\n{line}"), 1)
-}
-
 fn replace(text: &str, old: &str, new: &str) -> String {
     assert!(text.contains(old), "`{old}` not in config");
     text.replacen(old, new, 1)
@@ -171,12 +165,25 @@ fn live_set_refuses_what_the_config_refuses() {
     live::prepare(&mut cfg, &[("control.pi.kp", 0.4)]).unwrap();
 }
 
+/// Sahu 2022's config with the saturation watch `window` (s; None: off) and the
+/// following-error watch out of the way (a 1e9 N bound), so that these tests see the
+/// saturation watch alone.
+fn sahu_watching_saturation(window: Option<f64>) -> String {
+    let t = replace(
+        &text("sahu2022_force.toml"),
+        "following_error = 600.0",
+        "following_error = 1e9",
+    );
+    let shipped = "saturation_window = 0.05";
+    match window {
+        Some(w) => replace(&t, shipped, &format!("saturation_window = {w}")),
+        None => replace(&t, shipped, ""),
+    }
+}
+
 fn saturating_config(window: Option<f64>) -> RigConfig {
     // The 004 loop with 60× its proportional gain: unstable, it limit-cycles at ±10 V.
-    let mut t = replace(&text("sahu2022_force.toml"), "kp = 0.57", "kp = 34.2");
-    if let Some(w) = window {
-        t = with(&t, "supervisor", &format!("saturation_window = {w}"));
-    }
+    let t = replace(&sahu_watching_saturation(window), "kp = 0.57", "kp = 34.2");
     RigConfig::from_toml_str(&t).unwrap()
 }
 
@@ -207,11 +214,7 @@ fn sustained_saturation_trips_when_watched_and_only_then() {
     assert_eq!(trip.kind.as_str(), "saturation");
     assert!(trip.t < 0.2, "tripped late: {} s", trip.t);
     // The nominal loop with the same watch runs through.
-    let t = with(
-        &text("sahu2022_force.toml"),
-        "supervisor",
-        "saturation_window = 0.02",
-    );
+    let t = sahu_watching_saturation(Some(0.02));
     let s = run_sim(&RigConfig::from_toml_str(&t).unwrap(), opts(0.5)).unwrap();
     assert!(s.outcome.trip.is_none(), "{:?}", s.outcome.trip);
 }
@@ -223,11 +226,7 @@ fn sustained_saturation_trips_when_watched_and_only_then() {
 /// after the run had ended.
 #[test]
 fn a_live_change_into_saturation_is_caught() {
-    let t = with(
-        &text("sahu2022_force.toml"),
-        "supervisor",
-        "saturation_window = 0.02",
-    );
+    let t = sahu_watching_saturation(Some(0.02));
     let cfg = RigConfig::from_toml_str(&t).unwrap();
     let live = Arc::new(LiveParams::new());
     let seq = {

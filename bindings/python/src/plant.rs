@@ -59,6 +59,14 @@ fn check_u(u: f64) -> PyResult<()> {
     }
 }
 
+/// Most control periods one `Plant.step` call advances (a bound against a mistyped `n`:
+/// 1e12 periods would take days).
+const MAX_STEPS: u64 = 1_000_000_000;
+
+/// Periods between two checks for a pending signal (Ctrl-C) in `Plant.step`: about 0.1 s
+/// of CPU at 1 µs per period.
+const SIGNAL_EVERY: u64 = 100_000;
+
 fn numerical(e: ehactl_plant::NumericalFailure) -> PyErr {
     NumericalError::new_err(e.to_string())
 }
@@ -85,22 +93,36 @@ impl Plant {
         self.plant.initialize();
     }
 
-    /// Advance `n` control periods holding the valve command `u_volts` (V). Raises
-    /// NumericalError if the state becomes non-finite. The GIL is released meanwhile.
+    /// Advance `n` control periods (at most 1e9 per call) holding the valve command `u_volts`
+    /// (V). Raises NumericalError if the state becomes non-finite or implausible, ValueError
+    /// for `n` above the bound. The GIL is released meanwhile; Ctrl-C is honoured every
+    /// 100 000 periods (KeyboardInterrupt, the plant advanced by the periods done).
     #[pyo3(signature = (u_volts, n = 1))]
     fn step(&mut self, py: Python<'_>, u_volts: f64, n: u64) -> PyResult<()> {
         check_u(u_volts)?;
+        if n > MAX_STEPS {
+            return Err(PyValueError::new_err(format!(
+                "n = {n} control periods is above the bound of {MAX_STEPS:e} per call (about 20 min of CPU at 1 µs per period); call step repeatedly for longer runs"
+            )));
+        }
         let plant = &mut self.plant;
         if n == 1 {
             return plant.step(u_volts).map_err(numerical);
         }
         py.detach(|| {
-            for _ in 0..n {
-                plant.step(u_volts)?;
+            let mut done = 0;
+            while done < n {
+                let chunk = SIGNAL_EVERY.min(n - done);
+                for _ in 0..chunk {
+                    plant.step(u_volts).map_err(numerical)?;
+                }
+                done += chunk;
+                if done < n {
+                    Python::attach(|py| py.check_signals())?;
+                }
             }
             Ok(())
         })
-        .map_err(numerical)
     }
 
     /// Apply a command sequence `u` (V, one value per control period) and return the sensor

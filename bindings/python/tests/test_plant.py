@@ -128,3 +128,27 @@ def test_step_releases_the_gil(force_cfg):
     assert b - a > 0.1
     inside = [s for s in stamps if a + 0.03 < s < b - 0.03]
     assert len(inside) > 100, "the other thread did not run: GIL held during step"
+
+
+def test_step_count_is_bounded(force_cfg):
+    """A mistyped n (1e12 periods: days of CPU) is refused with the bound, nothing stepped."""
+    p = ehactl.Plant(force_cfg)
+    with pytest.raises(ValueError, match=r"above the bound of 1e9"):
+        p.step(1.0, n=10**12)
+    assert p.t == 0.0
+
+
+def test_a_long_step_honours_ctrl_c(force_cfg):
+    """Ctrl-C (SIGINT, here `_thread.interrupt_main`) during a long step raises
+    KeyboardInterrupt within a check interval, with the plant advanced by the periods done."""
+    import _thread
+
+    p = ehactl.Plant(force_cfg)
+    timer = threading.Timer(0.2, _thread.interrupt_main)
+    t0 = time.perf_counter()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        p.step(0.1, n=10**9)  # about 20 min of CPU without the interrupt
+    timer.join()
+    assert time.perf_counter() - t0 < 10.0
+    assert 0.0 < p.t < 10**9 * p.control_dt

@@ -83,6 +83,21 @@ def test_param_grid_is_a_cartesian_product(force_cfg):
         ehactl.param_grid(force_cfg, {"control.pi.kp": [0.1, -1.0]})
 
 
+def test_an_empty_grid_runs_the_base_once_an_empty_axis_is_an_error(force_cfg):
+    """`{}` varies nothing: the base alone, as `run_many([base])`; a path with no values is a
+    ValueError naming it (it used to make the product silently empty: `[]`)."""
+    assert len(ehactl.param_grid(force_cfg, {})) == 1
+    (one,) = ehactl.run_many({}, base=force_cfg, duration=0.02)
+    (ref,) = ehactl.run_many([force_cfg], duration=0.02)
+    assert one.summary.rms_error == ref.summary.rms_error
+    for grid in ({"control.pi.kp": []}, {"control.pi.kp": [0.3], "control.pi.integral": iter(())}):
+        with pytest.raises(ValueError, match=r"'control.pi.(kp|integral)' has no values"):
+            ehactl.run_many(grid, base=force_cfg, duration=0.02)
+    # One-shot iterators as values: consumed once, rows and runs agree.
+    df = ehactl.run_many({"control.pi.kp": iter([0.3, 0.4])}, base=force_cfg, duration=0.02, frame=True)
+    assert list(df["control.pi.kp"]) == [0.3, 0.4]
+
+
 def test_progress_callbacks(force_cfg):
     seen = []
     ehactl.run(force_cfg, duration=0.5, progress=lambda d, n: seen.append((d, n)))

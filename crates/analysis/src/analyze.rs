@@ -36,6 +36,70 @@ pub struct LoopPoint {
     pub closed_phase_deg: f64,
 }
 
+/// A pole of the closed sampled loop outside or on the unit circle.
+#[derive(Debug, Clone, Serialize)]
+pub struct UnstablePole {
+    /// |z| (-): how much an oscillation at this pole grows per control period.
+    pub magnitude: f64,
+    /// |arg z|/(2π·T) (Hz): its frequency (0 for a real pole, the Nyquist frequency for a
+    /// negative one).
+    pub frequency_hz: f64,
+    /// Re z (-).
+    pub re: f64,
+    /// Im z (-), ≥ 0 (each complex pair is listed once).
+    pub im: f64,
+}
+
+/// The stability verdict of the linearised sampled loop.
+#[derive(Debug, Clone, Serialize)]
+pub struct Stability {
+    /// No closed-loop pole outside the unit circle (beyond [`ON_THE_CIRCLE`]).
+    pub stable: bool,
+    /// Largest |z| of the closed-loop poles (-).
+    pub max_pole_magnitude: f64,
+    /// The poles with |z| ≥ 1 + [`ON_THE_CIRCLE`], largest first.
+    pub unstable_poles: Vec<UnstablePole>,
+    /// The poles within [`ON_THE_CIRCLE`] of the unit circle.
+    pub marginal_poles: Vec<UnstablePole>,
+}
+
+/// How close to the unit circle (in |z|) a closed-loop pole counts as on it (-): the
+/// linearisation is a central difference of the plant's step map, whose rounding moves a
+/// pole that lies on the circle (an integrator the loop does not act on at its operating
+/// point, e.g. a piston whose valve rests in its dead band) by about 1e-9 either way.
+pub const ON_THE_CIRCLE: f64 = 1e-6;
+
+impl Stability {
+    /// The verdict on the closed-loop poles `poles` (z-plane) of a loop sampled at `dt` (s):
+    /// unstable when any has |z| ≥ 1 (Franklin, Powell & Workman, "Digital Control of
+    /// Dynamic Systems", 3rd ed., 1998, §4.3: a discrete system is stable iff every pole lies
+    /// inside the unit circle), up to the linearisation's rounding ([`ON_THE_CIRCLE`]): the
+    /// poles within it are listed as marginal.
+    pub fn of_poles(poles: &[nalgebra::Complex<f64>], dt: f64) -> Self {
+        let listed = |keep: &dyn Fn(f64) -> bool| {
+            let mut v: Vec<UnstablePole> = poles
+                .iter()
+                .filter(|z| keep(z.norm()) && z.im >= 0.0)
+                .map(|z| UnstablePole {
+                    magnitude: z.norm(),
+                    frequency_hz: z.arg().abs() / (TAU * dt),
+                    re: z.re,
+                    im: z.im,
+                })
+                .collect();
+            v.sort_by(|a, b| b.magnitude.total_cmp(&a.magnitude));
+            v
+        };
+        let unstable_poles = listed(&|m| m >= 1.0 + ON_THE_CIRCLE);
+        Stability {
+            stable: unstable_poles.is_empty(),
+            max_pole_magnitude: poles.iter().map(|z| z.norm()).fold(0.0, f64::max),
+            unstable_poles,
+            marginal_poles: listed(&|m| (m - 1.0).abs() < ON_THE_CIRCLE),
+        }
+    }
+}
+
 /// Everything `ehactl analyze` reports.
 #[derive(Debug, Clone, Serialize)]
 pub struct Analysis {
@@ -56,6 +120,11 @@ pub struct Analysis {
     pub discrete: Option<Margins>,
     /// Margins of the continuous-time loop (ideal PI/PD, no sampling), as the papers compute.
     pub continuous: Option<Margins>,
+    /// Stability of the linearised sampled loop from its closed-loop poles (None in open
+    /// loop, or with a command delay longer than `loopshape::MAX_DELAY_PERIODS` periods).
+    /// An unstable loop has no closed-loop bandwidth or peak: both are left out of the
+    /// margins (they describe a steady response that an unstable loop never reaches).
+    pub stability: Option<Stability>,
     /// Command delay included as e^(−jωτ) (s).
     pub delay_s: f64,
     /// Dindorf 2022 SDD ratios, with a flexible mount.
@@ -111,6 +180,33 @@ fn slow_poles(m: &LinearModel) -> Vec<Pole> {
     poles
 }
 
+/// The stability verdict of `cfg`'s linearised sampled loop alone (what `ehactl run` checks
+/// before it starts): the operating point, the discrete linearisation and the closed-loop
+/// poles, without the margins. None in open loop or with a delay too long to build in.
+pub fn stability(cfg: &RigConfig) -> Result<Option<Stability>, AnalysisError> {
+    let Some(law) = Law::from_config(cfg) else {
+        return Ok(None);
+    };
+    let op = oppoint::find(cfg, 5.0)?;
+    let dmodel = linear::discrete(&op)?;
+    let lp = Loop {
+        plant: &dmodel,
+        law,
+        delay: time_delay::delay(cfg.plant.effects.time_delay.as_ref()),
+    };
+    let dt = cfg.timebase().period();
+    Ok(lp.closed_loop_poles().map(|p| Stability::of_poles(&p, dt)))
+}
+
+/// `m` without its closed-loop bandwidth and peak (NaN), for an unstable loop.
+fn without_bandwidth(m: Margins) -> Margins {
+    Margins {
+        closed_loop_bandwidth_hz: None,
+        closed_loop_peak_db: f64::NAN,
+        ..m
+    }
+}
+
 /// Linearise and analyse `cfg`.
 pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
     let op = oppoint::find(cfg, 5.0)?;
@@ -136,6 +232,7 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
     );
     let f_lo = 0.1;
     let mut loop_response = Vec::new();
+    let mut stability = None;
     let (discrete, continuous) = match law {
         Some(law) => {
             let ld = Loop {
@@ -163,12 +260,21 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
                     }
                 })
                 .collect();
+            stability = ld.closed_loop_poles().map(|p| Stability::of_poles(&p, dt));
             (
                 Some(margins(&ld, f_lo, nyquist)),
                 Some(margins(&lc, f_lo, 10.0 * nyquist)),
             )
         }
         None => (None, None),
+    };
+    let (discrete, continuous) = if stability.as_ref().is_some_and(|s| !s.stable) {
+        (
+            discrete.map(without_bandwidth),
+            continuous.map(without_bandwidth),
+        )
+    } else {
+        (discrete, continuous)
     };
     Ok(Analysis {
         rig: cfg.rig.name.clone(),
@@ -189,6 +295,7 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
         open_loop_bandwidth_hz: open_loop_bandwidth(&dmodel, out, f_lo, nyquist),
         discrete,
         continuous,
+        stability,
         delay_s: delay,
         sdd: sdd::ratios(plant, s.x, sdd::excitation_frequency(&cfg.plant)),
         loop_response,
@@ -196,6 +303,10 @@ pub fn analyze(cfg: &RigConfig) -> Result<Analysis, AnalysisError> {
         control_rate_hz: cfg.run.control_rate_hz,
     })
 }
+
+/// Why an unstable loop's analysis gives no closed-loop bandwidth or peak.
+pub const UNSTABLE_BANDWIDTH_NOTE: &str =
+    "left out: the closed loop is unstable, so its bandwidth and peak are meaningless";
 
 impl Analysis {
     /// The `ehactl analyze --json` object: the flat keys (those that apply) plus the
@@ -236,6 +347,15 @@ impl Analysis {
         } else {
             o["sampled_loop"] = json!(false);
             o["loop_model"] = json!("open loop: no control law configured");
+        }
+        if let Some(st) = &self.stability {
+            o["stable"] = json!(st.stable);
+            o["max_closed_loop_pole_magnitude"] = json!(st.max_pole_magnitude);
+            o["unstable_poles"] = serde_json::to_value(&st.unstable_poles).unwrap_or(Value::Null);
+            o["marginal_poles"] = serde_json::to_value(&st.marginal_poles).unwrap_or(Value::Null);
+            if !st.stable {
+                o["closed_loop_bandwidth_note"] = json!(UNSTABLE_BANDWIDTH_NOTE);
+            }
         }
         if let Some(c) = &self.continuous {
             o["continuous"] = serde_json::to_value(c).unwrap_or(Value::Null);

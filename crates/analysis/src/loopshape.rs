@@ -8,7 +8,7 @@
 
 use crate::linear::{LinearModel, Output};
 use ehactl_config::{ControlMode, RigConfig};
-use nalgebra::Complex;
+use nalgebra::{Complex, DMatrix, DVector};
 use serde::Serialize;
 use std::f64::consts::TAU;
 
@@ -54,6 +54,24 @@ impl Law {
                 },
             }),
             ControlMode::OpenLoop => None,
+        }
+    }
+
+    /// The discrete law at period `dt` (s) as C(z) = (b₀ + b₁·z⁻¹)/(1 + a₁·z⁻¹): returns
+    /// (b₀, b₁, a₁), the same transfer function as [`Law::eval`] with `Some(dt)` (module
+    /// doc: PI b₀ = K_P·g·(1 + I·T), b₁ = −K_P·g, a₁ = −1; PD multiplied out over
+    /// (T_f + T)).
+    pub fn discrete_coefficients(&self, dt: f64) -> (f64, f64, f64) {
+        match *self {
+            Law::Pi {
+                kp,
+                integral,
+                scale,
+            } => (kp * scale * (1.0 + integral * dt), -kp * scale, -1.0),
+            Law::Pd { kp, td, tf } => {
+                let d = tf + dt;
+                (kp * (d + td) / d, -kp * (tf + td) / d, -tf / d)
+            }
         }
     }
 
@@ -117,6 +135,76 @@ impl Loop<'_> {
     pub fn closed(&self, f_hz: f64) -> Complex<f64> {
         let l = self.gain(f_hz);
         l / (Complex::new(1.0, 0.0) + l)
+    }
+}
+
+/// Longest command delay (control periods) whose delay line [`Loop::closed_loop_poles`]
+/// builds into the closed-loop matrix: the eigenvalues of a matrix of that order take about
+/// a second.
+pub const MAX_DELAY_PERIODS: usize = 500;
+
+impl Loop<'_> {
+    /// Poles (z-plane) of the closed sampled loop: the plant x⁺ = A·x + B·u_v, y = C·x; the
+    /// law C(z) (`Law::discrete_coefficients`) in the first-order realisation
+    /// x_c⁺ = −a₁·x_c + e, u = (b₁ − a₁·b₀)·x_c + b₀·e, on the error e = −y; and the command
+    /// delay τ = (d + f)·T as a line of past commands, u_v = (1 − f)·u[k − d] + f·u[k − d − 1]
+    /// (exact for whole periods, f = 0; a linear blend of the two neighbouring periods'
+    /// commands otherwise, as the plant's delay line averages them over its substeps).
+    /// These are the eigenvalues of the loop whose frequency response is [`Loop::gain`]:
+    /// the roots of 1 + L(z) = 0, plus any plant mode the loop cannot see. None for a
+    /// continuous plant or a delay longer than [`MAX_DELAY_PERIODS`].
+    pub fn closed_loop_poles(&self) -> Option<Vec<Complex<f64>>> {
+        let t = self.plant.dt?;
+        let periods = self.delay / t;
+        let whole = periods.floor();
+        let f = periods - whole;
+        let d = whole as usize;
+        let m = if f > 1e-9 { d + 1 } else { d };
+        if m > MAX_DELAY_PERIODS {
+            return None;
+        }
+        let c = self.plant.c(self.law.output());
+        let (b0, b1, a1) = self.law.discrete_coefficients(t);
+        let n = self.plant.a.nrows();
+        let (ic, iw) = (n, n + 1);
+        let size = n + 1 + m;
+        // The command u as a row over the state [x, x_c, u[k−1] … u[k−m]].
+        let mut u_row = DVector::<f64>::zeros(size);
+        for j in 0..n {
+            u_row[j] = -b0 * c[j];
+        }
+        u_row[ic] = b1 - a1 * b0;
+        // The delayed command u_v: u[k − i] is u itself for i = 0, state iw + i − 1 otherwise.
+        let mut uv_row = DVector::<f64>::zeros(size);
+        let mut add = |i: usize, w: f64| {
+            if i == 0 {
+                uv_row += &u_row * w;
+            } else {
+                uv_row[iw + i - 1] += w;
+            }
+        };
+        add(d, 1.0 - f);
+        if f > 1e-9 {
+            add(d + 1, f);
+        }
+        let mut a = DMatrix::<f64>::zeros(size, size);
+        for i in 0..n {
+            for j in 0..n {
+                a[(i, j)] = self.plant.a[(i, j)];
+            }
+            for j in 0..size {
+                a[(i, j)] += self.plant.b[i] * uv_row[j];
+            }
+            a[(ic, i)] = -c[i];
+        }
+        a[(ic, ic)] = -a1;
+        if m > 0 {
+            a.row_mut(iw).copy_from(&u_row.transpose());
+            for i in 1..m {
+                a[(iw + i, iw + i - 1)] = 1.0;
+            }
+        }
+        Some(a.complex_eigenvalues().iter().copied().collect())
     }
 }
 

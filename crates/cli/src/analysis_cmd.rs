@@ -95,6 +95,53 @@ fn operating_point_text(op: &serde_json::Value, mode: ehactl_config::ControlMode
     )
 }
 
+/// The stability verdict in words: stable with the largest closed-loop pole magnitude (and
+/// the poles on the circle, if any), or UNSTABLE with the poles outside it (|z| and
+/// frequency).
+pub fn stability_text(st: &ehactl_analysis::analyze::Stability) -> String {
+    use crate::sig;
+    // A pole a hair off the circle reads 1 ± δ, not 1.
+    let magnitude = |m: f64| {
+        if (m - 1.0).abs() < 1e-3 {
+            format!(
+                "1 {} {:.2e}",
+                if m < 1.0 { "−" } else { "+" },
+                (m - 1.0).abs()
+            )
+        } else {
+            sig(m, 4)
+        }
+    };
+    if st.stable {
+        let marginal = match st.marginal_poles.len() {
+            0 => String::new(),
+            n => format!(
+                "; {n} on it within {:e}: modes the loop does not act on at this operating point",
+                ehactl_analysis::analyze::ON_THE_CIRCLE
+            ),
+        };
+        return format!(
+            "stable (linearised sampled loop: no closed-loop pole outside the unit circle, largest |z| = {}{marginal})",
+            magnitude(st.max_pole_magnitude)
+        );
+    }
+    let poles: Vec<String> = st
+        .unstable_poles
+        .iter()
+        .map(|p| {
+            format!(
+                "|z| = {} at {} Hz",
+                magnitude(p.magnitude),
+                sig(p.frequency_hz, 4)
+            )
+        })
+        .collect();
+    format!(
+        "UNSTABLE (linearised sampled loop: closed-loop poles outside the unit circle: {})",
+        poles.join(", ")
+    )
+}
+
 /// `ehactl analyze CONFIG [--json]`.
 pub fn analyze(config: &Path, json: bool) -> ExitCode {
     let cfg = match load(config) {
@@ -124,19 +171,30 @@ pub fn analyze(config: &Path, json: bool) -> ExitCode {
         "  open-loop bandwidth   {}",
         fmt_opt(a.open_loop_bandwidth_hz, "Hz")
     );
+    if let Some(st) = &a.stability {
+        println!("  stability             {}", stability_text(st));
+    }
+    let unstable = a.stability.as_ref().is_some_and(|s| !s.stable);
     for (name, m) in [
         ("sampled loop (ZOH)", &a.discrete),
         ("continuous loop", &a.continuous),
     ] {
         if let Some(m) = m {
+            let closed = if unstable {
+                "closed-loop bandwidth meaningless (unstable loop)".to_string()
+            } else {
+                format!(
+                    "closed-loop bandwidth {} peak {:.2} dB",
+                    fmt_opt(m.closed_loop_bandwidth_hz, "Hz"),
+                    m.closed_loop_peak_db
+                )
+            };
             println!(
-                "  {name:<21} crossover {} PM {} | phase crossover {} GM {} | closed-loop bandwidth {} peak {:.2} dB",
+                "  {name:<21} crossover {} PM {} | phase crossover {} GM {} | {closed}",
                 fmt_opt(m.gain_crossover_hz, "Hz"),
                 fmt_opt(m.phase_margin_deg, "°"),
                 fmt_opt(m.phase_crossover_hz, "Hz"),
                 fmt_opt(m.gain_margin_db, "dB"),
-                fmt_opt(m.closed_loop_bandwidth_hz, "Hz"),
-                m.closed_loop_peak_db
             );
         }
     }

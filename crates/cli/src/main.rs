@@ -208,15 +208,12 @@ pub(crate) fn check_log_path(out: &Path, config: &Path, force: bool) -> Result<(
     }
 }
 
-/// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written.
-pub(crate) fn check_log_writable(out: &Path) -> Result<(), ExitCode> {
-    let fail = |e: std::io::Error| {
-        eprintln!(
-            "ehactl: --out {}: cannot write the MCAP log: {e}",
-            out.display()
-        );
-        ExitCode::from(1)
-    };
+/// Fail before anything starts (CAN bring-up, the loop) if the log cannot be written: the
+/// message (`--out PATH: cannot write the MCAP log: …`), which `ehactl run` prints (and with
+/// `--json` puts in its one JSON object) before exiting 1.
+pub(crate) fn log_writable(out: &Path) -> Result<(), String> {
+    let fail =
+        |e: std::io::Error| format!("--out {}: cannot write the MCAP log: {e}", out.display());
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(fail)?;
     }

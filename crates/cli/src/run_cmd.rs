@@ -6,12 +6,12 @@
 
 use crate::canbus::{self, HalKind};
 use crate::{
-    check_log_path, check_log_writable, config_error, default_log_path, live, load, progress_bar,
-    sig, stop_flag,
+    check_log_path, config_error, default_log_path, live, load, progress_bar, sig, stop_flag,
 };
 use ehactl_config::{ControlMode, RigConfig};
 use ehactl_hal::Hal;
 use ehactl_log::logger::LogTap;
+use ehactl_log::record::{Event, EventKind, Severity};
 use ehactl_runtime::control_socket::{ControlServer, StartError};
 use ehactl_runtime::live::LiveParams;
 use ehactl_runtime::session::{
@@ -85,7 +85,8 @@ pub fn cmd_run(args: RunArgs) -> ExitCode {
         Ok(s) => s,
         Err(code) => return code,
     };
-    let result = execute(&args, &cfg, out.clone(), &mut services, &live);
+    let start_events = stability_warning(&args.config, &cfg);
+    let result = execute(&args, &cfg, out.clone(), &mut services, &live, start_events);
     // After a failed start-up no run log was opened, so nothing will close the tap: no wait.
     let drain = match result {
         Err(SessionError::Startup(_)) => Duration::ZERO,
@@ -150,8 +151,23 @@ fn prepare(args: &RunArgs) -> Result<(RigConfig, PathBuf), ExitCode> {
     // Bad --hal/--bus or CAN settings: exit 2 before the log file is created.
     canbus::check_args(&cfg, &args.config, (args.hal, args.bus.as_deref()))?;
     check_log_path(&out, &args.config, args.force)?;
-    check_log_writable(&out)?;
+    if let Err(msg) = crate::log_writable(&out) {
+        return Err(io_failure(args, &msg, "out"));
+    }
     Ok((cfg, out))
+}
+
+/// A start-up I/O failure of `ehactl run` (exit 1): the message on stderr and, with `--json`,
+/// the one JSON object `--json` promises (`error`, `error_kind`, `exit_code`; docs/usage.md).
+fn io_failure(args: &RunArgs, msg: &str, kind: &str) -> ExitCode {
+    eprintln!("ehactl: {msg}");
+    if args.json {
+        // Not println!: a closed stdout must not turn into a panic.
+        use std::io::Write;
+        let obj = serde_json::json!({"error": msg, "error_kind": kind, "exit_code": 1});
+        let _ = writeln!(std::io::stdout(), "{obj}");
+    }
+    ExitCode::from(1)
 }
 
 /// Phase 2: what runs beside the loop, and the CAN backend (unconfigured until the session
@@ -182,8 +198,8 @@ impl Services {
                     )));
                 }
                 Err(e) => {
-                    eprintln!("ehactl: --control-socket {}: {e}", path.display());
-                    return Err(ExitCode::from(1));
+                    let msg = format!("--control-socket {}: {e}", path.display());
+                    return Err(io_failure(args, &msg, "control_socket"));
                 }
             },
             None => None,
@@ -207,10 +223,7 @@ impl Services {
             .transpose()
         {
             Ok(v) => v,
-            Err(e) => {
-                eprintln!("ehactl: {e}");
-                return Err(ExitCode::from(1));
-            }
+            Err(e) => return Err(io_failure(args, &e.to_string(), "live")),
         };
         if let Some(v) = &live_view {
             // Parsed by tests and scripts: the URL is the last word.
@@ -233,6 +246,7 @@ fn execute(
     out: PathBuf,
     services: &mut Services,
     live: &LiveParams,
+    start_events: Vec<Event>,
 ) -> Result<Session, SessionError> {
     let tap = services.live_view.as_ref().map(|v| v.tap());
     let bar = progress_bar(String::new());
@@ -268,7 +282,7 @@ fn execute(
             total.store(n, Ordering::Relaxed);
             done.store(k, Ordering::Relaxed);
         };
-        let opts = session_options(args, out, &stop, &mut progress, tap);
+        let opts = session_options(args, out, &stop, &mut progress, tap, start_events);
         let hardware = services.can_hal.as_mut().map(|h| h as &mut dyn Hal);
         let r = run_realtime(cfg, opts, live_ref, hardware, Some(warn));
         finished.store(true, Ordering::Relaxed);
@@ -280,7 +294,7 @@ fn execute(
             bar.set_length(n);
             bar.set_position(k);
         };
-        let opts = session_options(args, out, &stop, &mut progress, tap);
+        let opts = session_options(args, out, &stop, &mut progress, tap, start_events);
         if live_ref.is_some() {
             run_sim_live(cfg, opts, live_ref)
         } else {
@@ -297,8 +311,10 @@ fn session_options<'a>(
     stop: &'a AtomicBool,
     progress: &'a mut dyn FnMut(u64, u64),
     tap: Option<Arc<LogTap>>,
+    start_events: Vec<Event>,
 ) -> SessionOptions<'a> {
     SessionOptions {
+        start_events,
         duration: args.duration,
         mcap: Some(out),
         bus: args.bus.clone(),
@@ -308,6 +324,46 @@ fn session_options<'a>(
         tap,
         ..Default::default()
     }
+}
+
+/// Before the run: the stability verdict of the config's linearised sampled loop
+/// (`ehactl analyze`'s). An unstable loop is warned about on stderr and becomes an
+/// `unstable_loop` warning event on `/events` (value: the largest closed-loop pole
+/// magnitude |z|, limit 1); the run goes on, and its supervisor is what stops it. A
+/// linearisation that fails is warned about and the run goes on too.
+fn stability_warning(config: &Path, cfg: &RigConfig) -> Vec<Event> {
+    let st = match ehactl_analysis::analyze::stability(cfg) {
+        Ok(Some(st)) => st,
+        Ok(None) => return Vec::new(),
+        Err(e) => {
+            warn(&format!(
+                "{}: the loop's stability could not be checked ({e})",
+                config.display()
+            ));
+            return Vec::new();
+        }
+    };
+    if st.stable {
+        return Vec::new();
+    }
+    warn(&format!(
+        "{}: the linearised loop is {}; expect the supervisor to trip (`ehactl analyze {}` for the margins)",
+        config.display(),
+        crate::analysis_cmd::stability_text(&st),
+        config.display()
+    ));
+    vec![Event {
+        value: st.max_pole_magnitude,
+        limit: 1.0,
+        unit: "-",
+        ..Event::note(
+            0.0,
+            0,
+            Severity::Warning,
+            EventKind::UnstableLoop,
+            "linearised_loop",
+        )
+    }]
 }
 
 /// Warnings of the wall-clock pacer's set-up (SCHED_FIFO, mlockall, affinity refused).

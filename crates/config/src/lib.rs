@@ -790,6 +790,35 @@ impl RigConfig {
         })
     }
 
+    /// The supervisor's settings as a run uses them: the `[supervisor]` section with the
+    /// following-error bound filled in for a closed loop that does not set it, so that a
+    /// config without the section is still supervised: twice the largest |setpoint| over the
+    /// setpoint's envelope (an error no loop whose feedback stays between the setpoint's
+    /// extremes and its mirror image can reach), at least 10 % of the actuator's range (the
+    /// stroke for a position loop, supply.pressure × the larger piston area for a force
+    /// loop), so that a setpoint near zero does not make the bound the sensor noise. Open
+    /// loop has no feedback and no following error: the field stays as it is, unchecked.
+    pub fn supervisor_settings(&self) -> SupervisorConfig {
+        let mut s = self.supervisor.clone();
+        if s.following_error.is_none() {
+            s.following_error = self.default_following_error();
+        }
+        s
+    }
+
+    /// The derived following-error bound of [`RigConfig::supervisor_settings`] (N or m); None
+    /// in open loop.
+    pub fn default_following_error(&self) -> Option<f64> {
+        let c = &self.plant.cylinder;
+        let range = match self.control.mode {
+            ControlMode::Position => c.stroke,
+            ControlMode::Force => self.plant.supply.pressure * c.area_a.max(c.area_b),
+            ControlMode::OpenLoop => return None,
+        };
+        let ((lo, _), (hi, _)) = ehactl_control::setpoint::envelope(&self.setpoint);
+        Some((2.0 * lo.abs().max(hi.abs())).max(0.1 * range))
+    }
+
     /// The control law `control.mode` selects, with its gains (a validated config has the
     /// section its mode needs).
     pub fn controller(&self) -> Controller {
@@ -876,6 +905,41 @@ mod tests {
         }
     }
 
+    /// Without `supervisor.following_error` a closed loop is still supervised: twice the
+    /// largest |setpoint| (Sahu 2022: 785 N static + 196 N dynamic → 1962 N; Dindorf 2022:
+    /// the 0.6 m step → 1.2 m), at least a tenth of the actuator's range (a 1 N setpoint on
+    /// Sahu's 20 MPa × 2.364e-4 m² cylinder → 472.8 N); an explicit value is kept; open loop
+    /// gets none.
+    #[test]
+    fn an_absent_following_error_is_derived_from_the_setpoint() {
+        let load = |name: &str| {
+            let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../../configs")
+                .join(name);
+            let mut cfg = RigConfig::load(&path).unwrap();
+            cfg.supervisor.following_error = None;
+            cfg
+        };
+        let mut sahu = load("sahu2022_force.toml");
+        let close = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() <= 1e-9 * b);
+        assert!(close(
+            sahu.supervisor_settings().following_error,
+            2.0 * (785.0 + 196.0)
+        ));
+        sahu.setpoint.offset = 1.0;
+        sahu.setpoint.amplitude = 0.0;
+        assert!(close(
+            sahu.supervisor_settings().following_error,
+            0.1 * 20.0e6 * 2.364e-4
+        ));
+        sahu.supervisor.following_error = Some(600.0);
+        assert_eq!(sahu.supervisor_settings().following_error, Some(600.0));
+        let boom = load("dindorf2022_boom.toml");
+        assert!(close(boom.supervisor_settings().following_error, 1.2));
+        let open = load("ideko_machine_tool.toml");
+        assert_eq!(open.supervisor_settings().following_error, None);
+    }
+
     /// A value admitted by `r`, different for each `i`.
     fn admitted(r: Range, i: usize) -> f64 {
         let t = 0.3 + 0.4 * (i as f64 / 100.0);
@@ -883,6 +947,7 @@ mod tests {
             Range::Within(lo, hi) => lo + t * (hi - lo),
             Range::Finite => -1.5 * t,
             Range::Positive | Range::NonNegative => 2.5 * t,
+            Range::PositiveAtMost(hi) => t * hi,
         }
     }
 
@@ -940,7 +1005,7 @@ mod tests {
             + round_trip("log", &mut cfg.log)
             + round_trip("realtime", &mut cfg.realtime)
             + round_trip("canopen", &mut cfg.canopen);
-        assert_eq!(n, 39, "float parameters outside the plant");
+        assert_eq!(n, 41, "float parameters outside the plant");
         // The renamed field: registry path, accessor and serde key `final`.
         cfg.setpoint.set_path("final", 12.5).unwrap();
         assert_eq!(cfg.setpoint.final_value, 12.5);

@@ -7,7 +7,7 @@
 //! through those types, and `ehactl-types` compiles no TOML parser
 //! (tests/python/test_crate_layers.py).
 
-use ehactl_plant::spec::{expectation, ConfigError, Kind, Param};
+use ehactl_plant::spec::{expectation, readable, ConfigError, Kind, Param};
 
 /// Get the value at a dotted path in a TOML tree.
 pub fn get<'a>(root: &'a toml::Value, path: &str) -> Option<&'a toml::Value> {
@@ -56,11 +56,11 @@ pub fn check_tree(root: &mut toml::Value, tables: &[&[Param]]) -> Result<(), Con
                 if param.kind == Kind::Float {
                     *v = toml::Value::Float(x);
                 } else if x.fract() != 0.0 {
-                    return Err(bad(format!("got {x}, not an integer")));
+                    return Err(bad(format!("got {}, not an integer", readable(x))));
                 }
                 if !param.range.admits(x) {
                     let what = if x.is_finite() {
-                        format!("value {x} is out of range")
+                        format!("value {} is out of range", readable(x))
                     } else {
                         format!("value {x} is not finite")
                     };
@@ -110,7 +110,10 @@ pub fn check_tree(root: &mut toml::Value, tables: &[&[Param]]) -> Result<(), Con
                     };
                     *item = toml::Value::Float(x);
                     if !param.range.admits(x) {
-                        return Err(bad(format!("element {i} = {x} is out of range")));
+                        return Err(bad(format!(
+                            "element {i} = {} is out of range",
+                            readable(x)
+                        )));
                     }
                 }
             }

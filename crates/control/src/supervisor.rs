@@ -66,6 +66,26 @@ pub struct SupervisorConfig {
     #[serde(default)]
     #[param(unit = "Pa", range = Positive, desc = "plausible pressure range")]
     pub pressure_range: Option<f64>,
+    /// Following-error bound (N for a force loop, m for a position loop): the run trips once
+    /// |setpoint − feedback| has been above it for longer than `following_error_time` (see
+    /// [`Supervisor::check_following`]). Absent in a closed loop: a default derived from the
+    /// setpoint (`RigConfig::supervisor_settings` in crates/config). Not allowed in open
+    /// loop, which has no feedback.
+    #[serde(default)]
+    #[param(
+        unit = "N or m",
+        range = Positive,
+        desc = "following-error bound on |setpoint − feedback| (absent: twice the largest |setpoint|, at least 10 % of the stroke / force capacity)"
+    )]
+    pub following_error: Option<f64>,
+    /// How long (s) the error may stay above `following_error` before the run trips.
+    #[serde(default = "SupervisorConfig::default_following_error_time")]
+    #[param(
+        unit = "s",
+        range = Within(1e-4, 1e3),
+        desc = "time the error may stay above the following-error bound"
+    )]
+    pub following_error_time: f64,
 }
 
 impl SupervisorConfig {
@@ -74,6 +94,11 @@ impl SupervisorConfig {
     }
     fn default_max_saturation() -> f64 {
         0.9
+    }
+    /// Default following-error time (s): a loop that is half a second away from its
+    /// setpoint by more than the bound is not following it.
+    pub fn default_following_error_time() -> f64 {
+        0.5
     }
 }
 
@@ -91,6 +116,8 @@ impl Default for SupervisorConfig {
             pressure_range: None,
             saturation_window: None,
             max_saturation: Self::default_max_saturation(),
+            following_error: None,
+            following_error_time: Self::default_following_error_time(),
         }
     }
 }
@@ -114,6 +141,8 @@ pub struct Supervisor {
     command_clamped_reported: bool,
     /// Exponentially weighted share of recent cycles spent at a command limit (-).
     saturated_share: f64,
+    /// Following-error debounce count (s): up by the period above the bound, down below.
+    following_over: f64,
 }
 
 impl Supervisor {
@@ -126,6 +155,7 @@ impl Supervisor {
             last_advance_t: 0.0,
             command_clamped_reported: false,
             saturated_share: 0.0,
+            following_over: 0.0,
         }
     }
 
@@ -314,6 +344,46 @@ impl Supervisor {
         })
     }
 
+    /// Following-error supervision (see [`SupervisorConfig::following_error`]): `error` is
+    /// this cycle's setpoint − feedback (N or m; NaN in open loop, which is not checked),
+    /// `dt` the control period (s). Counter-based debouncing (as the AUTOSAR diagnostic event
+    /// manager's, AUTOSAR CP SWS DiagnosticEventManager R4.4, "counter-based debounce
+    /// algorithm"): the time above the bound counts up, the time below counts down (never
+    /// below 0), and the run trips once the count exceeds `following_error_time`. A
+    /// continuous excursion trips after exactly that time; an oscillation that spends more
+    /// of its period above the bound than below it (a limit cycle around the setpoint, whose
+    /// error crosses zero every half period) trips too. The event holds the error and the
+    /// bound in the loop's unit. Allocation-free.
+    #[inline]
+    pub fn check_following(&mut self, t: f64, cycle: u64, error: f64, dt: f64) -> Option<Event> {
+        let bound = self.cfg.following_error?;
+        if !error.is_finite() {
+            return None;
+        }
+        self.following_over = if error.abs() > bound {
+            self.following_over + dt
+        } else {
+            (self.following_over - dt).max(0.0)
+        };
+        // Half a period of slack: the count is a sum of periods, whose rounding must not
+        // decide the cycle of the trip.
+        (self.following_over > self.cfg.following_error_time + 0.5 * dt).then(|| {
+            let (channel, unit) = match self.feedback {
+                FeedbackChannel::Force => ("force", "N"),
+                FeedbackChannel::Position => ("position", "m"),
+            };
+            Self::trip(
+                t,
+                cycle,
+                EventKind::FollowingError,
+                channel,
+                error,
+                bound,
+                unit,
+            )
+        })
+    }
+
     /// Limit the command; returns the command to apply and a warning the first time it clamps.
     /// A non-finite command is a trip.
     #[inline]
@@ -364,5 +434,83 @@ pub fn clamp_command(u: f64, max_command: f64) -> f64 {
         u.clamp(-max_command, max_command)
     } else {
         u
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn following(bound: Option<f64>, time: f64) -> Supervisor {
+        let cfg = SupervisorConfig {
+            following_error: bound,
+            following_error_time: time,
+            ..SupervisorConfig::default()
+        };
+        Supervisor::new(&cfg, FeedbackChannel::Force)
+    }
+
+    /// Cycles until the first trip of `sup` fed `error(k)` at period `dt` (None: no trip in `n`).
+    fn first_trip(
+        sup: &mut Supervisor,
+        dt: f64,
+        n: u64,
+        error: impl Fn(u64) -> f64,
+    ) -> Option<(u64, Event)> {
+        (0..n).find_map(|k| {
+            sup.check_following(k as f64 * dt, k, error(k), dt)
+                .map(|e| (k, e))
+        })
+    }
+
+    /// A constant excursion trips on the first cycle whose accumulated time exceeds the
+    /// bound's time: 0.1 s at 1 ms is 100 cycles at the limit, the 101st over it (cycle 100);
+    /// the event carries the error, the bound and the loop's unit.
+    #[test]
+    fn a_steady_excursion_trips_after_the_time() {
+        let mut sup = following(Some(10.0), 0.1);
+        let (k, ev) = first_trip(&mut sup, 1e-3, 1000, |_| -25.0).expect("a trip");
+        assert_eq!(k, 100);
+        assert_eq!(ev.kind, EventKind::FollowingError);
+        assert_eq!(
+            (ev.channel, ev.value, ev.limit, ev.unit),
+            ("force", -25.0, 10.0, "N")
+        );
+        assert_eq!(ev.severity, Severity::Trip);
+        // At or below the bound, never.
+        let mut sup = following(Some(10.0), 0.1);
+        assert!(first_trip(&mut sup, 1e-3, 10_000, |_| 10.0).is_none());
+    }
+
+    /// Counter-based debounce: an error above the bound 3 cycles in 4 gains 2 periods per 4
+    /// cycles, so the count passes 0.1 s after 50 periods of gain, near cycle 200; one above
+    /// the bound 1 cycle in 2 (a symmetric excursion) never accumulates.
+    #[test]
+    fn an_oscillation_mostly_above_the_bound_trips_a_balanced_one_does_not() {
+        let mut sup = following(Some(1.0), 0.1);
+        let (k, _) = first_trip(
+            &mut sup,
+            1e-3,
+            10_000,
+            |k| if k % 4 == 3 { 0.0 } else { 5.0 },
+        )
+        .expect("a trip");
+        assert!((195..=205).contains(&k), "{k}");
+        let mut sup = following(Some(1.0), 0.1);
+        assert!(first_trip(&mut sup, 1e-3, 10_000, |k| if k % 2 == 0 {
+            5.0
+        } else {
+            0.5
+        })
+        .is_none());
+    }
+
+    /// No bound or no error (open loop: NaN) is no check.
+    #[test]
+    fn no_bound_or_no_error_is_not_checked() {
+        let mut sup = following(None, 0.1);
+        assert!(first_trip(&mut sup, 1e-3, 1000, |_| 1e9).is_none());
+        let mut sup = following(Some(1.0), 0.1);
+        assert!(first_trip(&mut sup, 1e-3, 1000, |_| f64::NAN).is_none());
     }
 }

@@ -37,6 +37,21 @@ pub enum HalError {
         /// Offending state.
         what: &'static str,
     },
+    /// The simulated plant reached a finite state no rig can have (a pressure far beyond the
+    /// supply, a velocity or force far beyond what the cylinder can produce): a simulation
+    /// fault (`ehactl_plant::plausible`).
+    Implausible {
+        /// Time (s).
+        t: f64,
+        /// Offending state.
+        what: &'static str,
+        /// Its value (`unit`).
+        value: f64,
+        /// The bound it crossed (`unit`).
+        bound: f64,
+        /// Unit of value and bound.
+        unit: &'static str,
+    },
     /// A device reported a fault or stopped answering.
     Device {
         /// Device-specific code.
@@ -102,6 +117,7 @@ impl HalError {
     pub fn what(&self) -> &'static str {
         match self {
             HalError::Numerical { what, .. }
+            | HalError::Implausible { what, .. }
             | HalError::Device { what, .. }
             | HalError::Startup { what } => what,
             HalError::Lifecycle { call, .. } => call,
@@ -115,6 +131,16 @@ impl std::fmt::Display for HalError {
             HalError::Numerical { t, what } => {
                 write!(f, "plant state `{what}` became non-finite at t = {t} s")
             }
+            HalError::Implausible {
+                t,
+                what,
+                value,
+                bound,
+                unit,
+            } => write!(
+                f,
+                "plant state `{what}` = {value:e} {unit} at t = {t} s is beyond what the rig can reach (bound {bound:e} {unit}): a simulation fault"
+            ),
             HalError::Device { code, what } => write!(f, "device fault {code:#x}: {what}"),
             HalError::Lifecycle { call, state } => write!(
                 f,

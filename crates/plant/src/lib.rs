@@ -26,6 +26,7 @@ pub mod excitation;
 pub mod imposed;
 pub mod model;
 pub mod params;
+pub mod plausible;
 mod registry;
 pub mod rng;
 pub mod sensors;

@@ -119,25 +119,50 @@ pub struct Plant {
     cycle: u64,
     /// The effect components ([`effects::Components`]), e.g. the command delay line.
     components: effects::Components,
+    /// Bounds of the states the rig can have, checked after every step.
+    plausible: crate::plausible::Plausible,
     params: PlantParams,
 }
 
-/// Non-finite state after a step: the run must stop.
+/// A state after a step that no rig can have: non-finite, or beyond the bounds of
+/// [`crate::plausible::Plausible`] (`bound` finite). The run must stop.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NumericalFailure {
     /// Time of the failure (s).
     pub t: f64,
     /// Which state went bad.
     pub what: &'static str,
+    /// Its value (in `unit`).
+    pub value: f64,
+    /// The bound it crossed (in `unit`); NaN for a non-finite state.
+    pub bound: f64,
+    /// Unit of value and bound ("" for a non-finite state).
+    pub unit: &'static str,
+}
+
+impl NumericalFailure {
+    /// Whether the state is finite but implausible (beyond its bound), rather than
+    /// non-finite.
+    pub fn is_implausible(&self) -> bool {
+        self.bound.is_finite()
+    }
 }
 
 impl std::fmt::Display for NumericalFailure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "plant state `{}` became non-finite at t = {} s",
-            self.what, self.t
-        )
+        if self.is_implausible() {
+            write!(
+                f,
+                "plant state `{}` = {:e} {} at t = {} s is beyond what the rig can reach (bound {:e} {}): a simulation fault",
+                self.what, self.value, self.unit, self.t, self.bound, self.unit
+            )
+        } else {
+            write!(
+                f,
+                "plant state `{}` became non-finite at t = {} s",
+                self.what, self.t
+            )
+        }
     }
 }
 
@@ -454,14 +479,17 @@ impl Plant {
         } else {
             None
         };
+        // The edge law with the lap and limit stages (`valve_deadband`, `valve_saturation`)
+        // as configured.
+        let edges = EdgeLaw::with_stages(
+            params,
+            components.valve_deadband,
+            components.valve_saturation,
+        );
+        let plausible = crate::plausible::Plausible::new(params, &edges, control_dt, c.beta_max);
         let mut plant = Plant {
-            // The edge law with the lap and limit stages (`valve_deadband`,
-            // `valve_saturation`) as configured.
-            edges: EdgeLaw::with_stages(
-                params,
-                components.valve_deadband,
-                components.valve_saturation,
-            ),
+            edges,
+            plausible,
             linear,
             poly: e.polynomial_force.filter(|f| f.enabled),
             dahl_z: 0.0,
@@ -785,7 +813,8 @@ impl Plant {
     }
 
     /// Advance one control period with the command `u` (V) held (zero-order hold).
-    /// Real-time safe: no allocation, no I/O, bounded time.
+    /// Real-time safe: no allocation, no I/O, bounded time. An error when the state is then
+    /// non-finite or beyond what the rig can have ([`crate::plausible`]).
     pub fn step(&mut self, u: f64) -> Result<(), NumericalFailure> {
         if let Some(moh) = self.adaptive {
             self.choose_substeps(moh);
@@ -819,10 +848,30 @@ impl Plant {
         ]
         .into_iter()
         .find(|(_, v)| !v.is_finite());
-        match bad {
-            Some((what, _)) => Err(NumericalFailure { t: s.t, what }),
+        if let Some((what, value)) = bad {
+            return Err(NumericalFailure {
+                t: s.t,
+                what,
+                value,
+                bound: f64::NAN,
+                unit: "",
+            });
+        }
+        match self.plausible.check(s) {
+            Some((what, value, bound, unit)) => Err(NumericalFailure {
+                t: s.t,
+                what,
+                value,
+                bound,
+                unit,
+            }),
             None => Ok(()),
         }
+    }
+
+    /// The bounds of the states this rig can have (the check after every step).
+    pub fn plausible(&self) -> &crate::plausible::Plausible {
+        &self.plausible
     }
 
     /// The integration scheme that runs (`linear_exact` only where it applies, see

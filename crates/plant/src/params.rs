@@ -18,11 +18,14 @@ fn yes() -> bool {
 #[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Fluid {
-    /// Density ρ (kg/m³); 003: 900.
-    #[param(unit = "kg/m³", range = Positive, desc = "fluid density ρ")]
+    /// Density ρ (kg/m³); 003: 900. At most 2e4 kg/m³: denser than any liquid (mercury
+    /// 1.35e4 kg/m³).
+    #[param(unit = "kg/m³", range = PositiveAtMost(2.0e4), desc = "fluid density ρ")]
     pub density: f64,
     /// Effective bulk modulus β₀ at zero gauge pressure (Pa); 003: K = 1.8e9, 004: 1.75e9.
-    #[param(unit = "Pa", range = Positive, desc = "effective bulk modulus β₀ (003 K, 004 β_e)", uncertain(order = 4, default))]
+    /// At most 1e11 Pa: stiffer than any liquid by 40× (water 2.2e9 Pa) and within the
+    /// steel of the cylinder (1.6e11 Pa).
+    #[param(unit = "Pa", range = PositiveAtMost(1.0e11), desc = "effective bulk modulus β₀ (003 K, 004 β_e)", uncertain(order = 4, default))]
     pub bulk_modulus: f64,
     /// Kinematic viscosity ν (m²/s), used by line resistance (001 eq. 6–12, 002 eq. 9–17).
     #[serde(default = "Fluid::default_viscosity")]
@@ -47,8 +50,9 @@ impl Fluid {
 #[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Supply {
-    /// Supply pressure p_s (Pa); 003: p₀ = 24 MPa.
-    #[param(unit = "Pa", range = Positive, desc = "supply pressure p_s (003 p₀)", uncertain(order = 11))]
+    /// Supply pressure p_s (Pa); 003: p₀ = 24 MPa. At most 1e9 Pa: industrial hydraulics
+    /// stop near 70 MPa, pressure intensifiers near 700 MPa.
+    #[param(unit = "Pa", range = PositiveAtMost(1.0e9), desc = "supply pressure p_s (003 p₀)", uncertain(order = 11))]
     pub pressure: f64,
     /// Tank (return) pressure p_T (Pa).
     #[serde(default)]
@@ -125,11 +129,12 @@ impl Valve {
 #[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Cylinder {
-    /// Piston area on the A (cap) side A₁ (m²).
-    #[param(unit = "m²", range = Positive, desc = "piston area A₁")]
+    /// Piston area on the A (cap) side A₁ (m²). At most 10 m² (a 3.6 m bore, beyond the
+    /// largest press cylinders).
+    #[param(unit = "m²", range = PositiveAtMost(10.0), desc = "piston area A₁")]
     pub area_a: f64,
-    /// Annulus area on the B (rod) side A₂ (m²).
-    #[param(unit = "m²", range = Positive, desc = "annulus area A₂")]
+    /// Annulus area on the B (rod) side A₂ (m²). At most 10 m², as A₁.
+    #[param(unit = "m²", range = PositiveAtMost(10.0), desc = "annulus area A₂")]
     pub area_b: f64,
     /// Dead volume of chamber A incl. hose to the valve V₁₀ (m³).
     #[param(unit = "m³", range = Positive, desc = "dead volume V₁₀", uncertain(order = 9))]
@@ -137,8 +142,9 @@ pub struct Cylinder {
     /// Dead volume of chamber B V₂₀ (m³).
     #[param(unit = "m³", range = Positive, desc = "dead volume V₂₀", uncertain(order = 10))]
     pub dead_volume_b: f64,
-    /// Stroke h (m); position x ∈ [0, stroke].
-    #[param(unit = "m", range = Positive, desc = "stroke h")]
+    /// Stroke h (m); position x ∈ [0, stroke]. At most 100 m (beyond the longest
+    /// telescopic and ship-lift cylinders, ≈ 30 m).
+    #[param(unit = "m", range = PositiveAtMost(100.0), desc = "stroke h")]
     pub stroke: f64,
     /// Initial piston position x₀ (m).
     #[serde(default)]
@@ -158,8 +164,10 @@ pub struct Cylinder {
 #[derive(Params, Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Mechanics {
-    /// Moving mass m (kg): piston + rod (+ load for a rigid connection); 004: 0.893.
-    #[param(unit = "kg", range = Positive, desc = "moving mass", uncertain(order = 5, default))]
+    /// Moving mass m (kg): piston + rod (+ load for a rigid connection); 004: 0.893. At
+    /// most 1e6 kg: a 1000 t load, beyond the heaviest loads hydraulic cylinders move (ship
+    /// lifts, heavy presses).
+    #[param(unit = "kg", range = PositiveAtMost(1.0e6), desc = "moving mass", uncertain(order = 5, default))]
     pub mass: f64,
     /// Viscous damping d_y (N·s/m); 003: 2500, 004: C = 10.587.
     #[serde(default)]
@@ -759,6 +767,7 @@ impl PlantParams {
                     crate::spec::Range::NonNegative | crate::spec::Range::Positive => {
                         (0.0, f64::INFINITY)
                     }
+                    crate::spec::Range::PositiveAtMost(b) => (0.0, b),
                     crate::spec::Range::Finite => (f64::NEG_INFINITY, f64::INFINITY),
                 };
                 out.push((path, v, lo.max(r_lo), hi.min(r_hi)));

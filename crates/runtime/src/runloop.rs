@@ -1,5 +1,5 @@
 //! The fixed-step control loop: `Hal::read` → supervisor → setpoint → control law →
-//! supervisor command limit → `Hal::write` → record. The same code runs in simulated time
+//! supervisor command limit, saturation and following-error watches → `Hal::write` → record. The same code runs in simulated time
 //! (the sim backend, as fast as the CPU allows) and against a wall clock: only the
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
@@ -218,6 +218,9 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
         if let Some(ev) = self.supervisor.check_saturation(t, k, saturated, dt) {
             return Err(Ending::Trip(ev));
         }
+        if let Some(ev) = self.supervisor.check_following(t, k, terms.error, dt) {
+            return Err(Ending::Trip(ev));
+        }
         let plant = self.hal.plant_state();
         let rec = cycle_record(k, t, (r, rdot), fb, &terms, u, meas, plant, timing);
         if let Err(e) = self.hal.write(t, period, u) {
@@ -291,9 +294,25 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
     }
 }
 
-/// The trip event of a backend fault in cycle `k` at `t` (s).
+/// The trip event of a backend fault in cycle `k` at `t` (s): a simulated plant beyond
+/// what the rig can have is its own kind (`plant_implausible`, with the state, its value,
+/// bound and unit), every other fault a `hal_fault`.
 fn hal_fault(t: f64, k: u64, e: ehactl_hal::HalError) -> Event {
-    Event::note(t, k, Severity::Trip, EventKind::HalFault, e.what())
+    match e {
+        ehactl_hal::HalError::Implausible {
+            what,
+            value,
+            bound,
+            unit,
+            ..
+        } => Event {
+            value,
+            limit: bound,
+            unit,
+            ..Event::note(t, k, Severity::Trip, EventKind::PlantImplausible, what)
+        },
+        _ => Event::note(t, k, Severity::Trip, EventKind::HalFault, e.what()),
+    }
 }
 
 /// Control-error statistics of a run (N or m), accumulated without allocation.

@@ -69,6 +69,9 @@ pub struct SessionOptions<'a> {
     /// The bus address as the user gave it (`ehactl run --bus`), the `bus` of the summary
     /// of a failed hardware start-up.
     pub bus: Option<String>,
+    /// Events found before the run (e.g. `unstable_loop`: the config's linearised loop is
+    /// unstable), logged on `/events` right after the run's `start` event.
+    pub start_events: Vec<Event>,
 }
 
 /// Result of a run.
@@ -659,7 +662,7 @@ struct ControlParts {
 impl ControlParts {
     fn new(cfg: &RigConfig) -> Self {
         let controller = cfg.controller();
-        let supervisor = Supervisor::new(&cfg.supervisor, controller.feedback_channel());
+        let supervisor = Supervisor::new(&cfg.supervisor_settings(), controller.feedback_channel());
         let setpoint = Setpoint::new(&cfg.setpoint);
         Self {
             controller,
@@ -738,9 +741,14 @@ fn drive(
             records.push(*r);
         }
     };
-    let mut on_event = |e| {
+    // Taken before the loop: handing them on allocates nothing in the cycle.
+    let start_events = std::mem::take(&mut opts.start_events);
+    let mut on_event = |e: Event| {
         if let Some(l) = lg {
             l.event(e);
+            if e.kind == EventKind::Start {
+                start_events.iter().for_each(|w| l.event(*w));
+            }
         }
     };
     let mut on_progress = |k: u64| {

@@ -73,9 +73,21 @@ impl Hal for SimHal {
                 self.off_grid += 1;
             }
         }
-        self.plant.step(command).map_err(|e| HalError::Numerical {
-            t: e.t,
-            what: e.what,
+        self.plant.step(command).map_err(|e| {
+            if e.is_implausible() {
+                HalError::Implausible {
+                    t: e.t,
+                    what: e.what,
+                    value: e.value,
+                    bound: e.bound,
+                    unit: e.unit,
+                }
+            } else {
+                HalError::Numerical {
+                    t: e.t,
+                    what: e.what,
+                }
+            }
         })
     }
 

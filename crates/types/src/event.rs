@@ -3,6 +3,9 @@
 //! the logger (crates/log/src/record.rs encodes them, crates/log/src/schemas.rs names their
 //! channel).
 
+// A pressure of 2.1e300 Pa reads `2.1e300`, not 301 digits.
+use crate::spec::readable;
+
 /// What an event reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EventKind {
@@ -45,6 +48,16 @@ pub enum EventKind {
     LogFailed,
     /// The command sat at a limit for too much of the supervisor's saturation window.
     Saturation,
+    /// |setpoint − feedback| stayed above the supervisor's following-error bound for longer
+    /// than its time (a loop that does not follow: unstable, stuck, or mis-tuned).
+    FollowingError,
+    /// The simulated plant reached a state no rig can have (a pressure far beyond the
+    /// supply, a velocity or force far beyond what the cylinder can produce): a simulation
+    /// fault, not a tracking figure.
+    PlantImplausible,
+    /// The linearised loop of the config is unstable (a closed-loop pole on or outside the
+    /// unit circle), warned at the start of a run.
+    UnstableLoop,
 }
 
 impl EventKind {
@@ -70,6 +83,9 @@ impl EventKind {
             EventKind::CanBus => "can_bus",
             EventKind::LogFailed => "log_failed",
             EventKind::Saturation => "saturation",
+            EventKind::FollowingError => "following_error",
+            EventKind::PlantImplausible => "plant_implausible",
+            EventKind::UnstableLoop => "unstable_loop",
         }
     }
 }
@@ -172,17 +188,6 @@ impl Event {
             "unit": self.unit,
             "text": self.describe(),
         })
-    }
-}
-
-/// `v` in plain notation between 1e-4 and 1e9 in magnitude (and 0), else in scientific
-/// notation: a pressure of 2.1e300 Pa reads `2.1e300`, not 301 digits.
-fn readable(v: f64) -> String {
-    let a = v.abs();
-    if a == 0.0 || (1e-4..1e9).contains(&a) || !v.is_finite() {
-        format!("{v}")
-    } else {
-        format!("{v:e}")
     }
 }
 

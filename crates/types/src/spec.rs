@@ -19,6 +19,8 @@ pub enum Range {
     NonNegative,
     /// Finite and within [lo, hi].
     Within(f64, f64),
+    /// Finite, > 0 and ≤ hi: a physical quantity with a plausible upper bound.
+    PositiveAtMost(f64),
 }
 
 impl Range {
@@ -32,6 +34,7 @@ impl Range {
             Range::Positive => v > 0.0,
             Range::NonNegative => v >= 0.0,
             Range::Within(lo, hi) => v >= lo && v <= hi,
+            Range::PositiveAtMost(hi) => v > 0.0 && v <= hi,
         }
     }
 
@@ -41,8 +44,22 @@ impl Range {
             Range::Finite => "a finite number".into(),
             Range::Positive => "a finite number > 0".into(),
             Range::NonNegative => "a finite number ≥ 0".into(),
-            Range::Within(lo, hi) => format!("a finite number in [{lo}, {hi}]"),
+            Range::Within(lo, hi) => {
+                format!("a finite number in [{}, {}]", readable(lo), readable(hi))
+            }
+            Range::PositiveAtMost(hi) => format!("a finite number > 0 and ≤ {}", readable(hi)),
         }
+    }
+}
+
+/// `v` in plain notation between 1e-4 and 1e9 in magnitude (and 0), else in scientific
+/// notation: a value of 1.7e308 reads `1.7e308`, not 309 digits (error messages, events).
+pub fn readable(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 || (1e-4..1e9).contains(&a) || !v.is_finite() {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
     }
 }
 
@@ -367,5 +384,26 @@ pub fn expectation(tables: &[&[Param]], path: &str) -> String {
             p.description
         ),
         None => "see `ehactl params` for the expected fields and units".into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `PositiveAtMost(hi)` is (0, hi]; its text and large numbers read in scientific form.
+    #[test]
+    fn an_upper_bound_admits_up_to_it_and_reads_short() {
+        let r = Range::PositiveAtMost(1.0e6);
+        assert!(r.admits(1.0e6) && r.admits(1e-300));
+        assert!(!r.admits(0.0) && !r.admits(1.000001e6) && !r.admits(f64::INFINITY));
+        assert_eq!(r.describe(), "a finite number > 0 and ≤ 1000000");
+        assert_eq!(
+            Range::PositiveAtMost(1.0e11).describe(),
+            "a finite number > 0 and ≤ 1e11"
+        );
+        assert_eq!(readable(1.7e308), "1.7e308");
+        assert_eq!(readable(2.5e-7), "2.5e-7");
+        assert_eq!(readable(-3.5), "-3.5");
     }
 }

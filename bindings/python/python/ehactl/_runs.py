@@ -331,11 +331,25 @@ def param_grid(base: ConfigLike, grid: Mapping[str, Iterable[Any]]) -> list[Conf
     """Cartesian product of ``grid`` ({dotted path: values}) applied to ``base``.
 
     Every combination is validated; the first invalid one raises ValueError naming the field.
+    An empty grid ``{}`` varies nothing: the base alone (one config). A path with no values
+    (``{"control.pi.kp": []}``) raises ValueError naming it, rather than silently making
+    the whole product empty.
     """
     b = _as_config(base)
     keys = list(grid)
-    values = [list(grid[k]) for k in keys]
+    values = _axes(grid)
     return [b.with_values(dict(zip(keys, combo))) for combo in itertools.product(*values)]
+
+
+def _axes(grid: Mapping[str, Iterable[Any]]) -> list[list[Any]]:
+    """The values of each path of ``grid`` as lists; ValueError for a path without values."""
+    values = [list(v) for v in grid.values()]
+    for k, v in zip(grid, values):
+        if not v:
+            raise ValueError(
+                f"parameter grid: {k!r} has no values; give at least one (an empty grid {{}} runs the base once)"
+            )
+    return values
 
 
 @overload
@@ -427,7 +441,8 @@ def run_many(
 
     Args:
         cfgs: a list of ``Config``/paths, or a parameter grid ``{dotted path: values}``
-            expanded over ``base`` (see :func:`param_grid`).
+            expanded over ``base`` (see :func:`param_grid`: ``{}`` runs the base once, a
+            path with no values is a ValueError).
         duration, setpoint, params, fields: as in :func:`run`, applied to every run.
         threads: worker threads (default: one per core).
         mcap_dir: if given, write ``run_0000.mcap``, ``run_0001.mcap``, … there (the rules
@@ -450,9 +465,11 @@ def run_many(
     if isinstance(cfgs, Mapping):
         if base is None:
             raise ValueError("run_many: a parameter grid needs base=<Config or path>")
-        configs = param_grid(base, cfgs)
         keys = list(cfgs)
-        grid_rows = [dict(zip(keys, combo)) for combo in itertools.product(*[list(cfgs[k]) for k in keys])]
+        axes = _axes(cfgs)  # once: the values may be one-shot iterators
+        grid = dict(zip(keys, axes))
+        configs = param_grid(base, grid)
+        grid_rows = [dict(zip(keys, combo)) for combo in itertools.product(*axes)]
     else:
         configs = [_as_config(c) for c in cfgs]
     configs = [_prepare(c, setpoint, params) for c in configs]

@@ -58,6 +58,7 @@ __all__ = [
     "SddRatios",
     "SweepResponse",
     "SweepResult",
+    "UnstablePole",
 ]
 
 V = TypeVar("V")
@@ -332,6 +333,35 @@ class Pole(_DictCompat):
 
 
 @dataclass(frozen=True, eq=False)
+class UnstablePole(_DictCompat):
+    """A pole of the closed sampled loop outside or on the unit circle.
+
+    Attributes:
+        magnitude: |z| (-): growth per control period.
+        frequency_hz: |arg z|/(2π·T) (Hz).
+        re: Re z (-).
+        im: Im z (-), ≥ 0 (each complex pair listed once).
+    """
+
+    magnitude: float
+    frequency_hz: float
+    re: float
+    im: float
+
+    _KEYS = ("magnitude", "frequency_hz", "re", "im")
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> UnstablePole:
+        return cls(**{k: _f(d.get(k)) for k in cls._KEYS})
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: _thaw(getattr(self, k)) for k in self._KEYS}
+
+    def __repr__(self) -> str:
+        return f"UnstablePole(magnitude={self.magnitude:.4g}, frequency_hz={self.frequency_hz:.4g})"
+
+
+@dataclass(frozen=True, eq=False)
 class SddRatios(_DictCompat):
     """Frequency ratios and relative damping of an actuator on a spring–damper-mounted load
     (Dindorf et al. 2022, eq. 23–29).
@@ -463,6 +493,14 @@ class AnalysisResult(_DictCompat):
         closed_loop_bandwidth_hz: Sampled loop: closed-loop −3 dB bandwidth (Hz).
         closed_loop_peak_db: Sampled loop: peak of |T| (dB).
         continuous: Margins of the continuous-time loop.
+        stable: Stability of the linearised sampled loop from its closed-loop poles (every
+            |z| < 1); None in open loop. An unstable loop has no closed-loop bandwidth or
+            peak (``None``; ``closed_loop_bandwidth_note`` says why).
+        max_closed_loop_pole_magnitude: Largest |z| of the closed-loop poles (-), or None.
+        unstable_poles: The closed-loop poles with |z| ≥ 1 + 1e-6 (:class:`UnstablePole`), largest first.
+        marginal_poles: The closed-loop poles within 1e-6 of the unit circle (modes the loop
+            does not act on at its operating point; they do not make it unstable).
+        closed_loop_bandwidth_note: Why the bandwidth is left out (unstable loop), or None.
         operating_point: Operating point of the linearisation.
         poles: Slowest poles of the continuous plant model.
         loop_response: Sampled-loop frequency response (``res.loop_response.f_hz`` …).
@@ -487,6 +525,11 @@ class AnalysisResult(_DictCompat):
     closed_loop_bandwidth_hz: Optional[float]
     closed_loop_peak_db: Optional[float]
     continuous: Optional[Margins]
+    stable: Optional[bool]
+    max_closed_loop_pole_magnitude: Optional[float]
+    unstable_poles: Tuple[UnstablePole, ...]
+    marginal_poles: Tuple[UnstablePole, ...]
+    closed_loop_bandwidth_note: Optional[str]
     operating_point: OperatingPoint
     poles: Tuple[Pole, ...]
     loop_response: LoopResponse
@@ -520,6 +563,11 @@ class AnalysisResult(_DictCompat):
             closed_loop_bandwidth_hz=_opt(d.get("closed_loop_bandwidth_hz")),
             closed_loop_peak_db=_opt(d.get("closed_loop_peak_db")),
             continuous=None if cont is None else Margins.from_dict(cont),
+            stable=None if d.get("stable") is None else bool(d["stable"]),
+            max_closed_loop_pole_magnitude=_opt(d.get("max_closed_loop_pole_magnitude")),
+            unstable_poles=tuple(UnstablePole.from_dict(q) for q in d.get("unstable_poles") or []),
+            marginal_poles=tuple(UnstablePole.from_dict(q) for q in d.get("marginal_poles") or []),
+            closed_loop_bandwidth_note=d.get("closed_loop_bandwidth_note"),
             operating_point=OperatingPoint.from_dict(d.get("operating_point") or {}),
             poles=tuple(Pole(frequency_hz=_f(p.get("frequency_hz")), damping_ratio=_f(p.get("damping_ratio")))
                         for p in d.get("poles") or []),
@@ -554,6 +602,13 @@ class AnalysisResult(_DictCompat):
                 if v is not None:
                     out[k] = v
             out["closed_loop_peak_db"] = self.closed_loop_peak_db  # always (null if not finite)
+        if self.stable is not None:  # with the poles of a sampled loop
+            out["stable"] = self.stable
+            out["max_closed_loop_pole_magnitude"] = self.max_closed_loop_pole_magnitude
+            out["unstable_poles"] = [q.to_dict() for q in self.unstable_poles]
+            out["marginal_poles"] = [q.to_dict() for q in self.marginal_poles]
+            if self.closed_loop_bandwidth_note is not None:
+                out["closed_loop_bandwidth_note"] = self.closed_loop_bandwidth_note
         if self.continuous is not None:
             out["continuous"] = self.continuous.to_dict()
         if self.sdd is not None:  # the ratios come with the SDD section
