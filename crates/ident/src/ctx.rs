@@ -291,7 +291,16 @@ impl Ctx<'_> {
             v: vec![0.0; n],
             dp: vec![0.0; n],
             failed: true,
-            failed_at: Some((0, "parameters")),
+            failed_at: Some((
+                0,
+                ehactl_plant::NumericalFailure {
+                    t: 0.0,
+                    what: "parameters",
+                    value: f64::NAN,
+                    bound: f64::NAN,
+                    unit: "",
+                },
+            )),
             offsets: vec![0.0; self.val_rec.channels.len()],
         };
         let p = h.build(&self.val_base);

@@ -240,7 +240,7 @@ pub fn check_divergence(
     plant: &PlantParams,
     rec: &Record,
     predicted: &[(ChannelKind, Vec<f64>)],
-    failed_at: Option<(usize, &'static str)>,
+    failed_at: Option<(usize, ehactl_plant::NumericalFailure)>,
 ) -> Option<Divergence> {
     let peak = |k: ChannelKind| {
         rec.channel(k)
@@ -271,15 +271,16 @@ pub fn check_divergence(
             unit: unit.into(),
             reason,
         };
-    if let Some((k, what)) = failed_at {
-        note(at(
-            k,
-            what,
-            f64::NAN,
-            f64::NAN,
-            "",
-            format!("the plant's step failed: {what} left the states a rig can have"),
-        ));
+    if let Some((k, e)) = failed_at {
+        let reason = if e.bound.is_finite() {
+            format!(
+                "the plant's {} reached {:.3e} {}, beyond {:.3e} {}, a state no rig can have (crates/plant/src/plausible.rs)",
+                e.what, e.value, e.unit, e.bound, e.unit
+            )
+        } else {
+            format!("the plant's {} is not finite ({})", e.what, e.value)
+        };
+        note(at(k, e.what, e.value, e.bound, e.unit, reason));
     }
     for (kind, yh) in predicted {
         let (ch, unit) = (kind.column(), kind.unit());

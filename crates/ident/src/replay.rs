@@ -5,7 +5,7 @@ use ehactl_control::controller::Controller;
 use ehactl_control::pd::Pd;
 use ehactl_control::pi::Pi;
 use ehactl_control::supervisor::clamp_command;
-use ehactl_plant::{Plant, PlantParams};
+use ehactl_plant::{NumericalFailure, Plant, PlantParams};
 
 /// Simulated outputs of one replay: `y[c][k]` for the record's channels in order.
 #[derive(Debug, Clone)]
@@ -18,8 +18,9 @@ pub struct Replay {
     pub dp: Vec<f64>,
     /// Whether the integration failed (outputs after failure are held).
     pub failed: bool,
-    /// Where it failed: the sample k whose step failed and the state variable that did.
-    pub failed_at: Option<(usize, &'static str)>,
+    /// Where it failed: the sample k whose step failed and the plant's failure (the state
+    /// variable, its value and the bound it crossed).
+    pub failed_at: Option<(usize, NumericalFailure)>,
     /// Sensor offsets already added to `y`, per channel in the channel's SI unit (zero
     /// unless [`apply_offsets`] was called).
     pub offsets: Vec<f64>,
@@ -272,7 +273,7 @@ fn run(
     drive: Drive,
     max_substeps: u32,
     mut sample: impl FnMut(usize, &[f64], f64, f64) -> bool,
-) -> Result<Option<(usize, &'static str)>, String> {
+) -> Result<Option<(usize, NumericalFailure)>, String> {
     if drive.closed_loop() && rec.reference.is_none() {
         return Err(format!(
             "{}: closed-loop replay needs a `ref` column",
@@ -286,7 +287,7 @@ fn run(
     let n = n.min(rec.len());
     let kinds: Vec<ChannelKind> = rec.channels.iter().map(|c| c.kind).collect();
     let mut out = vec![0.0; kinds.len()];
-    let mut failed: Option<(usize, &'static str)> = None;
+    let mut failed: Option<(usize, NumericalFailure)> = None;
     let mut samples = 0;
     for k in 0..n {
         let m = plant.measure();
@@ -304,7 +305,7 @@ fn run(
         };
         if failed.is_none() {
             if let Err(e) = plant.step(u) {
-                failed = Some((k, e.what));
+                failed = Some((k, e));
             }
         }
         if failed.is_some() {
