@@ -33,6 +33,7 @@
 
 use crate::baseline;
 use crate::data::{Channel, ChannelKind, Record};
+pub use crate::motion::{derivative, record_velocity, DEFAULT_VELOCITY_WINDOW, HOLDOUT};
 use ehactl_config::RigConfig;
 use ehactl_plant::effects::PolynomialForce;
 use ehactl_plant::imposed::{term_series, ImposedMotion, LawTerm, Motion};
@@ -43,8 +44,6 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::ops::Range;
 
-/// Fraction of each record held out when no validation records are given (-).
-pub const HOLDOUT: f64 = 0.3;
 /// A term joins the law when it lowers the transfer error J (NRMSE²) by at least this
 /// fraction (-).
 pub const TERM_MIN_GAIN: f64 = 0.02;
@@ -60,31 +59,12 @@ pub const DAHL_VELOCITY_FRACTIONS: [f64; 5] = [0.025, 0.05, 0.1, 0.2, 0.4];
 /// Smoothing velocities v_s of the yield term tried, as fractions of the campaign's rms
 /// velocity (-).
 pub const SMOOTHING_FRACTIONS: [f64; 6] = [0.02, 0.05, 0.15, 0.4, 0.8, 1.5];
-/// Half-width (s) of the least-squares derivative that turns x into v when a config states
-/// none (`sensors.position.velocity_window` = 0): ±2 ms.
-pub const DEFAULT_VELOCITY_WINDOW: f64 = 2e-3;
 
 /// Half-widths of the derivative tried, in samples of the campaign's shortest period: a
 /// noisy position (a 2 mm sweep read at ±20 µm) needs a wide window, a sharp reversal of a
 /// yield force a narrow one, so the window is chosen with the law's shape (by the transfer
 /// error) and written to `sensors.position.velocity_window` of the extended config.
 pub const VELOCITY_HALF_WIDTHS: [usize; 9] = [1, 2, 3, 4, 6, 8, 12, 16, 24];
-
-/// Piston velocity (m/s) of a record: its `v` column, or the least-squares derivative of `x`
-/// over ±`window` s (0: [`DEFAULT_VELOCITY_WINDOW`]), at least one sample each side.
-pub fn record_velocity(rec: &Record, x: &[f64], window: f64) -> Vec<f64> {
-    match &rec.velocity {
-        Some(v) => v.clone(),
-        None => {
-            let w = if window > 0.0 {
-                window
-            } else {
-                DEFAULT_VELOCITY_WINDOW
-            };
-            derivative(x, rec.dt, ((w / rec.dt).round() as usize).clamp(1, 1000))
-        }
-    }
-}
 
 /// Relative operating-point spans of the saturating form's scale i_s (× the campaign's largest
 /// |input|) tried (-).
@@ -354,34 +334,6 @@ struct ShapeData {
     shape: Shape,
     a: Vec<Normal>,
     b: Vec<Normal>,
-}
-
-/// Least-squares derivative (m/s) of x with half-width `m` samples: the slope of the straight
-/// line through 2m + 1 samples (Savitzky & Golay 1964, first derivative, degree 1–2), the
-/// window shrinking at the ends. Written here: a single convolution, no crate offers it
-/// for plain slices.
-pub fn derivative(x: &[f64], dt: f64, m: usize) -> Vec<f64> {
-    let n = x.len();
-    (0..n)
-        .map(|k| {
-            let h = m.min(k).min(n - 1 - k);
-            if h == 0 {
-                return if k + 1 < n {
-                    (x[k + 1] - x[k]) / dt
-                } else if k > 0 {
-                    (x[k] - x[k - 1]) / dt
-                } else {
-                    0.0
-                };
-            }
-            let (mut num, mut den) = (0.0, 0.0);
-            for j in 1..=h {
-                num += j as f64 * (x[k + j] - x[k - j]);
-                den += 2.0 * (j * j) as f64;
-            }
-            num / (den * dt)
-        })
-        .collect()
 }
 
 /// What a campaign found and how well it predicts.

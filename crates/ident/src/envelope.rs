@@ -9,8 +9,8 @@
 //! set the envelope) and the band holding the central 90 % of the power of x (its
 //! periodogram, [`power_band`]).
 
-use crate::campaign::{derivative, record_velocity};
 use crate::data::{ChannelKind, Record};
+use crate::motion::{derivative, record_velocity};
 use ehactl_config::envelope::{Envelope, EnvelopePoint};
 use ehactl_config::inputs::Inputs;
 use serde::Serialize;
@@ -49,7 +49,7 @@ pub fn motion_point(
     let w = if window > 0.0 {
         window
     } else {
-        crate::campaign::DEFAULT_VELOCITY_WINDOW
+        crate::motion::DEFAULT_VELOCITY_WINDOW
     };
     let a = derivative(&v, rec.dt, ((w / rec.dt).round() as usize).clamp(1, 1000));
     let xs = &x[r.clone()];

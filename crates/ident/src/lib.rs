@@ -32,6 +32,7 @@ pub mod fit;
 pub mod freeparam;
 pub mod greybox;
 pub mod loopid;
+pub mod motion;
 pub mod outdir;
 pub mod plots;
 pub mod predict;

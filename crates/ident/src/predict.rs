@@ -215,7 +215,7 @@ pub fn predict(
 /// The rod force (N) the law of `plant` gives along the record's measured motion `x` (m) and
 /// its velocity, with the load pressure p_a − p_b where the record has both.
 fn imposed_force(plant: &PlantParams, rec: &Record, x: &[f64]) -> Result<Vec<f64>, String> {
-    let v = crate::campaign::record_velocity(rec, x, plant.sensors.position.velocity_window);
+    let v = crate::motion::record_velocity(rec, x, plant.sensors.position.velocity_window);
     let dp = match (
         rec.channel(ChannelKind::PressureA),
         rec.channel(ChannelKind::PressureB),
@@ -406,7 +406,7 @@ pub fn run(
         warnings.extend(rec.warnings.iter().cloned());
         let n = rec.len();
         let score = held_out.then(|| {
-            let nf = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
+            let nf = ((1.0 - crate::motion::HOLDOUT) * n as f64).round() as usize;
             nf..n
         });
         let flat =

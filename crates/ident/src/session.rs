@@ -351,7 +351,7 @@ fn single_envelope(
         Some(crate::envelope::motion_point(r, x, range, w, inputs))
     };
     let n = rec.len();
-    let split = ((1.0 - crate::campaign::HOLDOUT) * n as f64).round() as usize;
+    let split = ((1.0 - crate::motion::HOLDOUT) * n as f64).round() as usize;
     let (fit, held) = match val {
         Some(v) => (point(rec, 0..n), point(v, 0..v.len())),
         None => (point(rec, 0..split), point(rec, split..n)),
