@@ -117,19 +117,19 @@ def test_analyze_gives_a_stability_verdict(tmp_path):
     assert "stable (" in run("analyze", SAHU).stdout
 
 
-def test_a_runaway_plant_is_a_simulation_fault(diagnosis, tmp_path):
-    """The README campaign's `extended.toml` (the MR damper law fitted to the UTFSM chirps at
-    0 A and 1 A) run closed loop drove the plant to 1e11 Pa, 1.4e13 N and 1e7 m/s with exit
-    0. The plant must refuse such a state: a `plant_implausible` trip naming the state, its
-    value, its bound and unit, exit 3 — with the following-error watch out of the way, so
-    that the plant check alone is seen."""
-    mts = ROOT / "tests" / "data" / "measured" / "utfsm_mts"
-    _, out = diagnosis("--config", ROOT / "configs" / "utfsm_mts_mrdamper.toml",
-                       "--data", mts / "0A_5to15s.csv", "--data", mts / "1A_5to15s.csv")
-    text = (out / "extended.toml").read_text()
+def test_a_runaway_plant_is_a_simulation_fault(tmp_path):
+    """A damper law no passive damper has (the README campaign's law held a negative
+    stiffness and quadratic damping before its fit was sign-constrained; here a negative
+    viscous damping of −2e6 N·s/m in the MTS config) run closed loop used to drive the plant to
+    1e11 Pa, 1.4e13 N and 1e7 m/s with exit 0. The plant must refuse such a state: a
+    `plant_implausible` trip naming the state, its value, its bound and unit, exit 3 — with
+    the following-error watch out of the way, so that the plant check alone is seen."""
+    text = (ROOT / "configs" / "utfsm_mts_mrdamper.toml").read_text()
+    text, n = re.subn(r"(?m)^viscous = 2900\.0", "viscous = -2.0e6", text)
+    assert n == 1, "the shipped damper law"
     text, n = re.subn(r"(?m)^following_error = .*$", "following_error = 1e9", text)
-    assert n == 1, "the extended config keeps the shipped supervisor section"
-    cfg = tmp_path / "extended.toml"
+    assert n == 1, "the shipped supervisor section"
+    cfg = tmp_path / "runaway.toml"
     cfg.write_text(text)
     mcap = tmp_path / "ext.mcap"
     p = run("run", cfg, "--out", mcap, "--json")
