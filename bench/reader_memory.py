@@ -68,7 +68,8 @@ def peak(cmd: list[str], env: dict[str, str] | None = None) -> dict[str, object]
     t0 = time.monotonic()
     r = subprocess.run(["/usr/bin/time", "-v", *cmd], capture_output=True, text=True, env=env)
     m = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
-    err = next((ln for ln in r.stderr.splitlines() if "ehactl" in ln or "Error" in ln), "")
+    err = next((ln for ln in (r.stdout + r.stderr).splitlines()
+                if ln.startswith(("ehactl", "kept", "/")) or "MCAP" in ln), "")
     return {
         "cmd": " ".join(cmd),
         "exit": r.returncode,
@@ -97,17 +98,24 @@ def main() -> int:
         [a.bin, "diagnose", "--config", str(RIG), "--data", str(f["nul"]), "--out", str(out)],
         [a.bin, "predict", "--config", str(RIG), "--data", str(f["nul"])],
         [a.bin, "recover", str(f["nul"]), str(a.dir / "recovered.mcap")],
+        [a.bin, "recover", str(f["log"]), str(a.dir / "recovered.mcap")],
         # A 5 kHz log against the 1 kHz test bench: read in full, then refused by the
         # config check, before any diagnosis.
         [a.bin, "diagnose", "--config", str(RIG), "--data", str(f["log"]), "--out", str(out)],
     ]
     for cmd in cases:
+        (a.dir / "recovered.mcap").unlink(missing_ok=True)
         print(json.dumps(peak(cmd)))
+    (a.dir / "recovered.mcap").unlink(missing_ok=True)
     if a.python_path:
         env = dict(os.environ, PYTHONPATH=str(a.python_path))
         py = [sys.executable, "-c"]
         for key in ("csv", "log"):
-            code = f"import ehactl\ntry:\n    ehactl.read_mcap({str(f[key])!r})\nexcept ValueError as e:\n    print(e)"
+            # Prints the bytes of the arrays it returns: the data kept in memory.
+            code = (f"import ehactl\ntry:\n    r = ehactl.read_mcap({str(f[key])!r})\n"
+                    "    print('kept', sum(a.nbytes for c in r.values() if isinstance(c, dict)"
+                    " for a in c.values() if hasattr(a, 'nbytes')))\n"
+                    "except ValueError as e:\n    print(e)")
             print(json.dumps(peak([*py, code], env) | {"reader": f"read_mcap({key})"}))
         print(json.dumps(peak([*py, "import ehactl"], env) | {"reader": "python + import ehactl (baseline)"}))
     return 0

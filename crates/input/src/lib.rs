@@ -31,14 +31,17 @@ pub const EDS_MAX_BYTES: u64 = 64 * MB;
 /// second at 1 kHz (`configs/diagnose_testrig.toml`: 2.3 MB), so 2.4 h at 5 kHz, 12 h at
 /// 1 kHz; a CSV of 8 columns of ≈ 12 characters at 5 kHz takes about 0.5 MB per second.
 /// Both readers stream the file (one line, or one MCAP chunk, at a time) and keep only the
-/// record's columns (8 bytes per number); BENCHMARKS.md ("Memory of the data readers") has
-/// the measured peaks.
+/// record's columns (8 bytes per number): measured peaks of `ehactl diagnose` reading a file
+/// in full are 0.80 × a CSV's size (458 MB for 574 MB) and 0.35 × an ehactl log's (159 MB
+/// for 458 MB), the Python bindings' `read_mcap` 1.3 × a log's (it keeps every field), so
+/// reading a file at this limit needs at most 13 GB (BENCHMARKS.md, "Memory of the data
+/// readers").
 pub const DATA_MAX_BYTES: u64 = 10_000 * MB;
 /// Largest log `ehactl recover` reads (bytes): recovery holds the whole damaged file and
 /// every message it recovers (it walks the file back and forth to resynchronise after
-/// corrupt bytes), about twice the file in all, so 8 000 MB fits in 24 GB of memory with
-/// room for the rest of the machine.
-pub const RECOVER_MAX_BYTES: u64 = 8_000 * MB;
+/// corrupt bytes), measured 2.6 × the file (1 211 MB for a 458 MB log), so 6 000 MB needs
+/// about 16 GB of the 24 GB machine.
+pub const RECOVER_MAX_BYTES: u64 = 6_000 * MB;
 
 /// What kind of file system object `m` is, for messages.
 fn kind(m: &std::fs::Metadata) -> &'static str {

@@ -83,8 +83,9 @@ const MAX_LZ4_RATIO: u64 = 256;
 /// Largest uncompressed chunk read (bytes): 1 000 MB. A reader holds one chunk at a time
 /// (decompressed, and its records while they are handed on), so this bounds what a chunk
 /// costs whatever its header claims. The MCAP writers cut chunks at a target size (ehactl's
-/// `crates/log/src/mcap_writer.rs` at 1 MiB, the official writers' default 1 MiB too); only
-/// a single larger message makes a larger chunk. Zstandard has no fixed ratio limit (a
+/// logger at 1 MiB, `CHUNK_LIMIT` in `crates/log/src/logger.rs`; the official Python writer
+/// at 1 MiB, the official Rust writer at 768 KiB by default); only a single larger message
+/// makes a larger chunk. Zstandard has no fixed ratio limit (a
 /// 10 MB string of one repeated character compresses to a few kB), so the declared size is
 /// checked against this limit, not against the stored size.
 pub const MAX_CHUNK_BYTES: u64 = 1_000_000_000;
