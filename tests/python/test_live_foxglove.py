@@ -444,6 +444,7 @@ def test_default_client_limit_holds_many_idle_clients_in_little_memory(tmp_path:
             pass
     time.sleep(1.5)
     peak_mb = _vm(proc.pid, "VmHWM") / 1024
+    threads = _vm(proc.pid, "Threads")
     stdout, stderr = proc.communicate(timeout=60)
     for c in held:
         c.sock.close()
@@ -451,6 +452,9 @@ def test_default_client_limit_holds_many_idle_clients_in_little_memory(tmp_path:
     live = parse_json_stdout(stdout)["live"]
     assert live["clients_refused_over_limit"] == 60 - live["max_clients"], live
     assert peak_mb < 120, f"60 idle clients: peak RSS {peak_mb:.0f} MB"
+    # The front's threads do not grow with the clients (it was three per client): the 16
+    # served clients share its two workers, beside the run's own threads.
+    assert threads <= 12, f"{threads} threads with {len(live['clients'])} clients"
 
 
 def _closed_by_server(s: socket.socket) -> bool:
