@@ -582,27 +582,7 @@ async fn accept_loop(listener: &tokio::net::TcpListener, cx: &Arc<AcceptCtx>) {
         let Ok((client, dup)) = with_dup(client) else {
             continue;
         };
-        let send_buffer = send_buffer_bytes(cx.max_clients);
-        set_send_buffer(&dup, send_buffer);
-        let conn = Arc::new(Conn {
-            counters: Arc::new(Counters {
-                peer,
-                subprotocol: Mutex::new(String::new()),
-                sent: AtomicU64::new(0),
-                dropped: AtomicU64::new(0),
-                written: Mutex::new(Written {
-                    window: written_window(send_buffer),
-                    ..Written::default()
-                }),
-            }),
-            client: dup,
-            upstream: Mutex::new(None),
-            queue: Queue {
-                state: Mutex::new(QueueState::default()),
-                ready: Notify::new(),
-            },
-            data_cap: cx.data_cap,
-        });
+        let conn = new_conn(peer, dup, cx);
         lock(&cx.conns).push(conn.clone());
         let task = Slot(cx.active.clone());
         cx.active.fetch_add(1, Ordering::AcqRel);
@@ -620,6 +600,31 @@ async fn accept_loop(listener: &tokio::net::TcpListener, cx: &Arc<AcceptCtx>) {
             }
         });
     }
+}
+
+/// The bookkeeping of the connection from `peer` (`dup`: a duplicate of its socket).
+fn new_conn(peer: SocketAddr, dup: std::net::TcpStream, cx: &AcceptCtx) -> Arc<Conn> {
+    let send_buffer = send_buffer_bytes(cx.max_clients);
+    set_send_buffer(&dup, send_buffer);
+    Arc::new(Conn {
+        counters: Arc::new(Counters {
+            peer,
+            subprotocol: Mutex::new(String::new()),
+            sent: AtomicU64::new(0),
+            dropped: AtomicU64::new(0),
+            written: Mutex::new(Written {
+                window: written_window(send_buffer),
+                ..Written::default()
+            }),
+        }),
+        client: dup,
+        upstream: Mutex::new(None),
+        queue: Queue {
+            state: Mutex::new(QueueState::default()),
+            ready: Notify::new(),
+        },
+        data_cap: cx.data_cap,
+    })
 }
 
 /// The tokio stream `s` and a duplicate descriptor of its socket (for `shutdown`, socket
@@ -898,6 +903,17 @@ async fn serve(
         std::io::Error::new(std::io::ErrorKind::TimedOut, body.trim_end().to_string())
     })??;
     let _served = served;
+    relay(&mut client, &mut up, &rest, conn).await
+}
+
+/// Relay an upgraded connection until either side ends: the client's bytes to the SDK, the
+/// SDK's frames into the client's queue, the queue to the client.
+async fn relay(
+    client: &mut TcpStream,
+    up: &mut TcpStream,
+    rest: &[u8],
+    conn: &Arc<Conn>,
+) -> std::io::Result<()> {
     let (mut client_rd, mut client_wr) = client.split();
     let (mut up_rd, mut up_wr) = up.split();
     // Client → SDK: bytes copied unchanged; when the client leaves, the SDK side is closed
@@ -920,7 +936,7 @@ async fn serve(
     // SDK → queue.
     let from_sdk = async {
         let mut frames = FrameSplitter::default();
-        frames.push(&rest);
+        frames.push(rest);
         let mut buf = vec![0u8; 16 << 10];
         loop {
             loop {

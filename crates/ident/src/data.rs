@@ -1029,6 +1029,39 @@ impl ControlColumns {
     }
 }
 
+/// The measured channels of a log (force, position, p_a, p_b, spool): a channel that is
+/// NaN throughout is left out (the backend had no such sensor), one with some non-finite
+/// samples too, with a warning.
+fn logged_channels(source: &str, meas: [Vec<f64>; 5]) -> (Vec<Channel>, Vec<String>) {
+    let kinds = [
+        ChannelKind::Force,
+        ChannelKind::Position,
+        ChannelKind::PressureA,
+        ChannelKind::PressureB,
+        ChannelKind::Spool,
+    ];
+    // How the record is replayed (the recorded `u`, or the config's PD / PI loop on `ref`) is
+    // the session's choice and stated in its notes, not here.
+    let mut warnings = Vec::new();
+    let mut channels = Vec::new();
+    for (k, v) in kinds.into_iter().zip(meas) {
+        let nan = v.iter().filter(|x| !x.is_finite()).count();
+        if nan == v.len() {
+            continue; // the backend did not have this sensor (NaN by convention)
+        }
+        if nan > 0 {
+            warnings.push(format!(
+                "{source}: channel {} has {nan} non-finite samples of {}; channel not used",
+                k.column(),
+                v.len()
+            ));
+            continue;
+        }
+        channels.push(Channel { kind: k, values: v });
+    }
+    (channels, warnings)
+}
+
 /// [`parse_mcap`] of an MCAP file of `len` bytes read as a stream from `file`.
 fn control_record(source: &str, file: impl Read, len: u64) -> Result<Record, DataError> {
     use ehactl_log::mcap_read::Item;
@@ -1062,32 +1095,7 @@ fn control_record(source: &str, file: impl Read, len: u64) -> Result<Record, Dat
     if cols.t.is_empty() {
         return Err(DataError(format!("{source}: {NO_CONTROL}")));
     }
-    let kinds = [
-        ChannelKind::Force,
-        ChannelKind::Position,
-        ChannelKind::PressureA,
-        ChannelKind::PressureB,
-        ChannelKind::Spool,
-    ];
-    // How the record is replayed (the recorded `u`, or the config's PD / PI loop on `ref`) is
-    // the session's choice and stated in its notes, not here.
-    let mut warnings = Vec::new();
-    let mut channels = Vec::new();
-    for (k, v) in kinds.into_iter().zip(cols.meas) {
-        let nan = v.iter().filter(|x| !x.is_finite()).count();
-        if nan == v.len() {
-            continue; // the backend did not have this sensor (NaN by convention)
-        }
-        if nan > 0 {
-            warnings.push(format!(
-                "{source}: channel {} has {nan} non-finite samples of {}; channel not used",
-                k.column(),
-                v.len()
-            ));
-            continue;
-        }
-        channels.push(Channel { kind: k, values: v });
-    }
+    let (channels, warnings) = logged_channels(&source, cols.meas);
     let mut rec = Record::from_columns(
         &source,
         cols.t,

@@ -150,6 +150,40 @@ impl Index {
     }
 }
 
+impl Index {
+    /// Take the top-level record of opcode `op` whose body is `body`, at byte `pos`: a chunk's
+    /// records one by one once the chunk checks out, any other record parsed.
+    fn record<E>(
+        &mut self,
+        op: u8,
+        body: &[u8],
+        pos: u64,
+        f: &mut impl FnMut(Item<'_>) -> Result<(), E>,
+    ) -> Result<(), ReadError<E>> {
+        if op != OP_CHUNK {
+            let rec = parse_record(op, body).map_err(|e| {
+                ReadError::Mcap(format!("record at byte {pos} (opcode {op:#04x}): {e}"))
+            })?;
+            return self.take(rec, f);
+        }
+        let plain = chunk_plain(body)
+            .map_err(|why| ReadError::Mcap(format!("corrupt chunk at byte {pos}: {why}")))?;
+        let mut stop = None;
+        chunk_records(&plain, |rec| match self.take(rec, f) {
+            Ok(()) => Ok(()),
+            Err(ReadError::Mcap(why)) => Err(why),
+            Err(e) => {
+                stop = Some(e);
+                Err(String::new())
+            }
+        })
+        .map_err(|why| {
+            stop.take()
+                .unwrap_or_else(|| ReadError::Mcap(format!("corrupt chunk at byte {pos}: {why}")))
+        })
+    }
+}
+
 /// Fill `buf` from `r`; the number of bytes read (less than `buf.len()` only at the end).
 fn read_full(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
     let mut n = 0;
@@ -217,29 +251,7 @@ pub fn for_each<E>(
         body.clear();
         body.resize(rlen as usize, 0);
         read_full(&mut r, &mut body).map_err(io)?;
-        if op == OP_CHUNK {
-            let plain = chunk_plain(&body)
-                .map_err(|why| ReadError::Mcap(format!("corrupt chunk at byte {pos}: {why}")))?;
-            let mut stop = None;
-            chunk_records(&plain, |rec| match index.take(rec, &mut f) {
-                Ok(()) => Ok(()),
-                Err(ReadError::Mcap(why)) => Err(why),
-                Err(e) => {
-                    stop = Some(e);
-                    Err(String::new())
-                }
-            })
-            .map_err(|why| {
-                stop.take().unwrap_or_else(|| {
-                    ReadError::Mcap(format!("corrupt chunk at byte {pos}: {why}"))
-                })
-            })?;
-        } else {
-            let rec = parse_record(op, &body).map_err(|e| {
-                ReadError::Mcap(format!("record at byte {pos} (opcode {op:#04x}): {e}"))
-            })?;
-            index.take(rec, &mut f)?;
-        }
+        index.record(op, &body, pos, &mut f)?;
         // A chunk much larger than the next ones is not kept reserved.
         if body.capacity() > 4 << 20 {
             body = Vec::new();
