@@ -913,12 +913,7 @@ fn mcap_record(
         Err(e) if e.0.ends_with(NO_CONTROL) => {
             file.seek(std::io::SeekFrom::Start(0))
                 .map_err(|e| DataError(format!("{source}: cannot read data (MCAP log): {e}")))?;
-            match measured_as_csv(source, file, len)? {
-                Some(text) => {
-                    parse_csv_with(&format!("{source} ({MEASURED_TOPIC})"), &text, inputs)
-                }
-                None => Err(e),
-            }
+            measured_record(source, file, len, inputs)?.ok_or(e)
         }
         r => r,
     }
@@ -937,15 +932,78 @@ fn mcap_error(source: &str, e: ehactl_log::mcap_read::ReadError<DataError>) -> D
     }
 }
 
+/// The CSV text made of the [`MEASURED_TOPIC`] messages, read by the CSV reader as it is
+/// made: the reader's end of a bounded channel of text pieces.
+struct TextPipe {
+    rx: std::sync::mpsc::Receiver<Vec<u8>>,
+    buf: Vec<u8>,
+    pos: usize,
+}
+
+impl Read for TextPipe {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        while self.pos == self.buf.len() {
+            match self.rx.recv() {
+                Ok(b) => (self.buf, self.pos) = (b, 0),
+                Err(_) => return Ok(0), // the maker is done
+            }
+        }
+        let n = out.len().min(self.buf.len() - self.pos);
+        out[..n].copy_from_slice(&self.buf[self.pos..self.pos + n]);
+        self.pos += n;
+        Ok(n)
+    }
+}
+
+/// A lab record's [`MEASURED_TOPIC`] messages read under the CSV format's rules: their CSV
+/// text ([`measured_as_csv`]) goes to the CSV reader in pieces of 64 KiB through a bounded
+/// channel, so the text is never held whole. `None` when the topic has no messages.
+fn measured_record(
+    source: &str,
+    file: impl Read,
+    len: u64,
+    inputs: &[String],
+) -> Result<Option<Record>, DataError> {
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<u8>>(4);
+    let csv_source = format!("{source} ({MEASURED_TOPIC})");
+    std::thread::scope(|sc| {
+        let pipe = TextPipe {
+            rx,
+            buf: Vec::new(),
+            pos: 0,
+        };
+        let parser = sc.spawn(|| csv_record(&csv_source, b',', pipe, inputs));
+        let made = measured_as_csv(source, file, len, tx);
+        let parsed = parser.join().unwrap_or_else(|_| {
+            Err(DataError(format!(
+                "{csv_source}: the CSV reader stopped unexpectedly"
+            )))
+        });
+        match made {
+            Err(e) => Err(e),
+            Ok(false) => Ok(None),
+            Ok(true) => parsed.map(Some),
+        }
+    })
+}
+
 /// The [`MEASURED_TOPIC`] messages of an MCAP file as CSV text (header: the first message's
-/// keys); `None` when the topic has no messages. A message that is not a JSON object of
-/// finite numbers with the first message's keys is an error naming its sequence.
-fn measured_as_csv(source: &str, file: impl Read, len: u64) -> Result<Option<String>, DataError> {
+/// keys), sent to `tx` in pieces; whether the topic has messages. A message that is not a
+/// JSON object of finite numbers with the first message's keys is an error naming its
+/// sequence. Stops early, without error, when the reader at the other end has stopped (its
+/// error is the one to report).
+fn measured_as_csv(
+    source: &str,
+    file: impl Read,
+    len: u64,
+    tx: std::sync::mpsc::SyncSender<Vec<u8>>,
+) -> Result<bool, DataError> {
     use ehactl_log::mcap_read::Item;
     use std::fmt::Write;
     let mut names: Vec<String> = Vec::new();
     let mut text = String::new();
-    ehactl_log::mcap_read::for_each(file, len, |item| {
+    let mut reader_stopped = false;
+    let read = ehactl_log::mcap_read::for_each(file, len, |item| {
         let Item::Message {
             channel,
             sequence,
@@ -992,10 +1050,18 @@ fn measured_as_csv(source: &str, file: impl Read, len: u64) -> Result<Option<Str
             let _ = write!(text, "{}{v:?}", if i == 0 { "" } else { "," });
         }
         text.push('\n');
+        if text.len() >= 1 << 16 && tx.send(std::mem::take(&mut text).into_bytes()).is_err() {
+            reader_stopped = true;
+            return Err(DataError(String::new()));
+        }
         Ok(())
-    })
-    .map_err(|e| mcap_error(source, e))?;
-    Ok((!names.is_empty()).then_some(text))
+    });
+    if reader_stopped {
+        return Ok(true);
+    }
+    read.map_err(|e| mcap_error(source, e))?;
+    let _ = tx.send(text.into_bytes());
+    Ok(!names.is_empty())
 }
 
 /// [`parse_mcap_with`] for an ehactl log's `/control` channel only.
@@ -1513,6 +1579,59 @@ mod tests {
         let e = parse_mcap_with("lab.mcap", &empty, &[]).unwrap_err().0;
         assert!(
             e.contains("no /control messages") && e.contains("/measured"),
+            "{e}"
+        );
+    }
+
+    /// A lab record of `n` JSON samples on /measured (`msg(k)`), 1 ms apart.
+    fn measured_log(n: u64, msg: impl Fn(u64) -> String) -> Vec<u8> {
+        let mut w = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+        let sid = w.add_schema("Sample", "jsonschema", b"{}").unwrap();
+        let ch = w
+            .add_channel(sid, MEASURED_TOPIC, "json", &Default::default())
+            .unwrap();
+        for k in 0..n {
+            let header = mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: k as u32,
+                log_time: k * 1_000_000,
+                publish_time: k * 1_000_000,
+            };
+            w.write_to_known_channel(&header, msg(k).as_bytes())
+                .unwrap();
+        }
+        w.finish().unwrap();
+        w.into_inner().into_inner()
+    }
+
+    #[test]
+    fn a_long_lab_record_streams_through_the_csv_reader() {
+        // 20 000 samples: about 0.9 MB of CSV text, handed over in 64 KiB pieces.
+        let good = |k: u64| format!(r#"{{"x": {}, "force": {}}}"#, 0.05 + 1e-6 * k as f64, k);
+        let rec = parse_mcap_with("lab.mcap", &measured_log(20_000, good), &[]).unwrap();
+        assert_eq!(rec.len(), 20_000);
+        let force = rec.channel(ChannelKind::Force).unwrap();
+        assert!(force.iter().enumerate().all(|(k, &f)| f == k as f64));
+        assert_eq!(rec.t[19_999], 19_999_000_000.0 * 1e-9); // log time (ns) in s
+                                                            // A bad message late in the file: its error, though the reader has rows already.
+        let late = |k: u64| match k {
+            15_000 => r#"{"x": 0.05}"#.to_string(),
+            _ => good(k),
+        };
+        let e = parse_mcap_with("lab.mcap", &measured_log(20_000, late), &[])
+            .unwrap_err()
+            .0;
+        assert!(
+            e.starts_with("lab.mcap: /measured message (MCAP sequence 15000): keys"),
+            "{e}"
+        );
+        // The reader refuses the header at once: its error, and the rest is not made.
+        let no_motion = |k: u64| format!(r#"{{"foo": {k}}}"#);
+        let e = parse_mcap_with("lab.mcap", &measured_log(20_000, no_motion), &[])
+            .unwrap_err()
+            .0;
+        assert!(
+            e.starts_with("lab.mcap (/measured): missing required column `u`"),
             "{e}"
         );
     }
