@@ -101,13 +101,22 @@ def test_recover_says_a_running_ehactl_still_writes_the_log(tmp_path):
     assert "still being written by a running ehactl" in r.stderr, r.stderr
 
 
-def test_diagnose_quotes_a_few_hundred_bytes_of_an_overlong_header(tmp_path):
-    data = tmp_path / "zeros.csv"
-    with open(data, "wb") as f:
-        f.truncate(20_000_000)  # 20 MB of NULs, one "line"
+@pytest.mark.parametrize(
+    "content, expected",
+    [
+        # 20 MB of NULs, one "line": refused at its first byte.
+        (b"\0" * 20_000_000, "line 1 has a NUL byte at byte 1 of the line (byte 0 of the file)"),
+        # A header, then a 20 MB "line" of digits: refused after 64 KiB of it.
+        (b"t,u\n" + b"9" * 20_000_000, "line 2 is longer than the 65536 bytes a CSV line may have"),
+    ],
+    ids=["nul", "overlong"],
+)
+def test_diagnose_refuses_a_binary_or_overlong_line_quoting_a_few_hundred_bytes(tmp_path, content, expected):
+    data = tmp_path / "bad.csv"
+    data.write_bytes(content)
     r = ehactl("diagnose", "--config", RIG, "--data", data, "--out", tmp_path / "d")
     assert r.returncode == 2, r.stderr[:2000]
-    assert "line 1 is 20000000 bytes long" in r.stderr, r.stderr[:2000]
+    assert expected in r.stderr, r.stderr[:2000]
     assert len(r.stderr) < 2_000, len(r.stderr)
 
 

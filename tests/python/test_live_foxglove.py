@@ -444,6 +444,7 @@ def test_default_client_limit_holds_many_idle_clients_in_little_memory(tmp_path:
             pass
     time.sleep(1.5)
     peak_mb = _vm(proc.pid, "VmHWM") / 1024
+    threads = _vm(proc.pid, "Threads")
     stdout, stderr = proc.communicate(timeout=60)
     for c in held:
         c.sock.close()
@@ -451,3 +452,69 @@ def test_default_client_limit_holds_many_idle_clients_in_little_memory(tmp_path:
     live = parse_json_stdout(stdout)["live"]
     assert live["clients_refused_over_limit"] == 60 - live["max_clients"], live
     assert peak_mb < 120, f"60 idle clients: peak RSS {peak_mb:.0f} MB"
+    # The front's threads do not grow with the clients (it was three per client): the 16
+    # served clients share its two workers, beside the run's own threads.
+    assert threads <= 12, f"{threads} threads with {len(live['clients'])} clients"
+
+
+def _closed_by_server(s: socket.socket) -> bool:
+    """Whether the server closed or reset `s` (without waiting)."""
+    s.setblocking(False)
+    try:
+        while s.recv(65536):
+            pass
+        return True  # end of stream
+    except BlockingIOError:
+        return False
+    except OSError:
+        return True  # reset
+    finally:
+        s.setblocking(True)
+
+
+def test_connections_that_never_finish_the_handshake_lock_no_client_out(tmp_path: Path) -> None:
+    """16 connections that send nothing, 4 that send half a request and one that trickles
+    its request a byte every 0.5 s: none counts against --live-max-clients 2, so two real
+    clients are served at once (a third is refused, the limit holds), and every stalled
+    connection is closed by the server once its handshake time (5 s from accept, however
+    often it sends) is over, well before the 14 s run ends."""
+    out = tmp_path / "stall.mcap"
+    proc, url = start_live(out, "--live-max-clients", "2", duration=14.0)
+    host, port = url.removeprefix("ws://").rsplit(":", 1)
+    stalled = []
+    for k in range(20):
+        s = socket.create_connection((host, int(port)), timeout=5)
+        if k >= 16:
+            s.sendall(b"GET / HTTP/1.1\r\nHost: x\r\n")  # never ends its head
+        stalled.append(s)
+    trickle = socket.create_connection((host, int(port)), timeout=5)
+    time.sleep(0.3)
+    served = [SlowClient(url, "foxglove.websocket.v1") for _ in range(2)]
+    with pytest.raises(AssertionError, match="503"):
+        SlowClient(url, "foxglove.websocket.v1")
+    request = b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n" + b"X-Pad: " + b"a" * 200
+    trickle_closed = False
+    t0 = time.monotonic()
+    for b in request:
+        try:
+            trickle.sendall(bytes([b]))
+        except OSError:
+            trickle_closed = True
+            break
+        if _closed_by_server(trickle):
+            trickle_closed = True
+            break
+        if time.monotonic() - t0 > 10:
+            break
+        time.sleep(0.5)
+    assert trickle_closed, "a request trickled a byte every 0.5 s was not cut off in 10 s"
+    assert all(_closed_by_server(s) for s in stalled), "stalled connections still open"
+    stdout, stderr = proc.communicate(timeout=60)
+    for c in served:
+        c.sock.close()
+    assert proc.returncode == 0, stderr
+    live = parse_json_stdout(stdout)["live"]
+    assert len(live["clients"]) == 2, live
+    assert live["clients_refused_over_limit"] == 1, live
+    # The 21 stalled connections and the one over the limit.
+    assert live["connections_refused"] == 22, live

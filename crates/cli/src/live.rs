@@ -295,6 +295,7 @@ impl LiveView {
                 port: sdk_port.clone(),
                 front: front_peers.clone(),
             }))
+            .message_backlog_size(crate::live_front::sdk_backlog(max_clients))
             .bind("127.0.0.1", 0)
             .start_blocking()
             .map_err(|e| {

@@ -29,21 +29,30 @@
 //!    bytes into memory, so the SDK's own queue for the connection stays near empty.
 //!    A message counts as sent once the client's TCP has acknowledged it: what still sits in
 //!    the kernel's send buffer when the connection is cut (Linux `SIOCOUTQ`) counts as
-//!    dropped, and that buffer is capped ([`SEND_BUFFER`]) so a client that stops reading
+//!    dropped, and that buffer is capped ([`send_buffer_bytes`]) so a client that stops reading
 //!    reaches the counted queue soon.
 //!
 //! Client-to-server bytes (masked frames: subscribe, unsubscribe…) are copied unchanged.
-//! Every client costs three threads of normal priority (handshake + reading the SDK, copying
-//! the client's bytes, writing to the client), none of which touch the control loop: the
-//! loop never waits for the live view (see `live.rs`).
+//!
+//! Every connection is one task on a tokio runtime (the runtime the SDK itself is built on)
+//! of two worker threads of normal priority, whatever the number of clients; none of it touches the control loop, which never waits for the live view (see
+//! `live.rs`). What an idle client costs is its queue ([`data_queue_bytes`]: the
+//! [`DATA_QUEUE_BUDGET`] shared out among `--live-max-clients`) and a few kB of buffers.
+//! Only clients with a complete upgrade request count against `--live-max-clients`: a
+//! connection still in its handshake has [`HANDSHAKE_TIMEOUT`] to complete it, and at most
+//! [`MAX_PENDING_HANDSHAKES`] may be, so connections that never finish the handshake lock
+//! no client out.
 
 use std::collections::VecDeque;
-use std::io::{Read, Write};
-use std::net::{Shutdown, SocketAddr, TcpListener, TcpStream};
+use std::io::Write;
+use std::net::{Shutdown, SocketAddr};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use tokio::io::{AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::sync::Notify;
 
 /// The subprotocol name of the published protocol spec (what `FoxgloveClient` offers).
 pub const WS_PROTOCOL_V1: &str = "foxglove.websocket.v1";
@@ -55,28 +64,43 @@ pub const SDK_V1_1: &str = "foxglove.sdk.v1.1";
 /// `Message Data` frames queued per client before the oldest is dropped: 0.27 s of a 5 kHz
 /// run publishing /control, /plant and /timing (15 000 messages/s).
 pub const MAX_QUEUED_MESSAGES: usize = 4096;
-/// Bytes of `Message Data` queued per client before the oldest is dropped: 0.45 s of the
-/// 2.3 MB/s a 5 kHz run publishes. Bounds what an idle subscribed client costs.
+/// Most bytes of `Message Data` queued per client before the oldest is dropped: 0.45 s of
+/// the 2.3 MB/s a 5 kHz run publishes. Bounds what an idle subscribed client costs.
 pub const MAX_QUEUED_DATA_BYTES: usize = 1 << 20;
-/// Stack of each connection thread (bytes). Under `--realtime` the process is locked in
-/// memory (`mlockall`), so a thread's whole stack is resident: the default 2 MiB × three
-/// threads per client made an idle client cost 7.5 MB. These threads need a few kB.
-const CONN_STACK: usize = 256 << 10;
+/// Fewest bytes of `Message Data` queued per client: 14 ms of a 5 kHz run.
+pub const MIN_QUEUED_DATA_BYTES: usize = 32 << 10;
+/// Bytes of `Message Data` queued for all clients together at most, shared out by
+/// [`data_queue_bytes`]: what idle clients that never read can cost in all (each queued
+/// message costs about 50 bytes more in bookkeeping).
+pub const DATA_QUEUE_BUDGET: usize = 16 << 20;
 /// Clients served at once unless `--live-max-clients` says otherwise.
 pub const DEFAULT_MAX_CLIENTS: u16 = 16;
+/// Worker threads of the front's runtime: every connection's relaying shares them.
+const FRONT_WORKERS: usize = 2;
+/// Stack of each worker thread (bytes): resident under `--realtime` (`mlockall`); the tasks
+/// themselves live on the heap.
+const FRONT_STACK: usize = 512 << 10;
+/// Connections in their handshake at once (accepted, upgrade not completed) beyond which a
+/// new connection is answered HTTP 503 at once. They do not count against
+/// `--live-max-clients`, and each has [`HANDSHAKE_TIMEOUT`].
+pub const MAX_PENDING_HANDSHAKES: usize = 64;
 /// Undelivered bytes per client (all kinds) beyond which the client is disconnected.
 pub const MAX_QUEUED_BYTES: usize = 64 << 20;
-/// `SO_SNDBUF` of a client's socket (bytes; Linux doubles it): 1 MiB holds 0.4 s of the
-/// 2.3 MB/s a 5 kHz run publishes, so a client on a slow link is not starved, while a client
-/// that stops reading leaves at most that much outside the counted queue.
+/// Largest `SO_SNDBUF` of a client's socket (bytes; Linux doubles it): 1 MiB holds 0.4 s of
+/// the 2.3 MB/s a 5 kHz run publishes, so a client on a slow link is not starved, while a
+/// client that stops reading leaves at most that much outside the counted queue. With more
+/// than 16 clients allowed each gets less ([`send_buffer_bytes`]): kernel memory too.
 const SEND_BUFFER: usize = 1 << 20;
 /// Written bytes remembered per client to tell which messages the client's TCP has not
-/// acknowledged (more than the doubled [`SEND_BUFFER`]).
-const WRITTEN_WINDOW: u64 = 4 << 20;
+/// acknowledged: more than the doubled send buffer.
+fn written_window(send_buffer: usize) -> u64 {
+    4 * send_buffer as u64
+}
 /// Longest HTTP request or response head accepted (bytes).
 const MAX_HEAD: usize = 16 << 10;
-/// Time a client (or the SDK) has to complete the HTTP upgrade.
-const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+/// Time a connection has from accept to a completed HTTP upgrade (its request, the SDK's
+/// answer): a connection that sends nothing, or its request a byte at a time, is closed then.
+pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
 /// Largest WebSocket frame passed on (bytes); the SDK's messages are far smaller.
 const MAX_FRAME: u64 = 256 << 20;
 
@@ -103,10 +127,21 @@ struct Counters {
 }
 
 /// Bytes written to the client's socket, and where the recent `Message Data` ones end.
-#[derive(Default)]
 struct Written {
     bytes: u64,
     data_ends: VecDeque<u64>,
+    /// Written bytes remembered ([`written_window`]).
+    window: u64,
+}
+
+impl Default for Written {
+    fn default() -> Self {
+        Written {
+            bytes: 0,
+            data_ends: VecDeque::new(),
+            window: written_window(SEND_BUFFER),
+        }
+    }
 }
 
 impl Written {
@@ -123,7 +158,7 @@ impl Written {
         while self
             .data_ends
             .front()
-            .is_some_and(|&e| self.bytes - e > WRITTEN_WINDOW)
+            .is_some_and(|&e| self.bytes - e > self.window)
         {
             self.data_ends.pop_front();
         }
@@ -141,7 +176,7 @@ impl Written {
 }
 
 /// Bytes written to `s` that the peer has not acknowledged (Linux `SIOCOUTQ`; 0 elsewhere).
-fn unacknowledged_bytes(s: &TcpStream) -> u64 {
+fn unacknowledged_bytes(s: &std::net::TcpStream) -> u64 {
     #[cfg(target_os = "linux")]
     {
         let mut n: libc::c_int = 0;
@@ -183,15 +218,42 @@ struct QueueState {
 
 struct Queue {
     state: Mutex<QueueState>,
-    ready: Condvar,
+    /// Wakes the client's writer task.
+    ready: Notify,
 }
 
-/// One connection: the client's socket, the SDK-side socket, the counters.
+/// Bytes of `Message Data` queued per client when at most `max_clients` are served: the
+/// [`DATA_QUEUE_BUDGET`] shared out, within [`MIN_QUEUED_DATA_BYTES`] and
+/// [`MAX_QUEUED_DATA_BYTES`] (1 MiB for up to 16 clients, 55 KiB each for 300).
+pub fn data_queue_bytes(max_clients: usize) -> usize {
+    (DATA_QUEUE_BUDGET / max_clients.max(1)).clamp(MIN_QUEUED_DATA_BYTES, MAX_QUEUED_DATA_BYTES)
+}
+
+/// Messages the SDK server queues per client before its front reads them
+/// (`message_backlog_size`) when at most `max_clients` are served: the SDK's default 1024
+/// for up to 16 clients, 16 384 shared out beyond, at least 128 (300 clients: 128, 27 ms of
+/// a 5 kHz run). The front reads every client's SDK side at once into its counted queue, so
+/// the SDK's backlog only fills (and drops, uncounted) when the machine cannot give the
+/// front's threads the time to relay to every client.
+pub fn sdk_backlog(max_clients: usize) -> usize {
+    (16_384 / max_clients.max(1)).clamp(128, 1024)
+}
+
+/// `SO_SNDBUF` of each client's socket when at most `max_clients` are served: 16 MiB shared
+/// out, within 64 KiB and [`SEND_BUFFER`] (1 MiB for up to 16 clients, 64 KiB each for 300).
+fn send_buffer_bytes(max_clients: usize) -> usize {
+    ((16 << 20) / max_clients.max(1)).clamp(64 << 10, SEND_BUFFER)
+}
+
+/// One connection: duplicates of the client's socket and the SDK-side socket (for
+/// `shutdown` and `SIOCOUTQ` from any thread), the counters, the queue.
 struct Conn {
     counters: Arc<Counters>,
-    client: TcpStream,
-    upstream: Mutex<Option<TcpStream>>,
+    client: std::net::TcpStream,
+    upstream: Mutex<Option<std::net::TcpStream>>,
     queue: Queue,
+    /// Bytes of `Message Data` queued at most ([`data_queue_bytes`]).
+    data_cap: usize,
 }
 
 impl Conn {
@@ -215,7 +277,7 @@ impl Conn {
         q.data_bytes = 0;
         q.bytes = 0;
         self.counters.dropped.fetch_add(n, Ordering::Relaxed);
-        self.queue.ready.notify_all();
+        self.queue.ready.notify_one();
     }
 
     /// Queue one unit for the client (dropping the oldest `Message Data` if full).
@@ -230,7 +292,7 @@ impl Conn {
         while unit.data
             && q.data_units > 0
             && (q.data_units >= MAX_QUEUED_MESSAGES
-                || q.data_bytes + unit.bytes.len() > MAX_QUEUED_DATA_BYTES)
+                || q.data_bytes + unit.bytes.len() > self.data_cap)
         {
             let Some(i) = q.units.iter().position(|u| u.data) else {
                 break;
@@ -259,7 +321,7 @@ impl Conn {
 
     fn close_queue(&self) {
         lock(&self.queue.state).closed = true;
-        self.queue.ready.notify_all();
+        self.queue.ready.notify_one();
     }
 }
 
@@ -270,13 +332,18 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 /// The running front.
 pub struct Front {
     stop: Arc<AtomicBool>,
-    accept: Option<JoinHandle<()>>,
+    /// Wakes the accept loop when `stop` is set.
+    stop_wake: Arc<Notify>,
+    /// Ends the front's runtime (after `finish` has cut off every connection).
+    shutdown: Arc<Notify>,
+    thread: Option<JoinHandle<()>>,
     conns: Arc<Mutex<Vec<Arc<Conn>>>>,
-    /// Connection threads still running.
+    /// Connection tasks still running.
     active: Arc<AtomicUsize>,
-    /// Clients whose upgrade failed (bad request, refused by the SDK, over the limit).
+    /// Clients whose upgrade failed (bad request, refused by the SDK, over the limit, too
+    /// slow).
     rejected: Arc<AtomicU64>,
-    /// Of `rejected`: refused because `max_clients` connections were open.
+    /// Of `rejected`: refused because `max_clients` clients were served.
     over_limit: Arc<AtomicU64>,
     max_clients: usize,
     /// Connections the SDK upgraded for the front (HTTP 101).
@@ -305,11 +372,23 @@ impl Drop for PeerEntry<'_> {
     }
 }
 
-/// Counts one open connection (from accept until its last thread ends); shared by the
-/// connection's threads.
-struct OpenSlot(Arc<AtomicUsize>);
+/// One unit of a counter (a served client, a connection in its handshake, a running
+/// task), given back when dropped.
+struct Slot(Arc<AtomicUsize>);
 
-impl Drop for OpenSlot {
+impl Slot {
+    /// Take a unit if fewer than `max` are taken.
+    fn take(count: &Arc<AtomicUsize>, max: usize) -> Option<Slot> {
+        count
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| {
+                (n < max).then_some(n + 1)
+            })
+            .ok()
+            .map(|_| Slot(count.clone()))
+    }
+}
+
+impl Drop for Slot {
     fn drop(&mut self) {
         self.0.fetch_sub(1, Ordering::AcqRel);
     }
@@ -318,44 +397,67 @@ impl Drop for OpenSlot {
 impl Front {
     /// Listen on `listener` (already bound to the user's address) and relay every client to
     /// the SDK server at `upstream` (loopback).
-    /// At most `max_clients` connections are served at once; more are answered HTTP 503 and
-    /// closed at once, and counted.
+    /// At most `max_clients` clients are served at once (counted from a complete upgrade
+    /// request); more are answered HTTP 503 and closed, and counted. A connection has
+    /// [`HANDSHAKE_TIMEOUT`] to complete its upgrade; at most [`MAX_PENDING_HANDSHAKES`] may
+    /// be in their handshake at once.
     pub fn start(
-        listener: TcpListener,
+        listener: std::net::TcpListener,
         upstream: SocketAddr,
         max_clients: usize,
         peers: Arc<FrontPeers>,
     ) -> std::io::Result<Front> {
-        // Non-blocking accept, polled, so that `finish` can stop the thread without a
-        // connection to itself.
         listener.set_nonblocking(true)?;
         let stop = Arc::new(AtomicBool::new(false));
+        let (stop_wake, shutdown) = (Arc::new(Notify::new()), Arc::new(Notify::new()));
         let conns: Arc<Mutex<Vec<Arc<Conn>>>> = Arc::default();
         let active = Arc::new(AtomicUsize::new(0));
         let rejected = Arc::new(AtomicU64::new(0));
         let over_limit = Arc::new(AtomicU64::new(0));
         let upgraded = Arc::new(AtomicU64::new(0));
         let max_clients = max_clients.max(1);
-        let accept = {
-            let ctx = AcceptCtx {
-                upstream,
-                stop: stop.clone(),
-                conns: conns.clone(),
-                active: active.clone(),
-                rejected: rejected.clone(),
-                over_limit: over_limit.clone(),
-                open: Arc::new(AtomicUsize::new(0)),
-                max_clients,
-                upgraded: upgraded.clone(),
-                peers,
-            };
-            std::thread::Builder::new()
-                .name("ehactl-live-front".into())
-                .spawn(move || accept_loop(&listener, &ctx))?
+        let cx = Arc::new(AcceptCtx {
+            upstream,
+            stop: stop.clone(),
+            stop_wake: stop_wake.clone(),
+            conns: conns.clone(),
+            active: active.clone(),
+            rejected: rejected.clone(),
+            over_limit: over_limit.clone(),
+            served: Arc::new(AtomicUsize::new(0)),
+            pending: Arc::new(AtomicUsize::new(0)),
+            max_clients,
+            data_cap: data_queue_bytes(max_clients),
+            upgraded: upgraded.clone(),
+            peers,
+        });
+        // A fixed number of threads whatever the number of clients: one task per
+        // connection on FRONT_WORKERS worker threads.
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(FRONT_WORKERS)
+            .thread_name("ehactl-live-io")
+            .thread_stack_size(FRONT_STACK)
+            .enable_all()
+            .build()?;
+        let listener = {
+            let _g = rt.enter();
+            tokio::net::TcpListener::from_std(listener)?
         };
+        let down = shutdown.clone();
+        let thread = std::thread::Builder::new()
+            .name("ehactl-live-front".into())
+            .spawn(move || {
+                rt.block_on(async move {
+                    accept_loop(&listener, &cx).await;
+                    // Connections keep running until `finish` has cut them off.
+                    down.notified().await;
+                });
+            })?;
         Ok(Front {
             stop,
-            accept: Some(accept),
+            stop_wake,
+            shutdown,
+            thread: Some(thread),
             conns,
             active,
             rejected,
@@ -371,9 +473,7 @@ impl Front {
     /// connections refused and, of those, the number refused over the client limit.
     pub fn finish(mut self, grace: Duration) -> (Vec<ClientStats>, u64, u64) {
         self.stop.store(true, Ordering::Release);
-        if let Some(t) = self.accept.take() {
-            let _ = t.join();
-        }
+        self.stop_wake.notify_one();
         let t0 = Instant::now();
         while self.active.load(Ordering::Acquire) > 0 && t0.elapsed() < grace {
             std::thread::sleep(Duration::from_millis(5));
@@ -386,6 +486,10 @@ impl Front {
         let t0 = Instant::now();
         while self.active.load(Ordering::Acquire) > 0 && t0.elapsed() < Duration::from_secs(2) {
             std::thread::sleep(Duration::from_millis(5));
+        }
+        self.shutdown.notify_one();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
         }
         // Written but never acknowledged by the client: not delivered. Every socket has been
         // shut down, so a non-empty send queue ends with the FIN (one sequence number).
@@ -414,7 +518,7 @@ impl Front {
         )
     }
 
-    /// Most connections served at once.
+    /// Most clients served at once.
     pub fn max_clients(&self) -> usize {
         self.max_clients
     }
@@ -426,134 +530,125 @@ impl Front {
     }
 }
 
-/// Decrements the active-thread count when a connection thread ends (also on panic).
-struct ActiveGuard(Arc<AtomicUsize>);
-
-impl Drop for ActiveGuard {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::AcqRel);
-    }
-}
-
-fn spawn_counted(
-    active: &Arc<AtomicUsize>,
-    name: String,
-    f: impl FnOnce() + Send + 'static,
-) -> std::io::Result<()> {
-    active.fetch_add(1, Ordering::AcqRel);
-    let guard = ActiveGuard(active.clone());
-    std::thread::Builder::new()
-        .name(name)
-        .stack_size(CONN_STACK)
-        .spawn(move || {
-            let _g = guard;
-            f();
-        })
-        .map(|_| ())
-}
-
 struct AcceptCtx {
     upstream: SocketAddr,
     stop: Arc<AtomicBool>,
+    stop_wake: Arc<Notify>,
     conns: Arc<Mutex<Vec<Arc<Conn>>>>,
     active: Arc<AtomicUsize>,
     rejected: Arc<AtomicU64>,
     over_limit: Arc<AtomicU64>,
-    /// Connections open now (see [`OpenSlot`]).
-    open: Arc<AtomicUsize>,
+    /// Clients served now: from a complete upgrade request until the connection ends.
+    served: Arc<AtomicUsize>,
+    /// Connections in their handshake now.
+    pending: Arc<AtomicUsize>,
     max_clients: usize,
+    /// Bytes of `Message Data` queued per client ([`data_queue_bytes`]).
+    data_cap: usize,
     /// Connections the SDK upgraded for the front (HTTP 101).
     upgraded: Arc<AtomicU64>,
     peers: Arc<FrontPeers>,
 }
 
-fn accept_loop(listener: &TcpListener, cx: &AcceptCtx) {
+async fn accept_loop(listener: &tokio::net::TcpListener, cx: &Arc<AcceptCtx>) {
     let mut reported = false;
     while !cx.stop.load(Ordering::Acquire) {
-        let (mut client, peer) = match listener.accept() {
+        let accepted = tokio::select! {
+            a = listener.accept() => a,
+            () = cx.stop_wake.notified() => continue,
+        };
+        let (client, peer) = match accepted {
             Ok(c) => c,
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                std::thread::sleep(Duration::from_millis(10));
-                continue;
-            }
             Err(e) => {
                 // Out of descriptors and the like: say it once, keep serving.
                 if !reported {
                     eprintln!("ehactl: --live: accepting a client failed: {e}");
                     reported = true;
                 }
-                std::thread::sleep(Duration::from_millis(50));
+                tokio::time::sleep(Duration::from_millis(50)).await;
                 continue;
             }
         };
-        let _ = client.set_nonblocking(false);
-        if cx.open.load(Ordering::Acquire) >= cx.max_clients {
+        let Some(pending) = Slot::take(&cx.pending, MAX_PENDING_HANDSHAKES) else {
             // Refused before anything is allocated for it: a short answer, then closed.
             cx.rejected.fetch_add(1, Ordering::Relaxed);
-            cx.over_limit.fetch_add(1, Ordering::Relaxed);
-            let body = format!(
-                "too many live-view clients: {} connected (limit --live-max-clients {}); retry later\n",
-                cx.max_clients, cx.max_clients
+            let why = format!(
+                "{MAX_PENDING_HANDSHAKES} live-view connections are in their handshake; retry later"
             );
-            let _ = client.set_write_timeout(Some(Duration::from_millis(100)));
-            let _ = write!(
-                client,
-                "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nRetry-After: 5\r\nConnection: close\r\n\r\n{body}",
-                body.len()
-            );
-            let _ = client.shutdown(Shutdown::Both);
-            continue;
-        }
-        cx.open.fetch_add(1, Ordering::AcqRel);
-        let slot = Arc::new(OpenSlot(cx.open.clone()));
-        let _ = client.set_nodelay(true);
-        set_send_buffer(&client, SEND_BUFFER);
-        let Ok(client2) = client.try_clone() else {
+            let _ = answer_503(client, &why).await;
             continue;
         };
-        let conn = Arc::new(Conn {
-            counters: Arc::new(Counters {
-                peer,
-                subprotocol: Mutex::new(String::new()),
-                sent: AtomicU64::new(0),
-                dropped: AtomicU64::new(0),
-                written: Mutex::new(Written::default()),
-            }),
-            client: client2,
-            upstream: Mutex::new(None),
-            queue: Queue {
-                state: Mutex::new(QueueState::default()),
-                ready: Condvar::new(),
-            },
-        });
+        let _ = client.set_nodelay(true);
+        let Ok((client, dup)) = with_dup(client) else {
+            continue;
+        };
+        let conn = new_conn(peer, dup, cx);
         lock(&cx.conns).push(conn.clone());
-        let (a, r, list, upstream, up, peers) = (
-            cx.active.clone(),
-            cx.rejected.clone(),
-            cx.conns.clone(),
-            cx.upstream,
-            cx.upgraded.clone(),
-            cx.peers.clone(),
-        );
-        let spawned = spawn_counted(&cx.active, format!("live-conn-{peer}"), move || {
-            // On success the writer thread delivers what is queued and ends by itself.
+        let task = Slot(cx.active.clone());
+        cx.active.fetch_add(1, Ordering::AcqRel);
+        let cx = cx.clone();
+        tokio::spawn(async move {
+            let _task = task;
             // On failure the client got its HTTP answer (or went away): counted, not logged
             // (a port scanner must not flood stderr), and forgotten unless it had upgraded.
-            if serve(client, &conn, upstream, &a, &slot, &up, &peers).is_err() {
-                r.fetch_add(1, Ordering::Relaxed);
+            if serve(client, &conn, &cx, pending).await.is_err() {
+                cx.rejected.fetch_add(1, Ordering::Relaxed);
                 conn.kill();
                 if lock(&conn.counters.subprotocol).is_empty() {
-                    lock(&list).retain(|c| !Arc::ptr_eq(c, &conn));
+                    lock(&cx.conns).retain(|c| !Arc::ptr_eq(c, &conn));
                 }
             }
         });
-        if spawned.is_err() {
-            cx.rejected.fetch_add(1, Ordering::Relaxed);
-        }
     }
 }
 
-fn set_send_buffer(s: &TcpStream, bytes: usize) {
+/// The bookkeeping of the connection from `peer` (`dup`: a duplicate of its socket).
+fn new_conn(peer: SocketAddr, dup: std::net::TcpStream, cx: &AcceptCtx) -> Arc<Conn> {
+    let send_buffer = send_buffer_bytes(cx.max_clients);
+    set_send_buffer(&dup, send_buffer);
+    Arc::new(Conn {
+        counters: Arc::new(Counters {
+            peer,
+            subprotocol: Mutex::new(String::new()),
+            sent: AtomicU64::new(0),
+            dropped: AtomicU64::new(0),
+            written: Mutex::new(Written {
+                window: written_window(send_buffer),
+                ..Written::default()
+            }),
+        }),
+        client: dup,
+        upstream: Mutex::new(None),
+        queue: Queue {
+            state: Mutex::new(QueueState::default()),
+            ready: Notify::new(),
+        },
+        data_cap: cx.data_cap,
+    })
+}
+
+/// The tokio stream `s` and a duplicate descriptor of its socket (for `shutdown`, socket
+/// options and `SIOCOUTQ` from any thread).
+fn with_dup(s: TcpStream) -> std::io::Result<(TcpStream, std::net::TcpStream)> {
+    let s = s.into_std()?;
+    let dup = s.try_clone()?;
+    Ok((TcpStream::from_std(s)?, dup))
+}
+
+/// Answer HTTP 503 with `why` and close (a write that does not fit the socket's buffer at
+/// once is not waited for).
+async fn answer_503(mut client: TcpStream, why: &str) -> std::io::Result<()> {
+    let body = format!("{why}\n");
+    let msg = format!(
+        "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nRetry-After: 5\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    let _ =
+        tokio::time::timeout(Duration::from_millis(100), client.write_all(msg.as_bytes())).await;
+    client.shutdown().await
+}
+
+fn set_send_buffer(s: &std::net::TcpStream, bytes: usize) {
     let v = libc::c_int::try_from(bytes).unwrap_or(libc::c_int::MAX);
     // SAFETY: `s` owns an open socket; SO_SNDBUF takes one c_int. A failure only leaves the
     // kernel's default (auto-tuned) buffer.
@@ -568,7 +663,7 @@ fn set_send_buffer(s: &TcpStream, bytes: usize) {
     }
 }
 
-fn set_linger_zero(s: &TcpStream) {
+fn set_linger_zero(s: &std::net::TcpStream) {
     let v = libc::linger {
         l_onoff: 1,
         l_linger: 0,
@@ -586,7 +681,7 @@ fn set_linger_zero(s: &TcpStream) {
 }
 
 /// Read an HTTP head (up to the blank line); returns (head, bytes read after it).
-fn read_head(s: &mut TcpStream) -> std::io::Result<(Vec<u8>, Vec<u8>)> {
+async fn read_head(s: &mut TcpStream) -> std::io::Result<(Vec<u8>, Vec<u8>)> {
     let mut buf = Vec::with_capacity(1024);
     let mut chunk = [0u8; 2048];
     loop {
@@ -600,7 +695,7 @@ fn read_head(s: &mut TcpStream) -> std::io::Result<(Vec<u8>, Vec<u8>)> {
                 format!("HTTP head longer than {MAX_HEAD} bytes"),
             ));
         }
-        let n = s.read(&mut chunk)?;
+        let n = s.read(&mut chunk).await?;
         if n == 0 {
             return Err(std::io::ErrorKind::UnexpectedEof.into());
         }
@@ -608,13 +703,13 @@ fn read_head(s: &mut TcpStream) -> std::io::Result<(Vec<u8>, Vec<u8>)> {
     }
 }
 
-fn bad_request(client: &mut TcpStream, why: &str) -> std::io::Error {
+async fn bad_request(client: &mut TcpStream, why: &str) -> std::io::Error {
     let body = format!("{why}\n");
-    let _ = write!(
-        client,
+    let msg = format!(
         "HTTP/1.1 400 Bad Request\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
         body.len()
     );
+    let _ = client.write_all(msg.as_bytes()).await;
     std::io::Error::new(std::io::ErrorKind::InvalidData, why.to_string())
 }
 
@@ -700,150 +795,220 @@ fn rewrite_response(head: &[u8], rename: Option<&str>) -> Result<(u16, Vec<u8>, 
     Ok((code, out, proto))
 }
 
-/// One connection: upgrade, then relay until either side ends.
-fn serve(
+/// A connection upgraded by the SDK: the client's and the SDK's streams, and the client's
+/// served slot.
+struct Upgraded {
+    client: TcpStream,
+    up: TcpStream,
+    rest: Vec<u8>,
+    served: Slot,
+}
+
+/// The handshake of one connection: the client's upgrade request (within the deadline the
+/// caller sets), a served slot, the SDK's answer passed on with the subprotocol renamed.
+async fn handshake(
     mut client: TcpStream,
     conn: &Arc<Conn>,
-    upstream_addr: SocketAddr,
-    active: &Arc<AtomicUsize>,
-    slot: &Arc<OpenSlot>,
-    upgraded: &AtomicU64,
-    peers: &FrontPeers,
-) -> std::io::Result<()> {
-    client.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
-    client.set_write_timeout(Some(HANDSHAKE_TIMEOUT))?;
-    let (head, early) = match read_head(&mut client) {
+    cx: &AcceptCtx,
+) -> std::io::Result<Upgraded> {
+    let (head, early) = match read_head(&mut client).await {
         Ok(h) => h,
         Err(e) => {
-            return Err(bad_request(
-                &mut client,
-                &format!("bad HTTP upgrade request: {e}"),
-            ))
+            return Err(bad_request(&mut client, &format!("bad HTTP upgrade request: {e}")).await)
         }
     };
     let (request, rename) = match rewrite_request(&head) {
         Ok(r) => r,
-        Err(e) => return Err(bad_request(&mut client, &e)),
+        Err(e) => return Err(bad_request(&mut client, &e).await),
     };
-    let mut up = TcpStream::connect_timeout(&upstream_addr, HANDSHAKE_TIMEOUT)?;
-    // Known to the SDK's gate before the request is written, so before the SDK can
-    // register the connection; forgotten when this thread ends (the SDK side closed).
+    // Only a client with a complete upgrade request counts against the limit.
+    let Some(served) = Slot::take(&cx.served, cx.max_clients) else {
+        cx.over_limit.fetch_add(1, Ordering::Relaxed);
+        let why = format!(
+            "too many live-view clients: {} connected (limit --live-max-clients {}); retry later",
+            cx.max_clients, cx.max_clients
+        );
+        answer_503(client, &why).await?;
+        return Err(std::io::Error::other("over the client limit"));
+    };
+    let up = TcpStream::connect(cx.upstream).await?;
+    let _ = up.set_nodelay(true);
     let local = up.local_addr()?;
-    lock(&peers.0).insert(local);
-    let _entry = PeerEntry(peers, local);
-    up.set_nodelay(true)?;
-    up.set_read_timeout(Some(HANDSHAKE_TIMEOUT))?;
-    *lock(&conn.upstream) = Some(up.try_clone()?);
-    up.write_all(&request)?;
-    up.write_all(&early)?;
-    let (rhead, mut rest) = read_head(&mut up)?;
+    let (mut up, up_dup) = with_dup(up)?;
+    *lock(&conn.upstream) = Some(up_dup);
+    // Known to the SDK's gate before the request is written, so before the SDK can
+    // register the connection; forgotten when the connection ends (see `serve`).
+    lock(&cx.peers.0).insert(local);
+    up.write_all(&request).await?;
+    up.write_all(&early).await?;
+    let (rhead, rest) = read_head(&mut up).await?;
     let (code, response, proto) = match rewrite_response(&rhead, rename) {
         Ok(r) => r,
-        Err(e) => return Err(bad_request(&mut client, &e)),
+        Err(e) => return Err(bad_request(&mut client, &e).await),
     };
-    client.write_all(&response)?;
+    client.write_all(&response).await?;
     if code != 101 {
         // The SDK's refusal (e.g. 400: no subprotocol it knows): pass its body on.
-        client.write_all(&rest)?;
+        client.write_all(&rest).await?;
         let mut body = Vec::new();
-        let _ = (&mut up).take(MAX_HEAD as u64).read_to_end(&mut body);
-        let _ = client.write_all(&body);
+        let _ = (&mut up).take(MAX_HEAD as u64).read_to_end(&mut body).await;
+        let _ = client.write_all(&body).await;
         return Err(std::io::Error::other(format!(
             "upgrade refused: HTTP {code}"
         )));
     }
-    upgraded.fetch_add(1, Ordering::AcqRel);
+    cx.upgraded.fetch_add(1, Ordering::AcqRel);
     *lock(&conn.counters.subprotocol) = proto;
-    client.set_read_timeout(None)?;
-    client.set_write_timeout(None)?;
-    up.set_read_timeout(None)?;
+    Ok(Upgraded {
+        client,
+        up,
+        rest,
+        served,
+    })
+}
 
-    // Client → SDK: bytes copied unchanged.
-    {
-        let (mut from, mut to, c) = (client.try_clone()?, up.try_clone()?, conn.clone());
-        let slot = slot.clone();
-        spawn_counted(active, "live-up".into(), move || {
-            let _slot = slot;
-            let mut buf = [0u8; 8192];
-            loop {
-                match from.read(&mut buf) {
-                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                    Ok(0) | Err(_) => break,
-                    Ok(n) => {
-                        if to.write_all(&buf[..n]).is_err() {
-                            break;
-                        }
+/// One connection: the handshake within [`HANDSHAKE_TIMEOUT`], then relay until either side
+/// ends.
+async fn serve(
+    client: TcpStream,
+    conn: &Arc<Conn>,
+    cx: &AcceptCtx,
+    pending: Slot,
+) -> std::io::Result<()> {
+    let shook = tokio::time::timeout(HANDSHAKE_TIMEOUT, handshake(client, conn, cx)).await;
+    drop(pending);
+    let up_local = lock(&conn.upstream)
+        .as_ref()
+        .and_then(|u| u.local_addr().ok());
+    let _entry = up_local.map(|a| PeerEntry(&cx.peers, a));
+    let Upgraded {
+        mut client,
+        mut up,
+        rest,
+        served,
+    } = shook.map_err(|_| {
+        // Said in one short non-blocking write on the socket's duplicate (the stream went
+        // with the handshake); the connection is cut off after.
+        let body = format!(
+            "upgrade not completed within {} s\n",
+            HANDSHAKE_TIMEOUT.as_secs()
+        );
+        let _ = (&conn.client).write_all(
+            format!(
+                "HTTP/1.1 408 Request Timeout\r\nContent-Type: text/plain\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+                body.len()
+            )
+            .as_bytes(),
+        );
+        std::io::Error::new(std::io::ErrorKind::TimedOut, body.trim_end().to_string())
+    })??;
+    let _served = served;
+    relay(&mut client, &mut up, &rest, conn).await
+}
+
+/// Relay an upgraded connection until either side ends: the client's bytes to the SDK, the
+/// SDK's frames into the client's queue, the queue to the client.
+async fn relay(
+    client: &mut TcpStream,
+    up: &mut TcpStream,
+    rest: &[u8],
+    conn: &Arc<Conn>,
+) -> std::io::Result<()> {
+    let (mut client_rd, mut client_wr) = client.split();
+    let (mut up_rd, mut up_wr) = up.split();
+    // Client → SDK: bytes copied unchanged; when the client leaves, the SDK side is closed
+    // too (the SDK then drops the client).
+    let upward = async {
+        let mut buf = [0u8; 4096];
+        loop {
+            match client_rd.read(&mut buf).await {
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Ok(0) | Err(_) => break,
+                Ok(n) => {
+                    if up_wr.write_all(&buf[..n]).await.is_err() {
+                        break;
                     }
                 }
             }
-            // The client left: close the SDK side too (the SDK then drops the client).
-            c.kill();
-        })?;
-    }
-    // Queue → client.
-    {
-        let (mut to, c, slot) = (client.try_clone()?, conn.clone(), slot.clone());
-        spawn_counted(active, "live-down".into(), move || {
-            let _slot = slot;
-            write_loop(&mut to, &c)
-        })?;
-    }
-    // SDK → queue (this thread).
-    let mut frames = FrameSplitter::default();
-    frames.push(&rest);
-    rest.clear();
-    let mut buf = vec![0u8; 64 << 10];
-    loop {
+        }
+        conn.kill();
+    };
+    // SDK → queue.
+    let from_sdk = async {
+        let mut frames = FrameSplitter::default();
+        frames.push(rest);
+        let mut buf = vec![0u8; 16 << 10];
         loop {
-            match frames.next_unit() {
-                Ok(Some(u)) => conn.push(u),
-                Ok(None) => break,
-                Err(e) => {
-                    conn.kill();
-                    return Err(std::io::Error::new(std::io::ErrorKind::InvalidData, e));
+            loop {
+                match frames.next_unit() {
+                    Ok(Some(u)) => conn.push(u),
+                    Ok(None) => break,
+                    Err(e) => {
+                        conn.kill();
+                        return Err(std::io::Error::new(std::io::ErrorKind::InvalidData, e));
+                    }
                 }
             }
+            match up_rd.read(&mut buf).await {
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Ok(0) | Err(_) => break,
+                Ok(n) => frames.push(&buf[..n]),
+            }
         }
-        match up.read(&mut buf) {
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Ok(0) | Err(_) => break,
-            Ok(n) => frames.push(&buf[..n]),
-        }
-    }
-    conn.close_queue();
-    Ok(())
+        conn.close_queue();
+        Ok(())
+    };
+    // Queue → client.
+    let downward = write_loop(&mut client_wr, conn);
+    let ((), sdk, ()) = tokio::join!(upward, from_sdk, downward);
+    sdk
 }
 
-fn write_loop(to: &mut TcpStream, conn: &Conn) {
+/// What the writer does next.
+enum Next {
+    Unit(Unit),
+    Wait,
+    Closed,
+}
+
+async fn write_loop(to: &mut (impl AsyncWrite + Unpin), conn: &Conn) {
     loop {
-        let unit = {
+        let next = {
             let mut q = lock(&conn.queue.state);
-            loop {
-                if q.dead {
-                    return;
-                }
-                if let Some(u) = q.units.pop_front() {
+            if q.dead {
+                return;
+            }
+            match q.units.pop_front() {
+                Some(u) => {
                     q.bytes -= u.bytes.len();
                     if u.data {
                         q.data_bytes -= u.bytes.len();
                     }
                     q.data_units -= usize::from(u.data);
-                    break u;
+                    Next::Unit(u)
                 }
-                if q.closed {
-                    drop(q);
-                    // Everything the SDK sent (its close frame last) is delivered.
-                    let _ = to.shutdown(Shutdown::Write);
-                    return;
-                }
-                q = conn.queue.ready.wait(q).unwrap_or_else(|p| p.into_inner());
+                None if q.closed => Next::Closed,
+                None => Next::Wait,
+            }
+        };
+        let unit = match next {
+            Next::Unit(u) => u,
+            // A notification sent since the check is kept by `Notify` (a permit).
+            Next::Wait => {
+                conn.queue.ready.notified().await;
+                continue;
+            }
+            Next::Closed => {
+                // Everything the SDK sent (its close frame last) is delivered.
+                let _ = to.shutdown().await;
+                return;
             }
         };
         // Not `write_all`: the bytes of a message cut off half-way count too (to tell later
         // which complete messages the client acknowledged).
         let mut b = &unit.bytes[..];
         while !b.is_empty() {
-            match to.write(b) {
+            match to.write(b).await {
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Ok(0) | Err(_) => {
                     if unit.data {
@@ -876,11 +1041,12 @@ struct FrameSplitter {
 }
 
 impl FrameSplitter {
+    /// Append bytes read from the SDK. What was split off already is dropped first (only a
+    /// partial frame is kept, moved to the front), so the buffer stays at one read plus one
+    /// message: it is resident memory of every client (all of it under `--realtime`'s
+    /// `mlockall`).
     fn push(&mut self, b: &[u8]) {
-        if self.start > 0 && self.start == self.buf.len() {
-            self.buf.clear();
-            self.start = 0;
-        } else if self.start > (1 << 20) {
+        if self.start > 0 {
             self.buf.drain(..self.start);
             self.start = 0;
         }

@@ -240,11 +240,17 @@ fn cmd_recover(input: &Path, output: &Path, json: bool) -> ExitCode {
             output.display()
         ));
     }
-    // The CLI's bounded read of user input: a regular file of at most 10 000 MB; a FIFO,
-    // /dev/zero or a directory is refused without blocking.
-    let data = match ehactl_input::read_bounded(input, ehactl_input::DATA_MAX_BYTES, "MCAP log") {
+    // The CLI's bounded read of user input: a regular file of at most
+    // `ehactl_input::RECOVER_MAX_BYTES`; a FIFO, /dev/zero or a directory is refused without
+    // blocking, a file that does not start with the MCAP magic before the rest is read.
+    let (file, len) =
+        match ehactl_input::open_bounded(input, ehactl_input::RECOVER_MAX_BYTES, "MCAP log") {
+            Ok(f) => f,
+            Err(e) => return config_error(format!("recover: {e}")),
+        };
+    let data = match ehactl_log::recover::read_log(std::io::BufReader::new(file), len) {
         Ok(d) => d,
-        Err(e) => return config_error(format!("recover: {e}")),
+        Err(e) => return config_error(format!("recover: {}: {e}", input.display())),
     };
     // A log a running ehactl still holds the lock of is being written: what is read is a
     // snapshot of it, said so (the writer's lock, ehactl_log::logger).

@@ -66,9 +66,10 @@ pub struct RunArgs {
     /// --realtime; messages a viewer cannot take are dropped and counted, never waited for.
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = live::DEFAULT_ADDR)]
     pub live: Option<String>,
-    /// Most live-view clients served at once; more are refused (HTTP 503) and counted in
-    /// the summary's `live.clients_refused_over_limit`. Each idle subscribed client costs
-    /// up to a few MB of queued messages.
+    /// Most live-view clients served at once (counted from a complete upgrade request); more
+    /// are refused (HTTP 503) and counted in the summary's `live.clients_refused_over_limit`.
+    /// A connection has 5 s to complete its upgrade. Each idle subscribed client costs a
+    /// share of 16 MiB of queued messages (at most 1 MiB).
     #[arg(long, value_name = "N", default_value_t = crate::live_front::DEFAULT_MAX_CLIENTS,
           value_parser = clap::value_parser!(u16).range(1..=1024))]
     pub live_max_clients: u16,

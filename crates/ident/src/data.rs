@@ -9,6 +9,7 @@
 //! dropped silently.
 
 use std::fmt;
+use std::io::Read;
 use std::path::Path;
 
 /// A measured output channel the plant can predict.
@@ -278,7 +279,6 @@ pub fn load(path: &Path) -> Result<Record, DataError> {
 /// message (`mcap_is_motion_only`); `None` for a file that cannot be read (the full load
 /// then reports why).
 pub fn is_motion_only(path: &Path) -> Option<bool> {
-    use std::io::Read;
     if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
         return mcap_is_motion_only(path);
     }
@@ -312,7 +312,6 @@ pub fn is_motion_only(path: &Path) -> Option<bool> {
 /// has neither topic. The mcap crate's sans-I/O reader does the framing and decompression.
 fn mcap_is_motion_only(path: &Path) -> Option<bool> {
     use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
-    use std::io::Read;
     // Only a regular file is opened here: a FIFO would block the open, a device never end
     // (the full load refuses both with a clear error).
     if !std::fs::metadata(path).ok()?.is_file() {
@@ -356,19 +355,21 @@ fn mcap_is_motion_only(path: &Path) -> Option<bool> {
 /// column of that name is read into [`Record::inputs`]; any other column outside the format
 /// is an error.
 pub fn load_with(path: &Path, inputs: &[String]) -> Result<Record, DataError> {
-    if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
-        let source = path.display().to_string();
-        // The whole log is held in memory: a regular file of at most 10 000 MB.
-        let bytes =
-            ehactl_input::read_bounded(path, ehactl_input::DATA_MAX_BYTES, "data (MCAP log)")
-                .map_err(|e| DataError(e.to_string()))?;
-        parse_mcap_with(&source, &bytes, inputs)
+    let source = path.display().to_string();
+    // A regular file of at most DATA_MAX_BYTES (a FIFO or /dev/zero is refused, never
+    // read), read as a stream: what is held is the record's columns, not the file.
+    let what = if path.extension().and_then(|e| e.to_str()) == Some("mcap") {
+        "data (MCAP log)"
     } else {
-        // A regular file of at most 10 000 MB (a FIFO or /dev/zero is refused, never read).
-        let text =
-            ehactl_input::read_bounded_string(path, ehactl_input::DATA_MAX_BYTES, "data (CSV)")
-                .map_err(|e| DataError(e.to_string()))?;
-        parse_csv_with(&path.display().to_string(), &text, inputs)
+        "data (CSV)"
+    };
+    let (file, len) = ehactl_input::open_bounded(path, ehactl_input::DATA_MAX_BYTES, what)
+        .map_err(|e| DataError(e.to_string()))?;
+    let file = std::io::BufReader::with_capacity(1 << 16, file);
+    if what == "data (MCAP log)" {
+        mcap_record(&source, file, len, inputs)
+    } else {
+        csv_stream(&source, file, len, inputs)
     }
 }
 
@@ -439,20 +440,108 @@ fn quote(s: &str, max: usize) -> String {
     }
 }
 
-/// Refuse text with a line longer than [`MAX_LINE_BYTES`] before the CSV reader builds a
-/// record of it (a 1 GB "header" of NULs would take gigabytes), quoting its start only.
-fn check_line_lengths(source: &str, text: &str) -> Result<(), DataError> {
-    for (i, line) in text.split('\n').enumerate() {
-        if line.len() > MAX_LINE_BYTES {
-            return Err(DataError(format!(
-                "{source}: line {} is {} bytes long, more than the {MAX_LINE_BYTES} bytes a CSV line may have; expected a CSV text export (header row, then one row of numbers per sample). It starts with \"{}\"",
-                i + 1,
-                line.len(),
-                quote(line, QUOTE_MAX_BYTES)
-            )));
+/// Why the [`LineGuard`] stopped reading (the message without the file name).
+#[derive(Debug)]
+struct Refused(String);
+
+impl fmt::Display for Refused {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Refused {}
+
+/// The bytes of a CSV file on their way to the CSV reader, refused at the first NUL byte or
+/// the first line longer than [`MAX_LINE_BYTES`]: a binary file, a file of NULs or a "line"
+/// of gigabytes is refused after reading at most one buffer past the bad byte, before the
+/// CSV reader builds a record of it.
+struct LineGuard<R> {
+    inner: R,
+    /// Line being read (1-based) and its bytes so far.
+    line: usize,
+    line_len: usize,
+    /// The start of the line being read (at most [`QUOTE_MAX_BYTES`]), for messages.
+    start: Vec<u8>,
+    /// Bytes read before this line.
+    offset: u64,
+}
+
+impl<R: Read> LineGuard<R> {
+    fn new(inner: R) -> Self {
+        LineGuard {
+            inner,
+            line: 1,
+            line_len: 0,
+            start: Vec::new(),
+            offset: 0,
         }
     }
-    Ok(())
+
+    /// Check the bytes `b` just read.
+    fn check(&mut self, b: &[u8]) -> Result<(), Refused> {
+        let expected =
+            "expected a CSV text export (header row, then one row of numbers per sample)";
+        for &c in b {
+            if c == b'\n' {
+                self.offset += self.line_len as u64 + 1;
+                self.line += 1;
+                self.line_len = 0;
+                self.start.clear();
+                continue;
+            }
+            if c == 0 {
+                return Err(Refused(format!(
+                    "line {} has a NUL byte at byte {} of the line (byte {} of the file); {expected}, not a binary file",
+                    self.line,
+                    self.line_len + 1,
+                    self.offset + self.line_len as u64
+                )));
+            }
+            self.line_len += 1;
+            if self.start.len() < QUOTE_MAX_BYTES {
+                self.start.push(c);
+            }
+            if self.line_len > MAX_LINE_BYTES {
+                return Err(Refused(format!(
+                    "line {} is longer than the {MAX_LINE_BYTES} bytes a CSV line may have (reading stopped there); {expected}. It starts with \"{}\"",
+                    self.line,
+                    quote(&String::from_utf8_lossy(&self.start), QUOTE_MAX_BYTES)
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl<R: Read> Read for LineGuard<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.check(&buf[..n])
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
+        Ok(n)
+    }
+}
+
+/// A CSV file of `len` bytes from `file`, read as a stream through a [`LineGuard`]: the
+/// separator is detected on its first 64 KiB, then the rows are read into columns.
+fn csv_stream(
+    source: &str,
+    mut file: impl Read + std::io::Seek,
+    len: u64,
+    inputs: &[String],
+) -> Result<Record, DataError> {
+    let io = |e: std::io::Error| DataError(format!("{source}: cannot read data (CSV) file: {e}"));
+    let mut head = Vec::new();
+    (&mut file)
+        .take(64 * 1024)
+        .read_to_end(&mut head)
+        .map_err(io)?;
+    let text = String::from_utf8_lossy(&head);
+    let delim = detect_delimiter(text.strip_prefix('\u{feff}').unwrap_or(&text));
+    file.seek(std::io::SeekFrom::Start(0)).map_err(io)?;
+    // A file that grows while it is read is read up to its length when opened.
+    csv_record(source, delim, file.take(len), inputs)
 }
 
 /// Parse CSV text (see the module doc) with the `csv` crate: RFC 4180 quoting, a UTF-8
@@ -465,15 +554,25 @@ pub fn parse_csv(source: &str, text: &str) -> Result<Record, DataError> {
 /// [`parse_csv`] with the operating inputs the config declares (see [`load_with`]).
 pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Record, DataError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    check_line_lengths(source, text)?;
     let delim = detect_delimiter(text);
+    csv_record(source, delim, text.as_bytes(), inputs)
+}
+
+/// [`parse_csv_with`] of the bytes `input` (a UTF-8 byte-order mark is skipped by the CSV
+/// reader), separated by `delim`.
+fn csv_record(
+    source: &str,
+    delim: u8,
+    input: impl Read,
+    inputs: &[String],
+) -> Result<Record, DataError> {
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(false)
         .delimiter(delim)
         .comment(Some(b'#'))
         .flexible(true)
         .trim(csv::Trim::All)
-        .from_reader(text.as_bytes());
+        .from_reader(LineGuard::new(input));
     let mut records = rdr.records().filter_map(|r| match r {
         // a line of blanks only is skipped like an empty line
         Ok(r) if r.len() == 1 && r[0].is_empty() => None,
@@ -489,21 +588,24 @@ pub fn parse_csv_with(source: &str, text: &str, inputs: &[String]) -> Result<Rec
     let rows = CsvRows::read(source, &h, &known, records)?;
     let off = rows.first_data_line.unwrap_or(h.line + 1);
     let warnings = check_unknown_columns(source, &h, &known, &rows.numeric, inputs)?;
-    let cols = rows.cols;
+    let mut cols = rows.cols;
+    // Moved, not copied: the format's columns are distinct (and no declared input is named
+    // like one, `ehactl_config::inputs::RESERVED_COLUMNS`).
     let channels = map
         .ich
         .iter()
         .map(|&(k, i)| Channel {
             kind: k,
-            values: cols[i].clone(),
+            values: std::mem::take(&mut cols[i]),
         })
         .collect();
     let mut rec = Record::from_columns(
         source,
-        cols[map.it].clone(),
-        map.iu.map_or_else(Vec::new, |i| cols[i].clone()),
+        std::mem::take(&mut cols[map.it]),
+        map.iu
+            .map_or_else(Vec::new, |i| std::mem::take(&mut cols[i])),
         channels,
-        map.iref.map(|i| cols[i].clone()),
+        map.iref.map(|i| std::mem::take(&mut cols[i])),
         off,
     )?;
     rec.warnings.extend(warnings);
@@ -538,8 +640,13 @@ fn csv_line(r: &csv::StringRecord) -> usize {
     r.position().map_or(0, |p| p.line() as usize)
 }
 
-/// A reader error of the `csv` crate, with its line.
+/// A reader error of the `csv` crate, with its line (or the [`LineGuard`]'s refusal).
 fn csv_error(source: &str, e: csv::Error) -> DataError {
+    if let csv::ErrorKind::Io(io) = e.kind() {
+        if let Some(r) = io.get_ref().and_then(|r| r.downcast_ref::<Refused>()) {
+            return DataError(format!("{source}: {r}"));
+        }
+    }
     let at = e
         .position()
         .map_or(String::new(), |p| format!(" at line {}", p.line()));
@@ -785,11 +892,29 @@ pub const MEASURED_TOPIC: &str = "/measured";
 /// record's [`MEASURED_TOPIC`] channel under the CSV format's rules (columns, units, inputs,
 /// imposed motion).
 pub fn parse_mcap_with(source: &str, bytes: &[u8], inputs: &[String]) -> Result<Record, DataError> {
-    match parse_mcap(source, bytes) {
-        Err(e) if e.0.ends_with(NO_CONTROL) => match measured_as_csv(source, bytes)? {
-            Some(text) => parse_csv_with(&format!("{source} ({MEASURED_TOPIC})"), &text, inputs),
-            None => Err(e),
-        },
+    mcap_record(
+        source,
+        std::io::Cursor::new(bytes),
+        bytes.len() as u64,
+        inputs,
+    )
+}
+
+/// [`parse_mcap_with`] of an MCAP file of `len` bytes read as a stream from `file`
+/// (`ehactl_log::mcap_read`): the `/control` channel, or else, read again from the start,
+/// the [`MEASURED_TOPIC`] channel.
+fn mcap_record(
+    source: &str,
+    mut file: impl Read + std::io::Seek,
+    len: u64,
+    inputs: &[String],
+) -> Result<Record, DataError> {
+    match control_record(source, &mut file, len) {
+        Err(e) if e.0.ends_with(NO_CONTROL) => {
+            file.seek(std::io::SeekFrom::Start(0))
+                .map_err(|e| DataError(format!("{source}: cannot read data (MCAP log): {e}")))?;
+            measured_record(source, file, len, inputs)?.ok_or(e)
+        }
         r => r,
     }
 }
@@ -797,25 +922,102 @@ pub fn parse_mcap_with(source: &str, bytes: &[u8], inputs: &[String]) -> Result<
 /// End of the error for an MCAP file with neither an ehactl log nor a lab record.
 const NO_CONTROL: &str = "no /control messages; expected an MCAP log written by `ehactl run`, or a lab record with JSON samples on /measured (DIAGNOSIS.md, \"Campaigns\")";
 
+/// The error of a stream read of an MCAP file (`ehactl_log::mcap_read`).
+fn mcap_error(source: &str, e: ehactl_log::mcap_read::ReadError<DataError>) -> DataError {
+    match e {
+        ehactl_log::mcap_read::ReadError::Mcap(why) => DataError(format!(
+            "{source}: not a readable MCAP file: {why} (a log cut off by a killed run can be rebuilt with `ehactl recover`)"
+        )),
+        ehactl_log::mcap_read::ReadError::Stop(e) => e,
+    }
+}
+
+/// The CSV text made of the [`MEASURED_TOPIC`] messages, read by the CSV reader as it is
+/// made: the reader's end of a bounded channel of text pieces.
+struct TextPipe {
+    rx: std::sync::mpsc::Receiver<Vec<u8>>,
+    buf: Vec<u8>,
+    pos: usize,
+}
+
+impl Read for TextPipe {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        while self.pos == self.buf.len() {
+            match self.rx.recv() {
+                Ok(b) => (self.buf, self.pos) = (b, 0),
+                Err(_) => return Ok(0), // the maker is done
+            }
+        }
+        let n = out.len().min(self.buf.len() - self.pos);
+        out[..n].copy_from_slice(&self.buf[self.pos..self.pos + n]);
+        self.pos += n;
+        Ok(n)
+    }
+}
+
+/// A lab record's [`MEASURED_TOPIC`] messages read under the CSV format's rules: their CSV
+/// text ([`measured_as_csv`]) goes to the CSV reader in pieces of 64 KiB through a bounded
+/// channel, so the text is never held whole. `None` when the topic has no messages.
+fn measured_record(
+    source: &str,
+    file: impl Read,
+    len: u64,
+    inputs: &[String],
+) -> Result<Option<Record>, DataError> {
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<u8>>(4);
+    let csv_source = format!("{source} ({MEASURED_TOPIC})");
+    std::thread::scope(|sc| {
+        let pipe = TextPipe {
+            rx,
+            buf: Vec::new(),
+            pos: 0,
+        };
+        let parser = sc.spawn(|| csv_record(&csv_source, b',', pipe, inputs));
+        let made = measured_as_csv(source, file, len, tx);
+        let parsed = parser.join().unwrap_or_else(|_| {
+            Err(DataError(format!(
+                "{csv_source}: the CSV reader stopped unexpectedly"
+            )))
+        });
+        match made {
+            Err(e) => Err(e),
+            Ok(false) => Ok(None),
+            Ok(true) => parsed.map(Some),
+        }
+    })
+}
+
 /// The [`MEASURED_TOPIC`] messages of an MCAP file as CSV text (header: the first message's
-/// keys); `None` when the topic has no messages. A message that is not a JSON object of
-/// finite numbers with the first message's keys is an error naming its sequence.
-fn measured_as_csv(source: &str, bytes: &[u8]) -> Result<Option<String>, DataError> {
+/// keys), sent to `tx` in pieces; whether the topic has messages. A message that is not a
+/// JSON object of finite numbers with the first message's keys is an error naming its
+/// sequence. Stops early, without error, when the reader at the other end has stopped (its
+/// error is the one to report).
+fn measured_as_csv(
+    source: &str,
+    file: impl Read,
+    len: u64,
+    tx: std::sync::mpsc::SyncSender<Vec<u8>>,
+) -> Result<bool, DataError> {
+    use ehactl_log::mcap_read::Item;
     use std::fmt::Write;
-    let stream = mcap::MessageStream::new(bytes)
-        .map_err(|e| DataError(format!("{source}: not a readable MCAP file: {e}")))?;
     let mut names: Vec<String> = Vec::new();
     let mut text = String::new();
-    for m in stream {
-        let m = m.map_err(|e| DataError(format!("{source}: corrupt MCAP record: {e}")))?;
-        if m.channel.topic != MEASURED_TOPIC {
-            continue;
+    let mut reader_stopped = false;
+    let read = ehactl_log::mcap_read::for_each(file, len, |item| {
+        let Item::Message {
+            channel,
+            sequence,
+            log_time,
+            data,
+        } = item
+        else {
+            return Ok(());
+        };
+        if channel.topic != MEASURED_TOPIC {
+            return Ok(());
         }
-        let at = format!(
-            "{source}: {MEASURED_TOPIC} message (MCAP sequence {})",
-            m.sequence
-        );
-        let obj: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(&m.data)
+        let at = format!("{source}: {MEASURED_TOPIC} message (MCAP sequence {sequence})");
+        let obj: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(data)
             .map_err(|e| DataError(format!("{at}: not a JSON object of samples: {e}")))?;
         if names.is_empty() {
             names = obj.keys().cloned().collect();
@@ -836,7 +1038,7 @@ fn measured_as_csv(source: &str, bytes: &[u8]) -> Result<Option<String>, DataErr
         }
         if !names.iter().any(|n| n == "t") {
             // Log time in ns → s.
-            let _ = write!(text, "{:?},", m.log_time as f64 * 1e-9);
+            let _ = write!(text, "{:?},", log_time as f64 * 1e-9);
         }
         for (i, n) in names.iter().enumerate() {
             let v = obj[n].as_f64().filter(|v| v.is_finite()).ok_or_else(|| {
@@ -848,58 +1050,67 @@ fn measured_as_csv(source: &str, bytes: &[u8]) -> Result<Option<String>, DataErr
             let _ = write!(text, "{}{v:?}", if i == 0 { "" } else { "," });
         }
         text.push('\n');
+        if text.len() >= 1 << 16 && tx.send(std::mem::take(&mut text).into_bytes()).is_err() {
+            reader_stopped = true;
+            return Err(DataError(String::new()));
+        }
+        Ok(())
+    });
+    if reader_stopped {
+        return Ok(true);
     }
-    Ok((!names.is_empty()).then_some(text))
+    read.map_err(|e| mcap_error(source, e))?;
+    let _ = tx.send(text.into_bytes());
+    Ok(!names.is_empty())
 }
 
 /// [`parse_mcap_with`] for an ehactl log's `/control` channel only.
 pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
-    use ehactl_log::record::CycleRecord;
-    let source = source.to_string();
-    if let (_, Some(problem)) = ehactl_log::recover::readable_prefix(bytes) {
-        return Err(DataError(format!(
-            "{source}: not a readable MCAP file: {problem} (a log cut off by a killed run can be rebuilt with `ehactl recover`)"
-        )));
-    }
-    let stream = mcap::MessageStream::new(bytes)
-        .map_err(|e| DataError(format!("{source}: not a readable MCAP file: {e}")))?;
-    let mut rows: Vec<CycleRecord> = Vec::new();
-    let mut logged_config = None;
-    for m in stream {
-        let m = m.map_err(|e| DataError(format!("{source}: corrupt MCAP record: {e}")))?;
-        if m.channel.topic == "/config" {
-            // {"toml": …, "config": RigConfig::to_json(), "backend": …} (ehactl_log::logger)
-            logged_config = serde_json::from_slice::<serde_json::Value>(&m.data)
-                .ok()
-                .and_then(|v| v.get("config").cloned());
-            continue;
+    control_record(source, bytes, bytes.len() as u64)
+}
+
+/// The columns of an ehactl log's `/control` channel, decoded message by message.
+#[derive(Default)]
+struct ControlColumns {
+    t: Vec<f64>,
+    command: Vec<f64>,
+    setpoint: Vec<f64>,
+    /// force, position, p_a, p_b, spool.
+    meas: [Vec<f64>; 5],
+}
+
+impl ControlColumns {
+    fn push(&mut self, r: &ehactl_log::record::CycleRecord) {
+        self.t.push(r.t);
+        self.command.push(r.command);
+        self.setpoint.push(r.setpoint);
+        let m = &r.meas;
+        for (c, v) in self
+            .meas
+            .iter_mut()
+            .zip([m.force, m.position, m.p_a, m.p_b, m.spool])
+        {
+            c.push(v);
         }
-        if m.channel.topic != "/control" {
-            continue;
-        }
-        let r = CycleRecord::decode_control(&m.data)
-            .map_err(|e| DataError(format!("{source}: {e} (MCAP sequence {})", m.sequence)))?;
-        rows.push(r);
     }
-    if rows.is_empty() {
-        return Err(DataError(format!("{source}: {NO_CONTROL}")));
-    }
-    /// Reads one measured channel out of a cycle record.
-    type Field = fn(&CycleRecord) -> f64;
-    let col = |f: Field| rows.iter().map(f).collect::<Vec<f64>>();
-    let outs: [(ChannelKind, Field); 5] = [
-        (ChannelKind::Force, |r| r.meas.force),
-        (ChannelKind::Position, |r| r.meas.position),
-        (ChannelKind::PressureA, |r| r.meas.p_a),
-        (ChannelKind::PressureB, |r| r.meas.p_b),
-        (ChannelKind::Spool, |r| r.meas.spool),
+}
+
+/// The measured channels of a log (force, position, p_a, p_b, spool): a channel that is
+/// NaN throughout is left out (the backend had no such sensor), one with some non-finite
+/// samples too, with a warning.
+fn logged_channels(source: &str, meas: [Vec<f64>; 5]) -> (Vec<Channel>, Vec<String>) {
+    let kinds = [
+        ChannelKind::Force,
+        ChannelKind::Position,
+        ChannelKind::PressureA,
+        ChannelKind::PressureB,
+        ChannelKind::Spool,
     ];
     // How the record is replayed (the recorded `u`, or the config's PD / PI loop on `ref`) is
     // the session's choice and stated in its notes, not here.
     let mut warnings = Vec::new();
     let mut channels = Vec::new();
-    for (k, f) in outs {
-        let v = col(f);
+    for (k, v) in kinds.into_iter().zip(meas) {
         let nan = v.iter().filter(|x| !x.is_finite()).count();
         if nan == v.len() {
             continue; // the backend did not have this sensor (NaN by convention)
@@ -914,12 +1125,49 @@ pub fn parse_mcap(source: &str, bytes: &[u8]) -> Result<Record, DataError> {
         }
         channels.push(Channel { kind: k, values: v });
     }
+    (channels, warnings)
+}
+
+/// [`parse_mcap`] of an MCAP file of `len` bytes read as a stream from `file`.
+fn control_record(source: &str, file: impl Read, len: u64) -> Result<Record, DataError> {
+    use ehactl_log::mcap_read::Item;
+    use ehactl_log::record::CycleRecord;
+    let source = source.to_string();
+    let mut cols = ControlColumns::default();
+    let mut logged_config = None;
+    ehactl_log::mcap_read::for_each(file, len, |item| {
+        let Item::Message {
+            channel,
+            sequence,
+            data,
+            ..
+        } = item
+        else {
+            return Ok(());
+        };
+        if channel.topic == "/config" {
+            // {"toml": …, "config": RigConfig::to_json(), "backend": …} (ehactl_log::logger)
+            logged_config = serde_json::from_slice::<serde_json::Value>(data)
+                .ok()
+                .and_then(|v| v.get("config").cloned());
+        } else if channel.topic == "/control" {
+            let r = CycleRecord::decode_control(data)
+                .map_err(|e| DataError(format!("{source}: {e} (MCAP sequence {sequence})")))?;
+            cols.push(&r);
+        }
+        Ok(())
+    })
+    .map_err(|e| mcap_error(&source, e))?;
+    if cols.t.is_empty() {
+        return Err(DataError(format!("{source}: {NO_CONTROL}")));
+    }
+    let (channels, warnings) = logged_channels(&source, cols.meas);
     let mut rec = Record::from_columns(
         &source,
-        col(|r| r.t),
-        col(|r| r.command),
+        cols.t,
+        cols.command,
         channels,
-        Some(col(|r| r.setpoint)),
+        Some(cols.setpoint),
         0,
     )?;
     rec.warnings.extend(warnings);
@@ -1163,7 +1411,9 @@ mod tests {
         let text = "\0".repeat(1_000_000);
         let e = parse_csv("z.csv", &text).unwrap_err().0;
         assert!(
-            e.starts_with("z.csv: line 1 is 1000000 bytes long"),
+            e.starts_with(
+                "z.csv: line 1 has a NUL byte at byte 1 of the line (byte 0 of the file)"
+            ),
             "{}",
             &e[..200]
         );
@@ -1172,7 +1422,9 @@ mod tests {
         let text = format!("t,u\n0,1\n{}\n", "9".repeat(MAX_LINE_BYTES + 1));
         let e = parse_csv("d.csv", &text).unwrap_err().0;
         assert!(
-            e.contains("line 3 is 65537 bytes long") && e.len() < 2_000,
+            e.contains("line 3 is longer than the 65536 bytes")
+                && e.contains("starts with \"999")
+                && e.len() < 2_000,
             "{e}"
         );
         // a missing column among many quotes a bounded list
@@ -1184,6 +1436,67 @@ mod tests {
             e.contains("missing required column `t`") && e.len() < 1_000,
             "{e}"
         );
+    }
+
+    /// A reader that hands out `head`, then fails the test if it is read again.
+    struct ThenPanic(std::io::Cursor<Vec<u8>>);
+
+    impl Read for ThenPanic {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            let n = self.0.read(buf)?;
+            assert!(n > 0, "read past the bad bytes");
+            Ok(n)
+        }
+    }
+
+    #[test]
+    fn a_nul_byte_or_an_endless_line_stops_the_read_there() {
+        // Good rows, then a NUL: refused at it, and the reader is not read again (a 1 GB
+        // file of NULs costs one buffer, not 1 GB).
+        let mut head = b"t,u\n0,1\n0.001,2\n".to_vec();
+        head.extend_from_slice(b"0.002,\0\0\0");
+        let e = csv_record("n.csv", b',', ThenPanic(std::io::Cursor::new(head)), &[])
+            .unwrap_err()
+            .0;
+        assert!(
+            e.starts_with(
+                "n.csv: line 4 has a NUL byte at byte 7 of the line (byte 22 of the file)"
+            ),
+            "{e}"
+        );
+        // An endless line (std::io::repeat never ends): refused after MAX_LINE_BYTES.
+        let endless = b"t,u\n".chain(std::io::repeat(b'7'));
+        let e = csv_record("e.csv", b',', endless, &[]).unwrap_err().0;
+        assert!(
+            e.starts_with("e.csv: line 2 is longer than the 65536 bytes a CSV line may have"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_file_is_read_as_a_stream_with_its_errors() {
+        let dir = std::env::temp_dir().join(format!("ehactl_data_stream_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = dir.join("g.csv");
+        std::fs::write(&good, rows(",", ".")).unwrap();
+        let text = rows(",", ".");
+        same(
+            &load(&good).unwrap(),
+            &parse_csv(&good.display().to_string(), &text).unwrap(),
+        );
+        let nul = dir.join("z.csv");
+        std::fs::write(&nul, vec![0u8; 1 << 20]).unwrap();
+        let e = load(&nul).unwrap_err().0;
+        assert!(e.contains("z.csv: line 1 has a NUL byte"), "{e}");
+        // An MCAP file that is not one: refused on its first 8 bytes.
+        let fake = dir.join("f.mcap");
+        std::fs::write(&fake, vec![b'x'; 1 << 20]).unwrap();
+        let e = load(&fake).unwrap_err().0;
+        assert!(
+            e.contains("does not start with the MCAP magic bytes"),
+            "{e}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
@@ -1266,6 +1579,59 @@ mod tests {
         let e = parse_mcap_with("lab.mcap", &empty, &[]).unwrap_err().0;
         assert!(
             e.contains("no /control messages") && e.contains("/measured"),
+            "{e}"
+        );
+    }
+
+    /// A lab record of `n` JSON samples on /measured (`msg(k)`), 1 ms apart.
+    fn measured_log(n: u64, msg: impl Fn(u64) -> String) -> Vec<u8> {
+        let mut w = mcap::Writer::new(std::io::Cursor::new(Vec::new())).unwrap();
+        let sid = w.add_schema("Sample", "jsonschema", b"{}").unwrap();
+        let ch = w
+            .add_channel(sid, MEASURED_TOPIC, "json", &Default::default())
+            .unwrap();
+        for k in 0..n {
+            let header = mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: k as u32,
+                log_time: k * 1_000_000,
+                publish_time: k * 1_000_000,
+            };
+            w.write_to_known_channel(&header, msg(k).as_bytes())
+                .unwrap();
+        }
+        w.finish().unwrap();
+        w.into_inner().into_inner()
+    }
+
+    #[test]
+    fn a_long_lab_record_streams_through_the_csv_reader() {
+        // 20 000 samples: about 0.9 MB of CSV text, handed over in 64 KiB pieces.
+        let good = |k: u64| format!(r#"{{"x": {}, "force": {}}}"#, 0.05 + 1e-6 * k as f64, k);
+        let rec = parse_mcap_with("lab.mcap", &measured_log(20_000, good), &[]).unwrap();
+        assert_eq!(rec.len(), 20_000);
+        let force = rec.channel(ChannelKind::Force).unwrap();
+        assert!(force.iter().enumerate().all(|(k, &f)| f == k as f64));
+        assert_eq!(rec.t[19_999], 19_999_000_000.0 * 1e-9); // log time (ns) in s
+                                                            // A bad message late in the file: its error, though the reader has rows already.
+        let late = |k: u64| match k {
+            15_000 => r#"{"x": 0.05}"#.to_string(),
+            _ => good(k),
+        };
+        let e = parse_mcap_with("lab.mcap", &measured_log(20_000, late), &[])
+            .unwrap_err()
+            .0;
+        assert!(
+            e.starts_with("lab.mcap: /measured message (MCAP sequence 15000): keys"),
+            "{e}"
+        );
+        // The reader refuses the header at once: its error, and the rest is not made.
+        let no_motion = |k: u64| format!(r#"{{"foo": {k}}}"#);
+        let e = parse_mcap_with("lab.mcap", &measured_log(20_000, no_motion), &[])
+            .unwrap_err()
+            .0;
+        assert!(
+            e.starts_with("lab.mcap (/measured): missing required column `u`"),
             "{e}"
         );
     }

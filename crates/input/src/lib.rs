@@ -25,13 +25,23 @@ pub const CONFIG_MAX_BYTES: u64 = 16 * MB;
 /// Largest EDS / DCF file read (bytes): the shipped EDS files are 10 kB; a device with
 /// thousands of objects stays far below the limit (≈ 150 bytes of text per object).
 pub const EDS_MAX_BYTES: u64 = 64 * MB;
-/// Largest `diagnose --data` / `--validate` file (CSV or MCAP log) read (bytes): 10 000 MB,
-/// hours of logs. An ehactl MCAP log of every cycle takes 1.15 MB per second at 5 kHz
-/// (`ehactl run configs/sahu2022_force.toml --duration 10`: 11.5 MB) and 0.23 MB per second
-/// at 1 kHz (`configs/diagnose_testrig.toml`: 2.3 MB), so 2.4 h at 5 kHz, 12 h at 1 kHz; a
-/// CSV of 8 columns of ≈ 12 characters at 5 kHz takes about 0.5 MB per second. Both readers
-/// hold the whole file in memory (the MCAP reader validates its chunks on the whole file).
+/// Largest `diagnose --data` / `--validate` / `predict` file (CSV or MCAP log) read (bytes):
+/// 10 000 MB, hours of logs. An ehactl MCAP log of every cycle takes 1.15 MB per second at
+/// 5 kHz (`ehactl run configs/sahu2022_force.toml --duration 10`: 11.5 MB) and 0.23 MB per
+/// second at 1 kHz (`configs/diagnose_testrig.toml`: 2.3 MB), so 2.4 h at 5 kHz, 12 h at
+/// 1 kHz; a CSV of 8 columns of ≈ 12 characters at 5 kHz takes about 0.5 MB per second.
+/// Both readers stream the file (one line, or one MCAP chunk, at a time) and keep only the
+/// record's columns (8 bytes per number): measured peaks of `ehactl diagnose` reading a file
+/// in full are 0.80 × a CSV's size (458 MB for 574 MB) and 0.35 × an ehactl log's (159 MB
+/// for 458 MB), the Python bindings' `read_mcap` 1.3 × a log's (it keeps every field), so
+/// reading a file at this limit needs at most 13 GB (BENCHMARKS.md, "Memory of the data
+/// readers").
 pub const DATA_MAX_BYTES: u64 = 10_000 * MB;
+/// Largest log `ehactl recover` reads (bytes): recovery holds the whole damaged file and
+/// every message it recovers (it walks the file back and forth to resynchronise after
+/// corrupt bytes), measured 2.6 × the file (1 211 MB for a 458 MB log), so 6 000 MB needs
+/// about 16 GB of the 24 GB machine.
+pub const RECOVER_MAX_BYTES: u64 = 6_000 * MB;
 
 /// What kind of file system object `m` is, for messages.
 fn kind(m: &std::fs::Metadata) -> &'static str {
@@ -90,9 +100,15 @@ fn too_large(len: u64, max_bytes: u64, what: &str) -> String {
     )
 }
 
-/// Read the regular file `path` of at most `max_bytes` bytes; `what` names the kind of file
-/// in messages ("config", "EDS / DCF", "data").
-pub fn read_bounded(path: &Path, max_bytes: u64, what: &str) -> Result<Vec<u8>, InputError> {
+/// Open the regular file `path` of at most `max_bytes` bytes for reading, with the checks of
+/// [`read_bounded`]; returns the file and its length (bytes). For a reader that streams the
+/// file (and so needs no more memory than what it keeps of it) or checks its first bytes
+/// before reading the rest.
+pub fn open_bounded(
+    path: &Path,
+    max_bytes: u64,
+    what: &str,
+) -> Result<(std::fs::File, u64), InputError> {
     let err = |reason: String| InputError {
         path: path.to_path_buf(),
         reason,
@@ -111,7 +127,19 @@ pub fn read_bounded(path: &Path, max_bytes: u64, what: &str) -> Result<Vec<u8>, 
         .map_err(io)?;
     let m = f.metadata().map_err(io)?;
     check_meta(&m, max_bytes, what).map_err(err)?;
-    let mut buf = Vec::with_capacity(m.len() as usize);
+    Ok((f, m.len()))
+}
+
+/// Read the regular file `path` of at most `max_bytes` bytes; `what` names the kind of file
+/// in messages ("config", "EDS / DCF", "data").
+pub fn read_bounded(path: &Path, max_bytes: u64, what: &str) -> Result<Vec<u8>, InputError> {
+    let err = |reason: String| InputError {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let io = |e: std::io::Error| err(format!("cannot read {what} file: {e}"));
+    let (f, len) = open_bounded(path, max_bytes, what)?;
+    let mut buf = Vec::with_capacity(len as usize);
     f.take(max_bytes + 1).read_to_end(&mut buf).map_err(io)?;
     if buf.len() as u64 > max_bytes {
         return Err(err(too_large(buf.len() as u64, max_bytes, what)));

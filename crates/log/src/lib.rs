@@ -9,10 +9,12 @@
 //! - [`schemas`], the JSON schemas of the JSON channels, and
 //! - [`outpath`], where a log may be written (never over an input or a file that is not
 //!   an MCAP log),
-//! - [`recover`], rebuilding a valid MCAP file from a damaged or cut-off log.
+//! - [`recover`], rebuilding a valid MCAP file from a damaged or cut-off log,
+//! - [`mcap_read`], reading an MCAP file as a stream, checked record by record.
 #![deny(missing_docs)]
 
 pub mod logger;
+pub mod mcap_read;
 mod mcap_writer;
 pub mod outpath;
 pub mod record;

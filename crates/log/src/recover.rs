@@ -80,22 +80,29 @@ struct Channel {
 /// A chunk header claiming more is corrupt.
 const MAX_LZ4_RATIO: u64 = 256;
 
-/// Largest decompression ratio accepted for a Zstandard chunk. The format itself allows far
-/// more (a run of zeros), but an MCAP chunk of messages does not reach it; the bound keeps
-/// a corrupt size field from reserving gigabytes before decompression proves it wrong.
-const MAX_ZSTD_RATIO: u64 = 4096;
+/// Largest uncompressed chunk read (bytes): 1 000 MB. A reader holds one chunk at a time
+/// (decompressed, and its records while they are handed on), so this bounds what a chunk
+/// costs whatever its header claims. The MCAP writers cut chunks at a target size (ehactl's
+/// logger at 1 MiB, `CHUNK_LIMIT` in `crates/log/src/logger.rs`; the official Python writer
+/// at 1 MiB, the official Rust writer at 768 KiB by default); only a single larger message
+/// makes a larger chunk. Zstandard has no fixed ratio limit (a
+/// 10 MB string of one repeated character compresses to a few kB), so the declared size is
+/// checked against this limit, not against the stored size.
+pub const MAX_CHUNK_BYTES: u64 = 1_000_000_000;
 
-/// Whether a chunk's claimed uncompressed size is possible for its stored size. The `mcap`
-/// crate (0.24) allocates the claimed size before decompressing, so a corrupt header would
-/// abort the process with an allocation failure (found by tests/rust/fuzz_parsers.rs):
-/// every chunk is checked here first. An unknown compression is not plausible.
+/// Whether a chunk's claimed uncompressed size is possible for its stored size and within
+/// [`MAX_CHUNK_BYTES`]. The `mcap` crate (0.24) allocates the claimed size before
+/// decompressing, so a corrupt header would abort the process with an allocation failure
+/// (found by tests/rust/fuzz_parsers.rs): every chunk is checked here first. An unknown
+/// compression is not plausible.
 pub fn chunk_size_plausible(compression: &str, uncompressed: u64, stored: u64) -> bool {
-    match compression {
-        "" => uncompressed == stored,
-        "lz4" => uncompressed <= stored.saturating_mul(MAX_LZ4_RATIO).saturating_add(4096),
-        "zstd" => uncompressed <= stored.saturating_mul(MAX_ZSTD_RATIO).saturating_add(4096),
-        _ => false,
-    }
+    uncompressed <= MAX_CHUNK_BYTES
+        && match compression {
+            "" => uncompressed == stored,
+            "lz4" => uncompressed <= stored.saturating_mul(MAX_LZ4_RATIO).saturating_add(4096),
+            "zstd" => true,
+            _ => false,
+        }
 }
 
 fn u64_at(b: &[u8], at: usize) -> Option<u64> {
@@ -156,6 +163,18 @@ fn chunk_header(body: &[u8]) -> Result<ChunkHeader<'_>, String> {
 /// has one, and walk its records: every record length must fit and every record must parse.
 /// Returns the records.
 fn read_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, String> {
+    let plain = chunk_plain(body)?;
+    let mut out = Vec::new();
+    chunk_records(&plain, |rec| {
+        out.push(rec.into_owned());
+        Ok(())
+    })?;
+    Ok(out)
+}
+
+/// The records of a chunk body, decompressed (bounded by its declared size, at most
+/// [`MAX_CHUNK_BYTES`]) and CRC-checked when the chunk has a CRC.
+pub(crate) fn chunk_plain(body: &[u8]) -> Result<std::borrow::Cow<'_, [u8]>, String> {
     use std::io::Read;
     let h = chunk_header(body)?;
     let stored = h.records.len() as u64;
@@ -164,37 +183,36 @@ fn read_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, String> {
         "" | "lz4" | "zstd" => {}
         other => {
             return Err(format!(
-                "compression `{other}` is not one the MCAP specification names (none, lz4, zstd); ehactl recover cannot read it"
+                "compression `{other}` is not one the MCAP specification names (none, lz4, zstd); ehactl cannot read it"
             ))
         }
     }
     if !chunk_size_plausible(c, u, stored) {
         return Err(format!(
-            "claims {u} bytes uncompressed from {stored} bytes of `{}`",
+            "claims {u} bytes uncompressed from {stored} bytes of `{}` (at most {MAX_CHUNK_BYTES} bytes are read per chunk)",
             if c.is_empty() { "none" } else { c }
         ));
     }
     let bounded = |r: &mut dyn Read, what: &str| -> Result<Vec<u8>, String> {
-        let mut out = Vec::with_capacity(u as usize);
+        // Reserved up to a few times the stored size only: a false claim costs what
+        // decompression really produces, not what the header says.
+        let mut out = Vec::with_capacity(u.min(stored.saturating_mul(8).max(1 << 16)) as usize);
         r.take(u + 1)
             .read_to_end(&mut out)
             .map_err(|e| format!("{what}: {e}"))?;
         Ok(out)
     };
-    let owned;
-    let plain: &[u8] = match c {
+    let plain = match c {
         "lz4" => {
             let mut dec = lz4::Decoder::new(h.records).map_err(|e| format!("lz4: {e}"))?;
-            owned = bounded(&mut dec, "lz4")?;
-            &owned
+            std::borrow::Cow::Owned(bounded(&mut dec, "lz4")?)
         }
         "zstd" => {
             let mut dec =
                 zstd::stream::read::Decoder::new(h.records).map_err(|e| format!("zstd: {e}"))?;
-            owned = bounded(&mut dec, "zstd")?;
-            &owned
+            std::borrow::Cow::Owned(bounded(&mut dec, "zstd")?)
         }
-        _ => h.records,
+        _ => std::borrow::Cow::Borrowed(h.records),
     };
     if plain.len() as u64 != u {
         return Err(format!(
@@ -202,10 +220,18 @@ fn read_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, String> {
             plain.len()
         ));
     }
-    if h.crc != 0 && crc32fast::hash(plain) != h.crc {
+    if h.crc != 0 && crc32fast::hash(&plain) != h.crc {
         return Err("CRC mismatch".into());
     }
-    let mut out = Vec::new();
+    Ok(plain)
+}
+
+/// Hand every record of a decompressed chunk to `f`, in order: every record length must
+/// fit and every record must parse.
+pub(crate) fn chunk_records<'a>(
+    plain: &'a [u8],
+    mut f: impl FnMut(Record<'a>) -> Result<(), String>,
+) -> Result<(), String> {
     let mut p = 0usize;
     while p < plain.len() {
         let op = plain[p];
@@ -220,10 +246,10 @@ fn read_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, String> {
             })?;
         let rec = parse_record(op, &plain[p + 9..end])
             .map_err(|e| format!("inner record at byte {p} (opcode {op:#04x}): {e}"))?;
-        out.push(rec.into_owned());
+        f(rec)?;
         p = end;
     }
-    Ok(out)
+    Ok(())
 }
 
 /// Walk the top-level records of an MCAP file (opcode, length, body) without parsing
@@ -553,10 +579,29 @@ pub fn recover(input: &Path, output: &Path) -> Result<RecoverReport, String> {
     recover_bytes(&data, output).map_err(|e| format!("{}: {e}", input.display()))
 }
 
+/// The MCAP log of `len` bytes in `file`, read whole (recovery walks it back and forth) once
+/// its first 8 bytes are the MCAP magic: a file that is not an MCAP log costs 8 bytes, not
+/// its size.
+pub fn read_log(mut file: impl std::io::Read, len: u64) -> Result<Vec<u8>, String> {
+    use std::io::Read;
+    let mut data = vec![0u8; 8];
+    if file.read_exact(&mut data).is_err() || data != mcap::MAGIC {
+        return Err(NOT_MCAP.into());
+    }
+    data.reserve_exact(usize::try_from(len).unwrap_or(0).saturating_sub(8));
+    file.take(len - 8)
+        .read_to_end(&mut data)
+        .map_err(|e| format!("cannot read: {e}"))?;
+    Ok(data)
+}
+
+/// The error for a file that does not start with the MCAP magic bytes.
+const NOT_MCAP: &str = "not an MCAP file (it does not start with the MCAP magic bytes)";
+
 /// [`recover`] on bytes already read.
 pub fn recover_bytes(data: &[u8], output: &Path) -> Result<RecoverReport, String> {
     if data.len() < 8 || &data[..8] != mcap::MAGIC {
-        return Err("not an MCAP file (it does not start with the MCAP magic bytes)".into());
+        return Err(NOT_MCAP.into());
     }
     let summary = read_summary(data);
     let mut rep = RecoverReport {
