@@ -1173,7 +1173,7 @@ impl SearchEnv<'_, '_> {
         e: EffectId,
         err: &Errors,
     ) -> Option<String> {
-        let edge = crate::edge::edge_reasons(h, e, self.nom.val_rec.dt);
+        let edge = crate::edge::edge_reasons(h, e, self.nom.val_rec.dt, crate::edge::BOUND_SHARE);
         let wj = |x: &Errors| weighted_j(x, self.nom, self.floor_ch());
         (!edge.is_empty() && crate::edge::gain_within_floor(cur, err, self.rf.noise_floor, &wj))
             .then(|| {
@@ -1450,7 +1450,8 @@ fn accept(
 ) {
     let jn = env.jn();
     let dt = env.nom.val_rec.dt;
-    let edge_of = |p: &Passing| crate::edge::edge_reasons(&p.2, p.0, dt);
+    let edge_of =
+        |p: &Passing| crate::edge::edge_reasons(&p.2, p.0, dt, crate::edge::NAMED_BOUND_SHARE);
     // A winner at the edge of its range has no precedence over a candidate that passed inside
     // its own: the best of those is named instead (DIAGNOSIS.md step 7, "An edge fit is not a
     // cause").
@@ -1664,7 +1665,7 @@ fn closest_fit(
 ) -> Option<crate::edge::Closest> {
     let e = *search.accepted.first()?;
     let h = &search.current;
-    let edge = crate::edge::edge_reasons(h, e, nom.val_rec.dt);
+    let edge = crate::edge::edge_reasons(h, e, nom.val_rec.dt, crate::edge::NAMED_BOUND_SHARE);
     let far = crate::edge::far_channels(ext_err, &floors_by_column(nom, rf));
     if edge.is_empty() && far.is_empty() {
         return None;
