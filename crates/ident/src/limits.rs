@@ -43,7 +43,8 @@ pub struct DetectionLimit {
     pub limit: Option<f64>,
     /// The catalogue range searched [weakest, strongest].
     pub range: [f64; 2],
-    /// `not detectable with this record`, `not testable on this record`, or empty.
+    /// `not detectable with this record`, `not testable on this record`, `in the nominal
+    /// config already`, or empty.
     pub note: String,
     /// Position of the limit on the log scale from the weakest (0) to the strongest (1) end
     /// of the range; 1 when not detectable (-). The loosest limits have the largest.
@@ -297,6 +298,19 @@ pub(crate) fn detection_limits(
         .collect()
 }
 
+/// The start value of an effect's parameter for a limit: its start value, except a zero
+/// offset of a dead band and the cosine part of a tone, which are 0 so that the effect
+/// vanishes with its size (a dead band of zero width with the analysis' offset still shifts
+/// the spool: on the MTS record it was "detected" at the smallest overlap searched).
+fn neutral_start(p: &crate::freeparam::FreeParam) -> f64 {
+    let neutral = p.name.ends_with(".zero_offset") || p.name.contains(".cosine_amplitudes[");
+    if neutral && p.lo <= 0.0 && p.hi >= 0.0 {
+        0.0
+    } else {
+        p.init
+    }
+}
+
 /// The detection limit of effect `e` against `reference`.
 fn limit_of(
     reference: &Reference<'_, '_>,
@@ -324,6 +338,12 @@ fn limit_of(
         note: "not testable on this record".to_string(),
         looseness: 1.0,
     };
+    if nominal.effects.is_enabled(e) {
+        // A configured effect's size is the config's (or the identified loop's): what it
+        // would take to reveal it on top of itself is no limit.
+        out.note = "in the nominal config already".to_string();
+        return out;
+    }
     if i == usize::MAX {
         return out;
     }
@@ -339,7 +359,7 @@ fn limit_of(
     let first = h.params.len();
     h.effects.push(e);
     h.variants.push("-");
-    h.values.extend(params.iter().map(|q| q.init));
+    h.values.extend(params.iter().map(neutral_start));
     h.params.extend(params);
     let at = |s: f64| weak * (strong / weak).powf(s);
     let mut detected = |s: f64| {
@@ -374,7 +394,7 @@ fn limit_of(
 pub fn loosest(limits: &BTreeMap<String, DetectionLimit>, n: usize) -> Vec<String> {
     let mut v: Vec<(&String, &DetectionLimit)> = limits
         .iter()
-        .filter(|(_, l)| l.note != "not testable on this record")
+        .filter(|(_, l)| l.limit.is_some() || l.note == "not detectable with this record")
         .collect();
     v.sort_by(|a, b| b.1.looseness.total_cmp(&a.1.looseness));
     v.into_iter().take(n).map(|(e, l)| l.text(e)).collect()
