@@ -1286,12 +1286,13 @@ fn judge_round(
             .significant
             .then(|| env.edge_within_floor(&s.cur_err, &h, e, &err))
             .flatten();
+        // The verdict of the acceptance test itself, then why it is overruled.
+        let verdict = verdict(env, s, &jd, &err) + edge_note.as_deref().unwrap_or("");
         if edge_note.is_some() {
             jd.significant = false;
         }
         if round == 0 || !s.found.candidates.contains_key(&e) {
             let n_new = h.params.len() - first_new;
-            let verdict = verdict(env, s, &jd, &err) + edge_note.as_deref().unwrap_or("");
             s.found.candidates.insert(
                 e,
                 Candidate {
@@ -1773,7 +1774,7 @@ fn phase_greybox(
         // floor: neither explains the record).
         (
             format!(
-                "`{}` is only the closest catalogue effect ({}), and the law lowers the held-out J by at least {:.0} %",
+                "`{}` is weak evidence, only the closest catalogue effect ({}), and the law lowers the held-out J by at least {:.0} %",
                 c.effect,
                 c.reasons.join("; "),
                 100.0 * (1.0 - WEAK_LAW_J_SHARE)

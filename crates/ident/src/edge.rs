@@ -9,10 +9,13 @@ use ehactl_plant::EffectId;
 use serde::Serialize;
 
 /// A channel whose held-out residual is more than this many times its noise floor is far
-/// above it (-): the level above which the final test never calls a residual noise, whatever
-/// its colour ([`crate::residual::LEVEL_HARD`]). An effect that leaves such a channel does not
-/// explain the record.
-pub const FAR_LEVEL: f64 = crate::residual::LEVEL_HARD;
+/// above it (-): twice the level above which the final test never calls a residual noise
+/// ([`crate::residual::LEVEL_HARD`]). Lumped fits of real lines leave up to 15× on the low-noise
+/// position channel (test bench seed 1007 of `tests/hidden_effects.rs`, independent generator
+/// seeds 7035 and 7057 at 14×), and the line explains those records; a soft spool limit the
+/// catalogue's hard one cannot follow leaves 33× and more (independent seeds 7004, 7026), and
+/// an outside check's dead band plus β(p) answered `external_leakage` left the force at 35×.
+pub const FAR_LEVEL: f64 = 2.0 * crate::residual::LEVEL_HARD;
 
 /// Share of a parameter's normalised range (`FreeParam::to_unit`) within which a fitted value
 /// counts as on its bound for a candidate whose gain is within the noise floor (-): the
@@ -247,19 +250,18 @@ mod tests {
     #[test]
     fn far_channels_and_gain_within_floor() {
         let floors = [("x".to_string(), 0.001), ("force".to_string(), 0.01)];
-        // Overall floor √((1e-6 + 1e-4)/2) = 0.00711; overall NRMSE √((2.25e-4 + 4.84e-4)/2)
-        // = 0.0188, 2.65× it: x at 15× is far, the force at 2.2× is not.
-        let e = errors(&[("x", 0.015), ("force", 0.022)]);
+        // Overall floor √((1e-6 + 1e-4)/2) = 0.00711; overall NRMSE √((6.25e-4 + 4.84e-4)/2)
+        // = 0.0235, 3.3× it: x at 25× is far, the force at 2.2× is not.
+        let e = errors(&[("x", 0.025), ("force", 0.022)]);
         let far = far_channels(&e, &floors);
         assert_eq!(far.len(), 1, "{far:?}");
-        assert!(far[0].contains("`x` at 15×"), "{far:?}");
+        assert!(far[0].contains("`x` at 25×"), "{far:?}");
+        // x at 18×: √((3.24e-4 + 4.84e-4)/2) = 0.0201, 2.8× overall, but x within 20×.
+        assert!(far_channels(&errors(&[("x", 0.018), ("force", 0.022)]), &floors).is_empty());
         // x at 30× with the force at its floor: overall √((9e-4 + 1e-4)/2) = 0.0224, 3.1× → far;
-        // x at 12×: √((1.44e-4 + 1e-4)/2) = 0.0110, 1.55× → not far.
-        assert_eq!(
-            far_channels(&errors(&[("x", 0.03), ("force", 0.01)]), &floors).len(),
-            1
-        );
-        assert!(far_channels(&errors(&[("x", 0.012), ("force", 0.01)]), &floors).is_empty());
+        // x at 21× : √((4.41e-4 + 1e-4)/2) = 0.0164, 2.3× → not far.
+        assert_eq!(far_channels(&errors(&[("x", 0.03), ("force", 0.01)]), &floors).len(), 1);
+        assert!(far_channels(&errors(&[("x", 0.021), ("force", 0.01)]), &floors).is_empty());
         // Weighted J: mean of (e/f)² over channels.
         let wj = |e: &Errors| {
             floors
