@@ -260,7 +260,10 @@ mod tests {
         assert!(far_channels(&errors(&[("x", 0.018), ("force", 0.022)]), &floors).is_empty());
         // x at 30× with the force at its floor: overall √((9e-4 + 1e-4)/2) = 0.0224, 3.1× → far;
         // x at 21× : √((4.41e-4 + 1e-4)/2) = 0.0164, 2.3× → not far.
-        assert_eq!(far_channels(&errors(&[("x", 0.03), ("force", 0.01)]), &floors).len(), 1);
+        assert_eq!(
+            far_channels(&errors(&[("x", 0.03), ("force", 0.01)]), &floors).len(),
+            1
+        );
         assert!(far_channels(&errors(&[("x", 0.021), ("force", 0.01)]), &floors).is_empty());
         // Weighted J: mean of (e/f)² over channels.
         let wj = |e: &Errors| {
