@@ -16,8 +16,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 /// A model whose held-out NRMSE is below this factor × the estimated noise floor on every
-/// channel is not extended further (-).
-pub const FLOOR_FACTOR: f64 = 1.2;
+/// channel is not extended further (-); the detection limits judge with the same.
+pub const FLOOR_FACTOR: f64 = crate::limits::FLOOR_FACTOR;
 
 /// The configured-step shortcut accepts the model as configured only while every channel's
 /// held-out residual is white and at most this many times its noise floor (-). The floor is

@@ -23,6 +23,10 @@ use std::collections::BTreeMap;
 /// factor 10^(4/64) ≈ 1.15.
 pub const BISECTION_STEPS: usize = 6;
 
+/// A model within this factor × the noise floor on every channel is not extended (-): the
+/// decision's own `FLOOR_FACTOR` (`crate::diagnose` takes it from here).
+pub const FLOOR_FACTOR: f64 = 1.2;
+
 /// Lower end of the search for a parameter whose range starts at 0, as a share of its upper
 /// bound (-): a log scale needs a positive start.
 const ZERO_START: f64 = 1e-4;
@@ -247,15 +251,14 @@ fn residual_of_projection(d: &[f64], cols: &[Vec<f64>]) -> Vec<f64> {
         .collect()
 }
 
-/// The acceptance test of step 7 (`diagnose::judge`, round 0) at its expected values, for a
-/// record whose model without the effect leaves, per channel, the floor plus `m`·floor² (the
-/// effect's change over the floor, squared) and whose model with the effect leaves the floor
-/// (`floor`, NRMSE units): not every channel within 1.2× its floor, and on the channel-mean
+/// The acceptance test of step 7 (round 0) at its expected values, for a record whose model
+/// without the effect leaves, per channel, the floor plus `m`·floor² (the effect's change over
+/// the floor, squared) and whose model with the effect leaves the floor (`floor`, NRMSE
+/// units): not every channel within [`FLOOR_FACTOR`] × its floor, and on the channel-mean
 /// J or on the floor-weighted J the fall by ≥ 10 %, a lower score with `n_new` parameters more
 /// (and at least half of the weighted excess explained, which a perfect fit always does).
 pub(crate) fn passes(m: &[f64], floor: &[f64], n_new: usize) -> bool {
-    let ff = crate::diagnose::FLOOR_FACTOR;
-    if m.iter().all(|x| (1.0 + x).sqrt() < ff) {
+    if m.iter().all(|x| (1.0 + x).sqrt() < FLOOR_FACTOR) {
         return false;
     }
     let k = m.len().max(1) as f64;
