@@ -332,12 +332,17 @@ pub fn diagnose(
     );
     let limits = if opts.detection_limits {
         bar.add_stage(1, "detection limits".to_string());
+        let not_named: Vec<EffectId> = opts
+            .effects
+            .iter()
+            .copied()
+            .filter(|e| !search.accepted.contains(e))
+            .collect();
         let l = crate::limits::detection_limits(
             &nom.ctx,
             &grey.final_hyp,
             &refit.floor_ch,
-            &opts.effects,
-            &search.accepted,
+            &not_named,
             nominal,
             &refit.scales,
             &refit.analysis_refit,

@@ -230,9 +230,11 @@ fn residual_of_projection(d: &[f64], cols: &[Vec<f64>]) -> Vec<f64> {
             continue;
         }
         for r in (c + 1)..k {
-            let f = a[r][c] / a[c][c];
-            for j in c..=k {
-                a[r][j] -= f * a[c][j];
+            let (top, bottom) = a.split_at_mut(r);
+            let (pivot, row) = (&top[c], &mut bottom[0]);
+            let f = row[c] / pivot[c];
+            for (x, p) in row[c..].iter_mut().zip(&pivot[c..]) {
+                *x -= f * p;
             }
         }
     }
@@ -275,15 +277,15 @@ pub(crate) fn passes(m: &[f64], floor: &[f64], n_new: usize) -> bool {
     explains(j_with, j_cur) || explains(1.0, jw_cur)
 }
 
-/// The limits of every effect of `effects` that is not in `named`, against the final model
-/// `model` (floors per channel `floor`); `scales` and `an` give each effect's parameters as
-/// the search fitted them (first variant, start values).
+/// The limits of every effect of `effects` (the caller leaves out those it named) that is not
+/// in the final model `model` either, against that model (floors per channel `floor`);
+/// `scales` and `an` give each effect's parameters as the search fitted them (first variant,
+/// start values).
 pub(crate) fn detection_limits(
     ctx: &Ctx<'_>,
     model: &Hyp,
     floor: &[f64],
     effects: &[EffectId],
-    named: &[EffectId],
     nominal: &PlantParams,
     scales: &Scales,
     an: &Analysis,
@@ -291,7 +293,7 @@ pub(crate) fn detection_limits(
     let reference = Reference::new(ctx, model, floor);
     effects
         .iter()
-        .filter(|e| !named.contains(e) && !model.effects.contains(e))
+        .filter(|e| !model.effects.contains(e))
         .map(|&e| {
             (
                 e.as_str().to_string(),
