@@ -99,6 +99,7 @@ pub fn cmd_diagnose(
                 String::new()
             }
         );
+        println!("  status        {}", d.status);
         println!("  held-out NRMSE nominal {:.4} → refit {:.4} → extended {:.4} (gain {:.1} %, noise floor {:.4})", d.nrmse_nominal.overall, d.nrmse_refit.overall, d.nrmse_extended.overall, d.gain * 100.0, d.noise_floor);
         println!(
             "  ARX baseline held-out NRMSE {:.4} (same split)",

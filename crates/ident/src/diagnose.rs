@@ -16,8 +16,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 /// A model whose held-out NRMSE is below this factor × the estimated noise floor on every
-/// channel is not extended further (-).
-pub const FLOOR_FACTOR: f64 = 1.2;
+/// channel is not extended further (-); the detection limits judge with the same.
+pub const FLOOR_FACTOR: f64 = crate::limits::FLOOR_FACTOR;
 
 /// The configured-step shortcut accepts the model as configured only while every channel's
 /// held-out residual is white and at most this many times its noise floor (-). The floor is
@@ -120,6 +120,9 @@ pub struct Options {
     /// held-out residual of the catalogue model is not noise). Off in the library default
     /// (the synthetic suites measure the catalogue); on in `ehactl diagnose` and Python.
     pub greybox: bool,
+    /// State the detection limit of every catalogue effect not named ([`crate::limits`]):
+    /// about 100 replays of the held-out record more. On by default.
+    pub detection_limits: bool,
 }
 
 impl Default for Options {
@@ -137,6 +140,7 @@ impl Default for Options {
             integration_max_cost: crate::replay::DEFAULT_INTEGRATION_COST,
             integration_min_cost: 1.0,
             greybox: false,
+            detection_limits: true,
         }
     }
 }
@@ -170,6 +174,19 @@ pub struct Diagnosis {
     /// does (its first term with value and unit, e.g. `load-side yield force 576 N (…)`), or
     /// `unexplained` (the residual is not noise and nothing explains it).
     pub cause: String,
+    /// How far the answer goes: `none` (the residual is noise), `explained` (a catalogue
+    /// effect or the grey-box law is the cause), `edge_fit` (the closest catalogue effect's fit
+    /// sits on a bound of its range or outside what the record can show: `closest`, and the
+    /// cause is `unexplained`), `not_explained` (the closest catalogue effect leaves a channel
+    /// far above its noise floor: likewise) or `unexplained`.
+    pub status: String,
+    /// The closest catalogue effect when it is not the cause (`status` `edge_fit` or
+    /// `not_explained`, or replaced by the grey-box law), with the reasons; `None` otherwise.
+    pub closest: Option<crate::edge::Closest>,
+    /// For every catalogue effect tested and not named: the smallest size of it this record
+    /// would have revealed, in its own parameter and unit (`crate::limits`; effect id →
+    /// limit). Empty when `Options::detection_limits` is off.
+    pub detection_limits: BTreeMap<String, crate::limits::DetectionLimit>,
     /// Accepted effect ids, the one that explains most of the held-out error on the final model
     /// first (each removed in turn and the rest refit, `crate::weigh`); `cause` is the first.
     pub causes: Vec<String>,
@@ -304,10 +321,40 @@ pub fn diagnose(
     };
     let mut search = search;
     let mut resid = phase_residual_test(&nom, &refit, &search);
-    let grey = phase_greybox(&nom, &refit, &mut search, &mut resid, opts);
+    let closest = closest_fit(&nom, &refit, &search, &resid.ext_err);
+    let grey = phase_greybox(
+        &nom,
+        &refit,
+        &mut search,
+        &mut resid,
+        opts,
+        closest.as_ref(),
+    );
+    let limits = if opts.detection_limits {
+        bar.add_stage(1, "detection limits".to_string());
+        let not_named: Vec<EffectId> = opts
+            .effects
+            .iter()
+            .copied()
+            .filter(|e| !search.accepted.contains(e))
+            .collect();
+        let l = crate::limits::detection_limits(
+            &nom.ctx,
+            &grey.final_hyp,
+            &refit.floor_ch,
+            &not_named,
+            nominal,
+            &refit.scales,
+            &refit.analysis_refit,
+        );
+        bar.inc();
+        l
+    } else {
+        BTreeMap::new()
+    };
     let loop_h = identified_loop.as_ref().map(|l| &l.1);
     let (mut d, reidentified) = phase_report(
-        nom, refit, search, resid, grey, nominal, rec, val, opts, loop_h,
+        nom, refit, search, resid, grey, closest, nominal, rec, val, opts, loop_h,
     );
     let identified_loop = match (reidentified, identified_loop, opts.drive) {
         (Some((h, before, after)), Some(_), Drive::PositionPd(g)) => Some(crate::loopid::describe(
@@ -321,6 +368,14 @@ pub fn diagnose(
         )),
         (_, l, _) => l.map(|l| l.0),
     };
+    if d.cause == "none" && !limits.is_empty() {
+        d.summary = format!(
+            "{} No effect above these detection limits (smallest size this record would have revealed; the loosest: {}).",
+            d.summary,
+            crate::limits::loosest(&limits, 3).join("; ")
+        );
+    }
+    d.detection_limits = limits;
     // The extended config states the config's own uncertainty (the loop's was spent here).
     d.extended.uncertainty = config_nominal.uncertainty.clone();
     if let Some(l) = &identified_loop {
@@ -1110,6 +1165,30 @@ impl SearchEnv<'_, '_> {
             .unwrap_or_default()
     }
 
+    /// Why candidate `h` (effect `e`, held-out errors `err`) is not accepted against a current
+    /// model with held-out errors `cur`: its fit is at the edge of its range or of the record
+    /// ([`crate::edge::edge_reasons`]) and its gain is within the noise floor
+    /// ([`crate::edge::gain_within_floor`]); `None` when it may be. A clean record's refit
+    /// 1.1× its floor must not gain a delay of 2e-5 s on the lower bound of its range for a
+    /// 5 % lower held-out NRMSE.
+    fn edge_within_floor(
+        &self,
+        cur: &Errors,
+        h: &Hyp,
+        e: EffectId,
+        err: &Errors,
+    ) -> Option<String> {
+        let edge = crate::edge::edge_reasons(h, e, self.nom.val_rec.dt, crate::edge::BOUND_SHARE);
+        let wj = |x: &Errors| weighted_j(x, self.nom, self.floor_ch());
+        (!edge.is_empty() && crate::edge::gain_within_floor(cur, err, self.rf.noise_floor, &wj))
+            .then(|| {
+                format!(
+                    " — not accepted: its fit is at the edge of its range ({}) and its gain is within the noise floor",
+                    edge.join("; ")
+                )
+            })
+    }
+
     /// [`judge`] of candidate `cand` against the search's current model.
     fn judge(
         &self,
@@ -1207,10 +1286,18 @@ fn judge_round(
             }
             continue;
         };
-        let jd = env.judge(s, round, near_floor, (e, &err, ctrain, h.params.len()));
+        let mut jd = env.judge(s, round, near_floor, (e, &err, ctrain, h.params.len()));
+        let edge_note = jd
+            .significant
+            .then(|| env.edge_within_floor(&s.cur_err, &h, e, &err))
+            .flatten();
+        // The verdict of the acceptance test itself, then why it is overruled.
+        let verdict = verdict(env, s, &jd, &err) + edge_note.as_deref().unwrap_or("");
+        if edge_note.is_some() {
+            jd.significant = false;
+        }
         if round == 0 || !s.found.candidates.contains_key(&e) {
             let n_new = h.params.len() - first_new;
-            let verdict = verdict(env, s, &jd, &err);
             s.found.candidates.insert(
                 e,
                 Candidate {
@@ -1368,14 +1455,49 @@ fn accept(
     first_new: usize,
 ) {
     let jn = env.jn();
-    // A weak winner is compared with the runner-up on the evidence that tells them apart.
+    let dt = env.nom.val_rec.dt;
+    let edge_of =
+        |p: &Passing| crate::edge::edge_reasons(&p.2, p.0, dt, crate::edge::NAMED_BOUND_SHARE);
+    // A winner at the edge of its range has no precedence over a candidate that passed inside
+    // its own: the best of those is named instead (DIAGNOSIS.md step 7, "An edge fit is not a
+    // cause").
     let mut looked: Option<EffectId> = None;
+    let best_edge = edge_of(&best);
+    if !best_edge.is_empty() {
+        if let Some(alt) = passing
+            .iter()
+            .find(|p| p.0 != best.0 && edge_of(p).is_empty())
+        {
+            s.found.ambiguities.push(format!(
+                "`{}` fits best by held-out score (NRMSE {:.4}) but at the edge of its range ({}); `{}` (NRMSE {:.4}) passed the acceptance test inside its own range, so it is named. To separate them: {}",
+                best.0.as_str(),
+                best.4.overall,
+                best_edge.join("; "),
+                alt.0.as_str(),
+                alt.4.overall,
+                crate::weigh::separating_experiment(best.0, alt.0)
+            ));
+            looked = Some(best.0);
+            best = alt.clone();
+        }
+    }
+    // A weak winner is compared with the runner-up on the evidence that tells them apart (a
+    // runner-up at the edge of its range is not named for it).
     if let Some((note, runner, prefer)) =
         weak_winner(env.nom, env.floor_ch(), &best, tried, first_new)
     {
-        s.found.ambiguities.push(note);
         looked = Some(runner.0);
-        if prefer {
+        let runner_edge = edge_of(&runner);
+        if prefer && !runner_edge.is_empty() {
+            s.found.ambiguities.push(format!(
+                "{note} (`{}` is not named after all: its fit is at the edge of its range, {})",
+                runner.0.as_str(),
+                runner_edge.join("; ")
+            ));
+        } else {
+            s.found.ambiguities.push(note);
+        }
+        if prefer && runner_edge.is_empty() {
             looked = Some(best.0);
             best = runner;
         }
@@ -1527,6 +1649,48 @@ fn phase_residual_test(
     }
 }
 
+/// The refit's noise floor per channel, by column.
+fn floors_by_column(nom: &NominalPhase<'_>, rf: &RefitPhase) -> Vec<(String, f64)> {
+    nom.val_rec
+        .channels
+        .iter()
+        .zip(&rf.floor_ch)
+        .map(|(c, f)| (c.kind.column().to_string(), *f))
+        .collect()
+}
+
+/// The search's first named cause when it does not explain the record: its fit in the final
+/// model is at the edge of its range or of the record ([`crate::edge::edge_reasons`]), or the
+/// final model (held-out errors `ext_err`) leaves a channel far above its floor
+/// ([`crate::edge::far_channels`]). `None` when nothing was accepted or the cause stands.
+fn closest_fit(
+    nom: &NominalPhase<'_>,
+    rf: &RefitPhase,
+    search: &SearchPhase,
+    ext_err: &Errors,
+) -> Option<crate::edge::Closest> {
+    let e = *search.accepted.first()?;
+    let h = &search.current;
+    let edge = crate::edge::edge_reasons(h, e, nom.val_rec.dt, crate::edge::NAMED_BOUND_SHARE);
+    let far = crate::edge::far_channels(ext_err, &floors_by_column(nom, rf));
+    if edge.is_empty() && far.is_empty() {
+        return None;
+    }
+    let variant = h
+        .effects
+        .iter()
+        .zip(&h.variants)
+        .find(|(x, _)| **x == e)
+        .map_or("-", |(_, v)| *v);
+    Some(crate::edge::Closest {
+        effect: e.as_str().to_string(),
+        variant: variant.to_string(),
+        at_edge: !edge.is_empty(),
+        reasons: edge.into_iter().chain(far).collect(),
+        nrmse_validation: ext_err.overall,
+    })
+}
+
 /// Catalogue effects dropped for a grey-box law: they predicted the held-out part worse than
 /// the ARX baseline, and the law alone (on the nominal refit) predicted it better than the
 /// catalogue model with or without a law on top.
@@ -1575,6 +1739,7 @@ fn phase_greybox(
     search: &mut SearchPhase,
     resid: &mut ResidualPhase,
     opts: &Options,
+    closest: Option<&crate::edge::Closest>,
 ) -> GreyPhase {
     let mut out = GreyPhase {
         final_hyp: search.current.clone(),
@@ -1607,6 +1772,20 @@ fn phase_greybox(
     // explains 40 % of the error (0.458) is kept against a flow-gain asymmetry law (0.445).
     let (why, j_share) = if catalogue > arx {
         (format!("the catalogue model predicts the held-out part worse than the ARX baseline (NRMSE {catalogue:.4} vs {arx:.4})"), 1.0)
+    } else if let Some(c) = closest {
+        // On the footing of a catalogue candidate: the law must lower the held-out J by the
+        // ≥ 10 % a candidate must (Sjöberg: a flow-gain asymmetry law 0.445 against the
+        // closest effect, an asymmetric spool limit at 0.458, both leaving p_a at 15× its
+        // floor: neither explains the record).
+        (
+            format!(
+                "`{}` is weak evidence, only the closest catalogue effect ({}), and the law lowers the held-out J by at least {:.0} %",
+                c.effect,
+                c.reasons.join("; "),
+                100.0 * (1.0 - WEAK_LAW_J_SHARE)
+            ),
+            WEAK_LAW_J_SHARE,
+        )
     } else if !weak.is_empty() {
         (
             format!(
@@ -1684,6 +1863,7 @@ fn phase_report(
     mut search: SearchPhase,
     resid: ResidualPhase,
     grey: GreyPhase,
+    closest: Option<crate::edge::Closest>,
     nominal: &PlantParams,
     rec: &Record,
     val: Option<&Record>,
@@ -1710,6 +1890,14 @@ fn phase_report(
         final_hyp,
         dropped,
     } = settle_cause(&nom, cause, grey, &ext_err, &search.accepted, loop_h, opts);
+    let cause = edge_cause(
+        cause,
+        closest.as_ref(),
+        dropped.is_some(),
+        greybox.as_ref(),
+        &floors_by_column(&nom, &rf),
+    );
+    let status = status_of(&cause, closest.as_ref(), dropped.is_some());
     let law_accepted = greybox.as_ref().is_some_and(|g| g.accepted);
     let (extended, ext_fit_sim, ext_val_sim) = if law_accepted {
         final_models(ctx, nominal, &final_hyp)
@@ -1733,6 +1921,7 @@ fn phase_report(
         beaten_by_baseline,
         &extended_at_bounds,
     );
+    let summary = edge_summary(summary, closest.as_ref(), status, dropped.is_some());
     let warnings = record_warnings(rec, val, &nom);
     let traces = Traces {
         nominal: Some(nom.nom_sim),
@@ -1743,6 +1932,9 @@ fn phase_report(
     (
         Diagnosis {
             cause,
+            status: status.to_string(),
+            closest,
+            detection_limits: BTreeMap::new(),
             causes: ids(&search.accepted),
             variants: variants_of(&search.current),
             nrmse_nominal: nom.nom_err,
@@ -2101,6 +2293,88 @@ fn settle_cause(
         beaten_by_baseline,
         final_hyp,
         dropped,
+    }
+}
+
+/// The cause once the closest catalogue effect (`closest`, [`closest_fit`]) is known not to
+/// explain the record: while it is still the cause (no grey-box law replaced it, `dropped`
+/// false), the accepted grey-box law on top of it is the cause when that leaves no channel
+/// far above its floor (`floors`), else the answer is `unexplained`.
+fn edge_cause(
+    cause: String,
+    closest: Option<&crate::edge::Closest>,
+    dropped: bool,
+    greybox: Option<&crate::greybox::GreyBox>,
+    floors: &[(String, f64)],
+) -> String {
+    match closest {
+        Some(c) if !dropped && cause == c.effect => greybox
+            .filter(|g| {
+                g.accepted && crate::edge::far_channels(&g.nrmse_validation, floors).is_empty()
+            })
+            .and_then(|g| g.cause())
+            .unwrap_or_else(|| "unexplained".to_string()),
+        _ => cause,
+    }
+}
+
+/// The diagnosis' status (see [`Diagnosis::status`]) for `cause`.
+fn status_of(cause: &str, closest: Option<&crate::edge::Closest>, dropped: bool) -> &'static str {
+    match (cause, closest) {
+        ("none", _) => "none",
+        ("unexplained", Some(c)) if !dropped => {
+            if c.at_edge {
+                "edge_fit"
+            } else {
+                "not_explained"
+            }
+        }
+        ("unexplained", _) => "unexplained",
+        _ => "explained",
+    }
+}
+
+/// The summary opened by what the closest catalogue effect (`closest`) does not explain, for
+/// `status` `edge_fit` / `not_explained`, or beside the grey-box law that explains the rest
+/// (`explained`, not `dropped`: the dropped effects have their own sentence).
+fn edge_summary(
+    summary: String,
+    closest: Option<&crate::edge::Closest>,
+    status: &str,
+    dropped: bool,
+) -> String {
+    let Some(c) = closest else {
+        return summary;
+    };
+    let what = format!(
+        "`{}`{}{}",
+        c.effect,
+        if c.variant == "-" {
+            String::new()
+        } else {
+            format!(" (variant `{}`)", c.variant)
+        },
+        if c.at_edge {
+            " at the edge of its range"
+        } else {
+            ""
+        }
+    );
+    match status {
+        "edge_fit" | "not_explained" => format!(
+            "The record is not explained: the closest catalogue effect is {what} ({}), and it is not named as the cause. {}",
+            c.reasons.join("; "),
+            summary.replacen(
+                "The simulation disagrees with the data mainly because of",
+                "The closest catalogue model adds",
+                1
+            )
+        ),
+        "explained" if !dropped => format!(
+            "The closest catalogue effect {what} does not explain the record alone ({}); the grey-box law on top of it does. {summary}",
+            c.reasons.join("; ")
+        ),
+        _ => summary,
     }
 }
 

@@ -8,7 +8,7 @@
 //!
 //! Modules: [`baseline`] (linear ARX reference model), [`data`] (CSV / MCAP loading and checks), [`replay`] (open-loop replay, NRMSE,
 //! noise level), [`spectrum`] (Welch PSD, H1 frequency response), [`analysis`] (residual analysis), [`evidence`] (its findings and shared evidence rules), [`fit`] (nominal refit, bounded
-//! Nelder–Mead), [`freeparam`] (a fit's free parameters and rig scales), [`effects`] (one module per catalogue effect: its fit parameters, variants and evidence score), [`ctx`] (the replay context and the hypotheses fitted in it), [`mod@diagnose`] (the decision), `weigh` (a weak round winner against the runner-up, the order of the accepted causes), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
+//! Nelder–Mead), [`freeparam`] (a fit's free parameters and rig scales), [`effects`] (one module per catalogue effect: its fit parameters, variants and evidence score), [`ctx`] (the replay context and the hypotheses fitted in it), [`mod@diagnose`] (the decision), [`edge`] (a fit at the edge of its range is not a cause), [`limits`] (detection limits of the effects not named), `weigh` (a weak round winner against the runner-up, the order of the accepted causes), [`greybox`] (rod-force law from a term library when the catalogue is exhausted), [`report`] (JSON, extended config, Markdown),
 //! [`session`] (one complete diagnosis as the CLI and Python run it), [`progress`] (progress
 //! reports through the caller's callback; the library draws nothing).
 //!
@@ -25,12 +25,14 @@ pub mod campaign_run;
 pub mod ctx;
 pub mod data;
 pub mod diagnose;
+pub mod edge;
 pub mod effects;
 pub mod envelope;
 pub mod evidence;
 pub mod fit;
 pub mod freeparam;
 pub mod greybox;
+pub mod limits;
 pub mod loopid;
 pub mod motion;
 pub mod outdir;

@@ -237,13 +237,22 @@ pub fn headline(d: &Diagnosis) -> String {
             )
         })
         .collect();
+    let opening = match (&d.closest, d.status.as_str()) {
+        (Some(c), "edge_fit" | "not_explained") => format!(
+            "Closest catalogue effect: {}{} ({}); the record is not explained. Recommended model (extended.toml)",
+            c.effect,
+            if c.at_edge { " at the edge of its range" } else { "" },
+            c.reasons.join("; ")
+        ),
+        _ if d.cause == "none" && !d.detection_limits.is_empty() => format!(
+            "No discrepancy beyond noise, no effect above these detection limits (the loosest: {})",
+            crate::limits::loosest(&d.detection_limits, 3).join("; ")
+        ),
+        _ if d.cause == "none" => "No discrepancy beyond noise".to_string(),
+        _ => "Recommended model (extended.toml)".to_string(),
+    };
     format!(
-        "{}: {model}: held-out NRMSE {:.4} vs nominal {:.4} and ARX {:.4}; per channel: {}",
-        if d.cause == "none" {
-            "No discrepancy beyond noise"
-        } else {
-            "Recommended model (extended.toml)"
-        },
+        "{opening}: {model}: held-out NRMSE {:.4} vs nominal {:.4} and ARX {:.4}; per channel: {}",
         e.overall,
         d.nrmse_nominal.overall,
         d.nrmse_baseline.overall,
@@ -319,8 +328,9 @@ fn report_text(
     let _ = writeln!(r, "Nominal config: `{config_path}`. {}.\n", d.split);
     let _ = writeln!(
         r,
-        "## Conclusion\n\n**Cause: `{}`**{}\n",
+        "## Conclusion\n\n**Cause: `{}`** (status `{}`){}\n",
         d.cause,
+        d.status,
         if d.causes.len() > 1 {
             format!(" (accepted in order: {})", d.causes.join(", "))
         } else {
@@ -361,6 +371,7 @@ fn report_text(
     write_fit_notes(&mut r, d);
     write_residual_analysis(&mut r, d);
     write_hypothesis_tests(&mut r, d);
+    write_detection_limits(&mut r, d);
     write_closing(&mut r, d, warnings, plots);
     r
 }
@@ -507,6 +518,34 @@ fn write_hypothesis_tests(r: &mut String, d: &Diagnosis) {
                 .collect::<Vec<_>>()
                 .join("<br>"),
             c.evidence.replace('|', "/")
+        );
+    }
+}
+
+/// The table of detection limits (every catalogue effect tested and not named).
+fn write_detection_limits(r: &mut String, d: &Diagnosis) {
+    if d.detection_limits.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        r,
+        "\n## Detection limits (the smallest size of each effect not named that this record would have revealed)\n\nThe effect injected into the final model's held-out replay, the part the nominal refit absorbs projected out, judged by the acceptance test at the noise floor (DIAGNOSIS.md \"Detection limits\").\n\n| effect | parameter | limit | unit | range searched (weakest → strongest) |\n|---|---|---|---|---|"
+    );
+    for (e, l) in &d.detection_limits {
+        let _ = writeln!(
+            r,
+            "| `{e}` | `{}` | {} | {} | {} |",
+            l.parameter,
+            match l.limit {
+                Some(v) => format!("{} {v:.3e}", if l.stronger == "larger" { "≥" } else { "≤" }),
+                None => l.note.clone(),
+            },
+            l.unit,
+            if l.range[0].is_finite() {
+                format!("{:.3e} → {:.3e}", l.range[0], l.range[1])
+            } else {
+                "-".to_string()
+            }
         );
     }
 }

@@ -213,7 +213,7 @@ pub(crate) struct SecondLook {
 
 /// Mode frequency of a fitted flexible mount, √(k/m)/2π (Hz), from its parameters in `h`
 /// (stiffness k in N/m, moved mass m in kg); `None` when `h` has no mount.
-fn mount_mode(h: &Hyp) -> Option<f64> {
+pub(crate) fn mount_mode(h: &Hyp) -> Option<f64> {
     let get = |name: &str| {
         h.params
             .iter()

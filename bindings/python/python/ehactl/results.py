@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Iterator, List, Mapping, Optional, Sequence, Tuple, TypeVar
 
 import numpy as np
@@ -829,6 +829,15 @@ class DiagnosisResult(_DictCompat):
     Attributes:
         cause: Top effect id, ``"none"`` (the nominal model explains the data within the noise) or
             ``"unexplained"``.
+        status: ``"none"``, ``"explained"``, ``"edge_fit"`` (the closest catalogue effect's fit
+            sits on a bound of its range or outside what the record can show; the cause is then
+            ``"unexplained"``), ``"not_explained"`` (it leaves a channel far above its noise
+            floor; likewise) or ``"unexplained"``.
+        closest: The closest catalogue effect when it is not the cause (``effect``,
+            ``variant``, ``at_edge``, ``reasons``, ``nrmse_validation``), or None.
+        detection_limits: For every catalogue effect tested and not named, the smallest size
+            this record would have revealed (effect id → ``parameter``, ``unit``, ``stronger``,
+            ``limit`` or None, ``range``, ``note``, ``looseness``).
         causes: Accepted effect ids, the one that explains most of the held-out error on the final model first.
         variants: Structural variant of each accepted effect.
         nrmse_nominal, nrmse_refit, nrmse_extended, nrmse_baseline: held-out NRMSE of
@@ -897,9 +906,12 @@ class DiagnosisResult(_DictCompat):
     notes: Tuple[str, ...] = ()
     headline: str = ""
     recommended: Optional[Mapping[str, Any]] = None
+    status: str = ""
+    closest: Optional[Mapping[str, Any]] = None
+    detection_limits: Mapping[str, Any] = field(default_factory=lambda: FrozenMap({}))
 
     # JSON key order of `ehactl diagnose --json` (serde field order, then the files).
-    _ORDER = ("cause", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
+    _ORDER = ("cause", "status", "closest", "detection_limits", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
               "nrmse_baseline", "baseline", "residual_test", "integration", "greybox", "gain",
               "noise_floor", "candidates", "extended_params", "identified_loop", "refit_at_bounds", "extended_at_bounds",
               "sensor_offsets", "ambiguities", "refit_continued",
@@ -943,6 +955,9 @@ class DiagnosisResult(_DictCompat):
             notes=tuple(str(n) for n in notes),
             headline=str(d.get("headline", "")),
             recommended=None if d.get("recommended") is None else _freeze(d["recommended"]),
+            status=str(d.get("status", "")),
+            closest=None if d.get("closest") is None else _freeze(d["closest"]),
+            detection_limits=_freeze(d.get("detection_limits") or {}),
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -1,0 +1,449 @@
+//! Detection limits: for every catalogue effect the diagnosis did not name, the smallest size
+//! this record would have revealed, in the effect's own parameter and unit (DIAGNOSIS.md
+//! "Detection limits").
+//!
+//! The effect is injected into the final model's held-out replay at a trial size (its other
+//! parameters at their start values), the change it makes is what a record with the effect
+//! would show beyond the model; the part of that change the nominal refit could absorb (its
+//! linearised sensitivities, one replay per refit parameter) is projected out, and the
+//! acceptance test of step 7 is evaluated at its expected values: the model without the
+//! effect leaves the change plus the noise floor on every channel, the model with it the
+//! floor alone. The size is bisected on a log scale across the catalogue range.
+
+use crate::ctx::{Ctx, Hyp};
+use crate::evidence::Analysis;
+use crate::fit::effect_variants;
+use crate::freeparam::Scales;
+use crate::replay::std;
+use ehactl_plant::{EffectId, PlantParams};
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Bisection steps on the log scale of the catalogue range (-): six halve a range of 10⁴ to a
+/// factor 10^(4/64) ≈ 1.15.
+pub const BISECTION_STEPS: usize = 6;
+
+/// A model within this factor × the noise floor on every channel is not extended (-): the
+/// decision's own `FLOOR_FACTOR` (`crate::diagnose` takes it from here).
+pub const FLOOR_FACTOR: f64 = 1.2;
+
+/// Lower end of the search for a parameter whose range starts at 0, as a share of its upper
+/// bound (-): a log scale needs a positive start.
+const ZERO_START: f64 = 1e-4;
+
+/// One effect's detection limit.
+#[derive(Debug, Clone, Serialize)]
+pub struct DetectionLimit {
+    /// The sizing parameter (dotted path).
+    pub parameter: String,
+    /// Its unit.
+    pub unit: String,
+    /// `larger` when a larger value is a stronger effect, `smaller` otherwise (a spool limit,
+    /// a mount stiffness).
+    pub stronger: String,
+    /// The smallest size (in the direction of `stronger`) this record would have revealed;
+    /// `None` when no size in the catalogue range would have been, or when the effect is not
+    /// testable on this record (`note`).
+    pub limit: Option<f64>,
+    /// The catalogue range searched [weakest, strongest].
+    pub range: [f64; 2],
+    /// `not detectable with this record`, `not testable on this record`, `in the nominal
+    /// config already`, or empty.
+    pub note: String,
+    /// Position of the limit on the log scale from the weakest (0) to the strongest (1) end
+    /// of the range; 1 when not detectable (-). The loosest limits have the largest.
+    pub looseness: f64,
+}
+
+impl DetectionLimit {
+    /// The limit in words: "`time_delay` ≥ 4.0e-4 s" or why there is none.
+    pub fn text(&self, effect: &str) -> String {
+        let short = self.parameter.rsplit('.').next().unwrap_or(&self.parameter);
+        match self.limit {
+            Some(v) => format!(
+                "`{effect}` {short} {} {v:.2e} {}",
+                if self.stronger == "larger" {
+                    "≥"
+                } else {
+                    "≤"
+                },
+                self.unit
+            ),
+            None => format!("`{effect}`: {}", self.note),
+        }
+    }
+}
+
+/// The sizing parameters of effect `e`, the first its fitted variant has: (name, unit, a
+/// larger value is a stronger effect).
+fn size_params(e: EffectId) -> &'static [(&'static str, &'static str, bool)] {
+    use EffectId::*;
+    const SPOOL: &str = "(fraction of the spool stroke)";
+    match e {
+        Friction => &[("effects.friction.coulomb_force", "N", true)],
+        ValveDeadband => &[
+            ("effects.valve_deadband.overlap", SPOOL, true),
+            ("effects.valve_deadband.deadzone", SPOOL, true),
+        ],
+        ValveSaturation => &[("effects.valve_saturation.spool_limit", SPOOL, false)],
+        ValveDynamics => &[
+            ("effects.valve_dynamics.natural_frequency", "rad/s", false),
+            ("effects.valve_dynamics.time_constant", "s", true),
+        ],
+        InternalLeakage => &[("effects.internal_leakage.coefficient", "m³/(s·Pa)", true)],
+        ExternalLeakage => &[("effects.external_leakage.coefficient", "m³/(s·Pa)", true)],
+        BulkModulusPressure => &[("effects.bulk_modulus_pressure.slope", "(dβ/dp, -)", true)],
+        LineDynamics => &[("effects.line_dynamics.length", "m", true)],
+        FlexibleMount => &[("effects.flexible_mount.stiffness", "N/m", false)],
+        TimeDelay => &[("effects.time_delay.delay", "s", true)],
+        SensorTone => &[(
+            "effects.sensor_tone.sine_amplitudes[0]",
+            "(the channel's SI unit)",
+            true,
+        )],
+        SupplyPressureDrop => &[("effects.supply_pressure_drop.resistance", "Pa·s/m³", true)],
+    }
+}
+
+/// What every limit is judged against: the final model's held-out replay, the measured
+/// channels' std and noise floors over the held-out range, and the refit's sensitivities.
+pub(crate) struct Reference<'c, 'a> {
+    ctx: &'c Ctx<'a>,
+    model: &'c Hyp,
+    /// Held-out replay of `model`, per channel over the held-out range.
+    y0: Vec<Vec<f64>>,
+    /// Std of each measured channel over the held-out range.
+    sd: Vec<f64>,
+    /// Noise floor per channel (NRMSE units).
+    floor: Vec<f64>,
+    /// Change of the held-out replay per unit step of each refit parameter (normalised
+    /// coordinates), floor-weighted and flattened over channels.
+    sens: Vec<Vec<f64>>,
+}
+
+/// The held-out replay of `h` over the held-out range, per channel.
+fn held_out(ctx: &Ctx<'_>, h: &Hyp) -> Vec<Vec<f64>> {
+    let (_, sim) = ctx.val_errors(h);
+    sim.y
+        .iter()
+        .map(|y| y[ctx.val_range.clone()].to_vec())
+        .collect()
+}
+
+impl<'c, 'a> Reference<'c, 'a> {
+    /// The reference of model `model` with noise floors `floor` (NRMSE units per channel):
+    /// one replay, and one more per refit parameter of the model (not an effect's).
+    pub(crate) fn new(ctx: &'c Ctx<'a>, model: &'c Hyp, floor: &[f64]) -> Self {
+        let y0 = held_out(ctx, model);
+        let sd: Vec<f64> = ctx
+            .val_rec
+            .channels
+            .iter()
+            .map(|c| std(&c.values[ctx.val_range.clone()]).max(1e-300))
+            .collect();
+        let mut r = Reference {
+            ctx,
+            model,
+            y0,
+            sd,
+            floor: floor.iter().map(|f| f.max(1e-300)).collect(),
+            sens: Vec::new(),
+        };
+        for i in 0..model.params.len() {
+            let p = &model.params[i];
+            if p.name.starts_with("effects.") || p.hi <= p.lo {
+                continue;
+            }
+            let u = p.to_unit(model.values[i]);
+            let step = if u > 0.5 { -0.02 } else { 0.02 };
+            let mut h = model.clone();
+            h.values[i] = p.from_unit(u + step);
+            let y = held_out(ctx, &h);
+            r.sens.push(r.weighted_change(&y));
+        }
+        r
+    }
+
+    /// The change from the reference replay to `y`, each channel over its std and floor
+    /// (floor-weighted NRMSE units) and over √(samples · channels), flattened.
+    fn weighted_change(&self, y: &[Vec<f64>]) -> Vec<f64> {
+        let n = self.y0.first().map_or(1, Vec::len).max(1) as f64;
+        let k = self.y0.len().max(1) as f64;
+        let mut out = Vec::new();
+        for (c, (y, y0)) in y.iter().zip(&self.y0).enumerate() {
+            let w = 1.0 / (self.sd[c] * self.floor[c] * (n * k).sqrt());
+            out.extend(y.iter().zip(y0).map(|(a, b)| (a - b) * w));
+        }
+        out
+    }
+
+    /// Per channel, (the change over the floor)² that the refit cannot absorb, for the
+    /// replay `y` of a model with the effect: the weighted change less its least-squares
+    /// projection on the refit's sensitivities, its mean square per channel × channels.
+    fn excess(&self, y: &[Vec<f64>]) -> Vec<f64> {
+        let d = self.weighted_change(y);
+        let r = residual_of_projection(&d, &self.sens);
+        let k = self.y0.len().max(1);
+        let n = r.len() / k;
+        (0..k)
+            .map(|c| r[c * n..(c + 1) * n].iter().map(|v| v * v).sum::<f64>() * k as f64)
+            .collect()
+    }
+
+    /// Whether a record holding the effect of model `h` (the reference model plus the effect)
+    /// would pass the acceptance test of step 7 with `n_new` parameters of its own.
+    fn detected(&self, h: &Hyp, n_new: usize) -> bool {
+        let y = held_out(self.ctx, h);
+        if y.iter().flatten().any(|v| !v.is_finite()) {
+            return false;
+        }
+        let m = self.excess(&y);
+        passes(&m, &self.floor, n_new)
+    }
+}
+
+/// `d` less its least-squares projection on the columns `cols` (normal equations with a
+/// relative ridge of 1e-9, Gaussian elimination with partial pivoting).
+fn residual_of_projection(d: &[f64], cols: &[Vec<f64>]) -> Vec<f64> {
+    let k = cols.len();
+    if k == 0 {
+        return d.to_vec();
+    }
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let mut a: Vec<Vec<f64>> = (0..k)
+        .map(|i| {
+            let mut row: Vec<f64> = (0..k).map(|j| dot(&cols[i], &cols[j])).collect();
+            row.push(dot(&cols[i], d));
+            row
+        })
+        .collect();
+    let scale = (0..k).map(|i| a[i][i]).fold(0.0, f64::max).max(1e-300);
+    for (i, row) in a.iter_mut().enumerate() {
+        row[i] += 1e-9 * scale;
+    }
+    for c in 0..k {
+        let p = (c..k)
+            .max_by(|&x, &y| a[x][c].abs().total_cmp(&a[y][c].abs()))
+            .unwrap_or(c);
+        a.swap(c, p);
+        if a[c][c].abs() < 1e-300 {
+            continue;
+        }
+        for r in (c + 1)..k {
+            let (top, bottom) = a.split_at_mut(r);
+            let (pivot, row) = (&top[c], &mut bottom[0]);
+            let f = row[c] / pivot[c];
+            for (x, p) in row[c..].iter_mut().zip(&pivot[c..]) {
+                *x -= f * p;
+            }
+        }
+    }
+    let mut beta = vec![0.0; k];
+    for c in (0..k).rev() {
+        let s: f64 = ((c + 1)..k).map(|j| a[c][j] * beta[j]).sum();
+        beta[c] = if a[c][c].abs() < 1e-300 {
+            0.0
+        } else {
+            (a[c][k] - s) / a[c][c]
+        };
+    }
+    d.iter()
+        .enumerate()
+        .map(|(i, v)| v - cols.iter().zip(&beta).map(|(c, b)| c[i] * b).sum::<f64>())
+        .collect()
+}
+
+/// The acceptance test of step 7 (round 0) at its expected values, for a record whose model
+/// without the effect leaves, per channel, the floor plus `m`·floor² (the effect's change over
+/// the floor, squared) and whose model with the effect leaves the floor (`floor`, NRMSE
+/// units): not every channel within [`FLOOR_FACTOR`] × its floor, and on the channel-mean
+/// J or on the floor-weighted J the fall by ≥ 10 %, a lower score with `n_new` parameters more
+/// (and at least half of the weighted excess explained, which a perfect fit always does).
+pub(crate) fn passes(m: &[f64], floor: &[f64], n_new: usize) -> bool {
+    if m.iter().all(|x| (1.0 + x).sqrt() < FLOOR_FACTOR) {
+        return false;
+    }
+    let k = m.len().max(1) as f64;
+    let j_with = floor.iter().map(|f| f * f).sum::<f64>() / k;
+    let j_cur = floor
+        .iter()
+        .zip(m)
+        .map(|(f, x)| f * f * (1.0 + x))
+        .sum::<f64>()
+        / k;
+    let jw_cur = 1.0 + m.iter().sum::<f64>() / k;
+    let penalty = 0.02 * n_new as f64;
+    let explains = |new: f64, old: f64| new < 0.9 * old && new.ln() + penalty < old.ln();
+    explains(j_with, j_cur) || explains(1.0, jw_cur)
+}
+
+/// The limits of every effect of `effects` (the caller leaves out those it named) that is not
+/// in the final model `model` either, against that model (floors per channel `floor`);
+/// `scales` and `an` give each effect's parameters as the search fitted them (first variant,
+/// start values).
+pub(crate) fn detection_limits(
+    ctx: &Ctx<'_>,
+    model: &Hyp,
+    floor: &[f64],
+    effects: &[EffectId],
+    nominal: &PlantParams,
+    scales: &Scales,
+    an: &Analysis,
+) -> BTreeMap<String, DetectionLimit> {
+    let reference = Reference::new(ctx, model, floor);
+    effects
+        .iter()
+        .filter(|e| !model.effects.contains(e))
+        .map(|&e| {
+            (
+                e.as_str().to_string(),
+                limit_of(&reference, e, nominal, scales, an),
+            )
+        })
+        .collect()
+}
+
+/// The start value of an effect's parameter for a limit: its start value, except a zero
+/// offset of a dead band and the cosine part of a tone, which are 0 so that the effect
+/// vanishes with its size (a dead band of zero width with the analysis' offset still shifts
+/// the spool: on the MTS record it was "detected" at the smallest overlap searched).
+fn neutral_start(p: &crate::freeparam::FreeParam) -> f64 {
+    let neutral = p.name.ends_with(".zero_offset") || p.name.contains(".cosine_amplitudes[");
+    if neutral && p.lo <= 0.0 && p.hi >= 0.0 {
+        0.0
+    } else {
+        p.init
+    }
+}
+
+/// The detection limit of effect `e` against `reference`.
+fn limit_of(
+    reference: &Reference<'_, '_>,
+    e: EffectId,
+    nominal: &PlantParams,
+    scales: &Scales,
+    an: &Analysis,
+) -> DetectionLimit {
+    let params = effect_variants(e, nominal, scales, an)
+        .into_iter()
+        .next()
+        .map(|v| v.1)
+        .unwrap_or_default();
+    let sizes = size_params(e);
+    let found = sizes
+        .iter()
+        .find_map(|s| Some((*s, params.iter().position(|p| p.name == s.0)?)));
+    let ((name, unit, up), i) = found.unwrap_or((sizes[0], usize::MAX));
+    let mut out = DetectionLimit {
+        parameter: name.to_string(),
+        unit: unit.to_string(),
+        stronger: if up { "larger" } else { "smaller" }.to_string(),
+        limit: None,
+        range: [f64::NAN, f64::NAN],
+        note: "not testable on this record".to_string(),
+        looseness: 1.0,
+    };
+    if nominal.effects.is_enabled(e) {
+        // A configured effect's size is the config's (or the identified loop's): what it
+        // would take to reveal it on top of itself is no limit.
+        out.note = "in the nominal config already".to_string();
+        return out;
+    }
+    if i == usize::MAX {
+        return out;
+    }
+    let p = &params[i];
+    let lo = if p.lo > 0.0 { p.lo } else { p.hi * ZERO_START };
+    if !(p.hi > lo && lo > 0.0) {
+        return out;
+    }
+    let (weak, strong) = if up { (lo, p.hi) } else { (p.hi, lo) };
+    out.range = [weak, strong];
+    let n_new = params.len();
+    let mut h = reference.model.clone();
+    let first = h.params.len();
+    h.effects.push(e);
+    h.variants.push("-");
+    h.values.extend(params.iter().map(neutral_start));
+    h.params.extend(params);
+    let at = |s: f64| weak * (strong / weak).powf(s);
+    let mut detected = |s: f64| {
+        h.values[first + i] = at(s);
+        reference.detected(&h, n_new)
+    };
+    if !detected(1.0) {
+        out.note = "not detectable with this record".to_string();
+        return out;
+    }
+    // Bisection on the position s ∈ [0, 1] of the log scale: `hi` is always detected.
+    let (mut lo_s, mut hi_s) = (0.0, 1.0);
+    if detected(0.0) {
+        hi_s = 0.0;
+    } else {
+        for _ in 0..BISECTION_STEPS {
+            let mid = 0.5 * (lo_s + hi_s);
+            if detected(mid) {
+                hi_s = mid;
+            } else {
+                lo_s = mid;
+            }
+        }
+    }
+    out.limit = Some(at(hi_s));
+    out.note = String::new();
+    out.looseness = hi_s;
+    out
+}
+
+/// The two or three loosest limits of `limits` (largest looseness first), in words.
+pub fn loosest(limits: &BTreeMap<String, DetectionLimit>, n: usize) -> Vec<String> {
+    let mut v: Vec<(&String, &DetectionLimit)> = limits
+        .iter()
+        .filter(|(_, l)| l.limit.is_some() || l.note == "not detectable with this record")
+        .collect();
+    v.sort_by(|a, b| b.1.looseness.total_cmp(&a.1.looseness));
+    v.into_iter().take(n).map(|(e, l)| l.text(e)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Nothing at all (every channel at its floor) is not detected; a change of 3× the floor
+    /// on one of two channels is (weighted J 1 → 5.5); a change of 0.5× the floor on both is
+    /// not (each channel within 1.2× its floor: √1.25 = 1.118).
+    #[test]
+    fn the_acceptance_test_at_its_expected_values() {
+        let floor = [0.001, 0.01];
+        assert!(!passes(&[0.0, 0.0], &floor, 1));
+        assert!(passes(&[9.0, 0.0], &floor, 1));
+        assert!(!passes(&[0.25, 0.25], &floor, 1));
+        // 0.7× the floor on both: 1.22× > 1.2, J and weighted J fall by 1/1.49 = 33 %.
+        assert!(passes(&[0.49, 0.49], &floor, 1));
+    }
+
+    /// A change that is a multiple of a sensitivity column is absorbed entirely; one
+    /// orthogonal to it is left whole.
+    #[test]
+    fn the_refit_absorbs_what_it_can() {
+        let col = vec![1.0, 2.0, 0.0, 0.0];
+        let r = residual_of_projection(&[3.0, 6.0, 0.0, 0.0], std::slice::from_ref(&col));
+        assert!(r.iter().all(|v| v.abs() < 1e-6), "{r:?}");
+        let r = residual_of_projection(&[0.0, 0.0, 1.0, -1.0], &[col]);
+        assert_eq!(r, vec![0.0, 0.0, 1.0, -1.0]);
+    }
+
+    #[test]
+    fn limits_in_words() {
+        let l = DetectionLimit {
+            parameter: "effects.time_delay.delay".into(),
+            unit: "s".into(),
+            stronger: "larger".into(),
+            limit: Some(4e-4),
+            range: [1.2e-6, 0.012],
+            note: String::new(),
+            looseness: 0.6,
+        };
+        assert_eq!(l.text("time_delay"), "`time_delay` delay ≥ 4.00e-4 s");
+    }
+}
