@@ -253,6 +253,17 @@ def _merge(primary: dict[str, float], constraint: dict[str, float]) -> dict[str,
     return out
 
 
+def _without_loop_watches(c: Config) -> None:
+    """Switch off, in place, the supervisor's watches that stop a loop which tracks badly or
+    oscillates (``supervisor.following_error``, ``supervisor.saturation_window``): an
+    identification experiment that runs the loop up to and past instability on purpose, and
+    judges it by the growth of its oscillation, must not be cut short by them. The tuned
+    config keeps them."""
+    if "supervisor.saturation_window" in c:
+        del c["supervisor.saturation_window"]
+    c["supervisor.following_error"] = 1e9
+
+
 def _identification_base(cfg: Config) -> Config:
     """Copy of ``cfg`` for an identification experiment: sensor noise and tones off, and
     the dynamic part of the external excitation off (its static offset stays), so that what

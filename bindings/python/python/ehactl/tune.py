@@ -49,6 +49,7 @@ from ._tunebase import (
     TuneResult,
     _finish,
     _identification_base,
+    _without_loop_watches,
     _merge,
     evaluate,
     gain_paths,
@@ -124,6 +125,7 @@ def critical_gain(
         raise ValueError(f"rule {rule!r} is not known for {base.mode} mode; expected one of {sorted(rules)}")
     ident = _identification_base(base) if noise_free else base.copy()
     ident[second] = 0.0
+    _without_loop_watches(ident)
     kp0 = float(base[kp_path]) or 1.0
     lo_r, hi_r = kp_range or (kp0 / 30.0, kp0 * 300.0)
     window_from = test.start + 0.4 * (test.duration - test.start)
