@@ -838,6 +838,9 @@ class DiagnosisResult(_DictCompat):
         detection_limits: For every catalogue effect tested and not named, the smallest size
             this record would have revealed (effect id → ``parameter``, ``unit``, ``stronger``,
             ``limit`` or None, ``range``, ``note``, ``looseness``).
+        envelope: The held-out part (or ``--validate`` record) against the motion the
+            diagnosis fitted (``inside``, ``excursions``: quantity, record, fitted, unit,
+            beyond, text), or None without a position column.
         causes: Accepted effect ids, the one that explains most of the held-out error on the final model first.
         variants: Structural variant of each accepted effect.
         nrmse_nominal, nrmse_refit, nrmse_extended, nrmse_baseline: held-out NRMSE of
@@ -909,6 +912,7 @@ class DiagnosisResult(_DictCompat):
     status: str = ""
     closest: Optional[Mapping[str, Any]] = None
     detection_limits: Mapping[str, Any] = field(default_factory=lambda: FrozenMap({}))
+    envelope: Optional[Mapping[str, Any]] = None
 
     # JSON key order of `ehactl diagnose --json` (serde field order, then the files).
     _ORDER = ("cause", "status", "closest", "detection_limits", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
@@ -916,7 +920,7 @@ class DiagnosisResult(_DictCompat):
               "noise_floor", "candidates", "extended_params", "identified_loop", "refit_at_bounds", "extended_at_bounds",
               "sensor_offsets", "ambiguities", "refit_continued",
               "dropped_effects", "beaten_by_baseline", "warnings", "analysis", "analysis_refit", "split",
-              "summary", "extended_config", "report", "plots", "recommended", "headline")
+              "summary", "extended_config", "report", "plots", "recommended", "headline", "envelope")
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], notes: Sequence[str] = ()) -> DiagnosisResult:
@@ -958,6 +962,7 @@ class DiagnosisResult(_DictCompat):
             status=str(d.get("status", "")),
             closest=None if d.get("closest") is None else _freeze(d["closest"]),
             detection_limits=_freeze(d.get("detection_limits") or {}),
+            envelope=None if d.get("envelope") is None else _freeze(d["envelope"]),
         )
 
     def to_dict(self) -> dict[str, Any]:
