@@ -467,6 +467,27 @@ fn section<T: serde::de::DeserializeOwned>(
     }
 }
 
+/// A top-level section that names its own keys (`[inputs]`, `[envelope]`, `[band]`: not
+/// registry entries), taken out of the tree before the registry check: `None` when absent,
+/// an error naming the key path when it is not `shape` (e.g. `[inputs.<name>]`) or does not
+/// deserialise.
+fn own_table<T: serde::de::DeserializeOwned>(
+    value: Option<toml::Value>,
+    key: &str,
+    shape: &str,
+) -> Result<Option<T>, ConfigError> {
+    match value {
+        None => Ok(None),
+        Some(v) if v.is_table() => serde_path_to_error::deserialize(v)
+            .map(Some)
+            .map_err(|e| ConfigError::new(format!("{key}.{}", e.path()), e.inner().to_string())),
+        Some(v) => Err(ConfigError::new(
+            key,
+            format!("expected a table {shape}, got {}", v.type_str()),
+        )),
+    }
+}
+
 impl RigConfig {
     /// Load and validate a config file.
     pub fn load(path: &Path) -> Result<RigConfig, ConfigError> {
@@ -526,42 +547,10 @@ impl RigConfig {
         })?;
         let plant: PlantParams = serde_path_to_error::deserialize(toml::Value::Table(root))
             .map_err(|e| spec::from_serde("", e, &tables))?;
-        let inputs: inputs::Inputs = match inputs_value {
-            None => inputs::Inputs::new(),
-            Some(v) if v.is_table() => serde_path_to_error::deserialize(v).map_err(|e| {
-                ConfigError::new(format!("inputs.{}", e.path()), e.inner().to_string())
-            })?,
-            Some(v) => {
-                return Err(ConfigError::new(
-                    "inputs",
-                    format!("expected a table [inputs.<name>], got {}", v.type_str()),
-                ))
-            }
-        };
-        let envelope = match envelope_value {
-            None => None,
-            Some(v) if v.is_table() => Some(serde_path_to_error::deserialize(v).map_err(|e| {
-                ConfigError::new(format!("envelope.{}", e.path()), e.inner().to_string())
-            })?),
-            Some(v) => {
-                return Err(ConfigError::new(
-                    "envelope",
-                    format!("expected a table [envelope], got {}", v.type_str()),
-                ))
-            }
-        };
-        let band = match band_value {
-            None => None,
-            Some(v) if v.is_table() => Some(serde_path_to_error::deserialize(v).map_err(|e| {
-                ConfigError::new(format!("band.{}", e.path()), e.inner().to_string())
-            })?),
-            Some(v) => {
-                return Err(ConfigError::new(
-                    "band",
-                    format!("expected a table [band], got {}", v.type_str()),
-                ))
-            }
-        };
+        let inputs: inputs::Inputs =
+            own_table(inputs_value, "inputs", "[inputs.<name>]")?.unwrap_or_default();
+        let envelope = own_table(envelope_value, "envelope", "[envelope]")?;
+        let band = own_table(band_value, "band", "[band]")?;
         let cfg = RigConfig {
             rig,
             plant,
