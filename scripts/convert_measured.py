@@ -22,8 +22,11 @@ UTFSM MTS press (0A.txt/1A.txt, 1 kHz, CHANNEL0 x_m ×10 mm, CHANNEL1 F ×9806.6
       1A.txt near 5300), the zeroing at rest that sincronize.m also does (it subtracts a rest mean).
       Sign: positive when the damper pushes against +x (it correlates positively with the
       velocity, r = 0.70 at 0 A, 0.80 at 1 A), which is the plant's rod-force convention.
-  Segment 5–15 s of each file (0.4–2 Hz sweep part, 2 mm amplitude) decimated to 500 Hz
-  (every second sample, as in the earlier conversion, so x and ref are unchanged).
+  Segment 5–15 s of each file (the sweep's slow start, 2 mm amplitude) decimated to 500 Hz
+  (every second sample, as in the earlier conversion, so x and ref are unchanged): the README's
+  campaign fits these. The rest of the sweep, 15–30 s, 30–45 s and 45 s to the end (1–20 Hz, the
+  amplitude falling to 0.9 mm), is converted the same way for the hold-out by frequency
+  (tests/python/test_campaign_holdout.py).
 Usage for the MTS part: python3 scripts/convert_measured.py MTS_DIR
   (MTS_DIR: a directory holding 0A.txt and 1A.txt from Cap6_ModeloActuador/Preprocesamiento/Datos/
   of https://github.com/DanielMaurelE/vRTHS_AMBC_MRdamper, commit d412cae0)
@@ -54,14 +57,15 @@ def sjoberg():
 
 
 def mts_columns(src, t0=5.0, t1=15.0):
-    """Columns (t, u, x, ref, force; SI) of the t0–t1 s segment of a raw MTS file, decimated
-    to 500 Hz, with the scalings and assumptions of the module doc."""
+    """Columns (t, u, x, ref, force; SI) of the t0–t1 s segment of a raw MTS file (t1 None: to
+    the file's end), decimated to 500 Hz, with the scalings and assumptions of the module doc."""
     d = np.genfromtxt(src, delimiter=",", skip_header=7, usecols=(2, 3, 4))
     xm = d[:, 0] * 10e-3
     f = d[:, 1] * 9806.65
     xr = d[:, 2] * 10e-3
     f = f - f[:4000].mean()  # load-cell zero at rest (see the module doc)
-    sl = slice(int(round(t0 * 1000)), int(round(t1 * 1000)), 2)
+    end = len(xm) if t1 is None else int(round(t1 * 1000))
+    sl = slice(int(round(t0 * 1000)), end, 2)
     t = np.arange(len(xm))[sl] * 1e-3
     return {"t": t - t[0], "u": 2000.0 * (xr[sl] - xm[sl]), "x": 0.05 + xm[sl], "ref": 0.05 + xr[sl], "force": f[sl]}
 
@@ -72,15 +76,21 @@ def coil_current(name):
     return float(name.rstrip("A"))
 
 
+# Segments of each MTS file (start s, end s or None for the file's end, file-name tag): the
+# fitting segment of the README's campaign first, then the rest of the sweep (held out).
+MTS_SEGMENTS = [(5.0, 15.0, "5to15s"), (15.0, 30.0, "15to30s"), (30.0, 45.0, "30to45s"), (45.0, None, "45toEnd")]
+
+
 def mts(name, src_dir):
     """The raw DAQ files (4 MB each) are not in the repo; pass their directory."""
     src = pathlib.Path(src_dir) / f"{name}.txt"
     if not src.exists():
         print(f"skip MTS {name}: {src} not found", file=sys.stderr)
         return
-    cols = mts_columns(src)
-    cols["current"] = np.full(len(cols["t"]), coil_current(name))
-    write(ROOT / "utfsm_mts" / f"{name}_5to15s.csv", cols)
+    for t0, t1, tag in MTS_SEGMENTS:
+        cols = mts_columns(src, t0, t1)
+        cols["current"] = np.full(len(cols["t"]), coil_current(name))
+        write(ROOT / "utfsm_mts" / f"{name}_{tag}.csv", cols)
 
 
 if __name__ == "__main__":
