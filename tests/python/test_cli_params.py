@@ -16,13 +16,15 @@ FIXTURE = REPO / "tests" / "fixtures" / "ehactl_params.txt"
 # scheme and its segment-mode margin; 2026-11-27: the friction variant lugre and the
 # line_dynamics variant hose, whose friction.variant description line the fixture carries
 # updated; the Dahl term of the grey-box force law; 2026-11-28: the position sensor's velocity
-# window of an imposed-motion replay; 2026-12-07: the supervisor's following-error watch) and
+# window of an imposed-motion replay; 2026-12-07: the supervisor's following-error watch and the
+# Bouc–Wen exponent of the Dahl term) and
 # the rig sections' switches, which the hand-written table left out
 # (tests/rust/param_registry.rs checks their entries). In output order.
 ADDED = ("effects.friction.bristle_stiffness", "effects.friction.bristle_damping",
          "effects.line_dynamics.variant", "effects.line_dynamics.wall_compliance",
          "effects.line_dynamics.resistance", "effects.polynomial_force.dahl",
-         "effects.polynomial_force.dahl_travel", "effects.polynomial_force.dahl_velocity", "sensors.position.velocity_window",
+         "effects.polynomial_force.dahl_travel", "effects.polynomial_force.dahl_velocity",
+         "effects.polynomial_force.dahl_exponent", "sensors.position.velocity_window",
          "integration.max_omega_h_line", "integration.line_method", "control.mode", "setpoint.kind", "setpoint.sweep",
          "supervisor.following_error", "supervisor.following_error_time", "log.compression",
          "realtime.lock_memory", "realtime.overrun_policy")

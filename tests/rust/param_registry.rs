@@ -22,7 +22,7 @@ fn fixture() -> Vec<String> {
 /// variant `hose`, whose new choice the fixture's `effects.friction.variant` row carries;
 /// the Dahl term of the grey-box force law and its series-dashpot velocity; 2026-12-07: the
 /// supervisor's following-error bound and time). Their choices are the enums' serde names.
-const ADDED: [(&str, &str); 19] = [
+const ADDED: [(&str, &str); 20] = [
     (
         "effects.friction.bristle_stiffness",
         "N/m\tNonNegative\tFloat",
@@ -48,6 +48,10 @@ const ADDED: [(&str, &str); 19] = [
     (
         "effects.polynomial_force.dahl_velocity",
         "m/s\tNonNegative\tFloat",
+    ),
+    (
+        "effects.polynomial_force.dahl_exponent",
+        "-\tWithin(1.0, 10.0)\tFloat",
     ),
     (
         "sensors.position.velocity_window",

@@ -338,4 +338,36 @@ mod tests {
             }
         }
     }
+
+    /// Bouc–Wen closed forms (Wen 1976) with A = β = 1, γ = 0: from z = 0 at constant v > 0,
+    /// dz/ds = (1 − z^n)/δ gives z = tanh(s/δ) for n = 2; and the state saturates at 1 as
+    /// Dahl's law does, later for the sharper knee (at s = δ: tanh 1 = 0.76 against
+    /// 1 − e⁻¹ = 0.63 for n = 1).
+    #[test]
+    fn bouc_wen_exponent_two_follows_tanh() {
+        let (dt, delta, vel) = (1e-3, 1e-4, 0.02);
+        let n = 200;
+        let x: Vec<f64> = (0..n).map(|k| vel * k as f64 * dt).collect();
+        let v = vec![vel; n];
+        let l = PolynomialForce {
+            dahl: 1.0,
+            dahl_travel: delta,
+            dahl_exponent: 2.0,
+            ..PolynomialForce::zero()
+        };
+        let m = Motion {
+            dt,
+            x: &x,
+            v: &v,
+            dp: None,
+        };
+        let z = dahl_state(&l, &m);
+        let mut worst: f64 = 0.0;
+        for (k, zk) in z.iter().enumerate() {
+            let exact = (vel * k as f64 * dt / delta).tanh();
+            worst = worst.max((zk - exact).abs());
+        }
+        assert!(worst < 0.02, "largest error {worst}");
+        assert!((z[n - 1] - 1.0).abs() < 1e-3, "{}", z[n - 1]);
+    }
 }

@@ -863,6 +863,14 @@ pub struct PolynomialForce {
     #[serde(default)]
     #[param(unit = "m/s", range = NonNegative, desc = "series-dashpot velocity V of the Dahl term: dz/dt = (r − |r|·z)/δ with r = v − V·z (0: Dahl's law)")]
     pub dahl_velocity: f64,
+    /// Bouc–Wen exponent n (-) of the Dahl term: dz/dt = (r − |r|·|z|^(n−1)·z)/δ, the
+    /// hysteretic element of Bouc–Wen (Wen 1976, J. Eng. Mech. Div. 102(2):249–263) with
+    /// A = β = 1, γ = 0, normalised so that |z| ≤ 1. n = 1 is Dahl's law (the force builds up
+    /// exponentially after a reversal); a larger n keeps the pre-yield branch straight for
+    /// longer and turns sharply into the yield force (Spencer et al. 1997 fit n = 2).
+    #[serde(default = "PolynomialForce::default_dahl_exponent")]
+    #[param(unit = "-", range = Within(1.0, 10.0), desc = "Bouc–Wen exponent n of the Dahl term: dz/dt = (r − |r|·|z|^(n−1)·z)/δ (1: Dahl's law)")]
+    pub dahl_exponent: f64,
     /// Smoothing velocity v_s (m/s) of the sign terms.
     #[serde(default = "PolynomialForce::default_vs")]
     #[param(unit = "m/s", range = Positive, desc = "smoothing velocity v_s of sign(v) ≈ tanh(v/v_s)")]

@@ -32,10 +32,10 @@ fn row(p: &spec::Param) -> [String; 5] {
 /// modes' stability margin, added 2026-11-26; the friction variant `lugre` and the
 /// line_dynamics variant `hose`, 2026-11-27, whose new choice the fixture's
 /// `effects.friction.variant` row carries; the Dahl term of the grey-box force law and its
-/// series-dashpot velocity; the
+/// series-dashpot velocity and its Bouc–Wen exponent (2026-12-07); the
 /// position sensor's velocity window of an imposed-motion replay, 2026-11-28);
 /// tests/rust/param_registry.rs checks their rows.
-const ADDED: [&str; 11] = [
+const ADDED: [&str; 12] = [
     "integration.max_omega_h_line",
     "integration.line_method",
     "effects.friction.bristle_stiffness",
@@ -46,6 +46,7 @@ const ADDED: [&str; 11] = [
     "effects.polynomial_force.dahl",
     "effects.polynomial_force.dahl_travel",
     "effects.polynomial_force.dahl_velocity",
+    "effects.polynomial_force.dahl_exponent",
     "sensors.position.velocity_window",
 ];
 

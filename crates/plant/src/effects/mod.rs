@@ -291,6 +291,10 @@ impl PolynomialForce {
         1e-4
     }
 
+    pub(crate) fn default_dahl_exponent() -> f64 {
+        1.0
+    }
+
     /// A section with every term zero (the neutral element the diagnosis starts from).
     pub fn zero() -> Self {
         Self {
@@ -306,6 +310,7 @@ impl PolynomialForce {
             dahl: 0.0,
             dahl_travel: Self::default_dahl_travel(),
             dahl_velocity: 0.0,
+            dahl_exponent: Self::default_dahl_exponent(),
             smoothing_velocity: Self::default_vs(),
         }
     }
@@ -318,8 +323,9 @@ impl PolynomialForce {
     }
 
     /// One substep `h` (s) of the Dahl state `z` (-), backward Euler about the velocity at
-    /// the start of the step `v_old` (m/s): z' = (z + h·v'/δ)/(1 + h·|v_old|/δ), which stays
-    /// in [−1, 1] at any step. Returns (f₀, d) with the force F_d·z' = f₀ + d·v' (N, N·s/m)
+    /// the start of the step `v_old` (m/s): z' = (z + h·v'/δ)/(1 + h·|v_old|/δ) for Dahl's
+    /// law (the general denominator with the series velocity and the Bouc–Wen exponent:
+    /// [`Self::dahl_denominator`]), which stays in [−1, 1] at any step. Returns (f₀, d) with the force F_d·z' = f₀ + d·v' (N, N·s/m)
     /// for the implicit velocity update; (0, 0) without the term.
     #[inline]
     pub fn dahl_implicit(&self, z: f64, v_old: f64, h: f64) -> (f64, f64) {
@@ -331,15 +337,23 @@ impl PolynomialForce {
         (self.dahl * z / den, self.dahl * h / (delta * den))
     }
 
-    /// 1 + h·(|v_old − V·z| + V)/δ: the backward-Euler denominator of the Dahl state with the
-    /// series-dashpot velocity V (`dahl_velocity`; V = 0 gives 1 + h·|v_old|/δ), from
-    /// dz/dt = (r − |r|·z)/δ, r = v − V·z, with |r| about the start of the step and r
-    /// implicit in z. |z'| ≤ 1 whenever |v'| ≤ |r_old| + V.
+    /// 1 + h·(|v_old − V·z|·|z|^(n−1) + V)/δ: the backward-Euler denominator of the Dahl state
+    /// with the series-dashpot velocity V (`dahl_velocity`; V = 0 and n = 1 give
+    /// 1 + h·|v_old|/δ), from dz/dt = (r − |r|·|z|^(n−1)·z)/δ, r = v − V·z, with |r| and
+    /// |z|^(n−1) about the start of the step and r and the last z implicit. With n = 1,
+    /// |z'| ≤ 1 whenever |v'| ≤ |r_old| + V; with n > 1 the state is clamped to [−1, 1].
     #[inline]
     fn dahl_denominator(&self, z: f64, v_old: f64, h: f64) -> f64 {
         let delta = self.dahl_travel.max(1e-12);
         let vd = self.dahl_velocity;
-        1.0 + h * ((v_old - vd * z).abs() + vd) / delta
+        let r = (v_old - vd * z).abs();
+        // n = 1 keeps Dahl's law bit for bit (no `powf`).
+        let r = if self.dahl_exponent == 1.0 {
+            r
+        } else {
+            r * z.abs().powf(self.dahl_exponent - 1.0)
+        };
+        1.0 + h * (r + vd) / delta
     }
 
     /// The Dahl state after the substep of [`Self::dahl_implicit`], given the new velocity
@@ -443,6 +457,12 @@ impl PolynomialForce {
                     self.dahl, self.dahl_travel
                 ),
             );
+        }
+        if self.dahl != 0.0 && self.dahl_exponent != 1.0 {
+            s.push(format!(
+                "Bouc–Wen exponent n = {} of z: |r|·|z|^(n−1)·z in place of |r|·z",
+                self.dahl_exponent
+            ));
         }
         s
     }
