@@ -9,7 +9,9 @@ DIAGNOSIS.md, "Hold-out by frequency"):
   tail of the chirp segment they were partly fitted on, a little faster than the fitted part);
 - the 90 % band widens out of the envelope and still covers at least 80 % of the samples;
 - in closed loop (the record's setpoint through the loop) the law stays bounded and predicts
-  the force no worse than the nominal config on every segment;
+  the force no worse than the nominal config on every segment; the replay carries the band of
+  10 members, which covers the fitted segments and 0 A but misses at 1 A above 9 Hz (strict
+  xfail: the band holds the law's uncertainty, not the loop's);
 - with the motion imposed it beats the nominal config at 1 A, and misses at 0 A above 7 Hz
   (documented by a strict xfail): fitted at |v| ≤ 0.01 m/s, where the 0 A damper's force is a
   yield force, the law has no viscous part at 0 A, while at 8–20 Hz (|v| up to 0.08 m/s) the
@@ -105,8 +107,30 @@ def test_with_imposed_motion_the_law_is_no_worse_than_nominal_at_0_A(imposed):
             assert force_nrmse(ext) <= force_nrmse(nom), (rec, force_nrmse(ext), force_nrmse(nom))
 
 
-def test_in_closed_loop_the_law_stays_bounded_and_no_worse_than_nominal(law):
+@pytest.fixture(scope="module")
+def closed(law):
+    """Closed-loop predictions of every segment: {record: (extended, nominal)}."""
+    return {rec: (predict(law, rec), predict(CONFIG, rec)) for rec in FITTED + HELD_OUT}
+
+
+def test_in_closed_loop_the_law_stays_bounded_and_no_worse_than_nominal(closed):
     for rec in HELD_OUT:
-        ext, nom = predict(law, rec), predict(CONFIG, rec)
+        ext, nom = closed[rec]
         assert ext["diverged"] is None and nom["diverged"] is None, rec
         assert force_nrmse(ext) <= force_nrmse(nom), (rec, force_nrmse(ext), force_nrmse(nom))
+
+
+def test_a_closed_loop_replay_carries_the_band(closed):
+    for rec, (ext, nom) in closed.items():
+        assert ext["replay"] == "closed_loop", rec
+        assert nom["band"] is None, rec  # the nominal config has no [band]
+        assert ext["band"]["spread_rms"] > 0, (rec, ext["band"])
+    for rec in FITTED + tuple(r for r in HELD_OUT if r.startswith("0A")):
+        assert closed[rec][0]["band"]["coverage"] >= 0.80, (rec, closed[rec][0]["band"])
+
+
+@pytest.mark.xfail(strict=True, reason="measured miss: the band holds the law's uncertainty, not the loop's; at 1 A "
+                   "above 9 Hz the replayed position is 19-22 % off and the closed-loop band covers 0.57-0.67")
+def test_the_closed_loop_band_covers_at_1_A_above_9_Hz(closed):
+    for rec in ("1A_30to45s", "1A_45toEnd"):
+        assert closed[rec][0]["band"]["coverage"] >= 0.80, (rec, closed[rec][0]["band"])

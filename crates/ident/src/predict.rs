@@ -79,8 +79,9 @@ pub struct Prediction {
     pub diverged: Option<Divergence>,
     /// The record against the model's `[envelope]` (`None`: the model states none).
     pub envelope: Option<crate::envelope::EnvelopeCheck>,
-    /// The force's uncertainty band and its coverage ([`crate::band`]): for an
-    /// imposed-motion prediction by a model with a `[band]` (a campaign's extended config);
+    /// The force's uncertainty band and its coverage ([`crate::band`]): for a prediction by
+    /// a model with a `[band]` (a campaign's extended config) of a record with a force
+    /// channel, imposed-motion (every member) or replayed ([`REPLAY_BAND_MEMBERS`] members);
     /// `None` otherwise.
     pub band: Option<crate::band::BandScore>,
     /// Predicted channels (column → values, up to the divergence if any).
@@ -143,27 +144,8 @@ pub fn predict(
             ));
         };
         let f = imposed_force(&plant, rec, x).map_err(|e| format!("{src}: {e}"))?;
-        band = cfg.band.as_ref().map(|b| {
-            // The members in parallel: each is a whole imposed-motion prediction.
-            use rayon::prelude::*;
-            let members: Vec<Vec<f64>> = b
-                .members
-                .par_iter()
-                .filter_map(|m| {
-                    let c = m.apply(cfg);
-                    let p = ehactl_config::inputs::plant_at(&c.inputs, &c.plant, &at).ok()?;
-                    imposed_force(&p, rec, x).ok()
-                })
-                .collect();
-            let measured = rec.channel(ChannelKind::Force).unwrap_or(&[]);
-            crate::band::band(
-                &f,
-                &members,
-                b.relative_residual,
-                b.level,
-                measured,
-                score.clone(),
-            )
+        band = force_band(cfg, rec, &at, &f, score.clone(), usize::MAX, |p| {
+            imposed_force(p, rec, x).ok()
         });
         ("imposed_motion", (vec![(ChannelKind::Force, f)], None))
     } else {
@@ -175,7 +157,32 @@ pub fn predict(
         } else {
             "open_loop"
         };
-        let y = rec.channels.iter().map(|c| c.kind).zip(sim.y).collect();
+        let y: Vec<(ChannelKind, Vec<f64>)> =
+            rec.channels.iter().map(|c| c.kind).zip(sim.y).collect();
+        // A member's force along its own replay; a member that fails or diverges gives none.
+        let member_force = |p: &PlantParams| -> Option<Vec<f64>> {
+            let k = rec
+                .channels
+                .iter()
+                .position(|c| c.kind == ChannelKind::Force)?;
+            let s = replay_with(&replay_params(p, rec), rec, n, drive).ok()?;
+            let yk: Vec<(ChannelKind, Vec<f64>)> =
+                rec.channels.iter().map(|c| c.kind).zip(s.y).collect();
+            check_divergence(p, rec, &yk, s.failed_at)
+                .is_none()
+                .then(|| yk[k].1.clone())
+        };
+        if let Some((_, f)) = y.iter().find(|(k, _)| *k == ChannelKind::Force) {
+            band = force_band(
+                cfg,
+                rec,
+                &at,
+                f,
+                score.clone(),
+                REPLAY_BAND_MEMBERS,
+                member_force,
+            );
+        }
         (how, (y, sim.failed_at))
     };
     let (mut predicted, failed_at) = predicted;
@@ -210,6 +217,49 @@ pub fn predict(
         band,
         predicted,
     })
+}
+
+/// Members of a campaign's `[band]` replayed for the band of a closed- or open-loop
+/// prediction: each member is a whole replay of the plant (an imposed-motion member is a
+/// pass over the law), so the band takes the first 10 of the bootstrap's 40 (the members
+/// are independent resamples: any 10 are a smaller bootstrap; the spread's relative
+/// standard error is then about 1/√(2·9) ≈ 24 % instead of 11 %).
+pub const REPLAY_BAND_MEMBERS: usize = 10;
+
+/// The force band of a prediction `f` (N) of `rec` by a model with a `[band]`: the first
+/// `max_members` members, each at the record's operating point `at`, predicted in parallel
+/// by `member_force` (None: left out), and their spread with the law's residual
+/// ([`crate::band::band`]). `None` without a `[band]`.
+fn force_band(
+    cfg: &RigConfig,
+    rec: &Record,
+    at: &BTreeMap<String, f64>,
+    f: &[f64],
+    score: std::ops::Range<usize>,
+    max_members: usize,
+    member_force: impl Fn(&PlantParams) -> Option<Vec<f64>> + Sync,
+) -> Option<crate::band::BandScore> {
+    use rayon::prelude::*;
+    let b = cfg.band.as_ref()?;
+    let members: Vec<Vec<f64>> = b
+        .members
+        .par_iter()
+        .take(max_members)
+        .filter_map(|m| {
+            let c = m.apply(cfg);
+            let p = ehactl_config::inputs::plant_at(&c.inputs, &c.plant, at).ok()?;
+            member_force(&p)
+        })
+        .collect();
+    let measured = rec.channel(ChannelKind::Force).unwrap_or(&[]);
+    Some(crate::band::band(
+        f,
+        &members,
+        b.relative_residual,
+        b.level,
+        measured,
+        score,
+    ))
 }
 
 /// The rod force (N) the law of `plant` gives along the record's measured motion `x` (m) and
