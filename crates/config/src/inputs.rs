@@ -20,7 +20,7 @@
 //! magnetic saturation of an MR damper's coil, g·(1 − e^(−i/i_s)): Spencer, Dyke, Sain &
 //! Carlson 1997, J. Eng. Mech. 123(3):230–238 take the damper's coefficients affine in the
 //! coil's filtered voltage; the exponential rise is the saturating form a campaign fits,
-//! crates/ident/src/campaign.rs): the plant section stays the
+//! crates/ident/src/campaign/): the plant section stays the
 //! model at its own operating point (so `ehactl run` needs nothing else), and a record logged
 //! at another operating point is replayed with [`plant_at`]. A record column named like
 //! a declared input carries it (`ehactl diagnose`, `ehactl predict`); an undeclared column is an

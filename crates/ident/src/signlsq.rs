@@ -2,7 +2,7 @@
 //! Cθ + h ≥ 0 (h ≥ 0), with G symmetric positive definite. The campaign's law is fitted this way so that
 //! its dissipative coefficients (viscous, yield, quadratic, Dahl, and the stiffness of a
 //! passive element) keep the sign physics gives them at every fitted operating point
-//! (crates/ident/src/campaign.rs), instead of being filtered after an unconstrained fit.
+//! (crates/ident/src/campaign/normal_eq.rs), instead of being filtered after an unconstrained fit.
 //!
 //! Primal active-set method (Nocedal & Wright, *Numerical Optimization*, 2nd ed. 2006,
 //! Algorithm 16.3), started at θ = 0, which satisfies every constraint since h ≥ 0. Written here
