@@ -34,9 +34,13 @@ N_BW = 2
 def coil(current: float, saturation: float | None = None) -> float:
     """The coil input the coefficients are affine in: the current itself (A), or with a
     magnetic `saturation` scale i_s (A) the saturating (1 − e^(−i/i_s)) / (1 − e^(−1/i_s)),
-    equal to the current at 0 and 1 A and bending between."""
+    equal to the current at 0 and 1 A and bending between; a negative `saturation` −i_k (A)
+    is a hard knee instead: min(i, i_k)/i_k … rising linearly to full at i_k and flat beyond
+    (a coil driven into saturation by its amplifier's current limit)."""
     if saturation is None:
         return current
+    if saturation < 0:
+        return min(current, -saturation) / -saturation
     return (1.0 - np.exp(-current / saturation)) / (1.0 - np.exp(-1.0 / saturation))
 
 

@@ -12,10 +12,14 @@
 //! [inputs.current.saturating."effects.polynomial_force.coulomb"]  # optional
 //! gain = 850.0           # g (the parameter's unit): the rise from i = 0 to saturation
 //! scale = 0.25           # i_s (A): the input at which 63 % of the rise is reached
+//! [inputs.current.hinge."effects.polynomial_force.viscous"]  # optional
+//! knot = 0.5             # i_k (A): the knee of a piecewise-linear dependence
+//! slope = -4000.0        # s (the parameter's unit per A): the change of slope beyond i_k
 //! ```
 //!
 //! A parameter p with dependences is
-//! p(i) = p₀ + a·(i − i₀) + b·(i − i₀)² + g·(e^(−i₀/i_s) − e^(−i/i_s)) where p₀ is the
+//! p(i) = p₀ + a·(i − i₀) + b·(i − i₀)² + g·(e^(−i₀/i_s) − e^(−i/i_s)) +
+//! s·(max(i − i_k, 0) − max(i₀ − i_k, 0)) where p₀ is the
 //! value the plant section states and i₀ the input's `value` (the saturating part is the
 //! magnetic saturation of an MR damper's coil, g·(1 − e^(−i/i_s)): Spencer, Dyke, Sain &
 //! Carlson 1997, J. Eng. Mech. 123(3):230–238 take the damper's coefficients affine in the
@@ -49,6 +53,28 @@ pub struct OperatingInput {
     /// Saturating dependences g·(1 − e^(−i/i_s)) by parameter path.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub saturating: BTreeMap<String, Saturating>,
+    /// Knees s·max(i − i_k, 0) of piecewise-linear dependences by parameter path.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub hinge: BTreeMap<String, Hinge>,
+}
+
+/// A knee of a piecewise-linear dependence of a parameter on an input: s·max(i − i_k, 0),
+/// added to the linear term, so that the slope is a below i_k and a + s above it (a
+/// campaign's piecewise form between its fitted operating points).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Hinge {
+    /// i_k: the input at the knee (the input's unit).
+    pub knot: f64,
+    /// s: the change of slope beyond the knee (the parameter's unit per the input's unit).
+    pub slope: f64,
+}
+
+impl Hinge {
+    /// s·max(i − i_k, 0) at input `i`.
+    pub fn at(&self, i: f64) -> f64 {
+        self.slope * (i - self.knot).max(0.0)
+    }
 }
 
 /// A saturating dependence of a parameter on an input: g·(1 − e^(−i/i_s)).
@@ -150,6 +176,24 @@ pub fn validate(inputs: &Inputs, plant: &PlantParams) -> Result<(), ConfigError>
                 ));
             }
         }
+        for (path, h) in &inp.hinge {
+            let here = at(&format!(".hinge.\"{path}\""));
+            if plant.get_path(path).is_none() {
+                return Err(ConfigError::new(
+                    here,
+                    format!("`{path}` is not a float parameter present in this config's plant; expected the dotted path of one (see `ehactl params`)"),
+                ));
+            }
+            if !(h.knot.is_finite() && h.slope.is_finite()) {
+                return Err(ConfigError::new(
+                    here,
+                    format!(
+                        "knot {} ({}) and slope {} must be finite; expected the knee's input and the change of slope beyond it",
+                        h.knot, inp.unit, h.slope
+                    ),
+                ));
+            }
+        }
     }
     Ok(())
 }
@@ -204,6 +248,7 @@ pub fn plant_at(
             .keys()
             .chain(inp.quadratic.keys())
             .chain(inp.saturating.keys())
+            .chain(inp.hinge.keys())
             .collect();
         for path in paths {
             let Some(v) = p.get_path(path) else {
@@ -216,7 +261,11 @@ pub fn plant_at(
                 .saturating
                 .get(path)
                 .map_or(0.0, |s| s.at(i) - s.at(inp.value));
-            let new = v + a * d + b * d * d + sat;
+            let knee = inp
+                .hinge
+                .get(path)
+                .map_or(0.0, |h| h.at(i) - h.at(inp.value));
+            let new = v + a * d + b * d * d + sat + knee;
             p.set_path(path, new).map_err(|e| {
                 format!(
                     "inputs.{name} = {} {}: `{path}` becomes {new}: {e}",

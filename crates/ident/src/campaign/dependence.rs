@@ -18,6 +18,12 @@ pub enum Form {
     },
     /// c₀ + c₁·i + c₂·i².
     Quadratic,
+    /// c₀ + c₁·i + c₂·max(i − knot, 0): piecewise linear with its knee at a fitted operating
+    /// point between the outer ones.
+    Piecewise {
+        /// The knee i_k (input unit).
+        knot: f64,
+    },
 }
 
 impl Form {
@@ -28,13 +34,14 @@ impl Form {
             Form::Linear => [Some(i), None],
             Form::Saturating { scale } => [Some(1.0 - (-i / scale).exp()), None],
             Form::Quadratic => [Some(i), Some(i * i)],
+            Form::Piecewise { knot } => [Some(i), Some((i - knot).max(0.0))],
         }
     }
 
     pub(super) fn parameters(self) -> usize {
         match self {
             Form::None => 0,
-            Form::Quadratic => 2,
+            Form::Quadratic | Form::Piecewise { .. } => 2,
             _ => 1,
         }
     }
@@ -45,6 +52,7 @@ impl Form {
             Form::Linear => "linear".into(),
             Form::Saturating { scale } => format!("saturating (scale {scale:.4})"),
             Form::Quadratic => "quadratic".into(),
+            Form::Piecewise { knot } => format!("piecewise linear (knee at {knot:.4})"),
         }
     }
 }
@@ -56,7 +64,9 @@ pub(super) struct Structure {
 }
 
 /// The forms a term may take per input, given the fitting operating points: none, linear
-/// (two distinct values), saturating (three), quadratic (four).
+/// (two distinct values), saturating (three), quadratic and piecewise linear with its knee at
+/// each inner fitted value (four: a three-parameter form left one point out still has three
+/// to pass through, so leaving one out can judge it).
 pub(super) fn forms_per_input(prepared: &[Prepared<'_>], inputs: usize) -> Vec<Vec<Form>> {
     (0..inputs)
         .map(|k| {
@@ -65,7 +75,8 @@ pub(super) fn forms_per_input(prepared: &[Prepared<'_>], inputs: usize) -> Vec<V
                 .filter(|p| !p.validation)
                 .map(|p| p.at[k].abs())
                 .fold(0.0, f64::max);
-            let distinct = distinct_values(prepared, k);
+            let values = distinct_values(prepared, k);
+            let distinct = values.len();
             let mut f = vec![Form::None];
             if distinct >= 2 && i_max > 0.0 {
                 f.push(Form::Linear);
@@ -79,6 +90,11 @@ pub(super) fn forms_per_input(prepared: &[Prepared<'_>], inputs: usize) -> Vec<V
             }
             if distinct >= 4 {
                 f.push(Form::Quadratic);
+                f.extend(
+                    values[1..distinct - 1]
+                        .iter()
+                        .map(|&knot| Form::Piecewise { knot }),
+                );
             }
             f
         })

@@ -298,6 +298,8 @@ impl LawFit {
                 .retain(|p, _| !p.starts_with("effects.polynomial_force."));
             inp.saturating
                 .retain(|p, _| !p.starts_with("effects.polynomial_force."));
+            inp.hinge
+                .retain(|p, _| !p.starts_with("effects.polynomial_force."));
             let i0 = at0[k];
             if let Some(t) = &self.travel {
                 inp.linear
@@ -318,6 +320,15 @@ impl LawFit {
                     Form::None => continue,
                     Form::Linear => (c[0], 0.0),
                     Form::Quadratic => (c[0] + 2.0 * c[1] * i0, c[1]),
+                    // p(i) − p(i₀) = c₁·(i − i₀) + c₂·(max(i − i_k, 0) − max(i₀ − i_k, 0)):
+                    // the linear slope and the knee as they are.
+                    Form::Piecewise { knot } => {
+                        inp.hinge.insert(
+                            path_of(*term),
+                            ehactl_config::inputs::Hinge { knot, slope: c[1] },
+                        );
+                        (c[0], 0.0)
+                    }
                     Form::Saturating { scale } => {
                         inp.saturating.insert(
                             path_of(*term),

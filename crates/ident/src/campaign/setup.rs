@@ -149,7 +149,8 @@ pub(super) fn same_point(a: &[f64], b: &[f64]) -> bool {
         .all(|(x, y)| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1.0))
 }
 
-pub(super) fn distinct_values(prepared: &[Prepared<'_>], k: usize) -> usize {
+/// The distinct values of input `k` over the fitting records, in ascending order.
+pub(super) fn distinct_values(prepared: &[Prepared<'_>], k: usize) -> Vec<f64> {
     let mut v: Vec<f64> = prepared
         .iter()
         .filter(|p| !p.validation)
@@ -157,7 +158,7 @@ pub(super) fn distinct_values(prepared: &[Prepared<'_>], k: usize) -> usize {
         .collect();
     v.sort_by(f64::total_cmp);
     v.dedup_by(|a, b| same_point(&[*a], &[*b]));
-    v.len()
+    v
 }
 
 pub(super) fn prepare<'a>(

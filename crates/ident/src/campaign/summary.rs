@@ -48,6 +48,12 @@ pub(super) fn cause_of(terms: &[TermFit], cfg: &RigConfig, names: &[String]) -> 
                 signed(c[0]),
                 fmt_coef(*scale)
             ),
+            Form::Piecewise { knot } => format!(
+                " {} {tu}/{u}·{n} {} {tu}/{u}·max({n} − {} {u}, 0)",
+                signed(c[0]),
+                signed(c[1]),
+                fmt_coef(*knot)
+            ),
         };
     }
     s
