@@ -472,6 +472,7 @@ mod tests {
             linear: BTreeMap::new(),
             quadratic: BTreeMap::new(),
             saturating: BTreeMap::new(),
+            hinge: BTreeMap::new(),
         };
         [("current".to_string(), current)].into()
     }
