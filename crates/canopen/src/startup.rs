@@ -34,6 +34,7 @@ use crate::pdo::{
     self, MapEntry, PdoMap, COB_ID_INVALID, RPDO1_BASE, RPDO1_COMM, RPDO1_MAP, TPDO1_BASE,
     TPDO1_COMM, TPDO1_MAP,
 };
+use crate::profile::{PdoDir, Profile, ProfilePdo};
 use crate::sdo::{self, SdoClient, SdoError};
 use crate::settings::CanopenSettings;
 use crate::sync;
@@ -60,9 +61,13 @@ pub enum Dev {
 impl Dev {
     /// Short name for messages.
     pub fn name(self) -> &'static str {
+        self.profile().name()
+    }
+    /// Its device profile.
+    pub fn profile(self) -> &'static dyn Profile {
         match self {
-            Dev::Transducer => "transducer",
-            Dev::Valve => "valve",
+            Dev::Transducer => &crate::cia406::Cia406,
+            Dev::Valve => &crate::cia408::Cia408,
         }
     }
     fn config_key(self) -> &'static str {
@@ -247,6 +252,15 @@ pub struct Plan {
     pub devices: [DevicePlan; 2],
 }
 
+/// The communication and mapping objects and the COB-ID of a device's first PDO of `dir`
+/// (CiA 301 default connection set).
+fn pdo_objects(dir: PdoDir, node: u16) -> (u16, u16, u16) {
+    match dir {
+        PdoDir::Transmit => (TPDO1_COMM, TPDO1_MAP, TPDO1_BASE + node),
+        PdoDir::Receive => (RPDO1_COMM, RPDO1_MAP, RPDO1_BASE + node),
+    }
+}
+
 fn settings_err(m: String) -> StartupError {
     StartupError::Settings(m)
 }
@@ -407,9 +421,9 @@ impl Plan {
             p.plan_error_control(c)?;
             p.plan_sync_objects(c)?;
         }
-        t.plan_transducer_profile(c)?;
-        v.plan_valve_profile()?;
-        v.plan_valve_pdos(c)?;
+        for p in [&mut t, &mut v] {
+            p.plan_profile(p.dev.profile(), c)?;
+        }
         for p in [&t, &v] {
             p.check_dcf_not_overridden()?;
         }
@@ -437,10 +451,11 @@ impl DevicePlan {
         };
         let eds = Eds::from_config(path, s.config_dir.as_deref(), builtin, name)
             .map_err(|e| settings_err(format!("{}: {e}", dev.config_key())))?;
-        let (node, profile) = match dev {
-            Dev::Transducer => (c.transducer_node_id, cia406::PROFILE),
-            Dev::Valve => (c.valve_node_id, cia408::PROFILE),
+        let node = match dev {
+            Dev::Transducer => c.transducer_node_id,
+            Dev::Valve => c.valve_node_id,
         };
+        let profile = dev.profile().number();
         if let Some(dcf) = eds.dcf_node_id.filter(|n| *n != 0 && *n != node) {
             return Err(settings_err(format!(
                 "{} ({}): the DCF is for node {dcf}, the config has {} node id {node}",
@@ -511,21 +526,24 @@ impl DevicePlan {
             StepKind::Ensure,
             format!("setting the {name} heartbeat producer time"),
         )?;
-        // The valve moves the load: it must detect a dead ehactl (its fault reaction), so
-        // its consumer is mandatory. A sensor's is used where the device has it, decided
+        // A device that moves the load (the valve) must detect a dead ehactl (its fault
+        // reaction), so its consumer is mandatory. A sensor's is used where the device has it, decided
         // from what the device answers (an EDS may describe another make or revision).
         let consumer =
             (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
         let what = format!("setting the {name} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)");
-        match (self.dev, self.eds.get(0x1016, 1).is_some()) {
-            (Dev::Valve, false) => {
+        match (
+            self.dev.profile().moves_the_load(),
+            self.eds.get(0x1016, 1).is_some(),
+        ) {
+            (true, false) => {
                 return Err(settings_err(format!(
                     "{} ({}): the {name} has no heartbeat consumer 0x1016:01, so it cannot detect a dead ehactl (canopen.device_heartbeat_timeout_ms) and stop the load; ehactl refuses to drive it",
                     self.eds.source,
                     self.dev.config_key()
                 )));
             }
-            (dev, true) => {
+            (moves_the_load, true) => {
                 self.push(
                     0x1016,
                     1,
@@ -533,11 +551,11 @@ impl DevicePlan {
                     StepKind::Ensure,
                     what,
                 )?;
-                if dev == Dev::Transducer {
+                if !moves_the_load {
                     self.if_device_has();
                 }
             }
-            (Dev::Transducer, false) => {
+            (false, false) => {
                 // Not in the file: still asked, as CiA 301 defines it (UNSIGNED32, rw).
                 self.steps.push(Step {
                     index: 0x1016,
@@ -613,121 +631,48 @@ impl DevicePlan {
         Ok(())
     }
 
-    /// 4. CiA 406 profile objects of the transducer: position step 0x6005:01, cyclic timer
-    ///    off (position sent on SYNC only), TPDO1 = position 0x6020:01.
-    fn plan_transducer_profile(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
-        let tr = self.node;
-        self.push(
-            cia406::POSITION_STEP,
-            1,
-            c.position_step_nm.to_le_bytes().to_vec(),
-            StepKind::Ensure,
-            "setting the transducer position step 0x6005:01 (canopen.position_step_nm)",
-        )?;
-        if self.eds.get(cia406::CYCLIC_TIMER, 0).is_some() {
-            self.push(
-                cia406::CYCLIC_TIMER,
-                0,
-                0u16.to_le_bytes().to_vec(),
-                StepKind::Ensure,
-                "switching the transducer cyclic timer off (TPDO on SYNC)",
-            )?;
-            self.optional();
+    /// 4. The profile's objects ([`Profile::start_steps`]: an object only in the file
+    ///    where the step asks for it), the objects it needs the file to list, then its PDOs
+    ///    ([`Profile::pdos`]: the CiA 301 re-mapping, or the PDO disabled).
+    fn plan_profile(&mut self, p: &dyn Profile, c: &CanopenConfig) -> Result<(), StartupError> {
+        for st in p.start_steps(c) {
+            if st.only_if_in_eds && self.eds.get(st.index, st.sub).is_none() {
+                continue;
+            }
+            self.push(st.index, st.sub, st.value, StepKind::Ensure, st.what)?;
+            if st.optional {
+                self.optional();
+            }
         }
-        self.pdo(
-            TPDO1_COMM,
-            TPDO1_MAP,
-            TPDO1_BASE + u16::from(tr),
-            &cia406::TPDO1_MAP,
-            "the transducer TPDO1 (position 0x6020:01)",
-        )
-    }
-
-    /// 4. CiA 408 profile objects of the valve: device mode (setpoint from the bus),
-    ///    control mode (spool position, closed loop), a zero hold and spool setpoint; the
-    ///    device control objects (control word 0x6040, status word 0x6041) must exist.
-    fn plan_valve_profile(&mut self) -> Result<(), StartupError> {
-        for (index, sub, bytes, what) in [
-            (
-                cia408::DEVICE_MODE,
-                0u8,
-                vec![cia408::MODE_SETPOINT_FROM_BUS],
-                "setting the valve device mode 0x6042 = 1 (setpoint from the bus)",
-            ),
-            (
-                cia408::CONTROL_MODE,
-                0,
-                vec![cia408::CONTROL_MODE_SPOOL_CLOSED_LOOP as u8],
-                "setting the valve control mode 0x6043 = 2 (spool position, closed loop)",
-            ),
-            (
-                cia408::SPOOL_HOLD_SETPOINT,
-                1,
-                0i16.to_le_bytes().to_vec(),
-                "setting the valve hold setpoint 0x6314:01 = 0 (closed centre in HOLD)",
-            ),
-            (
-                cia408::SPOOL_SETPOINT,
-                1,
-                0i16.to_le_bytes().to_vec(),
-                "zeroing the valve spool setpoint",
-            ),
-        ] {
-            self.push(index, sub, bytes, StepKind::Ensure, what)?;
-        }
-        for (index, what) in [
-            (cia408::CONTROL_WORD, "the valve control word 0x6040"),
-            (cia408::STATUS_WORD, "the valve status word 0x6041"),
-        ] {
-            self.obj(index, 0).map_err(|_| {
-                settings_err(format!("{}: no {what} in the valve's EDS", self.eds.source))
+        for &(index, sub, what) in p.required_objects() {
+            self.obj(index, sub).map_err(|_| {
+                settings_err(format!(
+                    "{}: no {what} in the {}'s EDS",
+                    self.eds.source,
+                    p.name()
+                ))
             })?;
         }
+        let node = u16::from(self.node);
+        for pdo in p.pdos(c) {
+            match pdo {
+                ProfilePdo::Map { dir, entries, what } => {
+                    let (comm, map, cob) = pdo_objects(dir, node);
+                    self.pdo(comm, map, cob, entries, what)?;
+                }
+                ProfilePdo::Disable { dir, what } => {
+                    let (comm, _, cob) = pdo_objects(dir, node);
+                    self.push(
+                        comm,
+                        1,
+                        (COB_ID_INVALID | u32::from(cob)).to_le_bytes().to_vec(),
+                        StepKind::Ensure,
+                        what,
+                    )?;
+                }
+            }
+        }
         Ok(())
-    }
-
-    /// 4. The valve's PDOs: RPDO1 deadline monitoring where the file has it, RPDO1 = spool
-    ///    setpoint 0x6300:01, TPDO1 = status word + actual spool, or TPDO1 disabled.
-    fn plan_valve_pdos(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
-        let va = self.node;
-        if c.valve_rpdo_timeout_ms != 0 && self.eds.get(RPDO1_COMM, 5).is_some() {
-            // RPDO deadline monitoring (CiA 301 v4.2 7.5.2.35 sub 5): set before the RPDO is
-            // re-mapped, so that the re-mapping's enable starts it.
-            self.push(
-                RPDO1_COMM,
-                5,
-                c.valve_rpdo_timeout_ms.to_le_bytes().to_vec(),
-                StepKind::Ensure,
-                "setting the valve RPDO1 deadline 0x1400:05 (canopen.valve_rpdo_timeout_ms)",
-            )?;
-            self.optional();
-        }
-        self.pdo(
-            RPDO1_COMM,
-            RPDO1_MAP,
-            RPDO1_BASE + u16::from(va),
-            &cia408::RPDO1_MAP,
-            "the valve RPDO1 (spool setpoint 0x6300:01)",
-        )?;
-        if c.valve_status_pdo {
-            self.pdo(
-                TPDO1_COMM,
-                TPDO1_MAP,
-                TPDO1_BASE + u16::from(va),
-                &cia408::TPDO1_MAP,
-                "the valve TPDO1 (status word 0x6041 + actual spool 0x6301:01)",
-            )
-        } else {
-            self.push(
-                TPDO1_COMM,
-                1,
-                (COB_ID_INVALID | u32::from(TPDO1_BASE + u16::from(va)))
-                    .to_le_bytes()
-                    .to_vec(),
-                StepKind::Ensure,
-                "disabling the valve TPDO1 (canopen.valve_status_pdo = false)",
-            )
-        }
     }
 
     /// A DCF value that ehactl overrides would be silently lost: refuse it.
