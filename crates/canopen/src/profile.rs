@@ -166,3 +166,9 @@ pub fn field<const N: usize>(data: &[u8], at: usize, need: usize) -> Result<[u8;
             need,
         })
 }
+
+impl std::fmt::Debug for dyn Profile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "CiA {} {}", self.number(), self.name())
+    }
+}
