@@ -5,12 +5,17 @@ the CANopen master; the logger does not compile the plant or the Hal; the Hal co
 bare (no plant, no logger), so the CANopen backend compiles no physics and no MCAP writer,
 the config no logger and the diagnosis no Hal; the diagnosis' evaluation harness
 (ehactl-ident-eval) is compiled by none of the CLI, the Python bindings and the diagnosis.
+No TOML parser below the config: the plant, the Hal, the logger and the CANopen backend
+compile none (the serde error mapping is crates/config/src/tree.rs). One queue type for what
+may be lost: the bounded lossy hand-overs between threads are `ehactl_types::queue::LossyQueue`
+(crates/types/src/queue.rs); no source file writes its own drop-and-count queue.
 
 EHACTL_ROOT selects another checkout (default: this repository).
 """
 import json
 import os
 import pathlib
+import re
 import subprocess
 
 import pytest
@@ -63,6 +68,52 @@ def test_control_laws_compile_no_toml_parser(deps):
     got = closure(deps, "ehactl-control")
     assert not {d for d in got if d == "toml" or d.startswith("toml_")}, sorted(got)
     assert "serde" in got
+
+
+@pytest.mark.parametrize("crate", ["ehactl-types", "ehactl-plant", "ehactl-hal", "ehactl-log",
+                                   "ehactl-canopen"])
+def test_no_toml_parser_below_the_config(deps, crate):
+    # The plant reads its sections through serde only; mapping a TOML parser's errors onto
+    # registry paths (`from_serde`) is the loader's (crates/config/src/tree.rs).
+    got = closure(deps, crate)
+    assert not {d for d in got if d == "toml" or d.startswith("toml_")}, sorted(got)
+    assert "ehactl-types" in got or crate == "ehactl-types", sorted(got)
+    assert "toml" in closure(deps, "ehactl-config")
+
+
+# Files that may name crossbeam's ArrayQueue, and why the queue there is not a lossy one:
+# the logger's record and event queues wait for room under the Block policy; the live
+# parameters' one-slot hand-over keeps the newest update; the CANopen backend's receive and
+# transmit queues trip the run when they overflow.
+ARRAY_QUEUE_USERS = {
+    "crates/types/src/queue.rs",
+    "crates/log/src/logger.rs",
+    "crates/runtime/src/live.rs",
+    "crates/canopen/src/hal.rs",
+}
+# A hand-written drop-and-count queue: a push whose failure bumps a `dropped` counter.
+HAND_WRITTEN_LOSSY = re.compile(
+    r"\.push\([^;]*?\)\.is_err\(\)\s*\{\s*[\w.]*dropped[\w.]*\.fetch_add", re.S)
+
+
+def rust_sources():
+    for top in ("crates", "bindings"):
+        for f in sorted((ROOT / top).rglob("*.rs")):
+            if "target" not in f.relative_to(ROOT).parts:
+                yield f.relative_to(ROOT).as_posix(), f.read_text()
+
+
+def test_one_lossy_queue_type():
+    sources = dict(rust_sources())
+    assert "crates/types/src/queue.rs" in sources, sorted(sources)[:5]
+    naming = {p for p, text in sources.items() if "ArrayQueue" in text}
+    assert naming <= ARRAY_QUEUE_USERS, sorted(naming - ARRAY_QUEUE_USERS)
+    hand = {p for p, text in sources.items()
+            if p != "crates/types/src/queue.rs" and HAND_WRITTEN_LOSSY.search(text)}
+    assert not hand, sorted(hand)
+    assert HAND_WRITTEN_LOSSY.search(sources["crates/types/src/queue.rs"])
+    for p in ("crates/types/src/frames.rs", "crates/log/src/logger.rs"):
+        assert "LossyQueue<" in sources[p], p
 
 
 @pytest.mark.parametrize("crate", ["ehactl-config", "ehactl-ident", "ehactl-analysis"])

@@ -2,6 +2,9 @@
 //! with CANopen): objects and the position / speed scaling.
 
 use crate::pdo::MapEntry;
+use crate::profile::{field, DecodeError, PdoDir, Profile, ProfilePdo, ProfileStep};
+use ehactl_hal::Measurements;
+use ehactl_types::canopen::CanopenConfig;
 
 /// Device type 0x1000 low 16 bits: profile 406.
 pub const PROFILE: u16 = 406;
@@ -41,6 +44,56 @@ pub fn speed_m_s(raw: i16, step_um_s: u32) -> f64 {
     f64::from(raw) * f64::from(step_um_s) * 1e-6
 }
 
+/// The CiA 406 transducer as a [`Profile`]: position step 0x6005:01, cyclic timer off
+/// (position on SYNC only), TPDO1 = position 0x6020:01 → [`Measurements::position`].
+pub struct Cia406;
+
+impl Profile for Cia406 {
+    fn name(&self) -> &'static str {
+        "transducer"
+    }
+
+    fn number(&self) -> u16 {
+        PROFILE
+    }
+
+    fn start_steps(&self, c: &CanopenConfig) -> Vec<ProfileStep> {
+        vec![
+            ProfileStep::required(
+                POSITION_STEP,
+                1,
+                c.position_step_nm.to_le_bytes().to_vec(),
+                "setting the transducer position step 0x6005:01 (canopen.position_step_nm)",
+            ),
+            ProfileStep::where_listed(
+                CYCLIC_TIMER,
+                0,
+                0u16.to_le_bytes().to_vec(),
+                "switching the transducer cyclic timer off (TPDO on SYNC)",
+            ),
+        ]
+    }
+
+    fn pdos(&self, _c: &CanopenConfig) -> Vec<ProfilePdo> {
+        vec![ProfilePdo::Map {
+            dir: PdoDir::Transmit,
+            entries: &TPDO1_MAP,
+            what: "the transducer TPDO1 (position 0x6020:01)",
+        }]
+    }
+
+    fn decode(
+        &self,
+        c: &CanopenConfig,
+        data: &[u8],
+        m: &mut Measurements,
+    ) -> Result<(), DecodeError> {
+        let raw = i32::from_le_bytes(field::<4>(data, 0, 4)?);
+        m.position = position_m(raw, c.position_step_nm);
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -52,5 +105,20 @@ mod tests {
         assert!((position_m(-5, 5000) + 25e-6).abs() < 1e-15);
         assert!((speed_m_s(250, 1000) - 0.25).abs() < 1e-12);
         assert_eq!(TPDO1_MAP[0].encode(), 0x6020_0120);
+    }
+
+    #[test]
+    fn the_profile_decodes_the_position_with_the_configured_step() {
+        let c = CanopenConfig {
+            position_step_nm: 5000,
+            ..CanopenConfig::default()
+        };
+        let mut m = Measurements::UNMEASURED;
+        Cia406
+            .decode(&c, &(-120_000i32).to_le_bytes(), &mut m)
+            .unwrap();
+        assert!((m.position + 0.6).abs() < 1e-12, "{}", m.position);
+        assert!(m.spool.is_nan() && m.p_a.is_nan() && m.t.is_nan());
+        assert_eq!(Cia406.encode(1.0, 10.0), None);
     }
 }

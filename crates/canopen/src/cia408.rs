@@ -2,7 +2,10 @@
 //! device state machine as published (control word / status word bits D, H, M, R), device
 //! and control mode, hold setpoint, spool setpoint scaling (±16384 = ±100 % spool).
 
-use crate::pdo::MapEntry;
+use crate::pdo::{MapEntry, RPDO1_COMM};
+use crate::profile::{field, DecodeError, PdoDir, Profile, ProfilePdo, ProfileStep};
+use ehactl_hal::Measurements;
+use ehactl_types::canopen::CanopenConfig;
 
 /// Device type 0x1000 low 16 bits: profile 408.
 pub const PROFILE: u16 = 408;
@@ -200,6 +203,123 @@ pub fn spool_fraction(raw: i16) -> f64 {
     f64::from(raw) / FULL_SCALE as f64
 }
 
+/// The CiA 408 valve as a [`Profile`]: device mode (setpoint from the bus), control mode
+/// (spool position, closed loop), a zero hold and spool setpoint, the RPDO1 deadline where
+/// the file has it; RPDO1 = spool setpoint 0x6300:01, TPDO1 = status word + actual spool
+/// (or disabled); the walk DISABLED → HOLD → ACTIVE and the safe stop in HOLD (the hold
+/// setpoint 0x6314:01 = 0, closed centre). It moves the load, so it must consume ehactl's
+/// heartbeat.
+pub struct Cia408;
+
+impl Profile for Cia408 {
+    fn name(&self) -> &'static str {
+        "valve"
+    }
+
+    fn number(&self) -> u16 {
+        PROFILE
+    }
+
+    fn moves_the_load(&self) -> bool {
+        true
+    }
+
+    fn start_steps(&self, c: &CanopenConfig) -> Vec<ProfileStep> {
+        let mut steps = vec![
+            ProfileStep::required(
+                DEVICE_MODE,
+                0,
+                vec![MODE_SETPOINT_FROM_BUS],
+                "setting the valve device mode 0x6042 = 1 (setpoint from the bus)",
+            ),
+            ProfileStep::required(
+                CONTROL_MODE,
+                0,
+                vec![CONTROL_MODE_SPOOL_CLOSED_LOOP as u8],
+                "setting the valve control mode 0x6043 = 2 (spool position, closed loop)",
+            ),
+            ProfileStep::required(
+                SPOOL_HOLD_SETPOINT,
+                1,
+                0i16.to_le_bytes().to_vec(),
+                "setting the valve hold setpoint 0x6314:01 = 0 (closed centre in HOLD)",
+            ),
+            ProfileStep::required(
+                SPOOL_SETPOINT,
+                1,
+                0i16.to_le_bytes().to_vec(),
+                "zeroing the valve spool setpoint",
+            ),
+        ];
+        if c.valve_rpdo_timeout_ms != 0 {
+            // RPDO deadline monitoring (CiA 301 v4.2 7.5.2.35 sub 5): set before the RPDO is
+            // re-mapped, so that the re-mapping's enable starts it.
+            steps.push(ProfileStep::where_listed(
+                RPDO1_COMM,
+                5,
+                c.valve_rpdo_timeout_ms.to_le_bytes().to_vec(),
+                "setting the valve RPDO1 deadline 0x1400:05 (canopen.valve_rpdo_timeout_ms)",
+            ));
+        }
+        steps
+    }
+
+    fn required_objects(&self) -> &'static [(u16, u8, &'static str)] {
+        &[
+            (CONTROL_WORD, 0, "the valve control word 0x6040"),
+            (STATUS_WORD, 0, "the valve status word 0x6041"),
+        ]
+    }
+
+    fn pdos(&self, c: &CanopenConfig) -> Vec<ProfilePdo> {
+        let rpdo = ProfilePdo::Map {
+            dir: PdoDir::Receive,
+            entries: &RPDO1_MAP,
+            what: "the valve RPDO1 (spool setpoint 0x6300:01)",
+        };
+        let tpdo = if c.valve_status_pdo {
+            ProfilePdo::Map {
+                dir: PdoDir::Transmit,
+                entries: &TPDO1_MAP,
+                what: "the valve TPDO1 (status word 0x6041 + actual spool 0x6301:01)",
+            }
+        } else {
+            ProfilePdo::Disable {
+                dir: PdoDir::Transmit,
+                what: "disabling the valve TPDO1 (canopen.valve_status_pdo = false)",
+            }
+        };
+        vec![rpdo, tpdo]
+    }
+
+    /// The spool position (fraction of full travel) from TPDO1; the status word is the
+    /// backend's to judge (any state but ACTIVE trips, crates/canopen/src/hal.rs).
+    fn decode(
+        &self,
+        _c: &CanopenConfig,
+        data: &[u8],
+        m: &mut Measurements,
+    ) -> Result<(), DecodeError> {
+        let raw = i16::from_le_bytes(field::<2>(data, 2, 4)?);
+        m.spool = spool_fraction(raw);
+        Ok(())
+    }
+
+    fn encode(&self, u: f64, full_scale_v: f64) -> Option<[u8; 8]> {
+        let mut b = [0u8; 8];
+        b[..2].copy_from_slice(&setpoint_from_command(u, full_scale_v).to_le_bytes());
+        Some(b)
+    }
+
+    fn walk(&self) -> &'static [u16] {
+        &[CW_DISABLED_STATE, CW_HOLD_STATE, CW_ACTIVE_STATE]
+    }
+
+    fn safe_stop(&self) -> Option<u16> {
+        Some(CW_HOLD_STATE)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -262,5 +382,31 @@ mod tests {
         let back = command_from_setpoint(setpoint_from_command(u, 10.0), 10.0);
         assert!((back - u).abs() <= 10.0 / 16384.0 / 2.0 + 1e-12);
         assert_eq!(spool_fraction(-16384), -1.0);
+    }
+
+    #[test]
+    fn the_profile_encodes_a_bounded_setpoint_and_decodes_the_spool() {
+        // +12 V on a 10 V full scale asks for +100 % spool, not more; NaN asks for zero.
+        let sp =
+            |u: f64| i16::from_le_bytes(Cia408.encode(u, 10.0).unwrap()[..2].try_into().unwrap());
+        assert_eq!((sp(12.0), sp(-5.0), sp(f64::NAN)), (16384, -8192, 0));
+        let mut m = Measurements::UNMEASURED;
+        // Status word ACTIVE (RMHD 1111), actual spool −8192 = −50 %.
+        let pdo = [0x0F, 0x00, 0x00, 0xE0];
+        Cia408
+            .decode(&CanopenConfig::default(), &pdo, &mut m)
+            .unwrap();
+        assert_eq!(m.spool, -0.5);
+        assert!(m.position.is_nan());
+        // The walk ends where the command acts; the safe stop is the state before it.
+        assert_eq!(
+            Cia408
+                .walk()
+                .iter()
+                .map(|&cw| cw & 0b111)
+                .collect::<Vec<_>>(),
+            [0b001, 0b011, 0b111]
+        );
+        assert_eq!(Cia408.safe_stop(), Some(0b011));
     }
 }

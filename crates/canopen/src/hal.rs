@@ -96,6 +96,7 @@ use crate::frame::{CanFrame, Direction};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::nmt::{NmtState, HEARTBEAT_BASE};
 use crate::pdo::{self, RPDO1_BASE, TPDO1_BASE};
+use crate::profile::Profile;
 use crate::sdo::{self, SdoClient, SDO_TX_BASE};
 pub use crate::settings::CanopenSettings;
 use crate::startup::{Activated, Bringup, Dev, Plan, StartBus, Startup};
@@ -857,11 +858,14 @@ impl CanopenHal {
     /// The transducer's TPDO1 (CiA 406 position 0x6020:01, 4 bytes): the cycle's position.
     #[inline]
     fn on_transducer_tpdo(&mut self, f: &CanFrame, t: f64) {
-        if f.dlc != 4 {
+        let data = &f.data[..usize::from(f.dlc.min(8))];
+        if f.dlc != 4
+            || cia406::Cia406
+                .decode(&self.s.canopen, data, &mut self.meas)
+                .is_err()
+        {
             self.wrong_dlc(f, t, "wrong DLC on transducer TPDO1 (expected 4), ignored");
         } else {
-            self.meas.position =
-                cia406::position_m(pdo::get_i32(&f.data, 0, 4), self.s.canopen.position_step_nm);
             self.meas.t = t;
             self.first_tpdo = true;
         }
@@ -876,7 +880,12 @@ impl CanopenHal {
             return Ok(());
         }
         let sw = pdo::get_u16(&f.data, 0);
-        self.meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
+        if cia408::Cia408
+            .decode(&self.s.canopen, &f.data[..4], &mut self.meas)
+            .is_err()
+        {
+            return Ok(());
+        }
         let st = ValveState::from_status(sw);
         self.valve_state = Some(st);
         let what = match st {

@@ -9,7 +9,9 @@
 //! - the CANopen master split by CiA 301 service: [`nmt`], [`sync`], [`sdo`], [`pdo`],
 //!   [`heartbeat`], [`emcy`]; every process function takes the elapsed time as an argument
 //!   (CANopenNode style), so time is injected and the protocol is testable frame by frame,
-//! - the device profiles [`cia406`] (position transducer) and [`cia408`] (valve with OBE),
+//! - the device-profile seam [`profile`] (trait [`profile::Profile`], the registry
+//!   [`profiles::PROFILES`]) and the profiles [`cia404`] (measuring device, one analogue
+//!   input), [`cia406`] (position transducer) and [`cia408`] (valve with OBE),
 //! - the `[canopen]` config section and the bus-load check: `ehactl_types::canopen` (read by the
 //!   config without the CANopen master),
 //! - [`eds`]: EDS / DCF files (CiA 306) that drive the start-up,
@@ -26,6 +28,7 @@
 pub use ehactl_hal::clock;
 
 pub mod bus;
+pub mod cia404;
 pub mod cia406;
 pub mod cia408;
 pub mod eds;
@@ -36,6 +39,8 @@ pub mod heartbeat;
 pub mod hub;
 pub mod nmt;
 pub mod pdo;
+pub mod profile;
+pub mod profiles;
 pub mod sdo;
 pub mod settings;
 #[cfg(test)]

@@ -34,6 +34,7 @@ use crate::pdo::{
     self, MapEntry, PdoMap, COB_ID_INVALID, RPDO1_BASE, RPDO1_COMM, RPDO1_MAP, TPDO1_BASE,
     TPDO1_COMM, TPDO1_MAP,
 };
+use crate::profile::{PdoDir, Profile, ProfilePdo};
 use crate::sdo::{self, SdoClient, SdoError};
 use crate::settings::CanopenSettings;
 use crate::sync;
@@ -60,9 +61,13 @@ pub enum Dev {
 impl Dev {
     /// Short name for messages.
     pub fn name(self) -> &'static str {
+        self.profile().name()
+    }
+    /// Its device profile.
+    pub fn profile(self) -> &'static dyn Profile {
         match self {
-            Dev::Transducer => "transducer",
-            Dev::Valve => "valve",
+            Dev::Transducer => &crate::cia406::Cia406,
+            Dev::Valve => &crate::cia408::Cia408,
         }
     }
     fn config_key(self) -> &'static str {
@@ -226,8 +231,10 @@ pub struct Step {
 /// is opened.
 #[derive(Debug, Clone)]
 pub struct DevicePlan {
-    /// Which device.
-    pub dev: Dev,
+    /// Its device profile.
+    pub device: &'static dyn Profile,
+    /// The config key of its file (messages).
+    pub config_key: &'static str,
     /// Node id.
     pub node: u8,
     /// Its description file.
@@ -247,6 +254,15 @@ pub struct Plan {
     pub devices: [DevicePlan; 2],
 }
 
+/// The communication and mapping objects and the COB-ID of a device's first PDO of `dir`
+/// (CiA 301 default connection set).
+fn pdo_objects(dir: PdoDir, node: u16) -> (u16, u16, u16) {
+    match dir {
+        PdoDir::Transmit => (TPDO1_COMM, TPDO1_MAP, TPDO1_BASE + node),
+        PdoDir::Receive => (RPDO1_COMM, RPDO1_MAP, RPDO1_BASE + node),
+    }
+}
+
 fn settings_err(m: String) -> StartupError {
     StartupError::Settings(m)
 }
@@ -257,8 +273,8 @@ impl DevicePlan {
             settings_err(format!(
                 "{} ({}): the {} has no object 0x{index:04X}:{sub:02X} in its EDS, which ehactl needs",
                 self.eds.source,
-                self.dev.config_key(),
-                self.dev.name()
+                self.config_key,
+                self.device.name()
             ))
         })
     }
@@ -279,7 +295,7 @@ impl DevicePlan {
                 return Err(settings_err(format!(
                     "{} ({}): 0x{index:04X}:{sub:02X} ({}) has data type 0x{:04X} of {n} bytes, ehactl writes {} bytes there",
                     self.eds.source,
-                    self.dev.config_key(),
+                    self.config_key,
                     o.name,
                     o.data_type,
                     value.len()
@@ -339,7 +355,7 @@ impl DevicePlan {
                 return Err(settings_err(format!(
                     "{} ({}): {what}: 0x{:04X}:{:02X} ({}) is {} in the EDS; ehactl maps it with {} bits",
                     self.eds.source,
-                    self.dev.config_key(),
+                    self.config_key,
                     e.index,
                     e.sub,
                     o.name,
@@ -407,9 +423,9 @@ impl Plan {
             p.plan_error_control(c)?;
             p.plan_sync_objects(c)?;
         }
-        t.plan_transducer_profile(c)?;
-        v.plan_valve_profile()?;
-        v.plan_valve_pdos(c)?;
+        for p in [&mut t, &mut v] {
+            p.plan_profile(p.device, c)?;
+        }
         for p in [&t, &v] {
             p.check_dcf_not_overridden()?;
         }
@@ -437,27 +453,39 @@ impl DevicePlan {
         };
         let eds = Eds::from_config(path, s.config_dir.as_deref(), builtin, name)
             .map_err(|e| settings_err(format!("{}: {e}", dev.config_key())))?;
-        let (node, profile) = match dev {
-            Dev::Transducer => (c.transducer_node_id, cia406::PROFILE),
-            Dev::Valve => (c.valve_node_id, cia408::PROFILE),
+        let node = match dev {
+            Dev::Transducer => c.transducer_node_id,
+            Dev::Valve => c.valve_node_id,
         };
+        DevicePlan::from_file(dev.profile(), dev.config_key(), node, eds)
+    }
+
+    /// A device of profile `device` at `node` described by `eds` (`config_key` names the
+    /// file in messages), checked: the DCF's node id, the CiA profile in the device type
+    /// 0x1000 (CiA 301 7.5.2.1), and the identity 0x1018:01 / :02 to check on the bus. No
+    /// steps yet.
+    fn from_file(
+        device: &'static dyn Profile,
+        config_key: &'static str,
+        node: u8,
+        eds: Eds,
+    ) -> Result<DevicePlan, StartupError> {
+        let profile = device.number();
         if let Some(dcf) = eds.dcf_node_id.filter(|n| *n != 0 && *n != node) {
             return Err(settings_err(format!(
-                "{} ({}): the DCF is for node {dcf}, the config has {} node id {node}",
+                "{} ({config_key}): the DCF is for node {dcf}, the config has {} node id {node}",
                 eds.source,
-                dev.config_key(),
-                dev.name()
+                device.name()
             )));
         }
         match eds.default_number(0x1000, 0, node) {
             Some(dt) if dt & 0xFFFF == i128::from(profile) => {}
             other => {
                 return Err(settings_err(format!(
-                    "{} ({}): device type 0x1000 = {} is no CiA {profile} device; expected the {}'s file",
+                    "{} ({config_key}): device type 0x1000 = {} is no CiA {profile} device; expected the {}'s file",
                     eds.source,
-                    dev.config_key(),
                     other.map_or("(missing)".into(), |v| format!("0x{v:08X}")),
-                    dev.name()
+                    device.name()
                 )))
             }
         }
@@ -468,7 +496,8 @@ impl DevicePlan {
                 .or_else(|| eds.default_number(0x1018, 2, node).map(|v| v as u32)),
         );
         Ok(DevicePlan {
-            dev,
+            device,
+            config_key,
             node,
             eds,
             profile,
@@ -503,7 +532,7 @@ impl DevicePlan {
     /// 2. Error control (CiA 301 heartbeat): the device's heartbeat producer 0x1017, its
     ///    consumer 0x1016:01 of ehactl's heartbeat.
     fn plan_error_control(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
-        let name = self.dev.name();
+        let name = self.device.name();
         self.push(
             0x1017,
             0,
@@ -511,21 +540,24 @@ impl DevicePlan {
             StepKind::Ensure,
             format!("setting the {name} heartbeat producer time"),
         )?;
-        // The valve moves the load: it must detect a dead ehactl (its fault reaction), so
-        // its consumer is mandatory. A sensor's is used where the device has it, decided
+        // A device that moves the load (the valve) must detect a dead ehactl (its fault
+        // reaction), so its consumer is mandatory. A sensor's is used where the device has it, decided
         // from what the device answers (an EDS may describe another make or revision).
         let consumer =
             (u32::from(c.master_node_id) << 16) | u32::from(c.device_heartbeat_timeout_ms);
         let what = format!("setting the {name} consumer of ehactl's heartbeat 0x1016:01 (canopen.device_heartbeat_timeout_ms)");
-        match (self.dev, self.eds.get(0x1016, 1).is_some()) {
-            (Dev::Valve, false) => {
+        match (
+            self.device.moves_the_load(),
+            self.eds.get(0x1016, 1).is_some(),
+        ) {
+            (true, false) => {
                 return Err(settings_err(format!(
                     "{} ({}): the {name} has no heartbeat consumer 0x1016:01, so it cannot detect a dead ehactl (canopen.device_heartbeat_timeout_ms) and stop the load; ehactl refuses to drive it",
                     self.eds.source,
-                    self.dev.config_key()
+                    self.config_key
                 )));
             }
-            (dev, true) => {
+            (moves_the_load, true) => {
                 self.push(
                     0x1016,
                     1,
@@ -533,11 +565,11 @@ impl DevicePlan {
                     StepKind::Ensure,
                     what,
                 )?;
-                if dev == Dev::Transducer {
+                if !moves_the_load {
                     self.if_device_has();
                 }
             }
-            (Dev::Transducer, false) => {
+            (false, false) => {
                 // Not in the file: still asked, as CiA 301 defines it (UNSIGNED32, rw).
                 self.steps.push(Step {
                     index: 0x1016,
@@ -557,7 +589,7 @@ impl DevicePlan {
     /// 3. SYNC objects where the file has them (CiA 301 7.5.2.6/7/22): 0x1019 may only
     ///    change while 0x1006 = 0, so the period is cleared first.
     fn plan_sync_objects(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
-        let name = self.dev.name();
+        let name = self.device.name();
         let sync_period_us = (1e6 / c.sync_rate_hz).round() as u32;
         if self.eds.get(0x1006, 0).is_some_and(|o| o.access.writable()) {
             self.push(
@@ -584,7 +616,7 @@ impl DevicePlan {
             return Err(settings_err(format!(
                 "{} ({}): canopen.sync_counter_overflow = {} but the {name} has no 0x1019 (its SYNC consumer expects SYNC without counter); set it to 0",
                 self.eds.source,
-                self.dev.config_key(),
+                self.config_key,
                 c.sync_counter_overflow
             )));
         }
@@ -613,121 +645,48 @@ impl DevicePlan {
         Ok(())
     }
 
-    /// 4. CiA 406 profile objects of the transducer: position step 0x6005:01, cyclic timer
-    ///    off (position sent on SYNC only), TPDO1 = position 0x6020:01.
-    fn plan_transducer_profile(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
-        let tr = self.node;
-        self.push(
-            cia406::POSITION_STEP,
-            1,
-            c.position_step_nm.to_le_bytes().to_vec(),
-            StepKind::Ensure,
-            "setting the transducer position step 0x6005:01 (canopen.position_step_nm)",
-        )?;
-        if self.eds.get(cia406::CYCLIC_TIMER, 0).is_some() {
-            self.push(
-                cia406::CYCLIC_TIMER,
-                0,
-                0u16.to_le_bytes().to_vec(),
-                StepKind::Ensure,
-                "switching the transducer cyclic timer off (TPDO on SYNC)",
-            )?;
-            self.optional();
+    /// 4. The profile's objects ([`Profile::start_steps`]: an object only in the file
+    ///    where the step asks for it), the objects it needs the file to list, then its PDOs
+    ///    ([`Profile::pdos`]: the CiA 301 re-mapping, or the PDO disabled).
+    fn plan_profile(&mut self, p: &dyn Profile, c: &CanopenConfig) -> Result<(), StartupError> {
+        for st in p.start_steps(c) {
+            if st.only_if_in_eds && self.eds.get(st.index, st.sub).is_none() {
+                continue;
+            }
+            self.push(st.index, st.sub, st.value, StepKind::Ensure, st.what)?;
+            if st.optional {
+                self.optional();
+            }
         }
-        self.pdo(
-            TPDO1_COMM,
-            TPDO1_MAP,
-            TPDO1_BASE + u16::from(tr),
-            &cia406::TPDO1_MAP,
-            "the transducer TPDO1 (position 0x6020:01)",
-        )
-    }
-
-    /// 4. CiA 408 profile objects of the valve: device mode (setpoint from the bus),
-    ///    control mode (spool position, closed loop), a zero hold and spool setpoint; the
-    ///    device control objects (control word 0x6040, status word 0x6041) must exist.
-    fn plan_valve_profile(&mut self) -> Result<(), StartupError> {
-        for (index, sub, bytes, what) in [
-            (
-                cia408::DEVICE_MODE,
-                0u8,
-                vec![cia408::MODE_SETPOINT_FROM_BUS],
-                "setting the valve device mode 0x6042 = 1 (setpoint from the bus)",
-            ),
-            (
-                cia408::CONTROL_MODE,
-                0,
-                vec![cia408::CONTROL_MODE_SPOOL_CLOSED_LOOP as u8],
-                "setting the valve control mode 0x6043 = 2 (spool position, closed loop)",
-            ),
-            (
-                cia408::SPOOL_HOLD_SETPOINT,
-                1,
-                0i16.to_le_bytes().to_vec(),
-                "setting the valve hold setpoint 0x6314:01 = 0 (closed centre in HOLD)",
-            ),
-            (
-                cia408::SPOOL_SETPOINT,
-                1,
-                0i16.to_le_bytes().to_vec(),
-                "zeroing the valve spool setpoint",
-            ),
-        ] {
-            self.push(index, sub, bytes, StepKind::Ensure, what)?;
-        }
-        for (index, what) in [
-            (cia408::CONTROL_WORD, "the valve control word 0x6040"),
-            (cia408::STATUS_WORD, "the valve status word 0x6041"),
-        ] {
-            self.obj(index, 0).map_err(|_| {
-                settings_err(format!("{}: no {what} in the valve's EDS", self.eds.source))
+        for &(index, sub, what) in p.required_objects() {
+            self.obj(index, sub).map_err(|_| {
+                settings_err(format!(
+                    "{}: no {what} in the {}'s EDS",
+                    self.eds.source,
+                    p.name()
+                ))
             })?;
         }
+        let node = u16::from(self.node);
+        for pdo in p.pdos(c) {
+            match pdo {
+                ProfilePdo::Map { dir, entries, what } => {
+                    let (comm, map, cob) = pdo_objects(dir, node);
+                    self.pdo(comm, map, cob, entries, what)?;
+                }
+                ProfilePdo::Disable { dir, what } => {
+                    let (comm, _, cob) = pdo_objects(dir, node);
+                    self.push(
+                        comm,
+                        1,
+                        (COB_ID_INVALID | u32::from(cob)).to_le_bytes().to_vec(),
+                        StepKind::Ensure,
+                        what,
+                    )?;
+                }
+            }
+        }
         Ok(())
-    }
-
-    /// 4. The valve's PDOs: RPDO1 deadline monitoring where the file has it, RPDO1 = spool
-    ///    setpoint 0x6300:01, TPDO1 = status word + actual spool, or TPDO1 disabled.
-    fn plan_valve_pdos(&mut self, c: &CanopenConfig) -> Result<(), StartupError> {
-        let va = self.node;
-        if c.valve_rpdo_timeout_ms != 0 && self.eds.get(RPDO1_COMM, 5).is_some() {
-            // RPDO deadline monitoring (CiA 301 v4.2 7.5.2.35 sub 5): set before the RPDO is
-            // re-mapped, so that the re-mapping's enable starts it.
-            self.push(
-                RPDO1_COMM,
-                5,
-                c.valve_rpdo_timeout_ms.to_le_bytes().to_vec(),
-                StepKind::Ensure,
-                "setting the valve RPDO1 deadline 0x1400:05 (canopen.valve_rpdo_timeout_ms)",
-            )?;
-            self.optional();
-        }
-        self.pdo(
-            RPDO1_COMM,
-            RPDO1_MAP,
-            RPDO1_BASE + u16::from(va),
-            &cia408::RPDO1_MAP,
-            "the valve RPDO1 (spool setpoint 0x6300:01)",
-        )?;
-        if c.valve_status_pdo {
-            self.pdo(
-                TPDO1_COMM,
-                TPDO1_MAP,
-                TPDO1_BASE + u16::from(va),
-                &cia408::TPDO1_MAP,
-                "the valve TPDO1 (status word 0x6041 + actual spool 0x6301:01)",
-            )
-        } else {
-            self.push(
-                TPDO1_COMM,
-                1,
-                (COB_ID_INVALID | u32::from(TPDO1_BASE + u16::from(va)))
-                    .to_le_bytes()
-                    .to_vec(),
-                StepKind::Ensure,
-                "disabling the valve TPDO1 (canopen.valve_status_pdo = false)",
-            )
-        }
     }
 
     /// A DCF value that ehactl overrides would be silently lost: refuse it.
@@ -754,7 +713,7 @@ impl DevicePlan {
                 return Err(settings_err(format!(
                     "{} ({}): the DCF sets 0x{i:04X}:{sub:02X} ({}) = {}, but ehactl sets it to {:02X?} ({}); remove the ParameterValue or change the config",
                     self.eds.source,
-                    self.dev.config_key(),
+                    self.config_key,
                     o.name,
                     o.parameter_value.as_deref().unwrap_or(""),
                     last.value,
@@ -1293,8 +1252,14 @@ impl<'a> Bringup<'a> {
     /// Device type (profile), identity 0x1018:01/02 against the device's file, name 0x1008.
     fn identify(&mut self, i: usize) -> Result<(), StartupError> {
         let p = &self.plan.devices[i];
-        let (n, dev, profile, identity, source) =
-            (p.node, p.dev, p.profile, p.identity, p.eds.source.clone());
+        let (n, dev, key, profile, identity, source) = (
+            p.node,
+            p.device,
+            p.config_key,
+            p.profile,
+            p.identity,
+            p.eds.source.clone(),
+        );
         let d = self.read(n, 0x1000, 0, "reading the device type")?;
         let dt = u32::from_le_bytes(le4(&d));
         if dt & 0xFFFF != u32::from(profile) {
@@ -1319,7 +1284,7 @@ impl<'a> Bringup<'a> {
                 return Err(StartupError::Device(format!(
                     "{} (node {n} = 0x{n:02X}): {what} 0x1018:{sub:02X} is 0x{got:08X} but its device description {source} ({}) is for 0x{want:08X}; is this the right device or file?",
                     dev.name(),
-                    dev.config_key()
+                    key
                 )));
             }
         }
@@ -1350,7 +1315,7 @@ impl<'a> Bringup<'a> {
 
     /// The planned objects of device `i`, in order (see [`StepKind`]).
     pub(crate) fn apply_plan(&mut self, i: usize) -> Result<(), StartupError> {
-        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].dev);
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
         let steps = self.plan.devices[i].steps.clone();
         for step in &steps {
             self.bus.check_stop()?;
@@ -1462,10 +1427,11 @@ impl<'a> Bringup<'a> {
                 Err(SdoError::Abort {
                     code: code @ (0x0602_0000 | 0x0609_0011),
                     ..
-                }) if index == 0x1016 && dev == Dev::Valve => {
+                }) if index == 0x1016 && dev.moves_the_load() => {
                     return Err(StartupError::Device(format!(
-                        "{}: the valve (node {n}) has no heartbeat consumer 0x1016:{sub:02X} (abort 0x{code:08X}, object does not exist) although {} lists it; it could not detect a dead ehactl and stop the load: ehactl refuses to drive it",
+                        "{}: the {} (node {n}) has no heartbeat consumer 0x1016:{sub:02X} (abort 0x{code:08X}, object does not exist) although {} lists it; it could not detect a dead ehactl and stop the load: ehactl refuses to drive it",
                         step.what,
+                        dev.name(),
                         self.plan.devices[i].eds.source
                     )));
                 }
@@ -1728,6 +1694,51 @@ mod tests {
         assert_eq!(at(t, 0x6005, 1), 1);
         assert_eq!(at(v, 0x1400, 5), 1); // RPDO deadline where the EDS has it
         assert!(v.steps.iter().all(|s| s.access.writable()));
+    }
+
+    /// A third profile planned with the same phases as the transducer and the valve: only its
+    /// module (crates/canopen/src/cia404.rs) and its file are new.
+    #[test]
+    fn a_cia_404_device_is_planned_from_its_profile_and_file() {
+        let text = include_str!("../../../configs/eds/ehactl_pressure_404.eds");
+        let eds = Eds::parse(text, "ehactl_pressure_404.eds").unwrap();
+        let c = CanopenConfig::default();
+        let mut d = DevicePlan::from_file(&crate::cia404::Cia404, "test", 64, eds).unwrap();
+        d.plan_dcf_settings().unwrap();
+        d.plan_error_control(&c).unwrap();
+        d.plan_sync_objects(&c).unwrap();
+        d.plan_profile(d.device, &c).unwrap();
+        d.check_dcf_not_overridden().unwrap();
+        assert_eq!((d.profile, d.identity), (404, (Some(0), Some(0x194))));
+        let objs: Vec<(u16, u8)> = d.steps.iter().map(|s| (s.index, s.sub)).collect();
+        let pos = |o: (u16, u8)| objs.iter().position(|x| *x == o).unwrap();
+        // The sensor's consumer of ehactl's heartbeat is used where the device has it.
+        let consumer = &d.steps[pos((0x1016, 1))];
+        assert!(consumer.if_device_has);
+        // Decimal digits 0 (Pa), then the TPDO1 re-mapping to 0x9130:01 (CiA 301: disable,
+        // clear, map, count, enable).
+        assert_eq!(d.steps[pos((0x6132, 1))].value, vec![0]);
+        let map1 = d
+            .steps
+            .iter()
+            .find(|s| (s.index, s.sub) == (0x1A00, 1))
+            .unwrap();
+        assert_eq!(map1.value, 0x9130_0120u32.to_le_bytes());
+        assert!(pos((0x6132, 1)) < pos((0x1A00, 1)));
+        let cob: Vec<&Step> = d
+            .steps
+            .iter()
+            .filter(|s| (s.index, s.sub) == (0x1800, 1))
+            .collect();
+        assert_eq!(
+            cob.first().unwrap().value,
+            (0x8000_0000u32 | (0x180 + 64)).to_le_bytes()
+        );
+        assert_eq!(cob.last().unwrap().value, (0x180u32 + 64).to_le_bytes());
+        // A 406 file is refused as a 404 device's, before the bus.
+        let wrong = Eds::parse(BUILTIN_TRANSDUCER_EDS, "406.eds").unwrap();
+        let e = DevicePlan::from_file(&crate::cia404::Cia404, "key", 64, wrong).unwrap_err();
+        assert!(e.to_string().contains("is no CiA 404 device"), "{e}");
     }
 
     #[test]

@@ -457,7 +457,7 @@ fn section<T: serde::de::DeserializeOwned>(
                     format!("expected a table [{key}], got {}", v.type_str()),
                 ));
             }
-            serde_path_to_error::deserialize(v).map_err(|e| spec::from_serde(key, e, &tables))
+            serde_path_to_error::deserialize(v).map_err(|e| tree::from_serde(key, e, &tables))
         }
         None if required => Err(ConfigError::new(
             key,
@@ -546,7 +546,7 @@ impl RigConfig {
             Some(RealtimeConfig::default())
         })?;
         let plant: PlantParams = serde_path_to_error::deserialize(toml::Value::Table(root))
-            .map_err(|e| spec::from_serde("", e, &tables))?;
+            .map_err(|e| tree::from_serde("", e, &tables))?;
         let inputs: inputs::Inputs =
             own_table(inputs_value, "inputs", "[inputs.<name>]")?.unwrap_or_default();
         let envelope = own_table(envelope_value, "envelope", "[envelope]")?;

@@ -1,6 +1,7 @@
 //! The registry's checks on a parsed TOML tree: dotted-path access ([`get`], [`get_mut`]) and
 //! [`check_tree`], which normalises integers to floats and checks every declared parameter's
-//! type and range before serde reads the sections.
+//! type and range before serde reads the sections, and [`from_serde`], which names the
+//! registry path and expected unit of an error serde raises while reading them.
 //!
 //! They live here, with the loader that calls them, and not beside the registry types in
 //! `ehactl-types` (crates/types/src/spec.rs): the control laws declare their parameters
@@ -120,4 +121,80 @@ pub fn check_tree(root: &mut toml::Value, tables: &[&[Param]]) -> Result<(), Con
         }
     }
     Ok(())
+}
+
+/// Turn a serde error (from `serde_path_to_error`) into a [`ConfigError`] naming the full
+/// path and the expected unit. `tables` are the registries the path is looked up in
+/// (`crate::registries()`); an unknown key under `effects` lists the plant's effect ids.
+pub fn from_serde(
+    prefix: &str,
+    err: serde_path_to_error::Error<toml::de::Error>,
+    tables: &[&[Param]],
+) -> ConfigError {
+    let mut path = err.path().to_string();
+    if path == "." {
+        path.clear();
+    }
+    let full = |p: &str| -> String {
+        match (prefix.is_empty(), p.is_empty()) {
+            (true, _) => p.to_string(),
+            (false, true) => prefix.to_string(),
+            (false, false) => format!("{prefix}.{p}"),
+        }
+    };
+    let inner = err.into_inner();
+    let msg = inner.message().to_string();
+    if let Some(field) = between(&msg, "missing field `", "`") {
+        let base = full(&path);
+        let fp = if base.is_empty() {
+            field.to_string()
+        } else {
+            format!("{base}.{field}")
+        };
+        let exp = expectation(tables, &fp);
+        return ConfigError::new(fp, format!("missing required field; {exp}"));
+    }
+    if let Some(field) = between(&msg, "unknown field `", "`") {
+        // serde_path_to_error's path already ends with the unknown key.
+        let fp = full(&path);
+        let base = fp
+            .strip_suffix(field)
+            .map(|b| b.trim_end_matches('.').to_string())
+            .unwrap_or_default();
+        let fp = if fp.is_empty() { field.to_string() } else { fp };
+        if base == "effects" {
+            return ConfigError::new(
+                fp,
+                format!(
+                    "unknown effect id `{field}`; expected one of: {}",
+                    ehactl_plant::EffectId::ALL
+                        .iter()
+                        .map(|e| e.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            );
+        }
+        let rest = msg.split(", expected").nth(1).unwrap_or("").trim();
+        return ConfigError::new(
+            fp,
+            format!(
+                "unknown field; expected{}",
+                if rest.is_empty() {
+                    " no such field".to_string()
+                } else {
+                    format!(" {rest}")
+                }
+            ),
+        );
+    }
+    let fp = full(&path);
+    let exp = expectation(tables, &fp);
+    ConfigError::new(fp, format!("{msg}; {exp}"))
+}
+
+fn between<'a>(s: &'a str, start: &str, end: &str) -> Option<&'a str> {
+    let i = s.find(start)? + start.len();
+    let j = s[i..].find(end)? + i;
+    Some(&s[i..j])
 }

@@ -11,6 +11,7 @@ use crate::record::{control_schema, plant_schema, timing_schema, CycleRecord, Ev
 use crate::schemas;
 use crossbeam_queue::ArrayQueue;
 pub use ehactl_types::frames::{CanFrameRecord, FrameLog};
+pub use ehactl_types::queue::LossyQueue;
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -105,26 +106,22 @@ pub enum TapMessage {
 /// full the message is dropped and counted, so a slow viewer never slows the log or the loop.
 #[derive(Debug)]
 pub struct LogTap {
-    queue: ArrayQueue<TapMessage>,
-    dropped: AtomicU64,
+    queue: LossyQueue<TapMessage>,
     closed: AtomicBool,
 }
 
 impl LogTap {
-    /// A tap holding up to `capacity` messages.
+    /// A tap holding up to `capacity` messages (at least 16).
     pub fn new(capacity: usize) -> LogTap {
         LogTap {
-            queue: ArrayQueue::new(capacity.max(16)),
-            dropped: AtomicU64::new(0),
+            queue: LossyQueue::new(capacity.max(16)),
             closed: AtomicBool::new(false),
         }
     }
 
     /// Queue a message (never blocks; counted as dropped if full).
     pub fn offer(&self, m: TapMessage) {
-        if self.queue.push(m).is_err() {
-            self.dropped.fetch_add(1, Ordering::Relaxed);
-        }
+        self.queue.push(m);
     }
 
     /// Take the oldest message.
@@ -134,7 +131,7 @@ impl LogTap {
 
     /// Messages dropped because the queue was full.
     pub fn dropped(&self) -> u64 {
-        self.dropped.load(Ordering::Relaxed)
+        self.queue.dropped()
     }
 
     /// True once the log is finalised (nothing more will be offered).
@@ -222,45 +219,9 @@ impl Note {
 }
 
 /// Bounded queue of [`Note`]s from threads off the loop (the control socket) to the MCAP
-/// writer. Never blocks: when full a note is dropped and counted.
-#[derive(Debug)]
-pub struct NoteLog {
-    queue: ArrayQueue<Note>,
-    dropped: AtomicU64,
-}
-
-impl Default for NoteLog {
-    fn default() -> Self {
-        Self::new(256)
-    }
-}
-
-impl NoteLog {
-    /// Queue with room for `capacity` notes.
-    pub fn new(capacity: usize) -> NoteLog {
-        NoteLog {
-            queue: ArrayQueue::new(capacity.max(1)),
-            dropped: AtomicU64::new(0),
-        }
-    }
-
-    /// Queue a note (counted as dropped if full).
-    pub fn push(&self, note: Note) {
-        if self.queue.push(note).is_err() {
-            self.dropped.fetch_add(1, Ordering::Relaxed);
-        }
-    }
-
-    /// Take the oldest note.
-    pub fn pop(&self) -> Option<Note> {
-        self.queue.pop()
-    }
-
-    /// Notes dropped so far.
-    pub fn dropped(&self) -> u64 {
-        self.dropped.load(Ordering::Relaxed)
-    }
-}
+/// writer: a [`LossyQueue`] (`push`, `pop`, `dropped`). Never blocks: when full a note is
+/// dropped and counted.
+pub type NoteLog = LossyQueue<Note>;
 
 /// Take the exclusive advisory lock (flock(2)) of the open log file without waiting.
 fn lock_exclusive(file: &File) -> Result<(), String> {

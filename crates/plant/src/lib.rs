@@ -42,10 +42,10 @@ pub use effects::line_dynamics::line;
 /// The parameter registry: the registry types (`Param`, `Range`, `ParamTree`,
 /// `ConfigError`), which live in `ehactl-types` (crates/types/src/spec.rs) so that the
 /// control laws and the backends declare parameters without compiling the plant (the checks
-/// on a parsed TOML tree are `ehactl_config::tree`), and
-/// the plant's own table ([`spec::params`]) and serde error mapping ([`spec::from_serde`]).
+/// on a parsed TOML tree and the serde error mapping are `ehactl_config::tree`), and
+/// the plant's own table ([`spec::params`]).
 pub mod spec {
-    pub use crate::registry::{from_serde, params};
+    pub use crate::registry::params;
     pub use ehactl_types::spec::*;
 }
 

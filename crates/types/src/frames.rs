@@ -1,12 +1,11 @@
 //! The hand-over of raw bus frames from a backend to the logger: [`CanFrameRecord`] (one
 //! frame, fixed size) and [`FrameLog`] (bounded lock-free queues of frames and backend
-//! events). A CAN backend (crates/canopen/src/hal.rs) fills it and hands it out through
+//! events, crates/types/src/queue.rs). A CAN backend (crates/canopen/src/hal.rs) fills it and hands it out through
 //! `Hal::frame_log`; the MCAP logger (crates/log/src/logger.rs, `Logger::attach_frames`)
 //! drains it into `/can` and `/events`. Neither side compiles the other.
 
 use crate::event::Event;
-use crossbeam_queue::ArrayQueue;
-use std::sync::atomic::{AtomicU64, Ordering};
+use crate::queue::LossyQueue;
 
 /// One raw CAN frame seen by a CAN backend (fixed size, no heap).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -27,33 +26,27 @@ pub struct CanFrameRecord {
 
 /// Bounded lock-free queues of raw CAN frames and backend events from a backend (its I/O
 /// threads and its cycle code) to whoever records them (the MCAP logger of `ehactl-log`
-/// writes them to `/can` and `/events`). Never blocks:
+/// writes them to `/can` and `/events`): two [`LossyQueue`]s. Never blocks:
 /// when full the frame or event is dropped and counted.
 #[derive(Debug)]
 pub struct FrameLog {
-    queue: ArrayQueue<CanFrameRecord>,
-    events: ArrayQueue<Event>,
-    dropped: AtomicU64,
-    events_dropped: AtomicU64,
+    frames: LossyQueue<CanFrameRecord>,
+    events: LossyQueue<Event>,
 }
 
 impl FrameLog {
-    /// Queue with room for `capacity` frames.
+    /// Queue with room for `capacity` frames (at least 16) and 256 backend events.
     pub fn new(capacity: usize) -> FrameLog {
         FrameLog {
-            queue: ArrayQueue::new(capacity.max(16)),
-            events: ArrayQueue::new(256),
-            dropped: AtomicU64::new(0),
-            events_dropped: AtomicU64::new(0),
+            frames: LossyQueue::new(capacity.max(16)),
+            events: LossyQueue::new(256),
         }
     }
 
     /// Queue a backend event for `/events` (lock-free; counted as dropped if full).
     #[inline]
     pub fn push_event(&self, ev: Event) {
-        if self.events.push(ev).is_err() {
-            self.events_dropped.fetch_add(1, Ordering::Relaxed);
-        }
+        self.events.push(ev);
     }
 
     /// Take the oldest backend event.
@@ -63,34 +56,32 @@ impl FrameLog {
 
     /// Backend events dropped so far.
     pub fn events_dropped(&self) -> u64 {
-        self.events_dropped.load(Ordering::Relaxed)
+        self.events.dropped()
     }
 
     /// Queue a frame (lock-free, allocation-free); counts it as dropped if full.
     #[inline]
     pub fn push(&self, rec: CanFrameRecord) {
-        if self.queue.push(rec).is_err() {
-            self.dropped.fetch_add(1, Ordering::Relaxed);
-        }
+        self.frames.push(rec);
     }
 
     /// Take the oldest frame.
     pub fn pop(&self) -> Option<CanFrameRecord> {
-        self.queue.pop()
+        self.frames.pop()
     }
 
     /// Frames dropped so far.
     pub fn dropped(&self) -> u64 {
-        self.dropped.load(Ordering::Relaxed)
+        self.frames.dropped()
     }
 
     /// Frames queued now.
     pub fn len(&self) -> usize {
-        self.queue.len()
+        self.frames.len()
     }
 
     /// Whether no frame is queued.
     pub fn is_empty(&self) -> bool {
-        self.queue.is_empty()
+        self.frames.is_empty()
     }
 }

@@ -12,8 +12,9 @@
 //! - [`Timebase`], the control period (built by the config, read by the plant's user, the
 //!   pacer, the run loop and the backends),
 //! - [`timing::CycleTiming`], what a wall-clock pacer measures of each cycle,
-//! - [`frames`], the queue of raw bus frames and backend events a CAN backend hands to the
-//!   logger (`Hal::frame_log`), so that neither compiles the other,
+//! - [`queue::LossyQueue`], the one bounded lock-free queue that drops and counts what does
+//!   not fit, and on it [`frames`], the queue of raw bus frames and backend events a CAN
+//!   backend hands to the logger (`Hal::frame_log`), so that neither compiles the other,
 //! - [`canopen`], the `[canopen]` section of the rig config, read by `ehactl-config` and
 //!   used by the CANopen backend (`ehactl-canopen`), so that the config does not compile
 //!   the CANopen master.
@@ -27,6 +28,7 @@ pub mod event;
 pub mod frames;
 pub mod measurements;
 pub mod plant_state;
+pub mod queue;
 pub mod spec;
 pub mod timebase;
 pub mod timing;
