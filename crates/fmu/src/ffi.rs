@@ -44,8 +44,10 @@ pub struct Component {
     inst: Instance,
 }
 
-/// Send `msg` to the host's logger with `status` and `category` (through `%s`: the message
-/// is never read as a format).
+/// Send `msg` to the host's logger with `status` and `category`. The message is the
+/// logger's format argument with every `%` doubled: a host that formats it (printf-style, as
+/// FMI 2.0 §2.1.5 allows) prints it as written, and one that does not (FMPy's ctypes logger)
+/// shows it as is, but for `%%`.
 fn log_to(
     logger: Option<Logger>,
     env: *mut c_void,
@@ -56,19 +58,10 @@ fn log_to(
 ) {
     let Some(f) = logger else { return };
     let cat = CString::new(cat).unwrap_or_default();
-    let msg = CString::new(msg.replace('\0', " ")).unwrap_or_default();
+    let msg = CString::new(msg.replace('\0', " ").replace('%', "%%")).unwrap_or_default();
     // SAFETY: the host gave this logger for this instance; all strings are NUL-terminated
-    // and live across the call; "%s" takes exactly the one string argument given.
-    unsafe {
-        f(
-            env,
-            name.as_ptr(),
-            status,
-            cat.as_ptr(),
-            c"%s".as_ptr(),
-            msg.as_ptr(),
-        )
-    };
+    // and live across the call; the format has no conversion left (every `%` is doubled).
+    unsafe { f(env, name.as_ptr(), status, cat.as_ptr(), msg.as_ptr()) };
 }
 
 impl Component {
@@ -394,7 +387,10 @@ pub unsafe extern "C" fn fmi2GetReal(
 ) -> Status {
     get_values(c, vr, n, value.is_null(), |i, x| match x {
         // SAFETY: `value` holds `n` > i entries.
-        Value::Real(r) => Ok(unsafe { *value.add(i) = r }),
+        Value::Real(r) => {
+            unsafe { *value.add(i) = r };
+            Ok(())
+        }
         other => Err(wrong("Real", other)),
     })
 }
@@ -412,7 +408,10 @@ pub unsafe extern "C" fn fmi2GetInteger(
 ) -> Status {
     get_values(c, vr, n, value.is_null(), |i, x| match x {
         // SAFETY: `value` holds `n` > i entries.
-        Value::Integer(v) => Ok(unsafe { *value.add(i) = v as c_int }),
+        Value::Integer(v) => {
+            unsafe { *value.add(i) = v as c_int };
+            Ok(())
+        }
         other => Err(wrong("Integer", other)),
     })
 }
@@ -430,7 +429,10 @@ pub unsafe extern "C" fn fmi2GetBoolean(
 ) -> Status {
     get_values(c, vr, n, value.is_null(), |i, x| match x {
         // SAFETY: `value` holds `n` > i entries.
-        Value::Boolean(b) => Ok(unsafe { *value.add(i) = c_int::from(b) }),
+        Value::Boolean(b) => {
+            unsafe { *value.add(i) = c_int::from(b) };
+            Ok(())
+        }
         other => Err(wrong("Boolean", other)),
     })
 }
