@@ -95,10 +95,12 @@ fn with(c: *mut c_void, f: impl FnOnce(&mut Component) -> Status) -> Status {
     // SAFETY: `c` is a pointer fmi2Instantiate returned (a leaked Box<Component>) and not
     // yet freed; FMI 2.0 §2.1.2 forbids concurrent calls on one instance.
     let comp = unsafe { &mut *(c as *mut Component) };
-    let (logger, env, name) = (comp.logger, comp.env, comp.name.clone());
     match catch_unwind(AssertUnwindSafe(|| f(comp))) {
         Ok(s) => s,
         Err(p) => {
+            // SAFETY: as above; the closure that borrowed the component has ended.
+            let comp = unsafe { &*(c as *const Component) };
+            let (logger, env, name) = (comp.logger, comp.env, &comp.name);
             let what = p
                 .downcast_ref::<&str>()
                 .map(|s| s.to_string())
@@ -107,7 +109,7 @@ fn with(c: *mut c_void, f: impl FnOnce(&mut Component) -> Status) -> Status {
             log_to(
                 logger,
                 env,
-                &name,
+                name,
                 FATAL,
                 "logStatusError",
                 &format!("internal error: {what}"),
@@ -541,4 +543,91 @@ refused! {
     fmi2GetIntegerStatus(kind: c_int, value: *mut c_int);
     fmi2GetBooleanStatus(kind: c_int, value: *mut c_int);
     fmi2GetStringStatus(kind: c_int, value: *mut *const c_char);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::variables::Variant;
+
+    /// A component of the Sahu 2022 plant FMU with no logger.
+    fn component() -> *mut c_void {
+        let text = include_str!("../../../configs/sahu2022_force.toml");
+        let guid = crate::xml::guid(text, Variant::Plant);
+        let inst = Instance::new(text, Variant::Plant, &guid).unwrap();
+        Box::into_raw(Box::new(Component {
+            name: CString::new("t").unwrap(),
+            logger: None,
+            env: std::ptr::null_mut(),
+            logging_on: false,
+            inst,
+        })) as *mut c_void
+    }
+
+    #[test]
+    fn a_panic_inside_a_call_is_fmi2fatal_and_never_unwinds_into_the_host() {
+        let c = component();
+        assert_eq!(with(c, |_| panic!("boom")), FATAL);
+        // the instance is still there and answers
+        assert_eq!(with(c, |_| OK), OK);
+        assert_eq!(with(std::ptr::null_mut(), |_| OK), ERROR);
+        // SAFETY: `c` came from `component` and is freed once.
+        unsafe { fmi2FreeInstance(c) };
+    }
+
+    #[test]
+    fn a_wrong_guid_or_resource_location_instantiates_nothing() {
+        let name = c"x";
+        let err = |kind, uri| instantiate(name, kind, "{0}", uri).err().unwrap();
+        assert!(err(1, "file:///nonexistent/resources")
+            .contains("cannot read /nonexistent/resources/config.toml"));
+        assert!(err(0, "file:///tmp").contains("co-simulation only"));
+        assert!(err(1, "http://example.org/r").contains("no file URI"));
+        let text = include_str!("../../../configs/sahu2022_force.toml");
+        assert!(Instance::new(text, Variant::Plant, "{0}")
+            .err()
+            .unwrap()
+            .contains("does not match"));
+    }
+
+    #[test]
+    fn resource_uris_of_the_usual_forms_give_the_directory() {
+        for (uri, dir) in [
+            ("file:///a/b%20c/resources", "/a/b c/resources"),
+            ("file:/a/resources", "/a/resources"),
+            ("file://localhost/a/resources", "/a/resources"),
+            ("file:///a/100%/r", "/a/100%/r"),
+        ] {
+            assert_eq!(
+                resource_dir(uri).unwrap(),
+                std::path::PathBuf::from(dir),
+                "{uri}"
+            );
+        }
+    }
+
+    #[test]
+    fn values_go_through_the_c_calls_and_bad_ones_are_refused() {
+        let c = component();
+        // SAFETY: FMI calls on a live component with arrays of the stated length.
+        unsafe {
+            assert_eq!(fmi2SetupExperiment(c, 0, 0.0, 0.0, 0, 0.0), OK);
+            assert_eq!(fmi2EnterInitializationMode(c), OK);
+            assert_eq!(fmi2ExitInitializationMode(c), OK);
+            let u: c_uint = 9; // after the nine plant outputs
+            assert_eq!(fmi2SetReal(c, &u, 1, &f64::NAN), ERROR);
+            assert_eq!(fmi2SetReal(c, &u, 1, &2.0), OK);
+            let mut got = 0.0;
+            assert_eq!(fmi2GetReal(c, &u, 1, &mut got), OK);
+            assert_eq!(got, 2.0);
+            let mut b = 0;
+            assert_eq!(fmi2GetBoolean(c, &u, 1, &mut b), ERROR);
+            assert_eq!(fmi2DoStep(c, 0.0, 3.0e-4, 1), ERROR);
+            assert_eq!(fmi2DoStep(c, 0.0, 4.0e-4, 1), OK);
+            assert_eq!(fmi2DoStep(c, 4.0e-4, 2.0e-4, 1), OK);
+            assert_eq!(fmi2GetString(c, &u, 0, std::ptr::null_mut()), ERROR);
+            assert_eq!(fmi2Terminate(c), OK);
+            fmi2FreeInstance(c);
+        }
+    }
 }

@@ -97,6 +97,9 @@ pub struct Instance {
     start_time: f64,
     /// Events to hand to the host's logger (trips), taken by the C boundary.
     pub events: Vec<String>,
+    /// Where the valve command, the setpoint and its rate are in `values` (looked up once:
+    /// a step reads them without searching the table).
+    inputs: [Option<usize>; 3],
 }
 
 /// The FMU's resources as the library reads them: the config text and the variant.
@@ -131,7 +134,14 @@ impl Instance {
             .map_err(|e| format!("resources/config.toml: {e}"))?;
         let vars = crate::variables::table(&cfg, variant);
         let values = vars.iter().map(|v| v.start).collect();
+        let at = |role: Role| vars.iter().position(|v| v.role == role);
+        let inputs = [
+            at(Role::Command),
+            at(Role::Setpoint),
+            at(Role::SetpointRate),
+        ];
         Ok(Instance {
+            inputs,
             variant,
             cfg,
             vars,
@@ -210,7 +220,7 @@ impl Instance {
     /// the end of initialisation and within its registry range, the command finite and
     /// within ± the valve's full scale, an operating input fixed after initialisation.
     pub fn set(&mut self, vr: u32, value: Value) -> Result<(), String> {
-        let var = self.var(vr)?.clone();
+        let var = self.var(vr)?;
         let name = &var.name;
         if std::mem::discriminant(&var.start) != std::mem::discriminant(&value) {
             return Err(format!(
@@ -234,7 +244,7 @@ impl Instance {
             Value::Boolean(_) => None,
         };
         if let Some(x) = numeric {
-            check_value(&var, x, self.cfg.plant.valve.command_full_scale)?;
+            check_value(var, x, self.cfg.plant.valve.command_full_scale)?;
             if let (Role::Operating(op), Some(sim)) = (&var.role, &self.sim) {
                 if sim.point.get(op) != Some(&x) {
                     return Err(format!(
@@ -259,8 +269,8 @@ impl Instance {
         let Some(sim) = self.sim.as_mut() else {
             return Ok(self.values[vr as usize]);
         };
-        let s = *sim.hal.sim.plant().state();
         let m = sim.hal.peek();
+        let s = sim.hal.sim.plant().state();
         Ok(match out {
             Out::X => Value::Real(s.x),
             Out::V => Value::Real(s.v),
@@ -376,18 +386,12 @@ impl Instance {
             return Err("no model: fmi2ExitInitializationMode did not succeed".into());
         };
         let n = self.cycles_of(sim, t, h)?;
-        let input = |role: Role| {
-            self.vars
-                .iter()
-                .position(|v| v.role == role)
-                .and_then(|i| match self.values[i] {
-                    Value::Real(x) => Some(x),
-                    _ => None,
-                })
-                .unwrap_or(0.0)
+        let input = |i: Option<usize>| match i.map(|i| self.values[i]) {
+            Some(Value::Real(x)) => x,
+            _ => 0.0,
         };
-        let u = input(Role::Command);
-        let held = (input(Role::Setpoint), input(Role::SetpointRate));
+        let [u, r, rdot] = self.inputs.map(input);
+        let held = (r, rdot);
         let variant = self.variant;
         let Some(sim) = self.sim.as_mut() else {
             return Err("no model".into());

@@ -61,3 +61,46 @@ pub fn stored(entries: &[(&str, &[u8])]) -> Result<Vec<u8>, String> {
     out.extend_from_slice(&0u16.to_le_bytes());
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    /// The entries read back by walking the local headers as an unzip does (PKWARE
+    /// APPNOTE §4.3.7), CRC-32 checked against an independent bitwise CRC (IEEE 802.3
+    /// polynomial 0xEDB88320, the zip CRC).
+    #[test]
+    fn the_archive_reads_back_with_its_crcs() {
+        fn crc(data: &[u8]) -> u32 {
+            let mut c = !0u32;
+            for &b in data {
+                c ^= u32::from(b);
+                for _ in 0..8 {
+                    c = if c & 1 != 0 {
+                        (c >> 1) ^ 0xEDB8_8320
+                    } else {
+                        c >> 1
+                    };
+                }
+            }
+            !c
+        }
+        let entries: [(&str, &[u8]); 2] = [("a.txt", b"hello"), ("b/c.bin", &[0, 1, 2, 255])];
+        let z = super::stored(&entries).unwrap();
+        let u16at = |i: usize| u16::from_le_bytes([z[i], z[i + 1]]) as usize;
+        let u32at = |i: usize| u32::from_le_bytes([z[i], z[i + 1], z[i + 2], z[i + 3]]);
+        let mut at = 0;
+        for (name, data) in entries {
+            assert_eq!(u32at(at), 0x0403_4b50);
+            let (size, n) = (u32at(at + 18) as usize, u16at(at + 26));
+            assert_eq!(&z[at + 30..at + 30 + n], name.as_bytes());
+            let body = &z[at + 30 + n..at + 30 + n + size];
+            assert_eq!(body, data);
+            assert_eq!(u32at(at + 14), crc(data));
+            at += 30 + n + size;
+        }
+        // the end record counts both entries and points at the central directory
+        let end = z.len() - 22;
+        assert_eq!(u32at(end), 0x0605_4b50);
+        assert_eq!(u16at(end + 10), 2);
+        assert_eq!(u32at(end + 16) as usize, at);
+    }
+}
