@@ -244,7 +244,14 @@ impl Instance {
             Value::Boolean(_) => None,
         };
         if let Some(x) = numeric {
-            check_value(var, x, self.cfg.plant.valve.command_full_scale)?;
+            // The full scale as the parameters set it from the end of initialisation.
+            let full_scale = self
+                .sim
+                .as_ref()
+                .map_or(self.cfg.plant.valve.command_full_scale, |s| {
+                    s.hal.sim.plant().params().valve.command_full_scale
+                });
+            check_value(var, x, full_scale)?;
             if let (Role::Operating(op), Some(sim)) = (&var.role, &self.sim) {
                 if sim.point.get(op) != Some(&x) {
                     return Err(format!(
