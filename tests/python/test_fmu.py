@@ -330,7 +330,13 @@ def test_export_without_the_library_is_a_clear_error(tmp_path):
     assert not (tmp_path / "a.fmu").exists()
     r = subprocess.run([BIN, "export-fmu", str(CONFIGS[0]), "--out", str(tmp_path / "a.zip")],
                        capture_output=True, text=True, timeout=60)
-    assert r.returncode == 1 and "ending in .fmu" in r.stderr
+    assert r.returncode == 2 and "ending in .fmu" in r.stderr
+    bad = tmp_path / "bad.toml"
+    bad.write_text(CONFIGS[0].read_text().replace("[run]", "[run]\nbogus = 1", 1))
+    r = subprocess.run([BIN, "export-fmu", str(bad), "--out", str(tmp_path / "b.fmu")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "bogus" in r.stderr, r.stderr
+    assert not (tmp_path / "b.fmu").exists()
 
 
 def test_the_fmu_carries_the_config_and_the_generic_library(tmp_path):

@@ -104,25 +104,30 @@ pub fn cmd_export_fmu(args: &ExportFmuArgs) -> ExitCode {
             );
             ExitCode::SUCCESS
         }
-        Err(e) => {
+        Err((code, e)) => {
             eprintln!("error: {e}");
-            ExitCode::FAILURE
+            ExitCode::from(code)
         }
     }
 }
 
-/// The export; returns the platforms packed.
-fn export(args: &ExportFmuArgs) -> Result<Vec<String>, String> {
+/// The export; returns the platforms packed, or the exit code (2: a bad argument or config,
+/// 1: a file that cannot be read or written, the library missing) and the reason.
+fn export(args: &ExportFmuArgs) -> Result<Vec<String>, (u8, String)> {
     if args.out.extension().and_then(|e| e.to_str()) != Some("fmu") {
-        return Err(format!(
+        let e = format!(
             "--out {}: expected a file name ending in .fmu",
             args.out.display()
-        ));
+        );
+        return Err((2, e));
     }
     let text =
         ehactl_input::read_bounded_string(&args.config, ehactl_input::CONFIG_MAX_BYTES, "config")
-            .map_err(|e| format!("{}: {}", args.config.display(), e.reason))?;
-    let bins = binaries(args)?;
+            .map_err(|e| (1, format!("{}: {}", args.config.display(), e.reason)))?;
+    if let Err(e) = ehactl_config::RigConfig::from_toml_str(&text) {
+        return Err((2, format!("{}: {e}", args.config.display())));
+    }
+    let bins = binaries(args).map_err(|e| (1, e))?;
     let platforms = bins.iter().map(|(p, _)| p.clone()).collect();
     let e = Export {
         config_text: &text,
@@ -133,6 +138,6 @@ fn export(args: &ExportFmuArgs) -> Result<Vec<String>, String> {
         },
         binaries: bins,
     };
-    write_fmu(&e, &args.out).map_err(|err| format!("{}: {err}", args.config.display()))?;
+    write_fmu(&e, &args.out).map_err(|err| (1, format!("{}: {err}", args.config.display())))?;
     Ok(platforms)
 }
