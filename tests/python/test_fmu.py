@@ -395,6 +395,9 @@ def test_the_campaigns_extended_toml_as_fmu_reproduces_ehactl_predict(diagnosis,
         f.set("setpoint_rate", 0.0)  # the replay's law has no setpoint rate either
         f.step()
     assert not f.fmu.getBoolean([f.vr["trip"]])[0]
+    # the operating point is fixed from the end of initialisation: a change is refused
+    refused(f, f.fmu.setReal, [f.vr["current"]], [0.5], expect="fixed from the end of initialisation")
+    f.set("current", 1.0)  # the same value is no change
     f.close()
     y = np.array(y)
     for j, ch in enumerate(("x", "force")):
@@ -402,3 +405,15 @@ def test_the_campaigns_extended_toml_as_fmu_reproduces_ehactl_predict(diagnosis,
         want = pred["nrmse"]["channels"][ch]
         assert abs(nrmse - want) <= 1e-6 * want, (ch, nrmse, want)
         assert 0.01 < want < 1.0  # a real prediction, neither exact nor off
+
+
+def test_the_readme_diagnosis_extended_toml_exports(diagnosis, tmp_path):
+    """The README's single-record diagnosis (out/diag/ there; the command line test_campaign.py
+    shares) writes an extended.toml that exports in both variants and that FMPy validates."""
+    _, out = diagnosis("--config", REPO / "configs" / "utfsm_mts_mrdamper.toml", "--data", MTS / "1A_5to15s.csv")
+    for extra in ([], ["--closed-loop"]):
+        fmu = export(out / "extended.toml", tmp_path / "diag.fmu", *extra)
+        assert validate_fmu(str(fmu)) == []
+        names = {v.name for v in read_model_description(str(fmu)).modelVariables}
+        # the grey-box law the diagnosis wrote is there as parameters
+        assert any(n.startswith("effects.polynomial_force.") for n in names), sorted(names)[:20]
