@@ -2,6 +2,8 @@
 # Cross-build the ehactl binary for embedded Linux controllers (DEPLOY.md, "Build"):
 #   aarch64-unknown-linux-gnu      64-bit ARM (Raspberry Pi 4/5 64-bit OS, i.MX8, Jetson)
 #   armv7-unknown-linux-gnueabihf  32-bit ARM with hard float (BeagleBone, Pi 32-bit OS)
+# and for aarch64 the FMU library (target/aarch64-unknown-linux-gnu/release/libehactl_fmu.so)
+# with the native FMI host example beside it (release/examples/fmu_host).
 # The Rust std for each target comes from rustup; the linker is Zig (PyPI `ziglang`)
 # driven by `cargo-zigbuild` (PyPI), so no system cross-gcc is needed; both go into the active
 # virtual environment, else into .venv-test/ (created if missing), never the user's Python. Binaries link
@@ -67,6 +69,16 @@ what="controller build, no diagnosis"
 if [ "${CROSS_DIAGNOSIS:-0}" = 1 ]; then features=(); what="full build, with the diagnosis"; fi
 echo "== cross-building ehactl for ${targets[*]} (glibc $GLIBC; $what)"
 cargo zigbuild --release -p ehactl-cli "${features[@]}" "${target_args[@]}"
+# The FMU library for the board (`ehactl export-fmu --aarch64-binary`, docs/fmu.md) and the
+# native FMI host that runs it under QEMU (crates/fmu/examples/fmu_host.rs, scripts/qemu_run.sh):
+# aarch64 only, the platform FMUs name (FMI 3.0's `aarch64-linux`).
+for t in "${targets[@]}"; do
+  case "$t" in
+    aarch64-*)
+      echo "== cross-building the FMU library and its native host for $t"
+      cargo zigbuild --release -p ehactl-fmu --lib --example fmu_host --target "$t.$GLIBC" ;;
+  esac
+done
 if [ "${CROSS_DIAGNOSIS:-0}" != 1 ]; then
   for t in "${targets[@]}"; do
     case "$t" in
@@ -92,7 +104,7 @@ print(f"{path}: ELF {'64' if raw[4] == 2 else '32'}-bit, e_machine {machine:#x} 
 PY
   if [ "${CROSS_PRUNE:-0}" = 1 ]; then
     rm -rf "$tdir/$t/release/deps" "$tdir/$t/release/build" "$tdir/$t/release/.fingerprint" \
-      "$tdir/$t/release/incremental" "$tdir/$t/release/examples"
+      "$tdir/$t/release/incremental"
   fi
 done
 # A build directory of its own (test_all.sh: target/cross) also holds the cross-build's host

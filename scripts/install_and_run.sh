@@ -4,6 +4,9 @@
 #      (into $CARGO_HOME/bin, normally ~/.cargo/bin, which rustup puts on PATH). The build goes
 #      to the repository's target/ (or $CARGO_TARGET_DIR), not to a temporary directory, so
 #      that step 2 reuses it;
+#   1b. the FMU library `libehactl_fmu.so` that `ehactl export-fmu` packs into every FMU
+#      (`cargo build --release -p ehactl-fmu`, same target/), copied to ../lib/ehactl/ from
+#      that bin directory, where `ehactl export-fmu` looks for it (docs/fmu.md);
 #   2. the Python package `ehactl` with the extras a user needs (pandas, matplotlib, tqdm,
 #      Dask distributed; python-can and canopen for the simulated CAN devices) —
 #      `pip install -v "./bindings/python[all,devices]"`, a pyo3 extension built by maturin in
@@ -24,6 +27,10 @@ target_dir="${CARGO_TARGET_DIR:-$PWD/target}"
 echo "== building and installing the ehactl binary (cargo install --path crates/cli --locked --target-dir $target_dir)"
 cargo install --path crates/cli --locked --target-dir "$target_dir"
 bin_dir="${CARGO_INSTALL_ROOT:-${CARGO_HOME:-$HOME/.cargo}}/bin"
+echo "== building the FMU library (cargo build --release --locked -p ehactl-fmu --target-dir $target_dir) for ehactl export-fmu"
+cargo build --release --locked -p ehactl-fmu --target-dir "$target_dir"
+mkdir -p "$bin_dir/../lib/ehactl"
+cp "$target_dir/release/libehactl_fmu.so" "$bin_dir/../lib/ehactl/libehactl_fmu.so"
 if [ -n "${VIRTUAL_ENV:-}" ]; then
   venv="$VIRTUAL_ENV"
   echo "== using the active virtual environment $venv"

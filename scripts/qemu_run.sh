@@ -18,6 +18,8 @@
 # the field's range, not the single value: a rounding difference in a sum is relative to the
 # operands, so a value crossing zero (a control error) keeps an absolute difference of the
 # order of 1e-12 of its range (seen on armv7: 5e-12 on an error of 4.5e-3 with range ≈ 1e2).
+# For aarch64 it then runs the FMU's aarch64 binary under QEMU with a native FMI host
+# (fmu_check below; crates/fmu/examples/fmu_host.rs).
 # Prints the emulated loop's time per cycle (an upper-bound sanity figure, not a board figure).
 # Usage: scripts/qemu_run.sh [TARGET ...]   (default: aarch64-unknown-linux-gnu)
 # Env: EHACTL_REQUIRE_QEMU=1 to fail (not skip) when qemu or the binary is missing;
@@ -76,6 +78,33 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 [ "${QEMU_INSTALL_ONLY:-0}" != 1 ] || exit 0
 [ -x "$native" ] || skip "$native not built (cargo build --release -p ehactl-cli)"
+
+# The aarch64 FMU (docs/fmu.md): the closed-loop FMU of $config with the aarch64 library
+# (cross_build.sh) run for 1 s by the native FMI host (crates/fmu/examples/fmu_host.rs), built
+# for aarch64 too, under QEMU; its outputs after 1 s must equal the x86-64 host's run of the
+# linux64 binary of the same FMU to 1e-9 relative (libm's last bits, as above).
+fmu_check() {
+  local t=$1 qemu=$2 sysroot=$3 d="${CARGO_TARGET_DIR:-target}/$1/release"
+  local host_native=target/release/examples/fmu_host
+  [ -f "$d/libehactl_fmu.so" ] && [ -x "$d/examples/fmu_host" ] || skip "$d/libehactl_fmu.so or examples/fmu_host not built (scripts/cross_build.sh $t)"
+  [ -x "$host_native" ] || skip "$host_native not built (cargo build --release -p ehactl-fmu --example fmu_host)"
+  "$native" export-fmu "$config" --closed-loop --out "$out/rig.fmu" --aarch64-binary "$d/libehactl_fmu.so" >/dev/null
+  python3 -m zipfile -e "$out/rig.fmu" "$out/rig"
+  "$host_native" "$out/rig" --seconds 1 >"$out/fmu_native.json"
+  "$qemu" -L "$sysroot" "$d/examples/fmu_host" "$out/rig" --seconds 1 >"$out/fmu_$t.json"
+  python3 - "$out/fmu_native.json" "$out/fmu_$t.json" "$t" <<'PY'
+import json, math, sys
+a, b = (json.load(open(p)) for p in sys.argv[1:3])
+t = sys.argv[3]
+assert (a["platform"], b["platform"]) == ("linux64", "aarch64-linux"), (a["platform"], b["platform"])
+assert a["steps"] == b["steps"] == 5000
+for k in ("x", "v", "p_a", "p_b", "force_measured", "force_load"):
+    assert math.isclose(a[k], b[k], rel_tol=1e-9, abs_tol=1e-12), f"{t}: FMU output {k}: linux64 {a[k]!r}, aarch64 {b[k]!r}"
+print(f"{t}: the FMU's aarch64 binary under QEMU, 1 s of the closed loop by the native FMI host: "
+      f"outputs equal the linux64 binary's (force {b['force_measured']:.6g} N); "
+      f"EMULATED {b['median_s_per_step'] * 1e6:.1f} us per fmi2DoStep (native {a['median_s_per_step'] * 1e6:.2f})")
+PY
+}
 
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
@@ -156,4 +185,5 @@ print(f"{target}: EMULATED (qemu user mode on this host, not a board figure): lo
       f"{b['wall_time_s'] / cycles * 1e6:.1f} us per cycle (native {a['wall_time_s'] / cycles * 1e6:.2f}), "
       f"{b['sim_speed_x_realtime']:.2f}x real time; whole process {float(t1) - float(t0):.2f} s")
 PY
+  case "$t" in aarch64-*) fmu_check "$t" "$qemu" "$sysroot" ;; esac
 done

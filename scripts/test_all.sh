@@ -270,4 +270,6 @@ sed 's/^/   /' "$cross_log"
 disk
 step "cross-built binaries run under qemu user-mode emulation (apt: ${qemu_pkgs[*]}; same run as native)"
 await qemu_apt || echo "   the background apt-get install failed (above): the QEMU step tries once more"
+# The native FMI host the QEMU step compares the aarch64 FMU with (crates/fmu/examples/fmu_host.rs).
+cargo build --release -p ehactl-fmu --example fmu_host
 CARGO_TARGET_DIR=target/cross scripts/qemu_run.sh "${cross_targets[@]}"

@@ -59,7 +59,7 @@ echo "== Python tests (no CAN, no diagnosis catalogue, no bindings)"
 # Nothing to recompile here: the tests above built every crate the CLI needs with the same
 # features (crates/feature-unify; tests/python/test_feature_sets.py checks it), so this only
 # links target/fast/ehactl if the tests did not already.
-cargo build --profile fast -p ehactl-cli
+cargo build --profile fast -p ehactl-cli -p ehactl-fmu
 # Skipped here, run by test_all.sh: CAN end to end (hub, devices, LocalNode), diagnosis on
 # generated and real records, the README's examples and the documented tuning figures (need
 # the bindings), fault injection.

@@ -10,6 +10,7 @@ mod campaign;
 mod columns;
 mod config;
 mod diagnose;
+mod fmu;
 mod linear;
 mod mcapread;
 mod plant;
@@ -44,5 +45,6 @@ fn _ehactl(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(diagnose::diagnose_json, m)?)?;
     m.add_function(wrap_pyfunction!(campaign::campaign_json, m)?)?;
     m.add_function(wrap_pyfunction!(campaign::predict_json, m)?)?;
+    m.add_function(wrap_pyfunction!(fmu::export_fmu_file, m)?)?;
     Ok(())
 }

@@ -12,6 +12,7 @@ mod canbus;
 
 #[cfg(feature = "diagnosis")]
 mod diagnose;
+mod fmu_cmd;
 mod live;
 mod live_front;
 mod run_cmd;
@@ -70,6 +71,9 @@ enum Command {
     },
     /// List every config parameter with its unit and meaning.
     Params,
+    /// Export CONFIG as an FMI 2.0 co-simulation FMU (the plant, or with --closed-loop the
+    /// control loop around it) for Simulink, OpenModelica, Dymola or FMPy (docs/fmu.md).
+    ExportFmu(fmu_cmd::ExportFmuArgs),
     /// Linearise CONFIG around its operating point: natural frequencies, margins, bandwidths.
     Analyze {
         /// Rig config (TOML).
@@ -439,6 +443,7 @@ fn set_signal_dispositions(command: &Command) {
             | Command::Predict { .. }
             | Command::Sweep(_)
             | Command::Recover { .. }
+            | Command::ExportFmu(_)
     ) {
         // SAFETY: restoring a default signal disposition before any thread is started.
         unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
@@ -472,6 +477,7 @@ fn dispatch(command: Command) -> ExitCode {
         #[cfg(not(feature = "diagnosis"))]
         Command::Diagnose { .. } | Command::Predict { .. } => without_diagnosis(),
         Command::Params => cmd_params(),
+        Command::ExportFmu(args) => fmu_cmd::cmd_export_fmu(&args),
     }
 }
 

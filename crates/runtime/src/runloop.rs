@@ -84,6 +84,7 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
         // Front buffer of the live parameters (the back buffer is `settings.live`); cloning
         // a setpoint copies plain numbers, it does not allocate.
         setpoint: setpoint_in.clone(),
+        held: None,
         dt: settings.timebase.period(),
         k: 0,
         errors: ErrorStats::default(),
@@ -101,6 +102,57 @@ pub fn run_loop<H: Hal + ?Sized, P: Pacer + ?Sized>(
     let outcome = lp.finish(ending);
     progress(outcome.cycles);
     outcome
+}
+
+/// Cycles `k0 .. k0 + n` of [`run_loop`]'s cycle, driven from outside (a co-simulation
+/// step: `crates/fmu`): each is `Loop::admit` + `Loop::execute` in simulated time, with
+/// `held` (setpoint in N or m, its rate per s) in place of sampling `setpoint` when given.
+/// Unlike [`run_loop`] no start or end event is emitted and the backend is not
+/// deactivated: the caller owns the run around the cycles. `Err` is the trip event that
+/// ended the cycles (the tripping cycle is recorded as in [`run_loop`]); `Ok` the next cycle.
+#[allow(clippy::too_many_arguments)]
+pub fn step_cycles<H: Hal + ?Sized>(
+    hal: &mut H,
+    controller: &mut Controller,
+    setpoint: &Setpoint,
+    held: Option<(f64, f64)>,
+    supervisor: &mut Supervisor,
+    (timebase, k0, n): (Timebase, u64, u64),
+    record: &mut dyn FnMut(&CycleRecord),
+    event: &mut dyn FnMut(Event),
+) -> Result<u64, Event> {
+    let settings = LoopSettings {
+        cycles: k0 + n,
+        timebase,
+        stop: None,
+        settle_time: 0.0,
+        live: None,
+        log_failed: None,
+    };
+    let mut pacer = ehactl_hal::pacer::SimulatedTime;
+    let mut lp = Loop {
+        hal,
+        controller,
+        supervisor,
+        pacer: &mut pacer,
+        settings: &settings,
+        record,
+        event,
+        setpoint: setpoint.clone(),
+        held,
+        dt: timebase.period(),
+        k: k0,
+        errors: ErrorStats::default(),
+    };
+    while lp.k < k0 + n {
+        match lp.admit().and_then(|timing| lp.execute(timing)) {
+            Ok(()) => {}
+            Err(Ending::Trip(ev)) => return Err(ev),
+            // Simulated time never stops and no stop flag is set.
+            Err(Ending::Interrupted) => break,
+        }
+    }
+    Ok(lp.k)
 }
 
 /// Why the loop ended before its last cycle.
@@ -122,6 +174,9 @@ struct Loop<'a, 's, H: ?Sized, P: ?Sized> {
     event: &'a mut dyn FnMut(Event),
     /// Front buffer of the live setpoint.
     setpoint: Setpoint,
+    /// A setpoint and its rate held from outside instead of sampling `setpoint` (the FMU's
+    /// input, [`step_cycles`]); `None` in [`run_loop`].
+    held: Option<(f64, f64)>,
     /// Nominal control period (s).
     dt: f64,
     /// The next cycle; also the count of cycles recorded.
@@ -180,7 +235,7 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
             .hal
             .read(t, period)
             .map_err(|e| Ending::Trip(hal_fault(t, k, e)))?;
-        let (r, rdot) = self.setpoint.sample(t);
+        let (r, rdot) = self.held.unwrap_or_else(|| self.setpoint.sample(t));
         let fb = self.controller.feedback(&meas);
         if let Some(ev) = self.supervisor.check_sensors(t, k, &meas) {
             let safe = self.supervisor.safe_command();

@@ -11,6 +11,9 @@ and the real-time loop use. Units are SI throughout: s, N, m, Pa, V, m³/s.
     res.t, res.force, res.u                       # NumPy arrays (s, N, V)
     many = ehactl.run_many({"control.pi.kp": [0.3, 0.4, 0.5]}, base=cfg, duration=0.5)
 
+``ehactl.export_fmu(cfg, "rig.fmu")`` writes the config as an FMI 2.0 co-simulation FMU, as
+``ehactl export-fmu`` does (docs/fmu.md).
+
 ``ehactl.analyze(cfg)``, ``ehactl.sweep(cfg, ...)`` and ``ehactl.diagnose(cfg, data)`` mirror
 ``ehactl analyze`` / ``ehactl sweep`` / ``ehactl diagnose`` (margins and bandwidths of the
 linearised sampled loop; stepped-sine frequency response of the nonlinear plant; model
@@ -39,6 +42,7 @@ from ._ehactl import (  # noqa: F401  (re-exported)
     __version__,
 )
 from ._analysis import analyze, diagnose, diagnose_many, sweep
+from ._fmu import export_fmu
 from ._campaign import CampaignResult, PredictionResult, RecordPrediction, campaign, predict
 from ._runs import RunResult, param_grid, params, read_mcap, results_frame, run, run_many
 from . import results
@@ -58,6 +62,7 @@ __all__ = [
     "diagnose",
     "campaign",
     "predict",
+    "export_fmu",
     "CampaignResult",
     "PredictionResult",
     "RecordPrediction",

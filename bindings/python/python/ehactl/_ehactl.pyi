@@ -181,3 +181,11 @@ def diagnose_json(
     sensor_offsets: bool = False,
 ) -> tuple[str, list[str]]:
     """``ehactl diagnose --json`` of ``data`` against ``cfg`` and the replay notes (see ``ehactl.diagnose``)."""
+
+def export_fmu_file(
+    config_text: str,
+    out: _Path,
+    closed_loop: bool,
+    binaries: Sequence[tuple[str, _Path]],
+) -> None:
+    """Write the FMU of ``config_text`` (see ``ehactl.export_fmu``)."""
