@@ -21,11 +21,13 @@ import pytest
 from conftest import BIN, REPO
 from ehactl_mcap import read_run
 
-fmpy = pytest.importorskip("fmpy")
-from fmpy import extract, read_model_description  # noqa: E402
-from fmpy.fmi1 import FMICallException  # noqa: E402
-from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE  # noqa: E402
-from fmpy.validation import validate_fmu  # noqa: E402
+# FMPy is a test requirement (tests/python/requirements.txt, installed by both test scripts):
+# a missing FMPy fails here rather than skipping the FMU's only outside client.
+import fmpy
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.validation import validate_fmu
 
 CONFIGS = sorted((REPO / "configs").glob("*.toml"))
 # Plant outputs as (FMU name, MCAP channel, MCAP field): true states on /plant, sensor
