@@ -23,7 +23,7 @@ fi
 PY="$VENV/bin/python"
 export VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH"
 # Install the test requirements only when one is missing (a re-run needs no network).
-if ! "$PY" -c 'import mcap, pytest, can, canopen, jsonschema, websockets, mpmath, lz4, matplotlib, scipy' 2>/dev/null \
+if ! "$PY" -c 'import mcap, pytest, can, canopen, jsonschema, websockets, mpmath, lz4, matplotlib, scipy, fmpy' 2>/dev/null \
     || ! "$PY" -m ruff --version >/dev/null 2>&1; then
   echo "== Python test requirements into $VENV"
   "$PY" -m pip install --quiet -r tests/python/requirements.txt
