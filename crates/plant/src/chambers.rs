@@ -17,6 +17,19 @@
 
 use crate::effects::{phi1, EndNode};
 
+/// The flow stages' terms of both chambers' balances at the start of a substep (SI units).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Leaks {
+    /// Cross-piston flow A→B q_in (m³/s).
+    pub q_in: f64,
+    /// Flows to tank of A and B (m³/s).
+    pub q_ext: [f64; 2],
+    /// Cross-piston conductance k_in (m³/(s·Pa)).
+    pub k_in: f64,
+    /// Conductances to tank of A and B (m³/(s·Pa)).
+    pub k_ext: [f64; 2],
+}
+
 /// One chamber's side of the balance over a substep, at the start of the substep: every
 /// term but the inflow from its port or line (SI units).
 #[derive(Debug, Clone, Copy)]

@@ -26,7 +26,7 @@
 //! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see `fastest_mode`).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
-use crate::chambers::Chamber;
+use crate::chambers::{Chamber, Leaks};
 use crate::effects::line_dynamics::Lines;
 use crate::effects::{
     self, phi1, validate_variants, BulkStage, CommandStage, FlowStage, ForceStage, LapStage,
@@ -988,8 +988,8 @@ impl Plant {
         let o = self.edges.openings(lap, limit, s.spool);
         // 2. Pressures: each chamber's balance (crate::chambers) and the line stage
         // (`line_dynamics`) between it and its valve port.
-        let chambers = self.chambers(&s);
-        let (q_sa, q_sb) = self.advance_chambers(&mut s, o, &chambers);
+        let leaks = self.leaks(&s);
+        let (q_sa, q_sb) = self.advance_chambers(&mut s, o, &leaks);
         let c = &self.c;
         // The supply stage (`supply_pressure_drop`: the sag towards p_s0 − R·Q_s (000) or
         // the pump's flow limit); p_s stays without it.
@@ -1002,43 +1002,62 @@ impl Plant {
         self.state = s;
     }
 
-    /// The two chambers' balances at the start of a substep from the state `s`: volumes,
-    /// bulk moduli, the piston's displacement flows and the flow stages (`internal_leakage`,
-    /// `external_leakage`): cross-piston flow A→B less the grey-box B→A flow
+    /// The flow stages (`internal_leakage`, `external_leakage`) at the start of a substep
+    /// from the state `s`: cross-piston flow A→B less the grey-box B→A flow
     /// (crate::effects::PolynomialFlow), flows to tank, and their conductances for the
     /// chambers' linearisation.
-    #[inline]
-    fn chambers(&self, s: &PlantState) -> [Chamber; 2] {
-        let c = &self.c;
-        let (va, vb) = self.volumes(s.x);
+    #[inline(always)]
+    fn leaks(&self, s: &PlantState) -> Leaks {
         let leak_in = &self.components.internal_leakage;
         let leak_ext = &self.components.external_leakage;
         let q_in = leak_in.flows(s.p_a, s.p_b).0 - self.poly_flow.map_or(0.0, |f| f.flow(s.spool));
         let (q_ext_a, q_ext_b) = leak_ext.flows(s.p_a, s.p_b);
         let (k_in, _) = leak_in.conductances();
         let (k_ext, k_ext_b) = leak_ext.conductances();
-        [
-            Chamber {
-                p: s.p_a,
-                beta: self.bulk_modulus(s.p_a),
-                volume: va,
-                piston: -c.a_a * s.v,
-                cross: -q_in,
-                q_ext: q_ext_a,
-                k_in,
-                k_ext,
-            },
+        Leaks {
+            q_in,
+            q_ext: [q_ext_a, q_ext_b],
+            k_in,
+            k_ext: [k_ext, k_ext_b],
+        }
+    }
+
+    /// Chamber A's (`b` false) or B's balance at the state `s` with the flow stages
+    /// `leaks`: its pressure, bulk modulus, volume (003 eq. 7–8), the piston's displacement
+    /// flow and the leakages. Built where the coupling steps it, from the start-of-substep
+    /// values.
+    #[inline(always)]
+    fn chamber(
+        c: &Consts,
+        bulk: &effects::bulk_modulus_pressure::BulkModulus,
+        s: &PlantState,
+        leaks: &Leaks,
+        b: bool,
+    ) -> Chamber {
+        let xc = s.x.clamp(0.0, c.stroke);
+        if b {
             Chamber {
                 p: s.p_b,
-                beta: self.bulk_modulus(s.p_b),
-                volume: vb,
+                beta: bulk.bulk_modulus(s.p_b),
+                volume: c.v_b0 + c.a_b * (c.stroke - xc),
                 piston: c.a_b * s.v,
-                cross: q_in,
-                q_ext: q_ext_b,
-                k_in,
-                k_ext: k_ext_b,
-            },
-        ]
+                cross: leaks.q_in,
+                q_ext: leaks.q_ext[1],
+                k_in: leaks.k_in,
+                k_ext: leaks.k_ext[1],
+            }
+        } else {
+            Chamber {
+                p: s.p_a,
+                beta: bulk.bulk_modulus(s.p_a),
+                volume: c.v_a0 + c.a_a * xc,
+                piston: -c.a_a * s.v,
+                cross: -leaks.q_in,
+                q_ext: leaks.q_ext[0],
+                k_in: leaks.k_in,
+                k_ext: leaks.k_ext[0],
+            }
+        }
     }
 
     /// Step 3 of a substep `h` from `t` (s): the mechanics of the state `s`, whose pressures
@@ -1048,7 +1067,7 @@ impl Plant {
     /// one time level. Drifting after the kick put the position (and the rod force) one
     /// substep ahead of the pressures, a first-order lead that was 95 % of the test bench's
     /// replay error (BENCHMARKS.md "Diagnosis speed: drift before kick").
-    #[inline]
+    #[inline(always)]
     fn advance_mechanics(&mut self, s: &mut PlantState, t: f64) {
         let h = self.h;
         let c = &self.c;
@@ -1112,22 +1131,18 @@ impl Plant {
     }
 
     /// Step 2 of a substep: the valve port flows at the pressures the ports see, and the
-    /// chambers' balances `chambers` (crate::chambers) stepped with them, by the one way the
+    /// chambers' balances (crate::chambers) stepped with them, by the one way the
     /// line stage (`line_dynamics`) couples them: ports straight on the chambers (no lines),
     /// the implicit chains valve node → chamber (`integration.line_method = "implicit"`,
     /// [`LineStage::advance_implicit`], the chamber its chain's end node), or the symplectic
     /// nodes ([`LineStage::advance_nodes`]), the counterbalance valves between line end and
     /// chamber ([`cbv_ends`]) and the line flows after the chamber pressures
-    /// ([`LineStage::advance_flows`]). Writes the pressures and port flows into `s`; returns
+    /// ([`LineStage::advance_flows`]), each chamber's balance built from `s` and the flow stages `leaks` where it is stepped (`Plant::chamber`). Writes the pressures and port flows into `s`; returns
     /// the flows from supply into ports A and B (m³/s).
-    #[inline]
-    fn advance_chambers(
-        &mut self,
-        s: &mut PlantState,
-        o: [f64; 4],
-        chambers: &[Chamber; 2],
-    ) -> (f64, f64) {
+    #[inline(always)]
+    fn advance_chambers(&mut self, s: &mut PlantState, o: [f64; 4], leaks: &Leaks) -> (f64, f64) {
         let (h, pt, p_cav) = (self.h, self.c.pt, self.c.p_cav);
+        let (c, bulk) = (&self.c, &self.components.bulk_modulus_pressure);
         let lines = &mut self.components.line_dynamics;
         let ports = lines.port_pressures();
         let (port_a, port_b) = ports.unwrap_or((s.p_a, s.p_b));
@@ -1136,13 +1151,20 @@ impl Plant {
         let (qb, dqb, qsb) = self.edges.port(limit, o[2], o[3], s.p_s, pt, port_b);
         if ports.is_none() {
             (s.q_a, s.q_b) = (qa, qb);
-            s.p_a = chambers[0].advance(qa, dqa, 0.0, h, p_cav);
-            s.p_b = chambers[1].advance(qb, dqb, 0.0, h, p_cav);
+            let (ch_a, ch_b) = (
+                Self::chamber(c, bulk, s, leaks, false),
+                Self::chamber(c, bulk, s, leaks, true),
+            );
+            s.p_a = ch_a.advance(qa, dqa, 0.0, h, p_cav);
+            s.p_b = ch_b.advance(qb, dqb, 0.0, h, p_cav);
         } else if lines.is_implicit() {
             // Whole chains valve node → chamber, trapezoidal (crate::line); no CBVs here
             // (configure refuses them), the port bleed is theirs too, so 0.
             (s.q_a, s.q_b) = (qa, qb);
-            let ends = [chambers[0].end_node(), chambers[1].end_node()];
+            let ends = [
+                Self::chamber(c, bulk, s, leaks, false).end_node(),
+                Self::chamber(c, bulk, s, leaks, true).end_node(),
+            ];
             (s.p_a, s.p_b) = lines.advance_implicit(h, [qa, qb], [dqa, dqb], ends, p_cav);
         } else {
             // Valve-side nodes, exponential Euler in their own pressure, with the neutral
@@ -1153,8 +1175,12 @@ impl Plant {
             (s.q_a, s.q_b) = (qa, qb);
             let ends = lines.advance_nodes(h, [qa, qb], [dqa, dqb], p_cav, [s.p_a, s.p_b]);
             let (into, dinto, p_end) = cbv_ends(&mut self.cbv, h, ends, [s.p_a, s.p_b], p_cav);
-            s.p_a = chambers[0].advance(into[0], 0.0, dinto[0], h, p_cav);
-            s.p_b = chambers[1].advance(into[1], 0.0, dinto[1], h, p_cav);
+            let (ch_a, ch_b) = (
+                Self::chamber(c, bulk, s, leaks, false),
+                Self::chamber(c, bulk, s, leaks, true),
+            );
+            s.p_a = ch_a.advance(into[0], 0.0, dinto[0], h, p_cav);
+            s.p_b = ch_b.advance(into[1], 0.0, dinto[1], h, p_cav);
             let has = [self.cbv[0].is_some(), self.cbv[1].is_some()];
             let p_a_end = if has[0] { p_end[0] } else { s.p_a };
             let p_b_end = if has[1] { p_end[1] } else { s.p_b };
@@ -1198,7 +1224,7 @@ impl Plant {
 /// within the step (node time constant C/G ≈ 1 µs against a 5–20 µs substep): a numerical
 /// chatter that needed 4× the substeps to converge (docs/benchmarks-archive.md, "Short
 /// stiff lines").
-#[inline]
+#[inline(always)]
 #[allow(clippy::type_complexity)]
 fn cbv_ends(
     cbv: &mut [Option<Cbv>; 2],
