@@ -5,7 +5,7 @@
 //! deflection of a compliant cylinder mount, per-chamber leakage decay and the load-side
 //! Coulomb force's terminal velocity.
 
-use ehactl_plant::effects::{entrained_air_bulk_modulus, SupplyModel};
+use ehactl_plant::effects::{entrained_air_bulk_modulus, LapStage, SupplyModel};
 use ehactl_plant::params::*;
 use ehactl_plant::valve::EdgeLaw;
 use ehactl_plant::Plant;
@@ -78,18 +78,19 @@ fn amplifier_dead_zone_and_asymmetric_limits() {
         max_flow: 0.0,
     });
     let e = EdgeLaw::new(&p);
+    let (lap, limit) = EdgeLaw::stages(&p);
     // sign(c + 0.02)·max(|c + 0.02| − 0.1, 0)
     for (c, want) in [(0.05, 0.0), (-0.11, 0.0), (0.3, 0.22), (-0.5, -0.38)] {
         assert!(
-            (e.target(c) - want).abs() < 1e-12,
+            (lap.target(c) - want).abs() < 1e-12,
             "target({c}) = {}",
-            e.target(c)
+            lap.target(c)
         );
     }
     // No overlap with the amplifier variant; +0.5 / −0.8 spool limits.
-    assert_eq!(e.openings(0.9), [0.5, 0.0, 0.0, 0.5]);
-    assert_eq!(e.openings(-0.9), [0.0, 0.8, 0.8, 0.0]);
-    assert_eq!(e.openings(0.0), [0.0; 4]);
+    assert_eq!(e.openings(&lap, &limit, 0.9), [0.5, 0.0, 0.0, 0.5]);
+    assert_eq!(e.openings(&lap, &limit, -0.9), [0.0, 0.8, 0.8, 0.0]);
+    assert_eq!(e.openings(&lap, &limit, 0.0), [0.0; 4]);
 }
 
 #[test]

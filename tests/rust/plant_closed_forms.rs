@@ -19,19 +19,20 @@ fn orifice_params() -> PlantParams {
 fn orifice_flow_matches_cd_a_sqrt_2dp_over_rho() {
     let p = orifice_params();
     let e = EdgeLaw::new(&p);
+    let (_, limit) = EdgeLaw::stages(&p);
     for dp in [1.0e6, 5.0e6, 20.0e6] {
         for o in [0.1, 0.5, 1.0] {
-            let (q, _) = e.edge(o, dp);
+            let (q, _) = e.edge(&limit, o, dp);
             let exact = 0.61 * 2.0e-5 * o * (2.0 * dp / 900.0).sqrt();
             let rel = (q - exact).abs() / exact;
             // Laminar regularisation changes the flow by ≈ (Δp_l/Δp)²/4 ≤ 1e-4 here.
             assert!(rel < 2e-4, "dp {dp} o {o}: {q} vs {exact} ({rel})");
-            let (qn, _) = e.edge(o, -dp);
+            let (qn, _) = e.edge(&limit, o, -dp);
             assert!((qn + q).abs() < 1e-15, "flow is odd in Δp");
         }
     }
     // Finite, positive slope at Δp = 0 (no infinite K_c).
-    let (q0, dq0) = e.edge(1.0, 0.0);
+    let (q0, dq0) = e.edge(&limit, 1.0, 0.0);
     assert_eq!(q0, 0.0);
     assert!(dq0.is_finite() && dq0 > 0.0);
 }
@@ -40,10 +41,11 @@ fn orifice_flow_matches_cd_a_sqrt_2dp_over_rho() {
 fn kq_form_gives_rated_flow_at_rated_drop() {
     let p = blocked_cylinder(10.0, 0.0, 0.5);
     let e = EdgeLaw::new(&p);
-    let (q, _) = e.edge(1.0, 1.0e6);
+    let (_, limit) = EdgeLaw::stages(&p);
+    let (q, _) = e.edge(&limit, 1.0, 1.0e6);
     assert!((q - 5.8333e-4).abs() / 5.8333e-4 < 1e-3, "{q}");
     // √Δp law: four times the drop, twice the flow.
-    let (q4, _) = e.edge(1.0, 4.0e6);
+    let (q4, _) = e.edge(&limit, 1.0, 4.0e6);
     assert!((q4 / q - 2.0).abs() < 1e-3);
 }
 
@@ -55,8 +57,9 @@ fn power_law_matches_004_eq20_and_its_kc() {
     p.valve.exponent = Some(0.4667);
     p.valve.laminar_pressure = 1.0e3;
     let e = EdgeLaw::new(&p);
+    let (_, limit) = EdgeLaw::stages(&p);
     for pd_mpa in [2.0_f64, 7.0, 15.0] {
-        let (q, dq) = e.edge(1.0, pd_mpa * 1e6);
+        let (q, dq) = e.edge(&limit, 1.0, pd_mpa * 1e6);
         let exact = 1.4075e-4 * pd_mpa.powf(0.4667);
         assert!((q - exact).abs() / exact < 1e-4, "Q at {pd_mpa} MPa");
         // 004 eq. 21: K_Cnl = 1.0407e-7·P_d^−0.5333 with P_d in Pa.

@@ -27,7 +27,7 @@
 //! effect is in the measured pressures (002's point).
 
 use ehactl_plant::params::PlantParams;
-use ehactl_plant::valve::{EdgeLaw, SpoolModel};
+use ehactl_plant::valve::{Deadband, EdgeLaw, Saturation, SpoolModel};
 
 /// One lumped R-L-C line section (002 eq. 9–13): capacitance C at the valve port, then
 /// inductance L and resistance R in series to the chamber.
@@ -165,6 +165,8 @@ pub struct MotionEstimator {
     full_scale: f64,
     spool_model: SpoolModel,
     edges: EdgeLaw,
+    /// The edges' lap and limit stages (`valve_deadband`, `valve_saturation`).
+    stages: (Deadband, Saturation),
     line: LineRlc,
     terms: LineTerms,
     beta: BulkModulusLaw,
@@ -224,6 +226,7 @@ impl MotionEstimator {
             full_scale: p.valve.command_full_scale,
             spool_model: SpoolModel::new(p.effects.valve_dynamics.as_ref(), dt)?,
             edges: EdgeLaw::new(p),
+            stages: EdgeLaw::stages(p),
             line,
             terms: LineTerms::Resistive,
             beta,
@@ -266,9 +269,14 @@ impl MotionEstimator {
             &mut self.spool_velocity,
             m.command / self.full_scale,
         );
-        let o = self.edges.openings(self.spool);
-        let (q_we, _, _) = self.edges.port(o[0], o[1], m.p_supply, m.p_tank, m.p_we);
-        let (q_wr, _, _) = self.edges.port(o[2], o[3], m.p_supply, m.p_tank, m.p_wr);
+        let (lap, limit) = (&self.stages.0, &self.stages.1);
+        let o = self.edges.openings(lap, limit, self.spool);
+        let (q_we, _, _) = self
+            .edges
+            .port(limit, o[0], o[1], m.p_supply, m.p_tank, m.p_we);
+        let (q_wr, _, _) = self
+            .edges
+            .port(limit, o[2], o[3], m.p_supply, m.p_tank, m.p_wr);
         let q_we = q_we - self.bleed * (m.p_we - m.p_tank);
         let q_wr = q_wr - self.bleed * (m.p_wr - m.p_tank);
         let stopped = o.iter().all(|&x| x <= 0.0);

@@ -7,11 +7,14 @@
 //! - [`pd`]: PD position control, 003 eq. 32, with a derivative filter,
 //! - [`setpoint`]: step, ramp, sine, chirp, static + dynamic, random steps,
 //! - [`supervisor`]: limits and sensor plausibility, trips to the safe command,
-//! - [`controller`]: the law a config selects, the one kernel `ehactl run` and the
-//!   diagnosis's closed-loop replay both step.
+//! - [`controller`]: the law a config selects,
+//! - [`cycle`]: the cycle kernel, one plain step from a cycle's measurements to its command
+//!   (reference, sensor checks, law, command limit, watches), the loop body that `ehactl
+//!   run` and the diagnosis's replay both step.
 #![deny(missing_docs)]
 
 pub mod controller;
+pub mod cycle;
 pub mod pd;
 pub mod pi;
 pub mod setpoint;

@@ -1,10 +1,15 @@
-//! Open-loop replay of a measured valve command through the plant, and error measures.
+//! Replay of a record through the plant, and error measures. Every replay steps `ehactl
+//! run`'s cycle kernel (`ehactl_control::cycle::step`) fed by a recorded-reference source
+//! (`ehactl_control::cycle::Recorded`): the recorded valve command `u` through the open-loop
+//! law, or the recorded setpoint `ref` through the rig's PD or PI ([`Drive`]), so the
+//! diagnosis, `predict` and `run` step the same cycle.
 
 use crate::data::{ChannelKind, Record};
 use ehactl_control::controller::Controller;
+use ehactl_control::cycle::{self, CycleInput, Recorded};
 use ehactl_control::pd::Pd;
 use ehactl_control::pi::Pi;
-use ehactl_control::supervisor::clamp_command;
+use ehactl_control::supervisor::{Supervisor, SupervisorConfig};
 use ehactl_plant::{NumericalFailure, Plant, PlantParams};
 
 /// Simulated outputs of one replay: `y[c][k]` for the record's channels in order.
@@ -105,16 +110,26 @@ pub enum Drive {
 }
 
 impl Drive {
-    /// The law a closed-loop drive steps (the kernel `ehactl run`'s cycle steps,
-    /// `ehactl_control::controller`) and the command limit (V) after it; `None` when open loop.
-    fn controller(&self) -> Option<(Controller, f64)> {
-        match *self {
-            Drive::PositionPd(g) => Some((Controller::Position(Pd::new(g)), f64::INFINITY)),
-            Drive::ForcePi { gains, max_command } => {
-                Some((Controller::Force(Pi::new(gains)), max_command))
-            }
-            Drive::Recorded => None,
-        }
+    /// The law and the supervisor of `ehactl run`'s cycle kernel (`ehactl_control::cycle`)
+    /// for this drive: the rig's PD or PI on the recorded setpoint, or open loop (the law
+    /// passes the recorded command `u` through); the supervisor holds the command limit
+    /// (`max_command`, V) alone, no trip limits or watches (the plant's own check ends a
+    /// diverging replay).
+    fn kernel(&self) -> (Controller, Supervisor) {
+        let (law, max_command) = match *self {
+            Drive::PositionPd(g) => (Controller::Position(Pd::new(g)), None),
+            Drive::ForcePi { gains, max_command } => (
+                Controller::Force(Pi::new(gains)),
+                max_command.is_finite().then_some(max_command),
+            ),
+            Drive::Recorded => (Controller::OpenLoop, None),
+        };
+        let cfg = SupervisorConfig {
+            max_command,
+            ..SupervisorConfig::default()
+        };
+        let supervisor = Supervisor::new(&cfg, law.feedback_channel());
+        (law, supervisor)
     }
 
     /// Whether the replay closes the rig's loop on the recorded setpoint `ref`.
@@ -280,7 +295,14 @@ fn run(
             rec.source
         ));
     }
-    let mut ctl = drive.controller();
+    let (mut law, mut supervisor) = drive.kernel();
+    // The recorded-reference source the kernel samples: the setpoint `ref` in closed loop,
+    // the valve command `u` (V) in open loop.
+    let column = match &rec.reference {
+        Some(r) if drive.closed_loop() => r.as_slice(),
+        _ => rec.u.as_slice(),
+    };
+    let source = Recorded::new(column);
     let t_start = std::time::Instant::now();
     let mut plant = configure_stable(params, rec.dt, max_substeps)?;
     let t_configured = std::time::Instant::now();
@@ -295,14 +317,15 @@ fn run(
             *o = kind.pick(&m);
         }
         let (v, dp) = (plant.state().v, plant.state().p_a - plant.state().p_b);
-        // `ehactl run`'s cycle: the law on the measured feedback (the record has no setpoint
-        // rate), then the supervisor's command limit.
-        let u = match (&mut ctl, &rec.reference) {
-            (Some((law, max_command)), Some(r)) => {
-                clamp_command(law.step(r[k], 0.0, &m, rec.dt).u, *max_command)
-            }
-            _ => rec.u[k],
+        // `ehactl run`'s cycle kernel: the law on the measured feedback (the record has no
+        // setpoint rate), then the supervisor's command limit.
+        let input = CycleInput {
+            k: k as u64,
+            t: k as f64 * rec.dt,
+            dt: rec.dt,
+            meas: m,
         };
+        let u = cycle::step(&mut law, &mut supervisor, &source, &input).u;
         if failed.is_none() {
             if let Err(e) = plant.step(u) {
                 failed = Some((k, e));

@@ -20,6 +20,7 @@
 #![deny(missing_docs)]
 
 pub mod cbv;
+mod chambers;
 pub mod effects;
 pub mod exact;
 pub mod excitation;

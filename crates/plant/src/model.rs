@@ -26,9 +26,10 @@
 //! half-wave mode π/T (T = wave delay) and the chamber/mechanics modes (see `fastest_mode`).
 
 use crate::cbv::{Cbv, CbvSides, CbvState};
+use crate::chambers::{Chamber, Leaks};
 use crate::effects::line_dynamics::Lines;
 use crate::effects::{
-    self, phi1, validate_variants, BulkStage, CommandStage, EndNode, FlowStage, ForceStage,
+    self, phi1, validate_variants, BulkStage, CommandStage, FlowStage, ForceStage, LapStage,
     LineStage, LoadSpring, MountStage, PistonForces, SpoolStage, SupplyStage,
 };
 use crate::exact::{LinearCoefficients, LinearExact};
@@ -479,14 +480,16 @@ impl Plant {
         } else {
             None
         };
-        // The edge law with the lap and limit stages (`valve_deadband`, `valve_saturation`)
-        // as configured.
-        let edges = EdgeLaw::with_stages(
+        // The edge law; its lap and limit stages are the components (`valve_deadband`,
+        // `valve_saturation`) as configured.
+        let edges = EdgeLaw::new(params);
+        let plausible = crate::plausible::Plausible::new(
             params,
-            components.valve_deadband,
-            components.valve_saturation,
+            &edges,
+            &components.valve_saturation,
+            control_dt,
+            c.beta_max,
         );
-        let plausible = crate::plausible::Plausible::new(params, &edges, control_dt, c.beta_max);
         let mut plant = Plant {
             edges,
             plausible,
@@ -902,17 +905,21 @@ impl Plant {
         s.command = u;
         // The amplifier's offset and dead zone (`valve_deadband` variant `amplifier`), as in
         // `advance_substep`.
-        let target = self.edges.target(u / c.full_scale);
+        let target = self.components.valve_deadband.target(u / c.full_scale);
         // The spool stage (`valve_dynamics`): its mid-step position opens the edges.
         let spool = &self.components.valve_dynamics;
         let sm = spool.midstep(s.spool, s.spool_velocity, target);
         spool.advance(&mut s.spool, &mut s.spool_velocity, target);
-        let o = self.edges.openings(sm);
+        let (lap, limit) = (
+            &self.components.valve_deadband,
+            &self.components.valve_saturation,
+        );
+        let o = self.edges.openings(lap, limit, sm);
         let (va, vb) = self.volumes(s.x);
         let ca = self.bulk_modulus(s.p_a) / va;
         let cb = self.bulk_modulus(s.p_b) / vb;
-        let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, s.p_a);
-        let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, s.p_b);
+        let (qa, dqa, qsa) = self.edges.port(limit, o[0], o[1], s.p_s, c.pt, s.p_a);
+        let (qb, dqb, qsb) = self.edges.port(limit, o[2], o[3], s.p_s, c.pt, s.p_b);
         let f_mid = self.excitation.force(t + 0.5 * h);
         let lin = self.linear.as_mut().expect("linear_exact configured");
         if lin.stale(ca, cb) {
@@ -970,138 +977,20 @@ impl Plant {
         let mut s = self.state;
         s.command = u;
         // 1. Spool: the spool stage (`valve_dynamics`) towards the edge law's target.
-        let target = self.edges.target(u / c.full_scale);
+        let target = self.components.valve_deadband.target(u / c.full_scale);
         self.components
             .valve_dynamics
             .advance(&mut s.spool, &mut s.spool_velocity, target);
-        let o = self.edges.openings(s.spool);
-        // 2. Pressures.
-        let (va, vb) = self.volumes(s.x);
-        let beta_a = self.bulk_modulus(s.p_a);
-        let beta_b = self.bulk_modulus(s.p_b);
-        // The flow stages (`internal_leakage`, `external_leakage`): cross-piston flow A→B
-        // less the grey-box B→A flow (crate::effects::PolynomialFlow), flows to tank, and
-        // their conductances for the chambers' linearisation.
-        let leak_in = &self.components.internal_leakage;
-        let leak_ext = &self.components.external_leakage;
-        let q_in = leak_in.flows(s.p_a, s.p_b).0 - self.poly_flow.map_or(0.0, |f| f.flow(s.spool));
-        let (q_ext_a, q_ext_b) = leak_ext.flows(s.p_a, s.p_b);
-        let (k_in, _) = leak_in.conductances();
-        let (k_ext, k_ext_b) = leak_ext.conductances();
-        let (q_sa, q_sb);
-        // The line stage (`line_dynamics`): the valve ports see the lines' valve-side nodes.
-        let lines = &mut self.components.line_dynamics;
-        match lines.port_pressures() {
-            None => {
-                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, s.p_a);
-                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, s.p_b);
-                s.q_a = qa;
-                s.q_b = qb;
-                q_sa = qsa;
-                q_sb = qsb;
-                let fa = beta_a / va * (qa - c.a_a * s.v - q_in - q_ext_a);
-                let la = beta_a / va * (dqa - k_in - k_ext);
-                let fb = beta_b / vb * (qb + c.a_b * s.v + q_in - q_ext_b);
-                let lb = beta_b / vb * (dqb - k_in - k_ext_b);
-                s.p_a = (s.p_a + h * fa * phi1(la * h)).max(c.p_cav);
-                s.p_b = (s.p_b + h * fb * phi1(lb * h)).max(c.p_cav);
-            }
-            Some((port_a, port_b)) if lines.is_implicit() => {
-                // Whole chains valve node → chamber, trapezoidal (crate::line); no CBVs here
-                // (configure refuses them), the port bleed is theirs too, so 0.
-                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, port_a);
-                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, port_b);
-                s.q_a = qa;
-                s.q_b = qb;
-                q_sa = qsa;
-                q_sb = qsb;
-                let end_a = EndNode {
-                    p: s.p_a,
-                    cap: va / beta_a,
-                    flow: -c.a_a * s.v - q_in - q_ext_a,
-                    dflow: -k_in - k_ext,
-                };
-                let end_b = EndNode {
-                    p: s.p_b,
-                    cap: vb / beta_b,
-                    flow: c.a_b * s.v + q_in - q_ext_b,
-                    dflow: -k_in - k_ext_b,
-                };
-                (s.p_a, s.p_b) =
-                    lines.advance_implicit(h, [qa, qb], [dqa, dqb], [end_a, end_b], c.p_cav);
-            }
-            Some((port_a, port_b)) => {
-                // Valve-side nodes, exponential Euler in their own pressure.
-                let (qa, dqa, qsa) = self.edges.port(o[0], o[1], s.p_s, c.pt, port_a);
-                let (qb, dqb, qsb) = self.edges.port(o[2], o[3], s.p_s, c.pt, port_b);
-                // Neutral A,B→T bleed with the CBVs (crate::cbv, `port_bleed`).
-                let kb = self.port_bleed;
-                let (qa, dqa) = (qa - kb * (port_a - c.pt), dqa - kb);
-                let (qb, dqb) = (qb - kb * (port_b - c.pt), dqb - kb);
-                s.q_a = qa;
-                s.q_b = qb;
-                q_sa = qsa;
-                q_sb = qsb;
-                let [(p_last_a, qla), (p_last_b, qlb)] =
-                    lines.advance_nodes(h, [qa, qb], [dqa, dqb], c.p_cav, [s.p_a, s.p_b]);
-                // Counterbalance valves between line end and chamber (crate::cbv): the node
-                // (port 2) in exponential Euler in its own pressure; the chamber takes the flow
-                // the node passed on over the substep (line inflow less the node's storage
-                // change), so line, node and chamber exchange exactly the same volume. The CBV
-                // flow at the start-of-step node pressure instead over-delivers whenever the
-                // check or the poppet opens within the step (node time constant C/G ≈ 1 µs
-                // against a 5–20 µs substep): a numerical chatter that needed 4× the substeps
-                // to converge (docs/benchmarks-archive.md, "Short stiff lines").
-                let ends = [(p_last_a, qla, s.p_a), (p_last_b, qlb, s.p_b)];
-                let mut into = [qla, qlb];
-                let mut dinto = [0.0; 2];
-                let mut p_end = [s.p_a, s.p_b];
-                for i in 0..2 {
-                    // Pilot: the other line at the cylinder (its CBV node, else its last node).
-                    let pilot = match &self.cbv[1 - i] {
-                        Some(o) => o.s.p_node,
-                        None => ends[1 - i].0,
-                    };
-                    if let Some(cb) = self.cbv[i].as_mut() {
-                        let (_, q_line, p_ch) = ends[i];
-                        cb.advance_poppet(h, p_ch, pilot);
-                        let (q, dq) = cb.flow(cb.s.p_node, p_ch);
-                        let f = (q_line - q) / cb.c_node;
-                        let w = phi1(-dq / cb.c_node * h);
-                        let pn = (cb.s.p_node + h * f * w).max(c.p_cav);
-                        let q_out = q_line - cb.c_node * (pn - cb.s.p_node) / h;
-                        cb.s.p_node = pn;
-                        cb.s.q = q_out;
-                        into[i] = q_out;
-                        // ∂q_out/∂p_ch = −(C/h)·(1 − e^(λh)) = −dq·φ₁(λh), λ = −dq/C
-                        // (→ −dq for λh → 0).
-                        dinto[i] = dq * w;
-                        p_end[i] = pn;
-                    }
-                }
-                let fa = beta_a / va * (into[0] - c.a_a * s.v - q_in - q_ext_a);
-                let lam_a = beta_a / va * (-k_in - k_ext - dinto[0]);
-                let fb = beta_b / vb * (into[1] + c.a_b * s.v + q_in - q_ext_b);
-                let lam_b = beta_b / vb * (-k_in - k_ext_b - dinto[1]);
-                s.p_a = (s.p_a + h * fa * phi1(lam_a * h)).max(c.p_cav);
-                s.p_b = (s.p_b + h * fb * phi1(lam_b * h)).max(c.p_cav);
-                lines.advance_flows(
-                    h,
-                    [
-                        if self.cbv[0].is_some() {
-                            p_end[0]
-                        } else {
-                            s.p_a
-                        },
-                        if self.cbv[1].is_some() {
-                            p_end[1]
-                        } else {
-                            s.p_b
-                        },
-                    ],
-                );
-            }
-        }
+        let (lap, limit) = (
+            &self.components.valve_deadband,
+            &self.components.valve_saturation,
+        );
+        let o = self.edges.openings(lap, limit, s.spool);
+        // 2. Pressures: each chamber's balance (crate::chambers) and the line stage
+        // (`line_dynamics`) between it and its valve port.
+        let leaks = self.leaks(&s);
+        let (q_sa, q_sb) = self.advance_chambers(&mut s, o, &leaks);
+        let c = &self.c;
         // The supply stage (`supply_pressure_drop`: the sag towards p_s0 − R·Q_s (000) or
         // the pump's flow limit); p_s stays without it.
         s.p_s = self
@@ -1109,12 +998,79 @@ impl Plant {
             .supply_pressure_drop
             .advance(s.p_s, q_sa + q_sb, c.pt, h);
         // 3. Mechanics.
-        // Positions drift with the velocities that drove the pressures above, then the
-        // velocities take the forces at the new positions (drift–kick): piston, load and
-        // pressures stay at one time level. Drifting after the kick put the position (and
-        // the rod force) one substep ahead of the pressures, a first-order lead that was
-        // 95 % of the test bench's replay error (BENCHMARKS.md "Diagnosis speed: drift
-        // before kick").
+        self.advance_mechanics(&mut s, t);
+        self.state = s;
+    }
+
+    /// The flow stages (`internal_leakage`, `external_leakage`) at the start of a substep
+    /// from the state `s`: cross-piston flow A→B less the grey-box B→A flow
+    /// (crate::effects::PolynomialFlow), flows to tank, and their conductances for the
+    /// chambers' linearisation.
+    #[inline(always)]
+    fn leaks(&self, s: &PlantState) -> Leaks {
+        let leak_in = &self.components.internal_leakage;
+        let leak_ext = &self.components.external_leakage;
+        let q_in = leak_in.flows(s.p_a, s.p_b).0 - self.poly_flow.map_or(0.0, |f| f.flow(s.spool));
+        let (q_ext_a, q_ext_b) = leak_ext.flows(s.p_a, s.p_b);
+        let (k_in, _) = leak_in.conductances();
+        let (k_ext, k_ext_b) = leak_ext.conductances();
+        Leaks {
+            q_in,
+            q_ext: [q_ext_a, q_ext_b],
+            k_in,
+            k_ext: [k_ext, k_ext_b],
+        }
+    }
+
+    /// Chamber A's (`b` false) or B's balance at the state `s` with the flow stages
+    /// `leaks`: its pressure, bulk modulus, volume (003 eq. 7–8), the piston's displacement
+    /// flow and the leakages. Built where the coupling steps it, from the start-of-substep
+    /// values.
+    #[inline(always)]
+    fn chamber(
+        c: &Consts,
+        bulk: &effects::bulk_modulus_pressure::BulkModulus,
+        s: &PlantState,
+        leaks: &Leaks,
+        b: bool,
+    ) -> Chamber {
+        let xc = s.x.clamp(0.0, c.stroke);
+        if b {
+            Chamber {
+                p: s.p_b,
+                beta: bulk.bulk_modulus(s.p_b),
+                volume: c.v_b0 + c.a_b * (c.stroke - xc),
+                piston: c.a_b * s.v,
+                cross: leaks.q_in,
+                q_ext: leaks.q_ext[1],
+                k_in: leaks.k_in,
+                k_ext: leaks.k_ext[1],
+            }
+        } else {
+            Chamber {
+                p: s.p_a,
+                beta: bulk.bulk_modulus(s.p_a),
+                volume: c.v_a0 + c.a_a * xc,
+                piston: -c.a_a * s.v,
+                cross: -leaks.q_in,
+                q_ext: leaks.q_ext[0],
+                k_in: leaks.k_in,
+                k_ext: leaks.k_ext[0],
+            }
+        }
+    }
+
+    /// Step 3 of a substep `h` from `t` (s): the mechanics of the state `s`, whose pressures
+    /// are already the new ones.
+    /// Positions drift with the velocities that drove the pressures, then the velocities
+    /// take the forces at the new positions (drift–kick): piston, load and pressures stay at
+    /// one time level. Drifting after the kick put the position (and the rod force) one
+    /// substep ahead of the pressures, a first-order lead that was 95 % of the test bench's
+    /// replay error (BENCHMARKS.md "Diagnosis speed: drift before kick").
+    #[inline(always)]
+    fn advance_mechanics(&mut self, s: &mut PlantState, t: f64) {
+        let h = self.h;
+        let c = &self.c;
         s.x += h * s.v;
         let mount = &self.components.flexible_mount;
         mount.drift(&mut s.x_load, s.v_load, h);
@@ -1125,9 +1081,11 @@ impl Plant {
         let (f_poly, df_poly) = self
             .poly
             .map_or((0.0, 0.0), |f| f.force(s.x, s.v, s.p_a, s.p_b));
-        let df_poly = df_poly.max(0.0); // a falling branch stays explicit
-                                        // Dahl pre-yield state, backward Euler: F_d·z' = f₀ + d·v' = (f₀ + d·v) + d·(v' − v),
-                                        // folded into the linearisation about v so that the velocity update stays one division.
+        // A falling branch stays explicit.
+        let df_poly = df_poly.max(0.0);
+        // Dahl pre-yield state, backward Euler: F_d·z' = f₀ + d·v' = (f₀ + d·v) + d·(v' − v),
+        // folded into the linearisation about v so that the velocity update stays one
+        // division.
         let (f_dahl0, d_dahl) = self
             .poly
             .map_or((0.0, 0.0), |f| f.dahl_implicit(self.dahl_z, s.v, h));
@@ -1170,7 +1128,65 @@ impl Plant {
                 s.v = s.v.min(0.0);
             }
         }
-        self.state = s;
+    }
+
+    /// Step 2 of a substep: the valve port flows at the pressures the ports see, and the
+    /// chambers' balances (crate::chambers) stepped with them, by the one way the
+    /// line stage (`line_dynamics`) couples them: ports straight on the chambers (no lines),
+    /// the implicit chains valve node → chamber (`integration.line_method = "implicit"`,
+    /// [`LineStage::advance_implicit`], the chamber its chain's end node), or the symplectic
+    /// nodes ([`LineStage::advance_nodes`]), the counterbalance valves between line end and
+    /// chamber ([`cbv_ends`]) and the line flows after the chamber pressures
+    /// ([`LineStage::advance_flows`]), each chamber's balance built from `s` and the flow stages `leaks` where it is stepped (`Plant::chamber`). Writes the pressures and port flows into `s`; returns
+    /// the flows from supply into ports A and B (m³/s).
+    #[inline(always)]
+    fn advance_chambers(&mut self, s: &mut PlantState, o: [f64; 4], leaks: &Leaks) -> (f64, f64) {
+        let (h, pt, p_cav) = (self.h, self.c.pt, self.c.p_cav);
+        let (c, bulk) = (&self.c, &self.components.bulk_modulus_pressure);
+        let lines = &mut self.components.line_dynamics;
+        let ports = lines.port_pressures();
+        let (port_a, port_b) = ports.unwrap_or((s.p_a, s.p_b));
+        let limit = &self.components.valve_saturation;
+        let (qa, dqa, qsa) = self.edges.port(limit, o[0], o[1], s.p_s, pt, port_a);
+        let (qb, dqb, qsb) = self.edges.port(limit, o[2], o[3], s.p_s, pt, port_b);
+        if ports.is_none() {
+            (s.q_a, s.q_b) = (qa, qb);
+            let (ch_a, ch_b) = (
+                Self::chamber(c, bulk, s, leaks, false),
+                Self::chamber(c, bulk, s, leaks, true),
+            );
+            s.p_a = ch_a.advance(qa, dqa, 0.0, h, p_cav);
+            s.p_b = ch_b.advance(qb, dqb, 0.0, h, p_cav);
+        } else if lines.is_implicit() {
+            // Whole chains valve node → chamber, trapezoidal (crate::line); no CBVs here
+            // (configure refuses them), the port bleed is theirs too, so 0.
+            (s.q_a, s.q_b) = (qa, qb);
+            let ends = [
+                Self::chamber(c, bulk, s, leaks, false).end_node(),
+                Self::chamber(c, bulk, s, leaks, true).end_node(),
+            ];
+            (s.p_a, s.p_b) = lines.advance_implicit(h, [qa, qb], [dqa, dqb], ends, p_cav);
+        } else {
+            // Valve-side nodes, exponential Euler in their own pressure, with the neutral
+            // A,B→T bleed of the CBVs (crate::cbv, `port_bleed`).
+            let kb = self.port_bleed;
+            let (qa, dqa) = (qa - kb * (port_a - pt), dqa - kb);
+            let (qb, dqb) = (qb - kb * (port_b - pt), dqb - kb);
+            (s.q_a, s.q_b) = (qa, qb);
+            let ends = lines.advance_nodes(h, [qa, qb], [dqa, dqb], p_cav, [s.p_a, s.p_b]);
+            let (into, dinto, p_end) = cbv_ends(&mut self.cbv, h, ends, [s.p_a, s.p_b], p_cav);
+            let (ch_a, ch_b) = (
+                Self::chamber(c, bulk, s, leaks, false),
+                Self::chamber(c, bulk, s, leaks, true),
+            );
+            s.p_a = ch_a.advance(into[0], 0.0, dinto[0], h, p_cav);
+            s.p_b = ch_b.advance(into[1], 0.0, dinto[1], h, p_cav);
+            let has = [self.cbv[0].is_some(), self.cbv[1].is_some()];
+            let p_a_end = if has[0] { p_end[0] } else { s.p_a };
+            let p_b_end = if has[1] { p_end[1] } else { s.p_b };
+            lines.advance_flows(h, [p_a_end, p_b_end]);
+        }
+        (qsa, qsb)
     }
 
     /// Rod force (N) at the current state, as the load cell sees it: load spring, mount (or
@@ -1192,6 +1208,57 @@ impl Plant {
                 .poly
                 .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
     }
+}
+
+/// The counterbalance valves between the lines' last nodes and the chambers over a
+/// substep `h` (s) (crate::cbv): `ends` the lines' (last node pressure (Pa), flow out of the
+/// line (m³/s)) on sides A and B, `p_ch` the chamber pressures (Pa). Returns per side the
+/// flow into the chamber (m³/s), minus its derivative in the chamber pressure
+/// (m³/(s·Pa)) and the pressure at the line's end (Pa): the line's own flow, 0 and the
+/// chamber's without a CBV on that side.
+///
+/// The node (port 2) steps in exponential Euler in its own pressure; the chamber takes the
+/// flow the node passed on over the substep (line inflow less the node's storage change), so
+/// line, node and chamber exchange exactly the same volume. The CBV flow at the
+/// start-of-step node pressure instead over-delivers whenever the check or the poppet opens
+/// within the step (node time constant C/G ≈ 1 µs against a 5–20 µs substep): a numerical
+/// chatter that needed 4× the substeps to converge (docs/benchmarks-archive.md, "Short
+/// stiff lines").
+#[inline(always)]
+#[allow(clippy::type_complexity)]
+fn cbv_ends(
+    cbv: &mut [Option<Cbv>; 2],
+    h: f64,
+    ends: [(f64, f64); 2],
+    p_ch: [f64; 2],
+    p_cav: f64,
+) -> ([f64; 2], [f64; 2], [f64; 2]) {
+    let mut into = [ends[0].1, ends[1].1];
+    let mut dinto = [0.0; 2];
+    let mut p_end = p_ch;
+    for i in 0..2 {
+        // Pilot: the other line at the cylinder (its CBV node, else its last node).
+        let pilot = match &cbv[1 - i] {
+            Some(o) => o.s.p_node,
+            None => ends[1 - i].0,
+        };
+        if let Some(cb) = cbv[i].as_mut() {
+            let q_line = ends[i].1;
+            cb.advance_poppet(h, p_ch[i], pilot);
+            let (q, dq) = cb.flow(cb.s.p_node, p_ch[i]);
+            let f = (q_line - q) / cb.c_node;
+            let w = phi1(-dq / cb.c_node * h);
+            let pn = (cb.s.p_node + h * f * w).max(p_cav);
+            let q_out = q_line - cb.c_node * (pn - cb.s.p_node) / h;
+            cb.s.p_node = pn;
+            cb.s.q = q_out;
+            into[i] = q_out;
+            // ∂q_out/∂p_ch = −(C/h)·(1 − e^(λh)) = −dq·φ₁(λh), λ = −dq/C (→ −dq for λh → 0).
+            dinto[i] = dq * w;
+            p_end[i] = pn;
+        }
+    }
+    (into, dinto, p_end)
 }
 
 /// Fastest oscillatory mode (rad/s) of the `exponential_euler` scheme with chamber volumes

@@ -25,7 +25,7 @@
 //!   force: more than the cylinder and its load can push.
 
 use crate::params::PlantParams;
-use crate::valve::EdgeLaw;
+use crate::valve::{EdgeLaw, Saturation};
 use ehactl_types::PlantState;
 
 /// Pressure bound factor on the reference pressure (-).
@@ -52,9 +52,16 @@ pub struct Plausible {
 }
 
 impl Plausible {
-    /// The bounds of the rig `params` with its edge law `edges`, stepped at `control_dt` (s),
+    /// The bounds of the rig `params` with its edge law `edges` and edge flow limit `limit`
+    /// (`valve_saturation`'s component), stepped at `control_dt` (s),
     /// whose oil is at most `beta_max` (Pa) stiff.
-    pub fn new(params: &PlantParams, edges: &EdgeLaw, control_dt: f64, beta_max: f64) -> Self {
+    pub fn new(
+        params: &PlantParams,
+        edges: &EdgeLaw,
+        limit: &Saturation,
+        control_dt: f64,
+        beta_max: f64,
+    ) -> Self {
         let cyl = &params.cylinder;
         let smaller = cyl.area_a.min(cyl.area_b);
         let area = if smaller > 0.0 {
@@ -65,7 +72,7 @@ impl Plausible {
         // Piston speed (m/s) of the fully open valve at the pressure drop `dp` (Pa).
         let speed = |dp: f64| {
             let dp = dp - params.supply.tank_pressure + edges.supply_offset;
-            edges.edge(1.0 + edges.underlap, dp).0.abs() / area
+            edges.edge(limit, 1.0 + edges.underlap, dp).0.abs() / area
         };
         let supply = params.supply.pressure.abs();
         let peak =

@@ -1,8 +1,11 @@
 //! Four-edge valve: metering-edge flow. The spool dynamics are `valve_dynamics`'s
 //! ([`crate::effects::valve_dynamics`]; [`SpoolModel`] re-exported here); the dead band and
 //! the saturation that shape the edges are the components of `valve_deadband` and
-//! `valve_saturation` ([`Deadband`], [`Saturation`], re-exported here), which [`EdgeLaw`]
-//! calls.
+//! `valve_saturation` ([`Deadband`], [`Saturation`], re-exported here): [`EdgeLaw`] holds
+//! the flow law alone and takes the two stages by reference where it needs them (the
+//! plant passes the components it configured, `Plant::configure` in
+//! crates/plant/src/model.rs; a caller without a plant builds them from the sections,
+//! [`EdgeLaw::stages`]).
 //!
 //! Flow per edge Q = k · o · φ(Δp) where o ≥ 0 is the edge opening (fraction of full
 //! spool travel) and φ(Δp) = Δp·(Δp² + Δp_l²)^((n−1)/2) is the signed power law
@@ -17,9 +20,10 @@ pub use crate::effects::valve_saturation::Saturation;
 use crate::effects::{LapStage, LimitStage};
 use crate::params::{FlowForm, PlantParams};
 
-/// Metering-edge geometry and flow law, with the two effect components that shape the
-/// edges: `valve_deadband`'s lap stage and `valve_saturation`'s limit stage (copies of the
-/// stateless components; `Plant::configure` passes the ones it configured).
+/// Metering-edge geometry and flow law. The two effect components that shape the edges,
+/// `valve_deadband`'s lap stage ([`LapStage`]) and `valve_saturation`'s limit stage
+/// ([`LimitStage`]), are not held here: [`EdgeLaw::openings`], [`EdgeLaw::edge`] and
+/// [`EdgeLaw::port`] take them by reference, so the plant's edges are its components.
 #[derive(Debug, Clone)]
 pub struct EdgeLaw {
     /// Flow coefficient k (m³/s per unit opening per Paⁿ).
@@ -32,26 +36,11 @@ pub struct EdgeLaw {
     pub supply_offset: f64,
     /// Underlap (fraction).
     pub underlap: f64,
-    /// `valve_deadband`'s lap stage: the spool target, its zero offset and overlap.
-    pub deadband: Deadband,
-    /// `valve_saturation`'s limit stage: the spool travel limits and the edge flow limit.
-    pub saturation: Saturation,
 }
 
 impl EdgeLaw {
-    /// Derive from the parameters (assumes they passed validation), the stages from their
-    /// sections.
+    /// Derive the flow law from the parameters (assumes they passed validation).
     pub fn new(params: &PlantParams) -> Self {
-        Self::with_stages(
-            params,
-            Deadband::new(params.effects.valve_deadband.as_ref()),
-            Saturation::new(params.effects.valve_saturation.as_ref()),
-        )
-    }
-
-    /// Derive the flow law from the parameters (assumes they passed validation), with the
-    /// effects' stages as configured (`Plant::configure` passes its components).
-    pub fn with_stages(params: &PlantParams, deadband: Deadband, saturation: Saturation) -> Self {
         let v = &params.valve;
         let (k, n, po) = match v.flow_form {
             FlowForm::Orifice => (
@@ -81,27 +70,28 @@ impl EdgeLaw {
             dp_lam: v.laminar_pressure,
             supply_offset: po,
             underlap: v.underlap,
-            deadband,
-            saturation,
         }
     }
 
-    /// Spool target (fraction) for the command `c` = u / full scale: the lap stage's
-    /// ([`LapStage::target`]: `c`, or through an amplifier's offset and dead zone).
-    #[inline]
-    pub fn target(&self, c: f64) -> f64 {
-        self.deadband.target(c)
+    /// The lap and limit stages of `params`' sections (`valve_deadband`,
+    /// `valve_saturation`), for a caller that steps the edges without a plant (the plant
+    /// passes its own components).
+    pub fn stages(params: &PlantParams) -> (Deadband, Saturation) {
+        (
+            Deadband::new(params.effects.valve_deadband.as_ref()),
+            Saturation::new(params.effects.valve_saturation.as_ref()),
+        )
     }
 
     /// Edge openings (P→A, A→T, P→B, B→T) for spool position `s` (fraction): the travel
-    /// from the lap stage's zero offset, within the limit stage's travel limits
-    /// ([`LimitStage::clip_travel`]), plus the underlap less the lap stage's overlap, ≥ 0.
+    /// from the lap stage's zero offset ([`LapStage::travel`]), within the limit stage's
+    /// travel limits ([`LimitStage::clip_travel`]), plus the underlap less the lap stage's
+    /// overlap ([`LapStage::lap`]), ≥ 0.
     #[inline]
-    pub fn openings(&self, s: f64) -> [f64; 4] {
-        let d = &self.deadband;
-        let se = self.saturation.clip_travel(d.travel(s));
-        let pos = d.lap(se + self.underlap).max(0.0);
-        let neg = d.lap(-se + self.underlap).max(0.0);
+    pub fn openings(&self, lap: &impl LapStage, limit: &impl LimitStage, s: f64) -> [f64; 4] {
+        let se = limit.clip_travel(lap.travel(s));
+        let pos = lap.lap(se + self.underlap).max(0.0);
+        let neg = lap.lap(-se + self.underlap).max(0.0);
         [pos, neg, neg, pos]
     }
 
@@ -124,21 +114,30 @@ impl EdgeLaw {
     /// Flow through one edge of opening `o` at pressure drop `dp`, and dQ/d(Δp), within the
     /// limit stage's edge flow limit ([`LimitStage::clip_flow`]).
     #[inline]
-    pub fn edge(&self, o: f64, dp: f64) -> (f64, f64) {
+    pub fn edge(&self, limit: &impl LimitStage, o: f64, dp: f64) -> (f64, f64) {
         if o <= 0.0 {
             return (0.0, 0.0);
         }
         let (f, df) = self.phi(dp);
         let q = self.k * o * f;
-        self.saturation.clip_flow(q, self.k * o * df)
+        limit.clip_flow(q, self.k * o * df)
     }
 
     /// Net flow into a port at pressure `p` from supply `ps` and to tank `pt` through the
-    /// inlet edge opening `o_in` and outlet edge opening `o_out`; returns (Q, dQ/dp, Q from supply).
+    /// inlet edge opening `o_in` and outlet edge opening `o_out`, within the limit stage's
+    /// edge flow limit; returns (Q, dQ/dp, Q from supply).
     #[inline]
-    pub fn port(&self, o_in: f64, o_out: f64, ps: f64, pt: f64, p: f64) -> (f64, f64, f64) {
-        let (qi, dqi) = self.edge(o_in, ps + self.supply_offset - p);
-        let (qo, dqo) = self.edge(o_out, p - pt);
+    pub fn port(
+        &self,
+        limit: &impl LimitStage,
+        o_in: f64,
+        o_out: f64,
+        ps: f64,
+        pt: f64,
+        p: f64,
+    ) -> (f64, f64, f64) {
+        let (qi, dqi) = self.edge(limit, o_in, ps + self.supply_offset - p);
+        let (qo, dqo) = self.edge(limit, o_out, p - pt);
         (qi - qo, -dqi - dqo, qi)
     }
 }

@@ -1,10 +1,13 @@
-//! The fixed-step control loop: `Hal::read` → supervisor → setpoint → control law →
-//! supervisor command limit, saturation and following-error watches → `Hal::write` → record. The same code runs in simulated time
+//! The fixed-step control loop: `Hal::read` → the cycle kernel (`ehactl_control::cycle`:
+//! setpoint → supervisor → control law → supervisor command limit, saturation and
+//! following-error watches; the loop body the diagnosis's replay steps too) → `Hal::write`
+//! → record. The same code runs in simulated time
 //! (the sim backend, as fast as the CPU allows) and against a wall clock: only the
 //! [`Pacer`] differs. Nothing in the cycle allocates, locks or does blocking I/O.
 
 use crate::live::LiveParams;
 pub use ehactl_control::controller::Controller;
+use ehactl_control::cycle::{self, CycleInput, Trip};
 use ehactl_control::pi::ControlTerms;
 use ehactl_control::setpoint::Setpoint;
 use ehactl_control::supervisor::Supervisor;
@@ -235,49 +238,47 @@ impl<H: Hal + ?Sized, P: Pacer + ?Sized> Loop<'_, '_, H, P> {
             .hal
             .read(t, period)
             .map_err(|e| Ending::Trip(hal_fault(t, k, e)))?;
-        let (r, rdot) = self.held.unwrap_or_else(|| self.setpoint.sample(t));
-        let fb = self.controller.feedback(&meas);
-        if let Some(ev) = self.supervisor.check_sensors(t, k, &meas) {
-            let safe = self.supervisor.safe_command();
-            let e = if matches!(self.controller, Controller::OpenLoop) {
-                f64::NAN
-            } else {
-                r - fb
-            };
-            let held = ControlTerms {
-                u: safe,
-                u_unsat: safe,
-                error: e,
-                p: f64::NAN,
-                i: f64::NAN,
-                d: f64::NAN,
-                ff: f64::NAN,
-            };
-            let plant = self.hal.plant_state();
-            let rec = cycle_record(k, t, (r, rdot), fb, &held, safe, meas, plant, timing);
-            self.log(&rec, e);
-            return Err(Ending::Trip(ev));
-        }
-        let terms = self.controller.step(r, rdot, &meas, dt);
-        if let Some(ev) = self.supervisor.check_terms(t, k, &terms) {
-            return Err(Ending::Trip(ev));
-        }
-        let (u, ev) = self.supervisor.limit_command(t, k, terms.u);
-        if let Some(ev) = ev {
-            if ev.severity == Severity::Trip {
+        // The cycle kernel (`ehactl_control::cycle`, the loop body the diagnosis's replay
+        // steps too): setpoint, sensor checks, law, command limit and watches.
+        let input = CycleInput { k, t, dt, meas };
+        let reference = HeldOr {
+            held: self.held,
+            setpoint: &self.setpoint,
+        };
+        let out = cycle::step(self.controller, self.supervisor, &reference, &input);
+        let fb = out.feedback;
+        match out.trip {
+            Some(Trip::Sensors(ev)) => {
+                // Recorded with the safe command it applied.
+                let plant = self.hal.plant_state();
+                let rec = cycle_record(
+                    k,
+                    t,
+                    out.reference,
+                    fb,
+                    &out.terms,
+                    out.u,
+                    meas,
+                    plant,
+                    timing,
+                );
+                self.log(&rec, out.terms.error);
                 return Err(Ending::Trip(ev));
             }
-            (self.event)(ev);
+            Some(Trip::Law(ev)) => {
+                if let Some(w) = out.warning {
+                    (self.event)(w);
+                }
+                return Err(Ending::Trip(ev));
+            }
+            None => {}
         }
-        let saturated = terms.u != terms.u_unsat || u != terms.u;
-        if let Some(ev) = self.supervisor.check_saturation(t, k, saturated, dt) {
-            return Err(Ending::Trip(ev));
+        if let Some(w) = out.warning {
+            (self.event)(w);
         }
-        if let Some(ev) = self.supervisor.check_following(t, k, terms.error, dt) {
-            return Err(Ending::Trip(ev));
-        }
+        let (terms, u) = (&out.terms, out.u);
         let plant = self.hal.plant_state();
-        let rec = cycle_record(k, t, (r, rdot), fb, &terms, u, meas, plant, timing);
+        let rec = cycle_record(k, t, out.reference, fb, terms, u, meas, plant, timing);
         if let Err(e) = self.hal.write(t, period, u) {
             // Recorded, but its error is not counted: the command did not reach the valve.
             self.log(&rec, f64::NAN);
@@ -438,6 +439,21 @@ fn cycle_record(
         plant: plant.unwrap_or_default(),
         has_plant: plant.is_some(),
         timing,
+    }
+}
+
+/// The loop's reference: a setpoint and its rate held from outside (the FMU's input, set
+/// before each step) when given, else the configured generator.
+struct HeldOr<'a> {
+    held: Option<(f64, f64)>,
+    setpoint: &'a Setpoint,
+}
+
+impl cycle::Reference for HeldOr<'_> {
+    #[inline]
+    fn sample(&self, k: u64, t: f64) -> (f64, f64) {
+        self.held
+            .unwrap_or_else(|| cycle::Reference::sample(self.setpoint, k, t))
     }
 }
 

@@ -115,10 +115,10 @@ pub trait SpoolStage: Component {
 
 /// A component that sets where the valve's four metering edges open (`valve_deadband`): the
 /// spool target from the command (an amplifier's dead zone ahead of the spool), and the
-/// spool's zero offset and overlap between its position and the edge openings. The valve's
-/// edge law (`EdgeLaw` in crates/plant/src/valve.rs) holds it and calls it in each substep
-/// (steps 1 and 2 of crates/plant/src/model.rs: the spool target before the spool stage,
-/// the openings after it). All quantities are fractions of full spool travel (-).
+/// spool's zero offset and overlap between its position and the edge openings. The plant calls
+/// it in each substep (steps 1 and 2 of crates/plant/src/model.rs: the spool target before
+/// the spool stage, then the openings through the valve's edge law, `EdgeLaw` in
+/// crates/plant/src/valve.rs, which takes it by reference). All quantities are fractions of full spool travel (-).
 pub trait LapStage: Component {
     /// The spool target for the command `c` = u / full scale (-): `c` without an amplifier
     /// dead zone. Real-time safe.
@@ -135,8 +135,8 @@ pub trait LapStage: Component {
 
 /// A component that limits the valve's metering edges (`valve_saturation`): the spool
 /// travel they see (amplifier clipping or the spool's end stops) and the flow through any
-/// one edge. The valve's edge law (`EdgeLaw` in crates/plant/src/valve.rs) holds it and
-/// calls it in each substep (step 2 of crates/plant/src/model.rs, the openings and the edge
+/// one edge. The valve's edge law (`EdgeLaw` in crates/plant/src/valve.rs) takes it
+/// by reference and calls it in each substep (step 2 of crates/plant/src/model.rs, the openings and the edge
 /// flows), after the [`LapStage`]'s zero offset and before its overlap.
 pub trait LimitStage: Component {
     /// The spool travel `travel` (fraction of full travel, -) within the travel limits:

@@ -28,18 +28,19 @@
 //! `Option` field in [`Effects`] and its re-export line. In [`crate::model`] the component's
 //! stage is called where the cycle reaches it (`Plant::step` calls `time_delay`'s `push`
 //! once per period and `command` per substep; `Plant::advance_substep` calls
-//! `valve_deadband`'s `target` (through the valve's edge law `EdgeLaw` in
-//! crates/plant/src/valve.rs, which holds copies of the two stateless edge components from
-//! `Plant::configure`), then `valve_dynamics`'s `advance` (and `advance_substep_linear` its
-//! `midstep` too), then the edge law's `openings` (the lap stage's `travel`, the limit
-//! stage's `clip_travel`, the lap stage's `lap`) and in its `port` flows the limit stage's
-//! `clip_flow`, reads `line_dynamics`' `port_pressures` (the pressures the valve ports see),
-//! reads //! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
-//! leakages' `flows` and `conductances` in the chamber balances, calls the lines'
-//! `advance_implicit` (`integration.line_method = "implicit"`) or, symplectic, their
-//! `advance_nodes` before the counterbalance valves (crates/plant/src/cbv.rs, which the plant
-//! keeps: they sit between a line's end and its chamber) and `advance_flows` after the
-//! chamber pressures, `supply_pressure_drop`'s `advance` after the chamber pressures,
+//! `valve_deadband`'s `target`, then `valve_dynamics`'s `advance` (and
+//! `advance_substep_linear` its `midstep` too), then the valve's edge law (`EdgeLaw` in
+//! crates/plant/src/valve.rs, which takes the two edge components by reference) for the
+//! `openings` (the lap stage's `travel`, the limit stage's `clip_travel`, the lap stage's
+//! `lap`) and in its `port` flows the limit stage's `clip_flow`; reads
+//! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
+//! leakages' `flows` and `conductances` into the chambers' balances (crates/plant/src/
+//! chambers.rs, written once); `Plant::advance_chambers` reads `line_dynamics`'
+//! `port_pressures` (the pressures the valve ports see) and couples the ports to the
+//! chambers in one of three ways: directly, through the lines' `advance_implicit`
+//! (`integration.line_method = "implicit"`) or, symplectic, their `advance_nodes` before the
+//! counterbalance valves (crates/plant/src/cbv.rs, which the plant keeps: they sit between
+//! a line's end and its chamber) and `advance_flows` after the chamber pressures; `supply_pressure_drop`'s `advance` after the chamber pressures,
 //! `flexible_mount`'s `drift` with the position drift, its `piston_force` and `friction`'s
 //! `kick` in the velocity update and the mount's `follow` after it;
 //! `Plant::update_rod_force` the mount's `rod_force`; `Plant::measure` hands `sensor_tone` to
@@ -54,7 +55,11 @@
 //! `fill`s the lines at the chambers' start pressures after the reset; the linearisation's
 //! state reads the spool's `order` and the lines' `state_names` / `state` / `set_state`);
 //! validation, configuration and reset go through [`Components`]; every catalogue effect is
-//! a component.
+//! a component. The registry test `every_registered_effect_acts_on_the_cycle` (below)
+//! holds the two lists together and the cycle to its components: `components!` and
+//! [`EffectId::ALL`] name the same effects, and each effect's section (its line in the
+//! test's exhaustive `acting_section`) changes what the sensors read, so a stage the plant
+//! never calls fails there instead of silently doing nothing.
 //!
 //! `polynomial_force` / `polynomial_flow` are the grey-box extension of `ehactl diagnose`, not
 //! catalogue effects; their sections are in crates/plant/src/params.rs, their laws below.
@@ -233,6 +238,10 @@ macro_rules! components {
         }
 
         impl Components {
+            /// The registered components' names, in declaration order (each its section's
+            /// field in [`Effects`] and its [`EffectId::as_str`]).
+            pub const NAMES: &'static [&'static str] = &[$(stringify!($id)),*];
+
             /// Every present section's cross-field checks ([`Component::validate`]).
             pub fn validate(e: &Effects) -> Result<(), crate::spec::ConfigError> {
                 $(
@@ -509,6 +518,121 @@ mod tests {
     use super::*;
     use crate::params::PlantParams;
     use crate::Plant;
+
+    /// An enabled section of effect `id` that acts on the registry test's rig
+    /// ([`registry_rig`]) within its first 0.3 s, with values of the shipped configs'
+    /// order (configs/*.toml). Exhaustive: a new effect does not build without its line.
+    fn acting_section(id: EffectId) -> &'static str {
+        match id {
+            EffectId::Friction => {
+                "static_force = 300.0\ncoulomb_force = 200.0\nstribeck_velocity = 0.005"
+            }
+            EffectId::ValveDeadband => "overlap = 0.1",
+            EffectId::ValveSaturation => "spool_limit = 0.2",
+            EffectId::ValveDynamics => "order = 1\ntime_constant = 0.01",
+            EffectId::InternalLeakage => "coefficient = 1.0e-11",
+            EffectId::ExternalLeakage => "coefficient = 1.0e-11",
+            EffectId::BulkModulusPressure => "slope = 7.0\nmax = 2.0e9",
+            EffectId::LineDynamics => {
+                "length = 2.5\ndiameter = 0.0127\nsegments = 8\nbulk_modulus = 1.0e9"
+            }
+            EffectId::FlexibleMount => "load_mass = 250.0\nstiffness = 5.0e4\ndamping = 1.5e4",
+            EffectId::TimeDelay => "delay = 0.005",
+            EffectId::SensorTone => {
+                "channel = \"force\"\nfrequencies = [225.0]\namplitudes = [2.0]"
+            }
+            EffectId::SupplyPressureDrop => "resistance = 3.75e10\ntime_constant = 0.02",
+        }
+    }
+
+    /// The registry test's rig: a `kq` valve, a differential cylinder mid-stroke on a load
+    /// spring, with the lines `extra` appended (an effect's section).
+    fn registry_rig(extra: &str) -> PlantParams {
+        let toml = format!(
+            r#"
+            [fluid]
+            density = 870.0
+            bulk_modulus = 1.4e9
+            [supply]
+            pressure = 21.0e6
+            [valve]
+            command_full_scale = 10.0
+            flow_form = "kq"
+            rated_flow = 5.4e-4
+            rated_pressure_drop = 3.5e6
+            [cylinder]
+            area_a = 2.0e-3
+            area_b = 1.0e-3
+            dead_volume_a = 1.0e-4
+            dead_volume_b = 1.0e-4
+            stroke = 0.5
+            initial_position = 0.25
+            [mechanics]
+            mass = 50.0
+            load_stiffness = 1.0e5
+            load_contact_position = 0.2
+            end_stops = false
+            {extra}
+            "#
+        );
+        toml::from_str(&toml).unwrap_or_else(|e| panic!("registry rig with {extra:?}: {e}"))
+    }
+
+    /// The measurements of 300 periods of 1 ms under a ±3 V, 5 Hz sine command.
+    fn registry_run(p: &PlantParams) -> Vec<[f64; 5]> {
+        let mut plant = Plant::configure(p, 1e-3).expect("the registry rig configures");
+        (0..300)
+            .map(|k| {
+                let u = 3.0 * (2.0 * std::f64::consts::PI * 5.0 * k as f64 * 1e-3).sin();
+                plant.step(u).expect("the registry rig steps");
+                let m = plant.measure();
+                [m.force, m.position, m.p_a, m.p_b, m.spool]
+            })
+            .collect()
+    }
+
+    /// Every catalogue effect is one registered component (`components!`) and the plant's
+    /// cycle calls it: each effect's section, enabled alone on the same rig, changes what
+    /// the sensors read. An effect whose stage the plant never calls (crates/plant/src/
+    /// model.rs) would be configured and silently do nothing; this test names it.
+    #[test]
+    fn every_registered_effect_acts_on_the_cycle() {
+        let mut registered: Vec<&str> = Components::NAMES.to_vec();
+        let mut ids: Vec<&str> = EffectId::ALL.iter().map(|e| e.as_str()).collect();
+        registered.sort_unstable();
+        ids.sort_unstable();
+        assert_eq!(
+            registered, ids,
+            "components! and EffectId::ALL list the same effects"
+        );
+        let base = registry_run(&registry_rig(""));
+        for id in EffectId::ALL {
+            let section = format!("[effects.{id}]\n{}", acting_section(id));
+            let p = registry_rig(&section);
+            assert!(p.effects.is_enabled(id), "{id}: the section enables it");
+            let run = registry_run(&p);
+            // Largest change of any channel relative to its range over the base run.
+            let change = (0..5)
+                .map(|c| {
+                    let (lo, hi) = base
+                        .iter()
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |a, m| {
+                            (a.0.min(m[c]), a.1.max(m[c]))
+                        });
+                    let d = base
+                        .iter()
+                        .zip(&run)
+                        .map(|(a, b)| (a[c] - b[c]).abs())
+                        .fold(0.0, f64::max);
+                    d / (hi - lo).max(1e-12)
+                })
+                .fold(0.0, f64::max);
+            assert!(
+                change > 1e-3,
+                "effect `{id}` is configured but changes no measurement (largest relative change {change:e}): is its stage called in crates/plant/src/model.rs?"
+            );
+        }
+    }
 
     /// The rig of the two tests below: a closed critical-centre valve (no opening at zero
     /// command), a double-ended cylinder of area `area` (m²) with 0.1 L dead volumes, 10 kg,

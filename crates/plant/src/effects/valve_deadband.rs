@@ -58,8 +58,9 @@ pub struct ValveDeadband {
 /// spool travel (-). Variant `overlap`: the spool's zero offset and its overlap per edge;
 /// variant `amplifier`: the amplifier's offset and dead zone on the spool target. Every
 /// constant is 0 without the effect (the edges open at the centre, the spool follows the
-/// command). Stateless; the valve's edge law (`EdgeLaw` in crates/plant/src/valve.rs) holds a
-/// copy and calls its [`LapStage`].
+/// command). Stateless; the plant holds it among its components and the valve's edge law
+/// (`EdgeLaw` in crates/plant/src/valve.rs) takes it by reference and calls its
+/// [`LapStage`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Deadband {
     /// Amplifier dead zone d on the spool target (fraction of the full-scale command).

@@ -60,8 +60,8 @@ impl ValveSaturation {
 /// The component of `valve_saturation`: the spool travel the metering edges can see, as
 /// fractions of full travel (-), and the flow through any one edge (m³/s). The limits are
 /// infinite without the effect (and the flow limit with `max_flow = 0`). Stateless; the
-/// valve's edge law (`EdgeLaw` in crates/plant/src/valve.rs) holds a copy and calls its
-/// [`LimitStage`].
+/// plant holds it among its components and the valve's edge law (`EdgeLaw` in
+/// crates/plant/src/valve.rs) takes it by reference and calls its [`LimitStage`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Saturation {
     /// Limit of positive travel (fraction), `spool_limit`.
