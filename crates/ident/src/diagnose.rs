@@ -821,12 +821,6 @@ impl SearchPhase {
     }
 }
 
-/// Effects that act on one measured channel only (not through the plant's dynamics): judged
-/// per channel as well as on the channel mean ([`phase_candidates`]).
-fn measurement_only(e: EffectId) -> bool {
-    matches!(e, EffectId::SensorTone)
-}
-
 /// The acceptance test of a candidate against the current model.
 struct Judgement {
     /// Share of the current error above the noise floor left by the candidate (-).
@@ -892,7 +886,7 @@ fn judge(
     // whose residual is above its floor, it passes the same test on that channel's J without
     // making the mean worse. Plant effects are judged on the mean (DIAGNOSIS.md "Acceptance
     // per channel").
-    let on_channel = if measurement_only(e) {
+    let on_channel = if crate::effects::of(e).measurement_only() {
         nom.val_rec
             .channels
             .iter()
@@ -997,7 +991,7 @@ fn effect_share(
             "overall".to_string(),
         ),
     };
-    let (share, on) = if measurement_only(e) {
+    let (share, on) = if crate::effects::of(e).measurement_only() {
         with.channels
             .iter()
             .filter_map(|(c, &w)| {
