@@ -31,56 +31,50 @@ pub(super) fn assemble(inp: &Inputs<'_>, p: Phases<'_>) -> Diagnosis {
         limits,
         reloop,
     } = p;
-    let (ctx, nominal) = (&lp.ctx, &lp.nominal);
-    let ResidualPhase {
-        ext_err,
-        ext_val_sim,
-        test: residual_test,
-        cause,
-    } = resid;
-    let sensor_offsets = sensor_offsets(inp.rec, &ext_val_sim, inp.opts);
-    let gain = 1.0 - ext_err.overall / nom.nom_err.overall;
-    let identified_loop = reloop.identified_loop.clone();
+    let sensor_offsets = sensor_offsets(inp.rec, &resid.ext_val_sim, inp.opts);
+    let gain = 1.0 - resid.ext_err.overall / nom.nom_err.overall;
     let Settled {
         cause,
+        status,
         greybox,
         beaten_by_baseline,
         final_hyp,
         dropped,
-    } = settle_cause(&nom, cause, &grey, reloop, &ext_err, &search.accepted);
-    let cause = edge_cause(
-        cause,
+    } = settle_cause(
+        (&nom, &rf, &resid),
+        &grey,
+        &reloop,
+        &search.accepted,
         closest.as_ref(),
-        dropped.is_some(),
-        greybox.as_ref(),
-        &floors_by_column(&nom, &rf),
     );
-    let status = status_of(&cause, closest.as_ref(), dropped.is_some());
     let law_accepted = greybox.as_ref().is_some_and(|g| g.accepted);
-    let (extended, ext_fit_sim, ext_val_sim) = if law_accepted {
-        final_models(ctx, nominal, &final_hyp)
-    } else {
-        let current = &search.current;
-        let ext_fit_sim = ctx.fit_replay(&current.build(&ctx.fit_base)).ok();
-        (current.build(nominal), ext_fit_sim, ext_val_sim)
-    };
+    let (extended, ext_fit_sim, ext_val_sim) = final_models(
+        &lp,
+        &search.current,
+        law_accepted.then_some(&final_hyp),
+        resid.ext_val_sim,
+    );
     let cands = ranked(std::mem::take(&mut search.candidates));
     let extended_at_bounds = at_bounds(&search.current);
-    let summary = write_summary(
-        &nom,
-        &rf,
-        &search,
-        &cands,
-        &ext_err,
-        gain,
-        &residual_test,
-        &cause,
-        greybox.as_ref(),
-        dropped.as_ref(),
-        beaten_by_baseline,
-        &extended_at_bounds,
+    let summary = edge_summary(
+        write_summary(
+            &nom,
+            &rf,
+            &search,
+            &cands,
+            &resid.ext_err,
+            gain,
+            &resid.test,
+            &cause,
+            greybox.as_ref(),
+            dropped.as_ref(),
+            beaten_by_baseline,
+            &extended_at_bounds,
+        ),
+        closest.as_ref(),
+        status,
+        dropped.is_some(),
     );
-    let summary = edge_summary(summary, closest.as_ref(), status, dropped.is_some());
     let warnings = record_warnings(inp.rec, inp.val, &nom);
     let traces = Traces {
         nominal: Some(nom.nom_sim),
@@ -97,10 +91,10 @@ pub(super) fn assemble(inp: &Inputs<'_>, p: Phases<'_>) -> Diagnosis {
         variants: variants_of(&search.current),
         nrmse_nominal: nom.nom_err,
         nrmse_refit: rf.refit_err,
-        nrmse_extended: ext_err,
+        nrmse_extended: resid.ext_err,
         nrmse_baseline: nom.nrmse_baseline,
         baseline: nom.baseline,
-        residual_test,
+        residual_test: resid.test,
         integration: nom.integration,
         greybox,
         gain,
@@ -123,7 +117,7 @@ pub(super) fn assemble(inp: &Inputs<'_>, p: Phases<'_>) -> Diagnosis {
         extended,
         traces,
     };
-    finish(d, inp.nominal, limits, identified_loop)
+    finish(d, inp.nominal, limits, reloop.identified_loop)
 }
 
 /// The diagnosis with the detection limits (named in the summary of a `none`), the config's
@@ -175,17 +169,22 @@ pub(super) fn at_bounds(h: &Hyp) -> Vec<String> {
         .collect()
 }
 
-/// The extended plant parameters of `h`, its replay of the fitting record and its held-out
-/// replay.
-pub(super) fn final_models(
-    ctx: &Ctx<'_>,
-    nominal: &PlantParams,
-    h: &Hyp,
+/// The recommended model's plant parameters, its replay of the fitting record and its
+/// held-out replay: of `law` (the catalogue model plus the grey-box law) when the law was
+/// accepted, else of the catalogue model `current`, whose held-out replay the residual test
+/// made (`catalogue_val_sim`).
+fn final_models(
+    lp: &LoopPhase<'_>,
+    current: &Hyp,
+    law: Option<&Hyp>,
+    catalogue_val_sim: Replay,
 ) -> (PlantParams, Option<Replay>, Replay) {
+    let (ctx, nominal) = (&lp.ctx, &lp.nominal);
+    let h = law.unwrap_or(current);
     (
         h.build(nominal),
         ctx.fit_replay(&h.build(&ctx.fit_base)).ok(),
-        ctx.val_errors(h).1,
+        law.map_or(catalogue_val_sim, |h| ctx.val_errors(h).1),
     )
 }
 
@@ -259,6 +258,8 @@ pub(super) fn params_of(h: &Hyp) -> BTreeMap<String, f64> {
 /// The cause once the grey-box law has had its say: what [`assemble`] names.
 pub(super) struct Settled {
     pub(super) cause: String,
+    /// The diagnosis' status for `cause` ([`status_of`]).
+    pub(super) status: &'static str,
     pub(super) greybox: Option<crate::greybox::GreyBox>,
     /// Neither the catalogue model nor the law predicts the held-out part as well as ARX.
     pub(super) beaten_by_baseline: bool,
@@ -271,15 +272,16 @@ pub(super) struct Settled {
 /// Settles the cause of the residual test (`cause`) against the grey-box phase `grey`: an
 /// accepted law that beats the catalogue model names it (judged on its figures before the
 /// loop's second look); a catalogue model that loses to ARX (or whose effects were dropped)
-/// with no law beating ARX either (the law as `reloop` scored it afresh) is `unexplained`.
+/// with no law beating ARX either (the law as `reloop` scored it afresh) is `unexplained`;
+/// then the closest catalogue effect (`closest`) has its say ([`edge_cause`]).
 pub(super) fn settle_cause(
-    nom: &NominalPhase<'_>,
-    cause: String,
+    (nom, rf, resid): (&NominalPhase<'_>, &RefitPhase, &ResidualPhase),
     grey: &GreyPhase,
-    reloop: ReloopPhase,
-    ext_err: &Errors,
+    reloop: &ReloopPhase,
     accepted: &[EffectId],
+    closest: Option<&crate::edge::Closest>,
 ) -> Settled {
+    let (cause, ext_err) = (resid.cause.clone(), &resid.ext_err);
     // A grey-box law that carries the gain (its held-out error below the catalogue model's) is
     // the cause, named in physical terms, not `unexplained`.
     let cause = match grey.greybox.as_ref() {
@@ -292,9 +294,7 @@ pub(super) fn settle_cause(
         }
         _ => cause,
     };
-    let ReloopPhase {
-        final_hyp, greybox, ..
-    } = reloop;
+    let (final_hyp, greybox) = (reloop.final_hyp.clone(), reloop.greybox.clone());
     // A catalogue model that loses to the linear black box, with no law that beats it either,
     // is not an explanation whatever was accepted on the fitting part.
     let arx = nom.nrmse_baseline.overall;
@@ -310,7 +310,15 @@ pub(super) fn settle_cause(
     } else {
         cause
     };
+    let cause = edge_cause(
+        cause,
+        closest,
+        dropped.is_some(),
+        greybox.as_ref(),
+        &floors_by_column(nom, rf),
+    );
     Settled {
+        status: status_of(&cause, closest, dropped.is_some()),
         cause,
         greybox,
         beaten_by_baseline,

@@ -221,28 +221,11 @@ pub(super) fn accept(
     let dt = env.nom.val_rec.dt;
     let edge_of =
         |p: &Passing| crate::edge::edge_reasons(&p.2, p.0, dt, crate::edge::NAMED_BOUND_SHARE);
-    // A winner at the edge of its range has no precedence over a candidate that passed inside
-    // its own: the best of those is named instead (DIAGNOSIS.md step 7, "An edge fit is not a
-    // cause").
     let mut looked: Option<EffectId> = None;
-    let best_edge = edge_of(&best);
-    if !best_edge.is_empty() {
-        if let Some(alt) = passing
-            .iter()
-            .find(|p| p.0 != best.0 && edge_of(p).is_empty())
-        {
-            s.found.ambiguities.push(format!(
-                "`{}` fits best by held-out score (NRMSE {:.4}) but at the edge of its range ({}); `{}` (NRMSE {:.4}) passed the acceptance test inside its own range, so it is named. To separate them: {}",
-                best.0.as_str(),
-                best.4.overall,
-                best_edge.join("; "),
-                alt.0.as_str(),
-                alt.4.overall,
-                crate::weigh::separating_experiment(best.0, alt.0)
-            ));
-            looked = Some(best.0);
-            best = alt.clone();
-        }
+    if let Some((note, alt)) = inside_alternative(&best, passing, &edge_of) {
+        s.found.ambiguities.push(note);
+        looked = Some(best.0);
+        best = alt;
     }
     // A weak winner is compared with the runner-up on the evidence that tells them apart (a
     // runner-up at the edge of its range is not named for it).
@@ -313,6 +296,34 @@ pub(super) fn accept(
     s.found.current = h;
     s.cur_err = err;
     s.found.cur_train = ctrain;
+}
+
+/// A winner at the edge of its range has no precedence over a candidate that passed inside
+/// its own: the best of those in `passing` is named instead of `best` (DIAGNOSIS.md step 7,
+/// "An edge fit is not a cause"), with the ambiguity sentence; `None` when `best` is inside
+/// its range (`edge_of` gives no reason) or no other candidate is.
+fn inside_alternative(
+    best: &Passing,
+    passing: &[Passing],
+    edge_of: &dyn Fn(&Passing) -> Vec<String>,
+) -> Option<(String, Passing)> {
+    let best_edge = edge_of(best);
+    if best_edge.is_empty() {
+        return None;
+    }
+    let alt = passing
+        .iter()
+        .find(|p| p.0 != best.0 && edge_of(p).is_empty())?;
+    let note = format!(
+        "`{}` fits best by held-out score (NRMSE {:.4}) but at the edge of its range ({}); `{}` (NRMSE {:.4}) passed the acceptance test inside its own range, so it is named. To separate them: {}",
+        best.0.as_str(),
+        best.4.overall,
+        best_edge.join("; "),
+        alt.0.as_str(),
+        alt.4.overall,
+        crate::weigh::separating_experiment(best.0, alt.0)
+    );
+    Some((note, alt.clone()))
 }
 
 /// A fitted candidate of one round: (effect, score, model, training cost, held-out errors),
