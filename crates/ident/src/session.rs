@@ -77,7 +77,7 @@ const RIG_SECTIONS: &[&str] = &["fluid", "supply", "valve", "cylinder", "mechani
 
 /// Fields in which the config an MCAP record was logged with (`logged`, the `config` of its
 /// `/config` message) differs from `cfg` among what the diagnosis takes as known: the rig's
-/// fluid, supply, valve, cylinder and mechanics except the [`estimated`] ones, and
+/// fluid, supply, valve, cylinder and mechanics except the estimated ones (declared `estimated`), and
 /// `control.mode`.
 /// Each as "path: logged A, --config B (unit)". A log of another rig (another geometry,
 /// supply pressure, valve) replayed through this one gives a confident wrong answer.

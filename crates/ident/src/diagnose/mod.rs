@@ -1,9 +1,9 @@
 //! The diagnosis: replay, residual analysis, hypothesis fits for every catalogue effect,
 //! held-out scoring with a parameter penalty, greedy acceptance.
 //!
-//! Typed phases ([`Phase`]), one file each, called in order by [`pipeline`]; the contract is
+//! Typed phases (`Phase`), one file each, called in order by `pipeline`; the contract is
 //! written in ARCHITECTURE.md "The diagnosis as phases". A new phase: its file here, its
-//! `mod` line and its call in [`pipeline`].
+//! `mod` line and its call in `pipeline`.
 
 use crate::analysis::{analyse, Analysis};
 use crate::baseline::Baseline;
@@ -333,7 +333,7 @@ pub(crate) trait Phase<'a>: Sized {
 }
 
 /// Run the diagnosis. `val` is an optional separate validation record; without it the last
-/// `opts.holdout` of `rec` is held out. The phases, in the order [`pipeline`] calls them:
+/// `opts.holdout` of `rec` is held out. The phases, in the order `pipeline` calls them:
 /// `NominalPhase` (split, replay accuracy, nominal replay, residual analysis, ARX baseline),
 /// `LoopPhase` (an assumed loop identified first, on its own output, and kept by every later
 /// model), `RefitPhase` (nominal parameters refit within their stated uncertainty, noise
