@@ -211,18 +211,10 @@ pub(crate) fn reidentify(
     Some((h, before, after))
 }
 
-/// The report of loop `h` (see [`IdentifiedLoop`]): `nominal` the config's parameters,
-/// `loop_nominal` with the loop written in, `with_law` whether it was identified again with
-/// the grey-box law in place ([`reidentify`]).
-pub(crate) fn describe(
-    nominal: &PlantParams,
-    loop_nominal: &PlantParams,
-    kp: f64,
-    h: &Hyp,
-    before: f64,
-    after: f64,
-    with_law: bool,
-) -> IdentifiedLoop {
+/// Every refit loop parameter of `h` in its SI unit: nominal and identified value, the
+/// stated range and whether it ended on a bound; a factor on a nominal value of `nominal`
+/// (`<path>/nominal`) is turned into the value.
+fn loop_params(nominal: &PlantParams, h: &Hyp) -> Vec<LoopParam> {
     let unit = |path: &str| {
         ehactl_plant::spec::params()
             .iter()
@@ -230,8 +222,7 @@ pub(crate) fn describe(
             .map_or("-", |q| q.unit)
             .to_string()
     };
-    let lp: Vec<LoopParam> = h
-        .params
+    h.params
         .iter()
         .zip(&h.values)
         .map(|(p, v)| {
@@ -254,7 +245,22 @@ pub(crate) fn describe(
                 at_bound: p.hi > p.lo && !(0.005..=0.995).contains(&u),
             }
         })
-        .collect();
+        .collect()
+}
+
+/// The report of loop `h` (see [`IdentifiedLoop`]): `nominal` the config's parameters,
+/// `loop_nominal` with the loop written in, `with_law` whether it was identified again with
+/// the grey-box law in place ([`reidentify`]).
+pub(crate) fn describe(
+    nominal: &PlantParams,
+    loop_nominal: &PlantParams,
+    kp: f64,
+    h: &Hyp,
+    before: f64,
+    after: f64,
+    with_law: bool,
+) -> IdentifiedLoop {
+    let lp = loop_params(nominal, h);
     let get = |path: &str| lp.iter().find(|q| q.path == path).map(|q| q.identified);
     let tc = get("effects.valve_dynamics.time_constant");
     let wn = get("effects.valve_dynamics.natural_frequency");

@@ -471,7 +471,6 @@ pub fn check_against(
             "{src}: no output column; expected at least one of force, x, p_a, p_b, x_v"
         )));
     }
-    let ps = params.supply.pressure;
     let fs = params.valve.command_full_scale;
     let umax = rec.u.iter().fold(0.0f64, |a, v| a.max(v.abs()));
     if umax > 1.5 * fs {
@@ -480,73 +479,86 @@ pub fn check_against(
         ));
     }
     for c in &rec.channels {
-        let max = c.values.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        match c.kind {
-            ChannelKind::PressureA | ChannelKind::PressureB => {
-                if max < 1e-2 * ps && max > 0.0 {
-                    // The unit that puts the record's peak nearest to ≈ 0.7 × supply.
-                    let guess = [("kPa", 1e3), ("psi", 6894.757), ("bar", 1e5), ("MPa", 1e6)]
-                        .iter()
-                        .min_by(|a, b| {
-                            let d = |f: f64| (max * f / (0.7 * ps)).ln().abs();
-                            d(a.1).total_cmp(&d(b.1))
-                        })
-                        .map_or("another unit", |g| g.0);
-                    return Err(DataError(format!(
-                        "{src}: column `{}` peaks at {max:.4}, which looks like {guess}, not Pa (supply.pressure is {ps:.4e} Pa); convert to Pa",
-                        c.kind.column()
-                    )));
-                }
-                if max > 10.0 * ps {
-                    let (row, _) = peak_row(&c.values);
-                    return Err(DataError(format!(
-                        "{src}: column `{}` reaches {max:.4e} Pa at data row {}, more than 10 × supply.pressure {ps:.4e} Pa: not a plausible pressure; check the data and its unit (Pa)",
-                        c.kind.column(),
-                        row + 1
-                    )));
-                }
-                if max > 3.0 * ps {
-                    w.push(format!(
-                        "{src}: column `{}` reaches {max:.4e} Pa, more than 3 × supply.pressure {ps:.4e} Pa",
-                        c.kind.column()
-                    ));
-                }
+        check_channel(c, src, params, &mut w)?;
+    }
+    Ok(w)
+}
+
+/// Check one channel `c` of record `src` against the rig `params`: a unit that looks wrong
+/// is an error, an implausible level a warning pushed to `w`.
+fn check_channel(
+    c: &Channel,
+    src: &str,
+    params: &ehactl_plant::PlantParams,
+    w: &mut Vec<String>,
+) -> Result<(), DataError> {
+    let ps = params.supply.pressure;
+    let max = c.values.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    match c.kind {
+        ChannelKind::PressureA | ChannelKind::PressureB => {
+            if max < 1e-2 * ps && max > 0.0 {
+                // The unit that puts the record's peak nearest to ≈ 0.7 × supply.
+                let guess = [("kPa", 1e3), ("psi", 6894.757), ("bar", 1e5), ("MPa", 1e6)]
+                    .iter()
+                    .min_by(|a, b| {
+                        let d = |f: f64| (max * f / (0.7 * ps)).ln().abs();
+                        d(a.1).total_cmp(&d(b.1))
+                    })
+                    .map_or("another unit", |g| g.0);
+                return Err(DataError(format!(
+                    "{src}: column `{}` peaks at {max:.4}, which looks like {guess}, not Pa (supply.pressure is {ps:.4e} Pa); convert to Pa",
+                    c.kind.column()
+                )));
             }
-            ChannelKind::Position => {
-                let stroke = params.cylinder.stroke;
-                if max > 2.0 * stroke && max * 1e-3 <= 2.0 * stroke {
-                    return Err(DataError(format!(
-                        "{src}: column `x` reaches {max:.4}, which looks like mm, not m (cylinder.stroke is {stroke} m); convert to m"
-                    )));
-                }
-                if max > 2.0 * stroke {
-                    return Err(DataError(format!(
-                        "{src}: column `x` reaches {max:.4} m, beyond twice cylinder.stroke = {stroke} m"
-                    )));
-                }
+            if max > 10.0 * ps {
+                let (row, _) = peak_row(&c.values);
+                return Err(DataError(format!(
+                    "{src}: column `{}` reaches {max:.4e} Pa at data row {}, more than 10 × supply.pressure {ps:.4e} Pa: not a plausible pressure; check the data and its unit (Pa)",
+                    c.kind.column(),
+                    row + 1
+                )));
             }
-            ChannelKind::Force => {
-                let fmax = ps * params.cylinder.area_a.max(params.cylinder.area_b);
-                if max > 10.0 * fmax {
-                    let (row, _) = peak_row(&c.values);
-                    return Err(DataError(format!(
-                        "{src}: column `force` reaches {max:.4e} N at data row {}, 10 × more than supply × piston area = {fmax:.4e} N: not a plausible force; check units (N, not mN)",
-                        row + 1
-                    )));
-                } else if max > 0.0 && max < 1e-2 * fmax {
-                    w.push(format!(
-                        "{src}: column `force` peaks at {max:.4e} N, below 1 % of supply × piston area = {fmax:.4e} N; if it is in kN, convert to N"
-                    ));
-                }
+            if max > 3.0 * ps {
+                w.push(format!(
+                    "{src}: column `{}` reaches {max:.4e} Pa, more than 3 × supply.pressure {ps:.4e} Pa",
+                    c.kind.column()
+                ));
             }
-            ChannelKind::Spool => {
-                if max > 1.5 {
-                    return Err(DataError(format!(
-                        "{src}: column `x_v` reaches {max:.4}; expected a fraction of full spool travel (|x_v| ≤ 1)"
-                    )));
-                }
+        }
+        ChannelKind::Position => {
+            let stroke = params.cylinder.stroke;
+            if max > 2.0 * stroke && max * 1e-3 <= 2.0 * stroke {
+                return Err(DataError(format!(
+                    "{src}: column `x` reaches {max:.4}, which looks like mm, not m (cylinder.stroke is {stroke} m); convert to m"
+                )));
+            }
+            if max > 2.0 * stroke {
+                return Err(DataError(format!(
+                    "{src}: column `x` reaches {max:.4} m, beyond twice cylinder.stroke = {stroke} m"
+                )));
+            }
+        }
+        ChannelKind::Force => {
+            let fmax = ps * params.cylinder.area_a.max(params.cylinder.area_b);
+            if max > 10.0 * fmax {
+                let (row, _) = peak_row(&c.values);
+                return Err(DataError(format!(
+                    "{src}: column `force` reaches {max:.4e} N at data row {}, 10 × more than supply × piston area = {fmax:.4e} N: not a plausible force; check units (N, not mN)",
+                    row + 1
+                )));
+            } else if max > 0.0 && max < 1e-2 * fmax {
+                w.push(format!(
+                    "{src}: column `force` peaks at {max:.4e} N, below 1 % of supply × piston area = {fmax:.4e} N; if it is in kN, convert to N"
+                ));
+            }
+        }
+        ChannelKind::Spool => {
+            if max > 1.5 {
+                return Err(DataError(format!(
+                    "{src}: column `x_v` reaches {max:.4}; expected a fraction of full spool travel (|x_v| ≤ 1)"
+                )));
             }
         }
     }
-    Ok(w)
+    Ok(())
 }
