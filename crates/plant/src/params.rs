@@ -646,14 +646,11 @@ impl PlantParams {
             .find(|p| p.path == path)?
             .uncertain?;
         let (section, _) = path.strip_prefix("effects.")?.rsplit_once('.')?;
-        let id = crate::effects::EffectId::parse(section)?;
-        // An absent section reads no value (its own error names it).
-        crate::spec::ParamTree::get_path(self, path)?;
-        if !self.effects.is_enabled(id) {
+        if !self.section_switch(section)? {
             return Some(format!("[effects.{section}] has enabled = false; a switched-off effect is not refit (remove the switch or the uncertainty)"));
         }
         let want = u.needs_order?;
-        let order = self.section_order(id)?;
+        let order = self.section_order(section)?;
         (order != want).then(|| {
             // The parameter declared for the configured order.
             let fits = crate::spec::params()
@@ -667,14 +664,40 @@ impl PlantParams {
         })
     }
 
-    /// The model order effect `id`'s section is configured with, for a section that has one.
-    fn section_order(&self, id: crate::effects::EffectId) -> Option<u8> {
-        match id {
-            crate::effects::EffectId::ValveDynamics => {
-                self.effects.valve_dynamics.as_ref().map(|d| d.order)
-            }
-            _ => None,
+    /// The model order effect section `section` is configured with, for the one section that
+    /// has one.
+    fn section_order(&self, section: &str) -> Option<u8> {
+        (section == "valve_dynamics")
+            .then(|| self.effects.valve_dynamics.as_ref().map(|d| d.order))
+            .flatten()
+    }
+
+    /// The `enabled` switch of catalogue section `section` (its field name in [`Effects`]),
+    /// `None` when the section is absent. (`Effects::is_enabled` in crates/plant/src/effects
+    /// answers by `EffectId`, which this file does not use: that module uses this one.)
+    fn section_switch(&self, section: &str) -> Option<bool> {
+        macro_rules! switch {
+            ($($f:ident),*) => {
+                match section {
+                    $(stringify!($f) => self.effects.$f.as_ref().map(|s| s.enabled),)*
+                    _ => None,
+                }
+            };
         }
+        switch!(
+            friction,
+            valve_deadband,
+            valve_saturation,
+            valve_dynamics,
+            internal_leakage,
+            external_leakage,
+            bulk_modulus_pressure,
+            line_dynamics,
+            flexible_mount,
+            time_delay,
+            sensor_tone,
+            supply_pressure_drop
+        )
     }
 
     /// The refit range of every nominal parameter the diagnosis refits: (path, nominal value,
