@@ -20,21 +20,20 @@ use crate::data::ChannelKind;
 use crate::fit::base_params;
 use crate::replay::{nrmse, Drive};
 use ehactl_plant::params::{DeadbandVariant, Uncertainty};
+use ehactl_plant::spec::Role;
 use ehactl_plant::PlantParams;
 use serde::Serialize;
 
-/// `[uncertainty]` keys that mark the loop as an assumption (the valve's bandwidth, the
-/// loop's delay, the valve's null offset).
-pub const LOOP_PATHS: &[&str] = &[
-    "effects.valve_dynamics.time_constant",
-    "effects.valve_dynamics.natural_frequency",
-    "effects.time_delay.delay",
-    "effects.valve_deadband.zero_offset",
-    "effects.valve_deadband.overlap",
-];
-
-/// The valve flow gains (one per flow form): with a proportional loop, the loop gain.
-const FLOW_GAIN_PATHS: &[&str] = &["valve.rated_flow", "valve.area_max", "valve.flow_at_1mpa"];
+/// Whether `path` is declared with `role` in its `uncertain(…)` (`#[param]` in
+/// crates/plant: `role = loop_param` for the `[uncertainty]` keys that mark the loop as an
+/// assumption, the valve's bandwidth, the loop's delay, the valve's null offset and dead
+/// band; `role = flow_gain` for the valve flow gains, one per flow form, with a
+/// proportional loop the loop gain).
+pub fn has_role(path: &str, role: Role) -> bool {
+    ehactl_plant::spec::params()
+        .iter()
+        .any(|p| p.path == path && p.uncertain.is_some_and(|u| u.role == role))
+}
 
 /// One identified loop parameter.
 #[derive(Debug, Clone, Serialize)]
@@ -105,12 +104,12 @@ fn path_of(name: &str) -> &str {
     name.strip_suffix("/nominal").unwrap_or(name)
 }
 
-/// Whether the config marks the loop as an assumption (a [`LOOP_PATHS`] key with a nonzero
+/// Whether the config marks the loop as an assumption (a loop key, [`has_role`], with a nonzero
 /// uncertainty) on a closed-loop position replay.
 pub fn assumed(nominal: &PlantParams, drive: Drive) -> bool {
     matches!(drive, Drive::PositionPd(_))
         && nominal.uncertainty.iter().any(|(k, u)| {
-            LOOP_PATHS.contains(&k.as_str())
+            has_role(k, Role::Loop)
                 && !matches!(u, Uncertainty::Absolute(a) if *a == 0.0)
                 && !matches!(u, Uncertainty::Relative(t) if t.trim().trim_end_matches('%').trim().parse::<f64>() == Ok(0.0))
         })
@@ -144,7 +143,7 @@ pub(crate) fn identify<'a>(
         .into_iter()
         .filter(|p| {
             let path = path_of(&p.name);
-            LOOP_PATHS.contains(&path) || FLOW_GAIN_PATHS.contains(&path)
+            has_role(path, Role::Loop) || has_role(path, Role::FlowGain)
         })
         .collect();
     // The delay first: the fit's coarse 5-point scan runs over the first new parameter, so
@@ -212,18 +211,10 @@ pub(crate) fn reidentify(
     Some((h, before, after))
 }
 
-/// The report of loop `h` (see [`IdentifiedLoop`]): `nominal` the config's parameters,
-/// `loop_nominal` with the loop written in, `with_law` whether it was identified again with
-/// the grey-box law in place ([`reidentify`]).
-pub(crate) fn describe(
-    nominal: &PlantParams,
-    loop_nominal: &PlantParams,
-    kp: f64,
-    h: &Hyp,
-    before: f64,
-    after: f64,
-    with_law: bool,
-) -> IdentifiedLoop {
+/// Every refit loop parameter of `h` in its SI unit: nominal and identified value, the
+/// stated range and whether it ended on a bound; a factor on a nominal value of `nominal`
+/// (`<path>/nominal`) is turned into the value.
+fn loop_params(nominal: &PlantParams, h: &Hyp) -> Vec<LoopParam> {
     let unit = |path: &str| {
         ehactl_plant::spec::params()
             .iter()
@@ -231,8 +222,7 @@ pub(crate) fn describe(
             .map_or("-", |q| q.unit)
             .to_string()
     };
-    let lp: Vec<LoopParam> = h
-        .params
+    h.params
         .iter()
         .zip(&h.values)
         .map(|(p, v)| {
@@ -255,7 +245,22 @@ pub(crate) fn describe(
                 at_bound: p.hi > p.lo && !(0.005..=0.995).contains(&u),
             }
         })
-        .collect();
+        .collect()
+}
+
+/// The report of loop `h` (see [`IdentifiedLoop`]): `nominal` the config's parameters,
+/// `loop_nominal` with the loop written in, `with_law` whether it was identified again with
+/// the grey-box law in place ([`reidentify`]).
+pub(crate) fn describe(
+    nominal: &PlantParams,
+    loop_nominal: &PlantParams,
+    kp: f64,
+    h: &Hyp,
+    before: f64,
+    after: f64,
+    with_law: bool,
+) -> IdentifiedLoop {
+    let lp = loop_params(nominal, h);
     let get = |path: &str| lp.iter().find(|q| q.path == path).map(|q| q.identified);
     let tc = get("effects.valve_dynamics.time_constant");
     let wn = get("effects.valve_dynamics.natural_frequency");
@@ -341,5 +346,40 @@ pub(crate) fn describe(
         nrmse_fit_nominal: before,
         nrmse_fit: after,
         text,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The roles declared on the plant's `#[param]` fields are the loop's assumptions (the
+    /// valve's bandwidth of either spool order, the delay, the null offset and dead band)
+    /// and the three flow forms' gains.
+    #[test]
+    fn declared_roles() {
+        let with = |r: Role| {
+            let mut v: Vec<&str> = ehactl_plant::spec::params()
+                .iter()
+                .map(|p| p.path)
+                .filter(|p| has_role(p, r))
+                .collect();
+            v.sort_unstable();
+            v
+        };
+        assert_eq!(
+            with(Role::Loop),
+            [
+                "effects.time_delay.delay",
+                "effects.valve_deadband.overlap",
+                "effects.valve_deadband.zero_offset",
+                "effects.valve_dynamics.natural_frequency",
+                "effects.valve_dynamics.time_constant",
+            ]
+        );
+        assert_eq!(
+            with(Role::FlowGain),
+            ["valve.area_max", "valve.flow_at_1mpa", "valve.rated_flow"]
+        );
     }
 }

@@ -62,28 +62,23 @@ pub struct RunChoices {
     pub allow_config_mismatch: bool,
 }
 
-/// Config fields the diagnosis estimates, or takes from the data, rather than trusts: a
-/// log's config may differ from `--config` in these (that is what a diagnosis is for). Every
-/// effect (`effects.*`) is in this set too.
-const ESTIMATED: &[&str] = &[
-    "fluid.bulk_modulus",
-    "valve.rated_flow",
-    "valve.area_max",
-    "valve.flow_at_1mpa",
-    "mechanics.mass",
-    "mechanics.damping",
-    "mechanics.load_stiffness",
-    "cylinder.initial_position",
-    "cylinder.initial_pressure_a",
-    "cylinder.initial_pressure_b",
-];
+/// Whether the diagnosis estimates config field `path`, or takes it from the data, rather
+/// than trusting it: declared `estimated` in its `#[param(…)]` (crates/plant/src/params.rs).
+/// A log's config may differ from `--config` in these (that is what a diagnosis is for).
+/// Every effect (`effects.*`) is estimated too.
+fn estimated(path: &str) -> bool {
+    ehactl_plant::spec::params()
+        .iter()
+        .any(|p| p.path == path && p.estimated)
+}
 
 /// Sections of the config that describe the rig's hydraulics and mechanics.
 const RIG_SECTIONS: &[&str] = &["fluid", "supply", "valve", "cylinder", "mechanics"];
 
 /// Fields in which the config an MCAP record was logged with (`logged`, the `config` of its
 /// `/config` message) differs from `cfg` among what the diagnosis takes as known: the rig's
-/// fluid, supply, valve, cylinder and mechanics except `ESTIMATED`, and `control.mode`.
+/// fluid, supply, valve, cylinder and mechanics except the estimated ones (declared `estimated`), and
+/// `control.mode`.
 /// Each as "path: logged A, --config B (unit)". A log of another rig (another geometry,
 /// supply pressure, valve) replayed through this one gives a confident wrong answer.
 pub fn config_mismatch(cfg: &RigConfig, logged: &Value) -> Vec<String> {
@@ -135,7 +130,7 @@ pub fn config_mismatch(cfg: &RigConfig, logged: &Value) -> Vec<String> {
         keys.dedup();
         for k in keys {
             let path = format!("{sec}.{k}");
-            if ESTIMATED.contains(&path.as_str()) {
+            if estimated(&path) {
                 continue;
             }
             compare(path, a.and_then(|m| m.get(k)), b.and_then(|m| m.get(k)));
@@ -530,6 +525,33 @@ mod tests {
 
     /// The diagnosis test bench, configs/diagnose_testrig.toml.
     const TESTRIG_TOML: &str = include_str!("../../../configs/diagnose_testrig.toml");
+
+    /// The fields declared `estimated`: the quantities a diagnosis refits by default and
+    /// the initial state it reads from the record.
+    #[test]
+    fn estimated_fields() {
+        let mut v: Vec<&str> = ehactl_plant::spec::params()
+            .iter()
+            .map(|p| p.path)
+            .filter(|p| estimated(p))
+            .collect();
+        v.sort_unstable();
+        assert_eq!(
+            v,
+            [
+                "cylinder.initial_position",
+                "cylinder.initial_pressure_a",
+                "cylinder.initial_pressure_b",
+                "fluid.bulk_modulus",
+                "mechanics.damping",
+                "mechanics.load_stiffness",
+                "mechanics.mass",
+                "valve.area_max",
+                "valve.flow_at_1mpa",
+                "valve.rated_flow",
+            ]
+        );
+    }
 
     #[test]
     fn a_log_of_another_rig_differs_and_a_hidden_effect_does_not() {

@@ -5,6 +5,7 @@
 
 use crate::analysis::{analyse, Analysis};
 use crate::ctx::{Ctx, Errors, Hyp};
+use crate::effects::{of, Signature};
 use ehactl_plant::EffectId;
 
 /// `h` without effect `e`: its parameters (dotted paths `effects.<id>.…`), its entry in the
@@ -83,35 +84,6 @@ pub(crate) fn order_by_explained(
         )
     });
     (order, note)
-}
-
-/// Where in the record an effect's error concentrates, as the residual analysis measures it
-/// ([`crate::evidence::Analysis`]; the reasoning of Sirohi 2003 §5).
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Signature {
-    /// Large commands (|u| > 70 % of its maximum): a flow or pressure limit, level-dependent.
-    Level,
-    /// Small commands (|u| < 5 %): a dead band.
-    SmallCommand,
-    /// Velocity reversals: friction.
-    Reversal,
-    /// A residual-to-signal spectrum peak: an unmodelled or shifted mode (lines, mount, β).
-    Mode,
-    /// Not localised by the analysis (delay, spool lag, leakage, tone).
-    Other,
-}
-
-/// The part of the record where effect `e`'s error concentrates (the analysis' prior rules,
-/// `EffectFit::prior` of each module in `crates/ident/src/effects`).
-fn signature(e: EffectId) -> Signature {
-    use EffectId::*;
-    match e {
-        ValveSaturation | SupplyPressureDrop => Signature::Level,
-        ValveDeadband => Signature::SmallCommand,
-        Friction => Signature::Reversal,
-        LineDynamics | FlexibleMount | BulkModulusPressure => Signature::Mode,
-        _ => Signature::Other,
-    }
 }
 
 /// How much residual a model with held-out analysis `an` and overall NRMSE `overall` leaves
@@ -245,7 +217,7 @@ pub(crate) fn second_look(
     let why = weakness(w, first_new, floor_ch, r)?;
     let an = |f: &Fitted<'_>| analyse(ctx.val_rec, &ctx.val_errors(f.h).1, ctx.val_range.clone());
     let (aw, ar) = (an(w), an(r));
-    let (sw, sr) = (signature(w.e), signature(r.e));
+    let (sw, sr) = (of(w.e).signature(), of(r.e).signature());
     let (we, re) = (w.e.as_str(), r.e.as_str());
     let lw = |s| left_in(s, &aw, w.err.overall);
     let lr = |s| left_in(s, &ar, r.err.overall);
@@ -291,26 +263,10 @@ pub(crate) fn second_look(
     })
 }
 
-/// Experiment that separates two effects the data could not tell apart.
+/// Experiment that separates two effects the data could not tell apart (the rule of
+/// either effect's module, [`crate::effects::EffectFit::separates_from`]).
 pub fn separating_experiment(a: EffectId, b: EffectId) -> String {
-    use EffectId::*;
-    let pair = |x: EffectId, y: EffectId| (a == x && b == y) || (a == y && b == x);
-    if pair(Friction, ValveDeadband) {
-        "slow triangle-wave position moves (velocity reversals at several speeds) with chamber pressures logged: friction shows a pressure jump at each reversal, a dead band a command gap independent of speed".into()
-    } else if pair(ValveDynamics, TimeDelay) {
-        "a sine sweep of the valve command to the spool bandwidth: a delay adds phase linearly in frequency at constant gain, spool dynamics also lower the gain".into()
-    } else if pair(InternalLeakage, ExternalLeakage) {
-        "hold the piston against an end stop and step the command: internal leakage equalises p_a and p_b, external leakage lowers both towards tank".into()
-    } else if pair(BulkModulusPressure, LineDynamics)
-        || pair(BulkModulusPressure, FlexibleMount)
-        || pair(LineDynamics, FlexibleMount)
-    {
-        "frequency responses at two supply pressures and two load masses: a pressure-dependent β moves the resonance with pressure, a compliant mount with the load mass, line modes with neither".into()
-    } else if pair(ValveSaturation, SupplyPressureDrop) {
-        "large steady commands at a low load: a spool limit caps flow at any pressure, a supply sag shows as falling supply pressure at high flow (log p_s)".into()
-    } else {
-        format!("an excitation that isolates one of them: steps and sweeps at different amplitudes and pressure levels, logging every available channel ({} vs {})", a.as_str(), b.as_str())
-    }
+    crate::effects::separating_experiment(a, b)
 }
 
 #[cfg(test)]

@@ -22,8 +22,13 @@
 //! * `uncertain(order = N, default, to_range_end)` in a leaf's `#[param(…)]`: the field is a
 //!   nominal parameter whose uncertainty a config may state and that `ehactl diagnose`
 //!   refits (`spec::Uncertain`: its place `N` in the refit order, refit by default when the
-//!   config is silent, its range may reach the registry range's lower end); the plant's
-//!   list of such parameters is read from these declarations.
+//!   config is silent, its range may reach the registry range's lower end); `role =
+//!   loop_param` or `role = flow_gain` in it makes it a parameter of the rig's loop or a
+//!   valve flow gain (`spec::Role`), `needs_order = K` refits it only when its section is
+//!   configured at model order K; the plant's list of such parameters and the diagnosis'
+//!   lists of loop parameters and flow gains are read from these declarations.
+//! * `estimated` in a leaf's `#[param(…)]`: the diagnosis estimates the field (or takes it
+//!   from the data) rather than trusting the config (`spec::Param::estimated`).
 //! * `#[param(nested)]` on a field whose type derives `Params` (or `Option` of one): its
 //!   parameters under `<field>.`; `with(field(desc = "…", choices = …, unit = "…",
 //!   range = …), …)` overrides an inner field's declaration for this instance (e.g. the two
@@ -60,25 +65,39 @@ struct Decl {
     choices: Option<Expr>,
 }
 
-/// What `uncertain(order = N, default, to_range_end)` says.
+/// What `uncertain(order = N, default, to_range_end, role = R, needs_order = K)` says.
 struct UncertainDecl {
     order: syn::LitInt,
     default: bool,
     to_range_end: bool,
+    /// `loop_param` or `flow_gain` (`spec::Role::Loop` / `FlowGain`); absent: `Nominal`.
+    role: Option<syn::Ident>,
+    needs_order: Option<syn::LitInt>,
 }
 
 impl UncertainDecl {
     fn parse(meta: &syn::meta::ParseNestedMeta) -> syn::Result<UncertainDecl> {
         let (mut order, mut default, mut to_range_end) = (None, false, false);
+        let (mut role, mut needs_order) = (None, None);
         meta.parse_nested_meta(|m| {
             if m.path.is_ident("order") {
                 order = Some(m.value()?.parse()?);
+            } else if m.path.is_ident("role") {
+                let r: syn::Ident = m.value()?.parse()?;
+                if r != "loop_param" && r != "flow_gain" {
+                    return Err(syn::Error::new_spanned(r, "role: expected loop_param or flow_gain"));
+                }
+                role = Some(r);
+            } else if m.path.is_ident("needs_order") {
+                needs_order = Some(m.value()?.parse()?);
             } else if m.path.is_ident("default") {
                 default = true;
             } else if m.path.is_ident("to_range_end") {
                 to_range_end = true;
             } else {
-                return Err(m.error("expected order = N, default or to_range_end"));
+                return Err(m.error(
+                    "expected order = N, default, to_range_end, role = loop_param | flow_gain or needs_order = K",
+                ));
             }
             Ok(())
         })?;
@@ -87,12 +106,25 @@ impl UncertainDecl {
             order,
             default,
             to_range_end,
+            role,
+            needs_order,
         })
     }
 
     fn tokens(&self, sp: &Ts) -> Ts {
         let (o, d, r) = (&self.order, self.default, self.to_range_end);
-        quote!(.with_uncertain(#sp::Uncertain { order: #o, default: #d, to_range_end: #r }))
+        let role = match self.role.as_ref().map(|r| r.to_string()).as_deref() {
+            Some("loop_param") => quote!(#sp::Role::Loop),
+            Some("flow_gain") => quote!(#sp::Role::FlowGain),
+            _ => quote!(#sp::Role::Nominal),
+        };
+        let needs = match &self.needs_order {
+            Some(k) => quote!(Some(#k)),
+            None => quote!(None),
+        };
+        quote!(.with_uncertain(#sp::Uncertain {
+            order: #o, default: #d, to_range_end: #r, role: #role, needs_order: #needs
+        }))
     }
 }
 
@@ -258,6 +290,8 @@ struct FieldAttr {
     nested: bool,
     choice: bool,
     uncertain: Option<UncertainDecl>,
+    /// `estimated`: the diagnosis estimates the field rather than trusting the config.
+    estimated: bool,
     with: Vec<(String, Decl)>,
 }
 
@@ -268,6 +302,7 @@ impl FieldAttr {
             nested: false,
             choice: false,
             uncertain: None,
+            estimated: false,
             with: Vec::new(),
         };
         attr.parse_nested_meta(|meta| {
@@ -277,6 +312,10 @@ impl FieldAttr {
             }
             if meta.path.is_ident("nested") {
                 fa.nested = true;
+                return Ok(());
+            }
+            if meta.path.is_ident("estimated") {
+                fa.estimated = true;
                 return Ok(());
             }
             if meta.path.is_ident("choice") {
@@ -306,14 +345,14 @@ impl FieldAttr {
                 Ok(())
             } else {
                 Err(meta.error(
-                    "expected unit, range, desc, choices, choice, uncertain(…), nested or with(...)",
+                    "expected unit, range, desc, choices, choice, uncertain(…), estimated, nested or with(...)",
                 ))
             }
         })?;
-        if fa.nested && fa.uncertain.is_some() {
+        if fa.nested && (fa.uncertain.is_some() || fa.estimated) {
             return Err(syn::Error::new_spanned(
                 attr,
-                "param: uncertain(…) on a leaf, not on a nested section",
+                "param: uncertain(…) and estimated on a leaf, not on a nested section",
             ));
         }
         Ok(fa)
@@ -447,6 +486,11 @@ impl Pieces {
         }
         let sh = shape(&f.ty);
         let param = leaf_param(&decl, &f.ty, &sh, attr, fa.uncertain.as_ref(), sp)?;
+        let param = if fa.estimated {
+            quote!(#param.with_estimated())
+        } else {
+            param
+        };
         self.declare.push(quote! {
             out.push((#sp::join(prefix, #key), #sp::Override::apply(over, #key, #param)));
         });
@@ -677,6 +721,33 @@ mod tests {
                 "expected an error with {want:?}, got {got:?}"
             );
         }
+    }
+
+    #[test]
+    fn roles_expand_to_their_declaration() {
+        let ts = expand(&syn::parse_quote! {
+            struct S {
+                #[param(unit = "s", range = Finite, desc = "d", uncertain(order = 3, role = loop_param, needs_order = 1))]
+                t: f64,
+                #[param(unit = "m", range = Finite, desc = "d", estimated)]
+                x: f64,
+            }
+        })
+        .unwrap()
+        .to_string()
+        .replace(' ', "");
+        assert!(ts.contains("spec::Role::Loop,"), "{ts}");
+        assert!(ts.contains("needs_order:Some(1)"), "{ts}");
+        assert!(ts.contains(".with_estimated()"), "{ts}");
+        let bad = error_of(syn::parse_quote! {
+            struct S { #[param(unit = "s", range = Finite, desc = "d", uncertain(order = 3, role = pump))] t: f64 }
+        });
+        assert!(
+            bad.as_deref()
+                .unwrap_or("")
+                .contains("expected loop_param or flow_gain"),
+            "{bad:?}"
+        );
     }
 
     #[test]

@@ -25,7 +25,7 @@ pub struct Fluid {
     /// Effective bulk modulus β₀ at zero gauge pressure (Pa); 003: K = 1.8e9, 004: 1.75e9.
     /// At most 1e11 Pa: stiffer than any liquid by 40× (water 2.2e9 Pa) and within the
     /// steel of the cylinder (1.6e11 Pa).
-    #[param(unit = "Pa", range = PositiveAtMost(1.0e11), desc = "effective bulk modulus β₀ (003 K, 004 β_e)", uncertain(order = 4, default))]
+    #[param(unit = "Pa", range = PositiveAtMost(1.0e11), desc = "effective bulk modulus β₀ (003 K, 004 β_e)", uncertain(order = 4, default), estimated)]
     pub bulk_modulus: f64,
     /// Kinematic viscosity ν (m²/s), used by line resistance (001 eq. 6–12, 002 eq. 9–17).
     #[serde(default = "Fluid::default_viscosity")]
@@ -91,11 +91,11 @@ pub struct Valve {
     pub discharge_coefficient: Option<f64>,
     /// Metering area at full opening (m²) for `orifice`.
     #[serde(default)]
-    #[param(unit = "m²", range = Positive, desc = "metering area at full opening", uncertain(order = 2, default))]
+    #[param(unit = "m²", range = Positive, desc = "metering area at full opening", uncertain(order = 2, default, role = flow_gain), estimated)]
     pub area_max: Option<f64>,
     /// Rated flow per edge at full opening (m³/s) for `kq`; 003: 35 L/min.
     #[serde(default)]
-    #[param(unit = "m³/s", range = Positive, desc = "rated edge flow q_vn at full opening (003 eq. 13)", uncertain(order = 1, default))]
+    #[param(unit = "m³/s", range = Positive, desc = "rated edge flow q_vn at full opening (003 eq. 13)", uncertain(order = 1, default, role = flow_gain), estimated)]
     pub rated_flow: Option<f64>,
     /// Pressure drop per edge at which `rated_flow` is given (Pa) for `kq`; 003: 1 MPa.
     #[serde(default)]
@@ -103,7 +103,7 @@ pub struct Valve {
     pub rated_pressure_drop: Option<f64>,
     /// Flow per edge at full opening and P_d = 1 MPa (m³/s) for `power_law`; 004 eq. 20: 1.4075e-4.
     #[serde(default)]
-    #[param(unit = "m³/s", range = Positive, desc = "edge flow at P_d = 1 MPa (004 eq. 20)", uncertain(order = 3, default))]
+    #[param(unit = "m³/s", range = Positive, desc = "edge flow at P_d = 1 MPa (004 eq. 20)", uncertain(order = 3, default, role = flow_gain), estimated)]
     pub flow_at_1mpa: Option<f64>,
     /// Exponent n of the power law (-) for `power_law`; 004 eq. 20: 0.4667.
     #[serde(default)]
@@ -148,15 +148,15 @@ pub struct Cylinder {
     pub stroke: f64,
     /// Initial piston position x₀ (m).
     #[serde(default)]
-    #[param(unit = "m", range = NonNegative, desc = "initial piston position")]
+    #[param(unit = "m", range = NonNegative, desc = "initial piston position", estimated)]
     pub initial_position: f64,
     /// Initial pressure in chamber A (Pa); default: 003 eq. 14 balance.
     #[serde(default)]
-    #[param(unit = "Pa", range = Finite, desc = "initial chamber A pressure")]
+    #[param(unit = "Pa", range = Finite, desc = "initial chamber A pressure", estimated)]
     pub initial_pressure_a: Option<f64>,
     /// Initial pressure in chamber B (Pa); default: 003 eq. 14 balance.
     #[serde(default)]
-    #[param(unit = "Pa", range = Finite, desc = "initial chamber B pressure")]
+    #[param(unit = "Pa", range = Finite, desc = "initial chamber B pressure", estimated)]
     pub initial_pressure_b: Option<f64>,
 }
 
@@ -167,15 +167,15 @@ pub struct Mechanics {
     /// Moving mass m (kg): piston + rod (+ load for a rigid connection); 004: 0.893. At
     /// most 1e6 kg: a 1000 t load, beyond the heaviest loads hydraulic cylinders move (ship
     /// lifts, heavy presses).
-    #[param(unit = "kg", range = PositiveAtMost(1.0e6), desc = "moving mass", uncertain(order = 5, default))]
+    #[param(unit = "kg", range = PositiveAtMost(1.0e6), desc = "moving mass", uncertain(order = 5, default), estimated)]
     pub mass: f64,
     /// Viscous damping d_y (N·s/m); 003: 2500, 004: C = 10.587.
     #[serde(default)]
-    #[param(unit = "N·s/m", range = NonNegative, desc = "viscous damping d_y / C", uncertain(order = 6, default))]
+    #[param(unit = "N·s/m", range = NonNegative, desc = "viscous damping d_y / C", uncertain(order = 6, default), estimated)]
     pub damping: f64,
     /// Stiffness of a spring to ground, e.g. load cell + frame K_L (N/m); 0 = none; 004: 4.83e8.
     #[serde(default)]
-    #[param(unit = "N/m", range = NonNegative, desc = "spring to ground K_L (004 load cell)", uncertain(order = 7, default))]
+    #[param(unit = "N/m", range = NonNegative, desc = "spring to ground K_L (004 load cell)", uncertain(order = 7, default), estimated)]
     pub load_stiffness: f64,
     /// Piston position at which the spring to ground is relaxed (m).
     #[serde(default)]
@@ -636,43 +636,68 @@ impl PlantParams {
         crate::spec::ParamTree::get_path(self, path)
     }
 
-    /// Why an `[uncertainty]` key on the spool model does not fit the configured one (a time
-    /// constant is the bandwidth of order 1, a natural frequency that of order 2), or why the
-    /// section it names is switched off; `None` when it fits.
+    /// Why an `[uncertainty]` key on an effect's parameter cannot be refit: its section is
+    /// switched off, or it is declared for another model order than the section's
+    /// (`needs_order` in its `uncertain(…)`: a spool's bandwidth is a time constant at order
+    /// 1, a natural frequency at order 2); `None` when it fits or the section is absent.
     fn spool_order_mismatch(&self, path: &str) -> Option<String> {
-        let section = |s: &str| {
-            format!("[effects.{s}] has enabled = false; a switched-off effect is not refit (remove the switch or the uncertainty)")
-        };
-        match path {
-            "effects.valve_dynamics.time_constant" | "effects.valve_dynamics.natural_frequency" => {
-                let d = self.effects.valve_dynamics.as_ref()?;
-                let want = if path.ends_with("time_constant") {
-                    1
-                } else {
-                    2
-                };
-                if !d.enabled {
-                    Some(section("valve_dynamics"))
-                } else if d.order != want {
-                    Some(format!(
-                        "the spool model is order {}; its bandwidth is {} (order 1: time_constant in s, order 2: natural_frequency in rad/s)",
-                        d.order,
-                        if d.order == 1 { "effects.valve_dynamics.time_constant" } else { "effects.valve_dynamics.natural_frequency" }
-                    ))
-                } else {
-                    None
-                }
-            }
-            "effects.time_delay.delay" => {
-                let d = self.effects.time_delay.as_ref()?;
-                (!d.enabled).then(|| section("time_delay"))
-            }
-            "effects.valve_deadband.zero_offset" | "effects.valve_deadband.overlap" => {
-                let d = self.effects.valve_deadband.as_ref()?;
-                (!d.enabled).then(|| section("valve_deadband"))
-            }
-            _ => None,
+        let u = crate::spec::params()
+            .iter()
+            .find(|p| p.path == path)?
+            .uncertain?;
+        let (section, _) = path.strip_prefix("effects.")?.rsplit_once('.')?;
+        if !self.section_switch(section)? {
+            return Some(format!("[effects.{section}] has enabled = false; a switched-off effect is not refit (remove the switch or the uncertainty)"));
         }
+        let want = u.needs_order?;
+        let order = self.section_order(section)?;
+        (order != want).then(|| {
+            // The parameter declared for the configured order.
+            let fits = crate::spec::params()
+                .iter()
+                .filter(|p| p.path.starts_with(&format!("effects.{section}.")))
+                .find(|p| p.uncertain.is_some_and(|q| q.needs_order == Some(order)))
+                .map_or("", |p| p.path);
+            format!(
+                "the spool model is order {order}; its bandwidth is {fits} (order 1: time_constant in s, order 2: natural_frequency in rad/s)"
+            )
+        })
+    }
+
+    /// The model order effect section `section` is configured with, for the one section that
+    /// has one.
+    fn section_order(&self, section: &str) -> Option<u8> {
+        (section == "valve_dynamics")
+            .then(|| self.effects.valve_dynamics.as_ref().map(|d| d.order))
+            .flatten()
+    }
+
+    /// The `enabled` switch of catalogue section `section` (its field name in [`Effects`]),
+    /// `None` when the section is absent. (`Effects::is_enabled` in crates/plant/src/effects
+    /// answers by `EffectId`, which this file does not use: that module uses this one.)
+    fn section_switch(&self, section: &str) -> Option<bool> {
+        macro_rules! switch {
+            ($($f:ident),*) => {
+                match section {
+                    $(stringify!($f) => self.effects.$f.as_ref().map(|s| s.enabled),)*
+                    _ => None,
+                }
+            };
+        }
+        switch!(
+            friction,
+            valve_deadband,
+            valve_saturation,
+            valve_dynamics,
+            internal_leakage,
+            external_leakage,
+            bulk_modulus_pressure,
+            line_dynamics,
+            flexible_mount,
+            time_delay,
+            sensor_tone,
+            supply_pressure_drop
+        )
     }
 
     /// The refit range of every nominal parameter the diagnosis refits: (path, nominal value,

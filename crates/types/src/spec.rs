@@ -78,9 +78,25 @@ pub enum Kind {
     Choice(&'static [&'static str]),
 }
 
+/// What else the diagnosis does with an uncertain nominal parameter, declared in its
+/// `uncertain(…)` as `role = loop_param` or `role = flow_gain`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// Refit with the other nominal parameters, nothing more.
+    Nominal,
+    /// A parameter of the rig's position loop (the valve's bandwidth, the loop's delay, the
+    /// valve's null offset and dead band): a stated uncertainty marks the loop as an
+    /// assumption, identified first on the position channel (`ehactl_ident::loopid`).
+    Loop,
+    /// A valve flow gain (one per flow form): with a proportional loop part of the loop
+    /// gain, identified with the loop.
+    FlowGain,
+}
+
 /// A nominal parameter's role in `ehactl diagnose`, declared on its field with
-/// `#[param(…, uncertain(order = N, default, to_range_end))]`: a config may state its
-/// uncertainty in `[uncertainty]`, and the diagnosis refits it within that range.
+/// `#[param(…, uncertain(order = N, default, to_range_end, role = …, needs_order = K))]`: a
+/// config may state its uncertainty in `[uncertainty]`, and the diagnosis refits it within
+/// that range.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Uncertain {
     /// Place in the order the diagnosis refits the nominal parameters (ascending; unique).
@@ -92,6 +108,11 @@ pub struct Uncertain {
     /// constant, an underlap of 0; a signed null offset may change sign) and is clamped
     /// there; otherwise a range that reaches it is refused.
     pub to_range_end: bool,
+    /// What else the diagnosis does with it ([`Role`]).
+    pub role: Role,
+    /// The model order its section must be configured with for it to be refit (a spool's
+    /// bandwidth is a time constant at order 1, a natural frequency at order 2); `None`: any.
+    pub needs_order: Option<u8>,
 }
 
 /// One declared parameter.
@@ -109,6 +130,10 @@ pub struct Param {
     pub kind: Kind,
     /// Its role as an uncertain nominal parameter of the diagnosis, if it has one.
     pub uncertain: Option<Uncertain>,
+    /// The diagnosis estimates it, or takes it from the data, rather than trusting the
+    /// config (declared `estimated` in its `#[param(…)]`): a log's config may differ from
+    /// `--config` in it.
+    pub estimated: bool,
 }
 
 impl Param {
@@ -127,6 +152,15 @@ impl Param {
             range,
             kind,
             uncertain: None,
+            estimated: false,
+        }
+    }
+
+    /// The entry marked as estimated by the diagnosis ([`Param::estimated`]).
+    pub const fn with_estimated(self) -> Param {
+        Param {
+            estimated: true,
+            ..self
         }
     }
 

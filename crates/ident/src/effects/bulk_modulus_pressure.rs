@@ -5,16 +5,31 @@
 //! Seeds: slope K_b = 5 (bounds 0…400), cap max(2.2 GPa, 1.6·β₀); air fraction 0.5 % (10⁻⁵…0.1,
 //! polytropic index 1.4).
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use ehactl_plant::params::{BulkModulusPressure, BulkVariant};
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
 
 /// The catalogue effect `bulk_modulus_pressure`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Mode
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        match other {
+            EffectId::LineDynamics | EffectId::FlexibleMount => Some(super::MODE_EXPERIMENT),
+            _ => None,
+        }
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         an.mode_prior()
     }

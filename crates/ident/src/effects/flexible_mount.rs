@@ -5,17 +5,32 @@
 //! Seeds: load mass = moving mass (0.02…20×), stiffness k = m·ω² at the residual's mode frequency
 //! (10⁻³…10× the hydraulic stiffness), damping ratio 0.1 of the critical 2·√(k·m).
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, write, FreeParam, Scales};
 use ehactl_plant::params::{FlexibleMount, MountVariant};
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
 use std::sync::Arc;
 
 /// The catalogue effect `flexible_mount`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Mode
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        match other {
+            EffectId::BulkModulusPressure | EffectId::LineDynamics => Some(super::MODE_EXPERIMENT),
+            _ => None,
+        }
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         an.mode_prior()
     }

@@ -7,16 +7,31 @@
 //! F_s/F_C 1.2, Stribeck velocity 10 mm/s; LuGre bristle stiffness 0.3× the hydraulic stiffness,
 //! bristle damping ζ = 0.2 of the critical 2·√(σ₀·m).
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, write, FreeParam, Scales};
 use ehactl_plant::params::{Friction, FrictionVariant};
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
+
+/// The experiment that separates friction from a valve dead band.
+pub(crate) const DEADBAND_EXPERIMENT: &str = "slow triangle-wave position moves (velocity reversals at several speeds) with chamber pressures logged: friction shows a pressure jump at each reversal, a dead band a command gap independent of speed";
 
 /// The catalogue effect `friction`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Reversal
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        (other == EffectId::ValveDeadband).then_some(DEADBAND_EXPERIMENT)
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         let reversal_ratio = an.reversal_ratio;
         (

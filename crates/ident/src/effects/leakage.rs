@@ -5,16 +5,31 @@
 //!
 //! Seed: k_l = 1 % of the rig's Q/p_s (bounds 10⁻⁵…1×).
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use ehactl_plant::params::{Leakage, LeakageVariant};
 use ehactl_plant::{EffectId, PlantParams};
 
+/// The experiment that separates internal from external leakage.
+const LEAKAGE_EXPERIMENT: &str = "hold the piston against an end stop and step the command: internal leakage equalises p_a and p_b, external leakage lowers both towards tank";
+
 /// The catalogue effect `internal_leakage`.
 pub struct Internal;
 
 impl EffectFit for Internal {
+    fn signature(&self) -> Signature {
+        Signature::Other
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        (other == EffectId::ExternalLeakage).then_some(LEAKAGE_EXPERIMENT)
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         leakage_prior(an)
     }
@@ -28,6 +43,18 @@ impl EffectFit for Internal {
 pub struct External;
 
 impl EffectFit for External {
+    fn signature(&self) -> Signature {
+        Signature::Other
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        (other == EffectId::InternalLeakage).then_some(LEAKAGE_EXPERIMENT)
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         leakage_prior(an)
     }

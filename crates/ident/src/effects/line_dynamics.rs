@@ -5,16 +5,31 @@
 //! Seeds: a 1 m pipe of 8 mm bore, two segments (bounds 0.1…15 m, 2…30 mm); a hose 2 m of 10 mm
 //! bore with wall compliance 10⁻⁹ 1/Pa and fittings 1 % of p_s/Q.
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use ehactl_plant::params::{LineDynamics, LineVariant};
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
 
 /// The catalogue effect `line_dynamics`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Mode
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        match other {
+            EffectId::BulkModulusPressure | EffectId::FlexibleMount => Some(super::MODE_EXPERIMENT),
+            _ => None,
+        }
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         an.mode_prior()
     }

@@ -5,17 +5,30 @@
 //! one (`crate::analysis`), frequency within ±0.02 Welch bin, sine and cosine amplitudes within ±4×
 //! the line's amplitude. Not testable on a record whose residuals show no line.
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{FreeParam, Scales};
 use ehactl_plant::params::{SensorChannel, SensorTone};
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
 use std::sync::Arc;
 
 /// The catalogue effect `sensor_tone`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Other
+    }
+
+    fn measurement_only(&self) -> bool {
+        true
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        let _ = other;
+        None
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         match an.tones.first() {
             Some(p) => (

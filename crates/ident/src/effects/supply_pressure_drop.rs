@@ -5,16 +5,28 @@
 //! Seeds: R = 5 % of the rig's p_s/Q (10⁻³…2×), τ = 20 ms (1 ms…1 s); pump flow = the edge flow Q
 //! (0.2…4×), regulation band 5 % of p_s, accumulator volume 0.5 l.
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use ehactl_plant::params::{SupplyPressureDrop, SupplyVariant};
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
 
 /// The catalogue effect `supply_pressure_drop`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Level
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        (other == EffectId::ValveSaturation).then_some(super::valve_saturation::SUPPLY_EXPERIMENT)
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         an.large_command_prior()
     }

@@ -3,16 +3,28 @@
 //!
 //! Seed: the lag the residual analysis finds (at least one sample; bounds 0…min(60·Δt, 0.2 s)).
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use ehactl_plant::params::TimeDelay;
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
 
 /// The catalogue effect `time_delay`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Other
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        (other == EffectId::ValveDynamics).then_some(super::valve_dynamics::DELAY_EXPERIMENT)
+    }
+
     fn prior(&self, an: &Analysis, dt: f64) -> (f64, String) {
         an.lag_prior(dt)
     }

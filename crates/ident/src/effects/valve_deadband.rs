@@ -4,16 +4,28 @@
 //!
 //! Seeds: overlap / dead zone 2 % of the spool stroke (bounds 0…30 %), zero offset 0 (±5 %).
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use ehactl_plant::params::{DeadbandVariant, ValveDeadband};
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
 
 /// The catalogue effect `valve_deadband`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::SmallCommand
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        (other == EffectId::Friction).then_some(super::friction::DEADBAND_EXPERIMENT)
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         let small_command_ratio = an.small_command_ratio;
         (

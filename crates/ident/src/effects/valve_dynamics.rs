@@ -4,16 +4,31 @@
 //! Seeds: a configured first-order valve refits its time constant (0.1 ms…0.3 s); otherwise second
 //! order at ω_v = 2π·min(0.1/Δt, 200 Hz) (bounds 2π·1 Hz…2π·min(0.5/Δt, 3 kHz)), ζ_v = 0.7 (0.2…2).
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use ehactl_plant::params::ValveDynamics;
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
+
+/// The experiment that separates spool dynamics from a transport delay.
+pub(crate) const DELAY_EXPERIMENT: &str = "a sine sweep of the valve command to the spool bandwidth: a delay adds phase linearly in frequency at constant gain, spool dynamics also lower the gain";
 
 /// The catalogue effect `valve_dynamics`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Other
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        (other == EffectId::TimeDelay).then_some(DELAY_EXPERIMENT)
+    }
+
     fn prior(&self, an: &Analysis, dt: f64) -> (f64, String) {
         an.lag_prior(dt)
     }

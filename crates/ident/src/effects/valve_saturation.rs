@@ -8,16 +8,31 @@
 //! record (commands reach 16 % and 18 % of travel) a seed at 0.9 left the variant at the
 //! refit's error.
 
-use super::EffectFit;
+use super::{EffectFit, Signature};
 use crate::evidence::Analysis;
 use crate::freeparam::{seeded, FreeParam, Scales};
 use ehactl_plant::params::{SaturationVariant, ValveSaturation};
-use ehactl_plant::PlantParams;
+use ehactl_plant::{EffectId, PlantParams};
+
+/// The experiment that separates a spool limit from a supply sag.
+pub(crate) const SUPPLY_EXPERIMENT: &str = "large steady commands at a low load: a spool limit caps flow at any pressure, a supply sag shows as falling supply pressure at high flow (log p_s)";
 
 /// The catalogue effect `valve_saturation`.
 pub struct Effect;
 
 impl EffectFit for Effect {
+    fn signature(&self) -> Signature {
+        Signature::Level
+    }
+
+    fn measurement_only(&self) -> bool {
+        false
+    }
+
+    fn separates_from(&self, other: EffectId) -> Option<&'static str> {
+        (other == EffectId::SupplyPressureDrop).then_some(SUPPLY_EXPERIMENT)
+    }
+
     fn prior(&self, an: &Analysis, _dt: f64) -> (f64, String) {
         an.large_command_prior()
     }

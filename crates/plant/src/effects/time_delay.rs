@@ -19,7 +19,7 @@ pub struct TimeDelay {
     #[serde(default = "yes")]
     pub enabled: bool,
     /// Delay (s).
-    #[param(unit = "s", range = Within(0.0, 1.0), desc = "command delay", uncertain(order = 15, to_range_end))]
+    #[param(unit = "s", range = Within(0.0, 1.0), desc = "command delay", uncertain(order = 15, to_range_end, role = loop_param))]
     pub delay: f64,
 }
 

@@ -46,11 +46,11 @@ pub struct ValveDeadband {
     pub deadzone: f64,
     /// Overlap per edge as a fraction of full spool travel (-).
     #[serde(default)]
-    #[param(unit = "-", range = Within(0.0, 0.95), desc = "overlap per edge, fraction of travel", uncertain(order = 17, to_range_end))]
+    #[param(unit = "-", range = Within(0.0, 0.95), desc = "overlap per edge, fraction of travel", uncertain(order = 17, to_range_end, role = loop_param))]
     pub overlap: f64,
     /// Zero offset of the spool as a fraction of full travel (-), signed.
     #[serde(default)]
-    #[param(unit = "-", range = Within(-0.5, 0.5), desc = "spool zero offset, fraction of travel", uncertain(order = 16, to_range_end))]
+    #[param(unit = "-", range = Within(-0.5, 0.5), desc = "spool zero offset, fraction of travel", uncertain(order = 16, to_range_end, role = loop_param))]
     pub zero_offset: f64,
 }
 

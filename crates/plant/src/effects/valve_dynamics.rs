@@ -21,11 +21,11 @@ pub struct ValveDynamics {
     pub order: u8,
     /// PT1 time constant T_z (s) for order 1; 003: 0.01.
     #[serde(default)]
-    #[param(unit = "s", range = NonNegative, desc = "PT1 time constant T_z (003)", uncertain(order = 13, to_range_end))]
+    #[param(unit = "s", range = NonNegative, desc = "PT1 time constant T_z (003)", uncertain(order = 13, to_range_end, role = loop_param, needs_order = 1))]
     pub time_constant: f64,
     /// Natural frequency ω_nv (rad/s) for order 2; 004: 1507.9.
     #[serde(default)]
-    #[param(unit = "rad/s", range = Within(0.0, 1.0e6), desc = "spool ω_nv (004: 1507.9)", uncertain(order = 14))]
+    #[param(unit = "rad/s", range = Within(0.0, 1.0e6), desc = "spool ω_nv (004: 1507.9)", uncertain(order = 14, role = loop_param, needs_order = 2))]
     pub natural_frequency: f64,
     /// Damping ratio ζ (-) for order 2; 004: 0.59.
     #[serde(default)]
