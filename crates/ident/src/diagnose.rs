@@ -187,6 +187,9 @@ pub struct Diagnosis {
     /// would have revealed, in its own parameter and unit (`crate::limits`; effect id →
     /// limit). Empty when `Options::detection_limits` is off.
     pub detection_limits: BTreeMap<String, crate::limits::DetectionLimit>,
+    /// The tests that would tighten the loose limits and separate the ambiguities, as
+    /// `[setpoint]` sections for `ehactl run` ([`crate::nexttest`]).
+    pub next_tests: Vec<crate::nexttest::NextTest>,
     /// Accepted effect ids, the one that explains most of the held-out error on the final model
     /// first (each removed in turn and the rest refit, `crate::weigh`); `cause` is the first.
     pub causes: Vec<String>,
@@ -382,6 +385,7 @@ pub fn diagnose(
         d.summary = format!("{} {}", d.summary, l.text);
     }
     d.identified_loop = identified_loop;
+    d.next_tests = crate::nexttest::next_tests(&d, rec);
     Ok(d)
 }
 
@@ -1935,6 +1939,7 @@ fn phase_report(
             status: status.to_string(),
             closest,
             detection_limits: BTreeMap::new(),
+            next_tests: Vec::new(),
             causes: ids(&search.accepted),
             variants: variants_of(&search.current),
             nrmse_nominal: nom.nom_err,
