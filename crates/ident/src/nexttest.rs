@@ -264,6 +264,14 @@ pub fn separating(a: EffectId, b: EffectId, rec: &Record) -> NextTest {
     )
 }
 
+/// The test that would tighten the detection limit of `e` on record `rec` (what
+/// [`next_tests`] proposes for a loose limit of `e` alone).
+pub fn tightening(e: EffectId, rec: &Record) -> NextTest {
+    let (c, h) = setpoint_scale(rec);
+    let x = Excitation::of(e);
+    make("tighten", &[e], x, (c, h, sample_period(rec)), 0)
+}
+
 /// The record's mean sample period (s); 1 ms for a record of one sample.
 fn sample_period(rec: &Record) -> f64 {
     if rec.t.len() > 1 {
