@@ -385,7 +385,7 @@ pub fn diagnose(
         d.summary = format!("{} {}", d.summary, l.text);
     }
     d.identified_loop = identified_loop;
-    d.next_tests = crate::nexttest::next_tests(&d, rec);
+    d.next_tests = crate::nexttest::next_tests(&d.ambiguities, &d.detection_limits, rec);
     Ok(d)
 }
 

@@ -21,10 +21,11 @@
 //!   above the record's band.
 
 use crate::data::Record;
-use crate::diagnose::Diagnosis;
+use crate::limits::DetectionLimit;
 use ehactl_control::setpoint::{SetpointConfig, SetpointKind, Sweep};
 use ehactl_plant::EffectId;
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 /// A limit whose position on the log scale of the catalogue range is at least this is loose
@@ -190,22 +191,26 @@ fn effects_in(text: &str) -> Vec<EffectId> {
     out
 }
 
-/// The proposed tests of diagnosis `d` of record `rec`: one per ambiguity (its first two
-/// effects), then one per loose detection limit ([`LOOSE`]) whose excitation is not already
-/// proposed, at most [`MAX_TESTS`].
-pub fn next_tests(d: &Diagnosis, rec: &Record) -> Vec<NextTest> {
+/// The proposed tests of a diagnosis of record `rec` with `ambiguities` and detection
+/// `limits` (`Diagnosis::ambiguities`, `Diagnosis::detection_limits`): one per ambiguity (its
+/// first two effects), then one per loose detection limit ([`LOOSE`]) whose excitation is not
+/// already proposed, at most [`MAX_TESTS`].
+pub fn next_tests(
+    ambiguities: &[String],
+    limits: &BTreeMap<String, DetectionLimit>,
+    rec: &Record,
+) -> Vec<NextTest> {
     let dt = sample_period(rec);
     let (c, a) = setpoint_scale(rec);
     let mut wanted: Vec<(&str, Vec<EffectId>, Excitation)> = Vec::new();
-    for amb in &d.ambiguities {
+    for amb in ambiguities {
         if let [x, y, ..] = effects_in(amb)[..] {
             if !wanted.iter().any(|w| w.1 == [x, y] || w.1 == [y, x]) {
                 wanted.push(("separate", vec![x, y], Excitation::of_pair(x, y)));
             }
         }
     }
-    let mut loose: Vec<(&String, &crate::limits::DetectionLimit)> = d
-        .detection_limits
+    let mut loose: Vec<(&String, &DetectionLimit)> = limits
         .iter()
         .filter(|(_, l)| {
             l.looseness >= LOOSE && (l.limit.is_some() || l.note.starts_with("not detectable"))
@@ -333,13 +338,13 @@ pub fn toml_text(t: &NextTest) -> String {
     r
 }
 
-/// The report.md section: one line per proposed test.
-pub fn write_section(r: &mut String, d: &Diagnosis) {
-    if d.next_tests.is_empty() {
+/// The report.md section: one line per proposed test of `tests`.
+pub fn write_section(r: &mut String, tests: &[NextTest]) {
+    if tests.is_empty() {
         return;
     }
     let _ = writeln!(r, "\n## The next test\n\nEach file holds a `[setpoint]` section for `ehactl run` (DIAGNOSIS.md \"The next test\"); diagnose the new record and this one together (`--data` the new one `--validate` this one: fitted where the excitation tells the effects apart, checked on this record).\n\n| file | for | effects | excitation |\n|---|---|---|---|");
-    for t in &d.next_tests {
+    for t in tests {
         let _ = writeln!(
             r,
             "| [`{}`]({}) | {} | {} | {} |",

@@ -375,7 +375,7 @@ fn report_text(
     write_residual_analysis(&mut r, d);
     write_hypothesis_tests(&mut r, d);
     write_detection_limits(&mut r, d);
-    crate::nexttest::write_section(&mut r, d);
+    crate::nexttest::write_section(&mut r, &d.next_tests);
     write_closing(&mut r, d, warnings, plots);
     r
 }
