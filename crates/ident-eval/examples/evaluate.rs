@@ -68,6 +68,7 @@ fn main() {
         }
     }
     let mut small = SmallScore::default();
+    let mut small_limits = ehactl_ident_eval::limscore::LimitScore::default();
     let (mut variant_ok, mut n_variant) = (0, 0);
     let bar = indicatif::ProgressBar::new(cases.len() as u64);
     bar.set_style(
@@ -88,10 +89,10 @@ fn main() {
     let mut times = Vec::new();
     for (i, hidden) in cases.iter().enumerate() {
         let seed = first + i as u64;
-        let mut case = match (variant_of[i], level_of[i]) {
-            (_, Some(l)) => make_case_small(seed, hidden[0], l, 2.0).0,
-            (Some(v), None) => make_case_variant(seed, hidden[0], v, 2.0),
-            (None, None) => make_case(seed, hidden, 2.0),
+        let (mut case, alpha) = match (variant_of[i], level_of[i]) {
+            (_, Some(l)) => make_case_small(seed, hidden[0], l, 2.0),
+            (Some(v), None) => (make_case_variant(seed, hidden[0], v, 2.0), 1.0),
+            (None, None) => (make_case(seed, hidden, 2.0), 1.0),
         };
         if with_offsets {
             let b = ehactl_ident_eval::synth::realistic_offsets(&case.record);
@@ -143,6 +144,16 @@ fn main() {
         let _ = writeln!(lines, "{line}");
         if level_of[i].is_some() {
             small.add(&label, &d.cause, dt);
+            let (r, from, detail) = limit_ratio(&case, hidden[0], alpha, &d, &opts);
+            let named = ehactl_ident_eval::limscore::names(&d, hn[0]);
+            let closest = ehactl_ident_eval::limscore::closest_is(&d, hn[0]);
+            let r_text = r.map_or("n/a".to_string(), |r| format!("{r:.3}"));
+            let text = format!(
+                "  limit_ratio {r_text} limit_from {from} named {named} closest {closest} {detail}"
+            );
+            let _ = writeln!(lines, "{text}");
+            bar.suspend(|| eprintln!("{text}"));
+            small_limits.add(&format!("{seed} {label}"), &d.cause, r, named, closest);
         } else if hidden.is_empty() {
             n_clean += 1;
             clean_ok += (d.cause == "none") as usize;
@@ -251,6 +262,9 @@ fn main() {
         );
     }
     s.push_str(&small.table());
+    if small.n > 0 {
+        s.push_str(&small_limits.table());
+    }
     let _ = writeln!(
         s,
         "\n<details><summary>Per-case results</summary>\n\n```\n{lines}```\n</details>"
@@ -260,6 +274,54 @@ fn main() {
     }
     std::fs::write(&out, &s).expect("write evaluation");
     println!("{s}");
+}
+
+/// A small case's hidden size over the detection limit the diagnosis `d` stated for the
+/// hidden effect `e` (`stated`), or, when it stated none (it named the effect), the limit
+/// stated on its clean twin (the same seed, excitation and noise without the effect,
+/// diagnosed with `e` the only effect tested: `twin`); `None` without a size map; and the
+/// limit, the hidden size and the parameter in words.
+fn limit_ratio(
+    case: &ehactl_ident_eval::synth::Case,
+    e: EffectId,
+    alpha: f64,
+    d: &ehactl_ident::Diagnosis,
+    opts: &Options,
+) -> (Option<f64>, &'static str, String) {
+    use ehactl_ident_eval::limscore;
+    let (limit, from) = match d.detection_limits.get(e.as_str()) {
+        Some(l) => (Some(l.clone()), "stated"),
+        None => {
+            let mut clean_truth = ehactl_ident_eval::synth::testrig().plant;
+            clean_truth.sensors.seed = case.seed;
+            let twin =
+                ehactl_ident_eval::synth::simulate(&clean_truth, &case.record.u, 1e-3, "twin");
+            let o = Options {
+                effects: vec![e],
+                ..opts.clone()
+            };
+            let l = diagnose(&case.nominal.plant, &twin, None, &o)
+                .ok()
+                .and_then(|t| t.detection_limits.get(e.as_str()).cloned());
+            (l, "twin")
+        }
+    };
+    let size = limit.as_ref().and_then(|l| {
+        let full = limscore::synth_value(&case.truth, &l.parameter)?;
+        Some(limscore::small_size(l, full, alpha))
+    });
+    let r = limit
+        .as_ref()
+        .zip(size)
+        .and_then(|(l, s)| limscore::ratio(l, s));
+    let num = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.4e}"));
+    let detail = format!(
+        "limit {} size {} parameter {}",
+        num(limit.as_ref().and_then(|l| l.limit)),
+        num(size),
+        limit.as_ref().map_or("-", |l| l.parameter.as_str())
+    );
+    (r, from, detail)
 }
 
 /// Scores of the small-magnitude cases, kept apart from the full-size ones.

@@ -154,6 +154,12 @@ fn main() {
         let ratio_final = over_true_noise(&d.nrmse_extended);
         let above_final = ratio_final > ehactl_ident::residual::LEVEL_LARGE;
         let above = ratio > ehactl_ident::residual::LEVEL_LARGE;
+        // A small case: its hidden size over the detection limit stated for it.
+        let limit = if kind.contains('@') {
+            limit_field(&case, kind, want, &d, &opts, duration)
+        } else {
+            String::new()
+        };
         let line = format!(
             "seed {seed} kind {kind} expect {want} {want_var} -> {} {variant} causes {} gain {:.3} nominal {:.4} refit {:.4} extended {:.4} floor {:.4} refit_over_true_noise {ratio:.1} refit_above_noise {above} final_over_true_noise {ratio_final:.1} final_above_noise {above_final} refit_continued {} time {dt:.1}{}",
             d.cause,
@@ -173,7 +179,7 @@ fn main() {
             } else {
                 String::new()
             },
-        );
+        ) + &limit;
         eprintln!("{line}");
         let _ = writeln!(log, "{line}");
         let _ = log.flush();
@@ -186,6 +192,61 @@ fn main() {
     let s = summarise(&lines, cases.len(), duration, &list);
     std::fs::write(&out, &s).expect("write summary");
     println!("{s}");
+}
+
+/// ` limit_ratio R limit_from F named B closest C limit L size S` of a small case: its hidden size over the limit the
+/// diagnosis `d` stated for the hidden effect `want` (`stated`), or, when it stated none (it
+/// named the effect), the limit stated on its clean twin (the same draws without the effect,
+/// `twin`: diagnosed with `want` the only effect tested); R `n/a` without a size map.
+fn limit_field(
+    case: &ehactl_ident_eval::indep::Case,
+    kind: &str,
+    want: &str,
+    d: &ehactl_ident::Diagnosis,
+    opts: &Options,
+    duration: f64,
+) -> String {
+    use ehactl_ident_eval::limscore;
+    let named = limscore::names(d, want);
+    let (limit, from) = match d.detection_limits.get(want) {
+        Some(l) => (Some(l.clone()), "stated"),
+        None => {
+            let base = kind.split('@').next().unwrap_or(kind);
+            let twin =
+                ehactl_ident_eval::indep::make_case_without(case.seed, base, 0, duration, 1e-3);
+            let effect = ehactl_plant::EffectId::parse(want);
+            let l = twin.ok().zip(effect).and_then(|(t, e)| {
+                let o = Options {
+                    effects: vec![e],
+                    ..opts.clone()
+                };
+                diagnose(&t.nominal, &t.record, None, &o)
+                    .ok()?
+                    .detection_limits
+                    .get(want)
+                    .cloned()
+            });
+            (l, "twin")
+        }
+    };
+    let alpha = ehactl_ident_eval::limscore::alpha_from_source(&case.record.source);
+    let size = limit.as_ref().zip(alpha).and_then(|(l, a)| {
+        let full = limscore::indep_value(case.hidden.as_ref()?, &l.parameter)?;
+        Some(limscore::small_size(l, full, a))
+    });
+    let r = limit
+        .as_ref()
+        .zip(size)
+        .and_then(|(l, s)| limscore::ratio(l, s));
+    let num = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.4e}"));
+    format!(
+        " limit_ratio {} limit_from {from} named {named} closest {} limit {} size {} parameter {}",
+        r.map_or("n/a".to_string(), |r| format!("{r:.3}")),
+        limscore::closest_is(d, want),
+        num(limit.as_ref().and_then(|l| l.limit)),
+        num(size),
+        limit.as_ref().map_or("-", |l| l.parameter.as_str()),
+    )
 }
 
 fn field<'a>(l: &'a str, key: &str) -> Option<&'a str> {
@@ -206,6 +267,7 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
     // Small-magnitude cases (`kind@level`): run, correct, false `none`, `unexplained`, others.
     let (mut s_n, mut s_ok, mut s_none, mut s_unexpl) = (0, 0, 0, 0);
     let mut s_other: BTreeMap<(String, String), usize> = BTreeMap::new();
+    let mut s_limits = ehactl_ident_eval::limscore::LimitScore::default();
     let mut gains = Vec::new();
     let mut times = Vec::new();
     let mut per_kind: BTreeMap<String, (usize, usize)> = BTreeMap::new();
@@ -230,6 +292,15 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
         }
         continued += field(l, "refit_continued").is_some_and(|v| v != "0") as usize;
         if kind.contains('@') {
+            if field(l, "limit_ratio").is_some() {
+                s_limits.add(
+                    &format!("{} {kind}", field(l, "seed").unwrap_or("?")),
+                    &got,
+                    field(l, "limit_ratio").and_then(|v| v.parse().ok()),
+                    field(l, "named") == Some("true"),
+                    field(l, "closest") == Some("true"),
+                );
+            }
             s_n += 1;
             s_ok += (got == want) as usize;
             s_none += (got == "none") as usize;
@@ -349,6 +420,9 @@ fn summarise(lines: &[String], listed: usize, duration: f64, list: &str) -> Stri
                 other.join(", ")
             }
         );
+    }
+    if s_limits.scored + s_limits.not_scored.len() > 0 {
+        s.push_str(&s_limits.table());
     }
     let _ = writeln!(s, "\nPer generator variant (correct / run):\n");
     let _ = writeln!(s, "| variant | correct |\n|---|---|");

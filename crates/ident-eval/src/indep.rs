@@ -1030,6 +1030,48 @@ pub fn make_case_small(
     Ok(Case { record, ..full })
 }
 
+/// The case `kind` of `seed` (the same draws as [`make_case`]: hidden effects, nominal
+/// errors) driven by the excitation `excitation` instead of its own (the valve command in V
+/// open loop, the force setpoint in N for a `pi_` case), sampled at `dt` (s): how a proposed
+/// next test (`ehactl_ident::nexttest`) is played on this generator.
+pub fn make_case_driven(
+    seed: u64,
+    kind: &str,
+    excitation: &[f64],
+    dt: f64,
+) -> Result<Case, String> {
+    let duration = excitation.len() as f64 * dt;
+    generate_with(seed, kind, duration, dt, &|_| true, Some(excitation))
+}
+
+/// The small-magnitude case `kind` of `seed` at the fraction `alpha` of its effects (as
+/// [`make_case_small`] made it, whose record's source states α) driven by `excitation`
+/// ([`make_case_driven`]): the clean record of the same draws plus α × (the record with the
+/// effects − the clean record), both driven by `excitation`: the same small effect under
+/// another test.
+pub fn make_case_small_driven(
+    seed: u64,
+    kind: &str,
+    alpha: f64,
+    excitation: &[f64],
+    dt: f64,
+) -> Result<Case, String> {
+    let duration = excitation.len() as f64 * dt;
+    let full = generate_with(seed, kind, duration, dt, &|_| true, Some(excitation))?;
+    let clean = generate_with(seed, kind, duration, dt, &|_| false, Some(excitation))?;
+    let mut record = clean.record.clone();
+    for (c, f) in record.channels.iter_mut().zip(&full.record.channels) {
+        for (y, yf) in c.values.iter_mut().zip(&f.values) {
+            *y += alpha * (yf - *y);
+        }
+    }
+    for (u, uf) in record.u.iter_mut().zip(&full.record.u) {
+        *u += alpha * (uf - *u);
+    }
+    record.source = format!("independent generator seed {seed} ({kind}, α = {alpha:.3e}, driven)");
+    Ok(Case { record, ..full })
+}
+
 /// [`make_case`] without the `@L` suffix, simulating the hidden effects `keep` selects (by
 /// index in `kind`); the others are drawn and listed but not simulated (`|_| false`: the clean
 /// record of the same draws).
@@ -1039,6 +1081,19 @@ fn generate(
     duration: f64,
     dt: f64,
     keep: &dyn Fn(usize) -> bool,
+) -> Result<Case, String> {
+    generate_with(seed, kind, duration, dt, keep, None)
+}
+
+/// [`generate`] with the excitation `given` in place of the drawn one (drawn all the same,
+/// so that the sensor noise keeps its draws).
+fn generate_with(
+    seed: u64,
+    kind: &str,
+    duration: f64,
+    dt: f64,
+    keep: &dyn Fn(usize) -> bool,
+    given: Option<&[f64]>,
 ) -> Result<Case, String> {
     let (closed, effects) = match kind.strip_prefix("pi_") {
         Some(rest) => (true, rest),
@@ -1065,7 +1120,9 @@ fn generate(
     let f = [0; 5].map(|_| g.range(0.9, 1.1));
     let nominal = nominal_config(&rig, f, dt);
     let n = (duration / dt).round() as usize;
-    let excitation = command(&mut g, dt, n);
+    let drawn = command(&mut g, dt, n);
+    let excitation = given.map_or(drawn, |e| e[..n.min(e.len())].to_vec());
+    let n = excitation.len();
     // Open loop: the excitation is the valve command. Closed loop: it is the force setpoint
     // and the command is the PI's output, filled in sample by sample below.
     let (mut u, reference) = if closed {

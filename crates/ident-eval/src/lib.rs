@@ -6,7 +6,7 @@
 //!
 //! Modules: [`synth`] (seeded records of the test bench `configs/diagnose_testrig.toml` with
 //! catalogue effects hidden in ehactl's own plant), [`hide`] (how each catalogue effect is
-//! switched on in a plant config, one function per effect), [`indep`] (a second generator
+//! switched on in a plant config, one function per effect), [`limscore`] (small cases scored against the stated detection limits), [`indep`] (a second generator
 //! written from the physics independently of `crates/plant`), [`rng`] (the synthetic cases'
 //! generator). The evaluation examples (`evaluate`, `evaluate_indep`, `diagnose_speed`,
 //! `integration_check`, `make_csv`) and the diagnosis' integration tests live in this crate's
@@ -15,5 +15,6 @@
 
 pub mod hide;
 pub mod indep;
+pub mod limscore;
 pub mod rng;
 pub mod synth;

@@ -35,6 +35,7 @@ pub mod greybox;
 pub mod limits;
 pub mod loopid;
 pub mod motion;
+pub mod nexttest;
 pub mod outdir;
 pub mod plots;
 pub mod predict;

@@ -33,6 +33,13 @@ pub const OUTPUTS: &[&str] = &[
     "campaign.svg",
     "prediction.json",
     "prediction.svg",
+    // `crate::nexttest::MAX_TESTS` proposals.
+    "next_test_1.toml",
+    "next_test_2.toml",
+    "next_test_3.toml",
+    "next_test_4.toml",
+    "next_test_5.toml",
+    "next_test_6.toml",
 ];
 
 /// Whether `a` and `b` are the same file (same device and inode, whatever the names).

@@ -290,6 +290,9 @@ pub fn write_report(
     }
     let json = serde_json::to_string_pretty(d).map_err(|e| e.to_string())?;
     w("diagnosis.json", &json)?;
+    for t in &d.next_tests {
+        w(&t.file, &crate::nexttest::toml_text(t))?;
+    }
     let plots = match (&d.traces.nominal, &d.traces.extended) {
         (Some(nom), Some(ext)) => {
             let v = val
@@ -372,6 +375,7 @@ fn report_text(
     write_residual_analysis(&mut r, d);
     write_hypothesis_tests(&mut r, d);
     write_detection_limits(&mut r, d);
+    crate::nexttest::write_section(&mut r, &d.next_tests);
     write_closing(&mut r, d, warnings, plots);
     r
 }

@@ -838,6 +838,9 @@ class DiagnosisResult(_DictCompat):
         detection_limits: For every catalogue effect tested and not named, the smallest size
             this record would have revealed (effect id → ``parameter``, ``unit``, ``stronger``,
             ``limit`` or None, ``range``, ``note``, ``looseness``).
+        next_tests: The tests that would tighten the loose limits and separate the
+            ambiguities (``purpose``, ``effects``, ``excitation``, ``why``, ``file``, ``setpoint``:
+            a ``[setpoint]`` section for ``ehactl run``, ``duration`` in s).
         envelope: The held-out part (or ``--validate`` record) against the motion the
             diagnosis fitted (``inside``, ``excursions``: quantity, record, fitted, unit,
             beyond, text), or None without a position column.
@@ -912,10 +915,11 @@ class DiagnosisResult(_DictCompat):
     status: str = ""
     closest: Optional[Mapping[str, Any]] = None
     detection_limits: Mapping[str, Any] = field(default_factory=lambda: FrozenMap({}))
+    next_tests: Tuple[Mapping[str, Any], ...] = ()
     envelope: Optional[Mapping[str, Any]] = None
 
     # JSON key order of `ehactl diagnose --json` (serde field order, then the files).
-    _ORDER = ("cause", "status", "closest", "detection_limits", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
+    _ORDER = ("cause", "status", "closest", "detection_limits", "next_tests", "causes", "variants", "nrmse_nominal", "nrmse_refit", "nrmse_extended",
               "nrmse_baseline", "baseline", "residual_test", "integration", "greybox", "gain",
               "noise_floor", "candidates", "extended_params", "identified_loop", "refit_at_bounds", "extended_at_bounds",
               "sensor_offsets", "ambiguities", "refit_continued",
@@ -962,6 +966,7 @@ class DiagnosisResult(_DictCompat):
             status=str(d.get("status", "")),
             closest=None if d.get("closest") is None else _freeze(d["closest"]),
             detection_limits=_freeze(d.get("detection_limits") or {}),
+            next_tests=tuple(_freeze(t) for t in d.get("next_tests") or []),
             envelope=None if d.get("envelope") is None else _freeze(d["envelope"]),
         )
 

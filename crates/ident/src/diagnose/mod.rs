@@ -207,6 +207,9 @@ pub struct Diagnosis {
     /// would have revealed, in its own parameter and unit (`crate::limits`; effect id →
     /// limit). Empty when `Options::detection_limits` is off.
     pub detection_limits: BTreeMap<String, crate::limits::DetectionLimit>,
+    /// The tests that would tighten the loose limits and separate the ambiguities, as
+    /// `[setpoint]` sections for `ehactl run` ([`crate::nexttest`]).
+    pub next_tests: Vec<crate::nexttest::NextTest>,
     /// Accepted effect ids, the one that explains most of the held-out error on the final model
     /// first (each removed in turn and the rest refit, `crate::weigh`); `cause` is the first.
     pub causes: Vec<String>,
@@ -383,7 +386,9 @@ fn pipeline(inp: &Inputs<'_>) -> Result<Diagnosis, String> {
         limits,
         reloop,
     };
-    Ok(report::assemble(inp, phases))
+    let mut d = report::assemble(inp, phases);
+    d.next_tests = crate::nexttest::next_tests(&d.ambiguities, &d.detection_limits, inp.rec);
+    Ok(d)
 }
 
 /// Catalogue effects dropped for a grey-box law: they predicted the held-out part worse than

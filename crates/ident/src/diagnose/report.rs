@@ -87,6 +87,7 @@ pub(super) fn assemble(inp: &Inputs<'_>, p: Phases<'_>) -> Diagnosis {
         status: status.to_string(),
         closest,
         detection_limits: BTreeMap::new(),
+        next_tests: Vec::new(),
         causes: ids(&search.accepted),
         variants: variants_of(&search.current),
         nrmse_nominal: nom.nom_err,
