@@ -274,20 +274,24 @@ mod tests {
         }
     }
 
-    /// Dahl (1968) closed form: from z = 0 at constant velocity v > 0 the state follows
-    /// z(s) = 1 − exp(−s/δ) over the travel s = v·t.
-    #[test]
-    fn dahl_state_follows_the_closed_form() {
-        let (dt, delta, vel) = (1e-3, 1e-4, 0.02);
-        let n = 200;
+    /// The Dahl state of a unit law of pre-yield travel `delta` (m) and Bouc–Wen exponent
+    /// `exponent` along `n` samples of constant velocity `vel` (m/s) at period `dt` (s).
+    fn state_at_constant_velocity(
+        delta: f64,
+        exponent: f64,
+        vel: f64,
+        dt: f64,
+        n: usize,
+    ) -> Vec<f64> {
         let x: Vec<f64> = (0..n).map(|k| vel * k as f64 * dt).collect();
         let v = vec![vel; n];
         let l = PolynomialForce {
             dahl: 1.0,
             dahl_travel: delta,
+            dahl_exponent: exponent,
             ..PolynomialForce::zero()
         };
-        let z = dahl_state(
+        dahl_state(
             &l,
             &Motion {
                 dt,
@@ -295,7 +299,15 @@ mod tests {
                 v: &v,
                 dp: None,
             },
-        );
+        )
+    }
+
+    /// Dahl (1968) closed form: from z = 0 at constant velocity v > 0 the state follows
+    /// z(s) = 1 − exp(−s/δ) over the travel s = v·t.
+    #[test]
+    fn dahl_state_follows_the_closed_form() {
+        let (dt, delta, vel) = (1e-3, 1e-4, 0.02);
+        let z = state_at_constant_velocity(delta, 1.0, vel, dt, 200);
         for (k, zk) in z.iter().enumerate().step_by(10) {
             let exact = 1.0 - (-(vel * k as f64 * dt) / delta).exp();
             assert!((zk - exact).abs() < 0.02, "k {k}: {zk} vs {exact}");
@@ -345,23 +357,8 @@ mod tests {
     /// 1 − e⁻¹ = 0.63 for n = 1).
     #[test]
     fn bouc_wen_exponent_two_follows_tanh() {
-        let (dt, delta, vel) = (1e-3, 1e-4, 0.02);
-        let n = 200;
-        let x: Vec<f64> = (0..n).map(|k| vel * k as f64 * dt).collect();
-        let v = vec![vel; n];
-        let l = PolynomialForce {
-            dahl: 1.0,
-            dahl_travel: delta,
-            dahl_exponent: 2.0,
-            ..PolynomialForce::zero()
-        };
-        let m = Motion {
-            dt,
-            x: &x,
-            v: &v,
-            dp: None,
-        };
-        let z = dahl_state(&l, &m);
+        let (dt, delta, vel, n) = (1e-3, 1e-4, 0.02, 200);
+        let z = state_at_constant_velocity(delta, 2.0, vel, dt, n);
         let mut worst: f64 = 0.0;
         for (k, zk) in z.iter().enumerate() {
             let exact = (vel * k as f64 * dt / delta).tanh();
