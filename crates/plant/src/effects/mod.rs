@@ -333,9 +333,10 @@ impl PolynomialForce {
 
     /// One substep `h` (s) of the Dahl state `z` (-), backward Euler about the velocity at
     /// the start of the step `v_old` (m/s): z' = (z + h·v'/δ)/(1 + h·|v_old|/δ) for Dahl's
-    /// law (the general denominator with the series velocity and the Bouc–Wen exponent:
-    /// [`Self::dahl_denominator`]), which stays in [−1, 1] at any step. Returns (f₀, d) with the force F_d·z' = f₀ + d·v' (N, N·s/m)
-    /// for the implicit velocity update; (0, 0) without the term.
+    /// law (the general denominator with the series velocity and the Bouc–Wen exponent is
+    /// `dahl_denominator`'s), which stays in [−1, 1] at any step. Returns (f₀, d) with the
+    /// force F_d·z' = f₀ + d·v' (N, N·s/m) for the implicit velocity update; (0, 0) without
+    /// the term.
     #[inline]
     pub fn dahl_implicit(&self, z: f64, v_old: f64, h: f64) -> (f64, f64) {
         if self.dahl == 0.0 {
