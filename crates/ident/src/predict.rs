@@ -133,58 +133,12 @@ pub fn predict(
     })?;
     let n = rec.len();
     let score = score.unwrap_or(0..n);
-    let mut band = None;
-    let (replay, predicted) = if imposed || rec.imposed_motion() {
-        let (Some(x), Some(_)) = (
-            rec.channel(ChannelKind::Position),
-            rec.channel(ChannelKind::Force),
-        ) else {
-            return Err(format!(
-                "{src}: an imposed-motion prediction needs the motion `x` (m) and the load-cell `force` (N)"
-            ));
-        };
-        let f = imposed_force(&plant, rec, x).map_err(|e| format!("{src}: {e}"))?;
-        band = force_band(cfg, rec, &at, &f, score.clone(), usize::MAX, |p| {
-            imposed_force(p, rec, x).ok()
-        });
-        ("imposed_motion", (vec![(ChannelKind::Force, f)], None))
+    let how = if imposed || rec.imposed_motion() {
+        imposed_prediction(cfg, rec, &plant, &at, score.clone())?
     } else {
-        let (drive, _) = drive_for(cfg, rec);
-        let sim = replay_with(&replay_params(&plant, rec), rec, n, drive)
-            .map_err(|e| format!("{src}: the model cannot be replayed: {e}"))?;
-        let how = if drive.closed_loop() {
-            "closed_loop"
-        } else {
-            "open_loop"
-        };
-        let y: Vec<(ChannelKind, Vec<f64>)> =
-            rec.channels.iter().map(|c| c.kind).zip(sim.y).collect();
-        // A member's force along its own replay; a member that fails or diverges gives none.
-        let member_force = |p: &PlantParams| -> Option<Vec<f64>> {
-            let k = rec
-                .channels
-                .iter()
-                .position(|c| c.kind == ChannelKind::Force)?;
-            let s = replay_with(&replay_params(p, rec), rec, n, drive).ok()?;
-            let yk: Vec<(ChannelKind, Vec<f64>)> =
-                rec.channels.iter().map(|c| c.kind).zip(s.y).collect();
-            check_divergence(p, rec, &yk, s.failed_at)
-                .is_none()
-                .then(|| yk[k].1.clone())
-        };
-        if let Some((_, f)) = y.iter().find(|(k, _)| *k == ChannelKind::Force) {
-            band = force_band(
-                cfg,
-                rec,
-                &at,
-                f,
-                score.clone(),
-                REPLAY_BAND_MEMBERS,
-                member_force,
-            );
-        }
-        (how, (y, sim.failed_at))
+        replayed_prediction(cfg, rec, &plant, &at, score.clone())?
     };
+    let (replay, predicted, band) = (how.replay, (how.predicted, how.failed_at), how.band);
     let (mut predicted, failed_at) = predicted;
     let diverged = check_divergence(&plant, rec, &predicted, failed_at);
     if let Some(d) = &diverged {
@@ -216,6 +170,96 @@ pub fn predict(
         envelope: crate::envelope::check_record(cfg, rec),
         band,
         predicted,
+    })
+}
+
+/// A replay's channels and its failed plant step, if any.
+type Replayed = (
+    Vec<(ChannelKind, Vec<f64>)>,
+    Option<(usize, ehactl_plant::NumericalFailure)>,
+);
+
+/// What one way of predicting a record gives: how it was replayed, the predicted channels,
+/// the failed plant step if any, and the force band.
+struct Predicted {
+    replay: &'static str,
+    predicted: Vec<(ChannelKind, Vec<f64>)>,
+    failed_at: Option<(usize, ehactl_plant::NumericalFailure)>,
+    band: Option<crate::band::BandScore>,
+}
+
+/// The rod force along the record's measured motion, with the band over every member.
+fn imposed_prediction(
+    cfg: &RigConfig,
+    rec: &Record,
+    plant: &PlantParams,
+    at: &BTreeMap<String, f64>,
+    score: std::ops::Range<usize>,
+) -> Result<Predicted, String> {
+    let src = &rec.source;
+    let (Some(x), Some(_)) = (
+        rec.channel(ChannelKind::Position),
+        rec.channel(ChannelKind::Force),
+    ) else {
+        return Err(format!(
+            "{src}: an imposed-motion prediction needs the motion `x` (m) and the load-cell `force` (N)"
+        ));
+    };
+    let f = imposed_force(plant, rec, x).map_err(|e| format!("{src}: {e}"))?;
+    let band = force_band(cfg, rec, at, &f, score, usize::MAX, |p| {
+        imposed_force(p, rec, x).ok()
+    });
+    Ok(Predicted {
+        replay: "imposed_motion",
+        predicted: vec![(ChannelKind::Force, f)],
+        failed_at: None,
+        band,
+    })
+}
+
+/// The record replayed through the plant and the config's loop (closed loop on a `ref`, else
+/// the recorded command), with the band over [`REPLAY_BAND_MEMBERS`] members.
+fn replayed_prediction(
+    cfg: &RigConfig,
+    rec: &Record,
+    plant: &PlantParams,
+    at: &BTreeMap<String, f64>,
+    score: std::ops::Range<usize>,
+) -> Result<Predicted, String> {
+    let n = rec.len();
+    let (drive, _) = drive_for(cfg, rec);
+    let replay_of = |p: &PlantParams| -> Result<Replayed, String> {
+        let s = replay_with(&replay_params(p, rec), rec, n, drive)?;
+        Ok((
+            rec.channels.iter().map(|c| c.kind).zip(s.y).collect(),
+            s.failed_at,
+        ))
+    };
+    let (y, failed_at) = replay_of(plant)
+        .map_err(|e| format!("{}: the model cannot be replayed: {e}", rec.source))?;
+    // A member's force along its own replay; a member that fails or diverges gives none.
+    let member_force = |p: &PlantParams| -> Option<Vec<f64>> {
+        let (yk, failed) = replay_of(p).ok()?;
+        check_divergence(p, rec, &yk, failed)
+            .is_none()
+            .then_some(())?;
+        yk.into_iter()
+            .find(|(k, _)| *k == ChannelKind::Force)
+            .map(|(_, f)| f)
+    };
+    let band = y
+        .iter()
+        .find(|(k, _)| *k == ChannelKind::Force)
+        .and_then(|(_, f)| force_band(cfg, rec, at, f, score, REPLAY_BAND_MEMBERS, member_force));
+    Ok(Predicted {
+        replay: if drive.closed_loop() {
+            "closed_loop"
+        } else {
+            "open_loop"
+        },
+        predicted: y,
+        failed_at,
+        band,
     })
 }
 
