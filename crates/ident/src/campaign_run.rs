@@ -34,16 +34,7 @@ pub fn run(
     force: bool,
     allow_config_mismatch: bool,
 ) -> Result<CampaignRun, SessionError> {
-    let all: Vec<&PathBuf> = data.iter().chain(validate).collect();
-    for (i, a) in all.iter().enumerate() {
-        if let Some(b) = all[..i].iter().find(|b| crate::outdir::same_file(a, b)) {
-            return Err(SessionError::Input(format!(
-                "{} and {} are the same file; each record of a campaign must be another recording",
-                b.display(),
-                a.display()
-            )));
-        }
-    }
+    refuse_same_files(data, validate)?;
     if let Some(dir) = out {
         let mut inputs: Vec<(&str, &Path)> =
             data.iter().map(|d| ("--data file", d.as_path())).collect();
@@ -81,73 +72,115 @@ pub fn run(
     if let Some(why) = &c.closed_loop.dropped {
         warnings.push(format!("the campaign law is dropped: {why}"));
     }
-    let mut files = Vec::new();
-    if let Some(dir) = out {
-        let mut od = crate::outdir::OutDir::create(dir).map_err(SessionError::Io)?;
-        let toml = format!(
-            "# Extended by `ehactl diagnose` from a campaign of {} records against {}.\n# {}\n# The law: [effects.polynomial_force] at the config's operating point; its dependence on\n# the operating inputs: [inputs.<name>.linear / .quadratic / .saturating] (ehactl_config::inputs);\n# what it was fitted on: [envelope] (ehactl predict says when a record lies outside).\n{}",
-            fit.len() + val.len(),
-            config_path.display(),
-            c.cause,
-            c.extended.to_toml_string()
-        );
-        if c.closed_loop.dropped.is_none() {
-            files.push(
-                od.write("extended.toml", toml.as_bytes())
-                    .map_err(SessionError::Io)?,
-            );
+    let files = match out {
+        Some(dir) => write_outputs(dir, cfg, config_path, &c, &fit, &val)?,
+        None => Vec::new(),
+    };
+    let json = campaign_json(&c, &files, &warnings);
+    Ok(CampaignRun {
+        campaign: c,
+        json,
+        warnings,
+        files,
+    })
+}
+
+/// Refuses a campaign that names one file twice (`--data` or `--validate`).
+fn refuse_same_files(data: &[PathBuf], validate: &[PathBuf]) -> Result<(), SessionError> {
+    let all: Vec<&PathBuf> = data.iter().chain(validate).collect();
+    for (i, a) in all.iter().enumerate() {
+        if let Some(b) = all[..i].iter().find(|b| crate::outdir::same_file(a, b)) {
+            return Err(SessionError::Input(format!(
+                "{} and {} are the same file; each record of a campaign must be another recording",
+                b.display(),
+                a.display()
+            )));
         }
+    }
+    Ok(())
+}
+
+/// Writes the campaign's outputs into `dir`: `extended.toml` (unless the closed-loop check
+/// dropped the law), `report.md`, `campaign.json` and `campaign.svg`; the paths written.
+fn write_outputs(
+    dir: &Path,
+    cfg: &RigConfig,
+    config_path: &Path,
+    c: &Campaign,
+    fit: &[crate::data::Record],
+    val: &[crate::data::Record],
+) -> Result<Vec<PathBuf>, SessionError> {
+    let mut files = Vec::new();
+    let mut od = crate::outdir::OutDir::create(dir).map_err(SessionError::Io)?;
+    let toml = format!(
+        "# Extended by `ehactl diagnose` from a campaign of {} records against {}.\n# {}\n# The law: [effects.polynomial_force] at the config's operating point; its dependence on\n# the operating inputs: [inputs.<name>.linear / .quadratic / .saturating / .hinge]\n# (ehactl_config::inputs);\n# what it was fitted on: [envelope] (ehactl predict says when a record lies outside).\n{}",
+        fit.len() + val.len(),
+        config_path.display(),
+        c.cause,
+        c.extended.to_toml_string()
+    );
+    if c.closed_loop.dropped.is_none() {
         files.push(
-            od.write("report.md", report_md(&c).as_bytes())
-                .map_err(SessionError::Io)?,
-        );
-        let json = serde_json::to_string_pretty(&c).unwrap_or_default();
-        files.push(
-            od.write("campaign.json", json.as_bytes())
-                .map_err(SessionError::Io)?,
-        );
-        // Measured vs predicted force of every record (nominal beside it).
-        let preds: Vec<(Vec<f64>, Vec<f64>)> = fit
-            .iter()
-            .chain(&val)
-            .map(|r| {
-                let p = crate::predict::predict(&c.extended, r, true, None)
-                    .map(|p| p.predicted[0].1.clone())
-                    .unwrap_or_default();
-                let n = crate::predict::predict(cfg, r, true, None)
-                    .map(|p| p.predicted[0].1.clone())
-                    .unwrap_or_default();
-                (p, n)
-            })
-            .collect();
-        let panels: Vec<crate::plots::PredictionPanel<'_>> = fit
-            .iter()
-            .chain(&val)
-            .zip(&preds)
-            .zip(&c.records)
-            .filter_map(|((r, (p, n)), s)| {
-                Some(crate::plots::PredictionPanel {
-                    title: format!(
-                        "{} force (N)",
-                        Path::new(&r.source)
-                            .file_name()
-                            .map_or(r.source.clone(), |f| f.to_string_lossy().into_owned())
-                    ),
-                    t: &r.t,
-                    measured: r.channel(ChannelKind::Force)?,
-                    predicted: p,
-                    nominal: Some(n),
-                    shade_from: Some(s.scored.0),
-                    band: None,
-                })
-            })
-            .collect();
-        files.push(
-            od.write_with("campaign.svg", |p| crate::plots::prediction(p, &panels))
+            od.write("extended.toml", toml.as_bytes())
                 .map_err(SessionError::Io)?,
         );
     }
-    let mut json = serde_json::to_value(&c).unwrap_or_default();
+    files.push(
+        od.write("report.md", report_md(c).as_bytes())
+            .map_err(SessionError::Io)?,
+    );
+    let json = serde_json::to_string_pretty(c).unwrap_or_default();
+    files.push(
+        od.write("campaign.json", json.as_bytes())
+            .map_err(SessionError::Io)?,
+    );
+    // Measured vs predicted force of every record (nominal beside it).
+    let preds: Vec<(Vec<f64>, Vec<f64>)> = fit
+        .iter()
+        .chain(val)
+        .map(|r| {
+            let p = crate::predict::predict(&c.extended, r, true, None)
+                .map(|p| p.predicted[0].1.clone())
+                .unwrap_or_default();
+            let n = crate::predict::predict(cfg, r, true, None)
+                .map(|p| p.predicted[0].1.clone())
+                .unwrap_or_default();
+            (p, n)
+        })
+        .collect();
+    let panels: Vec<crate::plots::PredictionPanel<'_>> = fit
+        .iter()
+        .chain(val)
+        .zip(&preds)
+        .zip(&c.records)
+        .filter_map(|((r, (p, n)), s)| {
+            Some(crate::plots::PredictionPanel {
+                title: format!(
+                    "{} force (N)",
+                    Path::new(&r.source)
+                        .file_name()
+                        .map_or(r.source.clone(), |f| f.to_string_lossy().into_owned())
+                ),
+                t: &r.t,
+                measured: r.channel(ChannelKind::Force)?,
+                predicted: p,
+                nominal: Some(n),
+                shade_from: Some(s.scored.0),
+                band: None,
+            })
+        })
+        .collect();
+    files.push(
+        od.write_with("campaign.svg", |p| crate::plots::prediction(p, &panels))
+            .map_err(SessionError::Io)?,
+    );
+    Ok(files)
+}
+
+/// The campaign's `--json`: the campaign with `mode`, `causes`, `nrmse`, the files written and
+/// the warnings.
+fn campaign_json(c: &Campaign, files: &[PathBuf], warnings: &[String]) -> Value {
+    let mut json = serde_json::to_value(c).unwrap_or_default();
     json["mode"] = Value::from("campaign");
     json["causes"] = Value::from(if c.terms.is_empty() {
         Vec::<String>::new()
@@ -167,13 +200,8 @@ pub fn run(
     };
     json["extended_config"] = file("extended.toml");
     json["report"] = file("report.md");
-    json["warnings"] = Value::from(warnings.clone());
-    Ok(CampaignRun {
-        campaign: c,
-        json,
-        warnings,
-        files,
-    })
+    json["warnings"] = Value::from(warnings.to_vec());
+    json
 }
 
 /// The records as a campaign may take them: no two with the same samples, no ehactl log of
