@@ -260,9 +260,19 @@ fn check_inputs(env: &Envelope, m: &EnvelopePoint, inputs: &Inputs, ex: &mut Vec
 }
 
 fn check_motion(env: &Envelope, m: &EnvelopePoint, ex: &mut Vec<Excursion>) {
-    let pts = &env.points;
-    let max_of = |f: &dyn Fn(&EnvelopePoint) -> f64| pts.iter().map(f).fold(0.0, f64::max);
-    let stroke = max_of(&|p| p.position[1] - p.position[0]);
+    check_magnitudes(&env.points, m, ex);
+    check_position(&env.points, m, ex);
+    check_band(&env.points, m, ex);
+}
+
+/// The largest of `f` over the fitted points.
+fn max_of(pts: &[EnvelopePoint], f: &dyn Fn(&EnvelopePoint) -> f64) -> f64 {
+    pts.iter().map(f).fold(0.0, f64::max)
+}
+
+/// Stroke, velocity and acceleration beyond [`MAGNITUDE_TOLERANCE`] × the fitted ones.
+fn check_magnitudes(pts: &[EnvelopePoint], m: &EnvelopePoint, ex: &mut Vec<Excursion>) {
+    let stroke = max_of(pts, &|p| p.position[1] - p.position[0]);
     let own = m.position[1] - m.position[0];
     let mut magnitude = |quantity: &str, what: &str, unit: &str, scale: f64, rec: f64, fit: f64| {
         if rec > MAGNITUDE_TOLERANCE * fit {
@@ -290,7 +300,7 @@ fn check_motion(env: &Envelope, m: &EnvelopePoint, ex: &mut Vec<Excursion>) {
         "m/s",
         1.0,
         m.velocity,
-        max_of(&|p| p.velocity),
+        max_of(pts, &|p| p.velocity),
     );
     magnitude(
         "acceleration",
@@ -298,8 +308,14 @@ fn check_motion(env: &Envelope, m: &EnvelopePoint, ex: &mut Vec<Excursion>) {
         "m/s²",
         1.0,
         m.acceleration,
-        max_of(&|p| p.acceleration),
+        max_of(pts, &|p| p.acceleration),
     );
+}
+
+/// A stroke within the fitted one, but placed beyond the fitted positions.
+fn check_position(pts: &[EnvelopePoint], m: &EnvelopePoint, ex: &mut Vec<Excursion>) {
+    let stroke = max_of(pts, &|p| p.position[1] - p.position[0]);
+    let own = m.position[1] - m.position[0];
     let lo = pts
         .iter()
         .map(|p| p.position[0])
@@ -333,9 +349,13 @@ fn check_motion(env: &Envelope, m: &EnvelopePoint, ex: &mut Vec<Excursion>) {
             ),
         });
     }
+}
+
+/// A motion band beyond the fitted one by [`BAND_TOLERANCE`] or [`BAND_BINS`] bins.
+fn check_band(pts: &[EnvelopePoint], m: &EnvelopePoint, ex: &mut Vec<Excursion>) {
     let f_lo = pts.iter().map(|p| p.band[0]).fold(f64::INFINITY, f64::min);
     let f_hi = pts.iter().map(|p| p.band[1]).fold(0.0, f64::max);
-    let bins = BAND_BINS * max_of(&|p| p.resolution).max(m.resolution);
+    let bins = BAND_BINS * max_of(pts, &|p| p.resolution).max(m.resolution);
     let above = m.band[1] > f_hi + (f_hi * (BAND_TOLERANCE - 1.0)).max(bins);
     let below = m.band[0] < f_lo - (f_lo * (1.0 - 1.0 / BAND_TOLERANCE)).max(bins);
     if above || below {
