@@ -133,13 +133,16 @@ pub fn predict(
     })?;
     let n = rec.len();
     let score = score.unwrap_or(0..n);
-    let how = if imposed || rec.imposed_motion() {
+    let Predicted {
+        replay,
+        mut predicted,
+        failed_at,
+        band,
+    } = if imposed || rec.imposed_motion() {
         imposed_prediction(cfg, rec, &plant, &at, score.clone())?
     } else {
         replayed_prediction(cfg, rec, &plant, &at, score.clone())?
     };
-    let (replay, predicted, band) = (how.replay, (how.predicted, how.failed_at), how.band);
-    let (mut predicted, failed_at) = predicted;
     let diverged = check_divergence(&plant, rec, &predicted, failed_at);
     if let Some(d) = &diverged {
         for (_, yh) in predicted.iter_mut() {
@@ -174,17 +177,17 @@ pub fn predict(
 }
 
 /// A replay's channels and its failed plant step, if any.
-type Replayed = (
-    Vec<(ChannelKind, Vec<f64>)>,
-    Option<(usize, ehactl_plant::NumericalFailure)>,
-);
+type Replayed = (Vec<(ChannelKind, Vec<f64>)>, Option<FailedStep>);
+
+/// The sample at which a plant step failed, and how.
+type FailedStep = (usize, ehactl_plant::NumericalFailure);
 
 /// What one way of predicting a record gives: how it was replayed, the predicted channels,
 /// the failed plant step if any, and the force band.
 struct Predicted {
     replay: &'static str,
     predicted: Vec<(ChannelKind, Vec<f64>)>,
-    failed_at: Option<(usize, ehactl_plant::NumericalFailure)>,
+    failed_at: Option<FailedStep>,
     band: Option<crate::band::BandScore>,
 }
 
