@@ -216,6 +216,8 @@ mod tests {
             range: [0.0, 1.0],
             note: String::new(),
             looseness: 0.5,
+            variant: "-".into(),
+            method: "linearised".into(),
         }
     }
 

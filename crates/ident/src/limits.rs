@@ -53,6 +53,14 @@ pub struct DetectionLimit {
     /// Position of the limit on the log scale from the weakest (0) to the strongest (1) end
     /// of the range; 1 when not detectable (-). The loosest limits have the largest.
     pub looseness: f64,
+    /// The structure (catalogue variant) the limit holds for: of the effect's structures sized
+    /// by `parameter`, the one hardest to see on this record (`-` when it has one).
+    pub variant: String,
+    /// How the limit was found: `linearised` (the acceptance test at its expected values on
+    /// the linearised refit), or `injected` (also confirmed by fitting the effect to the
+    /// record with the effect added at that size, under the search's own acceptance test);
+    /// `raised by injection` when that fit moved the limit up.
+    pub method: String,
 }
 
 impl DetectionLimit {
@@ -109,7 +117,7 @@ fn size_params(e: EffectId) -> &'static [(&'static str, &'static str, bool)] {
 /// channels' std and noise floors over the held-out range, and the refit's sensitivities.
 pub(crate) struct Reference<'c, 'a> {
     ctx: &'c Ctx<'a>,
-    model: &'c Hyp,
+    pub(crate) model: &'c Hyp,
     /// Held-out replay of `model`, per channel over the held-out range.
     y0: Vec<Vec<f64>>,
     /// Std of each measured channel over the held-out range.
@@ -289,7 +297,7 @@ pub(crate) fn detection_limits(
     nominal: &PlantParams,
     scales: &Scales,
     an: &Analysis,
-) -> BTreeMap<String, DetectionLimit> {
+) -> BTreeMap<String, (DetectionLimit, Option<Injection>)> {
     let reference = Reference::new(ctx, model, floor);
     effects
         .iter()
@@ -316,24 +324,133 @@ fn neutral_start(p: &crate::freeparam::FreeParam) -> f64 {
     }
 }
 
-/// The detection limit of effect `e` against `reference`.
+/// Share of the moving mass a load-side mount's injection puts behind the spring (-): the
+/// piston keeps the rest, so the total mass is the model's and a stiff mount converges to the
+/// model itself (with the catalogue's start value, a load mass equal to the moving mass, the
+/// injection doubled the mass at any stiffness and the limit pinned at the stiffest end).
+const MOUNT_LOAD_SHARE: f64 = 0.5;
+
+/// One structure of an effect injected at a trial size: its variant, its parameters (the
+/// others at their neutral start values) and which of them sets the size, searched on a log
+/// scale from `weak` to `strong`.
+#[derive(Clone)]
+pub(crate) struct Injection {
+    pub(crate) effect: EffectId,
+    pub(crate) variant: &'static str,
+    pub(crate) params: Vec<crate::freeparam::FreeParam>,
+    /// Index of the sizing parameter in `params`.
+    pub(crate) size_at: usize,
+    weak: f64,
+    strong: f64,
+}
+
+impl Injection {
+    /// The structure `variant` of effect `e` with parameters `params`, sized by `name`
+    /// (a larger value stronger when `up`); `None` when it lacks that parameter or its range
+    /// is empty.
+    fn new(
+        e: EffectId,
+        (variant, mut params): (&'static str, Vec<crate::freeparam::FreeParam>),
+        name: &str,
+        up: bool,
+    ) -> Option<Injection> {
+        let i = params.iter().position(|p| p.name == name)?;
+        let p = &params[i];
+        let lo = if p.lo > 0.0 { p.lo } else { p.hi * ZERO_START };
+        if !(p.hi > lo && lo > 0.0) {
+            return None;
+        }
+        let (weak, strong) = if up { (lo, p.hi) } else { (p.hi, lo) };
+        if e == EffectId::FlexibleMount && variant == "load_side" {
+            split_mass(&mut params);
+        }
+        Some(Injection {
+            effect: e,
+            variant,
+            params,
+            size_at: i,
+            weak,
+            strong,
+        })
+    }
+
+    /// The size at position `s` ∈ [0, 1] of the log scale from the weakest to the strongest.
+    pub(crate) fn at(&self, s: f64) -> f64 {
+        self.weak * (self.strong / self.weak).powf(s)
+    }
+
+    /// `model` with this structure at size `v`.
+    pub(crate) fn added_to(&self, model: &Hyp, v: f64) -> Hyp {
+        let mut h = model.clone();
+        let first = h.params.len();
+        h.effects.push(self.effect);
+        h.variants.push(self.variant);
+        h.values.extend(self.params.iter().map(neutral_start));
+        h.params.extend(self.params.iter().cloned());
+        h.values[first + self.size_at] = v;
+        h
+    }
+}
+
+/// Makes a load-side mount's load mass [`MOUNT_LOAD_SHARE`] of the moving mass, taken from
+/// the piston (the parameter's own value is ignored).
+fn split_mass(params: &mut [crate::freeparam::FreeParam]) {
+    if let Some(p) = params
+        .iter_mut()
+        .find(|p| p.name == "effects.flexible_mount.load_mass")
+    {
+        let set = p.set.clone();
+        p.set = std::sync::Arc::new(move |q: &mut PlantParams, _v: f64| {
+            let m = q.mechanics.mass;
+            set(q, MOUNT_LOAD_SHARE * m);
+            q.mechanics.mass = (1.0 - MOUNT_LOAD_SHARE) * m;
+        });
+    }
+}
+
+/// Bisection of the detection of `inj` on top of the reference model: the position on the
+/// log scale of the smallest size detected, `None` when even the strongest is not.
+fn bisect(reference: &Reference<'_, '_>, inj: &Injection) -> Option<f64> {
+    let n_new = inj.params.len();
+    let detected = |s: f64| reference.detected(&inj.added_to(reference.model, inj.at(s)), n_new);
+    if !detected(1.0) {
+        return None;
+    }
+    if detected(0.0) {
+        return Some(0.0);
+    }
+    // `hi` is always detected.
+    let (mut lo_s, mut hi_s) = (0.0, 1.0);
+    for _ in 0..BISECTION_STEPS {
+        let mid = 0.5 * (lo_s + hi_s);
+        if detected(mid) {
+            hi_s = mid;
+        } else {
+            lo_s = mid;
+        }
+    }
+    Some(hi_s)
+}
+
+/// The detection limit of effect `e` against `reference`, and the structure it holds for.
+/// Every variant of the effect sized by the same parameter is bisected and the loosest is
+/// the limit: the record does not say which structure a hidden effect would have, so only
+/// the hardest to see bounds them all.
 fn limit_of(
     reference: &Reference<'_, '_>,
     e: EffectId,
     nominal: &PlantParams,
     scales: &Scales,
     an: &Analysis,
-) -> DetectionLimit {
-    let params = effect_variants(e, nominal, scales, an)
-        .into_iter()
-        .next()
-        .map(|v| v.1)
-        .unwrap_or_default();
+) -> (DetectionLimit, Option<Injection>) {
+    let variants = effect_variants(e, nominal, scales, an);
     let sizes = size_params(e);
-    let found = sizes
-        .iter()
-        .find_map(|s| Some((*s, params.iter().position(|p| p.name == s.0)?)));
-    let ((name, unit, up), i) = found.unwrap_or((sizes[0], usize::MAX));
+    let found = sizes.iter().find(|s| {
+        variants
+            .first()
+            .is_some_and(|v| v.1.iter().any(|p| p.name == s.0))
+    });
+    let (name, unit, up) = *found.unwrap_or(&sizes[0]);
     let mut out = DetectionLimit {
         parameter: name.to_string(),
         unit: unit.to_string(),
@@ -342,57 +459,40 @@ fn limit_of(
         range: [f64::NAN, f64::NAN],
         note: "not testable on this record".to_string(),
         looseness: 1.0,
+        variant: String::new(),
+        method: String::new(),
     };
     if nominal.effects.is_enabled(e) {
         // A configured effect's size is the config's (or the identified loop's): what it
         // would take to reveal it on top of itself is no limit.
         out.note = "in the nominal config already".to_string();
-        return out;
+        return (out, None);
     }
-    if i == usize::MAX {
-        return out;
-    }
-    let p = &params[i];
-    let lo = if p.lo > 0.0 { p.lo } else { p.hi * ZERO_START };
-    if !(p.hi > lo && lo > 0.0) {
-        return out;
-    }
-    let (weak, strong) = if up { (lo, p.hi) } else { (p.hi, lo) };
-    out.range = [weak, strong];
-    let n_new = params.len();
-    let mut h = reference.model.clone();
-    let first = h.params.len();
-    h.effects.push(e);
-    h.variants.push("-");
-    h.values.extend(params.iter().map(neutral_start));
-    h.params.extend(params);
-    let at = |s: f64| weak * (strong / weak).powf(s);
-    let mut detected = |s: f64| {
-        h.values[first + i] = at(s);
-        reference.detected(&h, n_new)
+    let injections: Vec<Injection> = variants
+        .into_iter()
+        .filter_map(|v| Injection::new(e, v, name, up))
+        .collect();
+    let Some(first) = injections.first() else {
+        return (out, None);
     };
-    if !detected(1.0) {
-        out.note = "not detectable with this record".to_string();
-        return out;
-    }
-    // Bisection on the position s ∈ [0, 1] of the log scale: `hi` is always detected.
-    let (mut lo_s, mut hi_s) = (0.0, 1.0);
-    if detected(0.0) {
-        hi_s = 0.0;
-    } else {
-        for _ in 0..BISECTION_STEPS {
-            let mid = 0.5 * (lo_s + hi_s);
-            if detected(mid) {
-                hi_s = mid;
-            } else {
-                lo_s = mid;
-            }
+    out.range = [first.weak, first.strong];
+    // The loosest structure; one not detected at all is the loosest there is.
+    let (s, inj) = injections
+        .iter()
+        .map(|inj| (bisect(reference, inj), inj))
+        .max_by(|a, b| a.0.unwrap_or(2.0).total_cmp(&b.0.unwrap_or(2.0)))
+        .expect("at least one injection");
+    out.variant = inj.variant.to_string();
+    out.method = "linearised".to_string();
+    match s {
+        None => out.note = "not detectable with this record".to_string(),
+        Some(s) => {
+            out.limit = Some(inj.at(s));
+            out.note = String::new();
+            out.looseness = s;
         }
     }
-    out.limit = Some(at(hi_s));
-    out.note = String::new();
-    out.looseness = hi_s;
-    out
+    (out, Some(inj.clone()))
 }
 
 /// The two or three loosest limits of `limits` (largest looseness first), in words.
@@ -433,6 +533,62 @@ mod tests {
         assert_eq!(r, vec![0.0, 0.0, 1.0, -1.0]);
     }
 
+    /// A load-side mount injected for a limit takes its load mass from the piston: the total
+    /// mass stays the config's at every stiffness, so a stiff mount is the model itself. The
+    /// piston-side structure (the cylinder body on the mount) keeps the moving mass.
+    #[test]
+    fn a_mount_injection_keeps_the_total_mass() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/diagnose_testrig.toml");
+        let nominal = ehactl_config::RigConfig::load(&path).unwrap().plant;
+        let m = nominal.mechanics.mass;
+        let sc = Scales {
+            force: 1e4,
+            flow: 1e-4,
+            pressure: 1e7,
+            mass: m,
+            stiffness: 1e7,
+            dt: 2e-4,
+            spool_reach: [1.0, 1.0],
+        };
+        let an = Analysis {
+            nrmse: vec![0.1],
+            noise: vec![0.0],
+            reversal_ratio: 1.0,
+            small_command_ratio: 1.0,
+            large_command_ratio: 1.0,
+            bias_share: None,
+            lag: 1e-3,
+            tones: vec![],
+            mode_frequency: 30.0,
+            mode_ratio: 2.0,
+            prior: Vec::new(),
+        };
+        let variants = effect_variants(EffectId::FlexibleMount, &nominal, &sc, &an);
+        assert_eq!(variants.len(), 2);
+        for v in variants {
+            let name = v.0;
+            let inj = Injection::new(
+                EffectId::FlexibleMount,
+                v,
+                "effects.flexible_mount.stiffness",
+                false,
+            )
+            .unwrap();
+            for s in [0.0, 0.5, 1.0] {
+                let p = inj.added_to(&Hyp::empty(), inj.at(s)).build(&nominal);
+                let mount = p.effects.flexible_mount.as_ref().unwrap();
+                assert_eq!(mount.stiffness, inj.at(s));
+                if name == "load_side" {
+                    assert!((p.mechanics.mass + mount.load_mass - m).abs() < 1e-12 * m);
+                    assert!((mount.load_mass - MOUNT_LOAD_SHARE * m).abs() < 1e-12 * m);
+                } else {
+                    assert_eq!(p.mechanics.mass, m, "{name}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn limits_in_words() {
         let l = DetectionLimit {
@@ -443,6 +599,8 @@ mod tests {
             range: [1.2e-6, 0.012],
             note: String::new(),
             looseness: 0.6,
+            variant: "-".into(),
+            method: "linearised".into(),
         };
         assert_eq!(l.text("time_delay"), "`time_delay` delay ≥ 4.00e-4 s");
     }

@@ -533,18 +533,24 @@ fn write_detection_limits(r: &mut String, d: &Diagnosis) {
     }
     let _ = writeln!(
         r,
-        "\n## Detection limits (the smallest size of each effect not named that this record would have revealed)\n\nThe effect injected into the final model's held-out replay, the part the nominal refit absorbs projected out, judged by the acceptance test at the noise floor (DIAGNOSIS.md \"Detection limits\").\n\n| effect | parameter | limit | unit | range searched (weakest → strongest) |\n|---|---|---|---|---|"
+        "\n## Detection limits (the smallest size of each effect not named that this record would have revealed)\n\nEach structure of the effect injected into the final model's held-out replay, the part the nominal refit absorbs projected out, judged by the acceptance test at the noise floor; the structure hardest to see gives the limit, which is then checked by adding the effect at that size to the record itself and fitting it under the search's acceptance test, raised where that fit is not accepted (DIAGNOSIS.md \"Detection limits\").\n\n| effect | parameter | limit | unit | structure | found by | range searched (weakest → strongest) |\n|---|---|---|---|---|---|---|"
     );
     for (e, l) in &d.detection_limits {
         let _ = writeln!(
             r,
-            "| `{e}` | `{}` | {} | {} | {} |",
+            "| `{e}` | `{}` | {} | {} | {} | {} | {} |",
             l.parameter,
             match l.limit {
                 Some(v) => format!("{} {v:.3e}", if l.stronger == "larger" { "≥" } else { "≤" }),
                 None => l.note.clone(),
             },
             l.unit,
+            if l.variant.is_empty() {
+                "-"
+            } else {
+                &l.variant
+            },
+            if l.method.is_empty() { "-" } else { &l.method },
             if l.range[0].is_finite() {
                 format!("{:.3e} → {:.3e}", l.range[0], l.range[1])
             } else {

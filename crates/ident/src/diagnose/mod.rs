@@ -373,7 +373,7 @@ fn pipeline(inp: &Inputs<'_>) -> Result<Diagnosis, String> {
     // When the law alone wins, the refit's search and residual test replace the catalogue
     // model's for every later phase.
     let (search, resid) = grey.kept(search, resid);
-    let limits = LimitsPhase::run(inp, (&lp, &rf, &search, &grey))?;
+    let limits = LimitsPhase::run(inp, (&nom, &lp, &rf, &search, &grey))?;
     let reloop = ReloopPhase::run(inp, (&nom, &lp, &grey))?;
     let phases = report::Phases {
         nom,
