@@ -1317,3 +1317,117 @@ pub fn parse_cases(text: &str) -> Vec<(u64, String)> {
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// FNV-1a (64 bit) over the bit patterns of a case's record: time, command, reference,
+    /// every channel, plus the drawn effects as printed.
+    fn fingerprint(c: &Case) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            for b in bytes {
+                h ^= u64::from(*b);
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        let r = &c.record;
+        for v in r.t.iter().chain(&r.u).chain(r.reference.iter().flatten()) {
+            eat(&v.to_bits().to_le_bytes());
+        }
+        for ch in &r.channels {
+            for v in &ch.values {
+                eat(&v.to_bits().to_le_bytes());
+            }
+        }
+        eat(format!("{:?} {:?}", c.hidden, c.more).as_bytes());
+        h
+    }
+
+    /// The generator's records, bit for bit, as `generate_with` made them before it was split
+    /// into steps (main 5a1f356, 2026-12-07): every variant once, open and closed loop, a
+    /// combination and a driven case. `EHACTL_PRINT_FINGERPRINTS=1` prints the table.
+    #[test]
+    fn records_are_bit_identical_to_the_unsplit_generator() {
+        let kinds = [
+            "clean",
+            "lugre",
+            "dahl",
+            "hose",
+            "load_coulomb",
+            "overlap",
+            "amp_deadzone",
+            "soft_saturation",
+            "asym_saturation",
+            "spool1",
+            "spool2",
+            "internal_leak",
+            "external_leak_both",
+            "external_leak_a",
+            "entrained_air",
+            "linear_beta",
+            "lines",
+            "load_mount",
+            "body_mount",
+            "delay",
+            "tone",
+            "supply_resistance",
+            "pump_limit",
+            "pi_clean",
+            "pi_lugre+internal_leak",
+            "pi_delay+tone",
+            "overlap+external_leak_both",
+        ];
+        let mut got: Vec<(String, u64)> = kinds
+            .iter()
+            .enumerate()
+            .map(|(i, k)| {
+                let c =
+                    make_case(9000 + i as u64, k, 0.2, 1e-3).unwrap_or_else(|e| panic!("{k}: {e}"));
+                (k.to_string(), fingerprint(&c))
+            })
+            .collect();
+        let excitation: Vec<f64> = (0..200).map(|i| (0.05 * i as f64).sin()).collect();
+        let driven = make_case_small_driven(9100, "pi_lugre", 0.3, &excitation, 1e-3)
+            .unwrap_or_else(|e| panic!("driven: {e}"));
+        got.push(("driven pi_lugre α 0.3".into(), fingerprint(&driven)));
+        if std::env::var_os("EHACTL_PRINT_FINGERPRINTS").is_some() {
+            for (k, f) in &got {
+                println!("            (\"{k}\", 0x{f:016x}),");
+            }
+        }
+        let want: &[(&str, u64)] = &[
+            ("clean", 0x335359e6d9063959),
+            ("lugre", 0x7fcccedcc8db23ac),
+            ("dahl", 0x1715746e2e73ad48),
+            ("hose", 0x844d76f7736137e9),
+            ("load_coulomb", 0x792f079e1c53742c),
+            ("overlap", 0x35e28025a3df1606),
+            ("amp_deadzone", 0xfd653f87cac7dd13),
+            ("soft_saturation", 0xdc4d9daf655ff52f),
+            ("asym_saturation", 0x2ace32e67839fa31),
+            ("spool1", 0xb58c4a40c514aff0),
+            ("spool2", 0x1d2ead71a4b1356f),
+            ("internal_leak", 0xf1a951a0ab1cc73a),
+            ("external_leak_both", 0x1679514f3702e363),
+            ("external_leak_a", 0x99c3650114a35c36),
+            ("entrained_air", 0x55a9b50cfe6f9ff4),
+            ("linear_beta", 0x6203e819fedd387c),
+            ("lines", 0x3d60053c3eaf520e),
+            ("load_mount", 0xaa81b8fb70c28ba0),
+            ("body_mount", 0x39954066911b65a4),
+            ("delay", 0x82a7f39c4232d62f),
+            ("tone", 0x97d8bbe61226ea37),
+            ("supply_resistance", 0x9c02b7b246bf091c),
+            ("pump_limit", 0x69095fe57770f8a6),
+            ("pi_clean", 0xae957db8a0781d0f),
+            ("pi_lugre+internal_leak", 0x4eac67ecb7e8314d),
+            ("pi_delay+tone", 0x3c5b956539dc9787),
+            ("overlap+external_leak_both", 0x63abd39cfc77b585),
+            ("driven pi_lugre α 0.3", 0x65a6d82b9537b470),
+        ];
+        let got: Vec<(&str, u64)> = got.iter().map(|(k, f)| (k.as_str(), *f)).collect();
+        assert_eq!(got, want);
+    }
+}
