@@ -1086,7 +1086,11 @@ fn generate(
 }
 
 /// [`generate`] with the excitation `given` in place of the drawn one (drawn all the same,
-/// so that the sensor noise keeps its draws).
+/// so that the sensor noise keeps its draws). The steps, in the order they draw from the
+/// seed's generator: the hidden effects, the nominal parameters' errors, the excitation;
+/// the model of the effects `keep` selects, settled at zero command; then per sample the
+/// measured channels with their noise, the PI's command on a closed loop, and the RK4
+/// substeps.
 fn generate_with(
     seed: u64,
     kind: &str,
@@ -1101,22 +1105,7 @@ fn generate_with(
     };
     let rig = if closed { force_rig() } else { Rig::default() };
     let mut g = Pcg::new(seed);
-    let mut all: Vec<Hidden> = Vec::new();
-    if effects != "clean" {
-        for name in effects.split('+') {
-            let h = draw(name, &rig, &mut g)
-                .ok_or_else(|| format!("unknown generator variant `{name}` in `{kind}`"))?;
-            if let Some(o) = all.iter().find(|o| site(o) == site(&h)) {
-                return Err(format!(
-                    "`{kind}`: {o:?} and {h:?} change the same part of the model ({})",
-                    site(&h)
-                ));
-            }
-            all.push(h);
-        }
-    }
-    let hidden = all.first().cloned();
-    let more: Vec<Hidden> = all.iter().skip(1).cloned().collect();
+    let all = draw_all(kind, effects, &rig, &mut g)?;
     let f = [0; 5].map(|_| g.range(0.9, 1.1));
     let nominal = nominal_config(&rig, f, dt);
     let n = (duration / dt).round() as usize;
@@ -1126,15 +1115,8 @@ fn generate_with(
     // Open loop: the excitation is the valve command. Closed loop: it is the force setpoint
     // and the command is the PI's output, filled in sample by sample below.
     let (mut u, reference) = if closed {
-        (
-            Vec::with_capacity(n),
-            Some(
-                excitation
-                    .iter()
-                    .map(|e| FORCE_REF_SCALE * e)
-                    .collect::<Vec<f64>>(),
-            ),
-        )
+        let r: Vec<f64> = excitation.iter().map(|e| FORCE_REF_SCALE * e).collect();
+        (Vec::with_capacity(n), Some(r))
     } else {
         (excitation, None)
     };
@@ -1147,6 +1129,107 @@ fn generate_with(
         .collect();
     let sim = &sim[..];
     let model = Model::new(&rig, sim);
+    let mut y = initial_state(&model, &rig, sim);
+    let substeps = 20;
+    let h = dt / substeps as f64;
+    let delay = sim
+        .iter()
+        .find_map(|h| match h {
+            Hidden::Delay { tau } => Some(*tau),
+            _ => None,
+        })
+        .unwrap_or(0.0);
+    let mut rk = Rk4::new(model.n, h);
+    let settle = (0.3 / h).round() as usize;
+    for _ in 0..settle {
+        rk.step(&model, &mut y, 0.0);
+    }
+    let tone = Tone::of(sim);
+    let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
+    let mut t = Vec::with_capacity(n);
+    for kk in 0..n {
+        let tk = kk as f64 * dt;
+        check_state(&y, rig.stroke, tk).map_err(|e| format!("seed {seed} {kind}: {e}"))?;
+        t.push(tk);
+        cols[0].push(model.rod_force(&y) + rig.noise.0 * g.normal() + tone.at(0, tk));
+        cols[1].push(y[0] + rig.noise.1 * g.normal() + tone.at(1, tk));
+        cols[2].push(y[2] + rig.noise.2 * g.normal() + tone.at(2, tk));
+        cols[3].push(y[3] + rig.noise.2 * g.normal());
+        if let Some(r) = &reference {
+            // Read, compute, write (the order of `ehactl run`): the PI acts on this sample's
+            // measured force.
+            let force = cols[0][kk];
+            u.push(pi.step(r[kk], force, dt).u);
+        }
+        for sub in 0..substeps {
+            let ts = tk + sub as f64 * h;
+            // Zero-order hold on the sample grid, delayed by `delay`.
+            let td = ts - delay + 1e-12;
+            let uc = if td < 0.0 {
+                0.0
+            } else {
+                u[((td / dt).floor() as usize).min(n - 1)]
+            };
+            rk.step(&model, &mut y, uc);
+        }
+    }
+    let record = record_of(
+        &format!("independent generator seed {seed} ({kind})"),
+        t,
+        u,
+        cols,
+        reference,
+    )?;
+    Ok(Case {
+        seed,
+        kind: kind.to_string(),
+        hidden: all.first().cloned(),
+        more: all.iter().skip(1).cloned().collect(),
+        nominal,
+        record,
+        drive: drive_of(closed),
+    })
+}
+
+/// How the diagnosis replays a case: the rig's PI force loop (`closed`) or the recorded
+/// command.
+fn drive_of(closed: bool) -> ehactl_ident::replay::Drive {
+    if closed {
+        ehactl_ident::replay::Drive::ForcePi {
+            gains: force_pi_gains(),
+            max_command: f64::INFINITY,
+        }
+    } else {
+        ehactl_ident::replay::Drive::Recorded
+    }
+}
+
+/// The hidden effects of `effects` (the variants joined by `+`, or `clean`), drawn in order
+/// from `g`; an error names an unknown variant or two that change the same part of the
+/// model. `kind` is the whole case name, for the messages.
+fn draw_all(kind: &str, effects: &str, rig: &Rig, g: &mut Pcg) -> Result<Vec<Hidden>, String> {
+    let mut all: Vec<Hidden> = Vec::new();
+    if effects == "clean" {
+        return Ok(all);
+    }
+    for name in effects.split('+') {
+        let h = draw(name, rig, g)
+            .ok_or_else(|| format!("unknown generator variant `{name}` in `{kind}`"))?;
+        if let Some(o) = all.iter().find(|o| site(o) == site(&h)) {
+            return Err(format!(
+                "`{kind}`: {o:?} and {h:?} change the same part of the model ({})",
+                site(&h)
+            ));
+        }
+        all.push(h);
+    }
+    Ok(all)
+}
+
+/// The state the settling starts from: the piston mid-stroke, the chambers, hoses and line
+/// nodes at the open-centre equilibrium estimate (half the supply pressure, Pa), the supply
+/// at its pressure and a mounted load at the piston.
+fn initial_state(model: &Model<'_>, rig: &Rig, sim: &[Hidden]) -> Vec<f64> {
     let mut y = vec![0.0; model.n];
     y[0] = 0.5 * rig.stroke;
     // Start at the open-centre equilibrium estimate, then settle.
@@ -1169,31 +1252,44 @@ fn generate_with(
     if model.i_mount != usize::MAX && sim.iter().any(|h| matches!(h, Hidden::LoadMount { .. })) {
         y[model.i_mount] = y[0];
     }
-    let substeps = 20;
-    let h = dt / substeps as f64;
-    let delay = sim
-        .iter()
-        .find_map(|h| match h {
-            Hidden::Delay { tau } => Some(*tau),
-            _ => None,
-        })
-        .unwrap_or(0.0);
-    let mut k = [(); 4].map(|_| vec![0.0; model.n]);
-    let mut tmp = vec![0.0; model.n];
-    let mut step = |y: &mut Vec<f64>, uc: f64| {
+    y
+}
+
+/// The classical fourth-order Runge–Kutta step of the model's state over `h` (s), with the
+/// stage buffers it reuses.
+struct Rk4 {
+    k: [Vec<f64>; 4],
+    tmp: Vec<f64>,
+    h: f64,
+}
+
+impl Rk4 {
+    /// Buffers for a state of `n` values, step `h` (s).
+    fn new(n: usize, h: f64) -> Self {
+        Self {
+            k: [(); 4].map(|_| vec![0.0; n]),
+            tmp: vec![0.0; n],
+            h,
+        }
+    }
+
+    /// One step of `y` at the command `uc` (V), then every pressure state held at or above
+    /// the cavitation pressure [`P_CAV`] (Pa).
+    fn step(&mut self, model: &Model<'_>, y: &mut [f64], uc: f64) {
+        let (k, tmp, h) = (&mut self.k, &mut self.tmp, self.h);
         model.rhs(y, uc, &mut k[0]);
         for i in 0..y.len() {
             tmp[i] = y[i] + 0.5 * h * k[0][i];
         }
-        model.rhs(&tmp, uc, &mut k[1]);
+        model.rhs(tmp, uc, &mut k[1]);
         for i in 0..y.len() {
             tmp[i] = y[i] + 0.5 * h * k[1][i];
         }
-        model.rhs(&tmp, uc, &mut k[2]);
+        model.rhs(tmp, uc, &mut k[2]);
         for i in 0..y.len() {
             tmp[i] = y[i] + h * k[2][i];
         }
-        model.rhs(&tmp, uc, &mut k[3]);
+        model.rhs(tmp, uc, &mut k[3]);
         for i in 0..y.len() {
             y[i] += h / 6.0 * (k[0][i] + 2.0 * k[1][i] + 2.0 * k[2][i] + k[3][i]);
         }
@@ -1212,59 +1308,55 @@ fn generate_with(
                 }
             }
         }
-    };
-    let settle = (0.3 / h).round() as usize;
-    for _ in 0..settle {
-        step(&mut y, 0.0);
     }
-    let (tone_ch, tone) = sim
-        .iter()
-        .find_map(|h| match h {
-            Hidden::Tone { ch, f, a, phase } => Some((*ch, Some((*f, *a, *phase)))),
-            _ => None,
-        })
-        .unwrap_or((usize::MAX, None));
-    let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
-    let mut t = Vec::with_capacity(n);
-    for kk in 0..n {
-        let tk = kk as f64 * dt;
-        if !y.iter().all(|v| v.is_finite()) {
-            return Err(format!(
-                "seed {seed} {kind}: state not finite at t = {tk} s"
-            ));
-        }
-        if y[0] < 0.0 || y[0] > rig.stroke {
-            return Err(format!(
-                "seed {seed} {kind}: piston left the stroke at t = {tk} s"
-            ));
-        }
-        let tone_at = |c: usize| match tone {
-            Some((f, a, ph)) if tone_ch == c => a * (TAU * f * tk + ph).sin(),
+}
+
+/// The hidden tone on one measured channel: the channel's index and (frequency Hz,
+/// amplitude in the channel's unit, phase rad), if one is hidden.
+struct Tone(usize, Option<(f64, f64, f64)>);
+
+impl Tone {
+    /// The tone among the simulated effects.
+    fn of(sim: &[Hidden]) -> Self {
+        let (ch, tone) = sim
+            .iter()
+            .find_map(|h| match h {
+                Hidden::Tone { ch, f, a, phase } => Some((*ch, Some((*f, *a, *phase)))),
+                _ => None,
+            })
+            .unwrap_or((usize::MAX, None));
+        Tone(ch, tone)
+    }
+
+    /// What it adds to channel `c` at time `t` (s).
+    fn at(&self, c: usize, t: f64) -> f64 {
+        match self.1 {
+            Some((f, a, ph)) if self.0 == c => a * (TAU * f * t + ph).sin(),
             _ => 0.0,
-        };
-        t.push(tk);
-        cols[0].push(model.rod_force(&y) + rig.noise.0 * g.normal() + tone_at(0));
-        cols[1].push(y[0] + rig.noise.1 * g.normal() + tone_at(1));
-        cols[2].push(y[2] + rig.noise.2 * g.normal() + tone_at(2));
-        cols[3].push(y[3] + rig.noise.2 * g.normal());
-        if let Some(r) = &reference {
-            // Read, compute, write (the order of `ehactl run`): the PI acts on this sample's
-            // measured force.
-            let force = cols[0][kk];
-            u.push(pi.step(r[kk], force, dt).u);
-        }
-        for sub in 0..substeps {
-            let ts = tk + sub as f64 * h;
-            // Zero-order hold on the sample grid, delayed by `delay`.
-            let td = ts - delay + 1e-12;
-            let uc = if td < 0.0 {
-                0.0
-            } else {
-                u[((td / dt).floor() as usize).min(n - 1)]
-            };
-            step(&mut y, uc);
         }
     }
+}
+
+/// The state is finite and the piston within its `stroke` (m) at time `t` (s).
+fn check_state(y: &[f64], stroke: f64, t: f64) -> Result<(), String> {
+    if !y.iter().all(|v| v.is_finite()) {
+        return Err(format!("state not finite at t = {t} s"));
+    }
+    if y[0] < 0.0 || y[0] > stroke {
+        return Err(format!("piston left the stroke at t = {t} s"));
+    }
+    Ok(())
+}
+
+/// The record of the columns: time (s), command (V), force (N), position (m), pressures A
+/// and B (Pa), the force setpoint (N) of a closed loop.
+fn record_of(
+    source: &str,
+    t: Vec<f64>,
+    u: Vec<f64>,
+    cols: Vec<Vec<f64>>,
+    reference: Option<Vec<f64>>,
+) -> Result<Record, String> {
     let kinds = [
         ChannelKind::Force,
         ChannelKind::Position,
@@ -1279,31 +1371,7 @@ fn generate_with(
             values: v,
         })
         .collect();
-    let record = Record::from_columns(
-        &format!("independent generator seed {seed} ({kind})"),
-        t,
-        u,
-        channels,
-        reference,
-        0,
-    )
-    .map_err(|e| e.to_string())?;
-    Ok(Case {
-        seed,
-        kind: kind.to_string(),
-        hidden,
-        more,
-        nominal,
-        record,
-        drive: if closed {
-            ehactl_ident::replay::Drive::ForcePi {
-                gains: force_pi_gains(),
-                max_command: f64::INFINITY,
-            }
-        } else {
-            ehactl_ident::replay::Drive::Recorded
-        },
-    })
+    Record::from_columns(source, t, u, channels, reference, 0).map_err(|e| e.to_string())
 }
 
 /// Parse `bench/indep_cases.txt`: lines `seed kind`, `#` comments.
