@@ -608,29 +608,16 @@ impl<'a> Model<'a> {
         }
     }
 
-    /// dy/dt at command `u` (V, already delayed).
+    /// dy/dt at command `u` (V, already delayed): the spool, the valve's flows at the supply
+    /// pressure, the supply, the lines or hoses to the chambers, the chamber pressures, the
+    /// mechanics.
     fn rhs(&self, y: &[f64], u: f64, dy: &mut [f64]) {
-        let r = self.r;
-        let (x, v, pa, pb) = (y[0], y[1], y[2], y[3]);
-        // Spool.
-        let target = self.spool_target(u);
-        let s = match self.find(|h| matches!(h, Hidden::Spool1 { .. } | Hidden::Spool2 { .. })) {
-            Some(Hidden::Spool1 { tau }) => {
-                dy[self.i_spool] = (target - y[self.i_spool]) / tau;
-                y[self.i_spool]
-            }
-            Some(Hidden::Spool2 { wn, z }) => {
-                let (s, sd) = (y[self.i_spool], y[self.i_spool + 1]);
-                dy[self.i_spool] = sd;
-                dy[self.i_spool + 1] = wn * wn * (target - s) - 2.0 * z * wn * sd;
-                s
-            }
-            _ => target,
-        };
+        let (pa, pb) = (y[2], y[3]);
+        let s = self.spool(y, u, dy);
         let ps = if self.i_ps != usize::MAX {
             y[self.i_ps]
         } else {
-            r.ps
+            self.r.ps
         };
         // Valve ports: the chambers, or the valve-side line nodes.
         let (port_a, port_b) = if self.i_line != usize::MAX {
@@ -643,21 +630,55 @@ impl<'a> Model<'a> {
         };
         let (qa, qb, qs) = self.valve(s, ps, port_a, port_b);
         if self.i_ps != usize::MAX {
-            dy[self.i_ps] = match self.find(|h| {
-                matches!(
-                    h,
-                    Hidden::SupplyResistance { .. } | Hidden::PumpLimit { .. }
-                )
-            }) {
-                Some(Hidden::SupplyResistance { r: rs, tau }) => (r.ps - rs * qs - ps) / tau,
-                Some(Hidden::PumpLimit { qmax, band, vol }) => {
-                    r.beta / vol * (pump_flow(*qmax, *band, r.ps, ps) - qs)
-                }
-                _ => 0.0,
-            };
+            dy[self.i_ps] = self.supply_rate(ps, qs);
         }
-        // Flows reaching the chambers.
-        let (into_a, into_b) = if self.i_line != usize::MAX {
+        let into = self.inflows(y, (qa, qb), dy);
+        self.chambers(y, into, dy);
+        self.mechanics(y, dy);
+    }
+
+    /// The spool's position (its state, or the target of an ideal spool) and its states'
+    /// derivatives in `dy`, at command `u` (V).
+    fn spool(&self, y: &[f64], u: f64, dy: &mut [f64]) -> f64 {
+        let target = self.spool_target(u);
+        match self.find(|h| matches!(h, Hidden::Spool1 { .. } | Hidden::Spool2 { .. })) {
+            Some(Hidden::Spool1 { tau }) => {
+                dy[self.i_spool] = (target - y[self.i_spool]) / tau;
+                y[self.i_spool]
+            }
+            Some(Hidden::Spool2 { wn, z }) => {
+                let (s, sd) = (y[self.i_spool], y[self.i_spool + 1]);
+                dy[self.i_spool] = sd;
+                dy[self.i_spool + 1] = wn * wn * (target - s) - 2.0 * z * wn * sd;
+                s
+            }
+            _ => target,
+        }
+    }
+
+    /// dp_s/dt (Pa/s) of a supply with a resistance or a pump limit at pressure `ps` (Pa)
+    /// and the valve's supply flow `qs` (m³/s).
+    fn supply_rate(&self, ps: f64, qs: f64) -> f64 {
+        let r = self.r;
+        match self.find(|h| {
+            matches!(
+                h,
+                Hidden::SupplyResistance { .. } | Hidden::PumpLimit { .. }
+            )
+        }) {
+            Some(Hidden::SupplyResistance { r: rs, tau }) => (r.ps - rs * qs - ps) / tau,
+            Some(Hidden::PumpLimit { qmax, band, vol }) => {
+                r.beta / vol * (pump_flow(*qmax, *band, r.ps, ps) - qs)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// The flows reaching the chambers (m³/s) from the valve's port flows `q`: through the
+    /// line segments or the hoses (their states' derivatives in `dy`), or directly.
+    fn inflows(&self, y: &[f64], (qa, qb): (f64, f64), dy: &mut [f64]) -> (f64, f64) {
+        let (pa, pb) = (y[2], y[3]);
+        if self.i_line != usize::MAX {
             let (rl, ll, cl, ns) = self.line;
             let mut ends = [0.0; 2];
             for (side, (q_valve, p_ch)) in [(qa, pa), (qb, pb)].into_iter().enumerate() {
@@ -701,7 +722,14 @@ impl<'a> Model<'a> {
             (into[0], into[1])
         } else {
             (qa, qb)
-        };
+        }
+    }
+
+    /// dp/dt of the chambers (Pa/s) with the flows `into` them (m³/s), the leakages and the
+    /// piston's displacement; held at the cavitation floor.
+    fn chambers(&self, y: &[f64], (into_a, into_b): (f64, f64), dy: &mut [f64]) {
+        let r = self.r;
+        let (x, v, pa, pb) = (y[0], y[1], y[2], y[3]);
         let (k_in, k_ea, k_eb) = match self.find(|h| {
             matches!(
                 h,
@@ -733,7 +761,12 @@ impl<'a> Model<'a> {
                 dy[i] = 0.0;
             }
         }
-        // Mechanics.
+    }
+
+    /// The piston's (and a mount's) acceleration, the friction state's rate.
+    fn mechanics(&self, y: &[f64], dy: &mut [f64]) {
+        let r = self.r;
+        let (x, v, pa, pb) = (y[0], y[1], y[2], y[3]);
         let f_h = pa * r.aa - pb * r.ab;
         let (f_fr, zd) = self.friction(y, v);
         if self.i_z != usize::MAX {
