@@ -278,10 +278,14 @@ pub const KINDS: [&str; 22] = [
 
 /// Draw the parameters of generator variant `kind` (or `pump_limit`) for `rig`.
 pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
-    let kv = rig.q_rated / rig.dp_rated.sqrt();
-    // Flow of one edge at full opening and half the supply (m³/s), and its conductance scale.
-    let q_half = kv * (0.5 * rig.ps).sqrt();
-    let kc = q_half / rig.ps;
+    draw_mechanical(kind, rig, g)
+        .or_else(|| draw_valve(kind, g))
+        .or_else(|| draw_fluid(kind, rig, g))
+        .or_else(|| draw_sensor(kind, g))
+}
+
+/// [`draw`] for the variants of friction and mounts; `None` for another `kind`.
+fn draw_mechanical(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
     Some(match kind {
         "lugre" => {
             let fc = g.range(200.0, 500.0);
@@ -303,24 +307,35 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
                 s0: fc / g.log_range(20e-6, 80e-6),
             }
         }
-        // A 1.5–4 m hose of 8–13 mm bore; wall 2.5–4 mm of an effective (braid + rubber)
-        // modulus of 2–6 GPa: β_eff ≈ 0.3–0.8 GPa of a 1.5 GPa oil; fittings 0.5–2·10⁹ Pa·s/m³
-        // (0.5–2 bar at 0.1 L/s) on top of the hose's own laminar resistance.
-        "hose" => {
-            let (len, d) = (g.range(1.5, 4.0), g.range(8e-3, 13e-3));
-            let r_hp = 128.0 * rig.nu * rig.rho * len / (PI * d.powi(4));
-            Hidden::Hose {
-                len,
-                d,
-                t: g.range(2.5e-3, 4e-3),
-                e: g.range(2e9, 6e9),
-                r: r_hp + g.range(0.5e9, 2e9),
-            }
-        }
         "load_coulomb" => Hidden::LoadCoulomb {
             fc: g.range(200.0, 500.0),
             veps: g.log_range(0.002, 0.01),
         },
+        "load_mount" => {
+            let ml = g.range(15.0, 50.0);
+            let k = g.log_range(3e6, 1.2e7);
+            Hidden::LoadMount {
+                ml,
+                k,
+                d: g.range(0.05, 0.2) * 2.0 * (k * ml).sqrt(),
+            }
+        }
+        "body_mount" => {
+            let mb = g.range(20.0, 60.0);
+            let k = g.log_range(4e6, 1.5e7);
+            Hidden::BodyMount {
+                mb,
+                k,
+                d: g.range(0.05, 0.2) * 2.0 * (k * mb).sqrt(),
+            }
+        }
+        _ => return None,
+    })
+}
+
+/// [`draw`] for the variants of the valve and the command path; `None` for another `kind`.
+fn draw_valve(kind: &str, g: &mut Pcg) -> Option<Hidden> {
+    Some(match kind {
         "overlap" => Hidden::Overlap {
             ov: g.range(0.06, 0.12),
             offset: g.range(-0.01, 0.01),
@@ -346,6 +361,34 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
             wn: TAU * g.range(15.0, 45.0),
             z: g.range(0.5, 0.9),
         },
+        "delay" => Hidden::Delay {
+            tau: g.range(0.003, 0.010),
+        },
+        _ => return None,
+    })
+}
+
+/// [`draw`] for the variants of the oil, leakages, lines and supply; `None` for another `kind`.
+fn draw_fluid(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
+    let kv = rig.q_rated / rig.dp_rated.sqrt();
+    // Flow of one edge at full opening and half the supply (m³/s), and its conductance scale.
+    let q_half = kv * (0.5 * rig.ps).sqrt();
+    let kc = q_half / rig.ps;
+    Some(match kind {
+        // A 1.5–4 m hose of 8–13 mm bore; wall 2.5–4 mm of an effective (braid + rubber)
+        // modulus of 2–6 GPa: β_eff ≈ 0.3–0.8 GPa of a 1.5 GPa oil; fittings 0.5–2·10⁹ Pa·s/m³
+        // (0.5–2 bar at 0.1 L/s) on top of the hose's own laminar resistance.
+        "hose" => {
+            let (len, d) = (g.range(1.5, 4.0), g.range(8e-3, 13e-3));
+            let r_hp = 128.0 * rig.nu * rig.rho * len / (PI * d.powi(4));
+            Hidden::Hose {
+                len,
+                d,
+                t: g.range(2.5e-3, 4e-3),
+                e: g.range(2e9, 6e9),
+                r: r_hp + g.range(0.5e9, 2e9),
+            }
+        }
         // Leakage conductances ≈ 2–8e-12 m³/(s·Pa): at half supply 15–60 % of an edge's
         // full flow, enough to show on every channel.
         "internal_leak" => Hidden::InternalLeak {
@@ -370,27 +413,22 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
             d: g.range(6e-3, 10e-3),
             nseg: 4,
         },
-        "load_mount" => {
-            let ml = g.range(15.0, 50.0);
-            let k = g.log_range(3e6, 1.2e7);
-            Hidden::LoadMount {
-                ml,
-                k,
-                d: g.range(0.05, 0.2) * 2.0 * (k * ml).sqrt(),
-            }
-        }
-        "body_mount" => {
-            let mb = g.range(20.0, 60.0);
-            let k = g.log_range(4e6, 1.5e7);
-            Hidden::BodyMount {
-                mb,
-                k,
-                d: g.range(0.05, 0.2) * 2.0 * (k * mb).sqrt(),
-            }
-        }
-        "delay" => Hidden::Delay {
-            tau: g.range(0.003, 0.010),
+        "supply_resistance" => Hidden::SupplyResistance {
+            r: g.range(0.15, 0.35) * rig.ps / q_half,
+            tau: g.log_range(0.01, 0.05),
         },
+        "pump_limit" => Hidden::PumpLimit {
+            qmax: g.range(0.8, 1.2) * q_half,
+            band: g.range(0.5e6, 1.5e6),
+            vol: g.log_range(2e-4, 1e-3),
+        },
+        _ => return None,
+    })
+}
+
+/// [`draw`] for the variants of the sensors; `None` for another `kind`.
+fn draw_sensor(kind: &str, g: &mut Pcg) -> Option<Hidden> {
+    Some(match kind {
         "tone" => {
             let ch = (g.u() * 3.0) as usize;
             let a = match ch {
@@ -405,15 +443,6 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
                 phase: g.range(0.0, TAU),
             }
         }
-        "supply_resistance" => Hidden::SupplyResistance {
-            r: g.range(0.15, 0.35) * rig.ps / q_half,
-            tau: g.log_range(0.01, 0.05),
-        },
-        "pump_limit" => Hidden::PumpLimit {
-            qmax: g.range(0.8, 1.2) * q_half,
-            band: g.range(0.5e6, 1.5e6),
-            vol: g.log_range(2e-4, 1e-3),
-        },
         _ => return None,
     })
 }
