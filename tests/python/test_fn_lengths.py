@@ -1,7 +1,7 @@
 """scripts/fn_lengths.py: the counter on synthetic snippets whose lengths are known by
 construction (braces in strings, raw strings, chars and comments; lifetimes; test modules,
 `macro_rules!` bodies, `tests/` folders left out), then the rule on the workspace: no function
-outside tests longer than 100 lines (ARCHITECTURE.md, "Functions fit on a screen")."""
+outside tests longer than 100 lines (ARCHITECTURE.md: functions fit on a screen)."""
 
 import importlib.util
 import pathlib
