@@ -79,52 +79,58 @@ pub fn cmd_diagnose(
     for n in &run.notes {
         eprintln!("ehactl: note: {n}");
     }
-    let (d, files) = (&run.diagnosis, &run.files);
     if json {
         println!("{}", run.json);
     } else {
-        println!("{}", ehactl_ident::report::headline(d));
-        println!(
-            "ehactl diagnose {} (config {})",
-            data_path.display(),
-            config.display()
-        );
-        println!("  {}", d.split);
-        println!(
-            "  cause         {}{}",
-            d.cause,
-            if d.causes.len() > 1 {
-                format!(" (accepted: {})", d.causes.join(", "))
-            } else {
-                String::new()
-            }
-        );
-        println!("  status        {}", d.status);
-        println!("  held-out NRMSE nominal {:.4} → refit {:.4} → extended {:.4} (gain {:.1} %, noise floor {:.4})", d.nrmse_nominal.overall, d.nrmse_refit.overall, d.nrmse_extended.overall, d.gain * 100.0, d.noise_floor);
-        println!(
-            "  ARX baseline held-out NRMSE {:.4} (same split)",
-            d.nrmse_baseline.overall
-        );
-        println!("  candidates:");
-        for c in &d.candidates {
-            println!(
-                "    {} {:<22} held-out {:.4}  {}",
-                if c.accepted { "*" } else { " " },
-                c.effect,
-                c.nrmse_validation,
-                c.evidence
-            );
-        }
-        for a in &d.ambiguities {
-            println!("  ambiguity: {a}");
-        }
-        println!("  {}", d.summary);
-        if let Some(f) = &files {
-            println!("  extended config {}", f.extended_config.display());
-            println!("  report          {}", f.report.display());
-        }
+        print_text(&run, data_path, config);
     }
     ExitCode::SUCCESS
+}
+
+/// The text report of a diagnosis of `data_path` against `config`: the cause and status,
+/// the held-out errors, the candidates, the ambiguities, the summary and the files written.
+fn print_text(run: &session::DiagnoseRun, data_path: &Path, config: &Path) {
+    let (d, files) = (&run.diagnosis, &run.files);
+    println!("{}", ehactl_ident::report::headline(d));
+    println!(
+        "ehactl diagnose {} (config {})",
+        data_path.display(),
+        config.display()
+    );
+    println!("  {}", d.split);
+    println!(
+        "  cause         {}{}",
+        d.cause,
+        if d.causes.len() > 1 {
+            format!(" (accepted: {})", d.causes.join(", "))
+        } else {
+            String::new()
+        }
+    );
+    println!("  status        {}", d.status);
+    println!("  held-out NRMSE nominal {:.4} → refit {:.4} → extended {:.4} (gain {:.1} %, noise floor {:.4})", d.nrmse_nominal.overall, d.nrmse_refit.overall, d.nrmse_extended.overall, d.gain * 100.0, d.noise_floor);
+    println!(
+        "  ARX baseline held-out NRMSE {:.4} (same split)",
+        d.nrmse_baseline.overall
+    );
+    println!("  candidates:");
+    for c in &d.candidates {
+        println!(
+            "    {} {:<22} held-out {:.4}  {}",
+            if c.accepted { "*" } else { " " },
+            c.effect,
+            c.nrmse_validation,
+            c.evidence
+        );
+    }
+    for a in &d.ambiguities {
+        println!("  ambiguity: {a}");
+    }
+    println!("  {}", d.summary);
+    if let Some(f) = &files {
+        println!("  extended config {}", f.extended_config.display());
+        println!("  report          {}", f.report.display());
+    }
 }
 
 fn exit_of(e: SessionError) -> ExitCode {

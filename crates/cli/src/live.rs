@@ -162,6 +162,75 @@ struct Channels {
     summary: Arc<RawChannel>,
 }
 
+impl Channels {
+    /// The live view's channels in `ctx`: the cycle records (CDR) and the JSON channels of
+    /// the MCAP log, with their schemas.
+    fn declare(ctx: &Arc<Context>) -> Result<Channels, String> {
+        Ok(Channels {
+            control: channel(
+                ctx,
+                "/control",
+                "cdr",
+                Schema::new(
+                    "ehactl_msgs/msg/ControlCycle",
+                    "ros2msg",
+                    control_schema().into_bytes(),
+                ),
+            )?,
+            plant: channel(
+                ctx,
+                "/plant",
+                "cdr",
+                Schema::new(
+                    "ehactl_msgs/msg/PlantState",
+                    "ros2msg",
+                    plant_schema().into_bytes(),
+                ),
+            )?,
+            timing: channel(
+                ctx,
+                "/timing",
+                "cdr",
+                Schema::new(
+                    "ehactl_msgs/msg/CycleTiming",
+                    "ros2msg",
+                    timing_schema().into_bytes(),
+                ),
+            )?,
+            config: channel(
+                ctx,
+                "/config",
+                "json",
+                json_schema(
+                    schemas::CONFIG_SCHEMA_NAME,
+                    schemas::config_schema(ehactl_runtime::session::config_json_schema()),
+                ),
+            )?,
+            events: channel(
+                ctx,
+                "/events",
+                "json",
+                json_schema(schemas::EVENT_SCHEMA_NAME, schemas::event_schema()),
+            )?,
+            log: channel(
+                ctx,
+                "/log",
+                "json",
+                json_schema(
+                    schemas::FOXGLOVE_LOG_SCHEMA_NAME,
+                    schemas::foxglove_log_schema(),
+                ),
+            )?,
+            summary: channel(
+                ctx,
+                "/summary",
+                "json",
+                json_schema(schemas::SUMMARY_SCHEMA_NAME, schemas::summary_schema()),
+            )?,
+        })
+    }
+}
+
 fn channel(
     ctx: &Arc<Context>,
     topic: &str,
@@ -209,68 +278,7 @@ impl LiveView {
     pub fn start(addr: &str, max_clients: usize) -> Result<LiveView, String> {
         let (host, port) = parse_addr(addr)?;
         let ctx = Context::new();
-        let ch = Channels {
-            control: channel(
-                &ctx,
-                "/control",
-                "cdr",
-                Schema::new(
-                    "ehactl_msgs/msg/ControlCycle",
-                    "ros2msg",
-                    control_schema().into_bytes(),
-                ),
-            )?,
-            plant: channel(
-                &ctx,
-                "/plant",
-                "cdr",
-                Schema::new(
-                    "ehactl_msgs/msg/PlantState",
-                    "ros2msg",
-                    plant_schema().into_bytes(),
-                ),
-            )?,
-            timing: channel(
-                &ctx,
-                "/timing",
-                "cdr",
-                Schema::new(
-                    "ehactl_msgs/msg/CycleTiming",
-                    "ros2msg",
-                    timing_schema().into_bytes(),
-                ),
-            )?,
-            config: channel(
-                &ctx,
-                "/config",
-                "json",
-                json_schema(
-                    schemas::CONFIG_SCHEMA_NAME,
-                    schemas::config_schema(ehactl_runtime::session::config_json_schema()),
-                ),
-            )?,
-            events: channel(
-                &ctx,
-                "/events",
-                "json",
-                json_schema(schemas::EVENT_SCHEMA_NAME, schemas::event_schema()),
-            )?,
-            log: channel(
-                &ctx,
-                "/log",
-                "json",
-                json_schema(
-                    schemas::FOXGLOVE_LOG_SCHEMA_NAME,
-                    schemas::foxglove_log_schema(),
-                ),
-            )?,
-            summary: channel(
-                &ctx,
-                "/summary",
-                "json",
-                json_schema(schemas::SUMMARY_SCHEMA_NAME, schemas::summary_schema()),
-            )?,
-        };
+        let ch = Channels::declare(&ctx)?;
         // The user's address is the front's; the SDK server listens on loopback only.
         let listener = std::net::TcpListener::bind((host.as_str(), port))
             .map_err(|e| format!("--live {addr}: cannot listen ({e}); expected a free HOST:PORT such as {DEFAULT_ADDR} (port 0 = any free port)"))?;

@@ -9,6 +9,7 @@ use crate::{
     check_log_path, config_error, default_log_path, live, load, progress_bar, sig, stop_flag,
 };
 use ehactl_config::{ControlMode, RigConfig};
+use ehactl_hal::pacer::TimingReport;
 use ehactl_hal::Hal;
 use ehactl_log::logger::LogTap;
 use ehactl_log::record::{Event, EventKind, Severity};
@@ -471,80 +472,11 @@ fn print_text_summary(
         );
     }
     if let Some((url, st)) = live_stats {
-        println!(
-            "  live          {url}: {} messages published, {} dropped before the server, {} client(s) at the end",
-            st.published, st.dropped, st.clients
-        );
-        if st.over_limit > 0 {
-            println!(
-                "  live refused  {} client(s) beyond --live-max-clients {}",
-                st.over_limit, st.max_clients
-            );
-        }
-        let slow: Vec<_> = st
-            .per_client
-            .iter()
-            .filter(|c| c.messages_dropped > 0)
-            .collect();
-        println!(
-            "  live clients  {} connected, {} missed messages (too slow to read): {} messages dropped in all{}",
-            st.per_client.len(),
-            slow.len(),
-            st.client_dropped(),
-            slow.iter()
-                .max_by_key(|c| c.messages_dropped)
-                .map_or(String::new(), |c| format!(
-                    "; worst {} got {} and missed {}",
-                    c.peer, c.messages_sent, c.messages_dropped
-                ))
-        );
+        print_live_summary(url, st);
     }
     canbus::print_summary(summary);
     if let Some(tm) = &session.timing {
-        println!(
-            "  jitter        p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (start − deadline)",
-            tm.jitter.p50, tm.jitter.p99, tm.jitter.p999, tm.jitter.max
-        );
-        println!(
-            "  period        p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs (nominal {:.1} µs)",
-            tm.period.p50, tm.period.p99, tm.period.max, tm.period_nominal_us
-        );
-        println!(
-            "  exec          p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (cycle start → next wait)",
-            tm.exec.p50, tm.exec.p99, tm.exec.p999, tm.exec.max
-        );
-        println!(
-            "  exec CPU      p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (thread CPU time, preemptions excluded)",
-            tm.exec_cpu.p50, tm.exec_cpu.p99, tm.exec_cpu.p999, tm.exec_cpu.max
-        );
-        if tm.exec_cpu_clamped > 0 {
-            println!(
-                "                {} cycles read more CPU time than wall time (core clocks out of step) and count as their wall time",
-                tm.exec_cpu_clamped
-            );
-        }
-        println!(
-            "  overruns      {} of {} cycles: {} ours (CPU time over the period), {} thread not running (late start or preempted); longest streak {}, {} deadlines skipped, policy {}",
-            tm.overruns,
-            summary["cycles"].as_u64().unwrap_or(0),
-            tm.overruns_exec,
-            tm.overruns_wakeup,
-            tm.longest_overrun_streak,
-            tm.skipped_deadlines,
-            tm.overrun_policy
-        );
-        println!(
-            "  rt            SCHED_FIFO {}, CPU {}, memory {}",
-            tm.rt
-                .sched_fifo_priority
-                .map_or("off".to_string(), |p| format!("priority {p}")),
-            tm.rt.cpu.map_or("any".to_string(), |c| c.to_string()),
-            if tm.rt.memory_locked {
-                "locked"
-            } else {
-                "not locked"
-            }
-        );
+        print_timing(tm, summary["cycles"].as_u64().unwrap_or(0));
     }
     match (&o.trip, o.interrupted) {
         (Some(t), _) => println!("  TRIP          {}", t.describe()),
@@ -553,6 +485,86 @@ fn print_text_summary(
         }
         _ => println!("  trip          none"),
     }
+}
+
+/// The `--live` lines: messages published and dropped, clients refused, slow clients.
+fn print_live_summary(url: &str, st: &live::LiveStats) {
+    println!(
+        "  live          {url}: {} messages published, {} dropped before the server, {} client(s) at the end",
+        st.published, st.dropped, st.clients
+    );
+    if st.over_limit > 0 {
+        println!(
+            "  live refused  {} client(s) beyond --live-max-clients {}",
+            st.over_limit, st.max_clients
+        );
+    }
+    let slow: Vec<_> = st
+        .per_client
+        .iter()
+        .filter(|c| c.messages_dropped > 0)
+        .collect();
+    println!(
+        "  live clients  {} connected, {} missed messages (too slow to read): {} messages dropped in all{}",
+        st.per_client.len(),
+        slow.len(),
+        st.client_dropped(),
+        slow.iter()
+            .max_by_key(|c| c.messages_dropped)
+            .map_or(String::new(), |c| format!(
+                "; worst {} got {} and missed {}",
+                c.peer, c.messages_sent, c.messages_dropped
+            ))
+    );
+}
+
+/// The wall-clock lines: jitter, period and execution time (µs), overruns of `cycles`,
+/// the real-time settings applied.
+fn print_timing(tm: &TimingReport, cycles: u64) {
+    println!(
+        "  jitter        p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (start − deadline)",
+        tm.jitter.p50, tm.jitter.p99, tm.jitter.p999, tm.jitter.max
+    );
+    println!(
+        "  period        p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs (nominal {:.1} µs)",
+        tm.period.p50, tm.period.p99, tm.period.max, tm.period_nominal_us
+    );
+    println!(
+        "  exec          p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (cycle start → next wait)",
+        tm.exec.p50, tm.exec.p99, tm.exec.p999, tm.exec.max
+    );
+    println!(
+        "  exec CPU      p50 {:.1} µs, p99 {:.1} µs, p99.9 {:.1} µs, max {:.1} µs (thread CPU time, preemptions excluded)",
+        tm.exec_cpu.p50, tm.exec_cpu.p99, tm.exec_cpu.p999, tm.exec_cpu.max
+    );
+    if tm.exec_cpu_clamped > 0 {
+        println!(
+            "                {} cycles read more CPU time than wall time (core clocks out of step) and count as their wall time",
+            tm.exec_cpu_clamped
+        );
+    }
+    println!(
+        "  overruns      {} of {} cycles: {} ours (CPU time over the period), {} thread not running (late start or preempted); longest streak {}, {} deadlines skipped, policy {}",
+        tm.overruns,
+        cycles,
+        tm.overruns_exec,
+        tm.overruns_wakeup,
+        tm.longest_overrun_streak,
+        tm.skipped_deadlines,
+        tm.overrun_policy
+    );
+    println!(
+        "  rt            SCHED_FIFO {}, CPU {}, memory {}",
+        tm.rt
+            .sched_fifo_priority
+            .map_or("off".to_string(), |p| format!("priority {p}")),
+        tm.rt.cpu.map_or("any".to_string(), |c| c.to_string()),
+        if tm.rt.memory_locked {
+            "locked"
+        } else {
+            "not locked"
+        }
+    );
 }
 
 /// 3 on a trip, 130 after a signal, 0 otherwise.

@@ -208,9 +208,22 @@ impl Supervisor {
             .map(|&(name, v)| Self::trip(t, cycle, EventKind::CommandLimit, name, v, f64::NAN, "V"))
     }
 
-    /// Check the sensors at loop time `t`; returns a trip event if any limit is violated.
+    /// Check the sensors at loop time `t`; returns a trip event if any limit is violated:
+    /// the feedback channel's value and freshness, the sensors' plausible ranges, the rig's
+    /// limits, in that order.
     #[inline]
     pub fn check_sensors(&mut self, t: f64, cycle: u64, m: &Measurements) -> Option<Event> {
+        if let Some(trip) = self.check_feedback(t, cycle, m) {
+            return Some(trip);
+        }
+        self.check_ranges(t, cycle, m)
+            .or_else(|| self.check_limits(t, cycle, m))
+    }
+
+    /// The feedback channel is finite and its sample time advanced within
+    /// [`SupervisorConfig::stale_timeout`] (s) of loop time `t` (s).
+    #[inline]
+    fn check_feedback(&mut self, t: f64, cycle: u64, m: &Measurements) -> Option<Event> {
         let c = &self.cfg;
         let (fb, name, unit) = match self.feedback {
             FeedbackChannel::Force => (m.force, "force", "N"),
@@ -241,6 +254,14 @@ impl Supervisor {
                 "s",
             ));
         }
+        None
+    }
+
+    /// The sensors' plausible ranges: |force| within `force_range` (N), the chamber pressures
+    /// within −1 bar and `pressure_range` (Pa).
+    #[inline]
+    fn check_ranges(&self, t: f64, cycle: u64, m: &Measurements) -> Option<Event> {
+        let c = &self.cfg;
         if let Some(r) = c.force_range {
             if m.force.is_finite() && m.force.abs() > r {
                 return Some(Self::trip(
@@ -261,6 +282,13 @@ impl Supervisor {
                 }
             }
         }
+        None
+    }
+
+    /// The rig's limits: chamber pressures (Pa), |force| (N), position (m).
+    #[inline]
+    fn check_limits(&self, t: f64, cycle: u64, m: &Measurements) -> Option<Event> {
+        let c = &self.cfg;
         if let Some(lim) = c.max_pressure {
             for (ch, p) in [("p_a", m.p_a), ("p_b", m.p_b)] {
                 if p.is_finite() && p > lim {

@@ -138,10 +138,25 @@ fn main() {
     }
 }
 
-fn run() -> Result<(), String> {
+/// The command line: `DIR [--seconds S] [--reps N] [--platform P] [--no-outputs]`.
+struct HostArgs {
+    /// The unpacked FMU.
+    dir: String,
+    /// Simulated time per repetition (s).
+    seconds: f64,
+    /// Read the outputs after every step (not only the last).
+    every_step: bool,
+    /// Repetitions (the median is printed).
+    reps: usize,
+    /// The FMU's platform folder under `binaries/`.
+    platform: String,
+}
+
+fn parse_args() -> Result<HostArgs, String> {
     let args: Vec<String> = std::env::args().collect();
     let dir = args
         .get(1)
+        .cloned()
         .ok_or("usage: fmu_host DIR [--seconds S] [--reps N] [--platform P]")?;
     let opt = |flag: &str| {
         args.iter()
@@ -163,6 +178,23 @@ fn run() -> Result<(), String> {
         }
         .to_string()
     });
+    Ok(HostArgs {
+        dir,
+        seconds,
+        every_step,
+        reps,
+        platform,
+    })
+}
+
+fn run() -> Result<(), String> {
+    let HostArgs {
+        dir,
+        seconds,
+        every_step,
+        reps,
+        platform,
+    } = parse_args()?;
     let xml = std::fs::read_to_string(format!("{dir}/modelDescription.xml"))
         .map_err(|e| format!("{dir}: {e}"))?;
     let guid = attr(&xml, "fmiModelDescription ", "guid").ok_or("no guid")?;

@@ -207,9 +207,9 @@ fn parameter(p: &'static Param, tree: &toml::Value) -> Option<Var> {
     })
 }
 
-/// The variables of `variant` for the config `cfg`, in value-reference order.
-pub fn table(cfg: &RigConfig, variant: Variant) -> Vec<Var> {
-    let mut vars = vec![
+/// The plant's outputs, state and measured, common to both variants.
+fn outputs() -> Vec<Var> {
+    vec![
         Var::output("x", Out::X, "m", "piston position"),
         Var::output("v", Out::V, "m/s", "piston velocity"),
         Var::output("p_a", Out::PA, "Pa", "chamber A pressure"),
@@ -244,7 +244,13 @@ pub fn table(cfg: &RigConfig, variant: Variant) -> Vec<Var> {
             "Pa",
             "measured chamber B pressure (sensor model)",
         ),
-    ];
+    ]
+}
+
+/// The variables of the loop's side: the valve command input of the plant alone, or the
+/// closed loop's command and trip outputs and its setpoint inputs.
+fn loop_variables(cfg: &RigConfig, variant: Variant) -> Vec<Var> {
+    let mut vars = Vec::new();
     let full_scale = cfg.plant.valve.command_full_scale;
     match variant {
         Variant::Plant => {
@@ -292,6 +298,13 @@ pub fn table(cfg: &RigConfig, variant: Variant) -> Vec<Var> {
             ));
         }
     }
+    vars
+}
+
+/// The variables of `variant` for the config `cfg`, in value-reference order.
+pub fn table(cfg: &RigConfig, variant: Variant) -> Vec<Var> {
+    let mut vars = outputs();
+    vars.extend(loop_variables(cfg, variant));
     for (name, inp) in &cfg.inputs {
         vars.push(Var::input(
             name,

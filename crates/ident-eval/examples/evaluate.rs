@@ -29,48 +29,14 @@ fn main() {
         .unwrap_or_else(|| "bench/results/diagnose_eval.md".into());
     let per_variant = arg(6, per_effect);
     let per_small = arg(7, 3);
-    let with_offsets = std::env::var("OFFSETS").is_ok_and(|v| v == "1");
-    let estimate_offsets = std::env::var("SENSOR_OFFSETS").is_ok_and(|v| v == "1");
-    let mut cases: Vec<Vec<EffectId>> = Vec::new();
-    for _ in 0..per_effect {
-        for e in EffectId::ALL {
-            cases.push(vec![e]);
-        }
-    }
-    for _ in 0..clean {
-        cases.push(vec![]);
-    }
-    let mut pr = ehactl_ident_eval::synth::Rng::new(first);
-    for _ in 0..pairs {
-        let i = (pr.uniform() * 12.0) as usize;
-        let mut j = (pr.uniform() * 11.0) as usize;
-        if j >= i {
-            j += 1;
-        }
-        cases.push(vec![EffectId::ALL[i], EffectId::ALL[j]]);
-    }
-    // Variant cases last, so that the seeds of the cases above do not move.
-    let n_plain = cases.len();
-    let mut variant_of: Vec<Option<&str>> = vec![None; n_plain];
-    for _ in 0..per_variant {
-        for (e, v) in VARIANT_CASES {
-            cases.push(vec![e]);
-            variant_of.push(Some(v));
-        }
-    }
-    // Small-magnitude cases last (levels over the sensor noise cycle through 2, 3, 4).
-    let mut level_of: Vec<Option<f64>> = vec![None; cases.len()];
-    for k in 0..per_small {
-        for e in EffectId::ALL {
-            cases.push(vec![e]);
-            variant_of.push(None);
-            level_of.push(Some([2.0, 3.0, 4.0][k as usize % 3]));
-        }
-    }
-    let mut small = SmallScore::default();
-    let mut small_limits = ehactl_ident_eval::limscore::LimitScore::default();
-    let (mut variant_ok, mut n_variant) = (0, 0);
-    let bar = indicatif::ProgressBar::new(cases.len() as u64);
+    let env_on = |k: &str| std::env::var(k).is_ok_and(|v| v == "1");
+    let settings = Settings {
+        with_offsets: env_on("OFFSETS"),
+        estimate_offsets: env_on("SENSOR_OFFSETS"),
+        debug: env_on("DEBUG"),
+    };
+    let plan = Plan::new([per_effect, clean, pairs, per_variant, per_small], first);
+    let bar = indicatif::ProgressBar::new(plan.cases.len() as u64);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
             "{spinner} evaluate [{bar:40}] {pos}/{len} {elapsed_precise} eta {eta}",
@@ -78,202 +44,350 @@ fn main() {
         .unwrap()
         .progress_chars("=> "),
     );
-    let mut conf: BTreeMap<(String, String), usize> = BTreeMap::new();
-    let (mut top_ok, mut exact_ok, mut false_none, mut n_hidden) = (0, 0, 0, 0);
-    let (mut unexplained_hidden, mut unexplained_clean) = (0, 0);
-    let (mut clean_ok, mut n_clean) = (0, 0);
-    let (mut pair_both, mut n_pair) = (0, 0);
-    let mut gains = Vec::new();
-    let mut gain50 = 0;
-    let mut lines = String::new();
-    let mut times = Vec::new();
-    for (i, hidden) in cases.iter().enumerate() {
-        let seed = first + i as u64;
-        let (mut case, alpha) = match (variant_of[i], level_of[i]) {
-            (_, Some(l)) => make_case_small(seed, hidden[0], l, 2.0),
-            (Some(v), None) => (make_case_variant(seed, hidden[0], v, 2.0), 1.0),
-            (None, None) => (make_case(seed, hidden, 2.0), 1.0),
-        };
-        if with_offsets {
-            let b = ehactl_ident_eval::synth::realistic_offsets(&case.record);
-            ehactl_ident_eval::synth::add_sensor_offsets(&mut case.record, &b);
-        }
-        let t0 = std::time::Instant::now();
-        let opts = Options {
-            sensor_offsets: estimate_offsets,
-            // INTEGRATION_COST=4 gives the CLI's replay-accuracy choice (slower).
-            integration_max_cost: std::env::var("INTEGRATION_COST")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(ehactl_ident::replay::DEFAULT_INTEGRATION_COST),
-            ..Options::default()
-        };
-        let d = diagnose(&case.nominal.plant, &case.record, None, &opts).expect("diagnosis runs");
-        let dt = t0.elapsed().as_secs_f64();
-        times.push(dt);
-        let hn: Vec<&str> = hidden.iter().map(|e| e.as_str()).collect();
-        let label = if hn.is_empty() {
-            "none".to_string()
-        } else {
-            hn.join("+")
-        };
-        let shown = match variant_of[i] {
-            Some(v) => {
-                n_variant += 1;
-                let named = d.variants.get(hn[0]).map(String::as_str);
-                variant_ok += (named == Some(v)) as usize;
-                format!("{label} ({v}, named {})", named.unwrap_or("-"))
-            }
-            None => match level_of[i] {
-                Some(l) => format!("{label} (small, {l}× noise)"),
-                None => label.clone(),
-            },
-        };
-        if std::env::var("DEBUG").is_ok_and(|v| v == "1") {
-            for c in &d.candidates {
-                eprintln!(
-                    "  {} [{}] {:.4} {}",
-                    c.effect, c.variant, c.nrmse_validation, c.evidence
-                );
-            }
-            eprintln!("  residual {:?}", d.residual_test.channels);
-            eprintln!("  floor {:.5} refit {:?}", d.noise_floor, d.nrmse_refit);
-        }
-        let line = format!("seed {seed} hidden {shown} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { d.cause.clone() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
-        bar.suspend(|| eprintln!("{line}"));
-        let _ = writeln!(lines, "{line}");
-        if level_of[i].is_some() {
-            small.add(&label, &d.cause, dt);
-            let (r, from, detail) = limit_ratio(&case, hidden[0], alpha, &d, &opts);
-            let named = ehactl_ident_eval::limscore::names(&d, hn[0]);
-            let closest = ehactl_ident_eval::limscore::closest_is(&d, hn[0]);
-            let r_text = r.map_or("n/a".to_string(), |r| format!("{r:.3}"));
-            let text = format!(
-                "  limit_ratio {r_text} limit_from {from} named {named} closest {closest} {detail}"
-            );
-            let _ = writeln!(lines, "{text}");
-            bar.suspend(|| eprintln!("{text}"));
-            small_limits.add(&format!("{seed} {label}"), &d.cause, r, named, closest);
-        } else if hidden.is_empty() {
-            n_clean += 1;
-            clean_ok += (d.cause == "none") as usize;
-            unexplained_clean += (d.cause == "unexplained") as usize;
-            *conf.entry(("none".into(), d.cause.clone())).or_default() += 1;
-        } else {
-            n_hidden += 1;
-            let top = hn.contains(&d.cause.as_str());
-            top_ok += top as usize;
-            false_none += (d.cause == "none") as usize;
-            unexplained_hidden += (d.cause == "unexplained") as usize;
-            let mut a: Vec<&str> = d.causes.iter().map(|s| s.as_str()).collect();
-            let mut b = hn.clone();
-            a.sort();
-            b.sort();
-            exact_ok += (a == b) as usize;
-            gains.push(d.gain);
-            gain50 += (d.gain >= 0.5) as usize;
-            if hidden.len() == 1 {
-                *conf.entry((label.clone(), d.cause.clone())).or_default() += 1;
-            } else {
-                n_pair += 1;
-                pair_both += hn.iter().all(|h| d.causes.iter().any(|c| c == h)) as usize;
-            }
-        }
+    let mut tally = Tally::default();
+    for i in 0..plan.cases.len() {
+        run_case(&plan, i, first + i as u64, &settings, &bar, &mut tally);
         bar.inc(1);
     }
     bar.finish();
-    gains.sort_by(f64::total_cmp);
-    times.sort_by(f64::total_cmp);
-    let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
+    tally.gains.sort_by(f64::total_cmp);
+    tally.times.sort_by(f64::total_cmp);
     let mut s = String::new();
-    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects, {per_variant} per structural variant of `synth::VARIANT_CASES`, {per_small} small-magnitude per effect), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}{}.\n", cases.len(), first + cases.len() as u64 - 1, if with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if estimate_offsets { "; diagnosed with `--sensor-offsets`" } else { "" });
-    let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
-    let _ = writeln!(s, "| top cause is a hidden effect (cases with hidden effects) | {top_ok}/{n_hidden} = {:.1} % | ≥ 90 % |", pct(top_ok, n_hidden));
-    let _ = writeln!(
-        s,
-        "| accepted set equals the hidden set exactly | {exact_ok}/{n_hidden} = {:.1} % | — |",
-        pct(exact_ok, n_hidden)
-    );
-    let _ = writeln!(
-        s,
-        "| both hidden effects named (two-effect cases) | {pair_both}/{n_pair} = {:.1} % | — |",
-        pct(pair_both, n_pair)
-    );
-    if n_variant > 0 {
-        let _ = writeln!(
-            s,
-            "| variant named (cases of `synth::VARIANT_CASES`) | {variant_ok}/{n_variant} = {:.1} % | — |",
-            pct(variant_ok, n_variant)
-        );
-    }
-    let _ = writeln!(s, "| false `none` | {false_none}/{n_hidden} | 0 |");
-    let _ = writeln!(s, "| `unexplained` (hidden-effect cases / clean cases) | {unexplained_hidden}/{n_hidden} / {unexplained_clean}/{n_clean} | — |");
-    let _ = writeln!(
-        s,
-        "| clean cases answered `none` | {clean_ok}/{n_clean} = {:.1} % | ≥ 95 % |",
-        pct(clean_ok, n_clean)
-    );
-    let _ = writeln!(
-        s,
-        "| held-out NRMSE gain ≥ 50 % (hidden cases) | {gain50}/{n_hidden} = {:.1} % | — |",
-        pct(gain50, n_hidden)
-    );
-    if !gains.is_empty() {
-        let _ = writeln!(
-            s,
-            "| gain min / median / max | {:.1} % / {:.1} % / {:.1} % | — |",
-            gains[0] * 100.0,
-            gains[gains.len() / 2] * 100.0,
-            gains[gains.len() - 1] * 100.0
-        );
+    let _ = writeln!(s, "Cases: {} ({per_effect} per catalogue effect, {clean} clean, {pairs} with two effects, {per_variant} per structural variant of `synth::VARIANT_CASES`, {per_small} small-magnitude per effect), seeds {first}–{}, 2 s at 1 kHz each, test bench `configs/diagnose_testrig.toml`, nominal errors ±10 %{}{}.\n", plan.cases.len(), first + plan.cases.len() as u64 - 1, if settings.with_offsets { ", sensor zero errors on every channel (+2 / −1.5 bar, 5 % of the force std, +0.5 mm)" } else { "" }, if settings.estimate_offsets { "; diagnosed with `--sensor-offsets`" } else { "" });
+    tally.rates(&mut s);
+    tally.confusion(&mut s);
+    s.push_str(&tally.small.table());
+    if tally.small.n > 0 {
+        s.push_str(&tally.small_limits.table());
     }
     let _ = writeln!(
         s,
-        "| wall time per case min / median / max | {:.1} s / {:.1} s / {:.1} s | — |\n",
-        times[0],
-        times[times.len() / 2],
-        times[times.len() - 1]
-    );
-    let cols: Vec<String> = EffectId::ALL
-        .iter()
-        .map(|e| e.as_str().to_string())
-        .chain(["none".to_string(), "unexplained".to_string()])
-        .collect();
-    let _ = writeln!(s, "Confusion matrix (rows: hidden, single-effect and clean cases; columns: top cause named):\n");
-    let _ = writeln!(
-        s,
-        "| hidden \\ named | {} |",
-        cols.iter()
-            .map(|c| format!("`{c}`"))
-            .collect::<Vec<_>>()
-            .join(" | ")
-    );
-    let _ = writeln!(s, "|---|{}", "---|".repeat(cols.len()));
-    for r in &cols {
-        let _ = writeln!(
-            s,
-            "| `{r}` | {} |",
-            cols.iter()
-                .map(|c| conf
-                    .get(&(r.clone(), c.clone()))
-                    .map_or(String::new(), |n| n.to_string()))
-                .collect::<Vec<_>>()
-                .join(" | ")
-        );
-    }
-    s.push_str(&small.table());
-    if small.n > 0 {
-        s.push_str(&small_limits.table());
-    }
-    let _ = writeln!(
-        s,
-        "\n<details><summary>Per-case results</summary>\n\n```\n{lines}```\n</details>"
+        "\n<details><summary>Per-case results</summary>\n\n```\n{}```\n</details>",
+        tally.lines
     );
     if let Some(dir) = std::path::Path::new(&out).parent() {
         let _ = std::fs::create_dir_all(dir);
     }
     std::fs::write(&out, &s).expect("write evaluation");
     println!("{s}");
+}
+
+/// The switches read from the environment.
+struct Settings {
+    /// `OFFSETS=1`: realistic sensor zero errors added to every record.
+    with_offsets: bool,
+    /// `SENSOR_OFFSETS=1`: the diagnosis estimates them.
+    estimate_offsets: bool,
+    /// `DEBUG=1`: every candidate and the final residual test to stderr.
+    debug: bool,
+}
+
+/// The cases in order: their hidden effects, the structural variant of a variant case and
+/// the level (× the sensor noise) of a small case.
+struct Plan {
+    cases: Vec<Vec<EffectId>>,
+    variant_of: Vec<Option<&'static str>>,
+    level_of: Vec<Option<f64>>,
+}
+
+impl Plan {
+    /// `counts`: per catalogue effect, clean, pairs, per structural variant, small per
+    /// effect; the pairs are drawn from `first`.
+    fn new(counts: [u64; 5], first: u64) -> Self {
+        let [per_effect, clean, pairs, per_variant, per_small] = counts;
+        let mut cases: Vec<Vec<EffectId>> = Vec::new();
+        for _ in 0..per_effect {
+            for e in EffectId::ALL {
+                cases.push(vec![e]);
+            }
+        }
+        for _ in 0..clean {
+            cases.push(vec![]);
+        }
+        let mut pr = ehactl_ident_eval::synth::Rng::new(first);
+        for _ in 0..pairs {
+            let i = (pr.uniform() * 12.0) as usize;
+            let mut j = (pr.uniform() * 11.0) as usize;
+            if j >= i {
+                j += 1;
+            }
+            cases.push(vec![EffectId::ALL[i], EffectId::ALL[j]]);
+        }
+        // Variant cases last, so that the seeds of the cases above do not move.
+        let n_plain = cases.len();
+        let mut variant_of: Vec<Option<&str>> = vec![None; n_plain];
+        for _ in 0..per_variant {
+            for (e, v) in VARIANT_CASES {
+                cases.push(vec![e]);
+                variant_of.push(Some(v));
+            }
+        }
+        // Small-magnitude cases last (levels over the sensor noise cycle through 2, 3, 4).
+        let mut level_of: Vec<Option<f64>> = vec![None; cases.len()];
+        for k in 0..per_small {
+            for e in EffectId::ALL {
+                cases.push(vec![e]);
+                variant_of.push(None);
+                level_of.push(Some([2.0, 3.0, 4.0][k as usize % 3]));
+            }
+        }
+        Plan {
+            cases,
+            variant_of,
+            level_of,
+        }
+    }
+}
+
+/// Case `i` of the plan made with `seed`, diagnosed, printed and counted.
+fn run_case(
+    plan: &Plan,
+    i: usize,
+    seed: u64,
+    settings: &Settings,
+    bar: &indicatif::ProgressBar,
+    tally: &mut Tally,
+) {
+    let hidden = &plan.cases[i];
+    let (mut case, alpha) = match (plan.variant_of[i], plan.level_of[i]) {
+        (_, Some(l)) => make_case_small(seed, hidden[0], l, 2.0),
+        (Some(v), None) => (make_case_variant(seed, hidden[0], v, 2.0), 1.0),
+        (None, None) => (make_case(seed, hidden, 2.0), 1.0),
+    };
+    if settings.with_offsets {
+        let b = ehactl_ident_eval::synth::realistic_offsets(&case.record);
+        ehactl_ident_eval::synth::add_sensor_offsets(&mut case.record, &b);
+    }
+    let t0 = std::time::Instant::now();
+    let opts = Options {
+        sensor_offsets: settings.estimate_offsets,
+        // INTEGRATION_COST=4 gives the CLI's replay-accuracy choice (slower).
+        integration_max_cost: std::env::var("INTEGRATION_COST")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(ehactl_ident::replay::DEFAULT_INTEGRATION_COST),
+        ..Options::default()
+    };
+    let d = diagnose(&case.nominal.plant, &case.record, None, &opts).expect("diagnosis runs");
+    let dt = t0.elapsed().as_secs_f64();
+    tally.times.push(dt);
+    let hn: Vec<&str> = hidden.iter().map(|e| e.as_str()).collect();
+    let label = if hn.is_empty() {
+        "none".to_string()
+    } else {
+        hn.join("+")
+    };
+    let shown = match plan.variant_of[i] {
+        Some(v) => {
+            tally.n_variant += 1;
+            let named = d.variants.get(hn[0]).map(String::as_str);
+            tally.variant_ok += (named == Some(v)) as usize;
+            format!("{label} ({v}, named {})", named.unwrap_or("-"))
+        }
+        None => match plan.level_of[i] {
+            Some(l) => format!("{label} (small, {l}× noise)"),
+            None => label.clone(),
+        },
+    };
+    if settings.debug {
+        for c in &d.candidates {
+            eprintln!(
+                "  {} [{}] {:.4} {}",
+                c.effect, c.variant, c.nrmse_validation, c.evidence
+            );
+        }
+        eprintln!("  residual {:?}", d.residual_test.channels);
+        eprintln!("  floor {:.5} refit {:?}", d.noise_floor, d.nrmse_refit);
+    }
+    let line = format!("seed {seed} hidden {shown} -> {} (gain {:.1} %, nominal {:.4} → {:.4}, floor {:.4}, {dt:.1} s)", if d.causes.is_empty() { d.cause.clone() } else { d.causes.join("+") }, d.gain * 100.0, d.nrmse_nominal.overall, d.nrmse_extended.overall, d.noise_floor);
+    bar.suspend(|| eprintln!("{line}"));
+    let _ = writeln!(tally.lines, "{line}");
+    if plan.level_of[i].is_some() {
+        tally.small.add(&label, &d.cause, dt);
+        let (r, from, detail) = limit_ratio(&case, hidden[0], alpha, &d, &opts);
+        let named = ehactl_ident_eval::limscore::names(&d, hn[0]);
+        let closest = ehactl_ident_eval::limscore::closest_is(&d, hn[0]);
+        let r_text = r.map_or("n/a".to_string(), |r| format!("{r:.3}"));
+        let text = format!(
+            "  limit_ratio {r_text} limit_from {from} named {named} closest {closest} {detail}"
+        );
+        let _ = writeln!(tally.lines, "{text}");
+        bar.suspend(|| eprintln!("{text}"));
+        tally
+            .small_limits
+            .add(&format!("{seed} {label}"), &d.cause, r, named, closest);
+    } else if hidden.is_empty() {
+        tally.clean(&d);
+    } else {
+        tally.hidden(&hn, &label, &d);
+    }
+}
+
+/// What the cases gave, counted.
+#[derive(Default)]
+struct Tally {
+    /// (hidden, named) → cases, for the single-effect and clean cases.
+    conf: BTreeMap<(String, String), usize>,
+    top_ok: usize,
+    exact_ok: usize,
+    false_none: usize,
+    n_hidden: usize,
+    unexplained_hidden: usize,
+    unexplained_clean: usize,
+    clean_ok: usize,
+    n_clean: usize,
+    pair_both: usize,
+    n_pair: usize,
+    variant_ok: usize,
+    n_variant: usize,
+    /// Held-out gains of the hidden-effect cases (-).
+    gains: Vec<f64>,
+    gain50: usize,
+    /// Wall time per case (s).
+    times: Vec<f64>,
+    small: SmallScore,
+    small_limits: ehactl_ident_eval::limscore::LimitScore,
+    /// One line per case (and a limit line per small case).
+    lines: String,
+}
+
+impl Tally {
+    /// A clean case's answer.
+    fn clean(&mut self, d: &ehactl_ident::Diagnosis) {
+        self.n_clean += 1;
+        self.clean_ok += (d.cause == "none") as usize;
+        self.unexplained_clean += (d.cause == "unexplained") as usize;
+        *self
+            .conf
+            .entry(("none".into(), d.cause.clone()))
+            .or_default() += 1;
+    }
+
+    /// The answer on a case with the hidden effects `hn` (`label`: joined by `+`).
+    fn hidden(&mut self, hn: &[&str], label: &str, d: &ehactl_ident::Diagnosis) {
+        self.n_hidden += 1;
+        let top = hn.contains(&d.cause.as_str());
+        self.top_ok += top as usize;
+        self.false_none += (d.cause == "none") as usize;
+        self.unexplained_hidden += (d.cause == "unexplained") as usize;
+        let mut a: Vec<&str> = d.causes.iter().map(|s| s.as_str()).collect();
+        let mut b = hn.to_vec();
+        a.sort();
+        b.sort();
+        self.exact_ok += (a == b) as usize;
+        self.gains.push(d.gain);
+        self.gain50 += (d.gain >= 0.5) as usize;
+        if hn.len() == 1 {
+            *self
+                .conf
+                .entry((label.to_string(), d.cause.clone()))
+                .or_default() += 1;
+        } else {
+            self.n_pair += 1;
+            self.pair_both += hn.iter().all(|h| d.causes.iter().any(|c| c == h)) as usize;
+        }
+    }
+
+    /// The table of rates against their targets (gains and times sorted).
+    fn rates(&self, s: &mut String) {
+        let Tally {
+            top_ok,
+            exact_ok,
+            false_none,
+            n_hidden,
+            unexplained_hidden,
+            unexplained_clean,
+            clean_ok,
+            n_clean,
+            pair_both,
+            n_pair,
+            variant_ok,
+            n_variant,
+            gain50,
+            ..
+        } = *self;
+        let (gains, times) = (&self.gains, &self.times);
+        let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
+        let _ = writeln!(s, "| measure | result | target |\n|---|---|---|");
+        let _ = writeln!(s, "| top cause is a hidden effect (cases with hidden effects) | {top_ok}/{n_hidden} = {:.1} % | ≥ 90 % |", pct(top_ok, n_hidden));
+        let _ = writeln!(
+            s,
+            "| accepted set equals the hidden set exactly | {exact_ok}/{n_hidden} = {:.1} % | — |",
+            pct(exact_ok, n_hidden)
+        );
+        let _ = writeln!(
+            s,
+            "| both hidden effects named (two-effect cases) | {pair_both}/{n_pair} = {:.1} % | — |",
+            pct(pair_both, n_pair)
+        );
+        if n_variant > 0 {
+            let _ = writeln!(
+                s,
+                "| variant named (cases of `synth::VARIANT_CASES`) | {variant_ok}/{n_variant} = {:.1} % | — |",
+                pct(variant_ok, n_variant)
+            );
+        }
+        let _ = writeln!(s, "| false `none` | {false_none}/{n_hidden} | 0 |");
+        let _ = writeln!(s, "| `unexplained` (hidden-effect cases / clean cases) | {unexplained_hidden}/{n_hidden} / {unexplained_clean}/{n_clean} | — |");
+        let _ = writeln!(
+            s,
+            "| clean cases answered `none` | {clean_ok}/{n_clean} = {:.1} % | ≥ 95 % |",
+            pct(clean_ok, n_clean)
+        );
+        let _ = writeln!(
+            s,
+            "| held-out NRMSE gain ≥ 50 % (hidden cases) | {gain50}/{n_hidden} = {:.1} % | — |",
+            pct(gain50, n_hidden)
+        );
+        if !gains.is_empty() {
+            let _ = writeln!(
+                s,
+                "| gain min / median / max | {:.1} % / {:.1} % / {:.1} % | — |",
+                gains[0] * 100.0,
+                gains[gains.len() / 2] * 100.0,
+                gains[gains.len() - 1] * 100.0
+            );
+        }
+        let _ = writeln!(
+            s,
+            "| wall time per case min / median / max | {:.1} s / {:.1} s / {:.1} s | — |\n",
+            times[0],
+            times[times.len() / 2],
+            times[times.len() - 1]
+        );
+    }
+
+    /// The confusion matrix of the single-effect and clean cases.
+    fn confusion(&self, s: &mut String) {
+        let conf = &self.conf;
+        let cols: Vec<String> = EffectId::ALL
+            .iter()
+            .map(|e| e.as_str().to_string())
+            .chain(["none".to_string(), "unexplained".to_string()])
+            .collect();
+        let _ = writeln!(s, "Confusion matrix (rows: hidden, single-effect and clean cases; columns: top cause named):\n");
+        let _ = writeln!(
+            s,
+            "| hidden \\ named | {} |",
+            cols.iter()
+                .map(|c| format!("`{c}`"))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+        let _ = writeln!(s, "|---|{}", "---|".repeat(cols.len()));
+        for r in &cols {
+            let _ = writeln!(
+                s,
+                "| `{r}` | {} |",
+                cols.iter()
+                    .map(|c| conf
+                        .get(&(r.clone(), c.clone()))
+                        .map_or(String::new(), |n| n.to_string()))
+                    .collect::<Vec<_>>()
+                    .join(" | ")
+            );
+        }
+    }
 }
 
 /// A small case's hidden size over the detection limit the diagnosis `d` stated for the

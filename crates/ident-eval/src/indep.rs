@@ -278,10 +278,14 @@ pub const KINDS: [&str; 22] = [
 
 /// Draw the parameters of generator variant `kind` (or `pump_limit`) for `rig`.
 pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
-    let kv = rig.q_rated / rig.dp_rated.sqrt();
-    // Flow of one edge at full opening and half the supply (m³/s), and its conductance scale.
-    let q_half = kv * (0.5 * rig.ps).sqrt();
-    let kc = q_half / rig.ps;
+    draw_mechanical(kind, rig, g)
+        .or_else(|| draw_valve(kind, g))
+        .or_else(|| draw_fluid(kind, rig, g))
+        .or_else(|| draw_sensor(kind, g))
+}
+
+/// [`draw`] for the variants of friction and mounts; `None` for another `kind`.
+fn draw_mechanical(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
     Some(match kind {
         "lugre" => {
             let fc = g.range(200.0, 500.0);
@@ -303,24 +307,35 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
                 s0: fc / g.log_range(20e-6, 80e-6),
             }
         }
-        // A 1.5–4 m hose of 8–13 mm bore; wall 2.5–4 mm of an effective (braid + rubber)
-        // modulus of 2–6 GPa: β_eff ≈ 0.3–0.8 GPa of a 1.5 GPa oil; fittings 0.5–2·10⁹ Pa·s/m³
-        // (0.5–2 bar at 0.1 L/s) on top of the hose's own laminar resistance.
-        "hose" => {
-            let (len, d) = (g.range(1.5, 4.0), g.range(8e-3, 13e-3));
-            let r_hp = 128.0 * rig.nu * rig.rho * len / (PI * d.powi(4));
-            Hidden::Hose {
-                len,
-                d,
-                t: g.range(2.5e-3, 4e-3),
-                e: g.range(2e9, 6e9),
-                r: r_hp + g.range(0.5e9, 2e9),
-            }
-        }
         "load_coulomb" => Hidden::LoadCoulomb {
             fc: g.range(200.0, 500.0),
             veps: g.log_range(0.002, 0.01),
         },
+        "load_mount" => {
+            let ml = g.range(15.0, 50.0);
+            let k = g.log_range(3e6, 1.2e7);
+            Hidden::LoadMount {
+                ml,
+                k,
+                d: g.range(0.05, 0.2) * 2.0 * (k * ml).sqrt(),
+            }
+        }
+        "body_mount" => {
+            let mb = g.range(20.0, 60.0);
+            let k = g.log_range(4e6, 1.5e7);
+            Hidden::BodyMount {
+                mb,
+                k,
+                d: g.range(0.05, 0.2) * 2.0 * (k * mb).sqrt(),
+            }
+        }
+        _ => return None,
+    })
+}
+
+/// [`draw`] for the variants of the valve and the command path; `None` for another `kind`.
+fn draw_valve(kind: &str, g: &mut Pcg) -> Option<Hidden> {
+    Some(match kind {
         "overlap" => Hidden::Overlap {
             ov: g.range(0.06, 0.12),
             offset: g.range(-0.01, 0.01),
@@ -346,6 +361,34 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
             wn: TAU * g.range(15.0, 45.0),
             z: g.range(0.5, 0.9),
         },
+        "delay" => Hidden::Delay {
+            tau: g.range(0.003, 0.010),
+        },
+        _ => return None,
+    })
+}
+
+/// [`draw`] for the variants of the oil, leakages, lines and supply; `None` for another `kind`.
+fn draw_fluid(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
+    let kv = rig.q_rated / rig.dp_rated.sqrt();
+    // Flow of one edge at full opening and half the supply (m³/s), and its conductance scale.
+    let q_half = kv * (0.5 * rig.ps).sqrt();
+    let kc = q_half / rig.ps;
+    Some(match kind {
+        // A 1.5–4 m hose of 8–13 mm bore; wall 2.5–4 mm of an effective (braid + rubber)
+        // modulus of 2–6 GPa: β_eff ≈ 0.3–0.8 GPa of a 1.5 GPa oil; fittings 0.5–2·10⁹ Pa·s/m³
+        // (0.5–2 bar at 0.1 L/s) on top of the hose's own laminar resistance.
+        "hose" => {
+            let (len, d) = (g.range(1.5, 4.0), g.range(8e-3, 13e-3));
+            let r_hp = 128.0 * rig.nu * rig.rho * len / (PI * d.powi(4));
+            Hidden::Hose {
+                len,
+                d,
+                t: g.range(2.5e-3, 4e-3),
+                e: g.range(2e9, 6e9),
+                r: r_hp + g.range(0.5e9, 2e9),
+            }
+        }
         // Leakage conductances ≈ 2–8e-12 m³/(s·Pa): at half supply 15–60 % of an edge's
         // full flow, enough to show on every channel.
         "internal_leak" => Hidden::InternalLeak {
@@ -370,27 +413,22 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
             d: g.range(6e-3, 10e-3),
             nseg: 4,
         },
-        "load_mount" => {
-            let ml = g.range(15.0, 50.0);
-            let k = g.log_range(3e6, 1.2e7);
-            Hidden::LoadMount {
-                ml,
-                k,
-                d: g.range(0.05, 0.2) * 2.0 * (k * ml).sqrt(),
-            }
-        }
-        "body_mount" => {
-            let mb = g.range(20.0, 60.0);
-            let k = g.log_range(4e6, 1.5e7);
-            Hidden::BodyMount {
-                mb,
-                k,
-                d: g.range(0.05, 0.2) * 2.0 * (k * mb).sqrt(),
-            }
-        }
-        "delay" => Hidden::Delay {
-            tau: g.range(0.003, 0.010),
+        "supply_resistance" => Hidden::SupplyResistance {
+            r: g.range(0.15, 0.35) * rig.ps / q_half,
+            tau: g.log_range(0.01, 0.05),
         },
+        "pump_limit" => Hidden::PumpLimit {
+            qmax: g.range(0.8, 1.2) * q_half,
+            band: g.range(0.5e6, 1.5e6),
+            vol: g.log_range(2e-4, 1e-3),
+        },
+        _ => return None,
+    })
+}
+
+/// [`draw`] for the variants of the sensors; `None` for another `kind`.
+fn draw_sensor(kind: &str, g: &mut Pcg) -> Option<Hidden> {
+    Some(match kind {
         "tone" => {
             let ch = (g.u() * 3.0) as usize;
             let a = match ch {
@@ -405,15 +443,6 @@ pub fn draw(kind: &str, rig: &Rig, g: &mut Pcg) -> Option<Hidden> {
                 phase: g.range(0.0, TAU),
             }
         }
-        "supply_resistance" => Hidden::SupplyResistance {
-            r: g.range(0.15, 0.35) * rig.ps / q_half,
-            tau: g.log_range(0.01, 0.05),
-        },
-        "pump_limit" => Hidden::PumpLimit {
-            qmax: g.range(0.8, 1.2) * q_half,
-            band: g.range(0.5e6, 1.5e6),
-            vol: g.log_range(2e-4, 1e-3),
-        },
         _ => return None,
     })
 }
@@ -608,29 +637,16 @@ impl<'a> Model<'a> {
         }
     }
 
-    /// dy/dt at command `u` (V, already delayed).
+    /// dy/dt at command `u` (V, already delayed): the spool, the valve's flows at the supply
+    /// pressure, the supply, the lines or hoses to the chambers, the chamber pressures, the
+    /// mechanics.
     fn rhs(&self, y: &[f64], u: f64, dy: &mut [f64]) {
-        let r = self.r;
-        let (x, v, pa, pb) = (y[0], y[1], y[2], y[3]);
-        // Spool.
-        let target = self.spool_target(u);
-        let s = match self.find(|h| matches!(h, Hidden::Spool1 { .. } | Hidden::Spool2 { .. })) {
-            Some(Hidden::Spool1 { tau }) => {
-                dy[self.i_spool] = (target - y[self.i_spool]) / tau;
-                y[self.i_spool]
-            }
-            Some(Hidden::Spool2 { wn, z }) => {
-                let (s, sd) = (y[self.i_spool], y[self.i_spool + 1]);
-                dy[self.i_spool] = sd;
-                dy[self.i_spool + 1] = wn * wn * (target - s) - 2.0 * z * wn * sd;
-                s
-            }
-            _ => target,
-        };
+        let (pa, pb) = (y[2], y[3]);
+        let s = self.spool(y, u, dy);
         let ps = if self.i_ps != usize::MAX {
             y[self.i_ps]
         } else {
-            r.ps
+            self.r.ps
         };
         // Valve ports: the chambers, or the valve-side line nodes.
         let (port_a, port_b) = if self.i_line != usize::MAX {
@@ -643,21 +659,55 @@ impl<'a> Model<'a> {
         };
         let (qa, qb, qs) = self.valve(s, ps, port_a, port_b);
         if self.i_ps != usize::MAX {
-            dy[self.i_ps] = match self.find(|h| {
-                matches!(
-                    h,
-                    Hidden::SupplyResistance { .. } | Hidden::PumpLimit { .. }
-                )
-            }) {
-                Some(Hidden::SupplyResistance { r: rs, tau }) => (r.ps - rs * qs - ps) / tau,
-                Some(Hidden::PumpLimit { qmax, band, vol }) => {
-                    r.beta / vol * (pump_flow(*qmax, *band, r.ps, ps) - qs)
-                }
-                _ => 0.0,
-            };
+            dy[self.i_ps] = self.supply_rate(ps, qs);
         }
-        // Flows reaching the chambers.
-        let (into_a, into_b) = if self.i_line != usize::MAX {
+        let into = self.inflows(y, (qa, qb), dy);
+        self.chambers(y, into, dy);
+        self.mechanics(y, dy);
+    }
+
+    /// The spool's position (its state, or the target of an ideal spool) and its states'
+    /// derivatives in `dy`, at command `u` (V).
+    fn spool(&self, y: &[f64], u: f64, dy: &mut [f64]) -> f64 {
+        let target = self.spool_target(u);
+        match self.find(|h| matches!(h, Hidden::Spool1 { .. } | Hidden::Spool2 { .. })) {
+            Some(Hidden::Spool1 { tau }) => {
+                dy[self.i_spool] = (target - y[self.i_spool]) / tau;
+                y[self.i_spool]
+            }
+            Some(Hidden::Spool2 { wn, z }) => {
+                let (s, sd) = (y[self.i_spool], y[self.i_spool + 1]);
+                dy[self.i_spool] = sd;
+                dy[self.i_spool + 1] = wn * wn * (target - s) - 2.0 * z * wn * sd;
+                s
+            }
+            _ => target,
+        }
+    }
+
+    /// dp_s/dt (Pa/s) of a supply with a resistance or a pump limit at pressure `ps` (Pa)
+    /// and the valve's supply flow `qs` (m³/s).
+    fn supply_rate(&self, ps: f64, qs: f64) -> f64 {
+        let r = self.r;
+        match self.find(|h| {
+            matches!(
+                h,
+                Hidden::SupplyResistance { .. } | Hidden::PumpLimit { .. }
+            )
+        }) {
+            Some(Hidden::SupplyResistance { r: rs, tau }) => (r.ps - rs * qs - ps) / tau,
+            Some(Hidden::PumpLimit { qmax, band, vol }) => {
+                r.beta / vol * (pump_flow(*qmax, *band, r.ps, ps) - qs)
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// The flows reaching the chambers (m³/s) from the valve's port flows `q`: through the
+    /// line segments or the hoses (their states' derivatives in `dy`), or directly.
+    fn inflows(&self, y: &[f64], (qa, qb): (f64, f64), dy: &mut [f64]) -> (f64, f64) {
+        let (pa, pb) = (y[2], y[3]);
+        if self.i_line != usize::MAX {
             let (rl, ll, cl, ns) = self.line;
             let mut ends = [0.0; 2];
             for (side, (q_valve, p_ch)) in [(qa, pa), (qb, pb)].into_iter().enumerate() {
@@ -701,7 +751,14 @@ impl<'a> Model<'a> {
             (into[0], into[1])
         } else {
             (qa, qb)
-        };
+        }
+    }
+
+    /// dp/dt of the chambers (Pa/s) with the flows `into` them (m³/s), the leakages and the
+    /// piston's displacement; held at the cavitation floor.
+    fn chambers(&self, y: &[f64], (into_a, into_b): (f64, f64), dy: &mut [f64]) {
+        let r = self.r;
+        let (x, v, pa, pb) = (y[0], y[1], y[2], y[3]);
         let (k_in, k_ea, k_eb) = match self.find(|h| {
             matches!(
                 h,
@@ -733,7 +790,12 @@ impl<'a> Model<'a> {
                 dy[i] = 0.0;
             }
         }
-        // Mechanics.
+    }
+
+    /// The piston's (and a mount's) acceleration, the friction state's rate.
+    fn mechanics(&self, y: &[f64], dy: &mut [f64]) {
+        let r = self.r;
+        let (x, v, pa, pb) = (y[0], y[1], y[2], y[3]);
         let f_h = pa * r.aa - pb * r.ab;
         let (f_fr, zd) = self.friction(y, v);
         if self.i_z != usize::MAX {
@@ -1086,7 +1148,11 @@ fn generate(
 }
 
 /// [`generate`] with the excitation `given` in place of the drawn one (drawn all the same,
-/// so that the sensor noise keeps its draws).
+/// so that the sensor noise keeps its draws). The steps, in the order they draw from the
+/// seed's generator: the hidden effects, the nominal parameters' errors, the excitation;
+/// the model of the effects `keep` selects, settled at zero command; then per sample the
+/// measured channels with their noise, the PI's command on a closed loop, and the RK4
+/// substeps.
 fn generate_with(
     seed: u64,
     kind: &str,
@@ -1101,22 +1167,7 @@ fn generate_with(
     };
     let rig = if closed { force_rig() } else { Rig::default() };
     let mut g = Pcg::new(seed);
-    let mut all: Vec<Hidden> = Vec::new();
-    if effects != "clean" {
-        for name in effects.split('+') {
-            let h = draw(name, &rig, &mut g)
-                .ok_or_else(|| format!("unknown generator variant `{name}` in `{kind}`"))?;
-            if let Some(o) = all.iter().find(|o| site(o) == site(&h)) {
-                return Err(format!(
-                    "`{kind}`: {o:?} and {h:?} change the same part of the model ({})",
-                    site(&h)
-                ));
-            }
-            all.push(h);
-        }
-    }
-    let hidden = all.first().cloned();
-    let more: Vec<Hidden> = all.iter().skip(1).cloned().collect();
+    let all = draw_all(kind, effects, &rig, &mut g)?;
     let f = [0; 5].map(|_| g.range(0.9, 1.1));
     let nominal = nominal_config(&rig, f, dt);
     let n = (duration / dt).round() as usize;
@@ -1126,15 +1177,8 @@ fn generate_with(
     // Open loop: the excitation is the valve command. Closed loop: it is the force setpoint
     // and the command is the PI's output, filled in sample by sample below.
     let (mut u, reference) = if closed {
-        (
-            Vec::with_capacity(n),
-            Some(
-                excitation
-                    .iter()
-                    .map(|e| FORCE_REF_SCALE * e)
-                    .collect::<Vec<f64>>(),
-            ),
-        )
+        let r: Vec<f64> = excitation.iter().map(|e| FORCE_REF_SCALE * e).collect();
+        (Vec::with_capacity(n), Some(r))
     } else {
         (excitation, None)
     };
@@ -1147,6 +1191,107 @@ fn generate_with(
         .collect();
     let sim = &sim[..];
     let model = Model::new(&rig, sim);
+    let mut y = initial_state(&model, &rig, sim);
+    let substeps = 20;
+    let h = dt / substeps as f64;
+    let delay = sim
+        .iter()
+        .find_map(|h| match h {
+            Hidden::Delay { tau } => Some(*tau),
+            _ => None,
+        })
+        .unwrap_or(0.0);
+    let mut rk = Rk4::new(model.n, h);
+    let settle = (0.3 / h).round() as usize;
+    for _ in 0..settle {
+        rk.step(&model, &mut y, 0.0);
+    }
+    let tone = Tone::of(sim);
+    let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
+    let mut t = Vec::with_capacity(n);
+    for kk in 0..n {
+        let tk = kk as f64 * dt;
+        check_state(&y, rig.stroke, tk).map_err(|e| format!("seed {seed} {kind}: {e}"))?;
+        t.push(tk);
+        cols[0].push(model.rod_force(&y) + rig.noise.0 * g.normal() + tone.at(0, tk));
+        cols[1].push(y[0] + rig.noise.1 * g.normal() + tone.at(1, tk));
+        cols[2].push(y[2] + rig.noise.2 * g.normal() + tone.at(2, tk));
+        cols[3].push(y[3] + rig.noise.2 * g.normal());
+        if let Some(r) = &reference {
+            // Read, compute, write (the order of `ehactl run`): the PI acts on this sample's
+            // measured force.
+            let force = cols[0][kk];
+            u.push(pi.step(r[kk], force, dt).u);
+        }
+        for sub in 0..substeps {
+            let ts = tk + sub as f64 * h;
+            // Zero-order hold on the sample grid, delayed by `delay`.
+            let td = ts - delay + 1e-12;
+            let uc = if td < 0.0 {
+                0.0
+            } else {
+                u[((td / dt).floor() as usize).min(n - 1)]
+            };
+            rk.step(&model, &mut y, uc);
+        }
+    }
+    let record = record_of(
+        &format!("independent generator seed {seed} ({kind})"),
+        t,
+        u,
+        cols,
+        reference,
+    )?;
+    Ok(Case {
+        seed,
+        kind: kind.to_string(),
+        hidden: all.first().cloned(),
+        more: all.iter().skip(1).cloned().collect(),
+        nominal,
+        record,
+        drive: drive_of(closed),
+    })
+}
+
+/// How the diagnosis replays a case: the rig's PI force loop (`closed`) or the recorded
+/// command.
+fn drive_of(closed: bool) -> ehactl_ident::replay::Drive {
+    if closed {
+        ehactl_ident::replay::Drive::ForcePi {
+            gains: force_pi_gains(),
+            max_command: f64::INFINITY,
+        }
+    } else {
+        ehactl_ident::replay::Drive::Recorded
+    }
+}
+
+/// The hidden effects of `effects` (the variants joined by `+`, or `clean`), drawn in order
+/// from `g`; an error names an unknown variant or two that change the same part of the
+/// model. `kind` is the whole case name, for the messages.
+fn draw_all(kind: &str, effects: &str, rig: &Rig, g: &mut Pcg) -> Result<Vec<Hidden>, String> {
+    let mut all: Vec<Hidden> = Vec::new();
+    if effects == "clean" {
+        return Ok(all);
+    }
+    for name in effects.split('+') {
+        let h = draw(name, rig, g)
+            .ok_or_else(|| format!("unknown generator variant `{name}` in `{kind}`"))?;
+        if let Some(o) = all.iter().find(|o| site(o) == site(&h)) {
+            return Err(format!(
+                "`{kind}`: {o:?} and {h:?} change the same part of the model ({})",
+                site(&h)
+            ));
+        }
+        all.push(h);
+    }
+    Ok(all)
+}
+
+/// The state the settling starts from: the piston mid-stroke, the chambers, hoses and line
+/// nodes at the open-centre equilibrium estimate (half the supply pressure, Pa), the supply
+/// at its pressure and a mounted load at the piston.
+fn initial_state(model: &Model<'_>, rig: &Rig, sim: &[Hidden]) -> Vec<f64> {
     let mut y = vec![0.0; model.n];
     y[0] = 0.5 * rig.stroke;
     // Start at the open-centre equilibrium estimate, then settle.
@@ -1169,31 +1314,44 @@ fn generate_with(
     if model.i_mount != usize::MAX && sim.iter().any(|h| matches!(h, Hidden::LoadMount { .. })) {
         y[model.i_mount] = y[0];
     }
-    let substeps = 20;
-    let h = dt / substeps as f64;
-    let delay = sim
-        .iter()
-        .find_map(|h| match h {
-            Hidden::Delay { tau } => Some(*tau),
-            _ => None,
-        })
-        .unwrap_or(0.0);
-    let mut k = [(); 4].map(|_| vec![0.0; model.n]);
-    let mut tmp = vec![0.0; model.n];
-    let mut step = |y: &mut Vec<f64>, uc: f64| {
+    y
+}
+
+/// The classical fourth-order Runge–Kutta step of the model's state over `h` (s), with the
+/// stage buffers it reuses.
+struct Rk4 {
+    k: [Vec<f64>; 4],
+    tmp: Vec<f64>,
+    h: f64,
+}
+
+impl Rk4 {
+    /// Buffers for a state of `n` values, step `h` (s).
+    fn new(n: usize, h: f64) -> Self {
+        Self {
+            k: [(); 4].map(|_| vec![0.0; n]),
+            tmp: vec![0.0; n],
+            h,
+        }
+    }
+
+    /// One step of `y` at the command `uc` (V), then every pressure state held at or above
+    /// the cavitation pressure [`P_CAV`] (Pa).
+    fn step(&mut self, model: &Model<'_>, y: &mut [f64], uc: f64) {
+        let (k, tmp, h) = (&mut self.k, &mut self.tmp, self.h);
         model.rhs(y, uc, &mut k[0]);
         for i in 0..y.len() {
             tmp[i] = y[i] + 0.5 * h * k[0][i];
         }
-        model.rhs(&tmp, uc, &mut k[1]);
+        model.rhs(tmp, uc, &mut k[1]);
         for i in 0..y.len() {
             tmp[i] = y[i] + 0.5 * h * k[1][i];
         }
-        model.rhs(&tmp, uc, &mut k[2]);
+        model.rhs(tmp, uc, &mut k[2]);
         for i in 0..y.len() {
             tmp[i] = y[i] + h * k[2][i];
         }
-        model.rhs(&tmp, uc, &mut k[3]);
+        model.rhs(tmp, uc, &mut k[3]);
         for i in 0..y.len() {
             y[i] += h / 6.0 * (k[0][i] + 2.0 * k[1][i] + 2.0 * k[2][i] + k[3][i]);
         }
@@ -1212,59 +1370,55 @@ fn generate_with(
                 }
             }
         }
-    };
-    let settle = (0.3 / h).round() as usize;
-    for _ in 0..settle {
-        step(&mut y, 0.0);
     }
-    let (tone_ch, tone) = sim
-        .iter()
-        .find_map(|h| match h {
-            Hidden::Tone { ch, f, a, phase } => Some((*ch, Some((*f, *a, *phase)))),
-            _ => None,
-        })
-        .unwrap_or((usize::MAX, None));
-    let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
-    let mut t = Vec::with_capacity(n);
-    for kk in 0..n {
-        let tk = kk as f64 * dt;
-        if !y.iter().all(|v| v.is_finite()) {
-            return Err(format!(
-                "seed {seed} {kind}: state not finite at t = {tk} s"
-            ));
-        }
-        if y[0] < 0.0 || y[0] > rig.stroke {
-            return Err(format!(
-                "seed {seed} {kind}: piston left the stroke at t = {tk} s"
-            ));
-        }
-        let tone_at = |c: usize| match tone {
-            Some((f, a, ph)) if tone_ch == c => a * (TAU * f * tk + ph).sin(),
+}
+
+/// The hidden tone on one measured channel: the channel's index and (frequency Hz,
+/// amplitude in the channel's unit, phase rad), if one is hidden.
+struct Tone(usize, Option<(f64, f64, f64)>);
+
+impl Tone {
+    /// The tone among the simulated effects.
+    fn of(sim: &[Hidden]) -> Self {
+        let (ch, tone) = sim
+            .iter()
+            .find_map(|h| match h {
+                Hidden::Tone { ch, f, a, phase } => Some((*ch, Some((*f, *a, *phase)))),
+                _ => None,
+            })
+            .unwrap_or((usize::MAX, None));
+        Tone(ch, tone)
+    }
+
+    /// What it adds to channel `c` at time `t` (s).
+    fn at(&self, c: usize, t: f64) -> f64 {
+        match self.1 {
+            Some((f, a, ph)) if self.0 == c => a * (TAU * f * t + ph).sin(),
             _ => 0.0,
-        };
-        t.push(tk);
-        cols[0].push(model.rod_force(&y) + rig.noise.0 * g.normal() + tone_at(0));
-        cols[1].push(y[0] + rig.noise.1 * g.normal() + tone_at(1));
-        cols[2].push(y[2] + rig.noise.2 * g.normal() + tone_at(2));
-        cols[3].push(y[3] + rig.noise.2 * g.normal());
-        if let Some(r) = &reference {
-            // Read, compute, write (the order of `ehactl run`): the PI acts on this sample's
-            // measured force.
-            let force = cols[0][kk];
-            u.push(pi.step(r[kk], force, dt).u);
-        }
-        for sub in 0..substeps {
-            let ts = tk + sub as f64 * h;
-            // Zero-order hold on the sample grid, delayed by `delay`.
-            let td = ts - delay + 1e-12;
-            let uc = if td < 0.0 {
-                0.0
-            } else {
-                u[((td / dt).floor() as usize).min(n - 1)]
-            };
-            step(&mut y, uc);
         }
     }
+}
+
+/// The state is finite and the piston within its `stroke` (m) at time `t` (s).
+fn check_state(y: &[f64], stroke: f64, t: f64) -> Result<(), String> {
+    if !y.iter().all(|v| v.is_finite()) {
+        return Err(format!("state not finite at t = {t} s"));
+    }
+    if y[0] < 0.0 || y[0] > stroke {
+        return Err(format!("piston left the stroke at t = {t} s"));
+    }
+    Ok(())
+}
+
+/// The record of the columns: time (s), command (V), force (N), position (m), pressures A
+/// and B (Pa), the force setpoint (N) of a closed loop.
+fn record_of(
+    source: &str,
+    t: Vec<f64>,
+    u: Vec<f64>,
+    cols: Vec<Vec<f64>>,
+    reference: Option<Vec<f64>>,
+) -> Result<Record, String> {
     let kinds = [
         ChannelKind::Force,
         ChannelKind::Position,
@@ -1279,31 +1433,7 @@ fn generate_with(
             values: v,
         })
         .collect();
-    let record = Record::from_columns(
-        &format!("independent generator seed {seed} ({kind})"),
-        t,
-        u,
-        channels,
-        reference,
-        0,
-    )
-    .map_err(|e| e.to_string())?;
-    Ok(Case {
-        seed,
-        kind: kind.to_string(),
-        hidden,
-        more,
-        nominal,
-        record,
-        drive: if closed {
-            ehactl_ident::replay::Drive::ForcePi {
-                gains: force_pi_gains(),
-                max_command: f64::INFINITY,
-            }
-        } else {
-            ehactl_ident::replay::Drive::Recorded
-        },
-    })
+    Record::from_columns(source, t, u, channels, reference, 0).map_err(|e| e.to_string())
 }
 
 /// Parse `bench/indep_cases.txt`: lines `seed kind`, `#` comments.
@@ -1316,4 +1446,118 @@ pub fn parse_cases(text: &str) -> Vec<(u64, String)> {
             Some((it.next()?.parse().ok()?, it.next()?.to_string()))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// FNV-1a (64 bit) over the bit patterns of a case's record: time, command, reference,
+    /// every channel, plus the drawn effects as printed.
+    fn fingerprint(c: &Case) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            for b in bytes {
+                h ^= u64::from(*b);
+                h = h.wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        let r = &c.record;
+        for v in r.t.iter().chain(&r.u).chain(r.reference.iter().flatten()) {
+            eat(&v.to_bits().to_le_bytes());
+        }
+        for ch in &r.channels {
+            for v in &ch.values {
+                eat(&v.to_bits().to_le_bytes());
+            }
+        }
+        eat(format!("{:?} {:?}", c.hidden, c.more).as_bytes());
+        h
+    }
+
+    /// The generator's records, bit for bit, as `generate_with` made them before it was split
+    /// into steps (main 5a1f356, 2026-12-07): every variant once, open and closed loop, a
+    /// combination and a driven case. `EHACTL_PRINT_FINGERPRINTS=1` prints the table.
+    #[test]
+    fn records_are_bit_identical_to_the_unsplit_generator() {
+        let kinds = [
+            "clean",
+            "lugre",
+            "dahl",
+            "hose",
+            "load_coulomb",
+            "overlap",
+            "amp_deadzone",
+            "soft_saturation",
+            "asym_saturation",
+            "spool1",
+            "spool2",
+            "internal_leak",
+            "external_leak_both",
+            "external_leak_a",
+            "entrained_air",
+            "linear_beta",
+            "lines",
+            "load_mount",
+            "body_mount",
+            "delay",
+            "tone",
+            "supply_resistance",
+            "pump_limit",
+            "pi_clean",
+            "pi_lugre+internal_leak",
+            "pi_delay+tone",
+            "overlap+external_leak_both",
+        ];
+        let mut got: Vec<(String, u64)> = kinds
+            .iter()
+            .enumerate()
+            .map(|(i, k)| {
+                let c =
+                    make_case(9000 + i as u64, k, 0.2, 1e-3).unwrap_or_else(|e| panic!("{k}: {e}"));
+                (k.to_string(), fingerprint(&c))
+            })
+            .collect();
+        let excitation: Vec<f64> = (0..200).map(|i| (0.05 * i as f64).sin()).collect();
+        let driven = make_case_small_driven(9100, "pi_lugre", 0.3, &excitation, 1e-3)
+            .unwrap_or_else(|e| panic!("driven: {e}"));
+        got.push(("driven pi_lugre α 0.3".into(), fingerprint(&driven)));
+        if std::env::var_os("EHACTL_PRINT_FINGERPRINTS").is_some() {
+            for (k, f) in &got {
+                println!("            (\"{k}\", 0x{f:016x}),");
+            }
+        }
+        let want: &[(&str, u64)] = &[
+            ("clean", 0x335359e6d9063959),
+            ("lugre", 0x7fcccedcc8db23ac),
+            ("dahl", 0x1715746e2e73ad48),
+            ("hose", 0x844d76f7736137e9),
+            ("load_coulomb", 0x792f079e1c53742c),
+            ("overlap", 0x35e28025a3df1606),
+            ("amp_deadzone", 0xfd653f87cac7dd13),
+            ("soft_saturation", 0xdc4d9daf655ff52f),
+            ("asym_saturation", 0x2ace32e67839fa31),
+            ("spool1", 0xb58c4a40c514aff0),
+            ("spool2", 0x1d2ead71a4b1356f),
+            ("internal_leak", 0xf1a951a0ab1cc73a),
+            ("external_leak_both", 0x1679514f3702e363),
+            ("external_leak_a", 0x99c3650114a35c36),
+            ("entrained_air", 0x55a9b50cfe6f9ff4),
+            ("linear_beta", 0x6203e819fedd387c),
+            ("lines", 0x3d60053c3eaf520e),
+            ("load_mount", 0xaa81b8fb70c28ba0),
+            ("body_mount", 0x39954066911b65a4),
+            ("delay", 0x82a7f39c4232d62f),
+            ("tone", 0x97d8bbe61226ea37),
+            ("supply_resistance", 0x9c02b7b246bf091c),
+            ("pump_limit", 0x69095fe57770f8a6),
+            ("pi_clean", 0xae957db8a0781d0f),
+            ("pi_lugre+internal_leak", 0x4eac67ecb7e8314d),
+            ("pi_delay+tone", 0x3c5b956539dc9787),
+            ("overlap+external_leak_both", 0x63abd39cfc77b585),
+            ("driven pi_lugre α 0.3", 0x65a6d82b9537b470),
+        ];
+        let got: Vec<(&str, u64)> = got.iter().map(|(k, f)| (k.as_str(), *f)).collect();
+        assert_eq!(got, want);
+    }
 }

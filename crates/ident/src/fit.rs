@@ -121,26 +121,10 @@ pub fn nelder_mead(
     }
     while evals < max_evals {
         simplex.sort_by(|a, b| a.1.total_cmp(&b.1));
-        let (best, worst) = (simplex[0].1, simplex[n].1);
-        let spread = simplex
-            .iter()
-            .skip(1)
-            .map(|(x, _)| {
-                x.iter()
-                    .zip(&simplex[0].0)
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0, f64::max)
-            })
-            .fold(0.0, f64::max);
-        if (worst - best).abs() <= tol * best.abs().max(1e-12) && spread < 1e-3 {
+        if converged(&simplex, tol) {
             break;
         }
-        let mut c = vec![0.0; n];
-        for (x, _) in &simplex[..n] {
-            for j in 0..n {
-                c[j] += x[j] / n as f64;
-            }
-        }
+        let c = centroid(&simplex[..n]);
         let pt = |a: f64| -> Vec<f64> {
             let mut x: Vec<f64> = (0..n)
                 .map(|j| c[j] + a * (simplex[n].0[j] - c[j]))
@@ -187,6 +171,36 @@ pub fn nelder_mead(
     simplex.sort_by(|a, b| a.1.total_cmp(&b.1));
     let (x, v) = simplex.swap_remove(0);
     (x, v, evals)
+}
+
+/// Whether a simplex sorted by cost has converged: its costs within `tol` relative to the
+/// best (at least 1e-12 absolute) and every vertex within 1e-3 of the best in each
+/// coordinate of the unit cube.
+fn converged(simplex: &[(Vec<f64>, f64)], tol: f64) -> bool {
+    let (best, worst) = (simplex[0].1, simplex[simplex.len() - 1].1);
+    let spread = simplex
+        .iter()
+        .skip(1)
+        .map(|(x, _)| {
+            x.iter()
+                .zip(&simplex[0].0)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max)
+        })
+        .fold(0.0, f64::max);
+    (worst - best).abs() <= tol * best.abs().max(1e-12) && spread < 1e-3
+}
+
+/// The centroid of the given vertices (every vertex but the worst).
+fn centroid(vertices: &[(Vec<f64>, f64)]) -> Vec<f64> {
+    let n = vertices.len();
+    let mut c = vec![0.0; n];
+    for (x, _) in vertices {
+        for j in 0..n {
+            c[j] += x[j] / n as f64;
+        }
+    }
+    c
 }
 
 #[cfg(test)]

@@ -319,6 +319,30 @@ fn residual_state(path: &Path, rec: &Record, nom: &Replay) -> PlotResult<()> {
     root.present().map_err(err(path))
 }
 
+/// The phase of each point of a frequency response (re, im), unwrapped (deg): a jump of
+/// more than π between neighbours is taken as a wrap.
+fn unwrapped_phase(h: &[(f64, f64)]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(h.len());
+    let mut prev = 0.0f64;
+    let mut offset = 0.0f64;
+    for (k, (re, im)) in h.iter().enumerate() {
+        let a = im.atan2(*re);
+        if k > 0 {
+            let d = a - prev;
+            if d > std::f64::consts::PI {
+                offset -= std::f64::consts::TAU;
+            } else if d < -std::f64::consts::PI {
+                offset += std::f64::consts::TAU;
+            }
+        }
+        prev = a;
+        out.push((a + offset).to_degrees());
+    }
+    out
+}
+
+/// The frequency responses u → each channel (H1 estimates) of the record and the nominal
+/// and extended replays: magnitude above, unwrapped phase below, one column per channel.
 fn frf(path: &Path, rec: &Record, nom: &Replay, ext: &Replay) -> PlotResult<()> {
     let cols = rec.channels.len();
     let root = SVGBackend::new(path, (360 * cols as u32, 560)).into_drawing_area();
@@ -344,28 +368,7 @@ fn frf(path: &Path, rec: &Record, nom: &Replay, ext: &Replay) -> PlotResult<()> 
             .map(|cv| cv.1.iter().map(|(re, im)| re.hypot(*im)).collect())
             .collect();
         // Unwrapped phase (deg) so that a delay reads as a straight descent.
-        let phases: Vec<Vec<f64>> = curves
-            .iter()
-            .map(|cv| {
-                let mut out = Vec::with_capacity(cv.1.len());
-                let mut prev = 0.0f64;
-                let mut offset = 0.0f64;
-                for (k, (re, im)) in cv.1.iter().enumerate() {
-                    let a = im.atan2(*re);
-                    if k > 0 {
-                        let d = a - prev;
-                        if d > std::f64::consts::PI {
-                            offset -= std::f64::consts::TAU;
-                        } else if d < -std::f64::consts::PI {
-                            offset += std::f64::consts::TAU;
-                        }
-                    }
-                    prev = a;
-                    out.push((a + offset).to_degrees());
-                }
-                out
-            })
-            .collect();
+        let phases: Vec<Vec<f64>> = curves.iter().map(|cv| unwrapped_phase(&cv.1)).collect();
         let (m0, m1) = log_span(mags.iter().flat_map(|m| m[1..].iter()));
         let mut top = ChartBuilder::on(&areas[c])
             .margin(6)

@@ -516,54 +516,84 @@ pub fn run(
     let mut files = Vec::new();
     if let Some(dir) = out {
         let mut od = crate::outdir::OutDir::create(dir).map_err(SessionError::Io)?;
-        // The force band's edges, predicted ∓ half-width.
-        let edges: Vec<Option<(Vec<f64>, Vec<f64>)>> = predictions
-            .iter()
-            .map(|p| {
-                let b = p.band.as_ref()?;
-                let (_, f) = p.predicted.iter().find(|(k, _)| *k == ChannelKind::Force)?;
-                let lo = f.iter().zip(&b.half_width).map(|(y, h)| y - h).collect();
-                let hi = f.iter().zip(&b.half_width).map(|(y, h)| y + h).collect();
-                Some((lo, hi))
-            })
-            .collect();
-        let panels: Vec<crate::plots::PredictionPanel<'_>> = predictions
-            .iter()
-            .zip(&records)
-            .zip(&edges)
-            .flat_map(|((p, r), e)| {
-                p.predicted.iter().filter_map(move |(k, yh)| {
-                    r.channel(*k).map(|y| crate::plots::PredictionPanel {
-                        title: format!(
-                            "{} {} ({})",
-                            Path::new(&r.source)
-                                .file_name()
-                                .map_or(r.source.clone(), |f| f.to_string_lossy().into_owned()),
-                            k.column(),
-                            k.unit()
-                        ),
-                        t: &r.t,
-                        measured: y,
-                        predicted: yh,
-                        nominal: None,
-                        shade_from: (p.scored.0 > 0).then_some(p.scored.0),
-                        band: e
-                            .as_ref()
-                            .filter(|_| *k == ChannelKind::Force)
-                            .map(|(lo, hi)| (lo.as_slice(), hi.as_slice())),
-                    })
-                })
-            })
-            .collect();
-        files.push(
-            od.write_with("prediction.svg", |path| {
-                crate::plots::prediction(path, &panels)
-            })
-            .map_err(SessionError::Io)?,
-        );
+        files.push(write_plot(&mut od, &predictions, &records).map_err(SessionError::Io)?);
         // Written below: the `--json` object, which lists it among the files.
         files.push(od.path("prediction.json"));
     }
+    let json = run_json(&predictions, config_path, &files, &warnings);
+    if let Some(dir) = out {
+        let text = serde_json::to_string_pretty(&json).unwrap_or_default();
+        crate::outdir::OutDir::create(dir)
+            .and_then(|mut od| od.write("prediction.json", text.as_bytes()))
+            .map_err(SessionError::Io)?;
+    }
+    Ok(PredictRun {
+        predictions,
+        json,
+        warnings,
+        files,
+    })
+}
+
+/// `prediction.svg` in `od`: every predicted channel of every record against its
+/// measurement, the force band's edges where a band was fitted. Returns the file's path.
+fn write_plot(
+    od: &mut crate::outdir::OutDir,
+    predictions: &[Prediction],
+    records: &[Record],
+) -> Result<PathBuf, String> {
+    // The force band's edges, predicted ∓ half-width.
+    let edges: Vec<Option<(Vec<f64>, Vec<f64>)>> = predictions
+        .iter()
+        .map(|p| {
+            let b = p.band.as_ref()?;
+            let (_, f) = p.predicted.iter().find(|(k, _)| *k == ChannelKind::Force)?;
+            let lo = f.iter().zip(&b.half_width).map(|(y, h)| y - h).collect();
+            let hi = f.iter().zip(&b.half_width).map(|(y, h)| y + h).collect();
+            Some((lo, hi))
+        })
+        .collect();
+    let panels: Vec<crate::plots::PredictionPanel<'_>> = predictions
+        .iter()
+        .zip(records)
+        .zip(&edges)
+        .flat_map(|((p, r), e)| {
+            p.predicted.iter().filter_map(move |(k, yh)| {
+                r.channel(*k).map(|y| crate::plots::PredictionPanel {
+                    title: format!(
+                        "{} {} ({})",
+                        Path::new(&r.source)
+                            .file_name()
+                            .map_or(r.source.clone(), |f| f.to_string_lossy().into_owned()),
+                        k.column(),
+                        k.unit()
+                    ),
+                    t: &r.t,
+                    measured: y,
+                    predicted: yh,
+                    nominal: None,
+                    shade_from: (p.scored.0 > 0).then_some(p.scored.0),
+                    band: e
+                        .as_ref()
+                        .filter(|_| *k == ChannelKind::Force)
+                        .map(|(lo, hi)| (lo.as_slice(), hi.as_slice())),
+                })
+            })
+        })
+        .collect();
+    od.write_with("prediction.svg", |path| {
+        crate::plots::prediction(path, &panels)
+    })
+}
+
+/// The `--json` object: the one prediction, or every record's with the pooled NRMSE (-),
+/// and the config, the files written, the warnings and the count of diverged records.
+fn run_json(
+    predictions: &[Prediction],
+    config_path: &Path,
+    files: &[PathBuf],
+    warnings: &[String],
+) -> Value {
     let one = |p: &Prediction| serde_json::to_value(p).unwrap_or_default();
     let mut json = if predictions.len() == 1 {
         one(&predictions[0])
@@ -584,19 +614,8 @@ pub fn run(
             .map(|f| f.display().to_string())
             .collect::<Vec<_>>(),
     );
-    json["warnings"] = Value::from(warnings.clone());
+    json["warnings"] = Value::from(warnings.to_vec());
     json["diverged_records"] =
         Value::from(predictions.iter().filter(|p| p.diverged.is_some()).count());
-    if let Some(dir) = out {
-        let text = serde_json::to_string_pretty(&json).unwrap_or_default();
-        crate::outdir::OutDir::create(dir)
-            .and_then(|mut od| od.write("prediction.json", text.as_bytes()))
-            .map_err(SessionError::Io)?;
-    }
-    Ok(PredictRun {
-        predictions,
-        json,
-        warnings,
-        files,
-    })
+    json
 }

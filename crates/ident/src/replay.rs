@@ -632,32 +632,88 @@ pub fn choose_integration_between(
 ) -> (PlantParams, IntegrationCheck) {
     let n = n.min(rec.len());
     let mut p = p.clone();
-    let sd: Vec<f64> = rec
-        .channels
-        .iter()
-        .map(|c| std(&c.values[..n]).max(1e-300))
-        .collect();
-    let names: Vec<String> = rec
-        .channels
-        .iter()
-        .map(|c| c.kind.column().to_string())
-        .collect();
-    // Noise floor per channel from the nominal replay's residual (as in the diagnosis).
-    let floor: Vec<f64> = match replay_with(&p, rec, n, drive) {
-        Ok(sim) => rec
-            .channels
-            .iter()
-            .zip(&sim.y)
-            .map(|(c, yh)| residual_floor(&c.values[..n], yh))
-            .collect(),
-        Err(_) => vec![0.0; sd.len()],
-    };
+    let halving = Halving::new(&p, rec, n, drive);
     // Fewest substeps the replays may take at all (ω·h ≤ REPLAY_MAX_OMEGA_H at the nominal
     // parameters; each replay guards its own parameters the same way, `configure_stable`).
     // The config's substeps per sample and the fewest the guard allows (one configuration).
     let (n0, stable_ns) = Plant::configure(&p, rec.dt)
         .map_or((1, 1), |pl| (pl.substeps(), stable_substeps(&pl, rec.dt)));
-    let step_halving = |p: &PlantParams, ns: u32| -> Vec<f64> {
+    let cap = ((n0 as f64 * max_cost.max(1.0)).floor() as u32)
+        .clamp(n0, ehactl_plant::model::MAX_SUBSTEPS);
+    let (mut ns, mut err) = halving.refine(&p, n0, cap);
+    // Cheaper when the config's substeps are far more accurate than required: the fewest
+    // that leave at most half the allowed error (first order: error ∝ step), no fewer than
+    // `min_cost` × the config's and than the nominal stability guard (ω·h ≤
+    // REPLAY_MAX_OMEGA_H; a fit that moves a mode faster gets more substeps in its own
+    // replays, up to the config's, `replay_guarded`), checked by step halving like any other
+    // choice and kept only when it holds.
+    let floor_ns = ((n0 as f64 * min_cost.clamp(0.0, 1.0)).ceil() as u32)
+        .max(stable_ns)
+        .max(1);
+    if ns == n0 && floor_ns < n0 {
+        if let Some(fewer) = halving.fewer(&p, n0, floor_ns, &err) {
+            (ns, err) = fewer;
+        }
+    }
+    let met = halving.worst(&err) <= 1.0;
+    p.integration.substeps = ns;
+    let names = || rec.channels.iter().map(|c| c.kind.column().to_string());
+    let check = IntegrationCheck {
+        substeps: ns,
+        config_substeps: n0,
+        max_omega_h: p.integration.max_omega_h,
+        error: names().zip(err).collect(),
+        floor: names().zip(halving.floor.iter().copied()).collect(),
+        ratio_limit: INTEGRATION_RATIO,
+        max_cost,
+        met,
+        configured_step_explains: false,
+    };
+    (p, check)
+}
+
+/// The step-halving check of [`choose_integration_between`] on the first `n` samples of a
+/// record: each channel's std and noise floor, and the replays at N and 2N substeps.
+struct Halving<'r> {
+    rec: &'r Record,
+    n: usize,
+    drive: Drive,
+    /// Std of each measured channel over the window (its unit).
+    sd: Vec<f64>,
+    /// Noise floor per channel from the nominal replay's residual (NRMSE units, -).
+    floor: Vec<f64>,
+}
+
+impl<'r> Halving<'r> {
+    /// The channels' stds and floors at the nominal parameters `p` (as in the diagnosis).
+    fn new(p: &PlantParams, rec: &'r Record, n: usize, drive: Drive) -> Self {
+        let sd: Vec<f64> = rec
+            .channels
+            .iter()
+            .map(|c| std(&c.values[..n]).max(1e-300))
+            .collect();
+        let floor: Vec<f64> = match replay_with(p, rec, n, drive) {
+            Ok(sim) => rec
+                .channels
+                .iter()
+                .zip(&sim.y)
+                .map(|(c, yh)| residual_floor(&c.values[..n], yh))
+                .collect(),
+            Err(_) => vec![0.0; sd.len()],
+        };
+        Self {
+            rec,
+            n,
+            drive,
+            sd,
+            floor,
+        }
+    }
+
+    /// Per channel: rms difference of the replays with `ns` and 2·`ns` substeps over the
+    /// channel's std (-); infinite when a replay fails.
+    fn error(&self, p: &PlantParams, ns: u32) -> Vec<f64> {
+        let (rec, n, drive) = (self.rec, self.n, self.drive);
         let mut a = p.clone();
         a.integration.substeps = ns;
         let mut b = p.clone();
@@ -670,7 +726,7 @@ pub fn choose_integration_between(
             (Ok(a), Ok(b)) => {
                 a.y.iter()
                     .zip(&b.y)
-                    .zip(&sd)
+                    .zip(&self.sd)
                     .map(|((ya, yb), s)| {
                         (ya.iter()
                             .zip(yb)
@@ -682,68 +738,61 @@ pub fn choose_integration_between(
                     })
                     .collect()
             }
-            _ => vec![f64::INFINITY; sd.len()],
+            _ => vec![f64::INFINITY; self.sd.len()],
         }
-    };
-    // Worst ratio error / allowed over channels (1e-6 of the std: numerically insignificant
-    // even on noise-free data).
-    let worst = |err: &[f64]| {
+    }
+
+    /// Worst ratio error / allowed over channels (1e-6 of the std: numerically insignificant
+    /// even on noise-free data).
+    fn worst(&self, err: &[f64]) -> f64 {
         err.iter()
-            .zip(&floor)
+            .zip(&self.floor)
             .map(|(e, f)| e / (INTEGRATION_RATIO * f).max(1e-6))
             .fold(0.0, f64::max)
-    };
-    let cap = ((n0 as f64 * max_cost.max(1.0)).floor() as u32)
-        .clamp(n0, ehactl_plant::model::MAX_SUBSTEPS);
-    let mut ns = n0;
-    let mut err = step_halving(&p, ns);
-    for _ in 0..2 {
-        let r = worst(&err);
-        if r <= 1.0 || ns >= cap || !r.is_finite() {
-            break;
-        }
-        let next = ((ns as f64 * r * 1.2).ceil() as u32).clamp(ns + 1, cap);
-        ns = next;
-        err = step_halving(&p, ns);
     }
-    // Cheaper when the config's substeps are far more accurate than required: the fewest
-    // that leave at most half the allowed error (first order: error ∝ step), no fewer than
-    // `min_cost` × the config's and than the nominal stability guard (ω·h ≤
-    // REPLAY_MAX_OMEGA_H; a fit that moves a mode faster gets more substeps in its own
-    // replays, up to the config's, `replay_guarded`), checked by step halving like any other
-    // choice and kept only when it holds.
-    let floor_ns = ((n0 as f64 * min_cost.clamp(0.0, 1.0)).ceil() as u32)
-        .max(stable_ns)
-        .max(1);
-    // A prediction that misses (the error is not yet first order at so few substeps) is
-    // followed by the next counts up (each check is two replays of the fit cost's samples,
-    // against the thousands of a diagnosis).
-    if ns == n0 && floor_ns < n0 {
-        let r = worst(&err);
+
+    /// From the config's `n0` substeps: while the error exceeds the allowed one, the substeps
+    /// predicted to meet it (first order, 20 % margin), up to `cap`, at most twice. Returns
+    /// the substeps and their error.
+    fn refine(&self, p: &PlantParams, n0: u32, cap: u32) -> (u32, Vec<f64>) {
+        let mut ns = n0;
+        let mut err = self.error(p, ns);
+        for _ in 0..2 {
+            let r = self.worst(&err);
+            if r <= 1.0 || ns >= cap || !r.is_finite() {
+                break;
+            }
+            let next = ((ns as f64 * r * 1.2).ceil() as u32).clamp(ns + 1, cap);
+            ns = next;
+            err = self.error(p, ns);
+        }
+        (ns, err)
+    }
+
+    /// Fewer substeps than the config's `n0`, no fewer than `floor_ns`, when the first that
+    /// leaves at most half the allowed error by its own check is found among the predicted
+    /// count and the next three up (a prediction that misses, the error not yet first order
+    /// at so few substeps, is followed by the next counts up: each check is two replays of
+    /// the fit cost's samples, against the thousands of a diagnosis). `err0` is the error at
+    /// `n0`.
+    fn fewer(
+        &self,
+        p: &PlantParams,
+        n0: u32,
+        floor_ns: u32,
+        err0: &[f64],
+    ) -> Option<(u32, Vec<f64>)> {
+        let r = self.worst(err0);
         let fewer = ((n0 as f64 * r / 0.5).ceil() as u32).max(floor_ns);
-        if r.is_finite() {
-            for k in (fewer..n0).take(4) {
-                let e = step_halving(&p, k);
-                if worst(&e) <= 0.5 {
-                    ns = k;
-                    err = e;
-                    break;
-                }
+        if !r.is_finite() {
+            return None;
+        }
+        for k in (fewer..n0).take(4) {
+            let e = self.error(p, k);
+            if self.worst(&e) <= 0.5 {
+                return Some((k, e));
             }
         }
+        None
     }
-    let met = worst(&err) <= 1.0;
-    p.integration.substeps = ns;
-    let check = IntegrationCheck {
-        substeps: ns,
-        config_substeps: n0,
-        max_omega_h: p.integration.max_omega_h,
-        error: names.iter().cloned().zip(err).collect(),
-        floor: names.iter().cloned().zip(floor.iter().copied()).collect(),
-        ratio_limit: INTEGRATION_RATIO,
-        max_cost,
-        met,
-        configured_step_explains: false,
-    };
-    (p, check)
 }

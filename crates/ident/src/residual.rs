@@ -194,6 +194,9 @@ pub fn test(
     }
 }
 
+/// Where the residual of channel `c` over `range` departs from noise: the band and peak of
+/// its energy above the white `floor` (NRMSE units), the state it correlates with most and
+/// its lag behind the command.
 fn signature(
     rec: &Record,
     sim: &Replay,
@@ -208,10 +211,45 @@ fn signature(
         .zip(&sim.y[c][range.clone()])
         .map(|(a, b)| a - b)
         .collect();
+    let (lo, hi, peak_hz) = excess_band(&e, rec.dt, (floor * std(y)).powi(2));
+    let correlations: Vec<(String, f64)> = state_regressors(rec, sim, range.clone())
+        .iter()
+        .map(|(n, r)| (n.clone(), corr(&e, r)))
+        .collect();
+    let depends_on = correlations
+        .iter()
+        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+        .cloned()
+        .unwrap_or(("none".into(), 0.0));
+    let lag_s = command_lag(&e, &rec.u[range.clone()], rec.dt);
+    let text = format!(
+        "residual on `{}` is not noise: energy above the floor in {:.1}–{:.1} Hz (peak {:.1} Hz); it correlates most with {} (r = {:+.2}); largest correlation with the command at a lag of {:.1} ms",
+        ch.kind.column(),
+        lo,
+        hi,
+        peak_hz,
+        depends_on.0,
+        depends_on.1,
+        lag_s * 1e3
+    );
+    Signature {
+        channel: ch.kind.column().to_string(),
+        band_hz: (lo, hi),
+        peak_hz,
+        depends_on,
+        correlations,
+        lag_s,
+        text,
+    }
+}
+
+/// The band holding the 10–90 % of the residual `e`'s power above the white floor of
+/// variance `var_floor` (the channel's unit squared) and the frequency of its largest excess:
+/// (low, high, peak) in Hz. `dt` is the sample period (s).
+fn excess_band(e: &[f64], dt: f64, var_floor: f64) -> (f64, f64, f64) {
     // Excess PSD over the white floor (floor in NRMSE units → variance per Hz).
-    let (f, psd) = welch(&e, rec.dt);
-    let fnyq = 0.5 / rec.dt;
-    let var_floor = (floor * std(y)).powi(2);
+    let (f, psd) = welch(e, dt);
+    let fnyq = 0.5 / dt;
     let white = var_floor / fnyq;
     let excess: Vec<f64> = psd.iter().map(|p| (p - white).max(0.0)).collect();
     let total: f64 = excess.iter().sum();
@@ -233,7 +271,16 @@ fn signature(
         .zip(&excess)
         .max_by(|a, b| a.1.total_cmp(b.1))
         .map_or(0.0, |p| *p.0);
-    // Dependence on states (measured where available, else the model's velocity).
+    (lo, hi, peak_hz)
+}
+
+/// The states a residual may depend on over `range`, named: measured where available, else
+/// the model's velocity.
+fn state_regressors(
+    rec: &Record,
+    sim: &Replay,
+    range: std::ops::Range<usize>,
+) -> Vec<(String, Vec<f64>)> {
     let v = &sim.v[range.clone()];
     let mut regs: Vec<(String, Vec<f64>)> = vec![
         ("velocity".into(), v.to_vec()),
@@ -259,18 +306,15 @@ fn signature(
                 .collect(),
         ));
     } else if let Some(pa) = rec.channel(ChannelKind::PressureA) {
-        regs.push(("pressure p_a".into(), pa[range.clone()].to_vec()));
+        regs.push(("pressure p_a".into(), pa[range].to_vec()));
     }
-    let correlations: Vec<(String, f64)> =
-        regs.iter().map(|(n, r)| (n.clone(), corr(&e, r))).collect();
-    let depends_on = correlations
-        .iter()
-        .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
-        .cloned()
-        .unwrap_or(("none".into(), 0.0));
-    // Lag behind the command: the residual's largest |cross-correlation| with u_{k−l}.
-    let u = &rec.u[range.clone()];
-    let max_lag = (e.len() / 4).min((0.2 / rec.dt) as usize).max(1);
+    regs
+}
+
+/// The residual's lag behind the command (s): the lag l of its largest |cross-correlation|
+/// with u_{k−l}, up to a quarter of the record and at most 0.2 s.
+fn command_lag(e: &[f64], u: &[f64], dt: f64) -> f64 {
+    let max_lag = (e.len() / 4).min((0.2 / dt) as usize).max(1);
     let mut best = (0.0f64, 0usize);
     for l in 0..=max_lag {
         let r = corr(&e[l..], &u[..u.len() - l]).abs();
@@ -278,26 +322,7 @@ fn signature(
             best = (r, l);
         }
     }
-    let lag_s = best.1 as f64 * rec.dt;
-    let text = format!(
-        "residual on `{}` is not noise: energy above the floor in {:.1}–{:.1} Hz (peak {:.1} Hz); it correlates most with {} (r = {:+.2}); largest correlation with the command at a lag of {:.1} ms",
-        ch.kind.column(),
-        lo,
-        hi,
-        peak_hz,
-        depends_on.0,
-        depends_on.1,
-        lag_s * 1e3
-    );
-    Signature {
-        channel: ch.kind.column().to_string(),
-        band_hz: (lo, hi),
-        peak_hz,
-        depends_on,
-        correlations,
-        lag_s,
-        text,
-    }
+    best.1 as f64 * dt
 }
 
 #[cfg(test)]

@@ -24,6 +24,44 @@ fn cpu_time_s(who: libc::c_int) -> f64 {
     tv(ru.ru_utime) + tv(ru.ru_stime)
 }
 
+/// Cycle `k`'s record at `rate` (Hz): a 7 Hz sine on every channel with `noise` (uniform in
+/// ±0.5) added, in magnitudes of the Sahu 2022 force rig (N, m, Pa, V).
+fn fill(rec: &mut CycleRecord, k: u64, rate: f64, noise: &mut impl FnMut() -> f64) {
+    let t = k as f64 / rate;
+    let s = (2.0 * std::f64::consts::PI * 7.0 * t).sin();
+    rec.cycle = k;
+    rec.t = t;
+    rec.setpoint = 785.0 + 196.0 * s;
+    rec.setpoint_rate = 196.0 * 44.0 * (2.0 * std::f64::consts::PI * 7.0 * t).cos();
+    rec.feedback = rec.setpoint + noise();
+    rec.error = rec.setpoint - rec.feedback;
+    rec.command = 0.5 * s + 1e-3 * noise();
+    rec.command_unsat = rec.command;
+    rec.p_term = 0.57 * rec.error;
+    rec.i_term = rec.command - rec.p_term;
+    rec.meas.t = t;
+    rec.meas.force = rec.feedback;
+    rec.meas.position = 1e-6 * s;
+    rec.meas.p_a = 1.1e7 + 1e5 * s + noise();
+    rec.meas.p_b = 0.9e7 - 1e5 * s + noise();
+    rec.meas.spool = 0.05 * s;
+    let p = &mut rec.plant;
+    p.t = t;
+    p.command = rec.command;
+    p.spool = 0.05 * s + 1e-9 * noise();
+    p.spool_velocity = 0.3 * s + noise();
+    p.p_a = rec.meas.p_a + noise();
+    p.p_b = rec.meas.p_b + noise();
+    p.p_s = 2.1e7;
+    p.x = rec.meas.position + 1e-12 * noise();
+    p.v = 1e-4 * s + 1e-9 * noise();
+    p.x_load = p.x;
+    p.v_load = p.v;
+    p.q_a = 1e-6 * s + 1e-12 * noise();
+    p.q_b = -p.q_a;
+    p.rod_force = rec.feedback + noise();
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let n: u64 = args
@@ -70,39 +108,7 @@ fn main() {
     };
     let t_loop = Instant::now();
     for k in 0..n {
-        let t = k as f64 / rate;
-        let s = (2.0 * std::f64::consts::PI * 7.0 * t).sin();
-        rec.cycle = k;
-        rec.t = t;
-        rec.setpoint = 785.0 + 196.0 * s;
-        rec.setpoint_rate = 196.0 * 44.0 * (2.0 * std::f64::consts::PI * 7.0 * t).cos();
-        rec.feedback = rec.setpoint + noise();
-        rec.error = rec.setpoint - rec.feedback;
-        rec.command = 0.5 * s + 1e-3 * noise();
-        rec.command_unsat = rec.command;
-        rec.p_term = 0.57 * rec.error;
-        rec.i_term = rec.command - rec.p_term;
-        rec.meas.t = t;
-        rec.meas.force = rec.feedback;
-        rec.meas.position = 1e-6 * s;
-        rec.meas.p_a = 1.1e7 + 1e5 * s + noise();
-        rec.meas.p_b = 0.9e7 - 1e5 * s + noise();
-        rec.meas.spool = 0.05 * s;
-        let p = &mut rec.plant;
-        p.t = t;
-        p.command = rec.command;
-        p.spool = 0.05 * s + 1e-9 * noise();
-        p.spool_velocity = 0.3 * s + noise();
-        p.p_a = rec.meas.p_a + noise();
-        p.p_b = rec.meas.p_b + noise();
-        p.p_s = 2.1e7;
-        p.x = rec.meas.position + 1e-12 * noise();
-        p.v = 1e-4 * s + 1e-9 * noise();
-        p.x_load = p.x;
-        p.v_load = p.v;
-        p.q_a = 1e-6 * s + 1e-12 * noise();
-        p.q_b = -p.q_a;
-        p.rod_force = rec.feedback + noise();
+        fill(&mut rec, k, rate, &mut noise);
         logger.push(&rec);
     }
     let t_pushed = t_loop.elapsed().as_secs_f64();

@@ -708,39 +708,7 @@ impl PlantParams {
     ) -> Result<Vec<(&'static str, f64, f64, f64)>, crate::spec::ConfigError> {
         use crate::spec::ConfigError;
         let key = |k: &str| format!("uncertainty.\"{k}\"");
-        for k in self.uncertainty.keys() {
-            match UNCERTAIN_PARAMS.iter().find(|u| u.0 == k) {
-                None => {
-                    return Err(ConfigError::new(
-                        key(k),
-                        format!(
-                            "not a parameter whose uncertainty can be stated; expected one of: {}",
-                            UNCERTAIN_PARAMS.iter().map(|u| u.0).collect::<Vec<_>>().join(", ")
-                        ),
-                    ))
-                }
-                Some(_) if self.nominal_value(k).is_none() && k.starts_with("effects.") => {
-                    let section = k.rsplit_once('.').map_or(k.as_str(), |s| s.0);
-                    return Err(ConfigError::new(
-                        key(k),
-                        format!("the config has no [{section}] section; add it with the assumed nominal value (e.g. 0 for a delay or a null offset) to state how uncertain that value is"),
-                    ));
-                }
-                Some(_) if self.spool_order_mismatch(k).is_some() => {
-                    return Err(ConfigError::new(
-                        key(k),
-                        self.spool_order_mismatch(k).unwrap_or_default(),
-                    ));
-                }
-                Some(_) if self.nominal_value(k).is_none() => {
-                    return Err(ConfigError::new(
-                        key(k),
-                        "this valve's flow_form does not use the parameter (or it is not set); state the uncertainty of its own flow gain (kq: valve.rated_flow, orifice: valve.area_max, power_law: valve.flow_at_1mpa)",
-                    ))
-                }
-                Some(_) => {}
-            }
-        }
+        self.check_uncertainty_keys()?;
         let mut out = Vec::new();
         for &(path, default) in UNCERTAIN_PARAMS.iter() {
             let Some(v) = self.nominal_value(path) else {
@@ -806,6 +774,48 @@ impl PlantParams {
             }
         }
         Ok(out)
+    }
+
+    /// Every `[uncertainty]` key names a parameter the diagnosis refits and this config uses
+    /// (its effect's section present, its spool order and flow form the ones that have it).
+    /// Errors name the key.
+    fn check_uncertainty_keys(&self) -> Result<(), crate::spec::ConfigError> {
+        use crate::spec::ConfigError;
+        let key = |k: &str| format!("uncertainty.\"{k}\"");
+        for k in self.uncertainty.keys() {
+            match UNCERTAIN_PARAMS.iter().find(|u| u.0 == k) {
+                None => {
+                    return Err(ConfigError::new(
+                        key(k),
+                        format!(
+                            "not a parameter whose uncertainty can be stated; expected one of: {}",
+                            UNCERTAIN_PARAMS.iter().map(|u| u.0).collect::<Vec<_>>().join(", ")
+                        ),
+                    ))
+                }
+                Some(_) if self.nominal_value(k).is_none() && k.starts_with("effects.") => {
+                    let section = k.rsplit_once('.').map_or(k.as_str(), |s| s.0);
+                    return Err(ConfigError::new(
+                        key(k),
+                        format!("the config has no [{section}] section; add it with the assumed nominal value (e.g. 0 for a delay or a null offset) to state how uncertain that value is"),
+                    ));
+                }
+                Some(_) if self.spool_order_mismatch(k).is_some() => {
+                    return Err(ConfigError::new(
+                        key(k),
+                        self.spool_order_mismatch(k).unwrap_or_default(),
+                    ));
+                }
+                Some(_) if self.nominal_value(k).is_none() => {
+                    return Err(ConfigError::new(
+                        key(k),
+                        "this valve's flow_form does not use the parameter (or it is not set); state the uncertainty of its own flow gain (kq: valve.rated_flow, orifice: valve.area_max, power_law: valve.flow_at_1mpa)",
+                    ))
+                }
+                Some(_) => {}
+            }
+        }
+        Ok(())
     }
 }
 

@@ -492,33 +492,35 @@ impl<C: Clock> WallClockPacer<C> {
             self.clock.now_ns()
         }
     }
-}
 
-impl<C: Clock> Pacer for WallClockPacer<C> {
-    fn wait_for_cycle(&mut self, k: u64) -> bool {
-        if !self.started {
-            self.started = true;
-            self.apply_rt();
-            // First deadline one period ahead, so start-up page faults settle first.
-            let now = self.clock.now_ns();
-            self.origin = now + self.period_ns;
-            self.deadline = self.origin;
-            let start = self.sleep_to(self.deadline);
-            self.stats.jitter.record(start - self.deadline);
-            self.last_start = start;
-            self.last_start_cpu = self.clock.thread_cpu_ns();
-            self.timing = CycleTiming {
-                wall_t: (start - self.origin) as f64 * 1e-9,
-                lateness_us: (start - self.deadline) as f64 * 1e-3,
-                period_us: f64::NAN,
-                exec_prev_us: f64::NAN,
-                skipped: 0,
-                overrun: false,
-                overrun_exec: false,
-            };
-            return true;
-        }
+    /// The first cycle: the real-time settings applied, the grid's origin one period ahead
+    /// (so start-up page faults settle first) and the sleep to it.
+    #[inline]
+    fn start_grid(&mut self) {
+        self.started = true;
+        self.apply_rt();
         let now = self.clock.now_ns();
+        self.origin = now + self.period_ns;
+        self.deadline = self.origin;
+        let start = self.sleep_to(self.deadline);
+        self.stats.jitter.record(start - self.deadline);
+        self.last_start = start;
+        self.last_start_cpu = self.clock.thread_cpu_ns();
+        self.timing = CycleTiming {
+            wall_t: (start - self.origin) as f64 * 1e-9,
+            lateness_us: (start - self.deadline) as f64 * 1e-3,
+            period_us: f64::NAN,
+            exec_prev_us: f64::NAN,
+            skipped: 0,
+            overrun: false,
+            overrun_exec: false,
+        };
+    }
+
+    /// The previous cycle's execution time up to `now` (ns), wall and thread CPU time, both
+    /// recorded; (wall, CPU).
+    #[inline]
+    fn record_exec(&mut self, now: u64) -> (u64, u64) {
         let exec = now - self.last_start;
         self.stats.exec.record(exec);
         let exec_cpu_read = self
@@ -533,6 +535,91 @@ impl<C: Clock> Pacer for WallClockPacer<C> {
             exec_cpu_read
         };
         self.stats.exec_cpu.record(exec_cpu);
+        (exec, exec_cpu)
+    }
+
+    /// Cycle `k` starts at `now` (ns), after its `deadline` (ns): counted (`overrun_exec`:
+    /// the work's own CPU time exceeded the period), an overrun event at most every
+    /// [`OVERRUN_EVENT_SPACING_NS`], then the policy. Returns the deadline the cycle runs for
+    /// and the deadlines skipped, or `None` when the policy trips the run (the trip event
+    /// set).
+    #[inline]
+    fn on_overrun(
+        &mut self,
+        k: u64,
+        now: u64,
+        deadline: u64,
+        overrun_exec: bool,
+    ) -> Option<(u64, u64)> {
+        let mut deadline = deadline;
+        let mut skipped = 0u64;
+        self.streak += 1;
+        self.stats.overruns += 1;
+        if overrun_exec {
+            self.stats.overruns_exec += 1;
+        } else {
+            self.stats.overruns_wakeup += 1;
+        }
+        self.stats.longest_overrun_streak = self.stats.longest_overrun_streak.max(self.streak);
+        let late = now - deadline;
+        let spaced = match self.last_overrun_event {
+            None => true,
+            Some(t) => now - t >= OVERRUN_EVENT_SPACING_NS,
+        };
+        if spaced {
+            self.last_overrun_event = Some(now);
+            let ev = Event {
+                t: k as f64 * self.period_ns as f64 * 1e-9,
+                cycle: k,
+                severity: Severity::Warning,
+                kind: EventKind::Overrun,
+                channel: "cycle",
+                value: late as f64 * 1e-9,
+                limit: f64::NAN,
+                unit: "s",
+            };
+            self.push_event(ev);
+        }
+        match self.opts.overrun {
+            OverrunPolicy::Continue => {
+                // Start now; the grid moves to this start (no catch-up burst).
+                deadline = now;
+            }
+            OverrunPolicy::Skip | OverrunPolicy::Trip { .. } => {
+                let missed = late / self.period_ns + 1;
+                skipped = missed;
+                deadline += missed * self.period_ns;
+                self.stats.skipped_deadlines += missed;
+            }
+        }
+        if let OverrunPolicy::Trip { after } = self.opts.overrun {
+            if self.streak >= after.max(1) as u64 {
+                self.trip = Some(Event {
+                    t: k as f64 * self.period_ns as f64 * 1e-9,
+                    cycle: k,
+                    severity: Severity::Trip,
+                    kind: EventKind::Overrun,
+                    channel: "cycle",
+                    value: self.streak as f64,
+                    limit: after as f64,
+                    unit: "cycles",
+                });
+                self.deadline = deadline;
+                return None;
+            }
+        }
+        Some((deadline, skipped))
+    }
+}
+
+impl<C: Clock> Pacer for WallClockPacer<C> {
+    fn wait_for_cycle(&mut self, k: u64) -> bool {
+        if !self.started {
+            self.start_grid();
+            return true;
+        }
+        let now = self.clock.now_ns();
+        let (exec, exec_cpu) = self.record_exec(now);
         let nominal = self.deadline + self.period_ns;
         let mut deadline = nominal;
         let mut skipped = 0u64;
@@ -541,60 +628,9 @@ impl<C: Clock> Pacer for WallClockPacer<C> {
         // overran the period (ours), or it fit but the thread was not running when needed.
         let overrun_exec = overrun && exec_cpu > self.period_ns;
         if overrun {
-            self.streak += 1;
-            self.stats.overruns += 1;
-            if overrun_exec {
-                self.stats.overruns_exec += 1;
-            } else {
-                self.stats.overruns_wakeup += 1;
-            }
-            self.stats.longest_overrun_streak = self.stats.longest_overrun_streak.max(self.streak);
-            let late = now - deadline;
-            let spaced = match self.last_overrun_event {
-                None => true,
-                Some(t) => now - t >= OVERRUN_EVENT_SPACING_NS,
-            };
-            if spaced {
-                self.last_overrun_event = Some(now);
-                let ev = Event {
-                    t: k as f64 * self.period_ns as f64 * 1e-9,
-                    cycle: k,
-                    severity: Severity::Warning,
-                    kind: EventKind::Overrun,
-                    channel: "cycle",
-                    value: late as f64 * 1e-9,
-                    limit: f64::NAN,
-                    unit: "s",
-                };
-                self.push_event(ev);
-            }
-            match self.opts.overrun {
-                OverrunPolicy::Continue => {
-                    // Start now; the grid moves to this start (no catch-up burst).
-                    deadline = now;
-                }
-                OverrunPolicy::Skip | OverrunPolicy::Trip { .. } => {
-                    let missed = late / self.period_ns + 1;
-                    skipped = missed;
-                    deadline += missed * self.period_ns;
-                    self.stats.skipped_deadlines += missed;
-                }
-            }
-            if let OverrunPolicy::Trip { after } = self.opts.overrun {
-                if self.streak >= after.max(1) as u64 {
-                    self.trip = Some(Event {
-                        t: k as f64 * self.period_ns as f64 * 1e-9,
-                        cycle: k,
-                        severity: Severity::Trip,
-                        kind: EventKind::Overrun,
-                        channel: "cycle",
-                        value: self.streak as f64,
-                        limit: after as f64,
-                        unit: "cycles",
-                    });
-                    self.deadline = deadline;
-                    return false;
-                }
+            match self.on_overrun(k, now, nominal, overrun_exec) {
+                Some(next) => (deadline, skipped) = next,
+                None => return false,
             }
         } else {
             self.streak = 0;

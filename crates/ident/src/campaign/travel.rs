@@ -157,32 +157,9 @@ pub(super) fn travel_by_point(
             *d == shape.dahl_travel && (vd - shape.dahl_velocity).abs() <= 1e-12 * v_rms
         })
         .unwrap_or(0);
-    let mut choice: Vec<usize> = vec![start; fit_groups.len()];
-    let mixed = |choice: &[usize]| -> ShapeData {
-        let pick = |r: usize| {
-            let g = fit_groups.iter().position(|g| *g == prepared[r].group);
-            &grid[g.map_or(start, |g| choice[g])]
-        };
-        ShapeData {
-            shape,
-            a: (0..prepared.len()).map(|r| pick(r).a[r].clone()).collect(),
-            b: (0..prepared.len()).map(|r| pick(r).b[r].clone()).collect(),
-        }
-    };
-    for _pass in 0..2 {
-        for g in 0..fit_groups.len() {
-            // Each pair's transfer error once (a comparator would recompute both sides).
-            let (best, _) = (0..grid.len())
-                .map(|k| {
-                    let mut c = choice.clone();
-                    c[g] = k;
-                    let j = transfer_error(&mixed(&c), expanded, library, structure);
-                    (k, j.unwrap_or(f64::INFINITY))
-                })
-                .min_by(|a, b| a.1.total_cmp(&b.1))?;
-            choice[g] = best;
-        }
-    }
+    let choice = descend((&grid, start, shape), prepared, fit_groups, |data| {
+        transfer_error(data, expanded, library, structure)
+    })?;
     let pts: Vec<(f64, f64, f64)> = fit_groups
         .iter()
         .zip(&choice)
@@ -214,4 +191,44 @@ pub(super) fn travel_by_point(
     let j = transfer_error(&data, expanded, library, structure)?;
     dep.nrmse_transfer = j.sqrt();
     (j < (1.0 - TERM_MIN_GAIN) * j_shared).then_some((dep, data))
+}
+
+/// Coordinate descent over the fitted points (`fit_groups`): two passes in which each point
+/// takes the grid entry (`grid`, normal equations per record at one shape) that gives the
+/// lowest transfer `error` (NRMSE²) with the others' choices fixed, all starting at `start`;
+/// the mixed data carry the shared `shape`. Returns each point's choice; `None` when no
+/// entry gives an error.
+fn descend(
+    (grid, start, shape): (&[ShapeData], usize, Shape),
+    prepared: &[Prepared<'_>],
+    fit_groups: &[usize],
+    error: impl Fn(&ShapeData) -> Option<f64>,
+) -> Option<Vec<usize>> {
+    let mut choice: Vec<usize> = vec![start; fit_groups.len()];
+    let mixed = |choice: &[usize]| -> ShapeData {
+        let pick = |r: usize| {
+            let g = fit_groups.iter().position(|g| *g == prepared[r].group);
+            &grid[g.map_or(start, |g| choice[g])]
+        };
+        ShapeData {
+            shape,
+            a: (0..prepared.len()).map(|r| pick(r).a[r].clone()).collect(),
+            b: (0..prepared.len()).map(|r| pick(r).b[r].clone()).collect(),
+        }
+    };
+    for _pass in 0..2 {
+        for g in 0..fit_groups.len() {
+            // Each pair's transfer error once (a comparator would recompute both sides).
+            let (best, _) = (0..grid.len())
+                .map(|k| {
+                    let mut c = choice.clone();
+                    c[g] = k;
+                    let j = error(&mixed(&c));
+                    (k, j.unwrap_or(f64::INFINITY))
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))?;
+            choice[g] = best;
+        }
+    }
+    Some(choice)
 }

@@ -2,8 +2,9 @@
 //! held-out scoring with a parameter penalty, greedy acceptance.
 //!
 //! Typed phases (`Phase`), one file each, called in order by `pipeline`; the contract is
-//! written in ARCHITECTURE.md "The diagnosis as phases". A new phase: its file here, its
-//! `mod` line and its call in `pipeline`.
+//! written in ARCHITECTURE.md "The diagnosis as phases". A new phase: its file here and its
+//! one line in the `phases!` list below the `Phase` trait, which declares the file's module
+//! and calls the phase in `pipeline`.
 
 use crate::analysis::{analyse, Analysis};
 use crate::baseline::Baseline;
@@ -19,32 +20,16 @@ use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
-mod closest;
-mod grey;
+// The phases' own modules are declared by `phases!` (below `Phase`); these are the tools
+// they share and the report.
 mod judge;
-mod limits;
-mod loop_id;
-mod nominal;
-mod refit;
-mod reloop;
 mod report;
-mod residual_test;
 mod round;
-mod search;
 mod summary;
 
-use closest::*;
-use grey::*;
 pub use judge::WEIGHTED_EXPLAINED;
 use judge::*;
-use limits::*;
-use loop_id::*;
-use nominal::*;
-use refit::*;
-use reloop::*;
-use residual_test::*;
 use round::*;
-use search::*;
 use summary::*;
 
 /// A model whose held-out NRMSE is below this factor × the estimated noise floor on every
@@ -360,35 +345,81 @@ pub fn diagnose(
     pipeline(&inp)
 }
 
-/// The phases in order, each on the results of those before it.
-fn pipeline(inp: &Inputs<'_>) -> Result<Diagnosis, String> {
-    let nom = NominalPhase::run(inp, ())?;
-    inp.bar();
-    let lp = LoopPhase::run(inp, (&nom,))?;
-    let rf = RefitPhase::run(inp, (&nom, &lp))?;
-    let search = SearchPhase::run(inp, (&nom, &lp, &rf))?;
-    let resid = ResidualPhase::run(inp, (&nom, &lp, &rf, &search))?;
-    let closest = ClosestPhase::run(inp, (&nom, &rf, &search, &resid))?;
-    let grey = GreyPhase::run(inp, (&nom, &lp, &rf, &search, &resid, &closest))?;
-    // When the law alone wins, the refit's search and residual test replace the catalogue
-    // model's for every later phase.
-    let (search, resid) = grey.kept(search, resid);
-    let limits = LimitsPhase::run(inp, (&nom, &lp, &rf, &search, &grey))?;
-    let reloop = ReloopPhase::run(inp, (&nom, &lp, &grey))?;
-    let phases = report::Phases {
-        nom,
-        lp,
-        rf,
-        search,
-        resid,
-        closest,
-        grey,
-        limits,
-        reloop,
+/// Declares the phases and the pipeline that runs them. Each phase is one line,
+/// `module::Type(needs…) => name;`: the line declares `mod module;` (the phase's file beside
+/// this one) with a glob import of it, and in `pipeline` runs `Type::run(inp, (&need, …))`
+/// and binds its result to `name`, which later lines may list among their needs. The needs
+/// are the `Phase::Needs` tuple in order, so a line that names the wrong results, or an
+/// earlier result that does not exist yet, does not compile. A `{ … }` between the lines is
+/// pasted into `pipeline` as it stands (the glue that is no phase); the last one ends it with
+/// the result.
+macro_rules! phases {
+    ($(#[$meta:meta])* fn $name:ident($inp:ident) { $($list:tt)* }) => {
+        phases!(@mods $($list)*);
+        phases!(@fn $inp [$(#[$meta])* fn $name] [] $($list)*);
     };
-    let mut d = report::assemble(inp, phases);
-    d.next_tests = crate::nexttest::next_tests(&d.ambiguities, &d.detection_limits, inp.rec);
-    Ok(d)
+    (@mods) => {};
+    (@mods $m:ident :: $t:ident ($($need:ident),*) => $bind:ident; $($rest:tt)*) => {
+        mod $m;
+        use $m::*;
+        phases!(@mods $($rest)*);
+    };
+    (@mods { $($glue:tt)* } $($rest:tt)*) => {
+        phases!(@mods $($rest)*);
+    };
+    // The body, statement by statement into the brackets, then the function.
+    (@fn $inp:ident $head:tt [$($body:tt)*]
+        $m:ident :: $t:ident ($($need:ident),*) => $bind:ident; $($rest:tt)*) => {
+        phases!(@fn $inp $head [$($body)* let $bind = $m::$t::run($inp, ($(&$need,)*))?;]
+            $($rest)*);
+    };
+    (@fn $inp:ident $head:tt [$($body:tt)*] { $($glue:tt)* } $($rest:tt)*) => {
+        phases!(@fn $inp $head [$($body)* $($glue)*] $($rest)*);
+    };
+    (@fn $inp:ident [$(#[$meta:meta])* fn $name:ident] [$($body:tt)*]) => {
+        $(#[$meta])*
+        fn $name($inp: &Inputs<'_>) -> Result<Diagnosis, String> {
+            $($body)*
+        }
+    };
+}
+
+phases! {
+    /// The phases in order, each on the results of those before it.
+    fn pipeline(inp) {
+        nominal::NominalPhase() => nom;
+        { inp.bar(); }
+        loop_id::LoopPhase(nom) => lp;
+        refit::RefitPhase(nom, lp) => rf;
+        search::SearchPhase(nom, lp, rf) => search;
+        residual_test::ResidualPhase(nom, lp, rf, search) => resid;
+        closest::ClosestPhase(nom, rf, search, resid) => closest;
+        grey::GreyPhase(nom, lp, rf, search, resid, closest) => grey;
+        {
+            // When the law alone wins, the refit's search and residual test replace the
+            // catalogue model's for every later phase.
+            let (search, resid) = grey.kept(search, resid);
+        }
+        limits::LimitsPhase(nom, lp, rf, search, grey) => limits;
+        reloop::ReloopPhase(nom, lp, grey) => reloop;
+        {
+            let phases = report::Phases {
+                nom,
+                lp,
+                rf,
+                search,
+                resid,
+                closest,
+                grey,
+                limits,
+                reloop,
+            };
+            let mut d = report::assemble(inp, phases);
+            d.next_tests =
+                crate::nexttest::next_tests(&d.ambiguities, &d.detection_limits, inp.rec);
+            Ok(d)
+        }
+    }
 }
 
 /// Catalogue effects dropped for a grey-box law: they predicted the held-out part worse than

@@ -47,11 +47,11 @@ pub(super) fn assemble(inp: &Inputs<'_>, p: Phases<'_>) -> Diagnosis {
         &search.accepted,
         closest.as_ref(),
     );
-    let law_accepted = greybox.as_ref().is_some_and(|g| g.accepted);
+    let law = greybox.as_ref().is_some_and(|g| g.accepted);
     let (extended, ext_fit_sim, ext_val_sim) = final_models(
         &lp,
         &search.current,
-        law_accepted.then_some(&final_hyp),
+        law.then_some(&final_hyp),
         resid.ext_val_sim,
     );
     let cands = ranked(std::mem::take(&mut search.candidates));
@@ -76,12 +76,6 @@ pub(super) fn assemble(inp: &Inputs<'_>, p: Phases<'_>) -> Diagnosis {
         dropped.is_some(),
     );
     let warnings = record_warnings(inp.rec, inp.val, &nom);
-    let traces = Traces {
-        nominal: Some(nom.nom_sim),
-        extended: ext_fit_sim,
-        validation: inp.val.map(|_| (nom.nom_val_sim, ext_val_sim)),
-        split_index: nom.n_fit,
-    };
     let d = Diagnosis {
         cause,
         status: status.to_string(),
@@ -116,7 +110,12 @@ pub(super) fn assemble(inp: &Inputs<'_>, p: Phases<'_>) -> Diagnosis {
         split: nom.split,
         summary,
         extended,
-        traces,
+        traces: Traces {
+            nominal: Some(nom.nom_sim),
+            extended: ext_fit_sim,
+            validation: inp.val.map(|_| (nom.nom_val_sim, ext_val_sim)),
+            split_index: nom.n_fit,
+        },
     };
     finish(d, inp.nominal, limits, reloop.identified_loop)
 }
