@@ -1405,144 +1405,176 @@ impl<'a> Bringup<'a> {
         Ok(())
     }
 
-    /// The planned objects of device `i`, in order (see [`StepKind`]).
+    /// The planned objects of device `i`, in order (see [`StepKind`]): each step asks the
+    /// device whether it has the object where the step is conditional, reads an Ensure
+    /// step's object first, writes it, and reads an Ensure step's value back.
     pub(crate) fn apply_plan(&mut self, i: usize) -> Result<(), StartupError> {
-        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let n = self.plan.devices[i].node;
         let steps = self.plan.devices[i].steps.clone();
         for step in &steps {
             self.bus.check_stop()?;
-            let (index, sub, want) = (step.index, step.sub, &step.value);
-            if step.if_device_has {
-                match self.sdo_read(n, index, 0) {
-                    Ok(_) => {}
-                    Err(SdoError::Abort {
-                        code: code @ (0x0602_0000 | 0x0609_0011),
-                        ..
-                    }) => {
-                        if self.s.verbose {
-                            eprintln!(
-                                "canopen: {} (node {n}) has no 0x{index:04X} (abort 0x{code:08X}); used without it ({})",
-                                dev.name(),
-                                step.what
-                            );
-                        }
-                        self.skipped.push(format!(
-                            "node {n} 0x{index:04X}:{sub:02X} ({}): the {} has no 0x{index:04X} (SDO read of 0x{index:04X}:00: abort 0x{code:08X}, object does not exist)",
-                            step.what,
-                            dev.name()
-                        ));
-                        continue;
-                    }
-                    Err(error) => {
-                        return Err(StartupError::Sdo {
-                            step: format!(
-                                "{} (read 0x{index:04X}:00 on node {n} = 0x{n:02X}: does the {} have it?)",
-                                step.what,
-                                dev.name()
-                            ),
-                            error,
-                        })
-                    }
-                }
+            if step.if_device_has && !self.device_has(i, step)? {
+                continue;
             }
-            if step.kind == StepKind::Ensure {
-                let have = self.sdo_read(n, index, sub);
-                match have {
-                    Ok(h) if same_value(want, &h) => continue,
-                    Ok(h) if !step.access.writable() => {
-                        let extra = if (index, sub) == (cia406::POSITION_STEP, 1) {
-                            format!("; set canopen.position_step_nm = {}", u32::from_le_bytes(le4(&h)))
-                        } else {
-                            String::new()
-                        };
-                        return Err(StartupError::Device(format!(
-                            "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is {} (AccessType={} in {}) and reads {:02X?}, not {:02X?}; ehactl never writes read-only objects{extra}",
-                            step.what,
-                            dev.name(),
-                            if step.access == Access::Const { "constant" } else { "read-only" },
-                            step.access.as_str(),
-                            self.plan.devices[i].eds.source,
-                            h,
-                            want
-                        )));
-                    }
-                    Err(e) if !step.access.writable() => {
-                        return Err(StartupError::Sdo {
-                            step: format!("{} (read-only object: read 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})", step.what),
-                            error: e,
-                        })
-                    }
-                    // Different, or not readable right now (e.g. no value yet): write it.
-                    _ => {}
-                }
+            if step.kind == StepKind::Ensure && self.already_set(i, step)? {
+                continue;
             }
-            match self.sdo_write(n, index, sub, want) {
-                Ok(()) => {}
-                Err(SdoError::Abort {
-                    code: 0x0602_0000 | 0x0609_0011,
-                    ..
-                }) if step.optional => {
-                    if self.s.verbose {
-                        eprintln!(
-                            "canopen: {} (node {n}) has no 0x{index:04X}:{sub:02X} although its EDS lists it; optional, skipped ({})",
-                            dev.name(),
-                            step.what
-                        );
-                    }
-                    self.skipped
-                        .push(format!("node {n} 0x{index:04X}:{sub:02X} ({})", step.what));
-                    continue;
-                }
-                // The file says rw, the device refuses the write as read-only (0x06010002):
-                // name the device's value if it has one.
-                Err(SdoError::Abort {
-                    code: 0x0601_0002, ..
-                }) => {
-                    let h = self.sdo_read(n, index, sub).ok();
-                    let extra = match (&h, (index, sub) == (cia406::POSITION_STEP, 1)) {
-                        (Some(h), true) => format!(
-                            "; it is {} nm: set canopen.position_step_nm = {}",
-                            u32::from_le_bytes(le4(h)),
-                            u32::from_le_bytes(le4(h))
-                        ),
-                        (Some(h), false) => format!("; it reads {h:02X?}"),
-                        (None, _) => String::new(),
-                    };
-                    return Err(StartupError::Device(format!(
-                        "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is read-only on the device (abort 0x06010002) although its EDS says {}; ehactl wanted {:02X?}{extra}",
-                        step.what,
-                        dev.name(),
-                        step.access.as_str(),
-                        want
-                    )));
-                }
-                Err(SdoError::Abort {
-                    code: code @ (0x0602_0000 | 0x0609_0011),
-                    ..
-                }) if index == 0x1016 && dev.moves_the_load() => {
-                    return Err(StartupError::Device(format!(
-                        "{}: the {} (node {n}) has no heartbeat consumer 0x1016:{sub:02X} (abort 0x{code:08X}, object does not exist) although {} lists it; it could not detect a dead ehactl and stop the load: ehactl refuses to drive it",
-                        step.what,
-                        dev.name(),
-                        self.plan.devices[i].eds.source
-                    )));
-                }
-                Err(error) => {
-                    return Err(StartupError::Sdo {
-                        step: format!(
-                            "{} (write 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})",
-                            step.what
-                        ),
-                        error,
-                    })
-                }
+            if !self.write_step(i, step)? {
+                continue;
             }
             if step.access.readable() && step.kind == StepKind::Ensure {
-                let got = self.read(n, index, sub, &step.what)?;
-                readback(&step.what, n, index, sub, want, &got)?;
+                let got = self.read(n, step.index, step.sub, &step.what)?;
+                readback(&step.what, n, step.index, step.sub, &step.value, &got)?;
             }
         }
         Ok(())
+    }
+
+    /// Whether device `i` has the object of a conditional step ([`Step::if_device_has`]):
+    /// `index:00` read; "object does not exist" (0x06020000 / 0x06090011) is `false` and the
+    /// step is reported as skipped.
+    fn device_has(&mut self, i: usize, step: &Step) -> Result<bool, StartupError> {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let (index, sub) = (step.index, step.sub);
+        match self.sdo_read(n, index, 0) {
+            Ok(_) => Ok(true),
+            Err(SdoError::Abort {
+                code: code @ (0x0602_0000 | 0x0609_0011),
+                ..
+            }) => {
+                if self.s.verbose {
+                    eprintln!(
+                        "canopen: {} (node {n}) has no 0x{index:04X} (abort 0x{code:08X}); used without it ({})",
+                        dev.name(),
+                        step.what
+                    );
+                }
+                self.skipped.push(format!(
+                    "node {n} 0x{index:04X}:{sub:02X} ({}): the {} has no 0x{index:04X} (SDO read of 0x{index:04X}:00: abort 0x{code:08X}, object does not exist)",
+                    step.what,
+                    dev.name()
+                ));
+                Ok(false)
+            }
+            Err(error) => Err(StartupError::Sdo {
+                step: format!(
+                    "{} (read 0x{index:04X}:00 on node {n} = 0x{n:02X}: does the {} have it?)",
+                    step.what,
+                    dev.name()
+                ),
+                error,
+            }),
+        }
+    }
+
+    /// Whether the object of an Ensure step already holds its value on device `i` (read
+    /// first); a read-only / const object with another value, or one that cannot be read,
+    /// is an error: ehactl never writes it.
+    fn already_set(&mut self, i: usize, step: &Step) -> Result<bool, StartupError> {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let (index, sub, want) = (step.index, step.sub, &step.value);
+        match self.sdo_read(n, index, sub) {
+            Ok(h) if same_value(want, &h) => Ok(true),
+            Ok(h) if !step.access.writable() => {
+                let extra = if (index, sub) == (cia406::POSITION_STEP, 1) {
+                    format!(
+                        "; set canopen.position_step_nm = {}",
+                        u32::from_le_bytes(le4(&h))
+                    )
+                } else {
+                    String::new()
+                };
+                Err(StartupError::Device(format!(
+                    "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is {} (AccessType={} in {}) and reads {:02X?}, not {:02X?}; ehactl never writes read-only objects{extra}",
+                    step.what,
+                    dev.name(),
+                    if step.access == Access::Const { "constant" } else { "read-only" },
+                    step.access.as_str(),
+                    self.plan.devices[i].eds.source,
+                    h,
+                    want
+                )))
+            }
+            Err(e) if !step.access.writable() => Err(StartupError::Sdo {
+                step: format!(
+                    "{} (read-only object: read 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})",
+                    step.what
+                ),
+                error: e,
+            }),
+            // Different, or not readable right now (e.g. no value yet): write it.
+            _ => Ok(false),
+        }
+    }
+
+    /// The write of a step to device `i`: `Ok(true)` when written, `Ok(false)` when an
+    /// optional step's object does not exist on the device (reported as skipped); a write
+    /// the device refuses is an error naming what it has.
+    fn write_step(&mut self, i: usize, step: &Step) -> Result<bool, StartupError> {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let (index, sub, want) = (step.index, step.sub, &step.value);
+        match self.sdo_write(n, index, sub, want) {
+            Ok(()) => Ok(true),
+            Err(SdoError::Abort {
+                code: 0x0602_0000 | 0x0609_0011,
+                ..
+            }) if step.optional => {
+                if self.s.verbose {
+                    eprintln!(
+                        "canopen: {} (node {n}) has no 0x{index:04X}:{sub:02X} although its EDS lists it; optional, skipped ({})",
+                        dev.name(),
+                        step.what
+                    );
+                }
+                self.skipped
+                    .push(format!("node {n} 0x{index:04X}:{sub:02X} ({})", step.what));
+                Ok(false)
+            }
+            // The file says rw, the device refuses the write as read-only (0x06010002).
+            Err(SdoError::Abort {
+                code: 0x0601_0002, ..
+            }) => Err(self.read_only_on_the_device(i, step)),
+            Err(SdoError::Abort {
+                code: code @ (0x0602_0000 | 0x0609_0011),
+                ..
+            }) if index == 0x1016 && dev.moves_the_load() => Err(StartupError::Device(format!(
+                "{}: the {} (node {n}) has no heartbeat consumer 0x1016:{sub:02X} (abort 0x{code:08X}, object does not exist) although {} lists it; it could not detect a dead ehactl and stop the load: ehactl refuses to drive it",
+                step.what,
+                dev.name(),
+                self.plan.devices[i].eds.source
+            ))),
+            Err(error) => Err(StartupError::Sdo {
+                step: format!(
+                    "{} (write 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})",
+                    step.what
+                ),
+                error,
+            }),
+        }
+    }
+
+    /// The error of a write that device `i` refused as read-only (abort 0x06010002) although
+    /// its file says the object is writable: naming the device's value if it has one.
+    fn read_only_on_the_device(&mut self, i: usize, step: &Step) -> StartupError {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let (index, sub, want) = (step.index, step.sub, &step.value);
+        let h = self.sdo_read(n, index, sub).ok();
+        let extra = match (&h, (index, sub) == (cia406::POSITION_STEP, 1)) {
+            (Some(h), true) => format!(
+                "; it is {} nm: set canopen.position_step_nm = {}",
+                u32::from_le_bytes(le4(h)),
+                u32::from_le_bytes(le4(h))
+            ),
+            (Some(h), false) => format!("; it reads {h:02X?}"),
+            (None, _) => String::new(),
+        };
+        StartupError::Device(format!(
+            "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is read-only on the device (abort 0x06010002) although its EDS says {}; ehactl wanted {:02X?}{extra}",
+            step.what,
+            dev.name(),
+            step.access.as_str(),
+            want
+        ))
     }
 
     /// NMT start; wait for OPERATIONAL heartbeats.
