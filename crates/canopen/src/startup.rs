@@ -1907,6 +1907,56 @@ mod tests {
         assert!(e.to_string().contains("is no CiA 404 device"), "{e}");
     }
 
+    /// `[[canopen.devices]]`: a further device is planned after the transducer and the valve
+    /// from its profile's built-in file; an unknown profile, a second commanded device and a
+    /// second device of a measurement already taken are refused before the bus, by key.
+    #[test]
+    fn further_devices_are_planned_in_order_or_refused_by_key() {
+        use ehactl_types::canopen::CanopenDevice;
+        let with = |profile: &str| {
+            settings(CanopenConfig {
+                devices: vec![CanopenDevice {
+                    profile: profile.into(),
+                    node_id: 64,
+                    eds: String::new(),
+                }],
+                ..Default::default()
+            })
+        };
+        let p = Plan::new(&with("cia404")).unwrap();
+        let numbers: Vec<u16> = p.devices.iter().map(|d| d.profile).collect();
+        assert_eq!(numbers, [406, 408, 404]);
+        assert_eq!(p.nodes(), [32, 48, 64]);
+        assert_eq!(p.commanded, 1);
+        assert_eq!(p.devices[2].config_key, "canopen.devices[0].eds");
+        assert_eq!(
+            [
+                p.devices[0].tpdo_len,
+                p.devices[1].tpdo_len,
+                p.devices[2].tpdo_len
+            ],
+            [Some(4), Some(4), Some(4)]
+        );
+        assert_eq!(p.devices[1].rpdo_len, Some(2));
+        let refused = |profile: &str| Plan::new(&with(profile)).unwrap_err().to_string();
+        let e = refused("cia999");
+        assert!(e.contains("canopen.devices[0].profile") && e.contains("cia404, cia406, cia408"));
+        assert!(refused("cia408").contains("moves the load"));
+        assert!(refused("cia406").contains("would both set the same measurement"));
+    }
+
+    /// The commanded device's RPDO1 through its profile is the frame the backend sent for
+    /// the valve before the seam (0x200 + node, the INT16 spool setpoint, 2 bytes), for
+    /// commands inside, beyond and without full scale.
+    #[test]
+    fn the_valve_rpdo_through_its_profile_is_the_setpoint_frame() {
+        for u in [0.0, 1.0, -3.3, 25.0, f64::NAN] {
+            let sp = cia408::setpoint_from_command(u, 10.0);
+            let want = CanFrame::std(RPDO1_BASE + 48, sp.to_le_bytes());
+            assert_eq!(rpdo_frame(&cia408::Cia408, 48, 2, u, 10.0), want, "{u}");
+        }
+    }
+
     #[test]
     fn files_that_do_not_fit_are_refused_before_the_bus() {
         let dir = std::env::temp_dir().join(format!("ehactl_eds_{}", std::process::id()));
