@@ -1,5 +1,10 @@
 //! [`CanopenHal`]: the `Hal` of a CAN rig with a CiA 406 position transducer and a CiA 408
-//! valve (Dindorf 2022's boom: magnetostrictive transducer + 4WRSE OBE).
+//! valve (Dindorf 2022's boom: magnetostrictive transducer + 4WRSE OBE), and any further
+//! sensors of `[[canopen.devices]]` (e.g. a CiA 404 pressure transmitter). The backend holds
+//! the plan's list of devices, each with its profile ([`crate::profile::Profile`]): every
+//! device is brought up, its heartbeat consumed, its EMCY and NMT state watched, its TPDO1
+//! aged and decoded into [`Measurements`]; the commanded device (the one whose profile moves
+//! the load: the valve) gets the command as its profile encodes it and the safe stop.
 //!
 //! Lifecycle (the states of [`Hal`]; the start-up steps are [`crate::startup`]):
 //! - [`CanopenHal::new`] / [`CanopenHal::new_with`]: **Unconfigured**, no bus I/O;

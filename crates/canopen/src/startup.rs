@@ -2,7 +2,8 @@
 //!
 //! - [`Plan::new`] (no bus; also run by `ehactl run` before the log file is created): the
 //!   settings checks and the EDS / DCF files named in the config → one [`DevicePlan`] per
-//!   device: the identity to check, and every SDO object to configure with its value and the
+//!   device (the transducer, the valve, then `[[canopen.devices]]`, each with its profile):
+//!   the identity to check, and every SDO object to configure with its value and the
 //!   access type the file gives (ro / const objects are read and checked, never written);
 //! - **configure** (`Bringup::configure`, then `Bringup::start`): NMT reset
 //!   communication → boot-up, or an SDO probe for a node that sends none (`Bringup::boot`);

@@ -3,14 +3,15 @@
 //!
 //! Bus load: every SYNC period carries SYNC (0 bytes), the transducer TPDO1 (position,
 //! 4 bytes), the valve RPDO1 (setpoint, 2 bytes) and, with `valve_status_pdo`, the valve
-//! TPDO1 (status word + actual spool, 4 bytes); heartbeats of both devices add
+//! TPDO1 (status word + actual spool, 4 bytes); heartbeats of the devices add
 //! 1-byte frames every `heartbeat_ms`, ehactl's own heartbeat one every `master_heartbeat_ms`. A classic frame with an 11-bit id and N data bytes
 //! takes at most `8N + 47 + floor((34 + 8N − 1)/4)` bit times with worst-case bit stuffing
 //! (55 bits for N = 0, 75 for N = 2, 95 for N = 4). At 1 Mbit/s SYNC + 4-byte position +
 //! 2-byte setpoint therefore take 225 µs per SYNC period (320 µs with the valve status
-//! TPDO): 22.5 % (32 %) of the bus at 1 kHz. Configs above 80 % are refused. 1 kHz is the
-//! practical ceiling: the remaining time in each period is what SDO traffic, EMCY,
-//! heartbeats, error frames / retransmissions and the devices' SYNC-to-TPDO processing
+//! TPDO): 22.5 % (32 %) of the bus at 1 kHz. A further device (`[[canopen.devices]]`) adds
+//! one TPDO counted as 8 bytes (135 bit times) per SYNC period and one heartbeat producer.
+//! Configs above 80 % are refused. 1 kHz is the practical ceiling: the remaining time in
+//! each period is what SDO traffic, EMCY, heartbeats, error frames / retransmissions and the devices' SYNC-to-TPDO processing
 //! need, and the loop closes over CAN only once per SYNC anyway.
 
 use crate::spec::{self, ConfigError, Param};
