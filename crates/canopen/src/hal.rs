@@ -1585,9 +1585,22 @@ mod tests {
         CanopenConfig,
         CanFrame,
     ) {
+        spawned_with(clock, startup, CanopenConfig::default())
+    }
+
+    /// [`spawned_after_startup`] with the config `c`.
+    fn spawned_with(
+        clock: &Arc<ManualClock>,
+        startup: Duration,
+        c: CanopenConfig,
+    ) -> (
+        CanopenHal,
+        Arc<std::sync::Mutex<std::collections::VecDeque<CanFrame>>>,
+        CanopenConfig,
+        CanFrame,
+    ) {
         let bus = SimBus::new(clock.clone(), false);
         let rx = bus.rx.clone();
-        let c = CanopenConfig::default();
         let mut hal = CanopenHal::new_with(settings(c.clone()), None, None, clock.clone());
         hal.t_start = clock.now_ns();
         clock.advance(startup);
@@ -1601,8 +1614,10 @@ mod tests {
         };
         let master_hb = CanFrame::std(HEARTBEAT_BASE + u16::from(c.master_node_id), [0x05]);
         assert_eq!(hal.master_hb, master_hb);
-        hal.plan = Some(CanopenHal::check_settings(&hal.s).unwrap());
-        hal.start_io(Box::new(bus), meas, vec![None, None]).unwrap();
+        let plan = CanopenHal::check_settings(&hal.s).unwrap();
+        let names = vec![None; plan.devices.len()];
+        hal.plan = Some(plan);
+        hal.start_io(Box::new(bus), meas, names).unwrap();
         // Released without the drop's safe stop: nobody answers its SDO on this bus and the
         // clock moves only when the test moves it, so the SDO would wait forever (a failed
         // assertion would hang instead of failing). The drop's safe stop is tested against
@@ -1673,6 +1688,72 @@ mod tests {
                 silent_ns: 60 * MS + 1
             })
         );
+    }
+
+    /// A third device of `[[canopen.devices]]` (a CiA 404 pressure transmitter at node 64)
+    /// in the run on simulated time: its TPDO1 (INTEGER32 process value, 0 decimal digits)
+    /// becomes `p_a` in Pa and nothing else; a TPDO1 of another length is counted and
+    /// ignored under its own name; its heartbeat is consumed like the transducer's and the
+    /// valve's: lost exactly at 60 ms + 1 ns of silence while the two others keep beating,
+    /// and the run trips under its name and node.
+    #[test]
+    fn a_third_device_is_decoded_and_its_heartbeat_loss_trips() {
+        use ehactl_types::canopen::CanopenDevice;
+        let clock = Arc::new(ManualClock::at(7_000 * MS));
+        let c = CanopenConfig {
+            devices: vec![CanopenDevice {
+                profile: "cia404".into(),
+                node_id: 64,
+                eds: String::new(),
+            }],
+            ..Default::default()
+        };
+        let (mut hal, rx, c, _) = spawned_with(&clock, Duration::from_secs(2), c);
+        let (tr, va, pr) = (c.transducer_node_id, c.valve_node_id, 64u16);
+        let push = |f: CanFrame| rx.lock().unwrap().push_back(f);
+        // armed at 9.000 s; at 9.010 s the transmitter's TPDO1 reads 12 345 678 Pa
+        clock.set(9_010 * MS);
+        push(CanFrame::std(TPDO1_BASE + pr, 12_345_678i32.to_le_bytes()));
+        wait_for_rx(&hal, &clock, 1);
+        let m = hal.read(0.0, 2e-4).unwrap();
+        assert_eq!(m.p_a, 12_345_678.0);
+        assert_eq!((m.position, m.spool), (0.1, 0.0)); // the primed values, untouched
+        assert!(m.p_b.is_nan() && m.force.is_nan());
+        // a 2-byte TPDO1: counted, the held pressure stays
+        push(CanFrame::std(TPDO1_BASE + pr, [1, 2]));
+        wait_for_rx(&hal, &clock, 2);
+        assert_eq!(hal.read(0.0, 2e-4).unwrap().p_a, 12_345_678.0);
+        assert_eq!(hal.wrong_dlc, 1);
+        assert!(std::iter::from_fn(|| hal.frame_log.pop_event())
+            .any(|e| e.channel == "wrong DLC on pressure transmitter TPDO1 (expected 4), ignored"));
+        // the transducer and the valve beat at 9.050 s; the transmitter stays silent
+        clock.set(9_050 * MS);
+        for n in [tr, va] {
+            push(CanFrame::std(HEARTBEAT_BASE + u16::from(n), [0x05]));
+        }
+        wait_for_rx(&hal, &clock, 4);
+        clock.set(9_060 * MS);
+        wait_for_rx(&hal, &clock, 4);
+        hal.read(0.0, 2e-4)
+            .expect("60 ms of silence is within the consumer time");
+        clock.set(9_060 * MS + 1);
+        wait_for_rx(&hal, &clock, 4);
+        match hal.read(0.0, 2e-4) {
+            Err(HalError::Device { code, what }) => {
+                assert_eq!(code, u32::from(pr));
+                assert_eq!(
+                    what,
+                    "pressure transmitter heartbeat lost (consumer timeout)"
+                );
+            }
+            r => panic!("expected the transmitter's heartbeat loss, got {r:?}"),
+        }
+        let rep = hal.report().unwrap();
+        assert_eq!(rep["pdo_late"]["pressure transmitter"], 0);
+        assert!(rep["device_names"]
+            .as_object()
+            .unwrap()
+            .contains_key("pressure transmitter"));
     }
 
     /// A heartbeat that waits unread in the receive buffer because the RX thread was not
