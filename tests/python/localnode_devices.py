@@ -20,6 +20,13 @@ reset communication (the master answers with an SDO probe), no PDO gating other 
 state check below, no heartbeat consumer (0x1016 is stored, not acted upon: this device does
 not detect master loss; see DEPLOY.md for what a real valve does).
 
+A third device, a CiA 404 pressure transmitter (``--pressure-id N``, the shipped
+configs/eds/ehactl_pressure_404.eds), serves chamber A's pressure of the plant (Pa, as the
+ground truth ``Plant.state()["p_a"]``) as its analogue input process value 0x9130:01
+(INTEGER32 with the decimal digits of 0x6132:01, CiA DS 404 V1.2 §4.2.2) through a LocalNode
+read callback; ``--fault pressure-heartbeat-loss@T`` silences it (heartbeat and TPDOs) at
+SYNC T·1000, as a transmitter that loses power.
+
 A transducer of another make can be built from its own EDS (``--transducer-eds PATH``), e.g.
 one without the optional heartbeat consumer 0x1016 (``eds_without``), as many CiA 406 sensors
 have: LocalNode then answers an SDO access to 0x1016 with abort 0x06020000 (object does not
@@ -27,7 +34,8 @@ exist).
 
 Usage (from the repository root):
     python3 tests/python/localnode_devices.py --port PORT --config configs/dindorf2022_boom.toml
-        [--events PATH] [--fault emcy@T] [--transducer-eds PATH]
+        [--events PATH] [--fault emcy@T] [--transducer-eds PATH] [--pressure-id N]
+        [--fault pressure-heartbeat-loss@T]
 Prints ``localnode devices ready`` on stdout once both nodes are on the bus; SIGTERM ends it
 with a JSON summary on stdout."""
 
@@ -137,7 +145,7 @@ class Dsm:
 
 # ---------------------------------------------------------------- the device program
 class Rig:
-    def __init__(self, port, config, tr_id, va_id, faults, events, tr_eds=None):
+    def __init__(self, port, config, tr_id, va_id, faults, events, tr_eds=None, pr_id=None):
         import ehactl
 
         cfg = ehactl.Config.load(config)
@@ -151,7 +159,15 @@ class Rig:
         self.net.connect(interface="socketcand", host="127.0.0.1", port=port, channel="can0")
         self.tr = canopen.LocalNode(tr_id, str(tr_eds or EDS / "ehactl_transducer_406.eds"))
         self.va = canopen.LocalNode(va_id, str(EDS / "ehactl_valve_408.eds"))
-        for n in (self.tr, self.va):
+        self.pr = None
+        if pr_id is not None:
+            self.pr = canopen.LocalNode(pr_id, str(EDS / "ehactl_pressure_404.eds"))
+            self.pr.add_read_callback(self._pr_read)
+        self.nodes = [n for n in (self.tr, self.va, self.pr) if n is not None]
+        self.silent = set()  # node ids whose heartbeat and TPDOs were silenced (a fault)
+        self.p_a = 0.0
+        self.pressures = []  # process values sent in TPDOs (raw INTEGER32)
+        for n in self.nodes:
             self.net.add_node(n)
         self.dsm = Dsm(lambda ev, **kw: self.log("valve", ev, **kw))
         self.position = 0.0
@@ -166,7 +182,7 @@ class Rig:
         self.tr.add_read_callback(self._tr_read)
         self.va.add_read_callback(self._va_read)
         self.va.add_write_callback(self._va_write)
-        for n in (self.tr, self.va):
+        for n in self.nodes:
             n.rpdo.read(from_od=True)
             n.tpdo.read(from_od=True)
             for k, m in n.rpdo.map.items():
@@ -182,7 +198,7 @@ class Rig:
 
     # power-on: boot-up, then PRE-OPERATIONAL (LocalNode's NMT slave API)
     def power_on(self):
-        for n in (self.tr, self.va):
+        for n in self.nodes:
             n.nmt.state = "INITIALISING"     # sends the boot-up 0x700+id [00]
             n.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat producer (0x1017)
 
@@ -190,6 +206,12 @@ class Rig:
         if (index, subindex) in ((0x6020, 1), (0x6004, 0)):
             step_m = struct.unpack("<I", self.tr.get_data(0x6005, 1))[0] * 1e-9
             return max(-2**31, min(2**31 - 1, round(self.position / step_m)))
+        return None
+
+    def _pr_read(self, index, subindex, od):
+        if (index, subindex) == (0x9130, 1):
+            digits = struct.unpack("<B", self.pr.get_data(0x6132, 1))[0]
+            return max(-2**31, min(2**31 - 1, round(self.p_a * 10**digits)))
         return None
 
     def _va_read(self, index, subindex, od):
@@ -205,7 +227,7 @@ class Rig:
 
     def _on_nmt(self, can_id, data, ts):
         if len(data) == 2 and data[0] == 0x01:  # start: take the master's PDO mapping
-            for n in (self.tr, self.va):
+            for n in self.nodes:
                 if data[1] in (0, n.id):
                     with self.lock:
                         n.rpdo.read(from_od=False)
@@ -245,7 +267,11 @@ class Rig:
             for f in self.faults:
                 if not f.get("done") and self.syncs * 1e-3 >= f["at"]:
                     f["done"] = True
-                    if self.dsm.fault("injected EMCY fault"):
+                    if f["kind"] == "pressure-heartbeat-loss":
+                        self.pr.nmt.stop_heartbeat()
+                        self.silent.add(self.pr.id)
+                        self.log("pressure", "fault-injected", fault=f["kind"], sync=self.syncs)
+                    elif self.dsm.fault("injected EMCY fault"):
                         self.log("valve", "fault-injected", fault="emcy", sync=self.syncs)
                         self.va.emcy.send(0x5000, 0x01)
                         self.emcy_sent += 1
@@ -267,8 +293,9 @@ class Rig:
             meas = self.plant.measure()
             if math.isfinite(meas["position"]):
                 self.position = meas["position"]
-            for node in (self.tr, self.va):
-                if node.nmt.state != "OPERATIONAL":
+            self.p_a = float(self.plant.state()["p_a"])
+            for node in self.nodes:
+                if node.nmt.state != "OPERATIONAL" or node.id in self.silent:
                     continue
                 for k, m in node.tpdo.map.items():
                     if not m.enabled or m.trans_type is None or not 1 <= m.trans_type <= 240:
@@ -282,6 +309,8 @@ class Rig:
                         v.set_data(node.get_data(v.index, v.subindex))
                     m.transmit()
                     self.sent[m.cob_id] = self.sent.get(m.cob_id, 0) + 1
+                    if node is self.pr:
+                        self.pressures.append(struct.unpack("<i", bytes(m.data[:4]))[0])
 
     def summary(self):
         return {"syncs": self.syncs, "valve_state": self.dsm.state, "spool": self.spool,
@@ -289,7 +318,8 @@ class Rig:
                 "emcy_sent": self.emcy_sent,
                 "control_word": self.dsm.cw,
                 "setpoint": struct.unpack("<h", self.va.get_data(0x6300, 1))[0],
-                "nmt": {"transducer": self.tr.nmt.state, "valve": self.va.nmt.state}}
+                "nmt": {"transducer": self.tr.nmt.state, "valve": self.va.nmt.state},
+                "pressures_sent": self.pressures}
 
 
 def main():
@@ -300,17 +330,22 @@ def main():
     ap.add_argument("--valve-id", type=int, default=48)
     ap.add_argument("--events")
     ap.add_argument("--transducer-eds", help="the transducer's EDS (default: the shipped one)")
+    ap.add_argument("--pressure-id", type=int,
+                    help="node id of a CiA 404 pressure transmitter (default: none)")
     ap.add_argument("--fault", action="append", default=[],
-                    help="emcy@T: valve fault (EMCY 0x5000, FAULT_REACTION) at SYNC T·1000")
+                    help="emcy@T: valve fault (EMCY 0x5000, FAULT_REACTION) at SYNC T·1000; "
+                    "pressure-heartbeat-loss@T: the pressure transmitter falls silent")
     a = ap.parse_args()
     faults = []
     for f in a.fault:
         kind, _, at = f.partition("@")
-        if kind != "emcy":
-            ap.error(f"--fault {f}: only emcy@T is supported")
-        faults.append({"at": float(at or 0)})
+        if kind not in ("emcy", "pressure-heartbeat-loss"):
+            ap.error(f"--fault {f}: expected emcy@T or pressure-heartbeat-loss@T")
+        if kind == "pressure-heartbeat-loss" and a.pressure_id is None:
+            ap.error(f"--fault {f}: needs --pressure-id")
+        faults.append({"kind": kind, "at": float(at or 0)})
     rig = Rig(a.port, a.config, a.transducer_id, a.valve_id, faults, a.events,
-              a.transducer_eds)
+              a.transducer_eds, a.pressure_id)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -319,7 +354,7 @@ def main():
     while not stop.wait(0.05):
         pass
     s = rig.summary()
-    for n in (rig.tr, rig.va):
+    for n in rig.nodes:
         n.nmt.stop_heartbeat()
     rig.net.disconnect()
     print(json.dumps(s), flush=True)

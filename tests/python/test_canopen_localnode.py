@@ -236,3 +236,111 @@ def test_a_localnode_transducer_without_0x1016_starts_and_is_reported(tmp_path, 
     # the valve's consumer of ehactl's heartbeat: node 1, 250 ms (0x1016:01 = 0x000100FA)
     assert (0x600 + VA, "23161001FA000100") in tx, [d for i, d in tx if i == 0x600 + VA]
     assert dsum["valve_state"] == "HOLD" and dsum["spool"] == 0.0, dsum
+
+
+# A third device, a CiA 404 pressure transmitter (crates/canopen/src/cia404.rs) at node 64,
+# named in the master's config by one [[canopen.devices]] entry (built-in EDS
+# configs/eds/ehactl_pressure_404.eds); the device is a LocalNode of that file serving the
+# plant's chamber A pressure (tests/python/localnode_devices.py --pressure-id).
+PR = 64
+CAN_BOOM_404 = CAN_BOOM.with_name("dindorf2022_boom_can_404.toml")
+CAN_BOOM_404.write_text(CAN_BOOM.read_text()
+                        + f'\n[[canopen.devices]]\nprofile = "cia404"\nnode_id = {PR}\n')
+HB_TIMEOUT_S = 1.0  # canopen.heartbeat_timeout_ms of CAN_BOOM (see above)
+SYNC_PERIOD_S = 1e-3
+
+
+def run_master_404(port, out, duration):
+    p = subprocess.run([BIN, "run", str(CAN_BOOM_404), "--hal", "canopen", "--bus",
+                        bus_url(port), "--json", "--duration", str(duration), "--out", str(out)],
+                       capture_output=True, text=True, timeout=90, cwd=str(REPO))
+    lines = [ln for ln in p.stdout.splitlines() if ln.strip()]
+    summary = json.loads(lines[-1]) if lines else None
+    assert "panicked" not in p.stderr, p.stderr
+    return p.returncode, summary, p.stderr
+
+
+def pressures_on_the_bus(frames):
+    """(t, Pa) of the transmitter's TPDO1s on the /can log: 0x9130:01 as little-endian
+    INTEGER32 with 0 decimal digits (what the master set in 0x6132:01)."""
+    return [(f["t"], int.from_bytes(bytes.fromhex(f["data"]), "little", signed=True))
+            for f in frames if f["dir"] == "rx" and f["id"] == 0x180 + PR]
+
+
+def test_a_cia404_transmitter_is_brought_up_and_feeds_p_a(tmp_path):
+    """The master brings the third device up from its profile (NMT, SDO configuration of its
+    decimal digits and TPDO1 mapping, OPERATIONAL heartbeats) beside the transducer and the
+    valve, and the process values it sends become `Measurements::p_a` in the MCAP control
+    records: every logged p_a is a value the device sent, the last one the last it sent
+    before the loop ended, and the settled values are the plant's chamber A pressure of
+    the in-process simulation (independent of the bus: the units and the scaling hold)."""
+    duration = 2.0
+    with hub() as (_, port), localnode_devices(port, tmp_path, "--pressure-id", str(PR)) as dev:
+        out = tmp_path / "p404.mcap"
+        rc, summary, err = run_master_404(port, out, duration)
+        time.sleep(0.1)
+        dsum = dev.stop()
+    assert rc == 0, why(summary, err)
+    assert summary["trip"] is None
+    assert summary["can_wrong_dlc"] == 0 and summary["can_unknown_cob_id"] == 0, summary
+    assert summary["device_names"]["pressure transmitter"] == \
+        "ehactl sim CiA 404 pressure transmitter", summary["device_names"]
+    frames = read_can(out)
+    tx = [(f["id"], f["data"].upper()) for f in frames if f["dir"] == "tx"]
+    # NMT start of node 64, its decimal digits set to 0 (LocalNode's file default is 3) by an
+    # expedited 1-byte download, its TPDO1 mapped to 0x9130:01 (32 bit) and enabled
+    assert (0x000, f"01{PR:02X}") in tx
+    assert (0x600 + PR, "2F32610100000000") in tx, [d for i, d in tx if i == 0x600 + PR]
+    assert (0x600 + PR, "23001A0120013091") in tx
+    assert (0x600 + PR, "23001801" + (0x180 + PR).to_bytes(4, "little").hex().upper()) in tx
+    bus = pressures_on_the_bus(frames)
+    assert len(bus) > 0.8 * duration * 1000, len(bus)  # one per SYNC
+    sent = dsum["pressures_sent"]
+    assert [p for _, p in bus] == sent[:len(bus)] and len(sent) - len(bus) <= 1
+    c = read_run(out)["control"]
+    p_a = c["p_a"]
+    assert np.all(np.isfinite(p_a)), "a cycle without the transmitter's pressure"
+    assert set(np.unique(p_a)) <= {float(p) for p in sent}, "a p_a the device never sent"
+    assert len(np.unique(p_a)) > 100, np.unique(p_a)[:10]  # it follows the plant
+    # the held sample at the end is a recent one: among the last 20 SYNC periods' TPDOs (the
+    # last few may arrive in one burst after the loop's last read on a loaded machine)
+    assert p_a[-1] in [float(p) for _, p in bus[-20:]], (p_a[-1], bus[-20:])
+    sim = tmp_path / "sim.mcap"
+    p = subprocess.run([BIN, "run", BOOM, "--duration", str(duration), "--out", str(sim),
+                        "--json"], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    plant = read_run(sim)["plant"]
+    sim_pa = float(np.mean(plant["p_a"][plant["t"] > duration - 0.25]))
+    can_pa = float(np.mean(p_a[c["t"] > duration - 0.25]))
+    assert abs(can_pa - sim_pa) < 0.02 * abs(sim_pa), (can_pa, sim_pa)
+
+
+def test_the_transmitters_heartbeat_loss_trips_to_the_safe_state(tmp_path):
+    """The pressure transmitter falls silent at SYNC 1000: ehactl's consumer of its heartbeat
+    trips the run as for the transducer and the valve (exit 3, the trip named, the valve's
+    safe setpoint and HOLD), no earlier than the consumer time after its last heartbeat on
+    the /can log and no later than that plus 2 SYNC periods and 25 ms of scheduling slack
+    (as test_canopen_e2e.py's heartbeat-loss test)."""
+    with hub() as (_, port), localnode_devices(port, tmp_path, "--pressure-id", str(PR),
+                                               "--fault", "pressure-heartbeat-loss@1.0") as dev:
+        out = tmp_path / "p404_hb.mcap"
+        rc, summary, err = run_master_404(port, out, 4.0)
+        time.sleep(0.1)
+        dsum = dev.stop()
+    assert rc == 3, why(summary, err)
+    assert "pressure transmitter heartbeat lost" in json.dumps(summary["trip"]), summary["trip"]
+    assert dev.events("pressure", "fault-injected"), dev.events()[-5:]
+    frames = read_can(out)
+    t_safe = trip_safe_setpoint(frames, 0x200 + VA)
+    hb = [f["t"] for f in frames if f["dir"] == "rx" and f["id"] == 0x700 + PR
+          and f["t"] < t_safe]
+    assert hb, "no heartbeat of the transmitter before the trip"
+    gaps = [(h, nxt) for h, nxt in zip(hb, hb[1:] + [t_safe]) if nxt - h >= HB_TIMEOUT_S]
+    assert gaps, f"early trip: no silence of the consumer time before it; {hb[-5:]}, {t_safe}"
+    after_last = t_safe - gaps[0][0]
+    assert after_last <= HB_TIMEOUT_S + 2 * SYNC_PERIOD_S + 0.025, (after_last, why(summary, ""))
+    # its TPDOs stopped with its heartbeat; the valve was safe-stopped: HOLD, spool 0
+    assert all(t <= gaps[0][0] + 0.1 for t, _ in pressures_on_the_bus(frames))
+    assert (0x600 + VA, "2B40600003000000") in [(f["id"], f["data"].upper()) for f in frames
+                                                if f["dir"] == "tx" and f["t"] >= t_safe]
+    assert dsum["valve_state"] == "HOLD" and dsum["spool"] == 0.0, dsum

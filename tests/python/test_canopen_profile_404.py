@@ -5,8 +5,9 @@ types it assumes, the start-up step it plans (0x6132:01 = 0) is accepted by a re
 server, and TPDO1 as the file maps it carries the process value 0x9130:01 as a little-endian
 INTEGER32 (what `Cia404::decode` reads into chamber A's pressure, Pa).
 
-What this does not show: ehactl's backend brings up a transducer and a valve only, so no
-`ehactl run --hal canopen` drives this device yet."""
+`ehactl run --hal canopen` with this device named in `[[canopen.devices]]` (its pressure in
+the MCAP control records' p_a, its heartbeat loss tripping the run) is tested in
+tests/python/test_canopen_localnode.py."""
 import pathlib
 import struct
 import time

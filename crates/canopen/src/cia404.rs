@@ -78,6 +78,13 @@ impl Profile for Cia404 {
         m.p_a = pressure_pa(raw, DECIMAL_DIGITS);
         Ok(())
     }
+
+    fn builtin_eds(&self) -> Option<(&'static str, &'static str)> {
+        Some((
+            include_str!("../../../configs/eds/ehactl_pressure_404.eds"),
+            "built-in ehactl_pressure_404.eds",
+        ))
+    }
 }
 
 #[cfg(test)]

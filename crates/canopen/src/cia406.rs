@@ -92,6 +92,13 @@ impl Profile for Cia406 {
         m.position = position_m(raw, c.position_step_nm);
         Ok(())
     }
+
+    fn builtin_eds(&self) -> Option<(&'static str, &'static str)> {
+        Some((
+            crate::eds::BUILTIN_TRANSDUCER_EDS,
+            "built-in ehactl_transducer_406.eds",
+        ))
+    }
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 //! and control mode, hold setpoint, spool setpoint scaling (±16384 = ±100 % spool).
 
 use crate::pdo::{MapEntry, RPDO1_COMM};
-use crate::profile::{field, DecodeError, PdoDir, Profile, ProfilePdo, ProfileStep};
+use crate::profile::{field, DecodeError, DeviceState, PdoDir, Profile, ProfilePdo, ProfileStep};
 use ehactl_hal::Measurements;
 use ehactl_types::canopen::CanopenConfig;
 
@@ -317,6 +317,35 @@ impl Profile for Cia408 {
 
     fn safe_stop(&self) -> Option<u16> {
         Some(CW_HOLD_STATE)
+    }
+
+    fn control_object(&self) -> (u16, u8) {
+        (CONTROL_WORD, 0)
+    }
+
+    /// The device control state of the status word in TPDO1: ACTIVE is where the setpoint
+    /// acts; FAULT_REACTION, a fault state and any other state trip.
+    fn tpdo_state(&self, data: &[u8]) -> Option<DeviceState> {
+        let sw = u16::from_le_bytes(field::<2>(data, 0, 4).ok()?);
+        let st = ValveState::from_status(sw);
+        let trip = match st {
+            ValveState::Active => None,
+            ValveState::FaultReaction => Some("valve reports FAULT_REACTION (status word)"),
+            s if s.is_fault() => Some("valve reports a fault state (status word)"),
+            _ => Some("valve left ACTIVE (status word)"),
+        };
+        Some(DeviceState {
+            name: st.as_str(),
+            word: sw,
+            trip,
+        })
+    }
+
+    fn builtin_eds(&self) -> Option<(&'static str, &'static str)> {
+        Some((
+            crate::eds::BUILTIN_VALVE_EDS,
+            "built-in ehactl_valve_408.eds",
+        ))
     }
 }
 

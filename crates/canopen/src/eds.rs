@@ -147,6 +147,75 @@ fn parse_hex_index(s: &str) -> Option<u16> {
         .flatten()
 }
 
+/// The object of an EDS section name: `1018sub2` → (0x1018, 2), `1000` → (0x1000, 0);
+/// `None` for the other sections ([DeviceInfo], …).
+fn section_index(name: &str) -> Option<(u16, u8)> {
+    let lower = name.to_ascii_lowercase();
+    match lower.split_once("sub") {
+        Some((i, s)) => Some((parse_hex_index(i)?, u8::from_str_radix(s, 16).ok()?)),
+        None => Some((parse_hex_index(&lower)?, 0)),
+    }
+}
+
+/// The object of section `[name]` (the CiA 306 object description keys): `None` for an ARRAY / RECORD
+/// header (its sub-indices are their own sections), an error naming the key of a VAR
+/// without a data type or with an unknown access type.
+fn parse_object(
+    source: &str,
+    name: &str,
+    props: &ini::Properties,
+) -> Result<Option<EdsObject>, String> {
+    let at = |k: &str| format!("{source}: [{name}] {k}");
+    let object_type = match props.get("ObjectType") {
+        Some(v) => parse_number(v, 0).map_err(|e| format!("{}: {e}", at("ObjectType")))?,
+        None => 7,
+    };
+    if object_type != 7 {
+        return Ok(None);
+    }
+    let data_type = props
+        .get("DataType")
+        .ok_or_else(|| format!("{} missing (a VAR needs its data type)", at("DataType")))
+        .and_then(|v| {
+            parse_number(v, 0)
+                .ok()
+                .and_then(|x| u16::try_from(x).ok())
+                .ok_or_else(|| format!("{}={v}: expected a data type index", at("DataType")))
+        })?;
+    let access = match props
+        .get("AccessType")
+        .map(|a| a.trim().to_ascii_lowercase())
+        .as_deref()
+    {
+        Some("ro") => Access::Ro,
+        Some("wo") => Access::Wo,
+        Some("rw" | "rwr" | "rww") => Access::Rw,
+        Some("const") => Access::Const,
+        other => {
+            return Err(format!(
+                "{}={}: expected ro, wo, rw, rwr, rww or const",
+                at("AccessType"),
+                other.unwrap_or("(missing)")
+            ))
+        }
+    };
+    let text = |k: &str| {
+        props
+            .get(k)
+            .map(str::trim)
+            .filter(|v| !v.is_empty())
+            .map(str::to_string)
+    };
+    Ok(Some(EdsObject {
+        name: props.get("ParameterName").unwrap_or("").to_string(),
+        data_type,
+        access,
+        default: text("DefaultValue"),
+        parameter_value: text("ParameterValue"),
+        pdo_mapping: text("PDOMapping").is_some_and(|v| v != "0"),
+    }))
+}
+
 impl Eds {
     /// Parse the text of an EDS / DCF; `source` names it in messages.
     pub fn parse(text: &str, source: &str) -> Result<Eds, String> {
@@ -182,71 +251,12 @@ impl Eds {
         };
         for (name, props) in ini.iter() {
             let Some(name) = name else { continue };
-            let lower = name.to_ascii_lowercase();
-            let (index, sub) = match lower.split_once("sub") {
-                Some((i, s)) => match (parse_hex_index(i), u8::from_str_radix(s, 16).ok()) {
-                    (Some(i), Some(s)) => (i, s),
-                    _ => continue,
-                },
-                None => match parse_hex_index(&lower) {
-                    Some(i) => (i, 0),
-                    None => continue,
-                },
+            let Some(key) = section_index(name) else {
+                continue;
             };
-            let at = |k: &str| format!("{source}: [{name}] {k}");
-            let object_type = match props.get("ObjectType") {
-                Some(v) => parse_number(v, 0).map_err(|e| format!("{}: {e}", at("ObjectType")))?,
-                None => 7,
-            };
-            if object_type != 7 {
-                continue; // ARRAY / RECORD header: its sub-indices are their own sections
+            if let Some(o) = parse_object(source, name, props)? {
+                eds.objects.insert(key, o);
             }
-            let data_type = props
-                .get("DataType")
-                .ok_or_else(|| format!("{} missing (a VAR needs its data type)", at("DataType")))
-                .and_then(|v| {
-                    parse_number(v, 0)
-                        .ok()
-                        .and_then(|x| u16::try_from(x).ok())
-                        .ok_or_else(|| {
-                            format!("{}={v}: expected a data type index", at("DataType"))
-                        })
-                })?;
-            let access = match props
-                .get("AccessType")
-                .map(|a| a.trim().to_ascii_lowercase())
-                .as_deref()
-            {
-                Some("ro") => Access::Ro,
-                Some("wo") => Access::Wo,
-                Some("rw" | "rwr" | "rww") => Access::Rw,
-                Some("const") => Access::Const,
-                other => {
-                    return Err(format!(
-                        "{}={}: expected ro, wo, rw, rwr, rww or const",
-                        at("AccessType"),
-                        other.unwrap_or("(missing)")
-                    ))
-                }
-            };
-            let text = |k: &str| {
-                props
-                    .get(k)
-                    .map(str::trim)
-                    .filter(|v| !v.is_empty())
-                    .map(str::to_string)
-            };
-            eds.objects.insert(
-                (index, sub),
-                EdsObject {
-                    name: props.get("ParameterName").unwrap_or("").to_string(),
-                    data_type,
-                    access,
-                    default: text("DefaultValue"),
-                    parameter_value: text("ParameterValue"),
-                    pdo_mapping: text("PDOMapping").is_some_and(|v| v != "0"),
-                },
-            );
         }
         if eds.objects.is_empty() {
             return Err(format!("{source}: no object sections ([1000], [1018sub1], ...); is this an EDS / DCF file?"));

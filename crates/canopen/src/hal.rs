@@ -1,5 +1,10 @@
 //! [`CanopenHal`]: the `Hal` of a CAN rig with a CiA 406 position transducer and a CiA 408
-//! valve (Dindorf 2022's boom: magnetostrictive transducer + 4WRSE OBE).
+//! valve (Dindorf 2022's boom: magnetostrictive transducer + 4WRSE OBE), and any further
+//! sensors of `[[canopen.devices]]` (e.g. a CiA 404 pressure transmitter). The backend holds
+//! the plan's list of devices, each with its profile ([`crate::profile::Profile`]): every
+//! device is brought up, its heartbeat consumed, its EMCY and NMT state watched, its TPDO1
+//! aged and decoded into [`Measurements`]; the commanded device (the one whose profile moves
+//! the load: the valve) gets the command as its profile encodes it and the safe stop.
 //!
 //! Lifecycle (the states of [`Hal`]; the start-up steps are [`crate::startup`]):
 //! - [`CanopenHal::new`] / [`CanopenHal::new_with`]: **Unconfigured**, no bus I/O;
@@ -88,18 +93,17 @@
 //! `Drop`); a Configured one sends nothing when dropped.
 
 use crate::bus::{BusError, BusErrorKind, CanBus};
-use crate::cia406;
 use crate::cia408::{self, ValveState};
 use crate::clock::{Clock, MonotonicClock};
 use crate::emcy::{Emcy, EMCY_BASE};
 use crate::frame::{CanFrame, Direction};
 use crate::heartbeat::{HeartbeatConsumer, HeartbeatEvent};
 use crate::nmt::{NmtState, HEARTBEAT_BASE};
-use crate::pdo::{self, RPDO1_BASE, TPDO1_BASE};
+use crate::pdo::TPDO1_BASE;
 use crate::profile::Profile;
 use crate::sdo::{self, SdoClient, SDO_TX_BASE};
 pub use crate::settings::CanopenSettings;
-use crate::startup::{Activated, Bringup, Dev, Plan, StartBus, Startup};
+use crate::startup::{rpdo_frame, Activated, Bringup, Plan, StartBus, Startup};
 pub use crate::startup::{StartupError, StartupFailure};
 use crate::sync::{self, SyncProducer};
 use crate::transport;
@@ -240,14 +244,118 @@ impl Lifecycle {
 /// its period across the calls), the plan and what configure found.
 struct Pending {
     bus: Box<StartBus>,
-    names: [Option<String>; 2],
+    names: Vec<Option<String>>,
     skipped: Vec<String>,
 }
+
+/// The texts of one device's warnings and trips (event channels and [`HalError::Device`]
+/// reasons are `&'static str`): made once per device name when the backend is activated
+/// ([`intern`]), so that the cycle formats nothing.
+#[derive(Debug, Clone, Copy)]
+struct DeviceText {
+    wrong_dlc: &'static str,
+    too_old: &'static str,
+    rebooted: &'static str,
+    left_operational: &'static str,
+    emcy: &'static str,
+    heartbeat_lost: &'static str,
+}
+
+impl DeviceText {
+    fn new(name: &str, tpdo_len: Option<usize>) -> DeviceText {
+        let len = tpdo_len.unwrap_or(0);
+        DeviceText {
+            wrong_dlc: intern(format!(
+                "wrong DLC on {name} TPDO1 (expected {len}), ignored"
+            )),
+            too_old: intern(format!("{name} TPDO older than canopen.max_pdo_age_syncs")),
+            rebooted: intern(format!("{name} rebooted (boot-up during the run)")),
+            left_operational: intern(format!("{name} left NMT OPERATIONAL")),
+            emcy: intern(format!("EMCY from the {name}")),
+            heartbeat_lost: intern(format!("{name} heartbeat lost (consumer timeout)")),
+        }
+    }
+}
+
+/// `text` as a `&'static str`: each distinct text is leaked once per process and reused,
+/// so the memory is bounded by the device names and PDO sizes of the rig (a few hundred
+/// bytes), however often backends are activated.
+fn intern(text: String) -> &'static str {
+    static TEXTS: Mutex<Vec<&'static str>> = Mutex::new(Vec::new());
+    let Ok(mut v) = TEXTS.lock() else {
+        return "CANopen device";
+    };
+    if let Some(t) = v.iter().find(|t| **t == text) {
+        return t;
+    }
+    let t: &'static str = Box::leak(text.into_boxed_str());
+    v.push(t);
+    t
+}
+
+/// One device of the run as the control cycle follows it (built when the backend is
+/// activated, from the plan; the cycle updates it in place and allocates nothing).
+struct RunDevice {
+    node: u8,
+    profile: &'static dyn Profile,
+    /// Size of its TPDO1 as mapped (bytes; `None`: it sends none).
+    tpdo_len: Option<usize>,
+    /// Size of its RPDO1 as mapped (bytes; `None`: it receives none).
+    rpdo_len: Option<usize>,
+    /// The consumer of its heartbeat.
+    hb: HeartbeatConsumer,
+    /// PDO age: SYNCs queued whose synchronous TPDO has not arrived yet.
+    pending_syncs: u32,
+    /// Synchronous TPDOs that arrived after the next SYNC had been sent (age ≥ 1 SYNC).
+    late: u64,
+    /// Largest TPDO age seen (SYNC periods).
+    max_age: u32,
+    text: DeviceText,
+    /// Its key in the report: the profile's name, with the node id where two devices share it.
+    key: String,
+}
+
+impl RunDevice {
+    /// The devices of `plan`, their heartbeat consumers with timeout `hb_ns` (ns).
+    fn from_plan(plan: &Plan, hb_ns: u64) -> Vec<RunDevice> {
+        let devices = &plan.devices;
+        devices
+            .iter()
+            .map(|d| {
+                let name = d.device.name();
+                let shared = devices.iter().filter(|o| o.device.name() == name).count() > 1;
+                RunDevice {
+                    node: d.node,
+                    profile: d.device,
+                    tpdo_len: d.tpdo_len,
+                    rpdo_len: d.rpdo_len,
+                    hb: HeartbeatConsumer::new(d.node, hb_ns),
+                    pending_syncs: 0,
+                    late: 0,
+                    max_age: 0,
+                    text: DeviceText::new(name, d.tpdo_len),
+                    key: if shared {
+                        format!("{name} {}", d.node)
+                    } else {
+                        name.to_string()
+                    },
+                }
+            })
+            .collect()
+    }
+}
+
+/// The device whose TPDO1 stamps the sample time [`Measurements::t`] (and ends the
+/// start-up grace): the transducer, first in the plan, whose position closes the loop.
+const CLOCK_DEVICE: usize = 0;
 
 /// The CANopen backend (see the module docs).
 pub struct CanopenHal {
     s: CanopenSettings,
-    ids: [u8; 2],
+    /// The devices of the run, in the plan's order (empty until activated).
+    devices: Vec<RunDevice>,
+    /// Index in `devices` of the commanded device (the valve, [`Plan::commanded`]).
+    cmd: usize,
     lifecycle: Lifecycle,
     /// The bus handed to [`CanopenHal::new_with`], opened by configure (`None`: configure
     /// opens `s.bus`).
@@ -287,24 +395,17 @@ pub struct CanopenHal {
     master_hb: CanFrame,
     master_hb_period_ns: u64,
     master_hb_next_ns: u64,
-    hb: [HeartbeatConsumer; 2],
     meas: Measurements,
-    valve_state: Option<ValveState>,
+    /// The commanded device's state as its last TPDO1 reported it ([`Profile::tpdo_state`]).
+    cmd_state: Option<&'static str>,
     /// The transducer's first TPDO of the loop has arrived (start-up grace, see `read`).
     first_tpdo: bool,
-    /// PDO age (per device): SYNCs queued whose synchronous TPDO has not arrived yet.
-    pending_syncs: [u32; 2],
-    /// Synchronous TPDOs that arrived after the next SYNC had been sent (age ≥ 1 SYNC).
-    late: [u64; 2],
-    /// Largest TPDO age seen (SYNC periods).
-    max_age: [u32; 2],
     /// Loop time of the first cycle (s).
     loop_t0: Option<f64>,
     /// Start-up grace (s): `heartbeat_timeout_ms`.
     grace_s: f64,
     /// `heartbeat_timeout_ms` (ns): the longest RX-thread stall the consumers bridge.
     hb_timeout_ns: i64,
-    setpoint: i16,
     fault: Option<HalError>,
     wrong_dlc: u64,
     unknown: u64,
@@ -312,7 +413,7 @@ pub struct CanopenHal {
     last_emcy: Option<Emcy>,
     safe_stop_result: Option<String>,
     startup_s: f64,
-    names: [Option<String>; 2],
+    names: Vec<Option<String>>,
     /// Optional start-up steps the devices did not support.
     skipped: Vec<String>,
 }
@@ -321,7 +422,10 @@ impl std::fmt::Debug for CanopenHal {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("CanopenHal")
             .field("bus", &self.s.bus.to_string())
-            .field("ids", &self.ids)
+            .field(
+                "nodes",
+                &self.devices.iter().map(|d| d.node).collect::<Vec<_>>(),
+            )
             .field("lifecycle", &self.lifecycle.as_str())
             .finish()
     }
@@ -394,9 +498,7 @@ impl CanopenHal {
         clock: Arc<dyn Clock>,
     ) -> CanopenHal {
         let c = &s.canopen;
-        let ids = [c.transducer_node_id, c.valve_node_id];
         let t_start = clock.now_ns();
-        let hb_ns = u64::from(c.heartbeat_timeout_ms) * 1_000_000;
         CanopenHal {
             sync: SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1),
             master_hb: CanFrame::std(
@@ -405,11 +507,12 @@ impl CanopenHal {
             ),
             master_hb_period_ns: u64::from(c.master_heartbeat_ms) * 1_000_000,
             master_hb_next_ns: 0,
-            ids,
+            devices: Vec::new(),
+            cmd: 0,
             lifecycle: Lifecycle::Unconfigured,
             given_bus: bus,
             stop,
-            st: Startup::new(ids, s.verbose, clock.clone()),
+            st: Startup::new(&[], s.verbose, clock.clone()),
             t_start,
             plan: None,
             pending: None,
@@ -427,20 +530,12 @@ impl CanopenHal {
             startup_frames: Vec::new(),
             started: false,
             last_write_t: None,
-            hb: [
-                HeartbeatConsumer::new(ids[0], hb_ns),
-                HeartbeatConsumer::new(ids[1], hb_ns),
-            ],
             meas: Measurements::UNMEASURED,
-            valve_state: None,
+            cmd_state: None,
             first_tpdo: false,
-            pending_syncs: [0; 2],
-            late: [0; 2],
-            max_age: [0; 2],
             loop_t0: None,
             grace_s: f64::from(c.heartbeat_timeout_ms) * 1e-3,
             hb_timeout_ns: i64::from(c.heartbeat_timeout_ms) * 1_000_000,
-            setpoint: 0,
             fault: None,
             wrong_dlc: 0,
             unknown: 0,
@@ -448,7 +543,7 @@ impl CanopenHal {
             last_emcy: None,
             safe_stop_result: None,
             startup_s: 0.0,
-            names: [None, None],
+            names: Vec::new(),
             skipped: Vec::new(),
             s,
         }
@@ -636,18 +731,67 @@ impl CanopenHal {
         &mut self,
         bus: Box<dyn CanBus>,
         meas: Measurements,
-        names: [Option<String>; 2],
+        names: Vec<Option<String>>,
     ) -> Result<(), StartupError> {
         let c = self.s.canopen.clone();
-        let (tr, va) = (self.ids[0], self.ids[1]);
-        let master_hb = self.master_hb;
-        let master_hb_period = Duration::from_millis(u64::from(c.master_heartbeat_ms));
-        let keepalive = CanFrame::std(RPDO1_BASE + u16::from(va), 0i16.to_le_bytes());
-        let clock = self.st.clock.clone();
-        let shared = Arc::new(IoShared::new(clock.clone(), self.t_start));
+        let plan = self.plan.as_ref().expect("configured before");
+        let hb_ns = u64::from(c.heartbeat_timeout_ms) * 1_000_000;
+        self.devices = RunDevice::from_plan(plan, hb_ns);
+        self.cmd = plan.commanded;
+        let shared = Arc::new(IoShared::new(self.st.clock.clone(), self.t_start));
         // frames a previous activation left in the queues are no part of this one
         while self.rxq.pop().is_some() {}
         while self.txq.pop().is_some() {}
+        self.spawn_io(bus, &shared)?;
+        // the devices were OPERATIONAL with heartbeats at the end of start-up: the windows
+        // start now (the receive clock), the devices' next heartbeats come through the RX queue
+        let armed_at = shared.mono(shared.now());
+        for d in self.devices.iter_mut() {
+            d.hb.on_heartbeat(NmtState::Operational, armed_at);
+        }
+        self.startup_s = shared.now().saturating_sub(self.t_start) as f64 * 1e-9;
+        self.shared = shared;
+        // the start-up's priming SYNC was SYNC 1 (for the SYNC counter)
+        self.sync = SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1);
+        self.master_hb_next_ns = 0;
+        self.bus_after_stop = None;
+        self.st.merge();
+        self.startup_frames = std::mem::take(&mut self.st.frames);
+        self.started = false;
+        self.last_write_t = None;
+        self.meas = meas;
+        self.cmd_state = Some(ValveState::Active.as_str());
+        self.first_tpdo = false;
+        self.loop_t0 = None;
+        self.fault = None;
+        self.safe_stop_result = None;
+        self.names = names;
+        self.lifecycle = Lifecycle::Active;
+        Ok(())
+    }
+
+    /// The RPDO1 of the commanded device for the command `u` (V). No allocation.
+    #[inline]
+    fn command_frame(&self, u: f64) -> CanFrame {
+        let d = &self.devices[self.cmd];
+        rpdo_frame(
+            d.profile,
+            d.node,
+            d.rpdo_len.unwrap_or(0),
+            u,
+            self.s.command_full_scale,
+        )
+    }
+
+    /// The RX and TX threads on `bus` (and a clone of it) with the state `shared`.
+    fn spawn_io(
+        &mut self,
+        bus: Box<dyn CanBus>,
+        shared: &Arc<IoShared>,
+    ) -> Result<(), StartupError> {
+        let master_hb = self.master_hb;
+        let master_hb_period = Duration::from_millis(u64::from(self.s.canopen.master_heartbeat_ms));
+        let keepalive = self.command_frame(0.0);
         let tx_bus = bus.try_clone_bus()?;
         let spawn_err = |e: std::io::Error| {
             StartupError::Bus(BusError::new(
@@ -674,37 +818,6 @@ impl CanopenHal {
         self.tx_waker = Some(tx_thread.thread().clone());
         self.rx_thread = Some(rx_thread);
         self.tx_thread = Some(tx_thread);
-        let hb_ns = u64::from(c.heartbeat_timeout_ms) * 1_000_000;
-        self.hb = [
-            HeartbeatConsumer::new(tr, hb_ns),
-            HeartbeatConsumer::new(va, hb_ns),
-        ];
-        // the devices were OPERATIONAL with heartbeats at the end of start-up: the windows
-        // start now (the receive clock), the devices' next heartbeats come through the RX queue
-        let armed_at = shared.mono(shared.now());
-        for h in self.hb.iter_mut() {
-            h.on_heartbeat(NmtState::Operational, armed_at);
-        }
-        self.startup_s = shared.now().saturating_sub(self.t_start) as f64 * 1e-9;
-        self.shared = shared;
-        // the start-up's priming SYNC was SYNC 1 (for the SYNC counter)
-        self.sync = SyncProducer::with_counter(1.0 / c.sync_rate_hz, c.sync_counter_overflow, 1);
-        self.master_hb_next_ns = 0;
-        self.bus_after_stop = None;
-        self.st.merge();
-        self.startup_frames = std::mem::take(&mut self.st.frames);
-        self.started = false;
-        self.last_write_t = None;
-        self.meas = meas;
-        self.valve_state = Some(ValveState::Active);
-        self.first_tpdo = false;
-        self.pending_syncs = [0; 2];
-        self.loop_t0 = None;
-        self.setpoint = 0;
-        self.fault = None;
-        self.safe_stop_result = None;
-        self.names = names;
-        self.lifecycle = Lifecycle::Active;
         Ok(())
     }
 
@@ -750,53 +863,38 @@ impl CanopenHal {
         e
     }
 
-    fn dev_of(&self, node: u32) -> Option<Dev> {
-        if node == u32::from(self.ids[0]) {
-            Some(Dev::Transducer)
-        } else if node == u32::from(self.ids[1]) {
-            Some(Dev::Valve)
-        } else {
-            None
-        }
+    /// Index of the device with node id `node`.
+    #[inline]
+    fn dev_of(&self, node: u32) -> Option<usize> {
+        self.devices.iter().position(|d| u32::from(d.node) == node)
     }
 
-    /// PDO age check of a synchronous TPDO of `d` (any DLC: it answers one SYNC). Its age is
-    /// the number of SYNCs the cycle queued after the one it answers: 0 = before the next
-    /// SYNC; ≥ 1 = late (counted); above `canopen.max_pdo_age_syncs` = trip. The cycle
-    /// takes frames in once per control period, so ages are exact to one control period.
-    /// A TPDO the device never sent counts as late for the rest of the run (CAN retransmits
-    /// lost frames: a missing TPDO is a device fault).
+    /// PDO age check of a synchronous TPDO of device `i` (any DLC: it answers one SYNC).
+    /// Its age is the number of SYNCs the cycle queued after the one it answers: 0 = before
+    /// the next SYNC; ≥ 1 = late (counted); above `canopen.max_pdo_age_syncs` = trip. The
+    /// cycle takes frames in once per control period, so ages are exact to one control
+    /// period. A TPDO the device never sent counts as late for the rest of the run (CAN
+    /// retransmits lost frames: a missing TPDO is a device fault).
     #[inline]
-    fn pdo_age(&mut self, d: Dev, t: f64) -> Result<(), HalError> {
-        let i = d as usize;
-        if d == Dev::Valve && !self.s.canopen.valve_status_pdo {
-            return Ok(());
-        }
-        let age = self.pending_syncs[i].saturating_sub(1);
-        self.pending_syncs[i] = self.pending_syncs[i].saturating_sub(1);
+    fn pdo_age(&mut self, i: usize, t: f64) -> Result<(), HalError> {
+        let max = self.s.canopen.max_pdo_age_syncs;
+        let d = &mut self.devices[i];
+        let age = d.pending_syncs.saturating_sub(1);
+        d.pending_syncs = d.pending_syncs.saturating_sub(1);
         if age >= 1 {
-            self.late[i] += 1;
-            self.max_age[i] = self.max_age[i].max(age);
-            if age > self.s.canopen.max_pdo_age_syncs {
-                let what = match d {
-                    Dev::Transducer => "transducer TPDO older than canopen.max_pdo_age_syncs",
-                    Dev::Valve => "valve TPDO older than canopen.max_pdo_age_syncs",
-                };
-                return Err(self.trip(
-                    t,
-                    u32::from(self.ids[i]),
-                    what,
-                    f64::from(age),
-                    "SYNC periods",
-                ));
+            d.late += 1;
+            d.max_age = d.max_age.max(age);
+            if age > max {
+                let (node, what) = (d.node, d.text.too_old);
+                return Err(self.trip(t, u32::from(node), what, f64::from(age), "SYNC periods"));
             }
         }
         Ok(())
     }
 
     /// Handle one received frame in the cycle, by its function code (CiA 301 predefined
-    /// connection set): TPDO1, heartbeat, EMCY of the two devices; a late SDO response or
-    /// any other COB-ID is counted and ignored.
+    /// connection set): TPDO1, heartbeat, EMCY of the devices; a late SDO response or any
+    /// other COB-ID is counted and ignored.
     /// `rx_ns`: its receive time ([`IoShared::mono`]), from which the heartbeat consumer's
     /// window runs.
     #[inline]
@@ -814,21 +912,14 @@ impl CanopenHal {
         }
         let (base, node) = (id & 0x780, id & 0x7F);
         let dev = self.dev_of(node);
-        if base as u16 == TPDO1_BASE {
-            if let Some(d) = dev {
-                self.pdo_age(d, t)?;
-            }
-        }
+        let sends_tpdo = dev.is_some_and(|i| self.devices[i].tpdo_len.is_some());
         match (base as u16, dev) {
-            (TPDO1_BASE, Some(Dev::Transducer)) => {
-                self.on_transducer_tpdo(f, t);
-                Ok(())
+            (TPDO1_BASE, Some(i)) if sends_tpdo => {
+                self.pdo_age(i, t)?;
+                self.on_tpdo(i, f, t)
             }
-            (TPDO1_BASE, Some(Dev::Valve)) if self.s.canopen.valve_status_pdo => {
-                self.on_valve_tpdo(f, t)
-            }
-            (HEARTBEAT_BASE, Some(d)) => self.on_heartbeat(f, t, rx_ns, d),
-            (EMCY_BASE, Some(d)) if node != 0 => self.on_emcy(f, t, d),
+            (HEARTBEAT_BASE, Some(i)) => self.on_heartbeat(f, t, rx_ns, i),
+            (EMCY_BASE, Some(i)) if node != 0 => self.on_emcy(f, t, i),
             (0x580, Some(_)) => {
                 // A late SDO response (e.g. after a start-up timeout): harmless.
                 self.unknown += 1;
@@ -855,61 +946,61 @@ impl CanopenHal {
         self.warn(t, what, f64::from(f.id), self.wrong_dlc);
     }
 
-    /// The transducer's TPDO1 (CiA 406 position 0x6020:01, 4 bytes): the cycle's position.
+    /// The TPDO1 of device `i`, decoded by its profile into the held measurements (the
+    /// transducer: the position; the valve: the spool; a CiA 404 transmitter: a pressure).
+    /// The transducer's stamps the sample time. A device whose TPDO reports a state in
+    /// which the command does not act (the valve's status word: any state but ACTIVE) trips.
     #[inline]
-    fn on_transducer_tpdo(&mut self, f: &CanFrame, t: f64) {
-        let data = &f.data[..usize::from(f.dlc.min(8))];
-        if f.dlc != 4
-            || cia406::Cia406
+    fn on_tpdo(&mut self, i: usize, f: &CanFrame, t: f64) -> Result<(), HalError> {
+        let d = &self.devices[i];
+        let (profile, what) = (d.profile, d.text.wrong_dlc);
+        let data = f.payload();
+        if Some(data.len()) != d.tpdo_len
+            || profile
                 .decode(&self.s.canopen, data, &mut self.meas)
                 .is_err()
         {
-            self.wrong_dlc(f, t, "wrong DLC on transducer TPDO1 (expected 4), ignored");
-        } else {
+            self.wrong_dlc(f, t, what);
+            return Ok(());
+        }
+        if i == CLOCK_DEVICE {
             self.meas.t = t;
             self.first_tpdo = true;
         }
-    }
-
-    /// The valve's TPDO1 (CiA 408 status word 0x6041 + actual spool 0x6301:01): the spool
-    /// position; any device control state but ACTIVE trips.
-    #[inline]
-    fn on_valve_tpdo(&mut self, f: &CanFrame, t: f64) -> Result<(), HalError> {
-        if f.dlc != 4 {
-            self.wrong_dlc(f, t, "wrong DLC on valve TPDO1 (expected 4), ignored");
+        let Some(st) = profile.tpdo_state(data) else {
             return Ok(());
-        }
-        let sw = pdo::get_u16(&f.data, 0);
-        if cia408::Cia408
-            .decode(&self.s.canopen, &f.data[..4], &mut self.meas)
-            .is_err()
-        {
-            return Ok(());
-        }
-        let st = ValveState::from_status(sw);
-        self.valve_state = Some(st);
-        let what = match st {
-            ValveState::Active => return Ok(()),
-            ValveState::FaultReaction => "valve reports FAULT_REACTION (status word)",
-            s if s.is_fault() => "valve reports a fault state (status word)",
-            _ => "valve left ACTIVE (status word)",
         };
-        Err(self.trip(t, u32::from(sw), what, f64::from(sw), "status word"))
+        if i == self.cmd {
+            self.cmd_state = Some(st.name);
+        }
+        match st.trip {
+            None => Ok(()),
+            Some(why) => Err(self.trip(
+                t,
+                u32::from(st.word),
+                why,
+                f64::from(st.word),
+                "status word",
+            )),
+        }
     }
 
-    /// A heartbeat of device `d` (CiA 301 error control, 1 byte NMT state): fed to its
+    /// A heartbeat of device `i` (CiA 301 error control, 1 byte NMT state): fed to its
     /// consumer; a boot-up or any state but OPERATIONAL trips.
     #[inline]
-    fn on_heartbeat(&mut self, f: &CanFrame, t: f64, rx_ns: i64, d: Dev) -> Result<(), HalError> {
+    fn on_heartbeat(&mut self, f: &CanFrame, t: f64, rx_ns: i64, i: usize) -> Result<(), HalError> {
         if f.dlc != 1 {
             self.wrong_dlc(f, t, "wrong DLC on heartbeat (expected 1), ignored");
             return Ok(());
         }
         let node = f.id & 0x7F;
         let st = NmtState::from_byte(f.data[0]);
-        let ev = st.and_then(|s| self.hb[d as usize].on_heartbeat(s, rx_ns));
-        match (st, ev, d) {
-            (None, _, _) => {
+        if let Some(s) = st {
+            self.devices[i].hb.on_heartbeat(s, rx_ns);
+        }
+        let text = self.devices[i].text;
+        match st {
+            None => {
                 self.unknown += 1;
                 self.warn(
                     t,
@@ -918,40 +1009,22 @@ impl CanopenHal {
                     self.unknown,
                 );
             }
-            (Some(NmtState::Operational), _, _) => {}
-            (Some(s), _, dev) => {
-                let (what, value, unit) = match (s, dev) {
-                    (NmtState::BootUp, Dev::Valve) => (
-                        "valve rebooted (boot-up during the run)",
-                        f64::from(node),
-                        "node",
-                    ),
-                    (NmtState::BootUp, Dev::Transducer) => (
-                        "transducer rebooted (boot-up during the run)",
-                        f64::from(node),
-                        "node",
-                    ),
-                    (_, Dev::Valve) => (
-                        "valve left NMT OPERATIONAL",
-                        f64::from(s as u8 as u32),
-                        "NMT state",
-                    ),
-                    (_, Dev::Transducer) => (
-                        "transducer left NMT OPERATIONAL",
-                        f64::from(s as u8 as u32),
-                        "NMT state",
-                    ),
-                };
-                return Err(self.trip(t, node, what, value, unit));
+            Some(NmtState::Operational) => {}
+            Some(NmtState::BootUp) => {
+                return Err(self.trip(t, node, text.rebooted, f64::from(node), "node"));
+            }
+            Some(s) => {
+                let state = f64::from(s as u8 as u32);
+                return Err(self.trip(t, node, text.left_operational, state, "NMT state"));
             }
         }
         Ok(())
     }
 
-    /// An EMCY of device `d` (CiA 301, 8 bytes): an error reset is warned, any other code
+    /// An EMCY of device `i` (CiA 301, 8 bytes): an error reset is warned, any other code
     /// trips.
     #[inline]
-    fn on_emcy(&mut self, f: &CanFrame, t: f64, d: Dev) -> Result<(), HalError> {
+    fn on_emcy(&mut self, f: &CanFrame, t: f64, i: usize) -> Result<(), HalError> {
         let node = f.id & 0x7F;
         match Emcy::parse(node as u8, f.payload()) {
             Err(_) => self.wrong_dlc(f, t, "wrong DLC on EMCY (expected 8), ignored"),
@@ -961,10 +1034,7 @@ impl CanopenHal {
             Ok(e) => {
                 self.emcy_count += 1;
                 self.last_emcy = Some(e);
-                let what = match d {
-                    Dev::Valve => "EMCY from the valve",
-                    Dev::Transducer => "EMCY from the transducer",
-                };
+                let what = self.devices[i].text.emcy;
                 return Err(self.trip(t, u32::from(e.code), what, f64::from(e.code), "EMCY code"));
             }
         }
@@ -1000,7 +1070,7 @@ impl CanopenHal {
         };
         let plan = self.plan.clone().expect("configured");
         let mut b = Bringup::resume(&self.s, p.bus, plan, &mut self.st, p.names, p.skipped);
-        let r = b.valve_to_hold_checked("safe stop of the configured valve");
+        let r = b.safe_stop_checked("safe stop of the configured valve");
         let (bus, _, names, skipped) = b.into_parts();
         self.pending = Some(Pending {
             bus,
@@ -1021,6 +1091,54 @@ impl CanopenHal {
                 })
             }
         }
+    }
+
+    /// After the I/O threads stopped: the commanded device's safe-stop control word (the
+    /// valve: HOLD) by SDO on the bus they handed back; `Err` with why it was not confirmed.
+    fn safe_stop_by_sdo(&mut self) -> Result<(), String> {
+        let d = &self.devices[self.cmd];
+        let (node, profile) = (d.node, d.profile);
+        let failed = self.shared.failed.load(Ordering::Acquire);
+        let Some(mut bus) = self.bus_after_stop.take().filter(|_| !failed) else {
+            return Err(format!(
+                "bus unavailable ({}); {} HOLD could not be commanded — the {} must fall back to its own safe state (heartbeat loss reaction)",
+                self.shared
+                    .error
+                    .lock()
+                    .ok()
+                    .and_then(|e| e.clone())
+                    .unwrap_or_else(|| "not connected".into()),
+                profile.name(),
+                profile.name()
+            ));
+        };
+        let sdo_t = Duration::from_millis(u64::from(self.s.canopen.sdo_timeout_ms));
+        let mut cl = SdoClient::new(node, sdo_t);
+        let (index, sub) = profile.control_object();
+        let cw = profile.safe_stop().unwrap_or(0);
+        let req = cl.download(index, sub, &cw.to_le_bytes());
+        let mut frames: Vec<(CanFrame, Direction)> = Vec::new();
+        let r = sdo::transfer(&mut *bus, &mut cl, req, &*self.shared.clock, &mut |f, d| {
+            frames.push((*f, d))
+        });
+        for (f, d) in &frames {
+            self.log_now(f, *d);
+        }
+        self.bus_after_stop = Some(bus);
+        r.map_err(|e| e.to_string())
+    }
+
+    /// `{key: value}` over the devices of the run (keys: their profiles' names).
+    fn per_device(&self, value: impl Fn(&RunDevice) -> serde_json::Value) -> serde_json::Value {
+        self.per_device_i(|i| value(&self.devices[i]))
+    }
+
+    /// [`CanopenHal::per_device`] by the device's index.
+    fn per_device_i(&self, value: impl Fn(usize) -> serde_json::Value) -> serde_json::Value {
+        let m: serde_json::Map<String, serde_json::Value> = (0..self.devices.len())
+            .map(|i| (self.devices[i].key.clone(), value(i)))
+            .collect();
+        serde_json::Value::Object(m)
     }
 
     /// The lifecycle state: "unconfigured", "configured", "active" or "failed".
@@ -1208,20 +1326,11 @@ impl Hal for CanopenHal {
                 self.meas.t = t;
             }
         }
-        for i in 0..2 {
-            if let Some(HeartbeatEvent::Timeout { silent_ns }) = self.hb[i].process(judged_ns) {
-                let what = if i == 0 {
-                    "transducer heartbeat lost (consumer timeout)"
-                } else {
-                    "valve heartbeat lost (consumer timeout)"
-                };
-                return Err(self.trip(
-                    t,
-                    u32::from(self.ids[i]),
-                    what,
-                    silent_ns as f64 * 1e-9,
-                    "s",
-                ));
+        for i in 0..self.devices.len() {
+            let d = &mut self.devices[i];
+            if let Some(HeartbeatEvent::Timeout { silent_ns }) = d.hb.process(judged_ns) {
+                let (node, what) = (u32::from(d.node), d.text.heartbeat_lost);
+                return Err(self.trip(t, node, what, silent_ns as f64 * 1e-9, "s"));
             }
         }
         Ok(self.meas)
@@ -1234,7 +1343,6 @@ impl Hal for CanopenHal {
         if let Some(e) = self.fault {
             return Err(e);
         }
-        self.setpoint = cia408::setpoint_from_command(command, self.s.command_full_scale);
         let elapsed_ns = match self.last_write_t {
             None => 0,
             Some(l) => ((t - l).max(0.0) * 1e9).round() as u64,
@@ -1264,12 +1372,9 @@ impl Hal for CanopenHal {
             }
         }
         if self.sync.process(elapsed_ns) {
-            let rpdo = CanFrame::std(
-                RPDO1_BASE + u16::from(self.ids[1]),
-                self.setpoint.to_le_bytes(),
-            );
-            for p in self.pending_syncs.iter_mut() {
-                *p = p.saturating_add(1);
+            let rpdo = self.command_frame(command);
+            for d in self.devices.iter_mut() {
+                d.pending_syncs = d.pending_syncs.saturating_add(1);
             }
             if self.txq.push(rpdo).is_err() || self.txq.push(self.sync.frame()).is_err() {
                 return Err(self.trip(t, 0, "CAN transmit queue overflow", f64::NAN, ""));
@@ -1341,12 +1446,9 @@ impl Hal for CanopenHal {
             }
             _ => {}
         }
-        let s = cia408::setpoint_from_command(command, self.s.command_full_scale);
-        let va = self.ids[1];
+        let rpdo = self.command_frame(command);
         if self.tx_thread.is_some() && !self.shared.failed.load(Ordering::Acquire) {
-            let _ = self
-                .txq
-                .push(CanFrame::std(RPDO1_BASE + u16::from(va), s.to_le_bytes()));
+            let _ = self.txq.push(rpdo);
             let _ = self.txq.push(sync::frame_with_counter(
                 self.s.canopen.sync_counter_overflow,
                 2 + self.sync.count(),
@@ -1359,39 +1461,13 @@ impl Hal for CanopenHal {
             ));
         }
         self.stop_io();
-        let failed = self.shared.failed.load(Ordering::Acquire);
-        let result = match self.bus_after_stop.take() {
-            Some(mut bus) if !failed => {
-                let mut cl = SdoClient::new(
-                    va,
-                    Duration::from_millis(u64::from(self.s.canopen.sdo_timeout_ms)),
-                );
-                let req = cl.download(cia408::CONTROL_WORD, 0, &cia408::CW_HOLD_STATE.to_le_bytes());
-                let mut frames: Vec<(CanFrame, Direction)> = Vec::new();
-                let r = sdo::transfer(&mut *bus, &mut cl, req, &*self.shared.clock, &mut |f, d| {
-                    frames.push((*f, d))
-                });
-                for (f, d) in &frames {
-                    self.log_now(f, *d);
-                }
-                self.bus_after_stop = Some(bus);
-                r.map_err(|e| e.to_string())
-            }
-            _ => Err(format!(
-                "bus unavailable ({}); valve HOLD could not be commanded — the valve must fall back to its own safe state (heartbeat loss reaction)",
-                self.shared
-                    .error
-                    .lock()
-                    .ok()
-                    .and_then(|e| e.clone())
-                    .unwrap_or_else(|| "not connected".into())
-            )),
-        };
-        match result {
+        let d = &self.devices[self.cmd];
+        let (name, cw) = (d.profile.name(), d.profile.safe_stop().unwrap_or(0));
+        match self.safe_stop_by_sdo() {
             Ok(()) => {
                 self.safe_stop_result = Some(format!(
-                    "setpoint {s} and control word HOLD (0x{:04X}) sent to the valve",
-                    cia408::CW_HOLD_STATE
+                    "RPDO1 {:02X?} (command {command} V) and control word HOLD (0x{cw:04X}) sent to the {name}",
+                    rpdo.payload()
                 ));
                 self.lifecycle = Lifecycle::Configured;
                 Ok(())
@@ -1427,8 +1503,8 @@ impl Hal for CanopenHal {
             "sync_rate_hz": self.s.canopen.sync_rate_hz,
             "syncs_sent": self.sync.count(),
             "sync_counter_overflow": self.s.canopen.sync_counter_overflow,
-            "pdo_late": {"transducer": self.late[0], "valve": self.late[1]},
-            "pdo_max_age_syncs": {"transducer": self.max_age[0], "valve": self.max_age[1]},
+            "pdo_late": self.per_device(|d| d.late.into()),
+            "pdo_max_age_syncs": self.per_device(|d| d.max_age.into()),
             "can_rx_frames": sh.rx_frames.load(Ordering::Relaxed),
             "can_tx_frames": sh.tx_frames.load(Ordering::Relaxed),
             "can_wrong_dlc": self.wrong_dlc,
@@ -1440,9 +1516,9 @@ impl Hal for CanopenHal {
             "can_bus_error": sh.error.lock().ok().and_then(|e| e.clone()),
             "emcy_count": self.emcy_count,
             "last_emcy_code": self.last_emcy.map(|e| e.code),
-            "valve_state": self.valve_state.map(|v| v.as_str()),
+            "valve_state": self.cmd_state,
             "startup_s": self.startup_s,
-            "device_names": {"transducer": self.names[0], "valve": self.names[1]},
+            "device_names": self.per_device_i(|i| self.names.get(i).cloned().flatten().into()),
             "startup_skipped": self.skipped,
             "safe_stop": self.safe_stop_result,
         }))
@@ -1509,9 +1585,22 @@ mod tests {
         CanopenConfig,
         CanFrame,
     ) {
+        spawned_with(clock, startup, CanopenConfig::default())
+    }
+
+    /// [`spawned_after_startup`] with the config `c`.
+    fn spawned_with(
+        clock: &Arc<ManualClock>,
+        startup: Duration,
+        c: CanopenConfig,
+    ) -> (
+        CanopenHal,
+        Arc<std::sync::Mutex<std::collections::VecDeque<CanFrame>>>,
+        CanopenConfig,
+        CanFrame,
+    ) {
         let bus = SimBus::new(clock.clone(), false);
         let rx = bus.rx.clone();
-        let c = CanopenConfig::default();
         let mut hal = CanopenHal::new_with(settings(c.clone()), None, None, clock.clone());
         hal.t_start = clock.now_ns();
         clock.advance(startup);
@@ -1525,7 +1614,10 @@ mod tests {
         };
         let master_hb = CanFrame::std(HEARTBEAT_BASE + u16::from(c.master_node_id), [0x05]);
         assert_eq!(hal.master_hb, master_hb);
-        hal.start_io(Box::new(bus), meas, [None, None]).unwrap();
+        let plan = CanopenHal::check_settings(&hal.s).unwrap();
+        let names = vec![None; plan.devices.len()];
+        hal.plan = Some(plan);
+        hal.start_io(Box::new(bus), meas, names).unwrap();
         // Released without the drop's safe stop: nobody answers its SDO on this bus and the
         // clock moves only when the test moves it, so the SDO would wait forever (a failed
         // assertion would hang instead of failing). The drop's safe stop is tested against
@@ -1589,13 +1681,79 @@ mod tests {
                                                                      // the valve's window ran from its reception at 9.030 s (2.030 s after the start):
                                                                      // lost after 9.090 s, not 60 ms after the cycle took its heartbeat in (9.120 s)
         let at = |ms: u64, extra: u64| ((ms - 7_000) * MS + extra) as i64;
-        assert_eq!(hal.hb[1].clone().process(at(9_090, 0)), None);
+        assert_eq!(hal.devices[1].hb.clone().process(at(9_090, 0)), None);
         assert_eq!(
-            hal.hb[1].clone().process(at(9_090, 1)),
+            hal.devices[1].hb.clone().process(at(9_090, 1)),
             Some(HeartbeatEvent::Timeout {
                 silent_ns: 60 * MS + 1
             })
         );
+    }
+
+    /// A third device of `[[canopen.devices]]` (a CiA 404 pressure transmitter at node 64)
+    /// in the run on simulated time: its TPDO1 (INTEGER32 process value, 0 decimal digits)
+    /// becomes `p_a` in Pa and nothing else; a TPDO1 of another length is counted and
+    /// ignored under its own name; its heartbeat is consumed like the transducer's and the
+    /// valve's: lost exactly at 60 ms + 1 ns of silence while the two others keep beating,
+    /// and the run trips under its name and node.
+    #[test]
+    fn a_third_device_is_decoded_and_its_heartbeat_loss_trips() {
+        use ehactl_types::canopen::CanopenDevice;
+        let clock = Arc::new(ManualClock::at(7_000 * MS));
+        let c = CanopenConfig {
+            devices: vec![CanopenDevice {
+                profile: "cia404".into(),
+                node_id: 64,
+                eds: String::new(),
+            }],
+            ..Default::default()
+        };
+        let (mut hal, rx, c, _) = spawned_with(&clock, Duration::from_secs(2), c);
+        let (tr, va, pr) = (c.transducer_node_id, c.valve_node_id, 64u16);
+        let push = |f: CanFrame| rx.lock().unwrap().push_back(f);
+        // armed at 9.000 s; at 9.010 s the transmitter's TPDO1 reads 12 345 678 Pa
+        clock.set(9_010 * MS);
+        push(CanFrame::std(TPDO1_BASE + pr, 12_345_678i32.to_le_bytes()));
+        wait_for_rx(&hal, &clock, 1);
+        let m = hal.read(0.0, 2e-4).unwrap();
+        assert_eq!(m.p_a, 12_345_678.0);
+        assert_eq!((m.position, m.spool), (0.1, 0.0)); // the primed values, untouched
+        assert!(m.p_b.is_nan() && m.force.is_nan());
+        // a 2-byte TPDO1: counted, the held pressure stays
+        push(CanFrame::std(TPDO1_BASE + pr, [1, 2]));
+        wait_for_rx(&hal, &clock, 2);
+        assert_eq!(hal.read(0.0, 2e-4).unwrap().p_a, 12_345_678.0);
+        assert_eq!(hal.wrong_dlc, 1);
+        assert!(std::iter::from_fn(|| hal.frame_log.pop_event())
+            .any(|e| e.channel == "wrong DLC on pressure transmitter TPDO1 (expected 4), ignored"));
+        // the transducer and the valve beat at 9.050 s; the transmitter stays silent
+        clock.set(9_050 * MS);
+        for n in [tr, va] {
+            push(CanFrame::std(HEARTBEAT_BASE + u16::from(n), [0x05]));
+        }
+        wait_for_rx(&hal, &clock, 4);
+        clock.set(9_060 * MS);
+        wait_for_rx(&hal, &clock, 4);
+        hal.read(0.0, 2e-4)
+            .expect("60 ms of silence is within the consumer time");
+        clock.set(9_060 * MS + 1);
+        wait_for_rx(&hal, &clock, 4);
+        match hal.read(0.0, 2e-4) {
+            Err(HalError::Device { code, what }) => {
+                assert_eq!(code, u32::from(pr));
+                assert_eq!(
+                    what,
+                    "pressure transmitter heartbeat lost (consumer timeout)"
+                );
+            }
+            r => panic!("expected the transmitter's heartbeat loss, got {r:?}"),
+        }
+        let rep = hal.report().unwrap();
+        assert_eq!(rep["pdo_late"]["pressure transmitter"], 0);
+        assert!(rep["device_names"]
+            .as_object()
+            .unwrap()
+            .contains_key("pressure transmitter"));
     }
 
     /// A heartbeat that waits unread in the receive buffer because the RX thread was not

@@ -375,6 +375,20 @@ enum State {
     Raw(String),
 }
 
+/// One client's connection as its reader thread serves it (see [`client_loop`]).
+struct Session<'a> {
+    id: u64,
+    stream: TcpStream,
+    reg: &'a Arc<Mutex<Registry>>,
+    stats: &'a Arc<HubStats>,
+    quiet: bool,
+    peer: &'a str,
+    join_delay: Duration,
+    complaints: &'a mut Complaints,
+    who: String,
+    state: State,
+}
+
 #[allow(clippy::too_many_arguments)]
 fn client_loop(
     id: u64,
@@ -393,18 +407,22 @@ fn client_loop(
     if let Err(e) = stream.write_all(b"< hi >") {
         return format!("cannot greet: {e}");
     }
-    let mut state = State::Greeted;
+    let mut session = Session {
+        id,
+        stream,
+        reg,
+        stats,
+        quiet,
+        peer,
+        join_delay,
+        complaints,
+        who: format!("{id} ({peer})"),
+        state: State::Greeted,
+    };
     let mut framer = Framer::new();
     let mut buf = [0u8; 4096];
-    let who = format!("{id} ({peer})");
-    let mut complain = |what: &str| {
-        stats.malformed.fetch_add(1, Ordering::Relaxed);
-        if let Some(line) = complaints.add(&who, what) {
-            eprintln!("{line}");
-        }
-    };
     loop {
-        let n = match stream.read(&mut buf) {
+        let n = match session.stream.read(&mut buf) {
             Ok(0) => return "connection closed".into(),
             Ok(n) => n,
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
@@ -412,113 +430,147 @@ fn client_loop(
         };
         framer.push(&buf[..n]);
         loop {
-            let msg = match framer.next_message() {
-                Ok(Some(m)) => m,
+            let r = match framer.next_message() {
+                Ok(Some(m)) => session.on_message(m),
                 Ok(None) => break,
                 Err(e) => {
-                    complain(&e);
+                    session.complain(&e);
                     continue;
                 }
             };
-            match &state {
-                State::Raw(ch) => {
-                    if msg.starts_with("< send ") {
-                        match parse_send(msg) {
-                            Ok(f) => {
-                                stats.frames_in.fetch_add(1, Ordering::Relaxed);
-                                relay(reg, stats, id, ch, &f);
-                            }
-                            Err(e) => complain(&format!("{e}; frame not relayed")),
-                        }
-                    } else if msg == "< echo >" {
-                        if stream.write_all(b"< echo >").is_err() {
-                            return "write error".into();
-                        }
-                    } else {
-                        let m = msg.to_string();
-                        complain(&format!(
-                            "unsupported command `{m}` in rawmode (expected `< send ID DLC BYTES >`); ignored"
-                        ));
-                    }
-                }
-                State::Greeted | State::Opened(_) => {
-                    let w: Vec<&str> = match words(msg) {
-                        Ok(w) => w.collect(),
-                        Err(e) => {
-                            complain(&e);
-                            continue;
-                        }
-                    };
-                    let reply: &[u8] = match (w.as_slice(), &state) {
-                        (["open", ch], _) => {
-                            state = State::Opened(ch.to_string());
-                            b"< ok >"
-                        }
-                        (["rawmode"], State::Opened(ch)) => {
-                            let ch = ch.clone();
-                            let writer = match stream.try_clone() {
-                                Ok(s) => s,
-                                Err(e) => return format!("cannot clone socket: {e}"),
-                            };
-                            // Register first (frames from now on are queued for this
-                            // client, none lost in the gap), reply, then start the writer:
-                            // it waits the join delay before the first frame, so no frame
-                            // precedes the `< ok >` or shares its `recv`.
-                            let (tx, rx) = sync_channel::<Arc<[u8]>>(CLIENT_QUEUE);
-                            // An empty marker message, counted as queued, keeps the relay
-                            // queueing (not sending) until the writer has passed the join
-                            // delay and taken it off.
-                            let queued = Arc::new(AtomicU64::new(1));
-                            let _ = tx.try_send(Arc::from(&b""[..]));
-                            let shut = match stream.try_clone() {
-                                Ok(s) => s,
-                                Err(e) => return format!("cannot clone socket: {e}"),
-                            };
-                            if let Ok(mut r) = reg.lock() {
-                                let fd = std::os::fd::AsRawFd::as_raw_fd(&shut);
-                                r.clients.push(Client {
-                                    id,
-                                    channel: ch.clone(),
-                                    stream: shut,
-                                    queue: tx,
-                                    queued: queued.clone(),
-                                    fd,
-                                });
-                            }
-                            if stream.write_all(b"< ok >").is_err() {
-                                return "write error".into();
-                            }
-                            let st = stats.clone();
-                            if let Err(e) = std::thread::Builder::new()
-                                .name(format!("hub-writer-{id}"))
-                                .spawn(move || writer_loop(writer, rx, queued, join_delay, &st))
-                            {
-                                return format!("cannot start a writer thread: {e}");
-                            }
-                            if !quiet {
-                                eprintln!("hub: client {id} ({peer}) in rawmode on {ch}");
-                            }
-                            state = State::Raw(ch);
-                            continue;
-                        }
-                        (["rawmode"], State::Greeted) => {
-                            complain("`< rawmode >` before `< open CHANNEL >`");
-                            b"< error open a channel first >"
-                        }
-                        _ => {
-                            let m = msg.to_string();
-                            complain(&format!(
-                                "unsupported command `{m}` (this hub supports `< open CHANNEL >` and `< rawmode >`)"
-                            ));
-                            b"< error unsupported command >"
-                        }
-                    };
-                    if stream.write_all(reply).is_err() {
-                        return "write error".into();
-                    }
-                }
+            if let Err(why) = r {
+                return why;
             }
         }
+    }
+}
+
+impl Session<'_> {
+    /// A malformed or unsupported message: counted, quoted (the first few) or summed up.
+    fn complain(&mut self, what: &str) {
+        self.stats.malformed.fetch_add(1, Ordering::Relaxed);
+        if let Some(line) = self.complaints.add(&self.who, what) {
+            eprintln!("{line}");
+        }
+    }
+
+    /// One message of the client; `Err` ends the connection with the reason.
+    fn on_message(&mut self, msg: &str) -> Result<(), String> {
+        match std::mem::replace(&mut self.state, State::Greeted) {
+            State::Raw(ch) => {
+                // taken out and put back: no copy of the channel name per frame
+                let r = self.on_raw(&ch, msg);
+                self.state = State::Raw(ch);
+                r
+            }
+            other => {
+                self.state = other;
+                self.on_command(msg)
+            }
+        }
+    }
+
+    /// A message in rawmode on channel `ch`: a frame to relay, or an echo.
+    fn on_raw(&mut self, ch: &str, msg: &str) -> Result<(), String> {
+        if msg.starts_with("< send ") {
+            match parse_send(msg) {
+                Ok(f) => {
+                    self.stats.frames_in.fetch_add(1, Ordering::Relaxed);
+                    relay(self.reg, self.stats, self.id, ch, &f);
+                }
+                Err(e) => self.complain(&format!("{e}; frame not relayed")),
+            }
+        } else if msg == "< echo >" {
+            if self.stream.write_all(b"< echo >").is_err() {
+                return Err("write error".into());
+            }
+        } else {
+            self.complain(&format!(
+                "unsupported command `{msg}` in rawmode (expected `< send ID DLC BYTES >`); ignored"
+            ));
+        }
+        Ok(())
+    }
+
+    /// A command before rawmode: `< open CHANNEL >`, then `< rawmode >`.
+    fn on_command(&mut self, msg: &str) -> Result<(), String> {
+        let w: Vec<&str> = match words(msg) {
+            Ok(w) => w.collect(),
+            Err(e) => {
+                self.complain(&e);
+                return Ok(());
+            }
+        };
+        let reply: &[u8] = match (w.as_slice(), &self.state) {
+            (["open", ch], _) => {
+                self.state = State::Opened(ch.to_string());
+                b"< ok >"
+            }
+            (["rawmode"], State::Opened(ch)) => {
+                let ch = ch.clone();
+                return self.enter_rawmode(ch);
+            }
+            (["rawmode"], State::Greeted) => {
+                self.complain("`< rawmode >` before `< open CHANNEL >`");
+                b"< error open a channel first >"
+            }
+            _ => {
+                self.complain(&format!(
+                    "unsupported command `{msg}` (this hub supports `< open CHANNEL >` and `< rawmode >`)"
+                ));
+                b"< error unsupported command >"
+            }
+        };
+        if self.stream.write_all(reply).is_err() {
+            return Err("write error".into());
+        }
+        Ok(())
+    }
+
+    /// `< rawmode >` on channel `ch`: the client is registered for relayed frames, answered,
+    /// and its writer thread started.
+    fn enter_rawmode(&mut self, ch: String) -> Result<(), String> {
+        let id = self.id;
+        let writer = self
+            .stream
+            .try_clone()
+            .map_err(|e| format!("cannot clone socket: {e}"))?;
+        // Register first (frames from now on are queued for this client, none lost in the
+        // gap), reply, then start the writer: it waits the join delay before the first
+        // frame, so no frame precedes the `< ok >` or shares its `recv`.
+        let (tx, rx) = sync_channel::<Arc<[u8]>>(CLIENT_QUEUE);
+        // An empty marker message, counted as queued, keeps the relay queueing (not
+        // sending) until the writer has passed the join delay and taken it off.
+        let queued = Arc::new(AtomicU64::new(1));
+        let _ = tx.try_send(Arc::from(&b""[..]));
+        let shut = self
+            .stream
+            .try_clone()
+            .map_err(|e| format!("cannot clone socket: {e}"))?;
+        if let Ok(mut r) = self.reg.lock() {
+            let fd = std::os::fd::AsRawFd::as_raw_fd(&shut);
+            r.clients.push(Client {
+                id,
+                channel: ch.clone(),
+                stream: shut,
+                queue: tx,
+                queued: queued.clone(),
+                fd,
+            });
+        }
+        if self.stream.write_all(b"< ok >").is_err() {
+            return Err("write error".into());
+        }
+        let (st, join_delay) = (self.stats.clone(), self.join_delay);
+        std::thread::Builder::new()
+            .name(format!("hub-writer-{id}"))
+            .spawn(move || writer_loop(writer, rx, queued, join_delay, &st))
+            .map_err(|e| format!("cannot start a writer thread: {e}"))?;
+        if !self.quiet {
+            eprintln!("hub: client {id} ({}) in rawmode on {ch}", self.peer);
+        }
+        self.state = State::Raw(ch);
+        Ok(())
     }
 }
 

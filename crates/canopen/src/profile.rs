@@ -155,6 +155,38 @@ pub trait Profile: Sync {
     fn safe_stop(&self) -> Option<u16> {
         None
     }
+    /// The object the control words of [`Profile::walk`] and [`Profile::safe_stop`] are
+    /// written to (index, sub): the control word 0x6040 of CiA 402 and CiA 408.
+    fn control_object(&self) -> (u16, u8) {
+        (0x6040, 0)
+    }
+    /// What a received TPDO1 (`data`, as mapped) says of the device's state machine:
+    /// `None` when it says nothing (a sensor); else the state's name, the status word and
+    /// whether the command acts in it (any other state trips the run). No allocation.
+    fn tpdo_state(&self, _data: &[u8]) -> Option<DeviceState> {
+        None
+    }
+    /// The EDS of the project's simulated device of this profile (text, name for messages),
+    /// used when the config names no file.
+    fn builtin_eds(&self) -> Option<(&'static str, &'static str)> {
+        None
+    }
+}
+
+/// A device's state as its TPDO1 reports it ([`Profile::tpdo_state`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DeviceState {
+    /// The state's name ("ACTIVE", "HOLD", …).
+    pub name: &'static str,
+    /// The status word it was read from.
+    pub word: u16,
+    /// `None`: the command acts in this state; else why the run must trip.
+    pub trip: Option<&'static str>,
+}
+
+/// Total size (bytes) of a PDO that maps `entries`.
+pub fn mapped_bytes(entries: &[MapEntry]) -> usize {
+    entries.iter().map(|e| usize::from(e.bits) / 8).sum()
 }
 
 /// Little-endian bytes `at..at + N` of `data`, or the error naming the size the mapping needs.

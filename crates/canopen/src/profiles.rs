@@ -15,6 +15,22 @@ pub fn by_number(number: u16) -> Option<&'static dyn Profile> {
     PROFILES.iter().copied().find(|p| p.number() == number)
 }
 
+/// The profile a config names (`[[canopen.devices]]` `profile`: `"cia"` and the CiA
+/// number, e.g. `"cia404"`), if ehactl knows it.
+pub fn by_name(name: &str) -> Option<&'static dyn Profile> {
+    let number = name.strip_prefix("cia")?.parse().ok()?;
+    by_number(number)
+}
+
+/// The names [`by_name`] knows, for messages ("cia404, cia406, cia408").
+pub fn names() -> String {
+    let v: Vec<String> = PROFILES
+        .iter()
+        .map(|p| format!("cia{}", p.number()))
+        .collect();
+    v.join(", ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -30,6 +46,19 @@ mod tests {
             assert_eq!(by_number(n).map(|p| p.number()), Some(n));
         }
         assert!(by_number(402).is_none());
+        assert_eq!(by_name("cia404").map(|p| p.number()), Some(404));
+        assert!(by_name("cia402").is_none() && by_name("404").is_none());
+        assert_eq!(names(), "cia404, cia406, cia408");
+    }
+
+    #[test]
+    fn every_profile_has_its_built_in_file_of_its_number() {
+        for p in PROFILES {
+            let (text, name) = p.builtin_eds().unwrap();
+            let eds = crate::eds::Eds::parse(text, name).unwrap();
+            let dt = eds.default_number(0x1000, 0, 1).unwrap();
+            assert_eq!(dt & 0xFFFF, i128::from(p.number()), "{name}");
+        }
     }
 
     #[test]

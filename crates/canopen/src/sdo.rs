@@ -307,108 +307,129 @@ impl SdoClient {
                 None,
             );
         }
-        let check_mux = |s: &Self| u16::from_le_bytes([d[1], d[2]]) == s.index && d[3] == s.sub;
         match self.state {
             State::Idle => SdoStep::Ignored,
-            State::DownloadInitiate => {
-                if cs != 0x60 {
+            State::DownloadInitiate => self.on_download_initiate(&d),
+            State::DownloadSegment => self.on_download_segment(cs),
+            State::UploadInitiate => self.on_upload_initiate(&d),
+            State::UploadSegment => self.on_upload_segment(&d),
+        }
+    }
+
+    /// The response names the object of the transfer (multiplexer, bytes 1..4).
+    fn same_mux(&self, d: &[u8; 8]) -> bool {
+        u16::from_le_bytes([d[1], d[2]]) == self.index && d[3] == self.sub
+    }
+
+    /// The initiate download response (0x60): done, or the first segment.
+    fn on_download_initiate(&mut self, d: &[u8; 8]) -> SdoStep {
+        let cs = d[0];
+        if cs != 0x60 {
+            return self.fail(
+                0x0504_0001,
+                format!("expected initiate download response 0x60, got 0x{cs:02X}"),
+            );
+        }
+        if !self.same_mux(d) {
+            return self.fail(0x0504_0001, "response names another object".into());
+        }
+        if self.pos >= self.buf.len() {
+            self.state = State::Idle;
+            SdoStep::Done
+        } else {
+            self.state = State::DownloadSegment;
+            SdoStep::Send(self.next_segment())
+        }
+    }
+
+    /// A download segment response (0x2X, toggle alternating): done, or the next segment.
+    fn on_download_segment(&mut self, cs: u8) -> SdoStep {
+        if cs & 0xE0 != 0x20 {
+            return self.fail(
+                0x0504_0001,
+                format!("expected download segment response 0x2X, got 0x{cs:02X}"),
+            );
+        }
+        if (cs & 0x10 != 0) != self.toggle {
+            return self.fail(0x0503_0000, "toggle bit not alternated".into());
+        }
+        self.toggle = !self.toggle;
+        if self.pos >= self.buf.len() {
+            self.state = State::Idle;
+            SdoStep::Done
+        } else {
+            SdoStep::Send(self.next_segment())
+        }
+    }
+
+    /// The initiate upload response (0x4X): an expedited value (done), or the size of a
+    /// segmented one (at most 1 MiB) and the first segment request.
+    fn on_upload_initiate(&mut self, d: &[u8; 8]) -> SdoStep {
+        let cs = d[0];
+        if cs & 0xE0 != 0x40 {
+            return self.fail(
+                0x0504_0001,
+                format!("expected initiate upload response 0x4X, got 0x{cs:02X}"),
+            );
+        }
+        if !self.same_mux(d) {
+            return self.fail(0x0504_0001, "response names another object".into());
+        }
+        let e = cs & 0x02 != 0;
+        let s = cs & 0x01 != 0;
+        if e {
+            let n = if s {
+                4 - usize::from((cs >> 2) & 0x03)
+            } else {
+                4
+            };
+            self.buf.clear();
+            self.buf.extend_from_slice(&d[4..4 + n]);
+            self.state = State::Idle;
+            SdoStep::Done
+        } else {
+            self.size = s.then(|| u32::from_le_bytes([d[4], d[5], d[6], d[7]]) as usize);
+            if self.size.is_some_and(|n| n > 1 << 20) {
+                return self.fail(0x0504_0005, "announced size exceeds 1 MiB".into());
+            }
+            self.state = State::UploadSegment;
+            SdoStep::Send(self.req([0x60, 0, 0, 0, 0, 0, 0, 0]))
+        }
+    }
+
+    /// An upload segment response (0x0X / 0x1X, toggle alternating): the last one checks
+    /// the announced size, any other asks for the next.
+    fn on_upload_segment(&mut self, d: &[u8; 8]) -> SdoStep {
+        let cs = d[0];
+        if cs & 0xE0 != 0x00 {
+            return self.fail(
+                0x0504_0001,
+                format!("expected upload segment response 0x0X/0x1X, got 0x{cs:02X}"),
+            );
+        }
+        if (cs & 0x10 != 0) != self.toggle {
+            return self.fail(0x0503_0000, "toggle bit not alternated".into());
+        }
+        let n = 7 - usize::from((cs >> 1) & 0x07);
+        self.buf.extend_from_slice(&d[1..1 + n]);
+        self.toggle = !self.toggle;
+        if cs & 0x01 != 0 {
+            self.state = State::Idle;
+            if let Some(size) = self.size {
+                if size != self.buf.len() {
+                    let got = self.buf.len();
                     return self.fail(
-                        0x0504_0001,
-                        format!("expected initiate download response 0x60, got 0x{cs:02X}"),
+                        0x0607_0010,
+                        format!("announced {size} bytes, received {got}"),
                     );
                 }
-                if !check_mux(self) {
-                    return self.fail(0x0504_0001, "response names another object".into());
-                }
-                if self.pos >= self.buf.len() {
-                    self.state = State::Idle;
-                    SdoStep::Done
-                } else {
-                    self.state = State::DownloadSegment;
-                    SdoStep::Send(self.next_segment())
-                }
             }
-            State::DownloadSegment => {
-                if cs & 0xE0 != 0x20 {
-                    return self.fail(
-                        0x0504_0001,
-                        format!("expected download segment response 0x2X, got 0x{cs:02X}"),
-                    );
-                }
-                if (cs & 0x10 != 0) != self.toggle {
-                    return self.fail(0x0503_0000, "toggle bit not alternated".into());
-                }
-                self.toggle = !self.toggle;
-                if self.pos >= self.buf.len() {
-                    self.state = State::Idle;
-                    SdoStep::Done
-                } else {
-                    SdoStep::Send(self.next_segment())
-                }
-            }
-            State::UploadInitiate => {
-                if cs & 0xE0 != 0x40 {
-                    return self.fail(
-                        0x0504_0001,
-                        format!("expected initiate upload response 0x4X, got 0x{cs:02X}"),
-                    );
-                }
-                if !check_mux(self) {
-                    return self.fail(0x0504_0001, "response names another object".into());
-                }
-                let e = cs & 0x02 != 0;
-                let s = cs & 0x01 != 0;
-                if e {
-                    let n = if s {
-                        4 - usize::from((cs >> 2) & 0x03)
-                    } else {
-                        4
-                    };
-                    self.buf.clear();
-                    self.buf.extend_from_slice(&d[4..4 + n]);
-                    self.state = State::Idle;
-                    SdoStep::Done
-                } else {
-                    self.size = s.then(|| u32::from_le_bytes([d[4], d[5], d[6], d[7]]) as usize);
-                    if self.size.is_some_and(|n| n > 1 << 20) {
-                        return self.fail(0x0504_0005, "announced size exceeds 1 MiB".into());
-                    }
-                    self.state = State::UploadSegment;
-                    SdoStep::Send(self.req([0x60, 0, 0, 0, 0, 0, 0, 0]))
-                }
-            }
-            State::UploadSegment => {
-                if cs & 0xE0 != 0x00 {
-                    return self.fail(
-                        0x0504_0001,
-                        format!("expected upload segment response 0x0X/0x1X, got 0x{cs:02X}"),
-                    );
-                }
-                if (cs & 0x10 != 0) != self.toggle {
-                    return self.fail(0x0503_0000, "toggle bit not alternated".into());
-                }
-                let n = 7 - usize::from((cs >> 1) & 0x07);
-                self.buf.extend_from_slice(&d[1..1 + n]);
-                self.toggle = !self.toggle;
-                if cs & 0x01 != 0 {
-                    self.state = State::Idle;
-                    if let Some(size) = self.size {
-                        if size != self.buf.len() {
-                            let got = self.buf.len();
-                            return self.fail(
-                                0x0607_0010,
-                                format!("announced {size} bytes, received {got}"),
-                            );
-                        }
-                    }
-                    SdoStep::Done
-                } else if self.buf.len() > 1 << 20 {
-                    self.fail(0x0504_0005, "upload exceeds 1 MiB".into())
-                } else {
-                    let t = u8::from(self.toggle) << 4;
-                    SdoStep::Send(self.req([0x60 | t, 0, 0, 0, 0, 0, 0, 0]))
-                }
-            }
+            SdoStep::Done
+        } else if self.buf.len() > 1 << 20 {
+            self.fail(0x0504_0005, "upload exceeds 1 MiB".into())
+        } else {
+            let t = u8::from(self.toggle) << 4;
+            SdoStep::Send(self.req([0x60 | t, 0, 0, 0, 0, 0, 0, 0]))
         }
     }
 

@@ -21,7 +21,7 @@ pub struct CanopenSettings {
     pub safe_command: f64,
     /// Print start-up progress on stderr.
     pub verbose: bool,
-    /// Directory of the config file: relative `canopen.transducer_eds` / `valve_eds` paths
-    /// are taken from here (None: the current directory).
+    /// Directory of the config file: relative `canopen.transducer_eds` / `valve_eds` /
+    /// `devices[i].eds` paths are taken from here (None: the current directory).
     pub config_dir: Option<PathBuf>,
 }

@@ -2,7 +2,8 @@
 //!
 //! - [`Plan::new`] (no bus; also run by `ehactl run` before the log file is created): the
 //!   settings checks and the EDS / DCF files named in the config → one [`DevicePlan`] per
-//!   device: the identity to check, and every SDO object to configure with its value and the
+//!   device (the transducer, the valve, then `[[canopen.devices]]`, each with its profile):
+//!   the identity to check, and every SDO object to configure with its value and the
 //!   access type the file gives (ro / const objects are read and checked, never written);
 //! - **configure** (`Bringup::configure`, then `Bringup::start`): NMT reset
 //!   communication → boot-up, or an SDO probe for a node that sends none (`Bringup::boot`);
@@ -26,7 +27,7 @@ use crate::bus::{BusError, BusErrorKind, CanBus};
 use crate::cia406;
 use crate::cia408::{self, ValveState};
 use crate::clock::Clock;
-use crate::eds::{Access, Eds, BUILTIN_TRANSDUCER_EDS, BUILTIN_VALVE_EDS};
+use crate::eds::{Access, Eds};
 use crate::emcy::{Emcy, EMCY_BASE};
 use crate::frame::{CanFrame, Direction};
 use crate::nmt::{self, NmtCommand, NmtState, HEARTBEAT_BASE};
@@ -48,35 +49,6 @@ use std::time::Duration;
 /// While waiting for boot-ups, nodes not heard from are probed by SDO this often (and once
 /// more at `boot_timeout_s`).
 pub const BOOT_PROBE_EVERY: Duration = Duration::from_millis(250);
-
-/// Which device.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Dev {
-    /// The CiA 406 position transducer.
-    Transducer = 0,
-    /// The CiA 408 valve.
-    Valve = 1,
-}
-
-impl Dev {
-    /// Short name for messages.
-    pub fn name(self) -> &'static str {
-        self.profile().name()
-    }
-    /// Its device profile.
-    pub fn profile(self) -> &'static dyn Profile {
-        match self {
-            Dev::Transducer => &crate::cia406::Cia406,
-            Dev::Valve => &crate::cia408::Cia408,
-        }
-    }
-    fn config_key(self) -> &'static str {
-        match self {
-            Dev::Transducer => "canopen.transducer_eds",
-            Dev::Valve => "canopen.valve_eds",
-        }
-    }
-}
 
 /// Why the rig could not be brought up (before the loop). One line each.
 #[derive(Debug, Clone)]
@@ -233,8 +205,9 @@ pub struct Step {
 pub struct DevicePlan {
     /// Its device profile.
     pub device: &'static dyn Profile,
-    /// The config key of its file (messages).
-    pub config_key: &'static str,
+    /// The config key of its file (messages): `canopen.transducer_eds`,
+    /// `canopen.valve_eds`, `canopen.devices[i].eds`.
+    pub config_key: String,
     /// Node id.
     pub node: u8,
     /// Its description file.
@@ -245,13 +218,109 @@ pub struct DevicePlan {
     pub identity: (Option<u32>, Option<u32>),
     /// The SDO steps, in order.
     pub steps: Vec<Step>,
+    /// Size of its TPDO1 as mapped (bytes; `None`: it sends none).
+    pub tpdo_len: Option<usize>,
+    /// Size of its RPDO1 as mapped (bytes; `None`: it receives none).
+    pub rpdo_len: Option<usize>,
 }
 
-/// The start-up plan of both devices.
+/// The start-up plan of every device of the rig.
 #[derive(Debug, Clone)]
 pub struct Plan {
-    /// Transducer, valve.
-    pub devices: [DevicePlan; 2],
+    /// The transducer, the valve, then the devices of `[[canopen.devices]]` in their order.
+    pub devices: Vec<DevicePlan>,
+    /// Index in `devices` of the commanded device: the one whose profile moves the load
+    /// (the valve).
+    pub commanded: usize,
+}
+
+/// Where a device of the rig comes from in the config.
+struct DeviceEntry<'a> {
+    profile: &'static dyn Profile,
+    config_key: String,
+    node: u8,
+    path: &'a str,
+}
+
+/// The rig's devices as the config names them: the transducer, the valve, then
+/// `[[canopen.devices]]` (profiles by name, sensors only; two devices may not decode into
+/// the same measurement).
+fn device_entries(c: &CanopenConfig) -> Result<Vec<DeviceEntry<'_>>, StartupError> {
+    let mut v = vec![
+        DeviceEntry {
+            profile: &crate::cia406::Cia406,
+            config_key: "canopen.transducer_eds".into(),
+            node: c.transducer_node_id,
+            path: &c.transducer_eds,
+        },
+        DeviceEntry {
+            profile: &crate::cia408::Cia408,
+            config_key: "canopen.valve_eds".into(),
+            node: c.valve_node_id,
+            path: &c.valve_eds,
+        },
+    ];
+    for (i, d) in c.devices.iter().enumerate() {
+        let at = format!("canopen.devices[{i}]");
+        let profile = crate::profiles::by_name(&d.profile).ok_or_else(|| {
+            settings_err(format!(
+                "{at}.profile: unknown device profile \"{}\"; expected one of {}",
+                d.profile,
+                crate::profiles::names()
+            ))
+        })?;
+        if profile.moves_the_load() {
+            return Err(settings_err(format!(
+                "{at}.profile: \"{}\" ({}) moves the load; ehactl commands one device, the valve (canopen.valve_node_id); expected a sensor profile",
+                d.profile,
+                profile.name()
+            )));
+        }
+        let node = u8::try_from(d.node_id)
+            .ok()
+            .filter(|n| (1..=127).contains(n));
+        let node = node.ok_or_else(|| {
+            settings_err(format!(
+                "{at}.node_id = {} is out of range; expected 1..127",
+                d.node_id
+            ))
+        })?;
+        v.push(DeviceEntry {
+            profile,
+            config_key: format!("{at}.eds"),
+            node,
+            path: &d.eds,
+        });
+    }
+    check_disjoint(c, &v)?;
+    Ok(v)
+}
+
+/// Two devices that decode into the same field of [`Measurements`] would overwrite each
+/// other: refused. What a profile sets is what its decode of a zero TPDO sets.
+fn check_disjoint(c: &CanopenConfig, v: &[DeviceEntry<'_>]) -> Result<(), StartupError> {
+    let sets = |p: &dyn Profile| {
+        let mut m = Measurements::UNMEASURED;
+        let _ = p.decode(c, &[0; 8], &mut m);
+        [m.position, m.p_a, m.p_b, m.spool, m.force].map(|x| !x.is_nan())
+    };
+    for (j, b) in v.iter().enumerate() {
+        for a in &v[..j] {
+            let (sa, sb) = (sets(a.profile), sets(b.profile));
+            if sa.iter().zip(sb).any(|(x, y)| *x && y) {
+                return Err(settings_err(format!(
+                    "{}: the {} (CiA {}) and the {} (CiA {}, {}) would both set the same measurement; expected devices that measure different quantities",
+                    b.config_key.trim_end_matches(".eds").trim_end_matches("_eds"),
+                    b.profile.name(),
+                    b.profile.number(),
+                    a.profile.name(),
+                    a.profile.number(),
+                    a.config_key
+                )));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The communication and mapping objects and the COB-ID of a device's first PDO of `dir`
@@ -411,53 +480,49 @@ impl Plan {
     /// Build the plan from the settings and the device files (no bus). The phases follow
     /// the order in which the objects are written at start-up: the device's own DCF
     /// settings, then CiA 301 communication objects (error control, SYNC), then the profile
-    /// objects and PDOs of CiA 406 (transducer) and CiA 408 (valve); last, a check that
-    /// ehactl overrides no DCF value.
+    /// objects and PDOs of each device's profile; last, a check that ehactl overrides no
+    /// DCF value.
     pub fn new(s: &CanopenSettings) -> Result<Plan, StartupError> {
         let c = &s.canopen;
-        // Both files are read before either error is looked at (transducer's first).
-        let [t, v] = [Dev::Transducer, Dev::Valve].map(|dev| DevicePlan::load(s, dev));
-        let (mut t, mut v) = (t?, v?);
-        for p in [&mut t, &mut v] {
+        // Every file is read before any error is looked at (in the devices' order).
+        let loaded: Vec<_> = device_entries(c)?
+            .into_iter()
+            .map(|d| DevicePlan::load(s, d))
+            .collect();
+        let mut devices = loaded.into_iter().collect::<Result<Vec<_>, _>>()?;
+        for p in devices.iter_mut() {
             p.plan_dcf_settings()?;
             p.plan_error_control(c)?;
             p.plan_sync_objects(c)?;
         }
-        for p in [&mut t, &mut v] {
+        for p in devices.iter_mut() {
             p.plan_profile(p.device, c)?;
         }
-        for p in [&t, &v] {
+        for p in &devices {
             p.check_dcf_not_overridden()?;
         }
-        Ok(Plan { devices: [t, v] })
+        let commanded = devices
+            .iter()
+            .position(|d| d.device.moves_the_load())
+            .ok_or_else(|| settings_err("no device moves the load".into()))?;
+        Ok(Plan { devices, commanded })
+    }
+
+    /// The node ids of the devices, in their order.
+    pub fn nodes(&self) -> Vec<u8> {
+        self.devices.iter().map(|d| d.node).collect()
     }
 }
 
 impl DevicePlan {
-    /// The device's EDS / DCF (the config's file or the built-in one), checked against the
-    /// config: the DCF's node id, the CiA profile in the device type 0x1000 (CiA 301
-    /// 7.5.2.1), and the identity 0x1018:01 / :02 to check on the bus. No steps yet.
-    fn load(s: &CanopenSettings, dev: Dev) -> Result<DevicePlan, StartupError> {
-        let c = &s.canopen;
-        let (path, builtin, name) = match dev {
-            Dev::Transducer => (
-                &c.transducer_eds,
-                BUILTIN_TRANSDUCER_EDS,
-                "built-in ehactl_transducer_406.eds",
-            ),
-            Dev::Valve => (
-                &c.valve_eds,
-                BUILTIN_VALVE_EDS,
-                "built-in ehactl_valve_408.eds",
-            ),
-        };
-        let eds = Eds::from_config(path, s.config_dir.as_deref(), builtin, name)
-            .map_err(|e| settings_err(format!("{}: {e}", dev.config_key())))?;
-        let node = match dev {
-            Dev::Transducer => c.transducer_node_id,
-            Dev::Valve => c.valve_node_id,
-        };
-        DevicePlan::from_file(dev.profile(), dev.config_key(), node, eds)
+    /// The device's EDS / DCF (the config's file or its profile's built-in one), checked
+    /// against the config: the DCF's node id, the CiA profile in the device type 0x1000
+    /// (CiA 301 7.5.2.1), and the identity 0x1018:01 / :02 to check on the bus. No steps yet.
+    fn load(s: &CanopenSettings, d: DeviceEntry<'_>) -> Result<DevicePlan, StartupError> {
+        let (builtin, name) = d.profile.builtin_eds().unwrap_or(("", "no built-in file"));
+        let eds = Eds::from_config(d.path, s.config_dir.as_deref(), builtin, name)
+            .map_err(|e| settings_err(format!("{}: {e}", d.config_key)))?;
+        DevicePlan::from_file(d.profile, d.config_key, d.node, eds)
     }
 
     /// A device of profile `device` at `node` described by `eds` (`config_key` names the
@@ -466,7 +531,7 @@ impl DevicePlan {
     /// steps yet.
     fn from_file(
         device: &'static dyn Profile,
-        config_key: &'static str,
+        config_key: String,
         node: u8,
         eds: Eds,
     ) -> Result<DevicePlan, StartupError> {
@@ -503,6 +568,8 @@ impl DevicePlan {
             profile,
             identity,
             steps: Vec::new(),
+            tpdo_len: None,
+            rpdo_len: None,
         })
     }
 
@@ -673,6 +740,11 @@ impl DevicePlan {
                 ProfilePdo::Map { dir, entries, what } => {
                     let (comm, map, cob) = pdo_objects(dir, node);
                     self.pdo(comm, map, cob, entries, what)?;
+                    let len = Some(crate::profile::mapped_bytes(entries));
+                    match dir {
+                        PdoDir::Transmit => self.tpdo_len = len,
+                        PdoDir::Receive => self.rpdo_len = len,
+                    }
                 }
                 ProfilePdo::Disable { dir, what } => {
                     let (comm, _, cob) = pdo_objects(dir, node);
@@ -824,26 +896,38 @@ pub(crate) struct Startup {
     pub(crate) heartbeats: Arc<Mutex<Vec<(u64, CanFrame)>>>,
     /// The caller's clock: every wait and timeout of the start-up, every frame's time.
     pub(crate) clock: Arc<dyn Clock>,
-    ids: [u8; 2],
-    booted: [bool; 2],
-    state: [Option<NmtState>; 2],
+    /// The devices' node ids, in the plan's order (set by [`Startup::set_nodes`]).
+    ids: Vec<u8>,
+    booted: Vec<bool>,
+    state: Vec<Option<NmtState>>,
     /// The last EMCY (not an error reset) of each device since its boot-up.
-    emcy: [Option<Emcy>; 2],
+    emcy: Vec<Option<Emcy>>,
     verbose: bool,
 }
 
 impl Startup {
-    pub(crate) fn new(ids: [u8; 2], verbose: bool, clock: Arc<dyn Clock>) -> Startup {
-        Startup {
+    pub(crate) fn new(ids: &[u8], verbose: bool, clock: Arc<dyn Clock>) -> Startup {
+        let mut st = Startup {
             frames: Vec::with_capacity(512),
             heartbeats: Arc::new(Mutex::new(Vec::new())),
             clock,
-            ids,
-            booted: [false; 2],
-            state: [None; 2],
-            emcy: [None; 2],
+            ids: Vec::new(),
+            booted: Vec::new(),
+            state: Vec::new(),
+            emcy: Vec::new(),
             verbose,
-        }
+        };
+        st.set_nodes(ids);
+        st
+    }
+
+    /// The devices to follow (node ids in the plan's order), none booted yet.
+    pub(crate) fn set_nodes(&mut self, ids: &[u8]) {
+        let n = ids.len();
+        self.ids = ids.to_vec();
+        self.booted = vec![false; n];
+        self.state = vec![None; n];
+        self.emcy = vec![None; n];
     }
 
     /// Move the master heartbeats into `frames`, in time order.
@@ -867,7 +951,7 @@ impl Startup {
             return;
         }
         if let Some((node, b)) = nmt::parse_error_control(f) {
-            for i in 0..2 {
+            for i in 0..self.ids.len() {
                 if self.ids[i] == node {
                     let st = NmtState::from_byte(b);
                     if st == Some(NmtState::BootUp) {
@@ -882,7 +966,7 @@ impl Startup {
                 }
             }
         }
-        for i in 0..2 {
+        for i in 0..self.ids.len() {
             if !f.extended && f.id == u32::from(EMCY_BASE + u16::from(self.ids[i])) {
                 if let Ok(e) = Emcy::parse(self.ids[i], f.payload()) {
                     if !e.is_reset() {
@@ -925,9 +1009,12 @@ pub(crate) struct Bringup<'a> {
     pub(crate) bus: Box<StartBus>,
     st: &'a mut Startup,
     sdo_t: Duration,
-    ids: [u8; 2],
-    /// Device names read from 0x1008 (optional object).
-    pub(crate) names: [Option<String>; 2],
+    /// The devices' node ids, in the plan's order.
+    ids: Vec<u8>,
+    /// Index of the commanded device (the valve) in `ids` ([`Plan::commanded`]).
+    cmd: usize,
+    /// Device names read from 0x1008 (optional object), in the plan's order.
+    pub(crate) names: Vec<Option<String>>,
     /// Optional steps the devices did not support ("node N 0x1006:00 (what)").
     pub(crate) skipped: Vec<String>,
     /// The step in progress (for [`StartupError::Stopped`]).
@@ -960,7 +1047,9 @@ impl<'a> Bringup<'a> {
             stop,
             honour_stop: true,
         });
-        Self::resume(s, bus, plan, st, [None, None], Vec::new())
+        st.set_nodes(&plan.nodes());
+        let names = vec![None; plan.devices.len()];
+        Self::resume(s, bus, plan, st, names, Vec::new())
     }
 
     /// Go on with a start-up whose earlier step (configure) ended with `bus`, `names` and
@@ -970,17 +1059,18 @@ impl<'a> Bringup<'a> {
         bus: Box<StartBus>,
         plan: Plan,
         st: &'a mut Startup,
-        names: [Option<String>; 2],
+        names: Vec<Option<String>>,
         skipped: Vec<String>,
     ) -> Bringup<'a> {
         let c = &s.canopen;
         Bringup {
             s,
+            sdo_t: Duration::from_millis(u64::from(c.sdo_timeout_ms)),
+            ids: plan.nodes(),
+            cmd: plan.commanded,
             plan,
             bus,
             st,
-            sdo_t: Duration::from_millis(u64::from(c.sdo_timeout_ms)),
-            ids: [c.transducer_node_id, c.valve_node_id],
             names,
             skipped,
             phase: "the bus connection",
@@ -993,7 +1083,7 @@ impl<'a> Bringup<'a> {
     }
 
     /// The bus and what configure found, to resume with ([`Bringup::resume`]).
-    pub(crate) fn into_parts(self) -> (Box<StartBus>, Plan, [Option<String>; 2], Vec<String>) {
+    pub(crate) fn into_parts(self) -> (Box<StartBus>, Plan, Vec<Option<String>>, Vec<String>) {
         (self.bus, self.plan, self.names, self.skipped)
     }
 
@@ -1028,20 +1118,42 @@ impl<'a> Bringup<'a> {
         }
     }
 
-    /// Valve back to HOLD with setpoint 0 (best effort, also after a stop request); returns
-    /// what was done.
+    /// The commanded device (the valve) to its safe stop (best effort, also after a stop
+    /// request); returns what was done.
     fn valve_to_hold(&mut self, why: &str) -> String {
-        self.valve_to_hold_checked(why).unwrap_or_else(|e| e)
+        self.safe_stop_checked(why).unwrap_or_else(|e| e)
     }
 
-    /// [`Bringup::valve_to_hold`]: `Ok` with what was done when the valve confirmed the
-    /// control word HOLD, `Err` with why not.
-    pub(crate) fn valve_to_hold_checked(&mut self, why: &str) -> Result<String, String> {
+    /// The commanded device's RPDO1 for the command 0 (the valve: spool setpoint 0) and
+    /// the control word of its profile's safe stop (the valve: HOLD) by SDO: `Ok` with what
+    /// was done when the device confirmed the control word, `Err` with why not.
+    pub(crate) fn safe_stop_checked(&mut self, why: &str) -> Result<String, String> {
         self.bus.honour_stop = false;
-        let va = self.ids[1];
-        // A stop request cuts an SDO transfer short: the valve's answer to it may still be
-        // on its way and would be taken for the answer to the HOLD write. Wait for it (at
-        // most 100 ms or one SDO timeout).
+        let (node, p) = (self.ids[self.cmd], self.plan.devices[self.cmd].device);
+        self.await_late_sdo_answer(node);
+        let sp = self.send(self.command_frame(0.0));
+        let (cw, (index, sub)) = (p.safe_stop().unwrap_or(0), p.control_object());
+        let r = self.write(node, index, sub, &cw.to_le_bytes(), why);
+        self.bus.honour_stop = true;
+        let name = p.name();
+        match (sp, r) {
+            (Ok(()), Ok(())) => Ok(format!(
+                "{name} setpoint 0 and control word HOLD (0x{cw:04X}) sent"
+            )),
+            (Err(e), _) | (_, Err(e)) => Err(format!("{name} HOLD could not be commanded: {e}")),
+        }
+    }
+
+    /// The commanded device's RPDO1 for the command `u` (V), as its profile encodes it.
+    pub(crate) fn command_frame(&self, u: f64) -> CanFrame {
+        let d = &self.plan.devices[self.cmd];
+        command_frame(d, u, self.s.command_full_scale)
+    }
+
+    /// A stop request cuts an SDO transfer short: the answer of `node` to it may still be on
+    /// its way and would be taken for the answer to the next request. Wait for it (at most
+    /// 100 ms or one SDO timeout).
+    fn await_late_sdo_answer(&mut self, node: u8) {
         let end = self.now() + ns(self.sdo_t.min(Duration::from_millis(100)));
         loop {
             let left = self.left_until(end);
@@ -1051,31 +1163,12 @@ impl<'a> Bringup<'a> {
             match self.bus.recv_timeout(left) {
                 Ok(Some(f)) => {
                     self.st.observe(&f, Direction::Rx);
-                    if !f.extended && f.id == u32::from(sdo::SDO_TX_BASE + u16::from(va)) {
+                    if !f.extended && f.id == u32::from(sdo::SDO_TX_BASE + u16::from(node)) {
                         break;
                     }
                 }
                 _ => break,
             }
-        }
-        let sp = self.send(CanFrame::std(
-            RPDO1_BASE + u16::from(va),
-            0i16.to_le_bytes(),
-        ));
-        let r = self.write(
-            va,
-            cia408::CONTROL_WORD,
-            0,
-            &cia408::CW_HOLD_STATE.to_le_bytes(),
-            why,
-        );
-        self.bus.honour_stop = true;
-        match (sp, r) {
-            (Ok(()), Ok(())) => Ok(format!(
-                "valve setpoint 0 and control word HOLD (0x{:04X}) sent",
-                cia408::CW_HOLD_STATE
-            )),
-            (Err(e), _) | (_, Err(e)) => Err(format!("valve HOLD could not be commanded: {e}")),
         }
     }
 
@@ -1142,13 +1235,13 @@ impl<'a> Bringup<'a> {
         self.phase = "the wait for the boot-ups (canopen.boot_timeout_s)";
         self.boot()?;
         self.phase = "the SDO configuration";
-        for n in self.ids {
+        for n in self.ids.clone() {
             self.send(nmt::command(NmtCommand::EnterPreOperational, n))?;
         }
-        for i in 0..2 {
+        for i in 0..self.ids.len() {
             self.identify(i)?;
         }
-        for i in 0..2 {
+        for i in 0..self.ids.len() {
             self.apply_plan(i)?;
         }
         if self.s.verbose {
@@ -1195,7 +1288,7 @@ impl<'a> Bringup<'a> {
     /// waiting, a last one at `boot_timeout_s`; a node that never answers is reported.
     pub(crate) fn boot(&mut self) -> Result<(), StartupError> {
         let c = &self.s.canopen;
-        for n in self.ids {
+        for n in self.ids.clone() {
             self.send(nmt::command(NmtCommand::ResetCommunication, n))?;
         }
         let boot_deadline = self.now() + ns(Duration::from_secs_f64(c.boot_timeout_s));
@@ -1205,7 +1298,7 @@ impl<'a> Bringup<'a> {
             let now = self.now();
             let last = now >= boot_deadline;
             if last || now >= next_probe {
-                for i in 0..2 {
+                for i in 0..self.ids.len() {
                     if self.st.booted[i] {
                         continue;
                     }
@@ -1232,7 +1325,7 @@ impl<'a> Bringup<'a> {
                         self.st.booted[i] = true;
                     } else if last && !self.st.booted[i] {
                         return Err(StartupError::NoBoot {
-                            device: [Dev::Transducer, Dev::Valve][i].name(),
+                            device: self.plan.devices[i].device.name(),
                             node: self.ids[i],
                             timeout_s: c.boot_timeout_s,
                         });
@@ -1255,7 +1348,7 @@ impl<'a> Bringup<'a> {
         let (n, dev, key, profile, identity, source) = (
             p.node,
             p.device,
-            p.config_key,
+            p.config_key.clone(),
             p.profile,
             p.identity,
             p.eds.source.clone(),
@@ -1313,153 +1406,185 @@ impl<'a> Bringup<'a> {
         Ok(())
     }
 
-    /// The planned objects of device `i`, in order (see [`StepKind`]).
+    /// The planned objects of device `i`, in order (see [`StepKind`]): each step asks the
+    /// device whether it has the object where the step is conditional, reads an Ensure
+    /// step's object first, writes it, and reads an Ensure step's value back.
     pub(crate) fn apply_plan(&mut self, i: usize) -> Result<(), StartupError> {
-        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let n = self.plan.devices[i].node;
         let steps = self.plan.devices[i].steps.clone();
         for step in &steps {
             self.bus.check_stop()?;
-            let (index, sub, want) = (step.index, step.sub, &step.value);
-            if step.if_device_has {
-                match self.sdo_read(n, index, 0) {
-                    Ok(_) => {}
-                    Err(SdoError::Abort {
-                        code: code @ (0x0602_0000 | 0x0609_0011),
-                        ..
-                    }) => {
-                        if self.s.verbose {
-                            eprintln!(
-                                "canopen: {} (node {n}) has no 0x{index:04X} (abort 0x{code:08X}); used without it ({})",
-                                dev.name(),
-                                step.what
-                            );
-                        }
-                        self.skipped.push(format!(
-                            "node {n} 0x{index:04X}:{sub:02X} ({}): the {} has no 0x{index:04X} (SDO read of 0x{index:04X}:00: abort 0x{code:08X}, object does not exist)",
-                            step.what,
-                            dev.name()
-                        ));
-                        continue;
-                    }
-                    Err(error) => {
-                        return Err(StartupError::Sdo {
-                            step: format!(
-                                "{} (read 0x{index:04X}:00 on node {n} = 0x{n:02X}: does the {} have it?)",
-                                step.what,
-                                dev.name()
-                            ),
-                            error,
-                        })
-                    }
-                }
+            if step.if_device_has && !self.device_has(i, step)? {
+                continue;
             }
-            if step.kind == StepKind::Ensure {
-                let have = self.sdo_read(n, index, sub);
-                match have {
-                    Ok(h) if same_value(want, &h) => continue,
-                    Ok(h) if !step.access.writable() => {
-                        let extra = if (index, sub) == (cia406::POSITION_STEP, 1) {
-                            format!("; set canopen.position_step_nm = {}", u32::from_le_bytes(le4(&h)))
-                        } else {
-                            String::new()
-                        };
-                        return Err(StartupError::Device(format!(
-                            "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is {} (AccessType={} in {}) and reads {:02X?}, not {:02X?}; ehactl never writes read-only objects{extra}",
-                            step.what,
-                            dev.name(),
-                            if step.access == Access::Const { "constant" } else { "read-only" },
-                            step.access.as_str(),
-                            self.plan.devices[i].eds.source,
-                            h,
-                            want
-                        )));
-                    }
-                    Err(e) if !step.access.writable() => {
-                        return Err(StartupError::Sdo {
-                            step: format!("{} (read-only object: read 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})", step.what),
-                            error: e,
-                        })
-                    }
-                    // Different, or not readable right now (e.g. no value yet): write it.
-                    _ => {}
-                }
+            if step.kind == StepKind::Ensure && self.already_set(i, step)? {
+                continue;
             }
-            match self.sdo_write(n, index, sub, want) {
-                Ok(()) => {}
-                Err(SdoError::Abort {
-                    code: 0x0602_0000 | 0x0609_0011,
-                    ..
-                }) if step.optional => {
-                    if self.s.verbose {
-                        eprintln!(
-                            "canopen: {} (node {n}) has no 0x{index:04X}:{sub:02X} although its EDS lists it; optional, skipped ({})",
-                            dev.name(),
-                            step.what
-                        );
-                    }
-                    self.skipped
-                        .push(format!("node {n} 0x{index:04X}:{sub:02X} ({})", step.what));
-                    continue;
-                }
-                // The file says rw, the device refuses the write as read-only (0x06010002):
-                // name the device's value if it has one.
-                Err(SdoError::Abort {
-                    code: 0x0601_0002, ..
-                }) => {
-                    let h = self.sdo_read(n, index, sub).ok();
-                    let extra = match (&h, (index, sub) == (cia406::POSITION_STEP, 1)) {
-                        (Some(h), true) => format!(
-                            "; it is {} nm: set canopen.position_step_nm = {}",
-                            u32::from_le_bytes(le4(h)),
-                            u32::from_le_bytes(le4(h))
-                        ),
-                        (Some(h), false) => format!("; it reads {h:02X?}"),
-                        (None, _) => String::new(),
-                    };
-                    return Err(StartupError::Device(format!(
-                        "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is read-only on the device (abort 0x06010002) although its EDS says {}; ehactl wanted {:02X?}{extra}",
-                        step.what,
-                        dev.name(),
-                        step.access.as_str(),
-                        want
-                    )));
-                }
-                Err(SdoError::Abort {
-                    code: code @ (0x0602_0000 | 0x0609_0011),
-                    ..
-                }) if index == 0x1016 && dev.moves_the_load() => {
-                    return Err(StartupError::Device(format!(
-                        "{}: the {} (node {n}) has no heartbeat consumer 0x1016:{sub:02X} (abort 0x{code:08X}, object does not exist) although {} lists it; it could not detect a dead ehactl and stop the load: ehactl refuses to drive it",
-                        step.what,
-                        dev.name(),
-                        self.plan.devices[i].eds.source
-                    )));
-                }
-                Err(error) => {
-                    return Err(StartupError::Sdo {
-                        step: format!(
-                            "{} (write 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})",
-                            step.what
-                        ),
-                        error,
-                    })
-                }
+            if !self.write_step(i, step)? {
+                continue;
             }
             if step.access.readable() && step.kind == StepKind::Ensure {
-                let got = self.read(n, index, sub, &step.what)?;
-                readback(&step.what, n, index, sub, want, &got)?;
+                let got = self.read(n, step.index, step.sub, &step.what)?;
+                readback(&step.what, n, step.index, step.sub, &step.value, &got)?;
             }
         }
         Ok(())
     }
 
+    /// Whether device `i` has the object of a conditional step ([`Step::if_device_has`]):
+    /// `index:00` read; "object does not exist" (0x06020000 / 0x06090011) is `false` and the
+    /// step is reported as skipped.
+    fn device_has(&mut self, i: usize, step: &Step) -> Result<bool, StartupError> {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let (index, sub) = (step.index, step.sub);
+        match self.sdo_read(n, index, 0) {
+            Ok(_) => Ok(true),
+            Err(SdoError::Abort {
+                code: code @ (0x0602_0000 | 0x0609_0011),
+                ..
+            }) => {
+                if self.s.verbose {
+                    eprintln!(
+                        "canopen: {} (node {n}) has no 0x{index:04X} (abort 0x{code:08X}); used without it ({})",
+                        dev.name(),
+                        step.what
+                    );
+                }
+                self.skipped.push(format!(
+                    "node {n} 0x{index:04X}:{sub:02X} ({}): the {} has no 0x{index:04X} (SDO read of 0x{index:04X}:00: abort 0x{code:08X}, object does not exist)",
+                    step.what,
+                    dev.name()
+                ));
+                Ok(false)
+            }
+            Err(error) => Err(StartupError::Sdo {
+                step: format!(
+                    "{} (read 0x{index:04X}:00 on node {n} = 0x{n:02X}: does the {} have it?)",
+                    step.what,
+                    dev.name()
+                ),
+                error,
+            }),
+        }
+    }
+
+    /// Whether the object of an Ensure step already holds its value on device `i` (read
+    /// first); a read-only / const object with another value, or one that cannot be read,
+    /// is an error: ehactl never writes it.
+    fn already_set(&mut self, i: usize, step: &Step) -> Result<bool, StartupError> {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let (index, sub, want) = (step.index, step.sub, &step.value);
+        match self.sdo_read(n, index, sub) {
+            Ok(h) if same_value(want, &h) => Ok(true),
+            Ok(h) if !step.access.writable() => {
+                let extra = if (index, sub) == (cia406::POSITION_STEP, 1) {
+                    format!(
+                        "; set canopen.position_step_nm = {}",
+                        u32::from_le_bytes(le4(&h))
+                    )
+                } else {
+                    String::new()
+                };
+                Err(StartupError::Device(format!(
+                    "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is {} (AccessType={} in {}) and reads {:02X?}, not {:02X?}; ehactl never writes read-only objects{extra}",
+                    step.what,
+                    dev.name(),
+                    if step.access == Access::Const { "constant" } else { "read-only" },
+                    step.access.as_str(),
+                    self.plan.devices[i].eds.source,
+                    h,
+                    want
+                )))
+            }
+            Err(e) if !step.access.writable() => Err(StartupError::Sdo {
+                step: format!(
+                    "{} (read-only object: read 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})",
+                    step.what
+                ),
+                error: e,
+            }),
+            // Different, or not readable right now (e.g. no value yet): write it.
+            _ => Ok(false),
+        }
+    }
+
+    /// The write of a step to device `i`: `Ok(true)` when written, `Ok(false)` when an
+    /// optional step's object does not exist on the device (reported as skipped); a write
+    /// the device refuses is an error naming what it has.
+    fn write_step(&mut self, i: usize, step: &Step) -> Result<bool, StartupError> {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let (index, sub, want) = (step.index, step.sub, &step.value);
+        match self.sdo_write(n, index, sub, want) {
+            Ok(()) => Ok(true),
+            Err(SdoError::Abort {
+                code: 0x0602_0000 | 0x0609_0011,
+                ..
+            }) if step.optional => {
+                if self.s.verbose {
+                    eprintln!(
+                        "canopen: {} (node {n}) has no 0x{index:04X}:{sub:02X} although its EDS lists it; optional, skipped ({})",
+                        dev.name(),
+                        step.what
+                    );
+                }
+                self.skipped
+                    .push(format!("node {n} 0x{index:04X}:{sub:02X} ({})", step.what));
+                Ok(false)
+            }
+            // The file says rw, the device refuses the write as read-only (0x06010002).
+            Err(SdoError::Abort {
+                code: 0x0601_0002, ..
+            }) => Err(self.read_only_on_the_device(i, step)),
+            Err(SdoError::Abort {
+                code: code @ (0x0602_0000 | 0x0609_0011),
+                ..
+            }) if index == 0x1016 && dev.moves_the_load() => Err(StartupError::Device(format!(
+                "{}: the {} (node {n}) has no heartbeat consumer 0x1016:{sub:02X} (abort 0x{code:08X}, object does not exist) although {} lists it; it could not detect a dead ehactl and stop the load: ehactl refuses to drive it",
+                step.what,
+                dev.name(),
+                self.plan.devices[i].eds.source
+            ))),
+            Err(error) => Err(StartupError::Sdo {
+                step: format!(
+                    "{} (write 0x{index:04X}:{sub:02X} on node {n} = 0x{n:02X})",
+                    step.what
+                ),
+                error,
+            }),
+        }
+    }
+
+    /// The error of a write that device `i` refused as read-only (abort 0x06010002) although
+    /// its file says the object is writable: naming the device's value if it has one.
+    fn read_only_on_the_device(&mut self, i: usize, step: &Step) -> StartupError {
+        let (n, dev) = (self.plan.devices[i].node, self.plan.devices[i].device);
+        let (index, sub, want) = (step.index, step.sub, &step.value);
+        let h = self.sdo_read(n, index, sub).ok();
+        let extra = match (&h, (index, sub) == (cia406::POSITION_STEP, 1)) {
+            (Some(h), true) => format!(
+                "; it is {} nm: set canopen.position_step_nm = {}",
+                u32::from_le_bytes(le4(h)),
+                u32::from_le_bytes(le4(h))
+            ),
+            (Some(h), false) => format!("; it reads {h:02X?}"),
+            (None, _) => String::new(),
+        };
+        StartupError::Device(format!(
+            "{}: {} (node {n}) 0x{index:04X}:{sub:02X} is read-only on the device (abort 0x06010002) although its EDS says {}; ehactl wanted {:02X?}{extra}",
+            step.what,
+            dev.name(),
+            step.access.as_str(),
+            want
+        ))
+    }
+
     /// NMT start; wait for OPERATIONAL heartbeats.
     pub(crate) fn start_nodes(&mut self) -> Result<(), StartupError> {
         let c = &self.s.canopen;
-        for n in self.ids {
+        for n in self.ids.clone() {
             self.send(nmt::command(NmtCommand::Start, n))?;
         }
-        self.st.state = [None; 2];
+        self.st.state.iter_mut().for_each(|x| *x = None);
         let op_wait = Duration::from_millis(
             (3 * u64::from(c.heartbeat_timeout_ms)).max(u64::from(c.sdo_timeout_ms)),
         );
@@ -1480,7 +1605,7 @@ impl<'a> Bringup<'a> {
                     .unwrap_or(0);
                 return Err(StartupError::Device(format!(
                     "{} (node {}) did not report OPERATIONAL by heartbeat within {} ms after NMT start (last state: {})",
-                    [Dev::Transducer, Dev::Valve][i].name(),
+                    self.plan.devices[i].device.name(),
                     self.ids[i],
                     op_wait.as_millis(),
                     self.st.state[i].map_or("no heartbeat", |x| x.as_str())
@@ -1495,7 +1620,7 @@ impl<'a> Bringup<'a> {
 
     fn status(&mut self) -> Result<u16, StartupError> {
         let d = self.read(
-            self.ids[1],
+            self.ids[self.cmd],
             cia408::STATUS_WORD,
             0,
             "reading the valve status word",
@@ -1507,7 +1632,7 @@ impl<'a> Bringup<'a> {
     }
 
     fn goto(&mut self, cw: u16, want: ValveState) -> Result<(), StartupError> {
-        let va = self.ids[1];
+        let va = self.ids[self.cmd];
         self.write(
             va,
             cia408::CONTROL_WORD,
@@ -1542,7 +1667,7 @@ impl<'a> Bringup<'a> {
     /// fault state held (TR10 FAULT_DISABLED 0001→1001, TR11 FAULT_HOLD 0011→1011, TR14
     /// FAULT_INIT 0000→1000).
     pub(crate) fn enable_valve(&mut self) -> Result<(), StartupError> {
-        let va = self.ids[1];
+        let va = self.ids[self.cmd];
         let mut sw = self.status()?;
         let deadline = self.now() + ns(self.sdo_t);
         while ValveState::from_status(sw) == ValveState::FaultReaction && self.now() < deadline {
@@ -1592,41 +1717,50 @@ impl<'a> Bringup<'a> {
         self.goto(cia408::CW_ACTIVE_STATE, ValveState::Active)
     }
 
-    /// Setpoint 0 + one SYNC so that the first cycle has a position (and spool).
+    /// The commanded device's RPDO1 for the command 0 (the valve: setpoint 0) and one
+    /// SYNC, so that the first cycle has every device's first TPDO1 decoded (the position,
+    /// the spool, …); an EMCY any device sent since its boot-up fails the start-up.
     pub(crate) fn prime(&mut self) -> Result<Measurements, StartupError> {
         let c = &self.s.canopen;
-        let (tr, va) = (self.ids[0], self.ids[1]);
         let mut meas = Measurements::UNMEASURED;
-        self.send(CanFrame::std(
-            RPDO1_BASE + u16::from(va),
-            0i16.to_le_bytes(),
-        ))?;
+        self.send(self.command_frame(0.0))?;
         self.send(sync::frame_with_counter(c.sync_counter_overflow, 1))?;
         let deadline = self.now() + ns(self.sdo_t);
-        while meas.position.is_nan() || (c.valve_status_pdo && meas.spool.is_nan()) {
+        let mut waiting: Vec<bool> = self
+            .plan
+            .devices
+            .iter()
+            .map(|d| d.tpdo_len.is_some())
+            .collect();
+        while let Some(i) = waiting.iter().position(|w| *w) {
             let left = self.left_until(deadline);
             if left.is_zero() {
                 return Err(StartupError::Device(format!(
                     "no {} TPDO1 within {} ms after the first SYNC; are the PDOs mapped and the devices OPERATIONAL?",
-                    if meas.position.is_nan() { "transducer" } else { "valve" },
+                    self.plan.devices[i].device.name(),
                     self.sdo_t.as_millis()
                 )));
             }
             if let Some(f) = self.bus.recv_timeout(left)? {
                 self.st.observe(&f, Direction::Rx);
-                if f.id == u32::from(TPDO1_BASE + u16::from(tr)) && f.dlc == 4 {
-                    meas.position =
-                        cia406::position_m(pdo::get_i32(&f.data, 0, 4), c.position_step_nm);
-                }
-                if f.id == u32::from(TPDO1_BASE + u16::from(va)) && f.dlc == 4 {
-                    meas.spool = cia408::spool_fraction(pdo::get_i32(&f.data, 2, 2) as i16);
+                for (d, w) in self.plan.devices.iter().zip(waiting.iter_mut()) {
+                    let fits = f.id == u32::from(TPDO1_BASE + u16::from(d.node))
+                        && Some(usize::from(f.dlc)) == d.tpdo_len;
+                    if fits && d.device.decode(c, f.payload(), &mut meas).is_ok() {
+                        *w = false;
+                    }
                 }
             }
         }
         if let Some(e) = self.st.emcy.iter().flatten().next().copied() {
+            let name = self
+                .plan
+                .devices
+                .iter()
+                .find(|d| d.node == e.node)
+                .map_or("device", |d| d.device.name());
             return Err(StartupError::Device(format!(
-                "{} (node {}) sent EMCY 0x{:04X} ({}) during start-up",
-                if e.node == tr { "transducer" } else { "valve" },
+                "{name} (node {}) sent EMCY 0x{:04X} ({}) during start-up",
                 e.node,
                 e.code,
                 e.class()
@@ -1641,6 +1775,36 @@ fn ns(d: Duration) -> u64 {
     d.as_nanos().min(u128::from(u64::MAX)) as u64
 }
 
+/// The RPDO1 of commanded device `d` for the command `u` (V; full scale `full_scale` V):
+/// its profile's encoding, as long as its RPDO1 is mapped (CiA 301 default COB-ID 0x200 +
+/// node).
+pub(crate) fn command_frame(d: &DevicePlan, u: f64, full_scale: f64) -> CanFrame {
+    rpdo_frame(d.device, d.node, d.rpdo_len.unwrap_or(0), u, full_scale)
+}
+
+/// The RPDO1 (`len` bytes, CiA 301 default COB-ID 0x200 + `node`) that `profile` encodes
+/// for the command `u` (V; full scale `full_scale` V). No allocation (the control cycle
+/// sends it).
+#[inline]
+pub(crate) fn rpdo_frame(
+    profile: &dyn Profile,
+    node: u8,
+    len: usize,
+    u: f64,
+    full_scale: f64,
+) -> CanFrame {
+    let b = profile.encode(u, full_scale).unwrap_or([0; 8]);
+    let n = len.min(8);
+    let mut data = [0u8; 8];
+    data[..n].copy_from_slice(&b[..n]);
+    CanFrame {
+        id: u32::from(RPDO1_BASE + u16::from(node)),
+        dlc: n as u8,
+        data,
+        extended: false,
+    }
+}
+
 fn le4(d: &[u8]) -> [u8; 4] {
     let mut b = [0u8; 4];
     b[..d.len().min(4)].copy_from_slice(&d[..d.len().min(4)]);
@@ -1651,6 +1815,7 @@ fn le4(d: &[u8]) -> [u8; 4] {
 mod tests {
     use super::*;
     use crate::bus::BusUrl;
+    use crate::eds::{BUILTIN_TRANSDUCER_EDS, BUILTIN_VALVE_EDS};
     use ehactl_types::canopen::CanopenConfig;
 
     fn settings(c: CanopenConfig) -> CanopenSettings {
@@ -1668,7 +1833,9 @@ mod tests {
     #[test]
     fn the_plan_follows_the_built_in_eds_files() {
         let p = Plan::new(&settings(CanopenConfig::default())).unwrap();
-        let [t, v] = &p.devices;
+        let [t, v] = &p.devices[..] else {
+            panic!("two devices")
+        };
         assert_eq!(
             (t.identity, v.identity),
             ((Some(0), Some(0x196)), (Some(0), Some(0x198)))
@@ -1703,7 +1870,7 @@ mod tests {
         let text = include_str!("../../../configs/eds/ehactl_pressure_404.eds");
         let eds = Eds::parse(text, "ehactl_pressure_404.eds").unwrap();
         let c = CanopenConfig::default();
-        let mut d = DevicePlan::from_file(&crate::cia404::Cia404, "test", 64, eds).unwrap();
+        let mut d = DevicePlan::from_file(&crate::cia404::Cia404, "test".into(), 64, eds).unwrap();
         d.plan_dcf_settings().unwrap();
         d.plan_error_control(&c).unwrap();
         d.plan_sync_objects(&c).unwrap();
@@ -1737,8 +1904,58 @@ mod tests {
         assert_eq!(cob.last().unwrap().value, (0x180u32 + 64).to_le_bytes());
         // A 406 file is refused as a 404 device's, before the bus.
         let wrong = Eds::parse(BUILTIN_TRANSDUCER_EDS, "406.eds").unwrap();
-        let e = DevicePlan::from_file(&crate::cia404::Cia404, "key", 64, wrong).unwrap_err();
+        let e = DevicePlan::from_file(&crate::cia404::Cia404, "key".into(), 64, wrong).unwrap_err();
         assert!(e.to_string().contains("is no CiA 404 device"), "{e}");
+    }
+
+    /// `[[canopen.devices]]`: a further device is planned after the transducer and the valve
+    /// from its profile's built-in file; an unknown profile, a second commanded device and a
+    /// second device of a measurement already taken are refused before the bus, by key.
+    #[test]
+    fn further_devices_are_planned_in_order_or_refused_by_key() {
+        use ehactl_types::canopen::CanopenDevice;
+        let with = |profile: &str| {
+            settings(CanopenConfig {
+                devices: vec![CanopenDevice {
+                    profile: profile.into(),
+                    node_id: 64,
+                    eds: String::new(),
+                }],
+                ..Default::default()
+            })
+        };
+        let p = Plan::new(&with("cia404")).unwrap();
+        let numbers: Vec<u16> = p.devices.iter().map(|d| d.profile).collect();
+        assert_eq!(numbers, [406, 408, 404]);
+        assert_eq!(p.nodes(), [32, 48, 64]);
+        assert_eq!(p.commanded, 1);
+        assert_eq!(p.devices[2].config_key, "canopen.devices[0].eds");
+        assert_eq!(
+            [
+                p.devices[0].tpdo_len,
+                p.devices[1].tpdo_len,
+                p.devices[2].tpdo_len
+            ],
+            [Some(4), Some(4), Some(4)]
+        );
+        assert_eq!(p.devices[1].rpdo_len, Some(2));
+        let refused = |profile: &str| Plan::new(&with(profile)).unwrap_err().to_string();
+        let e = refused("cia999");
+        assert!(e.contains("canopen.devices[0].profile") && e.contains("cia404, cia406, cia408"));
+        assert!(refused("cia408").contains("moves the load"));
+        assert!(refused("cia406").contains("would both set the same measurement"));
+    }
+
+    /// The commanded device's RPDO1 through its profile is the frame the backend sent for
+    /// the valve before the seam (0x200 + node, the INT16 spool setpoint, 2 bytes), for
+    /// commands inside, beyond and without full scale.
+    #[test]
+    fn the_valve_rpdo_through_its_profile_is_the_setpoint_frame() {
+        for u in [0.0, 1.0, -3.3, 25.0, f64::NAN] {
+            let sp = cia408::setpoint_from_command(u, 10.0);
+            let want = CanFrame::std(RPDO1_BASE + 48, sp.to_le_bytes());
+            assert_eq!(rpdo_frame(&cia408::Cia408, 48, 2, u, 10.0), want, "{u}");
+        }
     }
 
     #[test]
@@ -1850,7 +2067,7 @@ mod tests {
     fn an_emcy_from_before_the_boot_up_is_the_previous_sessions() {
         let clock: Arc<dyn Clock> = Arc::new(crate::clock::ManualClock::at(0));
         let (tr, va) = (0x20u8, 0x30u8);
-        let mut st = Startup::new([tr, va], false, clock);
+        let mut st = Startup::new(&[tr, va], false, clock);
         let emcy = |node: u8| {
             CanFrame::std(
                 EMCY_BASE + u16::from(node),

@@ -157,14 +157,15 @@ fn settings(cfg: &RigConfig, config: &Path, url: BusUrl, verbose: bool) -> Canop
 }
 
 /// `ehactl check-config`'s part of the CAN checks: a config that names its devices' EDS /
-/// DCF files (`canopen.transducer_eds`, `canopen.valve_eds`) is meant for `--hal canopen`,
+/// DCF files (`canopen.transducer_eds`, `canopen.valve_eds`) or further devices
+/// (`[[canopen.devices]]`) is meant for `--hal canopen`,
 /// so the files are loaded and every check that `run --hal canopen` makes before it opens
 /// the bus is made (the same function, [`CanopenHal::check_settings`]: the settings, both
 /// files, the start-up plan). `Ok(None)` when no file is named (the sim backend needs
 /// none); `Ok(Some(text))` describes the plan; `Err` is the one-line refusal.
 pub fn check_config(cfg: &RigConfig, config: &Path) -> Result<Option<String>, String> {
     let c = &cfg.canopen;
-    if c.transducer_eds.is_empty() && c.valve_eds.is_empty() {
+    if c.transducer_eds.is_empty() && c.valve_eds.is_empty() && c.devices.is_empty() {
         return Ok(None);
     }
     // Never opened: the checks before the bus need no bus, only a valid address.
@@ -173,14 +174,19 @@ pub fn check_config(cfg: &RigConfig, config: &Path) -> Result<Option<String>, St
     };
     let plan = CanopenHal::check_settings(&settings(cfg, config, url, false))
         .map_err(|e| e.to_string())?;
-    let [t, v] = &plan.devices;
-    Ok(Some(format!(
-        "canopen: transducer {} ({} start-up steps), valve {} ({} start-up steps)",
-        t.eds.source,
-        t.steps.len(),
-        v.eds.source,
-        v.steps.len()
-    )))
+    let devices: Vec<String> = plan
+        .devices
+        .iter()
+        .map(|d| {
+            format!(
+                "{} {} ({} start-up steps)",
+                d.device.name(),
+                d.eds.source,
+                d.steps.len()
+            )
+        })
+        .collect();
+    Ok(Some(format!("canopen: {}", devices.join(", "))))
 }
 
 /// The CAN rig of `--hal canopen`, unconfigured (no bus I/O yet); `Ok(None)` for the sim

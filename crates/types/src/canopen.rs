@@ -3,14 +3,15 @@
 //!
 //! Bus load: every SYNC period carries SYNC (0 bytes), the transducer TPDO1 (position,
 //! 4 bytes), the valve RPDO1 (setpoint, 2 bytes) and, with `valve_status_pdo`, the valve
-//! TPDO1 (status word + actual spool, 4 bytes); heartbeats of both devices add
+//! TPDO1 (status word + actual spool, 4 bytes); heartbeats of the devices add
 //! 1-byte frames every `heartbeat_ms`, ehactl's own heartbeat one every `master_heartbeat_ms`. A classic frame with an 11-bit id and N data bytes
 //! takes at most `8N + 47 + floor((34 + 8N − 1)/4)` bit times with worst-case bit stuffing
 //! (55 bits for N = 0, 75 for N = 2, 95 for N = 4). At 1 Mbit/s SYNC + 4-byte position +
 //! 2-byte setpoint therefore take 225 µs per SYNC period (320 µs with the valve status
-//! TPDO): 22.5 % (32 %) of the bus at 1 kHz. Configs above 80 % are refused. 1 kHz is the
-//! practical ceiling: the remaining time in each period is what SDO traffic, EMCY,
-//! heartbeats, error frames / retransmissions and the devices' SYNC-to-TPDO processing
+//! TPDO): 22.5 % (32 %) of the bus at 1 kHz. A further device (`[[canopen.devices]]`) adds
+//! one TPDO counted as 8 bytes (135 bit times) per SYNC period and one heartbeat producer.
+//! Configs above 80 % are refused. 1 kHz is the practical ceiling: the remaining time in
+//! each period is what SDO traffic, EMCY, heartbeats, error frames / retransmissions and the devices' SYNC-to-TPDO processing
 //! need, and the loop closes over CAN only once per SYNC anyway.
 
 use crate::spec::{self, ConfigError, Param};
@@ -87,6 +88,27 @@ pub struct CanopenConfig {
     /// (ms, 0 = off): a valve that gets no setpoint for this long reacts as to a master loss.
     #[param(unit = "ms", range = Within(0.0, 65535.0), desc = "valve RPDO1 event timer 0x1400:05 (setpoint deadline) where the EDS has it (0 = off; > 2 SYNC periods)")]
     pub valve_rpdo_timeout_ms: u16,
+    /// Further devices besides the transducer and the valve (`[[canopen.devices]]`), brought
+    /// up, supervised, decoded and stopped as they are; empty by default.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub devices: Vec<CanopenDevice>,
+}
+
+/// One further device of the rig (`[[canopen.devices]]`): a CANopen node whose device
+/// profile ehactl knows (crates/canopen/src/profiles.rs), read into the measurements its
+/// profile decodes.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+#[serde(deny_unknown_fields)]
+pub struct CanopenDevice {
+    /// Its device profile, `"cia"` + the CiA profile number (e.g. `"cia404"`, a measuring
+    /// device); checked against the profiles ehactl knows before the bus is opened.
+    pub profile: String,
+    /// Node id (1..127, unique on the bus).
+    pub node_id: i64,
+    /// EDS / DCF of the device (path, relative to the config file; `""` = the built-in EDS
+    /// of the profile's simulated device, e.g. configs/eds/ehactl_pressure_404.eds).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub eds: String,
 }
 
 impl Default for CanopenConfig {
@@ -111,6 +133,7 @@ impl Default for CanopenConfig {
             sync_window_us: 0,
             max_pdo_age_syncs: 50,
             valve_rpdo_timeout_ms: 100,
+            devices: Vec::new(),
         }
     }
 }
@@ -144,11 +167,14 @@ pub struct BusLoad {
 
 impl CanopenConfig {
     /// Data lengths (bytes) of the frames sent every SYNC period.
+    /// A further device's TPDO1 is counted as 8 bytes (the longest classic frame): its
+    /// mapping is its profile's (crates/canopen/src), which this crate does not know.
     pub fn frames_per_sync(&self) -> Vec<u32> {
         let mut v = vec![0, 4, 2];
         if self.valve_status_pdo {
             v.push(4);
         }
+        v.extend(self.devices.iter().map(|_| 8));
         v
     }
 
@@ -156,7 +182,9 @@ impl CanopenConfig {
     pub fn bus_load(&self) -> BusLoad {
         let bits: u32 = self.frames_per_sync().into_iter().map(frame_bits).sum();
         let br = f64::from(self.bitrate.max(1));
-        let hb = 2.0 * f64::from(frame_bits(1)) / (f64::from(self.heartbeat_ms.max(1)) * 1e-3)
+        let producers = 2.0 + self.devices.len() as f64;
+        let hb = producers * f64::from(frame_bits(1))
+            / (f64::from(self.heartbeat_ms.max(1)) * 1e-3)
             + f64::from(frame_bits(1)) / (f64::from(self.master_heartbeat_ms.max(1)) * 1e-3);
         BusLoad {
             bits_per_sync: bits,
@@ -198,6 +226,7 @@ impl CanopenConfig {
                 ));
             }
         }
+        self.validate_devices()?;
         if self.device_heartbeat_timeout_ms <= self.master_heartbeat_ms {
             return Err(ConfigError::new(
                 "canopen.device_heartbeat_timeout_ms",
@@ -256,6 +285,61 @@ impl CanopenConfig {
     }
 }
 
+impl CanopenConfig {
+    /// `[[canopen.devices]]`: a profile name of the form `cia<number>` (whether ehactl knows
+    /// the profile is checked by the CANopen backend, which holds the profiles), node ids in
+    /// 1..127 that no other node of the rig uses (CiA 301 7.3.1: one node per id).
+    fn validate_devices(&self) -> Result<(), ConfigError> {
+        let mut taken: Vec<(i64, String)> = vec![
+            (
+                i64::from(self.transducer_node_id),
+                "the transducer's (canopen.transducer_node_id)".into(),
+            ),
+            (
+                i64::from(self.valve_node_id),
+                "the valve's (canopen.valve_node_id)".into(),
+            ),
+            (
+                i64::from(self.master_node_id),
+                "ehactl's own (canopen.master_node_id)".into(),
+            ),
+        ];
+        for (i, d) in self.devices.iter().enumerate() {
+            let at = format!("canopen.devices[{i}]");
+            let number = d.profile.strip_prefix("cia").unwrap_or("");
+            if number.is_empty() || !number.bytes().all(|b| b.is_ascii_digit()) {
+                return Err(ConfigError::new(
+                    format!("{at}.profile"),
+                    format!(
+                        "\"{}\" is no device profile name; expected \"cia\" and the CiA profile number, e.g. \"cia404\" (a measuring device)",
+                        d.profile
+                    ),
+                ));
+            }
+            if !(1..=127).contains(&d.node_id) {
+                return Err(ConfigError::new(
+                    format!("{at}.node_id"),
+                    format!(
+                        "node id {} is out of range; expected 1..127 (CiA 301 node ids)",
+                        d.node_id
+                    ),
+                ));
+            }
+            if let Some((_, whose)) = taken.iter().find(|(id, _)| *id == d.node_id) {
+                return Err(ConfigError::new(
+                    format!("{at}.node_id"),
+                    format!(
+                        "node id {} is also {whose}; expected a node id 1..127 that no other node uses",
+                        d.node_id
+                    ),
+                ));
+            }
+            taken.push((d.node_id, format!("that of {at}")));
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -282,6 +366,48 @@ mod tests {
         let d = CanopenConfig::default().bus_load();
         assert_eq!(d.bits_per_sync, 320);
         assert!(CanopenConfig::default().validate().is_ok());
+    }
+
+    #[test]
+    fn further_devices_are_checked_and_counted() {
+        let dev = |profile: &str, node_id: i64| CanopenDevice {
+            profile: profile.into(),
+            node_id,
+            eds: String::new(),
+        };
+        let with = |devices: Vec<CanopenDevice>| CanopenConfig {
+            devices,
+            ..Default::default()
+        };
+        assert!(with(vec![dev("cia404", 64), dev("cia404", 65)])
+            .validate()
+            .is_ok());
+        let e = with(vec![dev("cia404", 64), dev("cia404", 64)])
+            .validate()
+            .unwrap_err();
+        assert_eq!(e.path, "canopen.devices[1].node_id");
+        assert!(e.message.contains("also that of canopen.devices[0]"), "{e}");
+        let e = with(vec![dev("cia404", 48)]).validate().unwrap_err();
+        assert_eq!(e.path, "canopen.devices[0].node_id");
+        assert!(e.message.contains("the valve's"), "{e}");
+        let e = with(vec![dev("cia404", 1)]).validate().unwrap_err();
+        assert!(e.message.contains("ehactl's own"), "{e}");
+        for bad in [0, 128, -3] {
+            let e = with(vec![dev("cia404", bad)]).validate().unwrap_err();
+            assert_eq!(e.path, "canopen.devices[0].node_id");
+            assert!(e.message.contains("expected 1..127"), "{e}");
+        }
+        for bad in ["404", "cia", "ciaXYZ", "CiA404"] {
+            let e = with(vec![dev(bad, 64)]).validate().unwrap_err();
+            assert_eq!(e.path, "canopen.devices[0].profile", "{bad}");
+        }
+        // one more 8-byte TPDO per SYNC and one more heartbeat producer
+        let base = CanopenConfig::default().bus_load();
+        let more = with(vec![dev("cia404", 64)]).bus_load();
+        assert_eq!(more.bits_per_sync - base.bits_per_sync, frame_bits(8));
+        let hb = f64::from(frame_bits(1)) / 0.02 / 1e6;
+        let per_sync = f64::from(frame_bits(8)) * 1000.0 / 1e6;
+        assert!((more.load - base.load - per_sync - hb).abs() < 1e-12);
     }
 
     #[test]
