@@ -150,9 +150,10 @@ fn confirm(
 
 /// Whether the search would name `inj`'s effect on this record with the effect added at
 /// size `v`: the record plus the change the effect makes to `model`'s replay (the record's
-/// own noise and misfit kept), `model` refit to it as the refit phase does, the effect's
-/// structure fitted on top of that from the search's start values, judged by round 0's test
-/// ([`judge`]) and the edge rule. `None` when a replay fails.
+/// own noise and misfit kept), `model`'s nominal parameters refit to it as the refit phase
+/// does, the effect's structure fitted on top of that from the search's start values,
+/// judged by round 0's test ([`judge`]), the edge rule and, for a joint fit, the effect's
+/// share of the gain ([`MIN_EFFECT_SHARE`]). `None` when a replay fails.
 fn recovered(
     env: &SearchEnv<'_, '_>,
     model: &Hyp,
@@ -166,48 +167,86 @@ fn recovered(
         val_rec: val_rec.as_ref().unwrap_or(&fit_rec),
         ..env.ctx.clone()
     };
+    // The search's reference: the model's nominal parameters (not an effect's or the law's:
+    // those the refit phase refits) refit to the injected record, what a refit absorbs of the
+    // effect the record does not show. From where they stand, so with a candidate's budget,
+    // not the refit phase's 4× from the nominal values (on the MTS README record, refitting
+    // every parameter of the model that way took the phase to 4× the diagnosis without it).
+    let frozen = ctx.frozen(model);
+    let (current, cur_train) = frozen.fit(nominal_part(model), usize::MAX, evals_per_param);
     let cenv = SearchEnv {
         nom: env.nom,
-        ctx: &ctx,
+        ctx: &frozen,
         rf: env.rf,
     };
-    // The search's reference: the model's own parameters refit to the injected record (what
-    // a refit absorbs of the effect, the record does not show). From where they stand, so
-    // with a candidate's budget, not the refit phase's 4× from the nominal values: on the
-    // MTS README record that took the phase from 1.6× to 4× the diagnosis without it.
-    let (current, cur_train) = ctx.fit(model.clone(), usize::MAX, evals_per_param);
     let s = Search {
         found: SearchPhase {
             current: current.clone(),
             cur_train,
             ..SearchPhase::at_refit(env.rf)
         },
-        cur_err: ctx.val_errors(&current).0,
+        cur_err: frozen.val_errors(&current).0,
     };
     if cenv.near_floor(&s.cur_err, 0) {
         return Some(false);
     }
-    // The structure fitted on top of that refit, its own parameters alone from the search's
-    // start values (the refit has taken its share of the change already, so the effect's
-    // share of the gain is whole; fitting them jointly again cost 40 % more for the same
-    // answers on the test bench).
-    let on_top = ctx.frozen(&current);
-    let h = Hyp {
+    let candidate = |h: &Hyp, ctx: &Ctx<'_>, ctrain: f64| {
+        let (err, _) = ctx.val_errors(h);
+        let n = current.params.len() + inj.params.len();
+        let jd = cenv.judge(&s, 0, false, (inj.effect, &err, ctrain, n));
+        let edge = cenv.edge_within_floor(&s.cur_err, h, inj.effect, &err);
+        (jd, edge.is_none(), err)
+    };
+    // The structure's own parameters alone on top of that refit first (a few parameters, so
+    // cheap): passed, the search's fit (which can do no worse) passes too.
+    let on_top = frozen.frozen(&current);
+    let alone = Hyp {
         effects: vec![inj.effect],
         variants: vec![inj.variant],
         values: inj.params.iter().map(|p| p.init).collect(),
         params: inj.params.clone(),
     };
-    let (h, ctrain) = on_top.fit(h, 0, evals_per_param);
-    let (err, _) = on_top.val_errors(&h);
-    let n_params = current.params.len() + h.params.len();
-    let jd = cenv.judge(&s, 0, false, (inj.effect, &err, ctrain, n_params));
-    Some(
-        jd.significant
-            && cenv
-                .edge_within_floor(&s.cur_err, &h, inj.effect, &err)
-                .is_none(),
-    )
+    let (alone, ctrain) = on_top.fit(alone, 0, evals_per_param);
+    let (jd, off_edge, _) = candidate(&alone, &on_top, ctrain);
+    if jd.significant && off_edge {
+        return Some(true);
+    }
+    // Else the search's own fit: the structure and the refit parameters together, which can
+    // take back what the refit absorbed, and the effect's share of the gain.
+    let first_new = current.params.len();
+    let mut h = current.clone();
+    h.effects.push(inj.effect);
+    h.variants.push(inj.variant);
+    h.values.extend(inj.params.iter().map(|p| p.init));
+    h.params.extend(inj.params.iter().cloned());
+    let (h, ctrain) = frozen.fit(h, first_new, evals_per_param);
+    let (jd, off_edge, err) = candidate(&h, &frozen, ctrain);
+    if !(jd.significant && off_edge) {
+        return Some(false);
+    }
+    let wj = |x: &Errors| weighted_j(x, env.nom, env.floor_ch());
+    let on_weighted: Option<&dyn Fn(&Errors) -> f64> =
+        (!jd.on_mean && jd.on_weighted).then_some(&wj);
+    let sh = effect_share(&frozen, &h, first_new, inj.effect, &s.cur_err, &err, on_weighted);
+    Some(!(sh.share < MIN_EFFECT_SHARE && sh.err.overall.is_finite()))
+}
+
+/// The nominal parameters of `h` (those not of an effect) at their values, as a model of
+/// its own.
+fn nominal_part(h: &Hyp) -> Hyp {
+    let (params, values) = h
+        .params
+        .iter()
+        .zip(&h.values)
+        .filter(|(p, _)| !p.name.starts_with("effects."))
+        .map(|(p, v)| (p.clone(), *v))
+        .unzip();
+    Hyp {
+        effects: vec![],
+        variants: vec![],
+        params,
+        values,
+    }
 }
 
 /// The fit record (and the held-out record, when it is a separate file) plus the change
