@@ -381,13 +381,22 @@ impl Injection {
 
     /// `model` with this structure at size `v`.
     pub(crate) fn added_to(&self, model: &Hyp, v: f64) -> Hyp {
+        let neutral: Vec<f64> = self.params.iter().map(neutral_start).collect();
+        self.with_values(model, &neutral, Some(v))
+    }
+
+    /// `model` with this structure at parameter values `values` (in the order of `params`),
+    /// its size replaced by `size` when given.
+    pub(crate) fn with_values(&self, model: &Hyp, values: &[f64], size: Option<f64>) -> Hyp {
         let mut h = model.clone();
         let first = h.params.len();
         h.effects.push(self.effect);
         h.variants.push(self.variant);
-        h.values.extend(self.params.iter().map(neutral_start));
+        h.values.extend_from_slice(values);
         h.params.extend(self.params.iter().cloned());
-        h.values[first + self.size_at] = v;
+        if let Some(v) = size {
+            h.values[first + self.size_at] = v;
+        }
         h
     }
 }

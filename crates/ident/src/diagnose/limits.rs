@@ -43,6 +43,14 @@ impl<'a> Phase<'a> for LimitsPhase {
             &rf.scales,
             &rf.analysis_refit,
         );
+        // When the configured step explains the record, no candidate was fitted: the check
+        // would cost 10–20× the diagnosis (the Sirohi circuit's own log: 9 s → 178 s CPU),
+        // so the limits stay linearised there (`method`).
+        if nom.integration.configured_step_explains {
+            return Ok(LimitsPhase(
+                linear.into_iter().map(|(e, (l, _))| (e, l)).collect(),
+            ));
+        }
         let env = SearchEnv {
             nom,
             ctx: &lp.ctx,
@@ -52,6 +60,7 @@ impl<'a> Phase<'a> for LimitsPhase {
             &env,
             &grey.final_hyp,
             linear,
+            &search.candidates,
             inp.opts,
             inp.bar(),
         )))
@@ -64,6 +73,7 @@ fn confirm_all(
     env: &SearchEnv<'_, '_>,
     model: &Hyp,
     linear: BTreeMap<String, (DetectionLimit, Option<Injection>)>,
+    candidates: &BTreeMap<EffectId, Candidate>,
     opts: &Options,
     bar: &Tracker,
 ) -> BTreeMap<String, DetectionLimit> {
@@ -86,7 +96,17 @@ fn confirm_all(
                 };
                 let l = match inj {
                     Some(inj) if l.limit.is_some() => {
-                        confirm(env, model, l.clone(), inj, opts.evals_per_param)
+                        let fitted = fitted_values(inj, candidates.get(&inj.effect));
+                        let base = match &fitted {
+                            Some(v) => inj.with_values(model, v, None),
+                            None => model.clone(),
+                        };
+                        let at = |v: f64| match &fitted {
+                            Some(f) => inj.with_values(model, f, Some(v)),
+                            None => inj.added_to(model, v),
+                        };
+                        let trial = Trial { base: &base, at: &at };
+                        confirm(env, model, &trial, l.clone(), inj, opts.evals_per_param)
                     }
                     _ => l.clone(),
                 };
@@ -100,6 +120,28 @@ fn confirm_all(
     out.into_inner().unwrap_or_default()
 }
 
+/// What an injection at a trial size adds to the record: the change from `base`'s replay
+/// to that of `at(size)`. `base` is the model with the structure as the search fitted it to
+/// this record, and `at` the same with its size replaced, so that the injected record holds
+/// the effect at about the trial size whatever the record held of it already (adding the
+/// trial size on top of a hidden delay of 2× it, the sum was recovered where the hidden
+/// delay alone was not: PI force rig case 7409). Without such a fit, `base` is the model
+/// and `at` the structure from its start values.
+struct Trial<'t> {
+    base: &'t Hyp,
+    at: &'t dyn Fn(f64) -> Hyp,
+}
+
+/// The values of `inj`'s parameters in the search's round-0 fit `c` of its effect, when
+/// that fit is of the same structure and has them all.
+fn fitted_values(inj: &Injection, c: Option<&Candidate>) -> Option<Vec<f64>> {
+    let c = c.filter(|c| c.variant == inj.variant)?;
+    inj.params
+        .iter()
+        .map(|p| c.params.get(&p.name).copied())
+        .collect()
+}
+
 /// The linearised limit `lim` of `inj` checked by injection and recovery ([`recovered`]) at
 /// its own size; not recovered there, at the strongest end of the range (not recovered
 /// either: not detectable with this record), then half way between on the log scale (the
@@ -108,11 +150,12 @@ fn confirm_all(
 fn confirm(
     env: &SearchEnv<'_, '_>,
     model: &Hyp,
+    trial: &Trial<'_>,
     mut lim: DetectionLimit,
     inj: &Injection,
     evals_per_param: usize,
 ) -> DetectionLimit {
-    let recovered_at = |s: f64| recovered(env, model, inj, inj.at(s), evals_per_param);
+    let recovered_at = |s: f64| recovered(env, model, trial, inj, inj.at(s), evals_per_param);
     let s0 = lim.looseness;
     let s = match recovered_at(s0) {
         None => return lim,
@@ -148,20 +191,20 @@ fn confirm(
     lim
 }
 
-/// Whether the search would name `inj`'s effect on this record with the effect added at
-/// size `v`: the record plus the change the effect makes to `model`'s replay (the record's
-/// own noise and misfit kept), `model`'s nominal parameters refit to it as the refit phase
+/// Whether the search would name `inj`'s effect on this record with the effect at size `v`:
+/// the record plus the change of [`Trial`] (the record's own noise and misfit kept), `model`'s nominal parameters refit to it as the refit phase
 /// does, the effect's structure fitted on top of that from the search's start values,
 /// judged by round 0's test ([`judge`]), the edge rule and, for a joint fit, the effect's
 /// share of the gain ([`MIN_EFFECT_SHARE`]). `None` when a replay fails.
 fn recovered(
     env: &SearchEnv<'_, '_>,
     model: &Hyp,
+    trial: &Trial<'_>,
     inj: &Injection,
     v: f64,
     evals_per_param: usize,
 ) -> Option<bool> {
-    let (fit_rec, val_rec) = injected_records(env.ctx, model, &inj.added_to(model, v))?;
+    let (fit_rec, val_rec) = injected_records(env.ctx, trial.base, &(trial.at)(v))?;
     let ctx = Ctx {
         fit_rec: &fit_rec,
         val_rec: val_rec.as_ref().unwrap_or(&fit_rec),
@@ -250,14 +293,14 @@ fn nominal_part(h: &Hyp) -> Hyp {
 }
 
 /// The fit record (and the held-out record, when it is a separate file) plus the change
-/// from `model`'s replay to `with`'s on every channel; `None` when either replay fails.
-fn injected_records(ctx: &Ctx<'_>, model: &Hyp, with: &Hyp) -> Option<(Record, Option<Record>)> {
+/// from `base`'s replay to `with`'s on every channel; `None` when either replay fails.
+fn injected_records(ctx: &Ctx<'_>, base: &Hyp, with: &Hyp) -> Option<(Record, Option<Record>)> {
     let fit = |h: &Hyp| ctx.fit_replay(&h.build(&ctx.fit_base)).ok();
-    let fit_rec = plus_change(ctx.fit_rec, &fit(model)?.y, &fit(with)?.y)?;
+    let fit_rec = plus_change(ctx.fit_rec, &fit(base)?.y, &fit(with)?.y)?;
     if std::ptr::eq(ctx.val_rec, ctx.fit_rec) {
         return Some((fit_rec, None));
     }
-    let (a, b) = (ctx.val_errors(model).1, ctx.val_errors(with).1);
+    let (a, b) = (ctx.val_errors(base).1, ctx.val_errors(with).1);
     if a.failed || b.failed {
         return None;
     }
