@@ -1010,11 +1010,9 @@ impl Plant {
     fn leaks(&self, s: &PlantState) -> Leaks {
         let leak_in = &self.components.internal_leakage;
         let leak_ext = &self.components.external_leakage;
-        let q_in = leak_in.flows(s.p_a, s.p_b).0
-            - self.poly_flow.as_ref().map_or(0.0, |f| f.flow(s.spool));
-        let (q_ext_a, q_ext_b) = leak_ext.flows(s.p_a, s.p_b);
-        let (k_in, _) = leak_in.conductances();
-        let (k_ext, k_ext_b) = leak_ext.conductances();
+        let ((q_in, _), (k_in, _)) = leak_in.linearised(s.p_a, s.p_b);
+        let q_in = q_in - self.poly_flow.as_ref().map_or(0.0, |f| f.flow(s.spool));
+        let ((q_ext_a, q_ext_b), (k_ext, k_ext_b)) = leak_ext.linearised(s.p_a, s.p_b);
         Leaks {
             q_in,
             q_ext: [q_ext_a, q_ext_b],

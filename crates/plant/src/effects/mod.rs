@@ -34,9 +34,9 @@
 //! `openings` (the lap stage's `travel`, the limit stage's `clip_travel`, the lap stage's
 //! `lap`) and in its `port` flows the limit stage's `clip_flow`; reads
 //! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
-//! leakages' `flows` and `conductances` into the chambers' balances (crates/plant/src/
-//! chambers.rs, written once); `Plant::advance_chambers` reads `line_dynamics`'
-//! `port_pressures` (the pressures the valve ports see) and couples the ports to the
+//! leakages' `flows` and `conductances` (one call, `linearised`) into the chambers'
+//! balances (crates/plant/src/chambers.rs, written once); `Plant::advance_chambers` reads
+//! `line_dynamics`' `port_pressures` (the pressures the valve ports see) and couples the ports to the
 //! chambers in one of three ways: directly, through the lines' `advance_implicit`
 //! (`integration.line_method = "implicit"`) or, symplectic, their `advance_nodes` before the
 //! counterbalance valves (crates/plant/src/cbv.rs, which the plant keeps: they sit between
@@ -599,17 +599,28 @@ mod tests {
         toml::from_str(&toml).unwrap_or_else(|e| panic!("registry rig with {extra:?}: {e}"))
     }
 
-    /// The measurements of 300 periods of 1 ms under a ±3 V, 5 Hz sine command.
-    fn registry_run(p: &PlantParams) -> Vec<[f64; 5]> {
+    /// The measurements (force, position, p_a, p_b, spool) of 300 periods of 1 ms under a
+    /// ±3 V, 5 Hz sine command, and the load's states x_L, v_L (`flexible_mount`; the
+    /// piston's without a mount).
+    fn registry_run(p: &PlantParams) -> Vec<[f64; 7]> {
         let mut plant = Plant::configure(p, 1e-3).expect("the registry rig configures");
         (0..300)
             .map(|k| {
                 let u = 3.0 * (2.0 * std::f64::consts::PI * 5.0 * k as f64 * 1e-3).sin();
                 plant.step(u).expect("the registry rig steps");
                 let m = plant.measure();
-                [m.force, m.position, m.p_a, m.p_b, m.spool]
+                let s = plant.state();
+                [
+                    m.force, m.position, m.p_a, m.p_b, m.spool, s.x_load, s.v_load,
+                ]
             })
             .collect()
+    }
+
+    /// Whether every column of `run` moves: a stage the plant calls only in part (the
+    /// spool's or the load's state never advanced) leaves its state where it started.
+    fn all_move(run: &[[f64; 7]]) -> bool {
+        (0..7).all(|c| run.iter().any(|m| m[c] != run[0][c]))
     }
 
     /// Every catalogue effect is one registered component (`components!`) and the plant's
@@ -639,24 +650,33 @@ mod tests {
                 "{integration:?}"
             );
             let base = registry_run(&rig);
+            assert!(
+                all_move(&base),
+                "{integration:?}: a state of the base rig stands still"
+            );
             for id in EffectId::ALL {
                 for acting in acting_sections(id) {
                     let section = format!("{integration}\n[effects.{id}]\n{acting}");
                     let p = registry_rig(&section);
                     assert!(p.effects.is_enabled(id), "{id}: the section enables it");
-                    let change = largest_change(&base, &registry_run(&p));
+                    let run = registry_run(&p);
+                    let change = largest_change(&base, &run);
                     assert!(
                         change > 1e-3,
                         "effect `{id}` ({acting:?}, {integration:?}) is configured but changes no measurement (largest relative change {change:e}): is its stage called in crates/plant/src/model.rs?"
+                    );
+                    assert!(
+                        all_move(&run),
+                        "effect `{id}` ({acting:?}, {integration:?}): a measured channel or the load's state stands still: is each of its stage's calls made in crates/plant/src/model.rs?"
                     );
                 }
             }
         }
     }
 
-    /// The largest change of any channel of `run` from `base`, relative to the channel's
-    /// range over `base`.
-    fn largest_change(base: &[[f64; 5]], run: &[[f64; 5]]) -> f64 {
+    /// The largest change of any measured channel of `run` from `base` (the first five
+    /// columns), relative to the channel's range over `base`.
+    fn largest_change(base: &[[f64; 7]], run: &[[f64; 7]]) -> f64 {
         (0..5)
             .map(|c| {
                 let (lo, hi) = base
