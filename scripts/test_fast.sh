@@ -11,6 +11,9 @@
 # Extra arguments go to every `cargo test`, e.g. `scripts/test_fast.sh -- --test-threads 1`.
 # It builds with the `fast` profile (Cargo.toml: release code, incremental) into target/fast/,
 # apart from the suite's target/release/: after an edit only what the edit reaches is rebuilt.
+# The Python tests run on two pytest-xdist workers beside the API docs and the Rust tests, once
+# the CLI and the FMU they drive are built (their output is printed after the Rust tests; the
+# tier fails if either fails).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 t0=$(date +%s)
@@ -23,7 +26,7 @@ fi
 PY="$VENV/bin/python"
 export VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH"
 # Install the test requirements only when one is missing (a re-run needs no network).
-if ! "$PY" -c 'import mcap, pytest, can, canopen, jsonschema, websockets, mpmath, lz4, matplotlib, scipy, fmpy' 2>/dev/null \
+if ! "$PY" -c 'import mcap, pytest, xdist, can, canopen, jsonschema, websockets, mpmath, lz4, matplotlib, scipy, fmpy' 2>/dev/null \
     || ! "$PY" -m ruff --version >/dev/null 2>&1; then
   echo "== Python test requirements into $VENV"
   "$PY" -m pip install --quiet -r tests/python/requirements.txt
@@ -36,6 +39,29 @@ echo "== formatting and lints"
 cargo fmt --all --check
 cargo clippy --profile fast --workspace --all-targets -- -D warnings
 "$PY" -m ruff check
+
+echo "== the CLI and the FMU, then the Python tests in the background"
+# The crates the CLI needs, with the features the Rust tests below build them with
+# (crates/feature-unify; tests/python/test_feature_sets.py checks it): the tests reuse them.
+cargo build --profile fast -p ehactl-cli -p ehactl-fmu
+# Skipped here, run by test_all.sh: CAN end to end (hub, devices, LocalNode), diagnosis on
+# generated and real records, the README's examples and the documented tuning figures (need
+# the bindings), fault injection. Two workers, each module on one (its fixtures once) and the
+# modules sharing a session diagnosis together (tests/python/conftest.py); they run while
+# cargo documents and tests below, whose steps leave target/fast/ehactl as it is.
+PYTEST_LOG="$(mktemp)"
+PYTEST_STATUS=0
+EHACTL_BIN="$PWD/target/fast/ehactl" "$PY" -m pytest tests/python -q -n 2 --dist loadgroup \
+  --ignore=tests/python/test_canbus_hub.py --ignore=tests/python/test_canopen_e2e.py \
+  --ignore=tests/python/test_canopen_localnode.py --ignore=tests/python/test_devices.py \
+  --ignore=tests/python/test_diagnose_baseline.py --ignore=tests/python/test_diagnose_cli.py \
+  --ignore=tests/python/test_diagnose_greybox.py --ignore=tests/python/test_readme.py \
+  --ignore=tests/python/test_doc_figures.py \
+  --ignore=tests/python/test_reliability.py --ignore=tests/python/test_can_demo.py \
+  > "$PYTEST_LOG" 2>&1 &
+PYTEST_PID=$!
+# A Rust step that fails ends the script (set -e): the Python tests end with it.
+trap '[ -n "${PYTEST_PID:-}" ] && kill "$PYTEST_PID" 2>/dev/null; rm -f "$PYTEST_LOG"' EXIT
 
 echo "== API documentation (cargo doc, rustdoc warnings as errors)"
 # As in test_all.sh: broken, private or ambiguous links and stray HTML in doc comments fail.
@@ -56,18 +82,8 @@ cargo test --profile fast --workspace --exclude ehactl-ident --exclude ehactl-id
 cargo test --profile fast --workspace --exclude ehactl-python --lib --test data_errors --test data_units "$@"
 
 echo "== Python tests (no CAN, no diagnosis catalogue, no bindings)"
-# Nothing to recompile here: the tests above built every crate the CLI needs with the same
-# features (crates/feature-unify; tests/python/test_feature_sets.py checks it), so this only
-# links target/fast/ehactl if the tests did not already.
-cargo build --profile fast -p ehactl-cli -p ehactl-fmu
-# Skipped here, run by test_all.sh: CAN end to end (hub, devices, LocalNode), diagnosis on
-# generated and real records, the README's examples and the documented tuning figures (need
-# the bindings), fault injection.
-EHACTL_BIN="$PWD/target/fast/ehactl" "$PY" -m pytest tests/python -q \
-  --ignore=tests/python/test_canbus_hub.py --ignore=tests/python/test_canopen_e2e.py \
-  --ignore=tests/python/test_canopen_localnode.py --ignore=tests/python/test_devices.py \
-  --ignore=tests/python/test_diagnose_baseline.py --ignore=tests/python/test_diagnose_cli.py \
-  --ignore=tests/python/test_diagnose_greybox.py --ignore=tests/python/test_readme.py \
-  --ignore=tests/python/test_doc_figures.py \
-  --ignore=tests/python/test_reliability.py --ignore=tests/python/test_can_demo.py
+wait "$PYTEST_PID" || PYTEST_STATUS=1
+PYTEST_PID=
+cat "$PYTEST_LOG"
+[ "$PYTEST_STATUS" = 0 ] || { echo "== Python tests failed"; exit 1; }
 echo "== fast tier passed in $(( $(date +%s) - t0 )) s"

@@ -35,3 +35,17 @@ def diagnosis(tmp_path_factory):
         return done[key]
 
     return run
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist with `--dist loadgroup` (scripts/test_fast.sh runs `-n 2`): each
+    module's tests on one worker, so that its module-scoped fixtures run once; and every
+    module that asks for the session's `diagnosis` (directly or through a fixture of its own)
+    on one worker together, so that each distinct diagnosis runs once, as without xdist.
+    Without xdist the marks change nothing."""
+    if getattr(config.option, "dist", "no") == "no":
+        return
+    shared = {item.module.__name__ for item in items if "diagnosis" in item.fixturenames}
+    for item in items:
+        name = item.module.__name__
+        item.add_marker(pytest.mark.xdist_group("diagnosis" if name in shared else name))

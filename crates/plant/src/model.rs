@@ -1010,10 +1010,9 @@ impl Plant {
     fn leaks(&self, s: &PlantState) -> Leaks {
         let leak_in = &self.components.internal_leakage;
         let leak_ext = &self.components.external_leakage;
-        let q_in = leak_in.flows(s.p_a, s.p_b).0 - self.poly_flow.map_or(0.0, |f| f.flow(s.spool));
-        let (q_ext_a, q_ext_b) = leak_ext.flows(s.p_a, s.p_b);
-        let (k_in, _) = leak_in.conductances();
-        let (k_ext, k_ext_b) = leak_ext.conductances();
+        let ((q_in, _), (k_in, _)) = leak_in.linearised(s.p_a, s.p_b);
+        let q_in = q_in - self.poly_flow.as_ref().map_or(0.0, |f| f.flow(s.spool));
+        let ((q_ext_a, q_ext_b), (k_ext, k_ext_b)) = leak_ext.linearised(s.p_a, s.p_b);
         Leaks {
             q_in,
             q_ext: [q_ext_a, q_ext_b],
@@ -1077,18 +1076,19 @@ impl Plant {
         let f_ext = self.excitation.force(t + h);
         s.external = f_ext;
         let f_hyd = s.p_a * c.a_a - s.p_b * c.a_b;
-        // Rod force law, linearly implicit in v (stable for a stiff damper or smoothed sign).
-        let (f_poly, df_poly) = self
-            .poly
-            .map_or((0.0, 0.0), |f| f.force(s.x, s.v, s.p_a, s.p_b));
-        // A falling branch stays explicit.
-        let df_poly = df_poly.max(0.0);
-        // Dahl pre-yield state, backward Euler: F_d·z' = f₀ + d·v' = (f₀ + d·v) + d·(v' − v),
-        // folded into the linearisation about v so that the velocity update stays one
-        // division.
-        let (f_dahl0, d_dahl) = self
-            .poly
-            .map_or((0.0, 0.0), |f| f.dahl_implicit(self.dahl_z, s.v, h));
+        // Rod force law, linearly implicit in v (stable for a stiff damper or smoothed sign),
+        // and the Dahl pre-yield state, backward Euler: F_d·z' = f₀ + d·v' = (f₀ + d·v) +
+        // d·(v' − v), folded into the linearisation about v so that the velocity update
+        // stays one division. One look at the law (`as_ref`: no copy of it per substep).
+        let (f_poly, df_poly, f_dahl0, d_dahl) = match self.poly.as_ref() {
+            Some(f) => {
+                let (f_poly, df_poly) = f.force(s.x, s.v, s.p_a, s.p_b);
+                let (f_dahl0, d_dahl) = f.dahl_implicit(self.dahl_z, s.v, h);
+                // A falling branch stays explicit.
+                (f_poly, df_poly.max(0.0), f_dahl0, d_dahl)
+            }
+            None => (0.0, 0.0, 0.0, 0.0),
+        };
         let (f_poly, df_poly) = (f_poly + f_dahl0 + d_dahl * s.v, df_poly + d_dahl);
         let v_old = s.v;
         // The mount stage (`flexible_mount`): hydraulic force, load spring, mount and
@@ -1137,56 +1137,71 @@ impl Plant {
     /// [`LineStage::advance_implicit`], the chamber its chain's end node), or the symplectic
     /// nodes ([`LineStage::advance_nodes`]), the counterbalance valves between line end and
     /// chamber ([`cbv_ends`]) and the line flows after the chamber pressures
-    /// ([`LineStage::advance_flows`]), each chamber's balance built from `s` and the flow stages `leaks` where it is stepped (`Plant::chamber`). Writes the pressures and port flows into `s`; returns
-    /// the flows from supply into ports A and B (m³/s).
+    /// ([`LineStage::advance_flows`]). Each chamber's balance is built from `s` and the flow
+    /// stages `leaks` where it is stepped (`Plant::chamber`). Writes the pressures and port
+    /// flows into `s`; returns the flows from supply into ports A and B (m³/s).
+    ///
+    /// Each way evaluates its own valve ports: one evaluation ahead of the three ways (the
+    /// port pressures from an `Option`, the way chosen after it) cost the exponential-Euler
+    /// rigs up to 1.7 % of `Plant::step` in register spills (BENCHMARKS.md, "The plant step
+    /// per rig").
     #[inline(always)]
     fn advance_chambers(&mut self, s: &mut PlantState, o: [f64; 4], leaks: &Leaks) -> (f64, f64) {
         let (h, pt, p_cav) = (self.h, self.c.pt, self.c.p_cav);
         let (c, bulk) = (&self.c, &self.components.bulk_modulus_pressure);
         let lines = &mut self.components.line_dynamics;
-        let ports = lines.port_pressures();
-        let (port_a, port_b) = ports.unwrap_or((s.p_a, s.p_b));
         let limit = &self.components.valve_saturation;
-        let (qa, dqa, qsa) = self.edges.port(limit, o[0], o[1], s.p_s, pt, port_a);
-        let (qb, dqb, qsb) = self.edges.port(limit, o[2], o[3], s.p_s, pt, port_b);
-        if ports.is_none() {
-            (s.q_a, s.q_b) = (qa, qb);
-            let (ch_a, ch_b) = (
-                Self::chamber(c, bulk, s, leaks, false),
-                Self::chamber(c, bulk, s, leaks, true),
-            );
-            s.p_a = ch_a.advance(qa, dqa, 0.0, h, p_cav);
-            s.p_b = ch_b.advance(qb, dqb, 0.0, h, p_cav);
-        } else if lines.is_implicit() {
-            // Whole chains valve node → chamber, trapezoidal (crate::line); no CBVs here
-            // (configure refuses them), the port bleed is theirs too, so 0.
-            (s.q_a, s.q_b) = (qa, qb);
-            let ends = [
-                Self::chamber(c, bulk, s, leaks, false).end_node(),
-                Self::chamber(c, bulk, s, leaks, true).end_node(),
-            ];
-            (s.p_a, s.p_b) = lines.advance_implicit(h, [qa, qb], [dqa, dqb], ends, p_cav);
-        } else {
-            // Valve-side nodes, exponential Euler in their own pressure, with the neutral
-            // A,B→T bleed of the CBVs (crate::cbv, `port_bleed`).
-            let kb = self.port_bleed;
-            let (qa, dqa) = (qa - kb * (port_a - pt), dqa - kb);
-            let (qb, dqb) = (qb - kb * (port_b - pt), dqb - kb);
-            (s.q_a, s.q_b) = (qa, qb);
-            let ends = lines.advance_nodes(h, [qa, qb], [dqa, dqb], p_cav, [s.p_a, s.p_b]);
-            let (into, dinto, p_end) = cbv_ends(&mut self.cbv, h, ends, [s.p_a, s.p_b], p_cav);
-            let (ch_a, ch_b) = (
-                Self::chamber(c, bulk, s, leaks, false),
-                Self::chamber(c, bulk, s, leaks, true),
-            );
-            s.p_a = ch_a.advance(into[0], 0.0, dinto[0], h, p_cav);
-            s.p_b = ch_b.advance(into[1], 0.0, dinto[1], h, p_cav);
-            let has = [self.cbv[0].is_some(), self.cbv[1].is_some()];
-            let p_a_end = if has[0] { p_end[0] } else { s.p_a };
-            let p_b_end = if has[1] { p_end[1] } else { s.p_b };
-            lines.advance_flows(h, [p_a_end, p_b_end]);
+        let ports = lines.port_pressures();
+        match ports {
+            None => {
+                let (qa, dqa, qsa) = self.edges.port(limit, o[0], o[1], s.p_s, pt, s.p_a);
+                let (qb, dqb, qsb) = self.edges.port(limit, o[2], o[3], s.p_s, pt, s.p_b);
+                (s.q_a, s.q_b) = (qa, qb);
+                let (ch_a, ch_b) = (
+                    Self::chamber(c, bulk, s, leaks, false),
+                    Self::chamber(c, bulk, s, leaks, true),
+                );
+                s.p_a = ch_a.advance(qa, dqa, 0.0, h, p_cav);
+                s.p_b = ch_b.advance(qb, dqb, 0.0, h, p_cav);
+                (qsa, qsb)
+            }
+            Some((port_a, port_b)) if lines.is_implicit() => {
+                // Whole chains valve node → chamber, trapezoidal (crate::line); no CBVs here
+                // (configure refuses them), the port bleed is theirs too, so 0.
+                let (qa, dqa, qsa) = self.edges.port(limit, o[0], o[1], s.p_s, pt, port_a);
+                let (qb, dqb, qsb) = self.edges.port(limit, o[2], o[3], s.p_s, pt, port_b);
+                (s.q_a, s.q_b) = (qa, qb);
+                let ends = [
+                    Self::chamber(c, bulk, s, leaks, false).end_node(),
+                    Self::chamber(c, bulk, s, leaks, true).end_node(),
+                ];
+                (s.p_a, s.p_b) = lines.advance_implicit(h, [qa, qb], [dqa, dqb], ends, p_cav);
+                (qsa, qsb)
+            }
+            Some((port_a, port_b)) => {
+                // Valve-side nodes, exponential Euler in their own pressure, with the neutral
+                // A,B→T bleed of the CBVs (crate::cbv, `port_bleed`).
+                let (qa, dqa, qsa) = self.edges.port(limit, o[0], o[1], s.p_s, pt, port_a);
+                let (qb, dqb, qsb) = self.edges.port(limit, o[2], o[3], s.p_s, pt, port_b);
+                let kb = self.port_bleed;
+                let (qa, dqa) = (qa - kb * (port_a - pt), dqa - kb);
+                let (qb, dqb) = (qb - kb * (port_b - pt), dqb - kb);
+                (s.q_a, s.q_b) = (qa, qb);
+                let ends = lines.advance_nodes(h, [qa, qb], [dqa, dqb], p_cav, [s.p_a, s.p_b]);
+                let (into, dinto, p_end) = cbv_ends(&mut self.cbv, h, ends, [s.p_a, s.p_b], p_cav);
+                let (ch_a, ch_b) = (
+                    Self::chamber(c, bulk, s, leaks, false),
+                    Self::chamber(c, bulk, s, leaks, true),
+                );
+                s.p_a = ch_a.advance(into[0], 0.0, dinto[0], h, p_cav);
+                s.p_b = ch_b.advance(into[1], 0.0, dinto[1], h, p_cav);
+                let has = [self.cbv[0].is_some(), self.cbv[1].is_some()];
+                let p_a_end = if has[0] { p_end[0] } else { s.p_a };
+                let p_b_end = if has[1] { p_end[1] } else { s.p_b };
+                lines.advance_flows(h, [p_a_end, p_b_end]);
+                (qsa, qsb)
+            }
         }
-        (qsa, qsb)
     }
 
     /// Rod force (N) at the current state, as the load cell sees it: load spring, mount (or
@@ -1206,6 +1221,7 @@ impl Plant {
             .rod_force(s.x, s.v, s.x_load, s.v_load, s.external, spring)
             + self
                 .poly
+                .as_ref()
                 .map_or(0.0, |f| f.rod_force(s.x, s.v, s.p_a, s.p_b, self.dahl_z));
     }
 }
@@ -1271,6 +1287,7 @@ fn cbv_ends(
 /// segment modes and the line end against the chamber are no stability limit and the
 /// lumping's high modes are numerical, not physical: the line contributes its half-wave mode
 /// π/T ([`crate::line::Line::omega_wave`]) only.
+#[inline]
 fn fastest_mode(c: &Consts, lines: &Lines, cbv: &[Option<Cbv>; 2], va: f64, vb: f64) -> f64 {
     let mut k_total =
         c.beta_max * (c.a_a * c.a_a / va + c.a_b * c.a_b / vb) + c.k_load + c.k_bristle;

@@ -302,6 +302,16 @@ pub trait FlowStage: Component {
     /// ∂(flow out of A)/∂p_a and ∂(flow out of B)/∂p_b (m³/(s·Pa)), constant for a laminar
     /// leakage: what the chamber step takes implicitly; (0, 0) without the effect.
     fn conductances(&self) -> (f64, f64);
+
+    /// [`FlowStage::flows`] at `p_a`, `p_b` (Pa) and [`FlowStage::conductances`]: the one
+    /// call of the chamber step, which takes both or neither. Called apart, the step could
+    /// take the conductances without the flows, and the stage would still change the
+    /// chambers' step (through their linearisation): the registry test would not see the
+    /// flows missing. Real-time safe.
+    #[inline]
+    fn linearised(&self, p_a: f64, p_b: f64) -> ((f64, f64), (f64, f64)) {
+        (self.flows(p_a, p_b), self.conductances())
+    }
 }
 
 /// A component that sets the effective bulk modulus β(p) of the oil in a chamber

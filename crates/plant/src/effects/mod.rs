@@ -34,9 +34,9 @@
 //! `openings` (the lap stage's `travel`, the limit stage's `clip_travel`, the lap stage's
 //! `lap`) and in its `port` flows the limit stage's `clip_flow`; reads
 //! `bulk_modulus_pressure`'s `bulk_modulus` (through `Plant::bulk_modulus`) and the two
-//! leakages' `flows` and `conductances` into the chambers' balances (crates/plant/src/
-//! chambers.rs, written once); `Plant::advance_chambers` reads `line_dynamics`'
-//! `port_pressures` (the pressures the valve ports see) and couples the ports to the
+//! leakages' `flows` and `conductances` (one call, `linearised`) into the chambers'
+//! balances (crates/plant/src/chambers.rs, written once); `Plant::advance_chambers` reads
+//! `line_dynamics`' `port_pressures` (the pressures the valve ports see) and couples the ports to the
 //! chambers in one of three ways: directly, through the lines' `advance_implicit`
 //! (`integration.line_method = "implicit"`) or, symplectic, their `advance_nodes` before the
 //! counterbalance valves (crates/plant/src/cbv.rs, which the plant keeps: they sit between
@@ -520,31 +520,51 @@ mod tests {
     use crate::params::PlantParams;
     use crate::Plant;
 
-    /// An enabled section of effect `id` that acts on the registry test's rig
+    /// Enabled sections of effect `id` that act on the registry test's rig
     /// ([`registry_rig`]) within its first 0.3 s, with values of the shipped configs'
-    /// order (configs/*.toml). Exhaustive: a new effect does not build without its line.
-    fn acting_section(id: EffectId) -> &'static str {
+    /// order (configs/*.toml): one per variant that the plant reaches by a call of its own
+    /// (`valve_deadband`'s amplifier on the spool target, its overlap on the edges;
+    /// `valve_saturation`'s travel limit on the openings, its flow limit on each edge's flow;
+    /// `flexible_mount` on the load side and under the cylinder body). Exhaustive: a new
+    /// effect does not build without its line.
+    fn acting_sections(id: EffectId) -> &'static [&'static str] {
         match id {
             EffectId::Friction => {
-                "static_force = 300.0\ncoulomb_force = 200.0\nstribeck_velocity = 0.005"
+                &["static_force = 300.0\ncoulomb_force = 200.0\nstribeck_velocity = 0.005"]
             }
-            EffectId::ValveDeadband => "overlap = 0.1",
-            EffectId::ValveSaturation => "spool_limit = 0.2",
-            EffectId::ValveDynamics => "order = 1\ntime_constant = 0.01",
-            EffectId::InternalLeakage => "coefficient = 1.0e-11",
-            EffectId::ExternalLeakage => "coefficient = 1.0e-11",
-            EffectId::BulkModulusPressure => "slope = 7.0\nmax = 2.0e9",
+            EffectId::ValveDeadband => {
+                &["overlap = 0.1", "variant = \"amplifier\"\ndeadzone = 0.1"]
+            }
+            EffectId::ValveSaturation => &["spool_limit = 0.2", "max_flow = 1.0e-4"],
+            EffectId::ValveDynamics => &["order = 1\ntime_constant = 0.01"],
+            EffectId::InternalLeakage => &["coefficient = 1.0e-11"],
+            EffectId::ExternalLeakage => &["coefficient = 1.0e-11"],
+            EffectId::BulkModulusPressure => &["slope = 7.0\nmax = 2.0e9"],
             EffectId::LineDynamics => {
-                "length = 2.5\ndiameter = 0.0127\nsegments = 8\nbulk_modulus = 1.0e9"
+                &["length = 2.5\ndiameter = 0.0127\nsegments = 8\nbulk_modulus = 1.0e9"]
             }
-            EffectId::FlexibleMount => "load_mass = 250.0\nstiffness = 5.0e4\ndamping = 1.5e4",
-            EffectId::TimeDelay => "delay = 0.005",
+            EffectId::FlexibleMount => &[
+                "load_mass = 250.0\nstiffness = 5.0e4\ndamping = 1.5e4",
+                "variant = \"piston_side\"\nload_mass = 250.0\nstiffness = 5.0e4\ndamping = 1.5e4",
+            ],
+            EffectId::TimeDelay => &["delay = 0.005"],
             EffectId::SensorTone => {
-                "channel = \"force\"\nfrequencies = [225.0]\namplitudes = [2.0]"
+                &["channel = \"force\"\nfrequencies = [225.0]\namplitudes = [2.0]"]
             }
-            EffectId::SupplyPressureDrop => "resistance = 3.75e10\ntime_constant = 0.02",
+            EffectId::SupplyPressureDrop => &["resistance = 3.75e10\ntime_constant = 0.02"],
         }
     }
+
+    /// The integration sections the registry test runs every effect under: the default
+    /// exponential-Euler substep (`Plant::advance_substep` in crates/plant/src/model.rs),
+    /// `linear_exact` (`Plant::advance_substep_linear`; an effect it cannot hold switches
+    /// the plant back to exponential Euler, `Plant::method`) and the implicit line chains
+    /// (`integration.line_method`, the lines' `advance_implicit`).
+    const INTEGRATIONS: [&str; 3] = [
+        "",
+        "[integration]\nmethod = \"linear_exact\"",
+        "[integration]\nline_method = \"implicit\"",
+    ];
 
     /// The registry test's rig: a `kq` valve, a differential cylinder mid-stroke on a load
     /// spring, with the lines `extra` appended (an effect's section).
@@ -579,17 +599,28 @@ mod tests {
         toml::from_str(&toml).unwrap_or_else(|e| panic!("registry rig with {extra:?}: {e}"))
     }
 
-    /// The measurements of 300 periods of 1 ms under a ±3 V, 5 Hz sine command.
-    fn registry_run(p: &PlantParams) -> Vec<[f64; 5]> {
+    /// The measurements (force, position, p_a, p_b, spool) of 300 periods of 1 ms under a
+    /// ±3 V, 5 Hz sine command, and the load's states x_L, v_L (`flexible_mount`; the
+    /// piston's without a mount).
+    fn registry_run(p: &PlantParams) -> Vec<[f64; 7]> {
         let mut plant = Plant::configure(p, 1e-3).expect("the registry rig configures");
         (0..300)
             .map(|k| {
                 let u = 3.0 * (2.0 * std::f64::consts::PI * 5.0 * k as f64 * 1e-3).sin();
                 plant.step(u).expect("the registry rig steps");
                 let m = plant.measure();
-                [m.force, m.position, m.p_a, m.p_b, m.spool]
+                let s = plant.state();
+                [
+                    m.force, m.position, m.p_a, m.p_b, m.spool, s.x_load, s.v_load,
+                ]
             })
             .collect()
+    }
+
+    /// Whether every column of `run` moves: a stage the plant calls only in part (the
+    /// spool's or the load's state never advanced) leaves its state where it started.
+    fn all_move(run: &[[f64; 7]]) -> bool {
+        (0..7).all(|c| run.iter().any(|m| m[c] != run[0][c]))
     }
 
     /// Every catalogue effect is one registered component (`components!`) and the plant's
@@ -606,33 +637,61 @@ mod tests {
             registered, ids,
             "components! and EffectId::ALL list the same effects"
         );
-        let base = registry_run(&registry_rig(""));
-        for id in EffectId::ALL {
-            let section = format!("[effects.{id}]\n{}", acting_section(id));
-            let p = registry_rig(&section);
-            assert!(p.effects.is_enabled(id), "{id}: the section enables it");
-            let run = registry_run(&p);
-            // Largest change of any channel relative to its range over the base run.
-            let change = (0..5)
-                .map(|c| {
-                    let (lo, hi) = base
-                        .iter()
-                        .fold((f64::INFINITY, f64::NEG_INFINITY), |a, m| {
-                            (a.0.min(m[c]), a.1.max(m[c]))
-                        });
-                    let d = base
-                        .iter()
-                        .zip(&run)
-                        .map(|(a, b)| (a[c] - b[c]).abs())
-                        .fold(0.0, f64::max);
-                    d / (hi - lo).max(1e-12)
-                })
-                .fold(0.0, f64::max);
-            assert!(
-                change > 1e-3,
-                "effect `{id}` is configured but changes no measurement (largest relative change {change:e}): is its stage called in crates/plant/src/model.rs?"
+        for integration in INTEGRATIONS {
+            let rig = registry_rig(integration);
+            // The base rig runs the scheme the section asks for.
+            let linear = Plant::configure(&rig, 1e-3)
+                .expect("the registry rig configures")
+                .method()
+                == crate::params::IntegrationMethod::LinearExact;
+            assert_eq!(
+                linear,
+                integration.contains("linear_exact"),
+                "{integration:?}"
             );
+            let base = registry_run(&rig);
+            assert!(
+                all_move(&base),
+                "{integration:?}: a state of the base rig stands still"
+            );
+            for id in EffectId::ALL {
+                for acting in acting_sections(id) {
+                    let section = format!("{integration}\n[effects.{id}]\n{acting}");
+                    let p = registry_rig(&section);
+                    assert!(p.effects.is_enabled(id), "{id}: the section enables it");
+                    let run = registry_run(&p);
+                    let change = largest_change(&base, &run);
+                    assert!(
+                        change > 1e-3,
+                        "effect `{id}` ({acting:?}, {integration:?}) is configured but changes no measurement (largest relative change {change:e}): is its stage called in crates/plant/src/model.rs?"
+                    );
+                    assert!(
+                        all_move(&run),
+                        "effect `{id}` ({acting:?}, {integration:?}): a measured channel or the load's state stands still: is each of its stage's calls made in crates/plant/src/model.rs?"
+                    );
+                }
+            }
         }
+    }
+
+    /// The largest change of any measured channel of `run` from `base` (the first five
+    /// columns), relative to the channel's range over `base`.
+    fn largest_change(base: &[[f64; 7]], run: &[[f64; 7]]) -> f64 {
+        (0..5)
+            .map(|c| {
+                let (lo, hi) = base
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |a, m| {
+                        (a.0.min(m[c]), a.1.max(m[c]))
+                    });
+                let d = base
+                    .iter()
+                    .zip(run)
+                    .map(|(a, b)| (a[c] - b[c]).abs())
+                    .fold(0.0, f64::max);
+                d / (hi - lo).max(1e-12)
+            })
+            .fold(0.0, f64::max)
     }
 
     /// The rig of the two tests below: a closed critical-centre valve (no opening at zero
