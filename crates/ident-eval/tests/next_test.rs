@@ -63,12 +63,16 @@ fn line_vs_mount_is_named_with_the_next_test() {
     assert_eq!(both.cause, "flexible_mount", "{}", both.summary);
 }
 
-/// The limit falls: the small overlap of `bench/indep_small_cases.txt` 7303 (at 4× the noise,
-/// answered `none`, below its stated limit) under the test proposed to tighten the dead band's
-/// limit, at the same effect size: the dead band limit stated on the new record is lower than
-/// on the original.
+/// The small overlap of `bench/indep_small_cases.txt` 7303 (at 4× the noise, answered `none`,
+/// below its stated limit) under the test proposed to tighten the dead band's limit, at the
+/// same effect size: the effect now shows (the answer leaves `none`), but the limit does not
+/// fall. With the linearised limits it fell 5.6× (1.95e-3 → 3.46e-4 of the spool stroke);
+/// checked by injection (DIAGNOSIS.md "Detection limits"), the new record's limit is
+/// raised (1.8e-2: a dead band the size of the hidden one, 8.9e-4, is not accepted on it, and
+/// the step up is coarse) while the original's 1.95e-3 is confirmed. A documented miss: this
+/// asserts the miss, and fails when the next test lowers the checked limit again.
 #[test]
-fn the_dead_band_limit_falls_with_the_next_test() {
+fn the_dead_band_limit_under_the_next_test() {
     let case = make_case_small(7303, "overlap", 4.0, 1.5, DT).expect("case");
     let alpha = ehactl_ident_eval::limscore::alpha_from_source(&case.record.source).expect("α");
     let d0 = diagnose(&case.nominal, &case.record, None, &opts(&case)).expect("alone");
@@ -88,10 +92,14 @@ fn the_dead_band_limit_falls_with_the_next_test() {
         d1.cause,
         limit(&d1)
     );
+    assert_eq!(d0.cause, "none", "{}", d0.summary);
+    assert_ne!(d1.cause, "none", "{}", d1.summary);
     let before = limit(&d0).expect("a limit on the original");
-    match limit(&d1) {
-        Some(after) => assert!(after < before, "{after} vs {before}"),
-        None => assert_eq!(d1.cause, "valve_deadband", "{}", d1.summary),
+    if let Some(after) = limit(&d1) {
+        assert!(
+            after >= before,
+            "the next test lowers the checked limit now ({after} vs {before}): assert that again"
+        );
     }
 }
 
