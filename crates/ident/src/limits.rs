@@ -129,6 +129,12 @@ pub(crate) struct Reference<'c, 'a> {
     sens: Vec<Vec<f64>>,
 }
 
+/// Whether `p` is one of a model's nominal parameters (refit by the refit phase), not an
+/// effect's or the grey-box law's.
+pub(crate) fn is_nominal(p: &crate::freeparam::FreeParam) -> bool {
+    !p.name.starts_with("effects.")
+}
+
 /// The held-out replay of `h` over the held-out range, per channel.
 fn held_out(ctx: &Ctx<'_>, h: &Hyp) -> Vec<Vec<f64>> {
     let (_, sim) = ctx.val_errors(h);
@@ -159,7 +165,7 @@ impl<'c, 'a> Reference<'c, 'a> {
         };
         for i in 0..model.params.len() {
             let p = &model.params[i];
-            if p.name.starts_with("effects.") || p.hi <= p.lo {
+            if !is_nominal(p) || p.hi <= p.lo {
                 continue;
             }
             let u = p.to_unit(model.values[i]);

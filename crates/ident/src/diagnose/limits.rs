@@ -80,44 +80,27 @@ fn confirm_all(
     let jobs: Vec<(String, DetectionLimit, Option<Injection>)> =
         linear.into_iter().map(|(e, (l, i))| (e, l, i)).collect();
     bar.add_stage(jobs.len() as u64, "detection limits".to_string());
-    let threads = if opts.threads == 0 {
-        std::thread::available_parallelism().map_or(2, |n| n.get())
-    } else {
-        opts.threads
-    };
-    let next = AtomicUsize::new(0);
-    let out: Mutex<BTreeMap<String, DetectionLimit>> = Mutex::new(BTreeMap::new());
-    std::thread::scope(|s| {
-        for _ in 0..threads.min(jobs.len()).max(1) {
-            s.spawn(|| loop {
-                let k = next.fetch_add(1, Ordering::SeqCst);
-                let Some((e, l, inj)) = jobs.get(k) else {
-                    break;
-                };
-                let l = match inj {
-                    Some(inj) if l.limit.is_some() => {
-                        let fitted = fitted_values(inj, candidates.get(&inj.effect));
-                        let base = match &fitted {
-                            Some(v) => inj.with_values(model, v, None),
-                            None => model.clone(),
-                        };
-                        let at = |v: f64| match &fitted {
-                            Some(f) => inj.with_values(model, f, Some(v)),
-                            None => inj.added_to(model, v),
-                        };
-                        let trial = Trial { base: &base, at: &at };
-                        confirm(env, model, &trial, l.clone(), inj, opts.evals_per_param)
-                    }
-                    _ => l.clone(),
-                };
-                if let Ok(mut m) = out.lock() {
-                    m.insert(e.clone(), l);
-                }
-                bar.inc();
-            });
+    let order: Vec<usize> = (0..jobs.len()).collect();
+    let checked = in_parallel(&jobs, &order, worker_threads(opts), bar, |(_, l, inj)| match inj {
+        Some(inj) if l.limit.is_some() => {
+            let fitted = fitted_values(inj, candidates.get(&inj.effect));
+            let base = match &fitted {
+                Some(v) => inj.with_values(model, v, None),
+                None => model.clone(),
+            };
+            let at = |v: f64| match &fitted {
+                Some(f) => inj.with_values(model, f, Some(v)),
+                None => inj.added_to(model, v),
+            };
+            let trial = Trial { base: &base, at: &at };
+            confirm(env, model, &trial, l.clone(), inj, opts.evals_per_param)
         }
+        _ => l.clone(),
     });
-    out.into_inner().unwrap_or_default()
+    checked
+        .into_iter()
+        .map(|(i, l)| (jobs[i].0.clone(), l))
+        .collect()
 }
 
 /// What an injection at a trial size adds to the record: the change from `base`'s replay
@@ -289,7 +272,7 @@ fn nominal_part(h: &Hyp) -> Hyp {
         .params
         .iter()
         .zip(&h.values)
-        .filter(|(p, _)| !p.name.starts_with("effects."))
+        .filter(|(p, _)| crate::limits::is_nominal(p))
         .map(|(p, v)| (p.clone(), *v))
         .unzip();
     Hyp {

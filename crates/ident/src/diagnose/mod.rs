@@ -307,6 +307,48 @@ impl Inputs<'_> {
     }
 }
 
+/// Worker threads of a parallel stage: `Options::threads`, 0 meaning the available cores.
+fn worker_threads(opts: &Options) -> usize {
+    if opts.threads == 0 {
+        std::thread::available_parallelism().map_or(2, |n| n.get())
+    } else {
+        opts.threads
+    }
+}
+
+/// `f` of every job of `jobs` on `threads` workers, which take the jobs in the order `order`
+/// (job indices, e.g. the longest first, so that no worker is left with a long job while the
+/// other idles); `bar` advances once per job. Results are keyed by job index and returned in
+/// job order, so the order of execution does not change them.
+fn in_parallel<J: Sync, R: Send>(
+    jobs: &[J],
+    order: &[usize],
+    threads: usize,
+    bar: &Tracker,
+    f: impl Fn(&J) -> R + Sync,
+) -> Vec<(usize, R)> {
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<(usize, R)>> = Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..threads.min(jobs.len()).max(1) {
+            s.spawn(|| loop {
+                let k = next.fetch_add(1, Ordering::SeqCst);
+                let Some(&i) = order.get(k) else {
+                    break;
+                };
+                let r = f(&jobs[i]);
+                if let Ok(mut out) = results.lock() {
+                    out.push((i, r));
+                }
+                bar.inc();
+            });
+        }
+    });
+    let mut results = results.into_inner().unwrap_or_default();
+    results.sort_by_key(|r| r.0);
+    results
+}
+
 /// One phase of the diagnosis (ARCHITECTURE.md "The diagnosis as phases"): a type that reads
 /// the inputs and the earlier phases' results by shared reference and returns its own.
 pub(crate) trait Phase<'a>: Sized {

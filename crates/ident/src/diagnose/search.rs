@@ -63,11 +63,7 @@ fn phase_candidates(
     bar: &Tracker,
 ) -> SearchPhase {
     let env = SearchEnv { nom, ctx, rf };
-    let threads = if opts.threads == 0 {
-        std::thread::available_parallelism().map_or(2, |n| n.get())
-    } else {
-        opts.threads
-    };
+    let threads = worker_threads(opts);
     let mut s = Search {
         found: SearchPhase::at_refit(rf),
         cur_err: rf.refit_err.clone(),
@@ -279,9 +275,7 @@ pub(super) fn phase_variants(
     bar: &Tracker,
 ) -> BTreeMap<EffectId, Vec<VariantFit>> {
     // Longest job first (the fit's evaluation budget grows with the free parameters, and
-    // line and mount models replay more states), so that no worker is left with a long fit
-    // while the other idles at the end of the round. Results are keyed by job index, so the
-    // order of execution does not change them.
+    // line and mount models replay more states).
     let weight = |j: &(EffectId, &'static str, Option<Hyp>)| {
         let heavy = matches!(j.0, EffectId::LineDynamics | EffectId::FlexibleMount);
         j.2.as_ref()
@@ -289,31 +283,14 @@ pub(super) fn phase_variants(
     };
     let mut order: Vec<usize> = (0..jobs.len()).collect();
     order.sort_by_key(|&i| std::cmp::Reverse(weight(&jobs[i])));
-    let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<(usize, VariantFit)>> = Mutex::new(Vec::new());
-    std::thread::scope(|s| {
-        for _ in 0..threads.min(jobs.len()).max(1) {
-            s.spawn(|| loop {
-                let k = next.fetch_add(1, Ordering::SeqCst);
-                if k >= jobs.len() {
-                    break;
-                }
-                let i = order[k];
-                let (_, v, h) = &jobs[i];
-                let r = h.clone().map(|h| {
-                    let (h, c) = ctx.fit(h, first_new, evals_per_param);
-                    let (err, _) = ctx.val_errors(&h);
-                    (h, c, err)
-                });
-                if let Ok(mut out) = results.lock() {
-                    out.push((i, (*v, r)));
-                }
-                bar.inc();
-            });
-        }
+    let results = in_parallel(jobs, &order, threads, bar, |(_, v, h)| {
+        let r = h.clone().map(|h| {
+            let (h, c) = ctx.fit(h, first_new, evals_per_param);
+            let (err, _) = ctx.val_errors(&h);
+            (h, c, err)
+        });
+        (*v, r)
     });
-    let mut results = results.into_inner().unwrap_or_default();
-    results.sort_by_key(|r| r.0);
     let mut by_effect: BTreeMap<EffectId, Vec<VariantFit>> = BTreeMap::new();
     for (i, r) in results {
         by_effect.entry(jobs[i].0).or_default().push(r);
