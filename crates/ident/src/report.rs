@@ -545,10 +545,10 @@ fn write_detection_limits(r: &mut String, d: &Diagnosis) {
                 None => l.note.clone(),
             },
             l.unit,
-            if l.variant.is_empty() {
-                "-"
-            } else {
-                &l.variant
+            match (l.variant.as_str(), l.shape.as_str()) {
+                ("", _) => "-".to_string(),
+                (v, "") => v.to_string(),
+                (v, shape) => format!("{v}, {shape}"),
             },
             if l.method.is_empty() { "-" } else { &l.method },
             if l.range[0].is_finite() {

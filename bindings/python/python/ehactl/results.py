@@ -838,8 +838,9 @@ class DiagnosisResult(_DictCompat):
         detection_limits: For every catalogue effect tested and not named, the smallest size
             this record would have revealed (effect id → ``parameter``, ``unit``, ``stronger``,
             ``limit`` or None, ``range``, ``note``, ``looseness``, ``variant``: the structure
-            hardest to see that the limit holds for, ``method``: ``linearised``, ``injected``
-            or ``raised by injection``).
+            hardest to see that the limit holds for, ``shape`` where it is not the
+            catalogue's start values (a mount's mass, one shape parameter moved), ``method``:
+            ``linearised``, ``injected`` or ``raised by injection``).
         next_tests: The tests that would tighten the loose limits and separate the
             ambiguities (``purpose``, ``effects``, ``excitation``, ``why``, ``file``, ``setpoint``:
             a ``[setpoint]`` section for ``ehactl run``, ``duration`` in s).
