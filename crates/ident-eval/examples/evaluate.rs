@@ -13,6 +13,9 @@
 //! `DEBUG=1` prints every candidate and the final residual test per channel (level, Ljung–Box
 //! Q) to stderr. The case index picks effect and level, so `0 0 0 5112 OUT.md 0 3` runs the
 //! full run's 36 small cases alone and `0 20 0 5072 OUT.md 0 0` its 20 clean cases.
+//! `ONLY=S1,S2` runs those seeds alone. `PHYSICAL=1` makes the small cases physical effects at the blend's α
+//! (`synth::make_case_small_physical`), to check the detection limits on effects of a known
+//! size.
 use ehactl_ident::{diagnose, Options};
 use ehactl_ident_eval::synth::{make_case, make_case_small, make_case_variant, VARIANT_CASES};
 use ehactl_plant::EffectId;
@@ -34,6 +37,7 @@ fn main() {
         with_offsets: env_on("OFFSETS"),
         estimate_offsets: env_on("SENSOR_OFFSETS"),
         debug: env_on("DEBUG"),
+        physical: env_on("PHYSICAL"),
     };
     let plan = Plan::new([per_effect, clean, pairs, per_variant, per_small], first);
     let bar = indicatif::ProgressBar::new(plan.cases.len() as u64);
@@ -45,8 +49,15 @@ fn main() {
         .progress_chars("=> "),
     );
     let mut tally = Tally::default();
+    // `ONLY=5121,5133`: those seeds alone (the plan, and so each seed's case, unchanged).
+    let only: Vec<u64> = std::env::var("ONLY")
+        .map(|v| v.split(',').filter_map(|s| s.trim().parse().ok()).collect())
+        .unwrap_or_default();
     for i in 0..plan.cases.len() {
-        run_case(&plan, i, first + i as u64, &settings, &bar, &mut tally);
+        let seed = first + i as u64;
+        if only.is_empty() || only.contains(&seed) {
+            run_case(&plan, i, seed, &settings, &bar, &mut tally);
+        }
         bar.inc(1);
     }
     bar.finish();
@@ -80,6 +91,9 @@ struct Settings {
     estimate_offsets: bool,
     /// `DEBUG=1`: every candidate and the final residual test to stderr.
     debug: bool,
+    /// `PHYSICAL=1`: small cases with their effect physically at the blend's α
+    /// (`synth::make_case_small_physical`).
+    physical: bool,
 }
 
 /// The cases in order: their hidden effects, the structural variant of a variant case and
@@ -150,6 +164,9 @@ fn run_case(
 ) {
     let hidden = &plan.cases[i];
     let (mut case, alpha) = match (plan.variant_of[i], plan.level_of[i]) {
+        (_, Some(l)) if settings.physical => {
+            ehactl_ident_eval::synth::make_case_small_physical(seed, hidden[0], l, 2.0)
+        }
         (_, Some(l)) => make_case_small(seed, hidden[0], l, 2.0),
         (Some(v), None) => (make_case_variant(seed, hidden[0], v, 2.0), 1.0),
         (None, None) => (make_case(seed, hidden, 2.0), 1.0),
@@ -192,8 +209,14 @@ fn run_case(
     if settings.debug {
         for c in &d.candidates {
             eprintln!(
-                "  {} [{}] {:.4} {}",
-                c.effect, c.variant, c.nrmse_validation, c.evidence
+                "  {} [{}] {:.4} {:?} {}",
+                c.effect, c.variant, c.nrmse_validation, c.params, c.evidence
+            );
+        }
+        for (e, l) in &d.detection_limits {
+            eprintln!(
+                "  limit {e} [{}] {:?} {} ({}; {}) {}",
+                l.variant, l.limit, l.unit, l.method, l.shape, l.note
             );
         }
         eprintln!("  residual {:?}", d.residual_test.channels);

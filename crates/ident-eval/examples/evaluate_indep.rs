@@ -4,7 +4,8 @@
 //! per case to OUT.md.cases as it goes (so a partial run is reportable) and writes the summary
 //! (top-cause accuracy, variant agreement, `none` / `unexplained` rates, gains, confusion
 //! matrix) to OUT.md. Kinds with a level suffix (`lines@3`: the effect at a small magnitude,
-//! `indep::make_case_small`) are scored apart, with their false `none`. "Above noise" for the false-`none` count: the refit nominal model's
+//! `indep::make_case_small`) are scored apart, with their false `none`; `PHYSICAL=1` makes
+//! them physical effects at the blend's α (`indep::make_case_small_physical`). "Above noise" for the false-`none` count: the refit nominal model's
 //! held-out residual fails the residual test (level or whiteness) on some channel.
 use ehactl_ident::{diagnose, Options};
 use ehactl_ident_eval::indep::{expected, make_case, parse_cases};
@@ -69,7 +70,23 @@ fn main() {
 /// Case `kind` of `seed` generated and diagnosed: its line for the log (`None` with
 /// `GEN_ONLY=1`, which prints the generated channels instead).
 fn run_case(seed: u64, kind: &str, duration: f64, opts: &Options) -> Option<String> {
-    let case = match make_case(seed, kind, duration, 1e-3) {
+    // `PHYSICAL=1`: a small case (`kind@L`) with its effects physically at the blend's α
+    // (`indep::make_case_small_physical`), to check the limits on effects of a known size.
+    let physical = std::env::var("PHYSICAL").is_ok_and(|v| v == "1");
+    let made = match kind.split_once('@') {
+        Some((base, level)) if physical => level
+            .parse()
+            .map_err(|_| format!("`{kind}`: the level after `@` is not a number"))
+            .and_then(|l| {
+                ehactl_ident_eval::indep::make_case_small_physical(seed, base, l, duration, 1e-3)
+            })
+            .map(|mut c| {
+                c.kind = kind.to_string();
+                c
+            }),
+        _ => make_case(seed, kind, duration, 1e-3),
+    };
+    let case = match made {
         Ok(c) => c,
         Err(e) => {
             return Some(format!(
@@ -189,6 +206,12 @@ fn print_debug(d: &ehactl_ident::Diagnosis) {
     println!("  residual {:?}", d.residual_test.channels);
     for a in &d.ambiguities {
         println!("  ambiguity: {a}");
+    }
+    for (e, l) in &d.detection_limits {
+        println!(
+            "  limit {e} [{}; {}] {:?} {} ({}; looseness {:.3}) {}",
+            l.variant, l.shape, l.limit, l.unit, l.method, l.looseness, l.note
+        );
     }
 }
 

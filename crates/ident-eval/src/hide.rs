@@ -42,6 +42,97 @@ pub fn hide_variant(e: EffectId, variant: &str, p: &mut PlantParams, rng: &mut R
     }
 }
 
+/// Effect `e` of `p` (switched on) at α of its strength, physically (`alpha` in (0, 1]):
+/// friction forces and bristle coefficients, dead bands and their offset, leak coefficients,
+/// β slope and air fraction, line length and resistance, delay, tone amplitudes and supply
+/// resistance × α; a spool limit's reach beyond it (1 − L) × α; a spool's time scale × α; a
+/// mount's stiffness ÷ α at the same damping ratio; a pump's flow limit ÷ α. These are the
+/// sizes `crate::limscore` scales the same way, so a detection limit can be checked on a
+/// physical effect of known size rather than on a blend of records
+/// (`crate::synth::small_effect`), which no smaller effect produces for a mode or a dead band.
+pub fn at_strength(e: EffectId, p: &mut PlantParams, alpha: f64) {
+    let a = alpha;
+    let reach = |l: f64| 1.0 - a * (1.0 - l);
+    let ef = &mut p.effects;
+    match e {
+        EffectId::Friction => {
+            if let Some(f) = ef.friction.as_mut() {
+                f.coulomb_force *= a;
+                f.static_force *= a;
+                f.viscous *= a;
+                f.bristle_stiffness *= a;
+                f.bristle_damping *= a;
+            }
+        }
+        EffectId::ValveDeadband => {
+            if let Some(d) = ef.valve_deadband.as_mut() {
+                d.overlap *= a;
+                d.deadzone *= a;
+                d.zero_offset *= a;
+            }
+        }
+        EffectId::ValveSaturation => {
+            if let Some(s) = ef.valve_saturation.as_mut() {
+                s.spool_limit = reach(s.spool_limit);
+                s.spool_limit_negative = reach(s.spool_limit_negative);
+            }
+        }
+        EffectId::ValveDynamics => {
+            if let Some(v) = ef.valve_dynamics.as_mut() {
+                v.time_constant *= a;
+                v.natural_frequency /= a;
+            }
+        }
+        EffectId::InternalLeakage | EffectId::ExternalLeakage => {
+            let leak = if e == EffectId::InternalLeakage {
+                ef.internal_leakage.as_mut()
+            } else {
+                ef.external_leakage.as_mut()
+            };
+            if let Some(l) = leak {
+                l.coefficient *= a;
+                l.coefficient_b *= a;
+            }
+        }
+        EffectId::BulkModulusPressure => {
+            if let Some(b) = ef.bulk_modulus_pressure.as_mut() {
+                b.slope *= a;
+                b.air_fraction *= a;
+            }
+        }
+        EffectId::LineDynamics => {
+            if let Some(l) = ef.line_dynamics.as_mut() {
+                l.length *= a;
+                l.resistance *= a;
+            }
+        }
+        EffectId::FlexibleMount => {
+            if let Some(m) = ef.flexible_mount.as_mut() {
+                m.stiffness /= a;
+                m.damping /= a.sqrt();
+            }
+        }
+        EffectId::TimeDelay => {
+            if let Some(d) = ef.time_delay.as_mut() {
+                d.delay *= a;
+            }
+        }
+        EffectId::SensorTone => {
+            if let Some(t) = ef.sensor_tone.as_mut() {
+                t.amplitudes.iter_mut().for_each(|v| *v *= a);
+            }
+        }
+        EffectId::SupplyPressureDrop => {
+            if let Some(s) = ef.supply_pressure_drop.as_mut() {
+                s.resistance *= a;
+                if s.max_flow > 0.0 {
+                    s.max_flow /= a;
+                }
+            }
+        }
+    }
+}
+
 /// Stribeck friction: Coulomb force 150–400 N, static 1.1–1.6× Coulomb, Stribeck velocity
 /// 5–20 mm/s (log-uniform).
 fn friction(p: &mut PlantParams, rng: &mut Rng) {

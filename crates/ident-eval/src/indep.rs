@@ -218,6 +218,105 @@ pub enum Hidden {
     PumpLimit { qmax: f64, band: f64, vol: f64 },
 }
 
+impl Hidden {
+    /// The same effect at α of its strength, physically (`alpha` in (0, 1]): every force law
+    /// and leak coefficient, dead band, delay, air fraction, β slope, tone, supply resistance
+    /// and line length × α; a spool limit's reach beyond it (1 − L) × α; a spool's time scale
+    /// × α; a mount's stiffness ÷ α at the same damping ratio; a pump's flow limit ÷ α. The
+    /// catalogue parameters of these sizes are those `limscore` scales the same way, so that
+    /// a detection limit can be checked on a physical effect of known size rather than on a
+    /// blend of records (`make_case_small`), which no effect of a smaller size produces for
+    /// a mode or a friction with stick-slip.
+    pub fn at_strength(&self, alpha: f64) -> Hidden {
+        if alpha == 1.0 {
+            // Bit for bit the drawn effect (1 − 1·(1 − L) is not L in floating point).
+            return self.clone();
+        }
+        let a = alpha;
+        let reach = |l: f64| 1.0 - a * (1.0 - l);
+        match self.clone() {
+            Hidden::LuGre { fc, fs, vs, s0, s1 } => Hidden::LuGre {
+                fc: a * fc,
+                fs: a * fs,
+                vs,
+                s0: a * s0,
+                s1: a * s1,
+            },
+            Hidden::LoadCoulomb { fc, veps } => Hidden::LoadCoulomb { fc: a * fc, veps },
+            Hidden::Dahl { fc, s0 } => Hidden::Dahl {
+                fc: a * fc,
+                s0: a * s0,
+            },
+            Hidden::Hose { len, d, t, e, r } => Hidden::Hose {
+                len: a * len,
+                d,
+                t,
+                e,
+                r: a * r,
+            },
+            Hidden::Overlap { ov, offset } => Hidden::Overlap {
+                ov: a * ov,
+                offset: a * offset,
+            },
+            Hidden::AmpDeadzone { d, offset } => Hidden::AmpDeadzone {
+                d: a * d,
+                offset: a * offset,
+            },
+            Hidden::SoftSaturation { l } => Hidden::SoftSaturation { l: reach(l) },
+            Hidden::AsymSaturation { lp, ln } => Hidden::AsymSaturation {
+                lp: reach(lp),
+                ln: reach(ln),
+            },
+            Hidden::Spool1 { tau } => Hidden::Spool1 { tau: a * tau },
+            Hidden::Spool2 { wn, z } => Hidden::Spool2 { wn: wn / a, z },
+            Hidden::InternalLeak { k } => Hidden::InternalLeak { k: a * k },
+            Hidden::ExternalLeakBoth { k } => Hidden::ExternalLeakBoth { k: a * k },
+            Hidden::ExternalLeakA { k } => Hidden::ExternalLeakA { k: a * k },
+            Hidden::EntrainedAir { alpha0, n } => Hidden::EntrainedAir {
+                alpha0: a * alpha0,
+                n,
+            },
+            Hidden::LinearBeta { slope, max } => Hidden::LinearBeta {
+                slope: a * slope,
+                max,
+            },
+            Hidden::Lines { len, d, nseg } => Hidden::Lines {
+                len: a * len,
+                d,
+                nseg,
+            },
+            Hidden::LoadMount { ml, k, d } => Hidden::LoadMount {
+                ml,
+                k: k / a,
+                d: d / a.sqrt(),
+            },
+            Hidden::BodyMount { mb, k, d } => Hidden::BodyMount {
+                mb,
+                k: k / a,
+                d: d / a.sqrt(),
+            },
+            Hidden::Delay { tau } => Hidden::Delay { tau: a * tau },
+            Hidden::Tone {
+                ch,
+                f,
+                a: amp,
+                phase,
+            } => Hidden::Tone {
+                ch,
+                f,
+                a: a * amp,
+                phase,
+            },
+            Hidden::SupplyResistance { r, tau } => Hidden::SupplyResistance { r: a * r, tau },
+            Hidden::PumpLimit { qmax, band, vol } => Hidden::PumpLimit {
+                qmax: qmax / a,
+                band,
+                vol,
+            },
+        }
+    }
+}
+
 /// Flow of a pressure-compensated pump (m³/s): full displacement until the supply pressure
 /// comes within `band` of the setting, then linearly destroked to zero at `p_set`.
 pub fn pump_flow(qmax: f64, band: f64, p_set: f64, ps: f64) -> f64 {
@@ -1092,6 +1191,42 @@ pub fn make_case_small(
     Ok(Case { record, ..full })
 }
 
+/// The small case `kind@level` of `seed` made physical: its hidden effects at the α that
+/// [`make_case_small`] finds for the blend ([`Hidden::at_strength`]), the same draws
+/// otherwise. The record's source states α as the blend's does, and `hidden` keeps the
+/// full-size effects, so that the blend's scoring (`limscore::small_size`) gives the
+/// physical size.
+pub fn make_case_small_physical(
+    seed: u64,
+    kind: &str,
+    level: f64,
+    duration: f64,
+    dt: f64,
+) -> Result<Case, String> {
+    let blend = make_case_small(seed, kind, level, duration, dt)?;
+    let alpha = crate::limscore::alpha_from_source(&blend.record.source)
+        .ok_or_else(|| format!("seed {seed} {kind}: no α in the blend's source"))?;
+    let mut c = make_case_at_strength(seed, kind, alpha, duration, dt)?;
+    c.record.source = format!(
+        "independent generator seed {seed} ({kind}, its effects physically at α = {alpha:.3e})"
+    );
+    c.hidden = blend.hidden;
+    c.more = blend.more;
+    Ok(c)
+}
+
+/// The case `kind` of `seed` with its hidden effects physically at `strength` of their
+/// drawn size ([`Hidden::at_strength`]), the same draws otherwise.
+pub fn make_case_at_strength(
+    seed: u64,
+    kind: &str,
+    strength: f64,
+    duration: f64,
+    dt: f64,
+) -> Result<Case, String> {
+    generate_with(seed, kind, duration, dt, &|_| true, None, strength)
+}
+
 /// The case `kind` of `seed` (the same draws as [`make_case`]: hidden effects, nominal
 /// errors) driven by the excitation `excitation` instead of its own (the valve command in V
 /// open loop, the force setpoint in N for a `pi_` case), sampled at `dt` (s): how a proposed
@@ -1103,7 +1238,7 @@ pub fn make_case_driven(
     dt: f64,
 ) -> Result<Case, String> {
     let duration = excitation.len() as f64 * dt;
-    generate_with(seed, kind, duration, dt, &|_| true, Some(excitation))
+    generate_with(seed, kind, duration, dt, &|_| true, Some(excitation), 1.0)
 }
 
 /// The small-magnitude case `kind` of `seed` at the fraction `alpha` of its effects (as
@@ -1119,8 +1254,8 @@ pub fn make_case_small_driven(
     dt: f64,
 ) -> Result<Case, String> {
     let duration = excitation.len() as f64 * dt;
-    let full = generate_with(seed, kind, duration, dt, &|_| true, Some(excitation))?;
-    let clean = generate_with(seed, kind, duration, dt, &|_| false, Some(excitation))?;
+    let full = generate_with(seed, kind, duration, dt, &|_| true, Some(excitation), 1.0)?;
+    let clean = generate_with(seed, kind, duration, dt, &|_| false, Some(excitation), 1.0)?;
     let mut record = clean.record.clone();
     for (c, f) in record.channels.iter_mut().zip(&full.record.channels) {
         for (y, yf) in c.values.iter_mut().zip(&f.values) {
@@ -1144,7 +1279,7 @@ fn generate(
     dt: f64,
     keep: &dyn Fn(usize) -> bool,
 ) -> Result<Case, String> {
-    generate_with(seed, kind, duration, dt, keep, None)
+    generate_with(seed, kind, duration, dt, keep, None, 1.0)
 }
 
 /// [`generate`] with the excitation `given` in place of the drawn one (drawn all the same,
@@ -1160,6 +1295,7 @@ fn generate_with(
     dt: f64,
     keep: &dyn Fn(usize) -> bool,
     given: Option<&[f64]>,
+    strength: f64,
 ) -> Result<Case, String> {
     let (closed, effects) = match kind.strip_prefix("pi_") {
         Some(rest) => (true, rest),
@@ -1187,7 +1323,7 @@ fn generate_with(
         .iter()
         .enumerate()
         .filter(|(i, _)| keep(*i))
-        .map(|(_, h)| h.clone())
+        .map(|(_, h)| h.at_strength(strength))
         .collect();
     let sim = &sim[..];
     let model = Model::new(&rig, sim);

@@ -217,8 +217,87 @@ mod tests {
             note: String::new(),
             looseness: 0.5,
             variant: "-".into(),
+            shape: String::new(),
             method: "linearised".into(),
         }
+    }
+
+    /// The sizing parameters a limit can be stated in, with the side that is stronger.
+    const SIZES: [(&str, &str); 10] = [
+        ("effects.friction.coulomb_force", "larger"),
+        ("effects.valve_deadband.overlap", "larger"),
+        ("effects.valve_saturation.spool_limit", "smaller"),
+        ("effects.valve_dynamics.natural_frequency", "smaller"),
+        ("effects.internal_leakage.coefficient", "larger"),
+        ("effects.bulk_modulus_pressure.slope", "larger"),
+        ("effects.line_dynamics.length", "larger"),
+        ("effects.flexible_mount.stiffness", "smaller"),
+        ("effects.time_delay.delay", "larger"),
+        ("effects.supply_pressure_drop.resistance", "larger"),
+    ];
+
+    /// A physical small case (`indep::Hidden::at_strength`) holds the size the blend's
+    /// scoring states for it: on every generator variant and every sizing parameter it has,
+    /// the value at α is [`small_size`] of the full value. So a limit checked on physical
+    /// cases is scored on the size actually simulated.
+    #[test]
+    fn the_independent_generators_physical_size_is_the_scored_size() {
+        let rig = crate::indep::Rig::default();
+        let alpha = 0.137;
+        let mut checked = 0;
+        for kind in crate::indep::KINDS {
+            let mut g = crate::indep::Pcg::new(7);
+            let Some(h) = crate::indep::draw(kind, &rig, &mut g) else {
+                continue;
+            };
+            assert_eq!(h.at_strength(1.0), h, "{kind}");
+            for (p, stronger) in SIZES {
+                let (Some(full), Some(small)) =
+                    (indep_value(&h, p), indep_value(&h.at_strength(alpha), p))
+                else {
+                    continue;
+                };
+                let want = small_size(&limit(p, stronger, 1.0), full, alpha);
+                assert!(
+                    (small - want).abs() <= 1e-12 * want.abs(),
+                    "{kind} {p}: {small} vs {want}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(
+            checked >= 18,
+            "only {checked} variants have a sizing parameter"
+        );
+    }
+
+    /// The same for the own plant's hidden effects (`hide::at_strength`) against
+    /// [`synth_value`].
+    #[test]
+    fn the_own_plants_physical_size_is_the_scored_size() {
+        let alpha = 0.137;
+        let mut checked = 0;
+        for e in ehactl_plant::EffectId::ALL {
+            let mut full = crate::synth::testrig().plant;
+            crate::hide::hide(e, &mut full, &mut crate::rng::Rng::new(11));
+            let mut small = full.clone();
+            crate::hide::at_strength(e, &mut small, alpha);
+            for (p, stronger) in SIZES {
+                let (Some(f), Some(v)) = (synth_value(&full, p), synth_value(&small, p)) else {
+                    continue;
+                };
+                let want = small_size(&limit(p, stronger, 1.0), f, alpha);
+                assert!(
+                    (v - want).abs() <= 1e-9 * want.abs(),
+                    "{e:?} {p}: {v} vs {want}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(
+            checked >= 9,
+            "only {checked} effects have a sizing parameter"
+        );
     }
 
     /// Ratios on the three strength scales, by hand: a delay 2× its limit; a mount half as

@@ -250,6 +250,24 @@ pub fn small_effect(
     Some((rec, alpha))
 }
 
+/// The small case of [`make_case_small`] made physical: the hidden effect at the blend's α
+/// ([`crate::hide::at_strength`]), the same excitation, noise draws and nominal errors.
+/// `truth` keeps the full-size effect and α is returned, so that the blend's scoring
+/// (`crate::limscore::small_size`) gives the physical size.
+pub fn make_case_small_physical(seed: u64, e: EffectId, level: f64, duration: f64) -> (Case, f64) {
+    let (mut case, alpha) = make_case_small(seed, e, level, duration);
+    if alpha > 0.0 {
+        let mut truth = case.truth.clone();
+        crate::hide::at_strength(e, &mut truth, alpha);
+        let source = format!(
+            "synthetic seed {seed}, {} physically at α = {alpha:.3e}",
+            e.as_str()
+        );
+        case.record = simulate(&truth, &case.record.u, 1e-3, &source);
+    }
+    (case, alpha)
+}
+
 /// Sensor noise σ of the test bench's channel `kind` (SI), from `configs/diagnose_testrig.toml`.
 pub fn testrig_noise(kind: ChannelKind) -> f64 {
     let s = &testrig().plant.sensors;
