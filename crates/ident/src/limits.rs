@@ -453,8 +453,8 @@ pub const SHAPE_POSITIONS: [f64; 2] = [0.25, 0.75];
 /// The shapes a structure is injected in for its limit: (words, a load-side mount's mass
 /// share, the start values when moved). At the catalogue's start values first (a load-side
 /// mount at [`MOUNT_LOAD_SHARE`], a mount in that one shape); then every parameter but the
-/// size (`size_at`), a zero offset and a tone's cosine part moved alone to each of
-/// [`SHAPE_POSITIONS`]. The record does
+/// size (`size_at`), a zero offset and a tone's cosine part and frequency moved alone to
+/// each of [`SHAPE_POSITIONS`]. The record does
 /// not say the hidden effect's shape, and a recovery that starts its fit at the very shape
 /// injected finds it more easily than the search finds a hidden effect: on the PI force
 /// rig's LuGre case 7400 made physical at half its size (12.7 N, bristles of 20 µm pre-sliding
@@ -481,7 +481,8 @@ fn shapes(
 }
 
 /// Every parameter of `params` but the size (`size_at`), a zero offset and a tone's cosine
-/// part, moved alone from `neutral` to each of [`SHAPE_POSITIONS`]: (words, start values).
+/// part and frequency, moved alone from `neutral` to each of [`SHAPE_POSITIONS`]: (words,
+/// start values).
 fn moved(
     params: &[crate::freeparam::FreeParam],
     neutral: &[f64],
@@ -489,7 +490,10 @@ fn moved(
 ) -> Vec<(String, Vec<f64>)> {
     let mut out = Vec::new();
     for (j, p) in params.iter().enumerate() {
-        let fixed = p.name.ends_with(".zero_offset") || p.name.contains(".cosine_amplitudes[");
+        // A tone's frequency is the residual line's, not a shape to move.
+        let fixed = p.name.ends_with(".zero_offset")
+            || p.name.contains(".cosine_amplitudes[")
+            || p.name.contains(".frequencies[");
         if j == size_at || fixed || p.hi <= p.lo {
             continue;
         }
@@ -603,7 +607,16 @@ fn limit_of(
     out.shape = inj.shape.clone();
     out.method = "linearised".to_string();
     match s {
-        None => out.note = "not detectable with this record".to_string(),
+        None => {
+            out.note = "not detectable with this record".to_string();
+            // Not detected in any shape, the structure's own is the one to name.
+            let plain = bisected
+                .iter()
+                .any(|(s, i)| s.is_none() && i.variant == inj.variant && i.shape.is_empty());
+            if plain {
+                out.shape = String::new();
+            }
+        }
         Some(s) => {
             out.limit = Some(inj.at(*s));
             out.note = String::new();
