@@ -338,7 +338,7 @@ fn neutral_start(p: &crate::freeparam::FreeParam) -> f64 {
 /// piston keeps the rest, so the total mass is the model's and a stiff mount converges to the
 /// model itself (with the catalogue's start value, a load mass equal to the moving mass added
 /// on top, the injection doubled the mass at any stiffness and the limit pinned at the
-/// stiffest end). One share only, and the mount's damping not moved ([`shapes`]): with shares
+/// stiffest end). One share only, and the mount's damping not moved (`shapes`): with shares
 /// of 0.2, 0.5 and 0.8 and the damping ratio moved, the loosest injection (a load-side mount
 /// with half the mass on the spring) was not recovered by the search's own fit at any
 /// stiffness on the clean generator record 7020, whose rich multisine shows mounts: every
