@@ -1171,6 +1171,11 @@ pub fn make_case_small(
     duration: f64,
     dt: f64,
 ) -> Result<Case, String> {
+    blend(seed, kind, level, duration, dt).map(|(c, _)| c)
+}
+
+/// [`make_case_small`] and its α.
+fn blend(seed: u64, kind: &str, level: f64, duration: f64, dt: f64) -> Result<(Case, f64), String> {
     let full = generate(seed, kind, duration, dt, &|_| true)?;
     let clean = generate(seed, kind, duration, dt, &|_| false)?;
     let rig = if kind.starts_with("pi_") {
@@ -1188,7 +1193,7 @@ pub fn make_case_small(
     record.source = format!(
         "independent generator seed {seed} ({kind} at {level}× the noise, α = {alpha:.3e})"
     );
-    Ok(Case { record, ..full })
+    Ok((Case { record, ..full }, alpha))
 }
 
 /// The small case `kind@level` of `seed` made physical: its hidden effects at the α that
@@ -1203,9 +1208,7 @@ pub fn make_case_small_physical(
     duration: f64,
     dt: f64,
 ) -> Result<Case, String> {
-    let blend = make_case_small(seed, kind, level, duration, dt)?;
-    let alpha = crate::limscore::alpha_from_source(&blend.record.source)
-        .ok_or_else(|| format!("seed {seed} {kind}: no α in the blend's source"))?;
+    let (blend, alpha) = blend(seed, kind, level, duration, dt)?;
     let mut c = make_case_at_strength(seed, kind, alpha, duration, dt)?;
     c.record.source = format!(
         "independent generator seed {seed} ({kind}, its effects physically at α = {alpha:.3e})"
