@@ -49,6 +49,27 @@ pub struct Analysis {
     pub prior: Vec<(EffectId, f64, String)>,
 }
 
+#[cfg(test)]
+impl Analysis {
+    /// A residual analysis that names no evidence: NRMSE 0.1 on one channel, no noise, no
+    /// tone, every ratio 1, a lag of 1 ms and a 30 Hz mode at 2× (the tests' fixture).
+    pub(crate) fn neutral() -> Analysis {
+        Analysis {
+            nrmse: vec![0.1],
+            noise: vec![0.0],
+            reversal_ratio: 1.0,
+            small_command_ratio: 1.0,
+            large_command_ratio: 1.0,
+            bias_share: None,
+            lag: 1e-3,
+            tones: vec![],
+            mode_frequency: 30.0,
+            mode_ratio: 2.0,
+            prior: Vec::new(),
+        }
+    }
+}
+
 impl Analysis {
     /// Evidence of a flow or pressure limit at large commands (`valve_saturation`,
     /// `supply_pressure_drop`): the large-command residual ratio.

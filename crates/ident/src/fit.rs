@@ -210,22 +210,13 @@ mod tests {
 
     fn analysis() -> Analysis {
         Analysis {
-            nrmse: vec![0.1],
-            noise: vec![0.0],
-            reversal_ratio: 1.0,
-            small_command_ratio: 1.0,
-            large_command_ratio: 1.0,
-            bias_share: None,
-            lag: 1e-3,
             tones: vec![Peak {
                 channel: "force",
                 frequency: 225.0,
                 amplitude: 3.0,
                 prominence: 50.0,
             }],
-            mode_frequency: 30.0,
-            mode_ratio: 2.0,
-            prior: Vec::new(),
+            ..Analysis::neutral()
         }
     }
 

@@ -307,7 +307,7 @@ pub(crate) fn detection_limits(
     nominal: &PlantParams,
     scales: &Scales,
     an: &Analysis,
-) -> BTreeMap<String, (DetectionLimit, Vec<Structure>)> {
+) -> BTreeMap<String, (DetectionLimit, Option<Injection>)> {
     let reference = Reference::new(ctx, model, floor);
     effects
         .iter()
@@ -356,12 +356,9 @@ pub(crate) struct Injection {
     /// The values `added_to` gives the parameters (the size's is replaced): their neutral
     /// start values ([`neutral_start`]), one of them moved for a shape alternative.
     start: Vec<f64>,
-    /// What this injection assumes of the effect's shape beyond the catalogue's start values
-    /// (a mount's mass on the spring, one shape parameter moved), in words; empty when none.
+    /// The shape parameter this injection moves from its start value, in words; empty when
+    /// none.
     pub(crate) shape: String,
-    /// A mount's mass on its spring as a share of the moving mass (-), when injected so.
-    #[cfg_attr(not(test), allow(dead_code))]
-    pub(crate) mass_share: Option<f64>,
     /// Index of the sizing parameter in `params`.
     pub(crate) size_at: usize,
     weak: f64,
@@ -387,25 +384,22 @@ impl Injection {
             return Vec::new();
         }
         let (weak, strong) = if up { (lo, p.hi) } else { (p.hi, lo) };
+        let mut injected = params.clone();
+        if e == EffectId::FlexibleMount && variant == "load_side" {
+            split_mass(&mut injected);
+        }
         let neutral: Vec<f64> = params.iter().map(neutral_start).collect();
-        shapes(e, variant, &params, i)
+        shapes(e, &params, i)
             .into_iter()
-            .map(|(shape, split, start)| {
-                let mut injected = params.clone();
-                if let Some(share) = split {
-                    split_mass(&mut injected, share);
-                }
-                Injection {
-                    effect: e,
-                    variant,
-                    params: injected,
-                    start: start.unwrap_or_else(|| neutral.clone()),
-                    shape,
-                    mass_share: split,
-                    size_at: i,
-                    weak,
-                    strong,
-                }
+            .map(|(shape, start)| Injection {
+                effect: e,
+                variant,
+                params: injected.clone(),
+                start: start.unwrap_or_else(|| neutral.clone()),
+                shape,
+                size_at: i,
+                weak,
+                strong,
             })
             .collect()
     }
@@ -417,28 +411,18 @@ impl Injection {
 
     /// `model` with this structure at size `v`.
     pub(crate) fn added_to(&self, model: &Hyp, v: f64) -> Hyp {
-        self.build(model, &self.params, &self.start, Some(v))
+        self.with_values(model, &self.start, Some(v))
     }
 
     /// `model` with this structure at parameter values `values` (in the order of `params`),
     /// its size replaced by `size` when given.
     pub(crate) fn with_values(&self, model: &Hyp, values: &[f64], size: Option<f64>) -> Hyp {
-        self.build(model, &self.params, values, size)
-    }
-
-    fn build(
-        &self,
-        model: &Hyp,
-        params: &[crate::freeparam::FreeParam],
-        values: &[f64],
-        size: Option<f64>,
-    ) -> Hyp {
         let mut h = model.clone();
         let first = h.params.len();
         h.effects.push(self.effect);
         h.variants.push(self.variant);
         h.values.extend_from_slice(values);
-        h.params.extend(params.iter().cloned());
+        h.params.extend(self.params.iter().cloned());
         if let Some(v) = size {
             h.values[first + self.size_at] = v;
         }
@@ -450,32 +434,30 @@ impl Injection {
 /// alternatives are injected at, one parameter at a time (-).
 pub const SHAPE_POSITIONS: [f64; 2] = [0.25, 0.75];
 
-/// The shapes a structure is injected in for its limit: (words, a load-side mount's mass
-/// share, the start values when moved). At the catalogue's start values first (a load-side
-/// mount at [`MOUNT_LOAD_SHARE`], a mount in that one shape); then every parameter but the
-/// size (`size_at`), a zero offset and a tone's cosine part and frequency moved alone to
-/// each of [`SHAPE_POSITIONS`]. The record does
-/// not say the hidden effect's shape, and a recovery that starts its fit at the very shape
-/// injected finds it more easily than the search finds a hidden effect: on the PI force
-/// rig's LuGre case 7400 made physical at half its size (12.7 N, bristles of 20 µm pre-sliding
-/// where the catalogue starts at a fraction of a µm), the search named nothing while the
-/// limit at the start values read 8.9 N.
+/// The shapes a structure is injected in for its limit: (words, the start values when
+/// moved). At the catalogue's start values first; then every parameter but the size
+/// (`size_at`), a zero offset and a tone's cosine part and frequency moved alone to each of
+/// [`SHAPE_POSITIONS`]; a mount in the first shape only ([`MOUNT_LOAD_SHARE`]). The record
+/// does not say the hidden effect's shape, and a recovery that starts its fit at the very
+/// shape injected finds it more easily than the search finds a hidden effect: on the PI force
+/// rig's LuGre case 7400 made physical at half its size (12.7 N, bristles of 20 µm
+/// pre-sliding where the catalogue starts at a fraction of a µm), the search named nothing
+/// while the limit at the start values read 8.9 N.
 fn shapes(
     e: EffectId,
-    variant: &str,
     params: &[crate::freeparam::FreeParam],
     size_at: usize,
-) -> Vec<(String, Option<f64>, Option<Vec<f64>>)> {
+) -> Vec<(String, Option<Vec<f64>>)> {
+    let plain = std::iter::once((String::new(), None));
     if e == EffectId::FlexibleMount {
-        let split = (variant == "load_side").then_some(MOUNT_LOAD_SHARE);
-        return vec![(String::new(), split, None)];
+        return plain.collect();
     }
     let neutral: Vec<f64> = params.iter().map(neutral_start).collect();
-    std::iter::once((String::new(), None, None))
+    plain
         .chain(
             moved(params, &neutral, size_at)
                 .into_iter()
-                .map(|(w, start)| (w, None, Some(start))),
+                .map(|(w, start)| (w, Some(start))),
         )
         .collect()
 }
@@ -506,9 +488,9 @@ fn moved(
     out
 }
 
-/// Makes a load-side mount's load mass `share` of the moving mass, taken from the piston
-/// (the parameter's own value is ignored).
-fn split_mass(params: &mut [crate::freeparam::FreeParam], share: f64) {
+/// Makes a load-side mount's load mass [`MOUNT_LOAD_SHARE`] of the moving mass, taken from
+/// the piston (the parameter's own value is ignored).
+fn split_mass(params: &mut [crate::freeparam::FreeParam]) {
     if let Some(p) = params
         .iter_mut()
         .find(|p| p.name == "effects.flexible_mount.load_mass")
@@ -516,15 +498,15 @@ fn split_mass(params: &mut [crate::freeparam::FreeParam], share: f64) {
         let set = p.set.clone();
         p.set = std::sync::Arc::new(move |q: &mut PlantParams, _v: f64| {
             let m = q.mechanics.mass;
-            set(q, share * m);
-            q.mechanics.mass = (1.0 - share) * m;
+            set(q, MOUNT_LOAD_SHARE * m);
+            q.mechanics.mass = (1.0 - MOUNT_LOAD_SHARE) * m;
         });
     }
 }
 
 /// One structure of an effect with its linearised limit: the position on the log scale of
 /// the range ([`Injection::at`]), `None` when even the strongest is not detected.
-pub(crate) type Structure = (Option<f64>, Injection);
+type Structure = (Option<f64>, Injection);
 
 /// Bisection of the detection of `inj` on top of the reference model: the position on the
 /// log scale of the smallest size detected, `None` when even the strongest is not.
@@ -550,17 +532,17 @@ fn bisect(reference: &Reference<'_, '_>, inj: &Injection) -> Option<f64> {
     Some(hi_s)
 }
 
-/// The detection limit of effect `e` against `reference`, and every structure bisected,
-/// loosest first (the limit holds for the first). Every variant of the effect sized by the
-/// same parameter, in each of its shapes (`shapes`), is bisected and the loosest is the limit: the record does not say which structure a hidden effect would have,
-/// so only the hardest to see bounds them all.
+/// The detection limit of effect `e` against `reference`, and the structure it holds for.
+/// Every variant of the effect sized by the same parameter, in each of its shapes
+/// ([`shapes`]), is bisected and the loosest is the limit: the record does not say which
+/// structure a hidden effect would have, so only the hardest to see bounds them all.
 fn limit_of(
     reference: &Reference<'_, '_>,
     e: EffectId,
     nominal: &PlantParams,
     scales: &Scales,
     an: &Analysis,
-) -> (DetectionLimit, Vec<Structure>) {
+) -> (DetectionLimit, Option<Injection>) {
     let variants = effect_variants(e, nominal, scales, an);
     let sizes = size_params(e);
     let found = sizes.iter().find(|s| {
@@ -585,7 +567,7 @@ fn limit_of(
         // A configured effect's size is the config's (or the identified loop's): what it
         // would take to reveal it on top of itself is no limit.
         out.note = "in the nominal config already".to_string();
-        return (out, Vec::new());
+        return (out, None);
     }
     let mut bisected: Vec<Structure> = variants
         .into_iter()
@@ -600,7 +582,7 @@ fn limit_of(
     bisected.reverse();
     bisected.sort_by(|a, b| b.0.unwrap_or(2.0).total_cmp(&a.0.unwrap_or(2.0)));
     let Some((s, inj)) = bisected.first() else {
-        return (out, bisected);
+        return (out, None);
     };
     out.range = [inj.weak, inj.strong];
     out.variant = inj.variant.to_string();
@@ -623,7 +605,7 @@ fn limit_of(
             out.looseness = *s;
         }
     }
-    (out, bisected)
+    (out, bisected.into_iter().next().map(|(_, inj)| inj))
 }
 
 /// The two or three loosest limits of `limits` (largest looseness first), in words.
@@ -678,19 +660,7 @@ mod tests {
             dt: 2e-4,
             spool_reach: [1.0, 1.0],
         };
-        let an = Analysis {
-            nrmse: vec![0.1],
-            noise: vec![0.0],
-            reversal_ratio: 1.0,
-            small_command_ratio: 1.0,
-            large_command_ratio: 1.0,
-            bias_share: None,
-            lag: 1e-3,
-            tones: vec![],
-            mode_frequency: 30.0,
-            mode_ratio: 2.0,
-            prior: Vec::new(),
-        };
+        let an = Analysis::neutral();
         (nominal, sc, an)
     }
 
@@ -756,9 +726,7 @@ mod tests {
                 false,
             );
             // One shape each: a load-side mount split, a body-side one as the catalogue's.
-            let shares: Vec<Option<f64>> = injs.iter().map(|i| i.mass_share).collect();
-            let split = (name == "load_side").then_some(MOUNT_LOAD_SHARE);
-            assert_eq!(shares, vec![split], "{name}");
+            assert_eq!(injs.len(), 1, "{name}");
             for inj in injs {
                 for s in [0.0, 0.5, 1.0] {
                     let p = inj.added_to(&Hyp::empty(), inj.at(s)).build(&nominal);

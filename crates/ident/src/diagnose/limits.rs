@@ -3,7 +3,7 @@
 //! linearised limit and fitted under the search's own acceptance test.
 
 use super::*;
-use crate::limits::{DetectionLimit, Injection, Structure};
+use crate::limits::{DetectionLimit, Injection};
 
 /// The smallest size of every catalogue effect tested and not named that this record would
 /// have revealed (effect id → limit); empty when `Options::detection_limits` is off.
@@ -67,84 +67,44 @@ impl<'a> Phase<'a> for LimitsPhase {
     }
 }
 
-/// Every linearised limit of `linear` confirmed or raised ([`confirm_loosest`]), the effects
-/// in parallel on the search's worker count.
+/// Every linearised limit of `linear` confirmed or raised ([`confirm`]), the effects in
+/// parallel on the search's worker count. Only the loosest structure and shape of each
+/// effect is checked: checking its three loosest took the diagnosis of the clean test bench
+/// to 3.3× the one without limits (`diagnose_speed 101 none 1`), against 2.45× for one
+/// before [`CHECK_BUDGET_SHARE`]; the linearised order already puts the shapes hardest to
+/// see first (`limits::shapes`).
 fn confirm_all(
     env: &SearchEnv<'_, '_>,
     model: &Hyp,
-    linear: BTreeMap<String, (DetectionLimit, Vec<Structure>)>,
+    linear: BTreeMap<String, (DetectionLimit, Option<Injection>)>,
     candidates: &BTreeMap<EffectId, Candidate>,
     opts: &Options,
     bar: &Tracker,
 ) -> BTreeMap<String, DetectionLimit> {
-    let jobs: Vec<(String, DetectionLimit, Vec<Structure>)> =
+    let jobs: Vec<(String, DetectionLimit, Option<Injection>)> =
         linear.into_iter().map(|(e, (l, i))| (e, l, i)).collect();
     bar.add_stage(jobs.len() as u64, "detection limits".to_string());
     let order: Vec<usize> = (0..jobs.len()).collect();
-    let checked = in_parallel(&jobs, &order, worker_threads(opts), bar, |(_, l, structures)| {
-        if l.limit.is_none() {
-            return l.clone();
+    let checked = in_parallel(&jobs, &order, worker_threads(opts), bar, |(_, l, inj)| match inj {
+        Some(inj) if l.limit.is_some() => {
+            let fitted = fitted_values(inj, candidates.get(&inj.effect));
+            let base = match &fitted {
+                Some(v) => inj.with_values(model, v, None),
+                None => model.clone(),
+            };
+            let at = |v: f64| match &fitted {
+                Some(f) => inj.with_values(model, f, Some(v)),
+                None => inj.added_to(model, v),
+            };
+            let trial = Trial { base: &base, at: &at };
+            confirm(env, model, &trial, l.clone(), inj, opts.evals_per_param)
         }
-        confirm_loosest(env, model, l, structures, candidates, opts.evals_per_param)
+        _ => l.clone(),
     });
     checked
         .into_iter()
         .map(|(i, l)| (jobs[i].0.clone(), l))
         .collect()
-}
-
-/// Structures and shapes of an effect checked by injection, the loosest linearised first
-/// ([`confirm_loosest`]; a refit and one or two fits each per trial). With 3 the diagnosis of
-/// the clean test bench took 3.3× the one without limits (`diagnose_speed 101 none 1`), with
-/// 1 2.45× before [`CHECK_BUDGET_SHARE`]; the linearised order already puts the shapes
-/// hardest to see first (`limits::shapes`).
-const CHECKED_STRUCTURES: usize = 1;
-
-/// The limit `lim` over the [`CHECKED_STRUCTURES`] loosest structures of `structures`
-/// (loosest linearised first) checked by injection and recovery: each at its own linearised
-/// size or the loosest size confirmed so far, whichever is larger, and raised where it is
-/// not recovered ([`confirm`]). A structure recovered at the size confirmed so far is not
-/// looser and costs one trial.
-fn confirm_loosest(
-    env: &SearchEnv<'_, '_>,
-    model: &Hyp,
-    lim: &DetectionLimit,
-    structures: &[Structure],
-    candidates: &BTreeMap<EffectId, Candidate>,
-    evals_per_param: usize,
-) -> DetectionLimit {
-    let mut best: Option<DetectionLimit> = None;
-    for (s_lin, inj) in structures.iter().take(CHECKED_STRUCTURES) {
-        let Some(s_lin) = *s_lin else { continue };
-        let start = best.as_ref().map_or(s_lin, |b| b.looseness.max(s_lin));
-        let mut trial_lim = lim.clone();
-        trial_lim.variant = inj.variant.to_string();
-        trial_lim.shape = inj.shape.clone();
-        trial_lim.looseness = start;
-        trial_lim.limit = Some(inj.at(start));
-        let fitted = fitted_values(inj, candidates.get(&inj.effect));
-        let base = match &fitted {
-            Some(v) => inj.with_values(model, v, None),
-            None => model.clone(),
-        };
-        let at = |v: f64| match &fitted {
-            Some(f) => inj.with_values(model, f, Some(v)),
-            None => inj.added_to(model, v),
-        };
-        let trial = Trial { base: &base, at: &at };
-        let checked = confirm(env, model, &trial, trial_lim, inj, evals_per_param);
-        let looser = best.as_ref().is_none_or(|b| {
-            checked.limit.is_none() || checked.looseness > b.looseness
-        });
-        if looser {
-            let undetectable = checked.limit.is_none();
-            best = Some(checked);
-            if undetectable {
-                break;
-            }
-        }
-    }
-    best.unwrap_or_else(|| lim.clone())
 }
 
 /// What an injection at a trial size adds to the record: the change from `base`'s replay
