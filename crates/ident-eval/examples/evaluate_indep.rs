@@ -73,20 +73,12 @@ fn run_case(seed: u64, kind: &str, duration: f64, opts: &Options) -> Option<Stri
     // `PHYSICAL=1`: a small case (`kind@L`) with its effects physically at the blend's α
     // (`indep::make_case_small_physical`), to check the limits on effects of a known size.
     let physical = std::env::var("PHYSICAL").is_ok_and(|v| v == "1");
-    let made = match kind.split_once('@') {
-        Some((base, level)) if physical => level
-            .parse()
-            .map_err(|_| format!("`{kind}`: the level after `@` is not a number"))
-            .and_then(|l| {
-                ehactl_ident_eval::indep::make_case_small_physical(seed, base, l, duration, 1e-3)
-            })
-            .map(|mut c| {
-                c.kind = kind.to_string();
-                c
-            }),
-        _ => make_case(seed, kind, duration, 1e-3),
+    let make = if physical {
+        ehactl_ident_eval::indep::make_case_physical
+    } else {
+        make_case
     };
-    let case = match made {
+    let case = match make(seed, kind, duration, 1e-3) {
         Ok(c) => c,
         Err(e) => {
             return Some(format!(

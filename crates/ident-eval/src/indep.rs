@@ -1133,11 +1133,27 @@ noise = {np:e}
 /// small magnitude: the residual of the channel they move most at L × its sensor noise
 /// ([`make_case_small`]).
 pub fn make_case(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, String> {
+    made(seed, kind, duration, dt, make_case_small)
+}
+
+/// [`make_case`] with a small case (`kind@L`) made physical ([`make_case_small_physical`]).
+pub fn make_case_physical(seed: u64, kind: &str, duration: f64, dt: f64) -> Result<Case, String> {
+    made(seed, kind, duration, dt, make_case_small_physical)
+}
+
+/// The case `kind` of `seed`, a small one (`kind@L`) by `small(seed, base, L, duration, dt)`.
+fn made(
+    seed: u64,
+    kind: &str,
+    duration: f64,
+    dt: f64,
+    small: fn(u64, &str, f64, f64, f64) -> Result<Case, String>,
+) -> Result<Case, String> {
     if let Some((base, level)) = kind.split_once('@') {
         let level: f64 = level
             .parse()
             .map_err(|_| format!("`{kind}`: the level after `@` is not a number"))?;
-        let mut c = make_case_small(seed, base, level, duration, dt)?;
+        let mut c = small(seed, base, level, duration, dt)?;
         c.kind = kind.to_string();
         return Ok(c);
     }
